@@ -1,0 +1,46 @@
+//! # osap-core
+//!
+//! The sans-IO, `no_std`, allocation-free core of the OSAP network used by
+//! osap-rs: a source-routed packet network that spans any mix of links.
+//!
+//! The pieces, bottom up:
+//! - [`packet`]: the packet header and the four route instructions, read and
+//!   written in place over a byte buffer.
+//! - [`route`]: building routes, walking them, reversing them.
+//! - [`framing`]: COBS + CRC-16 frames for byte-stream links.
+//! - [`stack`]: fixed packet slots kept in earliest-deadline order, with
+//!   per-owner hold quotas.
+//! - [`transport`]: the sequential request/reply transport.
+//! - [`runtime`]: the loop that serves the stack, forwards packets over link
+//!   gateways, delivers them to ports and answers the netresponder (port 0).
+//!
+//! Nothing here allocates, blocks, or panics on input from the wire: malformed
+//! data becomes an error value and a counter. The design follows the OSAP
+//! chapter of Jake Read's thesis *Modular Machine Control*; the byte layout is
+//! the project's `docs/protocol.md`.
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+#[cfg(feature = "std")]
+extern crate std;
+
+pub mod clock;
+pub mod codec;
+pub mod counters;
+pub mod framing;
+pub mod link;
+pub mod netresponder;
+pub mod packet;
+pub mod port;
+pub mod route;
+pub mod runtime;
+pub mod stack;
+pub mod transport;
+
+pub use packet::{Instruction, PacketError};
+pub use route::Route;
+pub use runtime::{Runtime, RuntimeConfig};
+
+/// A time in microseconds on the runtime's own free-running clock.
+pub type Micros = u64;

@@ -1,0 +1,102 @@
+//! Link gateways: the runtime's interfaces down to network links.
+//!
+//! A gateway moves whole packets; framing (for byte streams) happens inside
+//! the gateway, below this trait. The runtime pulls received packets with
+//! [`LinkGateway::receive`] only while the link has quota in the packet stack,
+//! so a full runtime leaves packets in the link's own buffer and the link's
+//! flow control (or the wire) pushes back on the sender.
+
+pub mod queue;
+
+use crate::Micros;
+
+/// The names a link gateway reports to a network scan.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkInfo<'a> {
+    /// What kind of link this is (for example `uart`, `usb_cdc`, `udp`).
+    pub type_name: &'a str,
+    /// An instance name, often empty.
+    pub name: &'a str,
+}
+
+/// A packet a link gateway has received.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Received {
+    /// Length of the packet. If larger than the buffer the runtime offered,
+    /// the packet was not copied and is dropped as oversize.
+    pub len: usize,
+    /// When its first byte arrived, on the runtime's clock, if the link can
+    /// tell; stamping at the wire makes clock sync more accurate.
+    pub timestamp: Option<Micros>,
+}
+
+/// A link gateway could not transmit a packet it had said it was clear for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LinkSendError;
+
+impl core::fmt::Display for LinkSendError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str("link failed to transmit")
+    }
+}
+
+/// An interface from a runtime to one network link.
+pub trait LinkGateway {
+    /// The names of this link.
+    fn info(&self) -> LinkInfo<'_>;
+
+    /// Whether the link is up (connected, enumerated, has a peer).
+    fn is_open(&self) -> bool;
+
+    /// Largest packet the link carries, in bytes.
+    fn mtu(&self) -> u16;
+
+    /// Whether [`send`](Self::send) would accept a packet now.
+    fn clear_to_send(&self) -> bool;
+
+    /// Transmits one packet. Only called after `clear_to_send` returned true.
+    fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError>;
+
+    /// Copies the next received packet into `buf`, if there is one.
+    fn receive(&mut self, buf: &mut [u8]) -> Option<Received>;
+
+    /// Called once per runtime loop before packets are exchanged.
+    fn poll(&mut self, now: Micros) {
+        let _ = now;
+    }
+}
+
+macro_rules! forward_link_gateway {
+    () => {
+        fn info(&self) -> LinkInfo<'_> {
+            (**self).info()
+        }
+        fn is_open(&self) -> bool {
+            (**self).is_open()
+        }
+        fn mtu(&self) -> u16 {
+            (**self).mtu()
+        }
+        fn clear_to_send(&self) -> bool {
+            (**self).clear_to_send()
+        }
+        fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
+            (**self).send(packet)
+        }
+        fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
+            (**self).receive(buf)
+        }
+        fn poll(&mut self, now: Micros) {
+            (**self).poll(now)
+        }
+    };
+}
+
+impl<T: LinkGateway + ?Sized> LinkGateway for &mut T {
+    forward_link_gateway!();
+}
+
+#[cfg(feature = "std")]
+impl<T: LinkGateway + ?Sized> LinkGateway for std::boxed::Box<T> {
+    forward_link_gateway!();
+}

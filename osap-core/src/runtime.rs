@@ -1,0 +1,752 @@
+//! The runtime: one node of an OSAP network.
+//!
+//! A [`Runtime`] owns the packet stack and the runtime's identity; the ports
+//! and link gateways stay with the caller and are lent to
+//! [`Runtime::poll`] on every call, so the caller can reach its own port
+//! objects between polls. Port 0 (the netresponder) is built in; the caller's
+//! ports are numbered from 1 in slice order, links from 0.
+//!
+//! `poll(now)` is the whole loop, sans-IO: it lets links and ports run, pulls
+//! received packets in while links have quota, then walks the stack in
+//! deadline order, dropping what has expired, forwarding what a clear link can
+//! take, delivering what a clear port can take, and answering system messages
+//! and port 0. A packet whose link or port is busy simply waits its turn;
+//! it never holds up the packets behind it.
+
+use crate::clock::{
+    Clock, TimeConfig, TimeReply, TimeSample, CODE_TIME_REPLY, CODE_TIME_REQUEST,
+    TIME_REQUEST_LEN,
+};
+use crate::codec::Writer;
+use crate::counters::{bump, Counters};
+use crate::link::LinkGateway;
+use crate::netresponder::{self, BuildKey, Changes, Identity, Level, NameTooLong};
+use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError};
+use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
+use crate::route::Route;
+use crate::stack::{ClaimError, Owner, PacketStack, PushError};
+use crate::transport::Transport;
+use crate::Micros;
+
+/// Tunables of a runtime; the defaults suit a microcontroller.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RuntimeConfig {
+    /// Slots each port may hold in the stack at once.
+    pub port_quota: u8,
+    /// Slots each link gateway may hold in the stack at once.
+    pub link_quota: u8,
+    /// Slots the runtime may hold for its own system messages.
+    pub system_quota: u8,
+    /// Time-to-live of replies the runtime writes itself (netresponder,
+    /// time stamps), µs.
+    pub reply_ttl_us: u16,
+    /// Most packets served in one poll; bounds the time one poll takes even
+    /// if ports keep answering each other locally.
+    pub max_packets_per_poll: u16,
+}
+
+impl Default for RuntimeConfig {
+    fn default() -> Self {
+        RuntimeConfig {
+            port_quota: crate::stack::DEFAULT_PORT_QUOTA,
+            link_quota: crate::stack::DEFAULT_LINK_QUOTA,
+            system_quota: crate::stack::DEFAULT_SYSTEM_QUOTA,
+            reply_ttl_us: 20_000,
+            max_packets_per_poll: 64,
+        }
+    }
+}
+
+/// What one [`Runtime::poll`] did, and when the next one is due.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PollResult {
+    /// Packets forwarded, delivered or answered.
+    pub handled: usize,
+    /// Packets dropped (expired, unroutable, malformed).
+    pub dropped: usize,
+    /// Packets left waiting for a busy link or port.
+    pub waiting: usize,
+    /// The earliest deadline among waiting packets: poll again by then (a
+    /// waiting packet's link or port may also become clear sooner).
+    pub next_deadline: Option<Micros>,
+    /// The per-poll budget ran out with work left: poll again at once.
+    pub more: bool,
+}
+
+enum Served {
+    Done,
+    Dropped,
+    Wait,
+}
+
+/// A runtime with `SLOTS` packet slots of `MTU` bytes, quota entries for
+/// `PORTS` port indices (port 0 included) and up to `LINKS` link gateways.
+pub struct Runtime<
+    const SLOTS: usize = 16,
+    const MTU: usize = 256,
+    const PORTS: usize = 32,
+    const LINKS: usize = 8,
+> {
+    identity: Identity,
+    config: RuntimeConfig,
+    stack: PacketStack<SLOTS, MTU, PORTS, LINKS>,
+    netresponder: netresponder::State,
+    clock: Clock,
+    counters: Counters,
+    changes: Changes,
+    samples: [Option<TimeSample>; LINKS],
+    scratch: [u8; MTU],
+}
+
+impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize>
+    Runtime<SLOTS, MTU, PORTS, LINKS>
+{
+    /// A runtime of the given type and name, with default configuration.
+    pub fn new(type_name: &str, name: &str) -> Result<Self, NameTooLong> {
+        const {
+            assert!(MTU >= 16 && MTU <= 255 * 256, "MTU must be 16..=65280 bytes");
+            assert!(PORTS >= 1, "PORTS counts port 0, so it must be at least 1");
+            assert!(LINKS <= 64, "link_forward addresses at most 64 links");
+        };
+        let mut rt = Runtime {
+            identity: Identity {
+                type_name: netresponder::name(type_name)?,
+                name: netresponder::name(name)?,
+                version: [0, 0, 0],
+                build: BuildKey::Unknown,
+            },
+            config: RuntimeConfig::default(),
+            stack: PacketStack::new(),
+            netresponder: netresponder::State::default(),
+            clock: Clock::new(TimeConfig::default()),
+            counters: Counters::default(),
+            changes: Changes::default(),
+            samples: [None; LINKS],
+            scratch: [0; MTU],
+        };
+        rt.apply_quotas();
+        Ok(rt)
+    }
+
+    /// Sets the version and build key reported to scans.
+    pub fn with_version(mut self, version: [u8; 3], build: BuildKey) -> Self {
+        self.identity.version = version;
+        self.identity.build = build;
+        self
+    }
+
+    /// Replaces the configuration (quotas apply to every port and link).
+    pub fn with_config(mut self, config: RuntimeConfig) -> Self {
+        self.config = config;
+        self.apply_quotas();
+        self
+    }
+
+    /// Replaces the time configuration.
+    pub fn with_time_config(
+        mut self,
+        config: TimeConfig,
+    ) -> Result<Self, crate::clock::TimeConfigError> {
+        self.clock.set_config(config)?;
+        Ok(self)
+    }
+
+    fn apply_quotas(&mut self) {
+        for p in 0..PORTS.min(u16::MAX as usize) {
+            let _ = self
+                .stack
+                .set_quota(Owner::Port(p as u16), self.config.port_quota);
+        }
+        for l in 0..LINKS {
+            let _ = self
+                .stack
+                .set_quota(Owner::Link(l as u8), self.config.link_quota);
+        }
+        let _ = self.stack.set_quota(Owner::System, self.config.system_quota);
+    }
+
+    /// Overrides the quota of one port or link.
+    pub fn set_quota(&mut self, owner: Owner, max: u8) -> Result<(), ClaimError> {
+        self.stack.set_quota(owner, max)
+    }
+
+    /// Who this runtime is.
+    pub fn identity(&self) -> &Identity {
+        &self.identity
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &RuntimeConfig {
+        &self.config
+    }
+
+    /// Renames the runtime locally (also marks the name as changed).
+    pub fn set_name(&mut self, name: &str) -> Result<(), NameTooLong> {
+        self.identity.name = netresponder::name(name)?;
+        self.changes.name = true;
+        Ok(())
+    }
+
+    /// Takes and clears what changed through the network since the last call
+    /// (firmware persists a new name when `name` is set).
+    pub fn take_changes(&mut self) -> Changes {
+        core::mem::take(&mut self.changes)
+    }
+
+    /// The drop and event counters.
+    pub fn counters(&self) -> &Counters {
+        &self.counters
+    }
+
+    /// The packet stack (for inspection).
+    pub fn stack(&self) -> &PacketStack<SLOTS, MTU, PORTS, LINKS> {
+        &self.stack
+    }
+
+    /// The clock.
+    pub fn clock(&self) -> &Clock {
+        &self.clock
+    }
+
+    /// The clock, for configuration.
+    pub fn clock_mut(&mut self) -> &mut Clock {
+        &mut self.clock
+    }
+
+    /// The latest time sample from the neighbour on link `link`.
+    pub fn time_sample(&self, link: u8) -> Option<&TimeSample> {
+        self.samples.get(link as usize)?.as_ref()
+    }
+
+    /// The netresponder's state (scan id, debug log).
+    pub fn netresponder(&self) -> &netresponder::State {
+        &self.netresponder
+    }
+
+    /// Adds a line to the debug log readable over the network.
+    pub fn log(&mut self, level: Level, args: core::fmt::Arguments<'_>) {
+        self.netresponder.log(level, args);
+    }
+
+    /// Sends a packet from port `from` outside of a port callback (for code
+    /// that drives a port object directly, as a host does).
+    pub fn send(
+        &mut self,
+        now: Micros,
+        from: u16,
+        route: &Route,
+        dst: u16,
+        ttl: u16,
+        payload: &[u8],
+    ) -> Result<(), SendError> {
+        let mut sender = self.sender(now);
+        sender.send(
+            from,
+            route,
+            Instruction::PortHandle { src: from, dst },
+            ttl,
+            &mut |buf: &mut [u8]| {
+                buf.get_mut(..payload.len())?.copy_from_slice(payload);
+                Some(payload.len())
+            },
+        )
+    }
+
+    /// Whether port `from` may send now.
+    pub fn clear_to_send(&self, from: u16) -> bool {
+        self.stack.check_claim(Owner::Port(from)).is_ok()
+    }
+
+    /// Sends a time stamp request to the neighbour on link `link`.
+    pub fn request_time(&mut self, now: Micros, link: u8) -> Result<(), SendError> {
+        let route = Route::through_links(&[link]).map_err(SendError::BadAddress)?;
+        let stamp = self.clock.system_time(now);
+        let ttl = self.config.reply_ttl_us;
+        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, MTU as u16, |w| {
+            w.u64(stamp).ok()
+        })
+    }
+
+    fn sender(&mut self, now: Micros) -> Sender<'_, SLOTS, MTU, PORTS, LINKS> {
+        Sender {
+            stack: &mut self.stack,
+            counters: &mut self.counters,
+            now,
+        }
+    }
+
+    /// Runs one pass of the loop at local time `now` over the caller's ports
+    /// (numbered from 1) and link gateways (numbered from 0).
+    pub fn poll<P: Port, L: LinkGateway>(
+        &mut self,
+        now: Micros,
+        ports: &mut [P],
+        links: &mut [L],
+    ) -> PollResult {
+        for link in links.iter_mut() {
+            link.poll(now);
+        }
+        self.ingest(now, links);
+        self.poll_ports(now, ports);
+        self.serve(now, ports, links)
+    }
+
+    fn ingest<L: LinkGateway>(&mut self, now: Micros, links: &mut [L]) {
+        enum Rx {
+            Empty,
+            Oversize,
+            Malformed,
+        }
+        for (i, link) in links.iter_mut().enumerate().take(LINKS) {
+            if !link.is_open() {
+                continue;
+            }
+            let index = i as u8;
+            let owner = Owner::Link(index);
+            // Take packets only while the link has quota: otherwise they stay
+            // in the link's own buffer, which pushes back on the sender.
+            while self.stack.check_claim(owner).is_ok() {
+                let pushed = self.stack.push_with(owner, now, |buf| {
+                    let rx = link.receive(buf).ok_or(Rx::Empty)?;
+                    let packet = buf.get_mut(..rx.len).ok_or(Rx::Oversize)?;
+                    ingest_rewrite(packet, Instruction::LinkForward(index))
+                        .map_err(|_| Rx::Malformed)?;
+                    let view = Packet::new(packet).map_err(|_| Rx::Malformed)?;
+                    if rx.len > usize::from(view.mtu()) {
+                        return Err(Rx::Oversize);
+                    }
+                    let arrival = rx.timestamp.unwrap_or(now);
+                    Ok((rx.len, arrival.saturating_add(u64::from(view.ttl()))))
+                });
+                match pushed {
+                    Ok(_) => bump(&mut self.counters.received),
+                    Err(PushError::Write(Rx::Empty)) | Err(PushError::Claim(_)) => break,
+                    Err(PushError::Write(Rx::Oversize)) | Err(PushError::Length) => {
+                        bump(&mut self.counters.received);
+                        bump(&mut self.counters.oversize);
+                    }
+                    Err(PushError::Write(Rx::Malformed)) => {
+                        bump(&mut self.counters.received);
+                        bump(&mut self.counters.malformed);
+                    }
+                }
+            }
+        }
+    }
+
+    fn poll_ports<P: Port>(&mut self, now: Micros, ports: &mut [P]) {
+        let mut base = 1u16;
+        for port in ports.iter_mut() {
+            let count = port.port_count();
+            let mut sender = self.sender(now);
+            let mut tx = PortTx {
+                sink: &mut sender,
+                base,
+                count,
+                now,
+            };
+            port.poll(&mut tx);
+            base = base.saturating_add(count);
+        }
+    }
+
+    fn serve<P: Port, L: LinkGateway>(
+        &mut self,
+        now: Micros,
+        ports: &mut [P],
+        links: &mut [L],
+    ) -> PollResult {
+        let mut result = PollResult::default();
+        let budget = usize::from(self.config.max_packets_per_poll.max(1));
+        let mut pos = 0;
+        while let Some(slot) = self.stack.at(pos) {
+            if result.handled >= budget {
+                result.more = true;
+                break;
+            }
+            let meta = *self.stack.meta(slot);
+            if now > meta.deadline {
+                self.stack.release_at(pos);
+                bump(&mut self.counters.expired);
+                result.dropped += 1;
+                continue;
+            }
+            let instruction = Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction());
+            let served = match instruction {
+                Err(_) => self.drop_at(pos, Drop::Malformed),
+                Ok(Instruction::LinkForward(j)) => self.forward(pos, j, now, meta.deadline, links),
+                // No bus gateways exist yet: a bus hop has nowhere to go.
+                Ok(Instruction::BusForward { .. }) => self.drop_at(pos, Drop::NoRoute),
+                Ok(Instruction::PortHandle { src, dst: 0 }) => {
+                    self.answer_netresponder(pos, src, now, ports, links)
+                }
+                Ok(Instruction::PortHandle { src, dst }) => self.deliver(pos, src, dst, now, ports),
+                Ok(Instruction::SystemMsg(code)) => self.system_message(pos, code, now),
+            };
+            match served {
+                Served::Done => result.handled += 1,
+                Served::Dropped => result.dropped += 1,
+                Served::Wait => pos += 1,
+            }
+        }
+        result.waiting = self.stack.len();
+        result.next_deadline = self.stack.earliest_deadline();
+        result
+    }
+
+    fn drop_at(&mut self, pos: usize, why: Drop) -> Served {
+        self.stack.release_at(pos);
+        let c = &mut self.counters;
+        bump(match why {
+            Drop::Malformed => &mut c.malformed,
+            Drop::NoRoute => &mut c.no_route,
+            Drop::LinkClosed => &mut c.link_closed,
+            Drop::NoPort => &mut c.no_port,
+            Drop::Oversize => &mut c.oversize,
+            Drop::UnknownSystem => &mut c.unknown_system,
+            Drop::Netresponder => &mut c.netresponder_errors,
+        });
+        Served::Dropped
+    }
+
+    fn forward<L: LinkGateway>(
+        &mut self,
+        pos: usize,
+        index: u8,
+        now: Micros,
+        deadline: Micros,
+        links: &mut [L],
+    ) -> Served {
+        let Some(link) = links.get_mut(usize::from(index)).filter(|_| usize::from(index) < LINKS)
+        else {
+            return self.drop_at(pos, Drop::NoRoute);
+        };
+        if !link.is_open() {
+            return self.drop_at(pos, Drop::LinkClosed);
+        }
+        if !link.clear_to_send() {
+            return Served::Wait;
+        }
+        let Some(slot) = self.stack.at(pos) else {
+            return Served::Wait;
+        };
+        if self.stack.packet(slot).len() > usize::from(link.mtu()) {
+            return self.drop_at(pos, Drop::Oversize);
+        }
+        let packet = self.stack.packet_mut(slot);
+        let ttl = deadline.saturating_sub(now).min(u64::from(u16::MAX)) as u16;
+        // Packet::new validated the header, so the TTL field exists.
+        let _ = set_ttl(packet, ttl);
+        match link.send(packet) {
+            Ok(()) => bump(&mut self.counters.forwarded),
+            Err(_) => bump(&mut self.counters.link_errors),
+        }
+        self.stack.release_at(pos);
+        Served::Done
+    }
+
+    /// Copies the packet at `pos` into scratch and frees its slot, returning
+    /// its length and metadata; the slot is then free for a reply.
+    fn take_to_scratch(&mut self, pos: usize) -> Option<(usize, crate::stack::SlotMeta)> {
+        let slot = self.stack.at(pos)?;
+        let packet = self.stack.packet(slot);
+        let len = packet.len();
+        self.scratch[..len].copy_from_slice(packet);
+        let meta = self.stack.release_at(pos)?;
+        Some((len, meta))
+    }
+
+    fn deliver<P: Port>(
+        &mut self,
+        pos: usize,
+        src: u16,
+        dst: u16,
+        now: Micros,
+        ports: &mut [P],
+    ) -> Served {
+        let Some((object, offset, base)) = find_port(ports, dst) else {
+            return self.drop_at(pos, Drop::NoPort);
+        };
+        let port = &mut ports[object];
+        if !port.clear_to_receive(offset) {
+            return Served::Wait;
+        }
+        let Some((len, meta)) = self.take_to_scratch(pos) else {
+            return Served::Wait;
+        };
+        let Some((reply_route, payload)) = split_delivery(&self.scratch[..len]) else {
+            bump(&mut self.counters.malformed);
+            return Served::Dropped;
+        };
+        let count = port.port_count();
+        let mut sender = Sender {
+            stack: &mut self.stack,
+            counters: &mut self.counters,
+            now,
+        };
+        let mut tx = PortTx {
+            sink: &mut sender,
+            base,
+            count,
+            now,
+        };
+        port.on_packet(
+            Delivery {
+                offset,
+                payload,
+                reply_route,
+                source_port: src,
+                arrival: meta.arrival,
+                deadline: meta.deadline,
+            },
+            &mut tx,
+        );
+        bump(&mut self.counters.delivered);
+        Served::Done
+    }
+
+    fn answer_netresponder<P: Port, L: LinkGateway>(
+        &mut self,
+        pos: usize,
+        src: u16,
+        now: Micros,
+        ports: &[P],
+        links: &[L],
+    ) -> Served {
+        // Answer only when the reply can be stored; until then the request
+        // waits like any packet for a busy port.
+        if self.stack.check_claim(Owner::Port(0)).is_err() {
+            return Served::Wait;
+        }
+        let Some((len, _)) = self.take_to_scratch(pos) else {
+            return Served::Wait;
+        };
+        let Some((route, payload)) = split_delivery(&self.scratch[..len]) else {
+            bump(&mut self.counters.malformed);
+            return Served::Dropped;
+        };
+        let Ok((Transport::Request(seq), body)) = Transport::decode(payload) else {
+            bump(&mut self.counters.netresponder_errors);
+            return Served::Dropped;
+        };
+        let mtu = route.mtu().min(MTU as u16);
+        let ttl = self.config.reply_ttl_us;
+        let counters = self.counters;
+        let mut ctx = netresponder::Context {
+            identity: &mut self.identity,
+            state: &mut self.netresponder,
+            clock: &mut self.clock,
+            counters: &counters,
+            changes: &mut self.changes,
+            ports,
+            links,
+            packet_size: MTU as u16,
+        };
+        let pushed = self.stack.push_with(Owner::Port(0), now, |buf| {
+            let terminal = Instruction::PortHandle { src: 0, dst: src };
+            let start = route.write_header(buf, terminal, ttl, mtu).map_err(|_| ())?;
+            let room = buf.get_mut(start..usize::from(mtu)).ok_or(())?;
+            let mut w = Writer::new(room);
+            let mut header = [0u8; 3];
+            let n = Transport::Reply(seq).encode(&mut header).ok_or(())?;
+            w.bytes(&header[..n]).map_err(|_| ())?;
+            netresponder::respond(&mut ctx, body, &mut w).map_err(|_| ())?;
+            Ok::<_, ()>((start + w.len(), now.saturating_add(u64::from(ttl))))
+        });
+        match pushed {
+            Ok(_) => {
+                bump(&mut self.counters.delivered);
+                Served::Done
+            }
+            Err(_) => {
+                bump(&mut self.counters.netresponder_errors);
+                Served::Dropped
+            }
+        }
+    }
+
+    fn system_message(&mut self, pos: usize, code: u8, now: Micros) -> Served {
+        match code {
+            CODE_TIME_REQUEST => {
+                if self.stack.check_claim(Owner::System).is_err() {
+                    return Served::Wait;
+                }
+                let Some((len, _)) = self.take_to_scratch(pos) else {
+                    return Served::Wait;
+                };
+                let Some((route, body)) = split_delivery(&self.scratch[..len]) else {
+                    bump(&mut self.counters.unknown_system);
+                    return Served::Dropped;
+                };
+                let Ok(stamp) = <[u8; TIME_REQUEST_LEN]>::try_from(body) else {
+                    bump(&mut self.counters.unknown_system);
+                    return Served::Dropped;
+                };
+                let reply = TimeReply {
+                    request_time: u64::from_le_bytes(stamp),
+                    responder_time: self.clock.system_time(now),
+                    responder_tier: self.clock.tier(),
+                };
+                let ttl = self.config.reply_ttl_us;
+                let mtu = route.mtu();
+                match self.push_system(now, &route, CODE_TIME_REPLY, ttl, mtu, |w| {
+                    reply.encode(w).ok()
+                }) {
+                    Ok(()) => {
+                        bump(&mut self.counters.system);
+                        Served::Done
+                    }
+                    Err(_) => {
+                        bump(&mut self.counters.unknown_system);
+                        Served::Dropped
+                    }
+                }
+            }
+            CODE_TIME_REPLY => {
+                let Some((len, meta)) = self.take_to_scratch(pos) else {
+                    return Served::Wait;
+                };
+                let sample = split_delivery(&self.scratch[..len]).and_then(|(route, body)| {
+                    let mut hops = route.hops();
+                    let (Some(Instruction::LinkForward(link)), None) = (hops.next(), hops.next())
+                    else {
+                        return None;
+                    };
+                    let reply = TimeReply::decode(body).ok()?;
+                    let at = self.clock.system_time(meta.arrival);
+                    Some((link, TimeSample::from_reply(&reply, at)?))
+                });
+                match sample.filter(|(link, _)| usize::from(*link) < LINKS) {
+                    Some((link, sample)) => {
+                        self.samples[usize::from(link)] = Some(sample);
+                        bump(&mut self.counters.system);
+                        Served::Done
+                    }
+                    None => {
+                        bump(&mut self.counters.unknown_system);
+                        Served::Dropped
+                    }
+                }
+            }
+            _ => self.drop_at(pos, Drop::UnknownSystem),
+        }
+    }
+
+    fn push_system(
+        &mut self,
+        now: Micros,
+        route: &Route,
+        code: u8,
+        ttl: u16,
+        mtu: u16,
+        body: impl FnOnce(&mut Writer<'_>) -> Option<()>,
+    ) -> Result<(), SendError> {
+        let mtu = mtu.min(MTU as u16);
+        let pushed = self.stack.push_with(Owner::System, now, |buf| {
+            let start = route
+                .write_header(buf, Instruction::SystemMsg(code), ttl, mtu)
+                .map_err(|e| match e {
+                    PacketError::TooLong => SendError::TooLong,
+                    e => SendError::BadAddress(e),
+                })?;
+            let room = buf.get_mut(start..usize::from(mtu)).ok_or(SendError::TooLong)?;
+            let mut w = Writer::new(room);
+            body(&mut w).ok_or(SendError::TooLong)?;
+            Ok((start + w.len(), now.saturating_add(u64::from(ttl))))
+        });
+        match pushed {
+            Ok(_) => Ok(()),
+            Err(PushError::Claim(c)) => Err(SendError::NotClear(c)),
+            Err(PushError::Write(e)) => Err(e),
+            Err(PushError::Length) => Err(SendError::TooLong),
+        }
+    }
+}
+
+#[derive(Clone, Copy)]
+enum Drop {
+    Malformed,
+    NoRoute,
+    LinkClosed,
+    NoPort,
+    Oversize,
+    UnknownSystem,
+    #[allow(dead_code)]
+    Netresponder,
+}
+
+/// Finds the port object serving runtime port index `index` (≥ 1): returns
+/// the object's slice position, the offset within it and its base index.
+fn find_port<P: Port>(ports: &[P], index: u16) -> Option<(usize, u16, u16)> {
+    let mut base = 1u16;
+    for (i, p) in ports.iter().enumerate() {
+        let count = p.port_count();
+        if index >= base && index - base < count {
+            return Some((i, index - base, base));
+        }
+        base = base.checked_add(count)?;
+    }
+    None
+}
+
+/// Splits a packet whose `ptr` is at a terminal instruction into the route
+/// back to its sender and the bytes after that instruction. `None` if what
+/// was walked is not a valid route (a sender can put anything before `ptr`).
+fn split_delivery(packet: &[u8]) -> Option<(Route, &[u8])> {
+    let view = Packet::new(packet).ok()?;
+    let route = Route::from_bytes(view.walked()).ok()?;
+    let payload = view.after_instruction().ok()?;
+    Some((route.reversed().with_mtu(view.mtu()), payload))
+}
+
+/// The runtime's implementation of a port's send handle.
+struct Sender<'r, const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize> {
+    stack: &'r mut PacketStack<SLOTS, MTU, PORTS, LINKS>,
+    counters: &'r mut Counters,
+    now: Micros,
+}
+
+impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize> PacketSink
+    for Sender<'_, SLOTS, MTU, PORTS, LINKS>
+{
+    fn clear_to_send(&self, from: u16) -> Result<(), ClaimError> {
+        self.stack.check_claim(Owner::Port(from))
+    }
+
+    fn send(
+        &mut self,
+        from: u16,
+        route: &Route,
+        terminal: Instruction,
+        ttl: u16,
+        write: &mut dyn FnMut(&mut [u8]) -> Option<usize>,
+    ) -> Result<(), SendError> {
+        let now = self.now;
+        let mtu = route.mtu().min(MTU as u16);
+        let pushed = self.stack.push_with(Owner::Port(from), now, |buf| {
+            let start = route
+                .write_header(buf, terminal, ttl, mtu)
+                .map_err(|e| match e {
+                    PacketError::TooLong => SendError::TooLong,
+                    e => SendError::BadAddress(e),
+                })?;
+            let room = buf.get_mut(start..usize::from(mtu)).ok_or(SendError::TooLong)?;
+            let room_len = room.len();
+            let n = write(room).filter(|&n| n <= room_len).ok_or(SendError::TooLong)?;
+            Ok((start + n, now.saturating_add(u64::from(ttl))))
+        });
+        match pushed {
+            Ok(_) => Ok(()),
+            Err(PushError::Claim(c)) => {
+                match c {
+                    ClaimError::QuotaExceeded => bump(&mut self.counters.quota_refused),
+                    ClaimError::StackFull => bump(&mut self.counters.stack_full),
+                    ClaimError::UnknownOwner => {}
+                }
+                Err(SendError::NotClear(c))
+            }
+            Err(PushError::Write(e)) => Err(e),
+            Err(PushError::Length) => Err(SendError::TooLong),
+        }
+    }
+}

@@ -1,0 +1,377 @@
+//! The packet stack: fixed slots served in earliest-deadline order.
+//!
+//! Every packet a runtime holds lives in one of `N` slots of `MTU` bytes. The
+//! stack keeps an index of occupied slots sorted by deadline, updated by one
+//! binary-search insertion per packet, so the runtime loop walks it front to
+//! back without ever re-sorting.
+//!
+//! Each slot is charged to its *owner*: the port that wrote it, the link it
+//! arrived on, or the runtime itself. Owners have hold quotas (by default 2
+//! slots per port and 4 per link), so one busy producer cannot fill the stack
+//! and starve the rest; a producer over quota is simply not clear to send,
+//! which pushes back on it.
+
+use crate::Micros;
+use core::fmt;
+use heapless::Vec;
+
+/// Default number of slots a port may hold at once.
+pub const DEFAULT_PORT_QUOTA: u8 = 2;
+/// Default number of slots a link gateway may hold at once.
+pub const DEFAULT_LINK_QUOTA: u8 = 4;
+/// Default number of slots the runtime may hold for its own system messages.
+pub const DEFAULT_SYSTEM_QUOTA: u8 = 4;
+
+/// Who a slot is charged to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Owner {
+    /// A port, by index.
+    Port(u16),
+    /// A link gateway, by index.
+    Link(u8),
+    /// The runtime itself (system messages such as time stamps).
+    System,
+}
+
+/// Why a slot could not be claimed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ClaimError {
+    /// Every slot is in use.
+    StackFull,
+    /// The owner already holds as many slots as its quota allows.
+    QuotaExceeded,
+    /// The owner's index is beyond what this stack tracks.
+    UnknownOwner,
+}
+
+impl fmt::Display for ClaimError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            ClaimError::StackFull => "packet stack is full",
+            ClaimError::QuotaExceeded => "owner is at its packet quota",
+            ClaimError::UnknownOwner => "owner index is out of range",
+        })
+    }
+}
+
+/// Why [`PacketStack::push_with`] did not store a packet.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PushError<E> {
+    /// No slot could be claimed.
+    Claim(ClaimError),
+    /// The writer closure failed; the slot was returned.
+    Write(E),
+    /// The writer reported a length longer than the slot; the slot was
+    /// returned.
+    Length,
+}
+
+/// Identifies an occupied slot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct SlotId(u16);
+
+impl SlotId {
+    /// The slot's index in the stack.
+    pub const fn index(self) -> usize {
+        self.0 as usize
+    }
+}
+
+/// What the stack knows about one occupied slot.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SlotMeta {
+    /// Length of the packet in the slot.
+    pub len: u16,
+    /// When the packet entered this runtime.
+    pub arrival: Micros,
+    /// When the packet expires; it is dropped once `now > deadline`.
+    pub deadline: Micros,
+    /// Who the slot is charged to.
+    pub owner: Owner,
+}
+
+impl SlotMeta {
+    const EMPTY: SlotMeta = SlotMeta {
+        len: 0,
+        arrival: 0,
+        deadline: 0,
+        owner: Owner::System,
+    };
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Hold {
+    held: u8,
+    max: u8,
+}
+
+/// Fixed-size packet storage ordered by deadline, with per-owner quotas.
+///
+/// `N` slots of `MTU` bytes; `P` ports and `L` links have quota entries.
+pub struct PacketStack<const N: usize, const MTU: usize, const P: usize, const L: usize> {
+    bufs: [[u8; MTU]; N],
+    meta: [SlotMeta; N],
+    order: Vec<u16, N>,
+    free: Vec<u16, N>,
+    ports: [Hold; P],
+    links: [Hold; L],
+    system: Hold,
+}
+
+impl<const N: usize, const MTU: usize, const P: usize, const L: usize> Default
+    for PacketStack<N, MTU, P, L>
+{
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketStack<N, MTU, P, L> {
+    /// An empty stack with default quotas.
+    pub fn new() -> Self {
+        const { assert!(N > 0 && N <= u16::MAX as usize, "stack needs 1..=65535 slots") };
+        const { assert!(MTU <= u16::MAX as usize, "slot size must fit a u16") };
+        let mut free = Vec::new();
+        // Hand out low indices first: it keeps a lightly used stack's working
+        // set small, which matters for cache-less microcontrollers only a
+        // little, but makes debugging dumps readable.
+        for i in (0..N as u16).rev() {
+            let _ = free.push(i);
+        }
+        PacketStack {
+            bufs: [[0; MTU]; N],
+            meta: [SlotMeta::EMPTY; N],
+            order: Vec::new(),
+            free,
+            ports: [Hold {
+                held: 0,
+                max: DEFAULT_PORT_QUOTA,
+            }; P],
+            links: [Hold {
+                held: 0,
+                max: DEFAULT_LINK_QUOTA,
+            }; L],
+            system: Hold {
+                held: 0,
+                max: DEFAULT_SYSTEM_QUOTA,
+            },
+        }
+    }
+
+    /// Total number of slots.
+    pub const fn capacity(&self) -> usize {
+        N
+    }
+
+    /// Bytes per slot: the largest packet this stack can hold.
+    pub const fn slot_size(&self) -> usize {
+        MTU
+    }
+
+    /// Number of packets queued in deadline order.
+    pub fn len(&self) -> usize {
+        self.order.len()
+    }
+
+    /// Whether no packet is queued.
+    pub fn is_empty(&self) -> bool {
+        self.order.is_empty()
+    }
+
+    /// Number of free slots.
+    pub fn free_slots(&self) -> usize {
+        self.free.len()
+    }
+
+    fn hold(&self, owner: Owner) -> Option<&Hold> {
+        match owner {
+            Owner::Port(p) => self.ports.get(p as usize),
+            Owner::Link(l) => self.links.get(l as usize),
+            Owner::System => Some(&self.system),
+        }
+    }
+
+    fn hold_mut(&mut self, owner: Owner) -> Option<&mut Hold> {
+        match owner {
+            Owner::Port(p) => self.ports.get_mut(p as usize),
+            Owner::Link(l) => self.links.get_mut(l as usize),
+            Owner::System => Some(&mut self.system),
+        }
+    }
+
+    /// Sets how many slots `owner` may hold at once (0 stops it entirely).
+    pub fn set_quota(&mut self, owner: Owner, max: u8) -> Result<(), ClaimError> {
+        self.hold_mut(owner).ok_or(ClaimError::UnknownOwner)?.max = max;
+        Ok(())
+    }
+
+    /// The quota of `owner`.
+    pub fn quota(&self, owner: Owner) -> Option<u8> {
+        self.hold(owner).map(|h| h.max)
+    }
+
+    /// How many slots `owner` holds now.
+    pub fn held(&self, owner: Owner) -> Option<u8> {
+        self.hold(owner).map(|h| h.held)
+    }
+
+    /// Whether `owner` could claim a slot right now.
+    pub fn check_claim(&self, owner: Owner) -> Result<(), ClaimError> {
+        let hold = self.hold(owner).ok_or(ClaimError::UnknownOwner)?;
+        if hold.held >= hold.max {
+            return Err(ClaimError::QuotaExceeded);
+        }
+        if self.free.is_empty() {
+            return Err(ClaimError::StackFull);
+        }
+        Ok(())
+    }
+
+    /// Claims a slot for `owner`, lets `write` fill it, and queues it by
+    /// deadline.
+    ///
+    /// `write` gets the whole slot buffer and returns the packet length and
+    /// its deadline. If it fails, or returns a length longer than the slot,
+    /// the slot goes straight back and nothing is queued.
+    pub fn push_with<E>(
+        &mut self,
+        owner: Owner,
+        arrival: Micros,
+        write: impl FnOnce(&mut [u8]) -> Result<(usize, Micros), E>,
+    ) -> Result<SlotId, PushError<E>> {
+        self.check_claim(owner).map_err(PushError::Claim)?;
+        let Some(slot) = self.free.pop() else {
+            return Err(PushError::Claim(ClaimError::StackFull));
+        };
+        let (len, deadline) = match write(&mut self.bufs[slot as usize]) {
+            Ok((len, deadline)) if len <= MTU => (len, deadline),
+            Ok(_) => {
+                let _ = self.free.push(slot);
+                return Err(PushError::Length);
+            }
+            Err(e) => {
+                let _ = self.free.push(slot);
+                return Err(PushError::Write(e));
+            }
+        };
+        if let Some(h) = self.hold_mut(owner) {
+            h.held = h.held.saturating_add(1);
+        }
+        self.meta[slot as usize] = SlotMeta {
+            len: len as u16,
+            arrival,
+            deadline,
+            owner,
+        };
+        // Upper bound: equal deadlines stay first-come, first-served.
+        let pos = self
+            .order
+            .partition_point(|&s| self.meta[s as usize].deadline <= deadline);
+        // Cannot fail: occupied slots never outnumber N.
+        let _ = self.order.insert(pos, slot);
+        Ok(SlotId(slot))
+    }
+
+    /// The slot at position `pos` in deadline order (0 is the earliest).
+    pub fn at(&self, pos: usize) -> Option<SlotId> {
+        self.order.get(pos).map(|&s| SlotId(s))
+    }
+
+    /// The earliest deadline of any queued packet.
+    pub fn earliest_deadline(&self) -> Option<Micros> {
+        self.at(0).map(|s| self.meta[s.index()].deadline)
+    }
+
+    /// Metadata of an occupied slot.
+    pub fn meta(&self, slot: SlotId) -> &SlotMeta {
+        &self.meta[slot.index()]
+    }
+
+    /// The packet in a slot.
+    pub fn packet(&self, slot: SlotId) -> &[u8] {
+        let len = self.meta[slot.index()].len as usize;
+        &self.bufs[slot.index()][..len]
+    }
+
+    /// The packet in a slot, for in-place rewrites.
+    pub fn packet_mut(&mut self, slot: SlotId) -> &mut [u8] {
+        let len = self.meta[slot.index()].len as usize;
+        &mut self.bufs[slot.index()][..len]
+    }
+
+    /// Removes the packet at position `pos` and frees its slot, returning
+    /// the slot's metadata.
+    pub fn release_at(&mut self, pos: usize) -> Option<SlotMeta> {
+        if pos >= self.order.len() {
+            return None;
+        }
+        let slot = self.order.remove(pos);
+        let meta = self.meta[slot as usize];
+        if let Some(h) = self.hold_mut(meta.owner) {
+            h.held = h.held.saturating_sub(1);
+        }
+        let _ = self.free.push(slot);
+        Some(meta)
+    }
+
+    /// Frees every slot (for a runtime reset).
+    pub fn clear(&mut self) {
+        while self.release_at(0).is_some() {}
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    type Stack = PacketStack<4, 16, 4, 2>;
+
+    fn push(s: &mut Stack, owner: Owner, deadline: Micros) -> Result<SlotId, ClaimError> {
+        s.push_with(owner, 0, |buf| {
+            buf[0] = deadline as u8;
+            Ok::<_, ()>((1, deadline))
+        })
+        .map_err(|e| match e {
+            PushError::Claim(c) => c,
+            other => panic!("unexpected {other:?}"),
+        })
+    }
+
+    #[test]
+    fn serves_in_deadline_order_fifo_on_ties() {
+        let mut s = Stack::new();
+        s.set_quota(Owner::Port(0), 4).unwrap();
+        let a = push(&mut s, Owner::Port(0), 30).unwrap();
+        let b = push(&mut s, Owner::Port(0), 10).unwrap();
+        let c = push(&mut s, Owner::Port(0), 30).unwrap();
+        let d = push(&mut s, Owner::Port(0), 20).unwrap();
+        let order: heapless::Vec<SlotId, 4> = (0..4).filter_map(|i| s.at(i)).collect();
+        assert_eq!(order.as_slice(), &[b, d, a, c]);
+        assert_eq!(s.earliest_deadline(), Some(10));
+    }
+
+    #[test]
+    fn quotas_and_fullness() {
+        let mut s = Stack::new();
+        push(&mut s, Owner::Port(1), 1).unwrap();
+        push(&mut s, Owner::Port(1), 1).unwrap();
+        assert_eq!(push(&mut s, Owner::Port(1), 1), Err(ClaimError::QuotaExceeded));
+        push(&mut s, Owner::Link(0), 1).unwrap();
+        push(&mut s, Owner::Link(1), 1).unwrap();
+        assert_eq!(push(&mut s, Owner::Link(0), 1), Err(ClaimError::StackFull));
+        assert_eq!(push(&mut s, Owner::Port(9), 1), Err(ClaimError::UnknownOwner));
+        let meta = s.release_at(0).unwrap();
+        assert_eq!(meta.owner, Owner::Port(1));
+        assert_eq!(s.held(Owner::Port(1)), Some(1));
+        push(&mut s, Owner::Port(1), 1).unwrap();
+    }
+
+    #[test]
+    fn failed_writer_returns_the_slot() {
+        let mut s = Stack::new();
+        let r = s.push_with(Owner::System, 0, |_| Err::<(usize, Micros), _>("nope"));
+        assert_eq!(r, Err(PushError::Write("nope")));
+        assert_eq!(s.free_slots(), 4);
+        assert_eq!(s.held(Owner::System), Some(0));
+    }
+}
