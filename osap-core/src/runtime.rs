@@ -433,8 +433,16 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         if self.stack.packet(slot).len() > usize::from(link.mtu()) {
             return self.drop_at(pos, Drop::Oversize);
         }
+        // Wire time counts against the deadline: a packet that would land
+        // after it is dropped here rather than spending the link on it.
+        let landing = now.saturating_add(link.transmit_time(self.stack.packet(slot).len()));
+        if landing > deadline {
+            self.stack.release_at(pos);
+            bump(&mut self.counters.expired);
+            return Served::Dropped;
+        }
         let packet = self.stack.packet_mut(slot);
-        let ttl = deadline.saturating_sub(now).min(u64::from(u16::MAX)) as u16;
+        let ttl = (deadline - landing).min(u64::from(u16::MAX)) as u16;
         // Packet::new validated the header, so the TTL field exists.
         let _ = set_ttl(packet, ttl);
         match link.send(packet) {

@@ -57,6 +57,15 @@ pub trait LinkGateway {
     /// Transmits one packet. Only called after `clear_to_send` returned true.
     fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError>;
 
+    /// How long the link takes to put `len` bytes of packet on the wire, µs
+    /// (for a UART: framing overhead and bits at the baud rate). The runtime
+    /// takes it off the TTL it writes, so time on the wire counts against a
+    /// packet's deadline; links that cannot tell return 0.
+    fn transmit_time(&self, len: usize) -> Micros {
+        let _ = len;
+        0
+    }
+
     /// Copies the next received packet into `buf`, if there is one.
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received>;
 
@@ -82,6 +91,9 @@ macro_rules! forward_link_gateway {
         }
         fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
             (**self).send(packet)
+        }
+        fn transmit_time(&self, len: usize) -> Micros {
+            (**self).transmit_time(len)
         }
         fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
             (**self).receive(buf)

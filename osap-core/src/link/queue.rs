@@ -22,6 +22,7 @@ pub struct QueueLink<const DEPTH: usize, const MTU: usize> {
     name: &'static str,
     sent: u32,
     received: u32,
+    wire_time: (u32, u32),
 }
 
 impl<const DEPTH: usize, const MTU: usize> Default for QueueLink<DEPTH, MTU> {
@@ -40,7 +41,15 @@ impl<const DEPTH: usize, const MTU: usize> QueueLink<DEPTH, MTU> {
             name: "",
             sent: 0,
             received: 0,
+            wire_time: (0, 0),
         }
+    }
+
+    /// The same link reporting a transmit time of `per_packet_us` plus
+    /// `per_byte_ns` for each byte, as a serial line would.
+    pub const fn with_wire_time(mut self, per_packet_us: u32, per_byte_ns: u32) -> Self {
+        self.wire_time = (per_packet_us, per_byte_ns);
+        self
     }
 
     /// The same link with an instance name.
@@ -131,6 +140,11 @@ impl<const DEPTH: usize, const MTU: usize> LinkGateway for QueueLink<DEPTH, MTU>
         self.outbox.push_back(p).map_err(|_| LinkSendError)?;
         self.sent = self.sent.wrapping_add(1);
         Ok(())
+    }
+
+    fn transmit_time(&self, len: usize) -> crate::Micros {
+        let (per_packet, per_byte_ns) = self.wire_time;
+        u64::from(per_packet) + (len as u64 * u64::from(per_byte_ns)).div_ceil(1000)
     }
 
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
