@@ -45,6 +45,28 @@ impl core::fmt::Debug for Route {
     }
 }
 
+/// Compact form: `local`, or hops such as `[L0 L2 B1.255]` (link 0, link 2,
+/// bus 1 drop 255).
+impl core::fmt::Display for Route {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        if self.is_empty() {
+            return f.write_str("local");
+        }
+        f.write_str("[")?;
+        for (i, hop) in self.hops().enumerate() {
+            if i > 0 {
+                f.write_str(" ")?;
+            }
+            match hop {
+                Instruction::LinkForward(l) => write!(f, "L{l}")?,
+                Instruction::BusForward { bus, drop } => write!(f, "B{bus}.{drop}")?,
+                other => write!(f, "{other:?}")?,
+            }
+        }
+        f.write_str("]")
+    }
+}
+
 impl Route {
     /// The empty route: a port in the same runtime.
     pub const fn local() -> Self {
