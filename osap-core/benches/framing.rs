@@ -17,7 +17,7 @@ fn packet(len: usize) -> Vec<u8> {
             x ^= x << 13;
             x ^= x >> 17;
             x ^= x << 5;
-            if x % 16 == 0 {
+            if x.is_multiple_of(16) {
                 0
             } else {
                 x as u8

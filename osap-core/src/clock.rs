@@ -160,7 +160,9 @@ impl TimeConfig {
         if !(self.ki.is_finite() && self.ki >= 0.0) {
             return Err(bad("ki"));
         }
-        if !(self.max_rate_ppm.is_finite() && self.max_rate_ppm > 0.0 && self.max_rate_ppm <= 10_000.0)
+        if !(self.max_rate_ppm.is_finite()
+            && self.max_rate_ppm > 0.0
+            && self.max_rate_ppm <= 10_000.0)
         {
             return Err(bad("max_rate_ppm"));
         }
@@ -285,7 +287,10 @@ mod tests {
             offset_alpha: f32::NAN,
             ..cfg
         };
-        assert_eq!(bad.validate(), Err(TimeConfigError::OutOfRange("offset_alpha")));
+        assert_eq!(
+            bad.validate(),
+            Err(TimeConfigError::OutOfRange("offset_alpha"))
+        );
     }
 
     #[test]

@@ -137,7 +137,10 @@ impl<'a> Writer<'a> {
 
     /// Appends raw bytes.
     pub fn bytes(&mut self, data: &[u8]) -> Result<(), CodecError> {
-        let end = self.len.checked_add(data.len()).ok_or(CodecError::NoSpace)?;
+        let end = self
+            .len
+            .checked_add(data.len())
+            .ok_or(CodecError::NoSpace)?;
         let dst = self.buf.get_mut(self.len..end).ok_or(CodecError::NoSpace)?;
         dst.copy_from_slice(data);
         self.len = end;

@@ -379,7 +379,8 @@ fn answer<P: Port, L: LinkGateway>(
             let new = name(requested).map_err(|_| Fail::Status(Status::InvalidValue))?;
             ctx.identity.name = new;
             ctx.changes.name = true;
-            ctx.state.log(Level::Info, format_args!("renamed to {requested}"));
+            ctx.state
+                .log(Level::Info, format_args!("renamed to {requested}"));
             out.str8(&ctx.identity.name)?;
         }
         key::LINK_INFO => {

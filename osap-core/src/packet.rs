@@ -114,7 +114,7 @@ impl Instruction {
     }
 
     /// Number of bytes this instruction occupies on the wire.
-    pub const fn len(&self) -> usize {
+    pub const fn encoded_len(&self) -> usize {
         match self {
             Instruction::SystemMsg(_) | Instruction::LinkForward(_) => 1,
             Instruction::BusForward { .. } => 2,
@@ -154,7 +154,7 @@ impl Instruction {
         if !self.is_valid() {
             return Err(PacketError::FieldOutOfRange);
         }
-        let len = self.len();
+        let len = self.encoded_len();
         let dst = out.get_mut(..len).ok_or(PacketError::Truncated)?;
         match *self {
             Instruction::SystemMsg(code) => dst[0] = OP_SYSTEM << 6 | code,
@@ -228,7 +228,7 @@ impl<'a> Packet<'a> {
     /// The bytes after the instruction at `ptr` (the payload, when that
     /// instruction is terminal).
     pub fn after_instruction(&self) -> Result<&'a [u8], PacketError> {
-        let start = self.ptr() + self.instruction()?.len();
+        let start = self.ptr() + self.instruction()?.encoded_len();
         self.bytes.get(start..).ok_or(PacketError::Truncated)
     }
 }
@@ -248,17 +248,17 @@ pub fn set_ttl(packet: &mut [u8], ttl: u16) -> Result<(), PacketError> {
 /// the sender's drop), and `ptr` advances past it.
 ///
 /// Returns the instruction that is now at `ptr`.
-pub fn ingest_rewrite(
-    packet: &mut [u8],
-    arrival: Instruction,
-) -> Result<Instruction, PacketError> {
+pub fn ingest_rewrite(packet: &mut [u8], arrival: Instruction) -> Result<Instruction, PacketError> {
     let view = Packet::new(packet)?;
     let ptr = view.ptr();
     let consumed = view.instruction()?;
     let matches_kind = matches!(
         (consumed, arrival),
         (Instruction::LinkForward(_), Instruction::LinkForward(_))
-            | (Instruction::BusForward { .. }, Instruction::BusForward { .. })
+            | (
+                Instruction::BusForward { .. },
+                Instruction::BusForward { .. }
+            )
     );
     if !matches_kind {
         return Err(PacketError::UnexpectedInstruction);
@@ -282,12 +282,17 @@ mod tests {
     #[test]
     fn port_handle_layout_matches_spec() {
         let mut b = [0u8; 3];
-        Instruction::PortHandle { src: 1, dst: 2 }.encode(&mut b).unwrap();
-        // 0b11 << 22 | 1 << 11 | 2 = 0xC00802
-        assert_eq!(b, [0xC0, 0x08, 0x02]);
-        Instruction::PortHandle { src: 2047, dst: 2047 }
+        Instruction::PortHandle { src: 1, dst: 2 }
             .encode(&mut b)
             .unwrap();
+        // 0b11 << 22 | 1 << 11 | 2 = 0xC00802
+        assert_eq!(b, [0xC0, 0x08, 0x02]);
+        Instruction::PortHandle {
+            src: 2047,
+            dst: 2047,
+        }
+        .encode(&mut b)
+        .unwrap();
         assert_eq!(b, [0xFF, 0xFF, 0xFF]);
     }
 
@@ -327,7 +332,10 @@ mod tests {
 
     #[test]
     fn header_checks() {
-        assert_eq!(Packet::new(&[5, 0, 0, 0]).unwrap_err(), PacketError::Truncated);
+        assert_eq!(
+            Packet::new(&[5, 0, 0, 0]).unwrap_err(),
+            PacketError::Truncated
+        );
         assert_eq!(
             Packet::new(&[4, 0, 0, 0, 0, 0]).unwrap_err(),
             PacketError::BadPointer

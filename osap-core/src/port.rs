@@ -124,7 +124,13 @@ impl PortTx<'_> {
 
     /// Sends `payload` (starting with its transport key) from the first port
     /// to port `dst` at the end of `route`, expiring after `ttl` µs.
-    pub fn send(&mut self, route: &Route, dst: u16, ttl: u16, payload: &[u8]) -> Result<(), SendError> {
+    pub fn send(
+        &mut self,
+        route: &Route,
+        dst: u16,
+        ttl: u16,
+        payload: &[u8],
+    ) -> Result<(), SendError> {
         self.send_from(0, route, dst, ttl, payload)
     }
 

@@ -94,7 +94,7 @@ impl Route {
         while !rest.is_empty() {
             let ins = Instruction::decode(rest)?;
             route.push(ins)?;
-            rest = &rest[ins.len()..];
+            rest = &rest[ins.encoded_len()..];
         }
         Ok(route)
     }
@@ -105,7 +105,7 @@ impl Route {
             return Err(PacketError::UnexpectedInstruction);
         }
         let start = self.len as usize;
-        let end = start + hop.len();
+        let end = start + hop.encoded_len();
         if end > MAX_ROUTE_LEN {
             return Err(PacketError::RouteTooLong);
         }
@@ -191,7 +191,7 @@ impl Route {
     /// Number of bytes a packet on this route needs before its payload, with
     /// the given terminal instruction.
     pub fn header_len(&self, terminal: Instruction) -> usize {
-        HEADER_LEN + self.len() + terminal.len()
+        HEADER_LEN + self.len() + terminal.encoded_len()
     }
 
     /// Writes a fresh packet `[header][route][terminal][payload]` into `out`
@@ -230,7 +230,7 @@ impl Route {
             return Err(PacketError::UnexpectedInstruction);
         }
         let route_end = HEADER_LEN + self.len();
-        let header_end = route_end + terminal.len();
+        let header_end = route_end + terminal.encoded_len();
         if header_end > out.len() || header_end > usize::from(mtu) {
             return Err(PacketError::TooLong);
         }
@@ -256,7 +256,7 @@ impl Iterator for Hops<'_> {
         // A Route only ever holds validated instructions, so decoding here
         // cannot fail; stop rather than panic if it somehow did.
         let ins = Instruction::decode(self.rest).ok()?;
-        self.rest = self.rest.get(ins.len()..).unwrap_or(&[]);
+        self.rest = self.rest.get(ins.encoded_len()..).unwrap_or(&[]);
         Some(ins)
     }
 }
@@ -319,7 +319,10 @@ mod tests {
                 &[0xAA],
             )
             .unwrap();
-        assert_eq!(&buf[..n], &[5, 0xE8, 0x03, 0x00, 0x01, 0x41, 0xC0, 0x18, 0x00, 0xAA]);
+        assert_eq!(
+            &buf[..n],
+            &[5, 0xE8, 0x03, 0x00, 0x01, 0x41, 0xC0, 0x18, 0x00, 0xAA]
+        );
         let p = Packet::new(&buf[..n]).unwrap();
         assert_eq!(p.instruction(), Ok(Instruction::LinkForward(1)));
     }

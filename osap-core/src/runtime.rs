@@ -14,8 +14,7 @@
 //! it never holds up the packets behind it.
 
 use crate::clock::{
-    Clock, TimeConfig, TimeReply, TimeSample, CODE_TIME_REPLY, CODE_TIME_REQUEST,
-    TIME_REQUEST_LEN,
+    Clock, TimeConfig, TimeReply, TimeSample, CODE_TIME_REPLY, CODE_TIME_REQUEST, TIME_REQUEST_LEN,
 };
 use crate::codec::Writer;
 use crate::counters::{bump, Counters};
@@ -104,7 +103,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// A runtime of the given type and name, with default configuration.
     pub fn new(type_name: &str, name: &str) -> Result<Self, NameTooLong> {
         const {
-            assert!(MTU >= 16 && MTU <= 255 * 256, "MTU must be 16..=65280 bytes");
+            assert!(
+                MTU >= 16 && MTU <= 255 * 256,
+                "MTU must be 16..=65280 bytes"
+            );
             assert!(PORTS >= 1, "PORTS counts port 0, so it must be at least 1");
             assert!(LINKS <= 64, "link_forward addresses at most 64 links");
         };
@@ -162,7 +164,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 .stack
                 .set_quota(Owner::Link(l as u8), self.config.link_quota);
         }
-        let _ = self.stack.set_quota(Owner::System, self.config.system_quota);
+        let _ = self
+            .stack
+            .set_quota(Owner::System, self.config.system_quota);
     }
 
     /// Overrides the quota of one port or link.
@@ -417,7 +421,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         deadline: Micros,
         links: &mut [L],
     ) -> Served {
-        let Some(link) = links.get_mut(usize::from(index)).filter(|_| usize::from(index) < LINKS)
+        let Some(link) = links
+            .get_mut(usize::from(index))
+            .filter(|_| usize::from(index) < LINKS)
         else {
             return self.drop_at(pos, Drop::NoRoute);
         };
@@ -552,7 +558,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         };
         let pushed = self.stack.push_with(Owner::Port(0), now, |buf| {
             let terminal = Instruction::PortHandle { src: 0, dst: src };
-            let start = route.write_header(buf, terminal, ttl, mtu).map_err(|_| ())?;
+            let start = route
+                .write_header(buf, terminal, ttl, mtu)
+                .map_err(|_| ())?;
             let room = buf.get_mut(start..usize::from(mtu)).ok_or(())?;
             let mut w = Writer::new(room);
             let mut header = [0u8; 3];
@@ -657,7 +665,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     PacketError::TooLong => SendError::TooLong,
                     e => SendError::BadAddress(e),
                 })?;
-            let room = buf.get_mut(start..usize::from(mtu)).ok_or(SendError::TooLong)?;
+            let room = buf
+                .get_mut(start..usize::from(mtu))
+                .ok_or(SendError::TooLong)?;
             let mut w = Writer::new(room);
             body(&mut w).ok_or(SendError::TooLong)?;
             Ok((start + w.len(), now.saturating_add(u64::from(ttl))))
@@ -738,9 +748,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     PacketError::TooLong => SendError::TooLong,
                     e => SendError::BadAddress(e),
                 })?;
-            let room = buf.get_mut(start..usize::from(mtu)).ok_or(SendError::TooLong)?;
+            let room = buf
+                .get_mut(start..usize::from(mtu))
+                .ok_or(SendError::TooLong)?;
             let room_len = room.len();
-            let n = write(room).filter(|&n| n <= room_len).ok_or(SendError::TooLong)?;
+            let n = write(room)
+                .filter(|&n| n <= room_len)
+                .ok_or(SendError::TooLong)?;
             Ok((start + n, now.saturating_add(u64::from(ttl))))
         });
         match pushed {

@@ -129,7 +129,12 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> Default
 impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketStack<N, MTU, P, L> {
     /// An empty stack with default quotas.
     pub fn new() -> Self {
-        const { assert!(N > 0 && N <= u16::MAX as usize, "stack needs 1..=65535 slots") };
+        const {
+            assert!(
+                N > 0 && N <= u16::MAX as usize,
+                "stack needs 1..=65535 slots"
+            )
+        };
         const { assert!(MTU <= u16::MAX as usize, "slot size must fit a u16") };
         let mut free = Vec::new();
         // Hand out low indices first: it keeps a lightly used stack's working
@@ -355,11 +360,17 @@ mod tests {
         let mut s = Stack::new();
         push(&mut s, Owner::Port(1), 1).unwrap();
         push(&mut s, Owner::Port(1), 1).unwrap();
-        assert_eq!(push(&mut s, Owner::Port(1), 1), Err(ClaimError::QuotaExceeded));
+        assert_eq!(
+            push(&mut s, Owner::Port(1), 1),
+            Err(ClaimError::QuotaExceeded)
+        );
         push(&mut s, Owner::Link(0), 1).unwrap();
         push(&mut s, Owner::Link(1), 1).unwrap();
         assert_eq!(push(&mut s, Owner::Link(0), 1), Err(ClaimError::StackFull));
-        assert_eq!(push(&mut s, Owner::Port(9), 1), Err(ClaimError::UnknownOwner));
+        assert_eq!(
+            push(&mut s, Owner::Port(9), 1),
+            Err(ClaimError::UnknownOwner)
+        );
         let meta = s.release_at(0).unwrap();
         assert_eq!(meta.owner, Owner::Port(1));
         assert_eq!(s.held(Owner::Port(1)), Some(1));

@@ -68,7 +68,7 @@ impl Transport {
     }
 
     /// Header length in bytes.
-    pub const fn len(&self) -> usize {
+    pub const fn encoded_len(&self) -> usize {
         match self {
             Transport::Raw => 1,
             Transport::Request(_) | Transport::Reply(_) => 3,
@@ -83,12 +83,12 @@ impl Transport {
             Transport::Request(s) => (KEY_REQUEST, Some(s)),
             Transport::Reply(s) => (KEY_REPLY, Some(s)),
         };
-        let dst = out.get_mut(..self.len())?;
+        let dst = out.get_mut(..self.encoded_len())?;
         dst[0] = key;
         if let Some(s) = seq {
             dst[1..3].copy_from_slice(&s.to_le_bytes());
         }
-        Some(self.len())
+        Some(self.encoded_len())
     }
 
     /// The header of the reply to this request.
@@ -231,7 +231,11 @@ mod tests {
     #[test]
     fn header_round_trip() {
         let mut b = [0u8; 3];
-        for t in [Transport::Raw, Transport::Request(0x1234), Transport::Reply(7)] {
+        for t in [
+            Transport::Raw,
+            Transport::Request(0x1234),
+            Transport::Reply(7),
+        ] {
             let n = t.encode(&mut b).unwrap();
             let mut with_body = [0u8; 4];
             with_body[..n].copy_from_slice(&b[..n]);

@@ -4,7 +4,9 @@
 //! reference (bitwise CRC, byte-at-a-time COBS) written here independently of
 //! corncobs and crc.
 
-use osap_core::framing::{crc16, encode_frame, max_frame_len, FrameCounters, FrameDecoder, FrameError};
+use osap_core::framing::{
+    crc16, encode_frame, max_frame_len, FrameCounters, FrameDecoder, FrameError,
+};
 use proptest::collection::vec;
 use proptest::prelude::*;
 
@@ -21,7 +23,11 @@ fn ref_crc16(data: &[u8]) -> u16 {
     for &b in data {
         crc ^= u16::from(b) << 8;
         for _ in 0..8 {
-            crc = if crc & 0x8000 != 0 { (crc << 1) ^ 0x1021 } else { crc << 1 };
+            crc = if crc & 0x8000 != 0 {
+                (crc << 1) ^ 0x1021
+            } else {
+                crc << 1
+            };
         }
     }
     crc
@@ -146,7 +152,9 @@ fn decode_chunked<const N: usize>(
 }
 
 fn assert_counters_match(c: &FrameCounters, results: &[Result<Vec<u8>, FrameError>], bytes: usize) {
-    let count = |f: fn(&Result<Vec<u8>, FrameError>) -> bool| results.iter().filter(|r| f(r)).count() as u32;
+    let count = |f: fn(&Result<Vec<u8>, FrameError>) -> bool| {
+        results.iter().filter(|r| f(r)).count() as u32
+    };
     assert_eq!(c.frames_ok, count(|r| r.is_ok()));
     assert_eq!(c.cobs_errors, count(|r| *r == Err(FrameError::Cobs)));
     assert_eq!(c.crc_errors, count(|r| *r == Err(FrameError::Crc)));
@@ -177,11 +185,12 @@ fn packet(max: usize) -> impl Strategy<Value = Vec<u8>> {
         vec(any::<u8>(), 0..=max),
         vec(prop_oneof![15 => 1u8..=255, 1 => Just(0u8)], 0..=max),
         vec(prop_oneof![Just(0u8), any::<u8>()], 0..=max),
-        (vec(any::<u8>(), 0..=max.min(20)), 1u8..=255, 230usize..=280)
-            .prop_map(move |(mut p, fill, run)| {
+        (vec(any::<u8>(), 0..=max.min(20)), 1u8..=255, 230usize..=280).prop_map(
+            move |(mut p, fill, run)| {
                 p.resize((p.len() + run).min(max), fill);
                 p
-            }),
+            }
+        ),
     ]
 }
 
@@ -404,7 +413,9 @@ fn unguaranteed_corruption_false_accept_rate() {
     let mut dec = FrameDecoder::<BIG>::new();
     for _ in 0..TRIALS {
         let len = (next() % 64) as usize;
-        let p: Vec<u8> = (0..len).map(|_| if next() % 8 == 0 { 0 } else { next() as u8 }).collect();
+        let p: Vec<u8> = (0..len)
+            .map(|_| if next() % 8 == 0 { 0 } else { next() as u8 })
+            .collect();
         let mut f = frame(&p);
         let body = f.len() - 1;
         for _ in 0..=(next() % 3) {
@@ -422,5 +433,8 @@ fn unguaranteed_corruption_false_accept_rate() {
         dec.reset();
     }
     println!("false accepts: {false_accepts} / {TRIALS}");
-    assert!(false_accepts <= 40, "{false_accepts} false accepts in {TRIALS} trials");
+    assert!(
+        false_accepts <= 40,
+        "{false_accepts} false accepts in {TRIALS} trials"
+    );
 }

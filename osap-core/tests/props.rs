@@ -40,7 +40,7 @@ proptest! {
     fn instruction_round_trip(i in instruction()) {
         let mut b = [0u8; 3];
         let n = i.encode(&mut b).unwrap();
-        prop_assert_eq!(n, i.len());
+        prop_assert_eq!(n, i.encoded_len());
         prop_assert_eq!(Instruction::len_from_first_byte(b[0]), n);
         prop_assert_eq!(Instruction::decode(&b[..n]), Ok(i));
     }
@@ -179,7 +179,10 @@ struct Sink(usize);
 
 impl Port for Sink {
     fn info(&self, _: u16) -> PortInfo<'_> {
-        PortInfo { type_name: "sink", name: "" }
+        PortInfo {
+            type_name: "sink",
+            name: "",
+        }
     }
     fn on_packet(&mut self, _: Delivery<'_>, _: &mut PortTx<'_>) {
         self.0 += 1;
@@ -194,7 +197,13 @@ fn netresponder_request() -> impl Strategy<Value = Vec<u8>> {
         payload.extend(body);
         let mut buf = [0u8; 128];
         let n = route
-            .write_packet(&mut buf, Instruction::PortHandle { src: 1, dst: 0 }, 1000, 128, &payload)
+            .write_packet(
+                &mut buf,
+                Instruction::PortHandle { src: 1, dst: 0 },
+                1000,
+                128,
+                &payload,
+            )
             .unwrap();
         buf[..n].to_vec()
     })

@@ -58,7 +58,9 @@ fn ins(i: Instruction) -> Vec<u8> {
 
 fn packet(route: &Route, terminal: Instruction, ttl: u16, mtu: u16, payload: &[u8]) -> Vec<u8> {
     let mut b = [0u8; 256];
-    let n = route.write_packet(&mut b, terminal, ttl, mtu, payload).unwrap();
+    let n = route
+        .write_packet(&mut b, terminal, ttl, mtu, payload)
+        .unwrap();
     b[..n].to_vec()
 }
 
@@ -71,7 +73,7 @@ fn body(f: impl FnOnce(&mut Writer<'_>)) -> Vec<u8> {
 }
 
 fn transport(t: Transport, rest: &[u8]) -> Vec<u8> {
-    let mut b = vec![0u8; t.len()];
+    let mut b = vec![0u8; t.encoded_len()];
     t.encode(&mut b).unwrap();
     b.extend_from_slice(rest);
     b
@@ -84,7 +86,10 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
         v.insert(k.to_string(), b);
     };
     put("instruction.system_msg.1", ins(Instruction::SystemMsg(1)));
-    put("instruction.link_forward.5", ins(Instruction::LinkForward(5)));
+    put(
+        "instruction.link_forward.5",
+        ins(Instruction::LinkForward(5)),
+    );
     put(
         "instruction.bus_forward.3.broadcast",
         ins(Instruction::BusForward { bus: 3, drop: 255 }),
@@ -98,8 +103,14 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
         ins(Instruction::PortHandle { src: 2047, dst: 5 }),
     );
     put("transport.raw", transport(Transport::Raw, &[]));
-    put("transport.request.0x1234", transport(Transport::Request(0x1234), &[]));
-    put("transport.reply.0x1234", transport(Transport::Reply(0x1234), &[]));
+    put(
+        "transport.request.0x1234",
+        transport(Transport::Request(0x1234), &[]),
+    );
+    put(
+        "transport.reply.0x1234",
+        transport(Transport::Reply(0x1234), &[]),
+    );
 
     let local = packet(
         &Route::local(),
@@ -251,7 +262,10 @@ fn document_vectors_match_the_code() {
         assert_eq!(hex(bytes), hex(expected), "vector {name}");
     }
     for name in code.keys() {
-        assert!(doc.contains_key(name), "vector {name} is missing from docs/protocol.md");
+        assert!(
+            doc.contains_key(name),
+            "vector {name} is missing from docs/protocol.md"
+        );
     }
 }
 
@@ -272,7 +286,10 @@ fn document_vectors_decode_to_their_meaning() {
     let local = get("packet.local");
     let p = Packet::new(&local).unwrap();
     assert_eq!((p.ptr(), p.ttl(), p.mtu()), (5, 1000, 256));
-    assert_eq!(p.instruction(), Ok(Instruction::PortHandle { src: 1, dst: 2 }));
+    assert_eq!(
+        p.instruction(),
+        Ok(Instruction::PortHandle { src: 1, dst: 2 })
+    );
     assert_eq!(p.after_instruction(), Ok(&[0x00, 0x2a][..]));
 
     let mut dec = FrameDecoder::<64>::new();
@@ -284,9 +301,15 @@ fn document_vectors_decode_to_their_meaning() {
     let p = Packet::new(&arrived).unwrap();
     assert_eq!(p.ptr(), 6);
     assert_eq!(p.walked(), &[0x42]);
-    assert_eq!(p.instruction(), Ok(Instruction::PortHandle { src: 3, dst: 0 }));
+    assert_eq!(
+        p.instruction(),
+        Ok(Instruction::PortHandle { src: 3, dst: 0 })
+    );
     let (t, rest) = Transport::decode(p.after_instruction().unwrap()).unwrap();
-    assert_eq!((t, rest), (Transport::Request(0x0102), &[key::TYPE_NAME][..]));
+    assert_eq!(
+        (t, rest),
+        (Transport::Request(0x0102), &[key::TYPE_NAME][..])
+    );
 
     let two = get("packet.two_hops");
     let p = Packet::new(&two).unwrap();

@@ -70,13 +70,12 @@ impl Port for TestPort {
     }
 
     fn on_packet(&mut self, d: Delivery<'_>, tx: &mut PortTx<'_>) {
-        if self.echo {
-            if tx
+        if self.echo
+            && tx
                 .send(&d.reply_route, d.source_port, 10_000, d.payload)
                 .is_err()
-            {
-                self.send_errors += 1;
-            }
+        {
+            self.send_errors += 1;
         }
         self.received.push(Received {
             payload: d.payload.to_vec(),

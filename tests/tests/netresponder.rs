@@ -73,7 +73,10 @@ fn names_read_and_set() {
     long.extend_from_slice(&[b'a'; 40]);
     assert_eq!(ask(&mut net, a, 4, &long).0, Status::InvalidValue);
     // Not UTF-8: malformed.
-    assert_eq!(ask(&mut net, a, 5, &[key::SET_NAME, 1, 0xff]).0, Status::Malformed);
+    assert_eq!(
+        ask(&mut net, a, 5, &[key::SET_NAME, 1, 0xff]).0,
+        Status::Malformed
+    );
     assert_eq!(net.nodes[b].runtime.identity().name.as_str(), "x-axis");
 }
 
@@ -88,7 +91,10 @@ fn link_and_port_info() {
     assert_eq!(r.u16().unwrap(), 256, "mtu");
     assert_eq!(r.str8().unwrap(), "queue");
     assert_eq!(r.str8().unwrap(), "");
-    assert_eq!(ask(&mut net, a, 2, &[key::LINK_INFO, 2]).0, Status::NoSuchIndex);
+    assert_eq!(
+        ask(&mut net, a, 2, &[key::LINK_INFO, 2]).0,
+        Status::NoSuchIndex
+    );
     let (_, f) = ask(&mut net, a, 3, &[key::PORT_INFO, 0, 0]);
     let mut r = Reader::new(&f);
     assert_eq!(r.u16().unwrap(), 0);
@@ -97,7 +103,10 @@ fn link_and_port_info() {
     let mut r = Reader::new(&f);
     assert_eq!(r.u16().unwrap(), 1);
     assert_eq!(r.str8().unwrap(), "test");
-    assert_eq!(ask(&mut net, a, 5, &[key::PORT_INFO, 2, 0]).0, Status::NoSuchIndex);
+    assert_eq!(
+        ask(&mut net, a, 5, &[key::PORT_INFO, 2, 0]).0,
+        Status::NoSuchIndex
+    );
 }
 
 #[test]
@@ -106,7 +115,13 @@ fn debug_messages_and_verbosity() {
     let rt = &mut net.nodes[b].runtime;
     rt.log(Level::Info, format_args!("boot {}", 1));
     rt.log(Level::Debug, format_args!("hidden at info verbosity"));
-    rt.log(Level::Warn, format_args!("{}", "a line far longer than any log line may be, so it is cut"));
+    rt.log(
+        Level::Warn,
+        format_args!(
+            "{}",
+            "a line far longer than any log line may be, so it is cut"
+        ),
+    );
     let (s, f) = ask(&mut net, a, 1, &[key::DEBUG_MESSAGES, 0, 0, 0, 0]);
     assert_eq!(s, Status::Ok);
     let mut r = Reader::new(&f);
@@ -115,16 +130,25 @@ fn debug_messages_and_verbosity() {
     assert_eq!((r.u32().unwrap(), r.u8().unwrap()), (0, Level::Info as u8));
     assert_eq!(r.str8().unwrap(), "boot 1");
     assert_eq!((r.u32().unwrap(), r.u8().unwrap()), (1, Level::Warn as u8));
-    assert_eq!(r.str8().unwrap().len(), osap_core::netresponder::LOG_LINE_MAX);
+    assert_eq!(
+        r.str8().unwrap().len(),
+        osap_core::netresponder::LOG_LINE_MAX
+    );
     // Only newer lines when asked from a sequence number.
     let (_, f) = ask(&mut net, a, 2, &[key::DEBUG_MESSAGES, 1, 0, 0, 0]);
     assert_eq!(f[4], 1);
     // Debug verbosity keeps debug lines.
     assert_eq!(ask(&mut net, a, 3, &[key::SET_VERBOSITY, 3]).0, Status::Ok);
-    assert_eq!(ask(&mut net, a, 4, &[key::SET_VERBOSITY, 9]).0, Status::InvalidValue);
+    assert_eq!(
+        ask(&mut net, a, 4, &[key::SET_VERBOSITY, 9]).0,
+        Status::InvalidValue
+    );
     let rt = &mut net.nodes[b].runtime;
     rt.log(Level::Debug, format_args!("now kept"));
-    assert_eq!(rt.netresponder().log_lines().last().unwrap().text.as_str(), "now kept");
+    assert_eq!(
+        rt.netresponder().log_lines().last().unwrap().text.as_str(),
+        "now kept"
+    );
 }
 
 #[test]
@@ -160,8 +184,14 @@ fn time_config_read_write_and_validation() {
 fn counters_and_bad_requests() {
     let (mut net, a, b) = pair();
     assert_eq!(ask(&mut net, a, 1, &[0x7f]).0, Status::UnknownKey);
-    assert_eq!(ask(&mut net, a, 2, &[key::TYPE_NAME, 0]).0, Status::Malformed);
-    assert_eq!(ask(&mut net, a, 3, &[key::RUNTIME_INFO, 1]).0, Status::Malformed);
+    assert_eq!(
+        ask(&mut net, a, 2, &[key::TYPE_NAME, 0]).0,
+        Status::Malformed
+    );
+    assert_eq!(
+        ask(&mut net, a, 3, &[key::RUNTIME_INFO, 1]).0,
+        Status::Malformed
+    );
     let (s, f) = ask(&mut net, a, 4, &[key::COUNTERS]);
     assert_eq!(s, Status::Ok);
     assert_eq!(f.len(), 15 * 4);

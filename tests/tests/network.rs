@@ -140,7 +140,7 @@ fn wire_time_counts_against_the_deadline() {
     let b = net.node("b", 1, 1);
     let w = net.wire(a, 0, b, 0);
     net.wires[w].stalled = true; // keep what a sends in its outbox to look at
-    // 100 µs per packet on the wire.
+                                 // 100 µs per packet on the wire.
     net.nodes[a].links[0] = osap_tests::TestLink::new().with_wire_time(100, 0);
     let route = Route::through_links(&[0]).unwrap();
     net.port(a, 1).queue(route, 1, 1_000, &raw(b"x"));
@@ -236,9 +236,12 @@ fn unknown_port_and_link_are_counted_drops() {
     let a = net.node("a", 1, 1);
     let b = net.node("b", 1, 1);
     net.wire(a, 0, b, 0);
-    net.port(a, 1).queue(Route::through_links(&[0]).unwrap(), 7, TTL, &raw(b"?"));
-    net.port(a, 1).queue(Route::through_links(&[0, 3]).unwrap(), 1, TTL, &raw(b"?"));
-    net.port(a, 1).queue(Route::through_links(&[5]).unwrap(), 1, TTL, &raw(b"?"));
+    net.port(a, 1)
+        .queue(Route::through_links(&[0]).unwrap(), 7, TTL, &raw(b"?"));
+    net.port(a, 1)
+        .queue(Route::through_links(&[0, 3]).unwrap(), 1, TTL, &raw(b"?"));
+    net.port(a, 1)
+        .queue(Route::through_links(&[5]).unwrap(), 1, TTL, &raw(b"?"));
     net.run_until(10, 20, |_| false);
     let bc = net.nodes[b].runtime.counters();
     assert_eq!(bc.no_port, 1);
@@ -253,7 +256,8 @@ fn closed_link_drops_with_a_count() {
     let b = net.node("b", 1, 1);
     net.wire(a, 0, b, 0);
     net.nodes[a].links[0].set_open(false);
-    net.port(a, 1).queue(Route::through_links(&[0]).unwrap(), 1, TTL, &raw(b"x"));
+    net.port(a, 1)
+        .queue(Route::through_links(&[0]).unwrap(), 1, TTL, &raw(b"x"));
     net.run_until(10, 5, |_| false);
     assert_eq!(net.nodes[a].runtime.counters().link_closed, 1);
     assert!(net.nodes[b].ports[0].received.is_empty());

@@ -29,10 +29,14 @@ struct Console {
 
 impl Port for Console {
     fn info(&self, _: u16) -> PortInfo<'_> {
-        PortInfo { type_name: "console", name: "" }
+        PortInfo {
+            type_name: "console",
+            name: "",
+        }
     }
     fn on_packet(&mut self, d: Delivery<'_>, _: &mut PortTx<'_>) {
-        self.inbox.push((d.reply_route, d.source_port, d.payload.to_vec()));
+        self.inbox
+            .push((d.reply_route, d.source_port, d.payload.to_vec()));
     }
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         while tx.clear_to_send() && !self.outbox.is_empty() {
@@ -52,7 +56,10 @@ struct Echo {
 
 impl Port for Echo {
     fn info(&self, _: u16) -> PortInfo<'_> {
-        PortInfo { type_name: "echo", name: "" }
+        PortInfo {
+            type_name: "echo",
+            name: "",
+        }
     }
     fn clear_to_receive(&self, _: u16) -> bool {
         !self.busy
@@ -128,7 +135,12 @@ impl Demo {
     }
 
     /// Sends one packet from the console and steps until a reply arrives.
-    fn exchange(&mut self, route: Route, port: u16, payload: Vec<u8>) -> Option<(Route, u16, Vec<u8>)> {
+    fn exchange(
+        &mut self,
+        route: Route,
+        port: u16,
+        payload: Vec<u8>,
+    ) -> Option<(Route, u16, Vec<u8>)> {
         self.console[0].outbox.push((route, port, 10_000, payload));
         for _ in 0..50 {
             self.step();
@@ -180,7 +192,9 @@ fn main() {
     println!("\nSending a packet with 300 µs to live to a busy port on x-axis:");
     demo.modules[1].ports[0].busy = true;
     let to_x = Route::through_links(&[0, 1]).expect("short route");
-    demo.console[0].outbox.push((to_x, 1, 300, b"\x00too late".to_vec()));
+    demo.console[0]
+        .outbox
+        .push((to_x, 1, 300, b"\x00too late".to_vec()));
     for _ in 0..10 {
         demo.step();
     }
