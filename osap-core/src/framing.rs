@@ -129,6 +129,8 @@ pub fn encode_frame(packet: &[u8], out: &mut [u8]) -> Result<usize, FrameError> 
         .map_or(0, |i| i + 1);
     let run_len = packet.len() - run_start;
     let split = run_start + run_len / COBS_MAX_RUN * COBS_MAX_RUN;
+    // `split <= packet.len()` and `tail.len() < 254` by construction; the
+    // checked forms below just keep every path panic-free.
     let (head, tail) = packet
         .split_at_checked(split)
         .ok_or(FrameError::OutputTooSmall)?;
@@ -136,9 +138,9 @@ pub fn encode_frame(packet: &[u8], out: &mut [u8]) -> Result<usize, FrameError> 
     let mut pos = 0;
     if !head.is_empty() {
         let n = corncobs::encode_buf(head, out);
-        // Drop the delimiter. If `head` ends in 0x00, corncobs also closed it
-        // with an empty block (0x01) standing for "the data ends after that
-        // zero"; the tail's first block takes that role instead.
+        // Drop the delimiter. If `head` ends in 0x00, corncobs also ended it
+        // with an empty block (0x01), there only so that the zero before it
+        // is not the end of the data; the tail's blocks take its place.
         let dropped = if head.last() == Some(&DELIMITER) {
             2
         } else {

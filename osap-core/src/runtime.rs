@@ -23,7 +23,7 @@ use crate::netresponder::{self, BuildKey, Changes, Identity, Level, NameTooLong}
 use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError};
 use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
 use crate::route::Route;
-use crate::stack::{ClaimError, Owner, PacketStack, PushError};
+use crate::stack::{ClaimError, Owner, PacketStack, PushError, SlotId, SlotMeta};
 use crate::transport::Transport;
 use crate::Micros;
 
@@ -362,35 +362,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     ) -> PollResult {
         let mut result = PollResult::default();
         let budget = usize::from(self.config.max_packets_per_poll.max(1));
-        let mut pos = 0;
-        while let Some(slot) = self.stack.at(pos) {
-            if result.handled >= budget {
-                result.more = true;
+        // Serving can queue new packets (replies, a port answering another
+        // locally). Walk again while a pass produced some, so a reply leaves
+        // in the same poll as its request; the budget bounds the passes.
+        loop {
+            let pushes = self.stack.pushes();
+            self.serve_pass(now, budget, &mut result, ports, links);
+            if result.more || self.stack.pushes() == pushes {
                 break;
-            }
-            let meta = *self.stack.meta(slot);
-            if now > meta.deadline {
-                self.stack.release_at(pos);
-                bump(&mut self.counters.expired);
-                result.dropped += 1;
-                continue;
-            }
-            let instruction = Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction());
-            let served = match instruction {
-                Err(_) => self.drop_at(pos, Drop::Malformed),
-                Ok(Instruction::LinkForward(j)) => self.forward(pos, j, now, meta.deadline, links),
-                // No bus gateways exist yet: a bus hop has nowhere to go.
-                Ok(Instruction::BusForward { .. }) => self.drop_at(pos, Drop::NoRoute),
-                Ok(Instruction::PortHandle { src, dst: 0 }) => {
-                    self.answer_netresponder(pos, src, now, ports, links)
-                }
-                Ok(Instruction::PortHandle { src, dst }) => self.deliver(pos, src, dst, now, ports),
-                Ok(Instruction::SystemMsg(code)) => self.system_message(pos, code, now),
-            };
-            match served {
-                Served::Done => result.handled += 1,
-                Served::Dropped => result.dropped += 1,
-                Served::Wait => pos += 1,
             }
         }
         result.waiting = self.stack.len();
@@ -398,8 +377,54 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         result
     }
 
-    fn drop_at(&mut self, pos: usize, why: Drop) -> Served {
-        self.stack.release_at(pos);
+    fn serve_pass<P: Port, L: LinkGateway>(
+        &mut self,
+        now: Micros,
+        budget: usize,
+        result: &mut PollResult,
+        ports: &mut [P],
+        links: &mut [L],
+    ) {
+        let mut cursor = self.stack.first();
+        while let Some(slot) = cursor {
+            if result.handled >= budget {
+                result.more = true;
+                return;
+            }
+            // Serving a packet only ever frees this slot and queues new
+            // ones, so its successor stays valid across the call.
+            cursor = self.stack.next(slot);
+            let meta = *self.stack.meta(slot);
+            if now > meta.deadline {
+                self.stack.release(slot);
+                bump(&mut self.counters.expired);
+                result.dropped += 1;
+                continue;
+            }
+            let instruction = Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction());
+            let served = match instruction {
+                Err(_) => self.drop_slot(slot, Drop::Malformed),
+                Ok(Instruction::LinkForward(j)) => self.forward(slot, j, now, meta.deadline, links),
+                // No bus gateways exist yet: a bus hop has nowhere to go.
+                Ok(Instruction::BusForward { .. }) => self.drop_slot(slot, Drop::NoRoute),
+                Ok(Instruction::PortHandle { src, dst: 0 }) => {
+                    self.answer_netresponder(slot, src, now, ports, links)
+                }
+                Ok(Instruction::PortHandle { src, dst }) => {
+                    self.deliver(slot, src, dst, now, ports)
+                }
+                Ok(Instruction::SystemMsg(code)) => self.system_message(slot, code, now),
+            };
+            match served {
+                Served::Done => result.handled += 1,
+                Served::Dropped => result.dropped += 1,
+                Served::Wait => {}
+            }
+        }
+    }
+
+    fn drop_slot(&mut self, slot: SlotId, why: Drop) -> Served {
+        self.stack.release(slot);
         let c = &mut self.counters;
         bump(match why {
             Drop::Malformed => &mut c.malformed,
@@ -415,7 +440,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     fn forward<L: LinkGateway>(
         &mut self,
-        pos: usize,
+        slot: SlotId,
         index: u8,
         now: Micros,
         deadline: Micros,
@@ -425,25 +450,22 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             .get_mut(usize::from(index))
             .filter(|_| usize::from(index) < LINKS)
         else {
-            return self.drop_at(pos, Drop::NoRoute);
+            return self.drop_slot(slot, Drop::NoRoute);
         };
         if !link.is_open() {
-            return self.drop_at(pos, Drop::LinkClosed);
+            return self.drop_slot(slot, Drop::LinkClosed);
         }
         if !link.clear_to_send() {
             return Served::Wait;
         }
-        let Some(slot) = self.stack.at(pos) else {
-            return Served::Wait;
-        };
         if self.stack.packet(slot).len() > usize::from(link.mtu()) {
-            return self.drop_at(pos, Drop::Oversize);
+            return self.drop_slot(slot, Drop::Oversize);
         }
         // Wire time counts against the deadline: a packet that would land
         // after it is dropped here rather than spending the link on it.
         let landing = now.saturating_add(link.transmit_time(self.stack.packet(slot).len()));
         if landing > deadline {
-            self.stack.release_at(pos);
+            self.stack.release(slot);
             bump(&mut self.counters.expired);
             return Served::Dropped;
         }
@@ -455,39 +477,37 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             Ok(()) => bump(&mut self.counters.forwarded),
             Err(_) => bump(&mut self.counters.link_errors),
         }
-        self.stack.release_at(pos);
+        self.stack.release(slot);
         Served::Done
     }
 
-    /// Copies the packet at `pos` into scratch and frees its slot, returning
-    /// its length and metadata; the slot is then free for a reply.
-    fn take_to_scratch(&mut self, pos: usize) -> Option<(usize, crate::stack::SlotMeta)> {
-        let slot = self.stack.at(pos)?;
+    /// Copies the packet in `slot` into scratch and frees the slot,
+    /// returning its length and metadata; the slot is then free for a reply.
+    fn take_to_scratch(&mut self, slot: SlotId) -> (usize, SlotMeta) {
         let packet = self.stack.packet(slot);
         let len = packet.len();
         self.scratch[..len].copy_from_slice(packet);
-        let meta = self.stack.release_at(pos)?;
-        Some((len, meta))
+        let meta = *self.stack.meta(slot);
+        self.stack.release(slot);
+        (len, meta)
     }
 
     fn deliver<P: Port>(
         &mut self,
-        pos: usize,
+        slot: SlotId,
         src: u16,
         dst: u16,
         now: Micros,
         ports: &mut [P],
     ) -> Served {
         let Some((object, offset, base)) = find_port(ports, dst) else {
-            return self.drop_at(pos, Drop::NoPort);
+            return self.drop_slot(slot, Drop::NoPort);
         };
         let port = &mut ports[object];
         if !port.clear_to_receive(offset) {
             return Served::Wait;
         }
-        let Some((len, meta)) = self.take_to_scratch(pos) else {
-            return Served::Wait;
-        };
+        let (len, meta) = self.take_to_scratch(slot);
         let Some((reply_route, payload)) = split_delivery(&self.scratch[..len]) else {
             bump(&mut self.counters.malformed);
             return Served::Dropped;
@@ -521,7 +541,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     fn answer_netresponder<P: Port, L: LinkGateway>(
         &mut self,
-        pos: usize,
+        slot: SlotId,
         src: u16,
         now: Micros,
         ports: &[P],
@@ -532,9 +552,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         if self.stack.check_claim(Owner::Port(0)).is_err() {
             return Served::Wait;
         }
-        let Some((len, _)) = self.take_to_scratch(pos) else {
-            return Served::Wait;
-        };
+        let (len, _) = self.take_to_scratch(slot);
         let Some((route, payload)) = split_delivery(&self.scratch[..len]) else {
             bump(&mut self.counters.malformed);
             return Served::Dropped;
@@ -581,15 +599,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
     }
 
-    fn system_message(&mut self, pos: usize, code: u8, now: Micros) -> Served {
+    fn system_message(&mut self, slot: SlotId, code: u8, now: Micros) -> Served {
         match code {
             CODE_TIME_REQUEST => {
                 if self.stack.check_claim(Owner::System).is_err() {
                     return Served::Wait;
                 }
-                let Some((len, _)) = self.take_to_scratch(pos) else {
-                    return Served::Wait;
-                };
+                let (len, _) = self.take_to_scratch(slot);
                 let Some((route, body)) = split_delivery(&self.scratch[..len]) else {
                     bump(&mut self.counters.unknown_system);
                     return Served::Dropped;
@@ -619,9 +635,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 }
             }
             CODE_TIME_REPLY => {
-                let Some((len, meta)) = self.take_to_scratch(pos) else {
-                    return Served::Wait;
-                };
+                let (len, meta) = self.take_to_scratch(slot);
                 let sample = split_delivery(&self.scratch[..len]).and_then(|(route, body)| {
                     let mut hops = route.hops();
                     let (Some(Instruction::LinkForward(link)), None) = (hops.next(), hops.next())
@@ -644,7 +658,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     }
                 }
             }
-            _ => self.drop_at(pos, Drop::UnknownSystem),
+            _ => self.drop_slot(slot, Drop::UnknownSystem),
         }
     }
 

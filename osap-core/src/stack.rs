@@ -1,9 +1,11 @@
 //! The packet stack: fixed slots served in earliest-deadline order.
 //!
-//! Every packet a runtime holds lives in one of `N` slots of `MTU` bytes. The
-//! stack keeps an index of occupied slots sorted by deadline, updated by one
-//! binary-search insertion per packet, so the runtime loop walks it front to
-//! back without ever re-sorting.
+//! Every packet a runtime holds lives in one of `N` slots of `MTU` bytes.
+//! Occupied slots are threaded on a doubly linked list sorted by deadline,
+//! so the runtime loop walks it front to back without ever re-sorting.
+//! A new packet is placed by walking back from the tail, which is one step in
+//! the common case (equal TTLs, arriving in order); taking a packet out is
+//! constant time and moves no memory.
 //!
 //! Each slot is charged to its *owner*: the port that wrote it, the link it
 //! arrived on, or the runtime itself. Owners have hold quotas (by default 2
@@ -14,6 +16,9 @@
 use crate::Micros;
 use core::fmt;
 use heapless::Vec;
+
+/// End of the list.
+const NIL: u16 = u16::MAX;
 
 /// Default number of slots a port may hold at once.
 pub const DEFAULT_PORT_QUOTA: u8 = 2;
@@ -111,7 +116,14 @@ struct Hold {
 pub struct PacketStack<const N: usize, const MTU: usize, const P: usize, const L: usize> {
     bufs: [[u8; MTU]; N],
     meta: [SlotMeta; N],
-    order: Vec<u16, N>,
+    // Deadline order: `next`/`prev` link occupied slots, head is earliest.
+    next: [u16; N],
+    prev: [u16; N],
+    queued: [bool; N],
+    head: u16,
+    tail: u16,
+    len: u16,
+    pushes: u32,
     free: Vec<u16, N>,
     ports: [Hold; P],
     links: [Hold; L],
@@ -146,7 +158,13 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         PacketStack {
             bufs: [[0; MTU]; N],
             meta: [SlotMeta::EMPTY; N],
-            order: Vec::new(),
+            next: [NIL; N],
+            prev: [NIL; N],
+            queued: [false; N],
+            head: NIL,
+            tail: NIL,
+            len: 0,
+            pushes: 0,
             free,
             ports: [Hold {
                 held: 0,
@@ -175,12 +193,12 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
 
     /// Number of packets queued in deadline order.
     pub fn len(&self) -> usize {
-        self.order.len()
+        usize::from(self.len)
     }
 
     /// Whether no packet is queued.
     pub fn is_empty(&self) -> bool {
-        self.order.is_empty()
+        self.len == 0
     }
 
     /// Number of free slots.
@@ -268,23 +286,81 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
             deadline,
             owner,
         };
-        // Upper bound: equal deadlines stay first-come, first-served.
-        let pos = self
-            .order
-            .partition_point(|&s| self.meta[s as usize].deadline <= deadline);
-        // Cannot fail: occupied slots never outnumber N.
-        let _ = self.order.insert(pos, slot);
+        self.link_by_deadline(slot, deadline);
         Ok(SlotId(slot))
     }
 
+    /// Threads `slot` into the list after every packet due at or before
+    /// `deadline`, so equal deadlines stay first come, first served.
+    fn link_by_deadline(&mut self, slot: u16, deadline: Micros) {
+        let mut after = self.tail;
+        while after != NIL && self.meta[usize::from(after)].deadline > deadline {
+            after = self.prev[usize::from(after)];
+        }
+        let before = if after == NIL {
+            self.head
+        } else {
+            self.next[usize::from(after)]
+        };
+        self.prev[usize::from(slot)] = after;
+        self.next[usize::from(slot)] = before;
+        if after == NIL {
+            self.head = slot;
+        } else {
+            self.next[usize::from(after)] = slot;
+        }
+        if before == NIL {
+            self.tail = slot;
+        } else {
+            self.prev[usize::from(before)] = slot;
+        }
+        self.queued[usize::from(slot)] = true;
+        self.len += 1;
+        self.pushes = self.pushes.wrapping_add(1);
+    }
+
+    /// Packets queued over the stack's life (wrapping): a change tells the
+    /// runtime that serving produced new packets.
+    pub fn pushes(&self) -> u32 {
+        self.pushes
+    }
+
+    fn id(&self, slot: u16) -> Option<SlotId> {
+        (slot != NIL).then_some(SlotId(slot))
+    }
+
+    /// The packet with the earliest deadline.
+    pub fn first(&self) -> Option<SlotId> {
+        self.id(self.head)
+    }
+
+    /// The packet due after `slot`, in deadline order.
+    pub fn next(&self, slot: SlotId) -> Option<SlotId> {
+        if !self.is_queued(slot) {
+            return None;
+        }
+        self.id(self.next[slot.index()])
+    }
+
+    /// Whether `slot` holds a queued packet.
+    pub fn is_queued(&self, slot: SlotId) -> bool {
+        self.queued.get(slot.index()).copied().unwrap_or(false)
+    }
+
+    /// The packets in deadline order, earliest first.
+    pub fn iter(&self) -> impl Iterator<Item = SlotId> + '_ {
+        core::iter::successors(self.first(), move |&s| self.next(s))
+    }
+
     /// The slot at position `pos` in deadline order (0 is the earliest).
+    /// Walks the list: for inspection and tests, not for the hot path.
     pub fn at(&self, pos: usize) -> Option<SlotId> {
-        self.order.get(pos).map(|&s| SlotId(s))
+        self.iter().nth(pos)
     }
 
     /// The earliest deadline of any queued packet.
     pub fn earliest_deadline(&self) -> Option<Micros> {
-        self.at(0).map(|s| self.meta[s.index()].deadline)
+        self.first().map(|s| self.meta[s.index()].deadline)
     }
 
     /// Metadata of an occupied slot.
@@ -304,24 +380,45 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         &mut self.bufs[slot.index()][..len]
     }
 
-    /// Removes the packet at position `pos` and frees its slot, returning
-    /// the slot's metadata.
-    pub fn release_at(&mut self, pos: usize) -> Option<SlotMeta> {
-        if pos >= self.order.len() {
+    /// Takes the packet in `slot` off the list and frees the slot, returning
+    /// its metadata; `None` if the slot held no packet.
+    pub fn release(&mut self, slot: SlotId) -> Option<SlotMeta> {
+        if !self.is_queued(slot) {
             return None;
         }
-        let slot = self.order.remove(pos);
-        let meta = self.meta[slot as usize];
+        let i = slot.index();
+        let (prev, next) = (self.prev[i], self.next[i]);
+        if prev == NIL {
+            self.head = next;
+        } else {
+            self.next[usize::from(prev)] = next;
+        }
+        if next == NIL {
+            self.tail = prev;
+        } else {
+            self.prev[usize::from(next)] = prev;
+        }
+        self.queued[i] = false;
+        self.len -= 1;
+        let meta = self.meta[i];
         if let Some(h) = self.hold_mut(meta.owner) {
             h.held = h.held.saturating_sub(1);
         }
-        let _ = self.free.push(slot);
+        let _ = self.free.push(slot.0);
         Some(meta)
+    }
+
+    /// Releases the packet at position `pos` in deadline order.
+    pub fn release_at(&mut self, pos: usize) -> Option<SlotMeta> {
+        let slot = self.at(pos)?;
+        self.release(slot)
     }
 
     /// Frees every slot (for a runtime reset).
     pub fn clear(&mut self) {
-        while self.release_at(0).is_some() {}
+        while let Some(slot) = self.first() {
+            self.release(slot);
+        }
     }
 }
 

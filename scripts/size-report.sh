@@ -1,0 +1,65 @@
+#!/usr/bin/env bash
+# Builds the osap-core size probe (osap-core/size-probe: a minimal module
+# runtime with one framed UART link and the netresponder) for the two
+# Cortex-M targets and prints its text/data/bss per target.
+#
+# Fails if the thumbv6m-none-eabi .text exceeds the budget (16 KiB, or
+# $OSAP_TEXT_BUDGET bytes).
+#
+# Usage: scripts/size-report.sh [--symbols N]
+#   --symbols N   also list the N largest symbols per target
+set -euo pipefail
+
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+probe="$root/osap-core/size-probe"
+budget="${OSAP_TEXT_BUDGET:-16384}"
+targets=(thumbv6m-none-eabi thumbv7em-none-eabihf)
+bin=osap-size-probe
+
+symbols=0
+if [[ "${1:-}" == "--symbols" ]]; then
+    symbols="${2:?--symbols needs a count}"
+fi
+
+# llvm-size and llvm-nm come with the llvm-tools rustup component (listed in
+# rust-toolchain.toml). Run from the probe so its toolchain file applies.
+cd "$probe"
+sysroot="$(rustc --print sysroot)"
+find_tool() {
+    local t
+    for t in "$sysroot"/lib/rustlib/*/bin/"$1"; do
+        if [[ -x "$t" ]]; then
+            echo "$t"
+            return 0
+        fi
+    done
+    echo "error: $1 not found under $sysroot/lib/rustlib/*/bin;" \
+        "install it with: rustup component add llvm-tools" >&2
+    return 1
+}
+llvm_size="$(find_tool llvm-size)"
+llvm_nm="$(find_tool llvm-nm)"
+
+status=0
+printf '%-24s %8s %8s %8s\n' target text data bss
+for target in "${targets[@]}"; do
+    cargo build --quiet --release --target "$target"
+    elf="$probe/target/$target/release/$bin"
+    # Berkeley format: text data bss dec hex filename
+    read -r text data bss _ < <("$llvm_size" -B "$elf" | tail -n 1)
+    printf '%-24s %8d %8d %8d\n' "$target" "$text" "$data" "$bss"
+    if [[ "$symbols" -gt 0 ]]; then
+        # awk, not head: head would close the pipe early and, under
+        # pipefail, fail the script with SIGPIPE.
+        "$llvm_nm" --size-sort --reverse-sort -S --demangle "$elf" \
+            | awk -v n="$symbols" 'NR <= n { print "    " $0 }'
+    fi
+    if [[ "$target" == thumbv6m-none-eabi && "$text" -gt "$budget" ]]; then
+        echo "error: $target text is $text bytes, over the budget of $budget" >&2
+        status=1
+    fi
+done
+if [[ $status -eq 0 ]]; then
+    echo "thumbv6m-none-eabi text is within the budget of $budget bytes"
+fi
+exit $status
