@@ -27,9 +27,10 @@ pub struct Counters {
     pub malformed: u32,
     /// Dropped: longer than a buffer, a link MTU or the header's `mtu`.
     pub oversize: u32,
-    /// Port sends refused because the port was at its quota.
+    /// Sends refused because the sender (a port, or the runtime for its own
+    /// replies) was at its quota.
     pub quota_refused: u32,
-    /// Port sends refused because every slot was in use.
+    /// Sends refused because every slot was in use.
     pub stack_full: u32,
     /// Sends a link gateway failed after saying it was clear.
     pub link_errors: u32,

@@ -266,9 +266,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let route = Route::through_links(&[link]).map_err(SendError::BadAddress)?;
         let stamp = self.clock.system_time(now);
         let ttl = self.config.reply_ttl_us;
-        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, MTU as u16, |w| {
-            w.u64(stamp).ok()
-        })
+        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| w.u64(stamp).ok())
     }
 
     fn sender(&mut self, now: Micros) -> Sender<'_, SLOTS, MTU, PORTS, LINKS> {
@@ -433,7 +431,6 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             Drop::NoPort => &mut c.no_port,
             Drop::Oversize => &mut c.oversize,
             Drop::UnknownSystem => &mut c.unknown_system,
-            Drop::Netresponder => &mut c.netresponder_errors,
         });
         Served::Dropped
     }
@@ -561,8 +558,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             bump(&mut self.counters.netresponder_errors);
             return Served::Dropped;
         };
-        let mtu = route.mtu().min(MTU as u16);
         let ttl = self.config.reply_ttl_us;
+        // The counters query reports them as they were at the request.
         let counters = self.counters;
         let mut ctx = netresponder::Context {
             identity: &mut self.identity,
@@ -574,28 +571,27 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             links,
             packet_size: MTU as u16,
         };
-        let pushed = self.stack.push_with(Owner::Port(0), now, |buf| {
-            let terminal = Instruction::PortHandle { src: 0, dst: src };
-            let start = route
-                .write_header(buf, terminal, ttl, mtu)
-                .map_err(|_| ())?;
-            let room = buf.get_mut(start..usize::from(mtu)).ok_or(())?;
-            let mut w = Writer::new(room);
-            let mut header = [0u8; 3];
-            let n = Transport::Reply(seq).encode(&mut header).ok_or(())?;
-            w.bytes(&header[..n]).map_err(|_| ())?;
-            netresponder::respond(&mut ctx, body, &mut w).map_err(|_| ())?;
-            Ok::<_, ()>((start + w.len(), now.saturating_add(u64::from(ttl))))
-        });
-        match pushed {
-            Ok(_) => {
-                bump(&mut self.counters.delivered);
-                Served::Done
-            }
-            Err(_) => {
-                bump(&mut self.counters.netresponder_errors);
-                Served::Dropped
-            }
+        let answered = queue_packet(
+            &mut self.stack,
+            &mut self.counters,
+            Owner::Port(0),
+            now,
+            &route,
+            Instruction::PortHandle { src: 0, dst: src },
+            ttl,
+            &mut |room| {
+                let n = Transport::Reply(seq).encode(room)?;
+                let mut w = Writer::new(room.get_mut(n..)?);
+                netresponder::respond(&mut ctx, body, &mut w).ok()?;
+                Some(n + w.len())
+            },
+        );
+        if answered.is_ok() {
+            bump(&mut self.counters.delivered);
+            Served::Done
+        } else {
+            bump(&mut self.counters.netresponder_errors);
+            Served::Dropped
         }
     }
 
@@ -620,10 +616,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     responder_tier: self.clock.tier(),
                 };
                 let ttl = self.config.reply_ttl_us;
-                let mtu = route.mtu();
-                match self.push_system(now, &route, CODE_TIME_REPLY, ttl, mtu, |w| {
-                    reply.encode(w).ok()
-                }) {
+                match self.push_system(now, &route, CODE_TIME_REPLY, ttl, |w| reply.encode(w).ok())
+                {
                     Ok(()) => {
                         bump(&mut self.counters.system);
                         Served::Done
@@ -668,30 +662,23 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         route: &Route,
         code: u8,
         ttl: u16,
-        mtu: u16,
         body: impl FnOnce(&mut Writer<'_>) -> Option<()>,
     ) -> Result<(), SendError> {
-        let mtu = mtu.min(MTU as u16);
-        let pushed = self.stack.push_with(Owner::System, now, |buf| {
-            let start = route
-                .write_header(buf, Instruction::SystemMsg(code), ttl, mtu)
-                .map_err(|e| match e {
-                    PacketError::TooLong => SendError::TooLong,
-                    e => SendError::BadAddress(e),
-                })?;
-            let room = buf
-                .get_mut(start..usize::from(mtu))
-                .ok_or(SendError::TooLong)?;
-            let mut w = Writer::new(room);
-            body(&mut w).ok_or(SendError::TooLong)?;
-            Ok((start + w.len(), now.saturating_add(u64::from(ttl))))
-        });
-        match pushed {
-            Ok(_) => Ok(()),
-            Err(PushError::Claim(c)) => Err(SendError::NotClear(c)),
-            Err(PushError::Write(e)) => Err(e),
-            Err(PushError::Length) => Err(SendError::TooLong),
-        }
+        let mut body = Some(body);
+        queue_packet(
+            &mut self.stack,
+            &mut self.counters,
+            Owner::System,
+            now,
+            route,
+            Instruction::SystemMsg(code),
+            ttl,
+            &mut |room| {
+                let mut w = Writer::new(room);
+                (body.take()?)(&mut w)?;
+                Some(w.len())
+            },
+        )
     }
 }
 
@@ -703,8 +690,6 @@ enum Drop {
     NoPort,
     Oversize,
     UnknownSystem,
-    #[allow(dead_code)]
-    Netresponder,
 }
 
 /// Finds the port object serving runtime port index `index` (≥ 1): returns
@@ -753,36 +738,62 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         ttl: u16,
         write: &mut dyn FnMut(&mut [u8]) -> Option<usize>,
     ) -> Result<(), SendError> {
-        let now = self.now;
-        let mtu = route.mtu().min(MTU as u16);
-        let pushed = self.stack.push_with(Owner::Port(from), now, |buf| {
-            let start = route
-                .write_header(buf, terminal, ttl, mtu)
-                .map_err(|e| match e {
-                    PacketError::TooLong => SendError::TooLong,
-                    e => SendError::BadAddress(e),
-                })?;
-            let room = buf
-                .get_mut(start..usize::from(mtu))
-                .ok_or(SendError::TooLong)?;
-            let room_len = room.len();
-            let n = write(room)
-                .filter(|&n| n <= room_len)
-                .ok_or(SendError::TooLong)?;
-            Ok((start + n, now.saturating_add(u64::from(ttl))))
-        });
-        match pushed {
-            Ok(_) => Ok(()),
-            Err(PushError::Claim(c)) => {
-                match c {
-                    ClaimError::QuotaExceeded => bump(&mut self.counters.quota_refused),
-                    ClaimError::StackFull => bump(&mut self.counters.stack_full),
-                    ClaimError::UnknownOwner => {}
-                }
-                Err(SendError::NotClear(c))
+        queue_packet(
+            self.stack,
+            self.counters,
+            Owner::Port(from),
+            self.now,
+            route,
+            terminal,
+            ttl,
+            write,
+        )
+    }
+}
+
+/// Writes a fresh packet into a slot charged to `owner` and queues it: the
+/// header for `route` and `terminal`, then whatever payload `write` puts in
+/// the room left under the route MTU (it returns the payload length, or
+/// `None` if the payload does not fit).
+#[allow(clippy::too_many_arguments)]
+fn queue_packet<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize>(
+    stack: &mut PacketStack<SLOTS, MTU, PORTS, LINKS>,
+    counters: &mut Counters,
+    owner: Owner,
+    now: Micros,
+    route: &Route,
+    terminal: Instruction,
+    ttl: u16,
+    write: &mut dyn FnMut(&mut [u8]) -> Option<usize>,
+) -> Result<(), SendError> {
+    let mtu = route.mtu().min(MTU as u16);
+    let pushed = stack.push_with(owner, now, |buf| {
+        let start = route
+            .write_header(buf, terminal, ttl, mtu)
+            .map_err(|e| match e {
+                PacketError::TooLong => SendError::TooLong,
+                e => SendError::BadAddress(e),
+            })?;
+        let room = buf
+            .get_mut(start..usize::from(mtu))
+            .ok_or(SendError::TooLong)?;
+        let room_len = room.len();
+        let n = write(room)
+            .filter(|&n| n <= room_len)
+            .ok_or(SendError::TooLong)?;
+        Ok((start + n, now.saturating_add(u64::from(ttl))))
+    });
+    match pushed {
+        Ok(_) => Ok(()),
+        Err(PushError::Claim(c)) => {
+            match c {
+                ClaimError::QuotaExceeded => bump(&mut counters.quota_refused),
+                ClaimError::StackFull => bump(&mut counters.stack_full),
+                ClaimError::UnknownOwner => {}
             }
-            Err(PushError::Write(e)) => Err(e),
-            Err(PushError::Length) => Err(SendError::TooLong),
+            Err(SendError::NotClear(c))
         }
+        Err(PushError::Write(e)) => Err(e),
+        Err(PushError::Length) => Err(SendError::TooLong),
     }
 }
