@@ -59,9 +59,8 @@ fn names_read_and_set() {
     assert_eq!(Reader::new(&f).str8().unwrap(), "test_node");
     let (_, f) = ask(&mut net, a, 2, &[key::NAME]);
     assert_eq!(Reader::new(&f).str8().unwrap(), "module-b");
-    let mut body = vec![key::SET_NAME, 5];
+    let mut body = vec![key::SET_NAME, 6];
     body.extend_from_slice(b"x-axis");
-    body[1] = 6;
     let (s, f) = ask(&mut net, a, 3, &body);
     assert_eq!(s, Status::Ok);
     assert_eq!(Reader::new(&f).str8().unwrap(), "x-axis");
