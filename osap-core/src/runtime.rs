@@ -65,9 +65,10 @@ pub struct PollResult {
     pub dropped: usize,
     /// Packets left waiting for a busy link or port.
     pub waiting: usize,
-    /// The earliest deadline among waiting packets: poll again by then (a
-    /// waiting packet's link or port may also become clear sooner).
-    pub next_deadline: Option<Micros>,
+    /// The local time by which `poll` must run again: the earliest deadline
+    /// of a waiting packet, or the next clock-sync request. Poll sooner when
+    /// a link or port has news.
+    pub wake_at: Option<Micros>,
     /// The per-poll budget ran out with work left: poll again at once.
     pub more: bool,
 }
@@ -207,6 +208,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         &self.stack
     }
 
+    /// Synchronised system time at local time `local`, µs.
+    pub fn system_time(&self, local: Micros) -> u64 {
+        self.clock.system_time(local)
+    }
+
     /// The clock.
     pub fn clock(&self) -> &Clock {
         &self.clock
@@ -308,8 +314,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             // Take packets only while the link has quota: otherwise they stay
             // in the link's own buffer, which pushes back on the sender.
             while self.stack.check_claim(owner).is_ok() {
+                let mut stamp = None;
                 let pushed = self.stack.push_with(owner, now, |buf| {
                     let rx = link.receive(buf).ok_or(Rx::Empty)?;
+                    stamp = rx.timestamp;
                     let packet = buf.get_mut(..rx.len).ok_or(Rx::Oversize)?;
                     ingest_rewrite(packet, Instruction::LinkForward(index))
                         .map_err(|_| Rx::Malformed)?;
@@ -321,7 +329,12 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     Ok((rx.len, arrival.saturating_add(u64::from(view.ttl()))))
                 });
                 match pushed {
-                    Ok(_) => bump(&mut self.counters.received),
+                    Ok(slot) => {
+                        bump(&mut self.counters.received);
+                        if let Some(ts) = stamp.take() {
+                            self.stack.set_arrival(slot, ts);
+                        }
+                    }
                     Err(PushError::Write(Rx::Empty)) | Err(PushError::Claim(_)) => break,
                     Err(PushError::Write(Rx::Oversize)) | Err(PushError::Length) => {
                         bump(&mut self.counters.received);
@@ -371,7 +384,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             }
         }
         result.waiting = self.stack.len();
-        result.next_deadline = self.stack.earliest_deadline();
+        result.wake_at = self.stack.earliest_deadline();
         result
     }
 

@@ -368,6 +368,13 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         &self.meta[slot.index()]
     }
 
+    /// Corrects when a queued packet arrived (a link's wire time stamp).
+    pub fn set_arrival(&mut self, slot: SlotId, arrival: Micros) {
+        if self.is_queued(slot) {
+            self.meta[slot.index()].arrival = arrival;
+        }
+    }
+
     /// The packet in a slot.
     pub fn packet(&self, slot: SlotId) -> &[u8] {
         let len = self.meta[slot.index()].len as usize;

@@ -25,8 +25,10 @@ pub struct Received {
     /// Length of the packet. If larger than the buffer the runtime offered,
     /// the packet was not copied and is dropped as oversize.
     pub len: usize,
-    /// When its first byte arrived, on the runtime's clock, if the link can
-    /// tell; stamping at the wire makes clock sync more accurate.
+    /// When its first byte arrived on the wire, on the runtime's local
+    /// clock, if the link can tell (a receive interrupt, or the frame's end
+    /// minus its wire time). Clock sync is only as good as this stamp; links
+    /// that cannot tell leave it `None` and the runtime uses the poll time.
     pub timestamp: Option<Micros>,
 }
 
@@ -66,6 +68,15 @@ pub trait LinkGateway {
         0
     }
 
+    /// How long from now until a packet sent now would start onto the wire,
+    /// µs: the time to drain what is queued ahead of it, or to reach the
+    /// next bus slot (a USB device knows its frame timing from SOF). The
+    /// runtime adds it to the time stamps of clock-sync messages it
+    /// transmits, so they describe the moment on the wire.
+    fn queue_delay(&self) -> Micros {
+        0
+    }
+
     /// Copies the next received packet into `buf`, if there is one.
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received>;
 
@@ -94,6 +105,9 @@ macro_rules! forward_link_gateway {
         }
         fn transmit_time(&self, len: usize) -> Micros {
             (**self).transmit_time(len)
+        }
+        fn queue_delay(&self) -> Micros {
+            (**self).queue_delay()
         }
         fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
             (**self).receive(buf)
