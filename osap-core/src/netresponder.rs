@@ -48,6 +48,10 @@ pub mod key {
     pub const SET_TIME_CONFIG: u8 = 0x0A;
     /// Read the runtime's drop and event counters.
     pub const COUNTERS: u8 = 0x0B;
+    /// Read the clock's status: tier, state, offset, rate, sample counts.
+    pub const TIME_STATUS: u8 = 0x0C;
+    /// Set the clock's rate correction (hot start from a persisted rate).
+    pub const SET_CLOCK_RATE: u8 = 0x0D;
 }
 
 /// Outcome code in every netresponder reply.
@@ -281,10 +285,11 @@ impl Changes {
 }
 
 /// Everything a request may read or change.
-pub(crate) struct Context<'a, P, L> {
+pub(crate) struct Context<'a, P, L, const LINKS: usize> {
+    pub now: crate::Micros,
     pub identity: &'a mut Identity,
     pub state: &'a mut State,
-    pub clock: &'a mut Clock,
+    pub clock: &'a mut Clock<LINKS>,
     pub counters: &'a Counters,
     pub changes: &'a mut Changes,
     pub ports: &'a [P],
@@ -292,7 +297,7 @@ pub(crate) struct Context<'a, P, L> {
     pub packet_size: u16,
 }
 
-impl<P: Port, L: LinkGateway> Context<'_, P, L> {
+impl<P: Port, L: LinkGateway, const LINKS: usize> Context<'_, P, L, LINKS> {
     fn port_count(&self) -> u16 {
         self.ports
             .iter()
@@ -333,8 +338,8 @@ impl From<CodecError> for Fail {
 /// Answers one request body into `out` as `[key][status][fields]`.
 ///
 /// Returns an error only when `out` is too small even for a status reply.
-pub(crate) fn respond<P: Port, L: LinkGateway>(
-    ctx: &mut Context<'_, P, L>,
+pub(crate) fn respond<P: Port, L: LinkGateway, const LINKS: usize>(
+    ctx: &mut Context<'_, P, L, LINKS>,
     request: &[u8],
     out: &mut Writer<'_>,
 ) -> Result<Status, CodecError> {
@@ -365,8 +370,8 @@ fn end(r: &Reader<'_>) -> Result<(), Fail> {
     }
 }
 
-fn answer<P: Port, L: LinkGateway>(
-    ctx: &mut Context<'_, P, L>,
+fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
+    ctx: &mut Context<'_, P, L, LINKS>,
     key: u8,
     r: &mut Reader<'_>,
     out: &mut Writer<'_>,
@@ -497,6 +502,17 @@ fn answer<P: Port, L: LinkGateway>(
             ] {
                 out.u32(v)?;
             }
+        }
+        key::TIME_STATUS => {
+            end(r)?;
+            ctx.clock.status().encode(out)?;
+        }
+        key::SET_CLOCK_RATE => {
+            let ppb = r.u32()? as i32;
+            end(r)?;
+            ctx.clock.set_rate_ppb(ctx.now, ppb);
+            ctx.changes.time_config = true;
+            out.u32(ctx.clock.rate_ppb() as u32)?;
         }
         _ => return Err(Fail::Status(Status::UnknownKey)),
     }

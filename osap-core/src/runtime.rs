@@ -14,13 +14,14 @@
 //! it never holds up the packets behind it.
 
 use crate::clock::{
-    Clock, TimeConfig, TimeReply, TimeSample, CODE_TIME_REPLY, CODE_TIME_REQUEST, TIME_REQUEST_LEN,
+    Clock, TimeConfig, TimeReply, CODE_TIME_REPLY, CODE_TIME_REQUEST, TIME_REPLY_LEN,
+    TIME_REQUEST_LEN,
 };
 use crate::codec::Writer;
 use crate::counters::{bump, Counters};
 use crate::link::LinkGateway;
 use crate::netresponder::{self, BuildKey, Changes, Identity, Level, NameTooLong};
-use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError};
+use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError, HEADER_LEN};
 use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
 use crate::route::Route;
 use crate::stack::{ClaimError, Owner, PacketStack, PushError, SlotId, SlotMeta};
@@ -91,10 +92,9 @@ pub struct Runtime<
     config: RuntimeConfig,
     stack: PacketStack<SLOTS, MTU, PORTS, LINKS>,
     netresponder: netresponder::State,
-    clock: Clock,
+    clock: Clock<LINKS>,
     counters: Counters,
     changes: Changes,
-    samples: [Option<TimeSample>; LINKS],
     scratch: [u8; MTU],
 }
 
@@ -124,10 +124,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             clock: Clock::new(TimeConfig::default()),
             counters: Counters::default(),
             changes: Changes::default(),
-            samples: [None; LINKS],
             scratch: [0; MTU],
         };
         rt.apply_quotas();
+        // Runtimes with different names dither their time requests apart.
+        let seed = name.bytes().fold(0x811c_9dc5u32, |h, b| {
+            (h ^ u32::from(b)).wrapping_mul(0x0100_0193)
+        });
+        rt.clock.seed(seed);
         Ok(rt)
     }
 
@@ -214,18 +218,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     }
 
     /// The clock.
-    pub fn clock(&self) -> &Clock {
+    pub fn clock(&self) -> &Clock<LINKS> {
         &self.clock
     }
 
-    /// The clock, for configuration.
-    pub fn clock_mut(&mut self) -> &mut Clock {
+    /// The clock, for configuration and hot start.
+    pub fn clock_mut(&mut self) -> &mut Clock<LINKS> {
         &mut self.clock
-    }
-
-    /// The latest time sample from the neighbour on link `link`.
-    pub fn time_sample(&self, link: u8) -> Option<&TimeSample> {
-        self.samples.get(link as usize)?.as_ref()
     }
 
     /// The netresponder's state (scan id, debug log).
@@ -267,10 +266,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         self.stack.check_claim(Owner::Port(from)).is_ok()
     }
 
-    /// Sends a time stamp request to the neighbour on link `link`.
+    /// Sends a time stamp request to the neighbour on link `link` (the
+    /// clock does this by itself every interval; this is for tests and
+    /// tools). The stamp is our local counter, rewritten when the request
+    /// starts onto the wire.
     pub fn request_time(&mut self, now: Micros, link: u8) -> Result<(), SendError> {
         let route = Route::through_links(&[link]).map_err(SendError::BadAddress)?;
-        let stamp = self.clock.system_time(now);
+        let stamp = now;
         let ttl = self.config.reply_ttl_us;
         self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| w.u64(stamp).ok())
     }
@@ -296,7 +298,33 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
         self.ingest(now, links);
         self.poll_ports(now, ports);
-        self.serve(now, ports, links)
+        self.sync_clock(now, links);
+        let mut result = self.serve(now, ports, links);
+        result.wake_at = match (result.wake_at, self.clock.next_request()) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        };
+        result
+    }
+
+    /// Sends the clock's time stamp requests when they are due, and forgets
+    /// neighbours whose links have closed.
+    fn sync_clock<L: LinkGateway>(&mut self, now: Micros, links: &[L]) {
+        for (i, link) in links.iter().enumerate().take(LINKS) {
+            if !link.is_open() {
+                self.clock.forget(i);
+            }
+        }
+        if !self.clock.request_due(now) {
+            return;
+        }
+        for (i, link) in links.iter().enumerate().take(LINKS) {
+            // A full stack skips this round rather than stalling: the next
+            // interval tries again.
+            if link.is_open() {
+                let _ = self.request_time(now, i as u8);
+            }
+        }
     }
 
     fn ingest<L: LinkGateway>(&mut self, now: Micros, links: &mut [L]) {
@@ -479,7 +507,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             bump(&mut self.counters.expired);
             return Served::Dropped;
         }
+        let on_wire = now.saturating_add(link.queue_delay());
         let packet = self.stack.packet_mut(slot);
+        stamp_time_message(packet, on_wire, &self.clock);
         let ttl = (deadline - landing).min(u64::from(u16::MAX)) as u16;
         // Packet::new validated the header, so the TTL field exists.
         let _ = set_ttl(packet, ttl);
@@ -575,6 +605,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         // The counters query reports them as they were at the request.
         let counters = self.counters;
         let mut ctx = netresponder::Context {
+            now,
             identity: &mut self.identity,
             state: &mut self.netresponder,
             clock: &mut self.clock,
@@ -614,7 +645,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 if self.stack.check_claim(Owner::System).is_err() {
                     return Served::Wait;
                 }
-                let (len, _) = self.take_to_scratch(slot);
+                let (len, meta) = self.take_to_scratch(slot);
                 let Some((route, body)) = split_delivery(&self.scratch[..len]) else {
                     bump(&mut self.counters.unknown_system);
                     return Served::Dropped;
@@ -623,9 +654,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     bump(&mut self.counters.unknown_system);
                     return Served::Dropped;
                 };
+                // Our time when the request arrived; averaged with our time
+                // when the reply starts onto the wire at transmit.
                 let reply = TimeReply {
                     request_time: u64::from_le_bytes(stamp),
-                    responder_time: self.clock.system_time(now),
+                    responder_time: self.clock.system_time(meta.arrival),
                     responder_tier: self.clock.tier(),
                 };
                 let ttl = self.config.reply_ttl_us;
@@ -643,19 +676,17 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             }
             CODE_TIME_REPLY => {
                 let (len, meta) = self.take_to_scratch(slot);
-                let sample = split_delivery(&self.scratch[..len]).and_then(|(route, body)| {
+                let reply = split_delivery(&self.scratch[..len]).and_then(|(route, body)| {
                     let mut hops = route.hops();
                     let (Some(Instruction::LinkForward(link)), None) = (hops.next(), hops.next())
                     else {
                         return None;
                     };
-                    let reply = TimeReply::decode(body).ok()?;
-                    let at = self.clock.system_time(meta.arrival);
-                    Some((link, TimeSample::from_reply(&reply, at)?))
+                    Some((link, TimeReply::decode(body).ok()?))
                 });
-                match sample.filter(|(link, _)| usize::from(*link) < LINKS) {
-                    Some((link, sample)) => {
-                        self.samples[usize::from(link)] = Some(sample);
+                match reply.filter(|(link, _)| usize::from(*link) < LINKS) {
+                    Some((link, reply)) => {
+                        self.clock.on_reply(usize::from(link), &reply, meta.arrival);
                         bump(&mut self.counters.system);
                         Served::Done
                     }
@@ -703,6 +734,44 @@ enum Drop {
     NoPort,
     Oversize,
     UnknownSystem,
+}
+
+/// Rewrites the stamp of a time message this runtime originated as it starts
+/// onto the wire at local time `on_wire`: a request gets our local counter;
+/// a reply's responder time becomes the mean of our system time when the
+/// request arrived (written when the reply was made) and now, so it stands
+/// for the midpoint of our turnaround.
+fn stamp_time_message<const LINKS: usize>(
+    packet: &mut [u8],
+    on_wire: Micros,
+    clock: &Clock<LINKS>,
+) {
+    const BODY: usize = HEADER_LEN + 2;
+    if packet.first() != Some(&(HEADER_LEN as u8)) {
+        return; // forwarded for someone else: not ours to stamp
+    }
+    let code = match packet
+        .get(HEADER_LEN + 1)
+        .map(|b| Instruction::decode(&[*b]))
+    {
+        Some(Ok(Instruction::SystemMsg(code))) => code,
+        _ => return,
+    };
+    let body = &mut packet[BODY..];
+    match (code, body.len()) {
+        (CODE_TIME_REQUEST, TIME_REQUEST_LEN) => body.copy_from_slice(&on_wire.to_le_bytes()),
+        (CODE_TIME_REPLY, TIME_REPLY_LEN) => {
+            let mut arrived = [0u8; 8];
+            arrived.copy_from_slice(&body[8..16]);
+            let arrived = u64::from_le_bytes(arrived);
+            let leaving = clock.system_time(on_wire);
+            // Signed: a hard jump between the two may have moved time back.
+            let half = (leaving.wrapping_sub(arrived) as i64) / 2;
+            let mid = arrived.wrapping_add(half as u64);
+            body[8..16].copy_from_slice(&mid.to_le_bytes());
+        }
+        _ => {}
+    }
 }
 
 /// Finds the port object serving runtime port index `index` (≥ 1): returns

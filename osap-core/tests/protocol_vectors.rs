@@ -3,7 +3,7 @@
 //! encodes, and decoding it must give back its meaning. Run with
 //! `OSAP_PRINT_VECTORS=1` to print the vectors as the code produces them.
 
-use osap_core::clock::{TimeConfig, TimeReply};
+use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig, TimeReply};
 use osap_core::codec::Writer;
 use osap_core::framing::{encode_frame, FrameDecoder};
 use osap_core::netresponder::key;
@@ -242,6 +242,30 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     put(
         "netresponder.time_config.default",
         body(|w| TimeConfig::default().encode(w).unwrap()),
+    );
+    put(
+        "netresponder.time_status.example",
+        body(|w| {
+            ClockStatus {
+                tier: 2,
+                state: SyncState::Synced,
+                offset_ns: -1_500,
+                rate_ppb: 42_000,
+                following: 1,
+                last_rtt_us: 310,
+                min_rtt_us: 298,
+                stats: SyncStats {
+                    samples: 1200,
+                    accepted: 1150,
+                    rejected_rtt: 40,
+                    rejected_residual: 9,
+                    bogus: 1,
+                    jumps: 1,
+                },
+            }
+            .encode(w)
+            .unwrap()
+        }),
     );
     v
 }

@@ -101,10 +101,26 @@ impl Port for TestPort {
 pub struct Node {
     /// The runtime.
     pub runtime: TestRuntime,
+    /// This node's local clock: µs ahead of the network's fake clock ...
+    pub clock_offset: u64,
+    /// ... and running this many ppm fast.
+    pub clock_ppm: f64,
     /// Its link gateways, by index.
     pub links: Vec<TestLink>,
     /// Its ports; `ports[k]` is runtime port `k + 1`.
     pub ports: Vec<TestPort>,
+}
+
+impl Node {
+    /// This node's local clock at network time `now`.
+    pub fn local_time(&self, now: Micros) -> Micros {
+        self.clock_offset + now + (now as f64 * self.clock_ppm * 1e-6) as u64
+    }
+
+    /// This node's synchronised system time at network time `now`.
+    pub fn system_time(&self, now: Micros) -> u64 {
+        self.runtime.system_time(self.local_time(now))
+    }
 }
 
 /// A wire between link `a.1` of node `a.0` and link `b.1` of node `b.0`.
@@ -138,13 +154,36 @@ impl Net {
     }
 
     /// Adds a runtime with `links` link gateways and `ports` test ports.
+    /// Clock sync is off, so tests that count packets see only their own;
+    /// tests of sync turn it on with [`Net::sync`].
     pub fn node(&mut self, name: &str, links: usize, ports: usize) -> usize {
+        let quiet = osap_core::clock::TimeConfig {
+            enabled: false,
+            ..Default::default()
+        };
+        let mut runtime = TestRuntime::new("test_node", name).expect("short name");
+        runtime.clock_mut().set_config(quiet).expect("valid config");
         self.nodes.push(Node {
-            runtime: TestRuntime::new("test_node", name).expect("short name"),
+            runtime,
+            clock_offset: 0,
+            clock_ppm: 0.0,
             links: (0..links).map(|_| TestLink::new()).collect(),
             ports: (0..ports).map(|_| TestPort::default()).collect(),
         });
         self.nodes.len() - 1
+    }
+
+    /// Turns clock sync on for `node`, as the root or as a follower.
+    pub fn sync(&mut self, node: usize, root: bool) {
+        let cfg = osap_core::clock::TimeConfig {
+            root,
+            ..Default::default()
+        };
+        self.nodes[node]
+            .runtime
+            .clock_mut()
+            .set_config(cfg)
+            .expect("valid config");
     }
 
     /// Joins link `la` of node `a` to link `lb` of node `b`; returns the wire index.
@@ -162,8 +201,8 @@ impl Net {
     /// carry packets, then advances the clock by `dt`.
     pub fn step(&mut self, dt: Micros) {
         for node in &mut self.nodes {
-            node.runtime
-                .poll(self.now, &mut node.ports, &mut node.links);
+            let local = node.local_time(self.now);
+            node.runtime.poll(local, &mut node.ports, &mut node.links);
         }
         for w in self.wires.clone() {
             if w.stalled {

@@ -155,12 +155,16 @@ fn time_config_read_write_and_validation() {
     let (mut net, a, b) = pair();
     let (s, f) = ask(&mut net, a, 1, &[key::GET_TIME_CONFIG]);
     assert_eq!(s, Status::Ok);
-    assert_eq!(TimeConfig::decode(&f).unwrap(), TimeConfig::default());
+    let quiet = TimeConfig {
+        enabled: false,
+        ..TimeConfig::default()
+    };
+    assert_eq!(TimeConfig::decode(&f).unwrap(), quiet);
     let wanted = TimeConfig {
         root: true,
         interval_us: 20_000,
         kp: 0.8,
-        ..TimeConfig::default()
+        ..quiet
     };
     let mut buf = [0u8; 64];
     let mut w = Writer::new(&mut buf);
@@ -202,4 +206,35 @@ fn counters_and_bad_requests() {
     net.port(a, 1).queue(route, 0, 10_000, &[0, key::NAME]);
     net.run_until(10, 10, |_| false);
     assert_eq!(net.nodes[b].runtime.counters().netresponder_errors, 1);
+}
+
+#[test]
+fn clock_status_and_hot_start_rate() {
+    use osap_core::clock::{SyncState, CLOCK_STATUS_LEN};
+    let (mut net, a, b) = pair();
+    let (s, f) = ask(&mut net, a, 1, &[key::TIME_STATUS]);
+    assert_eq!(s, Status::Ok);
+    assert_eq!(f.len(), CLOCK_STATUS_LEN);
+    assert_eq!(f[0], 255, "no root anywhere: unsynced");
+    assert_eq!(f[1], SyncState::Unsynced as u8);
+    // Hot start: write a learned rate; it reads back (clamped to the config).
+    let mut body = vec![key::SET_CLOCK_RATE];
+    body.extend_from_slice(&(-37_000i32).to_le_bytes());
+    let (s, f) = ask(&mut net, a, 2, &body);
+    assert_eq!(s, Status::Ok);
+    let applied = i32::from_le_bytes(f[..4].try_into().unwrap());
+    assert!((applied + 37_000).abs() < 10, "applied {applied}");
+    assert!((net.nodes[b].runtime.clock().rate_ppb() + 37_000).abs() < 10);
+    let mut body = vec![key::SET_CLOCK_RATE];
+    body.extend_from_slice(&i32::MAX.to_le_bytes());
+    let (_, f) = ask(&mut net, a, 3, &body);
+    let applied = i32::from_le_bytes(f[..4].try_into().unwrap());
+    assert!(
+        (applied - 500_000).abs() < 100,
+        "clamped to 500 ppm, got {applied}"
+    );
+    assert_eq!(
+        ask(&mut net, a, 4, &[key::SET_CLOCK_RATE, 1]).0,
+        Status::Malformed
+    );
 }

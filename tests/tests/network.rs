@@ -275,26 +275,38 @@ fn local_route_reaches_a_port_in_the_same_runtime() {
 }
 
 #[test]
-fn time_stamp_request_gets_a_reply_and_a_sample() {
+fn clocks_synchronise_across_a_chain() {
+    use osap_core::clock::SyncState;
     let mut net = Net::new();
-    let a = net.node("a", 1, 0);
+    // root[0] - [0]a[1] - [0]b, with a and b far off and drifting.
+    let root = net.node("root", 1, 0);
+    let a = net.node("a", 2, 0);
     let b = net.node("b", 1, 0);
-    net.wire(a, 0, b, 0);
-    let root = osap_core::clock::TimeConfig {
-        root: true,
-        ..Default::default()
-    };
-    net.nodes[b].runtime.clock_mut().set_config(root).unwrap();
-    net.step(100);
-    let now = net.now;
-    net.nodes[a].runtime.request_time(now, 0).unwrap();
-    net.run_until(100, 10, |n| n.nodes[a].runtime.time_sample(0).is_some())
-        .expect("a time sample");
-    let s = *net.nodes[a].runtime.time_sample(0).unwrap();
-    assert_eq!(s.tier, 0);
-    // One step out, one step back: 200 µs round trip on the fake clock.
-    assert_eq!(s.rtt, 200);
-    // Same clocks, symmetric legs: zero offset.
-    assert_eq!(s.offset, 0);
-    assert_eq!(net.nodes[b].runtime.counters().system, 1);
+    net.wire(root, 0, a, 0);
+    net.wire(a, 1, b, 0);
+    net.sync(root, true);
+    net.sync(a, false);
+    net.sync(b, false);
+    net.nodes[a].clock_offset = 5_000_000;
+    net.nodes[a].clock_ppm = 80.0;
+    net.nodes[b].clock_offset = 123_456;
+    net.nodes[b].clock_ppm = -60.0;
+    net.run_until(100, 30_000, |_| false); // 3 s
+    for (n, tier) in [(a, 1), (b, 2)] {
+        let status = net.nodes[n].runtime.clock().status();
+        assert_eq!(status.tier, tier);
+        assert_eq!(status.state, SyncState::Synced);
+        assert!(status.stats.accepted > 10);
+        let err =
+            net.nodes[n].system_time(net.now) as i64 - net.nodes[root].system_time(net.now) as i64;
+        // Every leg here takes exactly one step each way: symmetric, so the
+        // only error left is rounding.
+        assert!(err.abs() <= 2, "node {n}: {err} µs off the root");
+    }
+    let status = net.nodes[a].runtime.clock().status();
+    assert!(
+        (status.rate_ppb + 80_000).abs() < 5_000,
+        "rate {}",
+        status.rate_ppb
+    );
 }

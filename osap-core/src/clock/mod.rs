@@ -1,0 +1,866 @@
+//! The runtime's clock: synchronised system time, clock tiers, and the
+//! time stamp messages of the system channel.
+//!
+//! **System time** is a `u64` µs count derived from the runtime's local
+//! free-running counter through an offset and a rate correction in fixed
+//! point (Q32): `system = base_system + Δ + (Δ × rate) >> 32` with
+//! `Δ = local − base_local`. Rate changes re-base the mapping at the current
+//! instant, so system time is continuous and, since the rate correction is
+//! clamped far below 100 %, monotonic. It only steps on a *hard jump*: the
+//! first synchronisation, or an offset beyond `hard_jump_us`.
+//!
+//! **Synchronisation.** A runtime that is not the root sends a time stamp
+//! request (system message 0) on every open link each `interval_us` (with a
+//! little random dither, so requests do not phase-lock to a bus schedule).
+//! Neighbours answer with their system time and tier (message 1). Each reply
+//! becomes a sample of that neighbour ([`neighbour`]); the controller follows
+//! the neighbours of the lowest tier, averaging their estimates: a
+//! least-squares fit gives their rate against our oscillator (feed-forward)
+//! and their time now, and a PI term on the remaining phase error steers the
+//! rate, clamped to `max_rate_ppm`.
+//!
+//! **Stamps at the wire.** The request carries our local counter when it
+//! starts onto the wire (the link's queue delay is added at transmit). The
+//! responder stamps when the request arrived (the link's receive stamp) and
+//! when the reply starts onto the wire, and sends its system time at the
+//! midpoint of the two. Compared with our time at the midpoint of our send
+//! and receive, that cancels the responder's turnaround exactly when the two
+//! legs take equal time, as NTP's four stamps do, within the three fields the
+//! wire format fixes.
+//!
+//! **Tiers.** The root is tier 0 (configuration; the host by default). A
+//! runtime follows only neighbours whose tier is strictly below its own and
+//! takes their tier + 1. If none is (the root is gone), it holds over at its
+//! learned rate and its tier ages by one per interval up to
+//! [`TIER_LIMIT`], then becomes [`TIER_UNSYNCED`]. Because following always
+//! points down the tiers, no two runtimes can chase each other: losing the
+//! root cannot make time run away. A new root (set by configuration) is
+//! followed as soon as its tier is heard.
+
+pub mod neighbour;
+
+use crate::codec::{CodecError, Reader, Writer};
+use crate::Micros;
+use neighbour::{Neighbour, Verdict, FIT_WINDOW_MAX, RTT_WINDOW_MAX};
+
+/// System message code of a time stamp request.
+pub const CODE_TIME_REQUEST: u8 = 0;
+/// System message code of a time stamp reply.
+pub const CODE_TIME_REPLY: u8 = 1;
+/// Length of a time stamp request body.
+pub const TIME_REQUEST_LEN: usize = 8;
+/// Length of a time stamp reply body.
+pub const TIME_REPLY_LEN: usize = 17;
+/// The tier of a runtime that is not synchronised to anything.
+pub const TIER_UNSYNCED: u8 = 255;
+/// The tier of a time source.
+pub const TIER_ROOT: u8 = 0;
+/// Tiers count up to this in holdover, then become [`TIER_UNSYNCED`].
+pub const TIER_LIMIT: u8 = 32;
+
+const Q32: f32 = 4_294_967_296.0;
+
+/// A time stamp reply: the request's stamp, the responder's time and tier.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TimeReply {
+    /// The requester's stamp, echoed back (osap-rs sends its local counter).
+    pub request_time: u64,
+    /// The responder's system time (osap-rs: at the midpoint of its
+    /// turnaround).
+    pub responder_time: u64,
+    /// The responder's clock tier.
+    pub responder_tier: u8,
+}
+
+impl TimeReply {
+    /// Parses a reply body; a wrong length is an error.
+    pub fn decode(body: &[u8]) -> Result<Self, CodecError> {
+        let mut r = Reader::new(body);
+        let reply = TimeReply {
+            request_time: r.u64()?,
+            responder_time: r.u64()?,
+            responder_tier: r.u8()?,
+        };
+        if !r.is_empty() {
+            return Err(CodecError::Truncated);
+        }
+        Ok(reply)
+    }
+
+    /// Writes a reply body.
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), CodecError> {
+        w.u64(self.request_time)?;
+        w.u64(self.responder_time)?;
+        w.u8(self.responder_tier)
+    }
+}
+
+/// Version of the [`TimeConfig`] wire layout.
+pub const TIME_CONFIG_VERSION: u8 = 1;
+/// Encoded length of a [`TimeConfig`].
+pub const TIME_CONFIG_LEN: usize = 52;
+
+/// Every tunable of clock synchronisation.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TimeConfig {
+    /// This runtime is the time source (tier 0).
+    pub root: bool,
+    /// Synchronisation runs at all (requests, steering).
+    pub enabled: bool,
+    /// Interval between time stamp requests on each open link, µs.
+    pub interval_us: u32,
+    /// Each interval is lengthened or shortened by up to this, at random, µs.
+    pub dither_us: u32,
+    /// An offset beyond this is stepped, not slewed, µs.
+    pub hard_jump_us: u32,
+    /// Proportional gain on the phase error, 1/s.
+    pub kp: f32,
+    /// Integral gain on the phase error, 1/s².
+    pub ki: f32,
+    /// Largest rate correction, parts per million (0, 10 000].
+    pub max_rate_ppm: f32,
+    /// Round trips kept per neighbour for the minimum-RTT filter (1..=64).
+    pub rtt_window: u8,
+    /// A sample is used only if its round trip is at most this × the
+    /// window's minimum (≥ 1) ...
+    pub rtt_factor: f32,
+    /// ... plus this, µs.
+    pub rtt_slack_us: u32,
+    /// Accepted samples kept per neighbour for the fit (1..=16).
+    pub fit_window: u8,
+    /// Samples older than this leave the fit, ms.
+    pub fit_max_age_ms: u32,
+    /// A sample further from the fit than `residual_sigmas` × the fit's RMS
+    /// residual (≥ 1) ...
+    pub residual_sigmas: f32,
+    /// ... and than this, µs, is rejected as a late stamp.
+    pub residual_floor_us: u32,
+    /// A neighbour not heard from for this long is not followed, µs.
+    pub neighbour_timeout_us: u32,
+}
+
+impl Default for TimeConfig {
+    fn default() -> Self {
+        TimeConfig {
+            root: false,
+            enabled: true,
+            interval_us: 50_000,
+            dither_us: 5_000,
+            hard_jump_us: 1_000,
+            kp: 2.0,
+            ki: 0.1,
+            max_rate_ppm: 500.0,
+            rtt_window: 64,
+            rtt_factor: 1.1,
+            rtt_slack_us: 10,
+            fit_window: 16,
+            fit_max_age_ms: 30_000,
+            residual_sigmas: 4.0,
+            residual_floor_us: 8,
+            neighbour_timeout_us: 300_000,
+        }
+    }
+}
+
+/// A [`TimeConfig`] that cannot be applied.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum TimeConfigError {
+    /// The body is truncated or too long.
+    Codec(CodecError),
+    /// The layout version is not one this runtime knows.
+    Version(u8),
+    /// A field is out of its allowed range (named).
+    OutOfRange(&'static str),
+}
+
+impl core::fmt::Display for TimeConfigError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            TimeConfigError::Codec(e) => write!(f, "time configuration: {e}"),
+            TimeConfigError::Version(v) => write!(f, "unknown time configuration version {v}"),
+            TimeConfigError::OutOfRange(field) => {
+                write!(f, "time configuration field {field} is out of range")
+            }
+        }
+    }
+}
+
+fn finite_at_least(v: f32, min: f32) -> bool {
+    v.is_finite() && v >= min
+}
+
+impl TimeConfig {
+    /// Checks every field against its allowed range.
+    pub fn validate(&self) -> Result<(), TimeConfigError> {
+        let checks: [(bool, &'static str); 11] = [
+            (self.interval_us >= 1_000, "interval_us"),
+            (self.dither_us < self.interval_us, "dither_us"),
+            (finite_at_least(self.kp, 0.0) && self.kp <= 100.0, "kp"),
+            (finite_at_least(self.ki, 0.0) && self.ki <= 100.0, "ki"),
+            (
+                self.max_rate_ppm.is_finite()
+                    && self.max_rate_ppm > 0.0
+                    && self.max_rate_ppm <= 10_000.0,
+                "max_rate_ppm",
+            ),
+            (
+                (1..=RTT_WINDOW_MAX as u8).contains(&self.rtt_window),
+                "rtt_window",
+            ),
+            (finite_at_least(self.rtt_factor, 1.0), "rtt_factor"),
+            (
+                (1..=FIT_WINDOW_MAX as u8).contains(&self.fit_window),
+                "fit_window",
+            ),
+            (self.fit_max_age_ms >= 1, "fit_max_age_ms"),
+            (
+                finite_at_least(self.residual_sigmas, 1.0),
+                "residual_sigmas",
+            ),
+            (
+                self.neighbour_timeout_us >= self.interval_us,
+                "neighbour_timeout_us",
+            ),
+        ];
+        match checks.iter().find(|(ok, _)| !ok) {
+            Some((_, field)) => Err(TimeConfigError::OutOfRange(field)),
+            None => Ok(()),
+        }
+    }
+
+    /// Writes the configuration in its wire layout.
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), CodecError> {
+        w.u8(TIME_CONFIG_VERSION)?;
+        w.u8(u8::from(self.root) | u8::from(self.enabled) << 1)?;
+        w.u32(self.interval_us)?;
+        w.u32(self.dither_us)?;
+        w.u32(self.hard_jump_us)?;
+        w.f32(self.kp)?;
+        w.f32(self.ki)?;
+        w.f32(self.max_rate_ppm)?;
+        w.u8(self.rtt_window)?;
+        w.f32(self.rtt_factor)?;
+        w.u32(self.rtt_slack_us)?;
+        w.u8(self.fit_window)?;
+        w.u32(self.fit_max_age_ms)?;
+        w.f32(self.residual_sigmas)?;
+        w.u32(self.residual_floor_us)?;
+        w.u32(self.neighbour_timeout_us)
+    }
+
+    /// Parses and validates a configuration.
+    pub fn decode(body: &[u8]) -> Result<Self, TimeConfigError> {
+        let mut r = Reader::new(body);
+        let c = TimeConfigError::Codec;
+        let version = r.u8().map_err(c)?;
+        if version != TIME_CONFIG_VERSION {
+            return Err(TimeConfigError::Version(version));
+        }
+        let flags = r.u8().map_err(c)?;
+        let config = TimeConfig {
+            root: flags & 1 != 0,
+            enabled: flags & 2 != 0,
+            interval_us: r.u32().map_err(c)?,
+            dither_us: r.u32().map_err(c)?,
+            hard_jump_us: r.u32().map_err(c)?,
+            kp: r.f32().map_err(c)?,
+            ki: r.f32().map_err(c)?,
+            max_rate_ppm: r.f32().map_err(c)?,
+            rtt_window: r.u8().map_err(c)?,
+            rtt_factor: r.f32().map_err(c)?,
+            rtt_slack_us: r.u32().map_err(c)?,
+            fit_window: r.u8().map_err(c)?,
+            fit_max_age_ms: r.u32().map_err(c)?,
+            residual_sigmas: r.f32().map_err(c)?,
+            residual_floor_us: r.u32().map_err(c)?,
+            neighbour_timeout_us: r.u32().map_err(c)?,
+        };
+        if !r.is_empty() {
+            return Err(TimeConfigError::Codec(CodecError::Truncated));
+        }
+        config.validate()?;
+        Ok(config)
+    }
+}
+
+/// Where a clock stands.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum SyncState {
+    /// Never synchronised: free-running on the local counter.
+    Unsynced = 0,
+    /// Following neighbours of a lower tier.
+    Synced = 1,
+    /// Was synchronised, nothing to follow now: running at the learned rate.
+    Holdover = 2,
+    /// The time source.
+    Root = 3,
+}
+
+/// Counts of what the synchroniser did with its samples.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct SyncStats {
+    /// Replies received.
+    pub samples: u32,
+    /// Samples used.
+    pub accepted: u32,
+    /// Rejected: round trip too long.
+    pub rejected_rtt: u32,
+    /// Rejected: too far from the fit (a late stamp).
+    pub rejected_residual: u32,
+    /// Replies that were not answers to our requests.
+    pub bogus: u32,
+    /// Hard jumps of system time.
+    pub jumps: u32,
+}
+
+/// A snapshot of the clock, readable over the netresponder.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClockStatus {
+    /// Current tier.
+    pub tier: u8,
+    /// Current state.
+    pub state: SyncState,
+    /// Latest estimate of the followed neighbours' time minus ours, ns.
+    pub offset_ns: i64,
+    /// Current rate correction against the local counter, parts per billion.
+    pub rate_ppb: i32,
+    /// Neighbours followed (those of the best tier).
+    pub following: u8,
+    /// Latest round trip to a followed neighbour, µs.
+    pub last_rtt_us: u32,
+    /// Smallest recent round trip to a followed neighbour, µs.
+    pub min_rtt_us: u32,
+    /// Sample counts.
+    pub stats: SyncStats,
+}
+
+/// Encoded length of a [`ClockStatus`].
+pub const CLOCK_STATUS_LEN: usize = 1 + 1 + 8 + 4 + 1 + 4 + 4 + 6 * 4;
+
+impl ClockStatus {
+    /// Writes the status in its wire layout.
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), CodecError> {
+        w.u8(self.tier)?;
+        w.u8(self.state as u8)?;
+        w.i64(self.offset_ns)?;
+        w.u32(self.rate_ppb as u32)?;
+        w.u8(self.following)?;
+        w.u32(self.last_rtt_us)?;
+        w.u32(self.min_rtt_us)?;
+        let s = &self.stats;
+        for v in [
+            s.samples,
+            s.accepted,
+            s.rejected_rtt,
+            s.rejected_residual,
+            s.bogus,
+            s.jumps,
+        ] {
+            w.u32(v)?;
+        }
+        Ok(())
+    }
+}
+
+/// The clock of a runtime with up to `LINKS` neighbours.
+#[derive(Debug, Clone)]
+pub struct Clock<const LINKS: usize> {
+    config: TimeConfig,
+    base_local: Micros,
+    base_system: u64,
+    /// Fraction of a µs carried across re-bases (Q32), so that re-basing at
+    /// every update never loses time.
+    base_frac: u32,
+    rate_q32: i64,
+    /// Rate from the fits alone, without the phase terms: what holdover
+    /// keeps.
+    learned_q32: i64,
+    integral: f32,
+    rate_fitted: bool,
+    last_steer: Option<Micros>,
+    offset_us: f32,
+    tier: u8,
+    synced: bool,
+    following: bool,
+    next_request: Option<Micros>,
+    rng: u32,
+    neighbours: [Neighbour; LINKS],
+    stats: SyncStats,
+}
+
+impl<const LINKS: usize> Clock<LINKS> {
+    /// A clock with the given configuration, not yet synchronised.
+    pub fn new(config: TimeConfig) -> Self {
+        Clock {
+            config,
+            base_local: 0,
+            base_system: 0,
+            base_frac: 0,
+            rate_q32: 0,
+            learned_q32: 0,
+            integral: 0.0,
+            rate_fitted: false,
+            last_steer: None,
+            offset_us: 0.0,
+            tier: if config.root {
+                TIER_ROOT
+            } else {
+                TIER_UNSYNCED
+            },
+            synced: false,
+            following: false,
+            next_request: None,
+            rng: 0x9e37_79b9,
+            neighbours: core::array::from_fn(|_| Neighbour::default()),
+            stats: SyncStats::default(),
+        }
+    }
+
+    /// Seeds the request dither (use something unique to the runtime, so
+    /// neighbours do not dither in step).
+    pub fn seed(&mut self, seed: u32) {
+        self.rng = seed | 1;
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &TimeConfig {
+        &self.config
+    }
+
+    /// Replaces the configuration after validating it.
+    pub fn set_config(&mut self, config: TimeConfig) -> Result<(), TimeConfigError> {
+        config.validate()?;
+        let was_root = self.config.root;
+        self.config = config;
+        if config.root {
+            self.tier = TIER_ROOT;
+            self.following = false;
+        } else if was_root {
+            // Stepping down: start looking for a source like everyone else.
+            self.tier = TIER_UNSYNCED;
+        }
+        Ok(())
+    }
+
+    /// This runtime's clock tier.
+    pub fn tier(&self) -> u8 {
+        self.tier
+    }
+
+    /// Where the clock stands.
+    pub fn state(&self) -> SyncState {
+        if self.config.root {
+            SyncState::Root
+        } else if self.following && self.synced {
+            SyncState::Synced
+        } else if self.synced {
+            SyncState::Holdover
+        } else {
+            SyncState::Unsynced
+        }
+    }
+
+    /// System time at local time `local`.
+    pub fn system_time(&self, local: Micros) -> u64 {
+        self.system_time_q32(local).0
+    }
+
+    /// System time at `local` as whole µs and a Q32 fraction.
+    fn system_time_q32(&self, local: Micros) -> (u64, u32) {
+        let delta = local.wrapping_sub(self.base_local) as i64;
+        let adjust = i128::from(delta) * i128::from(self.rate_q32) + i128::from(self.base_frac);
+        let whole = self
+            .base_system
+            .wrapping_add(delta as u64)
+            .wrapping_add((adjust >> 32) as i64 as u64);
+        (whole, adjust as u32)
+    }
+
+    /// Current rate correction against the local counter, ppb.
+    pub fn rate_ppb(&self) -> i32 {
+        ((self.rate_q32 as f32 / Q32) * 1e9) as i32
+    }
+
+    /// Sets the rate correction (a hot start from a persisted
+    /// [`rate_ppb`](Self::rate_ppb)), keeping system time continuous at
+    /// local time `now`. Clamped to `max_rate_ppm`.
+    pub fn set_rate_ppb(&mut self, now: Micros, ppb: i32) {
+        let q = self.clamp_rate(ppb as f32 * 1e-9);
+        self.rebase(now, q);
+        self.learned_q32 = q;
+        self.integral = 0.0;
+    }
+
+    /// A snapshot for monitoring.
+    pub fn status(&self) -> ClockStatus {
+        let followed = self.followed();
+        let (mut following, mut last, mut min) = (0u8, 0u32, u32::MAX);
+        for n in self.neighbours.iter().filter(|n| Some(n.tier) == followed) {
+            following += 1;
+            last = n.last_rtt;
+            min = min.min(n.min_rtt().unwrap_or(u32::MAX));
+        }
+        ClockStatus {
+            tier: self.tier,
+            state: self.state(),
+            offset_ns: (self.offset_us * 1000.0) as i64,
+            rate_ppb: self.rate_ppb(),
+            following,
+            last_rtt_us: last,
+            min_rtt_us: if min == u32::MAX { 0 } else { min },
+            stats: self.stats,
+        }
+    }
+
+    /// When the next round of time stamp requests is due (local time).
+    pub fn next_request(&self) -> Option<Micros> {
+        self.next_request
+    }
+
+    /// Whether requests should go out on every open link now; if so,
+    /// schedules the next round and ages the tier. The root and disabled
+    /// clocks never request.
+    pub fn request_due(&mut self, now: Micros) -> bool {
+        if self.config.root || !self.config.enabled {
+            self.next_request = None;
+            return false;
+        }
+        match self.next_request {
+            Some(t) if now < t => false,
+            Some(_) => {
+                self.select(now, true);
+                self.next_request = Some(now + self.next_interval());
+                true
+            }
+            None => {
+                // First call: go at once, so a fresh runtime syncs quickly.
+                self.next_request = Some(now + self.next_interval());
+                true
+            }
+        }
+    }
+
+    fn next_interval(&mut self) -> u64 {
+        // xorshift32: cheap, and only needs to break phase locking.
+        let mut x = self.rng;
+        x ^= x << 13;
+        x ^= x >> 17;
+        x ^= x << 5;
+        self.rng = x;
+        let dither = u64::from(self.config.dither_us);
+        let span = 2 * dither + 1;
+        u64::from(self.config.interval_us) + (u64::from(x) % span) - dither
+    }
+
+    /// Forgets the neighbour on `link` (its link closed).
+    pub fn forget(&mut self, link: usize) {
+        if let Some(n) = self
+            .neighbours
+            .get_mut(link)
+            .filter(|n| n.last_heard.is_some())
+        {
+            n.reset();
+        }
+    }
+
+    /// The lowest tier among neighbours heard from recently, if any.
+    fn best_tier(&self, now: Micros) -> Option<u8> {
+        self.neighbours
+            .iter()
+            .filter(|n| n.is_fresh(now, &self.config) && n.tier < TIER_LIMIT)
+            .map(|n| n.tier)
+            .min()
+    }
+
+    /// The tier being followed, if following.
+    fn followed(&self) -> Option<u8> {
+        (self.following && self.tier > 0 && self.tier < TIER_LIMIT).then(|| self.tier - 1)
+    }
+
+    /// Chooses whom to follow. `age` is set once per request interval: it
+    /// is then that a runtime with nothing lower to follow ages its tier.
+    fn select(&mut self, now: Micros, age: bool) {
+        if self.config.root {
+            self.tier = TIER_ROOT;
+            self.following = false;
+            return;
+        }
+        match self.best_tier(now) {
+            Some(best) if best < self.tier && best + 1 < TIER_LIMIT => {
+                if !self.following {
+                    self.integral = 0.0;
+                }
+                self.tier = best + 1;
+                self.following = true;
+            }
+            _ => {
+                if self.following {
+                    // Holdover: keep the learned rate, drop the phase terms.
+                    self.rebase(now, self.learned_q32);
+                    self.following = false;
+                }
+                if age && self.tier != TIER_UNSYNCED {
+                    self.tier = if self.tier + 1 >= TIER_LIMIT {
+                        TIER_UNSYNCED
+                    } else {
+                        self.tier + 1
+                    };
+                }
+            }
+        }
+    }
+
+    /// Takes in a time stamp reply that arrived on `link` at local time
+    /// `received` (the link's wire stamp when it has one), then steers.
+    pub fn on_reply(&mut self, link: usize, reply: &TimeReply, received: Micros) {
+        self.stats.samples = self.stats.samples.wrapping_add(1);
+        let config = self.config;
+        let Some(n) = self.neighbours.get_mut(link) else {
+            return;
+        };
+        let verdict = n.add(
+            reply.request_time,
+            received,
+            reply.responder_time,
+            reply.responder_tier,
+            &config,
+        );
+        let s = &mut self.stats;
+        let counter = match verdict {
+            Verdict::Accepted => &mut s.accepted,
+            Verdict::RejectedRtt => &mut s.rejected_rtt,
+            Verdict::RejectedResidual => &mut s.rejected_residual,
+            Verdict::Bogus => &mut s.bogus,
+        };
+        *counter = counter.wrapping_add(1);
+        if config.root || !config.enabled {
+            return;
+        }
+        self.select(received, false);
+        if verdict == Verdict::Accepted && self.followed() == Some(reply.responder_tier) {
+            self.steer(received);
+        }
+    }
+
+    fn clamp_rate(&self, fraction: f32) -> i64 {
+        let max = self.config.max_rate_ppm * 1e-6;
+        round(fraction.clamp(-max, max) * Q32)
+    }
+
+    /// Re-bases the mapping at local time `now` with a new rate, keeping
+    /// system time continuous.
+    fn rebase(&mut self, now: Micros, rate_q32: i64) {
+        (self.base_system, self.base_frac) = self.system_time_q32(now);
+        self.base_local = now;
+        self.rate_q32 = rate_q32;
+    }
+
+    /// Our system time minus our local counter at `now`, in half µs.
+    fn own_y_half(&self, now: Micros) -> i64 {
+        (self.system_time(now) as i64)
+            .wrapping_sub(now as i64)
+            .saturating_mul(2)
+    }
+
+    fn steer(&mut self, now: Micros) {
+        let Some(tier) = self.followed() else {
+            return;
+        };
+        let own = self.own_y_half(now);
+        let (mut offset_sum, mut offsets) = (0f32, 0u8);
+        let (mut slope_sum, mut slopes) = (0f32, 0u8);
+        for n in self.neighbours.iter() {
+            if n.tier != tier || !n.is_fresh(now, &self.config) {
+                continue;
+            }
+            let Some(est) = n.estimate(now, &self.config) else {
+                continue;
+            };
+            offset_sum += est.y_ref_half.saturating_sub(own) as f32 * 0.5 + est.y_rel;
+            offsets += 1;
+            if let Some(slope) = est.slope {
+                slope_sum += slope;
+                slopes += 1;
+            }
+        }
+        let offset = offset_sum / f32::from(offsets.max(1));
+        // Garbage from the wire can make the sums overflow; never steer on it.
+        if offsets == 0 || !offset.is_finite() || !slope_sum.is_finite() {
+            return;
+        }
+        self.offset_us = offset;
+        if slopes > 0 {
+            // The neighbours' system rate against our counter is exactly the
+            // rate our system time should have. The first time it is known it
+            // takes over what the integral had learned of it.
+            if !self.rate_fitted {
+                self.integral = 0.0;
+                self.rate_fitted = true;
+            }
+            self.learned_q32 = self.clamp_rate(slope_sum / f32::from(slopes));
+        }
+        if !self.synced || offset.abs() > self.config.hard_jump_us as f32 {
+            self.rebase(now, self.learned_q32);
+            self.base_system = self.base_system.wrapping_add(round(offset) as u64);
+            self.integral = 0.0;
+            self.synced = true;
+            self.offset_us = 0.0;
+            self.last_steer = Some(now);
+            self.stats.jumps = self.stats.jumps.wrapping_add(1);
+            return;
+        }
+        let dt = self
+            .last_steer
+            .map_or(0.0, |t| now.saturating_sub(t) as f32 * 1e-6);
+        self.last_steer = Some(now);
+        let cfg = &self.config;
+        self.integral += offset * dt;
+        // Anti-windup: the integral alone may not ask for more than the clamp.
+        if cfg.ki > 0.0 {
+            let bound = cfg.max_rate_ppm / cfg.ki;
+            self.integral = self.integral.clamp(-bound, bound);
+        }
+        let phase_ppm = cfg.kp * offset + cfg.ki * self.integral;
+        let learned = self.learned_q32 as f32 / Q32;
+        let q = self.clamp_rate(learned + phase_ppm * 1e-6);
+        self.rebase(now, q);
+    }
+}
+
+/// Rounds to the nearest integer (`f32::round` needs `std`).
+fn round(v: f32) -> i64 {
+    if v >= 0.0 {
+        (v + 0.5) as i64
+    } else {
+        (v - 0.5) as i64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    extern crate std;
+    use super::*;
+
+    #[test]
+    fn config_round_trip_and_validation() {
+        let cfg = TimeConfig {
+            root: true,
+            ..TimeConfig::default()
+        };
+        let mut buf = [0u8; 64];
+        let mut w = Writer::new(&mut buf);
+        cfg.encode(&mut w).unwrap();
+        assert_eq!(w.len(), TIME_CONFIG_LEN);
+        let n = w.len();
+        assert_eq!(TimeConfig::decode(&buf[..n]), Ok(cfg));
+        assert_eq!(
+            TimeConfig::decode(&buf[..n - 1]),
+            Err(TimeConfigError::Codec(CodecError::Truncated))
+        );
+        let bad = TimeConfig {
+            kp: f32::NAN,
+            ..cfg
+        };
+        assert_eq!(bad.validate(), Err(TimeConfigError::OutOfRange("kp")));
+        let bad = TimeConfig {
+            dither_us: 60_000,
+            ..cfg
+        };
+        assert_eq!(
+            bad.validate(),
+            Err(TimeConfigError::OutOfRange("dither_us"))
+        );
+    }
+
+    #[test]
+    fn mapping_is_continuous_across_rate_changes() {
+        let mut c: Clock<1> = Clock::new(TimeConfig::default());
+        assert_eq!(c.system_time(1_000_000), 1_000_000);
+        c.set_rate_ppb(1_000_000, 100_000); // +100 ppm
+        assert_eq!(c.system_time(1_000_000), 1_000_000);
+        assert_eq!(c.system_time(2_000_000), 2_000_100);
+        c.set_rate_ppb(2_000_000, -50_000);
+        assert_eq!(c.system_time(2_000_000), 2_000_100);
+        assert_eq!(c.system_time(3_000_000), 3_000_050);
+        assert!((c.rate_ppb() + 50_000).abs() < 5);
+    }
+
+    #[test]
+    fn rate_is_clamped() {
+        let mut c: Clock<1> = Clock::new(TimeConfig::default());
+        c.set_rate_ppb(0, 900_000_000);
+        assert!((c.rate_ppb() - 500_000).abs() < 50);
+    }
+
+    /// A neighbour at tier 0 whose clock is `offset` ahead and `ppm` fast;
+    /// exchanges with a symmetric round trip. Returns our error after each
+    /// exchange, µs.
+    fn follow(c: &mut Clock<2>, offset: f64, ppm: f64, steps: u64) -> f64 {
+        let mut err = 0.0;
+        for i in 0..steps {
+            let sent = 10_000 + i * 50_000;
+            let rtt = 200;
+            let mid = sent as f64 + rtt as f64 / 2.0;
+            let theirs = mid + offset + mid * ppm * 1e-6;
+            let reply = TimeReply {
+                request_time: sent,
+                responder_time: theirs.round() as u64,
+                responder_tier: 0,
+            };
+            c.on_reply(0, &reply, sent + rtt);
+            let now = sent + rtt;
+            let truth = now as f64 + offset + now as f64 * ppm * 1e-6;
+            err = c.system_time(now) as f64 - truth;
+            if std::env::var_os("CLOCK_DEBUG").is_some() {
+                std::println!("{i} err {err:.2} rate {} off {}", c.rate_ppb(), c.offset_us);
+            }
+        }
+        err
+    }
+
+    #[test]
+    fn converges_on_offset_and_rate() {
+        let mut c: Clock<2> = Clock::new(TimeConfig::default());
+        let err = follow(&mut c, 12_345.0, 80.0, 60);
+        assert_eq!(c.tier(), 1);
+        assert_eq!(c.state(), SyncState::Synced);
+        assert!(err.abs() < 2.0, "error {err} µs after 3 s");
+        assert!(
+            (c.rate_ppb() - 80_000).abs() < 2_000,
+            "rate {}",
+            c.rate_ppb()
+        );
+        assert_eq!(c.status().stats.jumps, 1);
+    }
+
+    #[test]
+    fn tier_ages_in_holdover_and_never_follows_upward() {
+        let mut c: Clock<2> = Clock::new(TimeConfig::default());
+        follow(&mut c, 0.0, 0.0, 5);
+        assert_eq!(c.tier(), 1);
+        // The neighbour falls silent: after the timeout, each request round
+        // ages the tier until it reads as unsynced.
+        let mut now = 10_000 + 5 * 50_000 + 400_000;
+        let mut rounds = 0;
+        while c.tier() != TIER_UNSYNCED {
+            c.next_request = Some(now);
+            assert!(c.request_due(now));
+            assert_eq!(c.state(), SyncState::Holdover);
+            now += 50_000;
+            rounds += 1;
+            assert!(rounds < 64, "tier never gave up");
+        }
+        // A neighbour at a higher tier than ours is never followed.
+        let reply = TimeReply {
+            request_time: now,
+            responder_time: now + 5_000,
+            responder_tier: 3,
+        };
+        let before = c.system_time(now + 100);
+        c.tier = 2;
+        c.on_reply(0, &reply, now + 100);
+        assert_eq!(c.tier(), 2);
+        assert_eq!(c.system_time(now + 100), before);
+    }
+}

@@ -1,0 +1,327 @@
+//! What one runtime knows about one neighbour's clock.
+//!
+//! Every time stamp reply from the neighbour on a link becomes a sample: the
+//! round trip, and the neighbour's system time against our *local* counter
+//! at the midpoint of the exchange. Using the local counter (not our steered
+//! system time) keeps the samples independent of our own corrections, so a
+//! straight-line fit through them gives the neighbour's rate against our
+//! oscillator and its time now.
+//!
+//! Two filters keep bad samples out of the fit:
+//! - **minimum round trip**: a sample whose round trip exceeds the window's
+//!   minimum by more than `rtt_factor` × min + `rtt_slack_us` was delayed on
+//!   one leg (queueing, a busy receiver, a USB frame wait) and its offset is
+//!   biased by half that delay;
+//! - **residual**: a sample far off the line the others agree on (by more
+//!   than `residual_sigmas` × their spread, and at least
+//!   `residual_floor_us`) carries a late time stamp (an interrupt preempted
+//!   the stamp), which the round trip alone cannot reveal.
+
+use super::TimeConfig;
+use crate::Micros;
+
+/// Most round trips kept for the minimum-RTT filter.
+pub const RTT_WINDOW_MAX: usize = 64;
+/// Most accepted samples kept for the fit.
+pub const FIT_WINDOW_MAX: usize = 16;
+/// Largest standard error of a fitted rate that is trusted as feed-forward
+/// (fraction, here 10 ppm): a slope from few or noisy samples would steer
+/// worse than none.
+const MAX_SLOPE_STDERR: f32 = 10e-6;
+/// Consecutive residual rejections after which the fit is dropped: the
+/// neighbour's time really moved (it jumped), so start over.
+const RESET_AFTER_REJECTS: u8 = 6;
+
+/// One accepted exchange.
+#[derive(Debug, Clone, Copy, Default)]
+struct Sample {
+    /// Local counter when the request left.
+    sent: Micros,
+    /// Round trip, µs.
+    rtt: u32,
+    /// Neighbour time minus our local counter at the exchange's midpoint,
+    /// in half microseconds (keeps the midpoint exact).
+    y_half: i64,
+}
+
+impl Sample {
+    /// Local time of the midpoint, relative to `now`, µs.
+    fn x(&self, now: Micros) -> f32 {
+        (self.sent as i64).wrapping_sub(now as i64) as f32 + self.rtt as f32 * 0.5
+    }
+}
+
+/// Why a sample was not used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Verdict {
+    /// Used.
+    Accepted,
+    /// Round trip too long.
+    RejectedRtt,
+    /// Too far from the fit.
+    RejectedResidual,
+    /// Not a reply to one of our requests (stamp in the future).
+    Bogus,
+}
+
+/// The neighbour's time as seen from here.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Estimate {
+    /// Neighbour time minus our local counter, now, µs (relative to
+    /// `y_ref_half / 2`).
+    pub y_rel: f32,
+    /// The reference the estimate is relative to, half µs.
+    pub y_ref_half: i64,
+    /// Neighbour rate against our local counter (d time / d local − 1), if
+    /// enough samples span enough time to fit it.
+    pub slope: Option<f32>,
+    /// Root-mean-square residual of the fit, µs.
+    pub rms: f32,
+    /// Samples the estimate rests on.
+    pub used: u8,
+}
+
+/// Samples and state for the neighbour on one link.
+#[derive(Debug, Clone)]
+pub struct Neighbour {
+    rtts: [u32; RTT_WINDOW_MAX],
+    rtt_next: u8,
+    rtt_len: u8,
+    fit: [Sample; FIT_WINDOW_MAX],
+    fit_next: u8,
+    fit_len: u8,
+    rejects_in_row: u8,
+    /// The neighbour's tier in its latest reply.
+    pub tier: u8,
+    /// Local time of the latest reply.
+    pub last_heard: Option<Micros>,
+    /// Latest round trip, µs.
+    pub last_rtt: u32,
+}
+
+impl Default for Neighbour {
+    fn default() -> Self {
+        Neighbour {
+            rtts: [0; RTT_WINDOW_MAX],
+            rtt_next: 0,
+            rtt_len: 0,
+            fit: [Sample::default(); FIT_WINDOW_MAX],
+            fit_next: 0,
+            fit_len: 0,
+            rejects_in_row: 0,
+            tier: super::TIER_UNSYNCED,
+            last_heard: None,
+            last_rtt: 0,
+        }
+    }
+}
+
+impl Neighbour {
+    /// Whether the neighbour has replied within the timeout.
+    pub fn is_fresh(&self, now: Micros, cfg: &TimeConfig) -> bool {
+        self.last_heard
+            .is_some_and(|t| now.saturating_sub(t) <= u64::from(cfg.neighbour_timeout_us))
+    }
+
+    /// Smallest round trip in the window.
+    pub fn min_rtt(&self) -> Option<u32> {
+        self.rtts[..usize::from(self.rtt_len)].iter().copied().min()
+    }
+
+    fn rtt_limit(&self, cfg: &TimeConfig) -> f32 {
+        let min = self.min_rtt().unwrap_or(u32::MAX) as f32;
+        min * cfg.rtt_factor + cfg.rtt_slack_us as f32
+    }
+
+    fn samples(&self) -> impl Iterator<Item = &Sample> {
+        self.fit[..usize::from(self.fit_len)].iter()
+    }
+
+    /// Takes in one reply: `sent` is our local counter when the request
+    /// left, `received` when the reply arrived, `their_time` the
+    /// neighbour's system time at the midpoint of its turnaround.
+    pub fn add(
+        &mut self,
+        sent: Micros,
+        received: Micros,
+        their_time: u64,
+        tier: u8,
+        cfg: &TimeConfig,
+    ) -> Verdict {
+        let Some(rtt) = received.checked_sub(sent) else {
+            return Verdict::Bogus;
+        };
+        let rtt = u32::try_from(rtt).unwrap_or(u32::MAX);
+        self.tier = tier;
+        self.last_heard = Some(received);
+        self.last_rtt = rtt;
+        let window = usize::from(cfg.rtt_window).clamp(1, RTT_WINDOW_MAX);
+        self.rtts[usize::from(self.rtt_next)] = rtt;
+        self.rtt_next = ((usize::from(self.rtt_next) + 1) % window) as u8;
+        self.rtt_len = (usize::from(self.rtt_len) + 1).min(window) as u8;
+        if rtt as f32 > self.rtt_limit(cfg) {
+            return Verdict::RejectedRtt;
+        }
+        // 2 × (their time − our counter at the midpoint), exactly.
+        let y_half = (2 * their_time as i128 - 2 * sent as i128 - i128::from(rtt))
+            .clamp(i64::MIN as i128, i64::MAX as i128) as i64;
+        let sample = Sample { sent, rtt, y_half };
+        let at = sent + u64::from(rtt / 2);
+        if let Some(est) = self.estimate(at, cfg).filter(|e| e.used >= 3) {
+            let predicted = est.y_rel;
+            let actual = y_half.saturating_sub(est.y_ref_half) as f32 * 0.5;
+            let limit = (est.rms * cfg.residual_sigmas).max(cfg.residual_floor_us as f32);
+            if (actual - predicted).abs() > limit {
+                self.rejects_in_row += 1;
+                if self.rejects_in_row < RESET_AFTER_REJECTS {
+                    return Verdict::RejectedResidual;
+                }
+                self.fit_len = 0;
+                self.fit_next = 0;
+            }
+        }
+        self.rejects_in_row = 0;
+        let window = usize::from(cfg.fit_window).clamp(1, FIT_WINDOW_MAX);
+        self.fit[usize::from(self.fit_next)] = sample;
+        self.fit_next = ((usize::from(self.fit_next) + 1) % window) as u8;
+        self.fit_len = (usize::from(self.fit_len) + 1).min(window) as u8;
+        Verdict::Accepted
+    }
+
+    /// The neighbour's time against our local counter at local time `now`,
+    /// from the samples that pass the current round-trip limit and are not
+    /// too old.
+    pub fn estimate(&self, now: Micros, cfg: &TimeConfig) -> Option<Estimate> {
+        let limit = self.rtt_limit(cfg);
+        let max_age = u64::from(cfg.fit_max_age_ms) * 1000;
+        let usable = |s: &&Sample| s.rtt as f32 <= limit && now.saturating_sub(s.sent) <= max_age;
+        let newest = self.samples().filter(usable).max_by_key(|s| s.sent)?;
+        let y_ref_half = newest.y_half;
+        // Means first, then centred sums: f32 keeps sub-µs precision because
+        // every value is relative to `now` and to the newest sample.
+        let (mut n, mut sx, mut sv) = (0u8, 0f32, 0f32);
+        let (mut first, mut last) = (u64::MAX, 0u64);
+        for s in self.samples().filter(usable) {
+            n += 1;
+            sx += s.x(now);
+            sv += s.y_half.saturating_sub(y_ref_half) as f32 * 0.5;
+            first = first.min(s.sent);
+            last = last.max(s.sent);
+        }
+        let count = f32::from(n);
+        let (mx, mv) = (sx / count, sv / count);
+        let (mut sxx, mut sxy) = (0f32, 0f32);
+        for s in self.samples().filter(usable) {
+            let dx = s.x(now) - mx;
+            sxx += dx * dx;
+            sxy += dx * (s.y_half.saturating_sub(y_ref_half) as f32 * 0.5 - mv);
+        }
+        // A slope needs points spread over at least two request intervals.
+        let span = last - first;
+        let fitted = n >= 3 && span >= 2 * u64::from(cfg.interval_us) && sxx > 0.0;
+        let b = if fitted { sxy / sxx } else { 0.0 };
+        let mut sq = 0f32;
+        for s in self.samples().filter(usable) {
+            let r = s.y_half.saturating_sub(y_ref_half) as f32 * 0.5 - (mv + b * (s.x(now) - mx));
+            sq += r * r;
+        }
+        let rms = libm_sqrt(sq / count);
+        // Standard error of the slope, with a floor for the µs quantisation
+        // of every stamp (a perfect fit is not a perfect measurement).
+        let stderr =
+            rms.max(0.5) / libm_sqrt(sxx.max(1.0)) * libm_sqrt(count / (count - 2.0).max(1.0));
+        let slope = (fitted && stderr <= MAX_SLOPE_STDERR).then_some(b);
+        Some(Estimate {
+            y_rel: mv - b * mx,
+            y_ref_half,
+            slope,
+            rms,
+            used: n,
+        })
+    }
+
+    /// Forgets everything (the link closed or changed peer).
+    pub fn reset(&mut self) {
+        *self = Neighbour::default();
+    }
+}
+
+/// Square root without `std` (Newton's method; plenty for an RMS).
+fn libm_sqrt(v: f32) -> f32 {
+    if v <= 0.0 || !v.is_finite() {
+        return 0.0;
+    }
+    let mut x = if v > 1.0 { v } else { 1.0 };
+    for _ in 0..20 {
+        x = 0.5 * (x + v / x);
+    }
+    x
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg() -> TimeConfig {
+        TimeConfig::default()
+    }
+
+    /// A neighbour whose clock runs `ppm` fast and is `offset` µs ahead of
+    /// our counter, exchanged with a symmetric `rtt`.
+    fn feed(n: &mut Neighbour, count: u64, ppm: f64, offset: f64, rtt: u64) {
+        for i in 0..count {
+            let sent = 1_000_000 + i * 50_000;
+            let mid = sent as f64 + rtt as f64 / 2.0;
+            let theirs = mid + offset + mid * ppm * 1e-6;
+            n.add(sent, sent + rtt, theirs.round() as u64, 0, &cfg());
+        }
+    }
+
+    #[test]
+    fn fits_offset_and_rate() {
+        let mut n = Neighbour::default();
+        feed(&mut n, 16, 50.0, 1234.0, 100);
+        let now = 1_000_000 + 16 * 50_000;
+        let e = n.estimate(now, &cfg()).unwrap();
+        let slope = e.slope.unwrap();
+        assert!((slope - 50e-6).abs() < 0.5e-6, "slope {slope}");
+        let y = e.y_ref_half as f64 * 0.5 + f64::from(e.y_rel);
+        let truth = 1234.0 + now as f64 * 50e-6;
+        assert!((y - truth).abs() < 1.0, "y {y} truth {truth}");
+    }
+
+    #[test]
+    fn long_round_trips_are_rejected() {
+        let mut n = Neighbour::default();
+        feed(&mut n, 8, 0.0, 0.0, 100);
+        assert_eq!(
+            n.add(2_000_000, 2_000_400, 2_000_200, 0, &cfg()),
+            Verdict::RejectedRtt
+        );
+    }
+
+    #[test]
+    fn late_stamps_are_rejected_by_residual() {
+        let mut n = Neighbour::default();
+        feed(&mut n, 8, 0.0, 500.0, 100);
+        // Same round trip, but their time is 40 µs late.
+        let sent = 2_000_000;
+        assert_eq!(
+            n.add(sent, sent + 100, sent + 50 + 500 + 40, 0, &cfg()),
+            Verdict::RejectedResidual
+        );
+        // A real jump persists: after a few rejections the fit starts over.
+        let mut last = Verdict::Accepted;
+        for i in 1..=RESET_AFTER_REJECTS as u64 {
+            let sent = 2_000_000 + i * 50_000;
+            last = n.add(sent, sent + 100, sent + 50 + 5_000, 0, &cfg());
+        }
+        assert_eq!(last, Verdict::Accepted);
+    }
+
+    #[test]
+    fn replies_from_the_future_are_bogus() {
+        let mut n = Neighbour::default();
+        assert_eq!(n.add(10, 5, 0, 0, &cfg()), Verdict::Bogus);
+    }
+}
