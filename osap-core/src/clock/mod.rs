@@ -368,7 +368,9 @@ impl ClockStatus {
 pub struct Clock<const LINKS: usize> {
     config: TimeConfig,
     base_local: Micros,
-    base_system: u64,
+    /// Signed, so a jump to a source whose time is younger than our
+    /// counter can never wrap; reported time is clamped at 0.
+    base_system: i64,
     /// Fraction of a µs carried across re-bases (Q32), so that re-basing at
     /// every update never loses time.
     base_frac: u32,
@@ -461,19 +463,17 @@ impl<const LINKS: usize> Clock<LINKS> {
         }
     }
 
-    /// System time at local time `local`.
+    /// System time at local time `local` (never below 0).
     pub fn system_time(&self, local: Micros) -> u64 {
-        self.system_time_q32(local).0
+        self.system_time_q32(local).0.max(0) as u64
     }
 
-    /// System time at `local` as whole µs and a Q32 fraction.
-    fn system_time_q32(&self, local: Micros) -> (u64, u32) {
+    /// Signed system time at `local` as whole µs and a Q32 fraction.
+    fn system_time_q32(&self, local: Micros) -> (i64, u32) {
         let delta = local.wrapping_sub(self.base_local) as i64;
         let adjust = i128::from(delta) * i128::from(self.rate_q32) + i128::from(self.base_frac);
-        let whole = self
-            .base_system
-            .wrapping_add(delta as u64)
-            .wrapping_add((adjust >> 32) as i64 as u64);
+        let whole = i128::from(self.base_system) + i128::from(delta) + (adjust >> 32);
+        let whole = whole.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
         (whole, adjust as u32)
     }
 
@@ -658,7 +658,8 @@ impl<const LINKS: usize> Clock<LINKS> {
 
     /// Our system time minus our local counter at `now`, in half µs.
     fn own_y_half(&self, now: Micros) -> i64 {
-        (self.system_time(now) as i64)
+        self.system_time_q32(now)
+            .0
             .wrapping_sub(now as i64)
             .saturating_mul(2)
     }
@@ -702,7 +703,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         }
         if !self.synced || offset.abs() > self.config.hard_jump_us as f32 {
             self.rebase(now, self.learned_q32);
-            self.base_system = self.base_system.wrapping_add(round(offset) as u64);
+            self.base_system = self.base_system.saturating_add(round(offset));
             self.integral = 0.0;
             self.synced = true;
             self.offset_us = 0.0;
