@@ -310,18 +310,19 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// Sends the clock's time stamp requests when they are due, and forgets
     /// neighbours whose links have closed.
     fn sync_clock<L: LinkGateway>(&mut self, now: Micros, links: &[L]) {
+        let mut open = 0u64;
         for (i, link) in links.iter().enumerate().take(LINKS) {
-            if !link.is_open() {
+            if link.is_open() {
+                open |= 1 << i;
+            } else {
                 self.clock.forget(i);
             }
         }
-        if !self.clock.request_due(now) {
-            return;
-        }
-        for (i, link) in links.iter().enumerate().take(LINKS) {
-            // A full stack skips this round rather than stalling: the next
+        let due = self.clock.due_requests(now, open);
+        for i in 0..LINKS {
+            // A full stack skips this request rather than stalling: the next
             // interval tries again.
-            if link.is_open() {
+            if due & (1 << i) != 0 {
                 let _ = self.request_time(now, i as u8);
             }
         }

@@ -46,7 +46,7 @@ proptest! {
         let mut jumps = 0;
         for x in exchanges {
             local += x.advance;
-            let _ = clock.request_due(local);
+            let _ = clock.due_requests(local, 0b11);
             let sent = local.saturating_sub(x.rtt).saturating_add_signed(x.echo_skew);
             let reply = TimeReply {
                 request_time: sent,

@@ -10,8 +10,12 @@
 //! first synchronisation, or an offset beyond `hard_jump_us`.
 //!
 //! **Synchronisation.** A runtime that is not the root sends a time stamp
-//! request (system message 0) on every open link each `interval_us` (with a
-//! little random dither, so requests do not phase-lock to a bus schedule).
+//! request (system message 0) on every open link each `interval_us`. After
+//! a rejected exchange the next request is dithered by a random amount, so
+//! requests search over the phases of whatever schedule a link has (USB
+//! frames, a neighbour's main loop); after an accepted one the next goes at
+//! exactly the same phase, so a link with such a structure locks on a good
+//! phase and keeps delivering clean samples.
 //! Neighbours answer with their system time and tier (message 1). Each reply
 //! becomes a sample of that neighbour ([`neighbour`]); the controller follows
 //! the neighbours of the lowest tier, averaging their estimates: a
@@ -41,7 +45,7 @@ pub mod neighbour;
 
 use crate::codec::{CodecError, Reader, Writer};
 use crate::Micros;
-use neighbour::{Neighbour, Verdict, FIT_WINDOW_MAX, RTT_WINDOW_MAX};
+use neighbour::{Neighbour, Verdict, FIT_WINDOW_MAX};
 
 /// System message code of a time stamp request.
 pub const CODE_TIME_REQUEST: u8 = 0;
@@ -59,6 +63,14 @@ pub const TIER_ROOT: u8 = 0;
 pub const TIER_LIMIT: u8 = 32;
 
 const Q32: f32 = 4_294_967_296.0;
+/// Exchanges with a new neighbour sent at `DISCOVERY_BURST` × the request
+/// rate, to learn its round-trip floor quickly.
+const DISCOVERY_SAMPLES: u32 = 64;
+/// See [`DISCOVERY_SAMPLES`].
+const DISCOVERY_BURST: u64 = 32;
+/// Measurement noise (µs) at and above which an offset is slewed over the
+/// full 1/kp; below it, proportionally faster.
+const SLEW_NOISE_REF_US: f32 = 5.0;
 
 /// A time stamp reply: the request's stamp, the responder's time and tier.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,7 +110,7 @@ impl TimeReply {
 /// Version of the [`TimeConfig`] wire layout.
 pub const TIME_CONFIG_VERSION: u8 = 1;
 /// Encoded length of a [`TimeConfig`].
-pub const TIME_CONFIG_LEN: usize = 52;
+pub const TIME_CONFIG_LEN: usize = 54;
 
 /// Every tunable of clock synchronisation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -111,22 +123,30 @@ pub struct TimeConfig {
     pub interval_us: u32,
     /// Each interval is lengthened or shortened by up to this, at random, µs.
     pub dither_us: u32,
+    /// On a link where fewer than half the exchanges pass the filters
+    /// (a USB link's frame waits), requests go this many times as often
+    /// (1..=32), so enough clean samples still arrive.
+    pub burst: u8,
     /// An offset beyond this is stepped, not slewed, µs.
     pub hard_jump_us: u32,
-    /// Proportional gain on the phase error, 1/s.
+    /// Phase gain, 1/s: a measured offset is slewed away over 1/`kp`.
     pub kp: f32,
-    /// Integral gain on the phase error, 1/s².
-    pub ki: f32,
+    /// Frequency gain, 1/s: how fast phase drift that the slew does not
+    /// explain is turned into a rate correction, while the fitted rate is
+    /// not yet trusted (at most all of it per sample).
+    pub kf: f32,
     /// Largest rate correction, parts per million (0, 10 000].
     pub max_rate_ppm: f32,
-    /// Round trips kept per neighbour for the minimum-RTT filter (1..=64).
-    pub rtt_window: u8,
+    /// The round-trip floor doubles over this many request intervals when
+    /// no shorter round trip comes along (1..=65535): how long a short
+    /// round trip is remembered.
+    pub rtt_window: u16,
     /// A sample is used only if its round trip is at most this × the
-    /// window's minimum (≥ 1) ...
+    /// floor (≥ 1) ...
     pub rtt_factor: f32,
     /// ... plus this, µs.
     pub rtt_slack_us: u32,
-    /// Accepted samples kept per neighbour for the fit (1..=16).
+    /// Accepted samples kept per neighbour for the fit (1..=32).
     pub fit_window: u8,
     /// Samples older than this leave the fit, ms.
     pub fit_max_age_ms: u32,
@@ -146,14 +166,15 @@ impl Default for TimeConfig {
             enabled: true,
             interval_us: 50_000,
             dither_us: 5_000,
+            burst: 8,
             hard_jump_us: 1_000,
-            kp: 2.0,
-            ki: 0.1,
+            kp: 1.0,
+            kf: 0.2,
             max_rate_ppm: 500.0,
-            rtt_window: 64,
+            rtt_window: 256,
             rtt_factor: 1.1,
             rtt_slack_us: 10,
-            fit_window: 16,
+            fit_window: 32,
             fit_max_age_ms: 30_000,
             residual_sigmas: 4.0,
             residual_floor_us: 8,
@@ -192,21 +213,19 @@ fn finite_at_least(v: f32, min: f32) -> bool {
 impl TimeConfig {
     /// Checks every field against its allowed range.
     pub fn validate(&self) -> Result<(), TimeConfigError> {
-        let checks: [(bool, &'static str); 11] = [
+        let checks: [(bool, &'static str); 12] = [
             (self.interval_us >= 1_000, "interval_us"),
             (self.dither_us < self.interval_us, "dither_us"),
+            ((1..=32).contains(&self.burst), "burst"),
             (finite_at_least(self.kp, 0.0) && self.kp <= 100.0, "kp"),
-            (finite_at_least(self.ki, 0.0) && self.ki <= 100.0, "ki"),
+            (finite_at_least(self.kf, 0.0) && self.kf <= 100.0, "kf"),
             (
                 self.max_rate_ppm.is_finite()
                     && self.max_rate_ppm > 0.0
                     && self.max_rate_ppm <= 10_000.0,
                 "max_rate_ppm",
             ),
-            (
-                (1..=RTT_WINDOW_MAX as u8).contains(&self.rtt_window),
-                "rtt_window",
-            ),
+            (self.rtt_window >= 1, "rtt_window"),
             (finite_at_least(self.rtt_factor, 1.0), "rtt_factor"),
             (
                 (1..=FIT_WINDOW_MAX as u8).contains(&self.fit_window),
@@ -234,11 +253,12 @@ impl TimeConfig {
         w.u8(u8::from(self.root) | u8::from(self.enabled) << 1)?;
         w.u32(self.interval_us)?;
         w.u32(self.dither_us)?;
+        w.u8(self.burst)?;
         w.u32(self.hard_jump_us)?;
         w.f32(self.kp)?;
-        w.f32(self.ki)?;
+        w.f32(self.kf)?;
         w.f32(self.max_rate_ppm)?;
-        w.u8(self.rtt_window)?;
+        w.u16(self.rtt_window)?;
         w.f32(self.rtt_factor)?;
         w.u32(self.rtt_slack_us)?;
         w.u8(self.fit_window)?;
@@ -262,11 +282,12 @@ impl TimeConfig {
             enabled: flags & 2 != 0,
             interval_us: r.u32().map_err(c)?,
             dither_us: r.u32().map_err(c)?,
+            burst: r.u8().map_err(c)?,
             hard_jump_us: r.u32().map_err(c)?,
             kp: r.f32().map_err(c)?,
-            ki: r.f32().map_err(c)?,
+            kf: r.f32().map_err(c)?,
             max_rate_ppm: r.f32().map_err(c)?,
-            rtt_window: r.u8().map_err(c)?,
+            rtt_window: r.u16().map_err(c)?,
             rtt_factor: r.f32().map_err(c)?,
             rtt_slack_us: r.u32().map_err(c)?,
             fit_window: r.u8().map_err(c)?,
@@ -374,18 +395,23 @@ pub struct Clock<const LINKS: usize> {
     /// Fraction of a µs carried across re-bases (Q32), so that re-basing at
     /// every update never loses time.
     base_frac: u32,
+    /// Persistent rate correction: learned feed-forward + integral term.
     rate_q32: i64,
+    /// Phase slew: an extra rate applied for `slew_len` µs after
+    /// `base_local`, so a measured offset is removed exactly once, however
+    /// long it is until the next sample.
+    slew_q32: i64,
+    slew_len: i64,
     /// Rate from the fits alone, without the phase terms: what holdover
     /// keeps.
     learned_q32: i64,
-    integral: f32,
-    rate_fitted: bool,
     last_steer: Option<Micros>,
     offset_us: f32,
     tier: u8,
     synced: bool,
     following: bool,
-    next_request: Option<Micros>,
+    /// Next once-per-interval housekeeping (tier aging), local time.
+    next_tick: Option<Micros>,
     rng: u32,
     neighbours: [Neighbour; LINKS],
     stats: SyncStats,
@@ -400,9 +426,9 @@ impl<const LINKS: usize> Clock<LINKS> {
             base_system: 0,
             base_frac: 0,
             rate_q32: 0,
+            slew_q32: 0,
+            slew_len: 0,
             learned_q32: 0,
-            integral: 0.0,
-            rate_fitted: false,
             last_steer: None,
             offset_us: 0.0,
             tier: if config.root {
@@ -412,7 +438,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             },
             synced: false,
             following: false,
-            next_request: None,
+            next_tick: None,
             rng: 0x9e37_79b9,
             neighbours: core::array::from_fn(|_| Neighbour::default()),
             stats: SyncStats::default(),
@@ -471,13 +497,17 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// Signed system time at `local` as whole µs and a Q32 fraction.
     fn system_time_q32(&self, local: Micros) -> (i64, u32) {
         let delta = local.wrapping_sub(self.base_local) as i64;
-        let adjust = i128::from(delta) * i128::from(self.rate_q32) + i128::from(self.base_frac);
+        let slewed = delta.min(self.slew_len);
+        let adjust = i128::from(delta) * i128::from(self.rate_q32)
+            + i128::from(slewed) * i128::from(self.slew_q32)
+            + i128::from(self.base_frac);
         let whole = i128::from(self.base_system) + i128::from(delta) + (adjust >> 32);
         let whole = whole.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
         (whole, adjust as u32)
     }
 
-    /// Current rate correction against the local counter, ppb.
+    /// Current rate correction against the local counter, ppb (the
+    /// persistent part: what a hot start should restore).
     pub fn rate_ppb(&self) -> i32 {
         ((self.rate_q32 as f32 / Q32) * 1e9) as i32
     }
@@ -489,7 +519,6 @@ impl<const LINKS: usize> Clock<LINKS> {
         let q = self.clamp_rate(ppb as f32 * 1e-9);
         self.rebase(now, q);
         self.learned_q32 = q;
-        self.integral = 0.0;
     }
 
     /// A snapshot for monitoring.
@@ -513,44 +542,77 @@ impl<const LINKS: usize> Clock<LINKS> {
         }
     }
 
-    /// When the next round of time stamp requests is due (local time).
+    /// When the clock next needs a poll (local time): a request due on some
+    /// link, or the once-per-interval tier housekeeping.
     pub fn next_request(&self) -> Option<Micros> {
-        self.next_request
+        let links = self.neighbours.iter().filter_map(|n| n.next_request);
+        links.chain(self.next_tick).min()
     }
 
-    /// Whether requests should go out on every open link now; if so,
-    /// schedules the next round and ages the tier. The root and disabled
-    /// clocks never request.
-    pub fn request_due(&mut self, now: Micros) -> bool {
+    /// The links (a bit per link index, among those set in `open`) on which
+    /// a time stamp request is due now; schedules their next ones. Also ages
+    /// the tier once per interval. The root and disabled clocks never
+    /// request.
+    pub fn due_requests(&mut self, now: Micros, open: u64) -> u64 {
         if self.config.root || !self.config.enabled {
-            self.next_request = None;
-            return false;
+            self.next_tick = None;
+            for n in self.neighbours.iter_mut() {
+                n.next_request = None;
+            }
+            return 0;
         }
-        match self.next_request {
-            Some(t) if now < t => false,
+        let interval = u64::from(self.config.interval_us);
+        match self.next_tick {
+            Some(t) if now < t => {}
             Some(_) => {
                 self.select(now, true);
-                self.next_request = Some(now + self.next_interval());
-                true
+                self.next_tick = Some(now + interval);
             }
-            None => {
-                // First call: go at once, so a fresh runtime syncs quickly.
-                self.next_request = Some(now + self.next_interval());
-                true
-            }
+            None => self.next_tick = Some(now + interval),
         }
+        let mut due = 0u64;
+        for i in 0..LINKS.min(64) {
+            if open & (1 << i) == 0 {
+                self.neighbours[i].next_request = None;
+                continue;
+            }
+            let scheduled = self.neighbours[i].next_request;
+            if scheduled.is_some_and(|t| now < t) {
+                continue;
+            }
+            due |= 1 << i;
+            let n = &self.neighbours[i];
+            let burst = if n.seen < DISCOVERY_SAMPLES {
+                // Discovery: find the round-trip floor in a fraction of a
+                // second (a few kilobytes, once per neighbour).
+                DISCOVERY_BURST
+            } else if n.acceptance < 0.5 {
+                u64::from(self.config.burst.max(1))
+            } else {
+                1
+            };
+            let interval = interval / burst;
+            // Keep the phase of an accepted exchange (unless we fell more
+            // than an interval behind); otherwise search with dither.
+            let next = match scheduled {
+                Some(t) if self.neighbours[i].keep_phase && now - t < interval => t + interval,
+                _ => (now + interval).saturating_add_signed(self.dither() / burst as i64),
+            };
+            self.neighbours[i].next_request = Some(next);
+        }
+        due
     }
 
-    fn next_interval(&mut self) -> u64 {
+    /// A random offset in `[-dither_us, dither_us]`, µs.
+    fn dither(&mut self) -> i64 {
         // xorshift32: cheap, and only needs to break phase locking.
         let mut x = self.rng;
         x ^= x << 13;
         x ^= x >> 17;
         x ^= x << 5;
         self.rng = x;
-        let dither = u64::from(self.config.dither_us);
-        let span = 2 * dither + 1;
-        u64::from(self.config.interval_us) + (u64::from(x) % span) - dither
+        let dither = i64::from(self.config.dither_us);
+        (i64::from(x) % (2 * dither + 1)) - dither
     }
 
     /// Forgets the neighbour on `link` (its link closed).
@@ -589,7 +651,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         match self.best_tier(now) {
             Some(best) if best < self.tier && best + 1 < TIER_LIMIT => {
                 if !self.following {
-                    self.integral = 0.0;
+                    self.last_steer = None;
                 }
                 self.tier = best + 1;
                 self.following = true;
@@ -616,6 +678,7 @@ impl<const LINKS: usize> Clock<LINKS> {
     pub fn on_reply(&mut self, link: usize, reply: &TimeReply, received: Micros) {
         self.stats.samples = self.stats.samples.wrapping_add(1);
         let config = self.config;
+        let prior = self.learned_q32 as f32 / Q32;
         let Some(n) = self.neighbours.get_mut(link) else {
             return;
         };
@@ -625,7 +688,17 @@ impl<const LINKS: usize> Clock<LINKS> {
             reply.responder_time,
             reply.responder_tier,
             &config,
+            prior,
         );
+        // Hold a phase only once the floor is known: early exchanges are
+        // accepted against a floor that is still too high.
+        n.keep_phase = verdict == Verdict::Accepted && n.seen >= 16;
+        let hit = if verdict == Verdict::Accepted {
+            1.0
+        } else {
+            0.0
+        };
+        n.acceptance += 0.1 * (hit - n.acceptance);
         let s = &mut self.stats;
         let counter = match verdict {
             Verdict::Accepted => &mut s.accepted,
@@ -648,12 +721,14 @@ impl<const LINKS: usize> Clock<LINKS> {
         round(fraction.clamp(-max, max) * Q32)
     }
 
-    /// Re-bases the mapping at local time `now` with a new rate, keeping
-    /// system time continuous.
+    /// Re-bases the mapping at local time `now` with a new rate and no
+    /// slew, keeping system time continuous.
     fn rebase(&mut self, now: Micros, rate_q32: i64) {
         (self.base_system, self.base_frac) = self.system_time_q32(now);
         self.base_local = now;
         self.rate_q32 = rate_q32;
+        self.slew_q32 = 0;
+        self.slew_len = 0;
     }
 
     /// Our system time minus our local counter at `now`, in half µs.
@@ -669,17 +744,20 @@ impl<const LINKS: usize> Clock<LINKS> {
             return;
         };
         let own = self.own_y_half(now);
+        let prior = self.learned_q32 as f32 / Q32;
         let (mut offset_sum, mut offsets) = (0f32, 0u8);
         let (mut slope_sum, mut slopes) = (0f32, 0u8);
+        let mut noise = 0f32;
         for n in self.neighbours.iter() {
             if n.tier != tier || !n.is_fresh(now, &self.config) {
                 continue;
             }
-            let Some(est) = n.estimate(now, &self.config) else {
+            let Some(est) = n.estimate(now, &self.config, prior) else {
                 continue;
             };
             offset_sum += est.y_ref_half.saturating_sub(own) as f32 * 0.5 + est.y_rel;
             offsets += 1;
+            noise = noise.max(est.jitter);
             if let Some(slope) = est.slope {
                 slope_sum += slope;
                 slopes += 1;
@@ -691,41 +769,54 @@ impl<const LINKS: usize> Clock<LINKS> {
             return;
         }
         self.offset_us = offset;
-        if slopes > 0 {
-            // The neighbours' system rate against our counter is exactly the
-            // rate our system time should have. The first time it is known it
-            // takes over what the integral had learned of it.
-            if !self.rate_fitted {
-                self.integral = 0.0;
-                self.rate_fitted = true;
-            }
-            self.learned_q32 = self.clamp_rate(slope_sum / f32::from(slopes));
-        }
         if !self.synced || offset.abs() > self.config.hard_jump_us as f32 {
             self.rebase(now, self.learned_q32);
             self.base_system = self.base_system.saturating_add(round(offset));
-            self.integral = 0.0;
             self.synced = true;
             self.offset_us = 0.0;
             self.last_steer = Some(now);
             self.stats.jumps = self.stats.jumps.wrapping_add(1);
             return;
         }
-        let dt = self
-            .last_steer
-            .map_or(0.0, |t| now.saturating_sub(t) as f32 * 1e-6);
-        self.last_steer = Some(now);
-        let cfg = &self.config;
-        self.integral += offset * dt;
-        // Anti-windup: the integral alone may not ask for more than the clamp.
-        if cfg.ki > 0.0 {
-            let bound = cfg.max_rate_ppm / cfg.ki;
-            self.integral = self.integral.clamp(-bound, bound);
+        let cfg = self.config;
+        let mut learned = self.learned_q32 as f32 / Q32;
+        if slopes > 0 {
+            // A trusted fit of the neighbours' rate against our counter is
+            // exactly the rate our system time needs.
+            learned = slope_sum / f32::from(slopes);
+        } else if let Some(last) = self.last_steer {
+            // Frequency loop: what the last slew does not explain of the
+            // offset is drift, i.e. rate error. Over short gaps take kf of it
+            // per second; over long ones at most all of it.
+            let dt = now.saturating_sub(last) as f32 * 1e-6;
+            let drift = offset - self.slew_remaining(now);
+            if dt > 0.0 {
+                learned += drift * 1e-6 / dt.max(1.0 / cfg.kf.max(1e-3));
+            }
         }
-        let phase_ppm = cfg.kp * offset + cfg.ki * self.integral;
-        let learned = self.learned_q32 as f32 / Q32;
-        let q = self.clamp_rate(learned + phase_ppm * 1e-6);
-        self.rebase(now, q);
+        self.last_steer = Some(now);
+        self.learned_q32 = self.clamp_rate(learned);
+        self.rebase(now, self.learned_q32);
+        // Remove the offset by slewing, then run at the learned rate again: a
+        // slew, not a rate held until the next sample, since samples may be
+        // seconds apart. Precise measurements are acted on within one
+        // interval; noisy ones over up to 1/kp; never faster than the clamp
+        // leaves room for.
+        if cfg.kp > 0.0 {
+            let max = cfg.max_rate_ppm * 1e-6;
+            let room = (max - learned.abs()).max(0.1 * max);
+            let settle = (1e6 / cfg.kp) * (noise / SLEW_NOISE_REF_US).min(1.0);
+            let duration_us = settle.max(cfg.interval_us as f32).max(offset.abs() / room);
+            self.slew_q32 = round(offset / duration_us * Q32);
+            self.slew_len = duration_us as i64;
+        }
+    }
+
+    /// The part of the current slew not yet applied at `now`, µs.
+    fn slew_remaining(&self, now: Micros) -> f32 {
+        let elapsed = now.wrapping_sub(self.base_local) as i64;
+        let left = (self.slew_len - elapsed.clamp(0, self.slew_len)) as f32;
+        left * self.slew_q32 as f32 / Q32
     }
 }
 
@@ -845,8 +936,8 @@ mod tests {
         let mut now = 10_000 + 5 * 50_000 + 400_000;
         let mut rounds = 0;
         while c.tier() != TIER_UNSYNCED {
-            c.next_request = Some(now);
-            assert!(c.request_due(now));
+            c.next_tick = Some(now);
+            assert_eq!(c.due_requests(now, 0b1), 0b1);
             assert_eq!(c.state(), SyncState::Holdover);
             now += 50_000;
             rounds += 1;

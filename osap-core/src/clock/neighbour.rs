@@ -8,10 +8,13 @@
 //! oscillator and its time now.
 //!
 //! Two filters keep bad samples out of the fit:
-//! - **minimum round trip**: a sample whose round trip exceeds the window's
-//!   minimum by more than `rtt_factor` × min + `rtt_slack_us` was delayed on
-//!   one leg (queueing, a busy receiver, a USB frame wait) and its offset is
-//!   biased by half that delay;
+//! - **minimum round trip**: a sample whose round trip exceeds the floor
+//!   (the lower envelope of recent round trips) by more than `rtt_factor` ×
+//!   floor + `rtt_slack_us` was delayed on one leg (queueing, a busy
+//!   receiver, a USB frame wait) and its offset is biased by half that delay.
+//!   The floor drops to any shorter round trip at once and rises slowly
+//!   (doubling over `rtt_window` request intervals), so it follows a path
+//!   that got slower without ever trusting a single long exchange;
 //! - **residual**: a sample far off the line the others agree on (by more
 //!   than `residual_sigmas` × their spread, and at least
 //!   `residual_floor_us`) carries a late time stamp (an interrupt preempted
@@ -20,14 +23,14 @@
 use super::TimeConfig;
 use crate::Micros;
 
-/// Most round trips kept for the minimum-RTT filter.
-pub const RTT_WINDOW_MAX: usize = 64;
 /// Most accepted samples kept for the fit.
-pub const FIT_WINDOW_MAX: usize = 16;
+pub const FIT_WINDOW_MAX: usize = 32;
 /// Largest standard error of a fitted rate that is trusted as feed-forward
-/// (fraction, here 10 ppm): a slope from few or noisy samples would steer
-/// worse than none.
-const MAX_SLOPE_STDERR: f32 = 10e-6;
+/// (fraction, here 2 ppm): a slope from few or noisy samples would steer
+/// worse than the frequency loop does without it.
+const MAX_SLOPE_STDERR: f32 = 2e-6;
+/// Phase noise aimed for when averaging the newest residuals, µs.
+const PHASE_NOISE_TARGET_US: f32 = 2.0;
 /// Consecutive residual rejections after which the fit is dropped: the
 /// neighbour's time really moved (it jumped), so start over.
 const RESET_AFTER_REJECTS: u8 = 6;
@@ -77,6 +80,8 @@ pub struct Estimate {
     pub slope: Option<f32>,
     /// Root-mean-square residual of the fit, µs.
     pub rms: f32,
+    /// Sample-to-sample measurement noise, µs.
+    pub jitter: f32,
     /// Samples the estimate rests on.
     pub used: u8,
 }
@@ -84,9 +89,8 @@ pub struct Estimate {
 /// Samples and state for the neighbour on one link.
 #[derive(Debug, Clone)]
 pub struct Neighbour {
-    rtts: [u32; RTT_WINDOW_MAX],
-    rtt_next: u8,
-    rtt_len: u8,
+    /// Lower envelope of the round trips, µs.
+    rtt_floor: f32,
     fit: [Sample; FIT_WINDOW_MAX],
     fit_next: u8,
     fit_len: u8,
@@ -97,14 +101,22 @@ pub struct Neighbour {
     pub last_heard: Option<Micros>,
     /// Latest round trip, µs.
     pub last_rtt: u32,
+    /// When the next request to this neighbour is due (local time).
+    pub next_request: Option<Micros>,
+    /// The latest exchange was accepted: send the next one at the same phase.
+    pub keep_phase: bool,
+    /// Recent fraction of exchanges accepted (moving average). Starts at 0,
+    /// so a new neighbour is sampled in bursts until its round-trip floor
+    /// is known.
+    pub acceptance: f32,
+    /// Round trips seen since the neighbour was (re)discovered.
+    pub seen: u32,
 }
 
 impl Default for Neighbour {
     fn default() -> Self {
         Neighbour {
-            rtts: [0; RTT_WINDOW_MAX],
-            rtt_next: 0,
-            rtt_len: 0,
+            rtt_floor: f32::INFINITY,
             fit: [Sample::default(); FIT_WINDOW_MAX],
             fit_next: 0,
             fit_len: 0,
@@ -112,6 +124,10 @@ impl Default for Neighbour {
             tier: super::TIER_UNSYNCED,
             last_heard: None,
             last_rtt: 0,
+            next_request: None,
+            keep_phase: false,
+            acceptance: 0.0,
+            seen: 0,
         }
     }
 }
@@ -123,14 +139,13 @@ impl Neighbour {
             .is_some_and(|t| now.saturating_sub(t) <= u64::from(cfg.neighbour_timeout_us))
     }
 
-    /// Smallest round trip in the window.
+    /// The round-trip floor, µs.
     pub fn min_rtt(&self) -> Option<u32> {
-        self.rtts[..usize::from(self.rtt_len)].iter().copied().min()
+        self.rtt_floor.is_finite().then_some(self.rtt_floor as u32)
     }
 
     fn rtt_limit(&self, cfg: &TimeConfig) -> f32 {
-        let min = self.min_rtt().unwrap_or(u32::MAX) as f32;
-        min * cfg.rtt_factor + cfg.rtt_slack_us as f32
+        self.rtt_floor * cfg.rtt_factor + cfg.rtt_slack_us as f32
     }
 
     fn samples(&self) -> impl Iterator<Item = &Sample> {
@@ -147,18 +162,28 @@ impl Neighbour {
         their_time: u64,
         tier: u8,
         cfg: &TimeConfig,
+        prior_slope: f32,
     ) -> Verdict {
         let Some(rtt) = received.checked_sub(sent) else {
             return Verdict::Bogus;
         };
         let rtt = u32::try_from(rtt).unwrap_or(u32::MAX);
+        if tier != self.tier {
+            // It started following someone else (or stopped): its time may
+            // have jumped, so earlier samples describe another timescale.
+            self.fit_len = 0;
+            self.fit_next = 0;
+        }
         self.tier = tier;
-        self.last_heard = Some(received);
         self.last_rtt = rtt;
-        let window = usize::from(cfg.rtt_window).clamp(1, RTT_WINDOW_MAX);
-        self.rtts[usize::from(self.rtt_next)] = rtt;
-        self.rtt_next = ((usize::from(self.rtt_next) + 1) % window) as u8;
-        self.rtt_len = (usize::from(self.rtt_len) + 1).min(window) as u8;
+        self.seen = self.seen.saturating_add(1);
+        // The floor forgets with time, not with samples: bursts of requests
+        // must not loosen it faster.
+        let elapsed = self.last_heard.map_or(0, |t| received.saturating_sub(t)) as f32;
+        let horizon = f32::from(cfg.rtt_window.max(1)) * cfg.interval_us as f32;
+        let rise = self.rtt_floor * elapsed / horizon + 0.01;
+        self.rtt_floor = (self.rtt_floor + rise).min(rtt as f32);
+        self.last_heard = Some(received);
         if rtt as f32 > self.rtt_limit(cfg) {
             return Verdict::RejectedRtt;
         }
@@ -167,7 +192,7 @@ impl Neighbour {
             .clamp(i64::MIN as i128, i64::MAX as i128) as i64;
         let sample = Sample { sent, rtt, y_half };
         let at = sent + u64::from(rtt / 2);
-        if let Some(est) = self.estimate(at, cfg).filter(|e| e.used >= 3) {
+        if let Some(est) = self.estimate(at, cfg, prior_slope).filter(|e| e.used >= 3) {
             let predicted = est.y_rel;
             let actual = y_half.saturating_sub(est.y_ref_half) as f32 * 0.5;
             let limit = (est.rms * cfg.residual_sigmas).max(cfg.residual_floor_us as f32);
@@ -190,8 +215,9 @@ impl Neighbour {
 
     /// The neighbour's time against our local counter at local time `now`,
     /// from the samples that pass the current round-trip limit and are not
-    /// too old.
-    pub fn estimate(&self, now: Micros, cfg: &TimeConfig) -> Option<Estimate> {
+    /// too old. Until enough samples span enough time to fit a slope, the
+    /// line through them runs at `prior_slope` (the clock's learned rate).
+    pub fn estimate(&self, now: Micros, cfg: &TimeConfig, prior_slope: f32) -> Option<Estimate> {
         let limit = self.rtt_limit(cfg);
         let max_age = u64::from(cfg.fit_max_age_ms) * 1000;
         let usable = |s: &&Sample| s.rtt as f32 <= limit && now.saturating_sub(s.sent) <= max_age;
@@ -219,23 +245,69 @@ impl Neighbour {
         // A slope needs points spread over at least two request intervals.
         let span = last - first;
         let fitted = n >= 3 && span >= 2 * u64::from(cfg.interval_us) && sxx > 0.0;
-        let b = if fitted { sxy / sxx } else { 0.0 };
+        let b = if fitted { sxy / sxx } else { prior_slope };
         let mut sq = 0f32;
         for s in self.samples().filter(usable) {
             let r = s.y_half.saturating_sub(y_ref_half) as f32 * 0.5 - (mv + b * (s.x(now) - mx));
             sq += r * r;
         }
         let rms = libm_sqrt(sq / count);
-        // Standard error of the slope, with a floor for the µs quantisation
-        // of every stamp (a perfect fit is not a perfect measurement).
-        let stderr =
-            rms.max(0.5) / libm_sqrt(sxx.max(1.0)) * libm_sqrt(count / (count - 2.0).max(1.0));
+        // Noise of one sample: the scatter between successive residuals,
+        // which a slowly bending neighbour time does not inflate (at least
+        // the µs quantisation of every stamp).
+        let len = usize::from(self.fit_len);
+        let residual = |s: &Sample| {
+            s.y_half.saturating_sub(y_ref_half) as f32 * 0.5 - (mv + b * (s.x(now) - mx))
+        };
+        let (mut prev, mut diffs, mut dsq) = (None, 0u32, 0f32);
+        for k in 0..len {
+            let s = &self.fit[(usize::from(self.fit_next) + k) % len];
+            if !usable(&s) {
+                continue;
+            }
+            let r = residual(s);
+            if let Some(p) = prev {
+                let d: f32 = r - p;
+                dsq += d * d;
+                diffs += 1;
+            }
+            prev = Some(r);
+        }
+        let jitter = if diffs >= 2 {
+            libm_sqrt(dsq / (2.0 * diffs as f32)).max(0.5)
+        } else {
+            // Too few to tell: assume the worst the round-trip band allows.
+            ((limit - self.rtt_floor) * 0.5).max(0.5)
+        };
+        // Standard error of the slope; a slope from fewer than 8 samples is
+        // never trusted (a few points can fit a line by chance).
+        let noise = rms.max(jitter);
+        let stderr = noise / libm_sqrt(sxx.max(1.0)) * libm_sqrt(count / (count - 2.0).max(1.0));
+        let fitted = fitted && n >= 8;
         let slope = (fitted && stderr <= MAX_SLOPE_STDERR).then_some(b);
+        // The line is a long average; the phase now comes from the newest
+        // samples' residuals, as many as the noise needs (one, on a clean
+        // link), so a neighbour whose own time bends is followed closely.
+        let wanted = (jitter / PHASE_NOISE_TARGET_US) * (jitter / PHASE_NOISE_TARGET_US);
+        let take = (wanted as usize).clamp(1, usize::from(n));
+        let (mut taken, mut resid) = (0usize, 0f32);
+        for back in 1..=len {
+            if taken == take {
+                break;
+            }
+            let s = &self.fit[(usize::from(self.fit_next) + 2 * len - back) % len];
+            if !usable(&s) {
+                continue;
+            }
+            resid += residual(s);
+            taken += 1;
+        }
         Some(Estimate {
-            y_rel: mv - b * mx,
+            y_rel: mv - b * mx + resid / taken.max(1) as f32,
             y_ref_half,
             slope,
             rms,
+            jitter,
             used: n,
         })
     }
@@ -243,6 +315,11 @@ impl Neighbour {
     /// Forgets everything (the link closed or changed peer).
     pub fn reset(&mut self) {
         *self = Neighbour::default();
+    }
+
+    /// Whether anything is known (a request was sent or a reply heard).
+    pub fn is_active(&self) -> bool {
+        self.last_heard.is_some() || self.next_request.is_some()
     }
 }
 
@@ -273,7 +350,7 @@ mod tests {
             let sent = 1_000_000 + i * 50_000;
             let mid = sent as f64 + rtt as f64 / 2.0;
             let theirs = mid + offset + mid * ppm * 1e-6;
-            n.add(sent, sent + rtt, theirs.round() as u64, 0, &cfg());
+            n.add(sent, sent + rtt, theirs.round() as u64, 0, &cfg(), 0.0);
         }
     }
 
@@ -282,7 +359,7 @@ mod tests {
         let mut n = Neighbour::default();
         feed(&mut n, 16, 50.0, 1234.0, 100);
         let now = 1_000_000 + 16 * 50_000;
-        let e = n.estimate(now, &cfg()).unwrap();
+        let e = n.estimate(now, &cfg(), 0.0).unwrap();
         let slope = e.slope.unwrap();
         assert!((slope - 50e-6).abs() < 0.5e-6, "slope {slope}");
         let y = e.y_ref_half as f64 * 0.5 + f64::from(e.y_rel);
@@ -295,7 +372,7 @@ mod tests {
         let mut n = Neighbour::default();
         feed(&mut n, 8, 0.0, 0.0, 100);
         assert_eq!(
-            n.add(2_000_000, 2_000_400, 2_000_200, 0, &cfg()),
+            n.add(2_000_000, 2_000_400, 2_000_200, 0, &cfg(), 0.0),
             Verdict::RejectedRtt
         );
     }
@@ -307,14 +384,14 @@ mod tests {
         // Same round trip, but their time is 40 µs late.
         let sent = 2_000_000;
         assert_eq!(
-            n.add(sent, sent + 100, sent + 50 + 500 + 40, 0, &cfg()),
+            n.add(sent, sent + 100, sent + 50 + 500 + 40, 0, &cfg(), 0.0),
             Verdict::RejectedResidual
         );
         // A real jump persists: after a few rejections the fit starts over.
         let mut last = Verdict::Accepted;
         for i in 1..=RESET_AFTER_REJECTS as u64 {
             let sent = 2_000_000 + i * 50_000;
-            last = n.add(sent, sent + 100, sent + 50 + 5_000, 0, &cfg());
+            last = n.add(sent, sent + 100, sent + 50 + 5_000, 0, &cfg(), 0.0);
         }
         assert_eq!(last, Verdict::Accepted);
     }
@@ -322,6 +399,6 @@ mod tests {
     #[test]
     fn replies_from_the_future_are_bogus() {
         let mut n = Neighbour::default();
-        assert_eq!(n.add(10, 5, 0, 0, &cfg()), Verdict::Bogus);
+        assert_eq!(n.add(10, 5, 0, 0, &cfg(), 0.0), Verdict::Bogus);
     }
 }

@@ -1,0 +1,38 @@
+//! Helpers shared by the integration tests.
+#![allow(dead_code)]
+
+use osap_sim::clock::ClockSpec;
+use osap_sim::medium::Side;
+use osap_sim::sim::FrameRecord;
+use osap_sim::{LinkModel, NodeSpec, Sim, SimConfig, Topology};
+
+/// Two nodes joined by one link: `host` (root, a perfect clock) on end A
+/// and `m1` (booted 5 s earlier, 50 ppm fast) on end B.
+pub fn pair(model: LinkModel) -> Topology {
+    Topology::new("pair")
+        .with_node(NodeSpec::host("host").with_clock(ClockSpec::fixed(0.0, 0.0)))
+        .with_node(NodeSpec::mcu("m1").with_clock(ClockSpec::fixed(5_000_000.0, 50.0)))
+        .with_link("host", "m1", model)
+}
+
+/// A simulation that records every frame.
+pub fn traced(topology: &Topology, seed: u64) -> Sim {
+    let config = SimConfig {
+        trace_frames: true,
+        ..SimConfig::seeded(seed)
+    };
+    Sim::new(topology, config).expect("valid topology")
+}
+
+/// The delivered frames sent from end `side` of link 0, in send order.
+pub fn frames_from(sim: &Sim, side: Side) -> Vec<FrameRecord> {
+    let from = sim.links()[0].ends[side.index()].0;
+    let mut v: Vec<FrameRecord> = sim
+        .frames()
+        .iter()
+        .filter(|f| f.link == 0 && f.from == from && !f.transit.lost)
+        .cloned()
+        .collect();
+    v.sort_by_key(|f| (f.transit.start_ns, f.transit.sent_ns));
+    v
+}
