@@ -12,7 +12,7 @@ use plotters::prelude::*;
 use std::path::Path;
 
 /// Most points drawn per series and panel.
-pub const MAX_POINTS: usize = 2000;
+pub const MAX_POINTS: usize = 500;
 
 /// Smallest |error| shown on the log scale, µs (zero errors sit on it).
 const LOG_FLOOR_US: f64 = 0.1;
