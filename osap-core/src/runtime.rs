@@ -298,6 +298,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
         self.ingest(now, links);
         self.poll_ports(now, ports);
+        // Without the controller a runtime still answers time requests, so
+        // others can synchronise through it; it just does not steer itself.
+        #[cfg(feature = "sync")]
         self.sync_clock(now, links);
         let mut result = self.serve(now, ports, links);
         result.wake_at = match (result.wake_at, self.clock.next_request()) {
@@ -309,6 +312,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     /// Sends the clock's time stamp requests when they are due, and forgets
     /// neighbours whose links have closed.
+    #[cfg(feature = "sync")]
     fn sync_clock<L: LinkGateway>(&mut self, now: Micros, links: &[L]) {
         let mut open = 0u64;
         for (i, link) in links.iter().enumerate().take(LINKS) {
@@ -687,7 +691,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 });
                 match reply.filter(|(link, _)| usize::from(*link) < LINKS) {
                     Some((link, reply)) => {
+                        #[cfg(feature = "sync")]
                         self.clock.on_reply(usize::from(link), &reply, meta.arrival);
+                        #[cfg(not(feature = "sync"))]
+                        let _ = (link, reply, meta);
                         bump(&mut self.counters.system);
                         Served::Done
                     }

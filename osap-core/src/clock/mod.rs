@@ -509,14 +509,18 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// Current rate correction against the local counter, ppb (the
     /// persistent part: what a hot start should restore).
     pub fn rate_ppb(&self) -> i32 {
-        ((self.rate_q32 as f32 / Q32) * 1e9) as i32
+        // Integer arithmetic: no soft-float on a Cortex-M0+ just to report.
+        ((self.rate_q32.saturating_mul(1_000_000_000)) >> 32) as i32
     }
 
     /// Sets the rate correction (a hot start from a persisted
     /// [`rate_ppb`](Self::rate_ppb)), keeping system time continuous at
     /// local time `now`. Clamped to `max_rate_ppm`.
     pub fn set_rate_ppb(&mut self, now: Micros, ppb: i32) {
-        let q = self.clamp_rate(ppb as f32 * 1e-9);
+        // 2^32 / 10^9 ≈ 281 475 / 2^16 (relative error 2e-7).
+        let q = (i64::from(ppb) * 281_475 + (1 << 15)) >> 16;
+        let max = (self.config.max_rate_ppm * 4294.967) as i64;
+        let q = q.clamp(-max, max);
         self.rebase(now, q);
         self.learned_q32 = q;
     }
