@@ -225,23 +225,35 @@ impl Neighbour {
         let y_ref_half = newest.y_half;
         // Means first, then centred sums: f32 keeps sub-µs precision because
         // every value is relative to `now` and to the newest sample.
-        let (mut n, mut sx, mut sv) = (0u8, 0f32, 0f32);
+        // Weighted least squares: a sample whose round trip sits on the
+        // floor is trusted fully; one at the edge of the band counts a fifth.
+        let band = (limit - self.rtt_floor).max(1.0);
+        let weight = |s: &Sample| {
+            let excess = (s.rtt as f32 - self.rtt_floor).max(0.0) / band;
+            1.0 / (1.0 + 4.0 * excess * excess)
+        };
+        let (mut n, mut sw, mut sx, mut sv) = (0u8, 0f32, 0f32, 0f32);
         let (mut first, mut last) = (u64::MAX, 0u64);
         for s in self.samples().filter(usable) {
+            let w = weight(s);
             n += 1;
-            sx += s.x(now);
-            sv += s.y_half.saturating_sub(y_ref_half) as f32 * 0.5;
+            sw += w;
+            sx += w * s.x(now);
+            sv += w * s.y_half.saturating_sub(y_ref_half) as f32 * 0.5;
             first = first.min(s.sent);
             last = last.max(s.sent);
         }
         let count = f32::from(n);
-        let (mx, mv) = (sx / count, sv / count);
+        let (mx, mv) = (sx / sw, sv / sw);
         let (mut sxx, mut sxy) = (0f32, 0f32);
         for s in self.samples().filter(usable) {
-            let dx = s.x(now) - mx;
-            sxx += dx * dx;
-            sxy += dx * (s.y_half.saturating_sub(y_ref_half) as f32 * 0.5 - mv);
+            let (w, dx) = (weight(s), s.x(now) - mx);
+            sxx += w * dx * dx;
+            sxy += w * dx * (s.y_half.saturating_sub(y_ref_half) as f32 * 0.5 - mv);
         }
+        // Unweighted spread, for the slope's standard error below.
+        let sxx = sxx * count / sw;
+        let sxy = sxy * count / sw;
         // A slope needs points spread over at least two request intervals.
         let span = last - first;
         let fitted = n >= 3 && span >= 2 * u64::from(cfg.interval_us) && sxx > 0.0;
