@@ -37,6 +37,7 @@ pub mod route;
 pub mod runtime;
 pub mod stack;
 pub mod transport;
+pub mod usb;
 
 pub use packet::{Instruction, PacketError};
 pub use route::Route;

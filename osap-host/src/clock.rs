@@ -1,0 +1,35 @@
+//! The host's local clock: microseconds on a monotonic clock since start.
+
+use std::time::{Duration, Instant};
+
+/// A monotonic microsecond counter shared by a host's runtime and its links,
+/// so link receive stamps and the runtime's `now` are on the same clock.
+#[derive(Debug, Clone, Copy)]
+pub struct HostClock {
+    epoch: Instant,
+}
+
+impl Default for HostClock {
+    fn default() -> Self {
+        HostClock::new()
+    }
+}
+
+impl HostClock {
+    /// A clock reading 0 now.
+    pub fn new() -> Self {
+        HostClock {
+            epoch: Instant::now(),
+        }
+    }
+
+    /// Microseconds since the clock started.
+    pub fn now_us(&self) -> u64 {
+        self.epoch.elapsed().as_micros() as u64
+    }
+
+    /// The instant at which the clock reads `us`.
+    pub fn instant_at(&self, us: u64) -> Instant {
+        self.epoch + Duration::from_micros(us)
+    }
+}

@@ -1,0 +1,43 @@
+//! Errors of the host runtime.
+
+use osap_core::port::SendError;
+use std::time::Duration;
+
+/// What can go wrong talking to the network from a host.
+#[derive(Debug, thiserror::Error)]
+pub enum HostError {
+    /// The host's runtime task has stopped.
+    #[error("the host runtime has stopped")]
+    Stopped,
+    /// The runtime refused the packet.
+    #[error("could not send: {0}")]
+    Send(SendError),
+    /// No reply came in time.
+    #[error("no reply within {timeout:?} from port {port} over route {route}")]
+    Timeout {
+        /// How long was waited.
+        timeout: Duration,
+        /// The route the request went over.
+        route: String,
+        /// The destination port.
+        port: u16,
+    },
+    /// Every port index is in use.
+    #[error("no free port index (the host has {0})")]
+    NoFreePort(usize),
+    /// Every link index is in use.
+    #[error("no free link index (the host has {0})")]
+    NoFreeLink(usize),
+    /// A reply did not parse.
+    #[error("malformed reply: {0}")]
+    Malformed(String),
+    /// An I/O error from a link.
+    #[error("{context}: {source}")]
+    Io {
+        /// What was being done.
+        context: String,
+        /// The error.
+        #[source]
+        source: std::io::Error,
+    },
+}

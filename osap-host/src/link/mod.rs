@@ -1,0 +1,328 @@
+//! Link gateways for the host, whose I/O runs outside the runtime task.
+//!
+//! A [`ChannelLink`] is what the runtime sees: an `osap_core` link gateway
+//! over two bounded queues. Its other half, [`LinkIo`], belongs to whatever
+//! moves bytes: a serial-port task, a socket task, or (for in-process links)
+//! another runtime's queue directly. Either side wakes the other through a
+//! [`Notify`], so nothing polls on a timer.
+//!
+//! Link state changes (opened, closed: a cable pulled, a peer gone) are
+//! reported through [`LinkIo::set_open`]; the runtime sees them on its next
+//! poll, drops packets routed over a closed link (counted) and forgets the
+//! clock samples of its neighbour there.
+
+pub mod memory;
+
+use crate::clock::HostClock;
+use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
+use osap_core::Micros;
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard};
+use tokio::sync::Notify;
+
+/// How a link is described and sized.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct LinkConfig {
+    /// Type name reported to scans (`usb_cdc`, `uart`, `tcp`, `udp`, ...).
+    pub type_name: String,
+    /// Instance name reported to scans (a device path, an address).
+    pub name: String,
+    /// Largest packet, bytes.
+    pub mtu: u16,
+    /// Packets buffered each way.
+    pub depth: usize,
+    /// Wire speed, bits per second, for transmit-time estimates (0: unknown).
+    pub bits_per_second: u32,
+    /// Bits on the wire per byte (10 for 8N1 serial).
+    pub bits_per_byte: u32,
+}
+
+impl LinkConfig {
+    /// A link of the given type with defaults: 1 KiB MTU, 32 packets each
+    /// way, unknown speed.
+    pub fn new(type_name: &str, name: &str) -> Self {
+        LinkConfig {
+            type_name: type_name.to_string(),
+            name: name.to_string(),
+            mtu: crate::HOST_MTU as u16,
+            depth: 32,
+            bits_per_second: 0,
+            bits_per_byte: 8,
+        }
+    }
+}
+
+/// Counts kept for a link.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LinkStats {
+    /// Packets handed to the I/O side to transmit.
+    pub sent: u64,
+    /// Packets received from the I/O side.
+    pub received: u64,
+    /// Received packets dropped because the runtime's queue was full.
+    pub rx_dropped: u64,
+    /// Frames dropped by the I/O side (bad CRC, COBS, oversize).
+    pub frame_errors: u64,
+    /// Times the link went down.
+    pub disconnects: u64,
+}
+
+#[derive(Debug)]
+struct Queues {
+    rx: VecDeque<(Vec<u8>, Micros)>,
+    tx: VecDeque<Vec<u8>>,
+    open: bool,
+    stats: LinkStats,
+}
+
+/// State shared by a link's two halves.
+#[derive(Debug)]
+struct Shared {
+    config: LinkConfig,
+    queues: Mutex<Queues>,
+    /// Wakes the runtime task (shared by all of a host's links and ports).
+    runtime: Arc<Notify>,
+    /// Wakes the I/O side: a packet to send, or room to receive.
+    io: Notify,
+    clock: HostClock,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, Queues> {
+        // A panic elsewhere while holding the lock leaves the queues
+        // consistent (every operation is a single push or pop), so go on.
+        self.queues.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// The runtime's side of a link.
+#[derive(Debug)]
+pub struct ChannelLink {
+    shared: Arc<Shared>,
+    /// An in-process peer: packets go straight into its receive queue.
+    peer: Option<Arc<Shared>>,
+}
+
+/// The I/O side of a link: hands received packets to the runtime and takes
+/// the packets it sends.
+#[derive(Debug, Clone)]
+pub struct LinkIo {
+    shared: Arc<Shared>,
+}
+
+/// Makes the two halves of a link. `runtime` is the host's wake-up.
+pub(crate) fn channel(
+    config: LinkConfig,
+    runtime: Arc<Notify>,
+    clock: HostClock,
+) -> (ChannelLink, LinkIo) {
+    let shared = Arc::new(Shared {
+        config,
+        queues: Mutex::new(Queues {
+            rx: VecDeque::new(),
+            tx: VecDeque::new(),
+            open: false,
+            stats: LinkStats::default(),
+        }),
+        runtime,
+        io: Notify::new(),
+        clock,
+    });
+    (
+        ChannelLink {
+            shared: shared.clone(),
+            peer: None,
+        },
+        LinkIo { shared },
+    )
+}
+
+impl LinkIo {
+    /// The link's configuration.
+    pub fn config(&self) -> &LinkConfig {
+        &self.shared.config
+    }
+
+    /// Marks the link up or down and wakes the runtime. Going down drops
+    /// whatever was queued to send (it was meant for the old connection).
+    pub fn set_open(&self, open: bool) {
+        let mut q = self.shared.lock();
+        if q.open && !open {
+            q.stats.disconnects += 1;
+            q.tx.clear();
+        }
+        q.open = open;
+        drop(q);
+        self.shared.runtime.notify_one();
+        self.shared.io.notify_one();
+    }
+
+    /// Whether the link is up.
+    pub fn is_open(&self) -> bool {
+        self.shared.lock().open
+    }
+
+    /// Hands a received packet to the runtime, stamped now. Returns false
+    /// (and counts a drop) if the runtime's queue is full.
+    pub fn deliver(&self, packet: Vec<u8>) -> bool {
+        let stamp = self.shared.clock.now_us();
+        self.deliver_stamped(packet, stamp)
+    }
+
+    /// [`deliver`](Self::deliver) with an explicit receive stamp (host
+    /// clock µs, when the first byte arrived).
+    pub fn deliver_stamped(&self, packet: Vec<u8>, stamp: Micros) -> bool {
+        let mut q = self.shared.lock();
+        if q.rx.len() >= self.shared.config.depth {
+            q.stats.rx_dropped += 1;
+            return false;
+        }
+        q.rx.push_back((packet, stamp));
+        q.stats.received += 1;
+        drop(q);
+        self.shared.runtime.notify_one();
+        true
+    }
+
+    /// Waits until the runtime has room for a received packet (for stream
+    /// links, which can push back by not reading).
+    pub async fn rx_ready(&self) {
+        loop {
+            let notified = self.shared.io.notified();
+            if self.shared.lock().rx.len() < self.shared.config.depth {
+                return;
+            }
+            notified.await;
+        }
+    }
+
+    /// Takes the next packet to transmit, waiting for one. Returns `None`
+    /// when the link is closed (the I/O task should reconnect or stop).
+    pub async fn next_tx(&self) -> Option<Vec<u8>> {
+        loop {
+            let notified = self.shared.io.notified();
+            {
+                let mut q = self.shared.lock();
+                if !q.open {
+                    return None;
+                }
+                if let Some(p) = q.tx.pop_front() {
+                    drop(q);
+                    // Room to send again: the runtime may have packets waiting.
+                    self.shared.runtime.notify_one();
+                    return Some(p);
+                }
+            }
+            notified.await;
+        }
+    }
+
+    /// Counts frames the I/O side had to drop.
+    pub fn count_frame_errors(&self, n: u64) {
+        self.shared.lock().stats.frame_errors += n;
+    }
+
+    /// The link's counts.
+    pub fn stats(&self) -> LinkStats {
+        self.shared.lock().stats
+    }
+
+    /// The host clock, for receive stamps.
+    pub fn clock(&self) -> HostClock {
+        self.shared.clock
+    }
+}
+
+impl ChannelLink {
+    /// Joins two links in one process: each one's sends land directly in
+    /// the other's receive queue.
+    pub(crate) fn join(a: &mut ChannelLink, b: &mut ChannelLink) {
+        a.peer = Some(b.shared.clone());
+        b.peer = Some(a.shared.clone());
+    }
+
+    /// The link's counts.
+    pub fn stats(&self) -> LinkStats {
+        self.shared.lock().stats
+    }
+}
+
+impl LinkGateway for ChannelLink {
+    fn info(&self) -> LinkInfo<'_> {
+        LinkInfo {
+            type_name: &self.shared.config.type_name,
+            name: &self.shared.config.name,
+        }
+    }
+
+    fn is_open(&self) -> bool {
+        self.shared.lock().open
+    }
+
+    fn mtu(&self) -> u16 {
+        self.shared.config.mtu
+    }
+
+    fn clear_to_send(&self) -> bool {
+        match &self.peer {
+            Some(peer) => {
+                let q = peer.lock();
+                q.open && q.rx.len() < peer.config.depth
+            }
+            None => {
+                let q = self.shared.lock();
+                q.open && q.tx.len() < self.shared.config.depth
+            }
+        }
+    }
+
+    fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
+        match &self.peer {
+            Some(peer) => {
+                let stamp = peer.clock.now_us();
+                let mut q = peer.lock();
+                if !q.open || q.rx.len() >= peer.config.depth {
+                    return Err(LinkSendError);
+                }
+                q.rx.push_back((packet.to_vec(), stamp));
+                q.stats.received += 1;
+                drop(q);
+                peer.runtime.notify_one();
+            }
+            None => {
+                let mut q = self.shared.lock();
+                if !q.open || q.tx.len() >= self.shared.config.depth {
+                    return Err(LinkSendError);
+                }
+                q.tx.push_back(packet.to_vec());
+                drop(q);
+                self.shared.io.notify_one();
+            }
+        }
+        self.shared.lock().stats.sent += 1;
+        Ok(())
+    }
+
+    fn transmit_time(&self, len: usize) -> Micros {
+        let c = &self.shared.config;
+        if c.bits_per_second == 0 {
+            return 0;
+        }
+        // COBS + CRC + delimiter: about 4 bytes more than the packet.
+        let bits = (len as u64 + 4) * u64::from(c.bits_per_byte);
+        (bits * 1_000_000).div_ceil(u64::from(c.bits_per_second))
+    }
+
+    fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
+        let (packet, stamp) = self.shared.lock().rx.pop_front()?;
+        // Room again: a stream link may be waiting to read more.
+        self.shared.io.notify_one();
+        if let Some(dst) = buf.get_mut(..packet.len()) {
+            dst.copy_from_slice(&packet);
+        }
+        Some(Received {
+            len: packet.len(),
+            timestamp: Some(stamp),
+        })
+    }
+}

@@ -1,0 +1,273 @@
+//! The host runtime: an osap-core runtime driven by a tokio task.
+//!
+//! The task polls the runtime, then sleeps until one of three things: a
+//! command from a [`Host`] handle, a wake-up from a link or port (a packet
+//! arrived, room to send), or the deadline the poll returned. There is no
+//! periodic tick.
+
+use crate::clock::HostClock;
+use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
+use crate::port::{HostPort, PortHandle, PortShared};
+use crate::{HostError, HostRuntime};
+use osap_core::clock::{ClockStatus, TimeConfig};
+use osap_core::netresponder::BuildKey;
+use osap_core::runtime::RuntimeConfig;
+use osap_core::Micros;
+use std::sync::Arc;
+use tokio::sync::{mpsc, oneshot, Notify};
+
+/// How a host runtime is set up.
+#[derive(Debug, Clone)]
+pub struct HostConfig {
+    /// Runtime type name reported to scans.
+    pub type_name: String,
+    /// Runtime name reported to scans.
+    pub name: String,
+    /// Quotas and per-poll budget of the core runtime. Hosts hold more than
+    /// microcontrollers: 8 packets per port and 16 per link by default.
+    pub runtime: RuntimeConfig,
+    /// Clock sync; the host is the root (tier 0) by default.
+    pub time: TimeConfig,
+}
+
+impl Default for HostConfig {
+    fn default() -> Self {
+        HostConfig {
+            type_name: "osap_host".into(),
+            name: "host".into(),
+            runtime: RuntimeConfig {
+                port_quota: 8,
+                link_quota: 16,
+                system_quota: 16,
+                reply_ttl_us: 50_000,
+                max_packets_per_poll: 256,
+            },
+            time: TimeConfig {
+                root: true,
+                ..TimeConfig::default()
+            },
+        }
+    }
+}
+
+type RuntimeFn = Box<dyn FnOnce(&mut HostRuntime, Micros) + Send>;
+
+enum Command {
+    AttachLink(ChannelLink, oneshot::Sender<Result<u8, HostError>>),
+    OpenPort(Arc<PortShared>, oneshot::Sender<Result<u16, HostError>>),
+    ClosePort(u16),
+    With(RuntimeFn),
+}
+
+/// A handle to a running host runtime. Cheap to clone; the runtime stops
+/// when the last handle is dropped.
+#[derive(Clone)]
+pub struct Host {
+    commands: mpsc::UnboundedSender<Command>,
+    wake: Arc<Notify>,
+    clock: HostClock,
+}
+
+impl Host {
+    /// Starts a host runtime on the current tokio runtime.
+    pub fn start(config: HostConfig) -> Result<Host, HostError> {
+        let clock = HostClock::new();
+        let mut runtime = HostRuntime::new(&config.type_name, &config.name)
+            .map_err(|e| HostError::Malformed(e.to_string()))?
+            .with_version(version(), BuildKey::RustHost)
+            .with_config(config.runtime);
+        runtime
+            .clock_mut()
+            .set_config(config.time)
+            .map_err(|e| HostError::Malformed(e.to_string()))?;
+        let (commands, rx) = mpsc::unbounded_channel();
+        let wake = Arc::new(Notify::new());
+        let task = RuntimeTask {
+            runtime: Box::new(runtime),
+            ports: Vec::new(),
+            links: Vec::new(),
+            commands: rx,
+            wake: wake.clone(),
+            clock,
+        };
+        tokio::spawn(task.run());
+        Ok(Host {
+            commands,
+            wake,
+            clock,
+        })
+    }
+
+    /// The host's local clock.
+    pub fn clock(&self) -> HostClock {
+        self.clock
+    }
+
+    /// Makes a link's two halves on this host's clock and wake-up; attach
+    /// the first with [`attach_link`](Self::attach_link) and give the second
+    /// to the task that moves its bytes.
+    pub fn make_link(&self, config: LinkConfig) -> (ChannelLink, LinkIo) {
+        link::channel(config, self.wake.clone(), self.clock)
+    }
+
+    /// Adds a link gateway; returns its link index.
+    pub async fn attach_link(&self, link: ChannelLink) -> Result<u8, HostError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::AttachLink(link, tx))?;
+        rx.await.map_err(|_| HostError::Stopped)?
+    }
+
+    /// Makes and attaches a link; returns its index and its I/O half.
+    pub async fn add_link(&self, config: LinkConfig) -> Result<(u8, LinkIo), HostError> {
+        let (link, io) = self.make_link(config);
+        Ok((self.attach_link(link).await?, io))
+    }
+
+    /// Opens a port with the given type name; returns its handle.
+    pub async fn open_port(&self, type_name: &str) -> Result<PortHandle, HostError> {
+        let shared = PortShared::new(type_name, self.wake.clone());
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::OpenPort(shared.clone(), tx))?;
+        let index = rx.await.map_err(|_| HostError::Stopped)??;
+        Ok(PortHandle::new(self.clone(), shared, index))
+    }
+
+    pub(crate) fn close_port(&self, index: u16) {
+        let _ = self.commands.send(Command::ClosePort(index));
+    }
+
+    /// Runs `f` on the runtime inside its task and returns its result.
+    pub async fn with_runtime<R: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut HostRuntime, Micros) -> R + Send + 'static,
+    ) -> Result<R, HostError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::With(Box::new(move |rt, now| {
+            let _ = tx.send(f(rt, now));
+        })))?;
+        rx.await.map_err(|_| HostError::Stopped)
+    }
+
+    /// The host's synchronised system time now, µs.
+    pub async fn system_time(&self) -> Result<u64, HostError> {
+        self.with_runtime(|rt, now| rt.system_time(now)).await
+    }
+
+    /// The host clock's sync status.
+    pub async fn clock_status(&self) -> Result<ClockStatus, HostError> {
+        self.with_runtime(|rt, _| rt.clock().status()).await
+    }
+
+    /// Wakes the runtime task (a port or link has news).
+    pub(crate) fn wake(&self) {
+        self.wake.notify_one();
+    }
+
+    fn send(&self, command: Command) -> Result<(), HostError> {
+        self.commands
+            .send(command)
+            .map_err(|_| HostError::Stopped)?;
+        self.wake.notify_one();
+        Ok(())
+    }
+}
+
+/// This crate's version as three bytes.
+fn version() -> [u8; 3] {
+    let part = |s: &str| s.parse::<u8>().unwrap_or(0);
+    [
+        part(env!("CARGO_PKG_VERSION_MAJOR")),
+        part(env!("CARGO_PKG_VERSION_MINOR")),
+        part(env!("CARGO_PKG_VERSION_PATCH")),
+    ]
+}
+
+struct RuntimeTask {
+    runtime: Box<HostRuntime>,
+    ports: Vec<HostPort>,
+    links: Vec<ChannelLink>,
+    commands: mpsc::UnboundedReceiver<Command>,
+    wake: Arc<Notify>,
+    clock: HostClock,
+}
+
+impl RuntimeTask {
+    async fn run(mut self) {
+        loop {
+            // Take every pending command before polling, so a send issued
+            // just now goes out in this pass.
+            loop {
+                match self.commands.try_recv() {
+                    Ok(c) => self.handle(c),
+                    Err(mpsc::error::TryRecvError::Empty) => break,
+                    Err(mpsc::error::TryRecvError::Disconnected) => return,
+                }
+            }
+            let now = self.clock.now_us();
+            let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
+            if result.more {
+                tokio::task::yield_now().await;
+                continue;
+            }
+            let wake = self.wake.clone();
+            let notified = wake.notified();
+            let deadline = result
+                .wake_at
+                .map(|t| tokio::time::Instant::from_std(self.clock.instant_at(t + 1)));
+            tokio::select! {
+                command = self.commands.recv() => match command {
+                    Some(c) => self.handle(c),
+                    None => return,
+                },
+                _ = notified => {}
+                _ = sleep_until(deadline) => {}
+            }
+        }
+    }
+
+    fn handle(&mut self, command: Command) {
+        match command {
+            Command::AttachLink(link, reply) => {
+                let max = 32usize; // the HostRuntime's LINKS
+                let result = if self.links.len() >= max {
+                    Err(HostError::NoFreeLink(max))
+                } else {
+                    self.links.push(link);
+                    Ok((self.links.len() - 1) as u8)
+                };
+                let _ = reply.send(result);
+            }
+            Command::OpenPort(shared, reply) => {
+                // Port indices are positions: reuse a closed slot before
+                // growing, and never shift the others.
+                let max = 255usize; // port 0 is the netresponder
+                let result = if let Some(i) = self.ports.iter().position(|p| p.is_vacant()) {
+                    self.ports[i].occupy(shared);
+                    Ok(i as u16 + 1)
+                } else if self.ports.len() < max {
+                    self.ports.push(HostPort::new(shared));
+                    Ok(self.ports.len() as u16)
+                } else {
+                    Err(HostError::NoFreePort(max))
+                };
+                let _ = reply.send(result);
+            }
+            Command::ClosePort(index) => {
+                if let Some(p) = self.ports.get_mut(usize::from(index).wrapping_sub(1)) {
+                    p.vacate();
+                }
+            }
+            Command::With(f) => {
+                let now = self.clock.now_us();
+                f(&mut self.runtime, now);
+            }
+        }
+    }
+}
+
+async fn sleep_until(deadline: Option<tokio::time::Instant>) {
+    match deadline {
+        Some(t) => tokio::time::sleep_until(t).await,
+        None => std::future::pending().await,
+    }
+}
