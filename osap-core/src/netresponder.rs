@@ -17,6 +17,10 @@ use heapless::{Deque, String};
 /// Type name of port 0.
 pub const PORT_TYPE_NAME: &str = "netresponder";
 
+/// `arrival_link` of a runtime-information reply to a request from a port
+/// in the same runtime.
+pub const ARRIVED_LOCALLY: u8 = 255;
+
 /// Longest runtime, type, port or link name, in bytes of UTF-8.
 pub const NAME_MAX: usize = 31;
 /// Lines kept in the debug log ring.
@@ -295,6 +299,8 @@ pub(crate) struct Context<'a, P, L, const LINKS: usize> {
     pub ports: &'a [P],
     pub links: &'a [L],
     pub packet_size: u16,
+    /// The link the request arrived on ([`ARRIVED_LOCALLY`] from a port here).
+    pub arrival_link: u8,
 }
 
 impl<P: Port, L: LinkGateway, const LINKS: usize> Context<'_, P, L, LINKS> {
@@ -388,6 +394,7 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             out.u16(ctx.port_count())?;
             out.u8(ctx.links.len().min(64) as u8)?;
             out.u8(ctx.clock.tier())?;
+            out.u8(ctx.arrival_link)?;
         }
         key::TYPE_NAME => {
             end(r)?;

@@ -619,6 +619,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             ports,
             links,
             packet_size: MTU as u16,
+            arrival_link: match route.hops().next() {
+                Some(Instruction::LinkForward(l)) => l,
+                _ => netresponder::ARRIVED_LOCALLY,
+            },
         };
         let answered = queue_packet(
             &mut self.stack,

@@ -207,6 +207,7 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             w.u16(5).unwrap(); // ports
             w.u8(2).unwrap(); // links
             w.u8(255).unwrap(); // tier
+            w.u8(1).unwrap(); // arrived on link 1
         }),
     );
     put(

@@ -28,6 +28,14 @@ pub enum HostError {
     /// Every link index is in use.
     #[error("no free link index (the host has {0})")]
     NoFreeLink(usize),
+    /// A netresponder refused a query.
+    #[error("the runtime at {route} refused the query: {status:?}")]
+    Remote {
+        /// Route to the runtime.
+        route: String,
+        /// Its answer.
+        status: osap_core::netresponder::Status,
+    },
     /// A reply did not parse.
     #[error("malformed reply: {0}")]
     Malformed(String),

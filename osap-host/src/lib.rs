@@ -15,6 +15,8 @@
 pub mod clock;
 pub mod error;
 pub mod link;
+pub mod map;
+pub mod netrunner;
 pub mod port;
 pub mod runtime;
 

@@ -1,0 +1,227 @@
+//! The network map: what a scan found, serializable to JSON.
+//!
+//! A map lists the runtimes (each with its route from the scanning host,
+//! the route's MTU, its links and ports) and the links between them. The
+//! host that scanned is runtime 0 with an empty route. Routes are lists of
+//! link indices, walked from the host. The JSON layout is the serde form of
+//! these types (documented in `docs/network-map.md`); `version` changes when
+//! it does.
+
+use osap_core::route::Route;
+use serde::{Deserialize, Serialize};
+
+/// Layout version of [`NetworkMap`].
+pub const MAP_VERSION: u32 = 1;
+
+/// Everything a scan found.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NetworkMap {
+    /// Layout version ([`MAP_VERSION`]).
+    pub version: u32,
+    /// The runtimes; index 0 is the scanning host.
+    pub runtimes: Vec<RuntimeRecord>,
+    /// The links between runtimes, each once.
+    pub links: Vec<LinkEdge>,
+}
+
+/// One runtime.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RuntimeRecord {
+    /// Its name (unique names are the user's business; the map keeps what
+    /// it finds).
+    pub name: String,
+    /// What kind of runtime it is (firmware or program type).
+    pub type_name: String,
+    /// Version, `major.minor.patch`.
+    pub version: String,
+    /// Build key: 1 osap-rs embedded, 2 osap-rs host, 3 osap-rs simulated.
+    pub build: u8,
+    /// Largest packet it handles, bytes.
+    pub packet_size: u16,
+    /// Clock tier when scanned (0 root, 255 unsynchronised).
+    pub tier: u8,
+    /// Link indices from the host to it (empty: the host itself).
+    pub route: Vec<u8>,
+    /// Smallest MTU along the route (its own packet size included).
+    pub route_mtu: u16,
+    /// Its link gateways, by index.
+    pub links: Vec<LinkRecord>,
+    /// Its ports, by index (port 0 is the netresponder).
+    pub ports: Vec<PortRecord>,
+}
+
+/// One link gateway of a runtime.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LinkRecord {
+    /// Link index.
+    pub index: u8,
+    /// Link type (`uart`, `usb_cdc`, `tcp`, ...).
+    pub type_name: String,
+    /// Instance name.
+    pub name: String,
+    /// Whether it was up.
+    pub open: bool,
+    /// Largest packet it carries.
+    pub mtu: u16,
+}
+
+/// One port of a runtime.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct PortRecord {
+    /// Port index.
+    pub index: u16,
+    /// Port type (`netresponder`, `pipes_function`, ...).
+    pub type_name: String,
+    /// Instance name.
+    pub name: String,
+}
+
+/// One end of a link: a runtime (index in [`NetworkMap::runtimes`]) and
+/// its link index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize)]
+pub struct LinkEnd {
+    /// Runtime index in the map.
+    pub runtime: usize,
+    /// Link index on that runtime.
+    pub link: u8,
+}
+
+/// A link between two runtimes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct LinkEdge {
+    /// The end nearer the host (found first).
+    pub a: LinkEnd,
+    /// The far end.
+    pub b: LinkEnd,
+}
+
+impl RuntimeRecord {
+    /// The route to this runtime, with its MTU.
+    pub fn route(&self) -> Route {
+        // Routes in a map come from scans and are short; a hand-edited map
+        // with an impossible route yields the local route.
+        Route::through_links(&self.route)
+            .map(|r| r.with_mtu(self.route_mtu))
+            .unwrap_or_default()
+    }
+}
+
+impl NetworkMap {
+    /// The runtime with this name, if exactly one has it.
+    pub fn find(&self, name: &str) -> Option<&RuntimeRecord> {
+        let mut found = self.runtimes.iter().filter(|r| r.name == name);
+        let first = found.next()?;
+        found.next().is_none().then_some(first)
+    }
+
+    /// Names that more than one runtime has.
+    pub fn duplicate_names(&self) -> Vec<&str> {
+        let mut names: Vec<&str> = self.runtimes.iter().map(|r| r.name.as_str()).collect();
+        names.sort_unstable();
+        let mut dups: Vec<&str> = names
+            .windows(2)
+            .filter(|w| w[0] == w[1])
+            .map(|w| w[0])
+            .collect();
+        dups.dedup();
+        dups
+    }
+
+    /// As pretty JSON.
+    pub fn to_json(&self) -> String {
+        serde_json::to_string_pretty(self).unwrap_or_default()
+    }
+
+    /// From JSON, checking the layout version.
+    pub fn from_json(text: &str) -> Result<NetworkMap, String> {
+        let map: NetworkMap = serde_json::from_str(text).map_err(|e| e.to_string())?;
+        if map.version != MAP_VERSION {
+            return Err(format!(
+                "network map version {} is not supported (this build reads {MAP_VERSION})",
+                map.version
+            ));
+        }
+        Ok(map)
+    }
+
+    /// The map as an indented tree from the host, following each runtime's
+    /// route (loops appear as links back to runtimes already shown).
+    pub fn tree(&self) -> String {
+        let mut out = String::new();
+        let mut children: Vec<Vec<usize>> = vec![Vec::new(); self.runtimes.len()];
+        for (i, r) in self.runtimes.iter().enumerate().skip(1) {
+            let parent_route = &r.route[..r.route.len().saturating_sub(1)];
+            if let Some(p) = self.runtimes.iter().position(|x| x.route == parent_route) {
+                children[p].push(i);
+            }
+        }
+        fn line(
+            map: &NetworkMap,
+            i: usize,
+            depth: usize,
+            children: &[Vec<usize>],
+            out: &mut String,
+        ) {
+            let r = &map.runtimes[i];
+            let via = match r.route.last() {
+                Some(l) => {
+                    let parent_route = &r.route[..r.route.len() - 1];
+                    let kind = map
+                        .runtimes
+                        .iter()
+                        .find(|x| x.route == parent_route)
+                        .and_then(|p| p.links.get(usize::from(*l)))
+                        .map_or("?", |k| k.type_name.as_str());
+                    format!("via {kind} link {l}: ")
+                }
+                None => String::new(),
+            };
+            let functions = r.ports.len().saturating_sub(1);
+            out.push_str(&format!(
+                "{}{via}{} ({} {}, tier {}, {} port{})\n",
+                "  ".repeat(depth),
+                r.name,
+                r.type_name,
+                r.version,
+                if r.tier == 255 {
+                    "-".to_string()
+                } else {
+                    r.tier.to_string()
+                },
+                functions,
+                if functions == 1 { "" } else { "s" }
+            ));
+            for &c in &children[i] {
+                line(map, c, depth + 1, children, out);
+            }
+        }
+        if !self.runtimes.is_empty() {
+            line(self, 0, 0, &children, &mut out);
+        }
+        let tree_edges = self.runtimes.len().saturating_sub(1);
+        if self.links.len() > tree_edges {
+            out.push_str(&format!(
+                "{} link{} close a loop:\n",
+                self.links.len() - tree_edges,
+                if self.links.len() - tree_edges == 1 {
+                    ""
+                } else {
+                    "s"
+                }
+            ));
+            for e in &self.links {
+                let (a, b) = (&self.runtimes[e.a.runtime], &self.runtimes[e.b.runtime]);
+                let on_tree = b.route.len() == a.route.len() + 1
+                    && b.route[..a.route.len()] == a.route[..]
+                    && b.route.last() == Some(&e.a.link);
+                if !on_tree {
+                    out.push_str(&format!(
+                        "  {} link {} <-> {} link {}\n",
+                        a.name, e.a.link, b.name, e.b.link
+                    ));
+                }
+            }
+        }
+        out
+    }
+}

@@ -1,0 +1,488 @@
+//! The netrunner: queries runtimes' netresponders and scans the network.
+//!
+//! A scan is a breadth-first walk over runtimes. It starts at the host's own
+//! netresponder, asks each runtime for its links, and sends a runtime
+//! information request out of every open link, building routes one hop at a
+//! time. Each request carries a fresh scan id; a runtime answers with the id
+//! it was sent before, so a runtime reached again through a loop gives
+//! itself away, and which one it is, and the reply also names the link the
+//! request came in on, so every link is mapped end to end. A runtime that
+//! does not answer (after retries) is listed as a failure and the scan goes
+//! on: the map is partial, never a hang.
+
+use crate::map::{
+    LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord, MAP_VERSION,
+};
+use crate::port::{Datagram, PortHandle};
+use crate::{Host, HostError};
+use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig};
+use osap_core::codec::{Reader, Writer};
+use osap_core::netresponder::{key, Status};
+use osap_core::route::Route;
+use std::collections::{HashMap, VecDeque};
+use std::time::{Duration, Instant};
+
+/// How a scan behaves.
+#[derive(Debug, Clone)]
+pub struct ScanOptions {
+    /// How long to wait for each reply.
+    pub timeout: Duration,
+    /// How many times to retry a request that got no reply.
+    pub retries: u8,
+    /// Stop after this many runtimes (a guard against runaway networks).
+    pub max_runtimes: usize,
+}
+
+impl Default for ScanOptions {
+    fn default() -> Self {
+        ScanOptions {
+            timeout: Duration::from_millis(200),
+            retries: 2,
+            max_runtimes: 1024,
+        }
+    }
+}
+
+/// A request during a scan that got no usable answer.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct ScanFailure {
+    /// Route to where it was sent.
+    pub route: Vec<u8>,
+    /// What was asked and what went wrong.
+    pub error: String,
+}
+
+/// The outcome of a scan: the map and what could not be mapped.
+#[derive(Debug, Clone)]
+pub struct ScanReport {
+    /// What was found.
+    pub map: NetworkMap,
+    /// What did not answer or answered badly.
+    pub failures: Vec<ScanFailure>,
+    /// How long the scan took.
+    pub elapsed: Duration,
+}
+
+/// Runtime information as answered by a netresponder.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RuntimeInfo {
+    /// The scan id it held before this request.
+    pub previous_scan_id: u32,
+    /// Version.
+    pub version: [u8; 3],
+    /// Build key.
+    pub build: u8,
+    /// Largest packet it handles.
+    pub packet_size: u16,
+    /// Number of ports (port 0 included).
+    pub port_count: u16,
+    /// Number of link gateways.
+    pub link_count: u8,
+    /// Clock tier.
+    pub tier: u8,
+    /// The link the request came in on (255: from a local port).
+    pub arrival_link: u8,
+}
+
+/// Asks netresponders questions, through one host port.
+pub struct Netrunner {
+    port: PortHandle,
+    /// Per-request timeout.
+    pub timeout: Duration,
+    /// Retries per request.
+    pub retries: u8,
+}
+
+fn malformed(what: &str, e: impl std::fmt::Display) -> HostError {
+    HostError::Malformed(format!("{what}: {e}"))
+}
+
+impl Netrunner {
+    /// Opens a port on `host` for querying.
+    pub async fn new(host: &Host) -> Result<Netrunner, HostError> {
+        Ok(Netrunner {
+            port: host.open_port("netrunner").await?,
+            timeout: ScanOptions::default().timeout,
+            retries: ScanOptions::default().retries,
+        })
+    }
+
+    /// Sends one query to the netresponder at the end of `route` and
+    /// returns the reply's fields (after key and status), retrying on
+    /// timeouts.
+    pub async fn query(&self, route: &Route, body: &[u8]) -> Result<Vec<u8>, HostError> {
+        let mut attempt = 0;
+        let reply: Datagram = loop {
+            match self.port.request(route, 0, body, self.timeout).await {
+                Ok(r) => break r,
+                Err(HostError::Timeout { .. }) if attempt < self.retries => attempt += 1,
+                Err(e) => return Err(e),
+            }
+        };
+        let what = format!("reply to query 0x{:02x} over {route}", body[0]);
+        let (k, status) = match reply.body.as_slice() {
+            [k, s, ..] => (*k, *s),
+            _ => return Err(malformed(&what, "too short")),
+        };
+        if k != body[0] {
+            return Err(malformed(&what, format!("answers query 0x{k:02x}")));
+        }
+        match Status::from_u8(status) {
+            Some(Status::Ok) => Ok(reply.body[2..].to_vec()),
+            Some(s) => Err(HostError::Remote {
+                route: route.to_string(),
+                status: s,
+            }),
+            None => Err(malformed(&what, format!("unknown status {status}"))),
+        }
+    }
+
+    /// Runtime information, sending `scan_id`.
+    pub async fn runtime_info(
+        &self,
+        route: &Route,
+        scan_id: u32,
+    ) -> Result<RuntimeInfo, HostError> {
+        let mut body = vec![key::RUNTIME_INFO];
+        body.extend_from_slice(&scan_id.to_le_bytes());
+        let f = self.query(route, &body).await?;
+        let mut r = Reader::new(&f);
+        let m = |e| malformed("runtime information", e);
+        Ok(RuntimeInfo {
+            previous_scan_id: r.u32().map_err(m)?,
+            version: r.array().map_err(m)?,
+            build: r.u8().map_err(m)?,
+            packet_size: r.u16().map_err(m)?,
+            port_count: r.u16().map_err(m)?,
+            link_count: r.u8().map_err(m)?,
+            tier: r.u8().map_err(m)?,
+            // Older netresponders end here.
+            arrival_link: r.u8().unwrap_or(255),
+        })
+    }
+
+    async fn string(&self, route: &Route, k: u8) -> Result<String, HostError> {
+        let f = self.query(route, &[k]).await?;
+        Reader::new(&f)
+            .str8()
+            .map(str::to_string)
+            .map_err(|e| malformed("name", e))
+    }
+
+    /// The runtime's type name.
+    pub async fn type_name(&self, route: &Route) -> Result<String, HostError> {
+        self.string(route, key::TYPE_NAME).await
+    }
+
+    /// The runtime's name.
+    pub async fn name(&self, route: &Route) -> Result<String, HostError> {
+        self.string(route, key::NAME).await
+    }
+
+    /// Renames the runtime; returns the name as stored.
+    pub async fn set_name(&self, route: &Route, name: &str) -> Result<String, HostError> {
+        let mut body = [0u8; 64];
+        let mut w = Writer::new(&mut body);
+        w.u8(key::SET_NAME).map_err(|e| malformed("name", e))?;
+        w.str8(name).map_err(|e| malformed("name", e))?;
+        let n = w.len();
+        let f = self.query(route, &body[..n]).await?;
+        Reader::new(&f)
+            .str8()
+            .map(str::to_string)
+            .map_err(|e| malformed("name", e))
+    }
+
+    /// Information on link `index`.
+    pub async fn link_info(&self, route: &Route, index: u8) -> Result<LinkRecord, HostError> {
+        let f = self.query(route, &[key::LINK_INFO, index]).await?;
+        let mut r = Reader::new(&f);
+        let m = |e| malformed("link information", e);
+        Ok(LinkRecord {
+            index: r.u8().map_err(m)?,
+            open: r.u8().map_err(m)? != 0,
+            mtu: r.u16().map_err(m)?,
+            type_name: r.str8().map_err(m)?.to_string(),
+            name: r.str8().map_err(m)?.to_string(),
+        })
+    }
+
+    /// Information on port `index`.
+    pub async fn port_info(&self, route: &Route, index: u16) -> Result<PortRecord, HostError> {
+        let mut body = vec![key::PORT_INFO];
+        body.extend_from_slice(&index.to_le_bytes());
+        let f = self.query(route, &body).await?;
+        let mut r = Reader::new(&f);
+        let m = |e| malformed("port information", e);
+        Ok(PortRecord {
+            index: r.u16().map_err(m)?,
+            type_name: r.str8().map_err(m)?.to_string(),
+            name: r.str8().map_err(m)?.to_string(),
+        })
+    }
+
+    /// The time-controller configuration.
+    pub async fn time_config(&self, route: &Route) -> Result<TimeConfig, HostError> {
+        let f = self.query(route, &[key::GET_TIME_CONFIG]).await?;
+        TimeConfig::decode(&f).map_err(|e| malformed("time configuration", e))
+    }
+
+    /// Sets the time-controller configuration; returns it as applied.
+    pub async fn set_time_config(
+        &self,
+        route: &Route,
+        config: &TimeConfig,
+    ) -> Result<TimeConfig, HostError> {
+        let mut body = [0u8; 128];
+        let mut w = Writer::new(&mut body);
+        w.u8(key::SET_TIME_CONFIG)
+            .map_err(|e| malformed("time configuration", e))?;
+        config
+            .encode(&mut w)
+            .map_err(|e| malformed("time configuration", e))?;
+        let n = w.len();
+        let f = self.query(route, &body[..n]).await?;
+        TimeConfig::decode(&f).map_err(|e| malformed("time configuration", e))
+    }
+
+    /// The clock's status.
+    pub async fn clock_status(&self, route: &Route) -> Result<ClockStatus, HostError> {
+        let f = self.query(route, &[key::TIME_STATUS]).await?;
+        let mut r = Reader::new(&f);
+        let m = |e| malformed("clock status", e);
+        let tier = r.u8().map_err(m)?;
+        let state = match r.u8().map_err(m)? {
+            0 => SyncState::Unsynced,
+            1 => SyncState::Synced,
+            2 => SyncState::Holdover,
+            3 => SyncState::Root,
+            s => return Err(malformed("clock status", format!("unknown state {s}"))),
+        };
+        Ok(ClockStatus {
+            tier,
+            state,
+            offset_ns: r.i64().map_err(m)?,
+            rate_ppb: r.u32().map_err(m)? as i32,
+            following: r.u8().map_err(m)?,
+            last_rtt_us: r.u32().map_err(m)?,
+            min_rtt_us: r.u32().map_err(m)?,
+            stats: SyncStats {
+                samples: r.u32().map_err(m)?,
+                accepted: r.u32().map_err(m)?,
+                rejected_rtt: r.u32().map_err(m)?,
+                rejected_residual: r.u32().map_err(m)?,
+                bogus: r.u32().map_err(m)?,
+                jumps: r.u32().map_err(m)?,
+            },
+        })
+    }
+
+    /// Round-trip times of `count` name queries to the runtime at `route`.
+    pub async fn ping(&self, route: &Route, count: usize) -> Result<Vec<Duration>, HostError> {
+        let mut times = Vec::with_capacity(count);
+        for _ in 0..count {
+            let start = Instant::now();
+            self.port
+                .request(route, 0, &[key::NAME], self.timeout)
+                .await?;
+            times.push(start.elapsed());
+        }
+        Ok(times)
+    }
+}
+
+/// A runtime found during a scan, with the route it was reached by.
+struct Found {
+    record: RuntimeRecord,
+    route: Route,
+}
+
+/// Scans the network reachable from `host`.
+pub async fn scan(host: &Host, options: &ScanOptions) -> Result<ScanReport, HostError> {
+    scan_with_progress(host, options, |_, _| {}).await
+}
+
+/// [`scan`], calling `progress(found, queued)` as runtimes are found.
+pub async fn scan_with_progress(
+    host: &Host,
+    options: &ScanOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<ScanReport, HostError> {
+    let start = Instant::now();
+    let mut runner = Netrunner::new(host).await?;
+    runner.timeout = options.timeout;
+    runner.retries = options.retries;
+    // Ids of this scan start at a value unlikely to match a previous scan.
+    let base = (host.clock().now_us() as u32) | 1;
+    let mut next_id = base;
+    // Every id sent, and the runtime it was sent to.
+    let mut sent_to: HashMap<u32, usize> = HashMap::new();
+    let mut found: Vec<Found> = Vec::new();
+    let mut links: Vec<LinkEdge> = Vec::new();
+    let mut failures = Vec::new();
+    let mut queue = VecDeque::new();
+
+    // The host itself.
+    let local = Route::local();
+    let info = runner.runtime_info(&local, next_id).await?;
+    sent_to.insert(next_id, 0);
+    next_id = next_id.wrapping_add(1);
+    found.push(Found {
+        record: describe(&runner, &local, &info, info.packet_size, &mut failures).await,
+        route: local,
+    });
+    queue.push_back(0);
+    progress(1, queue.len());
+
+    while let Some(i) = queue.pop_front() {
+        let here = found[i].route;
+        let link_list = found[i].record.links.clone();
+        for link in link_list.iter().filter(|l| l.open) {
+            let Ok(route) = here.with_hop(osap_core::Instruction::LinkForward(link.index)) else {
+                failures.push(ScanFailure {
+                    route: hops(&here),
+                    error: format!("route through link {} is too long", link.index),
+                });
+                continue;
+            };
+            let mtu = found[i].route.mtu().min(link.mtu);
+            let route = route.with_mtu(mtu);
+            let id = next_id;
+            next_id = next_id.wrapping_add(1);
+            let info = match runner.runtime_info(&route, id).await {
+                Ok(info) => info,
+                Err(e) => {
+                    failures.push(ScanFailure {
+                        route: hops(&route),
+                        error: e.to_string(),
+                    });
+                    continue;
+                }
+            };
+            let far = match sent_to.get(&info.previous_scan_id) {
+                // Seen before in this scan: a loop, or the way back.
+                Some(&known) => known,
+                None => {
+                    if found.len() >= options.max_runtimes {
+                        failures.push(ScanFailure {
+                            route: hops(&route),
+                            error: format!("stopped at {} runtimes", options.max_runtimes),
+                        });
+                        continue;
+                    }
+                    let route = route.with_mtu(mtu.min(info.packet_size));
+                    let record = describe(
+                        &runner,
+                        &route,
+                        &info,
+                        mtu.min(info.packet_size),
+                        &mut failures,
+                    )
+                    .await;
+                    found.push(Found { record, route });
+                    queue.push_back(found.len() - 1);
+                    progress(found.len(), queue.len());
+                    found.len() - 1
+                }
+            };
+            sent_to.insert(id, far);
+            let a = LinkEnd {
+                runtime: i,
+                link: link.index,
+            };
+            let b = LinkEnd {
+                runtime: far,
+                link: info.arrival_link,
+            };
+            // Each link is met from both ends; keep it once.
+            if !links
+                .iter()
+                .any(|e| (e.a == b && e.b == a) || (e.a == a && e.b == b))
+            {
+                links.push(LinkEdge { a, b });
+            }
+        }
+    }
+    Ok(ScanReport {
+        map: NetworkMap {
+            version: MAP_VERSION,
+            runtimes: found.into_iter().map(|f| f.record).collect(),
+            links,
+        },
+        failures,
+        elapsed: start.elapsed(),
+    })
+}
+
+fn hops(route: &Route) -> Vec<u8> {
+    route
+        .hops()
+        .filter_map(|h| match h {
+            osap_core::Instruction::LinkForward(l) => Some(l),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Asks a newly found runtime everything about itself; what it fails to
+/// answer is recorded and left empty.
+async fn describe(
+    runner: &Netrunner,
+    route: &Route,
+    info: &RuntimeInfo,
+    route_mtu: u16,
+    failures: &mut Vec<ScanFailure>,
+) -> RuntimeRecord {
+    let mut fail = |what: &str, e: HostError| {
+        failures.push(ScanFailure {
+            route: hops(route),
+            error: format!("{what}: {e}"),
+        })
+    };
+    let name = match runner.name(route).await {
+        Ok(n) => n,
+        Err(e) => {
+            fail("name", e);
+            String::new()
+        }
+    };
+    let type_name = match runner.type_name(route).await {
+        Ok(n) => n,
+        Err(e) => {
+            fail("type name", e);
+            String::new()
+        }
+    };
+    let mut links = Vec::new();
+    for index in 0..info.link_count {
+        match runner.link_info(route, index).await {
+            Ok(l) => links.push(l),
+            Err(e) => fail(&format!("link {index}"), e),
+        }
+    }
+    let mut ports = Vec::new();
+    for index in 0..info.port_count {
+        match runner.port_info(route, index).await {
+            Ok(p) => ports.push(p),
+            Err(e) => fail(&format!("port {index}"), e),
+        }
+    }
+    let [a, b, c] = info.version;
+    RuntimeRecord {
+        name,
+        type_name,
+        version: format!("{a}.{b}.{c}"),
+        build: info.build,
+        packet_size: info.packet_size,
+        tier: info.tier,
+        route: hops(route),
+        route_mtu,
+        links,
+        ports,
+    }
+}
+
+/// Renames the runtime at `route`; returns the name as stored.
+pub async fn rename(host: &Host, route: &Route, name: &str) -> Result<String, HostError> {
+    Netrunner::new(host).await?.set_name(route, name).await
+}
