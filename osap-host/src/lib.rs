@@ -19,6 +19,7 @@ pub mod map;
 pub mod netrunner;
 pub mod port;
 pub mod runtime;
+pub mod sim;
 
 pub use clock::HostClock;
 pub use error::HostError;

@@ -200,15 +200,13 @@ impl NetworkMap {
         }
         let tree_edges = self.runtimes.len().saturating_sub(1);
         if self.links.len() > tree_edges {
-            out.push_str(&format!(
-                "{} link{} close a loop:\n",
-                self.links.len() - tree_edges,
-                if self.links.len() - tree_edges == 1 {
-                    ""
-                } else {
-                    "s"
-                }
-            ));
+            let extra = self.links.len() - tree_edges;
+            let verb = if extra == 1 {
+                "link closes"
+            } else {
+                "links close"
+            };
+            out.push_str(&format!("{extra} {verb} a loop:\n"));
             for e in &self.links {
                 let (a, b) = (&self.runtimes[e.a.runtime], &self.runtimes[e.b.runtime]);
                 let on_tree = b.route.len() == a.route.len() + 1

@@ -12,6 +12,12 @@
 //! clock samples of its neighbour there.
 
 pub mod memory;
+pub mod serial;
+pub mod stream;
+pub mod tcp;
+pub mod udp;
+#[cfg(unix)]
+pub mod unix;
 
 use crate::clock::HostClock;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};

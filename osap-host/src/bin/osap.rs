@@ -1,0 +1,436 @@
+//! `osap`: discover and talk to OSAP networks from the command line.
+
+use clap::{Args, Parser, Subcommand};
+use indicatif::{ProgressBar, ProgressStyle};
+use osap_core::clock::SyncState;
+use osap_core::route::Route;
+use osap_host::link::stream::{LinkHandle, Listener};
+use osap_host::link::{serial, tcp, udp};
+use osap_host::map::NetworkMap;
+use osap_host::netrunner::{self, Netrunner, ScanOptions, ScanReport};
+use osap_host::sim::{self, SimMachine};
+use osap_host::{Host, HostConfig};
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+#[derive(Parser)]
+#[command(
+    name = "osap",
+    version,
+    about = "Discover and talk to OSAP networks of modules",
+    long_about = "Discover and talk to OSAP networks of modules.\n\nWithout --port, --tcp, --udp, --unix or --sim, every osap-rs USB device plugged in is used."
+)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Args, Clone)]
+struct Connect {
+    /// Serial port of a module or adapter (repeatable), e.g. /dev/ttyACM0.
+    #[arg(long = "port", value_name = "PATH")]
+    ports: Vec<String>,
+    /// Baud rate for --port (USB CDC modules ignore it).
+    #[arg(long, default_value_t = serial::DEFAULT_BAUD)]
+    baud: u32,
+    /// Connect to an OSAP peer over TCP (repeatable), e.g. 127.0.0.1:7077.
+    #[arg(long = "tcp", value_name = "ADDR")]
+    tcp: Vec<String>,
+    /// Exchange datagrams with an OSAP peer over UDP (repeatable).
+    #[arg(long = "udp", value_name = "ADDR")]
+    udp: Vec<SocketAddr>,
+    /// Connect to an OSAP peer over a Unix socket (repeatable).
+    #[arg(long = "unix", value_name = "PATH")]
+    unix: Vec<PathBuf>,
+    /// Run a simulated machine described by a topology file and use it.
+    #[arg(long, value_name = "FILE")]
+    sim: Option<PathBuf>,
+    /// How long to wait for each reply, ms.
+    #[arg(long, default_value_t = 200)]
+    timeout_ms: u64,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Scan the network and print it as a tree.
+    Scan {
+        #[command(flatten)]
+        connect: Connect,
+        /// Write the network map as JSON to this file.
+        #[arg(short = 'o', long, value_name = "FILE")]
+        output: Option<PathBuf>,
+        /// Retries for a request that got no reply.
+        #[arg(long, default_value_t = 2)]
+        retries: u8,
+    },
+    /// Rename a runtime, given its current name or its route (e.g. 0,2).
+    Rename {
+        #[command(flatten)]
+        connect: Connect,
+        /// Current name, or route as link indices from the host.
+        target: String,
+        /// New name (at most 31 bytes).
+        name: String,
+    },
+    /// Measure round-trip times to a runtime.
+    Ping {
+        #[command(flatten)]
+        connect: Connect,
+        /// Name, or route as link indices from the host.
+        target: String,
+        /// How many round trips.
+        #[arg(short = 'n', long, default_value_t = 100)]
+        count: usize,
+    },
+    /// Show the clock-sync status of every runtime.
+    Time {
+        #[command(flatten)]
+        connect: Connect,
+    },
+    /// Run a simulated machine that other processes can connect to.
+    Serve {
+        /// The machine: a topology file.
+        #[arg(long, value_name = "FILE")]
+        sim: PathBuf,
+        /// Address to listen on for TCP peers.
+        #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7077")]
+        tcp: SocketAddr,
+        /// Allow listening on an address other than loopback.
+        #[arg(long)]
+        allow_remote: bool,
+    },
+}
+
+/// What keeps the host's links alive while a command runs.
+struct Connection {
+    host: Host,
+    _links: Vec<LinkHandle>,
+    _sim: Option<SimMachine>,
+    timeout: Duration,
+}
+
+async fn connect(args: &Connect) -> Result<Connection, String> {
+    let host = Host::start(HostConfig::default()).map_err(|e| e.to_string())?;
+    let timeout = Duration::from_millis(args.timeout_ms.max(1));
+    let mut links = Vec::new();
+    let mut sim_machine = None;
+    if let Some(path) = &args.sim {
+        let topology = sim::load(path).map_err(|e| e.to_string())?;
+        sim_machine = Some(
+            SimMachine::start(&host, &topology)
+                .await
+                .map_err(|e| format!("cannot start {}: {e}", path.display()))?,
+        );
+    }
+    for addr in &args.tcp {
+        links.push(tcp::connect(&host, addr).await.map_err(|e| e.to_string())?);
+    }
+    for peer in &args.udp {
+        let local = SocketAddr::new(peer.ip(), 0);
+        let remote = !peer.ip().is_loopback();
+        links.push(
+            udp::bind(&host, local, Some(*peer), remote)
+                .await
+                .map_err(|e| e.to_string())?,
+        );
+    }
+    #[cfg(unix)]
+    for path in &args.unix {
+        links.push(
+            osap_host::link::unix::connect(&host, path)
+                .await
+                .map_err(|e| e.to_string())?,
+        );
+    }
+    let mut paths = args.ports.clone();
+    let nothing_given = paths.is_empty()
+        && args.tcp.is_empty()
+        && args.udp.is_empty()
+        && args.unix.is_empty()
+        && args.sim.is_none();
+    if nothing_given {
+        let found = serial::available_ports().map_err(|e| e.to_string())?;
+        if found.is_empty() {
+            return Err("no osap-rs devices found: plug a module in over USB, \
+                 or name one with --port PATH, --tcp ADDR or --sim FILE \
+                 (try the shipped osap-host/topologies/small-machine.toml)"
+                .into());
+        }
+        paths = found.into_iter().map(|c| c.path).collect();
+    }
+    for path in &paths {
+        let link = serial::spawn_serial(&host, path, args.baud)
+            .await
+            .map_err(|e| e.to_string())?;
+        // An open port is not yet an OSAP device: ask it.
+        link.probe(&host, timeout.max(Duration::from_millis(500)))
+            .await
+            .map_err(|e| format!("{path}: {e}"))?;
+        links.push(link);
+    }
+    Ok(Connection {
+        host,
+        _links: links,
+        _sim: sim_machine,
+        timeout,
+    })
+}
+
+async fn scan(c: &Connection, retries: u8) -> Result<ScanReport, String> {
+    let options = ScanOptions {
+        timeout: c.timeout,
+        retries,
+        ..ScanOptions::default()
+    };
+    let bar = ProgressBar::new_spinner();
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} scanning: {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_spinner()),
+    );
+    bar.enable_steady_tick(Duration::from_millis(100));
+    let report = netrunner::scan_with_progress(&c.host, &options, |found, queued| {
+        bar.set_message(format!("{found} runtimes found, {queued} to visit"));
+    })
+    .await
+    .map_err(|e| e.to_string());
+    bar.finish_and_clear();
+    report
+}
+
+/// A route given as link indices ("0,2" or "0 2"), if `target` is one.
+fn parse_route(target: &str) -> Option<Result<Route, String>> {
+    let parts: Vec<&str> = target
+        .split(|c: char| c == ',' || c.is_whitespace())
+        .filter(|p| !p.is_empty())
+        .collect();
+    if parts.is_empty() || !parts.iter().all(|p| p.chars().all(|c| c.is_ascii_digit())) {
+        return None;
+    }
+    let links: Result<Vec<u8>, _> = parts.iter().map(|p| p.parse::<u8>()).collect();
+    Some(match links {
+        Ok(l) => Route::through_links(&l).map_err(|e| format!("bad route {target}: {e}")),
+        Err(_) => Err(format!("bad route {target}: link indices are 0..=63")),
+    })
+}
+
+/// The route to `target`: parsed, or found by name in a scan.
+async fn resolve(c: &Connection, target: &str) -> Result<Route, String> {
+    if let Some(route) = parse_route(target) {
+        return route;
+    }
+    let map = scan(c, 2).await?.map;
+    lookup(&map, target)
+}
+
+fn lookup(map: &NetworkMap, name: &str) -> Result<Route, String> {
+    if map.duplicate_names().contains(&name) {
+        return Err(format!(
+            "more than one runtime is named {name}: rename them apart by route first"
+        ));
+    }
+    map.find(name).map(|r| r.route()).ok_or_else(|| {
+        let names: Vec<&str> = map.runtimes.iter().map(|r| r.name.as_str()).collect();
+        format!("no runtime named {name} (found: {})", names.join(", "))
+    })
+}
+
+fn percentile(sorted: &[Duration], p: f64) -> Duration {
+    let i = ((sorted.len() as f64 - 1.0) * p).round() as usize;
+    sorted[i.min(sorted.len() - 1)]
+}
+
+async fn run(cli: Cli) -> Result<ExitCode, String> {
+    match cli.command {
+        Command::Scan {
+            connect: args,
+            output,
+            retries,
+        } => {
+            let c = connect(&args).await?;
+            let report = scan(&c, retries).await?;
+            print!("{}", report.map.tree());
+            println!(
+                "{} runtimes, {} links, scanned in {:.1} ms",
+                report.map.runtimes.len(),
+                report.map.links.len(),
+                report.elapsed.as_secs_f64() * 1e3
+            );
+            if let Some(path) = output {
+                std::fs::write(&path, report.map.to_json())
+                    .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                println!("map written to {}", path.display());
+            }
+            if report.failures.is_empty() {
+                Ok(ExitCode::SUCCESS)
+            } else {
+                for f in &report.failures {
+                    eprintln!("warning: route {:?}: {}", f.route, f.error);
+                }
+                eprintln!(
+                    "the map is partial: {} request(s) failed",
+                    report.failures.len()
+                );
+                Ok(ExitCode::from(2))
+            }
+        }
+        Command::Rename {
+            connect: args,
+            target,
+            name,
+        } => {
+            let c = connect(&args).await?;
+            let route = resolve(&c, &target).await?;
+            let stored = netrunner::rename(&c.host, &route, &name)
+                .await
+                .map_err(|e| e.to_string())?;
+            println!("renamed the runtime at {route} to {stored}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Ping {
+            connect: args,
+            target,
+            count,
+        } => {
+            let c = connect(&args).await?;
+            let route = resolve(&c, &target).await?;
+            let mut runner = Netrunner::new(&c.host).await.map_err(|e| e.to_string())?;
+            runner.timeout = c.timeout;
+            let mut times = runner
+                .ping(&route, count.max(1))
+                .await
+                .map_err(|e| e.to_string())?;
+            times.sort();
+            let mean = times.iter().sum::<Duration>() / times.len() as u32;
+            println!(
+                "{} round trips to {route}: min {:?}  p50 {:?}  p99 {:?}  max {:?}  mean {:?}",
+                times.len(),
+                times[0],
+                percentile(&times, 0.5),
+                percentile(&times, 0.99),
+                times[times.len() - 1],
+                mean
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Time { connect: args } => {
+            let c = connect(&args).await?;
+            let map = scan(&c, 2).await?.map;
+            let runner = Netrunner::new(&c.host).await.map_err(|e| e.to_string())?;
+            println!(
+                "{:<16} {:>4} {:<9} {:>11} {:>10} {:>9} {:>8} {:>8}",
+                "runtime",
+                "tier",
+                "state",
+                "offset µs",
+                "rate ppm",
+                "rtt µs",
+                "accepted",
+                "rejected"
+            );
+            for r in &map.runtimes {
+                match runner.clock_status(&r.route()).await {
+                    Ok(s) => {
+                        let state = match s.state {
+                            SyncState::Root => "root",
+                            SyncState::Synced => "synced",
+                            SyncState::Holdover => "holdover",
+                            SyncState::Unsynced => "unsynced",
+                        };
+                        println!(
+                            "{:<16} {:>4} {:<9} {:>11.1} {:>10.3} {:>9} {:>8} {:>8}",
+                            r.name,
+                            if s.tier == 255 {
+                                "-".into()
+                            } else {
+                                s.tier.to_string()
+                            },
+                            state,
+                            s.offset_ns as f64 / 1000.0,
+                            f64::from(s.rate_ppb) / 1000.0,
+                            s.min_rtt_us,
+                            s.stats.accepted,
+                            s.stats.rejected_rtt + s.stats.rejected_residual
+                        );
+                    }
+                    Err(e) => println!("{:<16} {e}", r.name),
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Serve {
+            sim: path,
+            tcp: addr,
+            allow_remote,
+        } => {
+            // The serving host relays for the machine; the client's host
+            // is the clock root.
+            let host = Host::start(HostConfig {
+                name: "sim-host".into(),
+                time: osap_core::clock::TimeConfig::default(),
+                ..HostConfig::default()
+            })
+            .map_err(|e| e.to_string())?;
+            let topology = sim::load(&path).map_err(|e| e.to_string())?;
+            let machine = SimMachine::start(&host, &topology)
+                .await
+                .map_err(|e| format!("cannot start {}: {e}", path.display()))?;
+            let listener: Listener = tcp::listen(&host, addr, allow_remote)
+                .await
+                .map_err(|e| e.to_string())?;
+            println!(
+                "serving {} ({} modules) on tcp {}; stop with Ctrl-C",
+                topology.name,
+                machine.modules().len(),
+                listener
+                    .socket_addr()
+                    .map_or(addr.to_string(), |a| a.to_string())
+            );
+            tokio::signal::ctrl_c()
+                .await
+                .map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?;
+            drop(listener);
+            machine.stop().await.map_err(|e| e.to_string())?;
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+#[tokio::main]
+async fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli).await {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn routes_parse_from_link_lists() {
+        assert_eq!(
+            parse_route("0,2").unwrap().unwrap(),
+            Route::through_links(&[0, 2]).unwrap()
+        );
+        assert_eq!(
+            parse_route("1 3").unwrap().unwrap(),
+            Route::through_links(&[1, 3]).unwrap()
+        );
+        assert!(parse_route("x-axis").is_none());
+        assert!(parse_route("0,300").unwrap().is_err());
+        assert!(parse_route("64").unwrap().is_err());
+    }
+
+    #[test]
+    fn cli_definition_is_consistent() {
+        use clap::CommandFactory;
+        Cli::command().debug_assert();
+    }
+}

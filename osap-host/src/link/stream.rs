@@ -1,0 +1,711 @@
+//! Byte-stream links: the framed stream driver, and what every real link
+//! gateway shares (the handle, its state, reconnecting, listening).
+//!
+//! [`run_stream`] moves packets over any byte stream (a serial port, a TCP
+//! or Unix socket, a PTY) as frames of `docs/protocol.md` §5:
+//! `COBS(packet ‖ crc16) ‖ 00`. The serial, TCP and Unix modules open
+//! streams and hand them to it; a client link that loses its stream keeps
+//! retrying in the background and resumes when the peer is back, without
+//! restarting the host.
+//!
+//! A [`LinkHandle`] owns a link's task: it reports the link's [`LinkState`]
+//! and stops the task when closed or dropped. A [`Listener`] accepts
+//! connections and gives each one a link.
+
+use super::{LinkConfig, LinkIo, LinkStats};
+use crate::runtime::Host;
+use crate::{HostError, HOST_MTU};
+use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
+use osap_core::netresponder::key;
+use osap_core::route::Route;
+use std::fmt;
+use std::future::Future;
+use std::io;
+use std::net::{IpAddr, Ipv4Addr, SocketAddr};
+use std::path::PathBuf;
+use std::sync::Arc;
+use std::time::Duration;
+use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
+use tokio::sync::{watch, Notify};
+use tokio::task::{JoinHandle, JoinSet};
+
+/// Longest frame a host link accepts: a [`HOST_MTU`] packet, framed.
+pub const MAX_FRAME: usize = max_frame_len(HOST_MTU);
+
+/// Bytes asked of the stream per read.
+const READ_CHUNK: usize = 4096;
+
+/// First wait before a reconnect attempt; doubled after each failure.
+pub const RECONNECT_MIN: Duration = Duration::from_millis(100);
+/// Longest wait between reconnect attempts.
+pub const RECONNECT_MAX: Duration = Duration::from_secs(2);
+/// How long one connection attempt may take before it counts as failed.
+pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
+
+/// Why [`run_stream`] returned.
+#[derive(Debug)]
+pub enum StreamEnd {
+    /// The peer closed the stream (end of file, hang-up).
+    Eof,
+    /// Reading or writing failed (the device went away, the connection was
+    /// reset).
+    Error(io::Error),
+    /// The link was closed from the host's side.
+    Closed,
+}
+
+impl fmt::Display for StreamEnd {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            StreamEnd::Eof => f.write_str("the peer closed the connection"),
+            StreamEnd::Error(e) => write!(f, "{e}"),
+            StreamEnd::Closed => f.write_str("the link was closed by the host"),
+        }
+    }
+}
+
+/// Moves packets between a link and a byte stream until the stream ends.
+///
+/// Marks the link open, writes a lone `0x00` so that the peer's decoder
+/// drops whatever partial frame it held, then at once
+/// - reads the stream, splits it into frames, and hands each good packet to
+///   the runtime (waiting while the runtime's queue for the link is full, so
+///   a busy host pushes back on the sender instead of dropping); frames that
+///   fail COBS, the CRC, or are too long are dropped and counted in the
+///   link's `frame_errors`;
+/// - frames and writes every packet the runtime sends over the link.
+///
+/// Receive stamps are the host clock when the read that completed the frame
+/// returned: when software saw the bytes, which trails the wire by the OS's
+/// and (for USB) the bus's latency.
+///
+/// The stream is never flushed (on a serial port `flush` is `tcdrain`, which
+/// blocks the thread until the bytes are out), so give it one that writes
+/// straight through: a socket, a serial port or a PTY, not a `BufWriter`.
+///
+/// Returns why it stopped, with the link marked closed (which drops what
+/// was queued to send).
+pub async fn run_stream<S>(stream: S, io: &LinkIo) -> StreamEnd
+where
+    S: AsyncRead + AsyncWrite,
+{
+    let (reader, writer) = tokio::io::split(stream);
+    io.set_open(true);
+    let end = tokio::select! {
+        end = read_frames(reader, io) => end,
+        end = write_frames(writer, io) => end,
+    };
+    io.set_open(false);
+    end
+}
+
+/// The receive half of [`run_stream`].
+async fn read_frames<R: AsyncRead + Unpin>(mut reader: R, io: &LinkIo) -> StreamEnd {
+    let mut decoder = Box::new(FrameDecoder::<MAX_FRAME>::new());
+    let mut buf = vec![0u8; READ_CHUNK];
+    loop {
+        io.rx_ready().await;
+        let n = match reader.read(&mut buf).await {
+            Ok(0) => return StreamEnd::Eof,
+            Ok(n) => n,
+            Err(e) => return StreamEnd::Error(e),
+        };
+        let stamp = io.clock().now_us();
+        let mut input = buf.get(..n).unwrap_or_default();
+        while let Some(result) = decoder.decode(&mut input) {
+            match result {
+                Ok(packet) => {
+                    let packet = packet.to_vec();
+                    io.rx_ready().await;
+                    io.deliver_stamped(packet, stamp);
+                }
+                Err(e) => {
+                    io.count_frame_errors(1);
+                    tracing::debug!(link = %io.config().name, error = %e, "dropped a bad frame");
+                }
+            }
+        }
+    }
+}
+
+/// The transmit half of [`run_stream`].
+async fn write_frames<W: AsyncWrite + Unpin>(mut writer: W, io: &LinkIo) -> StreamEnd {
+    // Resynchronise the peer's decoder: end whatever it was assembling.
+    if let Err(e) = writer.write_all(&[0]).await {
+        return StreamEnd::Error(e);
+    }
+    let mut frame = vec![0u8; MAX_FRAME];
+    while let Some(packet) = io.next_tx().await {
+        let Some(out) = frame.get_mut(..max_frame_len(packet.len())) else {
+            tracing::warn!(
+                link = %io.config().name,
+                len = packet.len(),
+                "packet longer than the host MTU, not sent"
+            );
+            continue;
+        };
+        let len = match encode_frame(&packet, out) {
+            Ok(len) => len,
+            Err(e) => {
+                tracing::warn!(link = %io.config().name, error = %e, "could not frame a packet");
+                continue;
+            }
+        };
+        if let Err(e) = writer.write_all(frame.get(..len).unwrap_or_default()).await {
+            return StreamEnd::Error(e);
+        }
+    }
+    StreamEnd::Closed
+}
+
+/// Where a link stands, as its [`LinkHandle`] reports it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum LinkState {
+    /// The link is up: packets flow.
+    Connected,
+    /// The link is down and its task is trying to bring it back (or, for a
+    /// UDP link without a fixed peer, waiting for the first datagram).
+    /// Packets routed over it meanwhile are dropped by the runtime.
+    Disconnected {
+        /// Failed attempts since the link went down.
+        attempts: u32,
+        /// Why the link went down, or why the last attempt failed.
+        reason: String,
+    },
+    /// The link was closed through its handle and will not come back.
+    Closed,
+}
+
+impl fmt::Display for LinkState {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            LinkState::Connected => f.write_str("connected"),
+            LinkState::Disconnected { attempts, reason } => {
+                write!(f, "disconnected ({reason}; {attempts} attempts since)")
+            }
+            LinkState::Closed => f.write_str("closed"),
+        }
+    }
+}
+
+/// A link whose I/O runs in its own task (a serial port, a TCP, UDP or Unix
+/// socket). Closing or dropping the handle stops the task and marks the
+/// link closed; the link index stays allocated in the runtime (closed) for
+/// the host's lifetime.
+#[derive(Debug)]
+pub struct LinkHandle {
+    index: u8,
+    io: LinkIo,
+    local: Option<SocketAddr>,
+    state: Arc<watch::Sender<LinkState>>,
+    stop: Arc<Notify>,
+    task: Option<JoinHandle<()>>,
+}
+
+impl LinkHandle {
+    /// Starts `body` in a task that stops on [`close`](Self::close) or drop,
+    /// and that marks the link closed when it stops.
+    pub(crate) fn spawn<F>(
+        index: u8,
+        io: LinkIo,
+        local: Option<SocketAddr>,
+        initial: LinkState,
+        body: impl FnOnce(LinkIo, Arc<watch::Sender<LinkState>>) -> F,
+    ) -> LinkHandle
+    where
+        F: Future<Output = ()> + Send + 'static,
+    {
+        let state = Arc::new(watch::Sender::new(initial));
+        let stop = Arc::new(Notify::new());
+        let body = body(io.clone(), state.clone());
+        let task = {
+            let (io, state, stop) = (io.clone(), state.clone(), stop.clone());
+            tokio::spawn(async move {
+                tokio::select! {
+                    _ = stop.notified() => {}
+                    _ = body => {}
+                }
+                // The body has been dropped here, in this task, so nothing
+                // can reopen the link after this.
+                io.set_open(false);
+                state.send_replace(LinkState::Closed);
+                tracing::info!(link = %io.config().name, "link closed");
+            })
+        };
+        LinkHandle {
+            index,
+            io,
+            local,
+            state,
+            stop,
+            task: Some(task),
+        }
+    }
+
+    /// The link's index in the host runtime (the `L` in a route).
+    pub fn index(&self) -> u8 {
+        self.index
+    }
+
+    /// The link's configuration (type and instance names, MTU, speed).
+    pub fn config(&self) -> &LinkConfig {
+        self.io.config()
+    }
+
+    /// The local socket address, for socket links.
+    pub fn local_addr(&self) -> Option<SocketAddr> {
+        self.local
+    }
+
+    /// Where the link stands now.
+    pub fn state(&self) -> LinkState {
+        self.state.borrow().clone()
+    }
+
+    /// A receiver that sees every change of the link's state.
+    pub fn subscribe(&self) -> watch::Receiver<LinkState> {
+        self.state.subscribe()
+    }
+
+    /// The link's packet counts.
+    pub fn stats(&self) -> LinkStats {
+        self.io.stats()
+    }
+
+    /// Waits until the link is connected, up to `timeout`. The error says
+    /// why the link is still down.
+    pub async fn wait_connected(&self, timeout: Duration) -> Result<(), HostError> {
+        let mut rx = self.subscribe();
+        let up = |s: &LinkState| !matches!(s, LinkState::Disconnected { .. });
+        let waited = tokio::time::timeout(timeout, rx.wait_for(up)).await;
+        match self.state() {
+            LinkState::Connected => Ok(()),
+            state => Err(link_error(
+                format!(
+                    "link {} ({}) is not connected",
+                    self.index,
+                    self.config().name
+                ),
+                if waited.is_err() {
+                    io::ErrorKind::TimedOut
+                } else {
+                    io::ErrorKind::NotConnected
+                },
+                format!("{state}"),
+            )),
+        }
+    }
+
+    /// Checks that an OSAP runtime answers at the other end of the link by
+    /// asking its name, which it returns. A port that is open but is not an
+    /// OSAP device (or runs at another baud rate) fails with an error that
+    /// says so.
+    pub async fn probe(&self, host: &Host, timeout: Duration) -> Result<String, HostError> {
+        let what = format!("link {} ({})", self.index, self.config().name);
+        if let state @ (LinkState::Disconnected { .. } | LinkState::Closed) = self.state() {
+            return Err(link_error(
+                format!("{what} is not connected"),
+                io::ErrorKind::NotConnected,
+                format!("{state}"),
+            ));
+        }
+        let errors_before = self.stats().frame_errors;
+        let port = host.open_port("link_probe").await?;
+        let route =
+            Route::through_links(&[self.index]).map_err(|e| HostError::Malformed(e.to_string()))?;
+        match port.request(&route, 0, &[key::NAME], timeout).await {
+            Ok(reply) => match reply.body.as_slice() {
+                [k, 0, len, name @ ..] if *k == key::NAME && usize::from(*len) == name.len() => {
+                    Ok(String::from_utf8_lossy(name).into_owned())
+                }
+                other => Err(HostError::Malformed(format!(
+                    "{what}: the name reply {other:02x?} does not parse"
+                ))),
+            },
+            Err(HostError::Timeout { .. }) => {
+                let garbled = self.stats().frame_errors.saturating_sub(errors_before);
+                let why = if garbled > 0 {
+                    format!(
+                        "{garbled} garbled frames arrived instead: the baud rate may be wrong, \
+                         or the device is not an OSAP device"
+                    )
+                } else {
+                    "nothing came back: the device is not an OSAP device, or its firmware \
+                     is not running"
+                        .to_string()
+                };
+                Err(link_error(
+                    format!("no OSAP runtime answered on {what} within {timeout:?}"),
+                    io::ErrorKind::TimedOut,
+                    why,
+                ))
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    /// Stops the link's task and waits until it has stopped (the device or
+    /// socket is closed when this returns).
+    pub async fn close(mut self) {
+        self.stop.notify_one();
+        if let Some(task) = self.task.take() {
+            let _ = task.await;
+        }
+    }
+}
+
+impl Drop for LinkHandle {
+    fn drop(&mut self) {
+        self.stop.notify_one();
+    }
+}
+
+impl LinkState {
+    /// Whether the link is up.
+    pub fn is_connected(&self) -> bool {
+        matches!(self, LinkState::Connected)
+    }
+}
+
+/// An error with a context and an explanation, as a [`HostError::Io`].
+pub(crate) fn link_error(context: String, kind: io::ErrorKind, message: String) -> HostError {
+    HostError::Io {
+        context,
+        source: io::Error::new(kind, message),
+    }
+}
+
+/// Runs a client link: `first` now, then, whenever the stream ends,
+/// `connect` again with backoff ([`RECONNECT_MIN`] doubling to
+/// [`RECONNECT_MAX`]) until it succeeds. State changes go to `state` and to
+/// `tracing`.
+pub(crate) async fn run_client<S, C, F>(
+    io: LinkIo,
+    state: Arc<watch::Sender<LinkState>>,
+    first: S,
+    mut connect: C,
+) where
+    S: AsyncRead + AsyncWrite + Send,
+    C: FnMut() -> F + Send,
+    F: Future<Output = Result<S, HostError>> + Send,
+{
+    let what = format!("{} link {}", io.config().type_name, io.config().name);
+    let mut next = Some(first);
+    loop {
+        if let Some(stream) = next.take() {
+            // Open before saying so, so that whoever waits for `Connected`
+            // can route over the link at once.
+            io.set_open(true);
+            state.send_replace(LinkState::Connected);
+            tracing::info!("{what}: connected");
+            let end = run_stream(stream, &io).await;
+            tracing::warn!("{what}: lost ({end}); reconnecting");
+            state.send_replace(LinkState::Disconnected {
+                attempts: 0,
+                reason: end.to_string(),
+            });
+        }
+        let mut delay = RECONNECT_MIN;
+        let mut attempts = 0u32;
+        while next.is_none() {
+            tokio::time::sleep(delay).await;
+            let result = match tokio::time::timeout(CONNECT_TIMEOUT, connect()).await {
+                Ok(result) => result,
+                Err(_) => Err(link_error(
+                    "connecting".into(),
+                    io::ErrorKind::TimedOut,
+                    format!("no answer within {CONNECT_TIMEOUT:?}"),
+                )),
+            };
+            match result {
+                Ok(stream) => {
+                    tracing::info!("{what}: back after {} failed attempts", attempts);
+                    next = Some(stream);
+                }
+                Err(e) => {
+                    attempts = attempts.saturating_add(1);
+                    tracing::debug!("{what}: reconnect attempt {attempts} failed: {e}");
+                    state.send_replace(LinkState::Disconnected {
+                        attempts,
+                        reason: e.to_string(),
+                    });
+                    delay = (delay * 2).min(RECONNECT_MAX);
+                }
+            }
+        }
+    }
+}
+
+/// `127.0.0.1:port`: the address listeners use unless told otherwise, so a
+/// machine is never opened to the network by default.
+pub fn loopback(port: u16) -> SocketAddr {
+    SocketAddr::new(IpAddr::V4(Ipv4Addr::LOCALHOST), port)
+}
+
+/// Refuses to bind `addr` if it is reachable from other machines, unless
+/// `allow_remote` says the user asked for that.
+pub(crate) fn check_bind(addr: SocketAddr, allow_remote: bool) -> Result<(), HostError> {
+    if addr.ip().is_loopback() || allow_remote {
+        return Ok(());
+    }
+    Err(link_error(
+        format!("refusing to listen on {addr}"),
+        io::ErrorKind::PermissionDenied,
+        "that address is reachable from other machines, and anyone who can reach it could \
+         drive this machine; listen on 127.0.0.1 (the default), or pass allow_remote \
+         (--allow-remote) if you really mean to open it to the network"
+            .into(),
+    ))
+}
+
+/// Where a [`Listener`] listens.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum ListenAddr {
+    /// A TCP address.
+    Inet(SocketAddr),
+    /// A Unix socket path.
+    Unix(PathBuf),
+}
+
+impl fmt::Display for ListenAddr {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ListenAddr::Inet(a) => write!(f, "{a}"),
+            ListenAddr::Unix(p) => write!(f, "{}", p.display()),
+        }
+    }
+}
+
+/// A link a [`Listener`] made for accepted connections.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct AcceptedLink {
+    /// The link's index in the host runtime.
+    pub index: u8,
+    /// Who it was made for: the peer's IP address for TCP, the socket path
+    /// for Unix sockets (Unix peers have no address).
+    pub peer: String,
+    /// Whether a connection is using it now.
+    pub connected: bool,
+}
+
+/// Accepts connections for a [`Listener`].
+pub(crate) trait Accept: Send + 'static {
+    /// The connections it yields.
+    type Stream: AsyncRead + AsyncWrite + Send + 'static;
+    /// Waits for the next connection; returns it and the peer's name.
+    fn accept(&mut self) -> impl Future<Output = io::Result<(Self::Stream, String)>> + Send;
+}
+
+/// Accepts connections on a socket and gives each one a link: a link that
+/// an earlier connection from the same peer left closed is reused (so a
+/// module that reconnects keeps its link index and routes stay valid),
+/// otherwise a new link is added. Closing or dropping the listener stops
+/// accepting and closes every connection it accepted; while it lives, it
+/// keeps the host running.
+#[derive(Debug)]
+pub struct Listener {
+    addr: ListenAddr,
+    links: watch::Receiver<Vec<AcceptedLink>>,
+    stop: Arc<Notify>,
+    task: Option<JoinHandle<()>>,
+    /// A Unix socket file to remove when the listener goes.
+    unlink: Option<PathBuf>,
+}
+
+impl Listener {
+    /// Starts accepting on `acceptor` in a task.
+    pub(crate) fn spawn<A: Accept>(
+        host: &Host,
+        acceptor: A,
+        addr: ListenAddr,
+        type_name: &'static str,
+        unlink: Option<PathBuf>,
+    ) -> Listener {
+        let (links_tx, links) = watch::channel(Vec::new());
+        let stop = Arc::new(Notify::new());
+        let task = tokio::spawn(accept_loop(
+            host.clone(),
+            acceptor,
+            addr.clone(),
+            type_name,
+            links_tx,
+            stop.clone(),
+        ));
+        Listener {
+            addr,
+            links,
+            stop,
+            task: Some(task),
+            unlink,
+        }
+    }
+
+    /// Where it listens.
+    pub fn local_addr(&self) -> &ListenAddr {
+        &self.addr
+    }
+
+    /// The TCP address it listens on (with the port the OS chose, if it was
+    /// asked for port 0); `None` for a Unix socket.
+    pub fn socket_addr(&self) -> Option<SocketAddr> {
+        match &self.addr {
+            ListenAddr::Inet(a) => Some(*a),
+            ListenAddr::Unix(_) => None,
+        }
+    }
+
+    /// The links it has made so far.
+    pub fn links(&self) -> Vec<AcceptedLink> {
+        self.links.borrow().clone()
+    }
+
+    /// A receiver that sees every change of [`links`](Self::links).
+    pub fn subscribe(&self) -> watch::Receiver<Vec<AcceptedLink>> {
+        self.links.clone()
+    }
+
+    /// Waits up to `timeout` until some accepted connection is up; returns
+    /// its link index.
+    pub async fn wait_connected(&self, timeout: Duration) -> Result<u8, HostError> {
+        let mut rx = self.subscribe();
+        let found = tokio::time::timeout(timeout, rx.wait_for(|l| l.iter().any(|l| l.connected)))
+            .await
+            .ok()
+            .and_then(Result::ok)
+            .and_then(|l| l.iter().find(|l| l.connected).map(|l| l.index));
+        found.ok_or_else(|| {
+            link_error(
+                format!("listening on {}", self.addr),
+                io::ErrorKind::TimedOut,
+                format!("no connection within {timeout:?}"),
+            )
+        })
+    }
+
+    /// Stops accepting, closes every accepted connection, and waits until
+    /// that is done.
+    pub async fn close(mut self) {
+        self.stop.notify_one();
+        if let Some(task) = self.task.take() {
+            let _ = task.await;
+        }
+    }
+}
+
+impl Drop for Listener {
+    fn drop(&mut self) {
+        self.stop.notify_one();
+        if let Some(path) = self.unlink.take() {
+            let _ = std::fs::remove_file(path);
+        }
+    }
+}
+
+/// One link made by a listener.
+struct Slot {
+    io: LinkIo,
+    info: AcceptedLink,
+}
+
+/// The listener task: accepts, assigns links, runs each connection in a
+/// task of its own, and on stop closes them all.
+async fn accept_loop<A: Accept>(
+    host: Host,
+    mut acceptor: A,
+    addr: ListenAddr,
+    type_name: &'static str,
+    links: watch::Sender<Vec<AcceptedLink>>,
+    stop: Arc<Notify>,
+) {
+    let mut slots: Vec<Slot> = Vec::new();
+    let mut connections: JoinSet<(usize, StreamEnd)> = JoinSet::new();
+    let publish = |slots: &[Slot]| {
+        links.send_replace(slots.iter().map(|s| s.info.clone()).collect());
+    };
+    tracing::info!("{type_name}: listening on {addr}");
+    loop {
+        tokio::select! {
+            _ = stop.notified() => break,
+            Some(done) = connections.join_next() => {
+                if let Ok((i, end)) = done {
+                    if let Some(slot) = slots.get_mut(i) {
+                        slot.info.connected = false;
+                        tracing::info!(
+                            "{type_name} link {} from {}: disconnected ({end})",
+                            slot.info.index, slot.info.peer
+                        );
+                    }
+                    publish(&slots);
+                }
+            }
+            accepted = acceptor.accept() => {
+                let (stream, peer) = match accepted {
+                    Ok(a) => a,
+                    Err(e) => {
+                        // Out of file descriptors and the like: pause, go on.
+                        tracing::warn!("{type_name}: accepting on {addr} failed: {e}");
+                        tokio::time::sleep(RECONNECT_MIN).await;
+                        continue;
+                    }
+                };
+                let reuse = slots.iter().position(|s| !s.info.connected && s.info.peer == peer);
+                let i = match reuse {
+                    Some(i) => i,
+                    None => match host.add_link(LinkConfig::new(type_name, &peer)).await {
+                        Ok((index, io)) => {
+                            slots.push(Slot {
+                                io,
+                                info: AcceptedLink { index, peer: peer.clone(), connected: false },
+                            });
+                            slots.len() - 1
+                        }
+                        Err(e) => {
+                            tracing::warn!(
+                                "{type_name}: refused a connection from {peer} on {addr}: {e}"
+                            );
+                            continue;
+                        }
+                    },
+                };
+                let Some(slot) = slots.get_mut(i) else { continue };
+                slot.info.connected = true;
+                tracing::info!(
+                    "{type_name} link {} from {peer}: connected on {addr}",
+                    slot.info.index
+                );
+                let io = slot.io.clone();
+                connections.spawn(async move { (i, run_stream(stream, &io).await) });
+                publish(&slots);
+            }
+        }
+    }
+    // Waits for every connection task to be gone, so none can reopen its
+    // link after the links are marked closed below.
+    connections.shutdown().await;
+    for slot in &mut slots {
+        slot.io.set_open(false);
+        slot.info.connected = false;
+    }
+    publish(&slots);
+    tracing::info!("{type_name}: stopped listening on {addr}");
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_loopback_binds_by_default() {
+        assert!(check_bind(loopback(7000), false).is_ok());
+        assert!(check_bind("[::1]:7000".parse().unwrap(), false).is_ok());
+        assert!(check_bind("127.0.0.2:1".parse().unwrap(), false).is_ok());
+        let err = check_bind("0.0.0.0:7000".parse().unwrap(), false).unwrap_err();
+        let text = err.to_string();
+        assert!(
+            text.contains("refusing to listen on 0.0.0.0:7000"),
+            "{text}"
+        );
+        assert!(text.contains("allow_remote"), "{text}");
+        assert!(check_bind("0.0.0.0:7000".parse().unwrap(), true).is_ok());
+    }
+}

@@ -1,0 +1,647 @@
+//! Simulated modules: whole machines on the host, without hardware.
+//!
+//! A simulated module runs a real osap-core runtime, sized like firmware
+//! ([`ModuleRuntime`]: 32 slots of 256 bytes, 16 port indices, 8 links;
+//! build key `RustSimulated`), in its own tokio task, behind simulated links,
+//! on a drifting clock ([`DriftClock`]). Unlike `osap-sim`'s discrete-event
+//! simulator it runs in *real time*, so a real [`Host`] (and the CLI, and
+//! any script) talks to it exactly as to hardware: scans, requests and clock
+//! sync all go over the network.
+//!
+//! For now a module exposes its netresponder (port 0) and clock sync; its
+//! `type` is the type name it reports. Once pipes-core exists, the type will
+//! also select the module functions the firmware of that type exposes, run
+//! as ports of the same runtime.
+//!
+//! A machine is described by a [`Topology`], usually read from a TOML file
+//! ([`load`]), and started against a host with [`SimMachine::start`]. The
+//! repository ships three in `osap-host/topologies/`: `single-usb.toml` (one
+//! module on USB), `small-machine.toml` (a hub on USB with four modules on
+//! UARTs) and `loop.toml` (a network with a loop).
+//!
+//! ```no_run
+//! # async fn demo() -> Result<(), osap_host::HostError> {
+//! use osap_host::sim::{self, SimMachine};
+//! use osap_host::{Host, HostConfig};
+//! let host = Host::start(HostConfig::default())?;
+//! let topology = sim::load("osap-host/topologies/small-machine.toml")?;
+//! let machine = SimMachine::start(&host, &topology).await?;
+//! let route = machine.route_to("x").unwrap(); // host → hub → x
+//! let port = host.open_port("script").await?;
+//! let name = port
+//!     .request(&route, 0, &[osap_core::netresponder::key::NAME], std::time::Duration::from_millis(100))
+//!     .await?;
+//! # let _ = name; Ok(()) }
+//! ```
+//!
+//! # Topology files
+//!
+//! ```toml
+//! name = "small-machine"     # optional
+//! zero_latency = false       # optional: true makes every link deliver at once
+//! sync = true                # optional: modules synchronise their clocks
+//! seed = 0                   # optional: seeds the links' random latencies
+//!
+//! [[module]]
+//! name = "hub"               # unique, at most 31 bytes, not "host"
+//! type = "hub"               # the runtime's type name, at most 31 bytes
+//!
+//! [[module]]
+//! name = "x"
+//! type = "stepper"
+//! rate_ppm = 40.0            # optional: clock rate error, ppm (default 0)
+//! offset_us = 0.0            # optional: the clock's reading at boot, µs
+//! wander_ppm = 0.0           # optional: slow sinusoidal rate wander, ppm
+//! wander_period_s = 300.0    # optional: its period, s
+//!
+//! [[link]]
+//! a = "host"                 # "host" is the Host the machine attaches to
+//! b = "hub"
+//! kind = "usb"               # usb | uart | rs485 | memory
+//!
+//! [[link]]
+//! a = "hub"
+//! b = "x"
+//! kind = "uart"
+//! baud = 2000000             # optional, uart and rs485 only (default 2 Mbaud)
+//! mtu = 256                  # optional: 16..=256 (default 256)
+//! name = ""                  # optional: instance name reported to scans
+//! ```
+//!
+//! Unknown keys are errors. A module's link indices (what routes name)
+//! follow the order its links are listed in the file, from 0; the host's
+//! links are attached in file order after any it already has
+//! ([`SimMachine::host_links`] tells their indices). Validation rejects, with
+//! a message naming the module or link: duplicate or empty names, names or
+//! types over 31 bytes, a module named `host`, a link end that names no
+//! module, a link from a module to itself, `baud` on a link that is not a
+//! UART, a baud rate or MTU out of range, more than 8 links on one module,
+//! no link to the host, and modules the host cannot reach.
+//!
+//! # Link timing
+//!
+//! With `zero_latency = false` each link kind takes the time the
+//! `osap-sim` link models give it ([`osap_sim::medium`]):
+//!
+//! | kind | timing |
+//! |---|---|
+//! | `uart`, `rs485` | `(len + 4) × 10 / baud` on the wire, a 2-frame transmit buffer, stamped at the first byte |
+//! | `usb` | host → device: host software latency Exp(50 µs), then the next 1 ms frame's bulk slot; device → host: 0–20 µs poll delay, wire time at 12 Mbit/s, host receive latency Exp(75 µs) |
+//! | `memory` | none |
+//!
+//! Delays are kept by a per-machine wire thread with µs precision (see
+//! `wire.rs`), not tokio's 1 ms timers. With `zero_latency = true` (or
+//! [`Topology::with_zero_latency`]) the two ends are joined directly, as
+//! [`crate::link::memory`] joins two hosts: no timers, no
+//! tasks in between.
+//!
+//! # Modules dying
+//!
+//! [`SimModule::kill`] stops a module's task as a power cut would. Its links
+//! go down at both ends (the neighbours drop what is routed over them, as a
+//! USB host sees a disconnect; a UART neighbour is modelled as detecting
+//! the loss), so requests to the module, or through it, time out.
+//! [`SimModule::restart`] boots it again: a fresh runtime, its clock
+//! restarting from its boot value, the name it last had, its links back up.
+
+mod clock;
+mod module;
+mod topology;
+mod wire;
+
+pub use clock::DriftClock;
+pub use module::{ModuleRuntime, MODULE_LINKS, MODULE_MTU, MODULE_PORTS, MODULE_SLOTS};
+pub use topology::{
+    load, LinkKind, LinkSpec, ModuleSpec, Topology, DEFAULT_BAUD, HOST, MAX_HOST_LINKS,
+};
+
+use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
+use crate::{Host, HostError};
+use module::{ModuleCommand, ModuleLink, ModuleTask, Parked};
+use osap_core::clock::TimeConfig;
+use osap_core::link::LinkGateway;
+use osap_core::netresponder::BuildKey;
+use osap_core::route::Route;
+use osap_core::Micros;
+use osap_sim::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
+use osap_sim::rng::Rng;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::Instant;
+use tokio::sync::{mpsc, oneshot, Notify};
+use tokio::task::JoinHandle;
+use topology::Node;
+use wire::{Carrier, Wire};
+
+/// Packets each link end buffers each way.
+const LINK_DEPTH: usize = 32;
+
+/// A simulated machine attached to a host. Dropping it (and every
+/// [`SimModule`] handle) stops its modules and takes its links down.
+pub struct SimMachine {
+    machine: Arc<Machine>,
+    modules: Vec<SimModule>,
+    host_links: Vec<u8>,
+}
+
+/// A handle to one simulated module. Cheap to clone.
+#[derive(Clone)]
+pub struct SimModule {
+    inner: Arc<ModuleShared>,
+}
+
+struct Machine {
+    topology: Topology,
+    /// True time zero of the link models.
+    epoch: Instant,
+    host_clock: crate::HostClock,
+    links: Mutex<Vec<LinkState>>,
+    /// Whether each module's task is running.
+    running: Vec<AtomicBool>,
+    // Last: dropped after the links are down.
+    wire: Option<Wire>,
+}
+
+struct LinkState {
+    /// The link's position in the topology.
+    index: usize,
+    /// Side A (on USB, the USB host) and side B.
+    ends: [End; 2],
+    /// `None`: the ends are joined (no latency).
+    model: Option<LinkModel>,
+    up: bool,
+    carriers: Vec<JoinHandle<()>>,
+    generation: Arc<AtomicU64>,
+}
+
+struct End {
+    node: Node,
+    io: LinkIo,
+}
+
+struct ModuleShared {
+    index: usize,
+    spec: ModuleSpec,
+    machine: Arc<Machine>,
+    /// The runtime's wake-up, shared by its link ends for good.
+    wake: Arc<Notify>,
+    state: tokio::sync::Mutex<ModuleState>,
+    live: Mutex<Live>,
+}
+
+struct Live {
+    commands: Option<mpsc::UnboundedSender<ModuleCommand>>,
+    clock: DriftClock,
+}
+
+enum ModuleState {
+    Running(JoinHandle<Parked>),
+    Stopped(Parked),
+    /// The task panicked; its links went with it.
+    Lost,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+/// This crate's version as three bytes.
+fn version() -> [u8; 3] {
+    let part = |s: &str| s.parse::<u8>().unwrap_or(0);
+    [
+        part(env!("CARGO_PKG_VERSION_MAJOR")),
+        part(env!("CARGO_PKG_VERSION_MINOR")),
+        part(env!("CARGO_PKG_VERSION_PATCH")),
+    ]
+}
+
+fn link_model(spec: &LinkSpec) -> Option<LinkModel> {
+    let uart = UartParams {
+        baud: spec.baud(),
+        mtu: spec.mtu(),
+        ..UartParams::default()
+    };
+    match spec.kind {
+        LinkKind::Uart => Some(LinkModel::Uart(uart)),
+        LinkKind::Rs485 => Some(LinkModel::Rs485(uart)),
+        LinkKind::Usb => Some(LinkModel::UsbCdc(UsbParams {
+            mtu: spec.mtu(),
+            ..UsbParams::default()
+        })),
+        LinkKind::Memory => None,
+    }
+}
+
+fn link_config(spec: &LinkSpec, timed: bool) -> LinkConfig {
+    let (bits_per_second, bits_per_byte) = match (timed, spec.kind) {
+        (false, _) | (true, LinkKind::Memory) => (0, 8),
+        (true, LinkKind::Usb) => (12_000_000, 8),
+        (true, LinkKind::Uart | LinkKind::Rs485) => (spec.baud(), 10),
+    };
+    LinkConfig {
+        type_name: spec.kind.type_name().to_string(),
+        name: spec.name.clone(),
+        mtu: spec.mtu(),
+        depth: LINK_DEPTH,
+        bits_per_second,
+        bits_per_byte,
+    }
+}
+
+impl SimMachine {
+    /// Starts the machine `topology` describes, attached to `host`: one task
+    /// per module, its links attached to the host in file order, every
+    /// link up. The topology is validated first.
+    pub async fn start(host: &Host, topology: &Topology) -> Result<SimMachine, HostError> {
+        topology.validate()?;
+        let epoch = Instant::now();
+        let host_clock = host.clock();
+        let timed = !topology.zero_latency;
+        let wire = if timed && topology.links.iter().any(|l| l.kind != LinkKind::Memory) {
+            Some(Wire::start().map_err(|source| HostError::Io {
+                context: "starting the simulated wire thread".into(),
+                source,
+            })?)
+        } else {
+            None
+        };
+        let wakes: Vec<Arc<Notify>> = topology
+            .modules
+            .iter()
+            .map(|_| Arc::new(Notify::new()))
+            .collect();
+        let mut module_links: Vec<Vec<ChannelLink>> =
+            topology.modules.iter().map(|_| Vec::new()).collect();
+        let mut links = Vec::new();
+        let mut host_links = Vec::new();
+        for (index, spec) in topology.links.iter().enumerate() {
+            let model = if timed { link_model(spec) } else { None };
+            let config = link_config(spec, model.is_some());
+            let (Some(a), Some(b)) = (topology.node(&spec.a), topology.node(&spec.b)) else {
+                unreachable!("validated");
+            };
+            let (a, b) = if spec.kind == LinkKind::Usb && b == Node::Host {
+                (b, a)
+            } else {
+                (a, b)
+            };
+            let half = |n: Node| match n {
+                Node::Host => host.make_link(config.clone()),
+                Node::Module(m) => link::channel(config.clone(), wakes[m].clone(), host_clock),
+            };
+            let (mut link_a, io_a) = half(a);
+            let (mut link_b, io_b) = half(b);
+            if model.is_none() {
+                ChannelLink::join(&mut link_a, &mut link_b);
+            }
+            // Links are attached in file order, so each end's link indices
+            // follow it (a link never has the same runtime at both ends).
+            for (node, link) in [(a, link_a), (b, link_b)] {
+                match node {
+                    Node::Host => host_links.push(host.attach_link(link).await?),
+                    Node::Module(m) => module_links[m].push(link),
+                }
+            }
+            links.push(LinkState {
+                index,
+                ends: [End { node: a, io: io_a }, End { node: b, io: io_b }],
+                model,
+                up: false,
+                carriers: Vec::new(),
+                generation: Arc::new(AtomicU64::new(0)),
+            });
+        }
+        let machine = Arc::new(Machine {
+            topology: topology.clone(),
+            epoch,
+            host_clock,
+            links: Mutex::new(links),
+            running: topology
+                .modules
+                .iter()
+                .map(|_| AtomicBool::new(false))
+                .collect(),
+            wire,
+        });
+        let mut modules = Vec::new();
+        for ((index, spec), (wake, links)) in topology
+            .modules
+            .iter()
+            .enumerate()
+            .zip(wakes.into_iter().zip(module_links))
+        {
+            let shared = Arc::new(ModuleShared {
+                index,
+                spec: spec.clone(),
+                machine: machine.clone(),
+                wake,
+                state: tokio::sync::Mutex::new(ModuleState::Lost),
+                live: Mutex::new(Live {
+                    commands: None,
+                    clock: DriftClock::new(epoch, spec.clock_model()),
+                }),
+            });
+            let module = SimModule { inner: shared };
+            let parked = Parked {
+                links,
+                name: spec.name.clone(),
+            };
+            *module.inner.state.lock().await = ModuleState::Running(module.spawn(parked)?);
+            machine.running[index].store(true, Ordering::SeqCst);
+            modules.push(module);
+        }
+        {
+            let mut links = lock(&machine.links);
+            for l in links.iter_mut() {
+                machine.open(l);
+            }
+        }
+        Ok(SimMachine {
+            machine,
+            modules,
+            host_links,
+        })
+    }
+
+    /// The topology it was started from.
+    pub fn topology(&self) -> &Topology {
+        &self.machine.topology
+    }
+
+    /// Its modules, in file order.
+    pub fn modules(&self) -> &[SimModule] {
+        &self.modules
+    }
+
+    /// The module named `name` (its name in the file).
+    pub fn module(&self, name: &str) -> Option<&SimModule> {
+        self.modules.iter().find(|m| m.name() == name)
+    }
+
+    /// The host's link index of each link to the host, in file order.
+    pub fn host_links(&self) -> &[u8] {
+        &self.host_links
+    }
+
+    /// The shortest route from the host to module `name` (fewest hops;
+    /// among equals, through the links listed first), from the topology.
+    pub fn route_to(&self, name: &str) -> Option<Route> {
+        let topology = &self.machine.topology;
+        let index = topology.module_index(name)?;
+        let path = topology.paths().into_iter().nth(index)??;
+        let (first, rest) = path.split_first()?;
+        let mut hops = vec![*self.host_links.get(*first)?];
+        hops.extend(rest.iter().map(|&k| k as u8));
+        Route::through_links(&hops).ok()
+    }
+
+    /// Whether link `index` (its position in the topology) is up: both its
+    /// ends are running.
+    pub fn link_is_up(&self, index: usize) -> Option<bool> {
+        lock(&self.machine.links)
+            .iter()
+            .find(|l| l.index == index)
+            .map(|l| l.up)
+    }
+
+    /// Stops every module and takes every link down.
+    pub async fn stop(self) -> Result<(), HostError> {
+        for m in &self.modules {
+            m.kill().await?;
+        }
+        Ok(())
+    }
+}
+
+impl Machine {
+    fn alive(&self, node: Node) -> bool {
+        match node {
+            Node::Host => true,
+            Node::Module(m) => self.running[m].load(Ordering::SeqCst),
+        }
+    }
+
+    /// Brings each link of module `m` up or down to match whether both its
+    /// ends are running.
+    fn refresh(&self, m: usize) {
+        let mut links = lock(&self.links);
+        for l in links.iter_mut() {
+            if !l.ends.iter().any(|e| e.node == Node::Module(m)) {
+                continue;
+            }
+            let up = l.ends.iter().all(|e| self.alive(e.node));
+            if up && !l.up {
+                self.open(l);
+            } else if !up && l.up {
+                Self::close(l);
+            }
+        }
+    }
+
+    fn open(&self, l: &mut LinkState) {
+        for e in &l.ends {
+            e.io.set_open(true);
+        }
+        l.up = true;
+        let (Some(model), Some(wire)) = (l.model, &self.wire) else {
+            return;
+        };
+        let started = l.generation.load(Ordering::Acquire);
+        for (from, side) in [(0, Side::A), (1, Side::B)] {
+            let stream = ((l.index as u64) << 32) | (started << 1) | from as u64;
+            let carrier = Carrier {
+                from: l.ends[from].io.clone(),
+                to: l.ends[1 - from].io.clone(),
+                transmitter: Transmitter::new(
+                    model,
+                    side,
+                    Rng::stream(self.topology.seed, "osap-host-sim-link", stream),
+                ),
+                stamp: model.stamp_mode(side.other()),
+                wire: wire.handle(),
+                epoch: self.epoch,
+                host_clock: self.host_clock,
+                generation: l.generation.clone(),
+                started,
+            };
+            l.carriers.push(tokio::spawn(carrier.run()));
+        }
+    }
+
+    fn close(l: &mut LinkState) {
+        l.generation.fetch_add(1, Ordering::AcqRel);
+        for c in l.carriers.drain(..) {
+            c.abort();
+        }
+        for e in &l.ends {
+            e.io.set_open(false);
+        }
+        l.up = false;
+    }
+}
+
+impl Drop for Machine {
+    fn drop(&mut self) {
+        let mut links = lock(&self.links);
+        for l in links.iter_mut() {
+            Self::close(l);
+        }
+    }
+}
+
+impl SimModule {
+    /// Its name in the topology (the runtime's name at boot).
+    pub fn name(&self) -> &str {
+        &self.inner.spec.name
+    }
+
+    /// Its runtime type name.
+    pub fn type_name(&self) -> &str {
+        &self.inner.spec.type_name
+    }
+
+    /// Its position among the topology's modules.
+    pub fn index(&self) -> usize {
+        self.inner.index
+    }
+
+    /// Its description.
+    pub fn spec(&self) -> &ModuleSpec {
+        &self.inner.spec
+    }
+
+    /// Its local clock since it last booted.
+    pub fn clock(&self) -> DriftClock {
+        lock(&self.inner.live).clock
+    }
+
+    /// Its local clock's reading now, µs.
+    pub fn local_us(&self) -> Micros {
+        self.clock().now_us()
+    }
+
+    /// Whether its task is running.
+    pub fn is_running(&self) -> bool {
+        self.inner.machine.running[self.inner.index].load(Ordering::SeqCst)
+    }
+
+    /// Runs `f` on its runtime, inside its task, with the module's local
+    /// time; `HostError::Stopped` if it is not running.
+    pub async fn with_runtime<R: Send + 'static>(
+        &self,
+        f: impl FnOnce(&mut ModuleRuntime, Micros) -> R + Send + 'static,
+    ) -> Result<R, HostError> {
+        let (tx, rx) = oneshot::channel();
+        let command = ModuleCommand::With(Box::new(move |rt, now| {
+            let _ = tx.send(f(rt, now));
+        }));
+        lock(&self.inner.live)
+            .commands
+            .as_ref()
+            .ok_or(HostError::Stopped)?
+            .send(command)
+            .map_err(|_| HostError::Stopped)?;
+        rx.await.map_err(|_| HostError::Stopped)
+    }
+
+    /// Stops the module as a power cut would: its links go down at both
+    /// ends, then its task ends. Does nothing if it is not running.
+    pub async fn kill(&self) -> Result<(), HostError> {
+        let mut state = self.inner.state.lock().await;
+        let ModuleState::Running(_) = &*state else {
+            return Ok(());
+        };
+        let machine = &self.inner.machine;
+        machine.running[self.inner.index].store(false, Ordering::SeqCst);
+        machine.refresh(self.inner.index);
+        if let Some(commands) = lock(&self.inner.live).commands.take() {
+            let _ = commands.send(ModuleCommand::Stop);
+        }
+        let ModuleState::Running(task) = std::mem::replace(&mut *state, ModuleState::Lost) else {
+            unreachable!("checked above");
+        };
+        let parked = task.await.map_err(|_| HostError::Stopped)?;
+        *state = ModuleState::Stopped(parked);
+        Ok(())
+    }
+
+    /// Boots a stopped module again: a fresh runtime with the name it last
+    /// had, its clock restarting from its boot value, and its links up
+    /// wherever the other end is running. Does nothing if it is running.
+    pub async fn restart(&self) -> Result<(), HostError> {
+        let mut state = self.inner.state.lock().await;
+        match std::mem::replace(&mut *state, ModuleState::Lost) {
+            ModuleState::Running(task) => {
+                *state = ModuleState::Running(task);
+                Ok(())
+            }
+            ModuleState::Lost => Err(HostError::Stopped),
+            ModuleState::Stopped(parked) => {
+                *state = ModuleState::Running(self.spawn(parked)?);
+                let machine = &self.inner.machine;
+                machine.running[self.inner.index].store(true, Ordering::SeqCst);
+                machine.refresh(self.inner.index);
+                Ok(())
+            }
+        }
+    }
+
+    /// Boots the module's runtime on `parked`'s links.
+    fn spawn(&self, parked: Parked) -> Result<JoinHandle<Parked>, HostError> {
+        let spec = &self.inner.spec;
+        let machine = &self.inner.machine;
+        let time = TimeConfig {
+            enabled: machine.topology.sync,
+            ..TimeConfig::default()
+        };
+        let runtime = ModuleRuntime::new(&spec.type_name, &parked.name)
+            .map_err(|e| HostError::Malformed(format!("module {:?}: {e}", spec.name)))?
+            .with_version(version(), BuildKey::RustSimulated)
+            .with_time_config(time)
+            .map_err(|e| HostError::Malformed(format!("module {:?}: {e}", spec.name)))?;
+        let clock = DriftClock::new(Instant::now(), spec.clock_model());
+        let links = parked
+            .links
+            .into_iter()
+            .map(|mut link| {
+                // Whatever arrived while it was down is gone with the power.
+                while link.receive(&mut []).is_some() {}
+                ModuleLink::new(link, clock, machine.host_clock)
+            })
+            .collect();
+        let (commands, rx) = mpsc::unbounded_channel();
+        let task = ModuleTask {
+            runtime: Box::new(runtime),
+            ports: Vec::new(),
+            links,
+            commands: rx,
+            wake: self.inner.wake.clone(),
+            clock,
+        };
+        *lock(&self.inner.live) = Live {
+            commands: Some(commands),
+            clock,
+        };
+        Ok(tokio::spawn(task.run()))
+    }
+}
+
+impl std::fmt::Debug for SimModule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimModule")
+            .field("name", &self.name())
+            .field("type", &self.type_name())
+            .field("running", &self.is_running())
+            .finish()
+    }
+}
+
+impl std::fmt::Debug for SimMachine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SimMachine")
+            .field("topology", &self.machine.topology.name)
+            .field("modules", &self.modules)
+            .field("host_links", &self.host_links)
+            .finish()
+    }
+}

@@ -1,0 +1,264 @@
+//! Simulated wire time: packets cross a link after the delay its model
+//! gives them.
+//!
+//! Each direction of a link with latency has a *carrier* task: it takes the
+//! packets the sending runtime queued on its [`ChannelLink`](crate::link::ChannelLink)
+//! (through the [`LinkIo`] half), asks the link model
+//! ([`osap_sim::medium::Transmitter`], the discrete-event simulator's
+//! model) when each would start onto the wire, reach the far end and become
+//! visible there, and schedules its delivery. The model's transmit buffer
+//! pushes back: the carrier takes the next packet only when the buffer has
+//! room, so the rest wait in the sender's runtime, in deadline order.
+//!
+//! Deliveries run on one [`Wire`] thread per machine rather than on tokio
+//! timers, whose 1 ms granularity would swamp a UART's tens of µs: the
+//! thread sleeps on a condition variable until just before the earliest
+//! delivery is due and spins through the last [`SPIN`], so packets land
+//! within a few µs of their time.
+
+use crate::clock::HostClock;
+use crate::link::LinkIo;
+use osap_sim::medium::{StampMode, Transmitter};
+use std::cmp::Ordering as CmpOrdering;
+use std::collections::BinaryHeap;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
+use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
+use tokio::sync::Notify;
+
+/// The last stretch before a delivery that the wire thread spins through
+/// instead of sleeping (OS timers overshoot by tens of µs).
+pub const SPIN: Duration = Duration::from_micros(80);
+
+/// Bytes framing adds to a packet on a byte stream (COBS, CRC, delimiter).
+const FRAMING_BYTES: usize = 4;
+
+type Action = Box<dyn FnOnce() + Send>;
+
+struct Event {
+    at: Instant,
+    seq: u64,
+    action: Action,
+}
+
+impl PartialEq for Event {
+    fn eq(&self, other: &Self) -> bool {
+        (self.at, self.seq) == (other.at, other.seq)
+    }
+}
+impl Eq for Event {}
+impl PartialOrd for Event {
+    fn partial_cmp(&self, other: &Self) -> Option<CmpOrdering> {
+        Some(self.cmp(other))
+    }
+}
+impl Ord for Event {
+    fn cmp(&self, other: &Self) -> CmpOrdering {
+        // Reversed: the heap's top is the earliest event.
+        (other.at, other.seq).cmp(&(self.at, self.seq))
+    }
+}
+
+#[derive(Default)]
+struct Schedule {
+    events: BinaryHeap<Event>,
+    seq: u64,
+    stop: bool,
+}
+
+#[derive(Default)]
+struct WireShared {
+    schedule: Mutex<Schedule>,
+    changed: Condvar,
+    /// Counts insertions, so a spinning wire thread notices them.
+    version: AtomicU64,
+}
+
+impl WireShared {
+    fn lock(&self) -> MutexGuard<'_, Schedule> {
+        self.schedule.lock().unwrap_or_else(|e| e.into_inner())
+    }
+}
+
+/// A handle to schedule actions on a [`Wire`] thread.
+#[derive(Clone)]
+pub(crate) struct WireHandle {
+    shared: Arc<WireShared>,
+}
+
+impl WireHandle {
+    /// Runs `action` on the wire thread at `at`.
+    pub(crate) fn at(&self, at: Instant, action: impl FnOnce() + Send + 'static) {
+        let mut s = self.shared.lock();
+        if s.stop {
+            return;
+        }
+        let seq = s.seq;
+        s.seq += 1;
+        let earliest = s.events.peek().is_none_or(|e| at < e.at);
+        s.events.push(Event {
+            at,
+            seq,
+            action: Box::new(action),
+        });
+        drop(s);
+        if earliest {
+            self.shared.version.fetch_add(1, Ordering::AcqRel);
+            self.shared.changed.notify_one();
+        }
+    }
+}
+
+/// The thread that carries out a machine's scheduled deliveries; stopped
+/// when dropped (what is still scheduled is dropped: in flight when the
+/// machine went away).
+pub(crate) struct Wire {
+    shared: Arc<WireShared>,
+    thread: Option<JoinHandle<()>>,
+}
+
+impl Wire {
+    pub(crate) fn start() -> std::io::Result<Wire> {
+        let shared = Arc::new(WireShared::default());
+        let run = shared.clone();
+        let thread = std::thread::Builder::new()
+            .name("osap-sim-wire".into())
+            .spawn(move || run_wire(&run))?;
+        Ok(Wire {
+            shared,
+            thread: Some(thread),
+        })
+    }
+
+    pub(crate) fn handle(&self) -> WireHandle {
+        WireHandle {
+            shared: self.shared.clone(),
+        }
+    }
+}
+
+impl Drop for Wire {
+    fn drop(&mut self) {
+        self.shared.lock().stop = true;
+        self.shared.changed.notify_all();
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}
+
+fn run_wire(shared: &WireShared) {
+    let mut s = shared.lock();
+    loop {
+        if s.stop {
+            return;
+        }
+        let Some(next) = s.events.peek().map(|e| e.at) else {
+            s = shared.changed.wait(s).unwrap_or_else(|e| e.into_inner());
+            continue;
+        };
+        let now = Instant::now();
+        if next <= now {
+            let mut due = Vec::new();
+            while s.events.peek().is_some_and(|e| e.at <= now) {
+                if let Some(e) = s.events.pop() {
+                    due.push(e.action);
+                }
+            }
+            drop(s);
+            for action in due {
+                action();
+            }
+            s = shared.lock();
+            continue;
+        }
+        let left = next - now;
+        if left > SPIN {
+            s = shared
+                .changed
+                .wait_timeout(s, left - SPIN)
+                .unwrap_or_else(|e| e.into_inner())
+                .0;
+        } else {
+            // Spin without yielding: a yield behind busy threads can cost a
+            // whole time slice. Stop early if something new was scheduled.
+            let version = shared.version.load(Ordering::Acquire);
+            drop(s);
+            while Instant::now() < next && shared.version.load(Ordering::Acquire) == version {
+                std::hint::spin_loop();
+            }
+            s = shared.lock();
+        }
+    }
+}
+
+/// One direction of a link with latency.
+pub(crate) struct Carrier {
+    pub(crate) from: LinkIo,
+    pub(crate) to: LinkIo,
+    pub(crate) transmitter: Transmitter,
+    /// How the receiving end stamps what arrives.
+    pub(crate) stamp: StampMode,
+    pub(crate) wire: WireHandle,
+    /// True time zero of the link models (the machine's start).
+    pub(crate) epoch: Instant,
+    pub(crate) host_clock: HostClock,
+    /// The link's generation when this carrier started; a delivery made
+    /// after the link went down (and maybe up again) is dropped.
+    pub(crate) generation: Arc<AtomicU64>,
+    pub(crate) started: u64,
+}
+
+impl Carrier {
+    fn true_ns(&self, t: Instant) -> u64 {
+        t.saturating_duration_since(self.epoch).as_nanos() as u64
+    }
+
+    fn instant(&self, ns: u64) -> Instant {
+        self.epoch + Duration::from_nanos(ns)
+    }
+
+    /// Moves packets until the sending side closes (or the task is
+    /// aborted, when the link goes down).
+    pub(crate) async fn run(mut self) {
+        let room = Arc::new(Notify::new());
+        loop {
+            let now = self.true_ns(Instant::now());
+            if let Some(free) = self.transmitter.next_free(now) {
+                let room2 = room.clone();
+                self.wire.at(self.instant(free), move || room2.notify_one());
+                room.notified().await;
+                continue;
+            }
+            let Some(mut packet) = self.from.next_tx().await else {
+                return;
+            };
+            let len = packet.len();
+            packet.resize(len + FRAMING_BYTES, 0);
+            let now = self.true_ns(Instant::now());
+            let transit = self.transmitter.transmit(now, packet);
+            if transit.lost {
+                continue;
+            }
+            let mut bytes = transit.bytes;
+            bytes.truncate(len);
+            let stamp_ns = match self.stamp {
+                StampMode::Wire => transit.first_byte_ns,
+                StampMode::Software | StampMode::None => transit.visible_ns,
+            };
+            let stamp_us = self
+                .instant(stamp_ns)
+                .saturating_duration_since(self.host_clock.instant_at(0))
+                .as_micros() as u64;
+            let to = self.to.clone();
+            let generation = self.generation.clone();
+            let started = self.started;
+            self.wire.at(self.instant(transit.visible_ns), move || {
+                if generation.load(Ordering::Acquire) == started {
+                    to.deliver_stamped(bytes, stamp_us);
+                }
+            });
+        }
+    }
+}
