@@ -157,6 +157,11 @@ async fn a_scan_maps_the_small_machine_as_the_file_describes_it() {
     scan_matches_the_file("small-machine.toml", false).await;
 }
 
+#[tokio::test]
+async fn a_scan_maps_the_single_usb_module_as_the_file_describes_it() {
+    scan_matches_the_file("single-usb.toml", false).await;
+}
+
 async fn scan_matches_the_file(file: &str, zero_latency: bool) {
     let host = host();
     let topology = sim::load(shipped(file))

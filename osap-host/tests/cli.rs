@@ -1,0 +1,160 @@
+//! The `osap` command line, run as a user would run it.
+
+use osap_host::map::NetworkMap;
+use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
+use std::process::{Child, Command, Stdio};
+
+fn osap() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_osap"))
+}
+
+fn topology(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("topologies")
+        .join(name)
+}
+
+#[test]
+fn scan_of_a_simulated_machine_prints_a_tree_and_writes_the_map() {
+    let out_path = std::env::temp_dir().join(format!("osap-cli-map-{}.json", std::process::id()));
+    let out = osap()
+        .args(["scan", "--sim"])
+        .arg(topology("small-machine.toml"))
+        .arg("-o")
+        .arg(&out_path)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for name in ["hub", "x", "y", "z", "tool"] {
+        assert!(
+            stdout.contains(&format!(": {name} (")),
+            "{name} missing in\n{stdout}"
+        );
+    }
+    assert!(stdout.contains("6 runtimes, 5 links"), "{stdout}");
+    let map = NetworkMap::from_json(&std::fs::read_to_string(&out_path).unwrap()).unwrap();
+    assert_eq!(map.find("tool").unwrap().route, vec![0, 4]);
+    let _ = std::fs::remove_file(out_path);
+}
+
+#[test]
+fn ping_and_rename_by_name() {
+    let file = topology("single-usb.toml");
+    let out = osap()
+        .args(["ping", "-n", "20", "--sim"])
+        .arg(&file)
+        .arg("motor")
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    assert!(stdout.contains("20 round trips to [L0]"), "{stdout}");
+    // Unknown names are named in the error, with what was found.
+    let out = osap()
+        .args(["rename", "--sim"])
+        .arg(&file)
+        .args(["nobody", "x"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("no runtime named nobody (found: host, motor)"),
+        "{stderr}"
+    );
+    let out = osap()
+        .args(["rename", "--sim"])
+        .arg(&file)
+        .args(["0", "axis"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("to axis"));
+}
+
+#[test]
+fn time_lists_every_runtime() {
+    let out = osap()
+        .args(["time", "--sim"])
+        .arg(topology("loop.toml"))
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(
+        stdout
+            .lines()
+            .any(|l| l.starts_with("host") && l.contains("root")),
+        "{stdout}"
+    );
+    for name in ["a", "b", "c", "m1"] {
+        assert!(
+            stdout.lines().any(|l| l.starts_with(name)),
+            "{name} missing in\n{stdout}"
+        );
+    }
+}
+
+#[test]
+fn nothing_to_talk_to_is_a_clear_error() {
+    let out = osap()
+        .args(["scan", "--port", "/dev/definitely-not-here"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("/dev/definitely-not-here"), "{stderr}");
+}
+
+struct Killed(Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn a_served_machine_is_scanned_from_another_process() {
+    // Port 0: the server picks a free port and prints it.
+    let mut server = Killed(
+        osap()
+            .args(["serve", "--tcp", "127.0.0.1:0", "--sim"])
+            .arg(topology("small-machine.toml"))
+            .stdout(Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut line = String::new();
+    BufReader::new(server.0.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split_whitespace()
+        .find(|w| w.starts_with("127.0.0.1:"))
+        .unwrap_or_else(|| panic!("no address in {line:?}"))
+        .trim_end_matches(';')
+        .to_string();
+    let out = osap().args(["scan", "--tcp", &addr]).output().unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(stdout.contains("via tcp link 0: sim-host"), "{stdout}");
+    assert!(stdout.contains(": tool ("), "{stdout}");
+    assert!(stdout.contains("7 runtimes"), "{stdout}");
+}
