@@ -579,7 +579,15 @@ fn link_peer_process() {
         let host = host("peer");
         let tcp = tcp::listen(&host, tcp_addr, false).await.unwrap();
         let _unix = unix::listen(&host, &unix_path).await.unwrap();
-        println!("{PEER_READY} {}", tcp.socket_addr().unwrap());
+        // UDP: locks onto whoever sends first.
+        let udp = udp::bind(&host, udp::loopback(0), None, false)
+            .await
+            .unwrap();
+        println!(
+            "{PEER_READY} {} {}",
+            tcp.socket_addr().unwrap(),
+            udp.local_addr().unwrap()
+        );
         // Lives as long as the parent holds its end of stdin.
         let _ = tokio::task::spawn_blocking(|| {
             let mut sink = Vec::new();
@@ -593,6 +601,7 @@ fn link_peer_process() {
 struct Peer {
     child: Child,
     tcp: SocketAddr,
+    udp: SocketAddr,
 }
 
 impl Peer {
@@ -617,16 +626,18 @@ impl Peer {
                 .map_while(Result::ok)
                 .find_map(|line| {
                     let at = line.find(PEER_READY)?;
-                    let addr = line[at + PEER_READY.len()..].split_whitespace().next()?;
-                    addr.parse::<SocketAddr>().ok()
+                    let mut addrs = line[at + PEER_READY.len()..].split_whitespace();
+                    let tcp = addrs.next()?.parse::<SocketAddr>().ok()?;
+                    let udp = addrs.next()?.parse::<SocketAddr>().ok()?;
+                    Some((tcp, udp))
                 })
         });
-        let tcp = tokio::time::timeout(PATIENCE, ready)
+        let (tcp, udp) = tokio::time::timeout(PATIENCE, ready)
             .await
             .expect("the peer process did not start")
             .unwrap()
             .expect("the peer process exited before listening");
-        Peer { child, tcp }
+        Peer { child, tcp, udp }
     }
 }
 
@@ -654,8 +665,16 @@ async fn links_to_a_peer_process() {
         name_over(&port, over_unix.index(), REQUEST).await.unwrap(),
         "peer"
     );
+    let over_udp = udp::bind(&a, udp::loopback(0), Some(peer.udp), false)
+        .await
+        .unwrap();
+    assert_eq!(
+        name_over(&port, over_udp.index(), REQUEST).await.unwrap(),
+        "peer"
+    );
+    drop(over_udp);
 
-    // The peer dies: both links go down; this host keeps running.
+    // The peer dies: both stream links go down; this host keeps running.
     drop(peer);
     wait_state(&over_tcp, "disconnected", is_disconnected).await;
     wait_state(&over_unix, "disconnected", is_disconnected).await;
