@@ -68,6 +68,11 @@ const Q32: f32 = 4_294_967_296.0;
 const DISCOVERY_SAMPLES: u32 = 64;
 /// See [`DISCOVERY_SAMPLES`].
 const DISCOVERY_BURST: u64 = 32;
+/// While settling, the frequency loop's horizon, s.
+const SETTLE_FLL_S: f32 = 0.5;
+/// While settling, offsets above this (and above 4× the measurement noise)
+/// are stepped, µs.
+const SETTLE_STEP_US: f32 = 20.0;
 /// Measurement noise (µs) at and above which an offset is slewed over the
 /// full 1/kp; below it, proportionally faster.
 const SLEW_NOISE_REF_US: f32 = 5.0;
@@ -146,7 +151,7 @@ pub struct TimeConfig {
     pub rtt_factor: f32,
     /// ... plus this, µs.
     pub rtt_slack_us: u32,
-    /// Accepted samples kept per neighbour for the fit (1..=32).
+    /// Accepted samples kept per neighbour for the fit (1..=64).
     pub fit_window: u8,
     /// Samples older than this leave the fit, ms.
     pub fit_max_age_ms: u32,
@@ -174,7 +179,7 @@ impl Default for TimeConfig {
             rtt_window: 256,
             rtt_factor: 1.0,
             rtt_slack_us: 40,
-            fit_window: 32,
+            fit_window: 64,
             fit_max_age_ms: 30_000,
             residual_sigmas: 4.0,
             residual_floor_us: 8,
@@ -405,6 +410,8 @@ pub struct Clock<const LINKS: usize> {
     /// Rate from the fits alone, without the phase terms: what holdover
     /// keeps.
     learned_q32: i64,
+    /// The fitted rate has been trusted at least once since following.
+    settled: bool,
     last_steer: Option<Micros>,
     offset_us: f32,
     tier: u8,
@@ -429,6 +436,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             slew_q32: 0,
             slew_len: 0,
             learned_q32: 0,
+            settled: false,
             last_steer: None,
             offset_us: 0.0,
             tier: if config.root {
@@ -656,6 +664,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             Some(best) if best < self.tier && best + 1 < TIER_LIMIT => {
                 if !self.following {
                     self.last_steer = None;
+                    self.settled = false;
                 }
                 self.tier = best + 1;
                 self.following = true;
@@ -773,7 +782,14 @@ impl<const LINKS: usize> Clock<LINKS> {
             return;
         }
         self.offset_us = offset;
-        if !self.synced || offset.abs() > self.config.hard_jump_us as f32 {
+        // Still settling (the fitted rate has never been trusted): this is
+        // the first synchronisation, and a clear offset is stepped away
+        // rather than slewed at the rate clamp for a second.
+        let settling = !self.settled && offset.abs() > (4.0 * noise).max(SETTLE_STEP_US);
+        if slopes > 0 {
+            self.settled = true;
+        }
+        if !self.synced || settling || offset.abs() > self.config.hard_jump_us as f32 {
             self.rebase(now, self.learned_q32);
             self.base_system = self.base_system.saturating_add(round(offset));
             self.synced = true;
@@ -795,7 +811,14 @@ impl<const LINKS: usize> Clock<LINKS> {
             let dt = now.saturating_sub(last) as f32 * 1e-6;
             let drift = offset - self.slew_remaining(now);
             if dt > 0.0 {
-                learned += drift * 1e-6 / dt.max(1.0 / cfg.kf.max(1e-3));
+                // While settling, learn fast (half a second); afterwards
+                // the fit leads and this only trims, over 1/kf.
+                let horizon = if self.settled {
+                    1.0 / cfg.kf.max(1e-3)
+                } else {
+                    SETTLE_FLL_S
+                };
+                learned += drift * 1e-6 / dt.max(horizon);
             }
         }
         self.last_steer = Some(now);

@@ -24,7 +24,7 @@ use super::TimeConfig;
 use crate::Micros;
 
 /// Most accepted samples kept for the fit.
-pub const FIT_WINDOW_MAX: usize = 32;
+pub const FIT_WINDOW_MAX: usize = 64;
 /// Largest standard error of a fitted rate that is trusted as feed-forward
 /// (fraction, here 2 ppm): a slope from few or noisy samples would steer
 /// worse than the frequency loop does without it.
