@@ -109,3 +109,43 @@ async fn an_unanswering_runtime_gives_a_partial_map_not_a_hang() {
         report.failures
     );
 }
+
+#[tokio::test]
+async fn time_configuration_and_clock_status_over_the_network() {
+    use osap_core::clock::{SyncState, TimeConfig};
+    use osap_host::netrunner::Netrunner;
+    let (h, a) = (host("h"), host("a"));
+    memory::connect(&h, &a).await.unwrap();
+    let runner = Netrunner::new(&h).await.unwrap();
+    let route = Route::through_links(&[0]).unwrap();
+    // Host runtimes are roots by default; make `a` follow instead.
+    let follower = TimeConfig {
+        root: false,
+        interval_us: 10_000,
+        ..runner.time_config(&route).await.unwrap()
+    };
+    let applied = runner.set_time_config(&route, &follower).await.unwrap();
+    assert_eq!(applied, follower);
+    assert_eq!(runner.time_config(&route).await.unwrap(), follower);
+    // It synchronises to the host: wait for tier 1 (bounded).
+    let status = tokio::time::timeout(Duration::from_secs(5), async {
+        loop {
+            let s = runner.clock_status(&route).await.unwrap();
+            if s.state == SyncState::Synced {
+                return s;
+            }
+            tokio::task::yield_now().await;
+        }
+    })
+    .await
+    .expect("a synchronises within 5 s");
+    assert_eq!(status.tier, 1);
+    assert!(status.stats.accepted > 0);
+    // A bad configuration is refused and named.
+    let bad = TimeConfig {
+        interval_us: 10,
+        ..follower
+    };
+    let err = runner.set_time_config(&route, &bad).await.unwrap_err();
+    assert!(err.to_string().contains("InvalidValue"), "{err}");
+}
