@@ -1,0 +1,36 @@
+//! # pipes-core
+//!
+//! PIPES for osap-rs: plain functions on any device as typed dataflow blocks.
+//! This crate is `no_std` and allocation-free; the `std` feature only adds
+//! `std::error::Error` impls.
+//!
+//! This first piece is the data layer every other part builds on:
+//! - [`types`]: the type keys of WIRE.md §6 ([`Type`], [`ScalarType`]) and
+//!   their names in the system object model (`f32`, `arry_f32`, `tnsr_u8`, ..).
+//! - [`value`]: the borrowed [`Value`] and its `[type key][value]` codec,
+//!   with [`Array`]s and [`Tensor`]s that read their elements in place.
+//! - [`convert`](mod@convert): the conversion table a receiver applies when a value's type
+//!   differs from its input's, which never changes a value silently.
+//! - [`message`]: the dataflow message `[key][count] count × ([index][value])`.
+//! - [`f16`](mod@f16): exact IEEE binary16 conversions.
+//!
+//! The byte layout, the conversion table and golden vectors are in
+//! `docs/pipes.md`. Nothing here panics on input from the wire: malformed
+//! data is an error value.
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+#[cfg(any(feature = "std", test))]
+extern crate std;
+
+pub mod convert;
+pub mod f16;
+pub mod message;
+pub mod types;
+pub mod value;
+
+pub use convert::{convert, ConvertError, ConvertReason, Converted, Rule};
+pub use message::{Args, ArgsWriter, Message, MessageError, MessageKey};
+pub use types::{ScalarType, Type};
+pub use value::{Array, Dims, Element, Elements, Tensor, Value, ValueError};
