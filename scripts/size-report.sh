@@ -5,7 +5,7 @@
 #
 # Two variants: `minimal` (netresponder, answers time requests, no clock
 # controller) and `sync` (with osap-core's clock-synchronisation controller).
-# Fails if the minimal thumbv6m-none-eabi .text exceeds the budget (22 KiB,
+# Fails if the minimal thumbv6m-none-eabi .text exceeds the budget (16 KiB,
 # or $OSAP_TEXT_BUDGET bytes).
 #
 # Usage: scripts/size-report.sh [--symbols N]
@@ -14,7 +14,7 @@ set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 probe="$root/osap-core/size-probe"
-budget="${OSAP_TEXT_BUDGET:-22528}"
+budget="${OSAP_TEXT_BUDGET:-16384}"
 targets=(thumbv6m-none-eabi thumbv7em-none-eabihf)
 bin=osap-size-probe
 

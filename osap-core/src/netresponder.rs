@@ -6,7 +6,9 @@
 //! [`Status::Ok`] or says why there are no fields. The layouts are in
 //! `docs/protocol.md`.
 
-use crate::clock::{Clock, TimeConfig, TimeConfigError};
+use crate::clock::Clock;
+#[cfg(feature = "sync")]
+use crate::clock::{TimeConfig, TimeConfigError};
 use crate::codec::{CodecError, Reader, Writer};
 use crate::counters::Counters;
 use crate::link::LinkGateway;
@@ -28,7 +30,9 @@ pub const LOG_LINES: usize = 8;
 /// Longest debug log line, in bytes; longer lines are cut.
 pub const LOG_LINE_MAX: usize = 47;
 
-/// Request keys of the netresponder.
+/// Request keys of the netresponder. The time-controller keys (0x09, 0x0a,
+/// 0x0c, 0x0d) exist only with osap-core's `sync` feature: a runtime built
+/// without the controller answers them with [`Status::UnknownKey`].
 pub mod key {
     /// Runtime information; carries the scan id used for loop detection.
     pub const RUNTIME_INFO: u8 = 0x01;
@@ -290,6 +294,7 @@ impl Changes {
 
 /// Everything a request may read or change.
 pub(crate) struct Context<'a, P, L, const LINKS: usize> {
+    #[cfg_attr(not(feature = "sync"), allow(dead_code))]
     pub now: crate::Micros,
     pub identity: &'a mut Identity,
     pub state: &'a mut State,
@@ -472,10 +477,12 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             ctx.changes.verbosity = true;
             out.u8(level)?;
         }
+        #[cfg(feature = "sync")]
         key::GET_TIME_CONFIG => {
             end(r)?;
             ctx.clock.config().encode(out)?;
         }
+        #[cfg(feature = "sync")]
         key::SET_TIME_CONFIG => {
             let config = TimeConfig::decode(r.rest()).map_err(|e| match e {
                 TimeConfigError::Codec(_) => Fail::Status(Status::Malformed),
@@ -510,10 +517,12 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
                 out.u32(v)?;
             }
         }
+        #[cfg(feature = "sync")]
         key::TIME_STATUS => {
             end(r)?;
             ctx.clock.status().encode(out)?;
         }
+        #[cfg(feature = "sync")]
         key::SET_CLOCK_RATE => {
             let ppb = r.u32()? as i32;
             end(r)?;
