@@ -24,9 +24,13 @@
 #[cfg(any(feature = "std", test))]
 extern crate std;
 
+pub mod control;
 pub mod convert;
 pub mod f16;
+pub mod function;
 pub mod message;
+pub mod pipe;
+pub mod signature;
 pub mod types;
 pub mod value;
 
