@@ -20,6 +20,7 @@ pub mod netrunner;
 pub mod port;
 pub mod runtime;
 pub mod sim;
+pub mod som;
 
 pub use clock::HostClock;
 pub use error::HostError;

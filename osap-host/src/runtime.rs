@@ -11,6 +11,7 @@ use crate::port::{HostPort, PortHandle, PortShared};
 use crate::{HostError, HostRuntime};
 use osap_core::clock::{ClockStatus, TimeConfig};
 use osap_core::netresponder::BuildKey;
+use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::runtime::RuntimeConfig;
 use osap_core::Micros;
 use std::sync::Arc;
@@ -56,7 +57,80 @@ enum Command {
     AttachLink(ChannelLink, oneshot::Sender<Result<u8, HostError>>),
     OpenPort(Arc<PortShared>, oneshot::Sender<Result<u16, HostError>>),
     ClosePort(u16),
+    AttachPort(
+        Box<dyn Port + Send>,
+        oneshot::Sender<Result<u16, HostError>>,
+    ),
+    DetachPort(u16, oneshot::Sender<Option<Box<dyn Port + Send>>>),
     With(RuntimeFn),
+}
+
+/// Port indices a host runtime hands out (1..=255; port 0 is the
+/// netresponder).
+const MAX_PORT_INDICES: usize = 255;
+
+/// One entry of the runtime's port list: a [`HostPort`] behind a
+/// [`PortHandle`], a port object attached with [`Host::attach_port`], or the
+/// place an attached object held before it was detached (which keeps its
+/// indices so the ports after it do not move).
+enum PortSlot {
+    Handle(HostPort),
+    Object(Box<dyn Port + Send>),
+    Detached(u16),
+}
+
+impl PortSlot {
+    fn port(&self) -> Option<&dyn Port> {
+        match self {
+            PortSlot::Handle(p) => Some(p),
+            PortSlot::Object(p) => Some(p.as_ref()),
+            PortSlot::Detached(_) => None,
+        }
+    }
+
+    fn port_mut(&mut self) -> Option<&mut dyn Port> {
+        match self {
+            PortSlot::Handle(p) => Some(p),
+            PortSlot::Object(p) => Some(p.as_mut()),
+            PortSlot::Detached(_) => None,
+        }
+    }
+}
+
+impl Port for PortSlot {
+    fn port_count(&self) -> u16 {
+        match self {
+            PortSlot::Detached(n) => *n,
+            other => other.port().map_or(1, |p| p.port_count()),
+        }
+    }
+
+    fn info(&self, offset: u16) -> PortInfo<'_> {
+        match self.port() {
+            Some(p) => p.info(offset),
+            None => PortInfo {
+                type_name: "vacant",
+                name: "",
+            },
+        }
+    }
+
+    fn clear_to_receive(&self, offset: u16) -> bool {
+        // A detached place takes (and discards) packets so they do not linger.
+        self.port().is_none_or(|p| p.clear_to_receive(offset))
+    }
+
+    fn on_packet(&mut self, delivery: Delivery<'_>, tx: &mut PortTx<'_>) {
+        if let Some(p) = self.port_mut() {
+            p.on_packet(delivery, tx);
+        }
+    }
+
+    fn poll(&mut self, tx: &mut PortTx<'_>) {
+        if let Some(p) = self.port_mut() {
+            p.poll(tx);
+        }
+    }
 }
 
 /// A handle to a running host runtime. Cheap to clone; the runtime stops
@@ -132,6 +206,30 @@ impl Host {
         Ok(PortHandle::new(self.clone(), shared, index))
     }
 
+    /// Attaches a port object (a PIPES function, say) to the runtime; it
+    /// takes `port.port_count()` consecutive port indices, and the first is
+    /// returned. Those indices stay its own, and no other port's index
+    /// changes, until [`detach_port`](Self::detach_port). The object must
+    /// keep its port count for as long as it is attached.
+    ///
+    /// The runtime polls the object whenever it polls (a packet, a command,
+    /// a link's news, a deadline); it is not polled on a timer of its own.
+    pub async fn attach_port(&self, port: Box<dyn Port + Send>) -> Result<u16, HostError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::AttachPort(port, tx))?;
+        rx.await.map_err(|_| HostError::Stopped)?
+    }
+
+    /// Detaches the port object attached at `index` (the index
+    /// [`attach_port`](Self::attach_port) returned) and gives it back; its
+    /// indices stay reserved (packets to them are discarded), so no other
+    /// port moves. `None` if no object was attached there.
+    pub async fn detach_port(&self, index: u16) -> Result<Option<Box<dyn Port + Send>>, HostError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::DetachPort(index, tx))?;
+        rx.await.map_err(|_| HostError::Stopped)
+    }
+
     pub(crate) fn close_port(&self, index: u16) {
         let _ = self.commands.send(Command::ClosePort(index));
     }
@@ -184,7 +282,7 @@ fn version() -> [u8; 3] {
 
 struct RuntimeTask {
     runtime: Box<HostRuntime>,
-    ports: Vec<HostPort>,
+    ports: Vec<PortSlot>,
     links: Vec<ChannelLink>,
     commands: mpsc::UnboundedReceiver<Command>,
     wake: Arc<Notify>,
@@ -238,30 +336,84 @@ impl RuntimeTask {
                 let _ = reply.send(result);
             }
             Command::OpenPort(shared, reply) => {
-                // Port indices are positions: reuse a closed slot before
-                // growing, and never shift the others.
-                let max = 255usize; // port 0 is the netresponder
-                let result = if let Some(i) = self.ports.iter().position(|p| p.is_vacant()) {
-                    self.ports[i].occupy(shared);
-                    Ok(i as u16 + 1)
-                } else if self.ports.len() < max {
-                    self.ports.push(HostPort::new(shared));
-                    Ok(self.ports.len() as u16)
+                // Port indices are positions: reuse a closed handle's slot
+                // before growing, and never shift the others.
+                let vacant = self
+                    .ports
+                    .iter()
+                    .position(|p| matches!(p, PortSlot::Handle(h) if h.is_vacant()));
+                let result = if let Some(i) = vacant {
+                    if let Some(PortSlot::Handle(h)) = self.ports.get_mut(i) {
+                        h.occupy(shared);
+                    }
+                    Ok(self.base_of(i))
+                } else if self.used_indices() < MAX_PORT_INDICES {
+                    self.ports.push(PortSlot::Handle(HostPort::new(shared)));
+                    Ok(self.base_of(self.ports.len() - 1))
                 } else {
-                    Err(HostError::NoFreePort(max))
+                    Err(HostError::NoFreePort(MAX_PORT_INDICES))
                 };
                 let _ = reply.send(result);
             }
             Command::ClosePort(index) => {
-                if let Some(p) = self.ports.get_mut(usize::from(index).wrapping_sub(1)) {
+                if let Some(PortSlot::Handle(p)) = self.slot_at(index) {
                     p.vacate();
                 }
+            }
+            Command::AttachPort(port, reply) => {
+                let count = usize::from(port.port_count());
+                let result = if count == 0 || self.used_indices() + count > MAX_PORT_INDICES {
+                    Err(HostError::NoFreePort(MAX_PORT_INDICES))
+                } else {
+                    self.ports.push(PortSlot::Object(port));
+                    Ok(self.base_of(self.ports.len() - 1))
+                };
+                let _ = reply.send(result);
+            }
+            Command::DetachPort(index, reply) => {
+                let i = (0..self.ports.len()).find(|i| self.base_of(*i) == index);
+                let taken = match i.and_then(|i| self.ports.get_mut(i)) {
+                    Some(slot @ PortSlot::Object(_)) => {
+                        let count = slot.port_count();
+                        match std::mem::replace(slot, PortSlot::Detached(count)) {
+                            PortSlot::Object(p) => Some(p),
+                            _ => None,
+                        }
+                    }
+                    _ => None,
+                };
+                let _ = reply.send(taken);
             }
             Command::With(f) => {
                 let now = self.clock.now_us();
                 f(&mut self.runtime, now);
             }
         }
+    }
+}
+
+impl RuntimeTask {
+    /// The first port index of slot `i` (slots take consecutive indices
+    /// from 1, each as many as its port count).
+    fn base_of(&self, i: usize) -> u16 {
+        let before: usize = self
+            .ports
+            .iter()
+            .take(i)
+            .map(|p| usize::from(p.port_count()))
+            .sum();
+        (1 + before) as u16
+    }
+
+    /// How many port indices the slots take.
+    fn used_indices(&self) -> usize {
+        self.ports.iter().map(|p| usize::from(p.port_count())).sum()
+    }
+
+    /// The slot whose first index is `index`.
+    fn slot_at(&mut self, index: u16) -> Option<&mut PortSlot> {
+        let i = (0..self.ports.len()).find(|i| self.base_of(*i) == index)?;
+        self.ports.get_mut(i)
     }
 }
 

@@ -38,3 +38,12 @@ pub use convert::{convert, ConvertError, ConvertReason, Converted, Rule};
 pub use message::{Args, ArgsWriter, Message, MessageError, MessageKey};
 pub use types::{ScalarType, Type};
 pub use value::{Array, Dims, Element, Elements, Tensor, Value, ValueError};
+pub mod class;
+pub mod export;
+pub use export::{FromPipes, PipesOutputs, PipesType};
+/// `#[pipes_core::class]` on an inherent `impl` block: see
+/// [`pipes_macros::class`](macro@pipes_macros::class) and [`class`](mod@class).
+pub use pipes_macros::class;
+/// `#[pipes_core::function(outputs = "a, b")]` on a plain `fn`: see
+/// [`pipes_macros::function`](macro@pipes_macros::function).
+pub use pipes_macros::function;

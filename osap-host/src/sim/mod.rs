@@ -8,10 +8,13 @@
 //! any script) talks to it exactly as to hardware: scans, requests and clock
 //! sync all go over the network.
 //!
-//! For now a module exposes its netresponder (port 0) and clock sync; its
-//! `type` is the type name it reports. Once pipes-core exists, the type will
-//! also select the module functions the firmware of that type exposes, run
-//! as ports of the same runtime.
+//! A module exposes its netresponder (port 0) and clock sync; its `type` is
+//! the type name it reports, and also selects the PIPES functions the
+//! firmware of that type exposes ([`functions`]: a `stepper` adds control
+//! points and reports its position, an `io` module reads and pulses pins and
+//! compares an analog input, a `hub` reports its uptime), run as ports of
+//! the same runtime from port 1 on, so scans list them (type
+//! `pipes_function`) and scripts call them over the network.
 //!
 //! A machine is described by a [`Topology`], usually read from a TOML file
 //! ([`load`]), and started against a host with [`SimMachine::start`]. The
@@ -105,6 +108,7 @@
 //! restarting from its boot value, the name it last had, its links back up.
 
 mod clock;
+pub mod functions;
 mod module;
 mod topology;
 mod wire;
@@ -610,9 +614,13 @@ impl SimModule {
             })
             .collect();
         let (commands, rx) = mpsc::unbounded_channel();
+        let ports = functions::functions_for(&spec.type_name, clock)
+            .into_iter()
+            .map(|f| Box::new(f) as Box<dyn osap_core::port::Port + Send>)
+            .collect();
         let task = ModuleTask {
             runtime: Box::new(runtime),
-            ports: Vec::new(),
+            ports,
             links,
             commands: rx,
             wake: self.inner.wake.clone(),

@@ -1,0 +1,336 @@
+//! Talking to a function's control port: the request/reply client the
+//! manager uses, and [`FunctionHandle`] for RPC from async Rust.
+
+use super::model::SomArg;
+use super::{FnRef, OwnedValue, SomError};
+use crate::{HostError, PortHandle, HOST_MTU};
+use osap_core::codec::Writer;
+use osap_core::route::Route;
+use pipes_core::control::{ControlKey, Reply, ReplyBody, Request};
+use pipes_core::convert::{rule, Rule};
+use pipes_core::{Args, ArgsWriter, Type};
+use std::sync::Arc;
+use std::time::Duration;
+
+/// Sends function-protocol requests through one host port.
+#[derive(Clone)]
+pub(crate) struct Control {
+    pub(crate) port: Arc<PortHandle>,
+    pub(crate) timeout: Duration,
+    pub(crate) retries: u8,
+}
+
+/// Where a function's control port is, from the host.
+#[derive(Debug, Clone)]
+pub(crate) struct Target {
+    pub(crate) function: FnRef,
+    pub(crate) route: Route,
+    pub(crate) port: u16,
+}
+
+/// A successful reply's bytes (key and status included), parsed on demand.
+pub(crate) struct ReplyBytes(Vec<u8>);
+
+impl ReplyBytes {
+    /// The reply's body, or the function's error.
+    pub(crate) fn body(
+        &self,
+        at: &Target,
+        request: &'static str,
+        key: ControlKey,
+    ) -> Result<ReplyBody<'_>, SomError> {
+        let reply = Reply::parse(&self.0).map_err(|e| SomError::Malformed {
+            function: at.function.clone(),
+            request,
+            detail: e.to_string(),
+        })?;
+        match reply.result {
+            Err(error) => Err(SomError::Remote {
+                function: at.function.clone(),
+                request,
+                error,
+            }),
+            Ok(_) if reply.key != key.to_u8() => Err(SomError::Malformed {
+                function: at.function.clone(),
+                request,
+                detail: format!("answers key {} instead of {}", reply.key, key.to_u8()),
+            }),
+            Ok(body) => Ok(body),
+        }
+    }
+}
+
+impl Control {
+    /// Sends `request` and waits for its reply. Idempotent requests are
+    /// retried on timeouts (up to `retries` times); others are sent once,
+    /// so a lost reply never installs a pipe twice.
+    pub(crate) async fn ask(
+        &self,
+        at: &Target,
+        what: &'static str,
+        request: &Request<'_>,
+        idempotent: bool,
+    ) -> Result<ReplyBytes, SomError> {
+        let mut buf = vec![0u8; HOST_MTU];
+        let mut w = Writer::new(&mut buf);
+        request.encode(&mut w).map_err(|e| SomError::BadArguments {
+            function: at.function.clone(),
+            detail: format!("{what}: the request cannot be written: {e}"),
+        })?;
+        let n = w.len();
+        buf.truncate(n);
+        self.ask_raw(at, what, &buf, idempotent).await
+    }
+
+    /// [`ask`](Self::ask) with the request already encoded.
+    pub(crate) async fn ask_raw(
+        &self,
+        at: &Target,
+        what: &'static str,
+        body: &[u8],
+        idempotent: bool,
+    ) -> Result<ReplyBytes, SomError> {
+        let mut attempt = 0;
+        loop {
+            match self
+                .port
+                .request(&at.route, at.port, body, self.timeout)
+                .await
+            {
+                Ok(d) => return Ok(ReplyBytes(d.body)),
+                Err(HostError::Timeout { .. }) if idempotent && attempt < self.retries => {
+                    attempt += 1
+                }
+                Err(source) => {
+                    return Err(SomError::Network {
+                        function: at.function.clone(),
+                        request: what,
+                        source,
+                    })
+                }
+            }
+        }
+    }
+}
+
+/// Writes `[key]` then an argument list of `args` (index, value).
+fn encode_args(
+    function: &FnRef,
+    key: ControlKey,
+    args: &[(u8, &OwnedValue)],
+) -> Result<Vec<u8>, SomError> {
+    let bad = |detail: String| SomError::BadArguments {
+        function: function.clone(),
+        detail,
+    };
+    let mut buf = vec![0u8; HOST_MTU];
+    let mut w = Writer::new(&mut buf);
+    w.u8(key.to_u8())
+        .map_err(|e| bad(format!("cannot write the request: {e}")))?;
+    let mut aw = ArgsWriter::new(&mut w).map_err(|e| bad(e.to_string()))?;
+    for (i, v) in args {
+        let value = v
+            .as_value()
+            .map_err(|e| bad(format!("argument {i}: {e}")))?;
+        aw.push(*i, &value).map_err(|e| {
+            bad(format!(
+                "argument {i}: {e} (the request must fit one packet)"
+            ))
+        })?;
+    }
+    aw.finish().map_err(|e| bad(e.to_string()))?;
+    let n = w.len();
+    buf.truncate(n);
+    Ok(buf)
+}
+
+/// A PIPES function reachable from the host, for calls from async Rust.
+///
+/// Made by [`Manager::function`](super::Manager::function) from the system
+/// object model; cheap to clone. Calls travel as sequential requests from
+/// the manager's port and are never retried (a call may have effects).
+#[derive(Clone)]
+pub struct FunctionHandle {
+    control: Control,
+    target: Target,
+    inputs: Vec<SomArg>,
+    outputs: Vec<SomArg>,
+}
+
+impl std::fmt::Debug for FunctionHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FunctionHandle")
+            .field("function", &self.target.function)
+            .field("route", &self.target.route.to_string())
+            .field("port", &self.target.port)
+            .finish()
+    }
+}
+
+impl FunctionHandle {
+    pub(crate) fn new(
+        control: Control,
+        target: Target,
+        inputs: Vec<SomArg>,
+        outputs: Vec<SomArg>,
+    ) -> FunctionHandle {
+        FunctionHandle {
+            control,
+            target,
+            inputs,
+            outputs,
+        }
+    }
+
+    /// The function's runtime and name.
+    pub fn function(&self) -> &FnRef {
+        &self.target.function
+    }
+
+    /// Its inputs, by index.
+    pub fn inputs(&self) -> &[SomArg] {
+        &self.inputs
+    }
+
+    /// Its outputs, by index.
+    pub fn outputs(&self) -> &[SomArg] {
+        &self.outputs
+    }
+
+    /// The route from the host to its runtime.
+    pub fn route(&self) -> Route {
+        self.target.route
+    }
+
+    /// Its control port's index.
+    pub fn port(&self) -> u16 {
+        self.target.port
+    }
+
+    /// The same handle waiting up to `timeout` for each reply.
+    pub fn with_timeout(mut self, timeout: Duration) -> FunctionHandle {
+        self.control.timeout = timeout;
+        self
+    }
+
+    fn check_arg(&self, index: u8, value: &OwnedValue) -> Result<(), SomError> {
+        let bad = |detail: String| SomError::BadArguments {
+            function: self.target.function.clone(),
+            detail,
+        };
+        let arg = self
+            .inputs
+            .get(usize::from(index))
+            .ok_or_else(|| bad(format!("no input {index} ({})", describe(&self.inputs))))?;
+        let Some(to) = arg.ty() else {
+            // A type this build does not know: let the function judge.
+            return Ok(());
+        };
+        let from = value.ty();
+        if let Rule::Never(reason) = rule(&from, &to) {
+            return Err(bad(format!(
+                "input {index} ({}: {}) cannot take a {from}: {reason}",
+                arg.name, arg.type_name
+            )));
+        }
+        Ok(())
+    }
+
+    /// Calls the function with one value per input (in input order) and
+    /// returns its outputs (in output order). The outputs also go down the
+    /// function's pipes, so a call drives dataflow.
+    ///
+    /// Values are converted to the inputs' types by the function, under the
+    /// conversion table: an `f32` may be given for an `f64` input, never a
+    /// value that would change. Errors name the function and its runtime:
+    /// wrong argument count or types (checked here first), the function's
+    /// own refusal ([`SomError::Remote`], e.g. a lossy conversion or the
+    /// function failing), no reply, or a malformed reply.
+    pub async fn call(&self, args: &[OwnedValue]) -> Result<Vec<OwnedValue>, SomError> {
+        if args.len() != self.inputs.len() {
+            return Err(SomError::BadArguments {
+                function: self.target.function.clone(),
+                detail: format!(
+                    "expected {} argument{} ({}), got {}",
+                    self.inputs.len(),
+                    if self.inputs.len() == 1 { "" } else { "s" },
+                    describe(&self.inputs),
+                    args.len()
+                ),
+            });
+        }
+        let indexed: Vec<(u8, &OwnedValue)> =
+            args.iter().enumerate().map(|(i, v)| (i as u8, v)).collect();
+        for (i, v) in &indexed {
+            self.check_arg(*i, v)?;
+        }
+        let body = encode_args(&self.target.function, ControlKey::Call, &indexed)?;
+        let reply = self
+            .control
+            .ask_raw(&self.target, "call", &body, false)
+            .await?;
+        match reply.body(&self.target, "call", ControlKey::Call)? {
+            ReplyBody::Returned(outs) => self.outputs_of(&outs),
+            other => Err(self.malformed("call", format!("unexpected reply {other:?}"))),
+        }
+    }
+
+    /// Sends values to some inputs as a dataflow message (`pipe_datagram`,
+    /// as a request so refusals come back): `(input index, value)` pairs.
+    /// The function stores them as fresh and runs if its input mode says
+    /// so, exactly as if they had come down a pipe.
+    pub async fn push(&self, args: &[(u8, OwnedValue)]) -> Result<(), SomError> {
+        let indexed: Vec<(u8, &OwnedValue)> = args.iter().map(|(i, v)| (*i, v)).collect();
+        for (i, v) in &indexed {
+            self.check_arg(*i, v)?;
+        }
+        let body = encode_args(&self.target.function, ControlKey::PipeDatagram, &indexed)?;
+        let reply = self
+            .control
+            .ask_raw(&self.target, "pipe datagram", &body, false)
+            .await?;
+        reply
+            .body(&self.target, "pipe datagram", ControlKey::PipeDatagram)
+            .map(|_| ())
+    }
+
+    fn malformed(&self, request: &'static str, detail: String) -> SomError {
+        SomError::Malformed {
+            function: self.target.function.clone(),
+            request,
+            detail,
+        }
+    }
+
+    fn outputs_of(&self, outs: &Args<'_>) -> Result<Vec<OwnedValue>, SomError> {
+        let mut values: Vec<Option<OwnedValue>> = vec![None; self.outputs.len()];
+        for (i, v) in outs.iter() {
+            let slot = values
+                .get_mut(usize::from(i))
+                .ok_or_else(|| self.malformed("call", format!("returned unknown output {i}")))?;
+            *slot = Some(OwnedValue::from_value(&v));
+        }
+        values
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| v.ok_or_else(|| self.malformed("call", format!("output {i} missing"))))
+            .collect()
+    }
+}
+
+/// `a: f32, b: f32`.
+pub(crate) fn describe(args: &[SomArg]) -> String {
+    if args.is_empty() {
+        return "none".into();
+    }
+    args.iter()
+        .map(|a| format!("{}: {}", a.name, a.type_name))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// The type of `arg`, or the error naming the unknown type.
+pub(crate) fn arg_type(arg: &SomArg) -> Result<Type, String> {
+    arg.ty()
+        .ok_or_else(|| format!("type {:?} is not known to this build", arg.type_name))
+}

@@ -1,0 +1,157 @@
+//! PIPES functions defined by host code.
+//!
+//! A [`HostFunction`] is a signature and a Rust closure over
+//! [`OwnedValue`]s. Attached to a [`Host`] it runs as a real
+//! `pipes_core::function::PipesFunction` port in that host's runtime: it
+//! answers the whole function protocol, shows up in scans and in the system
+//! object model, and pipes can run to it from module functions and from it
+//! to module functions.
+
+use super::{OwnedValue, SomError};
+use crate::Host;
+use pipes_core::control::{InputMode, OutputMode};
+use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
+use pipes_core::signature::{Arg, Signature};
+use pipes_core::{Type, Value};
+
+/// Pipe slots of a host function.
+pub const HOST_FN_PIPES: usize = 8;
+/// Datagrams each pipe of a host function queues.
+const HOST_FN_QUEUE: usize = 4;
+/// Bytes of each input store, of the output buffer and of each queued
+/// datagram of a host function: the largest value it takes, and the largest
+/// set of outputs it sends.
+pub const HOST_FN_STORE: usize = 512;
+
+/// The body of a host function: the inputs (each already of its declared
+/// type) in, the outputs (in output order, each converted to its declared
+/// type under the conversion table) out, or the function's own error code.
+pub type HostBody = Box<dyn FnMut(&[OwnedValue]) -> Result<Vec<OwnedValue>, u8> + Send>;
+
+struct HostImpl {
+    sig: &'static Signature,
+    body: HostBody,
+}
+
+impl Implementation for HostImpl {
+    fn signature(&self) -> &'static Signature {
+        self.sig
+    }
+
+    fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
+        let ins: Vec<OwnedValue> = inputs.iter().map(OwnedValue::from_value).collect();
+        let outs = (self.body)(&ins).map_err(CallError::Failed)?;
+        for (i, v) in outs.iter().enumerate() {
+            let index = u8::try_from(i).map_err(|_| CallError::NoSuchOutput(u8::MAX))?;
+            let value = v.as_value().map_err(|_| CallError::OutputTooLarge(index))?;
+            outputs.set(index, &value)?;
+        }
+        Ok(())
+    }
+}
+
+/// A PIPES function defined by host code (see the module docs).
+pub struct HostFunction {
+    sig: &'static Signature,
+    body: HostBody,
+    input_mode: InputMode,
+    output_mode: OutputMode,
+}
+
+impl std::fmt::Debug for HostFunction {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HostFunction")
+            .field("name", &self.sig.name)
+            .field("input_mode", &self.input_mode)
+            .field("output_mode", &self.output_mode)
+            .finish()
+    }
+}
+
+fn leak(s: &str) -> &'static str {
+    Box::leak(s.to_string().into_boxed_str())
+}
+
+impl HostFunction {
+    /// A function `name(inputs) -> outputs` running `body`.
+    ///
+    /// Signatures of PIPES functions are static (firmware declares them in
+    /// flash), so the signature is leaked: a few bytes per function defined,
+    /// for the life of the process. Refused: more than 8 inputs or outputs,
+    /// or a name longer than 255 bytes.
+    pub fn new(
+        name: &str,
+        inputs: &[(&str, Type)],
+        outputs: &[(&str, Type)],
+        body: impl FnMut(&[OwnedValue]) -> Result<Vec<OwnedValue>, u8> + Send + 'static,
+    ) -> Result<HostFunction, SomError> {
+        let args = |list: &[(&str, Type)]| -> &'static [Arg] {
+            let v: Vec<Arg> = list.iter().map(|(n, t)| Arg::new(leak(n), *t)).collect();
+            Box::leak(v.into_boxed_slice())
+        };
+        let sig = Signature {
+            name: leak(name),
+            inputs: args(inputs),
+            outputs: args(outputs),
+        };
+        sig.check().map_err(|e| SomError::BadDefinition {
+            name: name.to_string(),
+            detail: e.to_string(),
+        })?;
+        Ok(HostFunction {
+            sig: Box::leak(Box::new(sig)),
+            body: Box::new(body),
+            input_mode: InputMode::default(),
+            output_mode: OutputMode::default(),
+        })
+    }
+
+    /// The same function starting in input mode `mode`. A host function is
+    /// polled when its runtime is (on packets and commands), not on a timer
+    /// of its own, so [`InputMode::OnTimer`] fires late on an idle host.
+    pub fn with_input_mode(mut self, mode: InputMode) -> HostFunction {
+        self.input_mode = mode;
+        self
+    }
+
+    /// The same function starting in output mode `mode`.
+    pub fn with_output_mode(mut self, mode: OutputMode) -> HostFunction {
+        self.output_mode = mode;
+        self
+    }
+
+    /// Its name.
+    pub fn name(&self) -> &'static str {
+        self.sig.name
+    }
+
+    /// Its signature.
+    pub fn signature(&self) -> &'static Signature {
+        self.sig
+    }
+
+    /// The function as a port object, for [`Host::attach_port`]: a control
+    /// port followed by [`HOST_FN_PIPES`] pipe ports.
+    pub fn into_port(self) -> Result<Box<dyn osap_core::port::Port + Send>, SomError> {
+        let name = self.sig.name;
+        let mut f: PipesFunction<HostImpl, HOST_FN_PIPES, HOST_FN_QUEUE, HOST_FN_STORE> =
+            PipesFunction::new(HostImpl {
+                sig: self.sig,
+                body: self.body,
+            })
+            .map_err(|e| SomError::BadDefinition {
+                name: name.to_string(),
+                detail: e.to_string(),
+            })?;
+        f.set_input_mode(self.input_mode);
+        f.set_output_mode(self.output_mode);
+        Ok(Box::new(f))
+    }
+}
+
+/// Attaches `function` to `host`'s runtime; returns its control port's
+/// index (its pipe ports follow). Works on any host, not only a manager's:
+/// a process may run several runtimes.
+pub async fn attach_function(host: &Host, function: HostFunction) -> Result<u16, SomError> {
+    Ok(host.attach_port(function.into_port()?).await?)
+}

@@ -1,0 +1,582 @@
+//! The manager: builds the system object model from the network and edits
+//! the pipes and modes it describes.
+
+use super::handle::{arg_type, describe, Control, FunctionHandle, Target};
+use super::host_fn::{attach_function, HostFunction};
+use super::model::{pipe_record, Som, SomArg, SomFunction, SomInputMode, SomOutputMode, SomPipe};
+use super::{FnRef, SomError, TypeMismatch};
+use crate::map::PortRecord;
+use crate::netrunner::{self, ScanFailure, ScanOptions};
+use crate::Host;
+use osap_core::route::Route;
+use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
+use pipes_core::convert::{rule, Rule};
+use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
+use pipes_core::pipe::{PipeConfig, PipeDelivery, MAX_ARGMAP};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+/// How a manager talks to the network.
+#[derive(Debug, Clone)]
+pub struct ManagerOptions {
+    /// How the network is scanned.
+    pub scan: ScanOptions,
+    /// How long to wait for each function's reply.
+    pub timeout: Duration,
+    /// Retries of requests that read (never of those that change state).
+    pub retries: u8,
+}
+
+impl Default for ManagerOptions {
+    fn default() -> Self {
+        ManagerOptions {
+            scan: ScanOptions::default(),
+            timeout: Duration::from_millis(200),
+            retries: 2,
+        }
+    }
+}
+
+/// How a pipe is set up by [`Manager::connect`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PipeOptions {
+    /// Time-to-live of each datagram, µs.
+    pub ttl_us: u16,
+    /// Best-effort or acknowledged (functions of this implementation refuse
+    /// acknowledged pipes; the refusal is returned as an error).
+    pub delivery: PipeDelivery,
+    /// The slot to set; `None` takes the first free one.
+    pub slot: Option<u8>,
+    /// Refuse pairs the conversion table converts only for some values
+    /// (`i32` → `u8`, `f64` → `f32`, ..), not just those it never converts.
+    pub strict: bool,
+}
+
+impl Default for PipeOptions {
+    fn default() -> Self {
+        PipeOptions {
+            ttl_us: 50_000,
+            delivery: PipeDelivery::BestEffort,
+            slot: None,
+            strict: false,
+        }
+    }
+}
+
+/// Which pipes [`Manager::disconnect`] removes.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Disconnect {
+    /// The pipe in this slot.
+    Slot(u8),
+    /// Every pipe to this function.
+    To(FnRef),
+    /// Every pipe of the function.
+    All,
+}
+
+/// What a refresh could not map.
+#[derive(Debug, Clone, Default)]
+pub struct RefreshReport {
+    /// Runtimes the scan could not reach or read.
+    pub scan_failures: Vec<ScanFailure>,
+    /// Functions that could not be read: which, and why.
+    pub function_failures: Vec<String>,
+    /// How long it took.
+    pub elapsed: Duration,
+}
+
+/// Builds the system object model and edits the network through it.
+///
+/// The model is a snapshot: [`refresh`](Manager::refresh) rebuilds it, and
+/// the manager's own changes ([`connect`](Manager::connect),
+/// [`disconnect`](Manager::disconnect), modes, host functions) update it as
+/// they succeed. Changes others make are seen at the next refresh.
+pub struct Manager {
+    host: Host,
+    control: Control,
+    options: ManagerOptions,
+    som: Som,
+}
+
+impl std::fmt::Debug for Manager {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Manager")
+            .field("options", &self.options)
+            .field("runtimes", &self.som.runtimes.len())
+            .finish()
+    }
+}
+
+impl Manager {
+    /// A manager on `host` (opens a port named `pipes_manager`), with an
+    /// empty model until [`refresh`](Self::refresh).
+    pub async fn new(host: &Host) -> Result<Manager, SomError> {
+        Manager::with_options(host, ManagerOptions::default()).await
+    }
+
+    /// [`new`](Self::new) with options.
+    pub async fn with_options(host: &Host, options: ManagerOptions) -> Result<Manager, SomError> {
+        let port = host.open_port("pipes_manager").await?;
+        Ok(Manager {
+            host: host.clone(),
+            control: Control {
+                port: Arc::new(port),
+                timeout: options.timeout,
+                retries: options.retries,
+            },
+            options,
+            som: Som::empty(),
+        })
+    }
+
+    /// The model as last refreshed and edited.
+    pub fn som(&self) -> &Som {
+        &self.som
+    }
+
+    /// The host the manager runs on.
+    pub fn host(&self) -> &Host {
+        &self.host
+    }
+
+    /// Scans the network, then reads every PIPES function found (its
+    /// signature, modes and pipes), and replaces the model. Runtimes or
+    /// functions that do not answer are left out and listed in the report;
+    /// the rest of the model is built anyway.
+    pub async fn refresh(&mut self) -> Result<RefreshReport, SomError> {
+        let start = Instant::now();
+        let scan = netrunner::scan(&self.host, &self.options.scan).await?;
+        let mut som = Som::from_map(&scan.map);
+        let mut report = RefreshReport {
+            scan_failures: scan.failures,
+            ..RefreshReport::default()
+        };
+        for ri in 0..som.runtimes.len() {
+            let ports: Vec<u16> = som.runtimes[ri]
+                .ports
+                .iter()
+                .filter(|p| p.type_name == FUNCTION_PORT_TYPE)
+                .map(|p| p.index)
+                .collect();
+            for port in ports {
+                match self.read_function(&som, ri, port).await {
+                    Ok(f) => som.runtimes[ri].functions.push(f),
+                    Err(e) => report.function_failures.push(e.to_string()),
+                }
+            }
+        }
+        som.resolve_pipes();
+        self.som = som;
+        report.elapsed = start.elapsed();
+        Ok(report)
+    }
+
+    /// Reads the function whose control port is `port` on runtime `ri`.
+    async fn read_function(
+        &self,
+        som: &Som,
+        ri: usize,
+        port: u16,
+    ) -> Result<SomFunction, SomError> {
+        let r = &som.runtimes[ri];
+        let listed = r
+            .ports
+            .iter()
+            .find(|p| p.index == port)
+            .map_or(String::new(), |p| p.name.clone());
+        let at = Target {
+            function: FnRef::new(r.name.clone(), listed),
+            route: host_route(som, ri),
+            port,
+        };
+        let sig = self
+            .control
+            .ask(&at, "get signature", &Request::GetSignature, true)
+            .await?;
+        let (name, inputs, outputs) =
+            match sig.body(&at, "get signature", ControlKey::GetSignature)? {
+                ReplyBody::Signature(s) => {
+                    let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
+                        l.iter()
+                            .map(|a| SomArg {
+                                name: a.name.to_string(),
+                                type_name: a.ty.name().to_string(),
+                            })
+                            .collect()
+                    };
+                    (s.name().to_string(), args(s.inputs()), args(s.outputs()))
+                }
+                other => return Err(unexpected(&at, "get signature", &other)),
+            };
+        let at = Target {
+            function: FnRef::new(r.name.clone(), name.clone()),
+            ..at
+        };
+        let input_mode = match self
+            .control
+            .ask(&at, "get input mode", &Request::GetInputMode, true)
+            .await?
+            .body(&at, "get input mode", ControlKey::GetInputMode)?
+        {
+            ReplyBody::InputMode(m) => SomInputMode::from(m),
+            other => return Err(unexpected(&at, "get input mode", &other)),
+        };
+        let output_mode = match self
+            .control
+            .ask(&at, "get output mode", &Request::GetOutputMode, true)
+            .await?
+            .body(&at, "get output mode", ControlKey::GetOutputMode)?
+        {
+            ReplyBody::OutputMode(m) => SomOutputMode::from(m),
+            other => return Err(unexpected(&at, "get output mode", &other)),
+        };
+        let (slots, used) = match self
+            .control
+            .ask(&at, "get pipe count", &Request::GetPipeCount, true)
+            .await?
+            .body(&at, "get pipe count", ControlKey::GetPipeCount)?
+        {
+            ReplyBody::PipeCount { slots, used } => (slots, used),
+            other => return Err(unexpected(&at, "get pipe count", &other)),
+        };
+        let mut pipes = Vec::new();
+        for slot in 0..slots {
+            if pipes.len() >= usize::from(used) {
+                break;
+            }
+            let reply = self
+                .control
+                .ask(&at, "get pipe", &Request::GetPipe(slot), true)
+                .await?;
+            match reply.body(&at, "get pipe", ControlKey::GetPipe)? {
+                ReplyBody::Pipe { pipe: None, .. } => {}
+                ReplyBody::Pipe {
+                    pipe: Some(config), ..
+                } => pipes.push(
+                    pipe_record(slot, &config).ok_or_else(|| SomError::Malformed {
+                        function: at.function.clone(),
+                        request: "get pipe",
+                        detail: format!("slot {slot}'s route has a hop that is not a link"),
+                    })?,
+                ),
+                other => return Err(unexpected(&at, "get pipe", &other)),
+            }
+        }
+        // The pipe ports follow the control port.
+        let pipe_ports = (1..=u16::from(slots))
+            .map(|k| port + k)
+            .filter(|p| {
+                r.ports
+                    .iter()
+                    .any(|x| x.index == *p && x.type_name == PIPE_PORT_TYPE)
+            })
+            .collect();
+        Ok(SomFunction {
+            name,
+            port,
+            pipe_ports,
+            inputs,
+            outputs,
+            input_mode,
+            output_mode,
+            pipe_slots: slots,
+            pipes,
+        })
+    }
+
+    /// Runtime index and function of `f` in the model.
+    fn locate(&self, f: &FnRef) -> Result<(usize, &SomFunction), SomError> {
+        let ri = self.som.runtime_index(&f.runtime).map_err(|n| match n {
+            0 => SomError::NoSuchRuntime(f.runtime.clone()),
+            count => SomError::AmbiguousRuntime {
+                name: f.runtime.clone(),
+                count,
+            },
+        })?;
+        let func = self
+            .som
+            .function(ri, &f.function)
+            .ok_or_else(|| SomError::NoSuchFunction(f.clone()))?;
+        Ok((ri, func))
+    }
+
+    fn target(&self, f: &FnRef) -> Result<(usize, Target), SomError> {
+        let (ri, func) = self.locate(f)?;
+        Ok((
+            ri,
+            Target {
+                function: f.clone(),
+                route: host_route(&self.som, ri),
+                port: func.port,
+            },
+        ))
+    }
+
+    /// A handle for calling `f` from async Rust.
+    pub fn function(&self, f: &FnRef) -> Result<FunctionHandle, SomError> {
+        let (_, func) = self.locate(f)?;
+        let (inputs, outputs) = (func.inputs.clone(), func.outputs.clone());
+        let (_, target) = self.target(f)?;
+        Ok(FunctionHandle::new(
+            self.control.clone(),
+            target,
+            inputs,
+            outputs,
+        ))
+    }
+
+    /// Pipes `source`'s outputs `outputs[i]` to `dest`'s inputs `inputs[i]`.
+    ///
+    /// Checks the argmap (same lengths, at most 8 pairs, existing indices,
+    /// no input twice) and every pair's types against the conversion table:
+    /// a pair that never converts is refused, and with
+    /// [`PipeOptions::strict`] so is one that converts only some values.
+    /// The route is the shortest (in hops) from the source's runtime to the
+    /// destination's over the model's open links, with its MTU; the pipe is
+    /// installed on the source function over the network, so data then
+    /// flows runtime to runtime, through the host only if the route does.
+    /// Returns the pipe as the model now lists it.
+    pub async fn connect(
+        &mut self,
+        source: &FnRef,
+        dest: &FnRef,
+        outputs: &[u8],
+        inputs: &[u8],
+        options: PipeOptions,
+    ) -> Result<SomPipe, SomError> {
+        let (si, sf) = self.locate(source)?;
+        let (di, df) = self.locate(dest)?;
+        let argmap_err = |detail: String| SomError::Argmap {
+            source_fn: source.clone(),
+            dest_fn: dest.clone(),
+            detail,
+        };
+        if outputs.len() != inputs.len() {
+            return Err(argmap_err(format!(
+                "{} outputs but {} inputs: they are paired by position",
+                outputs.len(),
+                inputs.len()
+            )));
+        }
+        if outputs.is_empty() || outputs.len() > MAX_ARGMAP {
+            return Err(argmap_err(format!(
+                "{} pairs: a pipe maps 1 to {MAX_ARGMAP}",
+                outputs.len()
+            )));
+        }
+        for (&o, &i) in outputs.iter().zip(inputs) {
+            let out = sf.outputs.get(usize::from(o)).ok_or_else(|| {
+                argmap_err(format!(
+                    "no output {o} (outputs: {})",
+                    describe(&sf.outputs)
+                ))
+            })?;
+            let inp = df.inputs.get(usize::from(i)).ok_or_else(|| {
+                argmap_err(format!("no input {i} (inputs: {})", describe(&df.inputs)))
+            })?;
+            let mismatch = |reason: String| {
+                SomError::TypeMismatch(Box::new(TypeMismatch {
+                    source_fn: source.clone(),
+                    output: o,
+                    from: out.type_name.clone(),
+                    dest_fn: dest.clone(),
+                    input: i,
+                    to: inp.type_name.clone(),
+                    reason,
+                }))
+            };
+            let from = arg_type(out).map_err(mismatch)?;
+            let to = arg_type(inp).map_err(mismatch)?;
+            match rule(&from, &to) {
+                Rule::Never(reason) => return Err(mismatch(format!("never converts ({reason})"))),
+                Rule::IfExact if options.strict => {
+                    return Err(mismatch(
+                        "converts only values that fit exactly (strict pipes refuse this)".into(),
+                    ))
+                }
+                _ => {}
+            }
+        }
+        let no_route = || SomError::NoRoute {
+            from: source.runtime.clone(),
+            to: dest.runtime.clone(),
+        };
+        let path = self.som.path(si, di).ok_or_else(no_route)?;
+        let route = path.route().ok_or_else(no_route)?;
+        let mut config =
+            PipeConfig::new(route, df.port, options.ttl_us).with_delivery(options.delivery);
+        for (&o, &i) in outputs.iter().zip(inputs) {
+            config
+                .map(o, i)
+                .map_err(|e| argmap_err(format!("output {o} -> input {i}: {e}")))?;
+        }
+        let (_, at) = self.target(source)?;
+        let request = Request::SetPipe {
+            slot: options.slot.unwrap_or(ANY_SLOT),
+            pipe: config,
+        };
+        let reply = self.control.ask(&at, "set pipe", &request, false).await?;
+        let slot = match reply.body(&at, "set pipe", ControlKey::SetPipe)? {
+            ReplyBody::PipeSet(s) => s,
+            other => return Err(unexpected(&at, "set pipe", &other)),
+        };
+        let record = pipe_record(slot, &config).ok_or_else(no_route)?;
+        self.edit_function(si, &source.function, |f| {
+            f.pipes.retain(|p| p.slot != slot);
+            f.pipes.push(record);
+            f.pipes.sort_by_key(|p| p.slot);
+        });
+        self.som
+            .pipes
+            .iter()
+            .find(|p| p.source.runtime == si && p.source.port == at.port && p.slot == slot)
+            .cloned()
+            .ok_or_else(|| SomError::NoSuchPipe {
+                function: source.clone(),
+                detail: format!("slot {slot} was set but is not in the model"),
+            })
+    }
+
+    /// Removes pipes of `source`: one slot, every pipe to a function, or
+    /// all. Returns the slots wiped. Refuses (naming the function) when no
+    /// pipe matches.
+    pub async fn disconnect(
+        &mut self,
+        source: &FnRef,
+        which: Disconnect,
+    ) -> Result<Vec<u8>, SomError> {
+        let (si, sf) = self.locate(source)?;
+        let slots: Vec<u8> = match &which {
+            Disconnect::Slot(s) => vec![*s],
+            Disconnect::All => vec![ANY_SLOT],
+            Disconnect::To(dest) => {
+                let (di, df) = self.locate(dest)?;
+                let found: Vec<u8> = sf
+                    .pipes
+                    .iter()
+                    .filter(|p| {
+                        p.destination
+                            .as_ref()
+                            .is_some_and(|d| d.runtime == di && d.port == df.port)
+                    })
+                    .map(|p| p.slot)
+                    .collect();
+                if found.is_empty() {
+                    return Err(SomError::NoSuchPipe {
+                        function: source.clone(),
+                        detail: format!("no pipe to {dest}"),
+                    });
+                }
+                found
+            }
+        };
+        let (_, at) = self.target(source)?;
+        for &slot in &slots {
+            self.control
+                .ask(&at, "wipe pipe", &Request::WipePipe(slot), true)
+                .await?
+                .body(&at, "wipe pipe", ControlKey::WipePipe)?;
+        }
+        let all = slots.contains(&ANY_SLOT);
+        let mut wiped = Vec::new();
+        self.edit_function(si, &source.function, |f| {
+            f.pipes.retain(|p| {
+                let gone = all || slots.contains(&p.slot);
+                if gone {
+                    wiped.push(p.slot);
+                }
+                !gone
+            });
+        });
+        if !all {
+            // A wiped empty slot is still wiped.
+            wiped = slots;
+        }
+        Ok(wiped)
+    }
+
+    /// Sets when `f` runs on dataflow.
+    pub async fn set_input_mode(&mut self, f: &FnRef, mode: InputMode) -> Result<(), SomError> {
+        let (ri, at) = self.target(f)?;
+        self.control
+            .ask(&at, "set input mode", &Request::SetInputMode(mode), true)
+            .await?
+            .body(&at, "set input mode", ControlKey::SetInputMode)?;
+        self.edit_function(ri, &f.function, |x| x.input_mode = mode.into());
+        Ok(())
+    }
+
+    /// Sets when `f` sends its outputs.
+    pub async fn set_output_mode(&mut self, f: &FnRef, mode: OutputMode) -> Result<(), SomError> {
+        let (ri, at) = self.target(f)?;
+        self.control
+            .ask(&at, "set output mode", &Request::SetOutputMode(mode), true)
+            .await?
+            .body(&at, "set output mode", ControlKey::SetOutputMode)?;
+        self.edit_function(ri, &f.function, |x| x.output_mode = mode.into());
+        Ok(())
+    }
+
+    /// Defines `function` on the manager's host runtime and adds it to the
+    /// model (runtime 0, once the model has been refreshed; before that the
+    /// next refresh finds it). Returns its reference for
+    /// [`connect`](Self::connect) and [`function`](Self::function).
+    pub async fn define(&mut self, function: HostFunction) -> Result<FnRef, SomError> {
+        let name = function.name();
+        let count = 1 + super::HOST_FN_PIPES as u16;
+        let port = attach_function(&self.host, function).await?;
+        let Some(host_rt) = self.som.runtimes.first() else {
+            return Ok(FnRef::new(String::new(), name));
+        };
+        let fref = FnRef::new(host_rt.name.clone(), name);
+        let ports = &mut self.som.runtimes[0].ports;
+        ports.retain(|p| p.index < port || p.index >= port + count);
+        ports.push(PortRecord {
+            index: port,
+            type_name: FUNCTION_PORT_TYPE.into(),
+            name: name.into(),
+        });
+        ports.extend((1..count).map(|k| PortRecord {
+            index: port + k,
+            type_name: PIPE_PORT_TYPE.into(),
+            name: String::new(),
+        }));
+        ports.sort_by_key(|p| p.index);
+        let f = self.read_function(&self.som, 0, port).await?;
+        let functions = &mut self.som.runtimes[0].functions;
+        functions.retain(|x| x.port != port);
+        functions.push(f);
+        functions.sort_by_key(|x| x.port);
+        self.som.resolve_pipes();
+        Ok(fref)
+    }
+
+    fn edit_function(&mut self, ri: usize, name: &str, edit: impl FnOnce(&mut SomFunction)) {
+        if let Some(f) = self
+            .som
+            .runtimes
+            .get_mut(ri)
+            .and_then(|r| r.functions.iter_mut().find(|f| f.name == name))
+        {
+            edit(f);
+        }
+        self.som.resolve_pipes();
+    }
+}
+
+/// The route from the host (runtime 0) to runtime `ri`, with its MTU.
+fn host_route(som: &Som, ri: usize) -> Route {
+    som.runtimes.get(ri).map_or(Route::local(), |r| {
+        Route::through_links(&r.route)
+            .map(|x| x.with_mtu(r.route_mtu))
+            .unwrap_or_default()
+    })
+}
+
+fn unexpected(at: &Target, request: &'static str, body: &ReplyBody<'_>) -> SomError {
+    SomError::Malformed {
+        function: at.function.clone(),
+        request,
+        detail: format!("unexpected reply {body:?}"),
+    }
+}

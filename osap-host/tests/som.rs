@@ -1,0 +1,459 @@
+//! The system object model and the manager, on host runtimes joined
+//! in-process: h – a – b, with PIPES functions attached to a and b (and
+//! defined on h by the manager).
+
+use osap_core::route::Route;
+use osap_host::link::memory;
+use osap_host::som::model::{SomInputMode, SomOutputMode};
+use osap_host::som::{
+    attach_function, Disconnect, FnRef, HostFunction, Manager, OwnedValue, PipeOptions, Som,
+    SomError,
+};
+use osap_host::{Host, HostConfig};
+use pipes_core::control::{ControlError, InputMode, OutputMode, Request, ANY_SLOT};
+use pipes_core::pipe::PipeConfig;
+use pipes_core::{ScalarType, Type};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+const F32: Type = Type::Scalar(ScalarType::F32);
+const F64: Type = Type::Scalar(ScalarType::F64);
+const U32: Type = Type::Scalar(ScalarType::U32);
+
+fn host(name: &str) -> Host {
+    Host::start(HostConfig {
+        name: name.into(),
+        ..HostConfig::default()
+    })
+    .unwrap()
+}
+
+type Seen = Arc<Mutex<Vec<f64>>>;
+
+struct Net {
+    h: Host,
+    // Kept so the runtimes stay up.
+    _a: Host,
+    _b: Host,
+    /// Values b's accumulator received (its input a).
+    acc_seen: Seen,
+    acc_port: u16,
+}
+
+/// h – a – b. a: `sensor(x: f32) -> y: f32` (y = x). b: `acc(a: f64) ->
+/// total: f64` (running sum) and `text(s: utf8) -> n: u32`, and `fail() ->
+/// ()` failing with code 7.
+async fn net() -> Net {
+    let (h, a, b) = (host("h"), host("a"), host("b"));
+    let sensor = HostFunction::new("sensor", &[("x", F32)], &[("y", F32)], |i| {
+        Ok(vec![i[0].clone()])
+    })
+    .unwrap();
+    attach_function(&a, sensor).await.unwrap();
+    let acc_seen: Seen = Arc::default();
+    let seen = acc_seen.clone();
+    let mut total = 0.0;
+    let acc = HostFunction::new("acc", &[("a", F64)], &[("total", F64)], move |i| {
+        let OwnedValue::F64(x) = i[0] else {
+            return Err(1);
+        };
+        seen.lock().unwrap().push(x);
+        total += x;
+        Ok(vec![OwnedValue::F64(total)])
+    })
+    .unwrap();
+    let acc_port = attach_function(&b, acc).await.unwrap();
+    let text = HostFunction::new("text", &[("s", Type::Utf8)], &[("n", U32)], |i| {
+        let OwnedValue::Utf8(s) = &i[0] else {
+            return Err(1);
+        };
+        Ok(vec![OwnedValue::U32(s.len() as u32)])
+    })
+    .unwrap();
+    attach_function(&b, text).await.unwrap();
+    let fail = HostFunction::new("fail", &[], &[], |_| Err(7)).unwrap();
+    attach_function(&b, fail).await.unwrap();
+    memory::connect(&h, &a).await.unwrap(); // h link 0 – a link 0
+    memory::connect(&a, &b).await.unwrap(); // a link 1 – b link 0
+    Net {
+        h,
+        _a: a,
+        _b: b,
+        acc_seen,
+        acc_port,
+    }
+}
+
+async fn wait_for(seen: &Seen, what: impl Fn(&[f64]) -> bool) -> Vec<f64> {
+    for _ in 0..200 {
+        {
+            let v = seen.lock().unwrap();
+            if what(&v) {
+                return v.clone();
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    let v = seen.lock().unwrap().clone();
+    panic!("condition not met; saw {v:?}");
+}
+
+fn refs() -> (FnRef, FnRef, FnRef) {
+    (
+        FnRef::new("a", "sensor"),
+        FnRef::new("b", "acc"),
+        FnRef::new("b", "text"),
+    )
+}
+
+#[tokio::test]
+async fn refresh_builds_the_model_and_it_round_trips_through_json() {
+    let n = net().await;
+    // A pipe set up before the scan, between two runtimes the host is not
+    // on the path of: a.sensor -> b.acc, over a's link 1.
+    let port = n.h.open_port("script").await.unwrap();
+    let route = Route::through_links(&[1]).unwrap().with_mtu(1024);
+    let pipe = PipeConfig::new(route, n.acc_port, 10_000)
+        .with(0, 0)
+        .unwrap();
+    let mut body = vec![0u8; 64];
+    let mut w = osap_core::codec::Writer::new(&mut body);
+    Request::SetPipe {
+        slot: ANY_SLOT,
+        pipe,
+    }
+    .encode(&mut w)
+    .unwrap();
+    let len = w.len();
+    body.truncate(len);
+    let a_route = Route::through_links(&[0]).unwrap();
+    let sensor_port = 1; // the first port attached to a
+    let reply = port
+        .request(&a_route, sensor_port, &body, Duration::from_millis(500))
+        .await
+        .unwrap();
+    assert_eq!(reply.body, [6, 0, 0], "set pipe: ok, slot 0");
+
+    let mut m = Manager::new(&n.h).await.unwrap();
+    let report = m.refresh().await.unwrap();
+    assert!(
+        report.scan_failures.is_empty(),
+        "{:?}",
+        report.scan_failures
+    );
+    assert!(
+        report.function_failures.is_empty(),
+        "{:?}",
+        report.function_failures
+    );
+    let som = m.som();
+    let names: Vec<_> = som.runtimes.iter().map(|r| r.name.as_str()).collect();
+    assert_eq!(names, ["h", "a", "b"]);
+    assert!(som.classes.is_empty());
+    let a = &som.runtimes[1];
+    assert_eq!(a.route, [0]);
+    assert_eq!(a.functions.len(), 1);
+    let sensor = &a.functions[0];
+    assert_eq!(sensor.name, "sensor");
+    assert_eq!(sensor.port, 1);
+    assert_eq!(sensor.pipe_ports, (2..=9).collect::<Vec<u16>>());
+    assert_eq!(sensor.inputs[0].name, "x");
+    assert_eq!(sensor.inputs[0].type_name, "f32");
+    assert_eq!(sensor.outputs[0].type_name, "f32");
+    assert_eq!(sensor.input_mode, SomInputMode::OnAnyFresh);
+    assert_eq!(sensor.output_mode, SomOutputMode::Always);
+    assert_eq!(sensor.pipe_slots, 8);
+    let b_fns: Vec<_> = som.runtimes[2]
+        .functions
+        .iter()
+        .map(|f| f.name.as_str())
+        .collect();
+    assert_eq!(b_fns, ["acc", "text", "fail"]);
+
+    // The pre-configured pipe, resolved to its destination function.
+    assert_eq!(som.pipes.len(), 1);
+    let p = &som.pipes[0];
+    assert_eq!(p.source.runtime_name, "a");
+    assert_eq!(p.source.function.as_deref(), Some("sensor"));
+    let d = p.destination.as_ref().unwrap();
+    assert_eq!(
+        (d.runtime_name.as_str(), d.function.as_deref()),
+        ("b", Some("acc"))
+    );
+    assert_eq!(p.route, [1]);
+    assert_eq!((p.argmap[0].output, p.argmap[0].input), (0, 0));
+    assert_eq!(p.ttl_us, 10_000);
+    assert_eq!(sensor.pipes[0].destination.as_ref(), Some(d));
+
+    let json = som.to_json();
+    assert_eq!(&Som::from_json(&json).unwrap(), som);
+    assert!(json.contains("\"mode\": \"on_any_fresh\""), "{json}");
+    assert!(json.contains("\"type\": \"f32\""), "{json}");
+    let wrong = json.replacen("\"version\": 1", "\"version\": 99", 1);
+    assert!(Som::from_json(&wrong).unwrap_err().contains("version 99"));
+}
+
+#[tokio::test]
+async fn routes_start_at_the_source_runtime() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let som = m.som();
+    // From b back to h: b's link 0 to a, then a's link 0 to h.
+    let path = som.path(2, 0).unwrap();
+    assert_eq!(path.links, [0, 0]);
+    assert_eq!(path.runtimes, [2, 1, 0]);
+    assert_eq!(som.path(1, 2).unwrap().links, [1]);
+    assert!(som.path(0, 0).unwrap().links.is_empty());
+    assert!(path.mtu > 0 && path.mtu <= 1024);
+}
+
+#[tokio::test]
+async fn connect_makes_data_flow_module_to_module_and_through_host_functions() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, acc, _) = refs();
+
+    // Host functions: a source the script calls, and a sink it watches.
+    let gen = m
+        .define(HostFunction::new("gen", &[("v", F32)], &[("v", F32)], |i| Ok(i.to_vec())).unwrap())
+        .await
+        .unwrap();
+    let sink_seen: Seen = Arc::default();
+    let s = sink_seen.clone();
+    let sink = m
+        .define(
+            HostFunction::new("sink", &[("total", F64)], &[], move |i| {
+                s.lock().unwrap().extend(i[0].as_f64());
+                Ok(vec![])
+            })
+            .unwrap(),
+        )
+        .await
+        .unwrap();
+    assert_eq!(gen, FnRef::new("h", "gen"));
+    assert!(m.som().function(0, "sink").is_some());
+
+    // a.sensor -> b.acc: a's link 1, the host is not on the path.
+    let p = m
+        .connect(&sensor, &acc, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(p.route, [1]);
+    assert_eq!(p.destination.unwrap().function.as_deref(), Some("acc"));
+    // b.acc -> h.sink (module to host), h.gen -> a.sensor (host to module).
+    let back = m
+        .connect(&acc, &sink, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(back.route, [0, 0]);
+    m.connect(&gen, &sensor, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(m.som().pipes.len(), 3);
+
+    // Calling a.sensor: the reply, and its output arrives at b.acc.
+    let out = m
+        .function(&sensor)
+        .unwrap()
+        .call(&[OwnedValue::F32(2.5)])
+        .await
+        .unwrap();
+    assert_eq!(out, [OwnedValue::F32(2.5)]);
+    wait_for(&n.acc_seen, |v| v == [2.5]).await;
+    wait_for(&sink_seen, |v| v == [2.5]).await;
+
+    // Calling h.gen drives the whole chain: gen -> sensor -> acc -> sink.
+    m.function(&gen)
+        .unwrap()
+        .call(&[OwnedValue::F32(1.5)])
+        .await
+        .unwrap();
+    wait_for(&n.acc_seen, |v| v == [2.5, 1.5]).await;
+    wait_for(&sink_seen, |v| v == [2.5, 4.0]).await;
+
+    // The network agrees with the model.
+    let before = m.som().pipes.clone();
+    m.refresh().await.unwrap();
+    assert_eq!(m.som().pipes, before);
+}
+
+#[tokio::test]
+async fn type_mismatches_and_bad_argmaps_are_refused_naming_the_pair() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, acc, text) = refs();
+    let e = m
+        .connect(&sensor, &text, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap_err();
+    assert!(matches!(e, SomError::TypeMismatch(_)), "{e:?}");
+    let msg = e.to_string();
+    for part in [
+        "\"sensor\"",
+        "\"a\"",
+        "\"text\"",
+        "\"b\"",
+        "f32",
+        "utf8",
+        "output 0",
+        "input 0",
+    ] {
+        assert!(msg.contains(part), "{msg} lacks {part}");
+    }
+    // f64 -> f32 converts only some values: allowed, unless strict.
+    let strict = PipeOptions {
+        strict: true,
+        ..PipeOptions::default()
+    };
+    let e = m
+        .connect(&acc, &sensor, &[0], &[0], strict)
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("strict"), "{e}");
+    let e = m
+        .connect(&sensor, &acc, &[1], &[0], PipeOptions::default())
+        .await
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("no output 1 (outputs: y: f32)"),
+        "{e}"
+    );
+    let e = m
+        .connect(
+            &sensor,
+            &FnRef::new("b", "nope"),
+            &[0],
+            &[0],
+            PipeOptions::default(),
+        )
+        .await
+        .unwrap_err();
+    assert!(matches!(e, SomError::NoSuchFunction(_)), "{e}");
+    assert!(m.som().pipes.is_empty());
+}
+
+#[tokio::test]
+async fn disconnect_and_modes_update_the_network_and_the_model() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, acc, _) = refs();
+    m.connect(&sensor, &acc, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(m.som().pipes.len(), 1);
+    let wiped = m
+        .disconnect(&sensor, Disconnect::To(acc.clone()))
+        .await
+        .unwrap();
+    assert_eq!(wiped, [0]);
+    assert!(m.som().pipes.is_empty());
+    let e = m
+        .disconnect(&sensor, Disconnect::To(acc.clone()))
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("no pipe to function \"acc\""), "{e}");
+    m.refresh().await.unwrap();
+    assert!(m.som().pipes.is_empty(), "wiped on the function too");
+    // Data no longer flows.
+    m.function(&sensor)
+        .unwrap()
+        .call(&[OwnedValue::F32(1.0)])
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(30)).await;
+    assert!(n.acc_seen.lock().unwrap().is_empty());
+
+    m.set_input_mode(&acc, InputMode::OnTimer(1000))
+        .await
+        .unwrap();
+    m.set_output_mode(&acc, OutputMode::OnChange).await.unwrap();
+    let f = m.som().function(2, "acc").unwrap();
+    assert_eq!(f.input_mode, SomInputMode::OnTimer { interval_us: 1000 });
+    m.refresh().await.unwrap();
+    let f = m.som().function(2, "acc").unwrap();
+    assert_eq!(f.input_mode, SomInputMode::OnTimer { interval_us: 1000 });
+    assert_eq!(f.output_mode, SomOutputMode::OnChange);
+
+    // Every slot at once.
+    m.connect(&sensor, &acc, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    m.disconnect(&sensor, Disconnect::All).await.unwrap();
+    assert!(m.som().pipes.is_empty());
+}
+
+#[tokio::test]
+async fn calls_report_errors_naming_the_function_and_runtime() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, _, text) = refs();
+    let f = m.function(&sensor).unwrap();
+    let e = f.call(&[]).await.unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "function \"sensor\" on runtime \"a\": expected 1 argument (x: f32), got 0"
+    );
+    let e = f.call(&[OwnedValue::from("hi")]).await.unwrap_err();
+    assert!(e.to_string().contains("cannot take a utf8"), "{e}");
+    // Checked by the function itself: a lossy conversion.
+    let e = f.call(&[OwnedValue::F64(0.1)]).await.unwrap_err();
+    match &e {
+        SomError::Remote {
+            error: ControlError::Convert { index: 0, .. },
+            ..
+        } => {}
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        e.to_string()
+            .starts_with("function \"sensor\" on runtime \"a\": call refused"),
+        "{e}"
+    );
+    let e = m
+        .function(&FnRef::new("b", "fail"))
+        .unwrap()
+        .call(&[])
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("failed with code 7"), "{e}");
+    let out = m
+        .function(&text)
+        .unwrap()
+        .call(&[OwnedValue::from("four")])
+        .await
+        .unwrap();
+    assert_eq!(out, [OwnedValue::U32(4)]);
+    // Dataflow pushes run the function like a pipe would.
+    m.function(&FnRef::new("b", "acc"))
+        .unwrap()
+        .push(&[(0, OwnedValue::F32(0.5))])
+        .await
+        .unwrap();
+    wait_for(&n.acc_seen, |v| v == [0.5]).await;
+    let e = m.function(&FnRef::new("x", "y")).unwrap_err();
+    assert!(matches!(e, SomError::NoSuchRuntime(_)), "{e}");
+}
+
+#[tokio::test]
+async fn detached_ports_keep_indices_stable() {
+    let h = host("h");
+    let f1 = HostFunction::new("one", &[], &[], |_| Ok(vec![])).unwrap();
+    let f2 = HostFunction::new("two", &[], &[], |_| Ok(vec![])).unwrap();
+    let i1 = attach_function(&h, f1).await.unwrap();
+    let i2 = attach_function(&h, f2).await.unwrap();
+    assert_eq!((i1, i2), (1, 10));
+    let p = h.open_port("script").await.unwrap();
+    assert_eq!(p.index(), 19);
+    assert!(h.detach_port(i1).await.unwrap().is_some());
+    assert!(h.detach_port(i1).await.unwrap().is_none());
+    let q = h.open_port("script2").await.unwrap();
+    assert_eq!(q.index(), 20, "the detached place is kept");
+    drop(p);
+    let r = h.open_port("script3").await.unwrap();
+    assert_eq!(r.index(), 19, "a closed handle's index is reused");
+}

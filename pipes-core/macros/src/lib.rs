@@ -1,0 +1,663 @@
+//! # pipes-macros
+//!
+//! The procedural macros behind `pipes_core::function` and
+//! `pipes_core::class`. Use them through `pipes-core`, which re-exports
+//! them: the generated code names `::pipes_core` paths only, so firmware
+//! depends on `pipes-core` alone.
+//!
+//! - [`macro@function`] on a plain `fn` keeps it callable and adds a
+//!   zero-sized implementation of `pipes_core::function::Implementation`
+//!   with a static signature built from the Rust names and types.
+//! - [`macro@class`] on an inherent `impl` block implements
+//!   `pipes_core::class::PipesClass`: a constructor signature, one
+//!   signature per exported member and an optional per-loop hook.
+//!
+//! Every type in a signature goes through `pipes_core::export::PipesType`,
+//! so a type with no PIPES encoding fails to compile with the message
+//! "`T` has no PIPES encoding".
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+use proc_macro::TokenStream;
+use proc_macro2::{Span, TokenStream as TokenStream2};
+use quote::{format_ident, quote, quote_spanned};
+use syn::parse::Parser;
+use syn::spanned::Spanned;
+use syn::{
+    Attribute, Error, Expr, FnArg, Ident, ImplItem, ImplItemFn, ItemFn, ItemImpl, Lit, LitStr,
+    Meta, Pat, ReturnType, Signature as FnSig, Type,
+};
+
+/// The most inputs, and the most outputs, of a PIPES function
+/// (`pipes_core::signature::MAX_ARGS`).
+const MAX_ARGS: usize = 8;
+
+/// Turns a plain function into a PIPES function.
+///
+/// ```ignore
+/// #[pipes_core::function(outputs = "time, in_bounds")]
+/// fn get_comparator_reading(lower: f32, upper: f32) -> (u64, bool) { .. }
+///
+/// // The function stays callable as is; its PIPES form is
+/// let f = PipesFunction::<_, 2, 2, 64>::new(get_comparator_reading::pipes())?;
+/// ```
+///
+/// Next to the function (same name, type namespace) it defines a braced
+/// zero-sized struct with:
+/// - `SIGNATURE: &'static Signature`: the function's name, its argument names
+///   and types, and the output names of `outputs = ".."` with the types of
+///   the returned tuple (or single value; `()` or nothing means no outputs);
+/// - `pipes()`: the value to hand to `PipesFunction::new`;
+/// - an `Implementation` that decodes the inputs, calls the function and sets
+///   every output.
+///
+/// Options: `outputs = "a, b"` (required when the function returns
+/// something; one name per returned value), `name = ".."` (the signature
+/// name; default the Rust name).
+///
+/// Errors at compile time: a type with no PIPES encoding, a count of output
+/// names that differs from the returned values, more than 8 inputs or
+/// outputs, generic, async or method functions, and pattern arguments.
+#[proc_macro_attribute]
+pub fn function(attr: TokenStream, item: TokenStream) -> TokenStream {
+    let item2: TokenStream2 = item.clone().into();
+    match function_impl(attr.into(), item.into()) {
+        Ok(t) => t.into(),
+        Err(e) => {
+            let e = e.to_compile_error();
+            quote!(#e #item2).into()
+        }
+    }
+}
+
+/// Turns an inherent `impl` block into a PIPES class.
+///
+/// ```ignore
+/// #[pipes_core::class]
+/// impl Comparator {
+///     #[constructor]
+///     fn new(lower: f32, upper: f32) -> Self { .. }
+///     fn setup(&mut self, lower: f32, upper: f32) { .. }
+///     #[outputs = "time, in_bounds"]
+///     fn reading(&mut self) -> (u64, bool) { .. }
+///     fn _private(&self) { .. }            // leading underscore: not exported
+///     #[loop_hook]
+///     fn tick(&mut self, now_us: u64) { .. } // called from the class port's poll
+/// }
+/// ```
+///
+/// The block is kept as written (minus the helper attributes) and
+/// `pipes_core::class::PipesClass` is implemented for the type:
+/// - exactly one `#[constructor]` associated function returning `Self`:
+///   the class's constructor signature (named after the type);
+/// - every method taking `&self` or `&mut self` whose name does not start
+///   with `_` is an exported member, signature `"Type.method"`, with output
+///   names from `#[outputs = ".."]` as for [`macro@function`];
+/// - at most one `#[loop_hook]` method `fn(&mut self, now_us: u64)`.
+///
+/// Options: `name = ".."` (the class name; default the type's name).
+#[proc_macro_attribute]
+pub fn class(attr: TokenStream, item: TokenStream) -> TokenStream {
+    let item2: TokenStream2 = item.clone().into();
+    match class_impl(attr.into(), item.into()) {
+        Ok(t) => t.into(),
+        Err(e) => {
+            let e = e.to_compile_error();
+            // Keep the block (without the helper attributes, which mean
+            // nothing to the compiler) so only the real error is reported.
+            let item = match syn::parse2::<ItemImpl>(item2.clone()) {
+                Ok(mut imp) => {
+                    strip_helpers(&mut imp);
+                    quote!(#imp)
+                }
+                Err(_) => item2,
+            };
+            quote!(#e #item).into()
+        }
+    }
+}
+
+/// Removes `#[constructor]`, `#[loop_hook]` and `#[outputs]` from the block.
+fn strip_helpers(imp: &mut ItemImpl) {
+    for it in imp.items.iter_mut() {
+        if let ImplItem::Fn(f) = it {
+            f.attrs.retain(|a| {
+                !["constructor", "loop_hook", "outputs"]
+                    .iter()
+                    .any(|n| a.path().is_ident(n))
+            });
+        }
+    }
+}
+
+/// The options of `#[function(..)]` and `#[class(..)]`.
+#[derive(Default)]
+struct Options {
+    outputs: Option<LitStr>,
+    name: Option<LitStr>,
+}
+
+fn parse_options(attr: TokenStream2, allow_outputs: bool) -> syn::Result<Options> {
+    let mut o = Options::default();
+    let parser = syn::meta::parser(|meta| {
+        if allow_outputs && meta.path.is_ident("outputs") {
+            o.outputs = Some(meta.value()?.parse()?);
+            Ok(())
+        } else if meta.path.is_ident("name") {
+            o.name = Some(meta.value()?.parse()?);
+            Ok(())
+        } else if allow_outputs {
+            Err(meta.error("expected `outputs = \"a, b\"` or `name = \"..\"`"))
+        } else {
+            Err(meta.error("expected `name = \"..\"`"))
+        }
+    });
+    parser.parse2(attr)?;
+    Ok(o)
+}
+
+/// One input: its name and type.
+struct Input {
+    name: String,
+    ty: Type,
+}
+
+/// The returned values: their types and whether the Rust type is a tuple.
+struct Returned {
+    types: Vec<Type>,
+    tuple: bool,
+    span: Span,
+}
+
+fn returned(ret: &ReturnType) -> Returned {
+    match ret {
+        ReturnType::Default => Returned {
+            types: Vec::new(),
+            tuple: true,
+            span: Span::call_site(),
+        },
+        ReturnType::Type(_, ty) => {
+            let mut t: &Type = ty;
+            while let Type::Paren(p) = t {
+                t = &p.elem;
+            }
+            match t {
+                Type::Tuple(tup) => Returned {
+                    types: tup.elems.iter().cloned().collect(),
+                    tuple: true,
+                    span: ty.span(),
+                },
+                other => Returned {
+                    types: vec![other.clone()],
+                    tuple: false,
+                    span: ty.span(),
+                },
+            }
+        }
+    }
+}
+
+/// Checks a PIPES name: non-empty and at most 255 bytes.
+fn check_name(name: &str, span: Span) -> syn::Result<()> {
+    if name.is_empty() {
+        return Err(Error::new(span, "a PIPES name must not be empty"));
+    }
+    if name.len() > 255 {
+        return Err(Error::new(
+            span,
+            "a PIPES name must be at most 255 bytes long",
+        ));
+    }
+    Ok(())
+}
+
+/// The output names of `outputs = ".."`, checked against the returned values.
+fn output_names(outputs: Option<&LitStr>, ret: &Returned, what: &str) -> syn::Result<Vec<String>> {
+    let n = ret.types.len();
+    let Some(lit) = outputs else {
+        if n == 0 {
+            return Ok(Vec::new());
+        }
+        let example = (0..n)
+            .map(|i| format!("out{i}"))
+            .collect::<Vec<_>>()
+            .join(", ");
+        return Err(Error::new(
+            ret.span,
+            format!(
+                "{what} returns {n} value{s}: name {them} with `outputs = \"{example}\"`",
+                s = if n == 1 { "" } else { "s" },
+                them = if n == 1 { "it" } else { "them" },
+            ),
+        ));
+    };
+    let text = lit.value();
+    let names: Vec<String> = if text.trim().is_empty() {
+        Vec::new()
+    } else {
+        text.split(',').map(|s| s.trim().to_string()).collect()
+    };
+    if names.len() != n {
+        let values = if n == 1 {
+            "1 value".to_string()
+        } else {
+            format!("{n} values")
+        };
+        return Err(Error::new(
+            lit.span(),
+            format!(
+                "`outputs` names {} output{} but {what} returns {values}: give one name per returned value",
+                names.len(),
+                if names.len() == 1 { "" } else { "s" },
+            ),
+        ));
+    }
+    if n > MAX_ARGS {
+        return Err(Error::new(
+            ret.span,
+            format!("a PIPES function has at most {MAX_ARGS} outputs, {what} returns {n}"),
+        ));
+    }
+    for (i, name) in names.iter().enumerate() {
+        check_name(name, lit.span())?;
+        if names[..i].contains(name) {
+            return Err(Error::new(
+                lit.span(),
+                format!("output `{name}` is named twice"),
+            ));
+        }
+    }
+    Ok(names)
+}
+
+/// The typed inputs of a function, skipping a `self` receiver.
+fn inputs(sig: &FnSig) -> syn::Result<Vec<Input>> {
+    let mut out = Vec::new();
+    for arg in &sig.inputs {
+        let FnArg::Typed(pt) = arg else { continue };
+        let name = match &*pt.pat {
+            Pat::Ident(p) if p.by_ref.is_none() && p.subpat.is_none() => {
+                let s = p.ident.to_string();
+                s.strip_prefix("r#").map(str::to_string).unwrap_or(s)
+            }
+            other => return Err(Error::new(
+                other.span(),
+                "PIPES arguments must be plain names (`x: f32`): the name goes into the signature",
+            )),
+        };
+        out.push(Input {
+            name,
+            ty: (*pt.ty).clone(),
+        });
+    }
+    if out.len() > MAX_ARGS {
+        return Err(Error::new(
+            sig.inputs.span(),
+            format!(
+                "a PIPES function has at most {MAX_ARGS} inputs, `{}` takes {}",
+                sig.ident,
+                out.len()
+            ),
+        ));
+    }
+    Ok(out)
+}
+
+fn check_plain(sig: &FnSig) -> syn::Result<()> {
+    if !sig.generics.params.is_empty() || sig.generics.where_clause.is_some() {
+        return Err(Error::new(
+            sig.generics.span(),
+            "PIPES functions cannot be generic: the signature is fixed at compile time",
+        ));
+    }
+    if let Some(a) = &sig.asyncness {
+        return Err(Error::new(a.span(), "PIPES functions cannot be async"));
+    }
+    if let Some(v) = &sig.variadic {
+        return Err(Error::new(v.span(), "PIPES functions cannot be variadic"));
+    }
+    Ok(())
+}
+
+/// `static SIG: Signature = ..; &SIG` as a block expression.
+fn signature_expr(
+    name: &str,
+    inputs: &[Input],
+    outputs: &[String],
+    ret: &Returned,
+) -> TokenStream2 {
+    let ins = inputs.iter().map(|i| {
+        let (n, t) = (&i.name, &i.ty);
+        quote_spanned!(t.span()=> ::pipes_core::signature::Arg::new(#n, <#t as ::pipes_core::export::PipesType>::TYPE))
+    });
+    let outs = outputs.iter().zip(&ret.types).map(|(n, t)| {
+        quote_spanned!(t.span()=> ::pipes_core::signature::Arg::new(#n, <#t as ::pipes_core::export::PipesType>::TYPE))
+    });
+    quote! {{
+        static SIGNATURE: ::pipes_core::signature::Signature = ::pipes_core::signature::Signature {
+            name: #name,
+            inputs: &[#(#ins),*],
+            outputs: &[#(#outs),*],
+        };
+        &SIGNATURE
+    }}
+}
+
+/// The decoded inputs as call arguments.
+fn decode_args(inputs: &[Input], values: &Ident) -> Vec<TokenStream2> {
+    inputs
+        .iter()
+        .enumerate()
+        .map(|(i, inp)| {
+            let t = &inp.ty;
+            quote_spanned!(t.span()=> ::pipes_core::export::input::<#t>(#values, #i)?)
+        })
+        .collect()
+}
+
+/// Writes `ret` (the returned value) to `outputs`.
+fn write_outputs(ret: &Returned, value: &Ident, outputs: &Ident) -> TokenStream2 {
+    if ret.tuple {
+        quote_spanned!(ret.span=> ::pipes_core::export::PipesOutputs::write(&#value, #outputs))
+    } else {
+        quote_spanned!(ret.span=> ::pipes_core::export::PipesOutputs::write(&(#value,), #outputs))
+    }
+}
+
+fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream2> {
+    let opts = parse_options(attr, true)?;
+    let f: ItemFn = syn::parse2(item)?;
+    let sig = &f.sig;
+    check_plain(sig)?;
+    if let Some(r) = sig.receiver() {
+        return Err(Error::new(
+            r.span(),
+            "`#[pipes_core::function]` is for free functions; put methods in a `#[pipes_core::class]` impl block",
+        ));
+    }
+    let ident = &sig.ident;
+    let name = match &opts.name {
+        Some(n) => {
+            check_name(&n.value(), n.span())?;
+            n.value()
+        }
+        None => ident.to_string(),
+    };
+    let ins = inputs(sig)?;
+    let ret = returned(&sig.output);
+    let outs = output_names(opts.outputs.as_ref(), &ret, &format!("`{ident}`"))?;
+    let sig_expr = signature_expr(&name, &ins, &outs, &ret);
+    let values = format_ident!("__pipes_inputs");
+    let outputs = format_ident!("__pipes_outputs");
+    let value = format_ident!("__pipes_returned");
+    let args = decode_args(&ins, &values);
+    let write = write_outputs(&ret, &value, &outputs);
+    let vis = &f.vis;
+    let doc = format!(
+        "The PIPES function of [`{ident}()`]: hand [`{ident}::pipes()`] to \
+         `pipes_core::function::PipesFunction::new`."
+    );
+    Ok(quote! {
+        #f
+
+        #[doc = #doc]
+        #[allow(non_camel_case_types)]
+        #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+        #vis struct #ident {}
+
+        impl #ident {
+            /// The signature: the function's name, argument names and types,
+            /// and its output names and types.
+            pub const SIGNATURE: &'static ::pipes_core::signature::Signature = #sig_expr;
+
+            /// The implementation to wrap in a `PipesFunction`.
+            pub const fn pipes() -> Self {
+                #ident {}
+            }
+        }
+
+        impl ::pipes_core::function::Implementation for #ident {
+            fn signature(&self) -> &'static ::pipes_core::signature::Signature {
+                Self::SIGNATURE
+            }
+
+            fn call(
+                &mut self,
+                #values: &[::pipes_core::Value<'_>],
+                #outputs: &mut ::pipes_core::function::Outputs<'_>,
+            ) -> ::core::result::Result<(), ::pipes_core::function::CallError> {
+                #[allow(clippy::let_unit_value, clippy::unit_arg)]
+                let #value = #ident(#(#args),*);
+                #write
+            }
+        }
+    })
+}
+
+/// Removes the attribute named `name` from `attrs` and returns it.
+fn take_attr(attrs: &mut Vec<Attribute>, name: &str) -> Option<Attribute> {
+    let i = attrs.iter().position(|a| a.path().is_ident(name))?;
+    Some(attrs.remove(i))
+}
+
+/// Reads `#[outputs = "a, b"]` (or `#[outputs("a, b")]`).
+fn outputs_attr(a: &Attribute) -> syn::Result<LitStr> {
+    match &a.meta {
+        Meta::NameValue(nv) => match &nv.value {
+            Expr::Lit(l) => match &l.lit {
+                Lit::Str(s) => Ok(s.clone()),
+                other => Err(Error::new(other.span(), "expected `#[outputs = \"a, b\"]`")),
+            },
+            other => Err(Error::new(other.span(), "expected `#[outputs = \"a, b\"]`")),
+        },
+        Meta::List(l) => l.parse_args::<LitStr>(),
+        Meta::Path(p) => Err(Error::new(p.span(), "expected `#[outputs = \"a, b\"]`")),
+    }
+}
+
+fn expect_bare(a: &Attribute, what: &str) -> syn::Result<()> {
+    match &a.meta {
+        Meta::Path(_) => Ok(()),
+        other => Err(Error::new(
+            other.span(),
+            format!("`#[{what}]` takes no arguments"),
+        )),
+    }
+}
+
+struct MemberFn {
+    ident: Ident,
+    name: String,
+    inputs: Vec<Input>,
+    ret: Returned,
+    outputs: Vec<String>,
+}
+
+fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream2> {
+    let opts = parse_options(attr, false)?;
+    let mut imp: ItemImpl = syn::parse2(item)?;
+    if let Some((_, path, _)) = &imp.trait_ {
+        return Err(Error::new(
+            path.span(),
+            "`#[pipes_core::class]` goes on an inherent impl block (`impl Type { .. }`), not a trait impl",
+        ));
+    }
+    if !imp.generics.params.is_empty() || imp.generics.where_clause.is_some() {
+        return Err(Error::new(
+            imp.generics.span(),
+            "PIPES classes cannot be generic: their signatures are fixed at compile time",
+        ));
+    }
+    let self_ty = imp.self_ty.clone();
+    let class_name = match (&opts.name, &*self_ty) {
+        (Some(n), _) => {
+            check_name(&n.value(), n.span())?;
+            n.value()
+        }
+        (None, Type::Path(p)) => match p.path.segments.last() {
+            Some(s) => s.ident.to_string(),
+            None => return Err(Error::new(p.span(), "expected a type name")),
+        },
+        (None, other) => return Err(Error::new(
+            other.span(),
+            "a PIPES class is a named type; or name it with `#[pipes_core::class(name = \"..\")]`",
+        )),
+    };
+
+    let mut constructor: Option<(Ident, Vec<Input>, Span)> = None;
+    let mut hook: Option<Ident> = None;
+    let mut members: Vec<MemberFn> = Vec::new();
+    for it in imp.items.iter_mut() {
+        let ImplItem::Fn(f) = it else { continue };
+        let is_ctor = take_attr(&mut f.attrs, "constructor");
+        let is_hook = take_attr(&mut f.attrs, "loop_hook");
+        let outputs = take_attr(&mut f.attrs, "outputs");
+        let ImplItemFn { sig, .. } = &*f;
+        let fname = sig.ident.to_string();
+        if let Some(a) = is_ctor {
+            expect_bare(&a, "constructor")?;
+            check_plain(sig)?;
+            if let Some(r) = sig.receiver() {
+                return Err(Error::new(
+                    r.span(),
+                    "the `#[constructor]` is an associated function returning `Self`, without `self`",
+                ));
+            }
+            if let Some(o) = &outputs {
+                return Err(Error::new(
+                    o.span(),
+                    "a `#[constructor]` has no outputs: it returns the new state",
+                ));
+            }
+            if let Some((_, _, span)) = &constructor {
+                let mut e = Error::new(sig.ident.span(), "a PIPES class has one `#[constructor]`");
+                e.combine(Error::new(*span, "the other `#[constructor]`"));
+                return Err(e);
+            }
+            constructor = Some((sig.ident.clone(), inputs(sig)?, sig.ident.span()));
+            continue;
+        }
+        if let Some(a) = is_hook {
+            expect_bare(&a, "loop_hook")?;
+            if hook.is_some() {
+                return Err(Error::new(
+                    sig.ident.span(),
+                    "a PIPES class has at most one `#[loop_hook]`",
+                ));
+            }
+            hook = Some(sig.ident.clone());
+            continue;
+        }
+        let Some(receiver) = sig.receiver() else {
+            if let Some(o) = &outputs {
+                return Err(Error::new(
+                    o.span(),
+                    "`#[outputs]` is for exported members, which take `&self` or `&mut self`",
+                ));
+            }
+            continue;
+        };
+        if fname.starts_with('_') {
+            continue;
+        }
+        if receiver.reference.is_none() {
+            return Err(Error::new(
+                receiver.span(),
+                format!(
+                    "exported PIPES member `{fname}` must take `&self` or `&mut self` \
+                     (start its name with `_` to keep it private)"
+                ),
+            ));
+        }
+        check_plain(sig)?;
+        let ins = inputs(sig)?;
+        let ret = returned(&sig.output);
+        let out_lit = outputs.as_ref().map(outputs_attr).transpose()?;
+        let outs = output_names(out_lit.as_ref(), &ret, &format!("`{fname}`"))?;
+        let name = format!(
+            "{class_name}.{}",
+            fname.strip_prefix("r#").unwrap_or(&fname)
+        );
+        check_name(&name, sig.ident.span())?;
+        members.push(MemberFn {
+            ident: sig.ident.clone(),
+            name,
+            inputs: ins,
+            ret,
+            outputs: outs,
+        });
+    }
+
+    let Some((ctor_ident, ctor_inputs, _)) = constructor else {
+        return Err(Error::new(
+            imp.self_ty.span(),
+            "a PIPES class needs a `#[constructor]`: an associated function returning `Self`",
+        ));
+    };
+    let no_ret = Returned {
+        types: Vec::new(),
+        tuple: true,
+        span: Span::call_site(),
+    };
+    let ctor_sig = signature_expr(&class_name, &ctor_inputs, &[], &no_ret);
+    let values = format_ident!("__pipes_inputs");
+    let outputs = format_ident!("__pipes_outputs");
+    let value = format_ident!("__pipes_returned");
+    let ctor_args = decode_args(&ctor_inputs, &values);
+    let member_sigs = members
+        .iter()
+        .map(|m| signature_expr(&m.name, &m.inputs, &m.outputs, &m.ret));
+    let arms = members.iter().enumerate().map(|(i, m)| {
+        let ident = &m.ident;
+        let args = decode_args(&m.inputs, &values);
+        let write = write_outputs(&m.ret, &value, &outputs);
+        quote! {
+            #i => {
+                #[allow(clippy::let_unit_value, clippy::unit_arg)]
+                let #value = self.#ident(#(#args),*);
+                #write
+            }
+        }
+    });
+    let hook_fn = hook.map(|h| {
+        quote! {
+            fn loop_hook(&mut self, now_us: u64) {
+                self.#h(now_us)
+            }
+        }
+    });
+
+    Ok(quote! {
+        #imp
+
+        impl ::pipes_core::class::PipesClass for #self_ty {
+            const NAME: &'static str = #class_name;
+            const CONSTRUCTOR: &'static ::pipes_core::signature::Signature = #ctor_sig;
+            const MEMBERS: &'static [&'static ::pipes_core::signature::Signature] =
+                &[#(#member_sigs),*];
+
+            fn construct(
+                #values: &[::pipes_core::Value<'_>],
+            ) -> ::core::result::Result<Self, ::pipes_core::function::CallError> {
+                ::core::result::Result::Ok(<#self_ty>::#ctor_ident(#(#ctor_args),*))
+            }
+
+            #[allow(unused_variables)]
+            fn call_member(
+                &mut self,
+                index: usize,
+                #values: &[::pipes_core::Value<'_>],
+                #outputs: &mut ::pipes_core::function::Outputs<'_>,
+            ) -> ::core::result::Result<(), ::pipes_core::function::CallError> {
+                match index {
+                    #(#arms)*
+                    _ => ::core::result::Result::Err(::pipes_core::function::CallError::Failed(
+                        ::pipes_core::export::NO_SUCH_MEMBER,
+                    )),
+                }
+            }
+
+            #hook_fn
+        }
+    })
+}
