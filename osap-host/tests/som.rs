@@ -1,13 +1,13 @@
 //! The system object model and the manager, on host runtimes joined
 //! in-process: h – a – b, with PIPES functions attached to a and b (and
-//! defined on h by the manager).
+//! defined on h by the manager), and a PIPES class on a or h.
 
 use osap_core::route::Route;
 use osap_host::link::memory;
-use osap_host::som::model::{SomInputMode, SomOutputMode};
+use osap_host::som::model::{SomArg, SomInputMode, SomOutputMode};
 use osap_host::som::{
-    attach_function, Disconnect, FnRef, HostFunction, Manager, OwnedValue, PipeOptions, Som,
-    SomError,
+    attach_class, attach_function, Disconnect, FnRef, HostFunction, Manager, OwnedValue,
+    PipeOptions, Som, SomError,
 };
 use osap_host::{Host, HostConfig};
 use pipes_core::control::{ControlError, InputMode, OutputMode, Request, ANY_SLOT};
@@ -456,4 +456,270 @@ async fn detached_ports_keep_indices_stable() {
     drop(p);
     let r = h.open_port("script3").await.unwrap();
     assert_eq!(r.index(), 19, "a closed handle's index is reused");
+}
+
+// ---- classes ----------------------------------------------------------------
+
+/// A running total shared by its members.
+#[derive(Debug)]
+struct Tally {
+    total: f32,
+    adds: u32,
+    ticks: u64,
+}
+
+#[pipes_core::class]
+impl Tally {
+    #[constructor]
+    fn new(start: f32) -> Self {
+        Tally {
+            total: start,
+            adds: 0,
+            ticks: 0,
+        }
+    }
+
+    #[outputs = "total"]
+    fn add(&mut self, x: f32) -> f32 {
+        self.total += x;
+        self.adds += 1;
+        self.total
+    }
+
+    #[outputs = "total, adds"]
+    fn read(&self) -> (f32, u32) {
+        (self.total, self.adds)
+    }
+
+    fn reset(&mut self) {
+        self.total = 0.0;
+        self.adds = 0;
+    }
+
+    #[loop_hook]
+    fn tick(&mut self, _now_us: u64) {
+        self.ticks += 1;
+    }
+}
+
+const TALLY_MEMBERS: [&str; 3] = ["Tally.add", "Tally.read", "Tally.reset"];
+
+async fn wait_state<T>(state: &Mutex<T>, what: impl Fn(&T) -> bool) {
+    for _ in 0..200 {
+        if what(&state.lock().unwrap()) {
+            return;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    panic!("state condition not met");
+}
+
+#[tokio::test]
+async fn refresh_lists_classes_with_their_constructor_and_members() {
+    let n = net().await;
+    let tally = attach_class(&n._a, Tally::new(1.0)).await.unwrap();
+    assert_eq!(tally.member("read"), Some("Tally.read"));
+    assert_eq!(tally.member_port("add"), Some(tally.port() + 1));
+    assert_eq!(tally.member("tick"), None, "the loop hook is no member");
+
+    let mut m = Manager::new(&n.h).await.unwrap();
+    let report = m.refresh().await.unwrap();
+    assert!(report.function_failures.is_empty(), "{report:?}");
+    let som = m.som();
+    let a = som.runtime_index("a").unwrap();
+    assert_eq!(som.classes.len(), 1, "{:?}", som.classes);
+    let class = som.class(a, "Tally").unwrap();
+    assert_eq!(class.port, tally.port());
+    assert_eq!(
+        class.constructor,
+        [SomArg {
+            name: "start".into(),
+            type_name: "f32".into()
+        }]
+    );
+    assert_eq!(class.members, TALLY_MEMBERS);
+    let port = som.runtimes[a]
+        .ports
+        .iter()
+        .find(|p| p.index == class.port)
+        .unwrap();
+    assert_eq!(
+        (port.type_name.as_str(), port.name.as_str()),
+        ("pipes_class", "Tally")
+    );
+    // Members are functions of their runtime like any other.
+    for (name, port) in tally.members() {
+        let f = som.function(a, name).unwrap();
+        assert_eq!(f.port, *port);
+    }
+    let add = som.function(a, "Tally.add").unwrap();
+    assert_eq!(add.inputs[0].type_name, "f32");
+    assert_eq!(add.outputs[0].name, "total");
+    let read = som.function(a, "Tally.read").unwrap();
+    assert_eq!(read.outputs[1].type_name, "u32");
+    // The class port is not a function.
+    assert!(som.function(a, "Tally").is_none());
+
+    // The classes round-trip through JSON, and the version is unchanged.
+    let json = som.to_json();
+    assert!(json.contains("\"version\": 1"), "{json}");
+    assert!(json.contains("\"Tally.reset\""), "{json}");
+    assert_eq!(&Som::from_json(&json).unwrap(), som);
+    // A version 1 layout written before classes were found still reads.
+    let mut old: serde_json::Value = serde_json::from_str(&json).unwrap();
+    let c = &mut old["classes"][0];
+    c.as_object_mut().unwrap().remove("port");
+    c.as_object_mut().unwrap().remove("constructor");
+    let old = Som::from_json(&old.to_string()).unwrap();
+    assert_eq!(old.classes[0].port, 0);
+    assert!(old.classes[0].constructor.is_empty());
+
+    // The constructor rebuilds the state over the network.
+    let read = m.function(&FnRef::new("a", "Tally.read")).unwrap();
+    assert_eq!(
+        read.call(&[]).await.unwrap(),
+        [OwnedValue::F32(1.0), OwnedValue::U32(0)]
+    );
+    let ctor = m.constructor("a", "Tally").unwrap();
+    assert!(ctor
+        .call(&[OwnedValue::F32(10.0)])
+        .await
+        .unwrap()
+        .is_empty());
+    assert_eq!(tally.state().lock().unwrap().total, 10.0);
+    assert_eq!(
+        read.call(&[]).await.unwrap(),
+        [OwnedValue::F32(10.0), OwnedValue::U32(0)]
+    );
+    assert!(matches!(
+        m.constructor("a", "Nope"),
+        Err(SomError::NoSuchFunction(_))
+    ));
+    assert!(matches!(
+        m.constructor("a", "Tally").unwrap().call(&[]).await,
+        Err(SomError::BadArguments { .. })
+    ));
+}
+
+#[tokio::test]
+async fn host_class_members_share_state_through_function_handles() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let tally = m.define_class(Tally::new(0.0)).await.unwrap();
+    // Defined after the refresh: in the model at once.
+    let class = m.som().class(0, "Tally").unwrap();
+    assert_eq!(class.members, TALLY_MEMBERS);
+    assert_eq!(class.port, tally.port());
+    assert_eq!(class.constructor[0].name, "start");
+
+    let member = |name: &str| m.function(&FnRef::new("h", name)).unwrap();
+    let (add, read, reset) = (
+        member("Tally.add"),
+        member("Tally.read"),
+        member("Tally.reset"),
+    );
+    assert_eq!(
+        add.call(&[OwnedValue::F32(2.0)]).await.unwrap(),
+        [OwnedValue::F32(2.0)]
+    );
+    assert_eq!(
+        add.call(&[OwnedValue::F32(3.0)]).await.unwrap(),
+        [OwnedValue::F32(5.0)]
+    );
+    // Another member reads what add wrote.
+    assert_eq!(
+        read.call(&[]).await.unwrap(),
+        [OwnedValue::F32(5.0), OwnedValue::U32(2)]
+    );
+    // The script sees (and may change) the same state.
+    {
+        let mut s = tally.state().lock().unwrap();
+        assert_eq!((s.total, s.adds), (5.0, 2));
+        assert!(s.ticks > 0, "the loop hook runs on the host's polls");
+        s.total = 100.0;
+    }
+    assert_eq!(
+        read.call(&[]).await.unwrap(),
+        [OwnedValue::F32(100.0), OwnedValue::U32(2)]
+    );
+    assert!(reset.call(&[]).await.unwrap().is_empty());
+    assert_eq!(
+        read.call(&[]).await.unwrap(),
+        [OwnedValue::F32(0.0), OwnedValue::U32(0)]
+    );
+    // Wrong arguments are refused naming the member.
+    let err = add.call(&[]).await.unwrap_err().to_string();
+    assert!(err.contains("Tally.add"), "{err}");
+
+    // A refresh finds the same class and members.
+    let before = m.som().classes.clone();
+    m.refresh().await.unwrap();
+    assert_eq!(m.som().classes, before);
+}
+
+#[tokio::test]
+async fn pipes_run_from_module_functions_into_class_members_and_back() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let tally = m.define_class(Tally::new(0.0)).await.unwrap();
+    let add = FnRef::new("h", tally.member("add").unwrap());
+    let (sensor, acc, _) = refs();
+
+    // a.sensor -> h.Tally.add (module to host class), then h.Tally.add's
+    // total (f32) -> b.acc (f64, host class to module).
+    let into = m
+        .connect(&sensor, &add, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(into.route, [0]);
+    assert_eq!(
+        into.destination.unwrap().function.as_deref(),
+        Some("Tally.add")
+    );
+    let out = m
+        .connect(&add, &acc, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(out.route, [0, 1]);
+
+    m.function(&sensor)
+        .unwrap()
+        .call(&[OwnedValue::F32(2.5)])
+        .await
+        .unwrap();
+    wait_state(tally.state(), |s| s.adds == 1).await;
+    assert_eq!(tally.state().lock().unwrap().total, 2.5);
+    wait_for(&n.acc_seen, |v| v == [2.5]).await;
+
+    m.function(&sensor)
+        .unwrap()
+        .call(&[OwnedValue::F32(1.0)])
+        .await
+        .unwrap();
+    wait_state(tally.state(), |s| s.adds == 2).await;
+    wait_for(&n.acc_seen, |v| v == [2.5, 3.5]).await;
+
+    // Another member reads the state the piped calls built.
+    assert_eq!(
+        m.function(&FnRef::new("h", "Tally.read"))
+            .unwrap()
+            .call(&[])
+            .await
+            .unwrap(),
+        [OwnedValue::F32(3.5), OwnedValue::U32(2)]
+    );
+    // Types are checked against members like any function: u32 -> f32
+    // converts only some values, so a strict pipe refuses it.
+    let strict = PipeOptions {
+        strict: true,
+        ..PipeOptions::default()
+    };
+    let err = m
+        .connect(&FnRef::new("b", "text"), &add, &[0], &[0], strict)
+        .await
+        .unwrap_err();
+    assert!(matches!(err, SomError::TypeMismatch(_)), "{err}");
+    assert!(err.to_string().contains("Tally.add"), "{err}");
 }

@@ -17,7 +17,7 @@ use pipes_core::{Type, Value};
 /// Pipe slots of a host function.
 pub const HOST_FN_PIPES: usize = 8;
 /// Datagrams each pipe of a host function queues.
-const HOST_FN_QUEUE: usize = 4;
+pub(crate) const HOST_FN_QUEUE: usize = 4;
 /// Bytes of each input store, of the output buffer and of each queued
 /// datagram of a host function: the largest value it takes, and the largest
 /// set of outputs it sends.

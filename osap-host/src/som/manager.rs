@@ -2,13 +2,17 @@
 //! the pipes and modes it describes.
 
 use super::handle::{arg_type, describe, Control, FunctionHandle, Target};
+use super::host_class::{attach_class, ClassHandle};
 use super::host_fn::{attach_function, HostFunction};
-use super::model::{pipe_record, Som, SomArg, SomFunction, SomInputMode, SomOutputMode, SomPipe};
+use super::model::{
+    pipe_record, Som, SomArg, SomClass, SomFunction, SomInputMode, SomOutputMode, SomPipe,
+};
 use super::{FnRef, SomError, TypeMismatch};
 use crate::map::PortRecord;
 use crate::netrunner::{self, ScanFailure, ScanOptions};
 use crate::Host;
 use osap_core::route::Route;
+use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
 use pipes_core::convert::{rule, Rule};
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
@@ -164,20 +168,34 @@ impl Manager {
                     Err(e) => report.function_failures.push(e.to_string()),
                 }
             }
+            let class_ports: Vec<u16> = som.runtimes[ri]
+                .ports
+                .iter()
+                .filter(|p| p.type_name == CLASS_PORT_TYPE)
+                .map(|p| p.index)
+                .collect();
+            for port in class_ports {
+                match self.read_class(&som, ri, port).await {
+                    Ok(c) => som.classes.push(c),
+                    Err(e) => report.function_failures.push(e.to_string()),
+                }
+            }
         }
+        group_members(&mut som);
         som.resolve_pipes();
         self.som = som;
         report.elapsed = start.elapsed();
         Ok(report)
     }
 
-    /// Reads the function whose control port is `port` on runtime `ri`.
-    async fn read_function(
+    /// Asks the control port `port` of runtime `ri` for its signature:
+    /// where it is, its name, inputs and outputs.
+    async fn read_signature(
         &self,
         som: &Som,
         ri: usize,
         port: u16,
-    ) -> Result<SomFunction, SomError> {
+    ) -> Result<(Target, String, Vec<SomArg>, Vec<SomArg>), SomError> {
         let r = &som.runtimes[ri];
         let listed = r
             .ports
@@ -208,6 +226,41 @@ impl Manager {
                 }
                 other => return Err(unexpected(&at, "get signature", &other)),
             };
+        Ok((at, name, inputs, outputs))
+    }
+
+    /// Reads the class whose port is `port` on runtime `ri` (its members
+    /// are grouped later, by [`group_members`]).
+    async fn read_class(&self, som: &Som, ri: usize, port: u16) -> Result<SomClass, SomError> {
+        let (at, name, constructor, outputs) = self.read_signature(som, ri, port).await?;
+        if !outputs.is_empty() {
+            return Err(SomError::Malformed {
+                function: at.function,
+                request: "get signature",
+                detail: format!(
+                    "a class constructor has no outputs, this one has {}",
+                    describe(&outputs)
+                ),
+            });
+        }
+        Ok(SomClass {
+            runtime: ri,
+            name,
+            members: Vec::new(),
+            port,
+            constructor,
+        })
+    }
+
+    /// Reads the function whose control port is `port` on runtime `ri`.
+    async fn read_function(
+        &self,
+        som: &Som,
+        ri: usize,
+        port: u16,
+    ) -> Result<SomFunction, SomError> {
+        let r = &som.runtimes[ri];
+        let (at, name, inputs, outputs) = self.read_signature(som, ri, port).await?;
         let at = Target {
             function: FnRef::new(r.name.clone(), name.clone()),
             ..at
@@ -284,15 +337,20 @@ impl Manager {
         })
     }
 
-    /// Runtime index and function of `f` in the model.
-    fn locate(&self, f: &FnRef) -> Result<(usize, &SomFunction), SomError> {
-        let ri = self.som.runtime_index(&f.runtime).map_err(|n| match n {
+    /// Runtime index of `f`'s runtime in the model.
+    fn runtime(&self, f: &FnRef) -> Result<usize, SomError> {
+        self.som.runtime_index(&f.runtime).map_err(|n| match n {
             0 => SomError::NoSuchRuntime(f.runtime.clone()),
             count => SomError::AmbiguousRuntime {
                 name: f.runtime.clone(),
                 count,
             },
-        })?;
+        })
+    }
+
+    /// Runtime index and function of `f` in the model.
+    fn locate(&self, f: &FnRef) -> Result<(usize, &SomFunction), SomError> {
+        let ri = self.runtime(f)?;
         let func = self
             .som
             .function(ri, &f.function)
@@ -551,6 +609,87 @@ impl Manager {
         Ok(fref)
     }
 
+    /// Attaches an instance of class `C`, starting from `state`, to the
+    /// manager's host runtime (see [`attach_class`]) and adds the class and
+    /// its members to the model (runtime 0, once the model has been
+    /// refreshed; before that the next refresh finds them). Members are
+    /// then named for [`connect`](Self::connect) and
+    /// [`function`](Self::function) by
+    /// `FnRef::new(<host runtime>, handle.member("..").unwrap())`.
+    pub async fn define_class<C>(&mut self, state: C) -> Result<ClassHandle<C>, SomError>
+    where
+        C: PipesClass + Send + 'static,
+    {
+        let handle = attach_class(&self.host, state).await?;
+        if self.som.runtimes.is_empty() {
+            return Ok(handle);
+        }
+        let fn_count = 1 + super::HOST_FN_PIPES as u16;
+        let mut records = vec![PortRecord {
+            index: handle.port(),
+            type_name: CLASS_PORT_TYPE.into(),
+            name: C::NAME.into(),
+        }];
+        for &(name, port) in handle.members() {
+            records.push(PortRecord {
+                index: port,
+                type_name: FUNCTION_PORT_TYPE.into(),
+                name: name.into(),
+            });
+            records.extend((1..fn_count).map(|k| PortRecord {
+                index: port + k,
+                type_name: PIPE_PORT_TYPE.into(),
+                name: String::new(),
+            }));
+        }
+        let ports = &mut self.som.runtimes[0].ports;
+        ports.retain(|p| !records.iter().any(|r| r.index == p.index));
+        ports.extend(records);
+        ports.sort_by_key(|p| p.index);
+        let class = self.read_class(&self.som, 0, handle.port()).await?;
+        let mut functions = Vec::with_capacity(handle.members().len());
+        for &(_, port) in handle.members() {
+            functions.push(self.read_function(&self.som, 0, port).await?);
+        }
+        let own = |p: u16| p == handle.port() || handle.members().iter().any(|m| m.1 == p);
+        let host_fns = &mut self.som.runtimes[0].functions;
+        host_fns.retain(|f| !own(f.port));
+        host_fns.extend(functions);
+        host_fns.sort_by_key(|f| f.port);
+        self.som
+            .classes
+            .retain(|c| !(c.runtime == 0 && own(c.port)));
+        self.som.classes.push(class);
+        self.som.classes.sort_by_key(|c| (c.runtime, c.port));
+        group_members(&mut self.som);
+        self.som.resolve_pipes();
+        Ok(handle)
+    }
+
+    /// A handle for calling the constructor of class `class` on runtime
+    /// `runtime`: a call (with the constructor's inputs) rebuilds the
+    /// instance's state and returns no outputs.
+    pub fn constructor(&self, runtime: &str, class: &str) -> Result<FunctionHandle, SomError> {
+        let fref = FnRef::new(runtime, class);
+        let ri = self.runtime(&fref)?;
+        let c = self
+            .som
+            .class(ri, class)
+            .ok_or_else(|| SomError::NoSuchFunction(fref.clone()))?;
+        let inputs = c.constructor.clone();
+        let target = Target {
+            function: fref,
+            route: host_route(&self.som, ri),
+            port: c.port,
+        };
+        Ok(FunctionHandle::new(
+            self.control.clone(),
+            target,
+            inputs,
+            Vec::new(),
+        ))
+    }
+
     fn edit_function(&mut self, ri: usize, name: &str, edit: impl FnOnce(&mut SomFunction)) {
         if let Some(f) = self
             .som
@@ -561,6 +700,27 @@ impl Manager {
             edit(f);
         }
         self.som.resolve_pipes();
+    }
+}
+
+/// Lists under each class the functions of its runtime named
+/// `"<class>.<member>"`, in port order.
+fn group_members(som: &mut Som) {
+    for c in &mut som.classes {
+        c.members = som.runtimes.get(c.runtime).map_or(Vec::new(), |r| {
+            let mut fns: Vec<&SomFunction> = r
+                .functions
+                .iter()
+                .filter(|f| {
+                    f.name
+                        .strip_prefix(c.name.as_str())
+                        .and_then(|rest| rest.strip_prefix('.'))
+                        .is_some_and(|m| !m.is_empty())
+                })
+                .collect();
+            fns.sort_by_key(|f| f.port);
+            fns.iter().map(|f| f.name.clone()).collect()
+        });
     }
 }
 

@@ -5,13 +5,16 @@
 //!   connects functions with pipes ([`Manager::connect`]) over the shortest
 //!   route between their runtimes, checked against the conversion table, and
 //!   disconnects them and sets their modes, keeping the model up to date.
-//! - [`Som`] (in [`model`]): runtimes, links, functions and pipes, as JSON
-//!   (layout in `docs/som.md`).
+//! - [`Som`] (in [`model`]): runtimes, links, functions, pipes and classes,
+//!   as JSON (layout in `docs/som.md`).
 //! - [`FunctionHandle`]: calls a function over the network from async Rust
 //!   with [`OwnedValue`]s, before any proxy is generated.
 //! - [`HostFunction`]: a function a script defines on the host runtime (or
 //!   any [`Host`](crate::Host)); it is a real PIPES function, so pipes run
 //!   from module functions to it and from it to module functions.
+//! - [`attach_class`]: a PIPES class (`#[pipes_core::class]`) a script
+//!   runs on a host runtime, its state shared with the script through a
+//!   [`ClassHandle`]; its members are functions like any other.
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::som::SomError> {
@@ -28,12 +31,14 @@
 //! ```
 
 mod handle;
+mod host_class;
 mod host_fn;
 mod manager;
 pub mod model;
 mod value;
 
 pub use handle::FunctionHandle;
+pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{attach_function, HostBody, HostFunction, HOST_FN_PIPES, HOST_FN_STORE};
 pub use manager::{Disconnect, Manager, ManagerOptions, PipeOptions, RefreshReport};
 pub use model::{Som, SOM_VERSION};

@@ -31,9 +31,9 @@ pub struct Som {
     pub links: Vec<LinkEdge>,
     /// Every configured pipe, source → destination.
     pub pipes: Vec<SomPipe>,
-    /// PIPES classes. Always empty in this version: class ports do not
-    /// exist yet, so none are found. The field is kept so that readers of
-    /// the layout need not change when they do.
+    /// The PIPES classes found (a port of type `pipes_class` each), by
+    /// runtime then port. Their members are also listed among their
+    /// runtime's functions.
     pub classes: Vec<SomClass>,
 }
 
@@ -276,16 +276,26 @@ pub struct SomPipe {
     pub delivery: SomDelivery,
 }
 
-/// A PIPES class: a runtime, a name and its member functions' names.
-/// Reserved: no class is found in this version (see [`Som::classes`]).
+/// A PIPES class found on a runtime: its class port (which answers the
+/// function protocol with the constructor) and its members, the functions
+/// of the same runtime named `"<name>.<member>"`.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct SomClass {
     /// The runtime's index in [`Som::runtimes`].
     pub runtime: usize,
-    /// The class's name.
+    /// The class's name (its port's name and its constructor's).
     pub name: String,
-    /// Its member functions, by name.
+    /// Its member functions' names (`"<name>.<member>"`, as in the
+    /// runtime's [`functions`](SomRuntime::functions)), in port order.
     pub members: Vec<String>,
+    /// The class port's index in its runtime. Absent from layouts written
+    /// before classes were found (read as 0).
+    #[serde(default)]
+    pub port: u16,
+    /// The constructor's inputs, by index (it has no outputs). Absent from
+    /// layouts written before classes were found (read as empty).
+    #[serde(default)]
+    pub constructor: Vec<SomArg>,
 }
 
 /// A path between two runtimes: link indices walked from the first, and
@@ -379,6 +389,13 @@ impl Som {
             (None, _) => Err(0),
             (Some(_), Some(_)) => Err(2 + found.count()),
         }
+    }
+
+    /// The class named `class` on runtime `runtime`.
+    pub fn class(&self, runtime: usize, class: &str) -> Option<&SomClass> {
+        self.classes
+            .iter()
+            .find(|c| c.runtime == runtime && c.name == class)
     }
 
     /// The function named `function` on runtime `runtime`.

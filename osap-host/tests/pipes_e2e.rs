@@ -1,0 +1,745 @@
+//! PIPES end to end on a simulated machine: `small-machine.toml` (a hub on
+//! USB, steppers x, y, z and a spindle on UARTs) started against a host
+//! runtime `h`, read by `Manager::refresh`, then called and piped through
+//! the manager: RPC with every scalar type, a weaving three-runtime chain,
+//! input and output modes, a self-loop, type errors, and a module dying
+//! under a pipe.
+
+use osap_host::link::memory;
+use osap_host::sim::{self, SimMachine};
+use osap_host::som::{
+    attach_function, FnRef, FunctionHandle, HostFunction, Manager, OwnedValue, PipeOptions,
+    SomError,
+};
+use osap_host::{Host, HostConfig};
+use pipes_core::control::{ControlError, InputMode, OutputMode};
+use pipes_core::{ScalarType, Type};
+use std::future::Future;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+const fn scalar(s: ScalarType) -> Type {
+    Type::Scalar(s)
+}
+const BOOL: Type = scalar(ScalarType::Bool);
+const I8: Type = scalar(ScalarType::I8);
+const I16: Type = scalar(ScalarType::I16);
+const I32: Type = scalar(ScalarType::I32);
+const I64: Type = scalar(ScalarType::I64);
+const I128: Type = scalar(ScalarType::I128);
+const U8: Type = scalar(ScalarType::U8);
+const U16: Type = scalar(ScalarType::U16);
+const U32: Type = scalar(ScalarType::U32);
+const U64: Type = scalar(ScalarType::U64);
+const U128: Type = scalar(ScalarType::U128);
+const F16: Type = scalar(ScalarType::F16);
+const F32: Type = scalar(ScalarType::F32);
+const F64: Type = scalar(ScalarType::F64);
+
+/// Overall limit on every wait for something to happen.
+const PATIENCE: Duration = Duration::from_secs(5);
+
+fn host(name: &str) -> Host {
+    Host::start(HostConfig {
+        name: name.into(),
+        ..HostConfig::default()
+    })
+    .unwrap()
+}
+
+fn shipped(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("topologies")
+        .join(name)
+}
+
+/// The host `h`, the machine attached to it, and a refreshed manager.
+struct Lab {
+    h: Host,
+    machine: SimMachine,
+    m: Manager,
+}
+
+async fn lab() -> Lab {
+    let h = host("h");
+    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let machine = SimMachine::start(&h, &topology).await.unwrap();
+    let mut m = Manager::new(&h).await.unwrap();
+    refresh(&mut m).await;
+    Lab { h, machine, m }
+}
+
+/// Refreshes and checks that every runtime and function was read.
+async fn refresh(m: &mut Manager) {
+    let report = m.refresh().await.unwrap();
+    assert!(
+        report.scan_failures.is_empty(),
+        "{:?}",
+        report.scan_failures
+    );
+    assert!(
+        report.function_failures.is_empty(),
+        "{:?}",
+        report.function_failures
+    );
+}
+
+/// Values a host function saw, one row per run.
+type Seen = Arc<Mutex<Vec<Vec<OwnedValue>>>>;
+
+/// A host function that records its inputs and returns no outputs.
+fn recorder(name: &str, inputs: &[(&str, Type)]) -> (HostFunction, Seen) {
+    let seen: Seen = Arc::default();
+    let s = seen.clone();
+    let f = HostFunction::new(name, inputs, &[], move |i| {
+        s.lock().unwrap().push(i.to_vec());
+        Ok(vec![])
+    })
+    .unwrap();
+    (f, seen)
+}
+
+/// Polls `what` (every 2 ms) until it holds; panics after [`PATIENCE`].
+async fn wait_until<T>(label: &str, mut what: impl FnMut() -> Option<T>) -> T {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        if let Some(v) = what() {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {label}");
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+}
+
+/// Waits until `seen` has a row satisfying `row`; returns every row.
+async fn wait_for_row(
+    label: &str,
+    seen: &Seen,
+    row: impl Fn(&[OwnedValue]) -> bool,
+) -> Vec<Vec<OwnedValue>> {
+    wait_until(label, || {
+        let v = seen.lock().unwrap();
+        v.iter().any(|r| row(r)).then(|| v.clone())
+    })
+    .await
+}
+
+/// Repeats an async check until it yields a value; panics after [`PATIENCE`].
+async fn wait_until_async<T, F: Future<Output = Option<T>>>(
+    label: &str,
+    mut what: impl FnMut() -> F,
+) -> T {
+    let deadline = Instant::now() + PATIENCE;
+    loop {
+        if let Some(v) = what().await {
+            return v;
+        }
+        assert!(Instant::now() < deadline, "timed out waiting for {label}");
+        tokio::time::sleep(Duration::from_millis(2)).await;
+    }
+}
+
+fn u64_of(v: &OwnedValue) -> u64 {
+    match v {
+        OwnedValue::U64(x) => *x,
+        other => panic!("expected a u64, got {other:?}"),
+    }
+}
+
+/// Powers stepper `axis` (1 A) so it takes control points.
+async fn power(m: &Manager, axis: &str) {
+    let out = m
+        .function(&FnRef::new(axis, "set_current"))
+        .unwrap()
+        .call(&[OwnedValue::F32(1.0)])
+        .await
+        .unwrap();
+    assert!(out.is_empty());
+}
+
+async fn position(f: &FunctionHandle) -> (u64, f32) {
+    match f.call(&[]).await.unwrap().as_slice() {
+        [OwnedValue::U64(t), OwnedValue::F32(p)] => (*t, *p),
+        other => panic!("get_position returned {other:?}"),
+    }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn rpc_round_trips_every_scalar_type_and_module_functions() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    // At most 8 inputs per function: the ten integers, bool, three floats
+    // and two strings over two identity functions.
+    let ints = [
+        ("i8", I8),
+        ("i16", I16),
+        ("i32", I32),
+        ("i64", I64),
+        ("u8", U8),
+        ("u16", U16),
+        ("u32", U32),
+        ("u64", U64),
+    ];
+    let rest = [
+        ("b", BOOL),
+        ("i128", I128),
+        ("u128", U128),
+        ("f16", F16),
+        ("f32", F32),
+        ("f64", F64),
+        ("ascii", Type::Ascii),
+        ("utf8", Type::Utf8),
+    ];
+    let echo = |name: &str, args: &[(&str, Type)]| {
+        HostFunction::new(name, args, args, |i| Ok(i.to_vec())).unwrap()
+    };
+    let ints_fn = m.define(echo("echo_ints", &ints)).await.unwrap();
+    let rest_fn = m.define(echo("echo_rest", &rest)).await.unwrap();
+    assert_eq!(ints_fn, FnRef::new("h", "echo_ints"));
+
+    let int_args = vec![
+        OwnedValue::I8(i8::MIN),
+        OwnedValue::I16(i16::MAX),
+        OwnedValue::I32(-123_456_789),
+        OwnedValue::I64(i64::MIN + 1),
+        OwnedValue::U8(u8::MAX),
+        OwnedValue::U16(65_000),
+        OwnedValue::U32(u32::MAX - 7),
+        OwnedValue::U64(u64::MAX),
+    ];
+    let f = m.function(&ints_fn).unwrap();
+    let types: Vec<_> = f.inputs().iter().map(|a| a.type_name.as_str()).collect();
+    assert_eq!(
+        types,
+        ["i8", "i16", "i32", "i64", "u8", "u16", "u32", "u64"]
+    );
+    assert_eq!(f.call(&int_args).await.unwrap(), int_args);
+
+    let rest_args = vec![
+        OwnedValue::Bool(true),
+        OwnedValue::I128(-(1i128 << 100)),
+        OwnedValue::U128(u128::MAX),
+        OwnedValue::F16(0x3c00), // 1.0
+        OwnedValue::F32(-1.5e-7),
+        OwnedValue::F64(std::f64::consts::PI),
+        OwnedValue::Ascii("plain ascii".into()),
+        OwnedValue::Utf8("héllo ✓ 🦀".into()),
+    ];
+    let f = m.function(&rest_fn).unwrap();
+    assert_eq!(f.call(&rest_args).await.unwrap(), rest_args);
+    // Values convert to the input's type when they fit exactly: an i8 for
+    // the f32, an ascii string for the utf8 input, a u8 for the u128.
+    let mut widened = rest_args.clone();
+    widened[2] = OwnedValue::U8(7);
+    widened[4] = OwnedValue::I8(-3);
+    widened[7] = OwnedValue::Ascii("abc".into());
+    let out = f.call(&widened).await.unwrap();
+    assert_eq!(out[2], OwnedValue::U128(7));
+    assert_eq!(out[4], OwnedValue::F32(-3.0));
+    assert_eq!(out[7], OwnedValue::Utf8("abc".into()));
+
+    // Module functions on the stepper x (over USB and a UART), with their
+    // own types: set_current(f32), add_control_point(u64, f32),
+    // get_position() -> (u64, f32).
+    let get = m.function(&FnRef::new("x", "get_position")).unwrap();
+    let outs: Vec<_> = get.outputs().iter().map(|a| a.type_name.as_str()).collect();
+    assert_eq!(outs, ["u64", "f32"]);
+    let (t0, p0) = position(&get).await;
+    assert_eq!(p0, 0.0, "the axis boots at 0");
+    power(m, "x").await;
+    let add = m.function(&FnRef::new("x", "add_control_point")).unwrap();
+    // A point already due is reached at once; a u32 time converts to u64.
+    let out = add
+        .call(&[OwnedValue::U32(1), OwnedValue::F32(12.25)])
+        .await
+        .unwrap();
+    assert!(out.is_empty());
+    let (t1, p1) = position(&get).await;
+    assert_eq!(p1, 12.25);
+    assert!(t1 > t0, "local time moves on: {t0} then {t1}");
+    let status = m
+        .function(&FnRef::new("x", "get_status"))
+        .unwrap()
+        .call(&[])
+        .await
+        .unwrap();
+    assert_eq!(status, [OwnedValue::U16(0), OwnedValue::Bool(true)]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn three_runtime_chain_weaves_arguments() {
+    // Two more host runtimes joined to h in-process: a (the source) and b
+    // (the middle); the sink is the stepper x on the simulated machine.
+    let h = host("h");
+    let (a, b) = (host("a"), host("b"));
+    memory::connect(&h, &a).await.unwrap();
+    memory::connect(&h, &b).await.unwrap();
+    // src(t, p) -> (t, -p, t + 1, p): outputs 0 and 3 are the point.
+    let src = HostFunction::new(
+        "src",
+        &[("t", U64), ("p", F32)],
+        &[("t", U64), ("decoy", F32), ("decoy2", U64), ("p", F32)],
+        |i| {
+            let (OwnedValue::U64(t), OwnedValue::F32(p)) = (&i[0], &i[1]) else {
+                return Err(1);
+            };
+            Ok(vec![
+                OwnedValue::U64(*t),
+                OwnedValue::F32(-p),
+                OwnedValue::U64(t + 1),
+                OwnedValue::F32(*p),
+            ])
+        },
+    )
+    .unwrap();
+    attach_function(&a, src).await.unwrap();
+    // mid(time, position) -> (position, time): swaps them back out.
+    let mid_seen: Seen = Arc::default();
+    let s = mid_seen.clone();
+    let mid = HostFunction::new(
+        "mid",
+        &[("time", U64), ("position", F32)],
+        &[("position", F32), ("time", U64)],
+        move |i| {
+            s.lock().unwrap().push(i.to_vec());
+            Ok(vec![i[1].clone(), i[0].clone()])
+        },
+    )
+    .unwrap();
+    attach_function(&b, mid).await.unwrap();
+    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let _machine = SimMachine::start(&h, &topology).await.unwrap();
+    let mut m = Manager::new(&h).await.unwrap();
+    refresh(&mut m).await;
+    power(&m, "x").await;
+
+    let (src, mid, sink) = (
+        FnRef::new("a", "src"),
+        FnRef::new("b", "mid"),
+        FnRef::new("x", "add_control_point"),
+    );
+    // (0, 3) -> (0, 1), then (1, 0) -> (0, 1).
+    let p1 = m
+        .connect(&src, &mid, &[0, 3], &[0, 1], PipeOptions::default())
+        .await
+        .unwrap();
+    let p2 = m
+        .connect(&mid, &sink, &[1, 0], &[0, 1], PipeOptions::default())
+        .await
+        .unwrap();
+    let hops = |p: &osap_host::som::model::SomPipe| {
+        p.argmap
+            .iter()
+            .map(|x| (x.output, x.input))
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(hops(&p1), [(0, 0), (3, 1)]);
+    assert_eq!(hops(&p2), [(1, 0), (0, 1)]);
+    // a -> b goes through h; b -> x through h and the hub.
+    assert_eq!(p1.route.len(), 2, "{:?}", p1.route);
+    assert_eq!(p2.route.len(), 3, "{:?}", p2.route);
+    assert_eq!(
+        p2.destination.as_ref().unwrap().function.as_deref(),
+        Some("add_control_point")
+    );
+
+    let out = m
+        .function(&src)
+        .unwrap()
+        .call(&[OwnedValue::U64(5), OwnedValue::F32(3.5)])
+        .await
+        .unwrap();
+    assert_eq!(out[1], OwnedValue::F32(-3.5));
+    let rows = wait_for_row("mid to run", &mid_seen, |_| true).await;
+    assert_eq!(rows, [vec![OwnedValue::U64(5), OwnedValue::F32(3.5)]]);
+    // The point (time 5, already due) reached x: it stands at 3.5.
+    let get = m.function(&FnRef::new("x", "get_position")).unwrap();
+    wait_until_async("x to reach 3.5", || {
+        let get = get.clone();
+        async move { (position(&get).await.1 == 3.5).then_some(()) }
+    })
+    .await;
+
+    // The model read back from the network agrees.
+    let before = m.som().pipes.clone();
+    refresh(&mut m).await;
+    assert_eq!(m.som().pipes, before);
+    drop((a, b));
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_all_fresh_waits_for_both_sources() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    let (sink, sink_seen) = recorder("both", &[("pos_time", U64), ("uptime", U64)]);
+    let sink = m
+        .define(sink.with_input_mode(InputMode::OnAllFresh))
+        .await
+        .unwrap();
+    // Probes on the same routes, piped after the sink: when a probe has a
+    // value, the sink has had it too.
+    let (p1, probe_x) = recorder("probe_x", &[("t", U64)]);
+    let (p2, probe_hub) = recorder("probe_hub", &[("t", U64)]);
+    let p1 = m.define(p1).await.unwrap();
+    let p2 = m.define(p2).await.unwrap();
+    let (get_pos, uptime) = (
+        FnRef::new("x", "get_position"),
+        FnRef::new("hub", "get_uptime"),
+    );
+    let o = PipeOptions::default();
+    m.connect(&get_pos, &sink, &[0], &[0], o).await.unwrap();
+    m.connect(&get_pos, &p1, &[0], &[0], o).await.unwrap();
+    m.connect(&uptime, &sink, &[0], &[1], o).await.unwrap();
+    m.connect(&uptime, &p2, &[0], &[0], o).await.unwrap();
+    assert_eq!(
+        m.som().function(0, "both").unwrap().input_mode,
+        osap_host::som::model::SomInputMode::OnAllFresh
+    );
+    let (gx, gh) = (m.function(&get_pos).unwrap(), m.function(&uptime).unwrap());
+    let call = |f: &FunctionHandle| {
+        let f = f.clone();
+        async move { u64_of(&f.call(&[]).await.unwrap()[0]) }
+    };
+
+    // Only input 0 is fresh, twice: no run.
+    let t1 = call(&gx).await;
+    wait_for_row("probe_x t1", &probe_x, |r| r[0] == OwnedValue::U64(t1)).await;
+    let t2 = call(&gx).await;
+    wait_for_row("probe_x t2", &probe_x, |r| r[0] == OwnedValue::U64(t2)).await;
+    assert!(sink_seen.lock().unwrap().is_empty());
+    // Input 1 arrives: one run, with the latest input 0.
+    let u1 = call(&gh).await;
+    let rows = wait_for_row("the sink's first run", &sink_seen, |_| true).await;
+    assert_eq!(rows, [vec![OwnedValue::U64(t2), OwnedValue::U64(u1)]]);
+    // Input 1 again alone: no run (input 0 is no longer fresh).
+    let u2 = call(&gh).await;
+    wait_for_row("probe_hub u2", &probe_hub, |r| r[0] == OwnedValue::U64(u2)).await;
+    assert_eq!(sink_seen.lock().unwrap().len(), 1);
+    // Both fresh again: the second run.
+    let t3 = call(&gx).await;
+    let rows = wait_for_row("the sink's second run", &sink_seen, |r| {
+        r[0] == OwnedValue::U64(t3)
+    })
+    .await;
+    assert_eq!(
+        rows,
+        [
+            vec![OwnedValue::U64(t2), OwnedValue::U64(u1)],
+            vec![OwnedValue::U64(t3), OwnedValue::U64(u2)],
+        ]
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_change_suppresses_repeats() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    let (sink, seen) = recorder("status_sink", &[("queued", U16), ("enabled", BOOL)]);
+    let sink = m.define(sink).await.unwrap();
+    let status = FnRef::new("x", "get_status");
+    m.connect(&status, &sink, &[0, 1], &[0, 1], PipeOptions::default())
+        .await
+        .unwrap();
+    m.set_output_mode(&status, OutputMode::OnChange)
+        .await
+        .unwrap();
+    let f = m.function(&status).unwrap();
+    let off = vec![OwnedValue::U16(0), OwnedValue::Bool(false)];
+    let on = vec![OwnedValue::U16(0), OwnedValue::Bool(true)];
+    for _ in 0..3 {
+        // The caller always gets the outputs; only the pipe suppresses.
+        assert_eq!(f.call(&[]).await.unwrap(), off);
+    }
+    power(m, "x").await;
+    assert_eq!(f.call(&[]).await.unwrap(), on);
+    assert_eq!(f.call(&[]).await.unwrap(), on);
+    // Datagrams keep their order on one route: had a repeat been sent it
+    // would have arrived before the change.
+    let rows = wait_for_row("the change", &seen, |r| r == on.as_slice()).await;
+    assert_eq!(rows, [off.clone(), on.clone()]);
+    // And the repeat after the change is held back too: a new change
+    // (disabled again) arrives right after it.
+    m.function(&FnRef::new("x", "set_current"))
+        .unwrap()
+        .call(&[OwnedValue::F32(0.0)])
+        .await
+        .unwrap();
+    assert_eq!(f.call(&[]).await.unwrap(), off);
+    let rows = wait_until("the second change", || {
+        let v = seen.lock().unwrap();
+        (v.len() >= 3).then(|| v.clone())
+    })
+    .await;
+    assert_eq!(rows, [off.clone(), on, off]);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn on_timer_source_produces_at_its_interval() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    let stamps: Arc<Mutex<Vec<Instant>>> = Arc::default();
+    let s = stamps.clone();
+    let sink = HostFunction::new("tick_sink", &[("t", U64)], &[], move |_| {
+        s.lock().unwrap().push(Instant::now());
+        Ok(vec![])
+    })
+    .unwrap();
+    let sink = m.define(sink).await.unwrap();
+    let uptime = FnRef::new("hub", "get_uptime");
+    m.connect(&uptime, &sink, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    const INTERVAL_US: u32 = 20_000;
+    m.set_input_mode(&uptime, InputMode::OnTimer(INTERVAL_US))
+        .await
+        .unwrap();
+    // Let it settle, then count over a window.
+    wait_until("the first tick", || {
+        (stamps.lock().unwrap().len() >= 2).then_some(())
+    })
+    .await;
+    let start = Instant::now();
+    let n0 = stamps.lock().unwrap().len();
+    let window = Duration::from_millis(1_000);
+    let n1 = wait_until("the window to pass", || {
+        (start.elapsed() >= window).then(|| stamps.lock().unwrap().len())
+    })
+    .await;
+    let elapsed = start.elapsed().as_secs_f64();
+    let rate = (n1 - n0) as f64 / elapsed;
+    let expected = 1e6 / f64::from(INTERVAL_US);
+    eprintln!("on_timer: {rate:.2} ticks/s over {elapsed:.3} s, expected {expected:.1}");
+    assert!(
+        (rate - expected).abs() <= 0.2 * expected,
+        "{rate:.1} ticks/s, expected {expected:.1}"
+    );
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pipe_to_itself_feeds_back_and_stops() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    const LIMIT: u32 = 50;
+    let seen: Arc<Mutex<Vec<u32>>> = Arc::default();
+    let s = seen.clone();
+    // count(n) -> n + 1, refusing (code 9) at LIMIT so the loop ends.
+    let count = HostFunction::new("count", &[("n", U32)], &[("next", U32)], move |i| {
+        let OwnedValue::U32(n) = i[0] else {
+            return Err(1);
+        };
+        s.lock().unwrap().push(n);
+        if n >= LIMIT {
+            return Err(9);
+        }
+        Ok(vec![OwnedValue::U32(n + 1)])
+    })
+    .unwrap();
+    let count = m.define(count).await.unwrap();
+    let p = m
+        .connect(&count, &count, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert!(p.route.is_empty(), "a local pipe: {:?}", p.route);
+    assert_eq!(
+        p.destination.as_ref().unwrap().function.as_deref(),
+        Some("count")
+    );
+    let f = m.function(&count).unwrap();
+    assert_eq!(
+        f.call(&[OwnedValue::U32(0)]).await.unwrap(),
+        [OwnedValue::U32(1)]
+    );
+    let all = wait_until("the loop to reach its limit", || {
+        let v = seen.lock().unwrap();
+        (v.last() == Some(&LIMIT)).then(|| v.clone())
+    })
+    .await;
+    assert_eq!(all, (0..=LIMIT).collect::<Vec<_>>());
+    // The runtime is not stuck: the function and the machine still answer.
+    let e = f.call(&[OwnedValue::U32(LIMIT)]).await.unwrap_err();
+    assert!(e.to_string().contains("failed with code 9"), "{e}");
+    position(&m.function(&FnRef::new("x", "get_position")).unwrap()).await;
+    assert_eq!(seen.lock().unwrap().len(), all.len() + 1);
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    let add = m.function(&FnRef::new("x", "add_control_point")).unwrap();
+    // Refused before sending: a string for the f32 position.
+    let e = add
+        .call(&[OwnedValue::U64(0), OwnedValue::from("far")])
+        .await
+        .unwrap_err();
+    assert!(matches!(e, SomError::BadArguments { .. }), "{e:?}");
+    let msg = e.to_string();
+    for part in [
+        "\"add_control_point\"",
+        "runtime \"x\"",
+        "input 1 (position: f32)",
+        "cannot take a utf8",
+    ] {
+        assert!(msg.contains(part), "{msg} lacks {part}");
+    }
+    let e = add
+        .call(&[OwnedValue::Bool(true), OwnedValue::F32(1.0)])
+        .await;
+    let msg = e.unwrap_err().to_string();
+    assert!(
+        msg.contains("input 0 (time: u64) cannot take a bool"),
+        "{msg}"
+    );
+    let e = add.call(&[OwnedValue::U64(0)]).await.unwrap_err();
+    assert_eq!(
+        e.to_string(),
+        "function \"add_control_point\" on runtime \"x\": expected 2 arguments \
+         (time: u64, position: f32), got 1"
+    );
+    // Refused by the module itself: f64 0.1 is lossy as an f32, and a
+    // negative time is out of range for the u64.
+    let e = add
+        .call(&[OwnedValue::U64(0), OwnedValue::F64(0.1)])
+        .await
+        .unwrap_err();
+    match &e {
+        SomError::Remote {
+            function,
+            error: ControlError::Convert { index: 1, .. },
+            ..
+        } => assert_eq!(function, &FnRef::new("x", "add_control_point")),
+        other => panic!("{other:?}"),
+    }
+    assert!(
+        e.to_string()
+            .starts_with("function \"add_control_point\" on runtime \"x\": call refused"),
+        "{e}"
+    );
+    let e = add
+        .call(&[OwnedValue::I32(-1), OwnedValue::F32(0.0)])
+        .await
+        .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            SomError::Remote {
+                error: ControlError::Convert { index: 0, .. },
+                ..
+            }
+        ),
+        "{e:?}"
+    );
+    // The module's own refusal: the axis is not powered (code 3).
+    let e = add
+        .call(&[OwnedValue::U64(0), OwnedValue::F32(1.0)])
+        .await
+        .unwrap_err();
+    assert!(e.to_string().contains("failed with code 3"), "{e}");
+    // A pipe whose types never convert: bool -> f32.
+    let e = m
+        .connect(
+            &FnRef::new("y", "get_status"),
+            &FnRef::new("x", "add_control_point"),
+            &[1],
+            &[1],
+            PipeOptions::default(),
+        )
+        .await
+        .unwrap_err();
+    assert!(matches!(e, SomError::TypeMismatch(_)), "{e:?}");
+    let msg = e.to_string();
+    for part in [
+        "\"get_status\"",
+        "runtime \"y\"",
+        "\"add_control_point\"",
+        "runtime \"x\"",
+        "output 1 (bool)",
+        "input 1 (f32)",
+    ] {
+        assert!(msg.contains(part), "{msg} lacks {part}");
+    }
+    assert!(m.som().pipes.is_empty());
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_pipe_to_a_module_that_died_is_reported() {
+    let mut lab = lab().await;
+    let m = &mut lab.m;
+    power(m, "y").await;
+    let (src, dst) = (
+        FnRef::new("x", "get_position"),
+        FnRef::new("y", "add_control_point"),
+    );
+    let p = m
+        .connect(&src, &dst, &[0, 1], &[0, 1], PipeOptions::default())
+        .await
+        .unwrap();
+    // x -> hub -> y, module to module.
+    assert_eq!(p.route, [0, 2]);
+    let y_status = m.function(&FnRef::new("y", "get_status")).unwrap();
+    let y_pos = m.function(&FnRef::new("y", "get_position")).unwrap();
+    let gx = m.function(&src).unwrap();
+    // Move x to 7, then pipe its position to y: y follows to 7.
+    power(m, "x").await;
+    m.function(&FnRef::new("x", "add_control_point"))
+        .unwrap()
+        .call(&[OwnedValue::U64(1), OwnedValue::F32(7.0)])
+        .await
+        .unwrap();
+    assert_eq!(position(&gx).await.1, 7.0);
+    wait_until_async("y to follow x to 7", || {
+        let y = y_pos.clone();
+        async move { (position(&y).await.1 == 7.0).then_some(()) }
+    })
+    .await;
+
+    let hub = lab.machine.module("hub").unwrap().clone();
+    let closed = || {
+        let hub = hub.clone();
+        async move {
+            hub.with_runtime(|rt, _| rt.counters().link_closed)
+                .await
+                .unwrap()
+        }
+    };
+    let before = closed().await;
+    lab.machine.module("y").unwrap().kill().await.unwrap();
+    assert_eq!(lab.machine.link_is_up(2), Some(false), "hub – y is down");
+
+    // x still runs and answers; its datagram dies at the hub, which counts
+    // it as sent over a closed link.
+    gx.call(&[]).await.unwrap();
+    let after = wait_until_async("the hub to count the drop", || async move {
+        let n = closed().await;
+        (n > before).then_some(n)
+    })
+    .await;
+    assert_eq!(after, before + 1);
+    // Requests to y fail, naming it.
+    let e = y_status
+        .with_timeout(Duration::from_millis(100))
+        .call(&[])
+        .await
+        .unwrap_err();
+    assert!(matches!(e, SomError::Network { .. }), "{e:?}");
+    assert!(e.to_string().contains("runtime \"y\""), "{e}");
+
+    // A refresh shows the break: y is gone, the hub's link to it closed,
+    // and x's pipe leads out of the model.
+    let report = m.refresh().await.unwrap();
+    assert!(report.function_failures.is_empty(), "{report:?}");
+    let som = m.som();
+    assert!(som.runtimes.iter().all(|r| r.name != "y"));
+    let hub_rt = som.runtimes.iter().find(|r| r.name == "hub").unwrap();
+    let link = hub_rt.links.iter().find(|l| l.index == 2).unwrap();
+    assert!(!link.open, "{link:?}");
+    let xi = som.runtime_index("x").unwrap();
+    let pipe = &som.function(xi, "get_position").unwrap().pipes[0];
+    assert_eq!(pipe.route, [0, 2]);
+    assert_eq!(pipe.destination, None, "the route leaves the model");
+    let flat = som.pipes.iter().find(|p| p.source.runtime == xi).unwrap();
+    assert_eq!(flat.destination, None);
+    assert!(som.to_json().contains("\"destination\": null"));
+    drop(lab.h);
+}
