@@ -3,15 +3,16 @@
 //! defined on h by the manager), and a PIPES class on a or h.
 
 use osap_core::route::Route;
+use osap_core::stack::Owner;
 use osap_host::link::memory;
-use osap_host::som::model::{SomArg, SomInputMode, SomOutputMode};
+use osap_host::som::model::{SomArg, SomDelivery, SomInputMode, SomOutputMode};
 use osap_host::som::{
     attach_class, attach_function, Disconnect, FnRef, HostFunction, Manager, OwnedValue,
-    PipeOptions, Som, SomError,
+    PipeOptions, PipeStats, Som, SomError,
 };
 use osap_host::{Host, HostConfig};
 use pipes_core::control::{ControlError, InputMode, OutputMode, Request, ANY_SLOT};
-use pipes_core::pipe::PipeConfig;
+use pipes_core::pipe::{PipeConfig, PipeDelivery};
 use pipes_core::{ScalarType, Type};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
@@ -722,4 +723,93 @@ async fn pipes_run_from_module_functions_into_class_members_and_back() {
         .unwrap_err();
     assert!(matches!(err, SomError::TypeMismatch(_)), "{err}");
     assert!(err.to_string().contains("Tally.add"), "{err}");
+}
+
+#[tokio::test]
+async fn pipe_stats_show_overflows_over_the_network() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, acc, _) = refs();
+    let p = m
+        .connect(&sensor, &acc, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(p.slot, 0);
+    let fresh = m.pipe_stats(&sensor, 0).await.unwrap();
+    assert_eq!(fresh, PipeStats::default());
+    // Slot 0 sends from port 2 of a (the sensor's control port is 1): with
+    // a stack quota of 0 it is never clear to send, so its queue of
+    // HOST_FN_QUEUE (4) datagrams fills and the oldest are dropped.
+    let pipe_port = m.som().function(1, "sensor").unwrap().pipe_ports[0];
+    assert_eq!(pipe_port, 2);
+    let quota = |max: u8| {
+        n._a.with_runtime(move |rt, _| rt.set_quota(Owner::Port(pipe_port), max))
+    };
+    quota(0).await.unwrap().unwrap();
+    let call = m.function(&sensor).unwrap();
+    for x in 1..=6 {
+        call.call(&[OwnedValue::F32(x as f32)]).await.unwrap();
+    }
+    let stats = m.pipe_stats(&sensor, 0).await.unwrap();
+    assert_eq!((stats.sent, stats.overflows), (0, 2), "{stats:?}");
+    assert_eq!((stats.send_errors, stats.remote_errors), (0, 0));
+    assert_eq!(stats.last_remote_error, None);
+    // Room again: the next packet to the function flushes the newest four.
+    quota(8).await.unwrap().unwrap();
+    let stats = m.pipe_stats(&sensor, 0).await.unwrap();
+    assert_eq!(stats.overflows, 2);
+    wait_for(&n.acc_seen, |v| v == [3.0, 4.0, 5.0, 6.0]).await;
+    assert_eq!(m.pipe_stats(&sensor, 0).await.unwrap().sent, 4);
+    // An empty slot is refused, naming the function.
+    let e = m.pipe_stats(&sensor, 1).await.unwrap_err();
+    assert!(
+        matches!(
+            e,
+            SomError::Remote {
+                error: ControlError::NoSuchPipe(1),
+                ..
+            }
+        ),
+        "{e}"
+    );
+    assert!(e.to_string().contains("\"sensor\""), "{e}");
+}
+
+#[tokio::test]
+async fn acknowledged_pipes_deliver_end_to_end() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, acc, _) = refs();
+    let options = PipeOptions {
+        delivery: PipeDelivery::Acked,
+        ..PipeOptions::default()
+    };
+    let p = m.connect(&sensor, &acc, &[0], &[0], options).await.unwrap();
+    assert_eq!(p.delivery, SomDelivery::Acked);
+    let call = m.function(&sensor).unwrap();
+    for x in [1.0, 2.0, 3.0] {
+        call.call(&[OwnedValue::F32(x)]).await.unwrap();
+    }
+    wait_for(&n.acc_seen, |v| v == [1.0, 2.0, 3.0]).await;
+    // Every datagram acknowledged, none sent twice.
+    let mut stats = m.pipe_stats(&sensor, 0).await.unwrap();
+    for _ in 0..100 {
+        if stats.acked == 3 {
+            break;
+        }
+        tokio::time::sleep(Duration::from_millis(5)).await;
+        stats = m.pipe_stats(&sensor, 0).await.unwrap();
+    }
+    assert_eq!(
+        (stats.sent, stats.acked, stats.retries, stats.failures),
+        (3, 3, 0, 0),
+        "{stats:?}"
+    );
+    // The network agrees with the model.
+    let before = m.som().pipes.clone();
+    m.refresh().await.unwrap();
+    assert_eq!(m.som().pipes, before);
+    assert_eq!(m.som().pipes[0].delivery, SomDelivery::Acked);
 }

@@ -6,7 +6,9 @@
 //! (transport key 1 and a `u16` sequence number), replies echo the sequence
 //! number (transport key 2). Pipe datagrams travel raw (transport key 0);
 //! a function that refuses one reports why to the pipe's sending port with a
-//! raw [`ControlKey::PipeError`] message.
+//! raw [`ControlKey::PipeError`] message. An acknowledged pipe sends its
+//! datagrams as requests instead, and the reply (ok or the refusal) is its
+//! acknowledgement (see [`crate::pipe`]).
 //!
 //! A reply is `[key][status: u8][body]`: status 0 is success and the body is
 //! the key's result; any other status is a [`ControlError`] code and the body
@@ -18,7 +20,7 @@ use osap_core::codec::{CodecError, Reader, Writer};
 
 use crate::convert::{ConvertError, ConvertReason};
 use crate::message::{Args, ArgsWriter, MessageError, MessageKey};
-use crate::pipe::PipeConfig;
+use crate::pipe::{PipeConfig, PipeStats};
 use crate::signature::{Signature, SignatureError, SignatureView};
 use crate::types::Type;
 
@@ -50,6 +52,8 @@ pub enum ControlKey {
     SetOutputMode = 11,
     /// A raw report, to a pipe's sending port, that its datagram was refused.
     PipeError = 12,
+    /// Asks for one pipe's counters (sent, dropped, errors).
+    GetPipeStats = 13,
 }
 
 impl ControlKey {
@@ -68,6 +72,7 @@ impl ControlKey {
             10 => ControlKey::GetOutputMode,
             11 => ControlKey::SetOutputMode,
             12 => ControlKey::PipeError,
+            13 => ControlKey::GetPipeStats,
             _ => return None,
         })
     }
@@ -112,7 +117,7 @@ pub enum ControlError {
     /// Status 7, no body: every pipe slot is in use.
     PipeTableFull,
     /// Status 8, no body: the request asks for something this function does
-    /// not do (acknowledged pipes).
+    /// not do.
     Unsupported,
     /// Status 9, body `[output]`: a pipe's argmap names an output the
     /// function does not have.
@@ -247,7 +252,7 @@ impl fmt::Display for ControlError {
             ControlError::Convert { index, error } => write!(f, "input {index}: {error}"),
             ControlError::NoSuchPipe(s) => write!(f, "no pipe slot {s}"),
             ControlError::PipeTableFull => f.write_str("every pipe slot is in use"),
-            ControlError::Unsupported => f.write_str("not supported (acknowledged pipes)"),
+            ControlError::Unsupported => f.write_str("not supported by this function"),
             ControlError::BadArgmap(o) => {
                 write!(f, "argmap names output {o}, which does not exist")
             }
@@ -444,6 +449,9 @@ pub enum Request<'a> {
     GetOutputMode,
     /// `[11][mode]`.
     SetOutputMode(OutputMode),
+    /// `[13][slot]`: the pipe's counters; an empty or missing slot is
+    /// refused with [`ControlError::NoSuchPipe`].
+    GetPipeStats(u8),
 }
 
 impl<'a> Request<'a> {
@@ -461,6 +469,7 @@ impl<'a> Request<'a> {
             Request::SetInputMode(_) => ControlKey::SetInputMode,
             Request::GetOutputMode => ControlKey::GetOutputMode,
             Request::SetOutputMode(_) => ControlKey::SetOutputMode,
+            Request::GetPipeStats(_) => ControlKey::GetPipeStats,
         }
     }
 
@@ -484,6 +493,7 @@ impl<'a> Request<'a> {
             ControlKey::SetInputMode => Request::SetInputMode(InputMode::decode(&mut r)?),
             ControlKey::GetOutputMode => Request::GetOutputMode,
             ControlKey::SetOutputMode => Request::SetOutputMode(OutputMode::decode(&mut r)?),
+            ControlKey::GetPipeStats => Request::GetPipeStats(r.u8()?),
             ControlKey::PipeError => return Err(DecodeError::UnknownKey(k)),
         };
         if !r.is_empty() {
@@ -499,7 +509,9 @@ impl<'a> Request<'a> {
             w.u8(self.key().to_u8())?;
             match self {
                 Request::PipeDatagram(a) | Request::Call(a) => copy_args(w, a)?,
-                Request::GetPipe(s) | Request::WipePipe(s) => w.u8(*s)?,
+                Request::GetPipe(s) | Request::WipePipe(s) | Request::GetPipeStats(s) => {
+                    w.u8(*s)?
+                }
                 Request::SetPipe { slot, pipe } => {
                     w.u8(*slot)?;
                     pipe.encode(w)?;
@@ -567,6 +579,13 @@ pub enum ReplyBody<'a> {
     InputMode(InputMode),
     /// To `GetOutputMode`: the mode.
     OutputMode(OutputMode),
+    /// To `GetPipeStats`: `[slot]` then the pipe's counters.
+    PipeStats {
+        /// The slot.
+        slot: u8,
+        /// Its counters.
+        stats: PipeStats,
+    },
 }
 
 /// A reply from a function's control port (after the transport header), or
@@ -615,6 +634,10 @@ impl<'a> Reply<'a> {
                 ControlKey::SetPipe => ReplyBody::PipeSet(r.u8()?),
                 ControlKey::GetInputMode => ReplyBody::InputMode(InputMode::decode(&mut r)?),
                 ControlKey::GetOutputMode => ReplyBody::OutputMode(OutputMode::decode(&mut r)?),
+                ControlKey::GetPipeStats => ReplyBody::PipeStats {
+                    slot: r.u8()?,
+                    stats: PipeStats::decode(&mut r)?,
+                },
                 ControlKey::PipeError => return Err(DecodeError::UnknownStatus(0)),
             })
         };
@@ -655,6 +678,10 @@ impl<'a> Reply<'a> {
                 ReplyBody::PipeSet(s) => w.u8(*s)?,
                 ReplyBody::InputMode(m) => m.encode(w)?,
                 ReplyBody::OutputMode(m) => w.u8(m.to_u8())?,
+                ReplyBody::PipeStats { slot, stats } => {
+                    w.u8(*slot)?;
+                    stats.encode(w)?;
+                }
             }
             Ok(())
         })();
@@ -732,6 +759,7 @@ mod tests {
             Request::SetInputMode(InputMode::OnAllFresh),
             Request::GetOutputMode,
             Request::SetOutputMode(OutputMode::OnChange),
+            Request::GetPipeStats(1),
         ] {
             let (b, n) = enc(|w| req.encode(w));
             assert_eq!(Request::parse(&b[..n]), Ok(req), "{req:?}");
@@ -802,8 +830,28 @@ mod tests {
             ReplyBody::PipeSet(2),
             ReplyBody::InputMode(InputMode::OnTimer(5)),
             ReplyBody::OutputMode(OutputMode::OnChange),
+            ReplyBody::PipeStats {
+                slot: 1,
+                stats: PipeStats::default(),
+            },
+            ReplyBody::PipeStats {
+                slot: 0,
+                stats: PipeStats {
+                    sent: 7,
+                    overflows: 2,
+                    send_errors: 1,
+                    remote_errors: 3,
+                    acked: 9,
+                    retries: 4,
+                    failures: 1,
+                    last_remote_error: Some(ControlError::Convert {
+                        index: 1,
+                        error: ce,
+                    }),
+                },
+            },
         ];
-        let keys = [1u8, 4, 5, 5, 6, 8, 10];
+        let keys = [1u8, 4, 5, 5, 6, 8, 10, 13, 13];
         for (k, b) in keys.iter().zip(bodies) {
             let rep = Reply {
                 key: *k,
@@ -811,6 +859,9 @@ mod tests {
             };
             let (buf, n) = enc(|w| rep.encode(w));
             assert_eq!(Reply::parse(&buf[..n]), Ok(rep));
+            for cut in 0..n {
+                assert!(Reply::parse(&buf[..cut]).is_err(), "{rep:?} cut at {cut}");
+            }
         }
         for e in errors {
             let (buf, n) = enc(|w| encode_error(w, 3, &e));

@@ -33,7 +33,7 @@ use crate::control::{
 };
 use crate::convert::{convert, ConvertError};
 use crate::message::{Args, ArgsWriter, MessageKey};
-use crate::pipe::{PipeConfig, PipeDelivery, PipeState};
+use crate::pipe::{AckStep, PipeConfig, PipeDelivery, PipeState};
 use crate::signature::{Arg, Signature, SignatureError, MAX_ARGS};
 use crate::value::Value;
 
@@ -393,9 +393,6 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
     /// Sets pipe slot `slot` ([`ANY_SLOT`]: the first free one) and returns
     /// the slot used. The pipe starts with an empty queue and zero counters.
     pub fn set_pipe(&mut self, slot: u8, pipe: PipeConfig) -> Result<u8, ControlError> {
-        if pipe.delivery == PipeDelivery::Acked {
-            return Err(ControlError::Unsupported);
-        }
         if let Some(p) = pipe
             .argmap()
             .iter()
@@ -417,6 +414,30 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             .ok_or(ControlError::NoSuchPipe(slot))?;
         *entry = Some(PipeState::new(pipe));
         Ok(slot)
+    }
+
+    /// Sets how the acknowledged pipe in slot `slot` retransmits: wait
+    /// `timeout_us` µs for each reply, send again at most `retries` times.
+    /// Pipes start with [`DEFAULT_ACK_TIMEOUT_US`] and
+    /// [`DEFAULT_ACK_RETRIES`]; setting the slot again resets them. (A
+    /// best-effort pipe keeps the setting but does not use it.)
+    ///
+    /// [`DEFAULT_ACK_TIMEOUT_US`]: crate::pipe::DEFAULT_ACK_TIMEOUT_US
+    /// [`DEFAULT_ACK_RETRIES`]: crate::pipe::DEFAULT_ACK_RETRIES
+    pub fn set_ack_policy(
+        &mut self,
+        slot: u8,
+        timeout_us: u32,
+        retries: u8,
+    ) -> Result<(), ControlError> {
+        let p = self
+            .pipes
+            .get_mut(usize::from(slot))
+            .and_then(Option::as_mut)
+            .ok_or(ControlError::NoSuchPipe(slot))?;
+        p.ack_timeout = timeout_us;
+        p.max_retries = retries;
+        Ok(())
     }
 
     /// Empties pipe slot `slot` ([`ANY_SLOT`]: every slot), dropping what
@@ -539,17 +560,22 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         };
         for pipe in self.pipes.iter_mut().flatten() {
             let map = pipe.config;
+            // An acknowledged pipe's datagram is a request; its sequence
+            // number is written when it is first sent.
+            let header = match map.delivery {
+                PipeDelivery::BestEffort => Transport::Raw,
+                PipeDelivery::Acked => Transport::Request(0),
+            };
             pipe.push_with(|buf| {
-                let (head, rest) = buf.split_first_mut()?;
-                *head = osap_core::transport::KEY_RAW;
-                let mut w = Writer::new(rest);
+                let h = header.encode(buf)?;
+                let mut w = Writer::new(buf.get_mut(h..)?);
                 let mut m = ArgsWriter::message(&mut w, MessageKey::PipeDatagram).ok()?;
                 for p in map.argmap() {
                     let v = outputs.get(p.output)?;
                     m.push(p.input, &v).ok()?;
                 }
                 m.finish().ok()?;
-                Some(1 + w.len())
+                Some(h + w.len())
             });
         }
     }
@@ -559,6 +585,10 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         for (slot, pipe) in self.pipes.iter_mut().enumerate() {
             let Some(pipe) = pipe else { continue };
             let offset = 1 + slot as u16;
+            if pipe.config.delivery == PipeDelivery::Acked {
+                flush_acked(pipe, offset, tx);
+                continue;
+            }
             while tx.clear_to_send_from(offset) {
                 let Some(dgram) = pipe.front() else { break };
                 let c = &pipe.config;
@@ -633,6 +663,15 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 R::Pipe {
                     slot,
                     pipe: p.as_ref().map(|p| p.config),
+                }
+            }
+            Request::GetPipeStats(slot) => {
+                let Some(p) = self.pipes.get(usize::from(slot)).and_then(Option::as_ref) else {
+                    return Err(self.refuse(ControlError::NoSuchPipe(slot)));
+                };
+                R::PipeStats {
+                    slot,
+                    stats: p.stats(),
                 }
             }
             Request::SetPipe { slot, pipe } => {
@@ -727,6 +766,20 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
     }
 
     fn on_pipe_port(&mut self, slot: usize, d: &Delivery<'_>) {
+        // A reply to an acknowledged pipe's datagram.
+        if let Ok((Transport::Reply(seq), body)) = Transport::decode(d.payload) {
+            let reply = Reply::parse(body)
+                .ok()
+                .filter(|r| r.key == ControlKey::PipeDatagram.to_u8());
+            match (reply, self.pipes.get_mut(slot).and_then(Option::as_mut)) {
+                (Some(r), Some(p)) => {
+                    // A duplicate or late reply changes nothing.
+                    let _ = p.on_reply(seq, r.result.map(|_| ()));
+                }
+                _ => self.stats.malformed = self.stats.malformed.wrapping_add(1),
+            }
+            return;
+        }
         let report = Transport::decode(d.payload)
             .ok()
             .filter(|(t, _)| *t == Transport::Raw)
@@ -738,6 +791,72 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 p.last_remote_error = Some(e);
             }
             _ => self.stats.malformed = self.stats.malformed.wrapping_add(1),
+        }
+    }
+}
+
+/// Sends an acknowledged pipe's front datagram (one in flight at a time, so
+/// order is kept), sends it again when its reply is late, and drops it after
+/// the last retry.
+fn flush_acked<const Q: usize, const B: usize>(
+    pipe: &mut PipeState<Q, B>,
+    offset: u16,
+    tx: &mut PortTx<'_>,
+) {
+    let c = pipe.config;
+    loop {
+        let now = tx.now();
+        match pipe.ack_step(now) {
+            AckStep::Wait => return,
+            AckStep::GiveUp => {
+                pipe.give_up();
+                continue;
+            }
+            AckStep::Resend => {
+                let Some(seq) = pipe.in_flight_seq() else {
+                    return;
+                };
+                if !tx.clear_to_send_from(offset) {
+                    return;
+                }
+                let Some(dgram) = pipe.front() else { return };
+                match tx.send_from(offset, &c.route, c.port, c.ttl, dgram) {
+                    Ok(()) => pipe.mark_sent(seq, now),
+                    Err(SendError::NotClear(_)) => {}
+                    Err(_) => {
+                        pipe.send_errors = pipe.send_errors.wrapping_add(1);
+                        pipe.pop();
+                        continue;
+                    }
+                }
+                return;
+            }
+            AckStep::SendNew => {
+                if !tx.clear_to_send_from(offset) {
+                    return;
+                }
+                let Some((seq, dgram)) = pipe.front_as_new_request() else {
+                    // Nothing waits, or the datagram is not a request
+                    // (queued before the pipe was set acknowledged): drop it.
+                    if pipe.front().is_none() {
+                        return;
+                    }
+                    pipe.send_errors = pipe.send_errors.wrapping_add(1);
+                    pipe.pop();
+                    continue;
+                };
+                match tx.send_from(offset, &c.route, c.port, c.ttl, dgram) {
+                    Ok(()) => {
+                        pipe.mark_sent(seq, now);
+                        return;
+                    }
+                    Err(SendError::NotClear(_)) => return,
+                    Err(_) => {
+                        pipe.send_errors = pipe.send_errors.wrapping_add(1);
+                        pipe.pop();
+                    }
+                }
+            }
         }
     }
 }

@@ -13,17 +13,26 @@
 //! ```
 //!
 //! Flags: bit 0 asks for acknowledged delivery, every other bit must be 0.
-//! This implementation sends best-effort only and refuses pipes that ask for
-//! acknowledgements ([`ControlError::Unsupported`](crate::control::ControlError::Unsupported)).
 //!
 //! A pipe keeps a small queue of datagrams waiting for its port to be clear
 //! to send ([`PipeState`]); when the queue is full the **oldest** waiting
 //! datagram is dropped and counted, never silently.
-
+//!
+//! A **best-effort** pipe sends each datagram raw and forgets it. An
+//! **acknowledged** pipe sends each datagram as a sequential request and
+//! keeps it at the front of its queue until the destination replies (ok, or
+//! an error, which is counted as a remote error): one datagram in flight at
+//! a time, so the queue's order is kept. With no reply within the pipe's
+//! [`ack_timeout`](PipeState::ack_timeout) it sends the same request again
+//! (same sequence number), up to [`max_retries`](PipeState::max_retries)
+//! times, then counts a failure and drops it. Delivery is **at least once**:
+//! when an acknowledgement is lost the destination receives the datagram
+//! again. A datagram dropped by a full queue while in flight is dropped like
+//! any other (counted in `overflows`); a late reply to it is ignored.
 use osap_core::codec::{Reader, Writer};
 use osap_core::route::Route;
 
-use crate::control::DecodeError;
+use crate::control::{ControlError, DecodeError};
 
 /// The most output → input pairs in one pipe's argmap.
 pub const MAX_ARGMAP: usize = 8;
@@ -31,14 +40,23 @@ pub const MAX_ARGMAP: usize = 8;
 /// The flag bit that asks for acknowledged delivery.
 pub const FLAG_ACKED: u8 = 0x01;
 
+/// How long an acknowledged pipe waits for a reply before it sends a
+/// datagram again, µs, unless set otherwise ([`PipeState::ack_timeout`]).
+pub const DEFAULT_ACK_TIMEOUT_US: u32 = 20_000;
+
+/// How many times an acknowledged pipe sends a datagram again before it
+/// counts a failure, unless set otherwise ([`PipeState::max_retries`]).
+pub const DEFAULT_ACK_RETRIES: u8 = 3;
+
 /// How a pipe delivers.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub enum PipeDelivery {
     /// Send and forget; losses are the network's counters' business.
     #[default]
     BestEffort,
-    /// Acknowledged delivery (declared on the wire; refused by this
-    /// implementation, which does not do acknowledgements yet).
+    /// Acknowledged delivery: each datagram is a request, retransmitted
+    /// until the destination replies or the retries run out (at least once;
+    /// see the module docs).
     Acked,
 }
 
@@ -196,9 +214,90 @@ impl PipeConfig {
     }
 }
 
+/// A pipe's counters, as the "get pipe stats" reply carries them.
+///
+/// Wire form (`docs/pipes.md` §5): `[sent: u32][overflows: u32]
+/// [send_errors: u32][remote_errors: u32][acked: u32][retries: u32]
+/// [failures: u32]` then the last remote error as `[status][body]` (status
+/// 0, no body: none). Counters wrap.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct PipeStats {
+    /// Datagrams sent.
+    pub sent: u32,
+    /// Datagrams dropped because the queue was full.
+    pub overflows: u32,
+    /// Datagrams that could not be built or sent.
+    pub send_errors: u32,
+    /// Error reports the destination sent back.
+    pub remote_errors: u32,
+    /// Datagrams the destination acknowledged (acknowledged pipes).
+    pub acked: u32,
+    /// Datagrams sent again for want of an acknowledgement.
+    pub retries: u32,
+    /// Datagrams dropped unacknowledged after the last retry.
+    pub failures: u32,
+    /// The last error report the destination sent back.
+    pub last_remote_error: Option<ControlError>,
+}
+
+impl PipeStats {
+    /// Writes the counters. On error nothing is written.
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), DecodeError> {
+        let start = w.len();
+        let r = (|| -> Result<(), DecodeError> {
+            for c in [
+                self.sent,
+                self.overflows,
+                self.send_errors,
+                self.remote_errors,
+                self.acked,
+                self.retries,
+                self.failures,
+            ] {
+                w.u32(c)?;
+            }
+            match &self.last_remote_error {
+                None => w.u8(0)?,
+                Some(e) => e.encode(w)?,
+            }
+            Ok(())
+        })();
+        if r.is_err() {
+            w.truncate(start);
+        }
+        r
+    }
+
+    /// Reads the counters from `r`.
+    pub fn decode(r: &mut Reader<'_>) -> Result<PipeStats, DecodeError> {
+        let sent = r.u32()?;
+        let overflows = r.u32()?;
+        let send_errors = r.u32()?;
+        let remote_errors = r.u32()?;
+        let acked = r.u32()?;
+        let retries = r.u32()?;
+        let failures = r.u32()?;
+        let last_remote_error = match r.u8()? {
+            0 => None,
+            status => Some(ControlError::decode_body(status, r)?),
+        };
+        Ok(PipeStats {
+            sent,
+            overflows,
+            send_errors,
+            remote_errors,
+            acked,
+            retries,
+            failures,
+            last_remote_error,
+        })
+    }
+}
+
 /// A pipe in a function's table: its configuration, its queue of `Q`
-/// datagrams of up to `B` bytes each (transport key included) waiting for
-/// its port, and its counters.
+/// datagrams of up to `B` bytes each (transport header included) waiting for
+/// its port (or, on an acknowledged pipe, the front one for its reply), and
+/// its counters.
 #[derive(Debug, Clone)]
 pub struct PipeState<const Q: usize, const B: usize> {
     /// The configuration.
@@ -215,8 +314,43 @@ pub struct PipeState<const Q: usize, const B: usize> {
     pub send_errors: u32,
     /// Error reports the destination sent back.
     pub remote_errors: u32,
+    /// Datagrams the destination acknowledged (acknowledged pipes).
+    pub acked: u32,
+    /// Datagrams sent again for want of an acknowledgement.
+    pub retries: u32,
+    /// Datagrams dropped unacknowledged after the last retry.
+    pub failures: u32,
     /// The last error report the destination sent back.
-    pub last_remote_error: Option<crate::control::ControlError>,
+    pub last_remote_error: Option<ControlError>,
+    /// Acknowledged pipes: how long to wait for a reply before sending
+    /// again, µs.
+    pub ack_timeout: u32,
+    /// Acknowledged pipes: how many times to send a datagram again before
+    /// dropping it as a failure.
+    pub max_retries: u8,
+    next_seq: u16,
+    in_flight: Option<InFlight>,
+}
+
+/// The front datagram of an acknowledged pipe, sent and waiting for its reply.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+struct InFlight {
+    seq: u16,
+    sent_at: osap_core::Micros,
+    sends: u8,
+}
+
+/// What an acknowledged pipe should do with its front datagram now.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum AckStep {
+    /// Nothing is in flight: send the front datagram, if any, as new.
+    SendNew,
+    /// The front datagram waits for its reply.
+    Wait,
+    /// No reply in time: send the front datagram again.
+    Resend,
+    /// No reply after the last retry: drop it (counted as a failure).
+    GiveUp,
 }
 
 impl<const Q: usize, const B: usize> PipeState<Q, B> {
@@ -231,8 +365,115 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
             overflows: 0,
             send_errors: 0,
             remote_errors: 0,
+            acked: 0,
+            retries: 0,
+            failures: 0,
             last_remote_error: None,
+            ack_timeout: DEFAULT_ACK_TIMEOUT_US,
+            max_retries: DEFAULT_ACK_RETRIES,
+            next_seq: 0,
+            in_flight: None,
         }
+    }
+
+    /// The counters.
+    pub fn stats(&self) -> PipeStats {
+        PipeStats {
+            sent: self.sent,
+            overflows: self.overflows,
+            send_errors: self.send_errors,
+            remote_errors: self.remote_errors,
+            acked: self.acked,
+            retries: self.retries,
+            failures: self.failures,
+            last_remote_error: self.last_remote_error,
+        }
+    }
+
+    /// Whether the front datagram has been sent and waits for its reply
+    /// (acknowledged pipes).
+    pub fn awaiting_ack(&self) -> bool {
+        self.in_flight.is_some()
+    }
+
+    /// What to do with the front datagram at time `now` (acknowledged pipes).
+    pub fn ack_step(&self, now: osap_core::Micros) -> AckStep {
+        match self.in_flight {
+            None => AckStep::SendNew,
+            Some(f) if now.saturating_sub(f.sent_at) < u64::from(self.ack_timeout) => AckStep::Wait,
+            Some(f) if f.sends > self.max_retries => AckStep::GiveUp,
+            Some(_) => AckStep::Resend,
+        }
+    }
+
+    /// The front datagram as a request with a new sequence number (written
+    /// into its header), for its first send. `None` if the queue is empty
+    /// or the datagram has no request header.
+    pub fn front_as_new_request(&mut self) -> Option<(u16, &[u8])> {
+        if self.queued == 0 {
+            return None;
+        }
+        let seq = self.next_seq;
+        let (buf, n) = self.queue.get_mut(self.head)?;
+        let d = buf.get_mut(..*n)?;
+        let hdr = osap_core::transport::Transport::Request(seq);
+        if d.first() != Some(&osap_core::transport::KEY_REQUEST) {
+            return None;
+        }
+        hdr.encode(d)?;
+        self.next_seq = seq.wrapping_add(1);
+        Some((seq, d))
+    }
+
+    /// Records that the front datagram, request `seq`, was sent at `now`
+    /// (first send or retry).
+    pub fn mark_sent(&mut self, seq: u16, now: osap_core::Micros) {
+        match &mut self.in_flight {
+            Some(f) if f.seq == seq => {
+                f.sends = f.sends.saturating_add(1);
+                f.sent_at = now;
+                self.retries = self.retries.wrapping_add(1);
+            }
+            _ => {
+                self.in_flight = Some(InFlight {
+                    seq,
+                    sent_at: now,
+                    sends: 1,
+                });
+                self.sent = self.sent.wrapping_add(1);
+            }
+        }
+    }
+
+    /// The sequence number of the front datagram in flight.
+    pub fn in_flight_seq(&self) -> Option<u16> {
+        self.in_flight.map(|f| f.seq)
+    }
+
+    /// Drops the front datagram after its last retry went unanswered.
+    pub fn give_up(&mut self) {
+        self.failures = self.failures.wrapping_add(1);
+        self.pop();
+    }
+
+    /// Takes the destination's reply to request `seq`: `Ok` acknowledges
+    /// the front datagram, `Err` is the destination's refusal (counted as a
+    /// remote error); either way the datagram leaves the queue. Returns
+    /// `false`, changing nothing, for a reply to anything but the datagram
+    /// in flight (a duplicate, or a late reply to a dropped datagram).
+    pub fn on_reply(&mut self, seq: u16, result: Result<(), ControlError>) -> bool {
+        if self.in_flight_seq() != Some(seq) {
+            return false;
+        }
+        match result {
+            Ok(()) => self.acked = self.acked.wrapping_add(1),
+            Err(e) => {
+                self.remote_errors = self.remote_errors.wrapping_add(1);
+                self.last_remote_error = Some(e);
+            }
+        }
+        self.pop();
+        true
     }
 
     /// How many datagrams wait.
@@ -249,8 +490,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
             return;
         }
         if self.queued == Q {
-            self.head = (self.head + 1) % Q;
-            self.queued -= 1;
+            self.pop();
             self.overflows = self.overflows.wrapping_add(1);
         }
         let at = (self.head + self.queued) % Q;
@@ -275,8 +515,10 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
         buf.get(..*n)
     }
 
-    /// Drops the oldest waiting datagram.
+    /// Drops the oldest waiting datagram (and forgets that it was in
+    /// flight: a late reply to it is ignored).
     pub fn pop(&mut self) {
+        self.in_flight = None;
         if self.queued > 0 && Q > 0 {
             self.head = (self.head + 1) % Q;
             self.queued -= 1;
@@ -350,5 +592,58 @@ mod tests {
         s.push_with(|_| None);
         assert_eq!(s.send_errors, 1);
         assert_eq!(s.queued(), 0);
+    }
+
+    #[test]
+    fn acked_front_waits_for_its_own_reply() {
+        let mut s: PipeState<2, 8> = PipeState::new(
+            PipeConfig::new(Route::local(), 1, 1).with_delivery(PipeDelivery::Acked),
+        );
+        s.ack_timeout = 10;
+        s.max_retries = 1;
+        for x in 1..=2u8 {
+            s.push_with(|b| {
+                b[..4].copy_from_slice(&[1, 0, 0, x]);
+                Some(4)
+            });
+        }
+        assert_eq!(s.ack_step(0), AckStep::SendNew);
+        let (seq, d) = s.front_as_new_request().unwrap();
+        assert_eq!((seq, d), (0, &[1u8, 0, 0, 1][..]));
+        s.mark_sent(seq, 0);
+        assert_eq!(s.ack_step(9), AckStep::Wait);
+        assert_eq!(s.ack_step(10), AckStep::Resend);
+        s.mark_sent(seq, 10);
+        assert_eq!((s.sent, s.retries), (1, 1));
+        assert_eq!(s.ack_step(20), AckStep::GiveUp);
+        // A reply to another sequence number changes nothing.
+        assert!(!s.on_reply(7, Ok(())));
+        assert!(s.on_reply(0, Ok(())));
+        assert!(!s.on_reply(0, Ok(())), "a duplicate is ignored");
+        assert_eq!((s.acked, s.queued()), (1, 1));
+        let (seq, d) = s.front_as_new_request().unwrap();
+        assert_eq!((seq, d), (1, &[1u8, 1, 0, 2][..]));
+        s.mark_sent(seq, 30);
+        // Overflow drops the datagram in flight; its late reply is ignored.
+        for _ in 0..2 {
+            s.push_with(|b| {
+                b[0] = 1;
+                Some(4)
+            });
+        }
+        assert!(!s.awaiting_ack());
+        assert_eq!(s.overflows, 1);
+        assert!(!s.on_reply(1, Err(ControlError::Malformed)));
+        assert_eq!(s.remote_errors, 0);
+        s.mark_sent(9, 40);
+        s.give_up();
+        assert_eq!((s.failures, s.queued()), (1, 1));
+        // A best-effort datagram (raw header) is no request.
+        let mut raw: PipeState<1, 4> = PipeState::new(PipeConfig::new(Route::local(), 1, 1));
+        raw.push_with(|b| {
+            b[0] = 0;
+            Some(1)
+        });
+        assert!(raw.front_as_new_request().is_none());
     }
 }

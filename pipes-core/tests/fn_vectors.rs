@@ -11,7 +11,7 @@ use pipes_core::control::{
     encode_error, encode_signature_reply, ControlError, ControlKey, InputMode, Reply, ReplyBody,
     Request, ANY_SLOT,
 };
-use pipes_core::pipe::PipeConfig;
+use pipes_core::pipe::{PipeConfig, PipeStats};
 use pipes_core::signature::{Arg, Signature, SignatureView};
 use pipes_core::{Args, ArgsWriter, ConvertError, ConvertReason, ScalarType, Type, Value};
 
@@ -197,6 +197,44 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
                 w,
                 ControlKey::PipeError.to_u8(),
                 &ControlError::NoSuchInput(5),
+            )
+            .unwrap()
+        }),
+    );
+    put(
+        "fn.request.get_pipe_stats",
+        enc(|w| Request::GetPipeStats(0).encode(w).unwrap()),
+    );
+    put(
+        "fn.reply.get_pipe_stats",
+        enc(|w| {
+            Reply {
+                key: ControlKey::GetPipeStats.to_u8(),
+                result: Ok(ReplyBody::PipeStats {
+                    slot: 0,
+                    stats: PipeStats {
+                        sent: 3,
+                        overflows: 2,
+                        send_errors: 0,
+                        remote_errors: 1,
+                        acked: 2,
+                        retries: 1,
+                        failures: 0,
+                        last_remote_error: Some(ControlError::NoSuchInput(5)),
+                    },
+                }),
+            }
+            .encode(w)
+            .unwrap()
+        }),
+    );
+    put(
+        "fn.reply.error.no_such_pipe",
+        enc(|w| {
+            encode_error(
+                w,
+                ControlKey::GetPipeStats.to_u8(),
+                &ControlError::NoSuchPipe(1),
             )
             .unwrap()
         }),

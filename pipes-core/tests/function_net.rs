@@ -360,7 +360,7 @@ fn set_get_wipe_pipe_over_the_network() {
         },
     );
     assert_eq!(err(&body), ControlError::PipeTableFull);
-    // Bad argmap and acknowledged delivery are refused, not pretended.
+    // A bad argmap is refused; acknowledged delivery is taken (and kept).
     let bad = PipeConfig::new(Route::local(), 1, 1).with(3, 0).unwrap();
     let body = w.ask(to_b(), ACC_PORT, &Request::SetPipe { slot: 0, pipe: bad });
     assert_eq!(err(&body), ControlError::BadArgmap(3));
@@ -373,7 +373,15 @@ fn set_get_wipe_pipe_over_the_network() {
             pipe: acked,
         },
     );
-    assert_eq!(err(&body), ControlError::Unsupported);
+    assert_eq!(ok(&body), ReplyBody::PipeSet(0));
+    let body = w.ask(to_b(), ACC_PORT, &Request::GetPipe(0));
+    assert_eq!(
+        ok(&body),
+        ReplyBody::Pipe {
+            slot: 0,
+            pipe: Some(acked)
+        }
+    );
 
     let body = w.ask(to_b(), ACC_PORT, &Request::WipePipe(1));
     assert_eq!(ok(&body), ReplyBody::Done);
@@ -383,7 +391,7 @@ fn set_get_wipe_pipe_over_the_network() {
     assert_eq!(ok(&body), ReplyBody::Done);
     let body = w.ask(to_b(), ACC_PORT, &Request::GetPipeCount);
     assert_eq!(ok(&body), ReplyBody::PipeCount { slots: 2, used: 0 });
-    assert_eq!(w.acc().stats().refused, 4);
+    assert_eq!(w.acc().stats().refused, 3);
 }
 
 #[test]
@@ -451,6 +459,17 @@ fn queue_overflow_is_counted() {
     }
     let p = w.sensor().pipe(0).unwrap();
     assert_eq!((p.queued(), p.overflows, p.sent), (2, 2, 0));
+    // The counters are readable over the network.
+    let body = w.ask(Route::local(), SENSOR_PORT, &Request::GetPipeStats(0));
+    let ReplyBody::PipeStats { slot: 0, stats } = ok(&body) else {
+        panic!("{body:?}")
+    };
+    assert_eq!((stats.sent, stats.overflows, stats.send_errors), (0, 2, 0));
+    assert_eq!(stats.last_remote_error, None);
+    let body = w.ask(Route::local(), SENSOR_PORT, &Request::GetPipeStats(1));
+    assert_eq!(err(&body), ControlError::NoSuchPipe(1));
+    let body = w.ask(Route::local(), SENSOR_PORT, &Request::GetPipeStats(9));
+    assert_eq!(err(&body), ControlError::NoSuchPipe(9));
     w.a.stack_quota(SENSOR_PIPE0, 4);
     w.steps(6);
     let p = w.sensor().pipe(0).unwrap();
@@ -481,6 +500,12 @@ fn refused_datagrams_are_reported_to_the_pipe() {
     let p = w.sensor().pipe(0).unwrap();
     assert_eq!(p.remote_errors, 1);
     assert_eq!(p.last_remote_error, Some(ControlError::NoSuchInput(5)));
+    let body = w.ask(Route::local(), SENSOR_PORT, &Request::GetPipeStats(0));
+    let ReplyBody::PipeStats { stats, .. } = ok(&body) else {
+        panic!("{body:?}")
+    };
+    assert_eq!((stats.sent, stats.remote_errors), (1, 1));
+    assert_eq!(stats.last_remote_error, Some(ControlError::NoSuchInput(5)));
 }
 
 #[test]

@@ -16,7 +16,7 @@ use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
 use pipes_core::convert::{rule, Rule};
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
-use pipes_core::pipe::{PipeConfig, PipeDelivery, MAX_ARGMAP};
+use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -46,8 +46,9 @@ impl Default for ManagerOptions {
 pub struct PipeOptions {
     /// Time-to-live of each datagram, µs.
     pub ttl_us: u16,
-    /// Best-effort or acknowledged (functions of this implementation refuse
-    /// acknowledged pipes; the refusal is returned as an error).
+    /// Best-effort or acknowledged (each datagram retransmitted until the
+    /// destination replies, at least once; the source's firmware sets the
+    /// ack timeout and retry count, 20 ms and 3 by default).
     pub delivery: PipeDelivery,
     /// The slot to set; `None` takes the first free one.
     pub slot: Option<u8>,
@@ -551,6 +552,26 @@ impl Manager {
             wiped = slots;
         }
         Ok(wiped)
+    }
+
+    /// Reads the counters of `f`'s pipe in slot `slot` over the network
+    /// (datagrams sent, dropped on a full queue, not sendable, refused by
+    /// the destination, acknowledged, sent again, dropped unacknowledged,
+    /// and the destination's last refusal). An empty slot
+    /// is refused by the function ([`ControlError::NoSuchPipe`] in
+    /// [`SomError::Remote`]). The model is not changed.
+    ///
+    /// [`ControlError::NoSuchPipe`]: pipes_core::control::ControlError::NoSuchPipe
+    pub async fn pipe_stats(&self, f: &FnRef, slot: u8) -> Result<PipeStats, SomError> {
+        let (_, at) = self.target(f)?;
+        let reply = self
+            .control
+            .ask(&at, "get pipe stats", &Request::GetPipeStats(slot), true)
+            .await?;
+        match reply.body(&at, "get pipe stats", ControlKey::GetPipeStats)? {
+            ReplyBody::PipeStats { slot: s, stats } if s == slot => Ok(stats),
+            other => Err(unexpected(&at, "get pipe stats", &other)),
+        }
     }
 
     /// Sets when `f` runs on dataflow.

@@ -152,8 +152,8 @@ pub enum SomDelivery {
     /// Send and forget.
     #[default]
     BestEffort,
-    /// Acknowledged (declared on the wire; functions of this implementation
-    /// refuse it).
+    /// Acknowledged: each datagram is retransmitted until the destination
+    /// replies or the retries run out (at least once; `docs/pipes.md` §5).
     Acked,
 }
 
