@@ -191,6 +191,15 @@ pub trait Port {
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         let _ = tx;
     }
+
+    /// The local time by which this port needs [`poll`](Self::poll) to run
+    /// again (a timer, a retransmission), if any. The runtime folds it into
+    /// [`PollResult::wake_at`](crate::runtime::PollResult::wake_at), so a
+    /// runtime that sleeps until then never misses it. A time already past
+    /// asks for a poll as soon as possible.
+    fn wake_at(&self) -> Option<Micros> {
+        None
+    }
 }
 
 macro_rules! forward_port {
@@ -209,6 +218,9 @@ macro_rules! forward_port {
         }
         fn poll(&mut self, tx: &mut PortTx<'_>) {
             (**self).poll(tx)
+        }
+        fn wake_at(&self) -> Option<Micros> {
+            (**self).wake_at()
         }
     };
 }

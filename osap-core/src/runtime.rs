@@ -67,8 +67,9 @@ pub struct PollResult {
     /// Packets left waiting for a busy link or port.
     pub waiting: usize,
     /// The local time by which `poll` must run again: the earliest deadline
-    /// of a waiting packet, or the next clock-sync request. Poll sooner when
-    /// a link or port has news.
+    /// of a waiting packet, the next clock-sync request, or a port's own
+    /// [`wake_at`](crate::port::Port::wake_at). Poll sooner when a link or
+    /// port has news.
     pub wake_at: Option<Micros>,
     /// The per-poll budget ran out with work left: poll again at once.
     pub more: bool,
@@ -303,10 +304,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         #[cfg(feature = "sync")]
         self.sync_clock(now, links);
         let mut result = self.serve(now, ports, links);
-        result.wake_at = match (result.wake_at, self.clock.next_request()) {
-            (Some(a), Some(b)) => Some(a.min(b)),
-            (a, b) => a.or(b),
-        };
+        let ports_due = ports.iter().filter_map(|p| p.wake_at()).min();
+        result.wake_at = [result.wake_at, self.clock.next_request(), ports_due]
+            .into_iter()
+            .flatten()
+            .min();
         result
     }
 

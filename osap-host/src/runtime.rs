@@ -131,6 +131,10 @@ impl Port for PortSlot {
             p.poll(tx);
         }
     }
+
+    fn wake_at(&self) -> Option<osap_core::Micros> {
+        self.port().and_then(|p| p.wake_at())
+    }
 }
 
 /// A handle to a running host runtime. Cheap to clone; the runtime stops

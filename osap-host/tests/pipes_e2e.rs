@@ -743,3 +743,46 @@ async fn a_pipe_to_a_module_that_died_is_reported() {
     assert!(som.to_json().contains("\"destination\": null"));
     drop(lab.h);
 }
+
+/// A host function on a timer fires at its interval even when nothing else
+/// wakes its runtime: ports tell the runtime when they next need a poll.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_host_timer_runs_without_other_traffic() {
+    let h = host("quiet");
+    let mut m = Manager::new(&h).await.unwrap();
+    refresh(&mut m).await;
+    let stamps: Arc<Mutex<Vec<Instant>>> = Arc::default();
+    let s = stamps.clone();
+    let sink = HostFunction::new("sink", &[("t", U64)], &[], move |_| {
+        s.lock().unwrap().push(Instant::now());
+        Ok(vec![])
+    })
+    .unwrap();
+    let sink = m.define(sink).await.unwrap();
+    let tick =
+        HostFunction::new("tick", &[], &[("t", U64)], |_| Ok(vec![OwnedValue::U64(1)])).unwrap();
+    let tick = m.define(tick).await.unwrap();
+    m.connect(&tick, &sink, &[0], &[0], PipeOptions::default())
+        .await
+        .unwrap();
+    const INTERVAL_US: u32 = 10_000;
+    m.set_input_mode(&tick, InputMode::OnTimer(INTERVAL_US))
+        .await
+        .unwrap();
+    wait_until("the first ticks", || {
+        (stamps.lock().unwrap().len() >= 2).then_some(())
+    })
+    .await;
+    let start = Instant::now();
+    let n0 = stamps.lock().unwrap().len();
+    let n1 = wait_until("half a second", || {
+        (start.elapsed() >= Duration::from_millis(500)).then(|| stamps.lock().unwrap().len())
+    })
+    .await;
+    let rate = (n1 - n0) as f64 / start.elapsed().as_secs_f64();
+    let expected = 1e6 / f64::from(INTERVAL_US);
+    assert!(
+        (rate - expected).abs() <= 0.2 * expected,
+        "{rate:.1} ticks/s, expected {expected:.1}"
+    );
+}

@@ -891,6 +891,22 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
         self.flush(tx);
     }
 
+    fn wake_at(&self) -> Option<Micros> {
+        let timer = match (self.input_mode, self.next_timer) {
+            // Not started yet: the first poll starts it.
+            (InputMode::OnTimer(_), None) => Some(0),
+            (InputMode::OnTimer(_), Some(t)) => Some(t),
+            _ => None,
+        };
+        let acks = self
+            .pipes
+            .iter()
+            .flatten()
+            .filter_map(|p| p.ack_deadline())
+            .min();
+        [timer, acks].into_iter().flatten().min()
+    }
+
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         if let InputMode::OnTimer(iv) = self.input_mode {
             let now = tx.now();

@@ -445,7 +445,13 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
         }
     }
 
-    /// The sequence number of the front datagram in flight.
+    /// When the datagram in flight should be sent again if no ack comes.
+    pub fn ack_deadline(&self) -> Option<osap_core::Micros> {
+        self.in_flight
+            .map(|f| f.sent_at.saturating_add(u64::from(self.ack_timeout)))
+    }
+
+    /// The sequence number of the datagram in flight, if any.
     pub fn in_flight_seq(&self) -> Option<u16> {
         self.in_flight.map(|f| f.seq)
     }
