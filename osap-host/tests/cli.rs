@@ -44,6 +44,23 @@ fn scan_of_a_simulated_machine_prints_a_tree_and_writes_the_map() {
 }
 
 #[test]
+fn scan_writes_the_system_object_model_for_proxygen() {
+    let path = std::env::temp_dir().join(format!("osap-cli-som-{}.json", std::process::id()));
+    let out = osap()
+        .args(["scan", "--sim"])
+        .arg(topology("small-machine.toml"))
+        .arg("--som")
+        .arg(&path)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let som = osap_host::som::Som::from_json(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let x = som.runtimes.iter().find(|r| r.name == "x").unwrap();
+    assert!(x.functions.iter().any(|f| f.name == "get_position"));
+    let _ = std::fs::remove_file(path);
+}
+
+#[test]
 fn ping_and_rename_by_name() {
     let file = topology("single-usb.toml");
     let out = osap()

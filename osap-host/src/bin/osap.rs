@@ -61,6 +61,10 @@ enum Command {
         /// Write the network map as JSON to this file.
         #[arg(short = 'o', long, value_name = "FILE")]
         output: Option<PathBuf>,
+        /// Also read every PIPES function, class and pipe, and write the
+        /// system object model (the input of `proxygen`) as JSON to this file.
+        #[arg(long, value_name = "FILE")]
+        som: Option<PathBuf>,
         /// Retries for a request that got no reply.
         #[arg(long, default_value_t = 2)]
         retries: u8,
@@ -246,9 +250,26 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
         Command::Scan {
             connect: args,
             output,
+            som,
             retries,
         } => {
             let c = connect(&args).await?;
+            if let Some(path) = &som {
+                let mut manager = osap_host::som::Manager::new(&c.host)
+                    .await
+                    .map_err(|e| e.to_string())?;
+                let refresh = manager.refresh().await.map_err(|e| e.to_string())?;
+                for f in &refresh.function_failures {
+                    eprintln!("warning: {f:?}");
+                }
+                std::fs::write(path, manager.som().to_json())
+                    .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+                println!(
+                    "system object model written to {} ({} functions)",
+                    path.display(),
+                    manager.som().runtimes.iter().map(|r| r.functions.len()).sum::<usize>()
+                );
+            }
             let report = scan(&c, retries).await?;
             print!("{}", report.map.tree());
             println!(
