@@ -53,7 +53,11 @@ fn scan_writes_the_system_object_model_for_proxygen() {
         .arg(&path)
         .output()
         .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let som = osap_host::som::Som::from_json(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let x = som.runtimes.iter().find(|r| r.name == "x").unwrap();
     assert!(x.functions.iter().any(|f| f.name == "get_position"));

@@ -267,7 +267,12 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
                 println!(
                     "system object model written to {} ({} functions)",
                     path.display(),
-                    manager.som().runtimes.iter().map(|r| r.functions.len()).sum::<usize>()
+                    manager
+                        .som()
+                        .runtimes
+                        .iter()
+                        .map(|r| r.functions.len())
+                        .sum::<usize>()
                 );
             }
             let report = scan(&c, retries).await?;
