@@ -9,7 +9,7 @@
 //! | `arry_<s>` (`s` a scalar above except `f16`, `null`) | `&[s]` | `Vec<s>` |
 //! | anything else (`arry_f16`, `tnsr_*`, unknown names) | `OwnedValue` | `OwnedValue` |
 //!
-//! Each mapping names a conversion pair in the generated `support` module:
+//! Each mapping names a conversion pair in `osap_host::som::proxy::support`:
 //! `support::to_<key>` (argument → `OwnedValue`) and `support::from_<key>`
 //! (`OwnedValue` → output, `None` if the value has another type).
 

@@ -35,6 +35,7 @@ mod host_class;
 mod host_fn;
 mod manager;
 pub mod model;
+pub mod proxy;
 mod value;
 
 pub use handle::FunctionHandle;
