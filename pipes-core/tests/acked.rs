@@ -3,17 +3,17 @@
 //! function on runtime B; the link between them can lose everything in
 //! either direction.
 
-use osap_core::codec::{Reader, Writer};
-use osap_core::link::queue::transfer;
-use osap_core::port::{Delivery, Port, PortInfo, PortTx};
+mod common;
+
+use std::ops::{Deref, DerefMut};
+
+use common::Net;
 use osap_core::route::Route;
-use osap_core::transport::Transport;
-use osap_tests::{TestLink, TestPort, TestRuntime};
 use pipes_core::control::{ControlError, Reply, ReplyBody, Request};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::{PipeConfig, PipeDelivery, DEFAULT_ACK_RETRIES, DEFAULT_ACK_TIMEOUT_US};
 use pipes_core::signature::{Arg, Signature};
-use pipes_core::{Args, ArgsWriter, ScalarType, Type, Value};
+use pipes_core::{ScalarType, Type, Value};
 
 const F32: Type = Type::Scalar(ScalarType::F32);
 
@@ -61,183 +61,60 @@ impl Implementation for Sink {
 type SensorFn = PipesFunction<Sensor, 1, 4, 64>;
 type SinkFn = PipesFunction<Sink, 1, 2, 64>;
 
-enum AnyPort {
-    Host(TestPort),
-    Sensor(SensorFn),
-    Sink(SinkFn),
-}
-
-impl AnyPort {
-    fn port(&mut self) -> &mut dyn Port {
-        match self {
-            AnyPort::Host(p) => p,
-            AnyPort::Sensor(p) => p,
-            AnyPort::Sink(p) => p,
-        }
-    }
-    fn port_ref(&self) -> &dyn Port {
-        match self {
-            AnyPort::Host(p) => p,
-            AnyPort::Sensor(p) => p,
-            AnyPort::Sink(p) => p,
-        }
-    }
-}
-
-impl Port for AnyPort {
-    fn port_count(&self) -> u16 {
-        self.port_ref().port_count()
-    }
-    fn info(&self, offset: u16) -> PortInfo<'_> {
-        self.port_ref().info(offset)
-    }
-    fn clear_to_receive(&self, offset: u16) -> bool {
-        self.port_ref().clear_to_receive(offset)
-    }
-    fn on_packet(&mut self, d: Delivery<'_>, tx: &mut PortTx<'_>) {
-        self.port().on_packet(d, tx)
-    }
-    fn poll(&mut self, tx: &mut PortTx<'_>) {
-        self.port().poll(tx)
-    }
-}
-
 /// Host = A port 1, sensor = A port 2 (control), 3 (pipe); sink = B port 1.
 /// A link 0 ↔ B link 0.
-struct World {
-    a: TestRuntime,
-    b: TestRuntime,
-    pa: Vec<AnyPort>,
-    pb: Vec<AnyPort>,
-    la: Vec<TestLink>,
-    lb: Vec<TestLink>,
-    now: u64,
-    seq: u16,
-    /// Lose every packet A sends to B (datagrams).
-    lose_to_b: bool,
-    /// Lose every packet B sends to A (acknowledgements).
-    lose_to_a: bool,
+struct World(Net);
+
+impl Deref for World {
+    type Target = Net;
+    fn deref(&self) -> &Net {
+        &self.0
+    }
+}
+
+impl DerefMut for World {
+    fn deref_mut(&mut self) -> &mut Net {
+        &mut self.0
+    }
 }
 
 const SENSOR_PORT: u16 = 2;
 const SINK_PORT: u16 = 1;
-/// Microseconds per step.
-const STEP: u64 = 100;
-
-fn runtime(name: &str) -> TestRuntime {
-    let mut r = TestRuntime::new("pipes_test", name).unwrap();
-    let quiet = osap_core::clock::TimeConfig {
-        enabled: false,
-        ..Default::default()
-    };
-    r.clock_mut().set_config(quiet).unwrap();
-    r
-}
 
 impl World {
     fn new() -> World {
-        World {
-            a: runtime("a"),
-            b: runtime("b"),
-            pa: vec![
-                AnyPort::Host(TestPort::default()),
-                AnyPort::Sensor(SensorFn::new(Sensor).unwrap()),
-            ],
-            pb: vec![AnyPort::Sink(SinkFn::new(Sink::default()).unwrap())],
-            la: vec![TestLink::new()],
-            lb: vec![TestLink::new()],
-            now: 1,
-            seq: 0,
-            lose_to_b: false,
-            lose_to_a: false,
-        }
-    }
-
-    fn host(&mut self) -> &mut TestPort {
-        match &mut self.pa[0] {
-            AnyPort::Host(h) => h,
-            _ => unreachable!(),
-        }
+        World(Net::new(
+            vec![Box::new(SensorFn::new(Sensor).unwrap())],
+            vec![Box::new(SinkFn::new(Sink::default()).unwrap())],
+        ))
     }
 
     fn sensor(&mut self) -> &mut SensorFn {
-        match &mut self.pa[1] {
-            AnyPort::Sensor(s) => s,
-            _ => unreachable!(),
-        }
+        self.on_a(0)
     }
 
     fn sink(&mut self) -> &mut SinkFn {
-        match &mut self.pb[0] {
-            AnyPort::Sink(s) => s,
-            _ => unreachable!(),
-        }
+        self.on_b(0)
     }
 
     fn seen(&mut self) -> Vec<f32> {
         self.sink().implementation().0.clone()
     }
 
-    fn step(&mut self) {
-        self.a.poll(self.now, &mut self.pa, &mut self.la);
-        self.b.poll(self.now, &mut self.pb, &mut self.lb);
-        if self.lose_to_b {
-            while self.la[0].take_sent().is_some() {}
-        }
-        if self.lose_to_a {
-            while self.lb[0].take_sent().is_some() {}
-        }
-        transfer(&mut self.la[0], &mut self.lb[0], usize::MAX);
-        transfer(&mut self.lb[0], &mut self.la[0], usize::MAX);
-        self.now += STEP;
-    }
-
-    fn steps(&mut self, n: usize) {
-        for _ in 0..n {
-            self.step();
-        }
-    }
-
     /// Sends a request from the host to the sensor and returns the reply body.
-    fn ask(&mut self, req: &Request<'_>) -> Vec<u8> {
-        self.seq += 1;
-        let seq = self.seq;
-        let mut buf = [0u8; 200];
-        Transport::Request(seq).encode(&mut buf).unwrap();
-        let mut w = Writer::new(&mut buf[3..]);
-        req.encode(&mut w).unwrap();
-        let n = 3 + w.len();
-        let before = self.host().received.len();
-        self.host()
-            .queue(Route::local(), SENSOR_PORT, 10_000, &buf[..n]);
-        for _ in 0..50 {
-            self.step();
-            if self.host().received.len() > before {
-                let p = self.host().received[before].payload.clone();
-                let (t, body) = Transport::decode(&p).unwrap();
-                assert_eq!(t, Transport::Reply(seq));
-                return body.to_vec();
-            }
-        }
-        panic!("no reply to {req:?}");
+    fn ask_sensor(&mut self, req: &Request<'_>) -> Vec<u8> {
+        self.ask(Route::local(), SENSOR_PORT, req)
     }
 
     /// Calls the sensor with `x`: its output goes down the pipe.
     fn call_sensor(&mut self, x: f32) {
-        let mut buf = vec![0u8; 32];
-        let mut w = Writer::new(&mut buf);
-        let mut a = ArgsWriter::new(&mut w).unwrap();
-        a.push(0, &Value::F32(x)).unwrap();
-        a.finish().unwrap();
-        let n = w.len();
-        let args = Args::decode(&mut Reader::new(&buf[..n])).unwrap();
-        let body = self.ask(&Request::Call(args));
+        let body = self.call(Route::local(), SENSOR_PORT, &[(0, Value::F32(x))]);
         assert!(Reply::parse(&body).unwrap().result.is_ok());
     }
 
     /// The pipe's counters, read over the network.
     fn stats(&mut self) -> pipes_core::pipe::PipeStats {
-        let body = self.ask(&Request::GetPipeStats(0));
+        let body = self.ask_sensor(&Request::GetPipeStats(0));
         match Reply::parse(&body).unwrap().result {
             Ok(ReplyBody::PipeStats { slot: 0, stats }) => stats,
             other => panic!("{other:?}"),
@@ -257,7 +134,7 @@ fn acked_pipe(input: u8) -> PipeConfig {
 fn acked_datagrams_arrive_in_order() {
     let mut w = World::new();
     // Set over the network: acknowledged pipes are accepted now.
-    let body = w.ask(&Request::SetPipe {
+    let body = w.ask_sensor(&Request::SetPipe {
         slot: 0,
         pipe: acked_pipe(0),
     });

@@ -2,20 +2,22 @@
 //! on runtime A piped to an "accumulator" function on runtime B, driven by a
 //! host port on A through the function protocol.
 
+mod common;
+
+use std::ops::{Deref, DerefMut};
+
+use common::{args, err, ok, runtime, to_b, Net};
 use osap_core::codec::Writer;
-use osap_core::link::queue::transfer;
-use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::Route;
 use osap_core::stack::Owner;
-use osap_core::transport::Transport;
-use osap_tests::{TestLink, TestPort, TestRuntime};
+use osap_tests::{TestLink, TestRuntime};
 use pipes_core::control::{
-    ControlError, ControlKey, InputMode, OutputMode, Reply, ReplyBody, Request, ANY_SLOT,
+    ControlError, ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT,
 };
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::{PipeConfig, PipeDelivery};
 use pipes_core::signature::{Arg, Signature};
-use pipes_core::{ArgsWriter, Message, MessageKey, ScalarType, Type, Value};
+use pipes_core::{Message, MessageKey, ScalarType, Type, Value};
 
 const F32: Type = Type::Scalar(ScalarType::F32);
 const F64: Type = Type::Scalar(ScalarType::F64);
@@ -68,157 +70,45 @@ impl Implementation for Acc {
 type SensorFn = PipesFunction<Sensor, 2, 2, 64>;
 type AccFn = PipesFunction<Acc, 2, 2, 64>;
 
-enum AnyPort {
-    Host(TestPort),
-    Sensor(SensorFn),
-    Acc(AccFn),
-}
-
-impl AnyPort {
-    fn port(&mut self) -> &mut dyn Port {
-        match self {
-            AnyPort::Host(p) => p,
-            AnyPort::Sensor(p) => p,
-            AnyPort::Acc(p) => p,
-        }
-    }
-    fn port_ref(&self) -> &dyn Port {
-        match self {
-            AnyPort::Host(p) => p,
-            AnyPort::Sensor(p) => p,
-            AnyPort::Acc(p) => p,
-        }
-    }
-}
-
-impl Port for AnyPort {
-    fn port_count(&self) -> u16 {
-        self.port_ref().port_count()
-    }
-    fn info(&self, offset: u16) -> PortInfo<'_> {
-        self.port_ref().info(offset)
-    }
-    fn clear_to_receive(&self, offset: u16) -> bool {
-        self.port_ref().clear_to_receive(offset)
-    }
-    fn on_packet(&mut self, d: Delivery<'_>, tx: &mut PortTx<'_>) {
-        self.port().on_packet(d, tx)
-    }
-    fn poll(&mut self, tx: &mut PortTx<'_>) {
-        self.port().poll(tx)
-    }
-}
-
 /// Host = A port 1, sensor = A ports 2 (control), 3, 4 (pipes); accumulator
 /// = B ports 1 (control), 2, 3 (pipes). A link 0 ↔ B link 0.
-struct World {
-    a: TestRuntime,
-    b: TestRuntime,
-    pa: Vec<AnyPort>,
-    pb: Vec<AnyPort>,
-    la: Vec<TestLink>,
-    lb: Vec<TestLink>,
-    now: u64,
-    seq: u16,
+struct World(Net);
+
+impl Deref for World {
+    type Target = Net;
+    fn deref(&self) -> &Net {
+        &self.0
+    }
+}
+
+impl DerefMut for World {
+    fn deref_mut(&mut self) -> &mut Net {
+        &mut self.0
+    }
 }
 
 const SENSOR_PORT: u16 = 2;
 const SENSOR_PIPE0: u16 = 3;
 const ACC_PORT: u16 = 1;
 
-fn runtime(name: &str) -> TestRuntime {
-    let mut r = TestRuntime::new("pipes_test", name).unwrap();
-    let quiet = osap_core::clock::TimeConfig {
-        enabled: false,
-        ..Default::default()
-    };
-    r.clock_mut().set_config(quiet).unwrap();
-    r
-}
-
-fn to_b() -> Route {
-    Route::through_links(&[0]).unwrap()
-}
-
 impl World {
     fn new() -> World {
-        World {
-            a: runtime("a"),
-            b: runtime("b"),
-            pa: vec![
-                AnyPort::Host(TestPort::default()),
-                AnyPort::Sensor(SensorFn::new(Sensor).unwrap()),
-            ],
-            pb: vec![AnyPort::Acc(AccFn::new(Acc::default()).unwrap())],
-            la: vec![TestLink::new()],
-            lb: vec![TestLink::new()],
-            now: 1,
-            seq: 0,
-        }
-    }
-
-    fn host(&mut self) -> &mut TestPort {
-        match &mut self.pa[0] {
-            AnyPort::Host(h) => h,
-            _ => unreachable!(),
-        }
+        World(Net::new(
+            vec![Box::new(SensorFn::new(Sensor).unwrap())],
+            vec![Box::new(AccFn::new(Acc::default()).unwrap())],
+        ))
     }
 
     fn sensor(&mut self) -> &mut SensorFn {
-        match &mut self.pa[1] {
-            AnyPort::Sensor(s) => s,
-            _ => unreachable!(),
-        }
+        self.on_a(0)
     }
 
     fn acc(&mut self) -> &mut AccFn {
-        match &mut self.pb[0] {
-            AnyPort::Acc(s) => s,
-            _ => unreachable!(),
-        }
-    }
-
-    fn step(&mut self) {
-        self.a.poll(self.now, &mut self.pa, &mut self.la);
-        self.b.poll(self.now, &mut self.pb, &mut self.lb);
-        transfer(&mut self.la[0], &mut self.lb[0], usize::MAX);
-        transfer(&mut self.lb[0], &mut self.la[0], usize::MAX);
-        self.now += 100;
-    }
-
-    fn steps(&mut self, n: usize) {
-        for _ in 0..n {
-            self.step();
-        }
-    }
-
-    /// Sends a request from the host and returns the reply body.
-    fn ask(&mut self, route: Route, dst: u16, req: &Request<'_>) -> Vec<u8> {
-        self.seq += 1;
-        let seq = self.seq;
-        let mut buf = [0u8; 200];
-        Transport::Request(seq).encode(&mut buf).unwrap();
-        let mut w = Writer::new(&mut buf[3..]);
-        req.encode(&mut w).unwrap();
-        let n = 3 + w.len();
-        let before = self.host().received.len();
-        self.host().queue(route, dst, 10_000, &buf[..n]);
-        for _ in 0..50 {
-            self.step();
-            if self.host().received.len() > before {
-                let p = self.host().received[before].payload.clone();
-                let (t, body) = Transport::decode(&p).unwrap();
-                assert_eq!(t, Transport::Reply(seq));
-                return body.to_vec();
-            }
-        }
-        panic!("no reply to {req:?}");
+        self.on_b(0)
     }
 
     fn call_sensor(&mut self, x: f32) -> Vec<u8> {
-        let args = args(&[(0, Value::F32(x))]);
-        let a = pipes_core::Args::decode(&mut osap_core::codec::Reader::new(&args)).unwrap();
-        self.ask(Route::local(), SENSOR_PORT, &Request::Call(a))
+        self.call(Route::local(), SENSOR_PORT, &[(0, Value::F32(x))])
     }
 
     /// A raw pipe datagram from the host to the accumulator.
@@ -230,28 +120,6 @@ impl World {
         self.host().queue(to_b(), ACC_PORT, 10_000, &buf[..n]);
         self.steps(4);
     }
-}
-
-fn args(vals: &[(u8, Value<'_>)]) -> Vec<u8> {
-    let mut buf = vec![0u8; 100];
-    let mut w = Writer::new(&mut buf);
-    let mut a = ArgsWriter::new(&mut w).unwrap();
-    for (i, v) in vals {
-        a.push(*i, v).unwrap();
-    }
-    a.finish().unwrap();
-    let n = w.len();
-    buf.truncate(n);
-    buf
-}
-
-fn ok(body: &[u8]) -> ReplyBody<'_> {
-    let r = Reply::parse(body).unwrap();
-    r.result.unwrap_or_else(|e| panic!("error reply {e}"))
-}
-
-fn err(body: &[u8]) -> ControlError {
-    Reply::parse(body).unwrap().result.unwrap_err()
 }
 
 /// Pipe sensor output 0 → accumulator input `input`, over link 0.
@@ -541,8 +409,8 @@ fn call_errors_name_the_argument() {
 
     // Unknown key and garbage get typed errors, never a panic.
     for junk in [&[0x7f_u8][..], &[3, 9], &[6, 0, 40], &[]] {
-        w.seq += 1;
-        let mut p = vec![1, w.seq as u8, 0];
+        let seq = w.next_seq();
+        let mut p = vec![1, seq as u8, 0];
         p.extend_from_slice(junk);
         let before = w.host().received.len();
         w.host().queue(Route::local(), SENSOR_PORT, 10_000, &p);

@@ -1,22 +1,23 @@
 //! `#[pipes_core::function]` and `#[pipes_core::class]`: generated
 //! signatures, native calls, and the generated implementations driven over a
-//! two-runtime in-memory network (a copy of the `function_net.rs` harness).
+//! two-runtime in-memory network (the harness in `common`).
 
 use core::cell::RefCell;
 use core::sync::atomic::{AtomicU16, Ordering};
 
-use osap_core::codec::{Reader, Writer};
-use osap_core::link::queue::transfer;
-use osap_core::port::{Delivery, Port, PortInfo, PortTx};
+mod common;
+
+use std::ops::{Deref, DerefMut};
+
+use common::{ok, returned, to_b, Net, TestFn};
+use osap_core::port::Port;
 use osap_core::route::Route;
-use osap_core::transport::Transport;
-use osap_tests::{TestLink, TestPort, TestRuntime};
 use pipes_core::class::{ClassPort, Member, PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{ControlError, Reply, ReplyBody, Request, ANY_SLOT};
 use pipes_core::function::{Implementation, PipesFunction, FUNCTION_PORT_TYPE};
 use pipes_core::pipe::PipeConfig;
 use pipes_core::signature::{Arg, Signature};
-use pipes_core::{Args, ArgsWriter, PipesType, ScalarType, Type, Value};
+use pipes_core::{PipesType, ScalarType, Type, Value};
 
 /// An expected signature, with borrowed lists.
 struct Sig<'a> {
@@ -294,47 +295,8 @@ fn class_signatures() {
 
 // ---- the network ----------------------------------------------------------
 
-/// The host port, or any other port.
-enum AnyPort {
-    Host(TestPort),
-    Other(Box<dyn Port>),
-}
-
-impl AnyPort {
-    fn port(&mut self) -> &mut dyn Port {
-        match self {
-            AnyPort::Host(p) => p,
-            AnyPort::Other(p) => &mut **p,
-        }
-    }
-    fn port_ref(&self) -> &dyn Port {
-        match self {
-            AnyPort::Host(p) => p,
-            AnyPort::Other(p) => &**p,
-        }
-    }
-}
-
-impl Port for AnyPort {
-    fn port_count(&self) -> u16 {
-        self.port_ref().port_count()
-    }
-    fn info(&self, offset: u16) -> PortInfo<'_> {
-        self.port_ref().info(offset)
-    }
-    fn clear_to_receive(&self, offset: u16) -> bool {
-        self.port_ref().clear_to_receive(offset)
-    }
-    fn on_packet(&mut self, d: Delivery<'_>, tx: &mut PortTx<'_>) {
-        self.port().on_packet(d, tx)
-    }
-    fn poll(&mut self, tx: &mut PortTx<'_>) {
-        self.port().poll(tx)
-    }
-}
-
 /// A boxed implementation, so every function port has the same type.
-fn boxed<const PIPES: usize>(imp: impl Implementation + 'static) -> Box<dyn Port> {
+fn boxed<const PIPES: usize>(imp: impl Implementation + 'static) -> Box<dyn TestFn> {
     struct Dyn(Box<dyn Implementation>);
     impl Implementation for Dyn {
         fn signature(&self) -> &'static Signature {
@@ -356,15 +318,21 @@ fn boxed<const PIPES: usize>(imp: impl Implementation + 'static) -> Box<dyn Port
 /// setup (2), feed (3), reading (4), bounds (5). Only `add` has a pipe
 /// slot: the test runtime has 8 port indices. A link 0 ↔ B link 0.
 struct World {
-    a: TestRuntime,
-    b: TestRuntime,
-    pa: Vec<AnyPort>,
-    pb: Vec<AnyPort>,
-    la: Vec<TestLink>,
-    lb: Vec<TestLink>,
-    now: u64,
-    seq: u16,
+    net: Net,
     state: &'static RefCell<Comparator>,
+}
+
+impl Deref for World {
+    type Target = Net;
+    fn deref(&self) -> &Net {
+        &self.net
+    }
+}
+
+impl DerefMut for World {
+    fn deref_mut(&mut self) -> &mut Net {
+        &mut self.net
+    }
 }
 
 const READING_PORT: u16 = 2;
@@ -378,135 +346,32 @@ const FEED_PORT: u16 = 3;
 const CLASS_READING_PORT: u16 = 4;
 const BOUNDS_PORT: u16 = 5;
 
-fn runtime(name: &str) -> TestRuntime {
-    let mut r = TestRuntime::new("pipes_test", name).unwrap();
-    let quiet = osap_core::clock::TimeConfig {
-        enabled: false,
-        ..Default::default()
-    };
-    r.clock_mut().set_config(quiet).unwrap();
-    r
-}
-
-fn to_b() -> Route {
-    Route::through_links(&[0]).unwrap()
-}
-
 impl World {
     fn new() -> World {
         let state: &'static RefCell<Comparator> =
             Box::leak(Box::new(RefCell::new(Comparator::new(0.0, 1.0))));
-        let member = |name| {
+        let member = |name| -> Box<dyn TestFn> {
             let m = Member::by_name(state, name).unwrap();
-            AnyPort::Other(Box::new(PipesFunction::<_, 0, 1, 64>::new(m).unwrap()))
+            Box::new(PipesFunction::<_, 0, 1, 64>::new(m).unwrap())
         };
-        World {
-            a: runtime("a"),
-            b: runtime("b"),
-            pa: vec![
-                AnyPort::Host(TestPort::default()),
-                AnyPort::Other(boxed::<0>(get_comparator_reading::pipes())),
-                AnyPort::Other(boxed::<1>(add::pipes())),
-                AnyPort::Other(boxed::<0>(mixed::pipes())),
-                AnyPort::Other(boxed::<0>(set_level::pipes())),
-                AnyPort::Other(boxed::<0>(strlen::pipes())),
+        let net = Net::new(
+            vec![
+                boxed::<0>(get_comparator_reading::pipes()),
+                boxed::<1>(add::pipes()),
+                boxed::<0>(mixed::pipes()),
+                boxed::<0>(set_level::pipes()),
+                boxed::<0>(strlen::pipes()),
             ],
-            pb: vec![
-                AnyPort::Other(Box::new(ClassPort::<Comparator>::new(state).unwrap())),
+            vec![
+                Box::new(ClassPort::<Comparator>::new(state).unwrap()),
                 member("setup"),
                 member("feed"),
                 member("reading"),
                 member("bounds"),
             ],
-            la: vec![TestLink::new()],
-            lb: vec![TestLink::new()],
-            now: 1,
-            seq: 0,
-            state,
-        }
+        );
+        World { net, state }
     }
-
-    fn host(&mut self) -> &mut TestPort {
-        match &mut self.pa[0] {
-            AnyPort::Host(h) => h,
-            _ => unreachable!(),
-        }
-    }
-
-    fn step(&mut self) {
-        self.a.poll(self.now, &mut self.pa, &mut self.la);
-        self.b.poll(self.now, &mut self.pb, &mut self.lb);
-        transfer(&mut self.la[0], &mut self.lb[0], usize::MAX);
-        transfer(&mut self.lb[0], &mut self.la[0], usize::MAX);
-        self.now += 100;
-    }
-
-    fn steps(&mut self, n: usize) {
-        for _ in 0..n {
-            self.step();
-        }
-    }
-
-    /// Sends a request from the host and returns the reply body.
-    fn ask(&mut self, route: Route, dst: u16, req: &Request<'_>) -> Vec<u8> {
-        self.seq += 1;
-        let seq = self.seq;
-        let mut buf = [0u8; 200];
-        Transport::Request(seq).encode(&mut buf).unwrap();
-        let mut w = Writer::new(&mut buf[3..]);
-        req.encode(&mut w).unwrap();
-        let n = 3 + w.len();
-        let before = self.host().received.len();
-        self.host().queue(route, dst, 10_000, &buf[..n]);
-        for _ in 0..50 {
-            self.step();
-            if self.host().received.len() > before {
-                let p = self.host().received[before].payload.clone();
-                let (t, body) = Transport::decode(&p).unwrap();
-                assert_eq!(t, Transport::Reply(seq));
-                return body.to_vec();
-            }
-        }
-        panic!("no reply to {req:?}");
-    }
-
-    /// Calls the function at `dst` with `vals` and returns the reply body.
-    fn call(&mut self, route: Route, dst: u16, vals: &[(u8, Value<'_>)]) -> Vec<u8> {
-        let args = args(vals);
-        let a = Args::decode(&mut Reader::new(&args)).unwrap();
-        self.ask(route, dst, &Request::Call(a))
-    }
-}
-
-fn args(vals: &[(u8, Value<'_>)]) -> Vec<u8> {
-    let mut buf = vec![0u8; 100];
-    let mut w = Writer::new(&mut buf);
-    let mut a = ArgsWriter::new(&mut w).unwrap();
-    for (i, v) in vals {
-        a.push(*i, v).unwrap();
-    }
-    a.finish().unwrap();
-    let n = w.len();
-    buf.truncate(n);
-    buf
-}
-
-fn ok(body: &[u8]) -> ReplyBody<'_> {
-    let r = Reply::parse(body).unwrap();
-    r.result.unwrap_or_else(|e| panic!("error reply {e}"))
-}
-
-fn returned(body: &[u8]) -> Vec<Value<'_>> {
-    let ReplyBody::Returned(out) = ok(body) else {
-        panic!("not a call reply")
-    };
-    out.iter()
-        .enumerate()
-        .map(|(i, (index, v))| {
-            assert_eq!(usize::from(index), i);
-            v
-        })
-        .collect()
 }
 
 #[test]
