@@ -59,7 +59,7 @@ fn scan_writes_the_system_object_model_for_proxygen() {
         String::from_utf8_lossy(&out.stderr)
     );
     let som = osap_host::som::Som::from_json(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    let x = som.runtimes.iter().find(|r| r.name == "x").unwrap();
+    let x = som.runtimes.iter().find(|r| r.record.name == "x").unwrap();
     assert!(x.functions.iter().any(|f| f.name == "get_position"));
     let _ = std::fs::remove_file(path);
 }

@@ -730,9 +730,13 @@ async fn a_pipe_to_a_module_that_died_is_reported() {
     let report = m.refresh().await.unwrap();
     assert!(report.function_failures.is_empty(), "{report:?}");
     let som = m.som();
-    assert!(som.runtimes.iter().all(|r| r.name != "y"));
-    let hub_rt = som.runtimes.iter().find(|r| r.name == "hub").unwrap();
-    let link = hub_rt.links.iter().find(|l| l.index == 2).unwrap();
+    assert!(som.runtimes.iter().all(|r| r.record.name != "y"));
+    let hub_rt = som
+        .runtimes
+        .iter()
+        .find(|r| r.record.name == "hub")
+        .unwrap();
+    let link = hub_rt.record.links.iter().find(|l| l.index == 2).unwrap();
     assert!(!link.open, "{link:?}");
     let xi = som.runtime_index("x").unwrap();
     let pipe = &som.function(xi, "get_position").unwrap().pipes[0];

@@ -148,11 +148,15 @@ async fn refresh_builds_the_model_and_it_round_trips_through_json() {
         report.function_failures
     );
     let som = m.som();
-    let names: Vec<_> = som.runtimes.iter().map(|r| r.name.as_str()).collect();
+    let names: Vec<_> = som
+        .runtimes
+        .iter()
+        .map(|r| r.record.name.as_str())
+        .collect();
     assert_eq!(names, ["h", "a", "b"]);
     assert!(som.classes.is_empty());
     let a = &som.runtimes[1];
-    assert_eq!(a.route, [0]);
+    assert_eq!(a.record.route, [0]);
     assert_eq!(a.functions.len(), 1);
     let sensor = &a.functions[0];
     assert_eq!(sensor.name, "sensor");
@@ -540,6 +544,7 @@ async fn refresh_lists_classes_with_their_constructor_and_members() {
     );
     assert_eq!(class.members, TALLY_MEMBERS);
     let port = som.runtimes[a]
+        .record
         .ports
         .iter()
         .find(|p| p.index == class.port)

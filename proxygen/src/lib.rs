@@ -211,10 +211,10 @@ fn devices(som: &Som, options: &Options) -> Vec<DeviceCtx> {
         if r.functions.is_empty() && !has_classes {
             continue;
         }
-        if !found.contains_key(r.type_name.as_str()) {
-            order.push(&r.type_name);
+        if !found.contains_key(r.record.type_name.as_str()) {
+            order.push(&r.record.type_name);
         }
-        found.entry(&r.type_name).or_default().push(i);
+        found.entry(&r.record.type_name).or_default().push(i);
     }
     let mut modules = Scope::with_reserved(&["support", "mod"]);
     let mut structs = Scope::with_reserved(MOD_ITEMS);
@@ -304,12 +304,12 @@ fn devices(som: &Som, options: &Options) -> Vec<DeviceCtx> {
                 .any(|c| raw(&c.members) || raw(std::slice::from_ref(&c.constructor)));
         out.push(DeviceCtx {
             type_name: type_name.to_string(),
-            version: r.version.clone(),
+            version: r.record.version.clone(),
             module,
             struct_name,
             runtimes: instances
                 .iter()
-                .map(|&i| som.runtimes[i].name.clone())
+                .map(|&i| som.runtimes[i].record.name.clone())
                 .collect(),
             functions,
             all_functions,

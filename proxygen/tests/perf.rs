@@ -20,8 +20,8 @@ fn sixty_four_devices_of_twenty_functions() {
     som.runtimes.push(base.runtimes[0].clone());
     for d in 0..64 {
         let mut r = template.clone();
-        r.name = format!("dev{d}");
-        r.type_name = format!("type_{d}");
+        r.record.name = format!("dev{d}");
+        r.record.type_name = format!("type_{d}");
         r.functions = (0..20u16)
             .map(|f| SomFunction {
                 name: format!("function_{f}"),

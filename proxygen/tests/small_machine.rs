@@ -116,7 +116,7 @@ async fn proxies_drive_the_simulated_small_machine() {
         .find(|f| f.name == "get_position")
         .unwrap();
     f.outputs[1].type_name = "f64".into();
-    som.runtimes[ri].version = "0.2.0".into();
+    som.runtimes[ri].record.version = "0.2.0".into();
     let e = Stepper::check(&som, "x").unwrap_err();
     assert!(matches!(e, BindError::Mismatch { .. }));
     assert_eq!(

@@ -158,6 +158,7 @@ impl Manager {
         };
         for ri in 0..som.runtimes.len() {
             let ports: Vec<u16> = som.runtimes[ri]
+                .record
                 .ports
                 .iter()
                 .filter(|p| p.type_name == FUNCTION_PORT_TYPE)
@@ -170,6 +171,7 @@ impl Manager {
                 }
             }
             let class_ports: Vec<u16> = som.runtimes[ri]
+                .record
                 .ports
                 .iter()
                 .filter(|p| p.type_name == CLASS_PORT_TYPE)
@@ -199,12 +201,13 @@ impl Manager {
     ) -> Result<(Target, String, Vec<SomArg>, Vec<SomArg>), SomError> {
         let r = &som.runtimes[ri];
         let listed = r
+            .record
             .ports
             .iter()
             .find(|p| p.index == port)
             .map_or(String::new(), |p| p.name.clone());
         let at = Target {
-            function: FnRef::new(r.name.clone(), listed),
+            function: FnRef::new(r.record.name.clone(), listed),
             route: host_route(som, ri),
             port,
         };
@@ -263,7 +266,7 @@ impl Manager {
         let r = &som.runtimes[ri];
         let (at, name, inputs, outputs) = self.read_signature(som, ri, port).await?;
         let at = Target {
-            function: FnRef::new(r.name.clone(), name.clone()),
+            function: FnRef::new(r.record.name.clone(), name.clone()),
             ..at
         };
         let input_mode = match self
@@ -320,7 +323,8 @@ impl Manager {
         let pipe_ports = (1..=u16::from(slots))
             .map(|k| port + k)
             .filter(|p| {
-                r.ports
+                r.record
+                    .ports
                     .iter()
                     .any(|x| x.index == *p && x.type_name == PIPE_PORT_TYPE)
             })
@@ -607,8 +611,8 @@ impl Manager {
         let Some(host_rt) = self.som.runtimes.first() else {
             return Ok(FnRef::new(String::new(), name));
         };
-        let fref = FnRef::new(host_rt.name.clone(), name);
-        let ports = &mut self.som.runtimes[0].ports;
+        let fref = FnRef::new(host_rt.record.name.clone(), name);
+        let ports = &mut self.som.runtimes[0].record.ports;
         ports.retain(|p| p.index < port || p.index >= port + count);
         ports.push(PortRecord {
             index: port,
@@ -663,7 +667,7 @@ impl Manager {
                 name: String::new(),
             }));
         }
-        let ports = &mut self.som.runtimes[0].ports;
+        let ports = &mut self.som.runtimes[0].record.ports;
         ports.retain(|p| !records.iter().any(|r| r.index == p.index));
         ports.extend(records);
         ports.sort_by_key(|p| p.index);
@@ -748,8 +752,8 @@ fn group_members(som: &mut Som) {
 /// The route from the host (runtime 0) to runtime `ri`, with its MTU.
 fn host_route(som: &Som, ri: usize) -> Route {
     som.runtimes.get(ri).map_or(Route::local(), |r| {
-        Route::through_links(&r.route)
-            .map(|x| x.with_mtu(r.route_mtu))
+        Route::through_links(&r.record.route)
+            .map(|x| x.with_mtu(r.record.route_mtu))
             .unwrap_or_default()
     })
 }

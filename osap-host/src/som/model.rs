@@ -8,7 +8,7 @@
 //! pipes are listed both per function (as configured) and flattened, source
 //! → destination, at the top level.
 
-use crate::map::{LinkEdge, LinkRecord, NetworkMap, PortRecord};
+use crate::map::{LinkEdge, NetworkMap, RuntimeRecord};
 use osap_core::packet::Instruction;
 use osap_core::route::Route;
 use pipes_core::control::{InputMode, OutputMode};
@@ -40,26 +40,9 @@ pub struct Som {
 /// One runtime, as the network map has it, with its functions.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SomRuntime {
-    /// Its name.
-    pub name: String,
-    /// Its type (firmware or program).
-    pub type_name: String,
-    /// Version, `major.minor.patch`.
-    pub version: String,
-    /// Build key: 1 osap-rs embedded, 2 osap-rs host, 3 osap-rs simulated.
-    pub build: u8,
-    /// Largest packet it handles, bytes.
-    pub packet_size: u16,
-    /// Clock tier when scanned.
-    pub tier: u8,
-    /// Link indices from the host to it (empty: the host itself).
-    pub route: Vec<u8>,
-    /// Smallest MTU along that route.
-    pub route_mtu: u16,
-    /// Its link gateways, by index.
-    pub links: Vec<LinkRecord>,
-    /// Its ports, by index.
-    pub ports: Vec<PortRecord>,
+    /// What the scan found (JSON: the record's fields, inline).
+    #[serde(flatten)]
+    pub record: RuntimeRecord,
     /// The PIPES functions among its ports, by port index.
     pub functions: Vec<SomFunction>,
 }
@@ -329,16 +312,7 @@ impl Som {
                 .runtimes
                 .iter()
                 .map(|r| SomRuntime {
-                    name: r.name.clone(),
-                    type_name: r.type_name.clone(),
-                    version: r.version.clone(),
-                    build: r.build,
-                    packet_size: r.packet_size,
-                    tier: r.tier,
-                    route: r.route.clone(),
-                    route_mtu: r.route_mtu,
-                    links: r.links.clone(),
-                    ports: r.ports.clone(),
+                    record: r.clone(),
                     functions: Vec::new(),
                 })
                 .collect(),
@@ -383,7 +357,7 @@ impl Som {
             .runtimes
             .iter()
             .enumerate()
-            .filter(|(_, r)| r.name == name);
+            .filter(|(_, r)| r.record.name == name);
         match (found.next(), found.next()) {
             (Some((i, _)), None) => Ok(i),
             (None, _) => Err(0),
@@ -423,14 +397,14 @@ impl Som {
     fn link_mtu(&self, runtime: usize, link: u8) -> u16 {
         self.runtimes
             .get(runtime)
-            .and_then(|r| r.links.iter().find(|l| l.index == link))
+            .and_then(|r| r.record.links.iter().find(|l| l.index == link))
             .map_or(u16::MAX, |l| l.mtu)
     }
 
     fn link_open(&self, runtime: usize, link: u8) -> bool {
         self.runtimes
             .get(runtime)
-            .and_then(|r| r.links.iter().find(|l| l.index == link))
+            .and_then(|r| r.record.links.iter().find(|l| l.index == link))
             .is_none_or(|l| l.open)
     }
 
@@ -481,7 +455,7 @@ impl Som {
         }
         let mut links = Vec::new();
         let mut runtimes = vec![to];
-        let mut mtu = self.runtimes[to].packet_size;
+        let mut mtu = self.runtimes[to].record.packet_size;
         let mut at = to;
         while at != from {
             let (p, l, back) = prev[at]?;
@@ -490,7 +464,7 @@ impl Som {
             mtu = mtu
                 .min(self.link_mtu(p, l))
                 .min(self.link_mtu(at, back))
-                .min(self.runtimes[p].packet_size);
+                .min(self.runtimes[p].record.packet_size);
             at = p;
         }
         links.reverse();
@@ -517,7 +491,7 @@ impl Som {
         let r = self.runtimes.get(runtime)?;
         Some(SomEndpoint {
             runtime,
-            runtime_name: r.name.clone(),
+            runtime_name: r.record.name.clone(),
             port,
             function: r
                 .functions
@@ -542,7 +516,7 @@ impl Som {
                     flat.push(SomPipe {
                         source: SomEndpoint {
                             runtime: ri,
-                            runtime_name: r.name.clone(),
+                            runtime_name: r.record.name.clone(),
                             port: f.port,
                             function: Some(f.name.clone()),
                         },

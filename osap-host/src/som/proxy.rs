@@ -224,11 +224,11 @@ pub mod support {
             }
             Err(n) => return Err(no_device(format!("{n} runtimes have this name"))),
         };
-        if r.type_name != type_name {
+        if r.record.type_name != type_name {
             return Err(BindError::WrongType {
                 runtime: runtime.to_string(),
                 expected: type_name,
-                found: r.type_name.clone(),
+                found: r.record.type_name.clone(),
             });
         }
         let ri = som.runtime_index(runtime).unwrap_or_default();
@@ -283,7 +283,7 @@ pub mod support {
                 runtime: runtime.to_string(),
                 type_name,
                 version,
-                found_version: r.version.clone(),
+                found_version: r.record.version.clone(),
                 differences,
             })
         }
