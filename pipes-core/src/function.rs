@@ -593,9 +593,9 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 let Some(dgram) = pipe.front() else { break };
                 let c = &pipe.config;
                 match tx.send_from(offset, &c.route, c.port, c.ttl, dgram) {
-                    Ok(()) => pipe.sent = pipe.sent.wrapping_add(1),
+                    Ok(()) => pipe.stats.sent = pipe.stats.sent.wrapping_add(1),
                     Err(SendError::NotClear(_)) => break,
-                    Err(_) => pipe.send_errors = pipe.send_errors.wrapping_add(1),
+                    Err(_) => pipe.stats.send_errors = pipe.stats.send_errors.wrapping_add(1),
                 }
                 pipe.pop();
             }
@@ -787,8 +787,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             .filter(|r| r.key == ControlKey::PipeError.to_u8());
         match (report, self.pipes.get_mut(slot).and_then(Option::as_mut)) {
             (Some(Reply { result: Err(e), .. }), Some(p)) => {
-                p.remote_errors = p.remote_errors.wrapping_add(1);
-                p.last_remote_error = Some(e);
+                p.stats.remote_errors = p.stats.remote_errors.wrapping_add(1);
+                p.stats.last_remote_error = Some(e);
             }
             _ => self.stats.malformed = self.stats.malformed.wrapping_add(1),
         }
@@ -824,7 +824,7 @@ fn flush_acked<const Q: usize, const B: usize>(
                     Ok(()) => pipe.mark_sent(seq, now),
                     Err(SendError::NotClear(_)) => {}
                     Err(_) => {
-                        pipe.send_errors = pipe.send_errors.wrapping_add(1);
+                        pipe.stats.send_errors = pipe.stats.send_errors.wrapping_add(1);
                         pipe.pop();
                         continue;
                     }
@@ -841,7 +841,7 @@ fn flush_acked<const Q: usize, const B: usize>(
                     if pipe.front().is_none() {
                         return;
                     }
-                    pipe.send_errors = pipe.send_errors.wrapping_add(1);
+                    pipe.stats.send_errors = pipe.stats.send_errors.wrapping_add(1);
                     pipe.pop();
                     continue;
                 };
@@ -852,7 +852,7 @@ fn flush_acked<const Q: usize, const B: usize>(
                     }
                     Err(SendError::NotClear(_)) => return,
                     Err(_) => {
-                        pipe.send_errors = pipe.send_errors.wrapping_add(1);
+                        pipe.stats.send_errors = pipe.stats.send_errors.wrapping_add(1);
                         pipe.pop();
                     }
                 }

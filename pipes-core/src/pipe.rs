@@ -305,23 +305,8 @@ pub struct PipeState<const Q: usize, const B: usize> {
     queue: [([u8; B], usize); Q],
     head: usize,
     queued: usize,
-    /// Datagrams sent.
-    pub sent: u32,
-    /// Datagrams dropped because the queue was full (the oldest goes).
-    pub overflows: u32,
-    /// Datagrams that could not be built or sent (too long for the route or
-    /// the buffer, bad address): dropped and counted.
-    pub send_errors: u32,
-    /// Error reports the destination sent back.
-    pub remote_errors: u32,
-    /// Datagrams the destination acknowledged (acknowledged pipes).
-    pub acked: u32,
-    /// Datagrams sent again for want of an acknowledgement.
-    pub retries: u32,
-    /// Datagrams dropped unacknowledged after the last retry.
-    pub failures: u32,
-    /// The last error report the destination sent back.
-    pub last_remote_error: Option<ControlError>,
+    /// Its counters.
+    pub stats: PipeStats,
     /// Acknowledged pipes: how long to wait for a reply before sending
     /// again, µs.
     pub ack_timeout: u32,
@@ -361,14 +346,16 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
             queue: [([0; B], 0); Q],
             head: 0,
             queued: 0,
-            sent: 0,
-            overflows: 0,
-            send_errors: 0,
-            remote_errors: 0,
-            acked: 0,
-            retries: 0,
-            failures: 0,
-            last_remote_error: None,
+            stats: PipeStats {
+                sent: 0,
+                overflows: 0,
+                send_errors: 0,
+                remote_errors: 0,
+                acked: 0,
+                retries: 0,
+                failures: 0,
+                last_remote_error: None,
+            },
             ack_timeout: DEFAULT_ACK_TIMEOUT_US,
             max_retries: DEFAULT_ACK_RETRIES,
             next_seq: 0,
@@ -378,16 +365,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
 
     /// The counters.
     pub fn stats(&self) -> PipeStats {
-        PipeStats {
-            sent: self.sent,
-            overflows: self.overflows,
-            send_errors: self.send_errors,
-            remote_errors: self.remote_errors,
-            acked: self.acked,
-            retries: self.retries,
-            failures: self.failures,
-            last_remote_error: self.last_remote_error,
-        }
+        self.stats
     }
 
     /// Whether the front datagram has been sent and waits for its reply
@@ -432,7 +410,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
             Some(f) if f.seq == seq => {
                 f.sends = f.sends.saturating_add(1);
                 f.sent_at = now;
-                self.retries = self.retries.wrapping_add(1);
+                self.stats.retries = self.stats.retries.wrapping_add(1);
             }
             _ => {
                 self.in_flight = Some(InFlight {
@@ -440,7 +418,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
                     sent_at: now,
                     sends: 1,
                 });
-                self.sent = self.sent.wrapping_add(1);
+                self.stats.sent = self.stats.sent.wrapping_add(1);
             }
         }
     }
@@ -458,7 +436,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
 
     /// Drops the front datagram after its last retry went unanswered.
     pub fn give_up(&mut self) {
-        self.failures = self.failures.wrapping_add(1);
+        self.stats.failures = self.stats.failures.wrapping_add(1);
         self.pop();
     }
 
@@ -472,10 +450,10 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
             return false;
         }
         match result {
-            Ok(()) => self.acked = self.acked.wrapping_add(1),
+            Ok(()) => self.stats.acked = self.stats.acked.wrapping_add(1),
             Err(e) => {
-                self.remote_errors = self.remote_errors.wrapping_add(1);
-                self.last_remote_error = Some(e);
+                self.stats.remote_errors = self.stats.remote_errors.wrapping_add(1);
+                self.stats.last_remote_error = Some(e);
             }
         }
         self.pop();
@@ -492,12 +470,12 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
     /// oldest datagram is dropped and counted in `overflows`.
     pub fn push_with(&mut self, write: impl FnOnce(&mut [u8]) -> Option<usize>) {
         if Q == 0 {
-            self.overflows = self.overflows.wrapping_add(1);
+            self.stats.overflows = self.stats.overflows.wrapping_add(1);
             return;
         }
         if self.queued == Q {
             self.pop();
-            self.overflows = self.overflows.wrapping_add(1);
+            self.stats.overflows = self.stats.overflows.wrapping_add(1);
         }
         let at = (self.head + self.queued) % Q;
         let Some(slot) = self.queue.get_mut(at) else {
@@ -508,7 +486,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
                 slot.1 = n;
                 self.queued += 1;
             }
-            _ => self.send_errors = self.send_errors.wrapping_add(1),
+            _ => self.stats.send_errors = self.stats.send_errors.wrapping_add(1),
         }
     }
 
@@ -588,7 +566,7 @@ mod tests {
                 Some(1)
             });
         }
-        assert_eq!(s.overflows, 1);
+        assert_eq!(s.stats.overflows, 1);
         assert_eq!(s.queued(), 2);
         assert_eq!(s.front(), Some(&[2u8][..]));
         s.pop();
@@ -596,7 +574,7 @@ mod tests {
         s.pop();
         assert_eq!(s.front(), None);
         s.push_with(|_| None);
-        assert_eq!(s.send_errors, 1);
+        assert_eq!(s.stats.send_errors, 1);
         assert_eq!(s.queued(), 0);
     }
 
@@ -620,13 +598,13 @@ mod tests {
         assert_eq!(s.ack_step(9), AckStep::Wait);
         assert_eq!(s.ack_step(10), AckStep::Resend);
         s.mark_sent(seq, 10);
-        assert_eq!((s.sent, s.retries), (1, 1));
+        assert_eq!((s.stats.sent, s.stats.retries), (1, 1));
         assert_eq!(s.ack_step(20), AckStep::GiveUp);
         // A reply to another sequence number changes nothing.
         assert!(!s.on_reply(7, Ok(())));
         assert!(s.on_reply(0, Ok(())));
         assert!(!s.on_reply(0, Ok(())), "a duplicate is ignored");
-        assert_eq!((s.acked, s.queued()), (1, 1));
+        assert_eq!((s.stats.acked, s.queued()), (1, 1));
         let (seq, d) = s.front_as_new_request().unwrap();
         assert_eq!((seq, d), (1, &[1u8, 1, 0, 2][..]));
         s.mark_sent(seq, 30);
@@ -638,12 +616,12 @@ mod tests {
             });
         }
         assert!(!s.awaiting_ack());
-        assert_eq!(s.overflows, 1);
+        assert_eq!(s.stats.overflows, 1);
         assert!(!s.on_reply(1, Err(ControlError::Malformed)));
-        assert_eq!(s.remote_errors, 0);
+        assert_eq!(s.stats.remote_errors, 0);
         s.mark_sent(9, 40);
         s.give_up();
-        assert_eq!((s.failures, s.queued()), (1, 1));
+        assert_eq!((s.stats.failures, s.queued()), (1, 1));
         // A best-effort datagram (raw header) is no request.
         let mut raw: PipeState<1, 4> = PipeState::new(PipeConfig::new(Route::local(), 1, 1));
         raw.push_with(|b| {

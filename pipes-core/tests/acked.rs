@@ -172,12 +172,12 @@ fn a_stalled_link_keeps_the_queue_in_order() {
     // One datagram in flight, the others wait behind it.
     let p = w.sensor().pipe(0).unwrap();
     assert!(p.awaiting_ack());
-    assert_eq!((p.queued(), p.sent), (3, 1));
+    assert_eq!((p.queued(), p.stats.sent), (3, 1));
     w.lose_to_b = false;
     // Within the timeout (20 ms) nothing is sent again; after it, the front is.
     w.steps(150);
     assert!(w.seen().is_empty());
-    assert_eq!(w.sensor().pipe(0).unwrap().retries, 0);
+    assert_eq!(w.sensor().pipe(0).unwrap().stats.retries, 0);
     w.steps(100);
     assert_eq!(w.seen(), [1.0, 2.0, 3.0]);
     let s = w.stats();
@@ -194,10 +194,10 @@ fn lost_acks_mean_retransmission_and_duplicates() {
     w.steps(5);
     // Delivered once, its acknowledgement lost; not yet late.
     assert_eq!(w.seen(), [1.0]);
-    assert_eq!(w.sensor().pipe(0).unwrap().retries, 0);
+    assert_eq!(w.sensor().pipe(0).unwrap().stats.retries, 0);
     w.steps(10);
     // Late: sent again with the same sequence number, delivered again.
-    assert_eq!(w.sensor().pipe(0).unwrap().retries, 1);
+    assert_eq!(w.sensor().pipe(0).unwrap().stats.retries, 1);
     assert_eq!(w.seen(), [1.0, 1.0]);
     w.lose_to_a = false;
     w.steps(15);

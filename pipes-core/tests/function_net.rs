@@ -167,7 +167,7 @@ fn rpc_call_drives_the_pipe() {
     // f32 2.0 arrived for an f64 input, converted exactly.
     assert_eq!(w.acc().implementation().runs, vec![(2.0, 0.5)]);
     assert_eq!(w.acc().implementation().total, 2.5);
-    assert_eq!(w.sensor().pipe(0).unwrap().sent, 1);
+    assert_eq!(w.sensor().pipe(0).unwrap().stats.sent, 1);
     assert_eq!(w.acc().input(0), Some(Value::F64(2.0)));
 }
 
@@ -310,7 +310,7 @@ fn on_change_suppresses_repeats() {
     w.steps(4);
     assert_eq!(w.sensor().stats().calls, 6);
     assert_eq!(w.sensor().stats().suppressed, 3);
-    assert_eq!(w.sensor().pipe(0).unwrap().sent, 3);
+    assert_eq!(w.sensor().pipe(0).unwrap().stats.sent, 3);
     let a: Vec<f64> = w.acc().implementation().runs.iter().map(|r| r.0).collect();
     assert_eq!(a, vec![1.0, 2.0, 1.0]);
 }
@@ -326,7 +326,7 @@ fn queue_overflow_is_counted() {
         w.call_sensor(x);
     }
     let p = w.sensor().pipe(0).unwrap();
-    assert_eq!((p.queued(), p.overflows, p.sent), (2, 2, 0));
+    assert_eq!((p.queued(), p.stats.overflows, p.stats.sent), (2, 2, 0));
     // The counters are readable over the network.
     let body = w.ask(Route::local(), SENSOR_PORT, &Request::GetPipeStats(0));
     let ReplyBody::PipeStats { slot: 0, stats } = ok(&body) else {
@@ -341,7 +341,7 @@ fn queue_overflow_is_counted() {
     w.a.stack_quota(SENSOR_PIPE0, 4);
     w.steps(6);
     let p = w.sensor().pipe(0).unwrap();
-    assert_eq!((p.queued(), p.overflows, p.sent), (0, 2, 2));
+    assert_eq!((p.queued(), p.stats.overflows, p.stats.sent), (0, 2, 2));
     // The newest two arrived, the oldest two were dropped and counted.
     let a: Vec<f64> = w.acc().implementation().runs.iter().map(|r| r.0).collect();
     assert_eq!(a, vec![3.0, 4.0]);
@@ -366,8 +366,11 @@ fn refused_datagrams_are_reported_to_the_pipe() {
     w.steps(6);
     assert_eq!(w.acc().stats().refused, 1);
     let p = w.sensor().pipe(0).unwrap();
-    assert_eq!(p.remote_errors, 1);
-    assert_eq!(p.last_remote_error, Some(ControlError::NoSuchInput(5)));
+    assert_eq!(p.stats.remote_errors, 1);
+    assert_eq!(
+        p.stats.last_remote_error,
+        Some(ControlError::NoSuchInput(5))
+    );
     let body = w.ask(Route::local(), SENSOR_PORT, &Request::GetPipeStats(0));
     let ReplyBody::PipeStats { stats, .. } = ok(&body) else {
         panic!("{body:?}")
