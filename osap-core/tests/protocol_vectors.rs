@@ -12,42 +12,16 @@ use osap_core::route::Route;
 use osap_core::transport::Transport;
 use std::collections::BTreeMap;
 
-fn hex(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect::<Vec<_>>()
-        .join(" ")
+mod support {
+    pub mod doc_vectors;
 }
+use support::doc_vectors::hex;
 
-fn unhex(s: &str) -> Vec<u8> {
-    s.split_whitespace()
-        .map(|t| u8::from_str_radix(t, 16).unwrap_or_else(|_| panic!("bad hex {t:?}")))
-        .collect()
-}
-
-/// Vectors in the document: fenced blocks opened with "```hex name".
+/// Vectors in `docs/protocol.md`: fenced blocks opened with "```hex name".
 fn document_vectors() -> BTreeMap<String, Vec<u8>> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/protocol.md");
     let doc = std::fs::read_to_string(path).expect("docs/protocol.md");
-    let mut out = BTreeMap::new();
-    let mut lines = doc.lines();
-    while let Some(line) = lines.next() {
-        let Some(name) = line.strip_prefix("```hex ") else {
-            continue;
-        };
-        let mut text = String::new();
-        for l in lines.by_ref() {
-            if l.starts_with("```") {
-                break;
-            }
-            text.push_str(l.split('#').next().unwrap_or(""));
-            text.push(' ');
-        }
-        let prev = out.insert(name.trim().to_string(), unhex(&text));
-        assert!(prev.is_none(), "vector {name} appears twice");
-    }
-    out
+    support::doc_vectors::document_vectors(&doc, "hex")
 }
 
 fn ins(i: Instruction) -> Vec<u8> {

@@ -24,38 +24,15 @@ static ADD: Signature = Signature {
     outputs: &[Arg::new("sum", F32)],
 };
 
-fn hex(bytes: &[u8]) -> String {
-    bytes
-        .iter()
-        .map(|b| format!("{b:02x}"))
-        .collect::<Vec<_>>()
-        .join(" ")
-}
+#[path = "../../osap-core/tests/support/doc_vectors.rs"]
+mod doc_vectors;
+use doc_vectors::hex;
 
+/// Vectors in `docs/pipes.md`: fenced blocks opened with "```hex-fn name".
 fn document_vectors() -> BTreeMap<String, Vec<u8>> {
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../docs/pipes.md");
     let doc = std::fs::read_to_string(path).expect("docs/pipes.md");
-    let mut out = BTreeMap::new();
-    let mut lines = doc.lines();
-    while let Some(line) = lines.next() {
-        let Some(name) = line.strip_prefix("```hex-fn ") else {
-            continue;
-        };
-        let mut bytes = Vec::new();
-        for l in lines.by_ref() {
-            if l.starts_with("```") {
-                break;
-            }
-            for t in l.split('#').next().unwrap_or("").split_whitespace() {
-                bytes.push(u8::from_str_radix(t, 16).expect("hex byte"));
-            }
-        }
-        assert!(
-            out.insert(name.trim().to_string(), bytes).is_none(),
-            "{name} twice"
-        );
-    }
-    out
+    doc_vectors::document_vectors(&doc, "hex-fn")
 }
 
 fn enc(f: impl FnOnce(&mut Writer<'_>)) -> Vec<u8> {
