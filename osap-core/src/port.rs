@@ -91,12 +91,19 @@ pub struct PortTx<'a> {
     pub(crate) base: u16,
     pub(crate) count: u16,
     pub(crate) now: Micros,
+    pub(crate) system: u64,
 }
 
 impl PortTx<'_> {
-    /// The runtime's current time.
+    /// The runtime's current local time (its free-running counter), µs.
     pub fn now(&self) -> Micros {
         self.now
+    }
+
+    /// The synchronized system time at [`now`](Self::now), µs: what
+    /// time-stamped data (motion control points, sensor readings) is keyed by.
+    pub fn system_time(&self) -> u64 {
+        self.system
     }
 
     /// The runtime index of this object's first port.

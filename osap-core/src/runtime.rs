@@ -388,12 +388,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let mut base = 1u16;
         for port in ports.iter_mut() {
             let count = port.port_count();
+            let system = self.clock.system_time(now);
             let mut sender = self.sender(now);
             let mut tx = PortTx {
                 sink: &mut sender,
                 base,
                 count,
                 now,
+                system,
             };
             port.poll(&mut tx);
             base = base.saturating_add(count);
@@ -560,6 +562,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             return Served::Dropped;
         };
         let count = port.port_count();
+        let system = self.clock.system_time(now);
         let mut sender = Sender {
             stack: &mut self.stack,
             counters: &mut self.counters,
@@ -570,6 +573,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             base,
             count,
             now,
+            system,
         };
         port.on_packet(
             Delivery {

@@ -58,6 +58,7 @@
 //!
 //! Any other type (e.g. `spindle`) has no functions.
 
+use super::axis::{lock as axis_lock, AxisMotor, AxisProbe, AxisSpec, SharedAxis, SimAxis};
 use super::clock::DriftClock;
 use osap_core::Micros;
 use pipes_core::function::{CallError, FnImpl, Outputs, PipesFunction};
@@ -133,6 +134,29 @@ pub static COMPARATOR: Signature = Signature {
     inputs: &[Arg::new("lower", F32), Arg::new("upper", F32)],
     outputs: &[Arg::new("time", U64), Arg::new("in_bounds", BOOL)],
 };
+/// Axis: `add_point(time: u64, position: f32)`.
+pub static ADD_POINT: Signature = Signature {
+    name: "add_point",
+    inputs: &[Arg::new("time", U64), Arg::new("position", F32)],
+    outputs: &[],
+};
+/// Axis: `get_state() -> (time: u64, position: f32, velocity: f32, mode: u8)`.
+pub static GET_STATE: Signature = Signature {
+    name: "get_state",
+    inputs: &[],
+    outputs: &[
+        Arg::new("time", U64),
+        Arg::new("position", F32),
+        Arg::new("velocity", F32),
+        Arg::new("mode", U8),
+    ],
+};
+/// Axis: `endstop() -> (time: u64, count: u32)`.
+pub static ENDSTOP: Signature = Signature {
+    name: "endstop",
+    inputs: &[],
+    outputs: &[Arg::new("time", U64), Arg::new("count", U32)],
+};
 /// Hub: `get_uptime() -> (uptime_us: u64)`.
 pub static GET_UPTIME: Signature = Signature {
     name: "get_uptime",
@@ -145,6 +169,14 @@ pub static STEPPER_FUNCTIONS: [&Signature; 4] =
     [&ADD_CONTROL_POINT, &GET_POSITION, &SET_CURRENT, &GET_STATUS];
 /// The signatures of an `io` module, in port order.
 pub static IO_FUNCTIONS: [&Signature; 4] = [&READ_PIN, &PULSE, &READ_ANALOG, &COMPARATOR];
+/// The signatures of an `axis`, in port order.
+pub static AXIS_FUNCTIONS: [&Signature; 5] = [
+    &ADD_POINT,
+    &GET_POSITION,
+    &GET_STATE,
+    &SET_CURRENT,
+    &ENDSTOP,
+];
 /// The signatures of a `hub`, in port order.
 pub static HUB_FUNCTIONS: [&Signature; 1] = [&GET_UPTIME];
 
@@ -163,6 +195,7 @@ pub fn signatures_for(type_name: &str) -> &'static [&'static Signature] {
     match type_name {
         "stepper" => &STEPPER_FUNCTIONS,
         "io" => &IO_FUNCTIONS,
+        "axis" => &AXIS_FUNCTIONS,
         "hub" => &HUB_FUNCTIONS,
         _ => &[],
     }
@@ -170,12 +203,35 @@ pub fn signatures_for(type_name: &str) -> &'static [&'static Signature] {
 
 /// Fresh functions (and simulated hardware) for a module of type
 /// `type_name` on `clock`, in port order; none for a type without functions.
+/// An `axis` gets the default [`AxisSpec`]; see [`hardware_for`].
 pub fn functions_for(type_name: &str, clock: DriftClock) -> Vec<SimFunction> {
+    hardware_for(type_name, &AxisSpec::default(), clock).functions
+}
+
+/// A module's simulated hardware: its PIPES functions, in port order, and
+/// for an `axis` the motor interrupt and a probe of what it executes.
+pub struct SimHardware {
+    /// The functions, run as ports from port 1 on.
+    pub functions: Vec<SimFunction>,
+    pub(crate) motor: Option<AxisMotor>,
+    /// An `axis`'s executed states, for scripts and tests.
+    pub axis: Option<AxisProbe>,
+}
+
+/// Fresh hardware for a module of type `type_name` on `clock`; `axis`
+/// configures an `axis` module and is ignored by other types.
+pub fn hardware_for(type_name: &str, axis: &AxisSpec, clock: DriftClock) -> SimHardware {
+    let functions = |functions| SimHardware {
+        functions,
+        motor: None,
+        axis: None,
+    };
     match type_name {
-        "stepper" => stepper(clock),
-        "io" => io(clock),
-        "hub" => hub(clock),
-        _ => Vec::new(),
+        "stepper" => functions(stepper(clock)),
+        "io" => functions(io(clock)),
+        "hub" => functions(hub(clock)),
+        "axis" => axis_module(axis, clock),
+        _ => functions(Vec::new()),
     }
 }
 
@@ -324,6 +380,62 @@ fn stepper(clock: DriftClock) -> Vec<SimFunction> {
     ]
 }
 
+fn axis_module(spec: &AxisSpec, clock: DriftClock) -> SimHardware {
+    let axis: SharedAxis = Arc::new(Mutex::new(SimAxis::new(spec.clone())));
+    let a = axis.clone();
+    let add: SimBody = Box::new(move |inputs, _| match inputs {
+        [Value::U64(time), Value::F32(position)] => axis_lock(&a)
+            .add_point(*time, *position)
+            .map_err(CallError::Failed),
+        _ => Err(BAD_INPUTS),
+    });
+    let a = axis.clone();
+    let get: SimBody = Box::new(move |_, out| {
+        let mut axis = axis_lock(&a);
+        let t = axis.system_time_at(clock.now_us());
+        let s = axis.state_at(t);
+        out.set(0, &Value::U64(s.time))?;
+        out.set(1, &Value::F32(s.position as f32))
+    });
+    let a = axis.clone();
+    let state: SimBody = Box::new(move |_, out| {
+        let mut axis = axis_lock(&a);
+        let t = axis.system_time_at(clock.now_us());
+        let s = axis.state_at(t);
+        out.set(0, &Value::U64(s.time))?;
+        out.set(1, &Value::F32(s.position as f32))?;
+        out.set(2, &Value::F32(s.velocity as f32))?;
+        out.set(3, &Value::U8(s.mode.code()))
+    });
+    let a = axis.clone();
+    let current: SimBody = Box::new(move |inputs, _| match inputs {
+        [Value::F32(amps)] => axis_lock(&a)
+            .set_current(*amps, STEPPER_MAX_AMPS)
+            .map_err(CallError::Failed),
+        _ => Err(BAD_INPUTS),
+    });
+    let a = axis.clone();
+    let endstop: SimBody = Box::new(move |_, out| {
+        let (time, count) = axis_lock(&a).endstop();
+        out.set(0, &Value::U64(time))?;
+        out.set(1, &Value::U32(count))
+    });
+    SimHardware {
+        functions: vec![
+            function(&ADD_POINT, add),
+            function(&GET_POSITION, get),
+            function(&GET_STATE, state),
+            function(&SET_CURRENT, current),
+            function(&ENDSTOP, endstop),
+        ],
+        motor: Some(AxisMotor {
+            axis: axis.clone(),
+            next: 0,
+        }),
+        axis: Some(AxisProbe { axis }),
+    }
+}
+
 /// The simulated analog input at local time `t`: `sin(2π·t / ANALOG_PERIOD_US)`.
 pub fn analog_at(t: Micros) -> f32 {
     let phase = (t % ANALOG_PERIOD_US) as f64 / ANALOG_PERIOD_US as f64;
@@ -450,7 +562,7 @@ mod tests {
     #[test]
     fn function_sets_by_type() {
         let clock = DriftClock::new(Instant::now(), ClockModel::new(0.0, 0.0));
-        for ty in ["stepper", "io", "hub", "spindle"] {
+        for ty in ["stepper", "io", "axis", "hub", "spindle"] {
             let fs = functions_for(ty, clock);
             let sigs = signatures_for(ty);
             assert_eq!(fs.len(), sigs.len(), "{ty}");

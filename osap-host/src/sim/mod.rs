@@ -107,6 +107,7 @@
 //! [`SimModule::restart`] boots it again: a fresh runtime, its clock
 //! restarting from its boot value, the name it last had, its links back up.
 
+pub mod axis;
 mod clock;
 pub mod functions;
 mod module;
@@ -196,6 +197,8 @@ struct ModuleShared {
 struct Live {
     commands: Option<mpsc::UnboundedSender<ModuleCommand>>,
     clock: DriftClock,
+    /// An `axis` module's hardware, replaced at each boot.
+    axis: Option<axis::AxisProbe>,
 }
 
 enum ModuleState {
@@ -343,6 +346,7 @@ impl SimMachine {
                 live: Mutex::new(Live {
                     commands: None,
                     clock: DriftClock::new(epoch, spec.clock_model()),
+                    axis: None,
                 }),
             });
             let module = SimModule { inner: shared };
@@ -519,6 +523,12 @@ impl SimModule {
         lock(&self.inner.live).clock
     }
 
+    /// An `axis` module's executed states (from its current boot); `None`
+    /// for other types, or before it first booted.
+    pub fn axis(&self) -> Option<axis::AxisProbe> {
+        lock(&self.inner.live).axis.clone()
+    }
+
     /// Its local clock's reading now, µs.
     pub fn local_us(&self) -> Micros {
         self.clock().now_us()
@@ -614,10 +624,20 @@ impl SimModule {
             })
             .collect();
         let (commands, rx) = mpsc::unbounded_channel();
-        let ports = functions::functions_for(&spec.type_name, clock)
+        let hardware = functions::hardware_for(
+            &spec.type_name,
+            &spec.axis.clone().unwrap_or_default(),
+            clock,
+        );
+        let mut ports: Vec<Box<dyn osap_core::port::Port + Send>> = hardware
+            .functions
             .into_iter()
             .map(|f| Box::new(f) as Box<dyn osap_core::port::Port + Send>)
             .collect();
+        // The motor serves no port index: after the functions, it shifts none.
+        if let Some(motor) = hardware.motor {
+            ports.push(Box::new(motor));
+        }
         let task = ModuleTask {
             runtime: Box::new(runtime),
             ports,
@@ -629,6 +649,7 @@ impl SimModule {
         *lock(&self.inner.live) = Live {
             commands: Some(commands),
             clock,
+            axis: hardware.axis,
         };
         Ok(tokio::spawn(task.run()))
     }

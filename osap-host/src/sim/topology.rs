@@ -77,6 +77,10 @@ pub struct ModuleSpec {
     /// Period of the wander, s.
     #[serde(default = "default_wander_period")]
     pub wander_period_s: f64,
+    /// An `axis` module's hardware (defaults when absent); only `axis`
+    /// modules may have it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub axis: Option<super::axis::AxisSpec>,
 }
 
 impl ModuleSpec {
@@ -89,7 +93,14 @@ impl ModuleSpec {
             offset_us: 0.0,
             wander_ppm: 0.0,
             wander_period_s: default_wander_period(),
+            axis: None,
         }
+    }
+
+    /// The same module as an `axis` with hardware `axis`.
+    pub fn with_axis(mut self, axis: super::axis::AxisSpec) -> Self {
+        self.axis = Some(axis);
+        self
     }
 
     /// The same module with a clock `rate_ppm` fast.
@@ -301,6 +312,15 @@ impl Topology {
             }
             if !(m.wander_period_s.is_finite() && m.wander_period_s > 0.0) {
                 return Err(format!("{what}: wander_period_s must be positive"));
+            }
+            if let Some(axis) = &m.axis {
+                if m.type_name != "axis" {
+                    return Err(format!(
+                        "{what}: an [module.axis] table is for modules of type \"axis\", not {:?}",
+                        m.type_name
+                    ));
+                }
+                axis.check().map_err(|e| format!("{what}: {e}"))?;
             }
         }
         let node = |name: &str| -> Option<Node> {
