@@ -28,6 +28,11 @@ impl HostClock {
         self.epoch.elapsed().as_micros() as u64
     }
 
+    /// The clock's reading at `t` (0 before it started).
+    pub fn us_at(&self, t: Instant) -> u64 {
+        t.saturating_duration_since(self.epoch).as_micros() as u64
+    }
+
     /// The instant at which the clock reads `us`.
     pub fn instant_at(&self, us: u64) -> Instant {
         self.epoch + Duration::from_micros(us)

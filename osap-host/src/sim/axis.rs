@@ -139,8 +139,12 @@ impl AxisMode {
 /// One executed state.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Executed {
-    /// Synchronized time of the evaluation, µs.
+    /// Synchronized time of the evaluation, µs: when the module believed it was.
     pub time: u64,
+    /// The module's local time of the evaluation, µs (see
+    /// [`SimModule::host_time_at`](super::SimModule::host_time_at) for when
+    /// it truly was).
+    pub local: u64,
     /// Position, user units.
     pub position: f64,
     /// Velocity, user units/s.
@@ -196,6 +200,8 @@ pub mod code {
     pub const DISABLED: u8 = 6;
     /// A new stream must start where the axis stands.
     pub const DISCONTINUOUS: u8 = 7;
+    /// The queue is full of points still to run: the stream is too far ahead.
+    pub const QUEUE_FULL: u8 = 8;
 }
 
 impl SimAxis {
@@ -263,6 +269,15 @@ impl SimAxis {
                 return Err(code::DISCONTINUOUS);
             }
         }
+        if self.track.len() == AXIS_QUEUE {
+            // The track would drop its oldest point: only if it has run.
+            let shift = self.track.interval().shift();
+            let newest = self.track.last_time().unwrap_or(0) >> shift;
+            let oldest = newest + 1 - AXIS_QUEUE as u64;
+            if oldest + 1 >= self.clock.1 >> shift {
+                return Err(code::QUEUE_FULL);
+            }
+        }
         match self.track.push(time, p) {
             Ok(maxl::PushOutcome::Appended) => Ok(()),
             Ok(maxl::PushOutcome::FilledGap) => {
@@ -301,13 +316,16 @@ impl SimAxis {
         }
     }
 
-    /// The executed state at synchronized time `t` (not recorded).
+    /// The executed state at synchronized time `t` (not recorded; its
+    /// `local` time is estimated from the last tick).
     pub fn state_at(&mut self, t: u64) -> Executed {
         let (pos, vel, mode) = self
             .sample_steps(t)
             .unwrap_or((self.rest, 0.0, AxisMode::Idle));
+        let (l, s) = self.clock;
         Executed {
             time: t,
+            local: (l as i64 + (t as i64 - s as i64)).max(0) as u64,
             position: self.units(pos.to_f64()),
             velocity: self.units(vel),
             mode,
@@ -555,6 +573,14 @@ mod tests {
         assert_eq!(a.add_point(4 * 2048, 0.0), Err(code::GAP));
         assert_eq!(a.counters().refused, 6);
         assert_eq!(a.counters().points, 1);
+        // A stream too far ahead fills the queue and is refused, not dropped.
+        for k in 2..=AXIS_QUEUE as u64 {
+            assert_eq!(a.add_point(k * 2048, 0.0), Ok(()));
+        }
+        assert_eq!(a.add_point(65 * 2048, 0.0), Err(code::QUEUE_FULL));
+        // Once the oldest points have run, the stream goes on.
+        a.tick(0, 10 * 2048);
+        assert_eq!(a.add_point(65 * 2048, 0.0), Ok(()));
     }
 
     #[test]

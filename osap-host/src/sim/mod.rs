@@ -529,6 +529,17 @@ impl SimModule {
         lock(&self.inner.live).axis.clone()
     }
 
+    /// The host clock's reading (the machine's true time: the host is the
+    /// time root) when this module's local clock read `local`, in its
+    /// current boot. Comparing it with what the module believed
+    /// ([`Executed::time`](axis::Executed::time)) gives the sync error.
+    pub fn host_time_at(&self, local: Micros) -> u64 {
+        self.inner
+            .machine
+            .host_clock
+            .us_at(self.clock().instant_at(local))
+    }
+
     /// Its local clock's reading now, µs.
     pub fn local_us(&self) -> Micros {
         self.clock().now_us()
