@@ -11,16 +11,19 @@
 //! A module exposes its netresponder (port 0) and clock sync; its `type` is
 //! the type name it reports, and also selects the PIPES functions the
 //! firmware of that type exposes ([`functions`]: a `stepper` adds control
-//! points and reports its position, an `io` module reads and pulses pins and
-//! compares an analog input, a `hub` reports its uptime), run as ports of
+//! points and reports its position, an `axis` follows MAXL spline tracks on
+//! its synchronized clock ([`axis`]; [`SimModule::axis`] reads what it
+//! executed), an `io` module reads and pulses pins and compares an analog
+//! input, a `hub` reports its uptime), run as ports of
 //! the same runtime from port 1 on, so scans list them (type
 //! `pipes_function`) and scripts call them over the network.
 //!
 //! A machine is described by a [`Topology`], usually read from a TOML file
 //! ([`load`]), and started against a host with [`SimMachine::start`]. The
-//! repository ships three in `osap-host/topologies/`: `single-usb.toml` (one
+//! repository ships four in `osap-host/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
-//! UARTs) and `loop.toml` (a network with a loop).
+//! UARTs), `loop.toml` (a network with a loop) and `corexy-plotter.toml`
+//! (a hub with three MAXL axes, one with an endstop).
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::HostError> {
@@ -56,6 +59,16 @@
 //! offset_us = 0.0            # optional: the clock's reading at boot, µs
 //! wander_ppm = 0.0           # optional: slow sinusoidal rate wander, ppm
 //! wander_period_s = 300.0    # optional: its period, s
+//!
+//! [[module]]
+//! name = "z"
+//! type = "axis"              # a MAXL axis; its hardware in [module.axis]
+//! [module.axis]              # optional, for type "axis" only; defaults shown
+//! steps_per_unit = 80.0      # steps per user unit (positions are in units)
+//! interval_us = 2048         # control-point interval: 2^k µs, 256..=16384
+//! endstop = -2.0             # optional: a minimum endstop at this position
+//! stop_acc = 2000.0          # safety stop limits when the stream runs dry,
+//! stop_jerk = 200000.0       # units/s² and units/s³
 //!
 //! [[link]]
 //! a = "host"                 # "host" is the Host the machine attaches to
