@@ -63,8 +63,9 @@ pub trait PipesClass: Sized {
         outputs: &mut Outputs<'_>,
     ) -> Result<(), CallError>;
 
-    /// Called once per runtime loop by the [`ClassPort`]; does nothing by
-    /// default.
+    /// Called once per runtime loop by the [`ClassPort`] with the runtime's
+    /// synchronized system time (what stamped data is keyed by); does
+    /// nothing by default.
     fn loop_hook(&mut self, now_us: Micros) {
         let _ = now_us;
     }
@@ -232,7 +233,7 @@ impl<C: PipesClass, const B: usize> Port for ClassPort<'_, C, B> {
 
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         if let Ok(mut s) = self.state.try_borrow_mut() {
-            s.loop_hook(tx.now());
+            s.loop_hook(tx.system_time());
         }
         self.ctor.poll(tx);
     }

@@ -533,3 +533,87 @@ fn dataflow_from_a_function_into_a_class_member() {
     let body = w.call(to_b(), CLASS_READING_PORT, &[]);
     assert_eq!(returned(&body)[1], Value::Bool(true));
 }
+
+// ---- functions and classes that can fail ------------------------------------
+
+#[pipes_core::function(outputs = "root")]
+fn checked_sqrt(x: f32) -> Result<f32, pipes_core::function::CallError> {
+    if x < 0.0 {
+        return Err(pipes_core::function::CallError::Failed(7));
+    }
+    Ok(x.sqrt())
+}
+
+/// A failure with its own type, turned into a code.
+struct OutOfRange;
+
+impl From<OutOfRange> for pipes_core::function::CallError {
+    fn from(_: OutOfRange) -> Self {
+        pipes_core::function::CallError::Failed(9)
+    }
+}
+
+struct Gauge {
+    full: u16,
+    level: u16,
+}
+
+#[pipes_core::class]
+impl Gauge {
+    #[constructor]
+    fn new(full: u16) -> Result<Self, OutOfRange> {
+        if full == 0 {
+            return Err(OutOfRange);
+        }
+        Ok(Gauge { full, level: 0 })
+    }
+
+    #[outputs = "level, fraction"]
+    fn fill(&mut self, by: u16) -> Result<(u16, f32), OutOfRange> {
+        let level = self.level.checked_add(by).filter(|l| *l <= self.full);
+        self.level = level.ok_or(OutOfRange)?;
+        Ok((self.level, f32::from(self.level) / f32::from(self.full)))
+    }
+}
+
+#[test]
+fn failures_of_functions_members_and_constructors_reach_the_caller() {
+    let state: &'static RefCell<Gauge> =
+        Box::leak(Box::new(RefCell::new(Gauge { full: 10, level: 0 })));
+    let mut net = Net::new(
+        vec![boxed::<0>(checked_sqrt::pipes())],
+        vec![
+            Box::new(ClassPort::<Gauge>::new(state).unwrap()),
+            Box::new(
+                PipesFunction::<_, 0, 1, 64>::new(Member::by_name(state, "fill").unwrap()).unwrap(),
+            ),
+        ],
+    );
+    let failed = |body: &[u8]| Reply::parse(body).unwrap().result.err();
+    // The generated signatures see through the Result.
+    assert_eq!(checked_sqrt::SIGNATURE.outputs[0].ty, f32::TYPE);
+    assert_eq!(Gauge::MEMBERS[0].outputs.len(), 2);
+
+    let body = net.call(Route::local(), 2, &[(0, Value::F32(6.25))]);
+    assert_eq!(returned(&body), [Value::F32(2.5)]);
+    let body = net.call(Route::local(), 2, &[(0, Value::F32(-1.0))]);
+    assert_eq!(failed(&body), Some(ControlError::CallFailed(7)));
+
+    let body = net.call(to_b(), 2, &[(0, Value::U16(4))]);
+    assert_eq!(returned(&body), [Value::U16(4), Value::F32(0.4)]);
+    let body = net.call(to_b(), 2, &[(0, Value::U16(7))]);
+    assert_eq!(failed(&body), Some(ControlError::CallFailed(9)));
+    assert_eq!(
+        state.borrow().level,
+        4,
+        "a failed member left the state as it was"
+    );
+
+    // A refused constructor keeps the old state.
+    let body = net.call(to_b(), 1, &[(0, Value::U16(0))]);
+    assert_eq!(failed(&body), Some(ControlError::CallFailed(9)));
+    assert_eq!(state.borrow().full, 10);
+    let body = net.call(to_b(), 1, &[(0, Value::U16(20))]);
+    assert!(returned(&body).is_empty());
+    assert_eq!((state.borrow().full, state.borrow().level), (20, 0));
+}

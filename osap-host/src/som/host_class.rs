@@ -102,7 +102,7 @@ impl<C: PipesClass> Port for HostClassPort<C> {
     }
 
     fn poll(&mut self, tx: &mut PortTx<'_>) {
-        lock(&self.state).loop_hook(tx.now());
+        lock(&self.state).loop_hook(tx.system_time());
         self.ctor.poll(tx);
     }
 }

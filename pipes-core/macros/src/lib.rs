@@ -51,6 +51,11 @@ const MAX_ARGS: usize = 8;
 /// - an `Implementation` that decodes the inputs, calls the function and sets
 ///   every output.
 ///
+/// A function that can fail returns `Result<T, E>` with `E:
+/// Into<CallError>` (e.g. `CallError` itself, or a type with a `From` impl
+/// that picks a failure code): `Ok(T)` sets the outputs as `T` would, `Err`
+/// is reported to the caller (`CallError::Failed(code)` as its code).
+///
 /// Options: `outputs = "a, b"` (required when the function returns
 /// something; one name per returned value), `name = ".."` (the signature
 /// name; default the Rust name).
@@ -88,12 +93,15 @@ pub fn function(attr: TokenStream, item: TokenStream) -> TokenStream {
 ///
 /// The block is kept as written (minus the helper attributes) and
 /// `pipes_core::class::PipesClass` is implemented for the type:
-/// - exactly one `#[constructor]` associated function returning `Self`:
-///   the class's constructor signature (named after the type);
+/// - exactly one `#[constructor]` associated function returning `Self`, or
+///   `Result<Self, E>` (`E: Into<CallError>`) when arguments can be
+///   refused: the class's constructor signature (named after the type);
 /// - every method taking `&self` or `&mut self` whose name does not start
 ///   with `_` is an exported member, signature `"Type.method"`, with output
-///   names from `#[outputs = ".."]` as for [`macro@function`];
-/// - at most one `#[loop_hook]` method `fn(&mut self, now_us: u64)`.
+///   names from `#[outputs = ".."]` and `Result` returns as for
+///   [`macro@function`];
+/// - at most one `#[loop_hook]` method `fn(&mut self, now_us: u64)`, given
+///   the runtime's synchronized system time.
 ///
 /// Options: `name = ".."` (the class name; default the type's name).
 #[proc_macro_attribute]
@@ -162,11 +170,29 @@ struct Input {
     ty: Type,
 }
 
-/// The returned values: their types and whether the Rust type is a tuple.
+/// The returned values: their types, whether the Rust type is a tuple, and
+/// whether they come wrapped in a `Result` (the function can fail).
 struct Returned {
     types: Vec<Type>,
     tuple: bool,
+    fallible: bool,
     span: Span,
+}
+
+/// `T` of a `Result<T, E>` (by its last path segment), if `ty` is one.
+fn result_ok_type(ty: &Type) -> Option<&Type> {
+    let Type::Path(p) = ty else { return None };
+    let last = p.path.segments.last()?;
+    if last.ident != "Result" {
+        return None;
+    }
+    let syn::PathArguments::AngleBracketed(args) = &last.arguments else {
+        return None;
+    };
+    args.args.iter().find_map(|a| match a {
+        syn::GenericArgument::Type(t) => Some(t),
+        _ => None,
+    })
 }
 
 fn returned(ret: &ReturnType) -> Returned {
@@ -174,6 +200,7 @@ fn returned(ret: &ReturnType) -> Returned {
         ReturnType::Default => Returned {
             types: Vec::new(),
             tuple: true,
+            fallible: false,
             span: Span::call_site(),
         },
         ReturnType::Type(_, ty) => {
@@ -181,19 +208,40 @@ fn returned(ret: &ReturnType) -> Returned {
             while let Type::Paren(p) = t {
                 t = &p.elem;
             }
+            let fallible = result_ok_type(t).is_some();
+            if let Some(ok) = result_ok_type(t) {
+                t = ok;
+                while let Type::Paren(p) = t {
+                    t = &p.elem;
+                }
+            }
             match t {
                 Type::Tuple(tup) => Returned {
                     types: tup.elems.iter().cloned().collect(),
                     tuple: true,
+                    fallible,
                     span: ty.span(),
                 },
                 other => Returned {
                     types: vec![other.clone()],
                     tuple: false,
+                    fallible,
                     span: ty.span(),
                 },
             }
         }
+    }
+}
+
+/// The call `call`, with a `Result`'s error turned into the `CallError` the
+/// function reports (`E: Into<CallError>`) and returned early.
+fn unwrap_call(ret: &Returned, call: TokenStream2) -> TokenStream2 {
+    if ret.fallible {
+        quote_spanned!(ret.span=> (#call).map_err(
+            ::core::convert::Into::<::pipes_core::function::CallError>::into
+        )?)
+    } else {
+        call
     }
 }
 
@@ -392,6 +440,7 @@ fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStr
     let value = format_ident!("__pipes_returned");
     let args = decode_args(&ins, &values);
     let write = write_outputs(&ret, &value, &outputs);
+    let call = unwrap_call(&ret, quote!(#ident(#(#args),*)));
     let vis = &f.vis;
     let doc = format!(
         "The PIPES function of [`{ident}()`]: hand [`{ident}::pipes()`] to \
@@ -427,7 +476,7 @@ fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStr
                 #outputs: &mut ::pipes_core::function::Outputs<'_>,
             ) -> ::core::result::Result<(), ::pipes_core::function::CallError> {
                 #[allow(clippy::let_unit_value, clippy::unit_arg)]
-                let #value = #ident(#(#args),*);
+                let #value = #call;
                 #write
             }
         }
@@ -505,6 +554,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
     };
 
     let mut constructor: Option<(Ident, Vec<Input>, Span)> = None;
+    let mut ctor_fallible = false;
     let mut hook: Option<Ident> = None;
     let mut members: Vec<MemberFn> = Vec::new();
     for it in imp.items.iter_mut() {
@@ -535,6 +585,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
                 return Err(e);
             }
             constructor = Some((sig.ident.clone(), inputs(sig)?, sig.ident.span()));
+            ctor_fallible = returned(&sig.output).fallible;
             continue;
         }
         if let Some(a) = is_hook {
@@ -597,6 +648,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
     let no_ret = Returned {
         types: Vec::new(),
         tuple: true,
+        fallible: false,
         span: Span::call_site(),
     };
     let ctor_sig = signature_expr(&class_name, &ctor_inputs, &[], &no_ret);
@@ -611,14 +663,22 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
         let ident = &m.ident;
         let args = decode_args(&m.inputs, &values);
         let write = write_outputs(&m.ret, &value, &outputs);
+        let call = unwrap_call(&m.ret, quote!(self.#ident(#(#args),*)));
         quote! {
             #i => {
                 #[allow(clippy::let_unit_value, clippy::unit_arg)]
-                let #value = self.#ident(#(#args),*);
+                let #value = #call;
                 #write
             }
         }
     });
+    let construct = if ctor_fallible {
+        quote!(<#self_ty>::#ctor_ident(#(#ctor_args),*).map_err(
+            ::core::convert::Into::<::pipes_core::function::CallError>::into
+        ))
+    } else {
+        quote!(::core::result::Result::Ok(<#self_ty>::#ctor_ident(#(#ctor_args),*)))
+    };
     let hook_fn = hook.map(|h| {
         quote! {
             fn loop_hook(&mut self, now_us: u64) {
@@ -639,7 +699,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
             fn construct(
                 #values: &[::pipes_core::Value<'_>],
             ) -> ::core::result::Result<Self, ::pipes_core::function::CallError> {
-                ::core::result::Result::Ok(<#self_ty>::#ctor_ident(#(#ctor_args),*))
+                #construct
             }
 
             #[allow(unused_variables)]
