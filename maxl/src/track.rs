@@ -250,6 +250,24 @@ impl<P: Point, const N: usize> Track<P, N> {
         Ok(self.backstop_at(&l, t))
     }
 
+    /// The control points `P_{i-1}..P_{i+2}` of the segment holding `t` and
+    /// `t`'s offset in it (µs), when that segment is fully known and the
+    /// backstop has not latched; `None` otherwise (then [`Track::sample`]
+    /// decides: `TooEarly`, `NotStarted` or the backstop). For a per-tick
+    /// evaluator such as [`crate::eval::TickEval`].
+    pub fn segment_at(&self, t: u64) -> Option<([P; 4], u32)> {
+        if self.latched.is_some() || self.len < 4 {
+            return None;
+        }
+        let i = t >> self.iv.shift();
+        let last = self.first + self.len as u64 - 1;
+        if i < self.first + 1 || i + 2 > last {
+            return None;
+        }
+        let du = (t & (self.iv.micros() as u64 - 1)) as u32;
+        Some((self.segment(i), du))
+    }
+
     fn segment(&self, i: u64) -> [P; 4] {
         let g = |k| self.get(k).unwrap_or_default();
         [g(i - 1), g(i), g(i + 1), g(i + 2)]
@@ -262,5 +280,35 @@ impl<P: Point, const N: usize> Track<P, N> {
             status: TrackStatus::Backstop,
             kin: P::with_offset(&l.edge, dp, v, a, j),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::eval::Fx;
+
+    #[test]
+    fn segment_at_only_for_fully_known_segments() {
+        let iv = Interval::from_micros(256).unwrap();
+        let lim = BackstopLimits {
+            max_acc: 1e4,
+            max_jerk: 1e6,
+        };
+        let mut tr: Track<Fx, 8> = Track::new(iv, lim);
+        for k in 0..3u64 {
+            tr.push(k * 256, Fx(k as i32)).unwrap();
+        }
+        assert_eq!(tr.segment_at(256), None, "fewer than 4 points");
+        tr.push(768, Fx(3)).unwrap();
+        assert_eq!(tr.segment_at(255), None, "needs P_-1");
+        assert_eq!(
+            tr.segment_at(256 + 17),
+            Some(([Fx(0), Fx(1), Fx(2), Fx(3)], 17))
+        );
+        assert_eq!(tr.segment_at(512), None, "needs the point at 1024");
+        // Running dry latches the backstop; then there is no segment.
+        assert!(tr.sample(600).is_ok());
+        assert_eq!(tr.segment_at(256), None);
     }
 }

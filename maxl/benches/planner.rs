@@ -1,0 +1,123 @@
+//! Planner throughput: segments per second through append + plan + sample,
+//! on a 3D random walk of short segments with varied corner angles.
+//!
+//! `cargo bench -p maxl --features std --bench planner`
+
+use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use maxl::blocks::planner::{Limits, Planner};
+
+/// Segments per iteration.
+const SEGMENTS: usize = 10_000;
+/// Sample stamp interval (µs).
+const STEP: u64 = 1024;
+
+/// xorshift64*: a fixed path, the same in every run.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> f64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
+    }
+}
+
+/// A random walk of 0.05..0.5 mm steps whose heading turns by up to ±`turn`
+/// radians (in azimuth and elevation) per step.
+fn walk(n: usize, turn: f64) -> Vec<[f64; 3]> {
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let (mut az, mut el) = (0.0f64, 0.0f64);
+    let mut p = [0.0; 3];
+    (0..n)
+        .map(|_| {
+            az += (rng.next() - 0.5) * 2.0 * turn;
+            el = (el + (rng.next() - 0.5) * turn).clamp(-1.0, 1.0);
+            let len = 0.05 + 0.45 * rng.next();
+            p[0] += len * az.cos() * el.cos();
+            p[1] += len * az.sin() * el.cos();
+            p[2] += len * el.sin();
+            p
+        })
+        .collect()
+}
+
+fn limits() -> Limits<3> {
+    Limits::new([500.0, 300.0, 50.0], [10_000.0, 6_000.0, 1_000.0], 0.02).unwrap()
+}
+
+/// Queue everything, then sample every stamp until rest.
+fn batch(path: &[[f64; 3]]) -> u64 {
+    let mut p = Planner::with_capacity(limits(), path.len()).unwrap();
+    for q in path {
+        p.line(*q, 250.0).unwrap();
+    }
+    let mut t = 0;
+    let mut acc = 0.0;
+    while !p.is_idle() {
+        acc += p.sample(t).unwrap()[0];
+        t += STEP;
+    }
+    black_box(acc);
+    t
+}
+
+/// Feed while running: keep `depth` segments ahead, sampling one stamp at a
+/// time and appending whenever the queue drops below it.
+fn fed(path: &[[f64; 3]], depth: usize) -> u64 {
+    let mut p = Planner::with_capacity(limits(), depth).unwrap();
+    let mut next = path.iter();
+    let mut t = 0;
+    let mut acc = 0.0;
+    loop {
+        while p.stats().pending < depth {
+            match next.next() {
+                Some(q) => {
+                    p.line(*q, 250.0).unwrap();
+                }
+                None => break,
+            }
+        }
+        acc += p.sample(t).unwrap()[0];
+        t += STEP;
+        if p.is_idle() && next.len() == 0 {
+            break;
+        }
+    }
+    black_box(acc);
+    t
+}
+
+/// Append and plan only (no sampling), in a queue as long as the path.
+fn append_only(path: &[[f64; 3]]) -> usize {
+    let mut p = Planner::with_capacity(limits(), path.len()).unwrap();
+    for q in path {
+        p.line(*q, 250.0).unwrap();
+    }
+    p.stats().pending
+}
+
+fn bench(c: &mut Criterion) {
+    let mut g = c.benchmark_group("planner");
+    g.throughput(Throughput::Elements(SEGMENTS as u64));
+    for (name, turn) in [("turn45", 0.785), ("turn10", 0.175)] {
+        let path = walk(SEGMENTS, turn);
+        g.bench_with_input(BenchmarkId::new("append_only", name), &path, |b, p| {
+            b.iter(|| append_only(p))
+        });
+        g.bench_with_input(BenchmarkId::new("batch", name), &path, |b, p| {
+            b.iter(|| batch(p))
+        });
+        for depth in [16, 256] {
+            let id = BenchmarkId::new(format!("fed{depth}"), name);
+            g.bench_with_input(id, &path, |b, p| b.iter(|| fed(p, depth)));
+        }
+    }
+    g.finish();
+}
+
+criterion_group! {
+    name = benches;
+    config = Criterion::default().sample_size(20);
+    targets = bench
+}
+criterion_main!(benches);

@@ -1,0 +1,167 @@
+//! Machine limits and the planner's errors.
+
+use std::fmt;
+
+/// Per-axis limits of a machine, in the path's units (mm, mm/s, mm/s²).
+///
+/// Build with [`Limits::new`], which checks every value; [`super::Planner::new`]
+/// checks again, so a hand-built value with a bad field is refused there.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Limits<const N: usize> {
+    /// Largest speed of each axis (mm/s), finite and > 0.
+    pub max_vel: [f64; N],
+    /// Largest acceleration of each axis (mm/s²), finite and > 0.
+    pub max_acc: [f64; N],
+    /// Junction deviation (mm), finite and ≥ 0: how far the path may be
+    /// imagined to round a corner when choosing the corner's speed. 0 stops
+    /// at every corner.
+    pub junction_deviation: f64,
+    /// Largest instantaneous velocity change of each axis at a junction
+    /// (mm/s), > 0; `f64::INFINITY` leaves the junction to the deviation
+    /// model alone.
+    pub max_jump: [f64; N],
+}
+
+impl<const N: usize> Limits<N> {
+    /// Limits with no per-axis velocity-jump limit.
+    pub fn new(
+        max_vel: [f64; N],
+        max_acc: [f64; N],
+        junction_deviation: f64,
+    ) -> Result<Self, PlanError> {
+        let l = Limits {
+            max_vel,
+            max_acc,
+            junction_deviation,
+            max_jump: [f64::INFINITY; N],
+        };
+        l.validate()?;
+        Ok(l)
+    }
+
+    /// The same limits with a per-axis velocity-jump limit at junctions.
+    pub fn with_max_jump(mut self, max_jump: [f64; N]) -> Result<Self, PlanError> {
+        self.max_jump = max_jump;
+        self.validate()?;
+        Ok(self)
+    }
+
+    /// Checks every value.
+    pub fn validate(&self) -> Result<(), PlanError> {
+        if N == 0 {
+            return Err(PlanError::InvalidLimit {
+                name: "axes",
+                axis: None,
+                value: 0.0,
+            });
+        }
+        let bad = |name, axis, value: f64| PlanError::InvalidLimit { name, axis, value };
+        for i in 0..N {
+            let v = self.max_vel[i];
+            if !(v.is_finite() && v > 0.0) {
+                return Err(bad("max_vel", Some(i), v));
+            }
+            let a = self.max_acc[i];
+            if !(a.is_finite() && a > 0.0) {
+                return Err(bad("max_acc", Some(i), a));
+            }
+            let j = self.max_jump[i];
+            if j.is_nan() || j <= 0.0 {
+                return Err(bad("max_jump", Some(i), j));
+            }
+        }
+        let d = self.junction_deviation;
+        if !(d.is_finite() && d >= 0.0) {
+            return Err(bad("junction_deviation", None, d));
+        }
+        Ok(())
+    }
+}
+
+/// Why the planner refused a call.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum PlanError {
+    /// A limit is not finite, or not > 0 (≥ 0 for the junction deviation).
+    InvalidLimit {
+        /// Which limit.
+        name: &'static str,
+        /// The axis, for per-axis limits.
+        axis: Option<usize>,
+        /// The refused value.
+        value: f64,
+    },
+    /// A coordinate (target, or arc centre) is NaN or infinite.
+    NonFiniteCoordinate {
+        /// The axis.
+        axis: usize,
+    },
+    /// The feed rate is not finite and > 0.
+    InvalidFeed(f64),
+    /// The arc cannot be built (see the reason).
+    InvalidArc(&'static str),
+    /// The queue holds `capacity` segments not yet started.
+    QueueFull {
+        /// The queue's capacity.
+        capacity: usize,
+    },
+    /// A stamp before the previous one.
+    StampNotMonotonic {
+        /// The refused stamp.
+        stamp: u64,
+        /// The previous stamp.
+        last: u64,
+    },
+    /// The call needs the planner idle (nothing running or queued).
+    Busy,
+    /// The queue capacity is 0.
+    InvalidCapacity,
+}
+
+impl PlanError {
+    /// The [`pipes_core::function::CallError::Failed`] code of this error on
+    /// the wire (see the module docs).
+    pub fn code(&self) -> u8 {
+        match self {
+            PlanError::InvalidLimit { .. } => 1,
+            PlanError::NonFiniteCoordinate { .. } => 2,
+            PlanError::InvalidFeed(_) => 3,
+            PlanError::InvalidArc(_) => 4,
+            PlanError::QueueFull { .. } => 5,
+            PlanError::StampNotMonotonic { .. } => 6,
+            PlanError::Busy => 7,
+            PlanError::InvalidCapacity => 8,
+        }
+    }
+}
+
+impl fmt::Display for PlanError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            PlanError::InvalidLimit {
+                name,
+                axis: Some(i),
+                value,
+            } => write!(f, "limit {name}[{i}] = {value} is not allowed"),
+            PlanError::InvalidLimit {
+                name,
+                axis: None,
+                value,
+            } => write!(f, "limit {name} = {value} is not allowed"),
+            PlanError::NonFiniteCoordinate { axis } => {
+                write!(f, "coordinate of axis {axis} is not finite")
+            }
+            PlanError::InvalidFeed(v) => write!(f, "feed rate {v} is not finite and > 0"),
+            PlanError::InvalidArc(why) => write!(f, "invalid arc: {why}"),
+            PlanError::QueueFull { capacity } => {
+                write!(f, "planner queue full ({capacity} segments waiting)")
+            }
+            PlanError::StampNotMonotonic { stamp, last } => {
+                write!(f, "stamp {stamp} µs is before the previous stamp {last} µs")
+            }
+            PlanError::Busy => write!(f, "the planner is not idle"),
+            PlanError::InvalidCapacity => write!(f, "queue capacity must be > 0"),
+        }
+    }
+}
+
+impl std::error::Error for PlanError {}

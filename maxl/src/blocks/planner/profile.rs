@@ -1,0 +1,212 @@
+//! One segment's geometry, its limits and its trapezoidal speed profile, and
+//! the junction speed between two segments.
+
+// Index loops run over several `[f64; N]` at once.
+#![allow(clippy::needless_range_loop)]
+
+use super::limits::Limits;
+
+/// Components below this are treated as zero when dividing a limit by a
+/// direction component.
+const TINY: f64 = 1e-12;
+
+/// A straight segment with its direction-dependent limits and planning state.
+#[derive(Clone, Debug)]
+pub(crate) struct Segment<const N: usize> {
+    pub id: u64,
+    pub start: [f64; N],
+    pub end: [f64; N],
+    pub dir: [f64; N],
+    pub len: f64,
+    /// Largest speed: the feed and every axis's speed limit along `dir`.
+    pub v_max: f64,
+    /// Largest acceleration keeping every axis within its limit along `dir`.
+    pub acc: f64,
+    /// Largest entry speed the junction with the previous segment allows.
+    pub junction_max: f64,
+    /// Entry-speed bound from the backward pass (reaching rest at the tail).
+    pub back: f64,
+    /// Planned entry speed.
+    pub entry: f64,
+}
+
+/// The largest value `limit[i] / |dir[i]|` keeps within every axis's limit.
+pub(crate) fn along<const N: usize>(limit: &[f64; N], dir: &[f64; N]) -> f64 {
+    let mut m = f64::INFINITY;
+    for i in 0..N {
+        let c = dir[i].abs();
+        if c > TINY {
+            m = m.min(limit[i] / c);
+        }
+    }
+    m
+}
+
+impl<const N: usize> Segment<N> {
+    /// A segment from `start` to `end`, or `None` if it is too short to move.
+    pub fn new(
+        id: u64,
+        start: [f64; N],
+        end: [f64; N],
+        feed: f64,
+        limits: &Limits<N>,
+    ) -> Option<Self> {
+        let mut d = [0.0; N];
+        let mut len2 = 0.0;
+        for i in 0..N {
+            d[i] = end[i] - start[i];
+            len2 += d[i] * d[i];
+        }
+        let len = len2.sqrt();
+        if !len.is_finite() || len <= 1e-9 {
+            return None;
+        }
+        for c in d.iter_mut() {
+            *c /= len;
+        }
+        let v_max = feed.min(along(&limits.max_vel, &d));
+        let acc = along(&limits.max_acc, &d);
+        Some(Segment {
+            id,
+            start,
+            end,
+            dir: d,
+            len,
+            v_max,
+            acc,
+            junction_max: 0.0,
+            back: 0.0,
+            entry: 0.0,
+        })
+    }
+
+    /// The speed reachable at the far end of this segment from `v` at one end.
+    pub fn reach(&self, v: f64) -> f64 {
+        (v * v + 2.0 * self.acc * self.len).sqrt()
+    }
+}
+
+/// Largest speed through the corner from `prev` into `next`.
+///
+/// Junction deviation: the corner is treated as a circular arc tangent to
+/// both segments whose closest point lies `δ` from the corner; the speed is
+/// the one whose centripetal acceleration on that arc equals the acceleration
+/// limit along the direction of the velocity change. Reversals give 0,
+/// collinear segments the smaller of the two speed limits. Each axis's
+/// velocity change is also kept within `max_jump`.
+pub(crate) fn junction_speed<const N: usize>(
+    prev: &Segment<N>,
+    next: &Segment<N>,
+    limits: &Limits<N>,
+) -> f64 {
+    let mut cos = 0.0;
+    for i in 0..N {
+        cos -= prev.dir[i] * next.dir[i];
+    }
+    let cap = prev.v_max.min(next.v_max);
+    if cos > 0.999_999 {
+        return 0.0;
+    }
+    let mut w = [0.0; N];
+    let mut wn = 0.0;
+    for i in 0..N {
+        w[i] = next.dir[i] - prev.dir[i];
+        wn += w[i] * w[i];
+    }
+    let wn = wn.sqrt();
+    let mut v = cap;
+    if cos > -0.999_999 && wn > TINY {
+        let unit = w.map(|c| c / wn);
+        let a = along(&limits.max_acc, &unit);
+        let sin_half = (0.5 * (1.0 - cos)).sqrt();
+        let r = limits.junction_deviation * sin_half / (1.0 - sin_half);
+        v = v.min((a * r).sqrt());
+    }
+    // The per-axis jump: |v · Δdir_i| ≤ max_jump_i.
+    v = v.min(along(&limits.max_jump, &w));
+    v.max(0.0)
+}
+
+/// A trapezoidal (constant-acceleration) speed profile over one segment.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Profile {
+    /// Entry speed (mm/s).
+    pub entry: f64,
+    /// Cruise (peak) speed (mm/s).
+    pub cruise: f64,
+    /// Exit speed (mm/s).
+    pub exit: f64,
+    /// Acceleration magnitude used in the ramps (mm/s²).
+    pub accel: f64,
+    /// Segment length (mm).
+    pub length: f64,
+    /// Duration of the accelerating ramp (s).
+    pub t_acc: f64,
+    /// Duration at cruise speed (s).
+    pub t_cruise: f64,
+    /// Duration of the decelerating ramp (s).
+    pub t_dec: f64,
+    d_acc: f64,
+    d_cruise: f64,
+}
+
+impl Profile {
+    /// The fastest profile over `len` from `v0` to `v1` within `v_max` and
+    /// `acc`. The caller guarantees `v1` is reachable from `v0`; rounding
+    /// beyond that is absorbed.
+    pub fn plan(len: f64, v0: f64, v1: f64, v_max: f64, acc: f64) -> Self {
+        let peak = ((2.0 * acc * len + v0 * v0 + v1 * v1) * 0.5).sqrt();
+        let vc = v_max.min(peak).max(v0).max(v1);
+        let d_acc = (vc * vc - v0 * v0) / (2.0 * acc);
+        let d_dec = (vc * vc - v1 * v1) / (2.0 * acc);
+        let d_cruise = (len - d_acc - d_dec).max(0.0);
+        let t_cruise = if vc > 0.0 { d_cruise / vc } else { 0.0 };
+        Profile {
+            entry: v0,
+            cruise: vc,
+            exit: v1,
+            accel: acc,
+            length: len,
+            t_acc: (vc - v0) / acc,
+            t_cruise,
+            t_dec: (vc - v1) / acc,
+            d_acc,
+            d_cruise,
+        }
+    }
+
+    /// Total duration (s).
+    pub fn duration(&self) -> f64 {
+        self.t_acc + self.t_cruise + self.t_dec
+    }
+
+    /// Distance, speed and acceleration along the segment `tau` seconds after
+    /// its start (clamped to the segment).
+    pub fn at(&self, tau: f64) -> (f64, f64, f64) {
+        let tau = tau.max(0.0);
+        let a = self.accel;
+        let (s, v, acc) = if tau < self.t_acc {
+            (
+                self.entry * tau + 0.5 * a * tau * tau,
+                self.entry + a * tau,
+                a,
+            )
+        } else if tau < self.t_acc + self.t_cruise {
+            (
+                self.d_acc + self.cruise * (tau - self.t_acc),
+                self.cruise,
+                0.0,
+            )
+        } else if tau < self.duration() {
+            let td = tau - self.t_acc - self.t_cruise;
+            (
+                self.d_acc + self.d_cruise + self.cruise * td - 0.5 * a * td * td,
+                self.cruise - a * td,
+                -a,
+            )
+        } else {
+            (self.length, self.exit, 0.0)
+        };
+        (s.clamp(0.0, self.length), v.max(0.0), acc)
+    }
+}
