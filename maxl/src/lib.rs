@@ -37,11 +37,11 @@ pub mod blocks;
 
 pub use backstop::{BackstopLimits, StopProfile};
 pub use eval::{eval_f64, Fx, KinF32, KinF64, KinFx, Point};
-pub use track::{
-    EvalError, Interval, IntervalError, PushError, PushOutcome, Sample, Track, TrackStatus,
-};
 pub use eval::{TickEval, TickEvalError, MAX_TICKS_PER_SEGMENT};
 pub use level::{EventTrack, Fired, LevelTrack, TimedPushError};
 pub use limit::{AxisLimits, Clamped, LimitError, LimitStats, Limited, Limiter, RawLimits};
 pub use phase::{Coils, PhaseOut};
 pub use step::{Dir, PioPacker, QueueFull, Rounding, StepEvent, StepGen, StepQueue, StepStats};
+pub use track::{
+    EvalError, Interval, IntervalError, PushError, PushOutcome, Sample, Track, TrackStatus,
+};

@@ -2,8 +2,11 @@
 //! The lookahead planner: limits at every stamp, junction speeds, endpoints,
 //! rest at the end, feeding while running, arcs, bad input.
 
-use maxl::blocks::planner::{Arc, Limits, PlanError, Planner, PlannerBlock};
+use maxl::blocks::planner::{Arc, Limits, PlanError, Planner, PlannerBlock, WIRE_CHORD_TOLERANCE};
 use pipes_core::class::PipesClass;
+use pipes_core::export::INPUT_DECODE_FAILED;
+use pipes_core::function::CallError;
+use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 
 const STEP: u64 = 1024;
@@ -436,24 +439,52 @@ fn bad_input_is_refused() {
     assert!(small.is_idle());
 }
 
+fn render(s: &Signature) -> String {
+    let args = |a: &[Arg]| {
+        a.iter()
+            .map(|a| format!("{}: {}", a.name, a.ty))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
+}
+
 #[test]
-fn pipes_class_wire_api() {
-    assert_eq!(PlannerBlock::NAME, "Planner");
-    let names: Vec<_> = PlannerBlock::MEMBERS.iter().map(|s| s.name).collect();
+fn pipes_class_signatures() {
+    assert_eq!(<PlannerBlock as PipesClass>::NAME, "Planner");
     assert_eq!(
-        names,
+        render(<PlannerBlock as PipesClass>::CONSTRUCTOR),
+        "Planner(vx: f64, vy: f64, vz: f64, ax: f64, ay: f64, az: f64, \
+         junction_deviation: f64, max_jump: f64) -> ()"
+    );
+    let members: Vec<String> = <PlannerBlock as PipesClass>::MEMBERS
+        .iter()
+        .map(|s| render(s))
+        .collect();
+    assert_eq!(
+        members,
         [
-            "Planner.line",
-            "Planner.arc",
-            "Planner.sample",
-            "Planner.start",
-            "Planner.set_position",
-            "Planner.status"
+            "Planner.line(x: f64, y: f64, z: f64, feed: f64) -> (queued: u32)",
+            "Planner.arc(x: f64, y: f64, z: f64, cx: f64, cy: f64, clockwise: bool, \
+             feed: f64) -> (queued: u32)",
+            "Planner.sample(stamp: u64) -> (stamp: u64, x: f32, y: f32, z: f32)",
+            "Planner.start(stamp: u64) -> ()",
+            "Planner.set_position(x: f64, y: f64, z: f64) -> ()",
+            "Planner.status() -> (queued: u32, executed: u64, idle: bool)",
         ]
     );
-    assert_eq!(PlannerBlock::CONSTRUCTOR.inputs.len(), 8);
-    let args = |v: [f64; 8]| v.map(Value::F64);
-    let ok = PlannerBlock::construct(&args([
+    for s in <PlannerBlock as PipesClass>::MEMBERS
+        .iter()
+        .chain([&<PlannerBlock as PipesClass>::CONSTRUCTOR])
+    {
+        s.check().unwrap();
+    }
+}
+
+#[test]
+fn pipes_class_wire_api() {
+    let construct = |v: [f64; 8]| <PlannerBlock as PipesClass>::construct(&v.map(Value::F64));
+    let good = [
         300.0,
         300.0,
         20.0,
@@ -462,38 +493,108 @@ fn pipes_class_wire_api() {
         200.0,
         0.05,
         f64::INFINITY,
-    ]));
-    let mut b = ok.unwrap();
-    let err = PlannerBlock::construct(&args([300.0, 0.0, 20.0, 3000.0, 3000.0, 200.0, 0.05, 1.0]));
-    assert!(matches!(
-        err,
-        Err(pipes_core::function::CallError::Failed(1))
-    ));
-
-    assert_eq!(b.wire_line(10.0, 0.0, 0.0, 100.0), Ok(1));
-    assert_eq!(
-        b.wire_arc(0.0, 10.0, 0.0, 0.0, 0.0, false, 100.0)
-            .map(|q| q > 10),
-        Ok(true)
-    );
-    assert_eq!(
-        b.wire_line(f64::NAN, 0.0, 0.0, 1.0).map_err(|e| e.code()),
-        Err(2)
-    );
-    assert_eq!(
-        b.wire_line(1.0, 0.0, 0.0, 0.0).map_err(|e| e.code()),
-        Err(3)
-    );
-    assert_eq!(b.wire_status().1, 0);
-    let (st, x, _, _) = b.wire_sample(4096).unwrap();
-    assert_eq!((st, x), (4096, 0.0));
-    assert_eq!(b.wire_sample(0).map_err(|e| e.code()), Err(6));
-    let mut t = 4096;
-    while !b.wire_status().2 {
-        t += 4096;
-        b.wire_sample(t).unwrap();
+    ];
+    // Every bad limit is refused with code 1, none builds a class.
+    for (i, bad) in [0.0, -1.0, f64::NAN, f64::INFINITY].into_iter().enumerate() {
+        for k in 0..8 {
+            let mut v = good;
+            v[k] = bad;
+            // A junction deviation of 0 is allowed; a jump limit of inf too.
+            if (k == 6 && bad == 0.0) || (k == 7 && bad == f64::INFINITY) {
+                assert!(construct(v).is_ok(), "arg {k} = {bad}");
+                continue;
+            }
+            assert_eq!(
+                construct(v).err(),
+                Some(CallError::Failed(1)),
+                "case {i}, arg {k} = {bad}"
+            );
+        }
     }
-    let (_, x, y, _) = b.wire_sample(t).unwrap();
-    assert!(x.abs() < 1e-9 && (y - 10.0).abs() < 1e-9);
-    assert!(b.wire_status().1 > 10);
+    assert_eq!(
+        <PlannerBlock as PipesClass>::construct(&good.map(Value::F64)[..7]).err(),
+        Some(CallError::Failed(INPUT_DECODE_FAILED))
+    );
+    let mut b = construct(good).unwrap();
+    let l = b.planner().limits();
+    assert_eq!(
+        (l.max_vel, l.max_acc, l.max_jump),
+        (
+            [300.0, 300.0, 20.0],
+            [3000.0, 3000.0, 200.0],
+            [f64::INFINITY; 3]
+        )
+    );
+    assert_eq!(
+        b.status(),
+        (0, 0, true),
+        "a new planner is empty and at rest"
+    );
+
+    // The wire methods, with their failure codes.
+    let code = |e: PlanError| CallError::from(e);
+    assert_eq!(b.line(10.0, 0.0, 0.0, 100.0), Ok(1));
+    let queued = b.arc(0.0, 10.0, 0.0, 0.0, 0.0, false, 100.0).unwrap();
+    // A quarter turn of radius 10 in chords within the wire tolerance.
+    let step = 2.0 * (1.0 - WIRE_CHORD_TOLERANCE / 10.0).acos();
+    let chords = (std::f64::consts::FRAC_PI_2 / step).ceil() as u32;
+    assert_eq!(queued, 1 + chords);
+    assert_eq!(
+        b.line(f64::NAN, 0.0, 0.0, 1.0).map_err(code),
+        Err(CallError::Failed(2))
+    );
+    assert_eq!(
+        b.line(1.0, 0.0, 0.0, 0.0).map_err(code),
+        Err(CallError::Failed(3))
+    );
+    assert_eq!(
+        b.arc(0.0, 20.0, 0.0, 0.0, 0.0, true, 100.0).map_err(code),
+        Err(CallError::Failed(4)),
+        "radius mismatch"
+    );
+    assert_eq!(
+        b.set_position(0.0, 0.0, 0.0).map_err(code),
+        Err(CallError::Failed(7))
+    );
+    assert_eq!(
+        b.status(),
+        (queued, 0, false),
+        "refused calls queue nothing"
+    );
+    assert_eq!(b.sample(4096), Ok((4096, 0.0, 0.0, 0.0)));
+    assert_eq!(b.sample(0).map_err(code), Err(CallError::Failed(6)));
+    assert_eq!(
+        b.start(8192).map_err(code),
+        Err(CallError::Failed(7)),
+        "start while running"
+    );
+    let mut t = 4096;
+    while !b.status().2 {
+        t += 4096;
+        b.sample(t).unwrap();
+    }
+    let (st, x, y, z) = b.sample(t).unwrap();
+    assert_eq!(st, t);
+    assert!(x.abs() < 1e-9 && (y - 10.0).abs() < 1e-9 && z == 0.0);
+    assert_eq!(b.status(), (0, u64::from(queued), true));
+
+    // At rest: set the position, hold the next move until a start stamp.
+    b.set_position(1.0, 2.0, 3.0).unwrap();
+    assert_eq!(b.planner().tail(), [1.0, 2.0, 3.0]);
+    assert_eq!(b.line(1.0, 2.0, 5.0, 10.0), Ok(1));
+    let later = t + 1_000_000;
+    b.start(later).unwrap();
+    assert_eq!(b.sample(later - 4096), Ok((later - 4096, 1.0, 2.0, 3.0)));
+    assert!(b.sample(later + 40_960).unwrap().3 > 3.0);
+
+    // A block around a planner of its own capacity.
+    let limits = Limits::new([100.0; 3], [1000.0; 3], 0.05).unwrap();
+    let mut small = PlannerBlock::from_planner(Planner::with_capacity(limits, 1).unwrap());
+    assert_eq!(small.line(1.0, 0.0, 0.0, 10.0), Ok(1));
+    assert_eq!(
+        small.line(2.0, 0.0, 0.0, 10.0).map_err(code),
+        Err(CallError::Failed(5))
+    );
+    small.planner_mut().sample(0).unwrap();
+    assert_eq!(small.status(), (1, 0, false));
 }

@@ -475,7 +475,7 @@ fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStr
                 #values: &[::pipes_core::Value<'_>],
                 #outputs: &mut ::pipes_core::function::Outputs<'_>,
             ) -> ::core::result::Result<(), ::pipes_core::function::CallError> {
-                #[allow(clippy::let_unit_value, clippy::unit_arg)]
+                #[allow(clippy::let_unit_value, clippy::unit_arg, clippy::useless_conversion)]
                 let #value = #call;
                 #write
             }
@@ -666,7 +666,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
         let call = unwrap_call(&m.ret, quote!(self.#ident(#(#args),*)));
         quote! {
             #i => {
-                #[allow(clippy::let_unit_value, clippy::unit_arg)]
+                #[allow(clippy::let_unit_value, clippy::unit_arg, clippy::useless_conversion)]
                 let #value = #call;
                 #write
             }
@@ -696,6 +696,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
             const MEMBERS: &'static [&'static ::pipes_core::signature::Signature] =
                 &[#(#member_sigs),*];
 
+            #[allow(clippy::useless_conversion)]
             fn construct(
                 #values: &[::pipes_core::Value<'_>],
             ) -> ::core::result::Result<Self, ::pipes_core::function::CallError> {

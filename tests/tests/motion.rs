@@ -1,0 +1,378 @@
+//! MAXL end to end on simulated modules (`corexy-plotter.toml`: a hub on
+//! USB with axis modules a, b and z on UARTs), wired with pipes exactly as a
+//! machine script would wire hardware:
+//!
+//! - a square drawn by `Timer → Planner → CoreXY → add_point` on a and b,
+//!   with the executed path (read from the simulated axes, at true time)
+//!   compared with the stream the modules were sent and with the planned
+//!   square;
+//! - homing `Timer → OneDof → add_point` on z, with z's endstop piped into
+//!   `OneDof.limit_hit`: the switch position found from its time stamp.
+
+use maxl::blocks::interp::InterpolatorBlock;
+use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
+use maxl::blocks::onedof::OneDofBlock;
+use maxl::blocks::planner::PlannerBlock;
+use maxl::blocks::timer::TimerBlock;
+use osap_core::clock::SyncState;
+use osap_host::netrunner::Netrunner;
+use osap_host::sim::axis::{AxisMode, AxisProbe};
+use osap_host::sim::{self, SimMachine, SimModule};
+use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
+use osap_host::{Host, HostConfig};
+use pipes_core::control::{InputMode, OutputMode};
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+/// The axes' control-point interval (the topology's `interval_us`).
+const IV: u32 = 2048;
+/// How far the timer leads real time: 5 intervals, leaving 3 (6 ms) for
+/// delivery over USB and a UART after the two the spline needs.
+const LEAD: u32 = 5 * IV;
+/// The host runtime's name.
+const HOST: &str = "h";
+
+struct Rig {
+    host: Host,
+    machine: SimMachine,
+    m: Manager,
+}
+
+async fn rig() -> Rig {
+    let host = Host::start(HostConfig {
+        name: HOST.into(),
+        ..HostConfig::default()
+    })
+    .unwrap();
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../osap-host/topologies/corexy-plotter.toml");
+    let machine = SimMachine::start(&host, &sim::load(path).unwrap())
+        .await
+        .unwrap();
+    let mut m = Manager::new(&host).await.unwrap();
+    let report = m.refresh().await.unwrap();
+    assert!(report.scan_failures.is_empty(), "{report:?}");
+    // Every axis follows the host's clock closely before motion starts.
+    let nr = Netrunner::new(&host).await.unwrap();
+    let give_up = Instant::now() + Duration::from_secs(30);
+    for name in ["a", "b", "z"] {
+        let route = machine.route_to(name).unwrap();
+        loop {
+            let s = nr.clock_status(&route).await.unwrap();
+            if s.state == SyncState::Synced && s.offset_ns.abs() < 100_000 {
+                break;
+            }
+            assert!(Instant::now() < give_up, "{name} not synchronised: {s:?}");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+    }
+    Rig { host, machine, m }
+}
+
+fn on_host(member: &str) -> FnRef {
+    FnRef::new(HOST, member)
+}
+
+impl Rig {
+    async fn call(&self, f: &FnRef, args: &[OwnedValue]) -> Vec<OwnedValue> {
+        self.m
+            .function(f)
+            .unwrap()
+            .call(args)
+            .await
+            .unwrap_or_else(|e| panic!("{f}: {e}"))
+    }
+
+    async fn pipe(&mut self, from: &FnRef, to: &FnRef, outputs: &[u8], inputs: &[u8]) {
+        self.m
+            .connect(from, to, outputs, inputs, PipeOptions::default())
+            .await
+            .unwrap_or_else(|e| panic!("{from} → {to}: {e}"));
+    }
+
+    /// A timer class as a source: ticking at a quarter interval, sending
+    /// each stamp once.
+    async fn timer(&mut self) -> FnRef {
+        let timer = self
+            .m
+            .define_class(TimerBlock::new(IV, LEAD).unwrap())
+            .await
+            .unwrap();
+        let tick = on_host(timer.member("tick").unwrap());
+        self.m
+            .set_input_mode(&tick, InputMode::OnTimer(IV / 4))
+            .await
+            .unwrap();
+        self.m
+            .set_output_mode(&tick, OutputMode::OnChange)
+            .await
+            .unwrap();
+        tick
+    }
+
+    async fn enable(&self, axis: &str) {
+        self.call(&FnRef::new(axis, "set_current"), &[OwnedValue::F32(1.0)])
+            .await;
+    }
+
+    fn module(&self, name: &str) -> (SimModule, AxisProbe) {
+        let m = self.machine.module(name).unwrap();
+        let probe = m.axis().unwrap();
+        (m.clone(), probe)
+    }
+
+    async fn sleep_until_system(&self, t: u64) {
+        while self.host.system_time().await.unwrap() < t {
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+}
+
+/// Waits (bounded) until `what` holds.
+async fn until(label: &str, limit: Duration, mut what: impl FnMut() -> bool) {
+    let give_up = Instant::now() + limit;
+    while !what() {
+        assert!(Instant::now() < give_up, "timed out waiting for {label}");
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+}
+
+/// An axis's executed positions keyed by true (host) time.
+fn executed(module: &SimModule, probe: &AxisProbe) -> Vec<(f64, f64)> {
+    probe
+        .history()
+        .iter()
+        .filter(|e| e.mode != AxisMode::Idle)
+        .map(|e| (module.host_time_at(e.local) as f64, e.position))
+        .collect()
+}
+
+/// Linear interpolation of `path` at `t` (samples ~1 ms apart on a smooth
+/// curve: far below a micrometre of error at these speeds).
+fn at(path: &[(f64, f64)], t: f64) -> Option<f64> {
+    let i = path.partition_point(|p| p.0 <= t);
+    let (t0, p0) = *path.get(i.checked_sub(1)?)?;
+    let (t1, p1) = *path.get(i)?;
+    Some(p0 + (p1 - p0) * (t - t0) / (t1 - t0))
+}
+
+/// Distance from `p` to the segment `a`–`b`.
+fn to_segment(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
+    let (dx, dy) = (b[0] - a[0], b[1] - a[1]);
+    let len2 = dx * dx + dy * dy;
+    let s = (((p[0] - a[0]) * dx + (p[1] - a[1]) * dy) / len2).clamp(0.0, 1.0);
+    let (ex, ey) = (a[0] + s * dx - p[0], a[1] + s * dy - p[1]);
+    (ex * ex + ey * ey).sqrt()
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
+    let mut r = rig().await;
+    let tick = r.timer().await;
+    let planner =
+        r.m.define_class(
+            PlannerBlock::new(
+                300.0,
+                300.0,
+                20.0,
+                3000.0,
+                3000.0,
+                500.0,
+                0.01,
+                f64::INFINITY,
+            )
+            .unwrap(),
+        )
+        .await
+        .unwrap();
+    let corexy =
+        r.m.define_class(CoreXyBlock::new(CoreXy::new(1.0).unwrap()))
+            .await
+            .unwrap();
+    let reference =
+        r.m.define_class(InterpolatorBlock::new(IV, 8192).unwrap())
+            .await
+            .unwrap();
+    let sample = on_host(planner.member("sample").unwrap());
+    let inverse = on_host(corexy.member("inverse").unwrap());
+    let push = on_host(reference.member("push").unwrap());
+    r.enable("a").await;
+    r.enable("b").await;
+    r.pipe(&tick, &sample, &[0], &[0]).await;
+    r.pipe(&sample, &inverse, &[0, 1, 2, 3], &[0, 1, 2, 3])
+        .await;
+    r.pipe(&sample, &push, &[0, 1, 2, 3], &[0, 1, 2, 3]).await;
+    r.pipe(&inverse, &FnRef::new("a", "add_point"), &[0, 1], &[0, 1])
+        .await;
+    r.pipe(&inverse, &FnRef::new("b", "add_point"), &[0, 2], &[0, 1])
+        .await;
+    let (a_mod, a) = r.module("a");
+    let (b_mod, b) = r.module("b");
+    until(
+        "both axes to follow the stream",
+        Duration::from_secs(5),
+        || {
+            [&a, &b].iter().all(|p| {
+                p.history()
+                    .last()
+                    .is_some_and(|e| e.mode == AxisMode::Tracking)
+            })
+        },
+    )
+    .await;
+
+    // A 20 mm square at 60 mm/s, queued at once.
+    let corners = [
+        [0.0, 0.0],
+        [20.0, 0.0],
+        [20.0, 20.0],
+        [0.0, 20.0],
+        [0.0, 0.0],
+    ];
+    let line = on_host(planner.member("line").unwrap());
+    let start = r.host.system_time().await.unwrap();
+    for c in &corners[1..] {
+        let f = |x: f64| OwnedValue::F64(x);
+        r.call(&line, &[f(c[0]), f(c[1]), f(0.0), f(60.0)]).await;
+    }
+    until("the planner to finish", Duration::from_secs(10), || {
+        planner.state().lock().unwrap().planner().is_idle()
+    })
+    .await;
+    let end = r.host.system_time().await.unwrap() + u64::from(LEAD);
+    r.sleep_until_system(end + 4 * u64::from(IV)).await;
+
+    let a_path = executed(&a_mod, &a);
+    let b_path = executed(&b_mod, &b);
+    let interp = reference.state().lock().unwrap().clone();
+    let (mut worst_stream, mut worst_plan, mut n) = (0.0f64, 0.0f64, 0);
+    let mut nearest_corner = [f64::INFINITY; 4];
+    for &(t, pa) in a_path
+        .iter()
+        .filter(|p| p.0 >= start as f64 && p.0 <= end as f64)
+    {
+        let Some(pb) = at(&b_path, t) else { continue };
+        // CoreXY forward: a = x + y, b = x − y.
+        let xy = [(pa + pb) / 2.0, (pa - pb) / 2.0];
+        // Against the spline of the stream the modules were sent, at true
+        // time: clock sync, transport and fixed point.
+        let sent = interp.0.eval(t as u64).expect("the stream covers the run");
+        let d = ((xy[0] - sent.pos[0]).powi(2) + (xy[1] - sent.pos[1]).powi(2)).sqrt();
+        worst_stream = worst_stream.max(d);
+        // Against the planned square: plus the spline's corner rounding.
+        let d = corners
+            .windows(2)
+            .map(|w| to_segment(xy, w[0], w[1]))
+            .fold(f64::INFINITY, f64::min);
+        worst_plan = worst_plan.max(d);
+        for (k, c) in corners[..4].iter().enumerate() {
+            let d = ((xy[0] - c[0]).powi(2) + (xy[1] - c[1]).powi(2)).sqrt();
+            nearest_corner[k] = nearest_corner[k].min(d);
+        }
+        n += 1;
+    }
+    eprintln!(
+        "{n} executed samples: worst {:.1} µm from the sent stream, {:.1} µm from the planned square; corners reached within {:?} µm",
+        worst_stream * 1e3,
+        worst_plan * 1e3,
+        nearest_corner.map(|d| (d * 1e4).round() / 10.0)
+    );
+    assert!(n > 500, "only {n} samples");
+    assert!(worst_stream < 0.020, "{worst_stream} mm from the stream");
+    assert!(worst_plan < 0.050, "{worst_plan} mm from the square");
+    // Samples are ~1 ms apart: a corner is passed within 1 ms of travel
+    // at the (slowed) corner speed, plus the rounding.
+    assert!(
+        nearest_corner.iter().all(|d| *d < 0.060),
+        "{nearest_corner:?}"
+    );
+    for (name, p) in [("a", &a), ("b", &b)] {
+        let c = p.counters();
+        assert_eq!(c.faults, 0, "{name}: {c:?}");
+        assert_eq!(c.refused, 0, "{name}: {c:?}");
+    }
+    r.machine.stop().await.unwrap();
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn homing_finds_the_switch_from_its_time_stamp() {
+    let mut r = rig().await;
+    let tick = r.timer().await;
+    let axis =
+        r.m.define_class(OneDofBlock::new(20.0, 200.0, 1.0, 0.0, IV).unwrap())
+            .await
+            .unwrap();
+    let sample = on_host(axis.member("sample").unwrap());
+    let limit_hit = on_host(axis.member("limit_hit").unwrap());
+    let endstop = FnRef::new("z", "endstop");
+    r.enable("z").await;
+    r.pipe(&tick, &sample, &[0], &[0]).await;
+    r.pipe(&sample, &FnRef::new("z", "add_point"), &[0, 1], &[0, 1])
+        .await;
+    // The switch's trigger time, sent once per trigger.
+    r.m.set_input_mode(&endstop, InputMode::OnTimer(1000))
+        .await
+        .unwrap();
+    r.m.set_output_mode(&endstop, OutputMode::OnChange)
+        .await
+        .unwrap();
+    r.pipe(&endstop, &limit_hit, &[0], &[0]).await;
+    let (_, z) = r.module("z");
+    until("z to follow the stream", Duration::from_secs(5), || {
+        z.history()
+            .last()
+            .is_some_and(|e| e.mode == AxisMode::Tracking)
+    })
+    .await;
+
+    // Down at 5 mm/s towards the endstop at -2 mm.
+    let speed = 5.0f32;
+    let home = on_host(axis.member("home").unwrap());
+    r.call(&home, &[OwnedValue::I8(-1), OwnedValue::F32(speed)])
+        .await;
+    until("homing", Duration::from_secs(5), || {
+        axis.state().lock().unwrap().0.is_homed()
+    })
+    .await;
+    let (hit, count) = {
+        let out = r.call(&endstop, &[]).await;
+        match (&out[0], &out[1]) {
+            (OwnedValue::U64(t), OwnedValue::U32(n)) => (*t, *n),
+            _ => panic!("{out:?}"),
+        }
+    };
+    assert_eq!(count, 1);
+    // The axis's offset now puts the home coordinate (0) at the switch:
+    // where it found the switch is minus the offset.
+    let found = -axis.state().lock().unwrap().0.config().offset;
+    let travel_per_interval = f64::from(speed) * f64::from(IV) * 1e-6;
+    eprintln!(
+        "switch at -2 mm found at {found:.6} mm ({:.2} µm; one interval's travel is {:.1} µm), triggered at {hit}",
+        (found + 2.0) * 1e3,
+        travel_per_interval * 1e3
+    );
+    assert!(
+        (found + 2.0).abs() < travel_per_interval,
+        "switch found at {found}"
+    );
+    // Time stamps, not arrival times: far better than the bound.
+    assert!((found + 2.0).abs() < 1e-3, "switch found at {found}");
+
+    // It then stops within its limits and without a fault on the module.
+    until("the axis to stop", Duration::from_secs(5), || {
+        !axis.state().lock().unwrap().0.is_moving()
+    })
+    .await;
+    let stop = axis.state().lock().unwrap().0.state().unwrap().stamp;
+    r.sleep_until_system(stop + 4 * u64::from(IV)).await;
+    let last = z.history().last().copied().unwrap();
+    assert!(last.velocity.abs() < 1e-9, "{last:?}");
+    // Braking from 5 mm/s at 200 mm/s² takes 62.5 µm past the switch.
+    assert!(
+        last.position < -2.0 && last.position > -2.0 - 0.2,
+        "{last:?}"
+    );
+    assert_eq!(z.counters().faults, 0);
+    assert_eq!(z.counters().refused, 0);
+    r.machine.stop().await.unwrap();
+}
