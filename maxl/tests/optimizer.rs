@@ -194,3 +194,57 @@ fn block_is_send() {
     fn send<T: Send>() {}
     send::<OptimizerBlock<[f64; 3]>>();
 }
+
+#[test]
+fn pipes_class_wraps_a_script_built_block() {
+    use maxl::blocks::optimizer::{OptimizerClass, NOT_REMOTE};
+    use pipes_core::class::PipesClass;
+    use pipes_core::function::CallError;
+
+    assert_eq!(OptimizerClass::NAME, "Optimizer");
+    assert!(OptimizerClass::CONSTRUCTOR.inputs.is_empty());
+    let names: Vec<&str> = OptimizerClass::MEMBERS.iter().map(|s| s.name).collect();
+    assert_eq!(names, ["Optimizer.sample", "Optimizer.stats"]);
+    let outs: Vec<&str> = OptimizerClass::MEMBERS[0]
+        .outputs
+        .iter()
+        .map(|a| a.name)
+        .collect();
+    assert_eq!(outs, ["stamp", "x", "y", "z", "fresh"]);
+    // It cannot be rebuilt over the network.
+    assert!(matches!(
+        OptimizerClass::construct(&[]),
+        Err(CallError::Failed(NOT_REMOTE))
+    ));
+
+    let block = OptimizerBlock::new(
+        Slow {
+            delay: Duration::from_micros(10),
+        },
+        [0.0; 3],
+        cfg(10 * IV),
+    )
+    .unwrap();
+    let mut class = OptimizerClass(block);
+    let give_up = Instant::now() + Duration::from_secs(5);
+    let mut stamp = IV;
+    let fresh = loop {
+        let (s, x, y, z, fresh) = class.sample(stamp).unwrap();
+        assert_eq!(s, stamp);
+        if fresh {
+            break (x, y, z);
+        }
+        assert!(Instant::now() < give_up, "no fresh point");
+        std::thread::sleep(Duration::from_millis(1));
+        stamp += IV;
+    };
+    assert_eq!(fresh, ((stamp as f64 / 1000.0) as f32, 1.0, 2.0));
+    let (samples, hits, misses, alive) = class.stats();
+    assert_eq!(samples, hits + misses);
+    assert!(hits >= 1 && alive);
+    // A stamp going backwards is refused with code 2.
+    assert!(matches!(
+        class.sample(IV).map_err(CallError::from),
+        Err(CallError::Failed(2))
+    ));
+}

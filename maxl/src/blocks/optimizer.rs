@@ -13,9 +13,15 @@
 //! solver skips requests whose stamp has already been sampled, so a solver
 //! that falls behind catches up instead of solving the past.
 //!
-//! There is no PIPES class for this block: its state is built around a Rust
-//! solver, which a constructor taking scalars cannot make. A script holding
-//! one can wrap it in its own class.
+//! [`OptimizerClass`] is the PIPES class of a three-axis block (class
+//! `Optimizer`): a script builds the block around its solver and attaches it
+//! with `Manager::define_class`, then pipes a Timer's stamps into
+//! `Optimizer.sample` and its outputs on to kinematics or axes, as with the
+//! planner. A solver is Rust code, so the class cannot be rebuilt over the
+//! network: its constructor `Optimizer()` always fails with
+//! [`NOT_REMOTE`]. Failure codes of `sample`: 1 invalid configuration,
+//! 2 a stamp before the previous one, 3 the solver thread could not start
+//! ([`OptimizerError::code`]).
 
 use std::collections::VecDeque;
 use std::fmt;
@@ -101,6 +107,23 @@ impl fmt::Display for OptimizerError {
             }
             OptimizerError::Spawn(e) => write!(f, "cannot start the solver thread: {e}"),
         }
+    }
+}
+
+impl OptimizerError {
+    /// The PIPES failure code.
+    pub fn code(&self) -> u8 {
+        match self {
+            OptimizerError::InvalidConfig(_) => 1,
+            OptimizerError::StampNotMonotonic { .. } => 2,
+            OptimizerError::Spawn(_) => 3,
+        }
+    }
+}
+
+impl From<OptimizerError> for pipes_core::function::CallError {
+    fn from(e: OptimizerError) -> Self {
+        pipes_core::function::CallError::Failed(e.code())
     }
 }
 
@@ -312,5 +335,40 @@ fn solver_loop<O: Optimizer>(
                 shared.failures.fetch_add(1, Ordering::Relaxed);
             }
         }
+    }
+}
+
+/// Failure code of the `Optimizer` constructor: the block is built by a
+/// script around its solver, not over the network.
+pub const NOT_REMOTE: u8 = 9;
+
+/// A three-axis [`OptimizerBlock`] as the PIPES class `Optimizer` (see the
+/// module docs).
+pub struct OptimizerClass(pub OptimizerBlock<[f64; 3]>);
+
+#[pipes_core::class(name = "Optimizer")]
+impl OptimizerClass {
+    /// The constructor `Optimizer()`: always refused with [`NOT_REMOTE`].
+    #[constructor]
+    pub fn remote_new() -> Result<OptimizerClass, pipes_core::function::CallError> {
+        Err(pipes_core::function::CallError::Failed(NOT_REMOTE))
+    }
+
+    /// `Optimizer.sample`: the stamp, the point for it (or the one held,
+    /// `fresh` false) in `f32` like the blocks it pipes into
+    /// ([`OptimizerBlock::sample`]).
+    #[outputs = "stamp, x, y, z, fresh"]
+    pub fn sample(&mut self, stamp: u64) -> Result<(u64, f32, f32, f32, bool), OptimizerError> {
+        let s = self.0.sample(stamp)?;
+        let [x, y, z] = s.point;
+        Ok((stamp, x as f32, y as f32, z as f32, s.fresh))
+    }
+
+    /// `Optimizer.stats`: samples, hits and misses so far, and whether the
+    /// solver still runs.
+    #[outputs = "samples, hits, misses, solver_alive"]
+    pub fn stats(&self) -> (u64, u64, u64, bool) {
+        let s = self.0.stats();
+        (s.samples, s.hits, s.misses, s.solver_alive)
     }
 }
