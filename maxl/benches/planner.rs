@@ -6,26 +6,21 @@
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use maxl::blocks::planner::{Limits, Planner};
 
+// The generator the tests use.
+#[path = "../tests/common/rng.rs"]
+mod rng;
+use rng::XorShiftStar;
+
 /// Segments per iteration.
 const SEGMENTS: usize = 10_000;
 /// Sample stamp interval (µs).
 const STEP: u64 = 1024;
 
-/// xorshift64*: a fixed path, the same in every run.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
-}
-
 /// A random walk of 0.05..0.5 mm steps whose heading turns by up to ±`turn`
 /// radians (in azimuth and elevation) per step.
 fn walk(n: usize, turn: f64) -> Vec<[f64; 3]> {
-    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    // A fixed seed: the same path in every run.
+    let mut rng = XorShiftStar(0x9E37_79B9_7F4A_7C15);
     let (mut az, mut el) = (0.0f64, 0.0f64);
     let mut p = [0.0; 3];
     (0..n)

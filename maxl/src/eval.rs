@@ -590,19 +590,8 @@ mod tests {
     use super::*;
     use std::vec::Vec;
 
-    struct Lcg(u64);
-    impl Lcg {
-        fn next(&mut self) -> u64 {
-            self.0 = self
-                .0
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            self.0 >> 33
-        }
-        fn range(&mut self, n: u64) -> u64 {
-            self.next() % n
-        }
-    }
+    // The test generators the integration tests share (`Lcg` here).
+    include!(concat!(env!("CARGO_MANIFEST_DIR"), "/tests/common/rng.rs"));
 
     /// `3·|out·M − Y|` and `3·M`, `M = 6·2^(3s)`: the exact spline of the
     /// `Fx` points at `du` compared with `out` in thirds of a raw unit.

@@ -2,6 +2,8 @@
 //! Bed levelling: plane recovery and residuals, mesh interpolation and edge
 //! clamping, bad input and not-ready errors, the PIPES wire API.
 
+mod common;
+
 use maxl::blocks::bedlevel::{
     BedError, BedMesh, BedMeshBlock, BedPlane, BedPlaneBlock, MeshGrid, Plane, Probe,
     FAIL_BAD_PARAMETER, FAIL_COLLINEAR, FAIL_NON_FINITE, FAIL_NOT_READY, FAIL_OUT_OF_GRID,
@@ -9,7 +11,6 @@ use maxl::blocks::bedlevel::{
 };
 use pipes_core::class::PipesClass;
 use pipes_core::function::CallError;
-use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 use proptest::prelude::*;
 
@@ -221,26 +222,6 @@ fn mesh_refuses_incomplete_bad_and_out_of_grid_input() {
     }
 }
 
-/// A signature as text, `name(input: type, ..) -> (output: type, ..)`.
-fn render(s: &Signature) -> String {
-    let args = |a: &[Arg]| {
-        a.iter()
-            .map(|a| format!("{}: {}", a.name, a.ty))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
-}
-
-/// The class name, constructor and members of `C`, rendered.
-fn wire_api<C: PipesClass>() -> (&'static str, String, Vec<String>) {
-    let members = C::MEMBERS.iter().map(|s| render(s)).collect();
-    for s in C::MEMBERS.iter().chain([&C::CONSTRUCTOR]) {
-        s.check().unwrap();
-    }
-    (C::NAME, render(C::CONSTRUCTOR), members)
-}
-
 /// The failure code a wire member's error reports.
 fn code<T>(r: Result<T, BedError>) -> Result<T, u8> {
     r.map_err(|e| match CallError::from(e) {
@@ -251,11 +232,10 @@ fn code<T>(r: Result<T, BedError>) -> Result<T, u8> {
 
 #[test]
 fn wire_signatures() {
-    let (name, ctor, members) = wire_api::<BedPlaneBlock>();
-    assert_eq!((name, ctor.as_str()), ("BedPlane", "BedPlane() -> ()"));
-    assert_eq!(
-        members,
-        [
+    common::assert_wire_api::<BedPlaneBlock>(
+        "BedPlane",
+        "BedPlane() -> ()",
+        &[
             "BedPlane.add_probe(x: f32, y: f32, z: f32) -> (count: u32)",
             "BedPlane.clear() -> ()",
             "BedPlane.fit() -> (rms: f32, max_residual: f32)",
@@ -265,17 +245,10 @@ fn wire_signatures() {
             "BedPlane.unapply(x: f32, y: f32, z: f32) -> (x: f32, y: f32, z: f32)",
         ]
     );
-    let (name, ctor, members) = wire_api::<BedMeshBlock>();
-    assert_eq!(
-        (name, ctor.as_str()),
-        (
-            "BedMesh",
-            "BedMesh(x0: f32, y0: f32, dx: f32, dy: f32, nx: u16, ny: u16) -> ()"
-        )
-    );
-    assert_eq!(
-        members,
-        [
+    common::assert_wire_api::<BedMeshBlock>(
+        "BedMesh",
+        "BedMesh(x0: f32, y0: f32, dx: f32, dy: f32, nx: u16, ny: u16) -> ()",
+        &[
             "BedMesh.set_probe(ix: u16, iy: u16, z: f32) -> (missing: u32)",
             "BedMesh.clear() -> ()",
             "BedMesh.stats() -> (min: f32, max: f32, mean: f32, rms: f32)",

@@ -2,30 +2,19 @@
 //! The reference interpolator: linear motion, agreement with `Track<f32>`,
 //! the deviation helper and the PIPES class.
 
+mod common;
+
+use common::rng::XorShift;
 use maxl::blocks::interp::{InterpError, Interpolator, InterpolatorBlock, Pushed};
 use maxl::{BackstopLimits, Interval, Track};
 use pipes_core::class::PipesClass;
 use pipes_core::function::CallError;
-use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 
 const T0: u64 = 1 << 36;
 
 fn iv(us: u32) -> Interval {
     Interval::from_micros(us).unwrap()
-}
-
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    fn unit(&mut self) -> f64 {
-        (self.next() >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 #[test]
@@ -73,7 +62,7 @@ fn matches_the_modules_f32_track() {
     };
     let mut track: Track<f32, 64> = Track::new(interval, limits);
     let mut ip = Interpolator::<1>::new(interval, 64).unwrap();
-    let mut rng = Rng(0x2545_f491_4f6c_dd1d);
+    let mut rng = XorShift(0x2545_f491_4f6c_dd1d);
     let step = 1024u64;
     let mut x = 0.0f64;
     let (mut worst, mut span) = (0.0f64, 0.0f64);
@@ -171,44 +160,19 @@ fn deviation_helper_finds_a_known_deviation() {
     assert!(ip.max_deviation(line, T0, T0 + 10, 1).unwrap().is_none());
 }
 
-/// A signature as text, `name(input: type, ..) -> (output: type, ..)`.
-fn render(s: &Signature) -> String {
-    let args = |a: &[Arg]| {
-        a.iter()
-            .map(|a| format!("{}: {}", a.name, a.ty))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
-}
-
 #[test]
 fn pipes_class_wire_api() {
-    assert_eq!(InterpolatorBlock::NAME, "Interpolator");
-    assert_eq!(
-        render(InterpolatorBlock::CONSTRUCTOR),
-        "Interpolator(interval_us: u32, capacity: u32) -> ()"
-    );
-    let members: Vec<String> = InterpolatorBlock::MEMBERS
-        .iter()
-        .map(|s| render(s))
-        .collect();
-    assert_eq!(
-        members,
-        [
+    common::assert_wire_api::<InterpolatorBlock>(
+        "Interpolator",
+        "Interpolator(interval_us: u32, capacity: u32) -> ()",
+        &[
             "Interpolator.push(stamp: u64, x: f64, y: f64, z: f64) -> ()",
             "Interpolator.eval(t: u64) -> (x: f64, y: f64, z: f64)",
             "Interpolator.vel(t: u64) -> (vx: f64, vy: f64, vz: f64)",
             "Interpolator.span() -> (points: u32, oldest: u64, newest: u64)",
             "Interpolator.clear() -> ()",
-        ]
+        ],
     );
-    for s in InterpolatorBlock::MEMBERS
-        .iter()
-        .chain([&InterpolatorBlock::CONSTRUCTOR])
-    {
-        s.check().unwrap();
-    }
 }
 
 #[test]

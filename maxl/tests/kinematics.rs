@@ -3,8 +3,11 @@
 //! Kaos reducing to CoreXY, singular and unreachable points, non-finite
 //! inputs, the Jacobian helper and the PIPES wire API.
 
+mod common;
+
 use core::f64::consts::{FRAC_PI_2, PI};
 
+use common::wire_api;
 use maxl::blocks::kinematics::{
     Cartesian, CartesianBlock, CoreXy, CoreXyBlock, FiveBar, FiveBarBlock, FiveBarMode, Kaos,
     KaosBlock, KinError, Kinematics, Scara, ScaraBlock, Side, FAIL_BAD_PARAMETER, FAIL_NON_FINITE,
@@ -14,7 +17,6 @@ use nalgebra::{Matrix2, Vector2, Vector3};
 use pipes_core::class::PipesClass;
 use pipes_core::export::INPUT_DECODE_FAILED;
 use pipes_core::function::CallError;
-use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 use proptest::prelude::*;
 
@@ -35,6 +37,17 @@ fn scara(elbow: Side) -> Scara {
 
 fn fivebar() -> FiveBar {
     FiveBar::new(80.0, 100.0, 150.0, FiveBarMode::OUTWARD, 0.05).unwrap()
+}
+
+/// One of each mechanism, as 3-axis kinematics.
+fn mechanisms() -> [Box<dyn Kinematics<3>>; 5] {
+    [
+        Box::new(Cartesian::identity()),
+        Box::new(CoreXy::new(1.0).unwrap()),
+        Box::new(Kaos::new(30.0, 1.0).unwrap()),
+        Box::new(scara(Side::Left)),
+        Box::new(fivebar()),
+    ]
 }
 
 /// Angle difference wrapped to (−π, π].
@@ -280,13 +293,7 @@ fn fivebar_unreachable_singular_and_other_mode() {
 
 #[test]
 fn non_finite_inputs_are_errors() {
-    let cart = Cartesian::identity();
-    let core = CoreXy::new(1.0).unwrap();
-    let kaos = Kaos::new(30.0, 1.0).unwrap();
-    let arm = scara(Side::Left);
-    let fb = fivebar();
-    let mechs: [&dyn Kinematics<3>; 5] = [&cart, &core, &kaos, &arm, &fb];
-    for k in mechs {
+    for k in mechanisms() {
         for bad in NON_FINITE {
             for i in 0..3 {
                 let mut p = v3(0.0, 150.0, 1.0);
@@ -396,13 +403,7 @@ proptest! {
         x in prop::num::f64::ANY, y in prop::num::f64::ANY, z in prop::num::f64::ANY,
     ) {
         let p = v3(x, y, z);
-        let cart = Cartesian::identity();
-        let core = CoreXy::new(1.0).unwrap();
-        let kaos = Kaos::new(30.0, 1.0).unwrap();
-        let arm = scara(Side::Left);
-        let fb = fivebar();
-        let mechs: [&dyn Kinematics<3>; 5] = [&cart, &core, &kaos, &arm, &fb];
-        for k in mechs {
+        for k in mechanisms() {
             for v in [k.inverse(&p), k.forward(&p)].into_iter().flatten() {
                 prop_assert!(v.iter().all(|c| c.is_finite()));
             }
@@ -426,26 +427,6 @@ fn fivebar_covers_a_useful_area() {
         }
     }
     assert!(ok * 10 >= all * 9, "{ok} of {all}");
-}
-
-/// A signature as text, `name(input: type, ..) -> (output: type, ..)`.
-fn render(s: &Signature) -> String {
-    let args = |a: &[Arg]| {
-        a.iter()
-            .map(|a| format!("{}: {}", a.name, a.ty))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
-}
-
-/// The class name, constructor and members of `C`, rendered.
-fn wire_api<C: PipesClass>() -> (&'static str, String, Vec<String>) {
-    let members = C::MEMBERS.iter().map(|s| render(s)).collect();
-    for s in C::MEMBERS.iter().chain([&C::CONSTRUCTOR]) {
-        s.check().unwrap();
-    }
-    (C::NAME, render(C::CONSTRUCTOR), members)
 }
 
 #[test]

@@ -1,13 +1,15 @@
 #![cfg(feature = "std")]
 //! One-axis moves, velocity mode, units and homing against a simulated switch.
 
+mod common;
+
+use common::rng::XorShift;
 use maxl::blocks::onedof::{OneDof, OneDofBlock, OneDofConfig, OneDofError};
 use maxl::blocks::timer::Timer;
 use maxl::Interval;
 use pipes_core::class::PipesClass;
 use pipes_core::export::INPUT_DECODE_FAILED;
 use pipes_core::function::CallError;
-use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 
 const IV: u32 = 1024;
@@ -192,16 +194,6 @@ fn spline(points: &[(u64, f64)], t: u64) -> Option<f64> {
     Some((b0 * p[0].1 + b1 * p[1].1 + b2 * p[2].1 + b3 * p[3].1) / 6.0)
 }
 
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-}
-
 /// Homes against a switch at `switch` (axis units), delivering the trigger
 /// time `delay` µs late. Returns |reconciled − switch| in axis units.
 fn home_once(scale: f64, dir: i8, speed: f64, switch: f64, delay: u64, home: f64) -> f64 {
@@ -269,7 +261,7 @@ fn home_once(scale: f64, dir: i8, speed: f64, switch: f64, delay: u64, home: f64
 
 #[test]
 fn homing_reconciles_a_late_switch_on_the_spline() {
-    let mut rng = Rng(0x9e37_79b9_7f4a_7c15);
+    let mut rng = XorShift(0x9e37_79b9_7f4a_7c15);
     let (mut worst, mut worst_abs): (f64, f64) = (0.0, 0.0);
     for k in 0..40 {
         let scale: f64 = if k % 3 == 0 { -80.0 } else { 80.0 };
@@ -425,28 +417,12 @@ fn bad_numbers_are_refused() {
     );
 }
 
-/// A signature as text, `name(input: type, ..) -> (output: type, ..)`.
-fn render(s: &Signature) -> String {
-    let args = |a: &[Arg]| {
-        a.iter()
-            .map(|a| format!("{}: {}", a.name, a.ty))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
-}
-
 #[test]
 fn pipes_class_wire_api() {
-    assert_eq!(OneDofBlock::NAME, "OneDof");
-    assert_eq!(
-        render(OneDofBlock::CONSTRUCTOR),
-        "OneDof(max_vel: f32, max_acc: f32, scale: f32, offset: f32, interval_us: u32) -> ()"
-    );
-    let members: Vec<String> = OneDofBlock::MEMBERS.iter().map(|s| render(s)).collect();
-    assert_eq!(
-        members,
-        [
+    common::assert_wire_api::<OneDofBlock>(
+        "OneDof",
+        "OneDof(max_vel: f32, max_acc: f32, scale: f32, offset: f32, interval_us: u32) -> ()",
+        &[
             "OneDof.move_to(pos: f32) -> (eta_us: u64)",
             "OneDof.velocity(v: f32) -> ()",
             "OneDof.stop() -> ()",
@@ -456,14 +432,8 @@ fn pipes_class_wire_api() {
             "OneDof.limit_hit(time: u64) -> (switch: f32)",
             "OneDof.set_position(pos: f32) -> ()",
             "OneDof.status() -> (position: f32, velocity: f32, moving: bool, homed: bool)",
-        ]
+        ],
     );
-    for s in OneDofBlock::MEMBERS
-        .iter()
-        .chain([&OneDofBlock::CONSTRUCTOR])
-    {
-        s.check().unwrap();
-    }
 }
 
 /// The failure code a wire member's error reports.

@@ -2,28 +2,19 @@
 //! The lookahead planner: limits at every stamp, junction speeds, endpoints,
 //! rest at the end, feeding while running, arcs, bad input.
 
+mod common;
+
+use common::rng::XorShiftStar;
 use maxl::blocks::planner::{Arc, Limits, PlanError, Planner, PlannerBlock, WIRE_CHORD_TOLERANCE};
 use pipes_core::class::PipesClass;
 use pipes_core::export::INPUT_DECODE_FAILED;
 use pipes_core::function::CallError;
-use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 
 const STEP: u64 = 1024;
 
 fn iso(v: f64, a: f64, jd: f64) -> Limits<3> {
     Limits::new([v; 3], [a; 3], jd).unwrap()
-}
-
-/// Small deterministic generator (xorshift64*).
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> f64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        (self.0.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 11) as f64 / (1u64 << 53) as f64
-    }
 }
 
 fn dist(a: [f64; 3], b: [f64; 3]) -> f64 {
@@ -51,7 +42,7 @@ fn run_to_rest(
 fn limits_hold_at_every_stamp_on_a_random_path() {
     let limits = Limits::new([300.0, 150.0, 20.0], [3000.0, 1500.0, 200.0], 0.05).unwrap();
     let mut p = Planner::new(limits.clone()).unwrap();
-    let mut rng = Rng(0x1234_5678);
+    let mut rng = XorShiftStar(0x1234_5678);
     let mut pos = [0.0; 3];
     let mut ends = Vec::new();
     for _ in 0..400 {
@@ -224,7 +215,7 @@ fn anisotropic_segment_limits() {
 fn feeding_while_running() {
     let limits = iso(200.0, 2000.0, 0.05);
     let mut p = Planner::new(limits).unwrap();
-    let mut rng = Rng(99);
+    let mut rng = XorShiftStar(99);
     let mut pos = [0.0; 3];
     let mut t = 5_000_000;
     let mut queued = 0u64;
@@ -439,31 +430,13 @@ fn bad_input_is_refused() {
     assert!(small.is_idle());
 }
 
-fn render(s: &Signature) -> String {
-    let args = |a: &[Arg]| {
-        a.iter()
-            .map(|a| format!("{}: {}", a.name, a.ty))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
-}
-
 #[test]
 fn pipes_class_signatures() {
-    assert_eq!(<PlannerBlock as PipesClass>::NAME, "Planner");
-    assert_eq!(
-        render(<PlannerBlock as PipesClass>::CONSTRUCTOR),
+    common::assert_wire_api::<PlannerBlock>(
+        "Planner",
         "Planner(vx: f64, vy: f64, vz: f64, ax: f64, ay: f64, az: f64, \
-         junction_deviation: f64, max_jump: f64) -> ()"
-    );
-    let members: Vec<String> = <PlannerBlock as PipesClass>::MEMBERS
-        .iter()
-        .map(|s| render(s))
-        .collect();
-    assert_eq!(
-        members,
-        [
+         junction_deviation: f64, max_jump: f64) -> ()",
+        &[
             "Planner.line(x: f64, y: f64, z: f64, feed: f64) -> (queued: u32)",
             "Planner.arc(x: f64, y: f64, z: f64, cx: f64, cy: f64, clockwise: bool, \
              feed: f64) -> (queued: u32)",
@@ -471,14 +444,8 @@ fn pipes_class_signatures() {
             "Planner.start(stamp: u64) -> ()",
             "Planner.set_position(x: f64, y: f64, z: f64) -> ()",
             "Planner.status() -> (queued: u32, executed: u64, idle: bool)",
-        ]
+        ],
     );
-    for s in <PlannerBlock as PipesClass>::MEMBERS
-        .iter()
-        .chain([&<PlannerBlock as PipesClass>::CONSTRUCTOR])
-    {
-        s.check().unwrap();
-    }
 }
 
 #[test]

@@ -1,21 +1,13 @@
 //! Step generator: exact step accounting over long random trajectories,
 //! overruns without lost steps, the SPSC queue and the PIO packing.
 
+mod common;
+
+use common::rng::Lcg;
 use maxl::eval::{Fx, TickEval};
 use maxl::step::{Dir, PioPacker, QueueFull, Rounding, StepEvent, StepGen, StepQueue};
 use maxl::Interval;
 use proptest::prelude::*;
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> u64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        self.0 >> 33
-    }
-}
 
 /// Reference step index, computed independently in f64 (exact for Q16.16).
 fn reference(p: Fx, r: Rounding) -> i64 {
@@ -242,23 +234,10 @@ fn queue_across_threads_keeps_every_event_in_order() {
 #[test]
 fn pio_words() {
     let mut pk = PioPacker::new();
-    let ticks = [
-        Some(Dir::Up),
-        None,
-        Some(Dir::Down),
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-        None,
-    ];
+    // Up, hold, down, then twelve idle ticks.
+    let ticks = [Some(Dir::Up), None, Some(Dir::Down)]
+        .into_iter()
+        .chain([None; 12]);
     for t in ticks {
         assert_eq!(pk.push(t), None);
     }

@@ -1,6 +1,9 @@
 #![cfg(feature = "std")]
 //! The graph timer: lead, start, catch-up and its PIPES class.
 
+mod common;
+
+use common::rng::XorShift;
 use maxl::blocks::timer::{
     Timer, TimerBlock, TimerError, FAIL_BAD_INTERVAL, FAIL_LEAD_TOO_SHORT, FAIL_NO_TIME,
 };
@@ -8,22 +11,10 @@ use maxl::Interval;
 use pipes_core::class::PipesClass;
 use pipes_core::export::INPUT_DECODE_FAILED;
 use pipes_core::function::CallError;
-use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 
 fn iv(us: u32) -> Interval {
     Interval::from_micros(us).unwrap()
-}
-
-/// A small deterministic generator (xorshift) for test times.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
 }
 
 #[test]
@@ -63,7 +54,7 @@ fn every_stamp_once_in_order_with_the_lead() {
         let step = u64::from(us);
         let lead = lead_iv * step;
         let mut t = Timer::new(iv(us), lead).unwrap();
-        let mut rng = Rng(0x1234_5678_9abc_def1);
+        let mut rng = XorShift(0x1234_5678_9abc_def1);
         let mut now = (1u64 << 40) + 77;
         let mut seen: Vec<u64> = Vec::new();
         for _ in 0..20_000 {
@@ -119,36 +110,17 @@ fn next_due_drains_one_stamp_per_call() {
     assert_eq!(t.next_due(2000), Some(2304), "2000 + 512 rounded down");
 }
 
-/// A signature as text, `name(input: type, ..) -> (output: type, ..)`.
-fn render(s: &Signature) -> String {
-    let args = |a: &[Arg]| {
-        a.iter()
-            .map(|a| format!("{}: {}", a.name, a.ty))
-            .collect::<Vec<_>>()
-            .join(", ")
-    };
-    format!("{}({}) -> ({})", s.name, args(s.inputs), args(s.outputs))
-}
-
 #[test]
 fn pipes_class_wire_api() {
-    assert_eq!(TimerBlock::NAME, "Timer");
-    assert_eq!(
-        render(TimerBlock::CONSTRUCTOR),
-        "Timer(interval_us: u32, lead_us: u32) -> ()"
-    );
-    let members: Vec<String> = TimerBlock::MEMBERS.iter().map(|s| render(s)).collect();
-    assert_eq!(
-        members,
-        [
+    common::assert_wire_api::<TimerBlock>(
+        "Timer",
+        "Timer(interval_us: u32, lead_us: u32) -> ()",
+        &[
             "Timer.tick() -> (stamp: u64)",
             "Timer.status() -> (last: u64, emitted: u64, max_burst: u64, now: u64)",
             "Timer.reset() -> ()",
-        ]
+        ],
     );
-    for s in TimerBlock::MEMBERS.iter().chain([&TimerBlock::CONSTRUCTOR]) {
-        s.check().unwrap();
-    }
 }
 
 #[test]

@@ -1,3 +1,6 @@
+mod common;
+
+use common::rng::Lcg;
 use maxl::*;
 
 const LIM: BackstopLimits = BackstopLimits {
@@ -95,17 +98,6 @@ fn knot_value_and_physical_units() {
 fn signal(k: u64, dt: f64) -> f64 {
     let t = k as f64 * dt;
     12000.0 * (0.37 * t).sin() + 6000.0 * (2.3 * t + 1.0).sin() + 800.0 * (19.0 * t).sin()
-}
-
-struct Lcg(u64);
-impl Lcg {
-    fn next(&mut self) -> u64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6364136223846793005)
-            .wrapping_add(1442695040888963407);
-        self.0 >> 33
-    }
 }
 
 /// Stream `n` points; at random times compare fixed point and f32 with the

@@ -27,6 +27,7 @@ use std::path::PathBuf;
 use clap::Parser;
 use maxl::blocks::planner::{Limits, Planner};
 use maxl::{eval_f64, Interval};
+use plotters::coord::Shift;
 use plotters::prelude::*;
 
 #[derive(Parser, Debug)]
@@ -329,6 +330,33 @@ fn plot(args: &Args, cases: &[Case]) -> Result<PathBuf, Box<dyn Error>> {
     let root = SVGBackend::new(&path, (1200, 900)).into_drawing_area();
     root.fill(&WHITE)?;
     let panels = root.split_evenly((2, 2));
+    // Top: deviation vs interval at 90°, one line per speed.
+    for (panel, mode) in panels.iter().take(2).zip([Mode::Full, Mode::Planned]) {
+        let lines = SPEEDS.map(|v| {
+            let dev = INTERVALS.map(|us| find(cases, mode, 90.0, v, us).dev);
+            (format!("{v} mm/s"), dev)
+        });
+        deviation_panel(panel, &format!("{} speed, 90° corner", mode.name()), &lines)?;
+    }
+    // Bottom: deviation vs interval at 100 mm/s, one line per angle.
+    for (panel, mode) in panels.iter().skip(2).zip([Mode::Full, Mode::Planned]) {
+        let lines = ANGLES.map(|a| {
+            let dev = INTERVALS.map(|us| find(cases, mode, a, 100.0, us).dev);
+            (format!("turn {a}°"), dev)
+        });
+        deviation_panel(panel, &format!("{} speed, 100 mm/s", mode.name()), &lines)?;
+    }
+    root.present()?;
+    Ok(path.clone())
+}
+
+/// One panel: max deviation (µm, log) against interval (µs, log2), one line
+/// per `(label, deviation in mm at each of INTERVALS)`, with the bounds.
+fn deviation_panel(
+    area: &DrawingArea<SVGBackend<'_>, Shift>,
+    caption: &str,
+    lines: &[(String, [f64; INTERVALS.len()])],
+) -> Result<(), Box<dyn Error>> {
     let colors = [
         RED,
         BLUE,
@@ -339,78 +367,34 @@ fn plot(args: &Args, cases: &[Case]) -> Result<PathBuf, Box<dyn Error>> {
         RGBColor(255, 140, 0),
     ];
     let floor = 0.1; // µm, for the log axis
-                     // Top: deviation vs interval at 90°, one line per speed.
-    for (panel, mode) in panels.iter().take(2).zip([Mode::Full, Mode::Planned]) {
-        let mut ch = ChartBuilder::on(panel)
-            .caption(
-                format!("{} speed, 90° corner", mode.name()),
-                ("sans-serif", 20),
-            )
-            .margin(10)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(8f64..14f64, (floor..1e4f64).log_scale())?;
-        ch.configure_mesh()
-            .x_labels(7)
-            .x_label_formatter(&|x| format!("{}", 2f64.powf(*x).round()))
-            .x_desc("interval (µs)")
-            .y_desc("max deviation (µm)")
-            .draw()?;
-        for (v, col) in SPEEDS.iter().zip(colors) {
-            let pts = INTERVALS.map(|us| {
-                (
-                    (us as f64).log2(),
-                    (find(cases, mode, 90.0, *v, us).dev * 1e3).max(floor),
-                )
-            });
-            ch.draw_series(LineSeries::new(pts, col.stroke_width(2)))?
-                .label(format!("{v} mm/s"))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 15, y)], col));
-        }
-        bounds(&mut ch)?;
-        ch.configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
+    let mut ch = ChartBuilder::on(area)
+        .caption(caption, ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(40)
+        .y_label_area_size(60)
+        .build_cartesian_2d(8f64..14f64, (floor..1e4f64).log_scale())?;
+    ch.configure_mesh()
+        .x_labels(7)
+        .x_label_formatter(&|x| format!("{}", 2f64.powf(*x).round()))
+        .x_desc("interval (µs)")
+        .y_desc("max deviation (µm)")
+        .draw()?;
+    for ((label, dev), col) in lines.iter().zip(colors) {
+        let pts = INTERVALS
+            .iter()
+            .zip(dev)
+            .map(|(&us, d)| ((us as f64).log2(), (d * 1e3).max(floor)));
+        ch.draw_series(LineSeries::new(pts, col.stroke_width(2)))?
+            .label(label)
+            .legend(move |(x, y)| PathElement::new([(x, y), (x + 15, y)], col));
     }
-    // Bottom: deviation vs interval at 100 mm/s, one line per angle.
-    for (panel, mode) in panels.iter().skip(2).zip([Mode::Full, Mode::Planned]) {
-        let mut ch = ChartBuilder::on(panel)
-            .caption(
-                format!("{} speed, 100 mm/s", mode.name()),
-                ("sans-serif", 20),
-            )
-            .margin(10)
-            .x_label_area_size(40)
-            .y_label_area_size(60)
-            .build_cartesian_2d(8f64..14f64, (floor..1e4f64).log_scale())?;
-        ch.configure_mesh()
-            .x_labels(7)
-            .x_label_formatter(&|x| format!("{}", 2f64.powf(*x).round()))
-            .x_desc("interval (µs)")
-            .y_desc("max deviation (µm)")
-            .draw()?;
-        for (a, col) in ANGLES.iter().zip(colors) {
-            let pts = INTERVALS.map(|us| {
-                (
-                    (us as f64).log2(),
-                    (find(cases, mode, *a, 100.0, us).dev * 1e3).max(floor),
-                )
-            });
-            ch.draw_series(LineSeries::new(pts, col.stroke_width(2)))?
-                .label(format!("turn {a}°"))
-                .legend(move |(x, y)| PathElement::new([(x, y), (x + 15, y)], col));
-        }
-        bounds(&mut ch)?;
-        ch.configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
-    }
-    root.present()?;
-    Ok(path.clone())
+    bounds(&mut ch)?;
+    ch.configure_series_labels()
+        .position(SeriesLabelPosition::LowerRight)
+        .background_style(WHITE.mix(0.8))
+        .border_style(BLACK)
+        .draw()?;
+    Ok(())
 }
 
 /// Dashed lines at the 10 µm and 50 µm bounds.

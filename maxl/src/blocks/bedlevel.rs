@@ -344,20 +344,12 @@ impl BedPlane {
 
     /// `z + correction(x, y)`.
     pub fn apply(&self, x: f64, y: f64, z: f64) -> Result<f64, BedError> {
-        let c = self.correction(x, y)?;
-        if !z.is_finite() {
-            return Err(BedError::NonFinite);
-        }
-        finite(z + c)
+        self.shifted(x, y, z, 1.0)
     }
 
     /// `z − correction(x, y)`: the inverse of [`apply`](Self::apply).
     pub fn unapply(&self, x: f64, y: f64, z: f64) -> Result<f64, BedError> {
-        let c = self.correction(x, y)?;
-        if !z.is_finite() {
-            return Err(BedError::NonFinite);
-        }
-        finite(z - c)
+        self.shifted(x, y, z, -1.0)
     }
 }
 
@@ -549,20 +541,12 @@ impl BedMesh {
 
     /// `z + correction(x, y)`.
     pub fn apply(&self, x: f64, y: f64, z: f64) -> Result<f64, BedError> {
-        let c = self.correction(x, y)?;
-        if !z.is_finite() {
-            return Err(BedError::NonFinite);
-        }
-        finite(z + c)
+        self.shifted(x, y, z, 1.0)
     }
 
     /// `z − correction(x, y)`: the inverse of [`apply`](Self::apply).
     pub fn unapply(&self, x: f64, y: f64, z: f64) -> Result<f64, BedError> {
-        let c = self.correction(x, y)?;
-        if !z.is_finite() {
-            return Err(BedError::NonFinite);
-        }
-        finite(z - c)
+        self.shifted(x, y, z, -1.0)
     }
 
     /// Statistics of the probed heights (the mesh must be complete).
@@ -579,6 +563,72 @@ impl BedMesh {
             mean: finite(mean)?,
             rms: finite(var.sqrt())?,
         })
+    }
+}
+
+/// What the plane and the mesh share: a z correction over `(x, y)` that
+/// may not be ready yet. `apply`/`unapply` and their wire members are
+/// written once here, so both models fail in the same order with the same
+/// codes.
+trait Correction {
+    /// `Ok` once the model can correct (plane active / mesh complete).
+    fn check_ready(&self) -> Result<(), BedError>;
+
+    /// The correction at `(x, y)`.
+    fn correction_at(&self, x: f64, y: f64) -> Result<f64, BedError>;
+
+    /// `z + sign · correction(x, y)`, `sign` ±1 (negating is exact, so
+    /// `-1` gives `z − correction` to the bit).
+    fn shifted(&self, x: f64, y: f64, z: f64, sign: f64) -> Result<f64, BedError> {
+        let c = self.correction_at(x, y)?;
+        if !z.is_finite() {
+            return Err(BedError::NonFinite);
+        }
+        finite(z + sign * c)
+    }
+
+    /// The wire `apply`: readiness first (an unready model reports
+    /// [`FAIL_NOT_READY`] whatever the inputs), then finite inputs.
+    fn wire_apply(
+        &self,
+        stamp: u64,
+        x: f32,
+        y: f32,
+        z: f32,
+    ) -> Result<(u64, f32, f32, f32), BedError> {
+        self.check_ready()?;
+        inputs_finite(&[x, y, z])?;
+        let z = self.shifted(x.into(), y.into(), z.into(), 1.0)?;
+        Ok((stamp, x, y, to_f32(z)?))
+    }
+
+    /// The wire `unapply`, checked in the same order as
+    /// [`wire_apply`](Self::wire_apply).
+    fn wire_unapply(&self, x: f32, y: f32, z: f32) -> Result<(f32, f32, f32), BedError> {
+        self.check_ready()?;
+        inputs_finite(&[x, y, z])?;
+        let z = self.shifted(x.into(), y.into(), z.into(), -1.0)?;
+        Ok((x, y, to_f32(z)?))
+    }
+}
+
+impl Correction for BedPlane {
+    fn check_ready(&self) -> Result<(), BedError> {
+        self.plane().map(|_| ())
+    }
+
+    fn correction_at(&self, x: f64, y: f64) -> Result<f64, BedError> {
+        self.correction(x, y)
+    }
+}
+
+impl Correction for BedMesh {
+    fn check_ready(&self) -> Result<(), BedError> {
+        self.ready()
+    }
+
+    fn correction_at(&self, x: f64, y: f64) -> Result<f64, BedError> {
+        self.correction(x, y)
     }
 }
 
@@ -667,19 +717,13 @@ impl BedPlaneBlock {
         y: f32,
         z: f32,
     ) -> Result<(u64, f32, f32, f32), BedError> {
-        self.0.plane()?;
-        inputs_finite(&[x, y, z])?;
-        let z = self.0.apply(x.into(), y.into(), z.into())?;
-        Ok((stamp, x, y, to_f32(z)?))
+        self.0.wire_apply(stamp, x, y, z)
     }
 
     /// `BedPlane.unapply`: a machine position read back to bed-relative z.
     #[outputs = "x, y, z"]
     pub fn unapply(&self, x: f32, y: f32, z: f32) -> Result<(f32, f32, f32), BedError> {
-        self.0.plane()?;
-        inputs_finite(&[x, y, z])?;
-        let z = self.0.unapply(x.into(), y.into(), z.into())?;
-        Ok((x, y, to_f32(z)?))
+        self.0.wire_unapply(x, y, z)
     }
 }
 
@@ -750,18 +794,12 @@ impl BedMeshBlock {
         y: f32,
         z: f32,
     ) -> Result<(u64, f32, f32, f32), BedError> {
-        self.0.ready()?;
-        inputs_finite(&[x, y, z])?;
-        let z = self.0.apply(x.into(), y.into(), z.into())?;
-        Ok((stamp, x, y, to_f32(z)?))
+        self.0.wire_apply(stamp, x, y, z)
     }
 
     /// `BedMesh.unapply`: a machine position read back to bed-relative z.
     #[outputs = "x, y, z"]
     pub fn unapply(&self, x: f32, y: f32, z: f32) -> Result<(f32, f32, f32), BedError> {
-        self.0.ready()?;
-        inputs_finite(&[x, y, z])?;
-        let z = self.0.unapply(x.into(), y.into(), z.into())?;
-        Ok((x, y, to_f32(z)?))
+        self.0.wire_unapply(x, y, z)
     }
 }
