@@ -1,6 +1,7 @@
 //! Errors of the host runtime.
 
 use osap_core::port::SendError;
+use osap_core::route::Route;
 use std::time::Duration;
 
 /// What can go wrong talking to the network from a host.
@@ -39,6 +40,9 @@ pub enum HostError {
     /// A reply did not parse.
     #[error("malformed reply: {0}")]
     Malformed(String),
+    /// A runtime's clock did not settle on its time source in time.
+    #[error("{0}")]
+    NotSynchronised(Box<NotSynchronised>),
     /// An I/O error from a link.
     #[error("{context}: {source}")]
     Io {
@@ -48,4 +52,16 @@ pub enum HostError {
         #[source]
         source: std::io::Error,
     },
+}
+
+/// What [`HostError::NotSynchronised`] reports.
+#[derive(Debug, thiserror::Error)]
+#[error("the clock at {route} did not settle within {waited:?}; last status: {last:?}")]
+pub struct NotSynchronised {
+    /// Route to the runtime.
+    pub route: Route,
+    /// How long was waited.
+    pub waited: Duration,
+    /// Its last clock status.
+    pub last: osap_core::clock::ClockStatus,
 }

@@ -10,6 +10,7 @@
 //! does not answer (after retries) is listed as a failure and the scan goes
 //! on: the map is partial, never a hang.
 
+use crate::error::NotSynchronised;
 use crate::map::{
     LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord, MAP_VERSION,
 };
@@ -82,6 +83,28 @@ pub struct RuntimeInfo {
     pub tier: u8,
     /// The link the request came in on (255: from a local port).
     pub arrival_link: u8,
+}
+
+/// What [`Netrunner::wait_synchronised`] waits for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SyncGoal {
+    /// The largest offset estimate accepted (default 100 µs).
+    pub max_offset: Duration,
+    /// How long the clock must stay within it without a hard jump
+    /// (default 1 s).
+    pub quiet: Duration,
+    /// When to give up (default 30 s).
+    pub timeout: Duration,
+}
+
+impl Default for SyncGoal {
+    fn default() -> Self {
+        SyncGoal {
+            max_offset: Duration::from_micros(100),
+            quiet: Duration::from_secs(1),
+            timeout: Duration::from_secs(30),
+        }
+    }
 }
 
 /// Asks netresponders questions, through one host port.
@@ -243,6 +266,43 @@ impl Netrunner {
         let n = w.len();
         let f = self.query(route, &body[..n]).await?;
         TimeConfig::decode(&f).map_err(|e| malformed("time configuration", e))
+    }
+
+    /// Waits until the clock of the runtime at `route` follows its time
+    /// source closely enough to run motion on: synchronised (or the root),
+    /// its offset estimate within `goal.max_offset`, and neither out of
+    /// that bound nor hard-jumped for `goal.quiet`. Motion streams are keyed
+    /// by synchronized time, and a clock that still steps while settling
+    /// would step the axis with it. Polls the clock status every 50 ms;
+    /// fails with [`HostError::NotSynchronised`] after `goal.timeout`.
+    pub async fn wait_synchronised(
+        &self,
+        route: &Route,
+        goal: SyncGoal,
+    ) -> Result<ClockStatus, HostError> {
+        let start = Instant::now();
+        let mut quiet_since = start;
+        let mut jumps = None;
+        loop {
+            let s = self.clock_status(route).await?;
+            let following = matches!(s.state, SyncState::Synced | SyncState::Root);
+            let close = s.offset_ns.unsigned_abs() <= goal.max_offset.as_nanos() as u64;
+            if !(following && close) || jumps != Some(s.stats.jumps) {
+                quiet_since = Instant::now();
+                jumps = Some(s.stats.jumps);
+            }
+            if s.state == SyncState::Root || quiet_since.elapsed() >= goal.quiet {
+                return Ok(s);
+            }
+            if start.elapsed() >= goal.timeout {
+                return Err(HostError::NotSynchronised(Box::new(NotSynchronised {
+                    route: *route,
+                    waited: start.elapsed(),
+                    last: s,
+                })));
+            }
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
     }
 
     /// The clock's status.

@@ -5,14 +5,13 @@
 //! includes the clock sync error, and the endstop's time stamp is checked
 //! against where the stream crossed it.
 
-use osap_core::clock::SyncState;
-use osap_host::netrunner::Netrunner;
+use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::sim::axis::{AxisMode, Executed};
 use osap_host::sim::{self, SimMachine};
 use osap_host::som::{FnRef, Manager, OwnedValue};
 use osap_host::{Host, HostConfig};
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 const IV: u64 = 2048;
 
@@ -22,20 +21,12 @@ fn shipped(name: &str) -> PathBuf {
         .join(name)
 }
 
-/// Waits (bounded) until every module of `names` follows the host closely.
+/// Waits until every module of `names` has settled on the host's clock.
 async fn synced(host: &Host, machine: &SimMachine, names: &[&str]) {
     let nr = Netrunner::new(host).await.unwrap();
-    let give_up = Instant::now() + Duration::from_secs(30);
     for name in names {
         let r = machine.route_to(name).unwrap();
-        loop {
-            let s = nr.clock_status(&r).await.unwrap();
-            if s.state == SyncState::Synced && s.offset_ns.abs() < 200_000 {
-                break;
-            }
-            assert!(Instant::now() < give_up, "{name} not synchronised: {s:?}");
-            tokio::time::sleep(Duration::from_millis(50)).await;
-        }
+        nr.wait_synchronised(&r, SyncGoal::default()).await.unwrap();
     }
 }
 

@@ -162,6 +162,8 @@ pub struct AxisCounters {
     pub filled: u64,
     /// Points refused (each with its failure code).
     pub refused: u64,
+    /// The failure code of the latest refused point (0: none yet).
+    pub last_refused: u8,
     /// Times the safety stop latched with the axis still moving.
     pub faults: u64,
     /// Endstop triggers.
@@ -243,7 +245,10 @@ impl SimAxis {
         let result = self.push(time, position);
         match result {
             Ok(()) => self.counters.points += 1,
-            Err(_) => self.counters.refused += 1,
+            Err(code) => {
+                self.counters.refused += 1;
+                self.counters.last_refused = code;
+            }
         }
         result
     }

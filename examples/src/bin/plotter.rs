@@ -1,0 +1,230 @@
+//! A machine script for a CoreXY plotter, run on simulated modules.
+//!
+//! It starts `osap-host/topologies/corexy-plotter.toml` (a hub on USB, belt
+//! motors `a` and `b` on UARTs, each module on its own drifting clock), waits
+//! for their clocks to follow the host's, wires
+//! `Timer → Planner → CoreXY → add_point` with pipes, draws a square with one
+//! rounded corner, and compares what the axes executed (at true time) with
+//! the stream they were sent. The same script drives hardware: only the
+//! machine's start differs.
+//!
+//! ```text
+//! cargo run -p osap-examples --release --bin plotter -- --out docs/img/plotter.svg
+//! ```
+
+use std::error::Error;
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use clap::Parser;
+use maxl::blocks::interp::InterpolatorBlock;
+use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
+use maxl::blocks::planner::PlannerBlock;
+use maxl::blocks::timer::TimerBlock;
+use osap_host::netrunner::{Netrunner, SyncGoal};
+use osap_host::sim::{self, SimMachine};
+use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
+use osap_host::{Host, HostConfig};
+use pipes_core::control::{InputMode, OutputMode};
+use plotters::prelude::*;
+
+#[derive(Parser, Debug)]
+#[command(about = "Draw a shape on a simulated CoreXY plotter and compare executed with sent")]
+struct Args {
+    /// The SVG of the executed path to write.
+    #[arg(long, default_value = "docs/img/plotter.svg")]
+    out: PathBuf,
+    /// Side of the square (mm).
+    #[arg(long, default_value_t = 30.0)]
+    side: f64,
+    /// Radius of the rounded corner (mm).
+    #[arg(long, default_value_t = 8.0)]
+    radius: f64,
+    /// Feed rate (mm/s).
+    #[arg(long, default_value_t = 80.0)]
+    feed: f64,
+}
+
+/// The axes' control-point interval (the topology's `interval_us`), µs.
+const IV: u32 = 2048;
+const HOST: &str = "script";
+
+#[tokio::main(flavor = "multi_thread", worker_threads = 2)]
+async fn main() -> Result<(), Box<dyn Error>> {
+    let args = Args::parse();
+    let (side, r) = (args.side, args.radius);
+    if !(side > 0.0 && r >= 0.0 && r < side && args.feed > 0.0) {
+        return Err("need side > 0, 0 <= radius < side and feed > 0".into());
+    }
+    let host = Host::start(HostConfig {
+        name: HOST.into(),
+        ..HostConfig::default()
+    })?;
+    let topology = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../osap-host/topologies/corexy-plotter.toml"
+    );
+    let machine = SimMachine::start(&host, &sim::load(topology)?).await?;
+    let mut m = Manager::new(&host).await?;
+    m.refresh().await?;
+
+    // Motion is keyed by synchronized time: wait until the motors' clocks
+    // have settled on the host's (no more steps while settling).
+    let nr = Netrunner::new(&host).await?;
+    let started = Instant::now();
+    for name in ["a", "b"] {
+        let route = machine.route_to(name).ok_or("no route")?;
+        nr.wait_synchronised(&route, SyncGoal::default()).await?;
+    }
+    println!(
+        "clocks settled {:.2} s after the scan",
+        started.elapsed().as_secs_f64()
+    );
+
+    // The graph: a timer leading real time by 5 intervals, the planner,
+    // CoreXY, both motors, and a reference interpolator of what was sent.
+    let timer = m.define_class(TimerBlock::new(IV, 5 * IV)?).await?;
+    let planner = m
+        .define_class(PlannerBlock::new(
+            300.0,
+            300.0,
+            20.0,
+            3000.0,
+            3000.0,
+            500.0,
+            0.01,
+            f64::INFINITY,
+        )?)
+        .await?;
+    let corexy = m.define_class(CoreXyBlock::new(CoreXy::new(1.0)?)).await?;
+    let sent = m.define_class(InterpolatorBlock::new(IV, 1 << 15)?).await?;
+    let host_fn = |member: Option<&str>| FnRef::new(HOST, member.unwrap_or_default());
+    let tick = host_fn(timer.member("tick"));
+    let sample = host_fn(planner.member("sample"));
+    let inverse = host_fn(corexy.member("inverse"));
+    m.set_input_mode(&tick, InputMode::OnTimer(IV / 4)).await?;
+    m.set_output_mode(&tick, OutputMode::OnChange).await?;
+    for motor in ["a", "b"] {
+        m.function(&FnRef::new(motor, "set_current"))?
+            .call(&[OwnedValue::F32(1.0)])
+            .await?;
+    }
+    let o = PipeOptions::default();
+    m.connect(&tick, &sample, &[0], &[0], o).await?;
+    m.connect(&sample, &inverse, &[0, 1, 2, 3], &[0, 1, 2, 3], o)
+        .await?;
+    m.connect(
+        &sample,
+        &host_fn(sent.member("push")),
+        &[0, 1, 2, 3],
+        &[0, 1, 2, 3],
+        o,
+    )
+    .await?;
+    m.connect(&inverse, &FnRef::new("a", "add_point"), &[0, 1], &[0, 1], o)
+        .await?;
+    m.connect(&inverse, &FnRef::new("b", "add_point"), &[0, 2], &[0, 1], o)
+        .await?;
+
+    // The shape: a square whose last corner is rounded.
+    let begin = host.system_time().await?;
+    {
+        let mut p = planner
+            .state()
+            .lock()
+            .map_err(|_| "planner lock poisoned")?;
+        p.line(side, 0.0, 0.0, args.feed)?;
+        p.line(side, side, 0.0, args.feed)?;
+        p.line(0.0, side, 0.0, args.feed)?;
+        p.line(0.0, r, 0.0, args.feed)?;
+        p.arc(r, 0.0, 0.0, r, r, false, args.feed)?;
+    }
+    loop {
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        if planner
+            .state()
+            .lock()
+            .map_err(|_| "planner lock poisoned")?
+            .planner()
+            .is_idle()
+        {
+            break;
+        }
+    }
+    let end = host.system_time().await? + u64::from(5 * IV);
+    while host.system_time().await? < end + u64::from(4 * IV) {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+
+    // What ran: each motor's executed states at true (host) time.
+    let path = |name: &str| -> Result<Vec<(f64, f64)>, Box<dyn Error>> {
+        let module = machine.module(name).ok_or("no module")?;
+        let probe = module.axis().ok_or("not an axis")?;
+        Ok(probe
+            .history()
+            .iter()
+            .map(|e| (module.host_time_at(e.local) as f64, e.position))
+            .filter(|(t, _)| *t >= begin as f64 && *t <= end as f64)
+            .collect())
+    };
+    let (a, b) = (path("a")?, path("b")?);
+    let reference = sent
+        .state()
+        .lock()
+        .map_err(|_| "interpolator lock poisoned")?
+        .clone();
+    // Each motor against the stream it was sent (a = x + y, b = x − y).
+    let mut worst = 0.0f64;
+    for (motor, sign) in [(&a, 1.0), (&b, -1.0)] {
+        for &(t, p) in motor {
+            if let Some(k) = reference.0.eval(t as u64) {
+                worst = worst.max((p - (k.pos[0] + sign * k.pos[1])).abs());
+            }
+        }
+    }
+    // The pen: b at a's sample times, between b's neighbouring samples.
+    let mut pen = Vec::new();
+    for &(t, pa) in &a {
+        let i = b.partition_point(|s| s.0 <= t);
+        if let (Some(&(t0, b0)), Some(&(t1, b1))) =
+            (i.checked_sub(1).and_then(|i| b.get(i)), b.get(i))
+        {
+            let pb = b0 + (b1 - b0) * (t - t0) / (t1 - t0);
+            pen.push(((pa + pb) / 2.0, (pa - pb) / 2.0));
+        }
+    }
+    println!(
+        "{} pen positions over {:.2} s; worst motor distance from its sent stream at true time: {:.1} µm",
+        pen.len(),
+        (end - begin) as f64 * 1e-6,
+        worst * 1e3
+    );
+    for name in ["a", "b"] {
+        let c = machine
+            .module(name)
+            .and_then(|m| m.axis())
+            .ok_or("no axis")?
+            .counters();
+        println!("motor {name}: {c:?}");
+    }
+
+    let root = SVGBackend::new(&args.out, (640, 640)).into_drawing_area();
+    root.fill(&WHITE)?;
+    let pad = 0.1 * side;
+    let mut chart = ChartBuilder::on(&root)
+        .caption("executed path (simulated CoreXY)", ("sans-serif", 20))
+        .margin(10)
+        .x_label_area_size(30)
+        .y_label_area_size(40)
+        .build_cartesian_2d(-pad..side + pad, -pad..side + pad)?;
+    chart
+        .configure_mesh()
+        .x_desc("x (mm)")
+        .y_desc("y (mm)")
+        .draw()?;
+    chart.draw_series(LineSeries::new(pen, &BLUE))?;
+    root.present()?;
+    println!("wrote {}", args.out.display());
+    machine.stop().await?;
+    Ok(())
+}
