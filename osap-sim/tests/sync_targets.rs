@@ -95,6 +95,39 @@ fn usb_topologies_hold_the_usb_target() {
 }
 
 #[test]
+fn usb_hot_starts_converge_within_a_second_mostly() {
+    // A hot start knows its rate; across USB the phase then needs one
+    // prompt exchange, which keeping requests at a phase where the host's
+    // replies catch a frame makes frequent. Measured over seeds 1-6: 0.02 to
+    // 3.5 s, most under 1 s (docs/performance.md).
+    let mut times = Vec::new();
+    for seed in 1..=4 {
+        for topology in [Topology::chain4(), Topology::star8(), Topology::loop3()] {
+            let name = topology.name.clone();
+            let s = Scenario::new(topology)
+                .seed(seed)
+                .seconds(10.0)
+                .hot_start(true)
+                .run()
+                .unwrap()
+                .metrics
+                .summary();
+            let to_50 = s.converged_50us_s.expect("converged to 50 µs");
+            assert!(
+                to_50 < 5.0,
+                "{name} seed {seed}: within 50 µs after {to_50} s"
+            );
+            times.push(to_50);
+        }
+    }
+    let quick = times.iter().filter(|t| **t < 1.0).count();
+    assert!(
+        quick >= 9,
+        "only {quick} of 12 hot starts within 1 s: {times:?}"
+    );
+}
+
+#[test]
 fn a_module_root_keeps_every_uart_hop_within_microseconds() {
     let m = Scenario::new(chain4_hub_root())
         .seed(1)

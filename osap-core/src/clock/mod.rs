@@ -45,7 +45,7 @@ pub mod neighbour;
 
 use crate::codec::{CodecError, Reader, Writer};
 use crate::Micros;
-use neighbour::{Neighbour, Verdict, FIT_WINDOW_MAX};
+use neighbour::{Neighbour, Verdict, ANCHOR_MISSES, FIT_WINDOW_MAX};
 
 /// System message code of a time stamp request.
 pub const CODE_TIME_REQUEST: u8 = 0;
@@ -63,6 +63,8 @@ pub const TIER_ROOT: u8 = 0;
 pub const TIER_LIMIT: u8 = 32;
 
 const Q32: f32 = 4_294_967_296.0;
+/// A millisecond, µs.
+const MS: u64 = 1000;
 /// Exchanges with a new neighbour sent at `DISCOVERY_BURST` × the request
 /// rate, to learn its round-trip floor quickly.
 const DISCOVERY_SAMPLES: u32 = 64;
@@ -76,6 +78,12 @@ const SETTLE_STEP_US: f32 = 20.0;
 /// Measurement noise (µs) at and above which an offset is slewed over the
 /// full 1/kp; below it, proportionally faster.
 const SLEW_NOISE_REF_US: f32 = 5.0;
+/// Standard deviation of a rate restored by a hot start (fraction): what
+/// temperature and ageing may have moved it since it was saved.
+const HOT_RATE_SD: f32 = 2e-6;
+/// How fast the rate's uncertainty grows without news (fraction per √s):
+/// the oscillator wanders.
+const RATE_WANDER_PER_SQRT_S: f32 = 5e-8;
 
 /// A time stamp reply: the request's stamp, the responder's time and tier.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -412,6 +420,9 @@ pub struct Clock<const LINKS: usize> {
     learned_q32: i64,
     /// The fitted rate has been trusted at least once since following.
     settled: bool,
+    /// Variance of `learned_q32` as a fraction (fraction²): how much the
+    /// frequency loop should believe a new drift measurement over it.
+    rate_var: f32,
     last_steer: Option<Micros>,
     offset_us: f32,
     tier: u8,
@@ -437,6 +448,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             slew_len: 0,
             learned_q32: 0,
             settled: false,
+            rate_var: cold_rate_var(&config),
             last_steer: None,
             offset_us: 0.0,
             tier: if config.root {
@@ -531,6 +543,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         let q = q.clamp(-max, max);
         self.rebase(now, q);
         self.learned_q32 = q;
+        self.rate_var = HOT_RATE_SD * HOT_RATE_SD;
     }
 
     /// A snapshot for monitoring.
@@ -603,11 +616,17 @@ impl<const LINKS: usize> Clock<LINKS> {
             } else {
                 1
             };
-            let interval = interval / burst;
-            // Keep the phase of an accepted exchange (unless we fell more
-            // than an interval behind); otherwise search with dither.
-            let next = match scheduled {
-                Some(t) if self.neighbours[i].keep_phase && now - t < interval => t + interval,
+            // Bursts keep to whole milliseconds, so a kept phase stays put
+            // against a 1 ms frame grid (USB full and high speed).
+            let interval = if interval >= 2 * MS {
+                (interval / burst / MS).max(1) * MS
+            } else {
+                interval / burst
+            };
+            // Keep to the phase of the latest accepted exchange; without
+            // one, search with dither.
+            let next = match self.neighbours[i].anchor {
+                Some(a) if a <= now => a + (now - a) / interval * interval + interval,
                 _ => (now + interval).saturating_add_signed(self.dither() / burst as i64),
             };
             self.neighbours[i].next_request = Some(next);
@@ -705,7 +724,15 @@ impl<const LINKS: usize> Clock<LINKS> {
         );
         // Hold a phase only once the floor is known: early exchanges are
         // accepted against a floor that is still too high.
-        n.keep_phase = verdict == Verdict::Accepted && n.seen >= 16;
+        if verdict == Verdict::Accepted && n.seen >= 16 {
+            n.anchor = Some(reply.request_time);
+            n.anchor_misses = 0;
+        } else if verdict == Verdict::RejectedRtt {
+            n.anchor_misses = n.anchor_misses.saturating_add(1);
+            if n.anchor_misses >= ANCHOR_MISSES {
+                n.anchor = None;
+            }
+        }
         let hit = if verdict == Verdict::Accepted {
             1.0
         } else {
@@ -804,6 +831,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             // A trusted fit of the neighbours' rate against our counter is
             // exactly the rate our system time needs.
             learned = slope_sum / f32::from(slopes);
+            self.rate_var = self.rate_var.min(MAX_SLOPE_VAR);
         } else if let Some(last) = self.last_steer {
             // Frequency loop: what the last slew does not explain of the
             // offset is drift, i.e. rate error. Over short gaps take kf of it
@@ -818,7 +846,17 @@ impl<const LINKS: usize> Clock<LINKS> {
                 } else {
                     SETTLE_FLL_S
                 };
-                learned += drift * 1e-6 / dt.max(horizon);
+                // Believe the measurement only as far as its noise allows
+                // against what is already known of the rate: two offsets
+                // `noise` apart over `dt` say little about a rate known to a
+                // ppm (a hot start, or a long fit), much about one not known
+                // at all (a cold start).
+                self.rate_var += RATE_WANDER_PER_SQRT_S * RATE_WANDER_PER_SQRT_S * dt;
+                let meas_sd = noise.max(0.5) * 1e-6 * core::f32::consts::SQRT_2 / dt;
+                let kalman = self.rate_var / (self.rate_var + meas_sd * meas_sd);
+                let gain = kalman.min(dt / dt.max(horizon));
+                learned += gain * drift * 1e-6 / dt;
+                self.rate_var *= 1.0 - gain;
             }
         }
         self.last_steer = Some(now);
@@ -845,6 +883,15 @@ impl<const LINKS: usize> Clock<LINKS> {
         let left = (self.slew_len - elapsed.clamp(0, self.slew_len)) as f32;
         left * self.slew_q32 as f32 / Q32
     }
+}
+
+/// Variance of a trusted fitted rate (see the fit's standard-error bound).
+const MAX_SLOPE_VAR: f32 = 2e-6 * 2e-6;
+
+/// The rate's variance before anything is known: uniform over the clamp.
+fn cold_rate_var(config: &TimeConfig) -> f32 {
+    let max = config.max_rate_ppm * 1e-6;
+    max * max / 3.0
 }
 
 /// Rounds to the nearest integer (`f32::round` needs `std`).

@@ -31,6 +31,10 @@ pub const FIT_WINDOW_MAX: usize = 64;
 const MAX_SLOPE_STDERR: f32 = 2e-6;
 /// Phase noise aimed for when averaging the newest residuals, µs.
 const PHASE_NOISE_TARGET_US: f32 = 2.0;
+/// Refused exchanges in a row after which requests leave the anchor's
+/// phase and search again: enough that a few unlucky host latencies at a
+/// good phase do not lose it.
+pub const ANCHOR_MISSES: u8 = 12;
 /// Consecutive residual rejections after which the fit is dropped: the
 /// neighbour's time really moved (it jumped), so start over.
 const RESET_AFTER_REJECTS: u8 = 6;
@@ -103,8 +107,13 @@ pub struct Neighbour {
     pub last_rtt: u32,
     /// When the next request to this neighbour is due (local time).
     pub next_request: Option<Micros>,
-    /// The latest exchange was accepted: send the next one at the same phase.
-    pub keep_phase: bool,
+    /// Local send time of the latest accepted exchange: requests keep to
+    /// its phase (a link that delivers on a frame grid, like USB, answers
+    /// promptly only at some phases), until [`ANCHOR_MISSES`] exchanges in
+    /// a row are refused there.
+    pub anchor: Option<Micros>,
+    /// Exchanges refused since the anchor's.
+    pub anchor_misses: u8,
     /// Recent fraction of exchanges accepted (moving average). Starts at 0,
     /// so a new neighbour is sampled in bursts until its round-trip floor
     /// is known.
@@ -125,7 +134,8 @@ impl Default for Neighbour {
             last_heard: None,
             last_rtt: 0,
             next_request: None,
-            keep_phase: false,
+            anchor: None,
+            anchor_misses: 0,
             acceptance: 0.0,
             seen: 0,
         }
