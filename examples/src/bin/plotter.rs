@@ -48,6 +48,9 @@ struct Args {
 /// The axes' control-point interval (the topology's `interval_us`), µs.
 const IV: u32 = 2048;
 const HOST: &str = "script";
+/// How far the timer leads real time: 16 intervals (33 ms), room for the
+/// host to be held up (a simulated machine shares the host's cores).
+const LEAD: u32 = 16 * IV;
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> Result<(), Box<dyn Error>> {
@@ -81,9 +84,9 @@ async fn main() -> Result<(), Box<dyn Error>> {
         started.elapsed().as_secs_f64()
     );
 
-    // The graph: a timer leading real time by 5 intervals, the planner,
+    // The graph: a timer leading real time by `LEAD`, the planner,
     // CoreXY, both motors, and a reference interpolator of what was sent.
-    let timer = m.define_class(TimerBlock::new(IV, 5 * IV)?).await?;
+    let timer = m.define_class(TimerBlock::new(IV, LEAD)?).await?;
     let planner = m
         .define_class(PlannerBlock::new(
             300.0,
@@ -151,7 +154,7 @@ async fn main() -> Result<(), Box<dyn Error>> {
             break;
         }
     }
-    let end = host.system_time().await? + u64::from(5 * IV);
+    let end = host.system_time().await? + u64::from(LEAD);
     while host.system_time().await? < end + u64::from(4 * IV) {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
@@ -199,6 +202,7 @@ async fn main() -> Result<(), Box<dyn Error>> {
         (end - begin) as f64 * 1e-6,
         worst * 1e3
     );
+    let mut faulted = Vec::new();
     for name in ["a", "b"] {
         let c = machine
             .module(name)
@@ -206,6 +210,9 @@ async fn main() -> Result<(), Box<dyn Error>> {
             .ok_or("no axis")?
             .counters();
         println!("motor {name}: {c:?}");
+        if c.faults > 0 {
+            faulted.push(name);
+        }
     }
 
     let root = SVGBackend::new(&args.out, (640, 640)).into_drawing_area();
@@ -226,5 +233,15 @@ async fn main() -> Result<(), Box<dyn Error>> {
     root.present()?;
     println!("wrote {}", args.out.display());
     machine.stop().await?;
+    if !faulted.is_empty() {
+        return Err(format!(
+            "motor(s) {faulted:?} stopped on their safety backstop: their stream ran dry, \
+             so the host fell behind by more than the timer's lead ({} ms); \
+             give the machine more CPU or a longer lead, and cycle the motor \
+             current to clear the fault",
+            LEAD / 1000
+        )
+        .into());
+    }
     Ok(())
 }
