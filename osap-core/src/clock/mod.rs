@@ -751,8 +751,49 @@ impl<const LINKS: usize> Clock<LINKS> {
             return;
         }
         self.select(received, false);
+        self.learn_rate_from_envelope(link, received);
         if verdict == Verdict::Accepted && self.followed() == Some(reply.responder_tier) {
             self.steer(received);
+        }
+    }
+
+    /// While the rate is not yet known to a few ppm, takes a new rate
+    /// measurement from the followed neighbour's one-way envelope
+    /// ([`Neighbour::envelope_slope`]), once per finished bucket, weighed
+    /// against what is known; the slew under way goes on.
+    fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) {
+        if !self.synced || self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
+            return;
+        }
+        let Some(tier) = self.followed() else {
+            return;
+        };
+        let Some(n) = self.neighbours.get_mut(link).filter(|n| n.tier == tier) else {
+            return;
+        };
+        let Some((slope, stderr, bucket)) = n.envelope_slope(now) else {
+            return;
+        };
+        if bucket == n.envelope_used {
+            return;
+        }
+        n.envelope_used = bucket;
+        // Successive slopes share most of their buckets: count each as
+        // worth a quarter of its stated precision.
+        let var = 4.0 * stderr * stderr;
+        let learned = self.learned_q32 as f32 / Q32;
+        let gain = self.rate_var / (self.rate_var + var);
+        let rate = self.clamp_rate(learned + gain * (slope - learned));
+        self.rate_var *= 1.0 - gain;
+        self.learned_q32 = rate;
+        let (slew_q32, left) = (
+            self.slew_q32,
+            self.slew_len - now.wrapping_sub(self.base_local) as i64,
+        );
+        self.rebase(now, rate);
+        if left > 0 {
+            self.slew_q32 = slew_q32;
+            self.slew_len = left;
         }
     }
 
@@ -884,6 +925,10 @@ impl<const LINKS: usize> Clock<LINKS> {
         left * self.slew_q32 as f32 / Q32
     }
 }
+
+/// Rate variance (fraction², here (5 ppm)²) below which the envelope's
+/// rough slope no longer adds anything the fit does not.
+const ENVELOPE_RATE_VAR_LIMIT: f32 = 5e-6 * 5e-6;
 
 /// Variance of a trusted fitted rate (see the fit's standard-error bound).
 const MAX_SLOPE_VAR: f32 = 2e-6 * 2e-6;

@@ -31,10 +31,15 @@ pub const FIT_WINDOW_MAX: usize = 64;
 const MAX_SLOPE_STDERR: f32 = 2e-6;
 /// Phase noise aimed for when averaging the newest residuals, µs.
 const PHASE_NOISE_TARGET_US: f32 = 2.0;
+/// Buckets of the one-way envelope (with [`ENVELOPE_BUCKET_US`], 3 s).
+const ENVELOPE_BUCKETS: usize = 12;
+/// Length of one envelope bucket, µs.
+pub const ENVELOPE_BUCKET_US: u64 = 250_000;
+
 /// Refused exchanges in a row after which requests leave the anchor's
 /// phase and search again: enough that a few unlucky host latencies at a
 /// good phase do not lose it.
-pub const ANCHOR_MISSES: u8 = 12;
+pub const ANCHOR_MISSES: u8 = 6;
 /// Consecutive residual rejections after which the fit is dropped: the
 /// neighbour's time really moved (it jumped), so start over.
 const RESET_AFTER_REJECTS: u8 = 6;
@@ -120,7 +125,31 @@ pub struct Neighbour {
     pub acceptance: f32,
     /// Round trips seen since the neighbour was (re)discovered.
     pub seen: u32,
+    /// Lower envelope of `their time − our send stamp`, per time bucket:
+    /// see [`Neighbour::envelope_slope`].
+    envelope: [EnvelopeBucket; ENVELOPE_BUCKETS],
+    /// The newest bucket whose slope the clock has already used.
+    pub envelope_used: u64,
 }
+
+/// One bucket of the one-way envelope: the exchange with the smallest
+/// `their time − our send stamp` in a [`ENVELOPE_BUCKET_US`] slice of local
+/// time.
+#[derive(Debug, Clone, Copy)]
+struct EnvelopeBucket {
+    /// `sent / ENVELOPE_BUCKET_US`; `u64::MAX` when empty.
+    id: u64,
+    /// Our send stamp of that exchange.
+    sent: Micros,
+    /// Their time minus our send stamp, µs.
+    ahead: i64,
+}
+
+const EMPTY_BUCKET: EnvelopeBucket = EnvelopeBucket {
+    id: u64::MAX,
+    sent: 0,
+    ahead: 0,
+};
 
 impl Default for Neighbour {
     fn default() -> Self {
@@ -138,6 +167,8 @@ impl Default for Neighbour {
             anchor_misses: 0,
             acceptance: 0.0,
             seen: 0,
+            envelope: [EMPTY_BUCKET; ENVELOPE_BUCKETS],
+            envelope_used: u64::MAX,
         }
     }
 }
@@ -194,6 +225,7 @@ impl Neighbour {
         let rise = self.rtt_floor * elapsed / horizon + 0.01;
         self.rtt_floor = (self.rtt_floor + rise).min(rtt as f32);
         self.last_heard = Some(received);
+        self.add_to_envelope(sent, their_time);
         if rtt as f32 > self.rtt_limit(cfg) {
             return Verdict::RejectedRtt;
         }
@@ -332,6 +364,73 @@ impl Neighbour {
             jitter,
             used: n,
         })
+    }
+
+    fn add_to_envelope(&mut self, sent: Micros, their_time: u64) {
+        let id = sent / ENVELOPE_BUCKET_US;
+        let ahead =
+            (their_time as i128 - sent as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64;
+        let slot = &mut self.envelope[(id % ENVELOPE_BUCKETS as u64) as usize];
+        if slot.id != id || ahead < slot.ahead {
+            *slot = EnvelopeBucket { id, sent, ahead };
+        }
+    }
+
+    /// The neighbour's rate against our local counter (fraction), its
+    /// standard error, and the newest bucket it rests on, from the lower
+    /// envelope of `their time − our send stamp` over the last few seconds.
+    ///
+    /// That difference is their time at the moment of our send plus the
+    /// one-way delay to them; its minimum over a quarter second sits on
+    /// the smallest delay, so the envelope's slope is their rate whatever
+    /// the other direction does. On USB, where replies are clean only when
+    /// they happen to catch a frame, this measures the rate long before the
+    /// round-trip filter lets enough exchanges through to fit it. Only
+    /// finished buckets count; `None` below four of them.
+    pub fn envelope_slope(&self, now: Micros) -> Option<(f32, f32, u64)> {
+        let current = now / ENVELOPE_BUCKET_US;
+        let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
+        let usable = |b: &&EnvelopeBucket| b.id != u64::MAX && b.id < current && b.id >= oldest;
+        let newest = self.envelope.iter().filter(usable).max_by_key(|b| b.id)?;
+        let (x0, y0) = (newest.sent, newest.ahead);
+        let point = |b: &EnvelopeBucket| {
+            (
+                (b.sent as i64).wrapping_sub(x0 as i64) as f32,
+                b.ahead.saturating_sub(y0) as f32,
+            )
+        };
+        let (mut n, mut sx, mut sy) = (0u8, 0f32, 0f32);
+        for b in self.envelope.iter().filter(usable) {
+            let (x, y) = point(b);
+            n += 1;
+            sx += x;
+            sy += y;
+        }
+        if n < 4 {
+            return None;
+        }
+        let count = f32::from(n);
+        let (mx, my) = (sx / count, sy / count);
+        let (mut sxx, mut sxy) = (0f32, 0f32);
+        for b in self.envelope.iter().filter(usable) {
+            let (x, y) = point(b);
+            sxx += (x - mx) * (x - mx);
+            sxy += (x - mx) * (y - my);
+        }
+        if sxx <= 0.0 {
+            return None;
+        }
+        let slope = sxy / sxx;
+        let mut sq = 0f32;
+        for b in self.envelope.iter().filter(usable) {
+            let (x, y) = point(b);
+            let r = y - (my + slope * (x - mx));
+            sq += r * r;
+        }
+        // At least a microsecond of scatter: the stamps are whole µs.
+        let sigma = libm_sqrt(sq / (count - 2.0)).max(1.0);
+        let stderr = sigma / libm_sqrt(sxx);
+        (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr, newest.id))
     }
 
     /// Forgets everything (the link closed or changed peer).
