@@ -132,23 +132,30 @@ pub struct Neighbour {
     pub envelope_used: u64,
 }
 
-/// One bucket of the one-way envelope: the exchange with the smallest
-/// `their time − our send stamp` in a [`ENVELOPE_BUCKET_US`] slice of local
-/// time.
+/// One bucket of the one-way envelopes, over a [`ENVELOPE_BUCKET_US`] slice
+/// of local time: the exchange with the least `their time − our send
+/// stamp` (bounded by the delay to them) and the one with the most `their
+/// time − our receive stamp` (bounded by the delay back).
 #[derive(Debug, Clone, Copy)]
 struct EnvelopeBucket {
     /// `sent / ENVELOPE_BUCKET_US`; `u64::MAX` when empty.
     id: u64,
-    /// Our send stamp of that exchange.
+    /// Our send stamp of the `ahead` exchange.
     sent: Micros,
-    /// Their time minus our send stamp, µs.
+    /// Least `their time − our send stamp`, µs.
     ahead: i64,
+    /// Our receive stamp of the `behind` exchange.
+    received: Micros,
+    /// Most `their time − our receive stamp`, µs.
+    behind: i64,
 }
 
 const EMPTY_BUCKET: EnvelopeBucket = EnvelopeBucket {
     id: u64::MAX,
     sent: 0,
     ahead: 0,
+    received: 0,
+    behind: 0,
 };
 
 impl Default for Neighbour {
@@ -225,7 +232,7 @@ impl Neighbour {
         let rise = self.rtt_floor * elapsed / horizon + 0.01;
         self.rtt_floor = (self.rtt_floor + rise).min(rtt as f32);
         self.last_heard = Some(received);
-        self.add_to_envelope(sent, their_time);
+        self.add_to_envelope(sent, received, their_time);
         if rtt as f32 > self.rtt_limit(cfg) {
             return Verdict::RejectedRtt;
         }
@@ -366,71 +373,57 @@ impl Neighbour {
         })
     }
 
-    fn add_to_envelope(&mut self, sent: Micros, their_time: u64) {
+    fn add_to_envelope(&mut self, sent: Micros, received: Micros, their_time: u64) {
         let id = sent / ENVELOPE_BUCKET_US;
-        let ahead =
-            (their_time as i128 - sent as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64;
+        let diff = |ours: Micros| {
+            (their_time as i128 - ours as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64
+        };
+        let (ahead, behind) = (diff(sent), diff(received));
         let slot = &mut self.envelope[(id % ENVELOPE_BUCKETS as u64) as usize];
-        if slot.id != id || ahead < slot.ahead {
-            *slot = EnvelopeBucket { id, sent, ahead };
+        if slot.id != id {
+            *slot = EnvelopeBucket {
+                id,
+                sent,
+                ahead,
+                received,
+                behind,
+            };
+            return;
+        }
+        if ahead < slot.ahead {
+            (slot.sent, slot.ahead) = (sent, ahead);
+        }
+        if behind > slot.behind {
+            (slot.received, slot.behind) = (received, behind);
         }
     }
 
     /// The neighbour's rate against our local counter (fraction), its
-    /// standard error, and the newest bucket it rests on, from the lower
-    /// envelope of `their time − our send stamp` over the last few seconds.
+    /// standard error, and the newest bucket it rests on, from the one-way
+    /// envelopes of the last few seconds.
     ///
-    /// That difference is their time at the moment of our send plus the
-    /// one-way delay to them; its minimum over a quarter second sits on
-    /// the smallest delay, so the envelope's slope is their rate whatever
-    /// the other direction does. On USB, where replies are clean only when
-    /// they happen to catch a frame, this measures the rate long before the
-    /// round-trip filter lets enough exchanges through to fit it. Only
-    /// finished buckets count; `None` below four of them.
+    /// `their time − our send stamp` is their time at our send plus the
+    /// delay to them; its least value in a quarter second sits on the
+    /// smallest delay, so that envelope's slope is their rate whatever the
+    /// way back does (and `their time − our receive stamp`, at its most,
+    /// likewise for the way back). On USB, where replies are clean only when
+    /// they happen to catch a frame, one direction is prompt: this measures
+    /// the rate long before the round-trip filter lets enough exchanges
+    /// through to fit it. Of the two envelopes the less scattered counts.
+    /// Only finished buckets count; `None` below four of them.
     pub fn envelope_slope(&self, now: Micros) -> Option<(f32, f32, u64)> {
         let current = now / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
         let usable = |b: &&EnvelopeBucket| b.id != u64::MAX && b.id < current && b.id >= oldest;
-        let newest = self.envelope.iter().filter(usable).max_by_key(|b| b.id)?;
-        let (x0, y0) = (newest.sent, newest.ahead);
-        let point = |b: &EnvelopeBucket| {
-            (
-                (b.sent as i64).wrapping_sub(x0 as i64) as f32,
-                b.ahead.saturating_sub(y0) as f32,
-            )
-        };
-        let (mut n, mut sx, mut sy) = (0u8, 0f32, 0f32);
-        for b in self.envelope.iter().filter(usable) {
-            let (x, y) = point(b);
-            n += 1;
-            sx += x;
-            sy += y;
-        }
-        if n < 4 {
-            return None;
-        }
-        let count = f32::from(n);
-        let (mx, my) = (sx / count, sy / count);
-        let (mut sxx, mut sxy) = (0f32, 0f32);
-        for b in self.envelope.iter().filter(usable) {
-            let (x, y) = point(b);
-            sxx += (x - mx) * (x - mx);
-            sxy += (x - mx) * (y - my);
-        }
-        if sxx <= 0.0 {
-            return None;
-        }
-        let slope = sxy / sxx;
-        let mut sq = 0f32;
-        for b in self.envelope.iter().filter(usable) {
-            let (x, y) = point(b);
-            let r = y - (my + slope * (x - mx));
-            sq += r * r;
-        }
-        // At least a microsecond of scatter: the stamps are whole µs.
-        let sigma = libm_sqrt(sq / (count - 2.0)).max(1.0);
-        let stderr = sigma / libm_sqrt(sxx);
-        (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr, newest.id))
+        let newest = self.envelope.iter().filter(usable).max_by_key(|b| b.id)?.id;
+        let buckets = || self.envelope.iter().filter(usable);
+        let ahead = line_fit(buckets().map(|b| (b.sent, b.ahead)));
+        let behind = line_fit(buckets().map(|b| (b.received, b.behind)));
+        let best = match (ahead, behind) {
+            (Some(a), Some(b)) => Some(if a.1 <= b.1 { a } else { b }),
+            (a, b) => a.or(b),
+        }?;
+        Some((best.0, best.1, newest))
     }
 
     /// Forgets everything (the link closed or changed peer).
@@ -442,6 +435,47 @@ impl Neighbour {
     pub fn is_active(&self) -> bool {
         self.last_heard.is_some() || self.next_request.is_some()
     }
+}
+
+/// Least-squares slope of `(local µs, µs)` points and its standard error;
+/// `None` below four points or when they do not spread in time.
+fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32, f32)> {
+    let (x0, y0) = points.clone().next()?;
+    let rel = |(x, y): (Micros, i64)| {
+        (
+            (x as i64).wrapping_sub(x0 as i64) as f32,
+            y.saturating_sub(y0) as f32,
+        )
+    };
+    let (mut n, mut sx, mut sy) = (0u8, 0f32, 0f32);
+    for (x, y) in points.clone().map(rel) {
+        n += 1;
+        sx += x;
+        sy += y;
+    }
+    if n < 4 {
+        return None;
+    }
+    let count = f32::from(n);
+    let (mx, my) = (sx / count, sy / count);
+    let (mut sxx, mut sxy) = (0f32, 0f32);
+    for (x, y) in points.clone().map(rel) {
+        sxx += (x - mx) * (x - mx);
+        sxy += (x - mx) * (y - my);
+    }
+    if sxx <= 0.0 {
+        return None;
+    }
+    let slope = sxy / sxx;
+    let mut sq = 0f32;
+    for (x, y) in points.map(rel) {
+        let r = y - (my + slope * (x - mx));
+        sq += r * r;
+    }
+    // At least a microsecond of scatter: the stamps are whole µs.
+    let sigma = libm_sqrt(sq / (count - 2.0)).max(1.0);
+    let stderr = sigma / libm_sqrt(sxx);
+    (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr))
 }
 
 /// Square root without `std` (Newton's method; plenty for an RMS).
