@@ -137,6 +137,37 @@ impl Port for PortSlot {
     }
 }
 
+/// Builds the host's runtime, boxed, on a short-lived thread with room for
+/// it: the runtime holds its packet slots and per-link clock state inline
+/// (a few hundred KiB), and an unoptimised build copies it through each
+/// builder call, more than a 2 MiB thread stack (a test's, a tokio
+/// worker's) holds.
+fn build_runtime(config: HostConfig) -> Result<Box<HostRuntime>, HostError> {
+    let build = move || -> Result<Box<HostRuntime>, HostError> {
+        let mut runtime = Box::new(
+            HostRuntime::new(&config.type_name, &config.name)
+                .map_err(|e| HostError::Malformed(e.to_string()))?
+                .with_version(version(), BuildKey::RustHost)
+                .with_config(config.runtime),
+        );
+        runtime
+            .clock_mut()
+            .set_config(config.time)
+            .map_err(|e| HostError::Malformed(e.to_string()))?;
+        Ok(runtime)
+    };
+    std::thread::Builder::new()
+        .name("osap-host-init".into())
+        .stack_size(32 << 20)
+        .spawn(build)
+        .map_err(|source| HostError::Io {
+            context: "starting the host runtime".into(),
+            source,
+        })?
+        .join()
+        .unwrap_or_else(|panic| std::panic::resume_unwind(panic))
+}
+
 /// A handle to a running host runtime. Cheap to clone; the runtime stops
 /// when the last handle is dropped.
 #[derive(Clone)]
@@ -150,18 +181,11 @@ impl Host {
     /// Starts a host runtime on the current tokio runtime.
     pub fn start(config: HostConfig) -> Result<Host, HostError> {
         let clock = HostClock::new();
-        let mut runtime = HostRuntime::new(&config.type_name, &config.name)
-            .map_err(|e| HostError::Malformed(e.to_string()))?
-            .with_version(version(), BuildKey::RustHost)
-            .with_config(config.runtime);
-        runtime
-            .clock_mut()
-            .set_config(config.time)
-            .map_err(|e| HostError::Malformed(e.to_string()))?;
+        let runtime = build_runtime(config.clone())?;
         let (commands, rx) = mpsc::unbounded_channel();
         let wake = Arc::new(Notify::new());
         let task = RuntimeTask {
-            runtime: Box::new(runtime),
+            runtime,
             ports: Vec::new(),
             links: Vec::new(),
             commands: rx,
