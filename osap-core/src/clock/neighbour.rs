@@ -31,6 +31,9 @@ pub const FIT_WINDOW_MAX: usize = 64;
 const MAX_SLOPE_STDERR: f32 = 2e-6;
 /// Phase noise aimed for when averaging the newest residuals, µs.
 const PHASE_NOISE_TARGET_US: f32 = 2.0;
+/// Rate error (fraction) allowed for between a young fit's samples.
+const YOUNG_FIT_RATE: f32 = 200e-6;
+
 /// Buckets of the one-way envelope (with [`ENVELOPE_BUCKET_US`], 3 s).
 const ENVELOPE_BUCKETS: usize = 12;
 /// Length of one envelope bucket, µs.
@@ -241,10 +244,21 @@ impl Neighbour {
             .clamp(i64::MIN as i128, i64::MAX as i128) as i64;
         let sample = Sample { sent, rtt, y_half };
         let at = sent + u64::from(rtt / 2);
-        if let Some(est) = self.estimate(at, cfg, prior_slope).filter(|e| e.used >= 3) {
+        if let Some(est) = self.estimate(at, cfg, prior_slope) {
             let predicted = est.y_rel;
             let actual = y_half.saturating_sub(est.y_ref_half) as f32 * 0.5;
-            let limit = (est.rms * cfg.residual_sigmas).max(cfg.residual_floor_us as f32);
+            let mut limit = (est.rms * cfg.residual_sigmas).max(cfg.residual_floor_us as f32);
+            if est.used < 3 {
+                // Too few to know their scatter: allow what the round-trip
+                // band lets through, and a rate not yet learned. A young fit
+                // must still refuse a neighbour that stepped its time (it
+                // does while it settles), or both timescales end up in one
+                // line and its slope is off by tens of ppm for seconds.
+                let newest = self.samples().map(|s| s.sent).max().unwrap_or(sent);
+                let age = sent.saturating_sub(newest) as f32;
+                let band = self.rtt_limit(cfg) - self.rtt_floor;
+                limit = limit.max(band + YOUNG_FIT_RATE * age);
+            }
             if (actual - predicted).abs() > limit {
                 self.rejects_in_row += 1;
                 if self.rejects_in_row < RESET_AFTER_REJECTS {
