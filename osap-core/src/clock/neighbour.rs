@@ -31,6 +31,10 @@ pub const FIT_WINDOW_MAX: usize = 64;
 const MAX_SLOPE_STDERR: f32 = 2e-6;
 /// Phase noise aimed for when averaging the newest residuals, µs.
 const PHASE_NOISE_TARGET_US: f32 = 2.0;
+/// Request intervals a fit must span before its slope is trusted as the
+/// rate (40 × 50 ms: two seconds).
+const TRUSTED_SLOPE_SPAN_INTERVALS: u64 = 40;
+
 /// Rate error (fraction) allowed for between a young fit's samples.
 const YOUNG_FIT_RATE: f32 = 200e-6;
 
@@ -358,7 +362,11 @@ impl Neighbour {
         // never trusted (a few points can fit a line by chance).
         let noise = rms.max(jitter);
         let stderr = noise / libm_sqrt(sxx.max(1.0)) * libm_sqrt(count / (count - 2.0).max(1.0));
-        let fitted = fitted && n >= 8;
+        // Trusted only over two seconds or more: over less, a neighbour
+        // slewing its own time (as it does while it settles) reads as a rate
+        // tens of ppm off, which would then be carried on after the slew.
+        let fitted =
+            fitted && n >= 8 && span >= TRUSTED_SLOPE_SPAN_INTERVALS * u64::from(cfg.interval_us);
         let slope = (fitted && stderr <= MAX_SLOPE_STDERR).then_some(b);
         // The line is a long average; the phase now comes from the newest
         // samples' residuals, as many as the noise needs (one, on a clean
@@ -526,8 +534,14 @@ mod tests {
     #[test]
     fn fits_offset_and_rate() {
         let mut n = Neighbour::default();
+        // Under two seconds of samples: a line, but its slope is not yet
+        // trusted as the rate.
         feed(&mut n, 16, 50.0, 1234.0, 100);
-        let now = 1_000_000 + 16 * 50_000;
+        let e = n.estimate(1_000_000 + 16 * 50_000, &cfg(), 0.0).unwrap();
+        assert_eq!(e.slope, None);
+        let mut n = Neighbour::default();
+        feed(&mut n, 48, 50.0, 1234.0, 100);
+        let now = 1_000_000 + 48 * 50_000;
         let e = n.estimate(now, &cfg(), 0.0).unwrap();
         let slope = e.slope.unwrap();
         assert!((slope - 50e-6).abs() < 0.5e-6, "slope {slope}");
