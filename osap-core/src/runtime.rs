@@ -386,9 +386,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     fn poll_ports<P: Port>(&mut self, now: Micros, ports: &mut [P]) {
         let mut base = 1u16;
+        let system = self.clock.system_time(now);
         for port in ports.iter_mut() {
             let count = port.port_count();
-            let system = self.clock.system_time(now);
             let mut sender = self.sender(now);
             let mut tx = PortTx {
                 sink: &mut sender,

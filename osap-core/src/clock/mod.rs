@@ -397,6 +397,14 @@ impl ClockStatus {
     }
 }
 
+/// Per-link neighbour state. Only the controller (`sync`) keeps any: a
+/// runtime without it answers time requests but follows no one, and its
+/// firmware should not carry a few KiB of samples per link for nothing.
+#[cfg(feature = "sync")]
+type Neighbours<const LINKS: usize> = [Neighbour; LINKS];
+#[cfg(not(feature = "sync"))]
+type Neighbours<const LINKS: usize> = [Neighbour; 0];
+
 /// The clock of a runtime with up to `LINKS` neighbours.
 #[derive(Debug, Clone)]
 pub struct Clock<const LINKS: usize> {
@@ -431,7 +439,7 @@ pub struct Clock<const LINKS: usize> {
     /// Next once-per-interval housekeeping (tier aging), local time.
     next_tick: Option<Micros>,
     rng: u32,
-    neighbours: [Neighbour; LINKS],
+    neighbours: Neighbours<LINKS>,
     stats: SyncStats,
 }
 
@@ -596,7 +604,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             None => self.next_tick = Some(now + interval),
         }
         let mut due = 0u64;
-        for i in 0..LINKS.min(64) {
+        for i in 0..self.neighbours.len().min(64) {
             if open & (1 << i) == 0 {
                 self.neighbours[i].next_request = None;
                 continue;
@@ -1007,6 +1015,7 @@ mod tests {
     /// A neighbour at tier 0 whose clock is `offset` ahead and `ppm` fast;
     /// exchanges with a symmetric round trip. Returns our error after each
     /// exchange, µs.
+    #[cfg(feature = "sync")]
     fn follow(c: &mut Clock<2>, offset: f64, ppm: f64, steps: u64) -> f64 {
         let mut err = 0.0;
         for i in 0..steps {
@@ -1031,6 +1040,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "sync")]
     fn converges_on_offset_and_rate() {
         let mut c: Clock<2> = Clock::new(TimeConfig::default());
         let err = follow(&mut c, 12_345.0, 80.0, 60);
@@ -1046,6 +1056,7 @@ mod tests {
     }
 
     #[test]
+    #[cfg(feature = "sync")]
     fn tier_ages_in_holdover_and_never_follows_upward() {
         let mut c: Clock<2> = Clock::new(TimeConfig::default());
         follow(&mut c, 0.0, 0.0, 5);
