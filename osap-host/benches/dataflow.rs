@@ -273,11 +273,7 @@ fn call_body(vals: &[(u8, Value<'_>)]) -> Vec<u8> {
 }
 
 async fn rpc_setup() -> Rpc {
-    let host = Host::start(HostConfig {
-        name: "bench".into(),
-        ..HostConfig::default()
-    })
-    .expect("host");
+    let host = Host::start(HostConfig::named("bench")).expect("host");
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join("single-usb.toml");

@@ -37,11 +37,7 @@ use std::time::{Duration, Instant};
 const TIMEOUT: Duration = Duration::from_secs(1);
 
 fn host(name: &str) -> Host {
-    Host::start(HostConfig {
-        name: name.into(),
-        ..HostConfig::default()
-    })
-    .expect("host starts")
+    Host::start(HostConfig::named(name)).expect("host starts")
 }
 
 fn shipped(name: &str) -> Topology {

@@ -31,6 +31,16 @@ pub struct HostConfig {
     pub time: TimeConfig,
 }
 
+impl HostConfig {
+    /// The default configuration with the runtime named `name`.
+    pub fn named(name: impl Into<String>) -> Self {
+        HostConfig {
+            name: name.into(),
+            ..HostConfig::default()
+        }
+    }
+}
+
 impl Default for HostConfig {
     fn default() -> Self {
         HostConfig {

@@ -10,16 +10,12 @@ use osap_host::sim::axis::{AxisMode, Executed};
 use osap_host::sim::{self, SimMachine};
 use osap_host::som::{FnRef, Manager, OwnedValue};
 use osap_host::{Host, HostConfig};
-use std::path::PathBuf;
 use std::time::Duration;
 
-const IV: u64 = 2048;
+mod common;
+use common::shipped;
 
-fn shipped(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("topologies")
-        .join(name)
-}
+const IV: u64 = 2048;
 
 /// Waits until every module of `names` has settled on the host's clock.
 async fn synced(host: &Host, machine: &SimMachine, names: &[&str]) {
@@ -32,11 +28,7 @@ async fn synced(host: &Host, machine: &SimMachine, names: &[&str]) {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_axis_follows_a_stream_on_synchronized_time() {
-    let host = Host::start(HostConfig {
-        name: "h".into(),
-        ..HostConfig::default()
-    })
-    .unwrap();
+    let host = Host::start(HostConfig::named("h")).unwrap();
     let topology = sim::load(shipped("corexy-plotter.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let mut m = Manager::new(&host).await.unwrap();

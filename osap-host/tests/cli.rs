@@ -2,17 +2,13 @@
 
 use osap_host::map::NetworkMap;
 use std::io::{BufRead, BufReader};
-use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
+
+mod common;
+use common::shipped;
 
 fn osap() -> Command {
     Command::new(env!("CARGO_BIN_EXE_osap"))
-}
-
-fn topology(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("topologies")
-        .join(name)
 }
 
 #[test]
@@ -20,7 +16,7 @@ fn scan_of_a_simulated_machine_prints_a_tree_and_writes_the_map() {
     let out_path = std::env::temp_dir().join(format!("osap-cli-map-{}.json", std::process::id()));
     let out = osap()
         .args(["scan", "--sim"])
-        .arg(topology("small-machine.toml"))
+        .arg(shipped("small-machine.toml"))
         .arg("-o")
         .arg(&out_path)
         .output()
@@ -48,7 +44,7 @@ fn scan_writes_the_system_object_model_for_proxygen() {
     let path = std::env::temp_dir().join(format!("osap-cli-som-{}.json", std::process::id()));
     let out = osap()
         .args(["scan", "--sim"])
-        .arg(topology("small-machine.toml"))
+        .arg(shipped("small-machine.toml"))
         .arg("--som")
         .arg(&path)
         .output()
@@ -66,7 +62,7 @@ fn scan_writes_the_system_object_model_for_proxygen() {
 
 #[test]
 fn ping_and_rename_by_name() {
-    let file = topology("single-usb.toml");
+    let file = shipped("single-usb.toml");
     let out = osap()
         .args(["ping", "-n", "20", "--sim"])
         .arg(&file)
@@ -108,7 +104,7 @@ fn ping_and_rename_by_name() {
 fn time_lists_every_runtime() {
     let out = osap()
         .args(["time", "--sim"])
-        .arg(topology("loop.toml"))
+        .arg(shipped("loop.toml"))
         .output()
         .unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
@@ -153,7 +149,7 @@ fn a_served_machine_is_scanned_from_another_process() {
     let mut server = Killed(
         osap()
             .args(["serve", "--tcp", "127.0.0.1:0", "--sim"])
-            .arg(topology("small-machine.toml"))
+            .arg(shipped("small-machine.toml"))
             .stdout(Stdio::piped())
             .spawn()
             .unwrap(),

@@ -13,7 +13,7 @@ use osap_core::netresponder::key;
 use osap_core::route::Route;
 use osap_host::link::stream::{run_stream, LinkHandle, LinkState, Listener};
 use osap_host::link::{serial, tcp, udp, unix};
-use osap_host::{Host, HostConfig, HostError, LinkConfig, PortHandle};
+use osap_host::{HostError, LinkConfig, PortHandle};
 use std::io::{self, BufRead, BufReader};
 use std::net::SocketAddr;
 use std::os::fd::{AsRawFd, FromRawFd, OwnedFd};
@@ -26,20 +26,15 @@ use std::time::Duration;
 use tokio::io::unix::AsyncFd;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt, ReadBuf};
 
+mod common;
+use common::host;
+
 /// Longest any one wait may take before the test fails.
 const PATIENCE: Duration = Duration::from_secs(15);
 /// Timeout of a request that is expected to succeed.
 const REQUEST: Duration = Duration::from_secs(2);
 /// Timeout of a request that is expected to fail.
 const SHORT: Duration = Duration::from_millis(200);
-
-fn host(name: &str) -> Host {
-    Host::start(HostConfig {
-        name: name.into(),
-        ..HostConfig::default()
-    })
-    .unwrap()
-}
 
 /// A fresh path in the temp directory, unique to this process and call.
 fn temp_path(tag: &str) -> PathBuf {

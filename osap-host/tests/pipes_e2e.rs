@@ -11,13 +11,15 @@ use osap_host::som::{
     attach_function, FnRef, FunctionHandle, HostFunction, Manager, OwnedValue, PipeOptions,
     SomError,
 };
-use osap_host::{Host, HostConfig};
+use osap_host::Host;
 use pipes_core::control::{ControlError, InputMode, OutputMode};
 use pipes_core::{ScalarType, Type};
 use std::future::Future;
-use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
+
+mod common;
+use common::{host, refresh, shipped};
 
 const fn scalar(s: ScalarType) -> Type {
     Type::Scalar(s)
@@ -40,20 +42,6 @@ const F64: Type = scalar(ScalarType::F64);
 /// Overall limit on every wait for something to happen.
 const PATIENCE: Duration = Duration::from_secs(5);
 
-fn host(name: &str) -> Host {
-    Host::start(HostConfig {
-        name: name.into(),
-        ..HostConfig::default()
-    })
-    .unwrap()
-}
-
-fn shipped(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("topologies")
-        .join(name)
-}
-
 /// The host `h`, the machine attached to it, and a refreshed manager.
 struct Lab {
     h: Host,
@@ -68,21 +56,6 @@ async fn lab() -> Lab {
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;
     Lab { h, machine, m }
-}
-
-/// Refreshes and checks that every runtime and function was read.
-async fn refresh(m: &mut Manager) {
-    let report = m.refresh().await.unwrap();
-    assert!(
-        report.scan_failures.is_empty(),
-        "{:?}",
-        report.scan_failures
-    );
-    assert!(
-        report.function_failures.is_empty(),
-        "{:?}",
-        report.function_failures
-    );
 }
 
 /// Values a host function saw, one row per run.

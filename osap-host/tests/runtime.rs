@@ -4,16 +4,11 @@ use osap_core::netresponder::key;
 use osap_core::route::Route;
 use osap_core::transport::Transport;
 use osap_host::link::memory;
-use osap_host::{Host, HostConfig, HostError};
+use osap_host::HostError;
 use std::time::Duration;
 
-fn host(name: &str) -> Host {
-    Host::start(HostConfig {
-        name: name.into(),
-        ..HostConfig::default()
-    })
-    .unwrap()
-}
+mod common;
+use common::host;
 
 #[tokio::test]
 async fn request_to_a_neighbours_netresponder() {

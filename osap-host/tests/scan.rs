@@ -4,16 +4,10 @@ use osap_core::route::Route;
 use osap_host::link::memory;
 use osap_host::map::NetworkMap;
 use osap_host::netrunner::{self, ScanOptions};
-use osap_host::{Host, HostConfig};
 use std::time::Duration;
 
-fn host(name: &str) -> Host {
-    Host::start(HostConfig {
-        name: name.into(),
-        ..HostConfig::default()
-    })
-    .unwrap()
-}
+mod common;
+use common::host;
 
 #[tokio::test]
 async fn scans_a_chain_and_round_trips_the_map_through_json() {

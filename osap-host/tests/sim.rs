@@ -9,14 +9,10 @@ use osap_core::transport::Transport;
 use osap_host::netrunner::{self, Netrunner, ScanOptions};
 use osap_host::sim::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
 use osap_host::{Host, HostConfig, HostError, PortHandle};
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-fn shipped(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("topologies")
-        .join(name)
-}
+mod common;
+use common::shipped;
 
 fn host() -> Host {
     Host::start(HostConfig::default()).unwrap()

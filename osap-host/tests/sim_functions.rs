@@ -16,16 +16,12 @@ use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::function::FUNCTION_PORT_TYPE;
 use pipes_core::signature::Signature;
 use pipes_core::{ArgsWriter, ConvertReason, Value};
-use std::path::PathBuf;
 use std::time::Duration;
 
-const ANSWER: Duration = Duration::from_secs(1);
+mod common;
+use common::shipped;
 
-fn shipped(name: &str) -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("topologies")
-        .join(name)
-}
+const ANSWER: Duration = Duration::from_secs(1);
 
 /// `[Call][args]`.
 fn call_body(vals: &[(u8, Value<'_>)]) -> Vec<u8> {

@@ -10,24 +10,19 @@ use osap_host::som::{
     attach_class, attach_function, Disconnect, FnRef, HostFunction, Manager, OwnedValue,
     PipeOptions, PipeStats, Som, SomError,
 };
-use osap_host::{Host, HostConfig};
+use osap_host::Host;
 use pipes_core::control::{ControlError, InputMode, OutputMode, Request, ANY_SLOT};
 use pipes_core::pipe::{PipeConfig, PipeDelivery};
 use pipes_core::{ScalarType, Type};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+mod common;
+use common::{host, refresh};
+
 const F32: Type = Type::Scalar(ScalarType::F32);
 const F64: Type = Type::Scalar(ScalarType::F64);
 const U32: Type = Type::Scalar(ScalarType::U32);
-
-fn host(name: &str) -> Host {
-    Host::start(HostConfig {
-        name: name.into(),
-        ..HostConfig::default()
-    })
-    .unwrap()
-}
 
 type Seen = Arc<Mutex<Vec<f64>>>;
 
@@ -136,17 +131,7 @@ async fn refresh_builds_the_model_and_it_round_trips_through_json() {
     assert_eq!(reply.body, [6, 0, 0], "set pipe: ok, slot 0");
 
     let mut m = Manager::new(&n.h).await.unwrap();
-    let report = m.refresh().await.unwrap();
-    assert!(
-        report.scan_failures.is_empty(),
-        "{:?}",
-        report.scan_failures
-    );
-    assert!(
-        report.function_failures.is_empty(),
-        "{:?}",
-        report.function_failures
-    );
+    refresh(&mut m).await;
     let som = m.som();
     let names: Vec<_> = som
         .runtimes

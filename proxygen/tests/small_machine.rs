@@ -28,11 +28,7 @@ use std::time::{Duration, Instant};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn proxies_drive_the_simulated_small_machine() {
-    let h = Host::start(HostConfig {
-        name: "h".into(),
-        ..HostConfig::default()
-    })
-    .unwrap();
+    let h = Host::start(HostConfig::named("h")).unwrap();
     let topology = sim::load(
         PathBuf::from(env!("CARGO_MANIFEST_DIR"))
             .join("../osap-host/topologies/small-machine.toml"),

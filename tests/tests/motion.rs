@@ -46,11 +46,7 @@ static TURN: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
 
 async fn rig() -> Rig {
     let turn = TURN.lock().await;
-    let host = Host::start(HostConfig {
-        name: HOST.into(),
-        ..HostConfig::default()
-    })
-    .unwrap();
+    let host = Host::start(HostConfig::named(HOST)).unwrap();
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../osap-host/topologies/corexy-plotter.toml");
     let machine = SimMachine::start(&host, &sim::load(path).unwrap())

@@ -59,10 +59,7 @@ async fn main() -> Result<(), Box<dyn Error>> {
     if !(side > 0.0 && r >= 0.0 && r < side && args.feed > 0.0) {
         return Err("need side > 0, 0 <= radius < side and feed > 0".into());
     }
-    let host = Host::start(HostConfig {
-        name: HOST.into(),
-        ..HostConfig::default()
-    })?;
+    let host = Host::start(HostConfig::named(HOST))?;
     let topology = concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../osap-host/topologies/corexy-plotter.toml"
