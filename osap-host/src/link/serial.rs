@@ -12,7 +12,7 @@
 //! Enumeration reads sysfs (`/sys/class/tty`) directly, so nothing beyond
 //! the C library is needed on Linux (no libudev).
 
-use super::stream::{link_error, run_client, LinkHandle, LinkState};
+use super::stream::{link_error, LinkHandle};
 use super::LinkConfig;
 use crate::runtime::Host;
 use crate::HostError;
@@ -316,18 +316,9 @@ pub async fn spawn_serial(host: &Host, path: &str, baud: u32) -> Result<SerialLi
     }
     let (index, io) = host.add_link(config).await?;
     let path = path.to_string();
-    Ok(LinkHandle::spawn(
-        index,
-        io,
-        None,
-        LinkState::Connected,
-        move |io, state| {
-            run_client(io, state, port, move || {
-                let result = reopen(&path, baud, usb.as_ref());
-                std::future::ready(result)
-            })
-        },
-    ))
+    Ok(LinkHandle::spawn_client(index, io, None, port, move || {
+        std::future::ready(reopen(&path, baud, usb.as_ref()))
+    }))
 }
 
 #[cfg(test)]

@@ -203,6 +203,25 @@ pub struct LinkHandle {
 }
 
 impl LinkHandle {
+    /// A client link, connected on `first`: [`run_client`] carries its
+    /// frames and calls `reconnect` after a loss.
+    pub(crate) fn spawn_client<S, C, F>(
+        index: u8,
+        io: LinkIo,
+        local: Option<SocketAddr>,
+        first: S,
+        reconnect: C,
+    ) -> LinkHandle
+    where
+        S: AsyncRead + AsyncWrite + Send + 'static,
+        C: FnMut() -> F + Send + 'static,
+        F: Future<Output = Result<S, HostError>> + Send + 'static,
+    {
+        LinkHandle::spawn(index, io, local, LinkState::Connected, move |io, state| {
+            run_client(io, state, first, reconnect)
+        })
+    }
+
     /// Starts `body` in a task that stops on [`close`](Self::close) or drop,
     /// and that marks the link closed when it stops.
     pub(crate) fn spawn<F>(

@@ -10,9 +10,7 @@
 //! somewhere in between) when a send fails; a peer that closes or resets
 //! the connection is noticed at once.
 
-use super::stream::{
-    check_bind, link_error, run_client, Accept, LinkHandle, LinkState, ListenAddr, Listener,
-};
+use super::stream::{check_bind, link_error, Accept, LinkHandle, ListenAddr, Listener};
 use super::LinkConfig;
 use crate::runtime::Host;
 use crate::HostError;
@@ -50,16 +48,14 @@ pub async fn connect(host: &Host, addr: &str) -> Result<LinkHandle, HostError> {
     let local = stream.local_addr().ok();
     let (index, io) = host.add_link(LinkConfig::new("tcp", addr)).await?;
     let addr = addr.to_string();
-    Ok(LinkHandle::spawn(
+    Ok(LinkHandle::spawn_client(
         index,
         io,
         local,
-        LinkState::Connected,
-        move |io, state| {
-            run_client(io, state, stream, move || {
-                let addr = addr.clone();
-                async move { dial(&addr).await }
-            })
+        stream,
+        move || {
+            let addr = addr.clone();
+            async move { dial(&addr).await }
         },
     ))
 }

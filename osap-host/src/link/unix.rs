@@ -5,7 +5,7 @@
 //! Unix sockets never leave the machine, so there is nothing to refuse; the
 //! socket file's permissions decide who may connect.
 
-use super::stream::{link_error, run_client, Accept, LinkHandle, LinkState, ListenAddr, Listener};
+use super::stream::{link_error, Accept, LinkHandle, ListenAddr, Listener};
 use super::LinkConfig;
 use crate::runtime::Host;
 use crate::HostError;
@@ -42,16 +42,14 @@ pub async fn connect(host: &Host, path: impl AsRef<Path>) -> Result<LinkHandle, 
     let stream = dial(&path).await?;
     let name = path.display().to_string();
     let (index, io) = host.add_link(LinkConfig::new("unix", &name)).await?;
-    Ok(LinkHandle::spawn(
+    Ok(LinkHandle::spawn_client(
         index,
         io,
         None,
-        LinkState::Connected,
-        move |io, state| {
-            run_client(io, state, stream, move || {
-                let path = path.clone();
-                async move { dial(&path).await }
-            })
+        stream,
+        move || {
+            let path = path.clone();
+            async move { dial(&path).await }
         },
     ))
 }
