@@ -779,13 +779,9 @@ impl<const LINKS: usize> Clock<LINKS> {
         let Some(n) = self.neighbours.get_mut(link).filter(|n| n.tier == tier) else {
             return;
         };
-        let Some((slope, stderr, bucket)) = n.envelope_slope(now) else {
+        let Some((slope, stderr)) = n.new_envelope_slope(now) else {
             return;
         };
-        if bucket == n.envelope_used {
-            return;
-        }
-        n.envelope_used = bucket;
         // Successive slopes share most of their buckets: count each as
         // worth a quarter of its stated precision.
         let var = 4.0 * stderr * stderr;

@@ -136,7 +136,7 @@ pub struct Neighbour {
     /// see [`Neighbour::envelope_slope`].
     envelope: [EnvelopeBucket; ENVELOPE_BUCKETS],
     /// The newest bucket whose slope the clock has already used.
-    pub envelope_used: u64,
+    envelope_used: u64,
 }
 
 /// One bucket of the one-way envelopes, over a [`ENVELOPE_BUCKET_US`] slice
@@ -420,9 +420,11 @@ impl Neighbour {
         }
     }
 
-    /// The neighbour's rate against our local counter (fraction), its
-    /// standard error, and the newest bucket it rests on, from the one-way
-    /// envelopes of the last few seconds.
+    /// The neighbour's rate against our local counter (fraction) and its
+    /// standard error, from the one-way envelopes of the last few seconds,
+    /// once per finished bucket: `None` when no bucket has finished since
+    /// the last call (so the fits run four times a second, not on every
+    /// reply), or below four finished buckets.
     ///
     /// `their time − our send stamp` is their time at our send plus the
     /// delay to them; its least value in a quarter second sits on the
@@ -432,20 +434,22 @@ impl Neighbour {
     /// they happen to catch a frame, one direction is prompt: this measures
     /// the rate long before the round-trip filter lets enough exchanges
     /// through to fit it. Of the two envelopes the less scattered counts.
-    /// Only finished buckets count; `None` below four of them.
-    pub fn envelope_slope(&self, now: Micros) -> Option<(f32, f32, u64)> {
+    pub fn new_envelope_slope(&mut self, now: Micros) -> Option<(f32, f32)> {
         let current = now / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
         let usable = |b: &&EnvelopeBucket| b.id != u64::MAX && b.id < current && b.id >= oldest;
-        let newest = self.envelope.iter().filter(usable).max_by_key(|b| b.id)?.id;
+        let newest = self.envelope.iter().filter(usable).map(|b| b.id).max()?;
+        if newest == self.envelope_used {
+            return None;
+        }
+        self.envelope_used = newest;
         let buckets = || self.envelope.iter().filter(usable);
         let ahead = line_fit(buckets().map(|b| (b.sent, b.ahead)));
         let behind = line_fit(buckets().map(|b| (b.received, b.behind)));
-        let best = match (ahead, behind) {
+        match (ahead, behind) {
             (Some(a), Some(b)) => Some(if a.1 <= b.1 { a } else { b }),
             (a, b) => a.or(b),
-        }?;
-        Some((best.0, best.1, newest))
+        }
     }
 
     /// Forgets everything (the link closed or changed peer).
