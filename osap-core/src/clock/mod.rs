@@ -767,7 +767,7 @@ impl<const LINKS: usize> Clock<LINKS> {
 
     /// While the rate is not yet known to a few ppm, takes a new rate
     /// measurement from the followed neighbour's one-way envelope
-    /// ([`Neighbour::envelope_slope`]), once per finished bucket, weighed
+    /// ([`Neighbour::new_envelope_slope`]), once per finished bucket, weighed
     /// against what is known; the slew under way goes on.
     fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) {
         if !self.synced || self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {

@@ -133,7 +133,7 @@ pub struct Neighbour {
     /// Round trips seen since the neighbour was (re)discovered.
     pub seen: u32,
     /// Lower envelope of `their time − our send stamp`, per time bucket:
-    /// see [`Neighbour::envelope_slope`].
+    /// see [`Neighbour::new_envelope_slope`].
     envelope: [EnvelopeBucket; ENVELOPE_BUCKETS],
     /// The newest bucket whose slope the clock has already used.
     envelope_used: u64,
