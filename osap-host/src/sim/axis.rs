@@ -415,11 +415,6 @@ impl SimAxis {
         self.amps > 0.0
     }
 
-    /// Control points held.
-    pub fn queued(&self) -> usize {
-        self.track.len()
-    }
-
     /// The endstop's last trigger (synchronized µs, 0: never) and count.
     pub fn endstop(&self) -> (u64, u32) {
         (self.last_hit, self.counters.endstop_hits)
