@@ -2,7 +2,7 @@
 
 use nalgebra::Vector2;
 
-use super::geometry::{circle_intersection, cross, side_of, Side};
+use super::geometry::{circle_intersection, side_of, Side};
 use super::{margin_sine, positive, KinError, Planar};
 
 /// How a [`FiveBar`] is assembled: which side each elbow and the tool sit on.
@@ -130,10 +130,11 @@ impl FiveBar {
     /// every element on its configured side.
     fn check(&self, el: Vector2<f64>, er: Vector2<f64>, p: Vector2<f64>) -> Result<(), KinError> {
         let (ml, mr) = self.motors();
-        // Sines of the angle at each elbow and at the tool.
-        let s_left = cross(el - ml, p - el) / (self.l1 * self.l2);
-        let s_right = cross(er - mr, p - er) / (self.l1 * self.l2);
-        let s_tool = cross(el - p, er - p) / (self.l2 * self.l2);
+        // Sines of the angle at each elbow and at the tool (`perp` is the z
+        // component of the 2D cross product).
+        let s_left = (el - ml).perp(&(p - el)) / (self.l1 * self.l2);
+        let s_right = (er - mr).perp(&(p - er)) / (self.l1 * self.l2);
+        let s_tool = (el - p).perp(&(er - p)) / (self.l2 * self.l2);
         if [s_left, s_right, s_tool]
             .iter()
             .any(|s| s.abs() <= self.sin_margin)

@@ -24,15 +24,10 @@ impl Side {
     }
 }
 
-/// The z component of the cross product `a × b`.
-pub fn cross(a: Vector2<f64>, b: Vector2<f64>) -> f64 {
-    a.x * b.y - a.y * b.x
-}
-
 /// The side of the directed line `from → to` that `p` lies on (`Left` when
 /// exactly on it; callers reject such points as singular first).
 pub fn side_of(from: Vector2<f64>, to: Vector2<f64>, p: Vector2<f64>) -> Side {
-    if cross(to - from, p - from) >= 0.0 {
+    if (to - from).perp(&(p - from)) >= 0.0 {
         Side::Left
     } else {
         Side::Right
