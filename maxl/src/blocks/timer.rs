@@ -156,8 +156,8 @@ impl Iterator for Stamps {
 pub struct Timer {
     iv: Interval,
     lead_us: u64,
-    /// The next stamp to emit; `None` before the first.
-    next: Option<u64>,
+    /// The last stamp emitted; `None` before the first (the next one to
+    /// emit is one interval after it, [`Timer::next`]).
     last: Option<u64>,
     stats: TimerStats,
 }
@@ -170,21 +170,22 @@ impl Timer {
         if lead_us < min_us {
             return Err(TimerError::LeadTooShort { lead_us, min_us });
         }
-        Ok(Timer {
-            iv: interval,
-            lead_us,
-            next: None,
-            last: None,
-            stats: TimerStats::default(),
-        })
+        Ok(Timer::unchecked(interval, lead_us))
     }
 
     /// A timer with the default lead of three intervals.
     pub fn with_default_lead(interval: Interval) -> Timer {
+        Timer::unchecked(
+            interval,
+            DEFAULT_LEAD_INTERVALS * u64::from(interval.micros()),
+        )
+    }
+
+    /// A timer whose lead is already known to be long enough.
+    fn unchecked(iv: Interval, lead_us: u64) -> Timer {
         Timer {
-            iv: interval,
-            lead_us: DEFAULT_LEAD_INTERVALS * u64::from(interval.micros()),
-            next: None,
+            iv,
+            lead_us,
             last: None,
             stats: TimerStats::default(),
         }
@@ -210,8 +211,17 @@ impl Timer {
     /// The newest stamp allowed at `now_us`: `now + lead` rounded down to
     /// the interval.
     pub fn horizon(&self, now_us: u64) -> u64 {
-        let mask = u64::from(self.iv.micros()) - 1;
-        now_us.saturating_add(self.lead_us) & !mask
+        now_us.saturating_add(self.lead_us) & !(self.step() - 1)
+    }
+
+    /// The interval, µs.
+    fn step(&self) -> u64 {
+        u64::from(self.iv.micros())
+    }
+
+    /// The next stamp to emit; `None` before the first.
+    fn next(&self) -> Option<u64> {
+        self.last.map(|l| l.saturating_add(self.step()))
     }
 
     /// The last stamp emitted.
@@ -227,10 +237,10 @@ impl Timer {
     /// How many stamps are due at `now_us`, without emitting them.
     pub fn pending(&self, now_us: u64) -> u64 {
         let h = self.horizon(now_us);
-        match self.next {
+        match self.next() {
             None => 1,
             Some(n) if n > h => 0,
-            Some(n) => (h - n) / u64::from(self.iv.micros()) + 1,
+            Some(n) => (h - n) / self.step() + 1,
         }
     }
 
@@ -239,8 +249,8 @@ impl Timer {
     /// `now_us` went backwards).
     pub fn due(&mut self, now_us: u64) -> Stamps {
         let n = self.pending(now_us);
-        let first = self.next.unwrap_or_else(|| self.horizon(now_us));
-        let step = u64::from(self.iv.micros());
+        let first = self.next().unwrap_or_else(|| self.horizon(now_us));
+        let step = self.step();
         let out = Stamps {
             next: first,
             step,
@@ -248,7 +258,7 @@ impl Timer {
         };
         if n > 0 {
             let last = first.saturating_add((n - 1).saturating_mul(step));
-            self.record(last, n);
+            self.record(last, n, n);
         }
         out
     }
@@ -260,31 +270,26 @@ impl Timer {
         if n == 0 {
             return None;
         }
-        let s = self.next.unwrap_or_else(|| self.horizon(now_us));
-        self.stats.max_burst = self.stats.max_burst.max(n);
-        if n > 1 && self.next.is_some() {
-            self.stats.catch_ups += 1;
-        }
-        self.stats.emitted += 1;
-        self.last = Some(s);
-        self.next = Some(s.saturating_add(u64::from(self.iv.micros())));
+        let s = self.next().unwrap_or_else(|| self.horizon(now_us));
+        self.record(s, 1, n);
         Some(s)
     }
 
     /// Forgets the emitted stamps: the next call starts again as the first.
     pub fn reset(&mut self) {
-        self.next = None;
         self.last = None;
     }
 
-    fn record(&mut self, last: u64, n: u64) {
-        self.stats.emitted += n;
-        self.stats.max_burst = self.stats.max_burst.max(n);
-        if n > 1 {
+    /// `emitted` stamps up to `last` went out at a call that found `due`
+    /// stamps due (more than one only after a first stamp: the first call
+    /// finds exactly one).
+    fn record(&mut self, last: u64, emitted: u64, due: u64) {
+        self.stats.emitted += emitted;
+        self.stats.max_burst = self.stats.max_burst.max(due);
+        if due > 1 {
             self.stats.catch_ups += 1;
         }
         self.last = Some(last);
-        self.next = Some(last.saturating_add(u64::from(self.iv.micros())));
     }
 }
 
