@@ -57,6 +57,9 @@ impl<V: Copy, const N: usize> Ring<V, N> {
     fn newest(&self) -> Option<u64> {
         (self.len > 0).then(|| self.get(self.len - 1).0)
     }
+    fn oldest(&self) -> Option<u64> {
+        (self.len > 0).then(|| self.get(0).0)
+    }
     fn push(&mut self, t: u64, v: V) -> Result<(), TimedPushError> {
         if self.len == N {
             return Err(TimedPushError::Full);
@@ -73,6 +76,13 @@ impl<V: Copy, const N: usize> Ring<V, N> {
         self.head = (self.head + 1) % N;
         self.len -= 1;
         Some(e)
+    }
+    /// The oldest entry, if it is stamped `<= now`.
+    fn pop_due(&mut self, now: u64) -> Option<(u64, V)> {
+        if self.oldest()? > now {
+            return None;
+        }
+        self.pop()
     }
 }
 
@@ -116,11 +126,9 @@ impl<V: Copy, const N: usize> LevelTrack<V, N> {
     /// earlier than a previous one changes nothing.
     pub fn advance(&mut self, now: u64) -> V {
         self.now = self.now.max(now);
-        while self.queue.len > 0 && self.queue.get(0).0 <= self.now {
-            if let Some((t, v)) = self.queue.pop() {
-                self.current = v;
-                self.since = Some(t);
-            }
+        while let Some((t, v)) = self.queue.pop_due(self.now) {
+            self.current = v;
+            self.since = Some(t);
         }
         self.current
     }
@@ -142,7 +150,7 @@ impl<V: Copy, const N: usize> LevelTrack<V, N> {
 
     /// Stamp of the next pending change (to arm a timer).
     pub fn next_change(&self) -> Option<u64> {
-        (self.queue.len > 0).then(|| self.queue.get(0).0)
+        self.queue.oldest()
     }
 
     /// Pending changes.
@@ -204,10 +212,7 @@ impl<E: Copy, const N: usize> EventTrack<E, N> {
     /// A `now` earlier than a previous one is treated as the previous one.
     pub fn poll(&mut self, now: u64) -> Option<Fired<E>> {
         self.now = self.now.max(now);
-        if self.queue.len == 0 || self.queue.get(0).0 > self.now {
-            return None;
-        }
-        let (time, event) = self.queue.pop()?;
+        let (time, event) = self.queue.pop_due(self.now)?;
         self.fired += 1;
         Some(Fired {
             time,
@@ -218,7 +223,7 @@ impl<E: Copy, const N: usize> EventTrack<E, N> {
 
     /// Stamp of the next pending event (to arm a timer).
     pub fn next_time(&self) -> Option<u64> {
-        (self.queue.len > 0).then(|| self.queue.get(0).0)
+        self.queue.oldest()
     }
 
     /// Pending events.
