@@ -27,11 +27,7 @@ impl<const N: usize> Arc<N> {
         if a >= N || b >= N || a == b {
             return Err(PlanError::InvalidArc("plane axes out of range or equal"));
         }
-        for (i, c) in self.end.iter().enumerate() {
-            if !c.is_finite() {
-                return Err(PlanError::NonFiniteCoordinate { axis: i });
-            }
-        }
+        super::check_finite(&self.end)?;
         if !self.center[0].is_finite() {
             return Err(PlanError::NonFiniteCoordinate { axis: a });
         }
