@@ -238,17 +238,7 @@ impl<const N: usize> Interpolator<N> {
     fn segment(&self, t: u64) -> Option<[[f64; N]; 4]> {
         let step = self.step();
         let seg = t & !(step - 1);
-        let first = seg.checked_sub(step)?;
-        let i = self.points.binary_search_by_key(&first, |&(s, _)| s).ok()?;
-        let mut out = [[0.0; N]; 4];
-        for (k, slot) in out.iter_mut().enumerate() {
-            let &(s, p) = self.points.get(i + k)?;
-            if s != first + k as u64 * step {
-                return None;
-            }
-            *slot = p;
-        }
-        Some(out)
+        super::four_points(&self.points, seg.checked_sub(step)?, step)
     }
 
     /// Position and velocity at `t` (µs), where the curve is known.

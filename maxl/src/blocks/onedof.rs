@@ -667,17 +667,8 @@ impl OneDof {
         if need > newest {
             return Err(OneDofError::NotYetEmitted { time, newest });
         }
-        let i = self
-            .history
-            .binary_search_by_key(&first, |&(t, _)| t)
-            .map_err(|_| OneDofError::HistoryGap(time))?;
-        let mut p = [0.0; 4];
-        for (k, slot) in p.iter_mut().enumerate() {
-            match self.history.get(i + k) {
-                Some(&(t, x)) if t == first + k as u64 * step => *slot = x,
-                _ => return Err(OneDofError::HistoryGap(time)),
-            }
-        }
+        let p =
+            super::four_points(&self.history, first, step).ok_or(OneDofError::HistoryGap(time))?;
         Ok(eval_f64(&p, (time - seg) as u32, iv).pos)
     }
 
