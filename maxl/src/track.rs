@@ -149,7 +149,12 @@ impl<P: Point, const N: usize> Track<P, N> {
 
     /// Stamp of the newest point.
     pub fn last_time(&self) -> Option<u64> {
-        (self.len > 0).then(|| (self.first + self.len as u64 - 1) << self.iv.shift())
+        (self.len > 0).then(|| self.last_idx() << self.iv.shift())
+    }
+
+    /// Knot index of the newest point (meaningful when `len > 0`).
+    fn last_idx(&self) -> u64 {
+        self.first + self.len as u64 - 1
     }
 
     /// The backstop's start time (µs) and duration (s) once it has latched.
@@ -195,7 +200,7 @@ impl<P: Point, const N: usize> Track<P, N> {
             self.append(value);
             return Ok(PushOutcome::Appended);
         }
-        let last = self.first + self.len as u64 - 1;
+        let last = self.last_idx();
         if idx <= last {
             return Err(PushError::Stale);
         }
@@ -220,24 +225,21 @@ impl<P: Point, const N: usize> Track<P, N> {
         if let Some(l) = &self.latched {
             return Ok(self.backstop_at(l, t));
         }
-        if self.len < 4 {
-            return Err(EvalError::NotStarted);
-        }
-        let shift = self.iv.shift();
-        let i = t >> shift;
-        let last = self.first + self.len as u64 - 1;
-        if i < self.first + 1 {
-            return Err(EvalError::TooEarly);
-        }
-        if i + 2 <= last {
-            let seg = self.segment(i);
-            let du = (t & (self.iv.micros() as u64 - 1)) as u32;
+        if let Some((seg, du)) = self.segment_at(t) {
             return Ok(Sample {
                 status: TrackStatus::Tracking,
                 kin: P::eval(&seg, du, self.iv),
             });
         }
+        if self.len < 4 {
+            return Err(EvalError::NotStarted);
+        }
+        let shift = self.iv.shift();
+        if t >> shift < self.first + 1 {
+            return Err(EvalError::TooEarly);
+        }
         // Ran dry: stop from the state at the end of the last known segment.
+        let last = self.last_idx();
         let seg = self.segment(last - 2);
         let edge = P::eval(&seg, self.iv.micros(), self.iv);
         let (v, a) = P::vel_acc_f32(&edge);
@@ -260,8 +262,7 @@ impl<P: Point, const N: usize> Track<P, N> {
             return None;
         }
         let i = t >> self.iv.shift();
-        let last = self.first + self.len as u64 - 1;
-        if i < self.first + 1 || i + 2 > last {
+        if i < self.first + 1 || i + 2 > self.last_idx() {
             return None;
         }
         let du = (t & (self.iv.micros() as u64 - 1)) as u32;
