@@ -2,7 +2,7 @@
 
 use nalgebra::{SVector, Vector3};
 
-use super::{finite, KinError, Kinematics};
+use super::{finite, finite_input, KinError, Kinematics};
 
 /// A Cartesian machine: joint i is `scale_i · p_i + offset_i` (for example
 /// steps per mm and a home offset), independently per axis.
@@ -46,10 +46,7 @@ impl Cartesian {
     }
 
     fn inverse_n<const N: usize>(&self, p: &SVector<f64, N>) -> Result<SVector<f64, N>, KinError> {
-        if !p.iter().all(|v| v.is_finite()) {
-            return Err(KinError::NonFinite);
-        }
-        let mut q = *p;
+        let mut q = finite_input(p)?;
         for (i, v) in q.iter_mut().enumerate() {
             *v = *v * self.scale[i] + self.offset[i];
         }
@@ -57,10 +54,7 @@ impl Cartesian {
     }
 
     fn forward_n<const N: usize>(&self, q: &SVector<f64, N>) -> Result<SVector<f64, N>, KinError> {
-        if !q.iter().all(|v| v.is_finite()) {
-            return Err(KinError::NonFinite);
-        }
-        let mut p = *q;
+        let mut p = finite_input(q)?;
         for (i, v) in p.iter_mut().enumerate() {
             *v = (*v - self.offset[i]) / self.scale[i];
         }

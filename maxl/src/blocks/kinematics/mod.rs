@@ -149,9 +149,7 @@ pub trait Kinematics<const N: usize> {
     /// check it against the SCARA's analytic Jacobian to 1e-6 relative).
     /// Fails where `forward` fails at `q` or at a neighbouring sample.
     fn jacobian(&self, q: &SVector<f64, N>) -> Result<SMatrix<f64, N, N>, KinError> {
-        if !q.iter().all(|v| v.is_finite()) {
-            return Err(KinError::NonFinite);
-        }
+        finite_input(q)?;
         self.forward(q)?;
         let mut j = SMatrix::<f64, N, N>::zeros();
         for i in 0..N {
@@ -174,9 +172,7 @@ pub trait Kinematics<const N: usize> {
         p: &SVector<f64, N>,
         v: &SVector<f64, N>,
     ) -> Result<SVector<f64, N>, KinError> {
-        if !v.iter().all(|x| x.is_finite()) {
-            return Err(KinError::NonFinite);
-        }
+        finite_input(v)?;
         let q = self.inverse(p)?;
         let j = self.jacobian(&q)?;
         let qd = j.try_inverse().ok_or(KinError::Singular)? * v;
@@ -197,11 +193,11 @@ pub trait Planar {
 
 impl<T: Planar> Kinematics<2> for T {
     fn inverse(&self, p: &SVector<f64, 2>) -> Result<SVector<f64, 2>, KinError> {
-        finite(self.inverse_xy(finite(*p).map_err(|_| KinError::NonFinite)?)?)
+        finite(self.inverse_xy(finite_input(p)?)?)
     }
 
     fn forward(&self, q: &SVector<f64, 2>) -> Result<SVector<f64, 2>, KinError> {
-        finite(self.forward_xy(finite(*q).map_err(|_| KinError::NonFinite)?)?)
+        finite(self.forward_xy(finite_input(q)?)?)
     }
 }
 
@@ -223,14 +219,20 @@ impl<T: Planar> Kinematics<3> for T {
     }
 }
 
-/// `v` if every element is finite, else [`KinError::Overflow`] (callers map
-/// it to [`KinError::NonFinite`] when checking inputs).
+/// `v` if every element is finite, else [`KinError::Overflow`]: the check
+/// on results.
 fn finite<const N: usize>(v: SVector<f64, N>) -> Result<SVector<f64, N>, KinError> {
     if v.iter().all(|x| x.is_finite()) {
         Ok(v)
     } else {
         Err(KinError::Overflow)
     }
+}
+
+/// `v` if every element is finite, else [`KinError::NonFinite`]: the check
+/// on inputs.
+fn finite_input<const N: usize>(v: &SVector<f64, N>) -> Result<SVector<f64, N>, KinError> {
+    finite(*v).map_err(|_| KinError::NonFinite)
 }
 
 /// Checks a length parameter: finite and strictly positive.
