@@ -198,11 +198,7 @@ impl<const N: usize> Planner<N> {
         if self.running.is_some() {
             return Err(PlanError::Busy);
         }
-        if let Some(last) = self.last_stamp {
-            if t < last {
-                return Err(PlanError::StampNotMonotonic { stamp: t, last });
-            }
-        }
+        self.check_stamp(t)?;
         self.epoch.get_or_insert(t);
         self.pending_start = Some(t);
         Ok(())
@@ -216,11 +212,7 @@ impl<const N: usize> Planner<N> {
 
     /// As [`Planner::sample`], with the planned velocity and acceleration.
     pub fn sample_kin(&mut self, t: u64) -> Result<Kin<N>, PlanError> {
-        if let Some(last) = self.last_stamp {
-            if t < last {
-                return Err(PlanError::StampNotMonotonic { stamp: t, last });
-            }
-        }
+        self.check_stamp(t)?;
         self.last_stamp = Some(t);
         let epoch = *self.epoch.get_or_insert(t);
         let ts = secs(t, epoch);
@@ -285,6 +277,14 @@ impl<const N: usize> Planner<N> {
             executed: self.executed,
             pending: self.queue.len() + self.running.is_some() as usize,
             idle: self.is_idle(),
+        }
+    }
+
+    /// Refuses a stamp before the last sampled one.
+    fn check_stamp(&self, t: u64) -> Result<(), PlanError> {
+        match self.last_stamp {
+            Some(last) if t < last => Err(PlanError::StampNotMonotonic { stamp: t, last }),
+            _ => Ok(()),
         }
     }
 
