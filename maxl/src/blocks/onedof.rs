@@ -283,6 +283,8 @@ struct Profile {
     p0: f64,
     v0: f64,
     phases: Vec<Phase>,
+    /// The phases' total duration, s.
+    total_s: f64,
     tail: Tail,
     end_us: u64,
 }
@@ -294,6 +296,7 @@ impl Profile {
             p0: p,
             v0: 0.0,
             phases: Vec::new(),
+            total_s: 0.0,
             tail: Tail::Rest(p),
             end_us: t0,
         }
@@ -307,6 +310,7 @@ impl Profile {
             p0: s.pos,
             v0: s.vel,
             phases,
+            total_s: total,
             tail: Tail::Rest(s.pos),
             // Rounded up, forgiving float noise below a nanosecond.
             end_us: s.stamp.saturating_add((total * 1e6 - 1e-3).ceil() as u64),
@@ -339,7 +343,7 @@ impl Profile {
             Tail::Rest(_) => self.integrate(t.saturating_sub(self.t0) as f64 * 1e-6),
             Tail::Cruise(v) => {
                 let dt = t.saturating_sub(self.t0) as f64 * 1e-6;
-                let total: f64 = self.phases.iter().map(|p| p.dur).sum();
+                let total = self.total_s;
                 if dt <= total {
                     self.integrate(dt)
                 } else {
