@@ -235,7 +235,7 @@ impl<P: Copy + Send + 'static> OptimizerBlock<P> {
             .store(stamp.saturating_add(1), Ordering::Relaxed);
         self.stats.samples += 1;
         self.request_up_to(stamp);
-        self.collect();
+        self.collect(stamp);
         while let Some(&(s, _)) = self.ready.front() {
             if s >= stamp {
                 break;
@@ -286,9 +286,9 @@ impl<P: Copy + Send + 'static> OptimizerBlock<P> {
         self.next_request = Some(next);
     }
 
-    /// Moves the solver's finished points into `ready`, in stamp order.
-    fn collect(&mut self) {
-        let now = self.last_stamp.unwrap_or(0);
+    /// Moves the solver's finished points for stamps from `now` on into
+    /// `ready`, in stamp order (older ones count as late).
+    fn collect(&mut self, now: u64) {
         loop {
             match self.results.try_recv() {
                 Ok((s, p)) if s >= now => {
