@@ -171,6 +171,11 @@ pub struct QueueFull(pub StepEvent);
 /// [`StepQueue::peek`]. Holds `N − 1` events. Misuse with two producers or
 /// two consumers cannot cause undefined behaviour, only lost or repeated
 /// events, so keep to one of each.
+///
+/// Why not `heapless::spsc::Queue`: it hands out its producer and consumer
+/// through `split(&mut self)`, so a queue shared by a `static` between the
+/// main loop and an interrupt needs `unsafe` or a cell to get them; this one
+/// works through `&self` on a plain `static`, and the crate forbids `unsafe`.
 pub struct StepQueue<const N: usize> {
     ticks: [AtomicU32; N],
     ups: [AtomicBool; N],
@@ -196,10 +201,22 @@ impl<const N: usize> StepQueue<N> {
         }
     }
 
+    /// The slot after `i`. A compare, not `% N`: on a Cortex-M0+ a modulo
+    /// by an `N` that is not a power of two is a library division, and the
+    /// consumer runs in the timer interrupt.
+    #[inline]
+    fn after(i: usize) -> usize {
+        if i + 1 >= N {
+            0
+        } else {
+            i + 1
+        }
+    }
+
     /// Append an event (producer side).
     pub fn push(&self, ev: StepEvent) -> Result<(), QueueFull> {
         let tail = self.tail.load(Ordering::Relaxed);
-        let next = (tail + 1) % N;
+        let next = Self::after(tail);
         if next == self.head.load(Ordering::Acquire) {
             return Err(QueueFull(ev));
         }
@@ -209,8 +226,8 @@ impl<const N: usize> StepQueue<N> {
         Ok(())
     }
 
-    /// The oldest event, without removing it (consumer side).
-    pub fn peek(&self) -> Option<StepEvent> {
+    /// The oldest event and the slot it is in, if any (consumer side).
+    fn front(&self) -> Option<(usize, StepEvent)> {
         let head = self.head.load(Ordering::Relaxed);
         if head == self.tail.load(Ordering::Acquire) {
             return None;
@@ -220,17 +237,19 @@ impl<const N: usize> StepQueue<N> {
         } else {
             Dir::Down
         };
-        Some(StepEvent {
-            tick: self.ticks[head].load(Ordering::Relaxed),
-            dir,
-        })
+        let tick = self.ticks[head].load(Ordering::Relaxed);
+        Some((head, StepEvent { tick, dir }))
+    }
+
+    /// The oldest event, without removing it (consumer side).
+    pub fn peek(&self) -> Option<StepEvent> {
+        self.front().map(|(_, ev)| ev)
     }
 
     /// Remove and return the oldest event (consumer side).
     pub fn pop(&self) -> Option<StepEvent> {
-        let ev = self.peek()?;
-        let head = self.head.load(Ordering::Relaxed);
-        self.head.store((head + 1) % N, Ordering::Release);
+        let (head, ev) = self.front()?;
+        self.head.store(Self::after(head), Ordering::Release);
         Some(ev)
     }
 
@@ -240,7 +259,11 @@ impl<const N: usize> StepQueue<N> {
             self.head.load(Ordering::Acquire),
             self.tail.load(Ordering::Acquire),
         );
-        (t + N - h) % N
+        if t >= h {
+            t - h
+        } else {
+            t + N - h
+        }
     }
 
     /// True when no event is held.
