@@ -248,3 +248,39 @@ fn pio_words() {
     assert_eq!(w, 0b11 | (0b10 << 2) | (0b01 << 4) | (0b11 << 30));
     assert_eq!(pk.pending(), 0);
 }
+
+#[test]
+fn queue_of_any_size_wraps_in_order() {
+    // 5 slots (4 events): not a power of two, so the wrap is the compare.
+    let q: StepQueue<5> = StepQueue::new();
+    let mut next_in = 0u32;
+    let mut next_out = 0u32;
+    for round in 0..50u32 {
+        // Fill to a varying depth, then drain part of it.
+        for _ in 0..(round % 4 + 1) {
+            let ev = StepEvent {
+                tick: next_in,
+                dir: if next_in % 3 == 0 { Dir::Up } else { Dir::Down },
+            };
+            if q.push(ev).is_ok() {
+                next_in += 1;
+            }
+        }
+        assert_eq!(q.len() as u32, next_in - next_out);
+        assert!(q.len() <= 4);
+        for _ in 0..(round % 3 + 1) {
+            if let Some(ev) = q.pop() {
+                assert_eq!(ev.tick, next_out);
+                assert_eq!(ev.dir == Dir::Up, next_out % 3 == 0);
+                next_out += 1;
+            }
+        }
+    }
+    while let Some(ev) = q.pop() {
+        assert_eq!(ev.tick, next_out);
+        next_out += 1;
+    }
+    assert_eq!(next_in, next_out);
+    assert!(next_in > 40, "only {next_in} events went through");
+    assert!(q.is_empty());
+}
