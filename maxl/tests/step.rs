@@ -260,7 +260,11 @@ fn queue_of_any_size_wraps_in_order() {
         for _ in 0..(round % 4 + 1) {
             let ev = StepEvent {
                 tick: next_in,
-                dir: if next_in % 3 == 0 { Dir::Up } else { Dir::Down },
+                dir: if next_in.is_multiple_of(3) {
+                    Dir::Up
+                } else {
+                    Dir::Down
+                },
             };
             if q.push(ev).is_ok() {
                 next_in += 1;
@@ -271,7 +275,7 @@ fn queue_of_any_size_wraps_in_order() {
         for _ in 0..(round % 3 + 1) {
             if let Some(ev) = q.pop() {
                 assert_eq!(ev.tick, next_out);
-                assert_eq!(ev.dir == Dir::Up, next_out % 3 == 0);
+                assert_eq!(ev.dir == Dir::Up, next_out.is_multiple_of(3));
                 next_out += 1;
             }
         }
