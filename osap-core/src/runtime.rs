@@ -218,6 +218,12 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         self.clock.system_time(local)
     }
 
+    /// A copy of the clock's local-to-system mapping, to hand to an
+    /// interrupt that stamps or schedules in system time.
+    pub fn time_map(&self) -> crate::clock::TimeMap {
+        self.clock.time_map()
+    }
+
     /// The clock.
     pub fn clock(&self) -> &Clock<LINKS> {
         &self.clock

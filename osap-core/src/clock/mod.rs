@@ -41,7 +41,10 @@
 //! root cannot make time run away. A new root (set by configuration) is
 //! followed as soon as its tier is heard.
 
+mod map;
 pub mod neighbour;
+
+pub use map::TimeMap;
 
 use crate::codec::{CodecError, Reader, Writer};
 use crate::Micros;
@@ -524,14 +527,20 @@ impl<const LINKS: usize> Clock<LINKS> {
 
     /// Signed system time at `local` as whole µs and a Q32 fraction.
     fn system_time_q32(&self, local: Micros) -> (i64, u32) {
-        let delta = local.wrapping_sub(self.base_local) as i64;
-        let slewed = delta.min(self.slew_len);
-        let adjust = i128::from(delta) * i128::from(self.rate_q32)
-            + i128::from(slewed) * i128::from(self.slew_q32)
-            + i128::from(self.base_frac);
-        let whole = i128::from(self.base_system) + i128::from(delta) + (adjust >> 32);
-        let whole = whole.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64;
-        (whole, adjust as u32)
+        self.time_map().system_time_q32(local)
+    }
+
+    /// A copy of the local-to-system mapping as it stands, for an
+    /// interrupt that needs system time without the runtime.
+    pub fn time_map(&self) -> TimeMap {
+        TimeMap {
+            base_local: self.base_local,
+            base_system: self.base_system,
+            base_frac: self.base_frac,
+            rate_q32: self.rate_q32,
+            slew_q32: self.slew_q32,
+            slew_len: self.slew_len,
+        }
     }
 
     /// Current rate correction against the local counter, ppb (the
@@ -986,6 +995,22 @@ mod tests {
             bad.validate(),
             Err(TimeConfigError::OutOfRange("dither_us"))
         );
+    }
+
+    #[test]
+    fn a_copied_map_reads_as_the_clock_does() {
+        let mut c: Clock<1> = Clock::new(TimeConfig::default());
+        assert_eq!(c.time_map(), TimeMap::IDENTITY);
+        c.set_rate_ppb(1_000_000, 73_000);
+        // A slew in progress as well, so both terms of the map are used.
+        c.slew_q32 = 1 << 22;
+        c.slew_len = 250_000;
+        let map = c.time_map();
+        for t in [
+            0, 999_999, 1_000_000, 1_100_000, 1_250_000, 1_250_001, 9_000_000,
+        ] {
+            assert_eq!(map.system_time(t), c.system_time(t), "at {t}");
+        }
     }
 
     #[test]

@@ -1,0 +1,236 @@
+//! The I/O module: digital pins, PWM outputs, analog inputs and timed
+//! pulses (a solenoid striking a xylophone bar), over [`IoHw`].
+//!
+//! Reads are stamped in synchronized time, so a script can line a sample
+//! up with motion. Pulses end from the runtime's loop ([`Io::poll`], woken
+//! at [`Io::wake_at`]), so their length is exact to the runtime's wake-up
+//! latency (tens of µs on a module), not to the cycle; a pulse can also be
+//! scheduled ahead at a synchronized time so a script can play several
+//! modules together.
+
+use crate::board::IoHw;
+use osap_core::Micros;
+
+/// Digital pins the logic can time pulses on (boards with more pins pulse
+/// only the first ones).
+pub const MAX_PULSE_PINS: usize = 32;
+/// Pulses that can wait for their start time at once.
+pub const SCHEDULED_PULSES: usize = 16;
+/// The longest pulse, µs (10 s): a solenoid held longer burns.
+pub const MAX_PULSE_US: u32 = 10_000_000;
+/// How far ahead a pulse may be scheduled, µs (60 s).
+pub const MAX_PULSE_LEAD_US: u64 = 60_000_000;
+
+/// Why an I/O call was refused: the failure code a caller sees.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum IoError {
+    /// No such pin, PWM output or analog input on this board.
+    NoSuchPin = 1,
+    /// A value out of range: a duty cycle outside `0..=1` or NaN, a pulse
+    /// longer than 10 s, or a start more than 60 s ahead.
+    BadValue = 2,
+    /// Every slot for scheduled pulses is taken.
+    Full = 3,
+    /// The I/O hardware was never installed (a firmware without it).
+    NoHardware = 4,
+}
+
+impl IoError {
+    /// The failure code.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+impl From<IoError> for pipes_core::function::CallError {
+    fn from(e: IoError) -> Self {
+        pipes_core::function::CallError::Failed(e.code())
+    }
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Scheduled {
+    start: u64,
+    pin: u8,
+    duration_us: u32,
+}
+
+/// The I/O logic's state (the hardware is passed in to each call).
+#[derive(Debug, Clone)]
+pub struct Io {
+    /// When each pin's running pulse ends, local µs.
+    ends: [Option<Micros>; MAX_PULSE_PINS],
+    /// Pulses waiting for their synchronized start time.
+    scheduled: [Option<Scheduled>; SCHEDULED_PULSES],
+    pulses: u32,
+}
+
+impl Default for Io {
+    fn default() -> Self {
+        Io::new()
+    }
+}
+
+fn check_pin(hw: &dyn IoHw, pin: u8) -> Result<(), IoError> {
+    if pin < hw.digital_pins() {
+        Ok(())
+    } else {
+        Err(IoError::NoSuchPin)
+    }
+}
+
+impl Io {
+    /// No pulses running or waiting.
+    pub const fn new() -> Self {
+        Io {
+            ends: [None; MAX_PULSE_PINS],
+            scheduled: [None; SCHEDULED_PULSES],
+            pulses: 0,
+        }
+    }
+
+    /// Drives `pin` high or low; a pulse running on it ends here.
+    pub fn digital_write(
+        &mut self,
+        hw: &mut dyn IoHw,
+        pin: u8,
+        level: bool,
+    ) -> Result<(), IoError> {
+        check_pin(hw, pin)?;
+        if let Some(end) = self.ends.get_mut(usize::from(pin)) {
+            *end = None;
+        }
+        hw.write_digital(pin, level);
+        Ok(())
+    }
+
+    /// Reads `pin`'s level.
+    pub fn digital_read(&mut self, hw: &mut dyn IoHw, pin: u8) -> Result<bool, IoError> {
+        check_pin(hw, pin)?;
+        Ok(hw.read_digital(pin))
+    }
+
+    /// Sets PWM output `channel` to `duty` (a fraction, `0..=1`).
+    pub fn pwm_write(&mut self, hw: &mut dyn IoHw, channel: u8, duty: f32) -> Result<(), IoError> {
+        if channel >= hw.pwm_outputs() {
+            return Err(IoError::NoSuchPin);
+        }
+        if !(0.0..=1.0).contains(&duty) {
+            return Err(IoError::BadValue);
+        }
+        hw.write_pwm(channel, (duty * 65_535.0 + 0.5) as u16);
+        Ok(())
+    }
+
+    /// Samples analog input `channel`, as a fraction of full scale.
+    pub fn analog_read(&mut self, hw: &mut dyn IoHw, channel: u8) -> Result<f32, IoError> {
+        if channel >= hw.analog_inputs() {
+            return Err(IoError::NoSuchPin);
+        }
+        Ok(f32::from(hw.read_analog(channel)) / 65_535.0)
+    }
+
+    /// Drives `pin` high now (local time `now`) and low `duration_us` later;
+    /// a pulse already running on the pin restarts.
+    pub fn pulse(
+        &mut self,
+        hw: &mut dyn IoHw,
+        now: Micros,
+        pin: u8,
+        duration_us: u32,
+    ) -> Result<(), IoError> {
+        check_pin(hw, pin)?;
+        if duration_us > MAX_PULSE_US {
+            return Err(IoError::BadValue);
+        }
+        let end = self
+            .ends
+            .get_mut(usize::from(pin))
+            .ok_or(IoError::NoSuchPin)?;
+        *end = Some(now + u64::from(duration_us));
+        hw.write_digital(pin, true);
+        self.pulses = self.pulses.wrapping_add(1);
+        Ok(())
+    }
+
+    /// Schedules a pulse on `pin` starting at synchronized time `start`
+    /// (`system_now` is the synchronized time now). A start already past
+    /// pulses at the next poll.
+    pub fn pulse_at(
+        &mut self,
+        hw: &dyn IoHw,
+        system_now: u64,
+        start: u64,
+        pin: u8,
+        duration_us: u32,
+    ) -> Result<(), IoError> {
+        check_pin(hw, pin)?;
+        if usize::from(pin) >= MAX_PULSE_PINS
+            || duration_us > MAX_PULSE_US
+            || start > system_now.saturating_add(MAX_PULSE_LEAD_US)
+        {
+            return Err(if usize::from(pin) >= MAX_PULSE_PINS {
+                IoError::NoSuchPin
+            } else {
+                IoError::BadValue
+            });
+        }
+        let slot = self
+            .scheduled
+            .iter_mut()
+            .find(|s| s.is_none())
+            .ok_or(IoError::Full)?;
+        *slot = Some(Scheduled {
+            start,
+            pin,
+            duration_us,
+        });
+        Ok(())
+    }
+
+    /// Starts scheduled pulses whose time has come and ends pulses whose
+    /// time is up, at local time `now` (synchronized `system_now`).
+    pub fn poll(&mut self, hw: &mut dyn IoHw, now: Micros, system_now: u64) {
+        for slot in self.scheduled.iter_mut() {
+            if let Some(s) = *slot {
+                if s.start <= system_now {
+                    *slot = None;
+                    // Start late by as much as the loop was late, but keep
+                    // the end where the schedule put it.
+                    let late = (system_now - s.start).min(u64::from(s.duration_us));
+                    let left = s.duration_us - late as u32;
+                    if let Some(end) = self.ends.get_mut(usize::from(s.pin)) {
+                        *end = Some(now + u64::from(left));
+                        hw.write_digital(s.pin, true);
+                        self.pulses = self.pulses.wrapping_add(1);
+                    }
+                }
+            }
+        }
+        for (pin, end) in self.ends.iter_mut().enumerate() {
+            if end.is_some_and(|e| e <= now) {
+                *end = None;
+                hw.write_digital(pin as u8, false);
+            }
+        }
+    }
+
+    /// When [`poll`](Self::poll) next has work, local µs, given the local
+    /// time `now` and synchronized `system_now` (to place scheduled starts
+    /// on the local clock).
+    pub fn wake_at(&self, now: Micros, system_now: u64) -> Option<Micros> {
+        let ends = self.ends.iter().flatten().copied();
+        let starts = self
+            .scheduled
+            .iter()
+            .flatten()
+            .map(|s| now + s.start.saturating_sub(system_now));
+        ends.chain(starts).min()
+    }
+
+    /// Pulses started since boot.
+    pub fn pulses(&self) -> u32 {
+        self.pulses
+    }
+}

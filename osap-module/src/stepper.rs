@@ -1,0 +1,509 @@
+//! The stepper axis: a MAXL track of control points in synchronized time,
+//! turned into step/direction ticks for the board's step generator.
+//!
+//! Points arrive over the network as `(time, position)` in user units and
+//! are queued in a [`maxl::Track`] of Q16.16 microsteps. The board's step
+//! interrupt asks for one word of [`TICKS_PER_WORD`] ticks at a time
+//! ([`Stepper::fill_word`]); each tick's position comes from a
+//! [`maxl::TickEval`] (three 64-bit adds per tick, no multiply, which an
+//! RP2040 core lacks) loaded once per segment, and a [`maxl::StepGen`]
+//! turns it into at most one step per tick without ever losing one.
+//!
+//! When points stop arriving mid-motion the track brakes on its own
+//! jerk-limited backstop; that is a fault until the motor is disabled and
+//! enabled again. A stream that ends on repeated points stops cleanly, and
+//! a new stream may then start where the axis stands.
+
+use maxl::{
+    BackstopLimits, Dir, EvalError, Fx, Interval, PioPacker, PushError, PushOutcome, Rounding,
+    StepGen, TickEval, Track, TrackStatus,
+};
+
+/// Step ticks per second: one tick every [`STEP_TICK_US`] µs (100 kHz).
+pub const STEP_TICK_US: u32 = 10;
+/// Ticks in one step-generator word (2 bits each, see
+/// [`maxl::PioPacker`]).
+pub const TICKS_PER_WORD: u32 = 16;
+/// Control points an axis queues: a stream sent up to 60 intervals ahead.
+pub const QUEUE: usize = 64;
+/// The farthest a new stream may start from where the axis stands, in
+/// microsteps.
+pub const START_TOLERANCE_STEPS: f64 = 1.0;
+/// The largest position magnitude in microsteps (the Q16.16 track's range).
+pub const MAX_STEPS: f64 = 32_767.0;
+
+/// Why a stepper call was refused: the failure code a caller sees
+/// (`CallError::Failed(code)`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum StepperError {
+    /// The time is not a multiple of the interval.
+    Misaligned = 1,
+    /// The time is not after the newest queued point.
+    Stale = 2,
+    /// Two or more points are missing before this one.
+    Gap = 3,
+    /// The stream ran dry mid-motion (or the axis was halted): disable and
+    /// enable the motor to clear it.
+    Faulted = 4,
+    /// The position is not finite or is beyond the track's range
+    /// (±32 767 microsteps).
+    OutOfRange = 5,
+    /// The motor is disabled.
+    Disabled = 6,
+    /// A new stream must start where the axis stands.
+    Discontinuous = 7,
+    /// The queue is full of points still to run: the stream is too far
+    /// ahead.
+    QueueFull = 8,
+    /// The setting can only change while no stream is queued.
+    Busy = 9,
+    /// The value is not allowed (an interval that is not a power of two
+    /// from 256 to 16 384 µs, a scale that is not finite and positive, a
+    /// microstep mode the board cannot set).
+    BadValue = 10,
+}
+
+impl StepperError {
+    /// The failure code.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+impl From<StepperError> for pipes_core::function::CallError {
+    fn from(e: StepperError) -> Self {
+        pipes_core::function::CallError::Failed(e.code())
+    }
+}
+
+/// What the axis is doing, as `get_status` reports it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum Mode {
+    /// Disabled: the driver is off and no steps are made.
+    Disabled = 0,
+    /// Enabled and standing: no stream, or before its first segment.
+    Idle = 1,
+    /// Following a stream of control points.
+    Tracking = 2,
+    /// The stream ran dry: braking within the stop limits, then at rest.
+    Backstop = 3,
+    /// Halted by `halt`: standing until the motor is cycled.
+    Halted = 4,
+}
+
+/// What happened to the points sent to an axis and to its ticks.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct StepperCounters {
+    /// Points accepted.
+    pub points: u32,
+    /// Single missing points filled from their neighbours.
+    pub filled: u32,
+    /// Points refused.
+    pub refused: u32,
+    /// The failure code of the latest refused point (0: none yet).
+    pub last_refused: u8,
+    /// Times the backstop latched with the axis still moving.
+    pub faults: u32,
+    /// Words filled for the step generator.
+    pub words: u32,
+}
+
+/// The stepper axis logic (no hardware: see [`crate::board::StepperHw`]).
+#[derive(Debug, Clone)]
+pub struct Stepper {
+    track: Track<Fx, QUEUE>,
+    tick: Option<TickEval>,
+    /// The system time of the tick `tick` yields next, when it is loaded.
+    tick_next: Option<u64>,
+    gen: StepGen,
+    packer: PioPacker,
+    enabled: bool,
+    halted: bool,
+    full_steps_per_unit: f32,
+    microsteps: u16,
+    stop_acc: f32,
+    stop_jerk: f32,
+    /// Where the axis stands when no stream moves it, microsteps.
+    rest: Fx,
+    /// System time of the latest tick filled.
+    last_tick: u64,
+    mode: Mode,
+    counters: StepperCounters,
+}
+
+impl Default for Stepper {
+    fn default() -> Self {
+        Stepper::new()
+    }
+}
+
+impl Stepper {
+    /// The default interval between control points, µs.
+    pub const DEFAULT_INTERVAL_US: u32 = 2048;
+
+    /// A disabled axis at position 0: 80 full steps per unit (a GT2 belt on a
+    /// 20-tooth pulley, in mm), no microstepping, 2048 µs intervals.
+    pub fn new() -> Self {
+        let iv = interval(Self::DEFAULT_INTERVAL_US);
+        let mut s = Stepper {
+            // Replaced at once by `rebuild_track`, from the settings below.
+            track: Track::new(iv, stop_limits(80.0, 2_000.0, 200_000.0)),
+            tick: tick_eval(iv),
+            tick_next: None,
+            gen: StepGen::new(Fx(0), Rounding::Nearest),
+            packer: PioPacker::new(),
+            enabled: false,
+            halted: false,
+            full_steps_per_unit: 80.0,
+            microsteps: 1,
+            stop_acc: 2_000.0,
+            stop_jerk: 200_000.0,
+            rest: Fx(0),
+            last_tick: 0,
+            mode: Mode::Disabled,
+            counters: StepperCounters::default(),
+        };
+        s.rebuild_track(iv);
+        s
+    }
+
+    /// Microsteps per user unit.
+    pub fn steps_per_unit(&self) -> f32 {
+        self.full_steps_per_unit * f32::from(self.microsteps)
+    }
+
+    fn steps(&self, units: f32) -> Option<Fx> {
+        let s = f64::from(units) * f64::from(self.steps_per_unit());
+        (s.is_finite() && s.abs() <= MAX_STEPS).then(|| Fx::from_f64(s))
+    }
+
+    fn units(&self, steps: f64) -> f32 {
+        (steps / f64::from(self.steps_per_unit())) as f32
+    }
+
+    fn rebuild_track(&mut self, iv: Interval) {
+        let limits = stop_limits(self.steps_per_unit(), self.stop_acc, self.stop_jerk);
+        self.track = Track::new(iv, limits);
+        self.tick = tick_eval(iv);
+        self.tick_next = None;
+    }
+
+    /// Whether no stream is queued or running (settings may change).
+    fn idle(&self) -> bool {
+        self.track.is_empty() || (self.track.backstop().is_some() && self.settled())
+    }
+
+    /// Queues the control point stamped `time` (synchronized µs) at
+    /// `position` (user units).
+    pub fn add_point(&mut self, time: u64, position: f32) -> Result<(), StepperError> {
+        let result = self.push(time, position);
+        match result {
+            Ok(()) => self.counters.points = self.counters.points.wrapping_add(1),
+            Err(e) => {
+                self.counters.refused = self.counters.refused.wrapping_add(1);
+                self.counters.last_refused = e.code();
+            }
+        }
+        result
+    }
+
+    fn push(&mut self, time: u64, position: f32) -> Result<(), StepperError> {
+        if !self.enabled {
+            return Err(StepperError::Disabled);
+        }
+        if self.halted {
+            return Err(StepperError::Faulted);
+        }
+        let p = self.steps(position).ok_or(StepperError::OutOfRange)?;
+        if self.track.backstop().is_some() {
+            // A stream that ended at rest leaves the axis there and a new one
+            // may start; one cut off mid-motion is a fault until the motor
+            // is cycled.
+            if self.stopped_cleanly() && self.settled() {
+                self.rest = self.position_at(self.last_tick);
+                self.clear_track();
+            } else {
+                return Err(StepperError::Faulted);
+            }
+        }
+        if self.track.is_empty() {
+            let away = (p.to_f64() - self.rest.to_f64()).abs();
+            if away > START_TOLERANCE_STEPS {
+                return Err(StepperError::Discontinuous);
+            }
+        }
+        if self.track.len() == QUEUE {
+            // The track would drop its oldest point: only if it has run.
+            let shift = self.track.interval().shift();
+            let newest = self.track.last_time().unwrap_or(0) >> shift;
+            let oldest = newest + 1 - QUEUE as u64;
+            if oldest + 1 >= self.last_tick >> shift {
+                return Err(StepperError::QueueFull);
+            }
+        }
+        match self.track.push(time, p) {
+            Ok(PushOutcome::Appended) => Ok(()),
+            Ok(PushOutcome::FilledGap) => {
+                self.counters.filled = self.counters.filled.wrapping_add(1);
+                Ok(())
+            }
+            Err(PushError::Misaligned) => Err(StepperError::Misaligned),
+            Err(PushError::Stale) => Err(StepperError::Stale),
+            Err(PushError::Gap { .. }) => Err(StepperError::Gap),
+            Err(PushError::Backstopped) => Err(StepperError::Faulted),
+        }
+    }
+
+    fn clear_track(&mut self) {
+        self.track.clear();
+        self.tick_next = None;
+    }
+
+    /// Whether a latched stop has ended with the axis at rest.
+    fn settled(&self) -> bool {
+        match self.track.backstop() {
+            Some((start, duration)) => {
+                let end = start + (f64::from(duration) * 1e6) as u64 + 1;
+                self.last_tick >= end
+            }
+            None => false,
+        }
+    }
+
+    /// Whether the latched stop started from rest (the stream ended on
+    /// repeated points), as opposed to a stream cut off mid-motion.
+    fn stopped_cleanly(&self) -> bool {
+        self.track
+            .backstop()
+            .is_some_and(|(_, duration)| duration <= 1e-6)
+    }
+
+    /// The position (microsteps) the track gives at synchronized `t`.
+    fn position_at(&mut self, t: u64) -> Fx {
+        if let Some(tick) = self.tick.as_mut() {
+            if self.tick_next == Some(t) {
+                if let Some(p) = tick.next() {
+                    self.tick_next = Some(t + u64::from(STEP_TICK_US));
+                    return p;
+                }
+            }
+            if let Some((seg, du)) = self.track.segment_at(t) {
+                if tick.load(&seg, du).is_ok() {
+                    if let Some(p) = tick.next() {
+                        self.tick_next = Some(t + u64::from(STEP_TICK_US));
+                        self.mode = Mode::Tracking;
+                        return p;
+                    }
+                }
+            }
+        }
+        self.tick_next = None;
+        match self.track.sample(t) {
+            Ok(s) => {
+                if s.status == TrackStatus::Backstop && self.mode != Mode::Backstop {
+                    self.mode = Mode::Backstop;
+                    if !self.stopped_cleanly() {
+                        self.counters.faults = self.counters.faults.wrapping_add(1);
+                    }
+                }
+                s.kin.pos
+            }
+            Err(EvalError::NotStarted | EvalError::TooEarly) => self.rest,
+        }
+    }
+
+    /// The next step-generator word: [`TICKS_PER_WORD`] ticks, the first at
+    /// synchronized time `t0`, [`STEP_TICK_US`] apart, packed as
+    /// [`maxl::PioPacker`] packs them. A disabled or halted axis makes no
+    /// steps.
+    pub fn fill_word(&mut self, t0: u64) -> u32 {
+        self.counters.words = self.counters.words.wrapping_add(1);
+        let mut word = 0;
+        for k in 0..TICKS_PER_WORD {
+            let t = t0 + u64::from(k * STEP_TICK_US);
+            let step = if self.enabled && !self.halted {
+                let p = self.position_at(t);
+                self.gen.tick(p)
+            } else {
+                None
+            };
+            self.last_tick = t;
+            if let Some(w) = self.packer.push(step) {
+                word = w;
+            }
+        }
+        if self.enabled && !self.halted && self.track.is_empty() {
+            self.mode = Mode::Idle;
+        }
+        word
+    }
+
+    /// Powers the motor (`true`) or lets it go limp. Powering down drops
+    /// the stream and stops where the axis stands; powering up clears a
+    /// fault or a halt.
+    pub fn set_enable(&mut self, on: bool) {
+        if !on || !self.enabled {
+            self.stand_still();
+        }
+        self.enabled = on;
+        self.halted = false;
+        self.mode = if on { Mode::Idle } else { Mode::Disabled };
+    }
+
+    /// Stops stepping at once and drops the stream: an emergency stop, not
+    /// a planned one (a motor at speed may lose steps). The axis refuses
+    /// points until the motor is disabled and enabled again.
+    pub fn halt(&mut self) {
+        self.stand_still();
+        self.halted = true;
+        self.mode = Mode::Halted;
+    }
+
+    /// Drops the stream; the axis stands where its steps put it.
+    fn stand_still(&mut self) {
+        self.clear_track();
+        // Where the motor truly is: the steps sent, not the track's target.
+        self.rest = Fx((self.gen.position() as i32).saturating_mul(65_536));
+        self.gen = StepGen::new(self.rest, Rounding::Nearest);
+    }
+
+    /// Sets the control-point interval (a power of two from 256 to
+    /// 16 384 µs) while no stream is queued.
+    pub fn set_interval(&mut self, interval_us: u32) -> Result<(), StepperError> {
+        let iv = Interval::from_micros(interval_us).map_err(|_| StepperError::BadValue)?;
+        if !self.idle() {
+            return Err(StepperError::Busy);
+        }
+        self.rebuild_track(iv);
+        Ok(())
+    }
+
+    /// The control-point interval, µs.
+    pub fn interval_us(&self) -> u32 {
+        self.track.interval().micros()
+    }
+
+    /// Sets the full steps per user unit while no stream is queued (the
+    /// axis keeps its place in user units).
+    pub fn set_scale(&mut self, full_steps_per_unit: f32) -> Result<(), StepperError> {
+        if !(full_steps_per_unit.is_finite() && full_steps_per_unit > 0.0) {
+            return Err(StepperError::BadValue);
+        }
+        self.rescale(full_steps_per_unit, self.microsteps)
+    }
+
+    /// Sets the microstep mode (the board's driver must offer it; `hw_ok`
+    /// says whether it did) while no stream is queued.
+    pub fn set_microsteps(&mut self, microsteps: u16) -> Result<(), StepperError> {
+        if microsteps == 0 || !microsteps.is_power_of_two() || microsteps > 256 {
+            return Err(StepperError::BadValue);
+        }
+        self.rescale(self.full_steps_per_unit, microsteps)
+    }
+
+    /// Whether `set_microsteps(microsteps)` would be accepted by the logic
+    /// (the board is asked only then).
+    pub fn can_set(&self) -> Result<(), StepperError> {
+        if self.idle() {
+            Ok(())
+        } else {
+            Err(StepperError::Busy)
+        }
+    }
+
+    fn rescale(&mut self, full: f32, microsteps: u16) -> Result<(), StepperError> {
+        self.can_set()?;
+        let here = self.position_units();
+        let new_k = f64::from(full) * f64::from(microsteps);
+        let steps = f64::from(here) * new_k;
+        if !steps.is_finite() || steps.abs() > MAX_STEPS {
+            return Err(StepperError::OutOfRange);
+        }
+        self.full_steps_per_unit = full;
+        self.microsteps = microsteps;
+        self.rest = Fx::from_f64(steps);
+        self.gen = StepGen::new(self.rest, Rounding::Nearest);
+        let iv = self.track.interval();
+        self.rebuild_track(iv);
+        Ok(())
+    }
+
+    /// The microstep mode.
+    pub fn microsteps(&self) -> u16 {
+        self.microsteps
+    }
+
+    /// The position the steps sent so far put the motor at, user units, and
+    /// the synchronized time of the latest tick they include.
+    pub fn position(&self) -> (u64, f32) {
+        (self.last_tick, self.position_units())
+    }
+
+    fn position_units(&self) -> f32 {
+        self.units(self.gen.position() as f64)
+    }
+
+    /// Net microsteps sent since boot (up minus down), steps up, steps down
+    /// and overrun ticks (ticks that owed more than one step; the steps
+    /// still went out later).
+    pub fn step_counts(&self) -> (i64, u64, u64, u64) {
+        let s = self.gen.stats();
+        (self.gen.position(), s.up, s.down, s.overruns)
+    }
+
+    /// What the axis is doing.
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Whether the motor is powered.
+    pub fn enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// Points queued.
+    pub fn queued(&self) -> u16 {
+        self.track.len() as u16
+    }
+
+    /// The counters.
+    pub fn counters(&self) -> StepperCounters {
+        self.counters
+    }
+
+    /// The direction the step generator last stepped.
+    pub fn last_dir(&self) -> Option<Dir> {
+        let s = self.gen.stats();
+        match (s.up, s.down) {
+            (0, 0) => None,
+            _ if self.gen.target() >= self.gen.position() => Some(Dir::Up),
+            _ => Some(Dir::Down),
+        }
+    }
+}
+
+/// The backstop's limits in microsteps, from units/s² and units/s³.
+fn stop_limits(steps_per_unit: f32, acc: f32, jerk: f32) -> BackstopLimits {
+    BackstopLimits {
+        max_acc: acc * steps_per_unit,
+        max_jerk: jerk * steps_per_unit,
+    }
+}
+
+fn interval(us: u32) -> Interval {
+    Interval::from_micros(us).unwrap_or(MIN_IV)
+}
+
+const MIN_IV: Interval = match Interval::from_micros(256) {
+    Ok(iv) => iv,
+    Err(_) => panic!("256 µs is a valid interval"),
+};
+
+/// The per-tick evaluator for `iv`. Every interval from 256 to 16 384 µs
+/// holds at most 1 639 ticks of 10 µs, within its limit, so this is always
+/// `Some`; without one every tick would take the track's slower path.
+fn tick_eval(iv: Interval) -> Option<TickEval> {
+    TickEval::new(iv, STEP_TICK_US).ok()
+}
