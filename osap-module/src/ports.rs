@@ -147,4 +147,10 @@ impl ModulePorts {
     pub fn ports(&mut self) -> &mut [ModulePort] {
         &mut self.ports
     }
+
+    /// The ports, each on its own (for a runtime that holds ports one by
+    /// one, such as a host's).
+    pub fn into_ports(self) -> [ModulePort; PORT_COUNT] {
+        self.ports
+    }
 }
