@@ -1,0 +1,188 @@
+//! `uf2-link`: the linker of firmware-rp2040.
+//!
+//! Cargo has no post-build step, so the firmware's `.cargo/config.toml`
+//! names this wrapper (through `link.sh`, which builds it on demand) as the
+//! linker, as flip-link does. It
+//! 1. runs the real linker, `rust-lld -flavor gnu`, with rustc's arguments;
+//! 2. writes the linked ELF's loadable segments as `<elf>.uf2` next to it,
+//!    for drag-and-drop flashing onto a Pico in BOOTSEL mode;
+//! 3. prints the firmware's flash and RAM use on stderr, which rustc shows
+//!    as a `linker stderr` warning because the firmware's rustflags turn on
+//!    the `linker-messages` lint.
+
+mod report;
+mod uf2;
+
+use std::ffi::OsString;
+use std::path::{Path, PathBuf};
+use std::process::{Command, ExitCode};
+
+fn main() -> ExitCode {
+    let args: Vec<OsString> = std::env::args_os().skip(1).collect();
+    match run(&args) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("uf2-link: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(args: &[OsString]) -> Result<(), Box<dyn std::error::Error>> {
+    // rustc may or may not lead with the flavor; we always pass our own.
+    let args = match args {
+        [flag, flavor, rest @ ..] if flag == "-flavor" => {
+            let _ = flavor;
+            rest
+        }
+        _ => args,
+    };
+    let status = Command::new(lld())
+        .arg("-flavor")
+        .arg("gnu")
+        .args(args)
+        .status()
+        .map_err(|e| format!("cannot run rust-lld: {e}"))?;
+    if !status.success() {
+        return Err(format!("rust-lld failed ({status})").into());
+    }
+    let Some(elf) = output_path(args) else {
+        return Err("no -o <output> among the linker arguments".into());
+    };
+    let data = std::fs::read(&elf)?;
+
+    let mut image = uf2::FlashImage::new();
+    for (addr, bytes) in report::load_segments(&data)? {
+        image.add(addr, &bytes)?;
+    }
+    let uf2_path = uf2_path(&elf, std::env::var_os("CARGO_BIN_NAME"));
+    std::fs::write(&uf2_path, image.to_uf2(uf2::RP2040_FAMILY_ID))?;
+
+    let usage = report::usage(&data)?;
+    eprintln!(
+        "{}: {}; {} ({} blocks)",
+        file_name(&elf),
+        usage.render(),
+        uf2_path.display(),
+        image.page_count()
+    );
+    Ok(())
+}
+
+/// rust-lld: rustc puts its sysroot's tool directory on the linker's PATH;
+/// if that ever changes, ask rustc where the sysroot is.
+fn lld() -> PathBuf {
+    let on_path = std::env::var_os("PATH")
+        .into_iter()
+        .flat_map(|p| std::env::split_paths(&p).collect::<Vec<_>>())
+        .map(|d| d.join("rust-lld"))
+        .find(|p| p.is_file());
+    if let Some(p) = on_path {
+        return p;
+    }
+    let sysroot = Command::new(std::env::var_os("RUSTC").unwrap_or_else(|| "rustc".into()))
+        .args(["--print", "sysroot"])
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .map(|s| PathBuf::from(s.trim()));
+    let host = Command::new("rustc")
+        .arg("-vV")
+        .output()
+        .ok()
+        .and_then(|o| String::from_utf8(o.stdout).ok())
+        .and_then(|s| {
+            s.lines()
+                .find_map(|l| l.strip_prefix("host: ").map(str::to_string))
+        });
+    match (sysroot, host) {
+        (Some(root), Some(host)) => root.join("lib/rustlib").join(host).join("bin/rust-lld"),
+        _ => PathBuf::from("rust-lld"),
+    }
+}
+
+/// Where the UF2 goes: next to the ELF, `<elf>.uf2`. Cargo links a binary
+/// as `<profile>/deps/<crate>-<hash>` and then copies it to
+/// `<profile>/<bin name>`, so for a link inside `deps/` the UF2 is written
+/// next to that final copy instead (cargo tells rustc, and so us, the bin
+/// name in `CARGO_BIN_NAME`).
+fn uf2_path(elf: &Path, bin_name: Option<OsString>) -> PathBuf {
+    let parent = elf.parent().unwrap_or(Path::new("."));
+    match (bin_name, parent.file_name()) {
+        (Some(bin), Some(dir)) if dir == "deps" => {
+            let mut name = bin;
+            name.push(".uf2");
+            parent.parent().unwrap_or(Path::new(".")).join(name)
+        }
+        _ => {
+            let mut p = elf.as_os_str().to_owned();
+            p.push(".uf2");
+            PathBuf::from(p)
+        }
+    }
+}
+
+/// The value of `-o` (as `-o path` or `-opath`).
+fn output_path(args: &[OsString]) -> Option<PathBuf> {
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        if a == "-o" {
+            return it.next().map(PathBuf::from);
+        }
+        if let Some(p) = a.to_str().and_then(|s| s.strip_prefix("-o")) {
+            if !p.is_empty() && !p.starts_with('-') {
+                return Some(PathBuf::from(p));
+            }
+        }
+    }
+    None
+}
+
+fn file_name(p: &Path) -> String {
+    p.file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{output_path, uf2_path};
+    use std::ffi::OsString;
+    use std::path::PathBuf;
+
+    fn args(a: &[&str]) -> Vec<OsString> {
+        a.iter().map(OsString::from).collect()
+    }
+
+    #[test]
+    fn finds_output() {
+        assert_eq!(
+            output_path(&args(&["x.o", "-o", "/t/fw", "--gc-sections"])),
+            Some(PathBuf::from("/t/fw"))
+        );
+        assert_eq!(
+            output_path(&args(&["-o/t/fw"])),
+            Some(PathBuf::from("/t/fw"))
+        );
+        assert_eq!(output_path(&args(&["-Tlink.x"])), None);
+    }
+
+    #[test]
+    fn uf2_lands_next_to_cargos_copy() {
+        assert_eq!(
+            uf2_path(
+                "/t/release/deps/firmware_rp2040-0123abcd".as_ref(),
+                Some("firmware-rp2040".into())
+            ),
+            PathBuf::from("/t/release/firmware-rp2040.uf2")
+        );
+        assert_eq!(
+            uf2_path("/t/out/fw.elf".as_ref(), Some("fw".into())),
+            PathBuf::from("/t/out/fw.elf.uf2")
+        );
+        assert_eq!(
+            uf2_path("/t/release/deps/fw-1".as_ref(), None),
+            PathBuf::from("/t/release/deps/fw-1.uf2")
+        );
+    }
+}
