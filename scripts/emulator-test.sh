@@ -1,0 +1,21 @@
+#!/usr/bin/env bash
+# End-to-end test of the RP2040 firmware on an emulated RP2040: builds the
+# release firmware (ELF + UF2), installs the emulator bridge's pinned node
+# packages, and runs the Rust test that scans, renames, calls, syncs and
+# drives the emulated module (tests/tests/emulator.rs).
+#
+# Needs node (20 or later) and npm. Usage: scripts/emulator-test.sh
+set -euo pipefail
+
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+command -v node >/dev/null || { echo "error: node is needed (the emulator is rp2040js)" >&2; exit 1; }
+
+echo "-- firmware (release)"
+(cd "$root/firmware-rp2040" && cargo build --release)
+
+echo "-- emulator bridge packages"
+(cd "$root/firmware-rp2040/emulator" && npm ci --silent --no-audit --no-fund)
+
+echo "-- end-to-end test"
+cd "$root"
+cargo test -p osap-tests --test emulator -- --ignored --nocapture

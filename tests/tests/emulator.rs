@@ -1,0 +1,301 @@
+//! End to end on an emulated RP2040: the release firmware a user flashes,
+//! booted in rp2040js by the project's bridge (`firmware-rp2040/emulator`),
+//! its USB CDC link bridged to a TCP socket and joined to a host runtime.
+//!
+//! The test scans the module (it appears with its functions), renames it
+//! (the name survives an emulated reset, through the emulated flash),
+//! calls its functions by RPC and times the round trip, waits for its
+//! clock to follow the host's and checks the error, and streams spline
+//! points whose step pulses, counted on the emulated step and direction
+//! pins, must match the trajectory.
+//!
+//! It needs the release firmware and node with the bridge's packages, so it
+//! is ignored by a plain `cargo test`; `scripts/emulator-test.sh` builds
+//! both and runs it (CI does).
+
+use osap_core::clock::SyncState;
+use osap_core::route::Route;
+use osap_host::link::stream::LinkHandle;
+use osap_host::link::tcp;
+use osap_host::netrunner::{Netrunner, SyncGoal};
+use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::{Host, HostConfig};
+use osap_module::functions::SIGNATURES;
+use serde_json::{json, Value};
+use std::path::{Path, PathBuf};
+use std::process::Stdio;
+use std::time::{Duration, Instant};
+use tokio::io::{AsyncBufReadExt, AsyncWriteExt, BufReader};
+use tokio::net::TcpStream;
+use tokio::process::{Child, Command};
+
+/// The firmware's step and direction pins (see firmware-rp2040/README.md).
+const STEP_PIN: u8 = 2;
+const DIR_PIN: u8 = 3;
+/// Full steps per unit the firmware starts with (osap-module's default).
+const STEPS_PER_UNIT: f64 = 80.0;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+fn firmware_elf() -> PathBuf {
+    std::env::var_os("OSAP_RP2040_ELF")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            repo().join("firmware-rp2040/target/thumbv6m-none-eabi/release/firmware-rp2040")
+        })
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .and_then(|l| l.local_addr())
+        .map(|a| a.port())
+        .expect("a free loopback port")
+}
+
+/// The bridge process and its sockets; killed when dropped.
+struct Emulator {
+    _child: Child,
+    usb: u16,
+    control: u16,
+}
+
+impl Emulator {
+    async fn start(flash: &Path) -> Emulator {
+        let elf = firmware_elf();
+        assert!(
+            elf.exists(),
+            "no firmware at {} (build it: cd firmware-rp2040 && cargo build --release)",
+            elf.display()
+        );
+        let bridge = repo().join("firmware-rp2040/emulator/bridge.mjs");
+        let (usb, control) = (free_port(), free_port());
+        let child = Command::new("node")
+            .arg(&bridge)
+            .arg("--elf")
+            .arg(&elf)
+            .args(["--usb", &usb.to_string()])
+            .args(["--control", &control.to_string()])
+            .arg("--realtime")
+            .arg("--flash-image")
+            .arg(flash)
+            .stdin(Stdio::null())
+            .kill_on_drop(true)
+            .spawn()
+            .expect("node runs the bridge (is node installed?)");
+        let emu = Emulator {
+            _child: child,
+            usb,
+            control,
+        };
+        // The bridge listens once it has loaded the firmware.
+        let deadline = Instant::now() + Duration::from_secs(20);
+        while TcpStream::connect(("127.0.0.1", control)).await.is_err() {
+            assert!(Instant::now() < deadline, "the bridge never listened");
+            tokio::time::sleep(Duration::from_millis(50)).await;
+        }
+        emu
+    }
+
+    /// One command on the control channel, its JSON answer.
+    async fn control(&self, cmd: Value) -> Value {
+        let mut s = TcpStream::connect(("127.0.0.1", self.control))
+            .await
+            .expect("control channel");
+        s.write_all(format!("{cmd}\n").as_bytes()).await.unwrap();
+        let mut line = String::new();
+        BufReader::new(s).read_line(&mut line).await.unwrap();
+        serde_json::from_str(&line).unwrap_or_else(|e| panic!("bad answer {line:?}: {e}"))
+    }
+}
+
+/// Joins the emulated module's USB link to `host` (retrying while the
+/// firmware enumerates).
+async fn join(host: &Host, emu: &Emulator) -> LinkHandle {
+    let addr = format!("127.0.0.1:{}", emu.usb);
+    let deadline = Instant::now() + Duration::from_secs(20);
+    loop {
+        match tcp::connect(host, &addr).await {
+            Ok(link) => return link,
+            Err(e) => {
+                assert!(Instant::now() < deadline, "USB link never came up: {e}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+        }
+    }
+}
+
+/// The module's name: the runtime on the other end of `route`, retried
+/// while the firmware boots.
+async fn module_name(nr: &Netrunner, route: &Route) -> String {
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        match nr.name(route).await {
+            Ok(name) => return name,
+            Err(e) => {
+                assert!(Instant::now() < deadline, "the module never answered: {e}");
+                tokio::time::sleep(Duration::from_millis(100)).await;
+            }
+        }
+    }
+}
+
+fn pct(sorted: &[Duration], p: f64) -> Duration {
+    sorted[((sorted.len() - 1) as f64 * p).round() as usize]
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs the release firmware and node: scripts/emulator-test.sh runs it"]
+async fn the_firmware_runs_on_an_emulated_rp2040() {
+    let dir = std::env::temp_dir().join(format!("osap-emulator-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let flash = dir.join("flash.bin");
+    let _ = std::fs::remove_file(&flash);
+    let emu = Emulator::start(&flash).await;
+    let host = Host::start(HostConfig::named("script")).unwrap();
+    let link = join(&host, &emu).await;
+    let route = Route::through_links(&[link.index()]).unwrap();
+    let nr = Netrunner::new(&host).await.unwrap();
+
+    // 1. It answers a scan, with every function of the module set.
+    let name = module_name(&nr, &route).await;
+    println!("module found: {name:?}");
+    let mut m = Manager::new(&host).await.unwrap();
+    let report = m.refresh().await.unwrap();
+    assert!(
+        report.function_failures.is_empty(),
+        "{:?}",
+        report.function_failures
+    );
+    let rt = m
+        .som()
+        .runtimes
+        .iter()
+        .find(|r| r.record.name == name)
+        .expect("the module is in the model");
+    for sig in SIGNATURES {
+        assert!(
+            rt.functions.iter().any(|f| f.name == sig.name),
+            "{} missing from the scan",
+            sig.name
+        );
+    }
+
+    // 2. RPC round trips.
+    let f = |fname: &str| m.function(&FnRef::new(&name, fname)).unwrap();
+    let mut rtts = Vec::new();
+    for _ in 0..40 {
+        let t = Instant::now();
+        f("get_status").call(&[]).await.unwrap();
+        rtts.push(t.elapsed());
+    }
+    rtts.sort();
+    println!(
+        "RPC round trip over emulated USB: median {:?}, p90 {:?}, max {:?}",
+        pct(&rtts, 0.5),
+        pct(&rtts, 0.9),
+        rtts[rtts.len() - 1]
+    );
+
+    // 3. Its clock follows the host's.
+    let goal = SyncGoal {
+        max_offset: Duration::from_micros(500),
+        quiet: Duration::from_secs(1),
+        timeout: Duration::from_secs(60),
+    };
+    let started = Instant::now();
+    let status = nr.wait_synchronised(&route, goal).await.unwrap();
+    assert_eq!(status.state, SyncState::Synced);
+    println!(
+        "clock: settled within 500 µs after {:?}; offset estimate {} µs, rate {} ppb, min round trip {} µs",
+        started.elapsed(),
+        status.offset_ns / 1000,
+        status.rate_ppb,
+        status.min_rtt_us
+    );
+    // An independent check: a read stamped on the module against the
+    // host's time around the call.
+    let mut worst = 0i64;
+    for _ in 0..20 {
+        let before = host.system_time().await.unwrap() as i64;
+        let reading = f("digital_read").call(&[OwnedValue::U8(0)]).await.unwrap();
+        let after = host.system_time().await.unwrap() as i64;
+        let OwnedValue::U64(stamp) = reading[0] else {
+            panic!("{reading:?}")
+        };
+        let stamp = stamp as i64;
+        // The stamp must fall inside the call; how far outside it falls
+        // is the clock error (bounded by the round trip).
+        let outside = (before - stamp).max(stamp - after).max(0);
+        worst = worst.max(outside);
+    }
+    println!("module stamps outside their call's window by at most {worst} µs");
+    assert!(worst <= 1_000, "module time is {worst} µs off the host's");
+
+    // 4. Motion: a smooth move of 2 units (160 full steps) stamped in
+    // synchronized time, sent ahead; the step pins must show exactly it.
+    let counting = emu
+        .control(json!({"cmd": "count", "step": STEP_PIN, "dir": DIR_PIN}))
+        .await;
+    assert_eq!(counting["ok"], json!(true), "{counting}");
+    f("set_enable")
+        .call(&[OwnedValue::Bool(true)])
+        .await
+        .unwrap();
+    let iv = 2048u64;
+    let now = host.system_time().await.unwrap();
+    let t0 = (now + 300_000) / iv * iv;
+    let mut points = vec![0.0f64; 4];
+    let n = 40;
+    for k in 1..=n {
+        let x = k as f64 / n as f64;
+        points.push(2.0 * x * x * (3.0 - 2.0 * x));
+    }
+    points.extend([2.0; 6]);
+    for (k, p) in points.iter().enumerate() {
+        f("add_point")
+            .call(&[
+                OwnedValue::U64(t0 + k as u64 * iv),
+                OwnedValue::F32(*p as f32),
+            ])
+            .await
+            .unwrap_or_else(|e| panic!("point {k}: {e}"));
+    }
+    let end = t0 + points.len() as u64 * iv + 200_000;
+    while host.system_time().await.unwrap() < end {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    let expect = (2.0 * STEPS_PER_UNIT) as i64;
+    let counts = emu.control(json!({"cmd": "counts"})).await;
+    println!("step pins: {counts}");
+    assert_eq!(counts["up"], json!(expect), "{counts}");
+    assert_eq!(counts["down"], json!(0), "{counts}");
+    let steps = f("get_steps").call(&[]).await.unwrap();
+    assert_eq!(steps[0], OwnedValue::I64(expect), "{steps:?}");
+    assert_eq!(steps[3], OwnedValue::U64(0), "overruns: {steps:?}");
+    let counters = f("get_counters").call(&[]).await.unwrap();
+    assert_eq!(counters[1], OwnedValue::U32(0), "refused: {counters:?}");
+
+    // 5. A new name survives a reset (written to the emulated flash).
+    let renamed = nr.set_name(&route, "x-axis").await.unwrap();
+    assert_eq!(renamed, "x-axis");
+    // The firmware writes the record as it answers the rename, so a reset
+    // right after must find it.
+    let reset = emu.control(json!({"cmd": "reset"})).await;
+    assert_eq!(reset["ok"], json!(true), "{reset}");
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        if let Ok(n) = nr.name(&route).await {
+            if n == "x-axis" {
+                break;
+            }
+            panic!("after a reset the module is named {n:?}, not \"x-axis\"");
+        }
+        assert!(Instant::now() < deadline, "the module never came back");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let stats = emu.control(json!({"cmd": "stats"})).await;
+    println!("emulator: {stats}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
