@@ -1,0 +1,287 @@
+#!/usr/bin/env node
+// Boots a firmware ELF on an emulated RP2040 (rp2040js 1.4.1) and bridges its
+// USB CDC and UART0 links to TCP listeners on 127.0.0.1. See README.md.
+
+import fs from 'node:fs';
+import path from 'node:path';
+import { parseArgs } from 'node:util';
+import { parseElf, loadElfIntoFlash, checkBootImage } from './elf.mjs';
+import { Chip, makeLogger } from './chip.mjs';
+import { Runner } from './runner.mjs';
+import { CdcHost } from './usb-host.mjs';
+import { TcpLink } from './tcp-link.mjs';
+import { ControlServer, gpioReport } from './control.mjs';
+import { EdgeCounter } from './edges.mjs';
+import { parseUniqueId, DEFAULT_UNIQUE_ID } from './ssi.mjs';
+
+const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uart0 <port>] [--control <port>]
+                      [--realtime] [--flash-image <file>] [--flash-size <bytes>] [--flash-id <16 hex>]
+                      [--uart-unpaced] [--lag-warn-ms <ms>] [--exit-on-halt] [--dtr-always] [-v|-vv]
+
+  --elf           firmware ELF, the file a user flashes (PT_LOAD segments go to flash by physical address)
+  --usb PORT      TCP listener for the USB CDC-ACM link (0 = pick a free port)
+  --uart0 PORT    TCP listener for UART0 (0 = pick a free port)
+  --control PORT  line-based JSON control channel (0 = pick a free port)
+  --realtime      pace emulated time to wall time; lag is reported on stderr
+  --flash-image   load flash from this file if it exists (the ELF is written over it) and save it back
+                  after every flash write and at exit
+  --flash-size    emulated flash size in bytes (default 2097152, a Pico's W25Q16JV; suffix k/M allowed)
+  --flash-id      the 8-byte SPI flash unique id (command 0x4B), 16 hex digits (default ${DEFAULT_UNIQUE_ID})
+  --uart-unpaced  deliver host bytes into the UART RX FIFO as fast as it has room, not at the baud rate
+  --lag-warn-ms   realtime lag that is reported (default 5)
+  --exit-on-halt  exit with status 3 when the core halts (HardFault, BKPT, UDF, emulation error)
+  --dtr-always    keep USB DTR raised even with no TCP client (default: DTR follows the client)
+  -v, -vv         log links and rp2040js warnings; -vv also rp2040js debug output
+
+Once listening, one JSON line goes to stdout: {"ready":true,"usb":PORT,"uart0":PORT,"control":PORT,...}.`;
+
+function fail(msg, code = 2) {
+  process.stderr.write(`bridge: ${msg}\n`);
+  process.exit(code);
+}
+
+function parseSize(text) {
+  const m = /^(\d+)([kKmM]?)$/.exec(String(text));
+  if (!m) fail(`--flash-size: not a size: ${text}`);
+  const n = Number(m[1]) * (m[2] ? (m[2].toLowerCase() === 'k' ? 1024 : 1024 * 1024) : 1);
+  if (n < 64 * 1024 || n > 16 * 1024 * 1024 || n % 4096) fail('--flash-size must be a multiple of 4096 between 64k and 16M');
+  return n;
+}
+
+function parsePort(name, text) {
+  if (text === undefined) return undefined;
+  const n = Number(text);
+  if (!Number.isInteger(n) || n < 0 || n > 65535) fail(`--${name}: not a TCP port: ${text}`);
+  return n;
+}
+
+function parseCli(argv) {
+  let parsed;
+  try {
+    parsed = parseArgs({
+      args: argv,
+      options: {
+        elf: { type: 'string' },
+        usb: { type: 'string' },
+        uart0: { type: 'string' },
+        control: { type: 'string' },
+        realtime: { type: 'boolean', default: false },
+        'flash-image': { type: 'string' },
+        'flash-size': { type: 'string', default: '2097152' },
+        'flash-id': { type: 'string', default: DEFAULT_UNIQUE_ID },
+        'uart-unpaced': { type: 'boolean', default: false },
+        'lag-warn-ms': { type: 'string', default: '5' },
+        'exit-on-halt': { type: 'boolean', default: false },
+        'dtr-always': { type: 'boolean', default: false },
+        verbose: { type: 'boolean', short: 'v', multiple: true },
+        help: { type: 'boolean', short: 'h' },
+      },
+    }).values;
+  } catch (err) {
+    fail(`${err.message}\n${USAGE}`);
+  }
+  if (parsed.help) {
+    process.stdout.write(`${USAGE}\n`);
+    process.exit(0);
+  }
+  if (!parsed.elf) fail(`--elf is required\n${USAGE}`);
+  const opts = {
+    elf: parsed.elf,
+    usb: parsePort('usb', parsed.usb),
+    uart0: parsePort('uart0', parsed.uart0),
+    control: parsePort('control', parsed.control),
+    realtime: parsed.realtime,
+    flashImage: parsed['flash-image'],
+    flashSize: parseSize(parsed['flash-size']),
+    uartPaced: !parsed['uart-unpaced'],
+    lagWarnMs: Number(parsed['lag-warn-ms']),
+    exitOnHalt: parsed['exit-on-halt'],
+    dtrAlways: parsed['dtr-always'],
+    verbose: parsed.verbose?.length ?? 0,
+  };
+  if (opts.usb === undefined && opts.uart0 === undefined && opts.control === undefined) {
+    fail(`nothing to bridge: give at least one of --usb, --uart0, --control\n${USAGE}`);
+  }
+  if (!Number.isFinite(opts.lagWarnMs) || opts.lagWarnMs < 0) fail('--lag-warn-ms must be a number >= 0');
+  try {
+    opts.uniqueId = parseUniqueId(parsed['flash-id']);
+  } catch (err) {
+    fail(`--flash-id: ${err.message}`);
+  }
+  return opts;
+}
+
+function loadFlash(opts) {
+  const flash = new Uint8Array(opts.flashSize).fill(0xff);
+  if (opts.flashImage && fs.existsSync(opts.flashImage)) {
+    const img = fs.readFileSync(opts.flashImage);
+    if (img.length > opts.flashSize) fail(`--flash-image ${opts.flashImage} is ${img.length} bytes, larger than the ${opts.flashSize}-byte flash`);
+    flash.set(img);
+  }
+  let elfBytes;
+  try {
+    elfBytes = fs.readFileSync(opts.elf);
+  } catch (err) {
+    fail(`cannot read ELF ${opts.elf}: ${err.code === 'ENOENT' ? 'no such file' : err.message}`);
+  }
+  try {
+    loadElfIntoFlash(flash, parseElf(elfBytes));
+  } catch (err) {
+    fail(`${opts.elf}: ${err.message}`);
+  }
+  const problems = checkBootImage(flash);
+  if (problems.length) fail(`${opts.elf} does not look like an RP2040 flash image: ${problems.join('; ')}`);
+  return flash;
+}
+
+function saveFlash(file, flash) {
+  const tmp = path.join(path.dirname(path.resolve(file)), `.${path.basename(file)}.tmp-${process.pid}`);
+  fs.writeFileSync(tmp, flash);
+  fs.renameSync(tmp, file);
+}
+
+async function main() {
+  const opts = parseCli(process.argv.slice(2));
+  const log = (m) => process.stderr.write(`${m}\n`);
+  const vlog = opts.verbose ? log : () => {};
+  const logger = makeLogger({ verbose: opts.verbose });
+  const initialFlash = loadFlash(opts);
+  let flashDirty = !!opts.flashImage && !fs.existsSync(opts.flashImage);
+
+  let runner = null;
+  const edges = new EdgeCounter(() => (runner ? runner.chip.nanos / 1000 : 0));
+  const usbLink = opts.usb !== undefined ? new TcpLink('usb', { onData: (d) => toUsb(d), onConnect: () => dtr(true), onDisconnect: () => dtr(false), log: vlog }) : null;
+  const uartLink = opts.uart0 !== undefined ? new TcpLink('uart0', { onData: (d) => toUart(d), log: vlog }) : null;
+
+  const toUsb = (data) => {
+    runner.chip.usbHost.write(data);
+    runner.wake();
+  };
+  const toUart = (data) => {
+    runner.chip.uartFeeders[0].push(data);
+    runner.wake();
+  };
+  const dtr = (on) => {
+    if (opts.dtrAlways) return;
+    runner.chip.usbHost.setDtr(on);
+    runner.wake();
+  };
+
+  const build = (prev) => {
+    const chip = new Chip({
+      flash: prev ? prev.flash : initialFlash,
+      flashSize: opts.flashSize,
+      uniqueId: opts.uniqueId,
+      logger,
+      uartPaced: opts.uartPaced,
+      hooks: {
+        onHalt: (reason) => runner.halt(reason),
+        onResetRequest: (reason) => runner.requestReset(`firmware: ${reason}`),
+        onFlashWrite: () => (flashDirty = true),
+        warn: log,
+      },
+    });
+    chip.usbHost = new CdcHost(chip.rp.usbCtrl, chip.clock, { onData: (d) => usbLink?.send(d), log: vlog });
+    chip.usbHost.dtr = opts.dtrAlways || !!usbLink?.client;
+    chip.rp.uart[0].onByte = (b) => uartLink?.sendByte(b);
+    chip.rp.uart[1].onByte = () => {};
+    edges.attach(chip.rp.gpio);
+    return chip;
+  };
+
+  const afterSlice = () => {
+    usbLink?.flush();
+    uartLink?.flush();
+    const chip = runner.chip;
+    usbLink?.throttle(chip.usbHost.pendingBytes > 65536);
+    uartLink?.throttle(chip.uartFeeders[0].pending > 65536);
+    if (flashDirty && opts.flashImage) {
+      flashDirty = false;
+      try {
+        saveFlash(opts.flashImage, chip.flash);
+      } catch (err) {
+        log(`bridge: saving --flash-image ${opts.flashImage} failed: ${err.message}`);
+      }
+    }
+  };
+
+  runner = new Runner({ build, afterSlice, realtime: opts.realtime, lagWarnMs: opts.lagWarnMs, log });
+  if (opts.exitOnHalt) {
+    const halt = runner.halt.bind(runner);
+    runner.halt = (reason) => {
+      halt(reason);
+      shutdown(3);
+    };
+  }
+
+  const control = opts.control !== undefined ? new ControlServer(commands(), { log: vlog }) : null;
+  function commands() {
+    return {
+      gpio: () => gpioReport(runner.chip.rp.gpio),
+      count: (m) => {
+        edges.start(runner.chip.rp.gpio, Number(m.step), Number(m.dir));
+        return edges.snapshot();
+      },
+      counts: () => edges.snapshot(),
+      'count-stop': () => {
+        const s = edges.snapshot();
+        edges.stop();
+        return s;
+      },
+      time: () => ({ us: runner.chip.nanos / 1000 }),
+      reset: () => {
+        runner.requestReset('control');
+        return {};
+      },
+      stats: () => ({
+        ...runner.stats(),
+        usb: usbLink && { state: runner.chip.usbHost.state, dtr: runner.chip.usbHost.sentDtr, ...usbLink.stats, queued_to_device: runner.chip.usbHost.pendingBytes },
+        uart0: uartLink && { ...uartLink.stats, queued_to_device: runner.chip.uartFeeders[0].pending, baud: runner.chip.rp.uart[0].baudRate },
+        rom_calls: runner.chip.rom.calls,
+        rp2040js_warnings: logger.warnings,
+      }),
+      flash: (m) => {
+        const off = Number(m.offset ?? 0);
+        const len = Math.min(Number(m.length ?? 256), 4096);
+        if (!(off >= 0 && off + len <= opts.flashSize)) throw new Error('offset/length outside flash');
+        return { offset: off, hex: Buffer.from(runner.chip.flash.subarray(off, off + len)).toString('hex') };
+      },
+    };
+  }
+
+  let shuttingDown = false;
+  function shutdown(code) {
+    if (shuttingDown) return;
+    shuttingDown = true;
+    runner.stopping = true;
+    try {
+      usbLink?.flush();
+      uartLink?.flush();
+      if (opts.flashImage) saveFlash(opts.flashImage, runner.chip.flash);
+    } catch (err) {
+      log(`bridge: saving --flash-image failed: ${err.message}`);
+    }
+    usbLink?.close();
+    uartLink?.close();
+    control?.close();
+    setTimeout(() => process.exit(code), 20);
+  }
+  process.on('SIGINT', () => shutdown(0));
+  process.on('SIGTERM', () => shutdown(0));
+
+  const ports = {};
+  try {
+    if (usbLink) ports.usb = await usbLink.listen(opts.usb);
+    if (uartLink) ports.uart0 = await uartLink.listen(opts.uart0);
+    if (control) ports.control = await control.listen(opts.control);
+  } catch (err) {
+    usbLink?.close();
+    uartLink?.close();
+    control?.close();
+    fail(err.message);
+  }
+  process.stdout.write(`${JSON.stringify({ ready: true, ...ports, realtime: opts.realtime, pid: process.pid })}\n`);
+  await runner.run();
+}
+
+main().catch((err) => fail(err.stack || String(err), 1));

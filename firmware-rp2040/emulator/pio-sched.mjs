@@ -1,0 +1,97 @@
+// Runs rp2040js's PIO state machines in emulated time.
+//
+// rp2040js 1.4.1 runs PIO on its own: enabling a state machine starts a
+// setTimeout loop of 1000 instructions per macrotask, on wall time, ignoring
+// the clock divider and [delay] cycles. A 100 kHz step generator would then
+// step at whatever rate the event loop allows, unrelated to the firmware's
+// timers. Here each state machine instead executes one instruction every
+// (1 + delay) * clkdiv system cycles, interleaved with the core.
+//
+// A state machine that is stalled (blocking PULL/PUSH, WAIT) costs nothing:
+// rp2040js re-checks waits itself when the core touches a FIFO or IRQ flag,
+// and its time then resumes from "now".
+
+export class PioScheduler {
+  constructor(pios, nowCycles) {
+    this.pios = pios;
+    this.now = nowCycles; // () => current system cycle count
+    this.machines = [];
+    for (const pio of pios) {
+      pio.run = () => {}; // no wall-clock loop: we step it
+      for (const sm of pio.machines) {
+        sm.nextAt = 0;
+        sm.wasEnabled = false;
+        this.machines.push(sm);
+      }
+      // Any register access can enable a machine or end a FIFO stall.
+      const read = pio.readUint32.bind(pio);
+      const write = pio.writeUint32.bind(pio);
+      pio.readUint32 = (offset) => {
+        this.touch(pio);
+        return read(offset);
+      };
+      pio.writeUint32 = (offset, value) => {
+        this.touch(pio);
+        write(offset, value);
+      };
+    }
+    this.next = Infinity; // earliest cycle at which some machine has work
+    this.steps = 0;
+  }
+
+  /** Before the core touches a PIO: stalled machines' time catches up to now. */
+  touch(pio) {
+    const now = this.now();
+    for (const sm of pio.machines) {
+      if (sm.waiting && sm.nextAt < now) sm.nextAt = now;
+    }
+    this.next = 0;
+  }
+
+  static divider(sm) {
+    const int = sm.clockDivInt === 0 ? 65536 : sm.clockDivInt;
+    return int + sm.clockDivFrac / 256;
+  }
+
+  /** Runs every machine up to system cycle `to`, in time order. */
+  advance(to) {
+    const ms = this.machines;
+    for (;;) {
+      let best = null;
+      for (let i = 0; i < ms.length; i++) {
+        const sm = ms[i];
+        if (!sm.enabled) {
+          sm.wasEnabled = false;
+          continue;
+        }
+        if (!sm.wasEnabled) {
+          sm.wasEnabled = true;
+          sm.nextAt = to;
+        }
+        if (sm.waiting) {
+          if (sm.nextAt < to) sm.nextAt = to;
+          continue;
+        }
+        if (best === null || sm.nextAt < best.nextAt) best = sm;
+      }
+      if (best === null) {
+        this.next = Infinity;
+        return;
+      }
+      if (best.nextAt > to) {
+        this.next = best.nextAt;
+        return;
+      }
+      const before = best.cycles;
+      best.step();
+      best.pio.checkChangedPins(); // per instruction, so a short pulse still shows as two edges
+      this.steps++;
+      const used = best.cycles - before;
+      best.nextAt += (used > 0 ? used : 1) * PioScheduler.divider(best);
+    }
+  }
+
+  get active() {
+    return this.machines.some((sm) => sm.enabled);
+  }
+}

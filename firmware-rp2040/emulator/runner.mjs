@@ -1,0 +1,224 @@
+// Drives the core: executes instructions, advances the clock 8 ns per cycle,
+// runs PIO in step, and when the core sleeps (WFI/WFE) jumps the clock to the
+// next event. Free-running by default; with realtime, emulated time is paced
+// to wall time and any lag is reported.
+
+import { NS_PER_CYCLE } from './chip.mjs';
+
+const SLICE_MS = 10; // wall time per slice before output is flushed and I/O served
+const CHECK_EVERY = 2048; // instructions between wall-clock checks
+const LAG_REPORT_INTERVAL_MS = 1000;
+const HARDFAULT = 3;
+
+const nowMs = () => performance.now();
+
+export class Runner {
+  /**
+   * build(): returns a new wired Chip (called at start and on every reset).
+   * afterSlice(): flush output, persist flash, feed links.
+   */
+  constructor({ build, afterSlice, realtime = false, lagWarnMs = 5, log }) {
+    this.build = build;
+    this.afterSlice = afterSlice ?? (() => {});
+    this.realtime = realtime;
+    this.lagWarnMs = lagWarnMs;
+    this.log = log ?? ((m) => process.stderr.write(`${m}\n`));
+    this.halted = null;
+    this.breakFlag = false;
+    this.resetReason = null;
+    this.stopping = false;
+    this.wakeResolve = null;
+    this.resets = 0;
+    this.startWall = nowMs();
+    this.doneNs = 0; // emulated time of chips before the last reset
+    this.instrCycles = 0; // cycles spent executing (not sleeping)
+    this.sliceWallMs = 0; // wall time inside slices that executed instructions
+    this.maxLagMs = 0;
+    this.lagMs = 0;
+    this.lastLagReport = 0;
+    this.lagEvents = 0;
+    this.chip = this.build();
+    this.anchor();
+  }
+
+  anchor() {
+    this.anchorWall = nowMs();
+    this.anchorNs = this.chip.nanos;
+  }
+
+  targetNs(wall) {
+    return this.anchorNs + (wall - this.anchorWall) * 1e6;
+  }
+
+  halt(reason) {
+    if (this.halted) return;
+    this.halted = reason;
+    this.breakFlag = true;
+    this.log(`[emu] core halted: ${reason}`);
+  }
+
+  requestReset(reason) {
+    this.resetReason = reason;
+    this.breakFlag = true;
+    this.wake();
+  }
+
+  wake() {
+    const r = this.wakeResolve;
+    this.wakeResolve = null;
+    r?.();
+  }
+
+  waitWake(ms) {
+    return new Promise((resolve) => {
+      const t = Number.isFinite(ms) ? setTimeout(() => resolve(), Math.max(0, ms)) : null;
+      this.wakeResolve = () => {
+        if (t) clearTimeout(t);
+        resolve();
+      };
+    });
+  }
+
+  doReset() {
+    const reason = this.resetReason;
+    this.resetReason = null;
+    this.doneNs += this.chip.nanos;
+    this.chip = this.build(this.chip);
+    this.halted = null;
+    this.breakFlag = false;
+    this.resets++;
+    this.anchor();
+    this.log(`[emu] reset (${reason}); flash kept`);
+  }
+
+  async run() {
+    while (!this.stopping) {
+      if (this.resetReason) this.doReset();
+      if (this.halted) {
+        this.afterSlice();
+        await this.waitWake(100);
+        continue;
+      }
+      let r;
+      try {
+        r = this.slice();
+      } catch (err) {
+        this.halt(`emulation error: ${err.message}`);
+        continue;
+      }
+      if (this.chip.core.IPSR === HARDFAULT) this.halt(`HardFault (PC 0x${this.chip.core.PC.toString(16)})`);
+      this.afterSlice();
+      if (r.state === 'busy') {
+        await new Promise((res) => setImmediate(res));
+      } else if (!this.realtime) {
+        await this.waitWake(Infinity); // asleep with no alarm: only host data can wake it
+      } else {
+        // Ahead of wall time: wait until the next event is due or host data arrives.
+        const aheadMs = Number.isFinite(r.nextNs) ? (r.nextNs - this.targetNs(nowMs())) / 1e6 : 5;
+        const ms = Math.min(aheadMs, 5);
+        if (ms >= 1.5) await this.waitWake(ms - 1);
+        else await new Promise((res) => setImmediate(res));
+      }
+    }
+  }
+
+  /** Runs for at most SLICE_MS of wall time. Returns { state: busy | ahead | idle, nextNs }. */
+  slice() {
+    const chip = this.chip;
+    const { core, clock, pio } = chip;
+    const wall0 = nowMs();
+    const deadline = wall0 + SLICE_MS;
+    const limitNs = this.realtime ? this.targetNs(wall0) : Infinity;
+    let n = 0;
+    let executed = 0;
+    let result = { state: 'busy', nextNs: Infinity };
+    this.breakFlag = !!(this.halted || this.resetReason);
+    while (!this.breakFlag) {
+      if (core.waiting) {
+        let now = clock.nanos;
+        if (pio.next * NS_PER_CYCLE <= now) pio.advance(now / NS_PER_CYCLE);
+        const alarm = clock.nextAlarm;
+        let t = alarm ? Math.max(alarm.nanos, now) : Infinity;
+        const p = pio.next * NS_PER_CYCLE;
+        if (p < t) t = p;
+        if (t > limitNs) {
+          if (limitNs > now) {
+            clock.tick(limitNs - now);
+            pio.advance(limitNs / NS_PER_CYCLE);
+          }
+          result = { state: t === Infinity ? 'idle' : 'ahead', nextNs: t };
+          break;
+        }
+        if (t === Infinity) {
+          result = { state: 'idle', nextNs: t };
+          break;
+        }
+        clock.tick(t - now);
+        if (pio.next * NS_PER_CYCLE <= clock.nanos) pio.advance(clock.nanos / NS_PER_CYCLE);
+      } else {
+        let ns = core.executeInstruction() * NS_PER_CYCLE;
+        executed += ns;
+        if (chip.extraNs) {
+          ns += chip.extraNs;
+          chip.extraNs = 0;
+        }
+        clock.tick(ns);
+        if (pio.next * NS_PER_CYCLE <= clock.nanos) pio.advance(clock.nanos / NS_PER_CYCLE);
+      }
+      if (++n >= CHECK_EVERY) {
+        n = 0;
+        if (clock.nanos >= limitNs) break;
+        if (nowMs() >= deadline) break;
+      }
+    }
+    const wall1 = nowMs();
+    if (executed) {
+      this.instrCycles += executed / NS_PER_CYCLE;
+      this.sliceWallMs += wall1 - wall0;
+    }
+    if (this.realtime) this.trackLag(wall1, result.state === 'busy');
+    return result;
+  }
+
+  trackLag(wall, busy) {
+    const lag = (this.targetNs(wall) - this.chip.nanos) / 1e6;
+    this.lagMs = Math.max(0, lag);
+    if (!busy || lag <= this.lagWarnMs) return;
+    this.maxLagMs = Math.max(this.maxLagMs, lag);
+    this.lagEvents++;
+    if (wall - this.lastLagReport >= LAG_REPORT_INTERVAL_MS) {
+      this.lastLagReport = wall;
+      const speed = this.busyCyclesPerSecond();
+      this.log(
+        `[emu] behind realtime by ${lag.toFixed(1)} ms (max ${this.maxLagMs.toFixed(1)} ms); ` +
+          `busy speed ${(speed / 1e6).toFixed(1)} M cycles/s = ${(speed / 125e6).toFixed(2)}x realtime at 125 MHz`,
+      );
+    }
+  }
+
+  busyCyclesPerSecond() {
+    return this.sliceWallMs ? this.instrCycles / (this.sliceWallMs / 1000) : 0;
+  }
+
+  stats() {
+    const wallS = (nowMs() - this.startWall) / 1000;
+    const emulatedUs = this.chip.nanos / 1000;
+    const totalUs = (this.doneNs + this.chip.nanos) / 1000;
+    return {
+      realtime: this.realtime,
+      emulated_us: emulatedUs,
+      emulated_us_total: totalUs,
+      wall_s: wallS,
+      emulated_per_wall: wallS ? totalUs / 1e6 / wallS : 0,
+      cycles_executed: this.instrCycles,
+      cycles_total: (this.doneNs + this.chip.nanos) / NS_PER_CYCLE,
+      busy_cycles_per_s: this.busyCyclesPerSecond(),
+      behind_ms: this.realtime ? this.lagMs : null,
+      max_behind_ms: this.realtime ? this.maxLagMs : null,
+      lag_events: this.lagEvents,
+      pio_steps: this.chip.pio.steps,
+      resets: this.resets,
+      halted: this.halted,
+    };
+  }
+}
