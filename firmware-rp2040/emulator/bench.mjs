@@ -1,0 +1,59 @@
+// Measures how fast the emulator executes: a busy Thumb loop in SRAM run
+// through the same Runner the bridge uses (no firmware needed), and the same
+// loop on a bare rp2040js core for comparison. Prints JSON.
+//   node bench.mjs [seconds]
+
+import { Chip, makeLogger } from './chip.mjs';
+import { Runner } from './runner.mjs';
+
+const seconds = Number(process.argv[2] ?? 2);
+// loop: adds r0,#1; ldr r1,[r2]; str r1,[r3]; b loop  (RAM load/store, ALU, branch)
+const LOOP = [0x3001, 0x6811, 0x6019, 0xe7fb];
+
+function busyChip() {
+  const chip = new Chip({
+    flash: new Uint8Array(64 * 1024).fill(0xff),
+    flashSize: 64 * 1024,
+    uniqueId: new Uint8Array(8),
+    logger: makeLogger(),
+    hooks: {},
+  });
+  const { rp, core } = chip;
+  LOOP.forEach((op, i) => rp.writeUint16(0x20000000 + 2 * i, op));
+  core.registers[2] = core.registers[3] = 0x20001000;
+  core.PC = 0x20000000;
+  return chip;
+}
+
+function bare() {
+  const chip = busyChip();
+  const { core, clock } = chip;
+  const t0 = performance.now();
+  let cycles = 0;
+  while (performance.now() - t0 < seconds * 1000) {
+    for (let i = 0; i < 100000; i++) {
+      const c = core.executeInstruction();
+      cycles += c;
+      clock.tick(c * 8);
+    }
+  }
+  return cycles / ((performance.now() - t0) / 1000);
+}
+
+async function viaRunner() {
+  const runner = new Runner({ build: busyChip, log: () => {} });
+  const run = runner.run();
+  await new Promise((r) => setTimeout(r, seconds * 1000));
+  runner.stopping = true;
+  await run;
+  return runner.busyCyclesPerSecond();
+}
+
+const bareRate = bare();
+const runnerRate = await viaRunner();
+const out = {
+  bare_rp2040js_cycles_per_s: Math.round(bareRate),
+  runner_cycles_per_s: Math.round(runnerRate),
+  runner_x_realtime_125MHz: +(runnerRate / 125e6).toFixed(3),
+};
+process.stdout.write(`${JSON.stringify(out)}\n`);
