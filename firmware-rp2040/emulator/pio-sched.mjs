@@ -11,6 +11,33 @@
 // rp2040js re-checks waits itself when the core touches a FIFO or IRQ flag,
 // and its time then resumes from "now".
 
+import { FIFO } from 'rp2040js';
+
+const SHIFTCTRL = 0x08; // offset within a state machine's register block
+const FJOIN_TX = 1 << 30;
+const FJOIN_RX = 1 << 31;
+
+/**
+ * rp2040js ignores SHIFTCTRL.FJOIN_TX/RX: a joined FIFO stays 4 deep. Firmware
+ * that joins them (8-word TX FIFO) relies on the depth for its timing budget,
+ * so resize the FIFOs on a join change; like the hardware, this empties them.
+ */
+function joinFifosOnShiftctrl(sm) {
+  const write = sm.writeUint32.bind(sm);
+  sm.writeUint32 = (offset, value) => {
+    const before = sm.shiftCtrl;
+    write(offset, value);
+    if (offset !== SHIFTCTRL || !((before ^ sm.shiftCtrl) & (FJOIN_TX | FJOIN_RX))) return;
+    const tx = sm.shiftCtrl & FJOIN_TX;
+    const rx = sm.shiftCtrl & FJOIN_RX;
+    sm.txFIFO = new FIFO(tx ? 8 : rx ? 0 : 4);
+    sm.rxFIFO = new FIFO(rx ? 8 : tx ? 0 : 4);
+    sm.updateDMATx();
+    sm.updateDMARx();
+    sm.pio.checkInterrupts();
+  };
+}
+
 export class PioScheduler {
   constructor(pios, nowCycles) {
     this.pios = pios;
@@ -21,6 +48,7 @@ export class PioScheduler {
       for (const sm of pio.machines) {
         sm.nextAt = 0;
         sm.wasEnabled = false;
+        joinFifosOnShiftctrl(sm);
         this.machines.push(sm);
       }
       // Any register access can enable a machine or end a FIFO stall.

@@ -308,6 +308,22 @@ test('PIO: runs in emulated time with its clock divider; PIO-driven edges are co
   assert.equal(pio.steps, steps);
 });
 
+test('PIO: FJOIN_TX gives an 8-word TX FIFO (rp2040js keeps 4 otherwise)', () => {
+  const chip = newChip();
+  const { rp } = chip;
+  const P = 0x50200000;
+  const FSTAT = 0x04;
+  const TXFULL0 = 1 << 16;
+  for (let i = 0; i < 4; i++) rp.writeUint32(P + 0x10, i);
+  assert.ok(rp.readUint32(P + FSTAT) & TXFULL0, 'unjoined: full after 4');
+  rp.writeUint32(P + 0xd0, rp.readUint32(P + 0xd0) | (1 << 30));
+  assert.equal(rp.readUint32(P + FSTAT) & TXFULL0, 0, 'join empties the FIFO');
+  for (let i = 0; i < 7; i++) rp.writeUint32(P + 0x10, i);
+  assert.equal(rp.readUint32(P + FSTAT) & TXFULL0, 0, 'joined: room after 7');
+  rp.writeUint32(P + 0x10, 7);
+  assert.ok(rp.readUint32(P + FSTAT) & TXFULL0, 'joined: full after 8');
+});
+
 test('USB: CDC interfaces and bulk endpoints from a configuration descriptor', () => {
   // config, IAD, comm interface 0 (+functional descriptors, interrupt EP 0x83), data interface 1 (bulk 0x02 OUT, 0x81 IN)
   const desc = Uint8Array.of(
