@@ -205,7 +205,8 @@ async function main() {
     }
   };
 
-  runner = new Runner({ build, afterSlice, realtime: opts.realtime, lagWarnMs: opts.lagWarnMs, log });
+  const hasOutput = () => !!(usbLink?.pending || uartLink?.pending);
+  runner = new Runner({ build, afterSlice, hasOutput, realtime: opts.realtime, lagWarnMs: opts.lagWarnMs, log });
   if (opts.exitOnHalt) {
     const halt = runner.halt.bind(runner);
     runner.halt = (reason) => {

@@ -5,7 +5,10 @@
 
 import { NS_PER_CYCLE } from './chip.mjs';
 
-const SLICE_MS = 10; // wall time per slice before output is flushed and I/O served
+// Wall time per slice: host input is only seen between slices, so this bounds
+// the input latency when the firmware never sleeps idle.
+const SLICE_MS = 2;
+const OUTPUT_BATCH_MS = 0.25;
 const CHECK_EVERY = 2048; // instructions between wall-clock checks
 const LAG_REPORT_INTERVAL_MS = 1000;
 const STARTUP_GRACE_MS = 500;
@@ -17,9 +20,11 @@ export class Runner {
   /**
    * build(): returns a new wired Chip (called at start and on every reset).
    * afterSlice(): flush output, persist flash, feed links.
+   * hasOutput(): device output is waiting to be sent (ends a slice early).
    */
-  constructor({ build, afterSlice, realtime = false, lagWarnMs = 5, log }) {
+  constructor({ build, afterSlice, hasOutput, realtime = false, lagWarnMs = 5, log }) {
     this.build = build;
+    this.hasOutput = hasOutput ?? (() => false);
     this.afterSlice = afterSlice ?? (() => {});
     this.realtime = realtime;
     this.lagWarnMs = lagWarnMs;
@@ -171,7 +176,10 @@ export class Runner {
       if (++n >= CHECK_EVERY) {
         n = 0;
         if (clock.nanos >= limitNs) break;
-        if (nowMs() >= deadline) break;
+        const wall = nowMs();
+        if (wall >= deadline) break;
+        // Send replies soon, but not one slice per byte.
+        if (wall - wall0 >= OUTPUT_BATCH_MS && this.hasOutput()) break;
       }
     }
     const wall1 = nowMs();
@@ -216,6 +224,7 @@ export class Runner {
       emulated_us: emulatedUs,
       emulated_us_total: totalUs,
       wall_s: wallS,
+      cpu_s: (process.cpuUsage().user + process.cpuUsage().system) / 1e6,
       emulated_per_wall: wallS ? totalUs / 1e6 / wallS : 0,
       cycles_executed: this.instrCycles,
       cycles_total: (this.doneNs + this.chip.nanos) / NS_PER_CYCLE,

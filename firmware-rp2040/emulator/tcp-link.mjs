@@ -74,6 +74,10 @@ export class TcpLink {
     this.outBytes += bytes.length;
   }
 
+  get pending() {
+    return this.outChunks.length > 0 || this.outBytesArr.length > 0;
+  }
+
   /** Byte-at-a-time output (UART TX), gathered until the next flush. */
   sendByte(b) {
     if (!this.client) {
