@@ -285,14 +285,14 @@ mod tests {
         );
         assert_eq!(store.save("x-axis"), Ok(true));
         // "Reset": a new store over the same flash.
-        drop(store);
+        let _ = store.into_inner();
         let mut store = NameStore::new(&mut sector);
         assert_eq!(store.load_or_default("stepper", &UID).as_str(), "x-axis");
         // Same name again: no erase.
         assert_eq!(store.save("x-axis"), Ok(false));
         assert_eq!(store.save("y-axis"), Ok(true));
         assert_eq!(store.load().as_deref(), Some("y-axis"));
-        drop(store);
+        let _ = store.into_inner();
         assert_eq!(sector.erases, 2);
     }
 
@@ -306,7 +306,7 @@ mod tests {
             store.load_or_default("stepper", &UID).as_str(),
             "stepper-1a2b3c"
         );
-        drop(store);
+        let _ = store.into_inner();
         sector.tear_at = None;
         sector.fail = true;
         let mut store = NameStore::new(&mut sector);

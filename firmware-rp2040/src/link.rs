@@ -1,0 +1,317 @@
+//! What the two byte-stream links (USB CDC-ACM and UART) share: the
+//! hand-over between their I/O tasks and the runtime, the receive-side
+//! framer that time-stamps packets, and the [`LinkGateway`] the runtime
+//! polls.
+//!
+//! The I/O tasks run on the link executor (an interrupt executor above the
+//! runtime's thread-mode task), so a packet is stamped when its bytes come
+//! in, not when the runtime next gets round to it. They meet the runtime in
+//! a [`LinkShared`]: a queue of received packets (the receive task waits
+//! when it is full, which on USB NAKs the host: real flow control) and a
+//! pipe of encoded frames to send.
+
+use core::sync::atomic::{AtomicBool, Ordering};
+
+// thumbv6m has no atomic read-modify-write; portable-atomic does it in a
+// critical section.
+use portable_atomic::AtomicU32;
+
+use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
+use embassy_sync::channel::Channel;
+use embassy_sync::pipe::Pipe;
+use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
+use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
+use osap_core::Micros;
+
+use crate::runtime_task::wake_runtime;
+
+/// Largest packet either link carries (the runtime's slot size).
+pub const MTU: usize = 256;
+/// Largest frame of an MTU-sized packet, delimiter included.
+pub const FRAME_MAX: usize = max_frame_len(MTU);
+/// Received packets a link holds for the runtime.
+const RX_PACKETS: usize = 4;
+/// Bytes of frames a link holds to send: room for four full frames.
+pub const TX_BYTES: usize = 4 * FRAME_MAX;
+
+/// One received packet and its time stamp.
+pub struct RxPacket {
+    len: u16,
+    stamp: Micros,
+    data: [u8; MTU],
+}
+
+impl RxPacket {
+    /// A copy of `packet` (which the framer has already limited to
+    /// [`MTU`] bytes) stamped `stamp`.
+    fn new(packet: &[u8], stamp: Micros) -> Self {
+        let mut data = [0; MTU];
+        let len = packet.len().min(MTU);
+        data[..len].copy_from_slice(&packet[..len]);
+        RxPacket {
+            len: len as u16,
+            stamp,
+            data,
+        }
+    }
+}
+
+/// The state one link's I/O tasks share with its gateway.
+pub struct LinkShared {
+    rx: Channel<CriticalSectionRawMutex, RxPacket, RX_PACKETS>,
+    tx: Pipe<CriticalSectionRawMutex, TX_BYTES>,
+    open: AtomicBool,
+    /// Frames dropped by the receive side (bad COBS or CRC, oversize).
+    rx_errors: AtomicU32,
+}
+
+impl LinkShared {
+    /// A closed link with empty queues.
+    pub const fn new() -> Self {
+        LinkShared {
+            rx: Channel::new(),
+            tx: Pipe::new(),
+            open: AtomicBool::new(false),
+            rx_errors: AtomicU32::new(0),
+        }
+    }
+
+    /// Marks the link up or down (and wakes the runtime, which forgets a
+    /// closed link's clock-sync state and stops routing to it). Going up
+    /// drops whatever was queued for a previous peer.
+    pub fn set_open(&self, open: bool) {
+        if open && !self.open.load(Ordering::Relaxed) {
+            self.tx.clear();
+            self.rx.clear();
+        }
+        self.open.store(open, Ordering::Relaxed);
+        wake_runtime();
+    }
+
+    /// Hands a received packet to the runtime; waits while the queue is
+    /// full.
+    pub async fn deliver(&self, packet: &[u8], stamp: Micros) {
+        self.rx.send(RxPacket::new(packet, stamp)).await;
+        wake_runtime();
+    }
+
+    /// Waits for frame bytes to send and copies some into `buf`.
+    pub async fn take_tx(&self, buf: &mut [u8]) -> usize {
+        let n = self.tx.read(buf).await;
+        // Room in the pipe may let the runtime send a waiting packet.
+        wake_runtime();
+        n
+    }
+
+    /// Copies frame bytes to send into `buf` if there are any, at once.
+    pub fn try_take_tx(&self, buf: &mut [u8]) -> usize {
+        let n = self.tx.try_read(buf).unwrap_or(0);
+        if n > 0 {
+            wake_runtime();
+        }
+        n
+    }
+
+    /// Bytes queued to send.
+    pub fn tx_queued(&self) -> usize {
+        self.tx.len()
+    }
+
+    /// Counts a frame the receive side dropped.
+    fn count_rx_error(&self) {
+        self.rx_errors.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// How a received chunk of bytes relates to time.
+#[derive(Debug, Clone, Copy)]
+pub enum ChunkTime {
+    /// The chunk arrived whole at this local time (a USB packet's
+    /// completion); a frame is stamped with the arrival of the chunk it
+    /// started in.
+    Completed(Micros),
+    /// The chunk's bytes came back-to-back off a serial line whose last
+    /// stop bit ended at `last_end_ns` (local time in ns), `byte_ns` apart;
+    /// a frame is stamped with the start of its first byte, counted back
+    /// from its delimiter.
+    Streamed {
+        /// End of the chunk's last byte, local ns.
+        last_end_ns: u64,
+        /// Wire time of one byte (start, 8 data and stop bit), ns.
+        byte_ns: u64,
+    },
+}
+
+/// Splits a received byte stream into packets and stamps each.
+pub struct RxFramer {
+    decoder: FrameDecoder<FRAME_MAX>,
+    /// Bytes of the current partial frame seen in earlier chunks.
+    carried: usize,
+    /// Arrival of the chunk the partial frame started in (USB).
+    partial_start: Option<Micros>,
+}
+
+impl RxFramer {
+    /// A framer waiting for the start of a frame.
+    pub const fn new() -> Self {
+        RxFramer {
+            decoder: FrameDecoder::new(),
+            carried: 0,
+            partial_start: None,
+        }
+    }
+
+    /// Forgets a partial frame (after a line error or a reconnect).
+    pub fn reset(&mut self) {
+        self.decoder.reset();
+        self.carried = 0;
+        self.partial_start = None;
+    }
+
+    /// Takes bytes from the front of `rest` (the unread tail of a chunk)
+    /// up to and including the next frame delimiter. Returns the frame's
+    /// packet and time stamp if it was good; [`Next::Skipped`] for a bad
+    /// frame (counted on `link`) or an empty one; [`Next::End`] once
+    /// `rest` is used up, keeping a partial frame for the next chunk.
+    pub fn next<'a>(
+        &'a mut self,
+        rest: &mut &[u8],
+        time: ChunkTime,
+        link: &LinkShared,
+    ) -> Next<'a> {
+        let Some(pos) = rest.iter().position(|&b| b == 0) else {
+            if !rest.is_empty() {
+                self.carried += rest.len();
+                if let ChunkTime::Completed(t) = time {
+                    self.partial_start.get_or_insert(t);
+                }
+            }
+            let mut tail = *rest;
+            *rest = &[];
+            // No delimiter: the decoder only buffers the bytes.
+            let _ = self.decoder.decode(&mut tail);
+            return Next::End;
+        };
+        let (segment, after) = rest.split_at(pos + 1);
+        *rest = after;
+        let frame_bytes = self.carried + segment.len();
+        let stamp = match time {
+            ChunkTime::Completed(t) => self.partial_start.unwrap_or(t),
+            ChunkTime::Streamed {
+                last_end_ns,
+                byte_ns,
+            } => {
+                // Back from the end of the chunk's last byte over the bytes
+                // after the delimiter, then over the whole frame.
+                let back = (after.len() + frame_bytes) as u64 * byte_ns;
+                last_end_ns.saturating_sub(back) / 1000
+            }
+        };
+        self.carried = 0;
+        self.partial_start = None;
+        let mut input = segment;
+        match self.decoder.decode(&mut input) {
+            Some(Ok(packet)) => Next::Packet(packet, stamp),
+            Some(Err(_)) => {
+                link.count_rx_error();
+                Next::Skipped
+            }
+            // A lone delimiter: an empty frame, nothing to deliver.
+            None => Next::Skipped,
+        }
+    }
+}
+
+/// What [`RxFramer::next`] found.
+pub enum Next<'a> {
+    /// A good packet and its time stamp (local µs).
+    Packet(&'a [u8], Micros),
+    /// A bad or empty frame, dropped.
+    Skipped,
+    /// The chunk is used up.
+    End,
+}
+
+/// Per-link wire timing the runtime asks a gateway about.
+pub trait WireTiming {
+    /// Time to put a packet of `len` bytes on the wire, µs.
+    fn transmit_time(&self, len: usize) -> Micros;
+    /// Time until a packet sent now starts onto the wire, given the bytes
+    /// already queued ahead of it, µs.
+    fn queue_delay(&self, queued: usize) -> Micros;
+}
+
+/// The runtime's side of a byte-stream link.
+pub struct FramedGateway<W: WireTiming + 'static> {
+    shared: &'static LinkShared,
+    info: LinkInfo<'static>,
+    wire: &'static W,
+    frame: [u8; FRAME_MAX],
+}
+
+impl<W: WireTiming> FramedGateway<W> {
+    /// The gateway of the link behind `shared`, reported to scans as
+    /// `type_name`.
+    pub fn new(shared: &'static LinkShared, type_name: &'static str, wire: &'static W) -> Self {
+        FramedGateway {
+            shared,
+            info: LinkInfo {
+                type_name,
+                name: "",
+            },
+            wire,
+            frame: [0; FRAME_MAX],
+        }
+    }
+}
+
+impl<W: WireTiming> LinkGateway for FramedGateway<W> {
+    fn info(&self) -> LinkInfo<'_> {
+        self.info
+    }
+
+    fn is_open(&self) -> bool {
+        self.shared.open.load(Ordering::Relaxed)
+    }
+
+    fn mtu(&self) -> u16 {
+        MTU as u16
+    }
+
+    fn clear_to_send(&self) -> bool {
+        // Only this gateway writes the pipe, so the room seen here stays.
+        self.shared.tx.free_capacity() >= FRAME_MAX
+    }
+
+    fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
+        let n = encode_frame(packet, &mut self.frame).map_err(|_| LinkSendError)?;
+        match self.shared.tx.try_write(&self.frame[..n]) {
+            Ok(written) if written == n => Ok(()),
+            // Cannot happen after clear_to_send; a torn frame would be
+            // dropped by the peer's CRC check.
+            _ => Err(LinkSendError),
+        }
+    }
+
+    fn transmit_time(&self, len: usize) -> Micros {
+        self.wire.transmit_time(len)
+    }
+
+    fn queue_delay(&self) -> Micros {
+        self.wire.queue_delay(self.shared.tx_queued())
+    }
+
+    fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
+        let packet = self.shared.rx.try_receive().ok()?;
+        let len = usize::from(packet.len);
+        // A buffer too small leaves it uncopied; the runtime sees the
+        // length and counts the packet as oversize.
+        if let Some(dst) = buf.get_mut(..len) {
+            dst.copy_from_slice(&packet.data[..len]);
+        }
+        Some(Received {
+            len,
+            timestamp: Some(packet.stamp),
+        })
+    }
+}
