@@ -10,6 +10,18 @@ const seconds = Number(process.argv[2] ?? 2);
 // loop: adds r0,#1; ldr r1,[r2]; str r1,[r3]; b loop  (RAM load/store, ALU, branch)
 const LOOP = [0x3001, 0x6811, 0x6019, 0xe7fb];
 
+/** A PIO0 state machine toggling GPIO2 every instruction, at clock divider `div`. */
+function startPio(chip, div) {
+  const { rp } = chip;
+  const P = 0x50200000;
+  [0xe081, 0xe001, 0xe000].forEach((op, i) => rp.writeUint32(P + 0x48 + 4 * i, op));
+  rp.writeUint32(P + 0xc8, div << 16);
+  rp.writeUint32(P + 0xcc, (2 << 12) | (1 << 7));
+  rp.writeUint32(P + 0xdc, (1 << 26) | (2 << 5));
+  rp.writeUint32(0x40014000 + 8 * 2 + 4, 6);
+  rp.writeUint32(P, 1);
+}
+
 function busyChip() {
   const chip = new Chip({
     flash: new Uint8Array(64 * 1024).fill(0xff),
@@ -40,8 +52,13 @@ function bare() {
   return cycles / ((performance.now() - t0) / 1000);
 }
 
-async function viaRunner() {
-  const runner = new Runner({ build: busyChip, log: () => {} });
+async function viaRunner(pioDiv = 0) {
+  const build = () => {
+    const chip = busyChip();
+    if (pioDiv) startPio(chip, pioDiv);
+    return chip;
+  };
+  const runner = new Runner({ build, log: () => {} });
   const run = runner.run();
   await new Promise((r) => setTimeout(r, seconds * 1000));
   runner.stopping = true;
@@ -56,4 +73,9 @@ const out = {
   runner_cycles_per_s: Math.round(runnerRate),
   runner_x_realtime_125MHz: +(runnerRate / 125e6).toFixed(3),
 };
+// PIO cost: one state machine running flat out (no stalls) beside the busy core.
+for (const div of [125, 10, 1]) {
+  const rate = await viaRunner(div);
+  out[`with_pio_clkdiv_${div}_cycles_per_s`] = Math.round(rate);
+}
 process.stdout.write(`${JSON.stringify(out)}\n`);

@@ -84,18 +84,47 @@ export class PioScheduler {
   /** Runs every machine up to system cycle `to`, in time order. */
   advance(to) {
     const ms = this.machines;
+    let running = null; // the only unstalled machine, or null
+    let count = 0;
+    for (let i = 0; i < ms.length; i++) {
+      const sm = ms[i];
+      if (!sm.enabled) {
+        sm.wasEnabled = false;
+        continue;
+      }
+      if (!sm.wasEnabled) {
+        sm.wasEnabled = true;
+        sm.nextAt = to;
+      }
+      if (sm.waiting) {
+        if (sm.nextAt < to) sm.nextAt = to;
+        continue;
+      }
+      running = sm;
+      count++;
+    }
+    if (count === 0) {
+      this.next = Infinity;
+      return;
+    }
+    if (count === 1) {
+      // Common case (one step generator): no interleaving to work out.
+      const sm = running;
+      const div = PioScheduler.divider(sm);
+      while (sm.nextAt <= to && !sm.waiting) this.stepOne(sm, div);
+      if (sm.waiting) {
+        if (sm.nextAt < to) sm.nextAt = to;
+        this.next = Infinity;
+      } else {
+        this.next = sm.nextAt;
+      }
+      return;
+    }
     for (;;) {
       let best = null;
       for (let i = 0; i < ms.length; i++) {
         const sm = ms[i];
-        if (!sm.enabled) {
-          sm.wasEnabled = false;
-          continue;
-        }
-        if (!sm.wasEnabled) {
-          sm.wasEnabled = true;
-          sm.nextAt = to;
-        }
+        if (!sm.enabled) continue;
         if (sm.waiting) {
           if (sm.nextAt < to) sm.nextAt = to;
           continue;
@@ -110,13 +139,17 @@ export class PioScheduler {
         this.next = best.nextAt;
         return;
       }
-      const before = best.cycles;
-      best.step();
-      best.pio.checkChangedPins(); // per instruction, so a short pulse still shows as two edges
-      this.steps++;
-      const used = best.cycles - before;
-      best.nextAt += (used > 0 ? used : 1) * PioScheduler.divider(best);
+      this.stepOne(best, PioScheduler.divider(best));
     }
+  }
+
+  stepOne(sm, div) {
+    const before = sm.cycles;
+    sm.step();
+    sm.pio.checkChangedPins(); // per instruction, so a short pulse still shows as two edges
+    this.steps++;
+    const used = sm.cycles - before;
+    sm.nextAt += (used > 0 ? used : 1) * div;
   }
 
   get active() {
