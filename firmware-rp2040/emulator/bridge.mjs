@@ -12,6 +12,7 @@ import { CdcHost } from './usb-host.mjs';
 import { TcpLink } from './tcp-link.mjs';
 import { ControlServer, gpioReport } from './control.mjs';
 import { EdgeCounter } from './edges.mjs';
+import { PinInputs } from './pins.mjs';
 import { parseUniqueId, DEFAULT_UNIQUE_ID } from './ssi.mjs';
 
 const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uart0 <port>] [--control <port>]
@@ -149,6 +150,7 @@ async function main() {
   let flashDirty = !!opts.flashImage && !fs.existsSync(opts.flashImage);
 
   let runner = null;
+  const inputs = new PinInputs();
   const edges = new EdgeCounter(() => (runner ? runner.chip.nanos / 1000 : 0));
   const usbLink = opts.usb !== undefined ? new TcpLink('usb', { onData: (d) => toUsb(d), onConnect: () => dtr(true), onDisconnect: () => dtr(false), log: vlog }) : null;
   const uartLink = opts.uart0 !== undefined ? new TcpLink('uart0', { onData: (d) => toUart(d), log: vlog }) : null;
@@ -185,6 +187,7 @@ async function main() {
     chip.usbHost.dtr = opts.dtrAlways || !!usbLink?.client;
     chip.rp.uart[0].onByte = (b) => uartLink?.sendByte(b);
     chip.rp.uart[1].onByte = () => {};
+    inputs.attach(chip.rp.gpio);
     edges.attach(chip.rp.gpio);
     return chip;
   };
@@ -224,6 +227,10 @@ async function main() {
         return edges.snapshot();
       },
       counts: () => edges.snapshot(),
+      input: (m) => {
+        inputs.force(Number(m.pin), m.level === null || m.level === undefined ? null : !!Number(m.level));
+        return { pin: Number(m.pin), forced: inputs.forced.has(Number(m.pin)) };
+      },
       'count-stop': () => {
         const s = edges.snapshot();
         edges.stop();

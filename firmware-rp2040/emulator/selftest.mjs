@@ -19,6 +19,7 @@ import { parseUniqueId } from './ssi.mjs';
 import { EdgeCounter } from './edges.mjs';
 import { parseCdcConfig } from './usb-host.mjs';
 import { gpioReport } from './control.mjs';
+import { PinInputs } from './pins.mjs';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const FLASH_SIZE = 256 * 1024;
@@ -278,6 +279,32 @@ test('edges: SIO-driven step/dir pins counted with sign', () => {
   const report = gpioReport(rp.gpio);
   assert.equal(report.pins[2].func, 'sio');
   assert.equal(report.driven & 0b1100, 0b1100);
+});
+
+test('pins: inputs follow pulls and own output unless forced', () => {
+  const chip = newChip();
+  const { rp } = chip;
+  const inputs = new PinInputs();
+  inputs.attach(rp.gpio);
+  const PADS = 0x4001c000;
+  const gpioIn = () => rp.readUint32(0xd0000004);
+  rp.writeUint32(PADS + 4 + 4 * 5, 0b1001010); // GPIO5: input enable, pull-up
+  assert.ok(gpioIn() & (1 << 5), 'pulled-up input reads high');
+  rp.writeUint32(PADS + 4 + 4 * 5, 0b1000110); // pull-down
+  assert.equal(gpioIn() & (1 << 5), 0, 'pulled-down input reads low');
+  inputs.force(5, true);
+  assert.ok(gpioIn() & (1 << 5), 'forced high');
+  rp.writeUint32(PADS + 4 + 4 * 5, 0b1000110);
+  assert.ok(gpioIn() & (1 << 5), 'forcing wins over the pull');
+  inputs.force(5, null);
+  assert.equal(gpioIn() & (1 << 5), 0, 'released: back to the pull');
+  rp.writeUint32(PADS + 4 + 4 * 4, 0b1000000); // GPIO4: input enable (the pad reads what it drives)
+  rp.writeUint32(0x40014000 + 8 * 4 + 4, 5); // GPIO4 SIO output
+  rp.writeUint32(0xd0000020, 1 << 4);
+  rp.writeUint32(0xd0000010, 1 << 4);
+  assert.ok(gpioIn() & (1 << 4), 'an output reads back its level');
+  rp.writeUint32(0xd0000010, 0);
+  assert.equal(gpioIn() & (1 << 4), 0);
 });
 
 test('PIO: runs in emulated time with its clock divider; PIO-driven edges are counted', () => {
