@@ -15,6 +15,10 @@ const BOOT2_ADDRESS = 0x10000000;
 const AIRCR = 0xd0c;
 const SSI_KEY = 0x18000;
 const WATCHDOG_KEY = 0x40058;
+const FIFO_ST = 0x050;
+const FIFO_WR = 0x054;
+const FIFO_RD = 0x058;
+const FIFO_ST_RDY = 1 << 1;
 
 /** rp2040js logs through this: quiet unless verbose; errors become exceptions (we halt). */
 export function makeLogger({ verbose = 0, write = (s) => process.stderr.write(s) } = {}) {
@@ -75,6 +79,27 @@ export class Chip {
     for (const uart of rp.uart) patchUart(uart);
     this.uartFeeders = rp.uart.map((u) => new UartFeeder(u, this.clock, { paced: uartPaced }));
     this.pio = new PioScheduler(rp.pio, () => this.clock.nanos / NS_PER_CYCLE);
+
+    // The inter-core FIFOs are missing from rp2040js (reads give 0xFFFFFFFF and a
+    // console warning). With no core 1 they are always empty and never full;
+    // a write is the firmware trying to start core 1, which is reported.
+    const sioRead = rp.sio.readUint32.bind(rp.sio);
+    const sioWrite = rp.sio.writeUint32.bind(rp.sio);
+    let core1Reported = false;
+    rp.sio.readUint32 = (offset) => {
+      if (offset === FIFO_ST) return FIFO_ST_RDY;
+      if (offset === FIFO_RD) return 0;
+      return sioRead(offset);
+    };
+    rp.sio.writeUint32 = (offset, value) => {
+      if (offset === FIFO_ST) return; // clears sticky error flags: none here
+      if (offset === FIFO_WR) {
+        if (!core1Reported) hooks.warn?.('[emu] firmware wrote the inter-core FIFO (starting core 1?): only core 0 is emulated');
+        core1Reported = true;
+        return;
+      }
+      sioWrite(offset, value);
+    };
 
     // rp2040js ignores SYSRESETREQ and leaves the watchdog reset to its user.
     const ppbWrite = rp.ppb.writeUint32.bind(rp.ppb);
