@@ -17,7 +17,7 @@ import { parseUniqueId, DEFAULT_UNIQUE_ID } from './ssi.mjs';
 
 const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uart0 <port>] [--control <port>]
                       [--realtime] [--flash-image <file>] [--flash-size <bytes>] [--flash-id <16 hex>]
-                      [--uart-unpaced] [--lag-warn-ms <ms>] [--exit-on-halt] [--dtr-always] [-v|-vv]
+                      [--uart-unpaced] [--lag-warn-ms <ms>] [--max-lag-ms <ms>] [--exit-on-halt] [--dtr-always] [-v|-vv]
 
   --elf           firmware ELF, the file a user flashes (PT_LOAD segments go to flash by physical address)
   --usb PORT      TCP listener for the USB CDC-ACM link (0 = pick a free port)
@@ -30,6 +30,8 @@ const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uar
   --flash-id      the 8-byte SPI flash unique id (command 0x4B), 16 hex digits (default ${DEFAULT_UNIQUE_ID})
   --uart-unpaced  deliver host bytes into the UART RX FIFO as fast as it has room, not at the baud rate
   --lag-warn-ms   realtime lag that is reported (default 5)
+  --max-lag-ms    realtime: never fall further behind than this; wall time beyond it is given up
+                  (emulated time then runs slow) instead of caught up later (default: catch up)
   --exit-on-halt  exit with status 3 when the core halts (HardFault, BKPT, UDF, emulation error)
   --dtr-always    keep USB DTR raised even with no TCP client (default: DTR follows the client)
   -v, -vv         log links and rp2040js warnings; -vv also rp2040js debug output
@@ -72,6 +74,7 @@ function parseCli(argv) {
         'flash-id': { type: 'string', default: DEFAULT_UNIQUE_ID },
         'uart-unpaced': { type: 'boolean', default: false },
         'lag-warn-ms': { type: 'string', default: '5' },
+        'max-lag-ms': { type: 'string' },
         'exit-on-halt': { type: 'boolean', default: false },
         'dtr-always': { type: 'boolean', default: false },
         verbose: { type: 'boolean', short: 'v', multiple: true },
@@ -96,6 +99,7 @@ function parseCli(argv) {
     flashSize: parseSize(parsed['flash-size']),
     uartPaced: !parsed['uart-unpaced'],
     lagWarnMs: Number(parsed['lag-warn-ms']),
+    maxLagMs: parsed['max-lag-ms'] === undefined ? Infinity : Number(parsed['max-lag-ms']),
     exitOnHalt: parsed['exit-on-halt'],
     dtrAlways: parsed['dtr-always'],
     verbose: parsed.verbose?.length ?? 0,
@@ -104,6 +108,7 @@ function parseCli(argv) {
     fail(`nothing to bridge: give at least one of --usb, --uart0, --control\n${USAGE}`);
   }
   if (!Number.isFinite(opts.lagWarnMs) || opts.lagWarnMs < 0) fail('--lag-warn-ms must be a number >= 0');
+  if (!(opts.maxLagMs >= 0)) fail('--max-lag-ms must be a number >= 0');
   try {
     opts.uniqueId = parseUniqueId(parsed['flash-id']);
   } catch (err) {
@@ -209,7 +214,7 @@ async function main() {
   };
 
   const hasOutput = () => !!(usbLink?.pending || uartLink?.pending);
-  runner = new Runner({ build, afterSlice, hasOutput, realtime: opts.realtime, lagWarnMs: opts.lagWarnMs, log });
+  runner = new Runner({ build, afterSlice, hasOutput, realtime: opts.realtime, lagWarnMs: opts.lagWarnMs, maxLagMs: opts.maxLagMs, log });
   if (opts.exitOnHalt) {
     const halt = runner.halt.bind(runner);
     runner.halt = (reason) => {

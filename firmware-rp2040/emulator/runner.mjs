@@ -22,12 +22,14 @@ export class Runner {
    * afterSlice(): flush output, persist flash, feed links.
    * hasOutput(): device output is waiting to be sent (ends a slice early).
    */
-  constructor({ build, afterSlice, hasOutput, realtime = false, lagWarnMs = 5, log }) {
+  constructor({ build, afterSlice, hasOutput, realtime = false, lagWarnMs = 5, maxLagMs = Infinity, log }) {
     this.build = build;
     this.hasOutput = hasOutput ?? (() => false);
     this.afterSlice = afterSlice ?? (() => {});
     this.realtime = realtime;
     this.lagWarnMs = lagWarnMs;
+    this.maxLagMs = maxLagMs; // beyond this, wall time is given up instead of caught up
+    this.droppedMs = 0;
     this.log = log ?? ((m) => process.stderr.write(`${m}\n`));
     this.halted = null;
     this.breakFlag = false;
@@ -39,7 +41,7 @@ export class Runner {
     this.doneNs = 0; // emulated time of chips before the last reset
     this.instrCycles = 0; // cycles spent executing (not sleeping)
     this.sliceWallMs = 0; // wall time inside slices that executed instructions
-    this.maxLagMs = 0;
+    this.maxLagSeen = 0;
     this.busySpeed = null; // emulated seconds per wall second while saturated
     this.lagMs = 0;
     this.lastLagReport = 0;
@@ -198,16 +200,23 @@ export class Runner {
   }
 
   trackLag(wall, busy) {
-    const lag = (this.targetNs(wall) - this.chip.nanos) / 1e6;
+    let lag = (this.targetNs(wall) - this.chip.nanos) / 1e6;
+    if (lag > this.maxLagMs) {
+      // Saturated for good: let emulated time run slow rather than chase wall time.
+      this.droppedMs += lag - this.maxLagMs;
+      this.anchorNs -= (lag - this.maxLagMs) * 1e6;
+      lag = this.maxLagMs;
+    }
     this.lagMs = Math.max(0, lag);
     if (!busy || lag <= this.lagWarnMs) return;
-    this.maxLagMs = Math.max(this.maxLagMs, lag);
+    this.maxLagSeen = Math.max(this.maxLagSeen, lag);
     this.lagEvents++;
     // The first slices after (re)start include JIT warm-up: counted, not printed.
     if (wall - this.anchorWall >= STARTUP_GRACE_MS && wall - this.lastLagReport >= LAG_REPORT_INTERVAL_MS) {
       this.lastLagReport = wall;
       const speed = this.busySpeed === null ? '' : `; saturated it runs at ${this.busySpeed.toFixed(2)}x realtime`;
-      this.log(`[emu] behind realtime by ${lag.toFixed(1)} ms (max ${this.maxLagMs.toFixed(1)} ms)${speed}`);
+      const dropped = this.droppedMs ? `; ${this.droppedMs.toFixed(0)} ms of wall time given up (--max-lag-ms)` : '';
+      this.log(`[emu] behind realtime by ${lag.toFixed(1)} ms (max ${this.maxLagSeen.toFixed(1)} ms)${speed}${dropped}`);
     }
   }
 
@@ -231,8 +240,9 @@ export class Runner {
       exec_cycles_per_wall_s: this.busyCyclesPerSecond(),
       saturated_speed_x_realtime: this.busySpeed,
       behind_ms: this.realtime ? this.lagMs : null,
-      max_behind_ms: this.realtime ? this.maxLagMs : null,
+      max_behind_ms: this.realtime ? this.maxLagSeen : null,
       lag_events: this.lagEvents,
+      lag_dropped_ms: this.droppedMs,
       pio_steps: this.chip.pio.steps,
       resets: this.resets,
       halted: this.halted,
