@@ -17,7 +17,8 @@ import { parseUniqueId, DEFAULT_UNIQUE_ID } from './ssi.mjs';
 
 const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uart0 <port>] [--control <port>]
                       [--realtime] [--flash-image <file>] [--flash-size <bytes>] [--flash-id <16 hex>]
-                      [--uart-unpaced] [--lag-warn-ms <ms>] [--max-lag-ms <ms>] [--exit-on-halt] [--dtr-always] [-v|-vv]
+                      [--uart-unpaced] [--lag-warn-ms <ms>] [--max-lag-ms <ms>] [--exit-on-halt] [--dtr-always]
+                      [--reference-core] [-v|-vv]
 
   --elf           firmware ELF, the file a user flashes (PT_LOAD segments go to flash by physical address)
   --usb PORT      TCP listener for the USB CDC-ACM link (0 = pick a free port)
@@ -34,6 +35,7 @@ const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uar
                   (emulated time then runs slow) instead of caught up later (default: catch up)
   --exit-on-halt  exit with status 3 when the core halts (HardFault, BKPT, UDF, emulation error)
   --dtr-always    keep USB DTR raised even with no TCP client (default: DTR follows the client)
+  --reference-core  execute every instruction with rp2040js's own decoder (no fast path)
   -v, -vv         log links and rp2040js warnings; -vv also rp2040js debug output
 
 Once listening, one JSON line goes to stdout: {"ready":true,"usb":PORT,"uart0":PORT,"control":PORT,...}.`;
@@ -77,6 +79,7 @@ function parseCli(argv) {
         'max-lag-ms': { type: 'string' },
         'exit-on-halt': { type: 'boolean', default: false },
         'dtr-always': { type: 'boolean', default: false },
+        'reference-core': { type: 'boolean', default: false },
         verbose: { type: 'boolean', short: 'v', multiple: true },
         help: { type: 'boolean', short: 'h' },
       },
@@ -102,6 +105,7 @@ function parseCli(argv) {
     maxLagMs: parsed['max-lag-ms'] === undefined ? Infinity : Number(parsed['max-lag-ms']),
     exitOnHalt: parsed['exit-on-halt'],
     dtrAlways: parsed['dtr-always'],
+    fastPath: !parsed['reference-core'],
     verbose: parsed.verbose?.length ?? 0,
   };
   if (opts.usb === undefined && opts.uart0 === undefined && opts.control === undefined) {
@@ -181,6 +185,7 @@ async function main() {
       uniqueId: opts.uniqueId,
       logger,
       uartPaced: opts.uartPaced,
+      fastPath: opts.fastPath,
       hooks: {
         onHalt: (reason) => runner.halt(reason),
         onResetRequest: (reason) => runner.requestReset(`firmware: ${reason}`),
@@ -251,6 +256,7 @@ async function main() {
         usb: usbLink && { state: runner.chip.usbHost.state, dtr: runner.chip.usbHost.sentDtr, ...usbLink.stats, queued_to_device: runner.chip.usbHost.pendingBytes },
         uart0: uartLink && { ...uartLink.stats, queued_to_device: runner.chip.uartFeeders[0].pending, baud: runner.chip.rp.uart[0].baudRate },
         rom_calls: runner.chip.rom.calls,
+        decoder: runner.chip.decoderStats,
         rp2040js_warnings: logger.warnings,
       }),
       flash: (m) => {

@@ -9,6 +9,7 @@ import { patchSsi } from './ssi.mjs';
 import { patchUart, UartFeeder } from './uart.mjs';
 import { PioScheduler } from './pio-sched.mjs';
 import { installXipCtrl } from './xip.mjs';
+import { installFastPath } from './fastcore.mjs';
 
 export const NS_PER_CYCLE = 8; // 125 MHz
 const BOOT2_ADDRESS = 0x10000000;
@@ -44,7 +45,7 @@ export class Chip {
    * flash: bytes to put in flash (offset 0 = 0x10000000), flashSize bytes.
    * hooks: onHalt(reason), onResetRequest(reason), onFlashWrite(), warn(msg).
    */
-  constructor({ flash, flashSize, uniqueId, jedecId, logger, hooks, uartPaced = true }) {
+  constructor({ flash, flashSize, uniqueId, jedecId, logger, hooks, uartPaced = true, fastPath = true }) {
     this.hooks = hooks;
     this.flashSize = flashSize;
     this.extraNs = 0; // emulated time a ROM routine took, added after its BKPT
@@ -92,6 +93,8 @@ export class Chip {
       if (offset >= 0 && offset <= SRAM_LAST_WORD) sram.setUint32(offset, value, true);
       else write32(address, value);
     };
+
+    this.decoderStats = fastPath ? installFastPath(rp) : null;
 
     // The inter-core FIFOs are missing from rp2040js (reads give 0xFFFFFFFF and a
     // console warning). With no core 1 they are always empty and never full;

@@ -25,8 +25,9 @@ const here = path.dirname(fileURLToPath(import.meta.url));
 const FLASH_SIZE = 256 * 1024;
 const UID = '0123456789abcdef';
 
-function newChip(hooks = {}) {
+function newChip(hooks = {}, fastPath = true) {
   return new Chip({
+    fastPath,
     flash: new Uint8Array(FLASH_SIZE).fill(0xff),
     flashSize: FLASH_SIZE,
     uniqueId: parseUniqueId(UID),
@@ -349,6 +350,108 @@ test('PIO: FJOIN_TX gives an 8-word TX FIFO (rp2040js keeps 4 otherwise)', () =>
   assert.equal(rp.readUint32(P + FSTAT) & TXFULL0, 0, 'joined: room after 7');
   rp.writeUint32(P + 0x10, 7);
   assert.ok(rp.readUint32(P + FSTAT) & TXFULL0, 'joined: full after 8');
+});
+
+/** Deterministic PRNG so a failure can be replayed. */
+function rng(seed) {
+  let x = seed >>> 0 || 1;
+  return () => {
+    x ^= x << 13;
+    x >>>= 0;
+    x ^= x >>> 17;
+    x ^= x << 5;
+    x >>>= 0;
+    return x;
+  };
+}
+
+test('fast decoder: same state as rp2040js on random instructions', () => {
+  const next = rng(Number(process.env.FAST_DECODER_SEED ?? 12345));
+  const iterations = Number(process.env.FAST_DECODER_ITERATIONS ?? 40000);
+  const rand = (n) => next() % n;
+  const fastChip = newChip({}, true);
+  const refChip = newChip({}, false);
+  const CODE = 0x20001000;
+  const STACK = 0x20000800;
+  const WINDOW = [0x20000000, 0x20001400];
+  // Opcode generators: [template, fixup(op, regs)] where fixup points base registers into RAM.
+  const ramWord = () => 0x20000400 + 4 * rand(256);
+  const classes = [
+    () => [rand(0x2000), null], // 000xx: shifts, add/sub reg/imm3
+    () => [0x2000 | rand(0x2000), null], // 001xx: MOVS/CMP/ADDS/SUBS imm8
+    () => [0x4000 | rand(0x400), null], // ALU
+    () => [0x4400 | rand(0x300), null], // ADD/CMP/MOV hi (BX excluded below)
+    () => [0x4800 | rand(0x800), null], // LDR literal
+    () => {
+      const op = 0x5000 | rand(0x1000); // register offset: Rm + Rn
+      return [op, (o, r) => {
+        r[(o >> 3) & 7] = ramWord();
+        r[(o >> 6) & 7] = 4 * rand(64);
+        if (((o >> 3) & 7) === ((o >> 6) & 7)) r[(o >> 3) & 7] = 0x10000200; // same register twice: 2 x a flash word
+      }];
+    },
+    () => {
+      const op = 0x6000 | rand(0x3000); // STR/LDR/STRB/LDRB/STRH/LDRH imm5
+      return [op, (o, r) => (r[(o >> 3) & 7] = ramWord())];
+    },
+    () => [0x9000 | rand(0x1000), null], // STR/LDR sp
+    () => [0xa000 | rand(0x1000), null], // ADR, ADD sp
+    () => [0xb000 | rand(0x100), null], // ADD/SUB SP imm7
+    () => [0xb200 | rand(0x100), null], // SXT/UXT
+    () => [0xb400 | rand(0x200), null], // PUSH
+    () => [0xbc00 | rand(0x100), null], // POP without pc
+    () => [0xbd00 | rand(0x100), null], // POP with pc (rp2040js path)
+    () => [0xd000 | rand(0xe00), null], // B<cond>
+    () => [0xe000 | rand(0x800), null], // B
+  ];
+  const mem = new Uint8Array(WINDOW[1] - WINDOW[0]);
+  const flagsOf = (c) => [c.N, c.Z, c.C, c.V];
+  let fastCount = 0;
+  for (let iter = 0; iter < iterations; iter++) {
+    let [op, fix] = classes[rand(classes.length)]();
+    if (op >> 8 === 0x47) continue; // BX/BLX: not ours
+    if (iter % 64 === 0) for (let i = 0; i < mem.length; i++) mem[i] = next() & 0xff;
+    const regs = new Uint32Array(16);
+    for (let i = 0; i < 13; i++) regs[i] = next();
+    for (let i = 0; i < 8; i++) if (rand(3) === 0) regs[i] = rand(4); // small values for shifts
+    regs[13] = STACK;
+    regs[14] = next() | 1;
+    fix?.(op, regs);
+    const flags = [rand(2) === 1, rand(2) === 1, rand(2) === 1, rand(2) === 1];
+    const results = [];
+    for (const chip of [fastChip, refChip]) {
+      const { rp, core } = chip;
+      rp.sram.set(mem, WINDOW[0] - 0x20000000);
+      rp.writeUint16(CODE, op);
+      core.registers.set(regs);
+      core.registers[15] = CODE;
+      [core.N, core.Z, core.C, core.V] = flags;
+      core.interruptsUpdated = false;
+      let cycles;
+      let error = null;
+      try {
+        cycles = core.executeInstruction();
+      } catch (err) {
+        error = err.message; // e.g. an unaligned access: must match too
+      }
+      results.push({
+        regs: [...core.registers],
+        flags: flagsOf(core),
+        cycles,
+        error,
+        mem: Buffer.from(rp.sram.subarray(WINDOW[0] - 0x20000000, WINDOW[1] - 0x20000000)),
+      });
+    }
+    const [a, b] = results;
+    const where = `op 0x${op.toString(16)} (iteration ${iter})`;
+    assert.deepEqual(a.error, b.error, `error differs for ${where}`);
+    assert.deepEqual(a.regs, b.regs, `registers differ for ${where}`);
+    assert.deepEqual(a.flags, b.flags, `flags differ for ${where}`);
+    assert.equal(a.cycles, b.cycles, `cycles differ for ${where}`);
+    assert.ok(a.mem.equals(b.mem), `memory differs for ${where}`);
+  }
+  fastCount = fastChip.decoderStats.fast;
+  assert.ok(fastCount > iterations * 0.75, `most instructions took the fast path (${fastCount})`);
 });
 
 test('USB: CDC interfaces and bulk endpoints from a configuration descriptor', () => {
