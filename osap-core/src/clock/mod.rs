@@ -73,6 +73,9 @@ const MS: u64 = 1000;
 const DISCOVERY_SAMPLES: u32 = 64;
 /// See [`DISCOVERY_SAMPLES`].
 const DISCOVERY_BURST: u64 = 32;
+/// Requests in a row without a reply after which a link is taken to have
+/// no neighbour and is asked at the plain interval only.
+const SILENT_REQUESTS: u32 = 64;
 /// While settling, the frequency loop's horizon, s.
 const SETTLE_FLL_S: f32 = 0.5;
 /// While settling, offsets above this (and above 4× the measurement noise)
@@ -623,8 +626,13 @@ impl<const LINKS: usize> Clock<LINKS> {
                 continue;
             }
             due |= 1 << i;
-            let n = &self.neighbours[i];
-            let burst = if n.seen < DISCOVERY_SAMPLES {
+            let n = &mut self.neighbours[i];
+            n.unanswered = n.unanswered.saturating_add(1);
+            let burst = if n.unanswered > SILENT_REQUESTS {
+                // Nobody answers: ask at the plain rate, so an idle link
+                // costs next to nothing until a neighbour appears.
+                1
+            } else if n.seen < DISCOVERY_SAMPLES {
                 // Discovery: find the round-trip floor in a fraction of a
                 // second (a few kilobytes, once per neighbour).
                 DISCOVERY_BURST
@@ -995,6 +1003,35 @@ mod tests {
             bad.validate(),
             Err(TimeConfigError::OutOfRange("dither_us"))
         );
+    }
+
+    #[test]
+    fn a_link_nobody_answers_is_asked_at_the_plain_rate() {
+        let cfg = TimeConfig::default();
+        let mut c: Clock<1> = Clock::new(cfg);
+        let mut now = 0;
+        let mut sent = std::vec::Vec::new();
+        while now < 2_000_000 {
+            if c.due_requests(now, 1) != 0 {
+                sent.push(now);
+            }
+            now += 100;
+        }
+        // A discovery burst first, then one request per interval.
+        let burst = sent.iter().filter(|&&t| t < 100_000).count();
+        assert!(
+            burst >= SILENT_REQUESTS as usize,
+            "{burst} requests in the burst"
+        );
+        let late: std::vec::Vec<_> = sent.iter().filter(|&&t| t > 500_000).collect();
+        for w in late.windows(2) {
+            let gap = w[1] - w[0];
+            assert!(
+                gap + u64::from(2 * cfg.dither_us) >= u64::from(cfg.interval_us),
+                "requests {gap} µs apart with no one answering"
+            );
+        }
+        assert!(late.len() < 40, "{} requests in 1.5 s", late.len());
     }
 
     #[test]

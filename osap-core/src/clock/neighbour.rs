@@ -132,6 +132,9 @@ pub struct Neighbour {
     pub acceptance: f32,
     /// Round trips seen since the neighbour was (re)discovered.
     pub seen: u32,
+    /// Requests sent since the latest reply: a link with no one on it (an
+    /// open UART with nothing plugged in) stops being sampled in bursts.
+    pub unanswered: u32,
     /// Lower envelope of `their time − our send stamp`, per time bucket:
     /// see [`Neighbour::new_envelope_slope`].
     envelope: [EnvelopeBucket; ENVELOPE_BUCKETS],
@@ -181,6 +184,7 @@ impl Default for Neighbour {
             anchor_misses: 0,
             acceptance: 0.0,
             seen: 0,
+            unanswered: 0,
             envelope: [EMPTY_BUCKET; ENVELOPE_BUCKETS],
             envelope_used: u64::MAX,
         }
@@ -232,6 +236,7 @@ impl Neighbour {
         self.tier = tier;
         self.last_rtt = rtt;
         self.seen = self.seen.saturating_add(1);
+        self.unanswered = 0;
         // The floor forgets with time, not with samples: bursts of requests
         // must not loosen it faster.
         let elapsed = self.last_heard.map_or(0, |t| received.saturating_sub(t)) as f32;
