@@ -17,6 +17,7 @@ const MAX_PACKET = 64;
 // one stage finish before the next starts, short next to a 1 ms USB frame.
 const PACKET_NS = 10_000;
 const NEXT_REQUEST_NS = 50_000;
+const CONTROL_TIMEOUT_NS = 100e6;
 
 const DESC_DEVICE = 1;
 const DESC_CONFIG = 2;
@@ -68,6 +69,8 @@ export class CdcHost {
     this.bytesIn = 0;
     this.bytesOut = 0;
     this.nextAlarm = makeAlarm(clock, () => this.nextRequest());
+    // A request the firmware STALLs (or never answers) would otherwise hang enumeration.
+    this.timeoutAlarm = makeAlarm(clock, () => this.controlTimeout());
     this.clock = clock;
     this.attach();
   }
@@ -115,8 +118,16 @@ export class CdcHost {
     const dev = yield { setup: setup(0x80, 6, DESC_DEVICE << 8, 0, 18), name: 'GET_DESCRIPTOR(device)' };
     this.deviceDescriptor = dev;
     const head = yield { setup: setup(0x80, 6, DESC_CONFIG << 8, 0, 9), name: 'GET_DESCRIPTOR(config, 9)' };
+    if (!head || head.length < 4) {
+      this.log('USB: no configuration descriptor; enumeration failed');
+      return;
+    }
     const total = head[2] | (head[3] << 8);
     const config = yield { setup: setup(0x80, 6, DESC_CONFIG << 8, 0, total), name: 'GET_DESCRIPTOR(config)' };
+    if (!config) {
+      this.log('USB: no configuration descriptor; enumeration failed');
+      return;
+    }
     this.cdc = parseCdcConfig(config);
     if (this.cdc.bulkIn < 0 || this.cdc.bulkOut < 0) {
       this.log(`USB: no CDC data interface with bulk IN/OUT in the configuration descriptor`);
@@ -183,10 +194,19 @@ export class CdcHost {
       sent: 0,
       result: null,
     };
+    this.timeoutAlarm.schedule(CONTROL_TIMEOUT_NS);
     this.usb.sendSetupPacket(req.setup);
   }
 
+  controlTimeout() {
+    const c = this.control;
+    if (!c || c.phase === 'done') return;
+    this.log(`USB: ${c.name} got no answer within ${CONTROL_TIMEOUT_NS / 1e6} ms (stalled?); going on without it`);
+    this.finishControl(null);
+  }
+
   finishControl(result) {
+    this.timeoutAlarm.cancel();
     this.control.result = result;
     this.control.phase = 'done';
     this.nextAlarm.schedule(NEXT_REQUEST_NS);
