@@ -19,9 +19,12 @@ use portable_atomic::AtomicU32;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
-use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
+use osap_core::framing::{encode_frame, max_frame_len};
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::Micros;
+
+pub use osap_firmware_logic::framer::ChunkTime;
+use osap_firmware_logic::framer::{Next, RxFramer};
 
 use crate::runtime_task::wake_runtime;
 
@@ -90,7 +93,7 @@ impl LinkShared {
 
     /// Hands a received packet to the runtime; waits while the queue is
     /// full.
-    pub async fn deliver(&self, packet: &[u8], stamp: Micros) {
+    async fn deliver(&self, packet: &[u8], stamp: Micros) {
         self.rx.send(RxPacket::new(packet, stamp)).await;
         wake_runtime();
     }
@@ -117,120 +120,25 @@ impl LinkShared {
         self.tx.len()
     }
 
-    /// Counts a frame the receive side dropped.
-    fn count_rx_error(&self) {
-        self.rx_errors.fetch_add(1, Ordering::Relaxed);
-    }
-}
-
-/// How a received chunk of bytes relates to time.
-#[derive(Debug, Clone, Copy)]
-pub enum ChunkTime {
-    /// The chunk arrived whole at this local time (a USB packet's
-    /// completion); a frame is stamped with the arrival of the chunk it
-    /// started in.
-    Completed(Micros),
-    /// The chunk's bytes came back-to-back off a serial line whose last
-    /// stop bit ended at `last_end_ns` (local time in ns), `byte_ns` apart;
-    /// a frame is stamped with the start of its first byte, counted back
-    /// from its delimiter.
-    Streamed {
-        /// End of the chunk's last byte, local ns.
-        last_end_ns: u64,
-        /// Wire time of one byte (start, 8 data and stop bit), ns.
-        byte_ns: u64,
-    },
-}
-
-/// Splits a received byte stream into packets and stamps each.
-pub struct RxFramer {
-    decoder: FrameDecoder<FRAME_MAX>,
-    /// Bytes of the current partial frame seen in earlier chunks.
-    carried: usize,
-    /// Arrival of the chunk the partial frame started in (USB).
-    partial_start: Option<Micros>,
-}
-
-impl RxFramer {
-    /// A framer waiting for the start of a frame.
-    pub const fn new() -> Self {
-        RxFramer {
-            decoder: FrameDecoder::new(),
-            carried: 0,
-            partial_start: None,
-        }
-    }
-
-    /// Forgets a partial frame (after a line error or a reconnect).
-    pub fn reset(&mut self) {
-        self.decoder.reset();
-        self.carried = 0;
-        self.partial_start = None;
-    }
-
-    /// Takes bytes from the front of `rest` (the unread tail of a chunk)
-    /// up to and including the next frame delimiter. Returns the frame's
-    /// packet and time stamp if it was good; [`Next::Skipped`] for a bad
-    /// frame (counted on `link`) or an empty one; [`Next::End`] once
-    /// `rest` is used up, keeping a partial frame for the next chunk.
-    pub fn next<'a>(
-        &'a mut self,
-        rest: &mut &[u8],
-        time: ChunkTime,
-        link: &LinkShared,
-    ) -> Next<'a> {
-        let Some(pos) = rest.iter().position(|&b| b == 0) else {
-            if !rest.is_empty() {
-                self.carried += rest.len();
-                if let ChunkTime::Completed(t) = time {
-                    self.partial_start.get_or_insert(t);
+    /// Feeds one received chunk through `framer` and hands each good
+    /// packet to the runtime; counts bad frames.
+    pub async fn receive_chunk(&self, framer: &mut Framer, chunk: &[u8], time: ChunkTime) {
+        let mut rest = chunk;
+        loop {
+            match framer.next(&mut rest, time) {
+                Next::Packet(packet, stamp) => self.deliver(packet, stamp).await,
+                Next::Bad(_) => {
+                    self.rx_errors.fetch_add(1, Ordering::Relaxed);
                 }
+                Next::Empty => {}
+                Next::End => return,
             }
-            let mut tail = *rest;
-            *rest = &[];
-            // No delimiter: the decoder only buffers the bytes.
-            let _ = self.decoder.decode(&mut tail);
-            return Next::End;
-        };
-        let (segment, after) = rest.split_at(pos + 1);
-        *rest = after;
-        let frame_bytes = self.carried + segment.len();
-        let stamp = match time {
-            ChunkTime::Completed(t) => self.partial_start.unwrap_or(t),
-            ChunkTime::Streamed {
-                last_end_ns,
-                byte_ns,
-            } => {
-                // Back from the end of the chunk's last byte over the bytes
-                // after the delimiter, then over the whole frame.
-                let back = (after.len() + frame_bytes) as u64 * byte_ns;
-                last_end_ns.saturating_sub(back) / 1000
-            }
-        };
-        self.carried = 0;
-        self.partial_start = None;
-        let mut input = segment;
-        match self.decoder.decode(&mut input) {
-            Some(Ok(packet)) => Next::Packet(packet, stamp),
-            Some(Err(_)) => {
-                link.count_rx_error();
-                Next::Skipped
-            }
-            // A lone delimiter: an empty frame, nothing to deliver.
-            None => Next::Skipped,
         }
     }
 }
 
-/// What [`RxFramer::next`] found.
-pub enum Next<'a> {
-    /// A good packet and its time stamp (local µs).
-    Packet(&'a [u8], Micros),
-    /// A bad or empty frame, dropped.
-    Skipped,
-    /// The chunk is used up.
-    End,
-}
+/// The receive framer of both links.
+pub type Framer = RxFramer<FRAME_MAX>;
 
 /// Per-link wire timing the runtime asks a gateway about.
 pub trait WireTiming {

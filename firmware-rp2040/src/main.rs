@@ -43,8 +43,8 @@ use embassy_rp::{bind_interrupts, usb};
 use embassy_time::Instant;
 use osap_core::netresponder::BuildKey;
 use osap_core::Micros;
+use osap_firmware_logic::name_store::NameStore;
 use osap_module::ModulePorts;
-use osap_name_store::NameStore;
 use panic_reset as _;
 use static_cell::StaticCell;
 

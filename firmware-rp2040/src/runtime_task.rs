@@ -15,8 +15,8 @@ use embassy_time::{Instant, Timer};
 use osap_core::link::LinkGateway;
 use osap_core::netresponder::Level;
 use osap_core::Runtime;
+use osap_firmware_logic::name_store::NameStore;
 use osap_module::ModulePorts;
-use osap_name_store::NameStore;
 
 use crate::link::{FramedGateway, MTU};
 use crate::name_store::NameSector;

@@ -8,7 +8,8 @@
 //!
 //! A received packet is stamped with the start of its first byte on the
 //! wire, counted back from when its bytes reached the receive task (see
-//! [`RxTimer`]); the runtime's clock sync is as good as this stamp.
+//! `Serial::chunk_time` in the logic crate); the runtime's clock sync is as
+//! good as this stamp.
 
 use core::cell::Cell;
 
@@ -20,7 +21,9 @@ use embedded_io_async::{Read, ReadReady, Write};
 use osap_core::framing::max_frame_len;
 use osap_core::Micros;
 
-use crate::link::{ChunkTime, LinkShared, Next, RxFramer, WireTiming};
+use osap_firmware_logic::serial::Serial;
+
+use crate::link::{Framer, LinkShared, WireTiming};
 
 /// Line rate, bits per second. 1 Mbaud suits RS-485 runs of a few metres;
 /// the RP2040's UART and common transceivers (e.g. THVD1450, MAX3485 at
@@ -28,14 +31,8 @@ use crate::link::{ChunkTime, LinkShared, Next, RxFramer, WireTiming};
 /// other end must match.
 pub const BAUD: u32 = 1_000_000;
 
-/// Bits on the wire per byte: start, 8 data, stop (8N1).
-const BITS_PER_BYTE: u64 = 10;
-
-/// The UART's receive interrupt fires when its FIFO holds 28 bytes (7/8,
-/// as embassy-rp sets it) or after 32 idle bit times with bytes waiting.
-const RX_FIFO_LEVEL: usize = 28;
-/// Idle bit times before the receive timeout interrupt.
-const RX_TIMEOUT_BITS: u64 = 32;
+/// The line's timing at [`BAUD`].
+const LINE: Serial = Serial { baud: BAUD };
 
 /// Time the transceiver's driver needs after DE rises before the first
 /// start bit: 2 µs at 125 MHz (slow parts such as the MAX485 take up to
@@ -59,16 +56,6 @@ pub static UART_TIMING: UartTiming = UartTiming {
     wire_free_at: Mutex::new(Cell::new(0)),
 };
 
-/// Wire time of one byte, ns.
-const fn byte_ns() -> u64 {
-    BITS_PER_BYTE * 1_000_000_000 / BAUD as u64
-}
-
-/// Wire time of `bytes` bytes, µs, rounded up.
-const fn bytes_us(bytes: u64) -> Micros {
-    (bytes * byte_ns()).div_ceil(1000)
-}
-
 impl UartTiming {
     fn wire_free_at(&self) -> Micros {
         critical_section::with(|cs| self.wire_free_at.borrow(cs).get())
@@ -79,7 +66,7 @@ impl UartTiming {
     fn queue(&self, now: Micros, bytes: usize) -> Micros {
         critical_section::with(|cs| {
             let cell = self.wire_free_at.borrow(cs);
-            let end = cell.get().max(now) + bytes_us(bytes as u64);
+            let end = cell.get().max(now) + LINE.bytes_us(bytes as u64);
             cell.set(end);
             end
         })
@@ -88,41 +75,19 @@ impl UartTiming {
 
 impl WireTiming for UartTiming {
     fn transmit_time(&self, len: usize) -> Micros {
-        bytes_us(max_frame_len(len) as u64)
+        LINE.bytes_us(max_frame_len(len) as u64)
     }
 
     fn queue_delay(&self, queued: usize) -> Micros {
         let now = Instant::now().as_micros();
-        self.wire_free_at().saturating_sub(now) + bytes_us(queued as u64)
-    }
-}
-
-/// Where the bytes of a chunk were on the wire.
-struct RxTimer;
-
-impl RxTimer {
-    /// A chunk of `len` bytes read at local time `read_us`. A chunk shorter
-    /// than the FIFO trigger level came with the receive timeout, 32 idle
-    /// bit times after its last byte; a longer one came with the level
-    /// trigger, right as its last byte landed. (Interrupt and task latency,
-    /// a few µs on the link executor, is not taken off.)
-    fn chunk(len: usize, read_us: Micros) -> ChunkTime {
-        let byte_ns = byte_ns();
-        let mut last_end_ns = read_us * 1000;
-        if len < RX_FIFO_LEVEL {
-            last_end_ns = last_end_ns.saturating_sub(RX_TIMEOUT_BITS * byte_ns / BITS_PER_BYTE);
-        }
-        ChunkTime::Streamed {
-            last_end_ns,
-            byte_ns,
-        }
+        self.wire_free_at().saturating_sub(now) + LINE.bytes_us(queued as u64)
     }
 }
 
 /// Receives frames from UART0 and hands their packets to the runtime.
 #[embassy_executor::task]
 pub async fn uart_rx_task(mut rx: BufferedUartRx, shared: &'static LinkShared) {
-    let mut framer = RxFramer::new();
+    let mut framer = Framer::new();
     let mut buf = [0u8; RX_CHUNK];
     loop {
         let mut len = match rx.read(&mut buf).await {
@@ -144,15 +109,8 @@ pub async fn uart_rx_task(mut rx: BufferedUartRx, shared: &'static LinkShared) {
             }
             read_us = Instant::now().as_micros();
         }
-        let time = RxTimer::chunk(len, read_us);
-        let mut rest = &buf[..len];
-        loop {
-            match framer.next(&mut rest, time, shared) {
-                Next::Packet(packet, stamp) => shared.deliver(packet, stamp).await,
-                Next::Skipped => {}
-                Next::End => break,
-            }
-        }
+        let time = LINE.chunk_time(len, read_us);
+        shared.receive_chunk(&mut framer, &buf[..len], time).await;
     }
 }
 

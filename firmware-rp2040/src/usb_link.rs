@@ -24,7 +24,7 @@ use osap_core::usb::{MANUFACTURER, PRODUCT_ID_RP2040, PRODUCT_PREFIX, VENDOR_ID}
 use osap_core::Micros;
 use static_cell::StaticCell;
 
-use crate::link::{ChunkTime, LinkShared, Next, RxFramer, WireTiming};
+use crate::link::{ChunkTime, Framer, LinkShared, WireTiming};
 use crate::{unwrap, Irqs};
 
 /// Full-speed bulk packet size.
@@ -132,7 +132,7 @@ async fn usb_rx_task(
     control: ControlChanged<'static>,
     shared: &'static LinkShared,
 ) {
-    let mut framer = RxFramer::new();
+    let mut framer = Framer::new();
     let mut buf = [0u8; PACKET];
     loop {
         rx.wait_connection().await;
@@ -142,14 +142,7 @@ async fn usb_rx_task(
             match select(rx.read_packet(&mut buf), control.control_changed()).await {
                 Either::First(Ok(n)) => {
                     let time = ChunkTime::Completed(Instant::now().as_micros());
-                    let mut rest = &buf[..n];
-                    loop {
-                        match framer.next(&mut rest, time, shared) {
-                            Next::Packet(packet, stamp) => shared.deliver(packet, stamp).await,
-                            Next::Skipped => {}
-                            Next::End => break,
-                        }
-                    }
+                    shared.receive_chunk(&mut framer, &buf[..n], time).await;
                 }
                 // Unplugged, reset or deconfigured.
                 Either::First(Err(EndpointError::Disabled)) => break,

@@ -20,10 +20,6 @@
 //! The flash itself is behind [`NameFlash`], so this logic runs and is tested
 //! on the host; the firmware implements it over its HAL's blocking flash
 //! driver.
-#![no_std]
-#![deny(missing_docs)]
-#![forbid(unsafe_code)]
-
 use core::fmt::Write;
 use heapless::String;
 use osap_core::framing::crc16;
