@@ -19,7 +19,7 @@ export function gpioReport(pins) {
   return { high: high >>> 0, driven: driven >>> 0, pins: list };
 }
 
-/** commands: { name: (msg) => object | Promise<object> } */
+/** commands: { name: (msg) => object } */
 export class ControlServer {
   constructor(commands, { log } = {}) {
     this.commands = commands;
@@ -41,20 +41,25 @@ export class ControlServer {
     let buf = '';
     sock.setEncoding('utf8');
     sock.on('error', () => sock.destroy());
-    sock.on('data', async (text) => {
+    // Commands are synchronous, so replies keep the order of the requests.
+    sock.on('data', (text) => {
       buf += text;
       let nl;
       while ((nl = buf.indexOf('\n')) >= 0) {
         const line = buf.slice(0, nl).trim();
         buf = buf.slice(nl + 1);
         if (!line) continue;
-        const reply = await this.handle(line);
+        const reply = this.handle(line);
         if (!sock.destroyed) sock.write(`${JSON.stringify(reply)}\n`);
+      }
+      if (buf.length > 65536) {
+        sock.write(`${JSON.stringify({ ok: false, error: 'line too long' })}\n`);
+        sock.destroy();
       }
     });
   }
 
-  async handle(line) {
+  handle(line) {
     let msg;
     try {
       msg = JSON.parse(line);
@@ -64,7 +69,7 @@ export class ControlServer {
     const fn = this.commands[msg?.cmd];
     if (!fn) return { ok: false, error: `unknown cmd ${JSON.stringify(msg?.cmd)}; known: ${Object.keys(this.commands).join(', ')}` };
     try {
-      return { ok: true, ...(await fn(msg)) };
+      return { ok: true, ...fn(msg) };
     } catch (err) {
       return { ok: false, error: err.message };
     }
