@@ -156,7 +156,15 @@ async function main() {
   const vlog = opts.verbose ? log : () => {};
   const logger = makeLogger({ verbose: opts.verbose });
   const initialFlash = loadFlash(opts);
-  let flashDirty = !!opts.flashImage && !fs.existsSync(opts.flashImage);
+  let flashDirty = false;
+  if (opts.flashImage) {
+    // Written at once, so a bad path fails now rather than at the first flash write.
+    try {
+      saveFlash(opts.flashImage, initialFlash);
+    } catch (err) {
+      fail(`--flash-image ${opts.flashImage}: cannot write it (${err.code ?? err.message})`);
+    }
+  }
 
   let runner = null;
   const inputs = new PinInputs();
