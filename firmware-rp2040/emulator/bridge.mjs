@@ -247,6 +247,7 @@ async function main() {
       counts: () => edges.snapshot(),
       input: (m) => {
         inputs.force(Number(m.pin), m.level === null || m.level === undefined ? null : !!Number(m.level));
+        runner.wake(); // a GPIO interrupt may be due
         return { pin: Number(m.pin), forced: inputs.forced.has(Number(m.pin)) };
       },
       'count-stop': () => {

@@ -96,6 +96,7 @@ export class Runner {
     this.halted = null;
     this.breakFlag = false;
     this.resets++;
+    this.inHardFault = false;
     this.anchor();
     this.log(`[emu] reset (${reason}); flash kept`);
   }
@@ -115,7 +116,14 @@ export class Runner {
         this.halt(`emulation error: ${err.message}`);
         continue;
       }
-      if (this.chip.core.IPSR === HARDFAULT) this.halt(`HardFault (PC 0x${this.chip.core.PC.toString(16)})`);
+      // Still in the HardFault handler a slice later: it is the usual `loop {}`
+      // (a handler that resets or returns would have done so by now).
+      if (this.chip.core.IPSR === HARDFAULT) {
+        if (this.inHardFault) this.halt(`HardFault (PC 0x${this.chip.core.PC.toString(16)})`);
+        this.inHardFault = true;
+      } else {
+        this.inHardFault = false;
+      }
       this.afterSlice();
       if (r.state === 'busy') {
         await new Promise((res) => setImmediate(res));
