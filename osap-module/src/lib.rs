@@ -32,7 +32,7 @@ pub mod io;
 pub mod ports;
 pub mod stepper;
 
-pub use ports::{ModulePort, ModulePorts, PORT_COUNT};
+pub use ports::{ModulePort, ModulePorts, PORT_COUNT, PORT_INDICES};
 pub use stepper::{STEP_TICK_US, TICKS_PER_WORD};
 
 use board::{IoHw, StepperHw};

@@ -110,6 +110,11 @@ impl Port for ModulePort {
 /// How many ports a module has: its functions and the pulse timer.
 pub const PORT_COUNT: usize = ALL.len() + 1;
 
+/// How many port indices the module's ports take, port 0 (the
+/// netresponder) included: size the runtime's `PORTS` to at least this, or
+/// the functions numbered past it are listed by a scan but can never reply.
+pub const PORT_INDICES: usize = 1 + ALL.len() * (1 + FN_PIPES);
+
 /// Every port of the module, to hand to `Runtime::poll`.
 pub struct ModulePorts {
     ports: [ModulePort; PORT_COUNT],

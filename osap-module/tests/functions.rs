@@ -85,6 +85,12 @@ fn the_function_set_is_whole_and_unique() {
     }
     let mut ports = ModulePorts::new().expect("every signature is accepted");
     assert_eq!(ports.ports().len(), PORT_COUNT);
+    let indices: u16 = ports
+        .ports()
+        .iter()
+        .map(osap_core::port::Port::port_count)
+        .sum();
+    assert_eq!(usize::from(indices) + 1, osap_module::PORT_INDICES);
 }
 
 #[test]
