@@ -17,8 +17,8 @@ use osap_core::clock::SyncState;
 use osap_core::route::Route;
 use osap_host::link::stream::LinkHandle;
 use osap_host::link::tcp;
-use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::netrunner::{Netrunner, ScanOptions, SyncGoal};
+use osap_host::som::{FnRef, Manager, ManagerOptions, OwnedValue};
 use osap_host::{Host, HostConfig};
 use osap_module::functions::SIGNATURES;
 use serde_json::{json, Value};
@@ -32,6 +32,8 @@ use tokio::process::{Child, Command};
 /// The firmware's step and direction pins (see firmware-rp2040/README.md).
 const STEP_PIN: u8 = 2;
 const DIR_PIN: u8 = 3;
+/// How long to wait for each reply from the emulated module.
+const PATIENCE: Duration = Duration::from_secs(2);
 /// Full steps per unit the firmware starts with (osap-module's default).
 const STEPS_PER_UNIT: f64 = 80.0;
 
@@ -156,12 +158,22 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     let host = Host::start(HostConfig::named("script")).unwrap();
     let link = join(&host, &emu).await;
     let route = Route::through_links(&[link.index()]).unwrap();
-    let nr = Netrunner::new(&host).await.unwrap();
+    let mut nr = Netrunner::new(&host).await.unwrap();
+    // An emulated core runs slower than a real one while busy: be patient.
+    nr.timeout = PATIENCE;
 
     // 1. It answers a scan, with every function of the module set.
     let name = module_name(&nr, &route).await;
     println!("module found: {name:?}");
-    let mut m = Manager::new(&host).await.unwrap();
+    let options = ManagerOptions {
+        scan: ScanOptions {
+            timeout: PATIENCE,
+            ..ScanOptions::default()
+        },
+        timeout: PATIENCE,
+        retries: 2,
+    };
+    let mut m = Manager::with_options(&host, options).await.unwrap();
     let report = m.refresh().await.unwrap();
     assert!(
         report.function_failures.is_empty(),
@@ -185,9 +197,12 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     // 2. RPC round trips.
     let f = |fname: &str| m.function(&FnRef::new(&name, fname)).unwrap();
     let mut rtts = Vec::new();
-    for _ in 0..40 {
+    for k in 0..40 {
         let t = Instant::now();
-        f("get_status").call(&[]).await.unwrap();
+        f("get_status")
+            .call(&[])
+            .await
+            .unwrap_or_else(|e| panic!("call {k}: {e}"));
         rtts.push(t.elapsed());
     }
     rtts.sort();
