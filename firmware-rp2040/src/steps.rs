@@ -5,9 +5,9 @@
 //! A PIO state machine clocks STEP (GP2) and DIR (GP3) out at 100 kHz, one
 //! 10 µs tick per two bits of a 32-bit word (bit 0 STEP, bit 1 DIR, LSB
 //! first; 16 ticks a word), the format of `maxl::step::PioPacker`. Its
-//! joined 8-word TX FIFO holds 1.28 ms of ticks. The step task keeps it
-//! full with [`osap_module::fill_step_word`], waking on the PIO's
-//! FIFO-not-full interrupt.
+//! joined 8-word TX FIFO holds 1.28 ms of ticks. The step task tops it up
+//! with [`osap_module::fill_step_word`] on a timer alarm every 640 µs,
+//! when half of it has run out.
 //!
 //! Each word's start time comes from a running tick count anchored to the
 //! timer when the state machine was started, not from when the interrupt
@@ -35,6 +35,9 @@ const START_LEAD_US: u64 = 2_000;
 /// The last part of the wait before starting is spun, not slept, so the
 /// start lands on the anchor within a microsecond.
 const START_SPIN_US: u64 = 50;
+/// Words left in the FIFO when the step task refills it: 640 µs of ticks,
+/// the most the task may be held up without the machine running dry.
+const REFILL_MARGIN_WORDS: u64 = 4;
 /// PIO instruction clock: 1 MHz, 10 instructions per 10 µs tick.
 const PIO_HZ: u32 = 1_000_000;
 
@@ -110,16 +113,27 @@ async fn start(sm: &mut StepSm) -> u64 {
     anchor + FIFO_WORDS * WORD_US
 }
 
-/// Keeps the step state machine's FIFO full, forever.
+/// Keeps the step state machine's FIFO topped up, forever.
+///
+/// It wakes when the FIFO is down to [`REFILL_MARGIN_WORDS`] words and
+/// fills it again, rather than on every free slot: a wake-up costs about as
+/// much as computing a word, so this halves the step path's idle load.
 #[embassy_executor::task]
 pub async fn step_task(mut sm: StepSm) {
     let mut next = start(&mut sm).await;
     loop {
-        let word = osap_module::fill_step_word(next);
-        sm.tx().wait_push(word).await;
-        next += WORD_US;
+        // Words already queued run until `next`; wake when only the
+        // margin is left.
+        let refill_at = next - REFILL_MARGIN_WORDS * WORD_US;
+        Timer::at(Instant::from_micros(refill_at)).await;
+        // Only this task pushes, so a slot seen free stays free.
+        while !sm.tx().full() {
+            sm.tx().push(osap_module::fill_step_word(next));
+            next += WORD_US;
+        }
         if sm.tx().stalled() {
-            // Ticks ran out before this word arrived: its tick times are
+            // Ticks ran out before the refill (interrupts were held off
+            // for over a millisecond): the queued words' tick times are
             // unknown. Start over on a fresh anchor.
             next = start(&mut sm).await;
         }
