@@ -193,12 +193,19 @@ impl<W: WireTiming> LinkGateway for FramedGateway<W> {
 
     fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
         let n = encode_frame(packet, &mut self.frame).map_err(|_| LinkSendError)?;
-        match self.shared.tx.try_write(&self.frame[..n]) {
-            Ok(written) if written == n => Ok(()),
-            // Cannot happen after clear_to_send; a torn frame would be
-            // dropped by the peer's CRC check.
-            _ => Err(LinkSendError),
+        // `try_write` fills only the contiguous free part of the pipe's
+        // ring, so a frame that straddles the wrap takes two calls; the
+        // room clear_to_send saw is there for the whole frame.
+        let mut rest = &self.frame[..n];
+        while !rest.is_empty() {
+            match self.shared.tx.try_write(rest) {
+                Ok(written) => rest = &rest[written..],
+                // Cannot happen after clear_to_send. The torn frame has no
+                // delimiter; the peer drops it, and the one after it, by CRC.
+                Err(_) => return Err(LinkSendError),
+            }
         }
+        Ok(())
     }
 
     fn transmit_time(&self, len: usize) -> Micros {
