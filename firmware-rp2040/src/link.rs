@@ -115,6 +115,12 @@ impl LinkShared {
         n
     }
 
+    /// Frames the receive side dropped since boot (bad COBS or CRC,
+    /// oversize), wrapping.
+    pub fn rx_errors(&self) -> u32 {
+        self.rx_errors.load(Ordering::Relaxed)
+    }
+
     /// Bytes queued to send.
     pub fn tx_queued(&self) -> usize {
         self.tx.len()
@@ -158,6 +164,11 @@ pub struct FramedGateway<W: WireTiming + 'static> {
 }
 
 impl<W: WireTiming> FramedGateway<W> {
+    /// The link's shared state (for its receive statistics).
+    pub fn shared(&self) -> &'static LinkShared {
+        self.shared
+    }
+
     /// The gateway of the link behind `shared`, reported to scans as
     /// `type_name`.
     pub fn new(shared: &'static LinkShared, type_name: &'static str, wire: &'static W) -> Self {

@@ -25,8 +25,9 @@ use crate::usb_link::UsbTiming;
 
 /// Packet slots: enough for both links' quotas, the ports' and replies.
 pub const SLOTS: usize = 16;
-/// Port indices with quotas (port 0 included).
-pub const PORTS: usize = 32;
+/// Port indices with quotas (port 0 included): every index the module's
+/// ports take, or the functions past the last would never reply.
+pub const PORTS: usize = osap_module::PORT_INDICES;
 /// Link gateways: USB and UART.
 pub const LINKS: usize = 2;
 
@@ -65,6 +66,8 @@ pub async fn runtime_task(parts: RuntimeParts) {
         mut uart,
         mut names,
     } = parts;
+    // Bad frames seen so far on each link, to log new ones.
+    let mut rx_errors = [0u32; LINKS];
     loop {
         let now = Instant::now().as_micros();
         let result = {
@@ -77,6 +80,22 @@ pub async fn runtime_task(parts: RuntimeParts) {
             let saved = names.save(runtime.identity().name.as_str());
             if saved.is_err() {
                 runtime.log(Level::Error, format_args!("name not saved to flash"));
+            }
+        }
+
+        for (seen, (name, shared)) in rx_errors.iter_mut().zip([
+            (usb.info().type_name, usb.shared()),
+            (uart.info().type_name, uart.shared()),
+        ]) {
+            let now_errors = shared.rx_errors();
+            if now_errors != *seen {
+                let new = now_errors.wrapping_sub(*seen);
+                *seen = now_errors;
+                // Readable over the network in the runtime's debug log.
+                runtime.log(
+                    Level::Warn,
+                    format_args!("{name}: {new} bad frame(s) dropped, {now_errors} since boot"),
+                );
             }
         }
 
