@@ -91,6 +91,11 @@ impl LinkShared {
         wake_runtime();
     }
 
+    /// Whether the link is up.
+    pub fn is_open(&self) -> bool {
+        self.open.load(Ordering::Relaxed)
+    }
+
     /// Hands a received packet to the runtime; waits while the queue is
     /// full.
     async fn deliver(&self, packet: &[u8], stamp: Micros) {
@@ -190,7 +195,7 @@ impl<W: WireTiming> LinkGateway for FramedGateway<W> {
     }
 
     fn is_open(&self) -> bool {
-        self.shared.open.load(Ordering::Relaxed)
+        self.shared.is_open()
     }
 
     fn mtu(&self) -> u16 {

@@ -148,10 +148,14 @@ async fn usb_rx_task(
                 Either::First(Err(EndpointError::Disabled)) => break,
                 // Cannot happen: the buffer holds a full packet.
                 Either::First(Err(EndpointError::BufferOverflow)) => {}
+                // Line coding or DTR changed; only DTR matters here.
                 Either::Second(()) => {
-                    // A new peer starts with a clean frame.
-                    framer.reset();
-                    shared.set_open(control.dtr());
+                    let dtr = control.dtr();
+                    if dtr != shared.is_open() {
+                        // A new peer starts with a clean frame.
+                        framer.reset();
+                        shared.set_open(dtr);
+                    }
                 }
             }
         }
