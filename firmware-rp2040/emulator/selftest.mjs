@@ -20,6 +20,7 @@ import { EdgeCounter } from './edges.mjs';
 import { parseCdcConfig } from './usb-host.mjs';
 import { gpioReport } from './control.mjs';
 import { PinInputs } from './pins.mjs';
+import { TcpLink } from './tcp-link.mjs';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const FLASH_SIZE = 256 * 1024;
@@ -468,6 +469,52 @@ test('USB: CDC interfaces and bulk endpoints from a configuration descriptor', (
   );
   assert.deepEqual(parseCdcConfig(desc), { configValue: 1, commInterface: 0, dataInterface: 1, bulkIn: 1, bulkOut: 2 });
 });
+
+test('TCP link: one client at a time, the next after a disconnect, batched output', async () => {
+  const got = [];
+  const link = new TcpLink('usb', { onData: (d) => got.push(...d) });
+  const port = await link.listen(0);
+  const connect = () =>
+    new Promise((resolve) => {
+      const sock = net.connect(port, '127.0.0.1', () => resolve(sock));
+      sock.rx = [];
+      sock.on('data', (d) => sock.rx.push(...d));
+    });
+  const until = async (cond) => {
+    for (let i = 0; i < 200 && !cond(); i++) await new Promise((r) => setTimeout(r, 5));
+    assert.ok(cond());
+  };
+  try {
+    await tcpLinkScenario(link, port, connect, until, got);
+  } finally {
+    link.close();
+  }
+});
+
+async function tcpLinkScenario(link, port, connect, until, got) {
+  const a = await connect();
+  await until(() => link.client !== null);
+  const b = net.connect(port, '127.0.0.1');
+  b.on('error', () => {});
+  await new Promise((r) => b.on('close', r)); // refused while a is connected
+  assert.equal(link.stats.refused, 1);
+  a.write('hi');
+  await until(() => got.length === 2);
+  link.sendByte(0x41);
+  link.send(Uint8Array.of(0x42, 0x43));
+  link.flush();
+  await until(() => a.rx.length === 3);
+  assert.deepEqual(a.rx, [0x41, 0x42, 0x43]);
+  a.destroy();
+  await until(() => link.client === null);
+  link.send(Uint8Array.of(1, 2));
+  assert.equal(link.stats.dropped, 2, 'output with no client is dropped');
+  const c = await connect();
+  await until(() => link.client !== null);
+  c.write('x');
+  await until(() => got.length === 3);
+  c.destroy();
+}
 
 test('CLI: missing ELF and a port in use exit nonzero with a clear message', async () => {
   const bridge = path.join(here, 'bridge.mjs');

@@ -70,6 +70,7 @@ export class TcpLink {
       this.stats.dropped += bytes.length;
       return;
     }
+    this.gatherBytes(); // keep the order of mixed byte and chunk output
     this.outChunks.push(Uint8Array.from(bytes));
     this.outBytes += bytes.length;
   }
@@ -87,11 +88,15 @@ export class TcpLink {
     this.outBytesArr.push(b);
   }
 
-  flush() {
+  gatherBytes() {
     if (this.outBytesArr.length) {
       this.outChunks.push(Uint8Array.from(this.outBytesArr));
       this.outBytesArr = [];
     }
+  }
+
+  flush() {
+    this.gatherBytes();
     if (!this.outChunks.length) return;
     const data = Buffer.concat(this.outChunks);
     this.outChunks = [];
