@@ -21,6 +21,8 @@ import { parseCdcConfig } from './usb-host.mjs';
 import { gpioReport } from './control.mjs';
 import { PinInputs } from './pins.mjs';
 import { TcpLink } from './tcp-link.mjs';
+import { Runner } from './runner.mjs';
+import { ControlServer } from './control.mjs';
 
 const here = path.dirname(fileURLToPath(import.meta.url));
 const FLASH_SIZE = 256 * 1024;
@@ -515,6 +517,75 @@ async function tcpLinkScenario(link, port, connect, until, got) {
   await until(() => got.length === 3);
   c.destroy();
 }
+
+/** A chip whose core sleeps forever: wfi; b back to the wfi. */
+function sleepyChip() {
+  const chip = newChip();
+  chip.rp.writeUint16(0x20000000, 0xbf30);
+  chip.rp.writeUint16(0x20000002, 0xe7fd);
+  chip.core.PC = 0x20000000;
+  return chip;
+}
+
+test('runner: an alarm due now fires; with no alarm a free-running core sleeps until woken', async () => {
+  let fired = 0;
+  const runner = new Runner({ build: sleepyChip, log: () => {} });
+  const alarm = runner.chip.clock.createAlarm(() => fired++);
+  alarm.schedule(0); // due now: rp2040js reports 0 ns to it, as for "no alarm"
+  const run = runner.run();
+  await new Promise((r) => setTimeout(r, 100));
+  assert.equal(fired, 1);
+  assert.ok(runner.chip.nanos < 1e6, `no alarm: emulated time stands still (${runner.chip.nanos} ns)`);
+  runner.chip.clock.createAlarm(() => fired++).schedule(5e9); // 5 s ahead: jumped to at once
+  runner.wake();
+  await new Promise((r) => setTimeout(r, 50));
+  assert.equal(fired, 2);
+  assert.ok(runner.chip.nanos >= 5e9);
+  runner.stopping = true;
+  runner.wake();
+  await run;
+});
+
+test('runner: realtime paces emulated time to wall time', async () => {
+  const runner = new Runner({ build: sleepyChip, realtime: true, log: () => {} });
+  const run = runner.run();
+  const t0 = performance.now();
+  const e0 = runner.chip.nanos;
+  await new Promise((r) => setTimeout(r, 300));
+  const wallMs = performance.now() - t0;
+  const emuMs = (runner.chip.nanos - e0) / 1e6;
+  runner.stopping = true;
+  runner.wake();
+  await run;
+  assert.ok(Math.abs(emuMs - wallMs) < 50, `emulated ${emuMs.toFixed(1)} ms vs wall ${wallMs.toFixed(1)} ms`);
+});
+
+test('control: JSON lines, replies in order, errors as ok:false', async () => {
+  const server = new ControlServer({ echo: (m) => ({ value: m.value }), boom: () => { throw new Error('bang'); } });
+  const port = await server.listen(0);
+  try {
+    const replies = await new Promise((resolve, reject) => {
+      const sock = net.connect(port, '127.0.0.1', () => sock.write('{"cmd":"echo","value":1}\nnot json\n{"cmd":"boom"}\n{"cmd":"nope"}\n{"cmd":"echo","value":2}\n'));
+      let buf = '';
+      sock.on('data', (d) => {
+        buf += d;
+        const lines = buf.trim().split('\n');
+        if (lines.length === 5) {
+          sock.end();
+          resolve(lines.map((l) => JSON.parse(l)));
+        }
+      });
+      sock.on('error', reject);
+    });
+    assert.deepEqual(replies[0], { ok: true, value: 1 });
+    assert.deepEqual(replies[1], { ok: false, error: 'not JSON' });
+    assert.deepEqual(replies[2], { ok: false, error: 'bang' });
+    assert.equal(replies[3].ok, false);
+    assert.deepEqual(replies[4], { ok: true, value: 2 });
+  } finally {
+    server.close();
+  }
+});
 
 test('CLI: missing ELF and a port in use exit nonzero with a clear message', async () => {
   const bridge = path.join(here, 'bridge.mjs');
