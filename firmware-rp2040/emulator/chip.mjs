@@ -81,7 +81,7 @@ export class Chip {
     installXipCtrl(rp);
     for (const uart of rp.uart) patchUart(uart);
     this.uartFeeders = rp.uart.map((u) => new UartFeeder(u, this.clock, { paced: uartPaced }));
-    this.pio = new PioScheduler(rp.pio, () => this.clock.nanos / NS_PER_CYCLE);
+    this.pio = new PioScheduler(rp.pio, this.clock, NS_PER_CYCLE);
 
     // Speed: rp2040js looks up a peripheral before every 32-bit write, RAM
     // included (about 7 % of run time with the module firmware). Stores to

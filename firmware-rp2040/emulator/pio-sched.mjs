@@ -39,9 +39,10 @@ function joinFifosOnShiftctrl(sm) {
 }
 
 export class PioScheduler {
-  constructor(pios, nowCycles) {
+  constructor(pios, clock, nsPerCycle) {
     this.pios = pios;
-    this.now = nowCycles; // () => current system cycle count
+    this.clock = clock;
+    this.nsPerCycle = nsPerCycle;
     this.machines = [];
     for (const pio of pios) {
       pio.run = () => {}; // no wall-clock loop: we step it
@@ -67,6 +68,17 @@ export class PioScheduler {
     this.steps = 0;
   }
 
+  /** Current system cycle count. */
+  now() {
+    return this.clock.nanos / this.nsPerCycle;
+  }
+
+  /** Batch mode: the clock follows the PIO, so anything a step triggers is scheduled at the right time. */
+  syncClock(cycle) {
+    const ns = cycle * this.nsPerCycle;
+    if (ns > this.clock.nanosCounter) this.clock.nanosCounter = ns;
+  }
+
   /** Before the core touches a PIO: stalled machines' time catches up to now. */
   touch(pio) {
     const now = this.now();
@@ -81,8 +93,17 @@ export class PioScheduler {
     return int + sm.clockDivFrac / 256;
   }
 
-  /** Runs every machine up to system cycle `to`, in time order. */
-  advance(to) {
+  /**
+   * Runs every machine up to system cycle `to`, in time order.
+   *
+   * With `stop`, this is a batch while the core sleeps: `to` may lie ahead of
+   * the clock (the runner guarantees no clock alarm is due before it), the
+   * clock is moved along with each step, and the batch ends early as soon as
+   * stop() is true (the core woke up, or a step scheduled a new alarm).
+   */
+  advance(to, stop) {
+    const batch = stop !== undefined;
+    const base = batch ? this.now() : to; // "now", for machines whose time floats
     const ms = this.machines;
     let running = null; // the only unstalled machine, or null
     let count = 0;
@@ -94,10 +115,10 @@ export class PioScheduler {
       }
       if (!sm.wasEnabled) {
         sm.wasEnabled = true;
-        sm.nextAt = to;
+        sm.nextAt = base;
       }
       if (sm.waiting) {
-        if (sm.nextAt < to) sm.nextAt = to;
+        if (sm.nextAt < base) sm.nextAt = base;
         continue;
       }
       running = sm;
@@ -111,22 +132,28 @@ export class PioScheduler {
       // Common case (one step generator): no interleaving to work out.
       const sm = running;
       const div = PioScheduler.divider(sm);
-      while (sm.nextAt <= to && !sm.waiting) this.stepOne(sm, div);
+      while (sm.nextAt <= to && !sm.waiting) {
+        if (batch) this.syncClock(sm.nextAt);
+        this.stepOne(sm, div);
+        if (batch && stop()) break;
+      }
       if (sm.waiting) {
-        if (sm.nextAt < to) sm.nextAt = to;
+        const now = batch ? this.now() : to;
+        if (sm.nextAt < now) sm.nextAt = now;
         this.next = Infinity;
       } else {
         this.next = sm.nextAt;
       }
       return;
     }
+    let last = base; // time of the latest step: a machine unblocked by it resumes from there
     for (;;) {
       let best = null;
       for (let i = 0; i < ms.length; i++) {
         const sm = ms[i];
         if (!sm.enabled) continue;
         if (sm.waiting) {
-          if (sm.nextAt < to) sm.nextAt = to;
+          if (sm.nextAt < last) sm.nextAt = last;
           continue;
         }
         if (best === null || sm.nextAt < best.nextAt) best = sm;
@@ -139,7 +166,13 @@ export class PioScheduler {
         this.next = best.nextAt;
         return;
       }
+      last = best.nextAt;
+      if (batch) this.syncClock(last);
       this.stepOne(best, PioScheduler.divider(best));
+      if (batch && stop()) {
+        this.next = 0; // recompute on the next call
+        return;
+      }
     }
   }
 

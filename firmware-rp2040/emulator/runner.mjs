@@ -10,6 +10,8 @@ import { NS_PER_CYCLE } from './chip.mjs';
 const SLICE_MS = 2;
 const OUTPUT_BATCH_MS = 0.25;
 const CHECK_EVERY = 2048; // instructions between wall-clock checks
+const PIO_BATCH_NS = 1e6; // emulated time one PIO batch may cover while the core sleeps
+const PIO_BATCH_WEIGHT = 64; // a batch counts as this many instructions toward CHECK_EVERY
 const LAG_REPORT_INTERVAL_MS = 1000;
 const STARTUP_GRACE_MS = 500;
 const HARDFAULT = 3;
@@ -153,12 +155,20 @@ export class Runner {
     this.breakFlag = !!(this.halted || this.resetReason);
     while (!this.breakFlag) {
       if (core.waiting) {
-        let now = clock.nanos;
+        const now = clock.nanos;
         if (pio.next * NS_PER_CYCLE <= now) pio.advance(now / NS_PER_CYCLE);
         const alarm = clock.nextAlarm;
-        let t = alarm ? Math.max(alarm.nanos, now) : Infinity;
-        const p = pio.next * NS_PER_CYCLE;
-        if (p < t) t = p;
+        const t = alarm ? Math.max(alarm.nanos, now) : Infinity;
+        const horizon = t < limitNs ? t : limitNs; // nothing but PIO can happen before this
+        if (pio.next * NS_PER_CYCLE < horizon) {
+          // Run the PIO ahead in one batch while the core sleeps, instead of
+          // one runner iteration per PIO instruction.
+          const end = Math.min(horizon, now + PIO_BATCH_NS);
+          pio.advance(end / NS_PER_CYCLE, () => !core.waiting || clock.nextAlarm !== alarm);
+          if (core.waiting && clock.nextAlarm === alarm && clock.nanos < end) clock.nanosCounter = end;
+          n += PIO_BATCH_WEIGHT;
+          continue;
+        }
         if (t > limitNs) {
           if (limitNs > now) {
             clock.tick(limitNs - now);
@@ -172,7 +182,6 @@ export class Runner {
           break;
         }
         clock.tick(t - now);
-        if (pio.next * NS_PER_CYCLE <= clock.nanos) pio.advance(clock.nanos / NS_PER_CYCLE);
       } else {
         let ns = core.executeInstruction() * NS_PER_CYCLE;
         executed += ns;
