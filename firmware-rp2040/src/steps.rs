@@ -146,7 +146,7 @@ pub async fn step_task(mut sm: StepSm) {
 #[embassy_executor::task]
 pub async fn limit_task(mut pin: Input<'static>) {
     let mut level = pin.is_high();
-    osap_module::limit_changed(Instant::now().as_micros(), level);
+    osap_module::limit_initial(level);
     loop {
         pin.wait_for_any_edge().await;
         // Stamped first thing: only the GPIO interrupt and the step task

@@ -155,6 +155,12 @@ pub fn fill_step_word(local: Micros) -> u32 {
     .unwrap_or(0)
 }
 
+/// The limit switch's level as read at boot, before any edge: sets the
+/// level `read_limit` reports without counting an edge or stamping a time.
+pub fn limit_initial(level: bool) {
+    with(|m| m.limit.level = level);
+}
+
 /// The limit switch's level changed to `level` at local time `local` (the
 /// edge interrupt's time stamp).
 pub fn limit_changed(local: Micros, level: bool) {

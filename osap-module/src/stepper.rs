@@ -321,6 +321,22 @@ impl Stepper {
     pub fn fill_word(&mut self, t0: u64) -> u32 {
         self.counters.words = self.counters.words.wrapping_add(1);
         let mut word = 0;
+        let standing =
+            !self.enabled || self.halted || (self.track.is_empty() && self.gen.backlog() == 0);
+        if standing {
+            // Nothing can move: skip the per-tick evaluation (most of an
+            // idle module's step-interrupt time).
+            for _ in 0..TICKS_PER_WORD {
+                if let Some(w) = self.packer.push(None) {
+                    word = w;
+                }
+            }
+            self.last_tick = t0 + u64::from((TICKS_PER_WORD - 1) * STEP_TICK_US);
+            if self.enabled && !self.halted {
+                self.mode = Mode::Idle;
+            }
+            return word;
+        }
         for k in 0..TICKS_PER_WORD {
             let t = t0 + u64::from(k * STEP_TICK_US);
             let step = if self.enabled && !self.halted {

@@ -127,10 +127,13 @@ fn functions_drive_the_installed_module() {
     assert_eq!((mode, queued, enabled, faults), (3, 12, true, 0));
     let (points, refused, last, filled) = f::get_counters().unwrap();
     assert_eq!((points, refused, last, filled), (12, 1, 6, 0));
-    // The limit switch reports its edge's own time stamp.
+    // The limit switch: its level at boot counts no edge; an edge
+    // reports its own time stamp.
+    osap_module::limit_initial(true);
+    assert_eq!(f::read_limit().unwrap(), (0, true, 0));
     NOW.store(77_000, Ordering::SeqCst);
-    limit_changed(70_000, true);
-    assert_eq!(f::read_limit().unwrap(), (70_000, true, 1));
+    limit_changed(70_000, false);
+    assert_eq!(f::read_limit().unwrap(), (70_000, false, 1));
     // I/O: a read carries the synchronized time of the read.
     f::digital_write(2, true).unwrap();
     assert_eq!(f::digital_read(2).unwrap(), (77_000, true));
