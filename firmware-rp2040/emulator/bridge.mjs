@@ -30,7 +30,7 @@ const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uar
   --flash-size    emulated flash size in bytes (default 2097152, a Pico's W25Q16JV; suffix k/M allowed)
   --flash-id      the 8-byte SPI flash unique id (command 0x4B), 16 hex digits (default ${DEFAULT_UNIQUE_ID})
   --uart-unpaced  deliver host bytes into the UART RX FIFO as fast as it has room, not at the baud rate
-  --lag-warn-ms   realtime lag that is reported (default 5)
+  --lag-warn-ms   realtime lag that is reported on stderr (default 20)
   --max-lag-ms    realtime: never fall further behind than this; wall time beyond it is given up
                   (emulated time then runs slow) instead of caught up later (default: catch up)
   --exit-on-halt  exit with status 3 when the core halts (HardFault, BKPT, UDF, emulation error)
@@ -75,7 +75,7 @@ function parseCli(argv) {
         'flash-size': { type: 'string', default: '2097152' },
         'flash-id': { type: 'string', default: DEFAULT_UNIQUE_ID },
         'uart-unpaced': { type: 'boolean', default: false },
-        'lag-warn-ms': { type: 'string', default: '5' },
+        'lag-warn-ms': { type: 'string', default: '20' },
         'max-lag-ms': { type: 'string' },
         'exit-on-halt': { type: 'boolean', default: false },
         'dtr-always': { type: 'boolean', default: false },
