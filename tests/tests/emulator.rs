@@ -32,6 +32,9 @@ use tokio::process::{Child, Command};
 /// The firmware's step and direction pins (see firmware-rp2040/README.md).
 const STEP_PIN: u8 = 2;
 const DIR_PIN: u8 = 3;
+/// How long the emulator must have kept pace with wall time before the
+/// module's clock is held to the host's.
+const STEADY: Duration = Duration::from_secs(5);
 /// How long to wait for each reply from the emulated module.
 const PATIENCE: Duration = Duration::from_secs(2);
 /// Full steps per unit the firmware starts with (osap-module's default).
@@ -100,10 +103,10 @@ impl Emulator {
         emu
     }
 
-    /// How far emulated time is behind wall time now, µs.
-    async fn behind_us(&self) -> i64 {
+    /// How many times the emulator has fallen behind wall time.
+    async fn lag_events(&self) -> u64 {
         let stats = self.control(json!({"cmd": "stats"})).await;
-        (stats["behind_ms"].as_f64().unwrap_or(0.0) * 1000.0) as i64
+        stats["lag_events"].as_u64().unwrap_or(u64::MAX)
     }
 
     /// One command on the control channel, its JSON answer.
@@ -238,16 +241,22 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     // An independent check: a read stamped on the module against the
     // host's time around the call. The emulated core's clock is emulated
     // time, which falls behind wall time whenever the emulator cannot keep
-    // up (reported by the bridge): that lag is the module's oscillator
-    // stalling, which no synchronization can undo, so it is allowed for.
-    let mut worst = 0i64;
-    let mut worst_in_step = 0i64;
-    for _ in 0..20 {
-        let lag_before = emu.behind_us().await;
+    // up: the module's oscillator stalls, which no synchronization can
+    // undo, and it then takes the clock a few seconds to converge again.
+    // So only samples taken after the emulator has kept pace (no lagging
+    // slice) for a while count; the others are reported.
+    let (mut steady, mut worst, mut worst_any) = (0, 0i64, 0i64);
+    let mut last_lag = (Instant::now(), emu.lag_events().await);
+    let deadline = Instant::now() + Duration::from_secs(60);
+    while steady < 10 {
+        assert!(
+            Instant::now() < deadline,
+            "the emulator never kept real time for {STEADY:?} ({steady} steady samples): \
+             the clock cannot be checked on a machine this busy"
+        );
         let before = host.system_time().await.unwrap() as i64;
         let reading = f("digital_read").call(&[OwnedValue::U8(0)]).await.unwrap();
         let after = host.system_time().await.unwrap() as i64;
-        let lag = lag_before.max(emu.behind_us().await);
         let OwnedValue::U64(stamp) = reading[0] else {
             panic!("{reading:?}")
         };
@@ -255,19 +264,21 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         // The stamp must fall inside the call; how far outside it falls is
         // the clock error.
         let outside = (before - stamp).max(stamp - after).max(0);
-        assert!(
-            outside <= lag + 1_000,
-            "module time is {outside} µs off the host's with the emulator {lag} µs behind"
-        );
-        worst = worst.max(outside);
-        if lag < 1_000 {
-            worst_in_step = worst_in_step.max(outside);
+        worst_any = worst_any.max(outside);
+        let events = emu.lag_events().await;
+        if events != last_lag.1 {
+            last_lag = (Instant::now(), events);
+        } else if last_lag.0.elapsed() >= STEADY {
+            steady += 1;
+            worst = worst.max(outside);
         }
+        tokio::time::sleep(Duration::from_millis(100)).await;
     }
     println!(
-        "module stamps outside their call's window: at most {worst} µs; \
-         {worst_in_step} µs while the emulator kept within 1 ms of real time"
+        "module stamps outside their call's window: at most {worst} µs with the emulator \
+         keeping pace for {STEADY:?} ({worst_any} µs over all samples)"
     );
+    assert!(worst <= 1_000, "module time is {worst} µs off the host's");
 
     // 4. Motion: a smooth move of 2 units (160 full steps) stamped in
     // synchronized time, sent ahead; the step pins must show exactly it.
@@ -303,10 +314,22 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     while host.system_time().await.unwrap() < end {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
+    // Then until the module itself has run the stream to its end (a
+    // lagging emulator runs it late, by the wall clock).
+    let deadline = Instant::now() + Duration::from_secs(30);
+    while f("get_status").call(&[]).await.unwrap()[0] == OwnedValue::U8(2) {
+        assert!(Instant::now() < deadline, "the move never ended");
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
     let expect = (2.0 * STEPS_PER_UNIT) as i64;
     let counts = emu.control(json!({"cmd": "counts"})).await;
     let load_after = emu.control(json!({"cmd": "stats"})).await;
     println!("step pins: {counts}");
+    let steps = f("get_steps").call(&[]).await.unwrap();
+    println!("firmware step counts: {steps:?}");
+    let status = f("get_status").call(&[]).await.unwrap();
+    let counters = f("get_counters").call(&[]).await.unwrap();
+    println!("firmware status {status:?}, counters {counters:?}");
     let cycles = |s: &Value, k: &str| s[k].as_f64().unwrap_or(f64::NAN);
     let busy = (cycles(&load_after, "cycles_executed") - cycles(&load_before, "cycles_executed"))
         / (cycles(&load_after, "cycles_total") - cycles(&load_before, "cycles_total"));
@@ -316,20 +339,27 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     );
     assert_eq!(counts["up"], json!(expect), "{counts}");
     assert_eq!(counts["down"], json!(0), "{counts}");
-    let steps = f("get_steps").call(&[]).await.unwrap();
     assert_eq!(steps[0], OwnedValue::I64(expect), "{steps:?}");
-    // Ticks that owed two steps (the steps still went out): a clock that
-    // jumped while the emulator caught up makes some; they are reported,
-    // not failed, because they measure the emulator, not the firmware.
-    println!("firmware step counts: {steps:?}");
-    let counters = f("get_counters").call(&[]).await.unwrap();
+    // Ticks that owed two steps (the steps still went out) are reported
+    // above, not failed: a clock that jumped while the emulator caught up
+    // makes some, which measures the emulator, not the firmware.
     assert_eq!(counters[1], OwnedValue::U32(0), "refused: {counters:?}");
 
     // 5. A new name survives a reset (written to the emulated flash).
+    let rom_before = emu.control(json!({"cmd": "stats"})).await["rom_calls"].clone();
     let renamed = nr.set_name(&route, "x-axis").await.unwrap();
     assert_eq!(renamed, "x-axis");
-    // The firmware writes the record as it answers the rename, so a reset
-    // right after must find it.
+    // The firmware writes the record just after it answers the rename,
+    // through the boot ROM's flash routines: wait for those calls.
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while emu.control(json!({"cmd": "stats"})).await["rom_calls"] == rom_before {
+        assert!(
+            Instant::now() < deadline,
+            "the firmware never wrote its flash"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(100)).await;
     let reset = emu.control(json!({"cmd": "reset"})).await;
     assert_eq!(reset["ok"], json!(true), "{reset}");
     let deadline = Instant::now() + Duration::from_secs(30);
