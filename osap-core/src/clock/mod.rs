@@ -635,7 +635,13 @@ impl<const LINKS: usize> Clock<LINKS> {
             // one, search with dither.
             let next = match self.neighbours[i].anchor {
                 Some(a) if a <= now => a + (now - a) / interval * interval + interval,
-                _ => (now + interval).saturating_add_signed(self.dither() / burst as i64),
+                _ => {
+                    // Search over a whole spacing when bursting: any phase
+                    // against a frame grid is equally likely.
+                    let span = if burst > 1 { (interval / 2) as i64 } else { i64::from(self.config.dither_us) };
+                    let d = self.dither() * span / i64::from(self.config.dither_us.max(1));
+                    (now + interval).saturating_add_signed(d)
+                }
             };
             self.neighbours[i].next_request = Some(next);
         }
@@ -759,8 +765,10 @@ impl<const LINKS: usize> Clock<LINKS> {
             return;
         }
         self.select(received, false);
-        self.learn_rate_from_envelope(link, received);
-        if verdict == Verdict::Accepted && self.followed() == Some(reply.responder_tier) {
+        let bucket = self.learn_rate_from_envelope(link, received);
+        if (verdict == Verdict::Accepted || bucket)
+            && self.followed() == Some(reply.responder_tier)
+        {
             self.steer(received);
         }
     }
@@ -769,19 +777,22 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// measurement from the followed neighbour's one-way envelope
     /// ([`Neighbour::new_envelope_slope`]), once per finished bucket, weighed
     /// against what is known; the slew under way goes on.
-    fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) {
-        if !self.synced || self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
-            return;
+    fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) -> bool {
+        if !self.synced {
+            return false;
         }
         let Some(tier) = self.followed() else {
-            return;
+            return false;
         };
         let Some(n) = self.neighbours.get_mut(link).filter(|n| n.tier == tier) else {
-            return;
+            return false;
         };
         let Some((slope, stderr)) = n.new_envelope_slope(now) else {
-            return;
+            return false;
         };
+        if self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
+            return true;
+        }
         // Successive slopes share most of their buckets: count each as
         // worth a quarter of its stated precision.
         let var = 4.0 * stderr * stderr;
@@ -799,6 +810,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             self.slew_q32 = slew_q32;
             self.slew_len = left;
         }
+        true
     }
 
     fn clamp_rate(&self, fraction: f32) -> i64 {
@@ -837,7 +849,18 @@ impl<const LINKS: usize> Clock<LINKS> {
             if n.tier != tier || !n.is_fresh(now, &self.config) {
                 continue;
             }
-            let Some(est) = n.estimate(now, &self.config, prior) else {
+            let est = n.estimate(now, &self.config, prior);
+            let stale_after = if self.settled { 2_000_000 } else { ENVELOPE_STALE_US };
+            let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
+            if let Some((v, rel, sigma)) = n.envelope_offset(now, prior).filter(|_| stale) {
+                // The fit has not heard a clean exchange for a while: the
+                // prompt one-way envelope has.
+                offset_sum += (v.saturating_mul(2).saturating_sub(own)) as f32 * 0.5 + rel;
+                offsets += 1;
+                noise = noise.max(sigma);
+                continue;
+            }
+            let Some(est) = est else {
                 continue;
             };
             offset_sum += est.y_ref_half.saturating_sub(own) as f32 * 0.5 + est.y_rel;
@@ -933,6 +956,10 @@ impl<const LINKS: usize> Clock<LINKS> {
 /// Rate variance (fraction², here (5 ppm)²) below which the envelope's
 /// rough slope no longer adds anything the fit does not.
 const ENVELOPE_RATE_VAR_LIMIT: f32 = 5e-6 * 5e-6;
+
+/// A fit whose newest sample is older than this is stale: the one-way
+/// envelope is followed instead, µs.
+const ENVELOPE_STALE_US: u64 = 300_000;
 
 /// Variance of a trusted fitted rate (see the fit's standard-error bound).
 const MAX_SLOPE_VAR: f32 = 2e-6 * 2e-6;

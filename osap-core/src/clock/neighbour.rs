@@ -100,6 +100,8 @@ pub struct Estimate {
     pub jitter: f32,
     /// Samples the estimate rests on.
     pub used: u8,
+    /// Local send time of the newest sample it rests on.
+    pub newest: Micros,
 }
 
 /// Samples and state for the neighbour on one link.
@@ -137,6 +139,10 @@ pub struct Neighbour {
     envelope: [EnvelopeBucket; ENVELOPE_BUCKETS],
     /// The newest bucket whose slope the clock has already used.
     envelope_used: u64,
+    /// Which envelope is the prompt one (`true`: `their time − our send
+    /// stamp`), and the scatter of its buckets about their line, µs
+    /// (infinite until known).
+    prompt: (bool, f32),
 }
 
 /// One bucket of the one-way envelopes, over a [`ENVELOPE_BUCKET_US`] slice
@@ -183,6 +189,7 @@ impl Default for Neighbour {
             seen: 0,
             envelope: [EMPTY_BUCKET; ENVELOPE_BUCKETS],
             envelope_used: u64::MAX,
+            prompt: (true, f32::INFINITY),
         }
     }
 }
@@ -290,6 +297,7 @@ impl Neighbour {
         let usable = |s: &&Sample| s.rtt as f32 <= limit && now.saturating_sub(s.sent) <= max_age;
         let newest = self.samples().filter(usable).max_by_key(|s| s.sent)?;
         let y_ref_half = newest.y_half;
+        let newest_sent = newest.sent;
         // Means first, then centred sums: f32 keeps sub-µs precision because
         // every value is relative to `now` and to the newest sample.
         // Weighted least squares: a sample whose round trip sits on the
@@ -392,6 +400,7 @@ impl Neighbour {
             rms,
             jitter,
             used: n,
+            newest: newest_sent,
         })
     }
 
@@ -446,10 +455,69 @@ impl Neighbour {
         let buckets = || self.envelope.iter().filter(usable);
         let ahead = line_fit(buckets().map(|b| (b.sent, b.ahead)));
         let behind = line_fit(buckets().map(|b| (b.received, b.behind)));
-        match (ahead, behind) {
-            (Some(a), Some(b)) => Some(if a.1 <= b.1 { a } else { b }),
-            (a, b) => a.or(b),
+        let (is_ahead, (slope, stderr, sigma)) = match (ahead, behind) {
+            (Some(a), Some(b)) if a.1 <= b.1 => (true, a),
+            (Some(a), None) => (true, a),
+            (_, Some(b)) => (false, b),
+            (None, None) => return None,
+        };
+        self.prompt = (is_ahead, sigma);
+        Some((slope, stderr))
+    }
+
+    /// The neighbour's time minus our local counter at `now`, µs (a whole
+    /// part and the rest), from the prompt one-way envelope of the last half
+    /// second, projected to `now` at `slope` (their rate against our
+    /// counter) and corrected by half the floor of the two envelopes over
+    /// the last three seconds; with the scatter of the prompt envelope, µs.
+    /// `None` until the prompt envelope is known.
+    ///
+    /// On USB only a few exchanges a second catch a frame and pass the
+    /// round-trip filter, and those are not symmetric; the prompt direction
+    /// sits on its least delay within every quarter second whatever the
+    /// frames do, so this follows the neighbour without waiting for them.
+    pub fn envelope_offset(&self, now: Micros, slope: f32) -> Option<(i64, f32, f32)> {
+        let (prompt_ahead, sigma) = self.prompt;
+        if !sigma.is_finite() {
+            return None;
         }
+        let current = now / ENVELOPE_BUCKET_US;
+        let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64 - 1);
+        // Every bucket's two extremes, projected to `now` at `slope`,
+        // relative to the first bucket's `ahead`: the least `ahead` and the
+        // most `behind` over the whole window (their difference is the
+        // sum of the two directions' least delays: a round-trip floor that
+        // no single exchange needs to reach), and the prompt one's over the
+        // newest two buckets.
+        let mut reference = None;
+        let (mut ahead, mut behind, mut recent) = (f32::INFINITY, f32::NEG_INFINITY, None::<f32>);
+        for b in self.envelope.iter() {
+            if b.id == u64::MAX || b.id < oldest || b.id > current {
+                continue;
+            }
+            let r = *reference.get_or_insert(b.ahead);
+            let at = |t: Micros| slope * (now as i64).wrapping_sub(t as i64) as f32;
+            let a = b.ahead.saturating_sub(r) as f32 + at(b.sent);
+            let h = b.behind.saturating_sub(r) as f32 + at(b.received);
+            ahead = ahead.min(a);
+            behind = behind.max(h);
+            if b.id + 1 >= current {
+                recent = Some(match (recent, prompt_ahead) {
+                    (None, true) => a,
+                    (None, false) => h,
+                    (Some(v), true) => v.min(a),
+                    (Some(v), false) => v.max(h),
+                });
+            }
+        }
+        let (reference, recent) = (reference?, recent?);
+        let floor = (ahead - behind).clamp(0.0, self.rtt_floor);
+        let rel = if prompt_ahead {
+            recent - 0.5 * floor
+        } else {
+            recent + 0.5 * floor
+        };
+        Some((reference, rel, sigma))
     }
 
     /// Forgets everything (the link closed or changed peer).
@@ -463,9 +531,10 @@ impl Neighbour {
     }
 }
 
-/// Least-squares slope of `(local µs, µs)` points and its standard error;
+/// Least-squares slope of `(local µs, µs)` points, its standard error and
+/// the points' scatter about the line;
 /// `None` below four points or when they do not spread in time.
-fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32, f32)> {
+fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32, f32, f32)> {
     let (x0, y0) = points.clone().next()?;
     let rel = |(x, y): (Micros, i64)| {
         (
@@ -501,7 +570,7 @@ fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32,
     // At least a microsecond of scatter: the stamps are whole µs.
     let sigma = libm_sqrt(sq / (count - 2.0)).max(1.0);
     let stderr = sigma / libm_sqrt(sxx);
-    (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr))
+    (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr, sigma))
 }
 
 /// Square root without `std` (Newton's method; plenty for an RMS).
