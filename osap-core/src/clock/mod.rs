@@ -787,12 +787,12 @@ impl<const LINKS: usize> Clock<LINKS> {
         let Some(n) = self.neighbours.get_mut(link).filter(|n| n.tier == tier) else {
             return false;
         };
-        let Some((slope, stderr)) = n.new_envelope_slope(now) else {
+        let Some(fit) = n.new_envelope_slope(now) else {
             return false;
         };
-        if self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
+        let Some((slope, stderr)) = fit.filter(|_| self.rate_var > ENVELOPE_RATE_VAR_LIMIT) else {
             return true;
-        }
+        };
         // Successive slopes share most of their buckets: count each as
         // worth a quarter of its stated precision.
         let var = 4.0 * stderr * stderr;
@@ -851,13 +851,18 @@ impl<const LINKS: usize> Clock<LINKS> {
             }
             let est = n.estimate(now, &self.config, prior);
             let stale_after = if self.settled { 2_000_000 } else { ENVELOPE_STALE_US };
-            let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
-            if let Some((v, rel, sigma)) = n.envelope_offset(now, prior).filter(|_| stale) {
+            let stale = (!self.settled && n.acceptance < 0.5)
+                || est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
+            if let Some((v, rel, sigma)) = n.envelope_offset(now, prior, &self.config).filter(|_| stale) {
                 // The fit has not heard a clean exchange for a while: the
                 // prompt one-way envelope has.
                 offset_sum += (v.saturating_mul(2).saturating_sub(own)) as f32 * 0.5 + rel;
                 offsets += 1;
                 noise = noise.max(sigma);
+                if let Some(slope) = est.and_then(|e| e.slope) {
+                    slope_sum += slope;
+                    slopes += 1;
+                }
                 continue;
             }
             let Some(est) = est else {

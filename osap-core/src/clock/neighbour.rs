@@ -233,8 +233,7 @@ impl Neighbour {
         if tier != self.tier {
             // It started following someone else (or stopped): its time may
             // have jumped, so earlier samples describe another timescale.
-            self.fit_len = 0;
-            self.fit_next = 0;
+            self.forget_timescale();
         }
         self.tier = tier;
         self.last_rtt = rtt;
@@ -275,8 +274,7 @@ impl Neighbour {
                 if self.rejects_in_row < RESET_AFTER_REJECTS {
                     return Verdict::RejectedResidual;
                 }
-                self.fit_len = 0;
-                self.fit_next = 0;
+                self.forget_timescale();
             }
         }
         self.rejects_in_row = 0;
@@ -443,7 +441,7 @@ impl Neighbour {
     /// they happen to catch a frame, one direction is prompt: this measures
     /// the rate long before the round-trip filter lets enough exchanges
     /// through to fit it. Of the two envelopes the less scattered counts.
-    pub fn new_envelope_slope(&mut self, now: Micros) -> Option<(f32, f32)> {
+    pub fn new_envelope_slope(&mut self, now: Micros) -> Option<Option<(f32, f32)>> {
         let current = now / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
         let usable = |b: &&EnvelopeBucket| b.id != u64::MAX && b.id < current && b.id >= oldest;
@@ -459,10 +457,10 @@ impl Neighbour {
             (Some(a), Some(b)) if a.1 <= b.1 => (true, a),
             (Some(a), None) => (true, a),
             (_, Some(b)) => (false, b),
-            (None, None) => return None,
+            (None, None) => return Some(None),
         };
         self.prompt = (is_ahead, sigma);
-        Some((slope, stderr))
+        Some(Some((slope, stderr)))
     }
 
     /// The neighbour's time minus our local counter at `now`, µs (a whole
@@ -476,11 +474,20 @@ impl Neighbour {
     /// round-trip filter, and those are not symmetric; the prompt direction
     /// sits on its least delay within every quarter second whatever the
     /// frames do, so this follows the neighbour without waiting for them.
-    pub fn envelope_offset(&self, now: Micros, slope: f32) -> Option<(i64, f32, f32)> {
+    pub fn envelope_offset(
+        &self,
+        now: Micros,
+        slope: f32,
+        cfg: &TimeConfig,
+    ) -> Option<(i64, f32, f32)> {
         let (prompt_ahead, sigma) = self.prompt;
-        if !sigma.is_finite() {
-            return None;
-        }
+        // Until the envelopes' scatter is known, assume what the round-trip
+        // band allows (over the first buckets both sides give the same).
+        let sigma = if sigma.is_finite() {
+            sigma
+        } else {
+            0.125 * (self.rtt_limit(cfg) - self.rtt_floor).max(1.0)
+        };
         let current = now / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64 - 1);
         // Every bucket's two extremes, projected to `now` at `slope`,
@@ -518,6 +525,16 @@ impl Neighbour {
             recent + 0.5 * floor
         };
         Some((reference, rel, sigma))
+    }
+
+    /// Forgets the samples and envelopes (not the round-trip floor): the
+    /// neighbour's time jumped.
+    fn forget_timescale(&mut self) {
+        self.fit_len = 0;
+        self.fit_next = 0;
+        self.envelope = [EMPTY_BUCKET; ENVELOPE_BUCKETS];
+        self.envelope_used = u64::MAX;
+        self.prompt = (true, f32::INFINITY);
     }
 
     /// Forgets everything (the link closed or changed peer).
