@@ -850,31 +850,35 @@ impl<const LINKS: usize> Clock<LINKS> {
                 continue;
             }
             let est = n.estimate(now, &self.config, prior);
-            let stale_after = if self.settled { 2_000_000 } else { ENVELOPE_STALE_US };
-            let stale = (!self.settled && n.acceptance < 0.5)
-                || est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
-            if let Some((v, rel, sigma)) = n.envelope_offset(now, prior, &self.config).filter(|_| stale) {
-                // The fit has not heard a clean exchange for a while: the
-                // prompt one-way envelope has.
-                offset_sum += (v.saturating_mul(2).saturating_sub(own)) as f32 * 0.5 + rel;
-                offsets += 1;
-                noise = noise.max(sigma);
-                if let Some(slope) = est.and_then(|e| e.slope) {
-                    slope_sum += slope;
-                    slopes += 1;
-                }
-                continue;
-            }
-            let Some(est) = est else {
-                continue;
-            };
-            offset_sum += est.y_ref_half.saturating_sub(own) as f32 * 0.5 + est.y_rel;
-            offsets += 1;
-            noise = noise.max(est.jitter);
-            if let Some(slope) = est.slope {
+            if let Some(slope) = est.and_then(|e| e.slope) {
                 slope_sum += slope;
                 slopes += 1;
             }
+            let fit = est.map(|e| (e.y_ref_half.saturating_sub(own) as f32 * 0.5 + e.y_rel, e.jitter));
+            let envelope = n
+                .envelope_offset(now, prior, &self.config)
+                .map(|(v, rel, sigma)| (v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel, sigma));
+            let stale_after = if self.settled { 2_000_000 } else { ENVELOPE_STALE_US };
+            let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
+            // Over a link where most exchanges wait (USB frames), the few
+            // clean ones share the phase requests are held at, and their
+            // bias drifts with it; the prompt envelope's does not.
+            let bursting = n.acceptance < 0.5;
+            let (offset, jitter) = match (fit, envelope) {
+                (Some(f), Some(e))
+                    if stale
+                        || (bursting
+                            && (!self.settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1))) =>
+                {
+                    e
+                }
+                (Some(f), _) => f,
+                (None, Some(e)) => e,
+                (None, None) => continue,
+            };
+            offset_sum += offset;
+            offsets += 1;
+            noise = noise.max(jitter);
         }
         let offset = offset_sum / f32::from(offsets.max(1));
         // Garbage from the wire can make the sums overflow; never steer on it.

@@ -454,9 +454,20 @@ impl Neighbour {
         let ahead = line_fit(buckets().map(|b| (b.sent, b.ahead)));
         let behind = line_fit(buckets().map(|b| (b.received, b.behind)));
         let (is_ahead, (slope, stderr, sigma)) = match (ahead, behind) {
-            (Some(a), Some(b)) if a.1 <= b.1 => (true, a),
+            (Some(a), Some(b)) => {
+                self.prompt = if a.1 <= b.1 { (true, a.2) } else { (false, b.2) };
+                // Both measure the same rate: weigh them by their
+                // precision, and where they disagree by more than that
+                // claims (a few buckets can line up by chance), believe
+                // the disagreement.
+                let (va, vb) = (a.1 * a.1, b.1 * b.1);
+                let slope = (a.0 * vb + b.0 * va) / (va + vb).max(f32::MIN_POSITIVE);
+                let half_gap = 0.5 * (a.0 - b.0);
+                let var = (va * vb / (va + vb).max(f32::MIN_POSITIVE)).max(half_gap * half_gap);
+                return Some(Some((slope, libm_sqrt(var))));
+            }
             (Some(a), None) => (true, a),
-            (_, Some(b)) => (false, b),
+            (None, Some(b)) => (false, b),
             (None, None) => return Some(None),
         };
         self.prompt = (is_ahead, sigma);
