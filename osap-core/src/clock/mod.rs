@@ -866,9 +866,8 @@ impl<const LINKS: usize> Clock<LINKS> {
             let bursting = n.acceptance < 0.5;
             let (offset, jitter) = match (fit, envelope) {
                 (Some(f), Some(e))
-                    if stale
-                        || (bursting
-                            && (!self.settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1))) =>
+                    if bursting
+                        && (stale || !self.settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1)) =>
                 {
                     e
                 }

@@ -274,7 +274,8 @@ impl Neighbour {
                 if self.rejects_in_row < RESET_AFTER_REJECTS {
                     return Verdict::RejectedResidual;
                 }
-                self.forget_timescale();
+                self.fit_len = 0;
+                self.fit_next = 0;
             }
         }
         self.rejects_in_row = 0;
