@@ -844,7 +844,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         let prior = self.learned_q32 as f32 / Q32;
         let (mut offset_sum, mut offsets) = (0f32, 0u8);
         let (mut slope_sum, mut slopes) = (0f32, 0u8);
-        let mut noise = 0f32;
+        let (mut noise, mut slew_noise) = (0f32, 0f32);
         for n in self.neighbours.iter() {
             if n.tier != tier || !n.is_fresh(now, &self.config) {
                 continue;
@@ -854,17 +854,23 @@ impl<const LINKS: usize> Clock<LINKS> {
                 slope_sum += slope;
                 slopes += 1;
             }
-            let fit = est.map(|e| (e.y_ref_half.saturating_sub(own) as f32 * 0.5 + e.y_rel, e.jitter));
+            let fit = est.map(|e| {
+                let offset = e.y_ref_half.saturating_sub(own) as f32 * 0.5 + e.y_rel;
+                (offset, e.jitter, e.phase_noise)
+            });
             let envelope = n
                 .envelope_offset(now, prior, &self.config)
-                .map(|(v, rel, sigma)| (v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel, sigma));
+                .map(|(v, rel, sigma)| {
+                    let offset = v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel;
+                    (offset, sigma, sigma)
+                });
             let stale_after = if self.settled { 2_000_000 } else { ENVELOPE_STALE_US };
             let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
             // Over a link where most exchanges wait (USB frames), the few
             // clean ones share the phase requests are held at, and their
             // bias drifts with it; the prompt envelope's does not.
             let bursting = n.acceptance < 0.5;
-            let (offset, jitter) = match (fit, envelope) {
+            let (offset, jitter, phase_noise) = match (fit, envelope) {
                 (Some(f), Some(e))
                     if bursting
                         && (stale || !self.settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1)) =>
@@ -878,6 +884,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             offset_sum += offset;
             offsets += 1;
             noise = noise.max(jitter);
+            slew_noise = slew_noise.max(phase_noise);
         }
         let offset = offset_sum / f32::from(offsets.max(1));
         // Garbage from the wire can make the sums overflow; never steer on it.
@@ -946,7 +953,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         if cfg.kp > 0.0 {
             let max = cfg.max_rate_ppm * 1e-6;
             let room = (max - learned.abs()).max(0.1 * max);
-            let settle = (1e6 / cfg.kp) * (noise / SLEW_NOISE_REF_US).min(1.0);
+            let settle = (1e6 / cfg.kp) * (slew_noise / SLEW_NOISE_REF_US).min(1.0);
             let duration_us = settle.max(cfg.interval_us as f32).max(offset.abs() / room);
             self.slew_q32 = round(offset / duration_us * Q32);
             self.slew_len = duration_us as i64;

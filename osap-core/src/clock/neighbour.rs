@@ -102,6 +102,9 @@ pub struct Estimate {
     pub used: u8,
     /// Local send time of the newest sample it rests on.
     pub newest: Micros,
+    /// Noise of the phase, µs: `jitter` over the root of the number of
+    /// newest samples it averages.
+    pub phase_noise: f32,
 }
 
 /// Samples and state for the neighbour on one link.
@@ -400,6 +403,7 @@ impl Neighbour {
             jitter,
             used: n,
             newest: newest_sent,
+            phase_noise: jitter / libm_sqrt(taken.max(1) as f32),
         })
     }
 
