@@ -619,7 +619,10 @@ impl<const LINKS: usize> Clock<LINKS> {
                 // Discovery: find the round-trip floor in a fraction of a
                 // second (a few kilobytes, once per neighbour).
                 DISCOVERY_BURST
-            } else if n.acceptance < 0.5 {
+            } else if n.acceptance < 0.5 || n.doubting() {
+                // Few exchanges pass (USB frames), or the last was far off
+                // the fit: its time may have jumped, and the fit should
+                // know within milliseconds, not after six intervals.
                 u64::from(self.config.burst.max(1))
             } else {
                 1

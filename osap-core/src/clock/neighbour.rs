@@ -558,6 +558,12 @@ impl Neighbour {
         *self = Neighbour::default();
     }
 
+    /// Whether the latest sample was refused as too far from the fit: the
+    /// neighbour's time may have jumped, which a few more exchanges tell.
+    pub fn doubting(&self) -> bool {
+        self.rejects_in_row > 0
+    }
+
     /// Whether anything is known (a request was sent or a reply heard).
     pub fn is_active(&self) -> bool {
         self.last_heard.is_some() || self.next_request.is_some()
