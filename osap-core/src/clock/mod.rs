@@ -872,7 +872,9 @@ impl<const LINKS: usize> Clock<LINKS> {
             // Over a link where most exchanges wait (USB frames), the few
             // clean ones share the phase requests are held at, and their
             // bias drifts with it; the prompt envelope's does not.
-            let bursting = n.acceptance < 0.5;
+            // (Acceptance starts at 0: it says something once the discovery
+            // burst has found the round-trip floor.)
+            let bursting = n.seen >= DISCOVERY_SAMPLES && n.acceptance < 0.5;
             let (offset, jitter, phase_noise) = match (fit, envelope) {
                 (Some(f), Some(e))
                     if bursting
