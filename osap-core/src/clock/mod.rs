@@ -641,7 +641,11 @@ impl<const LINKS: usize> Clock<LINKS> {
                 _ => {
                     // Search over a whole spacing when bursting: any phase
                     // against a frame grid is equally likely.
-                    let span = if burst > 1 { (interval / 2) as i64 } else { i64::from(self.config.dither_us) };
+                    let span = if burst > 1 {
+                        (interval / 2) as i64
+                    } else {
+                        i64::from(self.config.dither_us)
+                    };
                     let d = self.dither() * span / i64::from(self.config.dither_us.max(1));
                     (now + interval).saturating_add_signed(d)
                 }
@@ -769,8 +773,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         }
         self.select(received, false);
         let bucket = self.learn_rate_from_envelope(link, received);
-        if (verdict == Verdict::Accepted || bucket)
-            && self.followed() == Some(reply.responder_tier)
+        if (verdict == Verdict::Accepted || bucket) && self.followed() == Some(reply.responder_tier)
         {
             self.steer(received);
         }
@@ -867,7 +870,11 @@ impl<const LINKS: usize> Clock<LINKS> {
                     let offset = v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel;
                     (offset, sigma, sigma)
                 });
-            let stale_after = if self.settled { 2_000_000 } else { ENVELOPE_STALE_US };
+            let stale_after = if self.settled {
+                2_000_000
+            } else {
+                ENVELOPE_STALE_US
+            };
             let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
             // Over a link where most exchanges wait (USB frames), the few
             // clean ones share the phase requests are held at, and their

@@ -460,7 +460,11 @@ impl Neighbour {
         let behind = line_fit(buckets().map(|b| (b.received, b.behind)));
         let (is_ahead, (slope, stderr, sigma)) = match (ahead, behind) {
             (Some(a), Some(b)) => {
-                self.prompt = if a.1 <= b.1 { (true, a.2) } else { (false, b.2) };
+                self.prompt = if a.1 <= b.1 {
+                    (true, a.2)
+                } else {
+                    (false, b.2)
+                };
                 // Both measure the same rate: weigh them by their
                 // precision, and where they disagree by more than that
                 // claims (a few buckets can line up by chance), believe
