@@ -782,7 +782,9 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// While the rate is not yet known to a few ppm, takes a new rate
     /// measurement from the followed neighbour's one-way envelope
     /// ([`Neighbour::new_envelope_slope`]), once per finished bucket, weighed
-    /// against what is known; the slew under way goes on.
+    /// against what is known; the slew under way goes on. Returns whether a
+    /// bucket of the followed neighbour's envelopes finished (the clock then
+    /// steers, whether or not the exchange passed the filters).
     fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) -> bool {
         if !self.synced {
             return false;
@@ -870,18 +872,15 @@ impl<const LINKS: usize> Clock<LINKS> {
                     let offset = v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel;
                     (offset, sigma, sigma)
                 });
-            let stale_after = if self.settled {
-                2_000_000
-            } else {
-                ENVELOPE_STALE_US
-            };
-            let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > stale_after);
             // Over a link where most exchanges wait (USB frames), the few
-            // clean ones share the phase requests are held at, and their
-            // bias drifts with it; the prompt envelope's does not.
-            // (Acceptance starts at 0: it says something once the discovery
-            // burst has found the round-trip floor.)
+            // clean ones are not symmetric, and while requests are held at
+            // a phase their bias drifts with it; the prompt envelope's does
+            // not. There the envelope is followed while settling, when the
+            // fit has heard nothing clean for a while, and when the two
+            // disagree by more than their noises allow. (Acceptance starts
+            // at 0: it says something once the discovery burst has run.)
             let bursting = n.seen >= DISCOVERY_SAMPLES && n.acceptance < 0.5;
+            let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > ENVELOPE_STALE_US);
             let (offset, jitter, phase_noise) = match (fit, envelope) {
                 (Some(f), Some(e))
                     if bursting
@@ -984,9 +983,9 @@ impl<const LINKS: usize> Clock<LINKS> {
 /// rough slope no longer adds anything the fit does not.
 const ENVELOPE_RATE_VAR_LIMIT: f32 = 5e-6 * 5e-6;
 
-/// A fit whose newest sample is older than this is stale: the one-way
-/// envelope is followed instead, µs.
-const ENVELOPE_STALE_US: u64 = 300_000;
+/// Over a bursting link, a fit whose newest sample is older than this is
+/// stale: the one-way envelope is followed instead, µs.
+const ENVELOPE_STALE_US: u64 = 2_000_000;
 
 /// Variance of a trusted fitted rate (see the fit's standard-error bound).
 const MAX_SLOPE_VAR: f32 = 2e-6 * 2e-6;
@@ -1103,6 +1102,41 @@ mod tests {
             c.rate_ppb()
         );
         assert_eq!(c.status().stats.jumps, 1);
+    }
+
+    #[test]
+    #[cfg(feature = "sync")]
+    fn a_sample_far_off_the_fit_brings_the_next_request_forward() {
+        let mut c: Clock<2> = Clock::new(TimeConfig::default());
+        // Past discovery, every exchange accepted: one request an interval,
+        // at the phase of the latest.
+        follow(&mut c, 0.0, 0.0, 80);
+        let now = 10_000 + 80 * 50_000;
+        c.next_tick = Some(now + 1_000_000);
+        assert_eq!(c.due_requests(now, 0b1), 0b1);
+        assert_eq!(c.neighbours[0].next_request, Some(now + 50_000));
+        // Its time seems to have moved by 40 µs: refused, and asked again
+        // within a burst spacing rather than an interval.
+        let reply = TimeReply {
+            request_time: now,
+            responder_time: now + 100 + 40,
+            responder_tier: 0,
+        };
+        c.on_reply(0, &reply, now + 200);
+        assert_eq!(c.status().stats.rejected_residual, 1);
+        let due = now + 50_000;
+        assert_eq!(c.due_requests(due, 0b1), 0b1);
+        let next = c.neighbours[0].next_request.unwrap();
+        assert!(next - due <= 6_000, "next request {} µs later", next - due);
+        // Accepted again: back to the interval.
+        let reply = TimeReply {
+            request_time: due,
+            responder_time: due + 100,
+            responder_tier: 0,
+        };
+        c.on_reply(0, &reply, due + 200);
+        assert_eq!(c.due_requests(next, 0b1), 0b1);
+        assert_eq!(c.neighbours[0].next_request, Some(due + 50_000));
     }
 
     #[test]

@@ -445,7 +445,11 @@ impl Neighbour {
     /// likewise for the way back). On USB, where replies are clean only when
     /// they happen to catch a frame, one direction is prompt: this measures
     /// the rate long before the round-trip filter lets enough exchanges
-    /// through to fit it. Of the two envelopes the less scattered counts.
+    /// through to fit it. The two envelopes' slopes are weighed by their
+    /// precision, and their error is at least half their disagreement; the
+    /// less scattered envelope is taken as the prompt one for
+    /// [`Neighbour::envelope_offset`]. `Some(None)`: a bucket finished, but
+    /// fewer than four are there to fit.
     pub fn new_envelope_slope(&mut self, now: Micros) -> Option<Option<(f32, f32)>> {
         let current = now / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
@@ -488,12 +492,16 @@ impl Neighbour {
     /// second, projected to `now` at `slope` (their rate against our
     /// counter) and corrected by half the floor of the two envelopes over
     /// the last three seconds; with the scatter of the prompt envelope, µs.
-    /// `None` until the prompt envelope is known.
+    /// `None` while the envelopes hold nothing recent.
     ///
     /// On USB only a few exchanges a second catch a frame and pass the
     /// round-trip filter, and those are not symmetric; the prompt direction
     /// sits on its least delay within every quarter second whatever the
     /// frames do, so this follows the neighbour without waiting for them.
+    /// Until the envelopes have been fitted the scatter is taken as an
+    /// eighth of the round-trip band; over the first half second the two
+    /// envelopes' extremes are the same set, and either side gives their
+    /// midpoint.
     pub fn envelope_offset(
         &self,
         now: Micros,
@@ -538,7 +546,7 @@ impl Neighbour {
             }
         }
         let (reference, recent) = (reference?, recent?);
-        let floor = (ahead - behind).clamp(0.0, self.rtt_floor);
+        let floor = (ahead - behind).max(0.0).min(self.rtt_floor);
         let rel = if prompt_ahead {
             recent - 0.5 * floor
         } else {
@@ -699,5 +707,60 @@ mod tests {
     fn replies_from_the_future_are_bogus() {
         let mut n = Neighbour::default();
         assert_eq!(n.add(10, 5, 0, 0, &cfg(), 0.0), Verdict::Bogus);
+    }
+
+    /// A USB-like link: the way to the neighbour is prompt (20 µs plus a
+    /// software latency of mean 75 µs), the way back waits for the next
+    /// 1 ms frame. Their clock runs 60 ppm fast and 5 ms ahead. Returns
+    /// the neighbour, our local time at the end, the envelopes' latest
+    /// slope and the largest error of a single exchange's midpoint.
+    fn usb_like(seconds: u64) -> (Neighbour, Micros, f64, f64) {
+        extern crate std;
+        let (offset, rate) = (5_000.0, 60e-6);
+        let theirs = |t: f64| t + offset + t * rate;
+        let mut rng = 0x2545_f491_u32;
+        let mut exp = |mean: f64| {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            -mean * ((f64::from(rng) + 1.0) / 4_294_967_297.0).ln()
+        };
+        let mut n = Neighbour::default();
+        let (mut biggest_midpoint_error, mut slope) = (0f64, f64::NAN);
+        let mut sent = 1_000_000u64;
+        while sent < 1_000_000 + seconds * 1_000_000 {
+            let up = 20.0 + exp(75.0);
+            let turnaround = 30.0;
+            let ready = sent as f64 + up + turnaround + exp(50.0);
+            let received = (ready / 1000.0).ceil() * 1000.0 + 15.0;
+            let their_time = theirs(sent as f64 + up + turnaround / 2.0);
+            let received = received as u64;
+            n.add(sent, received, their_time as u64, 0, &cfg(), rate as f32);
+            let midpoint = (sent + received) as f64 / 2.0;
+            let error = their_time - theirs(midpoint);
+            biggest_midpoint_error = biggest_midpoint_error.max(error.abs());
+            if let Some(Some((s, _))) = n.new_envelope_slope(received) {
+                slope = f64::from(s);
+            }
+            // Requests search over the frame's phases (as the clock's
+            // dither does while few exchanges pass).
+            sent += 5_500 + exp(1_000.0).min(1_000.0) as u64;
+        }
+        (n, sent, slope, biggest_midpoint_error)
+    }
+
+    #[test]
+    fn the_prompt_envelope_gives_rate_and_offset_where_round_trips_do_not() {
+        let (n, now, slope, midpoint_error) = usb_like(4);
+        // Single exchanges are off by up to half a frame ...
+        assert!(midpoint_error > 200.0, "midpoint error {midpoint_error}");
+        // ... the envelopes give the rate ...
+        assert!((slope - 60e-6).abs() < 3e-6, "slope {slope}");
+        // ... and, projected at it, the offset.
+        let (whole, rest, sigma) = n.envelope_offset(now, 60e-6, &cfg()).unwrap();
+        let y = whole as f64 + f64::from(rest);
+        let truth = 5_000.0 + now as f64 * 60e-6;
+        assert!((y - truth).abs() < 10.0, "envelope {y} truth {truth}");
+        assert!(sigma < 10.0, "scatter {sigma}");
     }
 }
