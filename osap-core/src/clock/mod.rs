@@ -134,11 +134,14 @@ pub struct TimeConfig {
     pub enabled: bool,
     /// Interval between time stamp requests on each open link, µs.
     pub interval_us: u32,
-    /// Each interval is lengthened or shortened by up to this, at random, µs.
+    /// Each interval is lengthened or shortened by up to this, at random, µs
+    /// (while bursting, by up to half the burst spacing instead: against a
+    /// frame grid every phase is as likely).
     pub dither_us: u32,
     /// On a link where fewer than half the exchanges pass the filters
     /// (a USB link's frame waits), requests go this many times as often
-    /// (1..=32), so enough clean samples still arrive.
+    /// (1..=32), so enough clean samples still arrive; so they do after a
+    /// sample refused as far off the fit, to tell a jump soon.
     pub burst: u8,
     /// An offset beyond this is stepped, not slewed, µs.
     pub hard_jump_us: u32,
