@@ -1,19 +1,21 @@
 #!/usr/bin/env bash
 # How often clock sync meets its start-up targets across USB, over many
 # seeds: chain4, star8 and loop from a cold start, a hot start and with busy
-# modules, SEEDS seeds (default 20) of 40 simulated seconds each; prints,
-# per topology and start, the median, 90th percentile and worst time until
+# modules, SEEDS seeds (default 20, from FIRST, default 1) of 40 simulated
+# seconds each; prints, per topology and start, the median, 90th percentile
+# and worst time until
 # every node stays within 50 µs of the root, and how many runs met the
 # target (cold and busy: under 2 s; hot: under 0.5 s).
 #
-#   scripts/clock-sync-seeds.sh [SEEDS]
+#   scripts/clock-sync-seeds.sh [SEEDS] [FIRST]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=${1:-20}
+first=${2:-1}
 cargo build -q --release -p osap-sim --bin clock_sync_report
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
-for seed in $(seq 1 "$seeds"); do
+for seed in $(seq "$first" $((first + seeds - 1))); do
   ./target/release/clock_sync_report --minutes 0.67 --seed "$seed" --out "$out/$seed" \
     --topologies chain4,star8,loop --variants cold,hot,busy --jobs 2 2>/dev/null |
     awk -F'|' '/^\| (chain4|star8|loop) /{gsub(/ /,""); print $2, $3, $4}'

@@ -94,22 +94,29 @@ fn usb_topologies_hold_the_usb_target() {
     }
 }
 
+/// How a run starts.
+#[derive(Clone, Copy)]
+enum Start {
+    Cold,
+    Hot,
+    Busy,
+}
+
 /// Seconds until every node stays within 50 µs, for chain4, star8 and
 /// loop with seeds 1-4, each run `seconds` long; every run must get there
 /// within `worst` s.
-fn usb_starts(hot: bool, seconds: f64, worst: f64) -> Vec<f64> {
+fn usb_starts(start: Start, seconds: f64, worst: f64) -> Vec<f64> {
     let mut times = Vec::new();
     for seed in 1..=4 {
         for topology in [Topology::chain4(), Topology::star8(), Topology::loop3()] {
             let name = topology.name.clone();
-            let s = Scenario::new(topology)
-                .seed(seed)
-                .seconds(seconds)
-                .hot_start(hot)
-                .run()
-                .unwrap()
-                .metrics
-                .summary();
+            let mut scenario = Scenario::new(topology).seed(seed).seconds(seconds);
+            match start {
+                Start::Cold => {}
+                Start::Hot => scenario = scenario.hot_start(true),
+                Start::Busy => scenario = scenario.busy_modules(BusyModel::MOTOR),
+            }
+            let s = scenario.run().unwrap().metrics.summary();
             let to_50 = s.converged_50us_s.expect("converged to 50 µs");
             assert!(
                 to_50 < worst,
@@ -122,31 +129,36 @@ fn usb_starts(hot: bool, seconds: f64, worst: f64) -> Vec<f64> {
 }
 
 #[test]
-fn usb_hot_starts_converge_within_a_second_mostly() {
-    // A hot start knows its rate; across USB the phase then needs one
-    // prompt exchange, which keeping requests at a phase where the host's
-    // replies catch a frame makes frequent. Measured over seeds 1-20
-    // (scripts/clock-sync-seeds.sh): 44 of 60 under 0.5 s, worst 1.7 s.
-    let times = usb_starts(true, 10.0, 3.0);
+fn usb_hot_starts_converge_within_half_a_second() {
+    // A hot start knows its rate; across USB the phase comes from the
+    // prompt one-way envelope within the first quarter second. Measured
+    // over seeds 1-20 (scripts/clock-sync-seeds.sh): 59 of 60 under 0.5 s,
+    // worst 2.1 s; seeds 1-4 here: worst 0.33 s.
+    let times = usb_starts(Start::Hot, 10.0, 0.5);
     eprintln!("USB hot starts, s: {times:?}");
-    let quick = times.iter().filter(|t| **t < 1.0).count();
-    assert!(
-        quick >= 9,
-        "only {quick} of 12 hot starts within 1 s: {times:?}"
-    );
 }
 
 #[test]
-fn usb_cold_starts_converge_within_two_seconds_mostly() {
+fn usb_cold_starts_converge_within_two_seconds() {
     // A cold start learns its rate from the one-way envelopes within about
-    // a second; the phase then needs prompt exchanges. Measured over seeds
-    // 1-20 (scripts/clock-sync-seeds.sh): 50 of 60 under 2 s, worst 12 s.
-    let times = usb_starts(false, 20.0, 15.0);
+    // a second, and follows the prompt one meanwhile. Measured over seeds
+    // 1-20 (scripts/clock-sync-seeds.sh): 60 of 60 under 2 s, worst 1.5 s;
+    // seeds 1-4 here: worst 1.06 s.
+    let times = usb_starts(Start::Cold, 20.0, 2.0);
     eprintln!("USB cold starts, s: {times:?}");
+}
+
+#[test]
+fn usb_busy_starts_converge_within_two_seconds_mostly() {
+    // Busy modules stamp late and trail a hub whose rate still moves.
+    // Measured over seeds 1-20: 57 of 60 under 2 s, worst 2.6 s; seeds 1-4
+    // here: 11 of 12, worst 2.3 s.
+    let times = usb_starts(Start::Busy, 20.0, 5.0);
+    eprintln!("USB busy starts, s: {times:?}");
     let quick = times.iter().filter(|t| **t < 2.0).count();
     assert!(
-        quick >= 8,
-        "only {quick} of 12 cold starts within 2 s: {times:?}"
+        quick >= 10,
+        "only {quick} of 12 busy starts within 2 s: {times:?}"
     );
 }
 

@@ -138,24 +138,35 @@ fn usb_transfers_are_quantised_to_frames() {
     let next_sof = |t: u64| 300_000 + (t.max(300_000) - 300_000).div_ceil(MS) * MS;
 
     // OUT (host to device): after the host's software latency, at the slot
-    // of the next frame; the device stamps the bus time exactly.
+    // of the next frame (or right after a transfer already in that frame:
+    // the clock's discovery bursts send a request about every millisecond);
+    // the device stamps the bus time exactly.
     let out = frames_from(&sim, Side::A);
     assert!(out.len() >= 20, "{} host frames", out.len());
+    let mut bus_free = 0;
     for f in &out {
         let t = &f.transit;
-        assert_eq!(t.start_ns, next_sof(t.sent_ns + 30_000) + 12_000);
+        let slot = next_sof(t.sent_ns + 30_000) + 12_000;
+        assert_eq!(t.start_ns, slot.max(bus_free));
+        assert!(t.start_ns < next_sof(slot), "moved to a later frame");
         assert_eq!(t.first_byte_ns, t.start_ns);
         assert_eq!(f.rx_stamp, Some(sim.node(1).clock().local_us(t.start_ns)));
+        bus_free = t.complete_ns;
     }
-    // IN (device to host): at the slot of the next frame; the host sees it
-    // (and stamps it) after its receive latency.
+    // IN (device to host): at the slot of the next frame (or after one
+    // already in it); the host sees it (and stamps it) after its receive
+    // latency.
     let inn = frames_from(&sim, Side::B);
     assert!(inn.len() >= 20, "{} device frames", inn.len());
+    let mut bus_free = 0;
     for f in &inn {
         let t = &f.transit;
-        assert_eq!(t.start_ns, next_sof(t.sent_ns) + 12_000);
+        let slot = next_sof(t.sent_ns) + 12_000;
+        assert_eq!(t.start_ns, slot.max(bus_free));
+        assert!(t.start_ns < next_sof(slot), "moved to a later frame");
         assert_eq!(t.visible_ns, t.complete_ns + 40_000);
         assert_eq!(f.rx_stamp, Some(sim.node(0).clock().local_us(t.visible_ns)));
+        bus_free = t.complete_ns;
     }
 }
 

@@ -140,11 +140,14 @@ pub struct TimeConfig {
     pub enabled: bool,
     /// Interval between time stamp requests on each open link, µs.
     pub interval_us: u32,
-    /// Each interval is lengthened or shortened by up to this, at random, µs.
+    /// Each interval is lengthened or shortened by up to this, at random, µs
+    /// (while bursting, by up to half the burst spacing instead: against a
+    /// frame grid every phase is as likely).
     pub dither_us: u32,
     /// On a link where fewer than half the exchanges pass the filters
     /// (a USB link's frame waits), requests go this many times as often
-    /// (1..=32), so enough clean samples still arrive.
+    /// (1..=32), so enough clean samples still arrive; so they do after a
+    /// sample refused as far off the fit, to tell a jump soon.
     pub burst: u8,
     /// An offset beyond this is stepped, not slewed, µs.
     pub hard_jump_us: u32,
@@ -636,7 +639,10 @@ impl<const LINKS: usize> Clock<LINKS> {
                 // Discovery: find the round-trip floor in a fraction of a
                 // second (a few kilobytes, once per neighbour).
                 DISCOVERY_BURST
-            } else if n.acceptance < 0.5 {
+            } else if n.acceptance < 0.5 || n.doubting() {
+                // Few exchanges pass (USB frames), or the last was far off
+                // the fit: its time may have jumped, and the fit should
+                // know within milliseconds, not after six intervals.
                 u64::from(self.config.burst.max(1))
             } else {
                 1
@@ -652,7 +658,17 @@ impl<const LINKS: usize> Clock<LINKS> {
             // one, search with dither.
             let next = match self.neighbours[i].anchor {
                 Some(a) if a <= now => a + (now - a) / interval * interval + interval,
-                _ => (now + interval).saturating_add_signed(self.dither() / burst as i64),
+                _ => {
+                    // Search over a whole spacing when bursting: any phase
+                    // against a frame grid is equally likely.
+                    let span = if burst > 1 {
+                        (interval / 2) as i64
+                    } else {
+                        i64::from(self.config.dither_us)
+                    };
+                    let d = self.dither() * span / i64::from(self.config.dither_us.max(1));
+                    (now + interval).saturating_add_signed(d)
+                }
             };
             self.neighbours[i].next_request = Some(next);
         }
@@ -776,8 +792,9 @@ impl<const LINKS: usize> Clock<LINKS> {
             return;
         }
         self.select(received, false);
-        self.learn_rate_from_envelope(link, received);
-        if verdict == Verdict::Accepted && self.followed() == Some(reply.responder_tier) {
+        let bucket = self.learn_rate_from_envelope(link, received);
+        if (verdict == Verdict::Accepted || bucket) && self.followed() == Some(reply.responder_tier)
+        {
             self.steer(received);
         }
     }
@@ -785,19 +802,24 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// While the rate is not yet known to a few ppm, takes a new rate
     /// measurement from the followed neighbour's one-way envelope
     /// ([`Neighbour::new_envelope_slope`]), once per finished bucket, weighed
-    /// against what is known; the slew under way goes on.
-    fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) {
-        if !self.synced || self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
-            return;
+    /// against what is known; the slew under way goes on. Returns whether a
+    /// bucket of the followed neighbour's envelopes finished (the clock then
+    /// steers, whether or not the exchange passed the filters).
+    fn learn_rate_from_envelope(&mut self, link: usize, now: Micros) -> bool {
+        if !self.synced {
+            return false;
         }
         let Some(tier) = self.followed() else {
-            return;
+            return false;
         };
         let Some(n) = self.neighbours.get_mut(link).filter(|n| n.tier == tier) else {
-            return;
+            return false;
         };
-        let Some((slope, stderr)) = n.new_envelope_slope(now) else {
-            return;
+        let Some(fit) = n.new_envelope_slope(now) else {
+            return false;
+        };
+        let Some((slope, stderr)) = fit.filter(|_| self.rate_var > ENVELOPE_RATE_VAR_LIMIT) else {
+            return true;
         };
         // Successive slopes share most of their buckets: count each as
         // worth a quarter of its stated precision.
@@ -816,6 +838,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             self.slew_q32 = slew_q32;
             self.slew_len = left;
         }
+        true
     }
 
     fn clamp_rate(&self, fraction: f32) -> i64 {
@@ -849,21 +872,50 @@ impl<const LINKS: usize> Clock<LINKS> {
         let prior = self.learned_q32 as f32 / Q32;
         let (mut offset_sum, mut offsets) = (0f32, 0u8);
         let (mut slope_sum, mut slopes) = (0f32, 0u8);
-        let mut noise = 0f32;
+        let (mut noise, mut slew_noise) = (0f32, 0f32);
         for n in self.neighbours.iter() {
             if n.tier != tier || !n.is_fresh(now, &self.config) {
                 continue;
             }
-            let Some(est) = n.estimate(now, &self.config, prior) else {
-                continue;
-            };
-            offset_sum += est.y_ref_half.saturating_sub(own) as f32 * 0.5 + est.y_rel;
-            offsets += 1;
-            noise = noise.max(est.jitter);
-            if let Some(slope) = est.slope {
+            let est = n.estimate(now, &self.config, prior);
+            if let Some(slope) = est.and_then(|e| e.slope) {
                 slope_sum += slope;
                 slopes += 1;
             }
+            let fit = est.map(|e| {
+                let offset = e.y_ref_half.saturating_sub(own) as f32 * 0.5 + e.y_rel;
+                (offset, e.jitter, e.phase_noise)
+            });
+            let envelope = n
+                .envelope_offset(now, prior, &self.config)
+                .map(|(v, rel, sigma)| {
+                    let offset = v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel;
+                    (offset, sigma, sigma)
+                });
+            // Over a link where most exchanges wait (USB frames), the few
+            // clean ones are not symmetric, and while requests are held at
+            // a phase their bias drifts with it; the prompt envelope's does
+            // not. There the envelope is followed while settling, when the
+            // fit has heard nothing clean for a while, and when the two
+            // disagree by more than their noises allow. (Acceptance starts
+            // at 0: it says something once the discovery burst has run.)
+            let bursting = n.seen >= DISCOVERY_SAMPLES && n.acceptance < 0.5;
+            let stale = est.is_none_or(|e| now.saturating_sub(e.newest) > ENVELOPE_STALE_US);
+            let (offset, jitter, phase_noise) = match (fit, envelope) {
+                (Some(f), Some(e))
+                    if bursting
+                        && (stale || !self.settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1)) =>
+                {
+                    e
+                }
+                (Some(f), _) => f,
+                (None, Some(e)) => e,
+                (None, None) => continue,
+            };
+            offset_sum += offset;
+            offsets += 1;
+            noise = noise.max(jitter);
+            slew_noise = slew_noise.max(phase_noise);
         }
         let offset = offset_sum / f32::from(offsets.max(1));
         // Garbage from the wire can make the sums overflow; never steer on it.
@@ -932,7 +984,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         if cfg.kp > 0.0 {
             let max = cfg.max_rate_ppm * 1e-6;
             let room = (max - learned.abs()).max(0.1 * max);
-            let settle = (1e6 / cfg.kp) * (noise / SLEW_NOISE_REF_US).min(1.0);
+            let settle = (1e6 / cfg.kp) * (slew_noise / SLEW_NOISE_REF_US).min(1.0);
             let duration_us = settle.max(cfg.interval_us as f32).max(offset.abs() / room);
             self.slew_q32 = round(offset / duration_us * Q32);
             self.slew_len = duration_us as i64;
@@ -950,6 +1002,10 @@ impl<const LINKS: usize> Clock<LINKS> {
 /// Rate variance (fraction², here (5 ppm)²) below which the envelope's
 /// rough slope no longer adds anything the fit does not.
 const ENVELOPE_RATE_VAR_LIMIT: f32 = 5e-6 * 5e-6;
+
+/// Over a bursting link, a fit whose newest sample is older than this is
+/// stale: the one-way envelope is followed instead, µs.
+const ENVELOPE_STALE_US: u64 = 2_000_000;
 
 /// Variance of a trusted fitted rate (see the fit's standard-error bound).
 const MAX_SLOPE_VAR: f32 = 2e-6 * 2e-6;
@@ -1111,6 +1167,41 @@ mod tests {
             c.rate_ppb()
         );
         assert_eq!(c.status().stats.jumps, 1);
+    }
+
+    #[test]
+    #[cfg(feature = "sync")]
+    fn a_sample_far_off_the_fit_brings_the_next_request_forward() {
+        let mut c: Clock<2> = Clock::new(TimeConfig::default());
+        // Past discovery, every exchange accepted: one request an interval,
+        // at the phase of the latest.
+        follow(&mut c, 0.0, 0.0, 80);
+        let now = 10_000 + 80 * 50_000;
+        c.next_tick = Some(now + 1_000_000);
+        assert_eq!(c.due_requests(now, 0b1), 0b1);
+        assert_eq!(c.neighbours[0].next_request, Some(now + 50_000));
+        // Its time seems to have moved by 40 µs: refused, and asked again
+        // within a burst spacing rather than an interval.
+        let reply = TimeReply {
+            request_time: now,
+            responder_time: now + 100 + 40,
+            responder_tier: 0,
+        };
+        c.on_reply(0, &reply, now + 200);
+        assert_eq!(c.status().stats.rejected_residual, 1);
+        let due = now + 50_000;
+        assert_eq!(c.due_requests(due, 0b1), 0b1);
+        let next = c.neighbours[0].next_request.unwrap();
+        assert!(next - due <= 6_000, "next request {} µs later", next - due);
+        // Accepted again: back to the interval.
+        let reply = TimeReply {
+            request_time: due,
+            responder_time: due + 100,
+            responder_tier: 0,
+        };
+        c.on_reply(0, &reply, due + 200);
+        assert_eq!(c.due_requests(next, 0b1), 0b1);
+        assert_eq!(c.neighbours[0].next_request, Some(due + 50_000));
     }
 
     #[test]

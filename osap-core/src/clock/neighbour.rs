@@ -100,6 +100,11 @@ pub struct Estimate {
     pub jitter: f32,
     /// Samples the estimate rests on.
     pub used: u8,
+    /// Local send time of the newest sample it rests on.
+    pub newest: Micros,
+    /// Noise of the phase, µs: `jitter` over the root of the number of
+    /// newest samples it averages.
+    pub phase_noise: f32,
 }
 
 /// Samples and state for the neighbour on one link.
@@ -140,6 +145,10 @@ pub struct Neighbour {
     envelope: [EnvelopeBucket; ENVELOPE_BUCKETS],
     /// The newest bucket whose slope the clock has already used.
     envelope_used: u64,
+    /// Which envelope is the prompt one (`true`: `their time − our send
+    /// stamp`), and the scatter of its buckets about their line, µs
+    /// (infinite until known).
+    prompt: (bool, f32),
 }
 
 /// One bucket of the one-way envelopes, over a [`ENVELOPE_BUCKET_US`] slice
@@ -187,6 +196,7 @@ impl Default for Neighbour {
             unanswered: 0,
             envelope: [EMPTY_BUCKET; ENVELOPE_BUCKETS],
             envelope_used: u64::MAX,
+            prompt: (true, f32::INFINITY),
         }
     }
 }
@@ -230,8 +240,7 @@ impl Neighbour {
         if tier != self.tier {
             // It started following someone else (or stopped): its time may
             // have jumped, so earlier samples describe another timescale.
-            self.fit_len = 0;
-            self.fit_next = 0;
+            self.forget_timescale();
         }
         self.tier = tier;
         self.last_rtt = rtt;
@@ -295,6 +304,7 @@ impl Neighbour {
         let usable = |s: &&Sample| s.rtt as f32 <= limit && now.saturating_sub(s.sent) <= max_age;
         let newest = self.samples().filter(usable).max_by_key(|s| s.sent)?;
         let y_ref_half = newest.y_half;
+        let newest_sent = newest.sent;
         // Means first, then centred sums: f32 keeps sub-µs precision because
         // every value is relative to `now` and to the newest sample.
         // Weighted least squares: a sample whose round trip sits on the
@@ -397,6 +407,8 @@ impl Neighbour {
             rms,
             jitter,
             used: n,
+            newest: newest_sent,
+            phase_noise: jitter / libm_sqrt(taken.max(1) as f32),
         })
     }
 
@@ -438,8 +450,12 @@ impl Neighbour {
     /// likewise for the way back). On USB, where replies are clean only when
     /// they happen to catch a frame, one direction is prompt: this measures
     /// the rate long before the round-trip filter lets enough exchanges
-    /// through to fit it. Of the two envelopes the less scattered counts.
-    pub fn new_envelope_slope(&mut self, now: Micros) -> Option<(f32, f32)> {
+    /// through to fit it. The two envelopes' slopes are weighed by their
+    /// precision, and their error is at least half their disagreement; the
+    /// less scattered envelope is taken as the prompt one for
+    /// [`Neighbour::envelope_offset`]. `Some(None)`: a bucket finished, but
+    /// fewer than four are there to fit.
+    pub fn new_envelope_slope(&mut self, now: Micros) -> Option<Option<(f32, f32)>> {
         let current = now / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
         let usable = |b: &&EnvelopeBucket| b.id != u64::MAX && b.id < current && b.id >= oldest;
@@ -451,15 +467,118 @@ impl Neighbour {
         let buckets = || self.envelope.iter().filter(usable);
         let ahead = line_fit(buckets().map(|b| (b.sent, b.ahead)));
         let behind = line_fit(buckets().map(|b| (b.received, b.behind)));
-        match (ahead, behind) {
-            (Some(a), Some(b)) => Some(if a.1 <= b.1 { a } else { b }),
-            (a, b) => a.or(b),
+        let (is_ahead, (slope, stderr, sigma)) = match (ahead, behind) {
+            (Some(a), Some(b)) => {
+                self.prompt = if a.1 <= b.1 {
+                    (true, a.2)
+                } else {
+                    (false, b.2)
+                };
+                // Both measure the same rate: weigh them by their
+                // precision, and where they disagree by more than that
+                // claims (a few buckets can line up by chance), believe
+                // the disagreement.
+                let (va, vb) = (a.1 * a.1, b.1 * b.1);
+                let slope = (a.0 * vb + b.0 * va) / (va + vb).max(f32::MIN_POSITIVE);
+                let half_gap = 0.5 * (a.0 - b.0);
+                let var = (va * vb / (va + vb).max(f32::MIN_POSITIVE)).max(half_gap * half_gap);
+                return Some(Some((slope, libm_sqrt(var))));
+            }
+            (Some(a), None) => (true, a),
+            (None, Some(b)) => (false, b),
+            (None, None) => return Some(None),
+        };
+        self.prompt = (is_ahead, sigma);
+        Some(Some((slope, stderr)))
+    }
+
+    /// The neighbour's time minus our local counter at `now`, µs (a whole
+    /// part and the rest), from the prompt one-way envelope of the last half
+    /// second, projected to `now` at `slope` (their rate against our
+    /// counter) and corrected by half the floor of the two envelopes over
+    /// the last three seconds; with the scatter of the prompt envelope, µs.
+    /// `None` while the envelopes hold nothing recent.
+    ///
+    /// On USB only a few exchanges a second catch a frame and pass the
+    /// round-trip filter, and those are not symmetric; the prompt direction
+    /// sits on its least delay within every quarter second whatever the
+    /// frames do, so this follows the neighbour without waiting for them.
+    /// Until the envelopes have been fitted the scatter is taken as an
+    /// eighth of the round-trip band; over the first half second the two
+    /// envelopes' extremes are the same set, and either side gives their
+    /// midpoint.
+    pub fn envelope_offset(
+        &self,
+        now: Micros,
+        slope: f32,
+        cfg: &TimeConfig,
+    ) -> Option<(i64, f32, f32)> {
+        let (prompt_ahead, sigma) = self.prompt;
+        // Until the envelopes' scatter is known, assume what the round-trip
+        // band allows (over the first buckets both sides give the same).
+        let sigma = if sigma.is_finite() {
+            sigma
+        } else {
+            0.125 * (self.rtt_limit(cfg) - self.rtt_floor).max(1.0)
+        };
+        let current = now / ENVELOPE_BUCKET_US;
+        let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64 - 1);
+        // Every bucket's two extremes, projected to `now` at `slope`,
+        // relative to the first bucket's `ahead`: the least `ahead` and the
+        // most `behind` over the whole window (their difference is the
+        // sum of the two directions' least delays: a round-trip floor that
+        // no single exchange needs to reach), and the prompt one's over the
+        // newest two buckets.
+        let mut reference = None;
+        let (mut ahead, mut behind, mut recent) = (f32::INFINITY, f32::NEG_INFINITY, None::<f32>);
+        for b in self.envelope.iter() {
+            if b.id == u64::MAX || b.id < oldest || b.id > current {
+                continue;
+            }
+            let r = *reference.get_or_insert(b.ahead);
+            let at = |t: Micros| slope * (now as i64).wrapping_sub(t as i64) as f32;
+            let a = b.ahead.saturating_sub(r) as f32 + at(b.sent);
+            let h = b.behind.saturating_sub(r) as f32 + at(b.received);
+            ahead = ahead.min(a);
+            behind = behind.max(h);
+            if b.id + 1 >= current {
+                recent = Some(match (recent, prompt_ahead) {
+                    (None, true) => a,
+                    (None, false) => h,
+                    (Some(v), true) => v.min(a),
+                    (Some(v), false) => v.max(h),
+                });
+            }
         }
+        let (reference, recent) = (reference?, recent?);
+        let floor = (ahead - behind).max(0.0).min(self.rtt_floor);
+        let rel = if prompt_ahead {
+            recent - 0.5 * floor
+        } else {
+            recent + 0.5 * floor
+        };
+        Some((reference, rel, sigma))
+    }
+
+    /// Forgets the samples and envelopes (not the round-trip floor): the
+    /// neighbour's time jumped.
+    fn forget_timescale(&mut self) {
+        self.fit_len = 0;
+        self.fit_next = 0;
+        self.envelope = [EMPTY_BUCKET; ENVELOPE_BUCKETS];
+        self.envelope_used = u64::MAX;
+        self.prompt = (true, f32::INFINITY);
     }
 
     /// Forgets everything (the link closed or changed peer).
     pub fn reset(&mut self) {
         *self = Neighbour::default();
+    }
+
+    /// Whether the latest sample was refused as too far from the fit: the
+    /// neighbour's time may have jumped, which a few more exchanges tell.
+    pub fn doubting(&self) -> bool {
+        self.rejects_in_row > 0
     }
 
     /// Whether anything is known (a request was sent or a reply heard).
@@ -468,9 +587,10 @@ impl Neighbour {
     }
 }
 
-/// Least-squares slope of `(local µs, µs)` points and its standard error;
+/// Least-squares slope of `(local µs, µs)` points, its standard error and
+/// the points' scatter about the line;
 /// `None` below four points or when they do not spread in time.
-fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32, f32)> {
+fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32, f32, f32)> {
     let (x0, y0) = points.clone().next()?;
     let rel = |(x, y): (Micros, i64)| {
         (
@@ -506,7 +626,7 @@ fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32,
     // At least a microsecond of scatter: the stamps are whole µs.
     let sigma = libm_sqrt(sq / (count - 2.0)).max(1.0);
     let stderr = sigma / libm_sqrt(sxx);
-    (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr))
+    (slope.is_finite() && stderr.is_finite()).then_some((slope, stderr, sigma))
 }
 
 /// Square root without `std` (Newton's method; plenty for an RMS).
@@ -592,5 +712,60 @@ mod tests {
     fn replies_from_the_future_are_bogus() {
         let mut n = Neighbour::default();
         assert_eq!(n.add(10, 5, 0, 0, &cfg(), 0.0), Verdict::Bogus);
+    }
+
+    /// A USB-like link: the way to the neighbour is prompt (20 µs plus a
+    /// software latency of mean 75 µs), the way back waits for the next
+    /// 1 ms frame. Their clock runs 60 ppm fast and 5 ms ahead. Returns
+    /// the neighbour, our local time at the end, the envelopes' latest
+    /// slope and the largest error of a single exchange's midpoint.
+    fn usb_like(seconds: u64) -> (Neighbour, Micros, f64, f64) {
+        extern crate std;
+        let (offset, rate) = (5_000.0, 60e-6);
+        let theirs = |t: f64| t + offset + t * rate;
+        let mut rng = 0x2545_f491_u32;
+        let mut exp = |mean: f64| {
+            rng ^= rng << 13;
+            rng ^= rng >> 17;
+            rng ^= rng << 5;
+            -mean * ((f64::from(rng) + 1.0) / 4_294_967_297.0).ln()
+        };
+        let mut n = Neighbour::default();
+        let (mut biggest_midpoint_error, mut slope) = (0f64, f64::NAN);
+        let mut sent = 1_000_000u64;
+        while sent < 1_000_000 + seconds * 1_000_000 {
+            let up = 20.0 + exp(75.0);
+            let turnaround = 30.0;
+            let ready = sent as f64 + up + turnaround + exp(50.0);
+            let received = (ready / 1000.0).ceil() * 1000.0 + 15.0;
+            let their_time = theirs(sent as f64 + up + turnaround / 2.0);
+            let received = received as u64;
+            n.add(sent, received, their_time as u64, 0, &cfg(), rate as f32);
+            let midpoint = (sent + received) as f64 / 2.0;
+            let error = their_time - theirs(midpoint);
+            biggest_midpoint_error = biggest_midpoint_error.max(error.abs());
+            if let Some(Some((s, _))) = n.new_envelope_slope(received) {
+                slope = f64::from(s);
+            }
+            // Requests search over the frame's phases (as the clock's
+            // dither does while few exchanges pass).
+            sent += 5_500 + exp(1_000.0).min(1_000.0) as u64;
+        }
+        (n, sent, slope, biggest_midpoint_error)
+    }
+
+    #[test]
+    fn the_prompt_envelope_gives_rate_and_offset_where_round_trips_do_not() {
+        let (n, now, slope, midpoint_error) = usb_like(4);
+        // Single exchanges are off by up to half a frame ...
+        assert!(midpoint_error > 200.0, "midpoint error {midpoint_error}");
+        // ... the envelopes give the rate ...
+        assert!((slope - 60e-6).abs() < 3e-6, "slope {slope}");
+        // ... and, projected at it, the offset.
+        let (whole, rest, sigma) = n.envelope_offset(now, 60e-6, &cfg()).unwrap();
+        let y = whole as f64 + f64::from(rest);
+        let truth = 5_000.0 + now as f64 * 60e-6;
+        assert!((y - truth).abs() < 10.0, "envelope {y} truth {truth}");
+        assert!(sigma < 10.0, "scatter {sigma}");
     }
 }
