@@ -3,9 +3,8 @@
 # seeds: chain4, star8 and loop from a cold start, a hot start and with busy
 # modules, SEEDS seeds (default 20, from FIRST, default 1) of 40 simulated
 # seconds each; prints, per topology and start, the median, 90th percentile
-# and worst time until
-# every node stays within 50 µs of the root, and how many runs met the
-# target (cold and busy: under 2 s; hot: under 0.5 s).
+# and worst time until every node stays within 50 µs of the root, and how
+# many runs met the target (cold and busy: under 2 s; hot: under 0.5 s).
 #
 #   scripts/clock-sync-seeds.sh [SEEDS] [FIRST]
 set -euo pipefail

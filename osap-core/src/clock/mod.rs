@@ -659,15 +659,17 @@ impl<const LINKS: usize> Clock<LINKS> {
             let next = match self.neighbours[i].anchor {
                 Some(a) if a <= now => a + (now - a) / interval * interval + interval,
                 _ => {
-                    // Search over a whole spacing when bursting: any phase
-                    // against a frame grid is equally likely.
-                    let span = if burst > 1 {
-                        (interval / 2) as i64
+                    // Search over half a spacing either way when bursting:
+                    // any phase against a frame grid is equally likely.
+                    // (|dither| < interval_us and the burst spacing is at
+                    // most half of it: the product stays below 2^63.)
+                    let d = if burst > 1 {
+                        self.dither() * (interval / 2) as i64
+                            / i64::from(self.config.dither_us.max(1))
                     } else {
-                        i64::from(self.config.dither_us)
+                        self.dither()
                     };
-                    let d = self.dither() * span / i64::from(self.config.dither_us.max(1));
-                    (now + interval).saturating_add_signed(d)
+                    now.saturating_add(interval).saturating_add_signed(d)
                 }
             };
             self.neighbours[i].next_request = Some(next);
@@ -1202,6 +1204,26 @@ mod tests {
         c.on_reply(0, &reply, due + 200);
         assert_eq!(c.due_requests(next, 0b1), 0b1);
         assert_eq!(c.neighbours[0].next_request, Some(due + 50_000));
+    }
+
+    #[test]
+    fn the_widest_configured_dither_cannot_overflow() {
+        let cfg = TimeConfig {
+            interval_us: u32::MAX,
+            dither_us: u32::MAX - 1,
+            ..TimeConfig::default()
+        };
+        let mut c: Clock<2> = Clock::new(cfg);
+        c.seed(0xdead_beef);
+        // Link 1 past discovery and clean: requests at the interval, with
+        // the configured dither; link 0 bursting: half the burst spacing.
+        c.neighbours[1].seen = 100;
+        c.neighbours[1].acceptance = 1.0;
+        let mut now = 0;
+        for _ in 0..64 {
+            c.due_requests(now, 0b11);
+            now = c.next_request().unwrap_or(now + 1).max(now + 1);
+        }
     }
 
     #[test]
