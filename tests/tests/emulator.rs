@@ -32,9 +32,6 @@ use tokio::process::{Child, Command};
 /// The firmware's step and direction pins (see firmware-rp2040/README.md).
 const STEP_PIN: u8 = 2;
 const DIR_PIN: u8 = 3;
-/// How long the emulator must have kept pace with wall time before the
-/// module's clock is held to the host's.
-const STEADY: Duration = Duration::from_secs(5);
 /// How far a synchronized emulated module's time stamps may be from the
 /// host's, µs (see the check for why it is this loose).
 const EMULATED_CLOCK_BOUND_US: i64 = 20_000;
@@ -55,13 +52,6 @@ fn firmware_elf() -> PathBuf {
         })
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .and_then(|l| l.local_addr())
-        .map(|a| a.port())
-        .expect("a free loopback port")
-}
-
 /// The bridge process and its sockets; killed when dropped.
 struct Emulator {
     _child: Child,
@@ -78,38 +68,42 @@ impl Emulator {
             elf.display()
         );
         let bridge = repo().join("firmware-rp2040/emulator/bridge.mjs");
-        let (usb, control) = (free_port(), free_port());
-        let child = Command::new("node")
+        // Port 0: the bridge picks free ports and says which once it
+        // listens, so there is no race for them and nothing to poll.
+        let mut child = Command::new("node")
             .arg(&bridge)
             .arg("--elf")
             .arg(&elf)
-            .args(["--usb", &usb.to_string()])
-            .args(["--control", &control.to_string()])
-            .arg("--realtime")
+            .args(["--usb", "0", "--control", "0", "--realtime"])
             .arg("--flash-image")
             .arg(flash)
             .stdin(Stdio::null())
+            .stdout(Stdio::piped())
             .kill_on_drop(true)
             .spawn()
             .expect("node runs the bridge (is node installed?)");
-        let emu = Emulator {
-            _child: child,
-            usb,
-            control,
+        let stdout = child.stdout.take().expect("piped stdout");
+        let mut ready = String::new();
+        tokio::time::timeout(
+            Duration::from_secs(20),
+            BufReader::new(stdout).read_line(&mut ready),
+        )
+        .await
+        .expect("the bridge never said it was ready")
+        .expect("the bridge's stdout");
+        let ready: Value = serde_json::from_str(&ready)
+            .unwrap_or_else(|e| panic!("the bridge did not start: {ready:?} ({e})"));
+        let port = |k: &str| {
+            ready[k]
+                .as_u64()
+                .and_then(|p| u16::try_from(p).ok())
+                .unwrap_or_else(|| panic!("no {k} port in {ready}"))
         };
-        // The bridge listens once it has loaded the firmware.
-        let deadline = Instant::now() + Duration::from_secs(20);
-        while TcpStream::connect(("127.0.0.1", control)).await.is_err() {
-            assert!(Instant::now() < deadline, "the bridge never listened");
-            tokio::time::sleep(Duration::from_millis(50)).await;
+        Emulator {
+            usb: port("usb"),
+            control: port("control"),
+            _child: child,
         }
-        emu
-    }
-
-    /// How many times the emulator has fallen behind wall time.
-    async fn lag_events(&self) -> u64 {
-        let stats = self.control(json!({"cmd": "stats"})).await;
-        stats["lag_events"].as_u64().unwrap_or(u64::MAX)
     }
 
     /// One command on the control channel, its JSON answer.
@@ -241,22 +235,16 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         status.rate_ppb,
         status.min_rtt_us
     );
-    // An independent check: a read stamped on the module against the
-    // host's time around the call. The emulated core's clock is emulated
-    // time, which falls behind wall time whenever the emulator cannot keep
-    // up: the module's oscillator stalls, which no synchronization can
-    // undo, and it then takes the clock a few seconds to converge again.
-    // So only samples taken after the emulator has kept pace (no lagging
-    // slice) for a while count; the others are reported.
-    let (mut steady, mut worst, mut worst_any) = (0, 0i64, 0i64);
-    let mut last_lag = (Instant::now(), emu.lag_events().await);
-    let deadline = Instant::now() + Duration::from_secs(60);
-    while steady < 10 {
-        assert!(
-            Instant::now() < deadline,
-            "the emulator never kept real time for {STEADY:?} ({steady} steady samples): \
-             the clock cannot be checked on a machine this busy"
-        );
+    // An independent check: reads stamped on the module against the
+    // host's time around each call. The emulated core's clock is emulated
+    // time, whose pace against wall time wanders by milliseconds and falls
+    // behind in bursts when the emulator cannot keep up: the module's
+    // oscillator stalls, which no synchronization can undo. So the median
+    // is held to a bound that only catches a clock not synchronized at all
+    // (seconds off, another epoch); the precision is the module's own
+    // estimate above.
+    let mut outside = Vec::new();
+    for _ in 0..21 {
         let before = host.system_time().await.unwrap() as i64;
         let reading = f("digital_read").call(&[OwnedValue::U8(0)]).await.unwrap();
         let after = host.system_time().await.unwrap() as i64;
@@ -266,29 +254,15 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         let stamp = stamp as i64;
         // The stamp must fall inside the call; how far outside it falls is
         // the clock error.
-        let outside = (before - stamp).max(stamp - after).max(0);
-        worst_any = worst_any.max(outside);
-        let events = emu.lag_events().await;
-        if events != last_lag.1 {
-            last_lag = (Instant::now(), events);
-        } else if last_lag.0.elapsed() >= STEADY {
-            steady += 1;
-            worst = worst.max(outside);
-        }
+        outside.push((before - stamp).max(stamp - after).max(0));
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
-    println!(
-        "module stamps outside their call's window: at most {worst} µs with the emulator \
-         keeping pace for {STEADY:?} ({worst_any} µs over all samples)"
-    );
-    // On silicon this is the clock error (the module's own estimate above
-    // is held to 500 µs). Here the emulator's pace still wanders by
-    // milliseconds within a "steady" stretch (measured: 0.3–8 ms), so the
-    // bound only catches a clock that is not synchronized at all (seconds
-    // off, another epoch), not its precision.
+    outside.sort_unstable();
+    let (median, worst) = (outside[outside.len() / 2], outside[outside.len() - 1]);
+    println!("module stamps outside their call's window: median {median} µs, worst {worst} µs");
     assert!(
-        worst <= EMULATED_CLOCK_BOUND_US,
-        "module time is {worst} µs off the host's"
+        median <= EMULATED_CLOCK_BOUND_US,
+        "module time is {median} µs off the host's (median)"
     );
 
     // 4. Motion: a smooth move of 2 units (160 full steps) stamped in
