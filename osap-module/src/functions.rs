@@ -45,26 +45,25 @@ fn on_module<R>(f: impl FnOnce(&mut Module) -> R) -> Result<R, CallError> {
     with(f).ok_or(CallError::Failed(NOT_INSTALLED))
 }
 
-fn stepper<R>(f: impl FnOnce(&mut Module) -> Result<R, StepperError>) -> Result<R, CallError> {
-    Ok(on_module(f)??)
-}
-
-fn io<R>(f: impl FnOnce(&mut Module) -> Result<R, IoError>) -> Result<R, CallError> {
-    Ok(on_module(f)??)
+/// [`on_module`] for work that can be refused with its own failure code.
+fn fallible<R, E: Into<CallError>>(
+    f: impl FnOnce(&mut Module) -> Result<R, E>,
+) -> Result<R, CallError> {
+    on_module(f)?.map_err(Into::into)
 }
 
 /// Queues a control point: the axis is at `position` (user units) at
 /// synchronized `time` (a multiple of the interval).
 #[pipes_core::function]
 pub fn add_point(time: u64, position: f32) -> Result<(), CallError> {
-    stepper(|m| m.stepper.add_point(time, position))
+    fallible(|m| m.stepper.add_point(time, position))
 }
 
 /// Sets the control-point interval, µs (a power of two, 256 to 16 384),
 /// while no stream is queued.
 #[pipes_core::function]
 pub fn set_interval(interval_us: u32) -> Result<(), CallError> {
-    stepper(|m| m.stepper.set_interval(interval_us))
+    fallible(|m| m.stepper.set_interval(interval_us))
 }
 
 /// Where the steps sent so far put the motor (user units), and the
@@ -115,15 +114,15 @@ pub fn set_enable(on: bool) -> Result<(), CallError> {
 /// multiplies it), while no stream is queued.
 #[pipes_core::function]
 pub fn set_scale(full_steps_per_unit: f32) -> Result<(), CallError> {
-    stepper(|m| m.stepper.set_scale(full_steps_per_unit))
+    fallible(|m| m.stepper.set_scale(full_steps_per_unit))
 }
 
 /// Sets the driver's microstep mode (1, 2, 4, .. 256, as the board's driver
 /// offers), while no stream is queued.
 #[pipes_core::function]
 pub fn set_microsteps(microsteps: u16) -> Result<(), CallError> {
-    stepper(|m| {
-        m.stepper.can_set()?;
+    fallible(|m| {
+        m.stepper.check_idle()?;
         if !m.stepper_hw.set_microsteps(microsteps) {
             return Err(StepperError::BadValue);
         }
@@ -148,7 +147,7 @@ pub fn halt() -> Result<(), CallError> {
 /// Drives digital pin `pin` high or low.
 #[pipes_core::function]
 pub fn digital_write(pin: u8, level: bool) -> Result<(), CallError> {
-    io(|m| {
+    fallible(|m| {
         let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
         m.io.digital_write(hw, pin, level)
     })
@@ -157,17 +156,17 @@ pub fn digital_write(pin: u8, level: bool) -> Result<(), CallError> {
 /// Reads digital pin `pin`: the synchronized time of the read and the level.
 #[pipes_core::function(outputs = "time, level")]
 pub fn digital_read(pin: u8) -> Result<(u64, bool), CallError> {
-    io(|m| {
+    fallible(|m| {
         let now = m.system_now();
         let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        Ok((now, m.io.digital_read(hw, pin)?))
+        m.io.digital_read(hw, pin).map(|level| (now, level))
     })
 }
 
 /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`.
 #[pipes_core::function]
 pub fn pwm_write(channel: u8, duty: f32) -> Result<(), CallError> {
-    io(|m| {
+    fallible(|m| {
         let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
         m.io.pwm_write(hw, channel, duty)
     })
@@ -176,7 +175,7 @@ pub fn pwm_write(channel: u8, duty: f32) -> Result<(), CallError> {
 /// Drives `pin` high now and low `duration_us` later (at most 10 s).
 #[pipes_core::function]
 pub fn pulse(pin: u8, duration_us: u32) -> Result<(), CallError> {
-    io(|m| {
+    fallible(|m| {
         let now = (m.clock)();
         let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
         m.io.pulse(hw, now, pin, duration_us)
@@ -187,7 +186,7 @@ pub fn pulse(pin: u8, duration_us: u32) -> Result<(), CallError> {
 /// most 60 s ahead; 16 may wait at once).
 #[pipes_core::function]
 pub fn pulse_at(time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
-    io(|m| {
+    fallible(|m| {
         let now = m.system_now();
         let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
         m.io.pulse_at(hw, now, time, pin, duration_us)
@@ -198,10 +197,10 @@ pub fn pulse_at(time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
 /// the reading as a fraction of full scale.
 #[pipes_core::function(outputs = "time, value")]
 pub fn analog_read(channel: u8) -> Result<(u64, f32), CallError> {
-    io(|m| {
+    fallible(|m| {
         let now = m.system_now();
         let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        Ok((now, m.io.analog_read(hw, channel)?))
+        m.io.analog_read(hw, channel).map(|value| (now, value))
     })
 }
 

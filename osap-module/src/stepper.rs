@@ -15,8 +15,8 @@
 //! a new stream may then start where the axis stands.
 
 use maxl::{
-    BackstopLimits, Dir, EvalError, Fx, Interval, PioPacker, PushError, PushOutcome, Rounding,
-    StepGen, TickEval, Track, TrackStatus,
+    BackstopLimits, EvalError, Fx, Interval, PioPacker, PushError, PushOutcome, Rounding, StepGen,
+    TickEval, Track, TrackStatus,
 };
 
 /// Step ticks per second: one tick every [`STEP_TICK_US`] µs (100 kHz).
@@ -140,33 +140,32 @@ impl Default for Stepper {
 }
 
 impl Stepper {
-    /// The default interval between control points, µs.
-    pub const DEFAULT_INTERVAL_US: u32 = 2048;
-
     /// A disabled axis at position 0: 80 full steps per unit (a GT2 belt on a
     /// 20-tooth pulley, in mm), no microstepping, 2048 µs intervals.
     pub fn new() -> Self {
-        let iv = interval(Self::DEFAULT_INTERVAL_US);
-        let mut s = Stepper {
-            // Replaced at once by `rebuild_track`, from the settings below.
-            track: Track::new(iv, stop_limits(80.0, 2_000.0, 200_000.0)),
-            tick: tick_eval(iv),
+        const FULL_STEPS_PER_UNIT: f32 = 80.0;
+        const STOP_ACC: f32 = 2_000.0;
+        const STOP_JERK: f32 = 200_000.0;
+        Stepper {
+            track: Track::new(
+                DEFAULT_IV,
+                stop_limits(FULL_STEPS_PER_UNIT, STOP_ACC, STOP_JERK),
+            ),
+            tick: tick_eval(DEFAULT_IV),
             tick_next: None,
             gen: StepGen::new(Fx(0), Rounding::Nearest),
             packer: PioPacker::new(),
             enabled: false,
             halted: false,
-            full_steps_per_unit: 80.0,
+            full_steps_per_unit: FULL_STEPS_PER_UNIT,
             microsteps: 1,
-            stop_acc: 2_000.0,
-            stop_jerk: 200_000.0,
+            stop_acc: STOP_ACC,
+            stop_jerk: STOP_JERK,
             rest: Fx(0),
             last_tick: 0,
             mode: Mode::Disabled,
             counters: StepperCounters::default(),
-        };
-        s.rebuild_track(iv);
-        s
+        }
     }
 
     /// Microsteps per user unit.
@@ -389,9 +388,7 @@ impl Stepper {
     /// 16 384 µs) while no stream is queued.
     pub fn set_interval(&mut self, interval_us: u32) -> Result<(), StepperError> {
         let iv = Interval::from_micros(interval_us).map_err(|_| StepperError::BadValue)?;
-        if !self.idle() {
-            return Err(StepperError::Busy);
-        }
+        self.check_idle()?;
         self.rebuild_track(iv);
         Ok(())
     }
@@ -419,9 +416,10 @@ impl Stepper {
         self.rescale(self.full_steps_per_unit, microsteps)
     }
 
-    /// Whether `set_microsteps(microsteps)` would be accepted by the logic
-    /// (the board is asked only then).
-    pub fn can_set(&self) -> Result<(), StepperError> {
+    /// Settings (scale, microsteps, interval) can change now: no stream is
+    /// queued or running. A caller that must also ask the board (microstep
+    /// pins) checks this first.
+    pub fn check_idle(&self) -> Result<(), StepperError> {
         if self.idle() {
             Ok(())
         } else {
@@ -430,7 +428,7 @@ impl Stepper {
     }
 
     fn rescale(&mut self, full: f32, microsteps: u16) -> Result<(), StepperError> {
-        self.can_set()?;
+        self.check_idle()?;
         let here = self.position_units();
         let new_k = f64::from(full) * f64::from(microsteps);
         let steps = f64::from(here) * new_k;
@@ -488,16 +486,6 @@ impl Stepper {
     pub fn counters(&self) -> StepperCounters {
         self.counters
     }
-
-    /// The direction the step generator last stepped.
-    pub fn last_dir(&self) -> Option<Dir> {
-        let s = self.gen.stats();
-        match (s.up, s.down) {
-            (0, 0) => None,
-            _ if self.gen.target() >= self.gen.position() => Some(Dir::Up),
-            _ => Some(Dir::Down),
-        }
-    }
 }
 
 /// The backstop's limits in microsteps, from units/s² and units/s³.
@@ -508,13 +496,10 @@ fn stop_limits(steps_per_unit: f32, acc: f32, jerk: f32) -> BackstopLimits {
     }
 }
 
-fn interval(us: u32) -> Interval {
-    Interval::from_micros(us).unwrap_or(MIN_IV)
-}
-
-const MIN_IV: Interval = match Interval::from_micros(256) {
+/// The interval an axis starts with, 2048 µs.
+const DEFAULT_IV: Interval = match Interval::from_micros(2048) {
     Ok(iv) => iv,
-    Err(_) => panic!("256 µs is a valid interval"),
+    Err(_) => panic!("2048 µs is a valid interval"),
 };
 
 /// The per-tick evaluator for `iv`. Every interval from 256 to 16 384 µs
