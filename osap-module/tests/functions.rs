@@ -153,3 +153,23 @@ fn io_functions_fail_cleanly_without_io_hardware() {
     assert_eq!(f::analog_read(0), Err(CallError::Failed(4)));
     assert!(f::get_status().is_ok());
 }
+
+#[test]
+fn step_words_follow_a_new_time_map_at_once() {
+    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
+    fresh(false);
+    publish_time(TimeMap::IDENTITY);
+    let last_tick = |local| {
+        fill_step_word(local);
+        f::get_position().unwrap().0
+    };
+    assert_eq!(last_tick(1_000_000), 1_000_150);
+    // A rate of +400 ppm since local 0: the next word, well within the
+    // anchor's span, must use it, not the anchor taken under the old map.
+    let mut clock: osap_core::clock::Clock<1> = osap_core::clock::Clock::new(Default::default());
+    clock.set_rate_ppb(0, 400_000);
+    let map = clock.time_map();
+    publish_time(map);
+    assert_eq!(last_tick(1_000_160), map.system_time(1_000_160) + 150);
+    assert_eq!(map.system_time(1_000_160), 1_000_560);
+}
