@@ -22,7 +22,6 @@
 #![no_main]
 
 mod board;
-mod link;
 mod name_store;
 mod runtime_task;
 mod steps;
@@ -43,13 +42,14 @@ use embassy_rp::{bind_interrupts, usb};
 use embassy_time::Instant;
 use osap_core::netresponder::BuildKey;
 use osap_core::Micros;
-use osap_firmware_logic::name_store::NameStore;
+use osap_firmware::link::{FramedGateway, LinkShared};
+use osap_firmware::name_store::NameStore;
+use osap_firmware::usb::USB_TIMING;
 use osap_module::ModulePorts;
 use panic_reset as _;
 use static_cell::StaticCell;
 
 use board::{IoPins, StepperPins};
-use link::{FramedGateway, LinkShared};
 use name_store::NameSector;
 use runtime_task::{ModuleRuntime, RuntimeParts};
 use usb_link::UsbStrings;
@@ -202,7 +202,7 @@ async fn main(spawner: Spawner) {
     spawner.spawn(unwrap(runtime_task::runtime_task(RuntimeParts {
         runtime,
         ports,
-        usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &usb_link::USB_TIMING),
+        usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &USB_TIMING),
         uart: FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
         names,
     })));

@@ -1,6 +1,6 @@
 //! The module's name in the last 4 KiB sector of the Pico's flash, through
 //! the blocking flash driver. The record format and the fallback to a name
-//! made from the board id are the logic crate's (`logic/src/name_store.rs`) (tested on the host);
+//! made from the board id are osap-firmware's (tested on the host);
 //! this is only the flash access.
 //!
 //! Erasing and writing run from RAM with interrupts off for the whole
@@ -10,7 +10,7 @@
 
 use embassy_rp::flash::{Blocking, Flash, ERASE_SIZE};
 use embassy_rp::peripherals::FLASH;
-use osap_firmware_logic::name_store::NameFlash;
+use osap_firmware::name_store::NameFlash;
 
 /// Size of the Pico's flash (W25Q16JV, 2 MiB).
 pub const FLASH_SIZE: usize = 2 * 1024 * 1024;

@@ -8,7 +8,7 @@
 //!
 //! A received packet is stamped with the start of its first byte on the
 //! wire, counted back from when its bytes reached the receive task (see
-//! `Serial::chunk_time` in the logic crate); the runtime's clock sync is as
+//! `Serial::chunk_time` in osap-firmware); the runtime's clock sync is as
 //! good as this stamp.
 
 use core::cell::Cell;
@@ -21,9 +21,8 @@ use embedded_io_async::{Read, ReadReady, Write};
 use osap_core::framing::max_frame_len;
 use osap_core::Micros;
 
-use osap_firmware_logic::serial::Serial;
-
-use crate::link::{Framer, LinkShared, WireTiming};
+use osap_firmware::link::{Framer, LinkShared, WireTiming};
+use osap_firmware::serial::{RxTrigger, Serial};
 
 /// Line rate, bits per second. 1 Mbaud suits RS-485 runs of a few metres;
 /// the RP2040's UART and common transceivers (e.g. THVD1450, MAX3485 at
@@ -32,7 +31,10 @@ use crate::link::{Framer, LinkShared, WireTiming};
 pub const BAUD: u32 = 1_000_000;
 
 /// The line's timing at [`BAUD`].
-const LINE: Serial = Serial { baud: BAUD };
+const LINE: Serial = Serial {
+    baud: BAUD,
+    rx: RxTrigger::RP2040,
+};
 
 /// Time the transceiver's driver needs after DE rises before the first
 /// start bit: 2 µs at 125 MHz (slow parts such as the MAX485 take up to

@@ -8,8 +8,6 @@
 //! 1 ms frame the host scheduled it in, and that is as near to the wire as
 //! the device side can see.
 
-use core::fmt::Write as _;
-
 use embassy_executor::Spawner;
 use embassy_futures::select::{select, Either};
 use embassy_rp::peripherals::USB;
@@ -19,34 +17,12 @@ use embassy_time::Instant;
 use embassy_usb::class::cdc_acm::{CdcAcmClass, ControlChanged, Receiver, Sender, State};
 use embassy_usb::driver::EndpointError;
 use embassy_usb::{Builder, UsbDevice};
-use osap_core::framing::max_frame_len;
-use osap_core::usb::{MANUFACTURER, PRODUCT_ID_RP2040, PRODUCT_PREFIX, VENDOR_ID};
-use osap_core::Micros;
+use osap_core::usb::{MANUFACTURER, PRODUCT_ID_RP2040, VENDOR_ID};
+use osap_firmware::link::{ChunkTime, Framer, LinkShared};
+use osap_firmware::usb::{product_string, serial_string, ProductString, SerialString, PACKET};
 use static_cell::StaticCell;
 
-use crate::link::{ChunkTime, Framer, LinkShared, WireTiming};
 use crate::{unwrap, Irqs};
-
-/// Full-speed bulk packet size.
-const PACKET: usize = 64;
-
-/// USB full speed: 12 Mbit/s on the bus, so at least 2/3 µs per byte.
-/// The host decides when it polls the bulk IN endpoint, so these are lower
-/// bounds.
-pub struct UsbTiming;
-
-/// The USB link's timing.
-pub static USB_TIMING: UsbTiming = UsbTiming;
-
-impl WireTiming for UsbTiming {
-    fn transmit_time(&self, len: usize) -> Micros {
-        (max_frame_len(len) as u64 * 2).div_ceil(3)
-    }
-
-    fn queue_delay(&self, queued: usize) -> Micros {
-        (queued as u64 * 2).div_ceil(3)
-    }
-}
 
 /// The strings the device reports.
 pub struct UsbStrings {
@@ -60,17 +36,12 @@ impl UsbStrings {
     /// The strings of a module of type `module_type` on the board with
     /// flash id `unique_id`.
     pub fn new(module_type: &str, unique_id: &[u8; 8]) -> Self {
-        static PRODUCT: StaticCell<heapless::String<48>> = StaticCell::new();
-        static SERIAL: StaticCell<heapless::String<16>> = StaticCell::new();
-        let product = PRODUCT.init(heapless::String::new());
-        // Both fit by construction (prefix 8 bytes, type at most 31).
-        let _ = product.push_str(PRODUCT_PREFIX);
-        let _ = product.push_str(module_type);
-        let serial = SERIAL.init(heapless::String::new());
-        for b in unique_id {
-            let _ = write!(serial, "{b:02X}");
+        static PRODUCT: StaticCell<ProductString> = StaticCell::new();
+        static SERIAL: StaticCell<SerialString> = StaticCell::new();
+        UsbStrings {
+            product: PRODUCT.init(product_string(module_type)),
+            serial: SERIAL.init(serial_string(unique_id)),
         }
-        UsbStrings { product, serial }
     }
 }
 

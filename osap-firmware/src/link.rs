@@ -3,9 +3,9 @@
 //! framer that time-stamps packets, and the [`LinkGateway`] the runtime
 //! polls.
 //!
-//! The I/O tasks run on the link executor (an interrupt executor above the
-//! runtime's thread-mode task), so a packet is stamped when its bytes come
-//! in, not when the runtime next gets round to it. They meet the runtime in
+//! A board runs the I/O tasks on a link executor (an interrupt executor
+//! above the runtime's thread-mode task), so a packet is stamped when its
+//! bytes come in, not when the runtime next gets round to it. They meet the runtime in
 //! a [`LinkShared`]: a queue of received packets (the receive task waits
 //! when it is full, which on USB NAKs the host: real flow control) and a
 //! pipe of encoded frames to send.
@@ -23,10 +23,9 @@ use osap_core::framing::{encode_frame, max_frame_len};
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::Micros;
 
-pub use osap_firmware_logic::framer::ChunkTime;
-use osap_firmware_logic::framer::{Next, RxFramer};
-
-use crate::runtime_task::wake_runtime;
+pub use crate::framer::ChunkTime;
+use crate::framer::{Next, RxFramer};
+use crate::runtime::wake_runtime;
 
 /// Largest packet either link carries (the runtime's slot size).
 pub const MTU: usize = 256;
@@ -148,6 +147,12 @@ impl LinkShared {
     }
 }
 
+impl Default for LinkShared {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// The receive framer of both links.
 pub type Framer = RxFramer<FRAME_MAX>;
 
@@ -168,12 +173,20 @@ pub struct FramedGateway<W: WireTiming + 'static> {
     frame: [u8; FRAME_MAX],
 }
 
-impl<W: WireTiming> FramedGateway<W> {
-    /// The link's shared state (for its receive statistics).
-    pub fn shared(&self) -> &'static LinkShared {
+/// A link the runtime loop drives: a gateway, and the state it shares
+/// with its I/O tasks (whose receive errors the loop reports).
+pub trait FirmwareLink: LinkGateway {
+    /// The link's shared state.
+    fn shared(&self) -> &'static LinkShared;
+}
+
+impl<W: WireTiming> FirmwareLink for FramedGateway<W> {
+    fn shared(&self) -> &'static LinkShared {
         self.shared
     }
+}
 
+impl<W: WireTiming> FramedGateway<W> {
     /// The gateway of the link behind `shared`, reported to scans as
     /// `type_name`.
     pub fn new(shared: &'static LinkShared, type_name: &'static str, wire: &'static W) -> Self {

@@ -1,0 +1,24 @@
+//! The board-independent part of osap-rs module firmware, shared by every
+//! board crate (firmware-rp2040, firmware-samd51), which adds only its
+//! peripherals:
+//!
+//! - [`link`]: the hand-over between a byte-stream link's I/O tasks and the
+//!   runtime, and the gateway the runtime polls;
+//! - [`framer`]: the receive framer that splits a link's byte stream into
+//!   packets and time-stamps them, with a serial line's timing in
+//!   [`serial`] and USB's in [`usb`];
+//! - [`runtime`]: the runtime's loop;
+//! - [`name_store`]: the name record in flash.
+//!
+//! It needs an embassy time driver and executor only where a board runs
+//! [`runtime::run`]; everything else is tested on the host.
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod framer;
+pub mod link;
+pub mod name_store;
+pub mod runtime;
+pub mod serial;
+pub mod usb;
