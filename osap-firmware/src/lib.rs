@@ -8,7 +8,9 @@
 //!   packets and time-stamps them, with a serial line's timing in
 //!   [`serial`] and USB's in [`usb`];
 //! - [`runtime`]: the runtime's loop;
-//! - [`name_store`]: the name record in flash.
+//! - [`name_store`]: the name record in flash;
+//! - [`timebase`]: a 64-bit time base on a 32-bit hardware counter, for
+//!   boards that bring their own embassy time driver.
 //!
 //! It needs an embassy time driver and executor only where a board runs
 //! [`runtime::run`]; everything else is tested on the host.
@@ -21,4 +23,5 @@ pub mod link;
 pub mod name_store;
 pub mod runtime;
 pub mod serial;
+pub mod timebase;
 pub mod usb;
