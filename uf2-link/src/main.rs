@@ -1,11 +1,22 @@
-//! `uf2-link`: the linker of firmware-rp2040.
+//! `uf2-link`: the linker of the firmware crates (firmware-rp2040,
+//! firmware-samd51).
 //!
-//! Cargo has no post-build step, so the firmware's `.cargo/config.toml`
-//! names this wrapper (through `link.sh`, which builds it on demand) as the
-//! linker, as flip-link does. It
+//! Cargo has no post-build step, so each firmware's `.cargo/config.toml`
+//! names a two-line `link.sh` of its own as the linker, as flip-link does;
+//! that script runs this wrapper (through `uf2-link/link.sh`, which builds
+//! it on demand) with the chip's UF2 settings ahead of rustc's arguments:
+//!
+//! ```text
+//! uf2-link --family samd51 --flash 0x4000..0x7e000 -- <rustc's linker args>
+//! ```
+//!
+//! It
 //! 1. runs the real linker, `rust-lld -flavor gnu`, with rustc's arguments;
 //! 2. writes the linked ELF's loadable segments as `<elf>.uf2` next to it,
-//!    for drag-and-drop flashing onto a Pico in BOOTSEL mode;
+//!    tagged with the chip's UF2 family id, for drag-and-drop flashing onto
+//!    the board's boot drive; every segment must lie in the `--flash`
+//!    window (the program's part of flash), so a bootloader or a data area
+//!    outside it is never overwritten;
 //! 3. prints the firmware's flash and RAM use on stderr, which rustc shows
 //!    as a `linker stderr` warning because the firmware's rustflags turn on
 //!    the `linker-messages` lint.
@@ -28,7 +39,73 @@ fn main() -> ExitCode {
     }
 }
 
+/// The chip settings that come before `--`.
+#[derive(Debug, PartialEq, Eq)]
+struct Chip {
+    /// UF2 family id.
+    family: u32,
+    /// Program flash window.
+    flash: uf2::Window,
+}
+
+/// Splits `--family X --flash START..END --` off the front of `args`. The
+/// family is a number or a chip name (`rp2040`, `samd51`).
+fn chip_args(args: &[OsString]) -> Result<(Chip, &[OsString]), String> {
+    let mut family = None;
+    let mut flash = None;
+    let mut i = 0;
+    loop {
+        let Some(flag) = args.get(i).and_then(|a| a.to_str()) else {
+            return Err(
+                "expected `--family X --flash START..END --` before the linker arguments".into(),
+            );
+        };
+        if flag == "--" {
+            i += 1;
+            break;
+        }
+        let value = args
+            .get(i + 1)
+            .and_then(|a| a.to_str())
+            .ok_or_else(|| format!("{flag} needs a value"))?;
+        match flag {
+            "--family" => {
+                family = Some(match value {
+                    "rp2040" => uf2::RP2040_FAMILY_ID,
+                    "samd51" => uf2::SAMD51_FAMILY_ID,
+                    id => number(id)?,
+                })
+            }
+            "--flash" => {
+                let (a, b) = value
+                    .split_once("..")
+                    .ok_or_else(|| format!("--flash {value}: expected START..END"))?;
+                flash = Some(number(a)?..number(b)?);
+            }
+            _ => return Err(format!("unknown option {flag}")),
+        }
+        i += 2;
+    }
+    match (family, flash) {
+        (Some(family), Some(flash)) if flash.start < flash.end => {
+            Ok((Chip { family, flash }, &args[i..]))
+        }
+        (Some(_), Some(flash)) => Err(format!("empty --flash window {flash:#x?}")),
+        _ => Err("both --family and --flash are needed".into()),
+    }
+}
+
+/// A number in hex (`0x` prefix) or decimal.
+fn number(s: &str) -> Result<u32, String> {
+    let r = match s.strip_prefix("0x").or_else(|| s.strip_prefix("0X")) {
+        Some(hex) => u32::from_str_radix(&hex.replace('_', ""), 16),
+        None => s.replace('_', "").parse(),
+    };
+    r.map_err(|e| format!("{s}: {e}"))
+}
+
 fn run(args: &[OsString]) -> Result<(), Box<dyn std::error::Error>> {
+    let (chip, args) = chip_args(args)?;
     // rustc may or may not lead with the flavor; we always pass our own.
     let args = match args {
         [flag, flavor, rest @ ..] if flag == "-flavor" => {
@@ -51,14 +128,14 @@ fn run(args: &[OsString]) -> Result<(), Box<dyn std::error::Error>> {
     };
     let data = std::fs::read(&elf)?;
 
-    let mut image = uf2::FlashImage::new();
+    let mut image = uf2::FlashImage::new(chip.flash.clone());
     for (addr, bytes) in report::load_segments(&data)? {
         image.add(addr, &bytes)?;
     }
     let uf2_path = uf2_path(&elf, std::env::var_os("CARGO_BIN_NAME"));
-    std::fs::write(&uf2_path, image.to_uf2(uf2::RP2040_FAMILY_ID))?;
+    std::fs::write(&uf2_path, image.to_uf2(chip.family))?;
 
-    let usage = report::usage(&data)?;
+    let usage = report::usage(&data, &chip.flash)?;
     eprintln!(
         "{}: {}; {} ({} blocks)",
         file_name(&elf),
@@ -146,7 +223,7 @@ fn file_name(p: &Path) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{output_path, uf2_path};
+    use super::{chip_args, output_path, uf2_path, Chip};
     use std::ffi::OsString;
     use std::path::PathBuf;
 
@@ -165,6 +242,51 @@ mod tests {
             Some(PathBuf::from("/t/fw"))
         );
         assert_eq!(output_path(&args(&["-Tlink.x"])), None);
+    }
+
+    #[test]
+    fn chip_settings_come_first() {
+        let a = args(&[
+            "--family",
+            "0x55114460",
+            "--flash",
+            "0x4000..0x7e000",
+            "--",
+            "-flavor",
+            "gnu",
+            "-o",
+            "fw",
+        ]);
+        let (chip, rest) = chip_args(&a).unwrap();
+        assert_eq!(
+            chip,
+            Chip {
+                family: 0x5511_4460,
+                flash: 0x4000..0x7_E000
+            }
+        );
+        assert_eq!(rest, &a[5..]);
+        let rp = args(&[
+            "--flash",
+            "0x1000_0000..0x1100_0000",
+            "--family",
+            "0xe48bff56",
+            "--",
+        ]);
+        let (chip, rest) = chip_args(&rp).unwrap();
+        assert_eq!(chip.family, 0xe48b_ff56);
+        let named = args(&["--family", "samd51", "--flash", "0x4000..0x7e000", "--"]);
+        assert_eq!(chip_args(&named).unwrap().0.family, 0x5511_4460);
+        let named = args(&["--family", "rp2040", "--flash", "1..2", "--"]);
+        assert_eq!(chip_args(&named).unwrap().0.family, 0xe48b_ff56);
+        assert_eq!(chip.flash, 0x1000_0000..0x1100_0000);
+        assert!(rest.is_empty());
+        // rustc's arguments alone, a missing value, a bad window.
+        assert!(chip_args(&args(&["-flavor", "gnu", "-o", "fw"])).is_err());
+        assert!(chip_args(&args(&["--family"])).is_err());
+        assert!(chip_args(&args(&["--family", "1", "--"])).is_err());
+        assert!(chip_args(&args(&["--family", "1", "--flash", "8..4", "--"])).is_err());
+        assert!(chip_args(&args(&["--family", "1", "--flash", "16", "--"])).is_err());
     }
 
     #[test]

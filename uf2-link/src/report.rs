@@ -4,9 +4,8 @@ use object::elf;
 use object::read::elf::{ElfFile32, FileHeader, ProgramHeader};
 use object::{Object, ObjectSection, ObjectSymbol, SectionFlags, SectionKind};
 
-/// RP2040 address windows.
-const FLASH: core::ops::Range<u64> = 0x1000_0000..0x1100_0000;
-const RAM: core::ops::Range<u64> = 0x2000_0000..0x2004_2000;
+/// The Cortex-M SRAM region: where every supported chip's RAM lies.
+const RAM: core::ops::Range<u64> = 0x2000_0000..0x4000_0000;
 
 /// One allocated section's share.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -58,8 +57,10 @@ pub fn load_segments(data: &[u8]) -> Result<Vec<Segment>, Box<dyn std::error::Er
     Ok(out)
 }
 
-/// Sums the allocated sections of an ELF by where they live.
-pub fn usage(data: &[u8]) -> Result<Usage, Box<dyn std::error::Error>> {
+/// Sums the allocated sections of an ELF by where they live; `flash` is
+/// the chip's program flash window.
+pub fn usage(data: &[u8], flash: &crate::uf2::Window) -> Result<Usage, Box<dyn std::error::Error>> {
+    let flash = u64::from(flash.start)..u64::from(flash.end);
     let file = ElfFile32::<object::LittleEndian>::parse(data)?;
     let mut u = Usage {
         flash: load_segments(data)?
@@ -88,7 +89,7 @@ pub fn usage(data: &[u8]) -> Result<Usage, Box<dyn std::error::Error>> {
                 u.flash_parts.push(part.clone());
             }
             u.ram_parts.push(part);
-        } else if FLASH.contains(&s.address()) && has_bytes {
+        } else if flash.contains(&s.address()) && has_bytes {
             u.flash_parts.push(part);
         }
     }

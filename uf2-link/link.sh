@@ -1,7 +1,9 @@
 #!/bin/sh
-# The firmware's linker (see ../.cargo/config.toml). Builds the uf2-link
-# wrapper on first use (or when its source changed), then hands it the
-# linker arguments rustc gave us.
+# The firmwares' shared linker, run by each firmware's own link.sh (named
+# in its .cargo/config.toml) as
+#     uf2-link/link.sh --family <UF2 family id> --flash <start>..<end> -- <rustc's args>
+# Builds the uf2-link wrapper on first use (or when its source changed),
+# then hands it those arguments.
 set -eu
 here=$(cd "$(dirname "$0")" && pwd)
 host=$(rustc -vV | sed -n 's/^host: //p')
