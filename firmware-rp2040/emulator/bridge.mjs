@@ -248,7 +248,17 @@ async function main() {
       input: (m) => {
         inputs.force(Number(m.pin), m.level === null || m.level === undefined ? null : !!Number(m.level));
         runner.wake(); // a GPIO interrupt may be due
-        return { pin: Number(m.pin), forced: inputs.forced.has(Number(m.pin)) };
+        // The change takes effect now: at the current emulated time, and at
+        // this instant on the host's monotonic clock, the one every byte
+        // crossing the bridge also meets. A test holds the module's time
+        // stamp of the edge to the host's time at that instant.
+        return {
+          pin: Number(m.pin),
+          forced: inputs.forced.has(Number(m.pin)),
+          emulated_ns: runner.chip.nanos,
+          monotonic_ns: process.hrtime.bigint().toString(),
+          behind_ms: runner.realtime ? runner.lagMs : null,
+        };
       },
       'count-stop': () => {
         const s = edges.snapshot();

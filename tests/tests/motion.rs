@@ -20,6 +20,7 @@ use osap_host::sim::{self, SimMachine, SimModule};
 use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
 use osap_host::{Host, HostConfig};
 use pipes_core::control::{InputMode, OutputMode};
+use pipes_core::pipe::PipeDelivery;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -86,8 +87,20 @@ impl Rig {
     }
 
     async fn pipe(&mut self, from: &FnRef, to: &FnRef, outputs: &[u8], inputs: &[u8]) {
+        self.pipe_with(from, to, outputs, inputs, PipeOptions::default())
+            .await;
+    }
+
+    async fn pipe_with(
+        &mut self,
+        from: &FnRef,
+        to: &FnRef,
+        outputs: &[u8],
+        inputs: &[u8],
+        options: PipeOptions,
+    ) {
         self.m
-            .connect(from, to, outputs, inputs, PipeOptions::default())
+            .connect(from, to, outputs, inputs, options)
             .await
             .unwrap_or_else(|e| panic!("{from} → {to}: {e}"));
     }
@@ -131,12 +144,23 @@ impl Rig {
 }
 
 /// Waits (bounded) until `what` holds.
-async fn until(label: &str, limit: Duration, mut what: impl FnMut() -> bool) {
+async fn until(label: &str, limit: Duration, what: impl FnMut() -> bool) {
+    assert!(
+        until_or_timeout(limit, what).await,
+        "timed out waiting for {label}"
+    );
+}
+
+/// Waits until `what` holds or `limit` passes; says whether it held.
+async fn until_or_timeout(limit: Duration, mut what: impl FnMut() -> bool) -> bool {
     let give_up = Instant::now() + limit;
     while !what() {
-        assert!(Instant::now() < give_up, "timed out waiting for {label}");
+        if Instant::now() >= give_up {
+            return false;
+        }
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
+    true
 }
 
 /// An axis's executed positions keyed by true (host) time.
@@ -282,6 +306,7 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
         worst_plan * 1e3,
         nearest_corner.map(|d| (d * 1e4).round() / 10.0)
     );
+    eprintln!("counters: a {:?}, b {:?}", a.counters(), b.counters());
     assert!(n > 300, "only {n} pen positions");
     // 30 µm is 500 µs of clock error at 60 mm/s.
     assert!(worst_stream < 0.030, "{worst_stream} mm from the stream");
@@ -329,7 +354,13 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     r.m.set_output_mode(&endstop, OutputMode::OnChange)
         .await
         .unwrap();
-    r.pipe(&endstop, &limit_hit, &[0], &[0]).await;
+    // Acknowledged: the trigger is sent once, and a lost one would leave
+    // the axis driving on into the switch.
+    let acked = PipeOptions {
+        delivery: PipeDelivery::Acked,
+        ..PipeOptions::default()
+    };
+    r.pipe_with(&endstop, &limit_hit, &[0], &[0], acked).await;
     let (_, z) = r.module("z");
     until("z to follow the stream", Duration::from_secs(5), || {
         z.history()
@@ -343,10 +374,37 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     let home = on_host(axis.member("home").unwrap());
     r.call(&home, &[OwnedValue::I8(-1), OwnedValue::F32(speed)])
         .await;
-    until("homing", Duration::from_secs(5), || {
+    let homed = until_or_timeout(Duration::from_secs(5), || {
         axis.state().lock().unwrap().0.is_homed()
     })
     .await;
+    if !homed {
+        let out = r.call(&endstop, &[]).await;
+        // Where the stream stopped: the evaluations around the first that
+        // was not tracking, with each one's clock offset (a clock step shows
+        // as a jump in it).
+        let h = z.history();
+        let first_off = h
+            .iter()
+            .position(|e| e.mode != AxisMode::Tracking && e.mode != AxisMode::Idle)
+            .unwrap_or(h.len().saturating_sub(1));
+        for e in &h[first_off.saturating_sub(20)..(first_off + 5).min(h.len())] {
+            eprintln!(
+                "  t {} local {} offset {} pos {:.6} v {:.3} {:?}",
+                e.time,
+                e.local,
+                e.time as i64 - e.local as i64,
+                e.position,
+                e.velocity,
+                e.mode
+            );
+        }
+        panic!(
+            "not homed after 5 s: endstop {out:?}, z last {:?}, z {:?}",
+            h.last(),
+            z.counters()
+        );
+    }
     let (hit, count) = {
         let out = r.call(&endstop, &[]).await;
         match (&out[0], &out[1]) {
@@ -381,16 +439,23 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     let last = z.history().last().copied().unwrap();
     assert!(last.velocity.abs() < 1e-9, "{last:?}");
     // Past the switch by what was already sent when the trigger arrived
-    // (the timer's lead, plus the endstop's 1 ms poll and delivery) and
-    // then braking from 5 mm/s at 200 mm/s² (62.5 µm).
+    // (the timer's lead, plus the endstop's 1 ms poll, delivery and one
+    // 20 ms retransmission of the trigger) and then braking from 5 mm/s at
+    // 200 mm/s² (62.5 µm).
     let speed = f64::from(speed);
-    let committed = speed * (f64::from(LEAD) + 20_000.0) * 1e-6;
+    let committed = speed * (f64::from(LEAD) + 40_000.0) * 1e-6;
     let braking = speed * speed / (2.0 * 200.0);
     assert!(
         last.position < -2.0 && last.position > -2.0 - committed - braking,
         "{last:?}"
     );
-    assert_eq!(z.counters().faults, 0);
-    assert_eq!(z.counters().refused, 0);
+    let c = z.counters();
+    assert_eq!(c.faults, 0, "{c:?}");
+    // As for the square: only a point delivered after its successor (code 2)
+    // may be refused.
+    assert!(
+        c.refused <= 2 && (c.refused == 0 || c.last_refused == 2),
+        "{c:?}"
+    );
     r.machine.stop().await.unwrap();
 }
