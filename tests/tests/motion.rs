@@ -26,10 +26,11 @@ use std::time::{Duration, Instant};
 
 /// The axes' control-point interval (the topology's `interval_us`).
 const IV: u32 = 2048;
-/// How far the timer leads real time: 16 intervals (33 ms). The spline
+/// How far the timer leads real time: 32 intervals (66 ms). The spline
 /// needs 2; the rest covers delivery over USB and a UART and the host being
-/// held up (a simulated machine shares two cores with everything else).
-const LEAD: u32 = 16 * IV;
+/// held up (a simulated machine shares two cores with everything else; a
+/// stall longer than the lead runs an axis's track dry, which faults it).
+const LEAD: u32 = 32 * IV;
 /// The host runtime's name.
 const HOST: &str = "h";
 
