@@ -201,6 +201,101 @@ async fn read_limit(f: &osap_host::som::FunctionHandle) -> (u64, bool, u32) {
     }
 }
 
+/// What a streamed move did.
+struct Moved {
+    /// The bridge's count of edges on the step and direction pins.
+    counts: Value,
+    /// The firmware's `get_steps`.
+    steps: Vec<OwnedValue>,
+    /// Points the firmware refused.
+    refused: u32,
+    /// Emulated CPU cycles executed over cycles elapsed during the move.
+    load: f64,
+}
+
+/// Streams a smoothstep from `from` to `to` units over `n` intervals of
+/// `iv` µs (with rests before and after), starting 300 ms from now, and
+/// waits until the module has run it.
+async fn smooth_move(
+    host: &Host,
+    emu: &Emulator,
+    f: &impl Fn(&str) -> osap_host::som::FunctionHandle,
+    iv: u64,
+    from: f64,
+    to: f64,
+    n: usize,
+) -> Moved {
+    let load_before = emu.control(json!({"cmd": "stats"})).await;
+    let counting = emu
+        .control(json!({"cmd": "count", "step": STEP_PIN, "dir": DIR_PIN}))
+        .await;
+    assert_eq!(counting["ok"], json!(true), "{counting}");
+    let now = host.system_time().await.unwrap();
+    let t0 = (now + 300_000) / iv * iv;
+    let mut points = vec![from; 4];
+    for k in 1..=n {
+        let x = k as f64 / n as f64;
+        points.push(from + (to - from) * x * x * (3.0 - 2.0 * x));
+    }
+    points.extend([to; 6]);
+    let add = f("add_point");
+    for (k, p) in points.iter().enumerate() {
+        add.call(&[
+            OwnedValue::U64(t0 + k as u64 * iv),
+            OwnedValue::F32(*p as f32),
+        ])
+        .await
+        .unwrap_or_else(|e| panic!("point {k}: {e}"));
+    }
+    let end = t0 + points.len() as u64 * iv + 200_000;
+    while host.system_time().await.unwrap() < end {
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // Then until the module itself has run the stream to its end: its own
+    // clock is past the last point and it has stopped tracking (a lagging
+    // emulator runs it late, by the wall clock).
+    let last_point = t0 + (points.len() as u64 - 1) * iv;
+    let deadline = Instant::now() + Duration::from_secs(30);
+    loop {
+        let OwnedValue::U64(module_now) = f("get_position").call(&[]).await.unwrap()[0] else {
+            panic!("get_position's first output is its time")
+        };
+        let tracking = f("get_status").call(&[]).await.unwrap()[0] == OwnedValue::U8(2);
+        if module_now > last_point && !tracking {
+            break;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the move never ended (module time {module_now}, last point {last_point})"
+        );
+        tokio::time::sleep(Duration::from_millis(100)).await;
+    }
+    let counts = emu.control(json!({"cmd": "counts"})).await;
+    let load_after = emu.control(json!({"cmd": "stats"})).await;
+    println!("step pins: {counts}");
+    let steps = f("get_steps").call(&[]).await.unwrap();
+    println!("firmware step counts: {steps:?}");
+    let status = f("get_status").call(&[]).await.unwrap();
+    let counters = f("get_counters").call(&[]).await.unwrap();
+    println!("firmware status {status:?}, counters {counters:?}");
+    let cycles = |s: &Value, k: &str| s[k].as_f64().unwrap_or(f64::NAN);
+    let load = (cycles(&load_after, "cycles_executed") - cycles(&load_before, "cycles_executed"))
+        / (cycles(&load_after, "cycles_total") - cycles(&load_before, "cycles_total"));
+    println!(
+        "CPU load while moving (emulated cycles executed / elapsed): {:.1} %",
+        load * 100.0
+    );
+    let OwnedValue::U32(refused) = counters[1] else {
+        panic!("{counters:?}")
+    };
+    Moved {
+        counts,
+        steps,
+        refused,
+        load,
+    }
+}
+
 fn pct(sorted: &[Duration], p: f64) -> Duration {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
@@ -361,68 +456,63 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
 
     // 4. Motion: a smooth move of 2 units (160 full steps) stamped in
     // synchronized time, sent ahead; the step pins must show exactly it.
-    let load_before = emu.control(json!({"cmd": "stats"})).await;
-    let counting = emu
-        .control(json!({"cmd": "count", "step": STEP_PIN, "dir": DIR_PIN}))
-        .await;
-    assert_eq!(counting["ok"], json!(true), "{counting}");
     f("set_enable")
         .call(&[OwnedValue::Bool(true)])
         .await
         .unwrap();
-    let iv = 2048u64;
-    let now = host.system_time().await.unwrap();
-    let t0 = (now + 300_000) / iv * iv;
-    let mut points = vec![0.0f64; 4];
-    let n = 40;
-    for k in 1..=n {
-        let x = k as f64 / n as f64;
-        points.push(2.0 * x * x * (3.0 - 2.0 * x));
-    }
-    points.extend([2.0; 6]);
-    for (k, p) in points.iter().enumerate() {
-        f("add_point")
-            .call(&[
-                OwnedValue::U64(t0 + k as u64 * iv),
-                OwnedValue::F32(*p as f32),
-            ])
-            .await
-            .unwrap_or_else(|e| panic!("point {k}: {e}"));
-    }
-    let end = t0 + points.len() as u64 * iv + 200_000;
-    while host.system_time().await.unwrap() < end {
-        tokio::time::sleep(Duration::from_millis(50)).await;
-    }
-    // Then until the module itself has run the stream to its end (a
-    // lagging emulator runs it late, by the wall clock).
-    let deadline = Instant::now() + Duration::from_secs(30);
-    while f("get_status").call(&[]).await.unwrap()[0] == OwnedValue::U8(2) {
-        assert!(Instant::now() < deadline, "the move never ended");
-        tokio::time::sleep(Duration::from_millis(100)).await;
-    }
+    let slow = smooth_move(&host, &emu, &f, 2048, 0.0, 2.0, 40).await;
     let expect = (2.0 * STEPS_PER_UNIT) as i64;
-    let counts = emu.control(json!({"cmd": "counts"})).await;
-    let load_after = emu.control(json!({"cmd": "stats"})).await;
-    println!("step pins: {counts}");
-    let steps = f("get_steps").call(&[]).await.unwrap();
-    println!("firmware step counts: {steps:?}");
-    let status = f("get_status").call(&[]).await.unwrap();
-    let counters = f("get_counters").call(&[]).await.unwrap();
-    println!("firmware status {status:?}, counters {counters:?}");
-    let cycles = |s: &Value, k: &str| s[k].as_f64().unwrap_or(f64::NAN);
-    let busy = (cycles(&load_after, "cycles_executed") - cycles(&load_before, "cycles_executed"))
-        / (cycles(&load_after, "cycles_total") - cycles(&load_before, "cycles_total"));
-    println!(
-        "CPU load while moving (emulated cycles executed / elapsed): {:.1} %",
-        busy * 100.0
-    );
-    assert_eq!(counts["up"], json!(expect), "{counts}");
-    assert_eq!(counts["down"], json!(0), "{counts}");
-    assert_eq!(steps[0], OwnedValue::I64(expect), "{steps:?}");
+    assert_eq!(slow.counts["up"], json!(expect), "{}", slow.counts);
+    assert_eq!(slow.counts["down"], json!(0), "{}", slow.counts);
+    assert_eq!(slow.steps[0], OwnedValue::I64(expect), "{:?}", slow.steps);
     // Ticks that owed two steps (the steps still went out) are reported
     // above, not failed: a clock that jumped while the emulator caught up
     // makes some, which measures the emulator, not the firmware.
-    assert_eq!(counters[1], OwnedValue::U32(0), "refused: {counters:?}");
+    assert_eq!(slow.refused, 0);
+
+    // And faster: back to 0 at 2000 steps per unit (4 000 steps) in 0.6 s,
+    // a peak of about 10 000 steps/s, with 16 ms between points. (The step
+    // generator's ceiling is one step per two 10 µs ticks, 50 000/s; the
+    // emulator's stalls make faster moves here catch up in bursts.)
+    f("set_interval")
+        .call(&[OwnedValue::U32(16_384)])
+        .await
+        .unwrap();
+    f("set_scale")
+        .call(&[OwnedValue::F32(2000.0)])
+        .await
+        .unwrap();
+    let fast = smooth_move(&host, &emu, &f, 16_384, 2.0, 0.0, 36).await;
+    // Net 4 000 steps down on the pins, and the firmware counted every
+    // edge the pins show. (A clock correction while the emulator catches
+    // up moves the target back a little: a few steps up and down again.)
+    assert_eq!(fast.counts["position"], json!(-4_000), "{}", fast.counts);
+    assert_eq!(fast.steps[0], OwnedValue::I64(0), "{:?}", fast.steps);
+    assert_eq!(
+        [fast.steps[1].clone(), fast.steps[2].clone()],
+        [
+            OwnedValue::U64(fast.counts["up"].as_u64().unwrap_or(u64::MAX)),
+            OwnedValue::U64(fast.counts["down"].as_u64().unwrap_or(u64::MAX))
+        ],
+        "firmware {:?} against pins {}",
+        fast.steps,
+        fast.counts
+    );
+    assert_eq!(fast.refused, 0);
+    let span_s = |c: &Value| {
+        (c["last_edge_us"].as_f64().unwrap_or(0.0) - c["first_edge_us"].as_f64().unwrap_or(0.0))
+            / 1e6
+    };
+    // A smoothstep's peak speed is 1.5 times its mean.
+    let commanded_s = 36.0 * 16_384e-6;
+    println!(
+        "fast move: 4 000 steps commanded over {commanded_s:.3} s (peak {:.0} steps/s); on the pins over {:.3} s of emulated time (less when the module's clock caught up after the emulator fell behind: {:?} overruns); CPU load {:.1} % (slow move: {:.1} %)",
+        1.5 * 4000.0 / commanded_s,
+        span_s(&fast.counts),
+        fast.steps[3],
+        fast.load * 100.0,
+        slow.load * 100.0
+    );
 
     // 5. A new name survives a reset (written to the emulated flash).
     let rom_before = emu.control(json!({"cmd": "stats"})).await["rom_calls"].clone();
