@@ -61,6 +61,13 @@ pub const MODULE_TYPE: &str = "stepper";
 /// Firmware version reported to scans.
 const VERSION: [u8; 3] = [0, 1, 0];
 
+/// The module's function set (see `osap_module::FUNCTION_SET_ID`), kept in
+/// its own ELF section so a script can check that every firmware presents
+/// the same functions.
+#[used]
+#[link_section = ".osap_function_set"]
+static FUNCTION_SET: [u8; 4] = osap_module::FUNCTION_SET_ID.to_le_bytes();
+
 bind_interrupts!(pub struct Irqs {
     USBCTRL_IRQ => usb::InterruptHandler<USB>;
     UART0_IRQ => uart::BufferedInterruptHandler<UART0>;

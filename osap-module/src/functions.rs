@@ -263,3 +263,56 @@ module_functions!(
     pulse_at,
     analog_read,
 );
+
+/// FNV-1a, 32 bits: one step.
+const fn fnv1a(mut hash: u32, bytes: &[u8]) -> u32 {
+    let mut i = 0;
+    while i < bytes.len() {
+        hash ^= bytes[i] as u32;
+        hash = hash.wrapping_mul(0x0100_0193);
+        i += 1;
+    }
+    hash
+}
+
+/// FNV-1a's starting value.
+const FNV_OFFSET: u32 = 0x811C_9DC5;
+
+/// A `str8` as a scan reads it: a length byte, then the bytes.
+const fn hash_str8(hash: u32, s: &str) -> u32 {
+    fnv1a(fnv1a(hash, &[s.len() as u8]), s.as_bytes())
+}
+
+/// The identity of a function set: FNV-1a over what a scan reads of each
+/// signature, in order (the function count, then per function its name,
+/// and for inputs and outputs the count and each argument's name and type
+/// key, as `docs/pipes.md` §5 lays them out). Two sets with the same id
+/// present the same functions at the same ports.
+pub const fn function_set_id(signatures: &[&Signature]) -> u32 {
+    let mut hash = fnv1a(FNV_OFFSET, &[signatures.len() as u8]);
+    let mut f = 0;
+    while f < signatures.len() {
+        let sig = signatures[f];
+        hash = hash_str8(hash, sig.name);
+        let lists = [sig.inputs, sig.outputs];
+        let mut l = 0;
+        while l < lists.len() {
+            let args = lists[l];
+            hash = fnv1a(hash, &[args.len() as u8]);
+            let mut a = 0;
+            while a < args.len() {
+                hash = hash_str8(hash, args[a].name);
+                hash = fnv1a(hash, &[args[a].ty.key()]);
+                a += 1;
+            }
+            l += 1;
+        }
+        f += 1;
+    }
+    hash
+}
+
+/// The identity of [`SIGNATURES`]: every firmware embeds it, so a check of
+/// the built images proves they all present the same functions (one proxy
+/// serves them all).
+pub const FUNCTION_SET_ID: u32 = function_set_id(&SIGNATURES);

@@ -32,6 +32,7 @@ pub mod io;
 pub mod ports;
 pub mod stepper;
 
+pub use functions::FUNCTION_SET_ID;
 pub use ports::{ModulePort, ModulePorts, PORT_COUNT, PORT_INDICES};
 pub use stepper::{STEP_TICK_US, TICKS_PER_WORD};
 
