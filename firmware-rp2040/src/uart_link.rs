@@ -11,18 +11,13 @@
 //! `Serial::chunk_time` in osap-firmware); the runtime's clock sync is as
 //! good as this stamp.
 
-use core::cell::Cell;
-
-use critical_section::Mutex;
 use embassy_rp::gpio::Output;
 use embassy_rp::uart::{BufferedUartRx, BufferedUartTx};
 use embassy_time::{Instant, Timer};
 use embedded_io_async::{Read, ReadReady, Write};
-use osap_core::framing::max_frame_len;
-use osap_core::Micros;
 
-use osap_firmware::link::{Framer, LinkShared, WireTiming};
-use osap_firmware::serial::{RxTrigger, Serial};
+use osap_firmware::link::{Framer, LinkShared};
+use osap_firmware::serial::{RxTrigger, Serial, SerialTiming};
 
 /// Line rate, bits per second. 1 Mbaud suits RS-485 runs of a few metres;
 /// the RP2040's UART and common transceivers (e.g. THVD1450, MAX3485 at
@@ -46,45 +41,8 @@ const RX_CHUNK: usize = 256;
 /// Bytes the transmit task hands the UART in one go.
 const TX_CHUNK: usize = 128;
 
-/// Wire timing of the UART link at [`BAUD`].
-pub struct UartTiming {
-    /// When the transmitter will have sent everything handed to it so far
-    /// (local µs), kept by the transmit task.
-    wire_free_at: Mutex<Cell<Micros>>,
-}
-
 /// The UART link's timing, shared by its gateway and its transmit task.
-pub static UART_TIMING: UartTiming = UartTiming {
-    wire_free_at: Mutex::new(Cell::new(0)),
-};
-
-impl UartTiming {
-    fn wire_free_at(&self) -> Micros {
-        critical_section::with(|cs| self.wire_free_at.borrow(cs).get())
-    }
-
-    /// Notes `bytes` handed to the transmitter at `now`; returns when they
-    /// will all be out.
-    fn queue(&self, now: Micros, bytes: usize) -> Micros {
-        critical_section::with(|cs| {
-            let cell = self.wire_free_at.borrow(cs);
-            let end = cell.get().max(now) + LINE.bytes_us(bytes as u64);
-            cell.set(end);
-            end
-        })
-    }
-}
-
-impl WireTiming for UartTiming {
-    fn transmit_time(&self, len: usize) -> Micros {
-        LINE.bytes_us(max_frame_len(len) as u64)
-    }
-
-    fn queue_delay(&self, queued: usize) -> Micros {
-        let now = Instant::now().as_micros();
-        self.wire_free_at().saturating_sub(now) + LINE.bytes_us(queued as u64)
-    }
-}
+pub static UART_TIMING: SerialTiming = SerialTiming::new(LINE);
 
 /// Receives frames from UART0 and hands their packets to the runtime.
 #[embassy_executor::task]

@@ -55,7 +55,6 @@ use atsamd_hal::time::Hertz;
 use atsamd_hal::usb::UsbBus;
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_time::Instant;
-use osap_core::netresponder::BuildKey;
 use osap_core::Micros;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;
@@ -67,7 +66,8 @@ use usb_device::bus::UsbBusAllocator;
 
 use board::{BoardUart, FastPin, IoPins, StepperPins};
 use name_store::NameBlock;
-use runtime_task::{ModuleRuntime, RuntimeParts};
+use osap_firmware::runtime::{module_ports, module_runtime, ModuleParts};
+use runtime_task::ModuleRuntime;
 
 /// The module type: the runtime's type name, the USB product string's
 /// tail and the prefix of a fresh module's name.
@@ -193,17 +193,9 @@ async fn main(spawner: Spawner) {
 
     // The runtime and its ports.
     static RUNTIME: StaticCell<ModuleRuntime> = StaticCell::new();
-    let runtime = match ModuleRuntime::new(MODULE_TYPE, &name) {
-        Ok(rt) => RUNTIME.init(rt.with_version(VERSION, BuildKey::RustEmbedded)),
-        // Names are at most NAME_MAX bytes by construction.
-        Err(_) => panic!("module name too long"),
-    };
+    let runtime = RUNTIME.init(module_runtime(MODULE_TYPE, &name, VERSION));
     static PORTS: StaticCell<ModulePorts> = StaticCell::new();
-    let ports = match ModulePorts::new() {
-        Ok(ports) => PORTS.init(ports),
-        // osap-module's tests check every signature; this is a build bug.
-        Err(_) => panic!("module function signature rejected"),
-    };
+    let ports = PORTS.init(module_ports());
 
     // Step generation and the limit switch.
     let step = output(pins.step, false);
@@ -284,7 +276,7 @@ async fn main(spawner: Spawner) {
     // A UART has no "connected": the link is up from the start.
     UART_SHARED.set_open(true);
 
-    spawner.spawn(unwrap(runtime_task::runtime_task(RuntimeParts {
+    spawner.spawn(unwrap(runtime_task::runtime_task(ModuleParts {
         runtime,
         ports,
         usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &USB_TIMING),

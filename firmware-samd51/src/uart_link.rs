@@ -13,17 +13,15 @@
 //! has left the shift register (the USART's TXC flag), so the bus is free
 //! for the next module's reply at once and no byte is cut short.
 
-use core::cell::{Cell, RefCell};
+use core::cell::RefCell;
 
 use atsamd_hal::pac::{self, NVIC};
 use critical_section::Mutex;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::signal::Signal;
 use embassy_time::Instant;
-use osap_core::framing::max_frame_len;
-use osap_core::Micros;
-use osap_firmware::link::{Framer, LinkShared, WireTiming};
-use osap_firmware::serial::{RxTrigger, Serial};
+use osap_firmware::link::{Framer, LinkShared};
+use osap_firmware::serial::{RxTrigger, Serial, SerialTiming};
 
 use crate::board::{FastPin, UartSercom, UART_IRQS};
 
@@ -91,45 +89,8 @@ fn usart() -> &'static pac::sercom0::UsartInt {
     unsafe { (*UartSercom::ptr()).usart_int() }
 }
 
-/// Wire timing of the UART link at [`BAUD`].
-pub struct UartTiming {
-    /// When the transmitter will have sent everything handed to it so far
-    /// (local µs), kept by the transmit task.
-    wire_free_at: Mutex<Cell<Micros>>,
-}
-
 /// The UART link's timing, shared by its gateway and its transmit task.
-pub static UART_TIMING: UartTiming = UartTiming {
-    wire_free_at: Mutex::new(Cell::new(0)),
-};
-
-impl UartTiming {
-    fn wire_free_at(&self) -> Micros {
-        critical_section::with(|cs| self.wire_free_at.borrow(cs).get())
-    }
-
-    /// Notes `bytes` handed to the transmitter at `now`; returns when they
-    /// will all be out.
-    fn queue(&self, now: Micros, bytes: usize) -> Micros {
-        critical_section::with(|cs| {
-            let cell = self.wire_free_at.borrow(cs);
-            let end = cell.get().max(now) + LINE.bytes_us(bytes as u64);
-            cell.set(end);
-            end
-        })
-    }
-}
-
-impl WireTiming for UartTiming {
-    fn transmit_time(&self, len: usize) -> Micros {
-        LINE.bytes_us(max_frame_len(len) as u64)
-    }
-
-    fn queue_delay(&self, queued: usize) -> Micros {
-        let now = Instant::now().as_micros();
-        self.wire_free_at().saturating_sub(now) + LINE.bytes_us(queued as u64)
-    }
-}
+pub static UART_TIMING: SerialTiming = SerialTiming::new(LINE);
 
 /// Enables the receive and error interrupts of the (HAL-configured and
 /// enabled) USART and unmasks its four interrupt lines.

@@ -18,8 +18,10 @@ use osap_core::netresponder::Level;
 use osap_core::Runtime;
 use osap_module::ModulePorts;
 
-use crate::link::{FirmwareLink, MTU};
+use crate::link::{FirmwareLink, FramedGateway, MTU};
 use crate::name_store::{NameFlash, NameStore};
+use crate::serial::SerialTiming;
+use crate::usb::UsbTiming;
 
 /// Packet slots: enough for two links' quotas, the ports' and replies.
 pub const SLOTS: usize = 16;
@@ -29,6 +31,52 @@ pub const PORTS: usize = osap_module::PORT_INDICES;
 
 /// A module's runtime with `LINKS` link gateways.
 pub type ModuleRuntime<const LINKS: usize> = Runtime<SLOTS, MTU, PORTS, LINKS>;
+
+/// What a module on USB (link 0) and a UART (link 1) runs: a board hands
+/// it to its runtime task, which passes its fields to [`run`] by reference
+/// (moving them into another future would keep a second copy of the
+/// gateways' frame buffers in the task).
+pub struct ModuleParts<F: NameFlash + 'static> {
+    /// The runtime.
+    pub runtime: &'static mut ModuleRuntime<2>,
+    /// The module's ports.
+    pub ports: &'static mut ModulePorts,
+    /// Link 0.
+    pub usb: FramedGateway<UsbTiming>,
+    /// Link 1.
+    pub uart: FramedGateway<SerialTiming>,
+    /// Where the name is kept.
+    pub names: NameStore<F>,
+}
+
+/// A module's runtime: of type `module_type`, named `name`, reporting
+/// firmware `version` to scans.
+///
+/// # Panics
+/// If `name` is longer than a runtime name may be (the name store never
+/// returns one).
+pub fn module_runtime<const LINKS: usize>(
+    module_type: &str,
+    name: &str,
+    version: [u8; 3],
+) -> ModuleRuntime<LINKS> {
+    match ModuleRuntime::new(module_type, name) {
+        Ok(rt) => rt.with_version(version, osap_core::netresponder::BuildKey::RustEmbedded),
+        Err(_) => panic!("module name too long"),
+    }
+}
+
+/// The module's ports.
+///
+/// # Panics
+/// If a function signature is rejected: osap-module's tests check every
+/// one, so this is a build bug.
+pub fn module_ports() -> ModulePorts {
+    match ModulePorts::new() {
+        Ok(ports) => ports,
+        Err(_) => panic!("module function signature rejected"),
+    }
+}
 
 /// Set by the link tasks when there is something for the runtime to do.
 static WAKE: Signal<CriticalSectionRawMutex, ()> = Signal::new();

@@ -1,7 +1,15 @@
 //! Timing of an 8N1 serial line (the UART / RS-485 link): how long bytes
-//! take on the wire, and where on the wire a received chunk was.
+//! take on the wire, where on the wire a received chunk was, and
+//! ([`SerialTiming`]) when what was handed to the transmitter will be out.
+
+use core::cell::Cell;
+
+use critical_section::Mutex;
+use osap_core::framing::max_frame_len;
+use osap_core::Micros;
 
 use crate::framer::ChunkTime;
+use crate::link::WireTiming;
 
 /// Bits on the wire per byte: start, 8 data, stop.
 pub const BITS_PER_BYTE: u64 = 10;
@@ -72,9 +80,74 @@ impl Serial {
     }
 }
 
+/// A serial link's wire timing: the line's rate, and when the transmitter
+/// will have sent everything handed to it so far (kept by the board's
+/// transmit task through [`SerialTiming::queue`]).
+pub struct SerialTiming {
+    line: Serial,
+    /// Local µs.
+    wire_free_at: Mutex<Cell<Micros>>,
+}
+
+impl SerialTiming {
+    /// An idle line.
+    pub const fn new(line: Serial) -> Self {
+        SerialTiming {
+            line,
+            wire_free_at: Mutex::new(Cell::new(0)),
+        }
+    }
+
+    /// The line.
+    pub const fn line(&self) -> Serial {
+        self.line
+    }
+
+    /// Notes `bytes` handed to the transmitter at local time `now`; returns
+    /// when they will all be out.
+    pub fn queue(&self, now: Micros, bytes: usize) -> Micros {
+        critical_section::with(|cs| {
+            let cell = self.wire_free_at.borrow(cs);
+            let end = cell.get().max(now) + self.line.bytes_us(bytes as u64);
+            cell.set(end);
+            end
+        })
+    }
+
+    /// Time from `now` until a packet sent now starts onto the wire, with
+    /// `queued` bytes waiting ahead of it besides what the transmitter has.
+    pub fn queue_delay_at(&self, now: Micros, queued: usize) -> Micros {
+        let free_at = critical_section::with(|cs| self.wire_free_at.borrow(cs).get());
+        free_at.saturating_sub(now) + self.line.bytes_us(queued as u64)
+    }
+}
+
+impl WireTiming for SerialTiming {
+    fn transmit_time(&self, len: usize) -> Micros {
+        self.line.bytes_us(max_frame_len(len) as u64)
+    }
+
+    fn queue_delay(&self, queued: usize) -> Micros {
+        self.queue_delay_at(embassy_time::Instant::now().as_micros(), queued)
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_transmitter_queue_drains_at_the_line_rate() {
+        let t = SerialTiming::new(RP);
+        // 10 bytes at 1 Mbaud: 100 µs; a second burst queues behind it.
+        assert_eq!(t.queue(1_000, 10), 1_100);
+        assert_eq!(t.queue(1_050, 5), 1_150);
+        assert_eq!(t.queue_delay_at(1_100, 0), 50);
+        assert_eq!(t.queue_delay_at(1_100, 3), 80);
+        // Once it has drained, a new burst starts from its own time.
+        assert_eq!(t.queue_delay_at(2_000, 0), 0);
+        assert_eq!(t.queue(2_000, 1), 2_010);
+    }
 
     const RP: Serial = Serial {
         baud: 1_000_000,
