@@ -58,12 +58,17 @@ async fn rig() -> Rig {
     let report = m.refresh().await.unwrap();
     assert!(report.scan_failures.is_empty(), "{report:?}");
     // Every axis has settled on the host's clock before motion starts.
+    // Quiet for 3 s, not the default 1 s: a clock that still steps after
+    // a short quiet spell can jump past the stream's lead and fault the
+    // axes (seen on a 2-core CI machine).
     let nr = Netrunner::new(&host).await.unwrap();
+    let goal = SyncGoal {
+        quiet: Duration::from_secs(3),
+        ..SyncGoal::default()
+    };
     for name in ["a", "b", "z"] {
         let route = machine.route_to(name).unwrap();
-        nr.wait_synchronised(&route, SyncGoal::default())
-            .await
-            .unwrap();
+        nr.wait_synchronised(&route, goal).await.unwrap();
     }
     Rig {
         host,
