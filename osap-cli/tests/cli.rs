@@ -2,10 +2,15 @@
 
 use osap_host::map::NetworkMap;
 use std::io::{BufRead, BufReader};
+use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
-mod common;
-use common::shipped;
+/// The path of a topology shipped in `osap-host/topologies/`.
+fn shipped(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../osap-host/topologies")
+        .join(name)
+}
 
 fn osap() -> Command {
     Command::new(env!("CARGO_BIN_EXE_osap"))
