@@ -8,8 +8,8 @@ use osap_host::link::stream::{LinkHandle, Listener};
 use osap_host::link::{serial, tcp, udp};
 use osap_host::map::NetworkMap;
 use osap_host::netrunner::{self, Netrunner, ScanOptions, ScanReport};
-use osap_host::sim::{self, SimMachine};
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::{self, SimMachine};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -121,7 +121,7 @@ async fn connect(args: &Connect) -> Result<Connection, String> {
     let mut links = Vec::new();
     let mut sim_machine = None;
     if let Some(path) = &args.sim {
-        let topology = sim::load(path).map_err(|e| e.to_string())?;
+        let topology = machine::load(path).map_err(|e| e.to_string())?;
         sim_machine = Some(
             SimMachine::start(&host, &topology)
                 .await
@@ -159,7 +159,7 @@ async fn connect(args: &Connect) -> Result<Connection, String> {
         if found.is_empty() {
             return Err("no osap-rs devices found: plug a module in over USB, \
                  or name one with --port PATH, --tcp ADDR or --sim FILE \
-                 (try the shipped osap-host/topologies/small-machine.toml)"
+                 (try the shipped osap-sim/topologies/small-machine.toml)"
                 .into());
         }
         paths = found.into_iter().map(|c| c.path).collect();
@@ -398,7 +398,7 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
                 ..HostConfig::default()
             })
             .map_err(|e| e.to_string())?;
-            let topology = sim::load(&path).map_err(|e| e.to_string())?;
+            let topology = machine::load(&path).map_err(|e| e.to_string())?;
             let machine = SimMachine::start(&host, &topology)
                 .await
                 .map_err(|e| format!("cannot start {}: {e}", path.display()))?;

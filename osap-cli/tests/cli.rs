@@ -5,10 +5,10 @@ use std::io::{BufRead, BufReader};
 use std::path::PathBuf;
 use std::process::{Child, Command, Stdio};
 
-/// The path of a topology shipped in `osap-host/topologies/`.
+/// The path of a topology shipped in `osap-sim/topologies/`.
 fn shipped(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../osap-host/topologies")
+        .join("../osap-sim/topologies")
         .join(name)
 }
 

@@ -19,7 +19,6 @@ pub mod map;
 pub mod netrunner;
 pub mod port;
 pub mod runtime;
-pub mod sim;
 pub mod som;
 
 pub use clock::HostClock;

@@ -24,6 +24,11 @@
 //! - [`probe`]: a port that sends and records packets, for tests;
 //! - [`plot`]: SVG plots of error over time.
 //!
+//! Beside it, [`machine`]: real-time simulated machines. Modules on
+//! drifting clocks behind simulated links, in tokio tasks, that a real
+//! [`osap_host::Host`] (and the `osap` CLI, and any script) talks to as to
+//! hardware; described by TOML topology files (`osap-sim/topologies/`).
+//!
 //! Run a topology in one call and look at the result:
 //!
 //! ```
@@ -81,6 +86,7 @@ pub mod clock;
 pub mod error;
 pub mod hot_start;
 pub mod link;
+pub mod machine;
 pub mod medium;
 pub mod metrics;
 pub mod node;

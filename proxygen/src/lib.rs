@@ -379,6 +379,9 @@ pub struct StarterOptions {
     /// The path of the `osap-host` crate, as written in its `Cargo.toml`
     /// (relative to the starter's directory, or absolute).
     pub osap_host: String,
+    /// The path of the `osap-sim` crate (the starter's `--sim`), written
+    /// the same way.
+    pub osap_sim: String,
     /// Generation options for its proxies.
     pub proxies: Options,
 }
@@ -402,7 +405,11 @@ pub fn starter(som: &Som, options: &StarterOptions) -> Result<Vec<GeneratedFile>
             contents: render(
                 &generate_env(),
                 "starter_cargo.toml",
-                minijinja::context! { name => &options.name, osap_host => &options.osap_host },
+                minijinja::context! {
+                    name => &options.name,
+                    osap_host => &options.osap_host,
+                    osap_sim => &options.osap_sim,
+                },
             )?,
         },
         GeneratedFile {

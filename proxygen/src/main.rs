@@ -7,9 +7,9 @@
 //! ```
 
 use clap::Parser;
-use osap_host::sim::{self, SimMachine};
 use osap_host::som::{Manager, Som};
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::{self, SimMachine};
 use proxygen::{Options, StarterOptions};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -35,6 +35,9 @@ struct Args {
     /// The `osap-host` crate's path for the starter's Cargo.toml.
     #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../osap-host"))]
     osap_host: String,
+    /// The `osap-sim` crate's path for the starter's Cargo.toml.
+    #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../osap-sim"))]
+    osap_sim: String,
     /// Also save the model as JSON (useful with --sim).
     #[arg(long)]
     save_som: Option<PathBuf>,
@@ -45,7 +48,7 @@ struct Args {
 
 async fn live_som(path: &Path) -> Result<Som, String> {
     let host = Host::start(HostConfig::default()).map_err(|e| e.to_string())?;
-    let topology = sim::load(path).map_err(|e| e.to_string())?;
+    let topology = machine::load(path).map_err(|e| e.to_string())?;
     let _machine = SimMachine::start(&host, &topology)
         .await
         .map_err(|e| format!("cannot start {}: {e}", path.display()))?;
@@ -89,6 +92,7 @@ async fn run(args: Args) -> Result<(), String> {
             &StarterOptions {
                 name,
                 osap_host: args.osap_host.clone(),
+                osap_sim: args.osap_sim.clone(),
                 proxies: options,
             },
         )

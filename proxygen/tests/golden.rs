@@ -31,6 +31,7 @@ fn starter() {
         &StarterOptions {
             name: "my-machine".into(),
             osap_host: "../osap-rs/osap-host".into(),
+            osap_sim: "../osap-rs/osap-sim".into(),
             proxies: Options::default(),
         },
     )

@@ -16,9 +16,9 @@ mod proxies;
 #[path = "golden/odd/mod.rs"]
 mod odd;
 
-use osap_host::sim::{self, SimMachine};
 use osap_host::som::{HostFunction, Manager, OwnedValue, PipeOptions, Som};
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::InputMode;
 use pipes_core::{ScalarType, Type};
 use proxies::{BindError, Hub, Stepper};
@@ -29,9 +29,8 @@ use std::time::{Duration, Instant};
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn proxies_drive_the_simulated_small_machine() {
     let h = Host::start(HostConfig::named("h")).unwrap();
-    let topology = sim::load(
-        PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-            .join("../osap-host/topologies/small-machine.toml"),
+    let topology = machine::load(
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../osap-sim/topologies/small-machine.toml"),
     )
     .unwrap();
     let _machine = SimMachine::start(&h, &topology).await.unwrap();

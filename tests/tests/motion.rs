@@ -15,10 +15,10 @@ use maxl::blocks::onedof::OneDofBlock;
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::sim::axis::{AxisMode, AxisProbe};
-use osap_host::sim::{self, SimMachine, SimModule};
 use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::axis::{AxisMode, AxisProbe};
+use osap_sim::machine::{self, SimMachine, SimModule};
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::pipe::PipeDelivery;
 use std::path::PathBuf;
@@ -50,8 +50,8 @@ async fn rig() -> Rig {
     let turn = TURN.lock().await;
     let host = Host::start(HostConfig::named(HOST)).unwrap();
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-        .join("../osap-host/topologies/corexy-plotter.toml");
-    let machine = SimMachine::start(&host, &sim::load(path).unwrap())
+        .join("../osap-sim/topologies/corexy-plotter.toml");
+    let machine = SimMachine::start(&host, &machine::load(path).unwrap())
         .await
         .unwrap();
     let mut m = Manager::new(&host).await.unwrap();

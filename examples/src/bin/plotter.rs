@@ -1,6 +1,6 @@
 //! A machine script for a CoreXY plotter, run on simulated modules.
 //!
-//! It starts `osap-host/topologies/corexy-plotter.toml` (a hub on USB, belt
+//! It starts `osap-sim/topologies/corexy-plotter.toml` (a hub on USB, belt
 //! motors `a` and `b` on UARTs, each module on its own drifting clock), waits
 //! for their clocks to follow the host's, wires
 //! `Timer → Planner → CoreXY → add_point` with pipes, draws a square with one
@@ -22,9 +22,9 @@ use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::sim::{self, SimMachine};
 use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::{InputMode, OutputMode};
 use plotters::prelude::*;
 
@@ -62,9 +62,9 @@ async fn main() -> Result<(), Box<dyn Error>> {
     let host = Host::start(HostConfig::named(HOST))?;
     let topology = concat!(
         env!("CARGO_MANIFEST_DIR"),
-        "/../osap-host/topologies/corexy-plotter.toml"
+        "/../osap-sim/topologies/corexy-plotter.toml"
     );
-    let machine = SimMachine::start(&host, &sim::load(topology)?).await?;
+    let machine = SimMachine::start(&host, &machine::load(topology)?).await?;
     let mut m = Manager::new(&host).await?;
     m.refresh().await?;
 

@@ -116,8 +116,13 @@ pub struct LinkIo {
     shared: Arc<Shared>,
 }
 
-/// Makes the two halves of a link. `runtime` is the host's wake-up.
-pub(crate) fn channel(
+/// Makes the two halves of a link. `runtime` is the wake-up of the task
+/// that polls the runtime owning the [`ChannelLink`] (a host's, or another
+/// runtime's, as a simulated module's in `osap_sim::machine`); `clock`
+/// stamps what the [`LinkIo`] side delivers. A host's own links come from
+/// [`Host::make_link`](crate::Host::make_link), which passes its wake-up
+/// and clock.
+pub fn channel(
     config: LinkConfig,
     runtime: Arc<Notify>,
     clock: HostClock,
@@ -241,8 +246,10 @@ impl LinkIo {
 
 impl ChannelLink {
     /// Joins two links in one process: each one's sends land directly in
-    /// the other's receive queue.
-    pub(crate) fn join(a: &mut ChannelLink, b: &mut ChannelLink) {
+    /// the other's receive queue (their [`LinkIo`] sides are bypassed).
+    /// Used for in-process links with no wire time, e.g. between a host
+    /// and simulated modules.
+    pub fn join(a: &mut ChannelLink, b: &mut ChannelLink) {
         a.peer = Some(b.shared.clone());
         b.peer = Some(a.shared.clone());
     }

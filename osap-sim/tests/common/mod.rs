@@ -1,10 +1,15 @@
-//! Helpers shared by the integration tests.
+//! Helpers shared by the integration tests: small discrete-event topologies
+//! and traces; for the real-time simulated machines a named host, the
+//! shipped topology files, and a refresh that must read everything.
 #![allow(dead_code)]
 
+use osap_host::som::Manager;
+use osap_host::{Host, HostConfig};
 use osap_sim::clock::ClockSpec;
 use osap_sim::medium::Side;
 use osap_sim::sim::FrameRecord;
 use osap_sim::{LinkModel, NodeSpec, Sim, SimConfig, Topology};
+use std::path::PathBuf;
 
 /// Two nodes joined by one link: `host` (root, a perfect clock) on end A
 /// and `m1` (booted 5 s earlier, 50 ppm fast) on end B.
@@ -35,4 +40,31 @@ pub fn frames_from(sim: &Sim, side: Side) -> Vec<FrameRecord> {
         .collect();
     v.sort_by_key(|f| (f.transit.start_ns, f.transit.sent_ns));
     v
+}
+
+/// A host runtime named `name`, with the default configuration.
+pub fn host(name: &str) -> Host {
+    Host::start(HostConfig::named(name)).unwrap()
+}
+
+/// The path of a topology shipped in `osap-sim/topologies/`.
+pub fn shipped(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("topologies")
+        .join(name)
+}
+
+/// Refreshes the model and checks that every runtime and function was read.
+pub async fn refresh(m: &mut Manager) {
+    let report = m.refresh().await.unwrap();
+    assert!(
+        report.scan_failures.is_empty(),
+        "{:?}",
+        report.scan_failures
+    );
+    assert!(
+        report.function_failures.is_empty(),
+        "{:?}",
+        report.function_failures
+    );
 }

@@ -9,7 +9,7 @@
 mod proxies;
 
 use osap_host::link::serial;
-use osap_host::sim::{self, SimMachine};
+use osap_sim::machine::{self, SimMachine};
 use osap_host::som::Manager;
 use osap_host::{Host, HostConfig};
 use std::error::Error;
@@ -22,7 +22,7 @@ async fn main() -> Result<(), Box<dyn Error>> {
     let mut _sim: Option<SimMachine> = None;
     let mut _link = None;
     match args.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
-        ["--sim", file] => _sim = Some(SimMachine::start(&host, &sim::load(file)?).await?),
+        ["--sim", file] => _sim = Some(SimMachine::start(&host, &machine::load(file)?).await?),
         ["--port", path] => _link = Some(serial::spawn_serial(&host, path, serial::DEFAULT_BAUD).await?),
         _ => return Err("usage: my-machine --sim FILE | --port PATH".into()),
     }

@@ -3,8 +3,8 @@
 //! A simulated module runs a real osap-core runtime, sized like firmware
 //! ([`ModuleRuntime`]: 32 slots of 256 bytes, 16 port indices, 8 links;
 //! build key `RustSimulated`), in its own tokio task, behind simulated links,
-//! on a drifting clock ([`DriftClock`]). Unlike `osap-sim`'s discrete-event
-//! simulator it runs in *real time*, so a real [`Host`] (and the CLI, and
+//! on a drifting clock ([`DriftClock`]). Unlike this crate's discrete-event
+//! simulator ([`crate::Sim`]) it runs in *real time*, so a real [`Host`] (and the CLI, and
 //! any script) talks to it exactly as to hardware: scans, requests and clock
 //! sync all go over the network.
 //!
@@ -20,17 +20,17 @@
 //!
 //! A machine is described by a [`Topology`], usually read from a TOML file
 //! ([`load`]), and started against a host with [`SimMachine::start`]. The
-//! repository ships four in `osap-host/topologies/`: `single-usb.toml` (one
+//! repository ships four in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
 //! UARTs), `loop.toml` (a network with a loop) and `corexy-plotter.toml`
 //! (a hub with three MAXL axes, one with an endstop).
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::HostError> {
-//! use osap_host::sim::{self, SimMachine};
 //! use osap_host::{Host, HostConfig};
+//! use osap_sim::machine::{self, SimMachine};
 //! let host = Host::start(HostConfig::default())?;
-//! let topology = sim::load("osap-host/topologies/small-machine.toml")?;
+//! let topology = machine::load("osap-sim/topologies/small-machine.toml")?;
 //! let machine = SimMachine::start(&host, &topology).await?;
 //! let route = machine.route_to("x").unwrap(); // host → hub → x
 //! let port = host.open_port("script").await?;
@@ -97,7 +97,7 @@
 //! # Link timing
 //!
 //! With `zero_latency = false` each link kind takes the time the
-//! `osap-sim` link models give it ([`osap_sim::medium`]):
+//! discrete-event simulator's link models give it ([`crate::medium`]):
 //!
 //! | kind | timing |
 //! |---|---|
@@ -108,7 +108,7 @@
 //! Delays are kept by a per-machine wire thread with µs precision (see
 //! `wire.rs`), not tokio's 1 ms timers. With `zero_latency = true` (or
 //! [`Topology::with_zero_latency`]) the two ends are joined directly, as
-//! [`crate::link::memory`] joins two hosts: no timers, no
+//! [`osap_host::link::memory`] joins two hosts: no timers, no
 //! tasks in between.
 //!
 //! # Modules dying
@@ -133,16 +133,16 @@ pub use topology::{
     load, LinkKind, LinkSpec, ModuleSpec, Topology, DEFAULT_BAUD, HOST, MAX_HOST_LINKS,
 };
 
-use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
-use crate::{Host, HostError};
+use crate::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
+use crate::rng::Rng;
 use module::{ModuleCommand, ModuleLink, ModuleTask, Parked};
 use osap_core::clock::TimeConfig;
 use osap_core::link::LinkGateway;
 use osap_core::netresponder::BuildKey;
 use osap_core::route::Route;
 use osap_core::Micros;
-use osap_sim::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
-use osap_sim::rng::Rng;
+use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo};
+use osap_host::{Host, HostError};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
@@ -172,7 +172,7 @@ struct Machine {
     topology: Topology,
     /// True time zero of the link models.
     epoch: Instant,
-    host_clock: crate::HostClock,
+    host_clock: osap_host::HostClock,
     links: Mutex<Vec<LinkState>>,
     /// Whether each module's task is running.
     running: Vec<AtomicBool>,

@@ -7,8 +7,8 @@ use osap_core::packet::Instruction;
 use osap_core::route::Route;
 use osap_core::transport::Transport;
 use osap_host::netrunner::{self, Netrunner, ScanOptions};
-use osap_host::sim::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
 use osap_host::{Host, HostConfig, HostError, PortHandle};
+use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
 use std::time::{Duration, Instant};
 
 mod common;
@@ -35,12 +35,12 @@ const ANSWER: Duration = Duration::from_secs(1);
 
 #[test]
 fn shipped_topologies_load() {
-    let single = sim::load(shipped("single-usb.toml")).unwrap();
+    let single = machine::load(shipped("single-usb.toml")).unwrap();
     assert_eq!(single.modules.len(), 1);
     assert_eq!(single.links.len(), 1);
     assert_eq!(single.links[0].kind, LinkKind::Usb);
 
-    let small = sim::load(shipped("small-machine.toml")).unwrap();
+    let small = machine::load(shipped("small-machine.toml")).unwrap();
     assert_eq!(small.name, "small-machine");
     assert_eq!(small.modules.len(), 5);
     assert_eq!(small.links_of("hub"), vec![0, 1, 2, 3, 4]);
@@ -48,7 +48,7 @@ fn shipped_topologies_load() {
     assert_eq!(uarts.count(), 4);
     assert_eq!(small.modules[1].rate_ppm, 40.0);
 
-    let looped = sim::load(shipped("loop.toml")).unwrap();
+    let looped = machine::load(shipped("loop.toml")).unwrap();
     assert_eq!(looped.modules.len(), 4);
     // c's links in file order: b–c, c–a, c–m1.
     assert_eq!(looped.links_of("c"), vec![2, 3, 4]);
@@ -58,7 +58,7 @@ fn shipped_topologies_load() {
 #[tokio::test]
 async fn single_module_on_usb_answers() {
     let host = host();
-    let topology = sim::load(shipped("single-usb.toml")).unwrap();
+    let topology = machine::load(shipped("single-usb.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     assert_eq!(machine.host_links(), &[0]);
     let motor = machine.route_to("motor").unwrap();
@@ -85,7 +85,7 @@ async fn single_module_on_usb_answers() {
 #[tokio::test]
 async fn small_machine_modules_answer_over_the_routes_in_the_file() {
     let host = host();
-    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let topology = machine::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let h = machine.host_links()[0];
     // From the file: the hub's link 0 is the USB to the host, then one UART
@@ -117,7 +117,7 @@ async fn small_machine_modules_answer_over_the_routes_in_the_file() {
 #[tokio::test]
 async fn loop_modules_answer_both_ways_round_the_loop() {
     let host = host();
-    let topology = sim::load(shipped("loop.toml")).unwrap();
+    let topology = machine::load(shipped("loop.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let h = machine.host_links()[0];
     let port = host.open_port("test").await.unwrap();
@@ -160,7 +160,7 @@ async fn a_scan_maps_the_single_usb_module_as_the_file_describes_it() {
 
 async fn scan_matches_the_file(file: &str, zero_latency: bool) {
     let host = host();
-    let topology = sim::load(shipped(file))
+    let topology = machine::load(shipped(file))
         .unwrap()
         .with_zero_latency(zero_latency);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -178,7 +178,7 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
             let runtime = map
                 .runtimes
                 .iter()
-                .position(|r| r.name == if name == sim::HOST { "host" } else { name })
+                .position(|r| r.name == if name == machine::HOST { "host" } else { name })
                 .unwrap();
             // The link's index at this end: its position among this end's
             // links in the file.
@@ -190,7 +190,7 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
                     (l.a == name && l.b == other) || (l.b == name && l.a == other)
                 })
                 .unwrap();
-            let index = if name == sim::HOST {
+            let index = if name == machine::HOST {
                 machine.host_links()[position]
             } else {
                 position as u8
@@ -216,7 +216,7 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
 #[tokio::test]
 async fn module_clocks_drift_as_configured() {
     let host = host();
-    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let topology = machine::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     for (m, spec) in machine.modules().iter().zip(&topology.modules) {
         let clock = m.clock();
@@ -292,7 +292,7 @@ async fn a_drifting_module_synchronises_to_the_host() {
 #[tokio::test]
 async fn a_killed_module_stops_answering_and_the_others_go_on() {
     let host = host();
-    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let topology = machine::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let port = host.open_port("test").await.unwrap();
     let x = machine.module("x").unwrap();
@@ -324,7 +324,7 @@ async fn a_killed_module_stops_answering_and_the_others_go_on() {
 #[tokio::test]
 async fn killing_the_hub_cuts_off_everything_behind_it() {
     let host = host();
-    let topology = sim::load(shipped("small-machine.toml"))
+    let topology = machine::load(shipped("small-machine.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -354,7 +354,7 @@ async fn killing_the_hub_cuts_off_everything_behind_it() {
 #[tokio::test]
 async fn a_restarted_module_keeps_the_name_the_network_gave_it() {
     let host = host();
-    let topology = sim::load(shipped("single-usb.toml"))
+    let topology = machine::load(shipped("single-usb.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -434,7 +434,7 @@ async fn uart_latency_adds_the_wire_time_of_request_and_reply() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn usb_round_trips_wait_for_the_bus_frame() {
     let host = host();
-    let topology = sim::load(shipped("single-usb.toml")).unwrap();
+    let topology = machine::load(shipped("single-usb.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let r = machine.route_to("motor").unwrap();
     let median = median_round_trip(&host, &r, 21).await;
@@ -519,14 +519,16 @@ fn bad_topologies_are_refused_with_reasons() {
         "{error}"
     );
     // A missing file names itself.
-    let error = sim::load("no/such/topology.toml").unwrap_err().to_string();
+    let error = machine::load("no/such/topology.toml")
+        .unwrap_err()
+        .to_string();
     assert!(error.contains("no/such/topology.toml"), "{error}");
 }
 
 #[tokio::test]
 async fn a_scan_without_a_dead_module_shows_its_link_down() {
     let host = host();
-    let topology = sim::load(shipped("small-machine.toml"))
+    let topology = machine::load(shipped("small-machine.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();

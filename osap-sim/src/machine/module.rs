@@ -2,11 +2,11 @@
 //! own tokio task, on a drifting clock.
 
 use super::clock::DriftClock;
-use crate::clock::HostClock;
-use crate::link::ChannelLink;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::port::Port;
 use osap_core::Micros;
+use osap_host::clock::HostClock;
+use osap_host::link::ChannelLink;
 use std::sync::Arc;
 use tokio::sync::{mpsc, Notify};
 

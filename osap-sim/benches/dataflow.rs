@@ -17,7 +17,7 @@
 //! - `rpc/add_control_point`: the same with two inputs and no outputs.
 //!
 //! Before criterion runs, each is also measured over a fixed wall time and
-//! its rate printed (messages/s, calls/s). `cargo bench -p osap-host
+//! its rate printed (messages/s, calls/s). `cargo bench -p osap-sim
 //! --bench dataflow`; add `-- --test` for a quick check that everything
 //! runs.
 
@@ -26,8 +26,8 @@ use osap_core::codec::Writer;
 use osap_core::link::queue::{transfer, QueueLink};
 use osap_core::route::Route;
 use osap_host::netrunner::{self, ScanOptions};
-use osap_host::sim::{self, SimMachine};
 use osap_host::{Host, HostConfig, PortHandle};
+use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::{ControlKey, InputMode, OutputMode, Reply, ReplyBody};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::PipeConfig;
@@ -277,7 +277,7 @@ async fn rpc_setup() -> Rpc {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join("single-usb.toml");
-    let topology = sim::load(path)
+    let topology = machine::load(path)
         .expect("shipped topology")
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.expect("machine");

@@ -2,9 +2,9 @@
 //! gives them.
 //!
 //! Each direction of a link with latency has a *carrier* task: it takes the
-//! packets the sending runtime queued on its [`ChannelLink`](crate::link::ChannelLink)
+//! packets the sending runtime queued on its [`ChannelLink`](osap_host::link::ChannelLink)
 //! (through the [`LinkIo`] half), asks the link model
-//! ([`osap_sim::medium::Transmitter`], the discrete-event simulator's
+//! ([`crate::medium::Transmitter`], the discrete-event simulator's
 //! model) when each would start onto the wire, reach the far end and become
 //! visible there, and schedules its delivery. The model's transmit buffer
 //! pushes back: the carrier takes the next packet only when the buffer has
@@ -16,9 +16,9 @@
 //! delivery is due and spins through the last [`SPIN`], so packets land
 //! within a few µs of their time.
 
-use crate::clock::HostClock;
-use crate::link::LinkIo;
-use osap_sim::medium::{StampMode, Transmitter};
+use crate::medium::{StampMode, Transmitter};
+use osap_host::clock::HostClock;
+use osap_host::link::LinkIo;
 use std::cmp::Ordering as CmpOrdering;
 use std::collections::BinaryHeap;
 use std::sync::atomic::{AtomicU64, Ordering};

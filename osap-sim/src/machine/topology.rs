@@ -2,9 +2,9 @@
 //! linked. The format is described in the [module docs](super).
 
 use super::module::{MODULE_LINKS, MODULE_MTU};
-use crate::HostError;
+use crate::clock::ClockSpec;
 use osap_core::netresponder::NAME_MAX;
-use osap_sim::clock::ClockSpec;
+use osap_host::HostError;
 use serde::{Deserialize, Serialize};
 use std::collections::{HashMap, VecDeque};
 use std::path::Path;
@@ -110,8 +110,8 @@ impl ModuleSpec {
     }
 
     /// The oscillator this spec describes (the wander starts at phase 0).
-    pub fn clock_model(&self) -> osap_sim::clock::ClockModel {
-        osap_sim::clock::ClockModel::new(self.offset_us, self.rate_ppm).with_wander(
+    pub fn clock_model(&self) -> crate::clock::ClockModel {
+        crate::clock::ClockModel::new(self.offset_us, self.rate_ppm).with_wander(
             self.wander_ppm,
             self.wander_period_s,
             0.0,

@@ -504,8 +504,8 @@ fn hub(clock: DriftClock) -> Vec<SimFunction> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::clock::ClockModel;
     use osap_core::port::Port;
-    use osap_sim::clock::ClockModel;
     use std::time::Instant;
 
     #[test]

@@ -6,10 +6,10 @@
 //! against where the stream crossed it.
 
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::sim::axis::{AxisMode, Executed};
-use osap_host::sim::{self, SimMachine};
 use osap_host::som::{FnRef, Manager, OwnedValue};
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::axis::{AxisMode, Executed};
+use osap_sim::machine::{self, SimMachine};
 use std::time::Duration;
 
 mod common;
@@ -29,7 +29,7 @@ async fn synced(host: &Host, machine: &SimMachine, names: &[&str]) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn an_axis_follows_a_stream_on_synchronized_time() {
     let host = Host::start(HostConfig::named("h")).unwrap();
-    let topology = sim::load(shipped("corexy-plotter.toml")).unwrap();
+    let topology = machine::load(shipped("corexy-plotter.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let mut m = Manager::new(&host).await.unwrap();
     m.refresh().await.unwrap();

@@ -20,7 +20,7 @@
 //!
 //! Before criterion runs, each RPC path is also timed request by request
 //! and its p50/p99 and requests per second printed, since criterion reports
-//! means. `cargo bench -p osap-host --bench sim_rpc`; add `-- --test` for a
+//! means. `cargo bench -p osap-sim --bench sim_rpc`; add `-- --test` for a
 //! quick check that everything runs.
 
 use criterion::{BenchmarkId, Criterion};
@@ -28,8 +28,8 @@ use osap_core::netresponder::key;
 use osap_core::route::Route;
 use osap_host::link::{stream, tcp};
 use osap_host::netrunner::{self, ScanOptions};
-use osap_host::sim::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
 use osap_host::{Host, HostConfig, PortHandle};
+use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -44,7 +44,7 @@ fn shipped(name: &str) -> Topology {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join(name);
-    sim::load(path).expect("shipped topology loads")
+    machine::load(path).expect("shipped topology loads")
 }
 
 /// A request path: a port, and a route from it to a module.
@@ -137,7 +137,7 @@ fn tree(n: usize, sync: bool) -> Topology {
     for i in 0..n {
         t = t.with_module(ModuleSpec::new(&format!("m{i}"), "stepper"));
         let parent = if i == 0 {
-            sim::HOST.to_string()
+            machine::HOST.to_string()
         } else {
             format!("m{}", (i - 1) / 7)
         };

@@ -6,12 +6,12 @@
 //! under a pipe.
 
 use osap_host::link::memory;
-use osap_host::sim::{self, SimMachine};
 use osap_host::som::{
     attach_function, FnRef, FunctionHandle, HostFunction, Manager, OwnedValue, PipeOptions,
     SomError,
 };
 use osap_host::Host;
+use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::{ControlError, InputMode, OutputMode};
 use pipes_core::{ScalarType, Type};
 use std::future::Future;
@@ -51,7 +51,7 @@ struct Lab {
 
 async fn lab() -> Lab {
     let h = host("h");
-    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let topology = machine::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&h, &topology).await.unwrap();
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;
@@ -281,7 +281,7 @@ async fn three_runtime_chain_weaves_arguments() {
     )
     .unwrap();
     attach_function(&b, mid).await.unwrap();
-    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let topology = machine::load(shipped("small-machine.toml")).unwrap();
     let _machine = SimMachine::start(&h, &topology).await.unwrap();
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;

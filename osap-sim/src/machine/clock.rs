@@ -1,7 +1,7 @@
 //! A simulated module's drifting local clock, in real time.
 
+use crate::clock::ClockModel;
 use osap_core::Micros;
-use osap_sim::clock::ClockModel;
 use std::time::{Duration, Instant};
 
 /// A module's free-running µs counter, running at its own rate against the
@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 /// ```
 ///
 /// with `t` an [`Instant`], `boot` when the module (re)started, and the
-/// oscillator an [`osap_sim::clock::ClockModel`] (so the same model as the
+/// oscillator an [`crate::clock::ClockModel`] (so the same model as the
 /// discrete-event simulator, only driven by real time). The mapping is
 /// monotonic and can be inverted, which is how a runtime's `wake_at` (local
 /// µs) becomes a timer deadline.

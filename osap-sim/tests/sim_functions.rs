@@ -6,12 +6,12 @@ use osap_core::route::Route;
 use osap_core::transport::Transport;
 use osap_host::map::RuntimeRecord;
 use osap_host::netrunner::{self, ScanOptions};
-use osap_host::sim::functions::{
+use osap_host::{Host, HostConfig, PortHandle};
+use osap_sim::machine::functions::{
     self, ADD_CONTROL_POINT, COMPARATOR, GET_POSITION, GET_STATUS, GET_UPTIME, PULSE, READ_ANALOG,
     READ_PIN, SET_CURRENT,
 };
-use osap_host::sim::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
-use osap_host::{Host, HostConfig, PortHandle};
+use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
 use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::function::FUNCTION_PORT_TYPE;
 use pipes_core::signature::Signature;
@@ -151,7 +151,7 @@ async fn signature_of(f: &Fn, port: &PortHandle, sig: &Signature) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn small_machine_steppers_have_functions() {
     let host = Host::start(HostConfig::default()).unwrap();
-    let topology = sim::load(shipped("small-machine.toml")).unwrap();
+    let topology = machine::load(shipped("small-machine.toml")).unwrap();
     let _machine = SimMachine::start(&host, &topology).await.unwrap();
     let report = netrunner::scan(&host, &ScanOptions::default())
         .await
@@ -303,7 +303,7 @@ async fn io_module_pins_and_comparator() {
     let host = Host::start(HostConfig::default()).unwrap();
     let topology = Topology::new("io")
         .with_module(ModuleSpec::new("io", "io"))
-        .with_link(LinkSpec::new(sim::HOST, "io", LinkKind::Usb));
+        .with_link(LinkSpec::new(machine::HOST, "io", LinkKind::Usb));
     let _machine = SimMachine::start(&host, &topology).await.unwrap();
     let report = netrunner::scan(&host, &ScanOptions::default())
         .await
@@ -380,7 +380,7 @@ async fn io_module_pins_and_comparator() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn restart_resets_the_simulated_hardware() {
     let host = Host::start(HostConfig::default()).unwrap();
-    let topology = sim::load(shipped("single-usb.toml"))
+    let topology = machine::load(shipped("single-usb.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
