@@ -10,7 +10,7 @@ pub type ModuleRuntime = osap_firmware::runtime::ModuleRuntime<2>;
 
 /// Runs the runtime forever.
 #[embassy_executor::task]
-pub async fn runtime_task(mut parts: ModuleParts<NameSector>) {
+pub async fn runtime_task(mut parts: ModuleParts<NameSector, crate::Module>) {
     osap_firmware::runtime::run(
         parts.runtime,
         parts.ports,

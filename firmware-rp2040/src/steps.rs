@@ -6,7 +6,7 @@
 //! 10 µs tick per two bits of a 32-bit word (bit 0 STEP, bit 1 DIR, LSB
 //! first; 16 ticks a word), the format of `maxl::step::PioPacker`. Its
 //! joined 8-word TX FIFO holds 1.28 ms of ticks. The step task tops it up
-//! with [`osap_module::fill_step_word`] on a timer alarm every 640 µs,
+//! with [`osap_module::ModuleCell::fill_step_word`] (on [`crate::MODULE`]) on a timer alarm every 640 µs,
 //! when half of it has run out.
 //!
 //! Each word's start time comes from a running tick count anchored to the
@@ -98,7 +98,7 @@ async fn start(sm: &mut StepSm) -> u64 {
     let anchor = Instant::now().as_micros() + START_LEAD_US;
     for k in 0..FIFO_WORDS {
         sm.tx()
-            .push(osap_module::fill_step_word(anchor + k * WORD_US));
+            .push(crate::MODULE.fill_step_word(anchor + k * WORD_US));
     }
     Timer::at(Instant::from_micros(anchor - START_SPIN_US)).await;
     // With interrupts off, so nothing lands between reaching the anchor
@@ -128,7 +128,7 @@ pub async fn step_task(mut sm: StepSm) {
         Timer::at(Instant::from_micros(refill_at)).await;
         // Only this task pushes, so a slot seen free stays free.
         while !sm.tx().full() {
-            sm.tx().push(osap_module::fill_step_word(next));
+            sm.tx().push(crate::MODULE.fill_step_word(next));
             next += WORD_US;
         }
         if sm.tx().stalled() {
@@ -146,7 +146,7 @@ pub async fn step_task(mut sm: StepSm) {
 #[embassy_executor::task]
 pub async fn limit_task(mut pin: Input<'static>) {
     let mut level = pin.is_high();
-    osap_module::limit_initial(level);
+    crate::MODULE.limit_initial(level);
     loop {
         pin.wait_for_any_edge().await;
         // Stamped first thing: only the GPIO interrupt and the step task
@@ -156,7 +156,7 @@ pub async fn limit_task(mut pin: Input<'static>) {
         // A bounce that settled back before we looked is no change.
         if now_level != level {
             level = now_level;
-            osap_module::limit_changed(at, level);
+            crate::MODULE.limit_changed(at, level);
         }
     }
 }

@@ -59,7 +59,8 @@ use osap_core::Micros;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;
 use osap_firmware::usb::{product_string, serial_string, ProductString, SerialString, USB_TIMING};
-use osap_module::ModulePorts;
+use osap_module::board::Parts;
+use osap_module::{ModuleCell, ModulePorts};
 use panic_reset as _;
 use static_cell::StaticCell;
 use usb_device::bus::UsbBusAllocator;
@@ -82,6 +83,16 @@ const VERSION: [u8; 3] = [0, 1, 0];
 #[used]
 #[link_section = ".osap_function_set"]
 static FUNCTION_SET: [u8; 4] = osap_module::FUNCTION_SET_ID.to_le_bytes();
+
+/// The module's board: its stepper driver, its I/O pins and the local clock.
+pub type ModuleBoard = Parts<&'static mut StepperPins, &'static mut IoPins>;
+
+/// The module (its logic and its board), shared by the runtime task and
+/// the step interrupt.
+pub static MODULE: ModuleCell<ModuleBoard> = ModuleCell::new();
+
+/// How the module's ports reach it.
+pub type Module = &'static ModuleCell<ModuleBoard>;
 
 static STEP_EXECUTOR: InterruptExecutor = InterruptExecutor::new();
 static LINK_EXECUTOR: InterruptExecutor = InterruptExecutor::new();
@@ -189,13 +200,17 @@ async fn main(spawner: Spawner) {
         digital,
         analog: [ain0, ain1, ain2],
     });
-    osap_module::install(stepper, Some(io), local_now);
+    MODULE.install(Parts {
+        stepper,
+        io: Some(io),
+        clock: local_now,
+    });
 
     // The runtime and its ports.
     static RUNTIME: StaticCell<ModuleRuntime> = StaticCell::new();
     let runtime = RUNTIME.init(module_runtime(MODULE_TYPE, &name, VERSION));
-    static PORTS: StaticCell<ModulePorts> = StaticCell::new();
-    let ports = PORTS.init(module_ports());
+    static PORTS: StaticCell<ModulePorts<Module>> = StaticCell::new();
+    let ports = PORTS.init(module_ports(&MODULE));
 
     // Step generation and the limit switch.
     let step = output(pins.step, false);

@@ -11,7 +11,7 @@
 //! 3 µs low (A4988: 1 µs each and 200 ns of DIR setup; DRV8825: 1.9 µs and
 //! 650 ns). A tick is two bits of a 32-bit word (bit 0 STEP, bit 1 DIR, LSB
 //! first, 16 ticks a word): the format of `maxl::step::PioPacker` that
-//! [`osap_module::fill_step_word`] returns.
+//! [`osap_module::ModuleCell::fill_step_word`] (on [`crate::MODULE`]) returns.
 //!
 //! Words come from a lock-free ring of eight (1.28 ms of ticks), topped up
 //! by the step task on the step executor (priority 0x20) with
@@ -175,7 +175,7 @@ async fn start() -> u64 {
     STALLED.store(false, Ordering::Release);
     let anchor = Instant::now().as_micros() + START_LEAD_US;
     for k in 0..u64::from(RING_WORDS) {
-        RING.push(osap_module::fill_step_word(anchor + k * WORD_US));
+        RING.push(crate::MODULE.fill_step_word(anchor + k * WORD_US));
     }
     // The first overflow comes one tick after the start and leads the
     // first STEP edge by DIR_LEAD_US.
@@ -199,7 +199,7 @@ pub async fn step_task() {
         Timer::at(Instant::from_micros(refill_at)).await;
         // Only this task pushes, so room seen stays.
         while RING.len() < RING_WORDS {
-            RING.push(osap_module::fill_step_word(next));
+            RING.push(crate::MODULE.fill_step_word(next));
             next += WORD_US;
         }
         if STALLED.load(Ordering::Acquire) {
@@ -283,7 +283,7 @@ pub const LIMIT_PRIORITY: u8 = 0x20;
 pub fn start_limit(nvic: &mut NVIC, limit: Limit, irq: Interrupt) {
     let level = limit.pin.read();
     LIMIT_LEVEL.store(level, Ordering::Relaxed);
-    osap_module::limit_initial(level);
+    crate::MODULE.limit_initial(level);
     LIMIT_CHANNEL.store(u32::from(limit.channel), Ordering::Release);
     LIMIT_PIN.store(limit.pin.pack(), Ordering::Release);
     // SAFETY: the handler is ready.
@@ -306,6 +306,6 @@ pub fn on_limit_interrupt() {
     let level = pin.read();
     // A bounce that settled back before we looked is no change.
     if level != LIMIT_LEVEL.swap(level, Ordering::Relaxed) {
-        osap_module::limit_changed(at, level);
+        crate::MODULE.limit_changed(at, level);
     }
 }

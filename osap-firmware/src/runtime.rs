@@ -16,7 +16,7 @@ use embassy_time::{Instant, Timer};
 use osap_core::link::LinkGateway;
 use osap_core::netresponder::Level;
 use osap_core::Runtime;
-use osap_module::ModulePorts;
+use osap_module::{ModuleHandle, ModulePorts};
 
 use crate::link::{FirmwareLink, FramedGateway, MTU};
 use crate::name_store::{NameFlash, NameStore};
@@ -36,11 +36,11 @@ pub type ModuleRuntime<const LINKS: usize> = Runtime<SLOTS, MTU, PORTS, LINKS>;
 /// it to its runtime task, which passes its fields to [`run`] by reference
 /// (moving them into another future would keep a second copy of the
 /// gateways' frame buffers in the task).
-pub struct ModuleParts<F: NameFlash + 'static> {
+pub struct ModuleParts<F: NameFlash + 'static, H: 'static> {
     /// The runtime.
     pub runtime: &'static mut ModuleRuntime<2>,
     /// The module's ports.
-    pub ports: &'static mut ModulePorts,
+    pub ports: &'static mut ModulePorts<H>,
     /// Link 0.
     pub usb: FramedGateway<UsbTiming>,
     /// Link 1.
@@ -66,13 +66,14 @@ pub fn module_runtime<const LINKS: usize>(
     }
 }
 
-/// The module's ports.
+/// The ports of the module `module` reaches (the firmware's `&'static`
+/// [`osap_module::ModuleCell`]).
 ///
 /// # Panics
 /// If a function signature is rejected: osap-module's tests check every
 /// one, so this is a build bug.
-pub fn module_ports() -> ModulePorts {
-    match ModulePorts::new() {
+pub fn module_ports<H: ModuleHandle>(module: H) -> ModulePorts<H> {
+    match ModulePorts::new(module) {
         Ok(ports) => ports,
         Err(_) => panic!("module function signature rejected"),
     }
@@ -88,9 +89,9 @@ pub fn wake_runtime() {
 
 /// Runs the runtime forever over `links` (link `i` is the runtime's link
 /// `i`), serving `ports`, keeping the name in `names`.
-pub async fn run<F: NameFlash, const LINKS: usize>(
+pub async fn run<F: NameFlash, H: ModuleHandle, const LINKS: usize>(
     runtime: &mut ModuleRuntime<LINKS>,
-    ports: &mut ModulePorts,
+    ports: &mut ModulePorts<H>,
     mut links: [&mut dyn FirmwareLink; LINKS],
     names: &mut NameStore<F>,
 ) -> ! {
@@ -102,7 +103,7 @@ pub async fn run<F: NameFlash, const LINKS: usize>(
             let mut gateways = links.each_mut().map(|l| &mut **l as &mut dyn LinkGateway);
             runtime.poll(now, ports.ports(), &mut gateways)
         };
-        osap_module::publish_time(runtime.time_map());
+        ports.module().publish_time(runtime.time_map());
 
         if runtime.take_changes().name {
             let saved = names.save(runtime.identity().name.as_str());

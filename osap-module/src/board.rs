@@ -2,9 +2,12 @@
 //!
 //! The logic in this crate never touches a peripheral. A firmware crate
 //! implements these traits over its HAL (embassy-rp, atsamd-hal) and hands
-//! them to [`crate::install`]; host tests implement them over plain memory.
-//! Every method is quick and non-blocking: they run inside critical
-//! sections, where an interrupt waits for them.
+//! them to its [`crate::ModuleCell`]; the simulator implements them over
+//! simulated pins and clocks, host tests over plain memory. Every method is
+//! quick and non-blocking: they run inside critical sections, where an
+//! interrupt waits for them.
+
+use osap_core::Micros;
 
 /// A stepper driver's control pins (step and direction are driven by the
 /// board's step generator from the words [`crate::Module::fill_step_word`]
@@ -44,4 +47,101 @@ pub trait IoHw {
     /// scale in `0..=65535` (a 12-bit converter's reading shifted left by 4),
     /// so scripts see the same range on every board.
     fn read_analog(&mut self, channel: u8) -> u16;
+}
+
+impl<T: StepperHw + ?Sized> StepperHw for &mut T {
+    fn set_enable(&mut self, on: bool) {
+        (**self).set_enable(on)
+    }
+    fn set_microsteps(&mut self, microsteps: u16) -> bool {
+        (**self).set_microsteps(microsteps)
+    }
+}
+
+impl<T: IoHw + ?Sized> IoHw for &mut T {
+    fn digital_pins(&self) -> u8 {
+        (**self).digital_pins()
+    }
+    fn write_digital(&mut self, pin: u8, level: bool) {
+        (**self).write_digital(pin, level)
+    }
+    fn read_digital(&mut self, pin: u8) -> bool {
+        (**self).read_digital(pin)
+    }
+    fn pwm_outputs(&self) -> u8 {
+        (**self).pwm_outputs()
+    }
+    fn write_pwm(&mut self, channel: u8, duty: u16) {
+        (**self).write_pwm(channel, duty)
+    }
+    fn analog_inputs(&self) -> u8 {
+        (**self).analog_inputs()
+    }
+    fn read_analog(&mut self, channel: u8) -> u16 {
+        (**self).read_analog(channel)
+    }
+}
+
+/// Everything a module needs from its board: the stepper driver, the I/O
+/// hardware if there is any, and the local microsecond clock (the one the
+/// runtime is polled with).
+///
+/// A firmware implements it over its peripherals (or uses [`Parts`]); a
+/// simulator implements it over simulated pins and a drifting clock.
+pub trait Board {
+    /// The stepper driver's control pins.
+    fn stepper(&mut self) -> &mut dyn StepperHw;
+    /// The I/O hardware, or `None` on a board without it (the I/O functions
+    /// then fail with [`crate::io::IoError::NoHardware`]).
+    fn io(&mut self) -> Option<&mut dyn IoHw>;
+    /// Local time, µs.
+    fn now(&self) -> Micros;
+}
+
+/// A board assembled from a stepper driver, optional I/O hardware and a
+/// clock function: what a firmware usually hands to
+/// [`crate::ModuleCell::install`].
+pub struct Parts<S, I> {
+    /// The stepper driver.
+    pub stepper: S,
+    /// The I/O hardware, if any.
+    pub io: Option<I>,
+    /// The local clock, µs.
+    pub clock: fn() -> Micros,
+}
+
+impl<S: StepperHw, I: IoHw> Board for Parts<S, I> {
+    fn stepper(&mut self) -> &mut dyn StepperHw {
+        &mut self.stepper
+    }
+    fn io(&mut self) -> Option<&mut dyn IoHw> {
+        self.io.as_mut().map(|io| io as &mut dyn IoHw)
+    }
+    fn now(&self) -> Micros {
+        (self.clock)()
+    }
+}
+
+/// An I/O board with nothing on it: the `I` of a [`Parts`] without I/O.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct NoIo;
+
+impl IoHw for NoIo {
+    fn digital_pins(&self) -> u8 {
+        0
+    }
+    fn write_digital(&mut self, _pin: u8, _level: bool) {}
+    fn read_digital(&mut self, _pin: u8) -> bool {
+        false
+    }
+    fn pwm_outputs(&self) -> u8 {
+        0
+    }
+    fn write_pwm(&mut self, _channel: u8, _duty: u16) {}
+    fn analog_inputs(&self) -> u8 {
+        0
+    }
+    fn read_analog(&mut self, _channel: u8) -> u16 {
+        0
+    }
 }

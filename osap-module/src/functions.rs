@@ -1,10 +1,10 @@
 //! The module's PIPES functions: what a network scan finds on every
 //! osap-rs module firmware, whatever the board.
 //!
-//! Each is a plain function wrapped by `#[pipes_core::function]`, working
-//! on the installed module (see [`crate::install`]); [`ModuleFn`] gathers
-//! them so a runtime can hold them in one array. Failure codes are
-//! [`StepperError`] and [`IoError`] codes, plus [`NOT_INSTALLED`].
+//! Each is a method of [`Module`] (callable from Rust as is) and a PIPES
+//! function: a [`ModuleFn`] binds one of them to one module through a
+//! [`ModuleHandle`], so a runtime can hold them in one array. Failure codes
+//! are [`StepperError`] and [`IoError`] codes, plus [`NOT_INSTALLED`].
 //!
 //! | function | inputs | outputs |
 //! |---|---|---|
@@ -30,239 +30,263 @@
 //! with its output mode set to "on change": it then sends each switch edge
 //! with the edge's own time stamp, taken in the pin interrupt.
 
+use crate::board::Board;
 use crate::io::IoError;
 use crate::stepper::StepperError;
-use crate::{with, Module};
+use crate::{Module, ModuleHandle};
+use pipes_core::export::{FromPipes, PipesOutputs, PipesType};
 use pipes_core::function::{CallError, Implementation, Outputs};
-use pipes_core::signature::Signature;
+use pipes_core::signature::{Arg, Signature};
 use pipes_core::Value;
 
-/// Failure code of every function on a firmware that never called
-/// [`crate::install`].
+/// Failure code of every function on a firmware that never installed its
+/// board (see [`crate::ModuleCell::install`]).
 pub const NOT_INSTALLED: u8 = 100;
 
-fn on_module<R>(f: impl FnOnce(&mut Module) -> R) -> Result<R, CallError> {
-    with(f).ok_or(CallError::Failed(NOT_INSTALLED))
-}
+impl<B: Board> Module<B> {
+    /// Queues a control point: the axis is at `position` (user units) at
+    /// synchronized `time` (a multiple of the interval).
+    pub fn add_point(&mut self, time: u64, position: f32) -> Result<(), CallError> {
+        Ok(self.stepper.add_point(time, position)?)
+    }
 
-/// [`on_module`] for work that can be refused with its own failure code.
-fn fallible<R, E: Into<CallError>>(
-    f: impl FnOnce(&mut Module) -> Result<R, E>,
-) -> Result<R, CallError> {
-    on_module(f)?.map_err(Into::into)
-}
+    /// Sets the control-point interval, µs (a power of two, 256 to 16 384),
+    /// while no stream is queued.
+    pub fn set_interval(&mut self, interval_us: u32) -> Result<(), CallError> {
+        Ok(self.stepper.set_interval(interval_us)?)
+    }
 
-/// Queues a control point: the axis is at `position` (user units) at
-/// synchronized `time` (a multiple of the interval).
-#[pipes_core::function]
-pub fn add_point(time: u64, position: f32) -> Result<(), CallError> {
-    fallible(|m| m.stepper.add_point(time, position))
-}
+    /// Where the steps sent so far put the motor (user units), and the
+    /// synchronized time of the latest step tick they include.
+    pub fn get_position(&mut self) -> Result<(u64, f32), CallError> {
+        Ok(self.stepper.position())
+    }
 
-/// Sets the control-point interval, µs (a power of two, 256 to 16 384),
-/// while no stream is queued.
-#[pipes_core::function]
-pub fn set_interval(interval_us: u32) -> Result<(), CallError> {
-    fallible(|m| m.stepper.set_interval(interval_us))
-}
+    /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted),
+    /// points queued, whether the motor is powered, and faults since boot.
+    pub fn get_status(&mut self) -> Result<(u8, u16, bool, u32), CallError> {
+        let s = &self.stepper;
+        Ok((s.mode() as u8, s.queued(), s.enabled(), s.counters().faults))
+    }
 
-/// Where the steps sent so far put the motor (user units), and the
-/// synchronized time of the latest step tick they include.
-#[pipes_core::function(outputs = "time, position")]
-pub fn get_position() -> Result<(u64, f32), CallError> {
-    on_module(|m| m.stepper.position())
-}
+    /// Points accepted, refused, the latest refusal's code, and single gaps
+    /// filled.
+    pub fn get_counters(&mut self) -> Result<(u32, u32, u8, u32), CallError> {
+        let c = self.stepper.counters();
+        Ok((c.points, c.refused, c.last_refused, c.filled))
+    }
 
-/// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted),
-/// points queued, whether the motor is powered, and faults since boot.
-#[pipes_core::function(outputs = "mode, queued, enabled, faults")]
-pub fn get_status() -> Result<(u8, u16, bool, u32), CallError> {
-    on_module(|m| {
-        let s = &m.stepper;
-        (s.mode() as u8, s.queued(), s.enabled(), s.counters().faults)
-    })
-}
+    /// Net microsteps sent since boot, steps up, steps down, and ticks that
+    /// owed more than one step (their steps went out on later ticks).
+    pub fn get_steps(&mut self) -> Result<(i64, u64, u64, u64), CallError> {
+        Ok(self.stepper.step_counts())
+    }
 
-/// Points accepted, refused, the latest refusal's code, and single gaps
-/// filled.
-#[pipes_core::function(outputs = "points, refused, last_refused, filled")]
-pub fn get_counters() -> Result<(u32, u32, u8, u32), CallError> {
-    on_module(|m| {
-        let c = m.stepper.counters();
-        (c.points, c.refused, c.last_refused, c.filled)
-    })
-}
+    /// Powers the motor or lets it go limp; powering down stops the axis
+    /// where it stands and drops its stream, powering up clears a fault or a
+    /// halt.
+    pub fn set_enable(&mut self, on: bool) -> Result<(), CallError> {
+        self.stepper.set_enable(on);
+        self.board.stepper().set_enable(on);
+        Ok(())
+    }
 
-/// Net microsteps sent since boot, steps up, steps down, and ticks that
-/// owed more than one step (their steps went out on later ticks).
-#[pipes_core::function(outputs = "steps, up, down, overruns")]
-pub fn get_steps() -> Result<(i64, u64, u64, u64), CallError> {
-    on_module(|m| m.stepper.step_counts())
-}
+    /// Sets the motor's full steps per user unit (the microstep mode
+    /// multiplies it), while no stream is queued.
+    pub fn set_scale(&mut self, full_steps_per_unit: f32) -> Result<(), CallError> {
+        Ok(self.stepper.set_scale(full_steps_per_unit)?)
+    }
 
-/// Powers the motor or lets it go limp; powering down stops the axis where
-/// it stands and drops its stream, powering up clears a fault or a halt.
-#[pipes_core::function]
-pub fn set_enable(on: bool) -> Result<(), CallError> {
-    on_module(|m| {
-        m.stepper.set_enable(on);
-        m.stepper_hw.set_enable(on);
-    })
-}
-
-/// Sets the motor's full steps per user unit (the microstep mode
-/// multiplies it), while no stream is queued.
-#[pipes_core::function]
-pub fn set_scale(full_steps_per_unit: f32) -> Result<(), CallError> {
-    fallible(|m| m.stepper.set_scale(full_steps_per_unit))
-}
-
-/// Sets the driver's microstep mode (1, 2, 4, .. 256, as the board's driver
-/// offers), while no stream is queued.
-#[pipes_core::function]
-pub fn set_microsteps(microsteps: u16) -> Result<(), CallError> {
-    fallible(|m| {
-        m.stepper.check_idle()?;
-        if !m.stepper_hw.set_microsteps(microsteps) {
-            return Err(StepperError::BadValue);
+    /// Sets the driver's microstep mode (1, 2, 4, .. 256, as the board's
+    /// driver offers), while no stream is queued.
+    pub fn set_microsteps(&mut self, microsteps: u16) -> Result<(), CallError> {
+        self.stepper.check_idle()?;
+        if !self.board.stepper().set_microsteps(microsteps) {
+            return Err(StepperError::BadValue.into());
         }
-        m.stepper.set_microsteps(microsteps)
-    })
+        Ok(self.stepper.set_microsteps(microsteps)?)
+    }
+
+    /// The limit switch: when its level last changed (synchronized µs, 0:
+    /// never), its level, and the edges seen since boot.
+    pub fn read_limit(&mut self) -> Result<(u64, bool, u32), CallError> {
+        Ok((self.limit.time, self.limit.level, self.limit.edges))
+    }
+
+    /// Stops stepping at once and drops the stream (an emergency stop); the
+    /// axis refuses points until the motor is disabled and enabled again.
+    pub fn halt(&mut self) -> Result<(), CallError> {
+        self.stepper.halt();
+        Ok(())
+    }
+
+    /// Drives digital pin `pin` high or low.
+    pub fn digital_write(&mut self, pin: u8, level: bool) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.io.digital_write(hw, pin, level)?)
+    }
+
+    /// Reads digital pin `pin`: the synchronized time of the read and the
+    /// level.
+    pub fn digital_read(&mut self, pin: u8) -> Result<(u64, bool), CallError> {
+        let now = self.system_now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok((now, self.io.digital_read(hw, pin)?))
+    }
+
+    /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`.
+    pub fn pwm_write(&mut self, channel: u8, duty: f32) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.io.pwm_write(hw, channel, duty)?)
+    }
+
+    /// Drives `pin` high now and low `duration_us` later (at most 10 s).
+    pub fn pulse(&mut self, pin: u8, duration_us: u32) -> Result<(), CallError> {
+        let now = self.board.now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.io.pulse(hw, now, pin, duration_us)?)
+    }
+
+    /// Schedules a pulse of `duration_us` on `pin` at synchronized `time`
+    /// (at most 60 s ahead; 16 may wait at once).
+    pub fn pulse_at(&mut self, time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
+        let now = self.system_now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.io.pulse_at(hw, now, time, pin, duration_us)?)
+    }
+
+    /// Samples analog input `channel`: the synchronized time of the sample
+    /// and the reading as a fraction of full scale.
+    pub fn analog_read(&mut self, channel: u8) -> Result<(u64, f32), CallError> {
+        let now = self.system_now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok((now, self.io.analog_read(hw, channel)?))
+    }
 }
 
-/// The limit switch: when its level last changed (synchronized µs, 0:
-/// never), its level, and the edges seen since boot.
-#[pipes_core::function(outputs = "time, level, edges")]
-pub fn read_limit() -> Result<(u64, bool, u32), CallError> {
-    on_module(|m| (m.limit.time, m.limit.level, m.limit.edges))
-}
-
-/// Stops stepping at once and drops the stream (an emergency stop); the
-/// axis refuses points until the motor is disabled and enabled again.
-#[pipes_core::function]
-pub fn halt() -> Result<(), CallError> {
-    on_module(|m| m.stepper.halt())
-}
-
-/// Drives digital pin `pin` high or low.
-#[pipes_core::function]
-pub fn digital_write(pin: u8, level: bool) -> Result<(), CallError> {
-    fallible(|m| {
-        let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        m.io.digital_write(hw, pin, level)
-    })
-}
-
-/// Reads digital pin `pin`: the synchronized time of the read and the level.
-#[pipes_core::function(outputs = "time, level")]
-pub fn digital_read(pin: u8) -> Result<(u64, bool), CallError> {
-    fallible(|m| {
-        let now = m.system_now();
-        let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        m.io.digital_read(hw, pin).map(|level| (now, level))
-    })
-}
-
-/// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`.
-#[pipes_core::function]
-pub fn pwm_write(channel: u8, duty: f32) -> Result<(), CallError> {
-    fallible(|m| {
-        let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        m.io.pwm_write(hw, channel, duty)
-    })
-}
-
-/// Drives `pin` high now and low `duration_us` later (at most 10 s).
-#[pipes_core::function]
-pub fn pulse(pin: u8, duration_us: u32) -> Result<(), CallError> {
-    fallible(|m| {
-        let now = (m.clock)();
-        let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        m.io.pulse(hw, now, pin, duration_us)
-    })
-}
-
-/// Schedules a pulse of `duration_us` on `pin` at synchronized `time` (at
-/// most 60 s ahead; 16 may wait at once).
-#[pipes_core::function]
-pub fn pulse_at(time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
-    fallible(|m| {
-        let now = m.system_now();
-        let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        m.io.pulse_at(hw, now, time, pin, duration_us)
-    })
-}
-
-/// Samples analog input `channel`: the synchronized time of the sample and
-/// the reading as a fraction of full scale.
-#[pipes_core::function(outputs = "time, value")]
-pub fn analog_read(channel: u8) -> Result<(u64, f32), CallError> {
-    fallible(|m| {
-        let now = m.system_now();
-        let hw = m.io_hw.as_deref_mut().ok_or(IoError::NoHardware)?;
-        m.io.analog_read(hw, channel).map(|value| (now, value))
-    })
+/// The next input of a call, as a `T`.
+fn next_input<'a, T: FromPipes<'a>>(
+    inputs: &mut core::slice::Iter<'_, Value<'a>>,
+) -> Result<T, CallError> {
+    inputs
+        .next()
+        .and_then(T::from_value)
+        .ok_or(CallError::Failed(pipes_core::export::INPUT_DECODE_FAILED))
 }
 
 macro_rules! module_functions {
-    ($($f:ident),* $(,)?) => {
-        /// One of the module's functions, so a runtime can hold them all in
-        /// one array of [`pipes_core::function::PipesFunction`]s.
+    ($(
+        $f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;
+    )*) => {
+        /// Which of the module's functions: one per [`Module`] method of
+        /// the same name, in the order a scan lists them.
         #[allow(non_camel_case_types)]
         #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-        pub enum ModuleFn {
+        #[repr(u8)]
+        pub enum FnId {
             $(
                 #[doc = concat!("`", stringify!($f), "`")]
-                $f($f),
+                $f,
             )*
         }
 
         /// Every function, in the order a scan lists them.
-        pub const ALL: [ModuleFn; [$(stringify!($f)),*].len()] = [$(ModuleFn::$f($f::pipes())),*];
+        pub const ALL: [FnId; [$(stringify!($f)),*].len()] = [$(FnId::$f),*];
+
+        /// Each function's signature.
+        #[allow(non_upper_case_globals)]
+        pub mod signature {
+            use super::*;
+            $(
+                #[doc = concat!("`", stringify!($f), "`")]
+                pub static $f: Signature = Signature {
+                    name: stringify!($f),
+                    inputs: &[$(Arg::new(stringify!($in), <$inty as PipesType>::TYPE)),*],
+                    outputs: &[$($(Arg::new(stringify!($out), <$outty as PipesType>::TYPE)),*)?],
+                };
+            )*
+        }
 
         /// Every function's signature, in the order of [`ALL`]: the
         /// interface every osap-rs module firmware presents.
-        pub const SIGNATURES: [&Signature; ALL.len()] = [$($f::SIGNATURE),*];
+        pub const SIGNATURES: [&Signature; ALL.len()] = [$(&signature::$f),*];
 
-        impl Implementation for ModuleFn {
-            fn signature(&self) -> &'static Signature {
-                match self {
-                    $(ModuleFn::$f(f) => f.signature(),)*
-                }
-            }
-
-            fn call(
-                &mut self,
-                inputs: &[Value<'_>],
-                outputs: &mut Outputs<'_>,
-            ) -> Result<(), CallError> {
-                match self {
-                    $(ModuleFn::$f(f) => f.call(inputs, outputs),)*
-                }
+        fn dispatch<H: ModuleHandle>(
+            id: FnId,
+            module: &H,
+            inputs: &[Value<'_>],
+            outputs: &mut Outputs<'_>,
+        ) -> Result<(), CallError> {
+            let mut args = inputs.iter();
+            match id {
+                $(
+                    FnId::$f => {
+                        $(let $in: $inty = next_input(&mut args)?;)*
+                        let out = module
+                            .with(|m| m.$f($($in),*))
+                            .ok_or(CallError::Failed(NOT_INSTALLED))??;
+                        out.write(outputs)
+                    }
+                )*
             }
         }
     };
 }
 
-module_functions!(
-    add_point,
-    set_interval,
-    get_position,
-    get_status,
-    get_counters,
-    get_steps,
-    set_enable,
-    set_scale,
-    set_microsteps,
-    read_limit,
-    halt,
-    digital_write,
-    digital_read,
-    pwm_write,
-    pulse,
-    pulse_at,
-    analog_read,
-);
+module_functions! {
+    add_point(time: u64, position: f32);
+    set_interval(interval_us: u32);
+    get_position() -> (time: u64, position: f32);
+    get_status() -> (mode: u8, queued: u16, enabled: bool, faults: u32);
+    get_counters() -> (points: u32, refused: u32, last_refused: u8, filled: u32);
+    get_steps() -> (steps: i64, up: u64, down: u64, overruns: u64);
+    set_enable(on: bool);
+    set_scale(full_steps_per_unit: f32);
+    set_microsteps(microsteps: u16);
+    read_limit() -> (time: u64, level: bool, edges: u32);
+    halt();
+    digital_write(pin: u8, level: bool);
+    digital_read(pin: u8) -> (time: u64, level: bool);
+    pwm_write(channel: u8, duty: f32);
+    pulse(pin: u8, duration_us: u32);
+    pulse_at(time: u64, pin: u8, duration_us: u32);
+    analog_read(channel: u8) -> (time: u64, value: f32);
+}
+
+/// One of the module's functions bound to one module: what a function
+/// port runs.
+#[derive(Debug, Clone)]
+pub struct ModuleFn<H> {
+    id: FnId,
+    module: H,
+}
+
+impl<H: ModuleHandle> ModuleFn<H> {
+    /// Function `id` of the module `module` reaches.
+    pub fn new(id: FnId, module: H) -> Self {
+        ModuleFn { id, module }
+    }
+
+    /// Which function it is.
+    pub fn id(&self) -> FnId {
+        self.id
+    }
+
+    /// The module it is bound to.
+    pub fn module(&self) -> &H {
+        &self.module
+    }
+}
+
+impl<H: ModuleHandle> Implementation for ModuleFn<H> {
+    fn signature(&self) -> &'static Signature {
+        SIGNATURES[self.id as usize]
+    }
+
+    fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
+        dispatch(self.id, &self.module, inputs, outputs)
+    }
+}
 
 /// FNV-1a, 32 bits: one step.
 const fn fnv1a(mut hash: u32, bytes: &[u8]) -> u32 {

@@ -1,24 +1,31 @@
 //! # osap-module
 //!
-//! The logic of osap-rs module firmware, shared by every board: a stepper
-//! axis that follows MAXL control points in synchronized time and makes
-//! step/direction ticks at 100 kHz, and an I/O set (digital pins, PWM,
-//! analog inputs, timed pulses), all exposed as PIPES functions that a
-//! network scan finds ([`functions`]). A firmware crate supplies only board
-//! glue: links, the step generator's peripheral, and the [`board`] traits.
+//! The logic of osap-rs module firmware, shared by every board and by the
+//! simulator: a stepper axis that follows MAXL control points in
+//! synchronized time and makes step/direction ticks at 100 kHz, and an I/O
+//! set (digital pins, PWM, analog inputs, timed pulses), all exposed as
+//! PIPES functions that a network scan finds ([`functions`]). A firmware
+//! crate supplies only board glue: links, the step generator's peripheral,
+//! and a [`board::Board`].
+//!
+//! A module is a value, [`Module`], that holds its logic state and its
+//! board; a process may hold any number of them (the simulator runs one per
+//! simulated module). The module's PIPES functions reach it through a
+//! [`ModuleHandle`], so each function port is bound to one module.
 //!
 //! ## How a firmware uses it
-//! 1. At boot, [`install`] the board's hardware and local clock.
-//! 2. Build the ports with [`ModulePorts::new`] and pass
+//! 1. Keep one [`ModuleCell`] in a `static` (the runtime task and the step
+//!    interrupt both use the module, so it lives behind a critical
+//!    section); at boot, [`ModuleCell::install`] the board.
+//! 2. Build the ports with [`ModulePorts::new`]`(&CELL)` and pass
 //!    [`ModulePorts::ports`] to `Runtime::poll`; after every poll,
-//!    [`publish_time`] the runtime's `time_map()`.
-//! 3. From the step interrupt, call [`fill_step_word`] for each word the
-//!    step generator needs; from the limit switch's edge interrupt, call
-//!    [`limit_changed`].
+//!    [`ModuleHandle::publish_time`] the runtime's `time_map()`.
+//! 3. From the step interrupt, call [`ModuleCell::fill_step_word`] for each
+//!    word the step generator needs; from the limit switch's edge
+//!    interrupt, call [`ModuleCell::limit_changed`].
 //!
-//! The module's state is one global behind a critical section, because the
-//! runtime task and the step interrupt both use it; each call holds the
-//! lock only for its own short work. `no_std`, no allocation.
+//! Each call holds the lock only for its own short work. `no_std`, no
+//! allocation.
 #![no_std]
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
@@ -36,7 +43,7 @@ pub use functions::FUNCTION_SET_ID;
 pub use ports::{ModulePort, ModulePorts, PORT_COUNT, PORT_INDICES};
 pub use stepper::{STEP_TICK_US, TICKS_PER_WORD};
 
-use board::{IoHw, StepperHw};
+use board::Board;
 use core::cell::RefCell;
 use critical_section::Mutex;
 use io::Io;
@@ -55,8 +62,8 @@ pub struct Limit {
     pub edges: u32,
 }
 
-/// The installed module: logic state, hardware and clock.
-pub struct Module {
+/// One module: its logic state and its board.
+pub struct Module<B> {
     /// The stepper axis.
     pub stepper: Stepper,
     /// The I/O set.
@@ -65,9 +72,7 @@ pub struct Module {
     pub limit: Limit,
     /// The runtime's latest local-to-system time map.
     pub time: TimeMap,
-    stepper_hw: &'static mut (dyn StepperHw + Send),
-    io_hw: Option<&'static mut (dyn IoHw + Send)>,
-    clock: fn() -> Micros,
+    board: B,
     /// The step words' time anchor: a (local, system) pair read off `time`.
     step_anchor: Option<StepAnchor>,
 }
@@ -87,89 +92,187 @@ struct StepAnchor {
 /// How long a step-word time anchor is used, µs.
 pub const ANCHOR_SPAN_US: u64 = 4096;
 
-impl Module {
+impl<B: Board> Module<B> {
+    /// A fresh module on `board`: the motor disabled (the driver is told at
+    /// once), no stream, no pulses, the identity time map.
+    pub fn new(mut board: B) -> Self {
+        board.stepper().set_enable(false);
+        Module {
+            stepper: Stepper::new(),
+            io: Io::new(),
+            limit: Limit::default(),
+            time: TimeMap::IDENTITY,
+            board,
+            step_anchor: None,
+        }
+    }
+
+    /// The board.
+    pub fn board(&self) -> &B {
+        &self.board
+    }
+
+    /// The board, to change what its simulated inputs read, say.
+    pub fn board_mut(&mut self) -> &mut B {
+        &mut self.board
+    }
+
+    /// Local time now, µs.
+    pub fn local_now(&self) -> Micros {
+        self.board.now()
+    }
+
     /// Synchronized time now.
     pub fn system_now(&self) -> u64 {
-        self.time.system_time((self.clock)())
+        self.time.system_time(self.board.now())
     }
-}
 
-static MODULE: Mutex<RefCell<Option<Module>>> = Mutex::new(RefCell::new(None));
+    /// Hands the module the runtime's latest time map (call after every
+    /// poll).
+    pub fn publish_time(&mut self, map: TimeMap) {
+        self.time = map;
+    }
 
-/// Installs the board: its stepper driver pins, its I/O hardware (`None`
-/// on a board without it: the I/O functions then fail with
-/// [`io::IoError::NoHardware`]) and its local microsecond clock (the same
-/// one the runtime is polled with). Installing again replaces everything
-/// with a fresh, disabled module.
-pub fn install(
-    stepper_hw: &'static mut (dyn StepperHw + Send),
-    io_hw: Option<&'static mut (dyn IoHw + Send)>,
-    clock: fn() -> Micros,
-) {
-    stepper_hw.set_enable(false);
-    let module = Module {
-        stepper: Stepper::new(),
-        io: Io::new(),
-        limit: Limit::default(),
-        time: TimeMap::IDENTITY,
-        stepper_hw,
-        io_hw,
-        clock,
-        step_anchor: None,
-    };
-    critical_section::with(|cs| *MODULE.borrow_ref_mut(cs) = Some(module));
-}
-
-/// Runs `f` on the installed module inside a critical section; `None`
-/// before [`install`].
-pub fn with<R>(f: impl FnOnce(&mut Module) -> R) -> Option<R> {
-    critical_section::with(|cs| MODULE.borrow_ref_mut(cs).as_mut().map(f))
-}
-
-/// Hands the module the runtime's latest time map (call after every poll).
-pub fn publish_time(map: TimeMap) {
-    with(|m| m.time = map);
-}
-
-/// The next step-generator word, its first tick at local time `local` (the
-/// step generator's own running count of ticks, anchored to the local
-/// clock, so interrupt latency does not move the ticks). Before
-/// [`install`] the word makes no steps.
-pub fn fill_step_word(local: Micros) -> u32 {
-    with(|m| {
-        let t0 = match m.step_anchor {
-            Some(a) if a.map == m.time && local >= a.local && local - a.local < ANCHOR_SPAN_US => {
+    /// The next step-generator word, its first tick at local time `local` (the
+    /// step generator's own running count of ticks, anchored to the local
+    /// clock, so interrupt latency does not move the ticks).
+    pub fn fill_step_word(&mut self, local: Micros) -> u32 {
+        let t0 = match self.step_anchor {
+            Some(a)
+                if a.map == self.time && local >= a.local && local - a.local < ANCHOR_SPAN_US =>
+            {
                 a.system + (local - a.local)
             }
             _ => {
-                let system = m.time.system_time(local);
-                m.step_anchor = Some(StepAnchor {
-                    map: m.time,
+                let system = self.time.system_time(local);
+                self.step_anchor = Some(StepAnchor {
+                    map: self.time,
                     local,
                     system,
                 });
                 system
             }
         };
-        m.stepper.fill_word(t0)
-    })
-    .unwrap_or(0)
-}
+        self.stepper.fill_word(t0)
+    }
 
-/// The limit switch's level as read at boot, before any edge: sets the
-/// level `read_limit` reports without counting an edge or stamping a time.
-pub fn limit_initial(level: bool) {
-    with(|m| m.limit.level = level);
-}
+    /// The limit switch's level as read at boot, before any edge: sets the
+    /// level `read_limit` reports without counting an edge or stamping a
+    /// time.
+    pub fn limit_initial(&mut self, level: bool) {
+        self.limit.level = level;
+    }
 
-/// The limit switch's level changed to `level` at local time `local` (the
-/// edge interrupt's time stamp).
-pub fn limit_changed(local: Micros, level: bool) {
-    with(|m| {
-        m.limit = Limit {
+    /// The limit switch's level changed to `level` at local time `local`
+    /// (the edge interrupt's time stamp).
+    pub fn limit_changed(&mut self, local: Micros, level: bool) {
+        self.limit = Limit {
             level,
-            time: m.time.system_time(local),
-            edges: m.limit.edges.wrapping_add(1),
+            time: self.time.system_time(local),
+            edges: self.limit.edges.wrapping_add(1),
         }
-    });
+    }
+
+    /// Starts and ends timed pulses at local time `now` (synchronized
+    /// `system`): the runtime's loop calls it through the pulse timer port.
+    pub fn poll_io(&mut self, now: Micros, system: u64) {
+        if let Some(hw) = self.board.io() {
+            self.io.poll(hw, now, system);
+        }
+    }
+
+    /// When [`poll_io`](Self::poll_io) next has work, local µs.
+    pub fn io_wake_at(&self, now: Micros, system: u64) -> Option<Micros> {
+        self.io.wake_at(now, system)
+    }
+}
+
+impl<B> core::fmt::Debug for Module<B> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Module")
+            .field("stepper", &self.stepper)
+            .field("limit", &self.limit)
+            .field("time", &self.time)
+            .finish_non_exhaustive()
+    }
+}
+
+/// How a module's function ports reach their module: a firmware's
+/// `&'static` [`ModuleCell`], or a host's shared handle (the simulator's).
+/// Each port holds a clone.
+pub trait ModuleHandle: Clone {
+    /// The module's board.
+    type Board: Board;
+
+    /// Runs `f` on the module; `None` if there is none (a firmware that
+    /// never installed its board).
+    fn with<R>(&self, f: impl FnOnce(&mut Module<Self::Board>) -> R) -> Option<R>;
+
+    /// Hands the module the runtime's latest time map (call after every
+    /// poll).
+    fn publish_time(&self, map: TimeMap) {
+        self.with(|m| m.publish_time(map));
+    }
+}
+
+/// A firmware's one module, in a `static` behind a critical section: the
+/// runtime task and the step interrupt both use it.
+pub struct ModuleCell<B> {
+    module: Mutex<RefCell<Option<Module<B>>>>,
+}
+
+impl<B> ModuleCell<B> {
+    /// An empty cell: every function fails with
+    /// [`functions::NOT_INSTALLED`] and step words make no steps until
+    /// [`install`](Self::install).
+    pub const fn new() -> Self {
+        ModuleCell {
+            module: Mutex::new(RefCell::new(None)),
+        }
+    }
+}
+
+impl<B> Default for ModuleCell<B> {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl<B: Board> ModuleCell<B> {
+    /// Installs the board: a fresh, disabled module. Installing again
+    /// replaces everything.
+    pub fn install(&self, board: B) {
+        let module = Module::new(board);
+        critical_section::with(|cs| *self.module.borrow_ref_mut(cs) = Some(module));
+    }
+
+    /// Runs `f` on the installed module inside a critical section; `None`
+    /// before [`install`](Self::install).
+    pub fn with<R>(&self, f: impl FnOnce(&mut Module<B>) -> R) -> Option<R> {
+        critical_section::with(|cs| self.module.borrow_ref_mut(cs).as_mut().map(f))
+    }
+
+    /// [`Module::fill_step_word`]; before [`install`](Self::install) the
+    /// word makes no steps.
+    pub fn fill_step_word(&self, local: Micros) -> u32 {
+        self.with(|m| m.fill_step_word(local)).unwrap_or(0)
+    }
+
+    /// [`Module::limit_initial`].
+    pub fn limit_initial(&self, level: bool) {
+        self.with(|m| m.limit_initial(level));
+    }
+
+    /// [`Module::limit_changed`].
+    pub fn limit_changed(&self, local: Micros, level: bool) {
+        self.with(|m| m.limit_changed(local, level));
+    }
+}
+
+impl<B: Board> ModuleHandle for &ModuleCell<B> {
+    type Board = B;
+
+    fn with<R>(&self, f: impl FnOnce(&mut Module<B>) -> R) -> Option<R> {
+        ModuleCell::with(self, f)
+    }
 }

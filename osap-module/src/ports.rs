@@ -3,7 +3,7 @@
 //! starts timed pulses from the runtime's loop.
 
 use crate::functions::{ModuleFn, ALL};
-use crate::with;
+use crate::ModuleHandle;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::Micros;
 use pipes_core::function::PipesFunction;
@@ -18,18 +18,29 @@ pub const FN_QUEUE: usize = 2;
 pub const FN_STORE: usize = 48;
 
 /// A module function as a runtime port.
-pub type ModuleFunction = PipesFunction<ModuleFn, FN_PIPES, FN_QUEUE, FN_STORE>;
+pub type ModuleFunction<H> = PipesFunction<ModuleFn<H>, FN_PIPES, FN_QUEUE, FN_STORE>;
 
 /// The timer for pulses: serves no port index; the runtime polls it and
 /// wakes for it.
-#[derive(Debug, Default)]
-pub struct PulseTimer {
+#[derive(Debug)]
+pub struct PulseTimer<H> {
+    module: H,
     /// The (local, system) time of the latest poll: where `wake_at` places
     /// scheduled starts on the local clock.
     last: (Micros, u64),
 }
 
-impl Port for PulseTimer {
+impl<H: ModuleHandle> PulseTimer<H> {
+    /// The pulse timer of the module `module` reaches.
+    pub fn new(module: H) -> Self {
+        PulseTimer {
+            module,
+            last: (0, 0),
+        }
+    }
+}
+
+impl<H: ModuleHandle> Port for PulseTimer<H> {
     fn port_count(&self) -> u16 {
         0
     }
@@ -46,29 +57,25 @@ impl Port for PulseTimer {
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         let (now, system) = (tx.now(), tx.system_time());
         self.last = (now, system);
-        with(|m| {
-            if let Some(hw) = m.io_hw.as_deref_mut() {
-                m.io.poll(hw, now, system);
-            }
-        });
+        self.module.with(|m| m.poll_io(now, system));
     }
 
     fn wake_at(&self) -> Option<Micros> {
         let (now, system) = self.last;
-        with(|m| m.io.wake_at(now, system)).flatten()
+        self.module.with(|m| m.io_wake_at(now, system)).flatten()
     }
 }
 
 /// One of the module's ports.
 #[allow(clippy::large_enum_variant)]
-pub enum ModulePort {
+pub enum ModulePort<H> {
     /// A module function.
-    Function(ModuleFunction),
+    Function(ModuleFunction<H>),
     /// The pulse timer.
-    Timer(PulseTimer),
+    Timer(PulseTimer<H>),
 }
 
-impl core::fmt::Debug for ModulePort {
+impl<H: ModuleHandle + core::fmt::Debug> core::fmt::Debug for ModulePort<H> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
             ModulePort::Function(func) => write!(f, "Function({})", func.signature().name),
@@ -86,7 +93,7 @@ macro_rules! delegate {
     };
 }
 
-impl Port for ModulePort {
+impl<H: ModuleHandle> Port for ModulePort<H> {
     fn port_count(&self) -> u16 {
         delegate!(self, p => p.port_count())
     }
@@ -115,47 +122,53 @@ pub const PORT_COUNT: usize = ALL.len() + 1;
 /// the functions numbered past it are listed by a scan but can never reply.
 pub const PORT_INDICES: usize = 1 + ALL.len() * (1 + FN_PIPES);
 
-/// Every port of the module, to hand to `Runtime::poll`.
-pub struct ModulePorts {
-    ports: [ModulePort; PORT_COUNT],
+/// Every port of one module, to hand to `Runtime::poll`.
+pub struct ModulePorts<H> {
+    module: H,
+    ports: [ModulePort<H>; PORT_COUNT],
 }
 
-impl core::fmt::Debug for ModulePorts {
+impl<H: ModuleHandle + core::fmt::Debug> core::fmt::Debug for ModulePorts<H> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_list().entries(self.ports.iter()).finish()
     }
 }
 
-impl ModulePorts {
-    /// The module's ports. The signatures are fixed, and the crate's tests
-    /// check that every one is accepted, so this fails only on a build
-    /// whose functions were changed untested.
-    pub fn new() -> Result<Self, SignatureError> {
+impl<H: ModuleHandle> ModulePorts<H> {
+    /// The ports of the module `module` reaches. The signatures are fixed,
+    /// and the crate's tests check that every one is accepted, so this
+    /// fails only on a build whose functions were changed untested.
+    pub fn new(module: H) -> Result<Self, SignatureError> {
         let mut error = None;
         let ports = core::array::from_fn(|i| match ALL.get(i) {
-            Some(f) => match ModuleFunction::new(*f) {
+            Some(f) => match ModuleFunction::new(ModuleFn::new(*f, module.clone())) {
                 Ok(func) => ModulePort::Function(func),
                 Err(e) => {
                     error = Some(e);
-                    ModulePort::Timer(PulseTimer::default())
+                    ModulePort::Timer(PulseTimer::new(module.clone()))
                 }
             },
-            None => ModulePort::Timer(PulseTimer::default()),
+            None => ModulePort::Timer(PulseTimer::new(module.clone())),
         });
         match error {
             Some(e) => Err(e),
-            None => Ok(ModulePorts { ports }),
+            None => Ok(ModulePorts { module, ports }),
         }
     }
 
+    /// The module the ports reach (to publish the runtime's time map).
+    pub fn module(&self) -> &H {
+        &self.module
+    }
+
     /// The ports, in the order the runtime numbers them.
-    pub fn ports(&mut self) -> &mut [ModulePort] {
+    pub fn ports(&mut self) -> &mut [ModulePort<H>] {
         &mut self.ports
     }
 
     /// The ports, each on its own (for a runtime that holds ports one by
     /// one, such as a host's).
-    pub fn into_ports(self) -> [ModulePort; PORT_COUNT] {
+    pub fn into_ports(self) -> [ModulePort<H>; PORT_COUNT] {
         self.ports
     }
 }

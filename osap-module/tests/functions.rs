@@ -1,38 +1,33 @@
-//! The module's functions on an installed module (the global state one
-//! firmware has), and the ports a runtime holds.
+//! The module's functions on a module value, through its function ports
+//! and as methods, and the firmware's static cell.
 
 use osap_core::clock::TimeMap;
-use osap_module::board::{IoHw, StepperHw};
-use osap_module::functions::{self as f, SIGNATURES};
-use osap_module::{fill_step_word, install, limit_changed, publish_time, ModulePorts, PORT_COUNT};
-use pipes_core::function::CallError;
+use osap_core::Micros;
+use osap_module::board::{Board, IoHw, StepperHw};
+use osap_module::functions::{FnId, ModuleFn, SIGNATURES};
+use osap_module::{Module, ModuleCell, ModuleHandle, ModulePorts, PORT_COUNT};
+use pipes_core::function::{call_direct, CallError};
+use pipes_core::Value;
+use std::cell::{Cell, RefCell};
 use std::collections::HashSet;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::Mutex;
+use std::rc::Rc;
 
-/// The module is one global: the tests that install it take turns.
-static TURN: Mutex<()> = Mutex::new(());
-static NOW: AtomicU64 = AtomicU64::new(0);
-static ENABLED: AtomicBool = AtomicBool::new(false);
-
-fn clock() -> u64 {
-    NOW.load(Ordering::SeqCst)
+struct Driver {
+    enabled: Rc<Cell<bool>>,
 }
-
-struct Driver;
 
 impl StepperHw for Driver {
     fn set_enable(&mut self, on: bool) {
-        ENABLED.store(on, Ordering::SeqCst);
+        self.enabled.set(on);
     }
     fn set_microsteps(&mut self, microsteps: u16) -> bool {
         microsteps <= 16
     }
 }
 
-struct Board([bool; 4]);
+struct Pins([bool; 4]);
 
-impl IoHw for Board {
+impl IoHw for Pins {
     fn digital_pins(&self) -> u8 {
         4
     }
@@ -54,15 +49,89 @@ impl IoHw for Board {
     }
 }
 
-fn fresh(io: bool) {
-    NOW.store(0, Ordering::SeqCst);
-    let driver: &'static mut (dyn StepperHw + Send) = Box::leak(Box::new(Driver));
-    let board: Option<&'static mut (dyn IoHw + Send)> = if io {
-        Some(Box::leak(Box::new(Board([false; 4]))))
-    } else {
-        None
+/// A board made of memory, its clock set by the test.
+struct TestBoard {
+    driver: Driver,
+    pins: Option<Pins>,
+    now: Rc<Cell<Micros>>,
+}
+
+impl Board for TestBoard {
+    fn stepper(&mut self) -> &mut dyn StepperHw {
+        &mut self.driver
+    }
+    fn io(&mut self) -> Option<&mut dyn IoHw> {
+        self.pins.as_mut().map(|p| p as &mut dyn IoHw)
+    }
+    fn now(&self) -> Micros {
+        self.now.get()
+    }
+}
+
+struct Fixture {
+    module: Module<TestBoard>,
+    enabled: Rc<Cell<bool>>,
+    now: Rc<Cell<Micros>>,
+}
+
+fn fresh(io: bool) -> Fixture {
+    let enabled = Rc::new(Cell::new(true));
+    let now = Rc::new(Cell::new(0));
+    let board = TestBoard {
+        driver: Driver {
+            enabled: enabled.clone(),
+        },
+        pins: io.then_some(Pins([false; 4])),
+        now: now.clone(),
     };
-    install(driver, board, clock);
+    let module = Module::new(board);
+    assert!(!enabled.get(), "a new module disables its driver");
+    Fixture {
+        module,
+        enabled,
+        now,
+    }
+}
+
+/// A host's handle on a module: what function ports hold.
+#[derive(Clone)]
+struct Shared(Rc<RefCell<Module<TestBoard>>>);
+
+impl Shared {
+    fn new(m: Module<TestBoard>) -> Self {
+        Shared(Rc::new(RefCell::new(m)))
+    }
+}
+
+impl ModuleHandle for Shared {
+    type Board = TestBoard;
+    fn with<R>(&self, f: impl FnOnce(&mut Module<TestBoard>) -> R) -> Option<R> {
+        Some(f(&mut self.0.borrow_mut()))
+    }
+}
+
+/// Calls function `id` bound to `module` as a runtime's port would.
+fn call<H: ModuleHandle>(
+    module: &H,
+    id: FnId,
+    inputs: &[Value<'_>],
+) -> Result<Vec<Value<'static>>, CallError> {
+    let mut f = ModuleFn::new(id, module.clone());
+    let mut buf = [0u8; 64];
+    let args = call_direct(&mut f, inputs, &mut buf)?;
+    Ok(args
+        .iter()
+        .map(|(_, v)| match v {
+            Value::U64(x) => Value::U64(x),
+            Value::F32(x) => Value::F32(x),
+            Value::U8(x) => Value::U8(x),
+            Value::U16(x) => Value::U16(x),
+            Value::U32(x) => Value::U32(x),
+            Value::I64(x) => Value::I64(x),
+            Value::Bool(x) => Value::Bool(x),
+            other => panic!("unexpected output {other:?}"),
+        })
+        .collect())
 }
 
 #[test]
@@ -83,7 +152,8 @@ fn the_function_set_is_whole_and_unique() {
     ] {
         assert!(names.contains(name), "{name} missing");
     }
-    let mut ports = ModulePorts::new().expect("every signature is accepted");
+    let mut ports =
+        ModulePorts::new(Shared::new(fresh(true).module)).expect("every signature is accepted");
     assert_eq!(ports.ports().len(), PORT_COUNT);
     let indices: u16 = ports
         .ports()
@@ -94,82 +164,165 @@ fn the_function_set_is_whole_and_unique() {
 }
 
 #[test]
-fn functions_drive_the_installed_module() {
-    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    fresh(true);
-    assert_eq!(f::add_point(0, 0.0), Err(CallError::Failed(6)), "disabled");
-    f::set_enable(true).unwrap();
-    assert!(ENABLED.load(Ordering::SeqCst));
+fn functions_drive_the_module() {
+    let Fixture {
+        module: mut m,
+        enabled,
+        now,
+    } = fresh(true);
+    assert_eq!(m.add_point(0, 0.0), Err(CallError::Failed(6)), "disabled");
+    m.set_enable(true).unwrap();
+    assert!(enabled.get());
     assert_eq!(
-        f::set_microsteps(32),
+        m.set_microsteps(32),
         Err(CallError::Failed(10)),
         "the driver cannot"
     );
-    f::set_microsteps(2).unwrap();
-    publish_time(TimeMap::IDENTITY);
+    m.set_microsteps(2).unwrap();
+    m.publish_time(TimeMap::IDENTITY);
     let iv = 2048u64;
     for k in 0..4 {
-        f::add_point(k * iv, 0.0).unwrap();
+        m.add_point(k * iv, 0.0).unwrap();
     }
     for k in 4..12 {
-        f::add_point(k * iv, 1.0).unwrap();
+        m.add_point(k * iv, 1.0).unwrap();
     }
     let mut local = 0;
     while local < 30 * iv {
-        fill_step_word(local);
+        m.fill_step_word(local);
         local += 160;
     }
-    let (steps, up, down, overruns) = f::get_steps().unwrap();
+    let (steps, up, down, overruns) = m.get_steps().unwrap();
     assert_eq!((steps, up, down, overruns), (160, 160, 0, 0));
-    let (_, pos) = f::get_position().unwrap();
+    let (_, pos) = m.get_position().unwrap();
     assert!((pos - 1.0).abs() < 1e-6, "{pos}");
-    let (mode, queued, enabled, faults) = f::get_status().unwrap();
+    let (mode, queued, enabled, faults) = m.get_status().unwrap();
     assert_eq!((mode, queued, enabled, faults), (3, 12, true, 0));
-    let (points, refused, last, filled) = f::get_counters().unwrap();
+    let (points, refused, last, filled) = m.get_counters().unwrap();
     assert_eq!((points, refused, last, filled), (12, 1, 6, 0));
     // The limit switch: its level at boot counts no edge; an edge
     // reports its own time stamp.
-    osap_module::limit_initial(true);
-    assert_eq!(f::read_limit().unwrap(), (0, true, 0));
-    NOW.store(77_000, Ordering::SeqCst);
-    limit_changed(70_000, false);
-    assert_eq!(f::read_limit().unwrap(), (70_000, false, 1));
+    m.limit_initial(true);
+    assert_eq!(m.read_limit().unwrap(), (0, true, 0));
+    now.set(77_000);
+    m.limit_changed(70_000, false);
+    assert_eq!(m.read_limit().unwrap(), (70_000, false, 1));
     // I/O: a read carries the synchronized time of the read.
-    f::digital_write(2, true).unwrap();
-    assert_eq!(f::digital_read(2).unwrap(), (77_000, true));
-    assert_eq!(f::digital_read(9), Err(CallError::Failed(1)));
-    assert_eq!(f::analog_read(0).unwrap(), (77_000, 1.0));
-    f::pulse(1, 100).unwrap();
-    assert_eq!(f::pwm_write(0, 2.0), Err(CallError::Failed(2)));
-    f::halt().unwrap();
-    assert_eq!(f::get_status().unwrap().0, 4);
+    m.digital_write(2, true).unwrap();
+    assert_eq!(m.digital_read(2).unwrap(), (77_000, true));
+    assert_eq!(m.digital_read(9), Err(CallError::Failed(1)));
+    assert_eq!(m.analog_read(0).unwrap(), (77_000, 1.0));
+    m.pulse(1, 100).unwrap();
+    assert_eq!(m.pwm_write(0, 2.0), Err(CallError::Failed(2)));
+    m.halt().unwrap();
+    assert_eq!(m.get_status().unwrap().0, 4);
 }
 
 #[test]
 fn io_functions_fail_cleanly_without_io_hardware() {
-    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    fresh(false);
-    assert_eq!(f::digital_write(0, true), Err(CallError::Failed(4)));
-    assert_eq!(f::analog_read(0), Err(CallError::Failed(4)));
-    assert!(f::get_status().is_ok());
+    let mut m = fresh(false).module;
+    assert_eq!(m.digital_write(0, true), Err(CallError::Failed(4)));
+    assert_eq!(m.analog_read(0), Err(CallError::Failed(4)));
+    assert!(m.get_status().is_ok());
 }
 
 #[test]
 fn step_words_follow_a_new_time_map_at_once() {
-    let _turn = TURN.lock().unwrap_or_else(|e| e.into_inner());
-    fresh(false);
-    publish_time(TimeMap::IDENTITY);
-    let last_tick = |local| {
-        fill_step_word(local);
-        f::get_position().unwrap().0
+    let mut m = fresh(false).module;
+    m.publish_time(TimeMap::IDENTITY);
+    let last_tick = |m: &mut Module<TestBoard>, local| {
+        m.fill_step_word(local);
+        m.get_position().unwrap().0
     };
-    assert_eq!(last_tick(1_000_000), 1_000_150);
+    assert_eq!(last_tick(&mut m, 1_000_000), 1_000_150);
     // A rate of +400 ppm since local 0: the next word, well within the
     // anchor's span, must use it, not the anchor taken under the old map.
     let mut clock: osap_core::clock::Clock<1> = osap_core::clock::Clock::new(Default::default());
     clock.set_rate_ppb(0, 400_000);
     let map = clock.time_map();
-    publish_time(map);
-    assert_eq!(last_tick(1_000_160), map.system_time(1_000_160) + 150);
+    m.publish_time(map);
+    assert_eq!(
+        last_tick(&mut m, 1_000_160),
+        map.system_time(1_000_160) + 150
+    );
     assert_eq!(map.system_time(1_000_160), 1_000_560);
+}
+
+#[test]
+fn two_modules_in_one_process_are_independent() {
+    let (a, b) = (
+        Shared::new(fresh(false).module),
+        Shared::new(fresh(false).module),
+    );
+    call(&a, FnId::set_enable, &[Value::Bool(true)]).unwrap();
+    call(&a, FnId::set_scale, &[Value::F32(100.0)]).unwrap();
+    // b is untouched: still disabled, so it refuses points.
+    assert_eq!(
+        call(&b, FnId::add_point, &[Value::U64(0), Value::F32(0.0)]),
+        Err(CallError::Failed(6))
+    );
+    call(&a, FnId::add_point, &[Value::U64(0), Value::F32(0.0)]).unwrap();
+    let status = |h: &Shared| call(h, FnId::get_status, &[]).unwrap();
+    assert_eq!(status(&a)[2], Value::Bool(true));
+    assert_eq!(status(&a)[1], Value::U16(1));
+    assert_eq!(status(&b)[2], Value::Bool(false));
+    assert_eq!(status(&b)[1], Value::U16(0));
+    let counters = |h: &Shared| call(h, FnId::get_counters, &[]).unwrap();
+    assert_eq!(counters(&a)[0], Value::U32(1));
+    assert_eq!(counters(&b)[1], Value::U32(1), "b counted its refusal");
+    // Wrong input types are an error, not a panic.
+    assert!(call(&a, FnId::add_point, &[Value::Bool(true)]).is_err());
+    assert!(call(&a, FnId::add_point, &[]).is_err());
+}
+
+struct Limp;
+
+impl StepperHw for Limp {
+    fn set_enable(&mut self, _on: bool) {}
+    fn set_microsteps(&mut self, _microsteps: u16) -> bool {
+        false
+    }
+}
+
+fn zero() -> Micros {
+    0
+}
+
+#[test]
+fn a_firmware_cell_refuses_until_installed() {
+    use osap_module::board::{NoIo, Parts};
+    static CELL: ModuleCell<Parts<Limp, NoIo>> = ModuleCell::new();
+    let refused = Err(CallError::Failed(osap_module::functions::NOT_INSTALLED));
+    assert_eq!(
+        call(&&CELL, FnId::add_point, &[Value::U64(0), Value::F32(0.0)]).map(|_| ()),
+        refused
+    );
+    assert_eq!(call(&&CELL, FnId::read_limit, &[]).map(|_| ()), refused);
+    assert_eq!(CELL.fill_step_word(0), 0);
+    CELL.limit_changed(0, true);
+    CELL.install(Parts {
+        stepper: Limp,
+        io: None,
+        clock: zero,
+    });
+    call(&&CELL, FnId::set_enable, &[Value::Bool(true)]).unwrap();
+    CELL.limit_changed(5, true);
+    assert_eq!(
+        call(&&CELL, FnId::read_limit, &[]).unwrap(),
+        vec![Value::U64(5), Value::Bool(true), Value::U32(1)]
+    );
+    assert_eq!(
+        call(
+            &&CELL,
+            FnId::digital_write,
+            &[Value::U8(0), Value::Bool(true)]
+        ),
+        Err(CallError::Failed(4)),
+        "no I/O hardware"
+    );
+    assert_eq!(
+        call(&&CELL, FnId::set_microsteps, &[Value::U16(2)]),
+        Err(CallError::Failed(10)),
+        "the driver has no mode pins"
+    );
 }

@@ -172,6 +172,24 @@ impl<'a> Outputs<'a> {
     }
 }
 
+/// Runs `imp` once on `inputs` (already of the declared types), outside
+/// any runtime: a direct local call, as a host-side caller or a test makes
+/// it. The outputs are written to `buf` and returned as an argument list.
+pub fn call_direct<'b, I: Implementation>(
+    imp: &mut I,
+    inputs: &[Value<'_>],
+    buf: &'b mut [u8],
+) -> Result<Args<'b>, CallError> {
+    let decl = imp.signature().outputs;
+    let len = {
+        let mut outputs = Outputs::new(buf, decl);
+        imp.call(inputs, &mut outputs)?;
+        outputs.finish()?
+    };
+    let mut r = Reader::new(&buf[..len]);
+    Args::decode(&mut r).map_err(|_| CallError::OutputTooLarge(0))
+}
+
 /// A plain function: its signature and its body over decoded values.
 pub trait Implementation {
     /// The function's signature (at most [`MAX_ARGS`] inputs and outputs).

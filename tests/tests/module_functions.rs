@@ -6,9 +6,10 @@
 use osap_host::link::memory;
 use osap_host::som::{FnRef, Manager, OwnedValue, SomError};
 use osap_host::{Host, HostConfig};
+use osap_module::board::Parts;
 use osap_module::board::{IoHw, StepperHw};
 use osap_module::functions::SIGNATURES;
-use osap_module::ModulePorts;
+use osap_module::{ModuleCell, ModulePorts};
 use pipes_core::control::ControlError;
 use std::sync::OnceLock;
 use std::time::Instant;
@@ -63,13 +64,14 @@ fn call_failed(e: SomError) -> u8 {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_module_is_scanned_and_called_over_the_wire() {
-    osap_module::install(
-        Box::leak(Box::new(Driver)),
-        Some(Box::leak(Box::new(Board([false; 8])))),
+    static MODULE: ModuleCell<Parts<Driver, Board>> = ModuleCell::new();
+    MODULE.install(Parts {
+        stepper: Driver,
+        io: Some(Board([false; 8])),
         clock,
-    );
+    });
     let module = Host::start(HostConfig::named("stepper-0")).unwrap();
-    for port in ModulePorts::new().unwrap().into_ports() {
+    for port in ModulePorts::new(&MODULE).unwrap().into_ports() {
         // A host holds only ports with indices: the pulse timer (none) is
         // left out, so pulses here would not end.
         if osap_core::port::Port::port_count(&port) > 0 {
@@ -137,7 +139,7 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
     }
     let mut local = 0;
     while local < 40 * iv {
-        osap_module::fill_step_word(local);
+        MODULE.fill_step_word(local);
         local += 160;
     }
     let steps = f("get_steps").call(&[]).await.unwrap();
