@@ -11,7 +11,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=${1:-20}
 first=${2:-1}
-cargo build -q --release -p osap-sim --bin clock_sync_report
+cargo build -q --release -p osap-sim --features plot --bin clock_sync_report
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 for seed in $(seq "$first" $((first + seeds - 1))); do

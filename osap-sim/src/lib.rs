@@ -22,7 +22,7 @@
 //!   root's, and their statistics;
 //! - [`scenario`]: one-call runs;
 //! - [`probe`]: a port that sends and records packets, for tests;
-//! - [`plot`]: SVG plots of error over time.
+//! - `plot` (with the feature `plot`): SVG plots of error over time.
 //!
 //! Beside it, [`machine`]: real-time simulated machines. Modules on
 //! drifting clocks behind simulated links, in tokio tasks, that a real
@@ -90,6 +90,7 @@ pub mod machine;
 pub mod medium;
 pub mod metrics;
 pub mod node;
+#[cfg(feature = "plot")]
 pub mod plot;
 pub mod probe;
 pub mod rng;

@@ -3,7 +3,7 @@
 //! error and spikes as a markdown table, with an SVG plot per run.
 //!
 //! ```text
-//! cargo run --release -p osap-sim --bin clock_sync_report -- \
+//! cargo run --release -p osap-sim --features plot --bin clock_sync_report -- \
 //!     [--minutes 10] [--seed 1] [--out docs/clock-sync] \
 //!     [--topologies chain4,star8,loop] [--variants cold,hot,busy] [--jobs 2]
 //! ```
