@@ -1,4 +1,8 @@
 //! The host's local clock: microseconds on a monotonic clock since start.
+//!
+//! The clock reads tokio's clock ([`tokio::time::Instant`]), which is the
+//! system's monotonic clock unless tokio's time is paused: then the host,
+//! and simulated modules on the same clock, run in virtual time.
 
 use std::time::{Duration, Instant};
 
@@ -18,14 +22,12 @@ impl Default for HostClock {
 impl HostClock {
     /// A clock reading 0 now.
     pub fn new() -> Self {
-        HostClock {
-            epoch: Instant::now(),
-        }
+        HostClock { epoch: now() }
     }
 
     /// Microseconds since the clock started.
     pub fn now_us(&self) -> u64 {
-        self.epoch.elapsed().as_micros() as u64
+        now().saturating_duration_since(self.epoch).as_micros() as u64
     }
 
     /// The clock's reading at `t` (0 before it started).
@@ -37,4 +39,9 @@ impl HostClock {
     pub fn instant_at(&self, us: u64) -> Instant {
         self.epoch + Duration::from_micros(us)
     }
+}
+
+/// Now on tokio's clock (virtual when tokio's time is paused).
+pub fn now() -> Instant {
+    tokio::time::Instant::now().into_std()
 }

@@ -13,6 +13,7 @@
 #![deny(missing_docs)]
 
 pub mod clock;
+pub mod driver;
 pub mod error;
 pub mod link;
 pub mod map;

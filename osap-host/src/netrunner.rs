@@ -21,7 +21,8 @@ use osap_core::codec::{Reader, Writer};
 use osap_core::netresponder::{key, Status};
 use osap_core::route::Route;
 use std::collections::{HashMap, VecDeque};
-use std::time::{Duration, Instant};
+use std::time::Duration;
+use tokio::time::Instant;
 
 /// How a scan behaves.
 #[derive(Debug, Clone)]

@@ -329,39 +329,34 @@ struct RuntimeTask {
 
 impl RuntimeTask {
     async fn run(mut self) {
-        loop {
-            // Take every pending command before polling, so a send issued
-            // just now goes out in this pass.
-            loop {
-                match self.commands.try_recv() {
-                    Ok(c) => self.handle(c),
-                    Err(mpsc::error::TryRecvError::Empty) => break,
-                    Err(mpsc::error::TryRecvError::Disconnected) => return,
-                }
-            }
-            let now = self.clock.now_us();
-            let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
-            if result.more {
-                tokio::task::yield_now().await;
-                continue;
-            }
-            let wake = self.wake.clone();
-            let notified = wake.notified();
-            let deadline = result
-                .wake_at
-                .map(|t| tokio::time::Instant::from_std(self.clock.instant_at(t + 1)));
-            tokio::select! {
-                command = self.commands.recv() => match command {
-                    Some(c) => self.handle(c),
-                    None => return,
-                },
-                _ = notified => {}
-                _ = sleep_until(deadline) => {}
-            }
-        }
+        let mut commands = std::mem::replace(&mut self.commands, mpsc::unbounded_channel().1);
+        let wake = self.wake.clone();
+        crate::driver::drive(&mut self, &mut commands, &wake).await;
+    }
+}
+
+impl crate::driver::Driven for RuntimeTask {
+    type Command = Command;
+
+    fn handle(&mut self, command: Command) -> std::ops::ControlFlow<()> {
+        self.handle_command(command);
+        std::ops::ControlFlow::Continue(())
     }
 
-    fn handle(&mut self, command: Command) {
+    fn poll(&mut self) -> crate::driver::PollOutcome {
+        let now = self.clock.now_us();
+        let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
+        crate::driver::PollOutcome {
+            more: result.more,
+            wake_at: result
+                .wake_at
+                .map(|t| tokio::time::Instant::from_std(self.clock.instant_at(t))),
+        }
+    }
+}
+
+impl RuntimeTask {
+    fn handle_command(&mut self, command: Command) {
         match command {
             Command::AttachLink(link, reply) => {
                 let max = 32usize; // the HostRuntime's LINKS
@@ -452,12 +447,5 @@ impl RuntimeTask {
     fn slot_at(&mut self, index: u16) -> Option<&mut PortSlot> {
         let i = (0..self.ports.len()).find(|i| self.base_of(*i) == index)?;
         self.ports.get_mut(i)
-    }
-}
-
-async fn sleep_until(deadline: Option<tokio::time::Instant>) {
-    match deadline {
-        Some(t) => tokio::time::sleep_until(t).await,
-        None => std::future::pending().await,
     }
 }

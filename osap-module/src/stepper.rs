@@ -320,9 +320,7 @@ impl Stepper {
     pub fn fill_word(&mut self, t0: u64) -> u32 {
         self.counters.words = self.counters.words.wrapping_add(1);
         let mut word = 0;
-        let standing =
-            !self.enabled || self.halted || (self.track.is_empty() && self.gen.backlog() == 0);
-        if standing {
+        if self.is_standing() {
             // Nothing can move: skip the per-tick evaluation (most of an
             // idle module's step-interrupt time).
             for _ in 0..TICKS_PER_WORD {
@@ -353,6 +351,13 @@ impl Stepper {
             self.mode = Mode::Idle;
         }
         word
+    }
+
+    /// Whether the axis stands and will stand until a call changes that: it
+    /// is disabled or halted, or has no stream and no steps owed. Step words
+    /// are then all empty (a simulator need not clock them out on time).
+    pub fn is_standing(&self) -> bool {
+        !self.enabled || self.halted || (self.track.is_empty() && self.gen.backlog() == 0)
     }
 
     /// Powers the motor (`true`) or lets it go limp. Powering down drops

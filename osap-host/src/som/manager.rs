@@ -18,7 +18,8 @@ use pipes_core::convert::{rule, Rule};
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
 use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
 use std::sync::Arc;
-use std::time::{Duration, Instant};
+use std::time::Duration;
+use tokio::time::Instant;
 
 /// How a manager talks to the network.
 #[derive(Debug, Clone)]

@@ -51,7 +51,7 @@ impl DriftClock {
 
     /// The local counter now.
     pub fn now_us(&self) -> Micros {
-        self.local_us_at(Instant::now())
+        self.local_us_at(osap_host::clock::now())
     }
 
     /// The first instant at which the local counter reads at least `local`.

@@ -120,22 +120,49 @@
 //! [`SimModule::restart`] boots it again: a fresh runtime, its clock
 //! restarting from its boot value, the name it last had, its links back up.
 
-pub mod axis;
+pub mod board;
 mod clock;
-pub mod functions;
 mod module;
 mod topology;
 mod wire;
 
 pub use clock::DriftClock;
-pub use module::{ModuleRuntime, MODULE_LINKS, MODULE_MTU, MODULE_PORTS, MODULE_SLOTS};
-pub use topology::{
-    load, LinkKind, LinkSpec, ModuleSpec, Topology, DEFAULT_BAUD, HOST, MAX_HOST_LINKS,
+pub use module::{
+    ModuleRuntime, SharedModule, FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU, MODULE_PORTS,
+    MODULE_SLOTS,
 };
+pub use topology::{
+    load, LinkKind, LinkSpec, ModuleKind, ModuleSpec, Topology, DEFAULT_BAUD, HOST, MAX_HOST_LINKS,
+};
+
+/// How a simulated machine keeps time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TimeMode {
+    /// On the system's clock: a host, the CLI and other processes talk to
+    /// it as to hardware. Link delays are kept to a few µs by a wire thread.
+    #[default]
+    RealTime,
+    /// On tokio's clock, paused ([`virtual_runtime`]): time jumps to the
+    /// next thing due, so a long job runs in a fraction of its duration and
+    /// the same seed gives the same run. Everything must run on that one
+    /// current-thread runtime; link delays fall on tokio's 1 ms timer ticks
+    /// (time stamps keep the model's µs).
+    Virtual,
+}
+
+/// A current-thread tokio runtime with time paused: where a host and a
+/// machine started with [`TimeMode::Virtual`] run in virtual time.
+pub fn virtual_runtime() -> std::io::Result<tokio::runtime::Runtime> {
+    tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .start_paused(true)
+        .build()
+}
 
 use crate::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
 use crate::rng::Rng;
-use module::{ModuleCommand, ModuleLink, ModuleTask, Parked};
+use board::SimBoard;
+use module::{ModuleCommand, ModuleLink, ModuleTask, Parked, StepClock};
 use osap_core::clock::TimeConfig;
 use osap_core::link::LinkGateway;
 use osap_core::netresponder::BuildKey;
@@ -143,13 +170,14 @@ use osap_core::route::Route;
 use osap_core::Micros;
 use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo};
 use osap_host::{Host, HostError};
+use osap_module::{Module, ModulePorts};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
 use tokio::sync::{mpsc, oneshot, Notify};
 use tokio::task::JoinHandle;
 use topology::Node;
-use wire::{Carrier, Wire};
+use wire::{Carrier, Wire, WireHandle};
 
 /// Packets each link end buffers each way.
 const LINK_DEPTH: usize = 32;
@@ -176,8 +204,10 @@ struct Machine {
     links: Mutex<Vec<LinkState>>,
     /// Whether each module's task is running.
     running: Vec<AtomicBool>,
+    /// How deliveries are scheduled (`None`: no link has latency).
+    wire: Option<WireHandle>,
     // Last: dropped after the links are down.
-    wire: Option<Wire>,
+    _wire_thread: Option<Wire>,
 }
 
 struct LinkState {
@@ -210,8 +240,8 @@ struct ModuleShared {
 struct Live {
     commands: Option<mpsc::UnboundedSender<ModuleCommand>>,
     clock: DriftClock,
-    /// An `axis` module's hardware, replaced at each boot.
-    axis: Option<axis::AxisProbe>,
+    /// A `stepper`'s osap-module instance, replaced at each boot.
+    module: Option<SharedModule>,
 }
 
 enum ModuleState {
@@ -273,24 +303,42 @@ impl SimMachine {
     /// per module, its links attached to the host in file order, every
     /// link up. The topology is validated first.
     pub async fn start(host: &Host, topology: &Topology) -> Result<SimMachine, HostError> {
+        Self::start_with(host, topology, TimeMode::RealTime).await
+    }
+
+    /// [`start`](Self::start) in the given [`TimeMode`].
+    pub async fn start_with(
+        host: &Host,
+        topology: &Topology,
+        mode: TimeMode,
+    ) -> Result<SimMachine, HostError> {
         topology.validate()?;
-        let epoch = Instant::now();
+        let epoch = osap_host::clock::now();
         let host_clock = host.clock();
         let timed = !topology.zero_latency;
-        let wire = if timed && topology.links.iter().any(|l| l.kind != LinkKind::Memory) {
-            Some(Wire::start().map_err(|source| HostError::Io {
-                context: "starting the simulated wire thread".into(),
-                source,
-            })?)
-        } else {
-            None
-        };
+        let (wire, wire_thread) =
+            if timed && topology.links.iter().any(|l| l.kind != LinkKind::Memory) {
+                match mode {
+                    TimeMode::RealTime => {
+                        let thread = Wire::start().map_err(|source| HostError::Io {
+                            context: "starting the simulated wire thread".into(),
+                            source,
+                        })?;
+                        (Some(thread.handle()), Some(thread))
+                    }
+                    TimeMode::Virtual => (Some(WireHandle::Virtual), None),
+                }
+            } else {
+                (None, None)
+            };
         let wakes: Vec<Arc<Notify>> = topology
             .modules
             .iter()
             .map(|_| Arc::new(Notify::new()))
             .collect();
-        let mut module_links: Vec<Vec<ChannelLink>> =
+        // Each module's link gateways by index (a stepper's at the
+        // firmware's indices, the rest in file order).
+        let mut module_links: Vec<Vec<Option<ChannelLink>>> =
             topology.modules.iter().map(|_| Vec::new()).collect();
         let mut links = Vec::new();
         let mut host_links = Vec::new();
@@ -319,7 +367,19 @@ impl SimMachine {
             for (node, link) in [(a, link_a), (b, link_b)] {
                 match node {
                     Node::Host => host_links.push(host.attach_link(link).await?),
-                    Node::Module(m) => module_links[m].push(link),
+                    Node::Module(m) => {
+                        let slots = &mut module_links[m];
+                        let at = match topology.modules[m].kind() {
+                            Some(ModuleKind::Stepper) => {
+                                topology::firmware_link(spec.kind).unwrap_or(slots.len())
+                            }
+                            _ => slots.len(),
+                        };
+                        if slots.len() <= at {
+                            slots.resize_with(at + 1, || None);
+                        }
+                        slots[at] = Some(link);
+                    }
                 }
             }
             links.push(LinkState {
@@ -342,7 +402,35 @@ impl SimMachine {
                 .map(|_| AtomicBool::new(false))
                 .collect(),
             wire,
+            _wire_thread: wire_thread,
         });
+        // A stepper always has the firmware's two links; one the topology
+        // leaves out is there, and never opens.
+        let module_links: Vec<Vec<ChannelLink>> = module_links
+            .into_iter()
+            .zip(&topology.modules)
+            .zip(&wakes)
+            .map(|((mut slots, m), wake)| {
+                if m.kind() == Some(ModuleKind::Stepper) && slots.len() < FIRMWARE_LINKS {
+                    slots.resize_with(FIRMWARE_LINKS, || None);
+                }
+                slots
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, l)| {
+                        l.unwrap_or_else(|| {
+                            let kind = if i == 0 {
+                                LinkKind::Usb
+                            } else {
+                                LinkKind::Uart
+                            };
+                            let spec = LinkSpec::new(HOST, HOST, kind);
+                            link::channel(link_config(&spec, false), wake.clone(), host_clock).0
+                        })
+                    })
+                    .collect()
+            })
+            .collect();
         let mut modules = Vec::new();
         for ((index, spec), (wake, links)) in topology
             .modules
@@ -359,7 +447,7 @@ impl SimMachine {
                 live: Mutex::new(Live {
                     commands: None,
                     clock: DriftClock::new(epoch, spec.clock_model()),
-                    axis: None,
+                    module: None,
                 }),
             });
             let module = SimModule { inner: shared };
@@ -479,7 +567,7 @@ impl Machine {
                     Rng::stream(self.topology.seed, "osap-host-sim-link", stream),
                 ),
                 stamp: model.stamp_mode(side.other()),
-                wire: wire.handle(),
+                wire: wire.clone(),
                 epoch: self.epoch,
                 host_clock: self.host_clock,
                 generation: l.generation.clone(),
@@ -536,16 +624,17 @@ impl SimModule {
         lock(&self.inner.live).clock
     }
 
-    /// An `axis` module's executed states (from its current boot); `None`
-    /// for other types, or before it first booted.
-    pub fn axis(&self) -> Option<axis::AxisProbe> {
-        lock(&self.inner.live).axis.clone()
+    /// A `stepper`'s osap-module instance on its simulated board (from its
+    /// current boot): its logic state, the motor's step edges, the limit
+    /// switch and the I/O pins. `None` for a hub.
+    pub fn module(&self) -> Option<SharedModule> {
+        lock(&self.inner.live).module.clone()
     }
 
     /// The host clock's reading (the machine's true time: the host is the
     /// time root) when this module's local clock read `local`, in its
     /// current boot. Comparing it with what the module believed
-    /// ([`Executed::time`](axis::Executed::time)) gives the sync error.
+    /// (a step edge's local time, say) gives the sync error.
     pub fn host_time_at(&self, local: Micros) -> u64 {
         self.inner
             .machine
@@ -637,7 +726,7 @@ impl SimModule {
             .with_version(version(), BuildKey::RustSimulated)
             .with_time_config(time)
             .map_err(|e| HostError::Malformed(format!("module {:?}: {e}", spec.name)))?;
-        let clock = DriftClock::new(Instant::now(), spec.clock_model());
+        let clock = DriftClock::new(osap_host::clock::now(), spec.clock_model());
         let links = parked
             .links
             .into_iter()
@@ -648,19 +737,27 @@ impl SimModule {
             })
             .collect();
         let (commands, rx) = mpsc::unbounded_channel();
-        let hardware = functions::hardware_for(
-            &spec.type_name,
-            &spec.axis.clone().unwrap_or_default(),
-            clock,
-        );
-        let mut ports: Vec<Box<dyn osap_core::port::Port + Send>> = hardware
-            .functions
-            .into_iter()
-            .map(|f| Box::new(f) as Box<dyn osap_core::port::Port + Send>)
-            .collect();
-        // The motor serves no port index: after the functions, it shifts none.
-        if let Some(motor) = hardware.motor {
-            ports.push(Box::new(motor));
+        let mut ports: Vec<Box<dyn osap_core::port::Port + Send>> = Vec::new();
+        let mut stepper = None;
+        if spec.kind() == Some(ModuleKind::Stepper) {
+            let board = SimBoard::new(
+                clock,
+                spec.motor.clone().unwrap_or_default(),
+                &spec.io.clone().unwrap_or_default(),
+            );
+            let module = SharedModule::new(Module::new(board));
+            module.lock(|m| {
+                let level = m.board().motor().limit_level();
+                m.limit_initial(level);
+            });
+            let module_ports = ModulePorts::new(module.clone())
+                .map_err(|e| HostError::Malformed(format!("module {:?}: {e:?}", spec.name)))?;
+            // The functions, then the pulse timer (it takes no port index).
+            for port in module_ports.into_ports() {
+                ports.push(Box::new(port));
+            }
+            let steps = StepClock::new(module.clone(), clock.now_us());
+            stepper = Some((module, steps));
         }
         let task = ModuleTask {
             runtime: Box::new(runtime),
@@ -669,11 +766,12 @@ impl SimModule {
             commands: rx,
             wake: self.inner.wake.clone(),
             clock,
+            stepper: stepper.clone(),
         };
         *lock(&self.inner.live) = Live {
             commands: Some(commands),
             clock,
-            axis: hardware.axis,
+            module: stepper.map(|(m, _)| m),
         };
         Ok(tokio::spawn(task.run()))
     }

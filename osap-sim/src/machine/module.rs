@@ -1,23 +1,134 @@
 //! One simulated module: an osap-core runtime sized like firmware, in its
-//! own tokio task, on a drifting clock.
+//! own tokio task, on a drifting clock; for a `stepper`, osap-module's
+//! logic on a [`SimBoard`], its step words clocked out as the firmware's
+//! step generator clocks them.
 
+use super::board::SimBoard;
 use super::clock::DriftClock;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::port::Port;
 use osap_core::Micros;
 use osap_host::clock::HostClock;
+use osap_host::driver::{self, Driven, PollOutcome};
 use osap_host::link::ChannelLink;
-use std::sync::Arc;
+use osap_module::{Module, ModuleHandle, STEP_TICK_US, TICKS_PER_WORD};
+use std::sync::{Arc, Mutex};
 use tokio::sync::{mpsc, Notify};
 
 /// Packet slots of a simulated module's runtime.
 pub const MODULE_SLOTS: usize = 32;
 /// Packet size of a simulated module (as on an RP2040 or SAMD51).
 pub const MODULE_MTU: usize = 256;
-/// Port indices of a simulated module (port 0 included).
-pub const MODULE_PORTS: usize = 16;
-/// Link gateways of a simulated module.
+/// Port indices of a simulated module (port 0 included): every index the
+/// module firmware's ports take.
+pub const MODULE_PORTS: usize = osap_module::PORT_INDICES;
+/// Link gateways of a simulated module (a hub may have this many; a
+/// `stepper` has the firmware's two).
 pub const MODULE_LINKS: usize = 8;
+/// Link gateways of the module firmware: USB CDC (link 0) and a UART
+/// (link 1).
+pub const FIRMWARE_LINKS: usize = 2;
+
+/// A simulated module's osap-module instance, shared by its function ports,
+/// its step generator and the [`SimModule`](super::SimModule) handle.
+#[derive(Clone)]
+pub struct SharedModule(Arc<Mutex<Module<SimBoard>>>);
+
+impl SharedModule {
+    pub(crate) fn new(module: Module<SimBoard>) -> Self {
+        SharedModule(Arc::new(Mutex::new(module)))
+    }
+
+    /// Runs `f` on the module (its logic state and its board).
+    pub fn lock<R>(&self, f: impl FnOnce(&mut Module<SimBoard>) -> R) -> R {
+        let mut m = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        f(&mut m)
+    }
+}
+
+impl ModuleHandle for SharedModule {
+    type Board = SimBoard;
+
+    fn with<R>(&self, f: impl FnOnce(&mut Module<SimBoard>) -> R) -> Option<R> {
+        Some(self.lock(f))
+    }
+}
+
+impl std::fmt::Debug for SharedModule {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        self.lock(|m| m.fmt(f))
+    }
+}
+
+/// Local µs one step word covers.
+const WORD_US: Micros = (STEP_TICK_US * TICKS_PER_WORD) as Micros;
+/// How far ahead of the local clock step words are filled: as the
+/// firmware's FIFO (8 words, 1.28 ms) plus a tokio timer's 1 ms
+/// granularity, so words are always ready before their ticks.
+const STEP_LEAD_US: Micros = 8 * WORD_US + 1_000;
+/// How often a moving axis's step generator is topped up, local µs.
+const STEP_REFILL_US: Micros = 1_000;
+
+/// The firmware's step generator, simulated: it asks the module for each
+/// word of 16 ticks (the same `fill_step_word` the firmware's step
+/// interrupt calls) and hands the board each step in it, and it delivers
+/// the limit switch's edges to the module at their times, as the firmware's
+/// edge interrupt does.
+#[derive(Clone)]
+pub(crate) struct StepClock {
+    module: SharedModule,
+    /// Local time of the next word's first tick.
+    next: Micros,
+}
+
+impl StepClock {
+    pub(crate) fn new(module: SharedModule, boot_local: Micros) -> Self {
+        StepClock {
+            module,
+            // Word-aligned to the counter, as a step generator started at boot.
+            next: boot_local.div_ceil(WORD_US) * WORD_US,
+        }
+    }
+
+    /// Clocks out every word up to local `until`, and delivers the limit
+    /// edges due by local `now`.
+    fn run(&mut self, now: Micros, until: Micros) {
+        let next = &mut self.next;
+        self.module.lock(|m| {
+            while *next <= until {
+                let word = m.fill_step_word(*next);
+                for k in 0..TICKS_PER_WORD {
+                    let bits = (word >> (2 * k)) & 3;
+                    if bits & 1 != 0 {
+                        let t = *next + Micros::from(k * STEP_TICK_US);
+                        m.board_mut().step(t, bits & 2 != 0);
+                    }
+                }
+                *next += WORD_US;
+            }
+            for (t, level) in m.board_mut().motor_mut().take_limit_edges(now) {
+                m.limit_changed(t, level);
+            }
+        });
+    }
+
+    /// Before a poll at local `now`: the words and limit edges up to now.
+    pub(crate) fn catch_up(&mut self, now: Micros) {
+        self.run(now, now);
+    }
+
+    /// After a poll at local `now`: words a lead ahead, if the axis may
+    /// move; returns when it next needs a turn (local µs).
+    pub(crate) fn fill_ahead(&mut self, now: Micros) -> Option<Micros> {
+        let standing = self.module.lock(|m| m.stepper.is_standing());
+        if !standing {
+            self.run(now, now + STEP_LEAD_US);
+        }
+        let limit = self.module.lock(|m| m.board().motor().next_limit_edge());
+        let refill = (!standing).then_some(now + STEP_REFILL_US);
+        [limit, refill].into_iter().flatten().min()
+    }
+}
 
 /// The runtime a simulated module runs: sized like firmware.
 pub type ModuleRuntime = osap_core::Runtime<MODULE_SLOTS, MODULE_MTU, MODULE_PORTS, MODULE_LINKS>;
@@ -93,49 +204,53 @@ pub(crate) struct ModuleTask {
     pub(crate) commands: mpsc::UnboundedReceiver<ModuleCommand>,
     pub(crate) wake: Arc<Notify>,
     pub(crate) clock: DriftClock,
+    /// A `stepper`'s module and step generator.
+    pub(crate) stepper: Option<(SharedModule, StepClock)>,
+}
+
+impl Driven for ModuleTask {
+    type Command = ModuleCommand;
+
+    fn handle(&mut self, command: ModuleCommand) -> std::ops::ControlFlow<()> {
+        match command {
+            ModuleCommand::With(f) => {
+                let now = self.clock.now_us();
+                f(&mut self.runtime, now);
+                std::ops::ControlFlow::Continue(())
+            }
+            ModuleCommand::Stop => std::ops::ControlFlow::Break(()),
+        }
+    }
+
+    fn poll(&mut self) -> PollOutcome {
+        let now = self.clock.now_us();
+        if let Some((_, steps)) = &mut self.stepper {
+            steps.catch_up(now);
+        }
+        let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
+        let mut wake_at = result.wake_at;
+        if let Some((module, steps)) = &mut self.stepper {
+            module.publish_time(self.runtime.time_map());
+            if let Some(t) = steps.fill_ahead(now) {
+                wake_at = Some(wake_at.map_or(t, |w| w.min(t)));
+            }
+        }
+        PollOutcome {
+            more: result.more,
+            wake_at: wake_at.map(|t| tokio::time::Instant::from_std(self.clock.instant_at(t))),
+        }
+    }
 }
 
 impl ModuleTask {
     /// Polls the runtime whenever a link has news, a command comes, or the
-    /// runtime's `wake_at` (local time, turned into an instant on the
-    /// module's clock) comes due; stops on [`ModuleCommand::Stop`] or when
-    /// every handle is gone.
+    /// runtime's `wake_at` or the step generator's next turn comes due;
+    /// stops on [`ModuleCommand::Stop`] or when every handle is gone.
     pub(crate) async fn run(mut self) -> Parked {
-        loop {
-            loop {
-                match self.commands.try_recv() {
-                    Ok(ModuleCommand::With(f)) => self.with(f),
-                    Ok(ModuleCommand::Stop) | Err(mpsc::error::TryRecvError::Disconnected) => {
-                        return self.park()
-                    }
-                    Err(mpsc::error::TryRecvError::Empty) => break,
-                }
-            }
-            let now = self.clock.now_us();
-            let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
-            if result.more {
-                tokio::task::yield_now().await;
-                continue;
-            }
-            let wake = self.wake.clone();
-            let notified = wake.notified();
-            let deadline = result
-                .wake_at
-                .map(|t| tokio::time::Instant::from_std(self.clock.instant_at(t)));
-            tokio::select! {
-                command = self.commands.recv() => match command {
-                    Some(ModuleCommand::With(f)) => self.with(f),
-                    Some(ModuleCommand::Stop) | None => return self.park(),
-                },
-                _ = notified => {}
-                _ = sleep_until(deadline) => {}
-            }
-        }
-    }
-
-    fn with(&mut self, f: ModuleFn) {
-        let now = self.clock.now_us();
-        f(&mut self.runtime, now);
+        let mut commands = std::mem::replace(&mut self.commands, mpsc::unbounded_channel().1);
+        let wake = self.wake.clone();
+        driver::drive(&mut self, &mut commands, &wake).await;
+        self.park()
     }
 
     fn park(self) -> Parked {
@@ -143,12 +258,5 @@ impl ModuleTask {
             name: self.runtime.identity().name.to_string(),
             links: self.links.into_iter().map(|l| l.inner).collect(),
         }
-    }
-}
-
-async fn sleep_until(deadline: Option<tokio::time::Instant>) {
-    match deadline {
-        Some(t) => tokio::time::sleep_until(t).await,
-        None => std::future::pending().await,
     }
 }

@@ -1,7 +1,8 @@
 //! Topology files: which simulated modules a machine has and how they are
 //! linked. The format is described in the [module docs](super).
 
-use super::module::{MODULE_LINKS, MODULE_MTU};
+use super::board::{IoSpec, MotorSpec};
+use super::module::{FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU};
 use crate::clock::ClockSpec;
 use osap_core::netresponder::NAME_MAX;
 use osap_host::HostError;
@@ -77,10 +78,14 @@ pub struct ModuleSpec {
     /// Period of the wander, s.
     #[serde(default = "default_wander_period")]
     pub wander_period_s: f64,
-    /// An `axis` module's hardware (defaults when absent); only `axis`
-    /// modules may have it.
+    /// A `stepper` module's motor and what it drives (defaults when
+    /// absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub axis: Option<super::axis::AxisSpec>,
+    pub motor: Option<MotorSpec>,
+    /// What a `stepper` module's I/O pins read at boot (defaults when
+    /// absent).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub io: Option<IoSpec>,
 }
 
 impl ModuleSpec {
@@ -93,14 +98,26 @@ impl ModuleSpec {
             offset_us: 0.0,
             wander_ppm: 0.0,
             wander_period_s: default_wander_period(),
-            axis: None,
+            motor: None,
+            io: None,
         }
     }
 
-    /// The same module as an `axis` with hardware `axis`.
-    pub fn with_axis(mut self, axis: super::axis::AxisSpec) -> Self {
-        self.axis = Some(axis);
+    /// The same module with motor `motor` (a `stepper`).
+    pub fn with_motor(mut self, motor: MotorSpec) -> Self {
+        self.motor = Some(motor);
         self
+    }
+
+    /// The same module with I/O pins reading `io` at boot (a `stepper`).
+    pub fn with_io(mut self, io: IoSpec) -> Self {
+        self.io = Some(io);
+        self
+    }
+
+    /// What kind of module it is, if its type is one the simulator has.
+    pub fn kind(&self) -> Option<ModuleKind> {
+        ModuleKind::of(&self.type_name)
     }
 
     /// The same module with a clock `rate_ppm` fast.
@@ -116,6 +133,31 @@ impl ModuleSpec {
             self.wander_period_s,
             0.0,
         )
+    }
+}
+
+/// The module types a topology may use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ModuleKind {
+    /// `stepper`: the osap-rs module firmware (osap-module's logic, the 17
+    /// functions a scan finds on every board) on a simulated board. Its
+    /// links follow the firmware's: a `usb` link is its link 0, a `uart` or
+    /// `rs485` link its link 1.
+    Stepper,
+    /// `hub`: a router with up to 8 links and no functions. Host-only: no
+    /// firmware build exists for it (any module forwards between its
+    /// links; a hub stands for a USB or RS-485 fan-out).
+    Hub,
+}
+
+impl ModuleKind {
+    /// The kind a type name stands for.
+    pub fn of(type_name: &str) -> Option<ModuleKind> {
+        match type_name {
+            "stepper" => Some(ModuleKind::Stepper),
+            "hub" => Some(ModuleKind::Hub),
+            _ => None,
+        }
     }
 }
 
@@ -207,10 +249,63 @@ pub(crate) enum Node {
     Module(usize),
 }
 
-/// A link seen from one of its ends: the node at the other end.
+/// A link seen from one of its ends: the node at the other end, and the
+/// link's index among this end's link gateways.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct Hop {
     pub(crate) peer: Node,
+    pub(crate) index: usize,
+}
+
+/// Which firmware link a link of `kind` is on a `stepper`.
+pub(crate) fn firmware_link(kind: LinkKind) -> Option<usize> {
+    match kind {
+        LinkKind::Usb => Some(0),
+        LinkKind::Uart | LinkKind::Rs485 => Some(1),
+        LinkKind::Memory => None,
+    }
+}
+
+/// What a topology check failed on.
+#[derive(Debug, Clone, Copy)]
+enum Item {
+    Module(usize),
+    Link(usize),
+}
+
+struct CheckError {
+    item: Option<Item>,
+    message: String,
+}
+
+impl CheckError {
+    fn file(message: String) -> Self {
+        CheckError {
+            item: None,
+            message,
+        }
+    }
+
+    fn at(item: Item, message: String) -> Self {
+        CheckError {
+            item: Some(item),
+            message,
+        }
+    }
+}
+
+/// The line (from 1) of `item`'s `[[module]]` or `[[link]]` header in a
+/// topology file's `text`.
+fn item_line(text: &str, item: Item) -> Option<usize> {
+    let (header, n) = match item {
+        Item::Module(i) => ("[[module]]", i),
+        Item::Link(i) => ("[[link]]", i),
+    };
+    text.lines()
+        .enumerate()
+        .filter(|(_, l)| l.split('#').next().unwrap_or("").trim() == header)
+        .nth(n)
+        .map(|(line, _)| line + 1)
 }
 
 /// The error a bad topology gives: invalid data, with `context` saying
@@ -261,9 +356,14 @@ impl Topology {
     fn parse_as(text: &str, context: &str) -> Result<Topology, HostError> {
         let topology: Topology = toml::from_str(text)
             .map_err(|e| invalid(context.to_string(), e.to_string().trim_end().to_string()))?;
-        topology
-            .check()
-            .map_err(|m| invalid(context.to_string(), m))?;
+        topology.check().map_err(|e| {
+            let at = e
+                .item
+                .and_then(|item| item_line(text, item))
+                .map(|line| format!(", line {line}"))
+                .unwrap_or_default();
+            invalid(format!("{context}{at}"), e.message)
+        })?;
         Ok(topology)
     }
 
@@ -284,89 +384,164 @@ impl Topology {
     /// to the host and every module reachable from it.
     pub fn validate(&self) -> Result<(), HostError> {
         self.check()
-            .map_err(|m| invalid(format!("topology {:?}", self.name), m))
+            .map_err(|e| invalid(format!("topology {:?}", self.name), e.message))
     }
 
-    fn check(&self) -> Result<(), String> {
+    fn check(&self) -> Result<(), CheckError> {
+        self.check_modules()?;
+        self.check_links()?;
+        self.check_graph().map_err(CheckError::file)
+    }
+
+    fn check_modules(&self) -> Result<(), CheckError> {
         if self.modules.is_empty() {
-            return Err("no modules: add at least one [[module]]".into());
+            return Err(CheckError::file(
+                "no modules: add at least one [[module]]".into(),
+            ));
         }
         let mut names: HashMap<&str, usize> = HashMap::new();
         for (i, m) in self.modules.iter().enumerate() {
+            let at = |message: String| CheckError::at(Item::Module(i), message);
             let what = format!("module {} ({:?})", i + 1, m.name);
-            check_name(&what, "name", &m.name)?;
-            check_name(&what, "type", &m.type_name)?;
+            check_name(&what, "name", &m.name).map_err(at)?;
+            check_name(&what, "type", &m.type_name).map_err(at)?;
             if m.name == HOST {
-                return Err(format!(
-                    "{what}: the name {HOST:?} is reserved for the host runtime"
-                ));
+                return Err(at(format!(
+                    "{what}: the name {HOST:?} is reserved for the host runtime; rename the module"
+                )));
             }
-            if names.insert(&m.name, i).is_some() {
-                return Err(format!("{what}: another module is also named {:?}", m.name));
+            if let Some(first) = names.insert(&m.name, i) {
+                return Err(at(format!(
+                    "{what}: module {} is also named {:?}; give each module its own name",
+                    first + 1,
+                    m.name
+                )));
             }
+            let Some(kind) = m.kind() else {
+                let hint = if m.type_name == "axis" {
+                    " (an \"axis\" is now a \"stepper\": its [module.axis] table becomes [module.motor])"
+                } else {
+                    ""
+                };
+                return Err(at(format!(
+                    "{what}: unknown type {:?}; a simulated module is \"stepper\" (the module firmware) or \"hub\" (a router without functions){hint}",
+                    m.type_name
+                )));
+            };
             ClockSpec::fixed(m.offset_us, m.rate_ppm)
                 .validate(&m.name)
-                .map_err(|e| e.to_string())?;
+                .map_err(|e| at(e.to_string()))?;
             if !(m.wander_ppm.is_finite() && (0.0..=10_000.0).contains(&m.wander_ppm)) {
-                return Err(format!("{what}: wander_ppm must be within [0, 10000]"));
+                return Err(at(format!("{what}: wander_ppm must be within [0, 10000]")));
             }
             if !(m.wander_period_s.is_finite() && m.wander_period_s > 0.0) {
-                return Err(format!("{what}: wander_period_s must be positive"));
+                return Err(at(format!("{what}: wander_period_s must be positive")));
             }
-            if let Some(axis) = &m.axis {
-                if m.type_name != "axis" {
-                    return Err(format!(
-                        "{what}: an [module.axis] table is for modules of type \"axis\", not {:?}",
-                        m.type_name
-                    ));
-                }
-                axis.check().map_err(|e| format!("{what}: {e}"))?;
+            if kind != ModuleKind::Stepper && (m.motor.is_some() || m.io.is_some()) {
+                return Err(at(format!(
+                    "{what}: [module.motor] and [module.io] are for modules of type \"stepper\", not {:?}",
+                    m.type_name
+                )));
+            }
+            if let Some(motor) = &m.motor {
+                motor.check().map_err(|e| at(format!("{what}: {e}")))?;
+            }
+            if let Some(io) = &m.io {
+                io.check().map_err(|e| at(format!("{what}: {e}")))?;
             }
         }
-        let node = |name: &str| -> Option<Node> {
-            if name == HOST {
-                Some(Node::Host)
-            } else {
-                names.get(name).map(|&i| Node::Module(i))
-            }
-        };
+        Ok(())
+    }
+
+    fn check_links(&self) -> Result<(), CheckError> {
         for (i, l) in self.links.iter().enumerate() {
+            let at = |message: String| CheckError::at(Item::Link(i), message);
             let what = format!("link {} ({} – {})", i + 1, l.a, l.b);
             for end in [&l.a, &l.b] {
-                if node(end).is_none() {
-                    return Err(format!("{what}: no module is named {end:?}"));
+                if self.node(end).is_none() {
+                    return Err(at(format!(
+                        "{what}: no module is named {end:?}; add a [[module]] named so, or name one of: {}",
+                        self.known_names()
+                    )));
                 }
             }
             if l.a == l.b {
-                return Err(format!("{what}: a link must join two different runtimes"));
+                return Err(at(format!(
+                    "{what}: a link must join two different runtimes"
+                )));
             }
             if let Some(baud) = l.baud {
                 if !l.kind.has_baud() {
-                    return Err(format!(
-                        "{what}: baud applies to uart and rs485 links, not {:?}",
+                    return Err(at(format!(
+                        "{what}: baud applies to uart and rs485 links, not {:?}; remove it",
                         l.kind.type_name()
-                    ));
+                    )));
                 }
                 if !(1_200..=50_000_000).contains(&baud) {
-                    return Err(format!(
+                    return Err(at(format!(
                         "{what}: baud {baud} must be within 1200..=50000000"
-                    ));
+                    )));
                 }
             }
             if let Some(mtu) = l.mtu {
                 if !(16..=MODULE_MTU as u16).contains(&mtu) {
-                    return Err(format!(
+                    return Err(at(format!(
                         "{what}: mtu {mtu} must be within 16..={MODULE_MTU} (a module's packet size)"
-                    ));
+                    )));
                 }
             }
             if l.name.len() > NAME_MAX {
-                return Err(format!(
+                return Err(at(format!(
                     "{what}: its name is {} bytes long; names are at most {NAME_MAX} bytes",
                     l.name.len()
-                ));
+                )));
             }
         }
+        // A stepper has the firmware's two links: USB (0) and a UART (1).
+        for (m, spec) in self.modules.iter().enumerate() {
+            if spec.kind() != Some(ModuleKind::Stepper) {
+                continue;
+            }
+            let mut taken: [Option<usize>; FIRMWARE_LINKS] = [None; FIRMWARE_LINKS];
+            for (i, l) in self.links.iter().enumerate() {
+                if l.a != spec.name && l.b != spec.name {
+                    continue;
+                }
+                let Some(index) = firmware_link(l.kind) else {
+                    return Err(CheckError::at(
+                        Item::Link(i),
+                        format!(
+                            "link {} ({} – {}): a {:?} link cannot reach stepper {:?}: the module firmware has a usb link (its link 0) and a uart/rs485 link (its link 1)",
+                            i + 1,
+                            l.a,
+                            l.b,
+                            l.kind.type_name(),
+                            spec.name
+                        ),
+                    ));
+                };
+                if let Some(first) = taken[index] {
+                    return Err(CheckError::at(
+                        Item::Link(i),
+                        format!(
+                            "link {} ({} – {}): stepper {:?} already has its {} link (link {}): the module firmware has {FIRMWARE_LINKS} links, one usb and one uart/rs485; join further modules through a hub",
+                            i + 1,
+                            l.a,
+                            l.b,
+                            spec.name,
+                            if index == 0 { "usb" } else { "uart/rs485" },
+                            first + 1
+                        ),
+                    ));
+                }
+                taken[index] = Some(i);
+            }
+            let _ = m;
+        }
+        Ok(())
+    }
+
+    fn check_graph(&self) -> Result<(), String> {
         let adjacency = self.adjacency();
         for (i, m) in self.modules.iter().enumerate() {
             let n = adjacency[i + 1].len();
@@ -400,6 +575,14 @@ impl Topology {
         Ok(())
     }
 
+    fn known_names(&self) -> String {
+        std::iter::once(HOST)
+            .chain(self.modules.iter().map(|m| m.name.as_str()))
+            .map(|n| format!("{n:?}"))
+            .collect::<Vec<_>>()
+            .join(", ")
+    }
+
     /// The index of the module named `name`.
     pub fn module_index(&self, name: &str) -> Option<usize> {
         self.modules.iter().position(|m| m.name == name)
@@ -431,14 +614,22 @@ impl Topology {
             Node::Host => 0,
             Node::Module(i) => i + 1,
         };
-        let mut adj = vec![Vec::new(); self.modules.len() + 1];
+        let mut adj: Vec<Vec<Hop>> = vec![Vec::new(); self.modules.len() + 1];
+        let index_at = |n: Node, adj: &Vec<Vec<Hop>>, kind: LinkKind| match n {
+            Node::Module(m) if self.modules[m].kind() == Some(ModuleKind::Stepper) => {
+                firmware_link(kind).unwrap_or(adj[slot(n)].len())
+            }
+            _ => adj[slot(n)].len(),
+        };
         for l in &self.links {
             let (Some(a), Some(b)) = (self.node(&l.a), self.node(&l.b)) else {
                 continue;
             };
-            adj[slot(a)].push(Hop { peer: b });
+            let index = index_at(a, &adj, l.kind);
+            adj[slot(a)].push(Hop { peer: b, index });
             if a != b {
-                adj[slot(b)].push(Hop { peer: a });
+                let index = index_at(b, &adj, l.kind);
+                adj[slot(b)].push(Hop { peer: a, index });
             }
         }
         adj
@@ -446,8 +637,8 @@ impl Topology {
 
     /// For each module, the shortest way there from the host (fewest hops;
     /// among equals, the one through earlier-listed links): at each node on
-    /// the way, the position of the link taken in that node's own link
-    /// list. `None` for modules the host cannot reach.
+    /// the way, the index of the link taken among that node's link
+    /// gateways (for the host, its position among the host's links). `None` for modules the host cannot reach.
     pub(crate) fn paths(&self) -> Vec<Option<Vec<usize>>> {
         let adj = self.adjacency();
         let mut from: Vec<Option<(usize, usize)>> = vec![None; adj.len()];
@@ -455,11 +646,11 @@ impl Topology {
         seen[0] = true;
         let mut queue = VecDeque::from([0usize]);
         while let Some(n) = queue.pop_front() {
-            for (k, hop) in adj[n].iter().enumerate() {
+            for hop in &adj[n] {
                 let Node::Module(m) = hop.peer else { continue };
                 if !seen[m + 1] {
                     seen[m + 1] = true;
-                    from[m + 1] = Some((n, k));
+                    from[m + 1] = Some((n, hop.index));
                     queue.push_back(m + 1);
                 }
             }

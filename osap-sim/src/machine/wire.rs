@@ -68,7 +68,7 @@ struct Schedule {
 }
 
 #[derive(Default)]
-struct WireShared {
+pub(crate) struct WireShared {
     schedule: Mutex<Schedule>,
     changed: Condvar,
     /// Counts insertions, so a spinning wire thread notices them.
@@ -81,16 +81,30 @@ impl WireShared {
     }
 }
 
-/// A handle to schedule actions on a [`Wire`] thread.
+/// A handle to schedule actions: on a [`Wire`] thread in real time, or on
+/// tokio timers in virtual time (tokio's clock paused: timers then fire in
+/// order at their ms ticks, and a run is the same every time).
 #[derive(Clone)]
-pub(crate) struct WireHandle {
-    shared: Arc<WireShared>,
+pub(crate) enum WireHandle {
+    Thread(Arc<WireShared>),
+    Virtual,
 }
 
 impl WireHandle {
-    /// Runs `action` on the wire thread at `at`.
+    /// Runs `action` at `at`.
     pub(crate) fn at(&self, at: Instant, action: impl FnOnce() + Send + 'static) {
-        let mut s = self.shared.lock();
+        let shared = match self {
+            WireHandle::Thread(shared) => shared,
+            WireHandle::Virtual => {
+                let at = tokio::time::Instant::from_std(at);
+                tokio::spawn(async move {
+                    tokio::time::sleep_until(at).await;
+                    action();
+                });
+                return;
+            }
+        };
+        let mut s = shared.lock();
         if s.stop {
             return;
         }
@@ -104,8 +118,8 @@ impl WireHandle {
         });
         drop(s);
         if earliest {
-            self.shared.version.fetch_add(1, Ordering::AcqRel);
-            self.shared.changed.notify_one();
+            shared.version.fetch_add(1, Ordering::AcqRel);
+            shared.changed.notify_one();
         }
     }
 }
@@ -132,9 +146,7 @@ impl Wire {
     }
 
     pub(crate) fn handle(&self) -> WireHandle {
-        WireHandle {
-            shared: self.shared.clone(),
-        }
+        WireHandle::Thread(self.shared.clone())
     }
 }
 
@@ -224,7 +236,7 @@ impl Carrier {
     pub(crate) async fn run(mut self) {
         let room = Arc::new(Notify::new());
         loop {
-            let now = self.true_ns(Instant::now());
+            let now = self.true_ns(osap_host::clock::now());
             if let Some(free) = self.transmitter.next_free(now) {
                 let room2 = room.clone();
                 self.wire.at(self.instant(free), move || room2.notify_one());
@@ -236,7 +248,7 @@ impl Carrier {
             };
             let len = packet.len();
             packet.resize(len + FRAMING_BYTES, 0);
-            let now = self.true_ns(Instant::now());
+            let now = self.true_ns(osap_host::clock::now());
             let transit = self.transmitter.transmit(now, packet);
             if transit.lost {
                 continue;

@@ -1,0 +1,492 @@
+//! Simulated module hardware: the [`Board`] osap-module's logic drives in a
+//! simulated module, in place of a firmware's peripherals.
+//!
+//! - the **stepper driver** records its enable line and microstep mode;
+//! - the **motor** takes every step the step words make (the module task
+//!   clocks them out as the firmware's step generator does) and keeps each
+//!   step edge with its time on the module's local clock; it moves a
+//!   carriage whose position is the motor's steps over the mechanics'
+//!   `full_steps_per_unit` and the driver's microstep mode, and a
+//!   **limit switch** at a carriage position changes level as the carriage
+//!   crosses it;
+//! - the **I/O pins** (as on the RP2040 board: 4 digital pins, 2 PWM
+//!   outputs, 3 analog inputs) record what the module writes and read what
+//!   the topology or a test sets.
+
+use super::clock::DriftClock;
+use osap_core::Micros;
+use osap_module::board::{Board, IoHw, StepperHw};
+use serde::{Deserialize, Serialize};
+
+/// Digital pins of a simulated module (as on the RP2040 board).
+pub const DIGITAL_PINS: u8 = 4;
+/// PWM outputs of a simulated module.
+pub const PWM_OUTPUTS: u8 = 2;
+/// Analog inputs of a simulated module.
+pub const ANALOG_INPUTS: u8 = 3;
+/// The microstep modes the simulated driver's mode pins can set (an A4988
+/// or DRV8825 with three mode pins).
+pub const DRIVER_MICROSTEPS: [u16; 6] = [1, 2, 4, 8, 16, 32];
+
+fn default_full_steps_per_unit() -> f64 {
+    80.0
+}
+
+/// What the motor of a simulated module drives, `[module.motor]` in a
+/// topology file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotorSpec {
+    /// Full motor steps per unit of carriage travel (80: a 1.8° motor on a
+    /// GT2 belt and 20-tooth pulley, in mm). What the module's `set_scale`
+    /// should be told for its positions to be carriage units.
+    #[serde(default = "default_full_steps_per_unit")]
+    pub full_steps_per_unit: f64,
+    /// A limit switch at this carriage position (units), pressed below it
+    /// (a minimum endstop); absent: no switch (its input reads released).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limit_min: Option<f64>,
+    /// A limit switch pressed above this carriage position (a maximum
+    /// endstop). At most one of `limit_min` and `limit_max`: the module has
+    /// one limit input.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limit_max: Option<f64>,
+    /// Keep every step edge (time and direction) for [`Motor::edges`]. On
+    /// by default; a very long run may turn it off and read only the counts.
+    #[serde(default = "yes")]
+    pub record: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl Default for MotorSpec {
+    fn default() -> Self {
+        MotorSpec {
+            full_steps_per_unit: default_full_steps_per_unit(),
+            limit_min: None,
+            limit_max: None,
+            record: true,
+        }
+    }
+}
+
+impl MotorSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.full_steps_per_unit.is_finite() && self.full_steps_per_unit > 0.0) {
+            return Err(format!(
+                "[module.motor] full_steps_per_unit {} must be finite and positive",
+                self.full_steps_per_unit
+            ));
+        }
+        if self.limit_min.is_some() && self.limit_max.is_some() {
+            return Err(
+                "[module.motor] has both limit_min and limit_max: a module has one limit input"
+                    .into(),
+            );
+        }
+        for x in [self.limit_min, self.limit_max].into_iter().flatten() {
+            if !x.is_finite() {
+                return Err(format!("[module.motor] limit position {x} must be finite"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What the I/O pins of a simulated module read at boot, `[module.io]`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IoSpec {
+    /// Levels of the digital pins while nothing drives them (at most 4).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub digital: Vec<bool>,
+    /// Analog inputs, fractions of full scale `0..=1` (at most 3).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub analog: Vec<f64>,
+}
+
+impl IoSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if self.digital.len() > usize::from(DIGITAL_PINS) {
+            return Err(format!(
+                "[module.io] digital lists {} pins; a module has {DIGITAL_PINS}",
+                self.digital.len()
+            ));
+        }
+        if self.analog.len() > usize::from(ANALOG_INPUTS) {
+            return Err(format!(
+                "[module.io] analog lists {} inputs; a module has {ANALOG_INPUTS}",
+                self.analog.len()
+            ));
+        }
+        if let Some(v) = self.analog.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+            return Err(format!(
+                "[module.io] analog value {v} must be a fraction of full scale, 0 to 1"
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One step the motor took.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub struct StepEdge {
+    /// The step tick's time on the module's local clock, µs.
+    pub local: Micros,
+    /// Upward (`true`) or downward.
+    pub up: bool,
+}
+
+/// The simulated stepper driver's pins.
+#[derive(Debug, Clone)]
+pub struct Driver {
+    enabled: bool,
+    microsteps: u16,
+}
+
+impl Driver {
+    /// Whether the driver is powered.
+    pub fn enabled(&self) -> bool {
+        self.enabled
+    }
+
+    /// The microstep mode its mode pins set.
+    pub fn microsteps(&self) -> u16 {
+        self.microsteps
+    }
+}
+
+impl StepperHw for Driver {
+    fn set_enable(&mut self, on: bool) {
+        self.enabled = on;
+    }
+
+    fn set_microsteps(&mut self, microsteps: u16) -> bool {
+        let ok = DRIVER_MICROSTEPS.contains(&microsteps);
+        if ok {
+            self.microsteps = microsteps;
+        }
+        ok
+    }
+}
+
+/// The motor, its carriage and its limit switch.
+#[derive(Debug, Clone)]
+pub struct Motor {
+    spec: MotorSpec,
+    /// Net steps taken, in the microstep mode of each step.
+    position: f64,
+    steps: i64,
+    edges: Vec<StepEdge>,
+    /// Limit-switch edges not yet delivered to the module: (local time,
+    /// new level).
+    pending_limit: Vec<(Micros, bool)>,
+    /// The switch input's level after the newest step.
+    limit_level: bool,
+}
+
+impl Motor {
+    fn new(spec: MotorSpec) -> Self {
+        let mut m = Motor {
+            spec,
+            position: 0.0,
+            steps: 0,
+            edges: Vec::new(),
+            pending_limit: Vec::new(),
+            limit_level: true,
+        };
+        m.limit_level = m.level_at(0.0);
+        m
+    }
+
+    /// The switch input's level with the carriage at `units`: pulled up
+    /// (`true`) while released, pulled low while pressed.
+    fn level_at(&self, units: f64) -> bool {
+        let pressed = match (self.spec.limit_min, self.spec.limit_max) {
+            (Some(min), _) => units <= min,
+            (None, Some(max)) => units >= max,
+            (None, None) => false,
+        };
+        !pressed
+    }
+
+    /// Takes one step at local time `local` with the driver in `microsteps`.
+    fn step(&mut self, local: Micros, up: bool, microsteps: u16) {
+        let size = 1.0 / (self.spec.full_steps_per_unit * f64::from(microsteps));
+        self.position += if up { size } else { -size };
+        self.steps += if up { 1 } else { -1 };
+        if self.spec.record {
+            self.edges.push(StepEdge { local, up });
+        }
+        let level = self.level_at(self.position);
+        if level != self.limit_level {
+            self.limit_level = level;
+            self.pending_limit.push((local, level));
+        }
+    }
+
+    /// What the motor drives.
+    pub fn spec(&self) -> &MotorSpec {
+        &self.spec
+    }
+
+    /// Where the carriage is, units (after the newest step clocked out,
+    /// which may be up to a step-generator lead ahead of now).
+    pub fn position(&self) -> f64 {
+        self.position
+    }
+
+    /// Net microsteps taken.
+    pub fn steps(&self) -> i64 {
+        self.steps
+    }
+
+    /// Every step edge kept so far (see [`MotorSpec::record`]).
+    pub fn edges(&self) -> &[StepEdge] {
+        &self.edges
+    }
+
+    /// Takes the step edges kept so far, leaving none.
+    pub fn take_edges(&mut self) -> Vec<StepEdge> {
+        std::mem::take(&mut self.edges)
+    }
+
+    /// The limit input's level after the newest step (`true`: released).
+    pub fn limit_level(&self) -> bool {
+        self.limit_level
+    }
+
+    /// The earliest limit edge not yet handed to the module, local µs.
+    pub(crate) fn next_limit_edge(&self) -> Option<Micros> {
+        self.pending_limit.first().map(|e| e.0)
+    }
+
+    /// Takes the limit edges due by local time `now`, oldest first.
+    pub(crate) fn take_limit_edges(&mut self, now: Micros) -> Vec<(Micros, bool)> {
+        let due = self.pending_limit.partition_point(|e| e.0 <= now);
+        self.pending_limit.drain(..due).collect()
+    }
+}
+
+/// A PWM output's settings over time.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PwmWrite {
+    /// When, local µs.
+    pub local: Micros,
+    /// Which output.
+    pub channel: u8,
+    /// Duty, of 65 535.
+    pub duty: u16,
+}
+
+/// A digital pin driven by the module.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct DigitalWrite {
+    /// When, local µs.
+    pub local: Micros,
+    /// Which pin.
+    pub pin: u8,
+    /// The level driven.
+    pub level: bool,
+}
+
+/// The I/O pins.
+#[derive(Debug, Clone)]
+pub struct Pins {
+    clock: DriftClock,
+    digital: [bool; DIGITAL_PINS as usize],
+    analog: [f64; ANALOG_INPUTS as usize],
+    pwm: [u16; PWM_OUTPUTS as usize],
+    writes: Vec<DigitalWrite>,
+    pwm_writes: Vec<PwmWrite>,
+}
+
+impl Pins {
+    fn new(spec: &IoSpec, clock: DriftClock) -> Self {
+        let mut digital = [false; DIGITAL_PINS as usize];
+        for (d, s) in digital.iter_mut().zip(&spec.digital) {
+            *d = *s;
+        }
+        let mut analog = [0.0; ANALOG_INPUTS as usize];
+        for (a, s) in analog.iter_mut().zip(&spec.analog) {
+            *a = *s;
+        }
+        Pins {
+            clock,
+            digital,
+            analog,
+            pwm: [0; PWM_OUTPUTS as usize],
+            writes: Vec::new(),
+            pwm_writes: Vec::new(),
+        }
+    }
+
+    /// Sets what digital pin `pin` reads (an outside signal); `false` if
+    /// there is no such pin.
+    pub fn set_digital(&mut self, pin: u8, level: bool) -> bool {
+        match self.digital.get_mut(usize::from(pin)) {
+            Some(d) => {
+                *d = level;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Sets what analog input `channel` reads, a fraction of full scale
+    /// (clamped to `0..=1`); `false` if there is no such input.
+    pub fn set_analog(&mut self, channel: u8, value: f64) -> bool {
+        match self.analog.get_mut(usize::from(channel)) {
+            Some(a) => {
+                *a = if value.is_nan() {
+                    0.0
+                } else {
+                    value.clamp(0.0, 1.0)
+                };
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Digital pin levels now.
+    pub fn digital(&self) -> [bool; DIGITAL_PINS as usize] {
+        self.digital
+    }
+
+    /// PWM duties now, of 65 535.
+    pub fn pwm(&self) -> [u16; PWM_OUTPUTS as usize] {
+        self.pwm
+    }
+
+    /// Every level the module drove, in order.
+    pub fn writes(&self) -> &[DigitalWrite] {
+        &self.writes
+    }
+
+    /// Every PWM duty the module set, in order.
+    pub fn pwm_writes(&self) -> &[PwmWrite] {
+        &self.pwm_writes
+    }
+}
+
+impl IoHw for Pins {
+    fn digital_pins(&self) -> u8 {
+        DIGITAL_PINS
+    }
+    fn write_digital(&mut self, pin: u8, level: bool) {
+        if let Some(d) = self.digital.get_mut(usize::from(pin)) {
+            *d = level;
+            self.writes.push(DigitalWrite {
+                local: self.clock.now_us(),
+                pin,
+                level,
+            });
+        }
+    }
+    fn read_digital(&mut self, pin: u8) -> bool {
+        self.digital.get(usize::from(pin)).copied().unwrap_or(false)
+    }
+    fn pwm_outputs(&self) -> u8 {
+        PWM_OUTPUTS
+    }
+    fn write_pwm(&mut self, channel: u8, duty: u16) {
+        if let Some(p) = self.pwm.get_mut(usize::from(channel)) {
+            *p = duty;
+            self.pwm_writes.push(PwmWrite {
+                local: self.clock.now_us(),
+                channel,
+                duty,
+            });
+        }
+    }
+    fn analog_inputs(&self) -> u8 {
+        ANALOG_INPUTS
+    }
+    fn read_analog(&mut self, channel: u8) -> u16 {
+        // A 12-bit converter's reading, shifted left by 4, as on the boards.
+        let v = self
+            .analog
+            .get(usize::from(channel))
+            .copied()
+            .unwrap_or(0.0);
+        ((v * 4095.0).round() as u16) << 4
+    }
+}
+
+/// A simulated module's board: driver, motor, pins and the module's
+/// drifting local clock.
+#[derive(Debug, Clone)]
+pub struct SimBoard {
+    clock: DriftClock,
+    driver: Driver,
+    motor: Motor,
+    pins: Pins,
+}
+
+impl SimBoard {
+    /// A board at rest: driver off, full steps, carriage at 0.
+    pub fn new(clock: DriftClock, motor: MotorSpec, io: &IoSpec) -> Self {
+        SimBoard {
+            clock,
+            driver: Driver {
+                enabled: false,
+                microsteps: 1,
+            },
+            motor: Motor::new(motor),
+            pins: Pins::new(io, clock),
+        }
+    }
+
+    /// The stepper driver.
+    pub fn driver(&self) -> &Driver {
+        &self.driver
+    }
+
+    /// The motor.
+    pub fn motor(&self) -> &Motor {
+        &self.motor
+    }
+
+    /// The motor, to take its step edges.
+    pub fn motor_mut(&mut self) -> &mut Motor {
+        &mut self.motor
+    }
+
+    /// The I/O pins.
+    pub fn pins(&self) -> &Pins {
+        &self.pins
+    }
+
+    /// The I/O pins, to set what they read.
+    pub fn pins_mut(&mut self) -> &mut Pins {
+        &mut self.pins
+    }
+
+    /// The module's local clock.
+    pub fn clock(&self) -> DriftClock {
+        self.clock
+    }
+
+    /// Takes one step of a step word, at local `local`.
+    pub(crate) fn step(&mut self, local: Micros, up: bool) {
+        let microsteps = self.driver.microsteps;
+        self.motor.step(local, up, microsteps);
+    }
+}
+
+impl Board for SimBoard {
+    fn stepper(&mut self) -> &mut dyn StepperHw {
+        &mut self.driver
+    }
+    fn io(&mut self) -> Option<&mut dyn IoHw> {
+        Some(&mut self.pins)
+    }
+    fn now(&self) -> Micros {
+        self.clock.now_us()
+    }
+}
