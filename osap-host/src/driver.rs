@@ -60,6 +60,12 @@ pub async fn drive<D: Driven>(
             tokio::task::yield_now().await;
             continue;
         }
+        // A deadline already due (a clock that maps its µs to instants with
+        // rounding may report one) waits for the next timer tick rather
+        // than spinning: with tokio's clock paused, a spin would keep time
+        // from ever advancing.
+        let earliest = Instant::now() + std::time::Duration::from_micros(1);
+        let deadline = outcome.wake_at.map(|t| t.max(earliest));
         let notified = wake.notified();
         tokio::select! {
             biased;
@@ -72,7 +78,7 @@ pub async fn drive<D: Driven>(
                 None => return,
             },
             _ = notified => {}
-            _ = sleep_until(outcome.wake_at) => {}
+            _ = sleep_until(deadline) => {}
         }
     }
 }

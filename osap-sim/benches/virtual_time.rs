@@ -1,0 +1,29 @@
+//! A 60 s CoreXY motion job on simulated modules in virtual time: how much
+//! faster than real time it runs. `cargo bench -p osap-sim --bench
+//! virtual_time` (optionally `-- SECONDS`).
+
+mod corexy_job;
+
+use osap_sim::machine::{virtual_runtime, TimeMode};
+use std::time::Instant;
+
+fn main() {
+    let seconds: f64 = std::env::args()
+        .skip(1)
+        .find_map(|a| a.parse().ok())
+        .unwrap_or(60.0);
+    let wall = Instant::now();
+    let run = virtual_runtime()
+        .expect("a current-thread runtime")
+        .block_on(corexy_job::run(seconds, 1, TimeMode::Virtual));
+    let wall_s = wall.elapsed().as_secs_f64();
+    println!(
+        "virtual time: a {seconds:.0} s CoreXY job ({:.1} s simulated from its first line to its last step, {} + {} steps, {} faults, {} refused) ran in {wall_s:.2} s of wall time: {:.1}x real time",
+        run.simulated_s,
+        run.edges[0].len(),
+        run.edges[1].len(),
+        run.faults,
+        run.refused,
+        run.simulated_s / wall_s
+    );
+}
