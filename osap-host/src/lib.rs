@@ -8,8 +8,13 @@
 //!   queues, and (in submodules) serial, TCP, UDP and Unix sockets.
 //! - [`port`]: async ports: send datagrams, make requests and await their
 //!   replies with timeouts.
+//! - [`driver`]: the loop that drives a runtime, shared with the simulated
+//!   modules of `osap-sim`.
 //!
-//! The host is the clock root (tier 0) by default.
+//! The host is the clock root (tier 0) by default. Its clock reads tokio's
+//! ([`clock`]), so a host on a runtime with paused time runs in virtual
+//! time. This crate is a library only: the `osap` command line is
+//! `osap-cli`, simulated machines are `osap-sim`.
 #![deny(missing_docs)]
 
 pub mod clock;
