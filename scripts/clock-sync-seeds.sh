@@ -5,19 +5,24 @@
 # seconds each; prints, per topology and start, the median, 90th percentile
 # and worst time until every node stays within 50 µs of the root, and how
 # many runs met the target (cold and busy: under 2 s; hot: under 0.5 s).
+# TOPOLOGIES (comma-separated) replaces chain4,star8,loop: built-in names
+# or TOML topology files, the format the simulated machines read, e.g.
+# TOPOLOGIES=chain4,osap-sim/topologies/chain4-hub-root.toml (rows are
+# named after each file's `name`).
 #
-#   scripts/clock-sync-seeds.sh [SEEDS] [FIRST]
+#   [TOPOLOGIES=...] scripts/clock-sync-seeds.sh [SEEDS] [FIRST]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=${1:-20}
 first=${2:-1}
+topologies=${TOPOLOGIES:-chain4,star8,loop}
 cargo build -q --release -p osap-sim --features plot --bin clock_sync_report
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 for seed in $(seq "$first" $((first + seeds - 1))); do
   ./target/release/clock_sync_report --minutes 0.67 --seed "$seed" --out "$out/$seed" \
-    --topologies chain4,star8,loop --variants cold,hot,busy --jobs 2 2>/dev/null |
-    awk -F'|' '/^\| (chain4|star8|loop) /{gsub(/ /,""); print $2, $3, $4}'
+    --topologies "$topologies" --variants cold,hot,busy --jobs 2 2>/dev/null |
+    awk -F'|' '/^\| / && !/^\| topology / && !/^\|---/{gsub(/ /,""); print $2, $3, $4}'
 done | sort -k1,1 -k2,2 -k3,3g | awk '
   function report(   n, med, p90, met, target) {
     if (count == 0) return

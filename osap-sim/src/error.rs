@@ -6,15 +6,9 @@ use std::fmt;
 /// Why a simulation could not be built or a description not read.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum SimError {
-    /// A parameter, node or link description is invalid.
+    /// A parameter, node or link description is invalid (or a topology
+    /// file could not be read).
     Config(String),
-    /// A line of a text topology description could not be parsed.
-    Parse {
-        /// 1-based line number.
-        line: usize,
-        /// What is wrong with it.
-        message: String,
-    },
     /// Writing an output file (a plot, a report) failed.
     Output(String),
 }
@@ -30,9 +24,6 @@ impl fmt::Display for SimError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             SimError::Config(m) => write!(f, "invalid simulation configuration: {m}"),
-            SimError::Parse { line, message } => {
-                write!(f, "topology description, line {line}: {message}")
-            }
             SimError::Output(m) => write!(f, "output failed: {m}"),
         }
     }

@@ -16,7 +16,9 @@
 //! - [`link`]: the simulated [`LinkGateway`](osap_core::link::LinkGateway);
 //! - [`busy`]: busy spells of a node;
 //! - [`node`]: a node (runtime, links, ports, clock, main-loop model);
-//! - [`topology`]: network descriptions, built in or parsed from text;
+//! - [`topology`]: network descriptions, built in or read from the TOML
+//!   topology files the simulated machines also read ([`from_machine`]:
+//!   `osap-sim/topologies/*.toml`);
 //! - [`sim`]: the event loop;
 //! - [`metrics`]: errors of every node's synchronised time against the
 //!   root's, and their statistics;
@@ -27,7 +29,8 @@
 //! Beside it, [`machine`]: real-time simulated machines. Modules on
 //! drifting clocks behind simulated links, in tokio tasks, that a real
 //! [`osap_host::Host`] (and the `osap` CLI, and any script) talks to as to
-//! hardware; described by TOML topology files (`osap-sim/topologies/`).
+//! hardware; described by TOML topology files (`osap-sim/topologies/`),
+//! which the discrete-event simulator runs too ([`Topology::load`]).
 //!
 //! Run a topology in one call and look at the result:
 //!
@@ -84,6 +87,7 @@
 pub mod busy;
 pub mod clock;
 pub mod error;
+pub mod from_machine;
 pub mod hot_start;
 pub mod link;
 pub mod machine;

@@ -50,6 +50,8 @@ pub struct SimLink {
     link: usize,
     side: Side,
     name: String,
+    /// False for a gateway that joins nothing ([`SimLink::unconnected`]).
+    connected: bool,
     open: bool,
     now: Nanos,
     tx: Transmitter,
@@ -72,6 +74,7 @@ impl SimLink {
             link,
             side,
             name: name.to_string(),
+            connected: true,
             open: true,
             now: 0,
             tx: Transmitter::new(model, side, rng),
@@ -87,9 +90,24 @@ impl SimLink {
         }
     }
 
-    /// The link's number in the simulation.
+    /// A gateway of kind `model` that joins nothing: closed for good (on
+    /// USB, a device end). [`link_index`](Self::link_index) is `usize::MAX`.
+    pub fn unconnected(model: LinkModel) -> Self {
+        let mut link = SimLink::new(usize::MAX, Side::B, "", model, Rng::new(0));
+        link.connected = false;
+        link.open = false;
+        link
+    }
+
+    /// The link's number in the simulation (`usize::MAX` if the gateway
+    /// joins nothing).
     pub fn link_index(&self) -> usize {
         self.link
+    }
+
+    /// Whether a link joins this gateway to another node.
+    pub fn is_connected(&self) -> bool {
+        self.connected
     }
 
     /// Which end of the link this is.
@@ -118,9 +136,10 @@ impl SimLink {
         self.decoder.as_ref().map(|d| *d.counters())
     }
 
-    /// Opens or closes this end (a closed end neither sends nor receives).
+    /// Opens or closes this end (a closed end neither sends nor receives;
+    /// an unconnected one stays closed).
     pub fn set_open(&mut self, open: bool) {
-        self.open = open;
+        self.open = open && self.connected;
         if !open {
             self.inbox.clear();
             if let Some(d) = self.decoder.as_mut() {

@@ -25,7 +25,9 @@ pub const MAX_LINKS: usize = 16;
 pub type SimRuntime = Runtime<SLOTS, PACKET_SIZE, PORTS, MAX_LINKS>;
 
 /// What a node is: it sets the defaults of its main-loop latency and clock.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// In a TOML topology's `[host]` table (`kind`), `"host"` or `"mcu"`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum NodeKind {
     /// A host process (an operating system schedules its loop).
     Host,

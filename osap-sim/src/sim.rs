@@ -24,7 +24,7 @@ use crate::medium::{Side, StampMode, Transit};
 use crate::metrics::{Metrics, Parent};
 use crate::node::{Node, NodeKind, NodeSpec, SimRuntime};
 use crate::rng::Rng;
-use crate::topology::Topology;
+use crate::topology::{Gateway, Topology};
 use crate::Nanos;
 use osap_core::clock::TimeConfig;
 use osap_core::netresponder::BuildKey;
@@ -153,8 +153,9 @@ pub struct Sim {
 
 impl Sim {
     /// Builds the network of `topology`: a runtime per node (the root
-    /// configured as tier 0), a gateway per link end, oscillators and
-    /// randomness drawn from `config.seed`.
+    /// configured as tier 0), a gateway per link end and per unconnected
+    /// gateway, at the link indices [`Topology::gateways`] gives them,
+    /// oscillators and randomness drawn from `config.seed`.
     pub fn new(topology: &Topology, config: SimConfig) -> Result<Sim, SimError> {
         topology.validate()?;
         if !(config.boot_window_us.is_finite() && config.boot_window_us >= 0.0) {
@@ -179,19 +180,28 @@ impl Sim {
                 busy,
             ));
         }
-        let endpoints = topology.endpoints();
-        let mut links = Vec::with_capacity(endpoints.len());
-        for (l, (spec, ends)) in topology.links.iter().zip(&endpoints).enumerate() {
-            for side in [Side::A, Side::B] {
-                let (n, _) = ends[side.index()];
-                let rng = Rng::stream(seed, "link", 2 * l as u64 + side.index() as u64);
-                let link = SimLink::new(l, side, &spec.name, spec.model, rng);
+        let gateways = topology.gateways()?;
+        let mut links: Vec<LinkEnds> = topology
+            .links
+            .iter()
+            .map(|spec| LinkEnds {
+                type_name: spec.model.type_name(),
+                ends: [(0, 0); 2],
+            })
+            .collect();
+        for (n, node_gateways) in gateways.into_iter().enumerate() {
+            for (index, g) in node_gateways.into_iter().enumerate() {
+                let link = match g {
+                    Gateway::Link { link: l, side } => {
+                        let spec = &topology.links[l];
+                        links[l].ends[side.index()] = (n, index);
+                        let rng = Rng::stream(seed, "link", 2 * l as u64 + side.index() as u64);
+                        SimLink::new(l, side, &spec.name, spec.model, rng)
+                    }
+                    Gateway::Unconnected(k) => SimLink::unconnected(topology.unconnected[k].model),
+                };
                 nodes[n].links.push(link);
             }
-            links.push(LinkEnds {
-                type_name: spec.model.type_name(),
-                ends: *ends,
-            });
         }
         let root = topology.root().unwrap_or(0);
         let names = topology.nodes.iter().map(|n| n.name.clone()).collect();

@@ -1,9 +1,17 @@
 //! Network descriptions: which nodes, joined by which links.
 //!
 //! A [`Topology`] is plain data: node specs and link specs that name their
-//! two ends. A node's link gateways are numbered in the order the links
-//! naming it were added, from 0, which is the order a runtime's
-//! `link_forward` indices refer to.
+//! two ends. A node's link gateways are numbered from 0 in the order the
+//! links naming it were added, which is the order a runtime's
+//! `link_forward` indices refer to, unless a link end asks for an index of
+//! its own ([`LinkSpec::at`]); a gateway that joins nothing
+//! ([`Unconnected`]) can hold an index no link takes, as the module
+//! firmware's USB link does on a module that is reached over its UART.
+//!
+//! Topologies are written as the TOML files the simulated machines read
+//! ([`crate::machine::Topology`], `osap-sim/topologies/*.toml`):
+//! [`Topology::load`] reads one and [`Topology::from_machine`] converts
+//! one (see [`crate::from_machine`] for how each key maps).
 //!
 //! Built-in shapes (hosts are clock roots; hubs and modules are MCUs; every
 //! host–hub link is USB CDC and every other link a 2 Mbaud UART):
@@ -19,35 +27,15 @@
 //! - [`Topology::loop3`] (`loop`): `host –USB– a`, a UART cycle `a – b – c
 //!   – a`, and a module `m1` off `c`.
 //!
-//! The same can be written as text ([`Topology::parse`]):
-//!
-//! ```text
-//! # chain4
-//! name chain4
-//! node host host root
-//! node hub1 mcu
-//! node hub2 mcu
-//! node m1 mcu
-//! link host hub1 usb_cdc
-//! link hub1 hub2 uart baud=2000000
-//! link hub2 m1 uart baud=2000000
-//! ```
-//!
-//! `node NAME host|mcu [root] [busy] [rate_ppm=X] [offset_us=X]`;
-//! `link A B TYPE [key=value…]` with TYPE one of `uart`, `rs485`,
-//! `usb_cdc` (A is the USB host), `tcp`, `udp`. Keys: `mtu`, `loss`; for
-//! UARTs `baud`, `bits`, `prop_us`, `asym_us`, `jitter_us` (uniform
-//! `[0, x]`), `corrupt` (per byte), `fifo` (frames); for USB
-//! `sof_phase_us`, `tx_latency_us`, `rx_latency_us` (exponential means),
-//! `host_stamps`, `out_frame_aligned`, `in_frame_aligned`; for sockets `preset` (`loopback`, `lan`), `min_latency_us`,
-//! `jitter_us` (exponential mean), `asym_us`, `stamps`.
+//! Link kinds and parameters the TOML format has no keys for (TCP and UDP
+//! links, USB latencies, UART bits per byte, propagation delay, asymmetry,
+//! transmit buffers) are set with the builders: [`Topology::with_link`],
+//! [`Topology::map_links`].
 
 use crate::busy::BusyModel;
-use crate::clock::Param;
 use crate::error::SimError;
-use crate::medium::{IpParams, LinkModel, UartParams, UsbParams};
+use crate::medium::{LinkModel, Side};
 use crate::node::{NodeKind, NodeSpec, MAX_LINKS};
-use crate::rng::Dist;
 use std::collections::HashSet;
 
 /// One link: its two ends (node names) and its kind.
@@ -61,6 +49,63 @@ pub struct LinkSpec {
     pub name: String,
     /// Kind and parameters.
     pub model: LinkModel,
+    /// The link index of end A and of end B at their nodes; `None` (the
+    /// default): the lowest index that end's node has free, taking the
+    /// links in order after every index asked for is reserved.
+    pub at: [Option<usize>; 2],
+}
+
+impl LinkSpec {
+    /// A link of `model` between `a` and `b` (on USB, `a` is the host),
+    /// unnamed, at the next free link index of each end.
+    pub fn new(a: &str, b: &str, model: LinkModel) -> Self {
+        LinkSpec {
+            a: a.to_string(),
+            b: b.to_string(),
+            name: String::new(),
+            model,
+            at: [None, None],
+        }
+    }
+
+    /// The same link with instance name `name`.
+    pub fn named(mut self, name: &str) -> Self {
+        self.name = name.to_string();
+        self
+    }
+
+    /// The same link at link index `index` of end `side`'s node.
+    pub fn at(mut self, side: Side, index: usize) -> Self {
+        self.at[side.index()] = Some(index);
+        self
+    }
+}
+
+/// A link gateway that joins nothing: it is there, at its index, and never
+/// opens (as the module firmware's USB link on a module reached over its
+/// UART).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unconnected {
+    /// Its node.
+    pub node: String,
+    /// Its link index at the node.
+    pub index: usize,
+    /// Its kind (for its type name, MTU and, on USB, as the device end).
+    pub model: LinkModel,
+}
+
+/// What one of a node's link indices holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Gateway {
+    /// End `side` of `links[link]`.
+    Link {
+        /// The link's position in [`Topology::links`].
+        link: usize,
+        /// Which end.
+        side: Side,
+    },
+    /// [`Topology::unconnected`]`[k]`.
+    Unconnected(usize),
 }
 
 /// A network description.
@@ -72,6 +117,8 @@ pub struct Topology {
     pub nodes: Vec<NodeSpec>,
     /// The links, in the order they were added.
     pub links: Vec<LinkSpec>,
+    /// Gateways that join nothing.
+    pub unconnected: Vec<Unconnected>,
 }
 
 /// The default UART of the built-in shapes: 2 Mbaud.
@@ -86,6 +133,7 @@ impl Topology {
             name: name.to_string(),
             nodes: Vec::new(),
             links: Vec::new(),
+            unconnected: Vec::new(),
         }
     }
 
@@ -97,10 +145,22 @@ impl Topology {
 
     /// Adds a link between nodes `a` and `b` (on USB, `a` is the host).
     pub fn add_link(&mut self, a: &str, b: &str, model: LinkModel) -> &mut Self {
-        self.links.push(LinkSpec {
-            a: a.to_string(),
-            b: b.to_string(),
-            name: String::new(),
+        self.links.push(LinkSpec::new(a, b, model));
+        self
+    }
+
+    /// Adds a link described in full (a name, link indices of its own).
+    pub fn add_link_spec(&mut self, link: LinkSpec) -> &mut Self {
+        self.links.push(link);
+        self
+    }
+
+    /// Adds a gateway of `model` at link index `index` of `node` that joins
+    /// nothing and never opens.
+    pub fn add_unconnected(&mut self, node: &str, index: usize, model: LinkModel) -> &mut Self {
+        self.unconnected.push(Unconnected {
+            node: node.to_string(),
+            index,
             model,
         });
         self
@@ -261,8 +321,9 @@ impl Topology {
     }
 
     /// Checks the description: unique names, links between distinct
-    /// existing nodes, at most [`MAX_LINKS`] links per node, a clock root,
-    /// and every parameter in range.
+    /// existing nodes, a clock root, every parameter in range, and link
+    /// indices that leave no gap and give no node more than [`MAX_LINKS`]
+    /// ([`gateways`](Self::gateways)).
     pub fn validate(&self) -> Result<(), SimError> {
         if self.nodes.is_empty() {
             return Err(SimError::config(format!(
@@ -286,7 +347,6 @@ impl Topology {
                 self.name
             )));
         }
-        let mut degree = vec![0usize; self.nodes.len()];
         for (i, l) in self.links.iter().enumerate() {
             let label = format!("#{i} ({} - {})", l.a, l.b);
             let end = |name: &str| {
@@ -301,181 +361,127 @@ impl Topology {
                 )));
             }
             l.model.validate(&label)?;
-            for n in [a, b] {
-                degree[n] += 1;
-                if degree[n] > MAX_LINKS {
-                    return Err(SimError::config(format!(
-                        "node {} has more than {MAX_LINKS} links",
-                        self.nodes[n].name
-                    )));
+        }
+        for (k, u) in self.unconnected.iter().enumerate() {
+            let label = format!("unconnected gateway #{k} ({} link {})", u.node, u.index);
+            if self.node_index(&u.node).is_none() {
+                return Err(SimError::config(format!(
+                    "{label}: no node named {:?}",
+                    u.node
+                )));
+            }
+            u.model.validate(&label)?;
+        }
+        self.gateways().map(|_| ())
+    }
+
+    /// Each node's link gateways in link-index order: indices asked for
+    /// ([`LinkSpec::at`], [`Unconnected::index`]) first, then every other
+    /// link end, in link order, at the lowest index its node has free.
+    /// Fails if two ask for one index, an index is left without a gateway,
+    /// or a node has more than [`MAX_LINKS`].
+    pub fn gateways(&self) -> Result<Vec<Vec<Gateway>>, SimError> {
+        let mut slots: Vec<Vec<Option<Gateway>>> = vec![Vec::new(); self.nodes.len()];
+        let node = |name: &str| {
+            self.node_index(name)
+                .ok_or_else(|| SimError::config(format!("no node named {name:?}")))
+        };
+        let too_many = |n: usize| {
+            SimError::config(format!(
+                "node {} has more than {MAX_LINKS} links",
+                self.nodes[n].name
+            ))
+        };
+        let mut place = |n: usize, index: usize, g: Gateway| {
+            if index >= MAX_LINKS {
+                return Err(too_many(n));
+            }
+            let s = &mut slots[n];
+            if s.len() <= index {
+                s.resize(index + 1, None);
+            }
+            if let Some(taken) = s[index] {
+                return Err(SimError::config(format!(
+                    "node {}: link index {index} is asked for twice ({}, {})",
+                    self.nodes[n].name,
+                    self.describe(taken),
+                    self.describe(g)
+                )));
+            }
+            s[index] = Some(g);
+            Ok(())
+        };
+        for (link, l) in self.links.iter().enumerate() {
+            for side in [Side::A, Side::B] {
+                if let Some(index) = l.at[side.index()] {
+                    let n = node([&l.a, &l.b][side.index()])?;
+                    place(n, index, Gateway::Link { link, side })?;
                 }
             }
         }
-        Ok(())
+        for (k, u) in self.unconnected.iter().enumerate() {
+            place(node(&u.node)?, u.index, Gateway::Unconnected(k))?;
+        }
+        for (link, l) in self.links.iter().enumerate() {
+            for side in [Side::A, Side::B] {
+                if l.at[side.index()].is_some() {
+                    continue;
+                }
+                let n = node([&l.a, &l.b][side.index()])?;
+                let s = &mut slots[n];
+                let index = s.iter().position(Option::is_none).unwrap_or(s.len());
+                if index >= MAX_LINKS {
+                    return Err(too_many(n));
+                }
+                if index == s.len() {
+                    s.push(None);
+                }
+                s[index] = Some(Gateway::Link { link, side });
+            }
+        }
+        slots
+            .into_iter()
+            .enumerate()
+            .map(|(n, s)| {
+                s.into_iter()
+                    .enumerate()
+                    .map(|(index, g)| {
+                        g.ok_or_else(|| {
+                            SimError::config(format!(
+                                "node {}: no link or unconnected gateway is at link index {index}, below one that is",
+                                self.nodes[n].name
+                            ))
+                        })
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    fn describe(&self, g: Gateway) -> String {
+        match g {
+            Gateway::Link { link, side } => {
+                let l = &self.links[link];
+                format!("link #{link} ({} - {}) end {side:?}", l.a, l.b)
+            }
+            Gateway::Unconnected(k) => format!("unconnected gateway #{k}"),
+        }
     }
 
     /// For each link, its two ends as (node index, link index at that
-    /// node). Call after [`validate`](Self::validate).
+    /// node). Call after [`validate`](Self::validate) (empty if invalid).
     pub fn endpoints(&self) -> Vec<[(usize, usize); 2]> {
-        let mut degree = vec![0usize; self.nodes.len()];
-        let mut out = Vec::with_capacity(self.links.len());
-        for l in &self.links {
-            let mut ends = [(0, 0); 2];
-            for (k, name) in [&l.a, &l.b].into_iter().enumerate() {
-                let n = self.node_index(name).unwrap_or(0);
-                ends[k] = (n, degree[n]);
-                degree[n] += 1;
-            }
-            out.push(ends);
-        }
-        out
-    }
-
-    /// Reads the text form described in the module documentation.
-    pub fn parse(text: &str) -> Result<Self, SimError> {
-        let mut t = Topology::new("custom");
-        for (i, raw) in text.lines().enumerate() {
-            let line = raw.split('#').next().unwrap_or("").trim();
-            if line.is_empty() {
-                continue;
-            }
-            let err = |message: String| SimError::Parse {
-                line: i + 1,
-                message,
-            };
-            let words: Vec<&str> = line.split_whitespace().collect();
-            match words[0] {
-                "name" => match words.as_slice() {
-                    [_, name] => t.name = (*name).to_string(),
-                    _ => return Err(err("expected `name NAME`".into())),
-                },
-                "node" => t.nodes.push(parse_node(&words[1..]).map_err(err)?),
-                "link" => t.links.push(parse_link(&words[1..]).map_err(err)?),
-                other => {
-                    return Err(err(format!(
-                        "unknown statement {other:?}: expected name, node or link"
-                    )))
+        let Ok(gateways) = self.gateways() else {
+            return Vec::new();
+        };
+        let mut out = vec![[(0, 0); 2]; self.links.len()];
+        for (n, node) in gateways.iter().enumerate() {
+            for (index, g) in node.iter().enumerate() {
+                if let Gateway::Link { link, side } = *g {
+                    out[link][side.index()] = (n, index);
                 }
             }
         }
-        t.validate()?;
-        Ok(t)
+        out
     }
-}
-
-fn value<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, String> {
-    v.parse()
-        .map_err(|_| format!("{key}={v}: not a valid value for {key}"))
-}
-
-fn parse_node(words: &[&str]) -> Result<NodeSpec, String> {
-    let (name, kind, rest) = match words {
-        [name, kind, rest @ ..] => (*name, *kind, rest),
-        _ => return Err("expected `node NAME host|mcu [options]`".into()),
-    };
-    let mut spec = match kind {
-        "host" => NodeSpec::host(name).with_root(false),
-        "mcu" => NodeSpec::mcu(name),
-        _ => return Err(format!("node kind {kind:?}: expected host or mcu")),
-    };
-    for w in rest {
-        match w.split_once('=') {
-            None if *w == "root" => spec.root = true,
-            None if *w == "busy" => spec.busy = Some(BusyModel::MOTOR),
-            Some(("rate_ppm", v)) => spec.clock.rate_ppm = Param::Fixed(value("rate_ppm", v)?),
-            Some(("offset_us", v)) => spec.clock.offset_us = Param::Fixed(value("offset_us", v)?),
-            _ => return Err(format!("unknown node option {w:?}")),
-        }
-    }
-    Ok(spec)
-}
-
-fn parse_link(words: &[&str]) -> Result<LinkSpec, String> {
-    let (a, b, kind, rest) = match words {
-        [a, b, kind, rest @ ..] => (*a, *b, *kind, rest),
-        _ => return Err("expected `link A B TYPE [key=value...]`".into()),
-    };
-    let mut model = match kind {
-        "uart" => LinkModel::Uart(UartParams::default()),
-        "rs485" => LinkModel::Rs485(UartParams::default()),
-        "usb_cdc" => LinkModel::UsbCdc(UsbParams::default()),
-        "tcp" => LinkModel::Tcp(IpParams::LOOPBACK),
-        "udp" => LinkModel::Udp(IpParams::LOOPBACK),
-        _ => {
-            return Err(format!(
-                "link type {kind:?}: expected uart, rs485, usb_cdc, tcp or udp"
-            ))
-        }
-    };
-    for w in rest {
-        let Some((k, v)) = w.split_once('=') else {
-            return Err(format!("link option {w:?}: expected key=value"));
-        };
-        set_link_option(&mut model, k, v)?;
-    }
-    Ok(LinkSpec {
-        a: a.to_string(),
-        b: b.to_string(),
-        name: String::new(),
-        model,
-    })
-}
-
-fn set_link_option(model: &mut LinkModel, k: &str, v: &str) -> Result<(), String> {
-    let unknown = |kind: &str| format!("unknown option {k:?} for a {kind} link");
-    let kind = model.type_name();
-    match model {
-        LinkModel::Uart(p) | LinkModel::Rs485(p) => match k {
-            "mtu" => p.mtu = value(k, v)?,
-            "loss" => p.loss = value(k, v)?,
-            "baud" => p.baud = value(k, v)?,
-            "bits" => p.bits_per_byte = value(k, v)?,
-            "prop_us" => p.propagation_us = value(k, v)?,
-            "asym_us" => p.asymmetry_us = value(k, v)?,
-            "jitter_us" => p.jitter = Dist::uniform(0.0, value(k, v)?),
-            "corrupt" => p.corrupt_per_byte = value(k, v)?,
-            "fifo" => p.tx_buffer_frames = value(k, v)?,
-            _ => return Err(unknown(kind)),
-        },
-        LinkModel::UsbCdc(p) => match k {
-            "mtu" => p.mtu = value(k, v)?,
-            "loss" => p.loss = value(k, v)?,
-            "sof_phase_us" => p.sof_phase_us = value(k, v)?,
-            "tx_latency_us" => p.host_tx_latency = Dist::exp(0.0, value(k, v)?),
-            "rx_latency_us" => p.host_rx_latency = Dist::exp(0.0, value(k, v)?),
-            "host_stamps" => p.host_stamps = value(k, v)?,
-            "out_frame_aligned" => p.out_frame_aligned = value(k, v)?,
-            "in_frame_aligned" => p.in_frame_aligned = value(k, v)?,
-            _ => return Err(unknown(kind)),
-        },
-        LinkModel::Tcp(p) | LinkModel::Udp(p) => match k {
-            "mtu" => p.mtu = value(k, v)?,
-            "loss" => p.loss = value(k, v)?,
-            "preset" => {
-                let keep = (p.mtu, p.loss);
-                *p = match v {
-                    "loopback" => IpParams::LOOPBACK,
-                    "lan" => IpParams::LAN,
-                    _ => return Err(format!("preset {v:?}: expected loopback or lan")),
-                };
-                (p.mtu, p.loss) = keep;
-            }
-            "min_latency_us" | "jitter_us" => {
-                let (min, mean) = match p.latency {
-                    Dist::Exp { min, mean } => (min, mean),
-                    d => (d.mean_us(), 0.0),
-                };
-                let x: f64 = value(k, v)?;
-                p.latency = if k == "min_latency_us" {
-                    Dist::exp(x, mean)
-                } else {
-                    Dist::exp(min, x)
-                };
-            }
-            "asym_us" => p.asymmetry_us = value(k, v)?,
-            "stamps" => p.stamps = value(k, v)?,
-            _ => return Err(unknown(kind)),
-        },
-    }
-    Ok(())
 }

@@ -6,32 +6,23 @@
 use osap_sim::busy::BusyModel;
 use osap_sim::{Scenario, Topology};
 
+/// A topology shipped in `osap-sim/topologies/`, for the discrete-event
+/// simulator.
+fn shipped(file: &str) -> Topology {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("topologies")
+        .join(file);
+    Topology::load(path).expect("valid topology")
+}
+
 /// Host (root) and two modules in a chain over 2 Mbaud UARTs.
 fn uart_chain() -> Topology {
-    Topology::parse(
-        "name uartchain\n\
-         node host mcu root\n\
-         node hub mcu\n\
-         node m1 mcu\n\
-         link host hub uart baud=2000000\n\
-         link hub m1 uart baud=2000000\n",
-    )
-    .expect("valid topology")
+    shipped("uart-chain.toml")
 }
 
 /// chain4 with the USB hub module as the root; the host follows over USB.
 fn chain4_hub_root() -> Topology {
-    Topology::parse(
-        "name chain4-hubroot\n\
-         node host host\n\
-         node hub1 mcu root\n\
-         node hub2 mcu\n\
-         node m1 mcu\n\
-         link host hub1 usb_cdc\n\
-         link hub1 hub2 uart baud=2000000\n\
-         link hub2 m1 uart baud=2000000\n",
-    )
-    .expect("valid topology")
+    shipped("chain4-hub-root.toml")
 }
 
 #[test]

@@ -1,7 +1,12 @@
-//! Topology builders, the text form, and configuration errors.
+//! Topology builders, the TOML form, link indices, and configuration
+//! errors.
 
-use osap_sim::medium::UartParams;
-use osap_sim::{LinkModel, NodeSpec, Sim, SimConfig, SimError, Topology};
+use osap_core::link::LinkGateway;
+use osap_sim::clock::{ClockSpec, Param};
+use osap_sim::medium::{Side, UartParams};
+use osap_sim::rng::Dist;
+use osap_sim::topology::{Gateway, LinkSpec};
+use osap_sim::{LinkModel, NodeKind, NodeSpec, Sim, SimConfig, SimError, Topology};
 
 fn link_types(t: &Topology) -> Vec<&'static str> {
     t.links.iter().map(|l| l.model.type_name()).collect()
@@ -42,52 +47,254 @@ fn built_in_shapes() {
 }
 
 #[test]
-fn text_form_matches_the_builder() {
-    let text = "
+fn toml_form_matches_the_builder() {
+    // The format the simulated machines read; clocks drawn from the seed,
+    // as the builders draw them.
+    let text = r#"
         # host -> USB -> hub -> UART -> hub -> UART -> module
-        name chain4
-        node host host root
-        node hub1 mcu
-        node hub2 mcu
-        node m1 mcu
-        link host hub1 usb_cdc
-        link hub1 hub2 uart baud=2000000
-        link hub2 m1 uart baud=2000000
-    ";
-    let parsed = Topology::parse(text).unwrap();
+        name = "chain4"
+        [host]
+        clock = "drawn"
+        [[module]]
+        name = "hub1"
+        type = "hub"
+        clock = "drawn"
+        [[module]]
+        name = "hub2"
+        type = "hub"
+        clock = "drawn"
+        [[module]]
+        name = "m1"
+        type = "hub"
+        clock = "drawn"
+        [[link]]
+        a = "host"
+        b = "hub1"
+        kind = "usb"
+        [[link]]
+        a = "hub1"
+        b = "hub2"
+        kind = "uart"
+        baud = 2000000
+        [[link]]
+        a = "hub2"
+        b = "m1"
+        kind = "uart"
+    "#;
+    let parsed = Topology::from_toml(text).unwrap();
     assert_eq!(parsed, Topology::chain4());
 
-    let custom = Topology::parse(
-        "node pc host root\nnode a mcu busy rate_ppm=-20\n\
-         link pc a uart baud=3000000 corrupt=0.001 jitter_us=2 asym_us=1.5\n\
-         link pc a udp preset=lan loss=0.1",
+    let custom = Topology::from_toml(
+        r#"
+        [host]
+        kind = "mcu"
+        busy = true
+        [[module]]
+        name = "a"
+        type = "hub"
+        root = true
+        busy = true
+        rate_ppm = -20.0
+        offset_us = 1500.0
+        wander_ppm = 1.0
+        wander_period_s = 200.0
+        [[link]]
+        a = "host"
+        b = "a"
+        kind = "uart"
+        baud = 3000000
+        corrupt_per_byte = 0.001
+        jitter_us = 2.0
+        loss = 0.01
+        name = "j4"
+        [[link]]
+        a = "a"
+        b = "host"
+        kind = "usb"
+        loss = 0.1
+        mtu = 64
+        [[link]]
+        a = "host"
+        b = "a"
+        kind = "memory"
+        "#,
     )
     .unwrap();
+    assert_eq!(custom.name, "custom");
+    let (host, a) = (&custom.nodes[0], &custom.nodes[1]);
+    assert_eq!((host.name.as_str(), host.kind), ("host", NodeKind::Mcu));
+    assert!(!host.root && host.busy.is_some());
+    assert_eq!(host.clock, ClockSpec::IDEAL);
+    assert!(a.root && a.busy.is_some());
+    assert_eq!(
+        a.clock,
+        ClockSpec {
+            offset_us: Param::Fixed(1500.0),
+            rate_ppm: Param::Fixed(-20.0),
+            wander_ppm: Param::Fixed(1.0),
+            wander_period_s: Param::Fixed(200.0),
+        }
+    );
     let LinkModel::Uart(u) = custom.links[0].model else {
         panic!("uart expected")
     };
     assert_eq!(
-        (u.baud, u.corrupt_per_byte, u.asymmetry_us),
-        (3_000_000, 0.001, 1.5)
+        (u.baud, u.corrupt_per_byte, u.loss, u.jitter),
+        (3_000_000, 0.001, 0.01, Dist::uniform(0.0, 2.0))
     );
-    assert!(custom.nodes[1].busy.is_some());
+    assert_eq!(custom.links[0].name, "j4");
+    // On USB the host is end A, whichever end the file names it.
+    let usb = &custom.links[1];
+    assert_eq!((usb.a.as_str(), usb.b.as_str()), ("host", "a"));
+    let LinkModel::UsbCdc(p) = usb.model else {
+        panic!("usb expected")
+    };
+    assert_eq!((p.loss, p.mtu), (0.1, 64));
+    // A memory link is an instant UDP link.
+    let LinkModel::Udp(p) = custom.links[2].model else {
+        panic!("udp expected")
+    };
+    assert_eq!(p.latency, Dist::ZERO);
+    assert_eq!(link_types(&custom), ["uart", "usb_cdc", "udp"]);
+}
+
+#[test]
+fn a_stepper_has_the_firmware_links_in_both_simulators() {
+    // s's UART is listed before its USB; t is reached only over a UART.
+    let t = Topology::from_toml(
+        r#"
+        [[module]]
+        name = "hub"
+        type = "hub"
+        [[module]]
+        name = "s"
+        type = "stepper"
+        [[module]]
+        name = "t"
+        type = "stepper"
+        [[link]]
+        a = "host"
+        b = "hub"
+        kind = "usb"
+        [[link]]
+        a = "hub"
+        b = "s"
+        kind = "uart"
+        [[link]]
+        a = "s"
+        b = "host"
+        kind = "usb"
+        [[link]]
+        a = "hub"
+        b = "t"
+        kind = "rs485"
+        "#,
+    )
+    .unwrap();
+    let n = |name: &str| t.node_index(name).unwrap();
+    let (host, hub, s, tt) = (n("host"), n("hub"), n("s"), n("t"));
+    assert_eq!(
+        t.endpoints(),
+        [
+            [(host, 0), (hub, 0)],
+            [(hub, 1), (s, 1)],
+            [(host, 1), (s, 0)],
+            [(hub, 2), (tt, 1)],
+        ]
+    );
+    let gateways = t.gateways().unwrap();
+    assert_eq!(gateways[tt][0], Gateway::Unconnected(0));
+    assert_eq!(t.unconnected[0].model.type_name(), "usb_cdc");
+    // In the simulation t's link 0 is there, closed for good, and its
+    // link 1 is the RS-485 line to the hub.
+    let mut sim = Sim::new(&t, SimConfig::default()).unwrap();
+    let t_links = sim.node(tt).links();
+    assert_eq!(t_links.len(), 2);
+    assert!(!t_links[0].is_connected() && !t_links[0].is_open());
+    assert_eq!(t_links[0].info().type_name, "usb_cdc");
+    assert!(t_links[1].is_connected() && t_links[1].is_open());
+    assert_eq!(t_links[1].info().type_name, "rs485");
+    sim.node_mut(tt).link_mut(0).unwrap().set_open(true);
+    assert!(!sim.node(tt).links()[0].is_open());
+    sim.run_secs(3.0);
+    let worst = sim.metrics().worst_abs().last().copied().unwrap();
+    assert!(worst < 100.0, "worst error {worst} µs");
+}
+
+#[test]
+fn link_indices_asked_for_are_checked() {
+    let two = || {
+        Topology::new("x")
+            .with_node(NodeSpec::host("h"))
+            .with_node(NodeSpec::mcu("m"))
+    };
+    // An index asked for is kept; the others fill the lowest free ones.
+    let mut t = two();
+    t.add_link_spec(LinkSpec::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 1));
+    t.add_link("h", "m", LinkModel::uart(2_000_000));
+    assert_eq!(t.endpoints(), [[(0, 0), (1, 1)], [(0, 1), (1, 0)]]);
+    t.validate().unwrap();
+
+    let err = |t: Topology| t.validate().unwrap_err().to_string();
+    let mut gap = two();
+    gap.add_link_spec(LinkSpec::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 2));
+    let e = err(gap);
+    assert!(e.contains("node m") && e.contains("link index 0"), "{e}");
+    let mut twice = two();
+    twice.add_link_spec(LinkSpec::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 0));
+    twice.add_unconnected("m", 0, LinkModel::usb_cdc());
+    let e = err(twice);
+    assert!(e.contains("link index 0 is asked for twice"), "{e}");
+    let mut far = two();
+    far.add_unconnected("m", 16, LinkModel::usb_cdc());
+    assert!(err(far).contains("more than 16 links"));
+    let mut nowhere = two();
+    nowhere.add_unconnected("q", 0, LinkModel::usb_cdc());
+    assert!(err(nowhere).contains("no node named \"q\""));
 }
 
 #[test]
 fn bad_descriptions_get_clear_errors() {
-    let parse_err = |text: &str| Topology::parse(text).unwrap_err().to_string();
-    let e = parse_err("node h host root\nnode m mcu\nlink h m uart speed=9");
-    assert!(e.contains("line 3") && e.contains("speed"), "{e}");
-    let e = parse_err("node h host root\nlink h x uart");
-    assert!(e.contains("no node named \"x\""), "{e}");
-    let e = parse_err("node h host\nnode m mcu\nlink h m uart");
-    assert!(e.contains("no clock root"), "{e}");
-    let e = parse_err("node h host root\nnode h mcu");
-    assert!(e.contains("used twice"), "{e}");
-    let e = parse_err("node h host root\nnode m mcu\nlink h m uart baud=5");
+    let toml_err = |text: &str| Topology::from_toml(text).unwrap_err().to_string();
+    const HUB: &str = "[[module]]\nname = \"m\"\ntype = \"hub\"\n";
+    let link = |kind: &str, extra: &str| {
+        format!("{HUB}[[link]]\na = \"host\"\nb = \"m\"\nkind = \"{kind}\"\n{extra}")
+    };
+    let e = toml_err(&link("uart", "speed = 9\n"));
+    assert!(e.contains("speed"), "{e}");
+    let e = toml_err(&link("uart", "baud = 5\n"));
     assert!(e.contains("baud"), "{e}");
-    let e = parse_err("node h host root\nnode m mcu\nlink h m tcp loss=0.1");
-    assert!(e.contains("TCP"), "{e}");
+    let e = toml_err(&link("usb", "jitter_us = 2.0\n"));
+    assert!(e.contains("jitter_us applies to uart and rs485"), "{e}");
+    let e = toml_err(&link("usb", "corrupt_per_byte = 0.1\n"));
+    assert!(e.contains("corrupt_per_byte applies to uart"), "{e}");
+    let e = toml_err(&link("memory", "loss = 0.1\n"));
+    assert!(e.contains("remove loss"), "{e}");
+    let e = toml_err(&link("uart", "loss = 1.5\n"));
+    assert!(e.contains("loss 1.5 must be a probability"), "{e}");
+    let e = toml_err(&format!(
+        "zero_latency = true\n{}",
+        link("uart", "loss = 0.5\n")
+    ));
+    assert!(e.contains("zero_latency"), "{e}");
+    let e = toml_err(&format!("sync = false\n{}", link("uart", "")));
+    assert!(e.contains("always runs clock sync"), "{e}");
+    let e = toml_err(&format!("[host]\nkind = \"pc\"\n{}", link("uart", "")));
+    assert!(e.contains("pc"), "{e}");
+    let e = toml_err(&format!(
+        "{}[[module]]\nname = \"n\"\ntype = \"hub\"\nroot = true\n\
+         [[module]]\nname = \"o\"\ntype = \"hub\"\nroot = true\n\
+         [[link]]\na = \"m\"\nb = \"n\"\nkind = \"uart\"\n\
+         [[link]]\na = \"m\"\nb = \"o\"\nkind = \"uart\"\n",
+        link("uart", "")
+    ));
+    assert!(e.contains("already the clock root"), "{e}");
+    // A name the machines take but the simulator does not.
+    let e = toml_err(
+        "[[module]]\nname = \"a b\"\ntype = \"hub\"\n\
+         [[link]]\na = \"host\"\nb = \"a b\"\nkind = \"usb\"\n",
+    );
+    assert!(e.contains("whitespace"), "{e}");
 
     // Too many links at one node, and a bad parameter, via the builder.
     let crowded = Topology::star(16);

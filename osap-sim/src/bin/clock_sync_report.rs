@@ -9,7 +9,11 @@
 //! ```
 //!
 //! A topology is a built-in name (`chain<N>`, `star<N>`, `tree<D>x<F>`,
-//! `loop`) or the path of a text description (see `osap_sim::topology`).
+//! `loop`) or the path of a TOML topology file, the format the simulated
+//! machines read (`osap-sim/topologies/*.toml`; see
+//! `osap_sim::from_machine`), e.g. `--topologies
+//! chain4,osap-sim/topologies/uart-chain.toml`. Runs use `--seed`, not a
+//! file's `seed`.
 
 use osap_sim::busy::BusyModel;
 use osap_sim::metrics::Stats;
@@ -70,7 +74,7 @@ struct Args {
 }
 
 const USAGE: &str = "usage: clock_sync_report [--minutes M] [--seed N] [--out DIR] \
-[--topologies chain4,star8,loop|FILE,...] [--variants cold,hot,busy] [--jobs N]";
+[--topologies chain4,star8,loop|FILE.toml,...] [--variants cold,hot,busy] [--jobs N]";
 
 fn parse_args() -> Result<Args, String> {
     let mut args = Args {
@@ -137,13 +141,17 @@ struct Row {
     plot: String,
 }
 
-/// A built-in topology by name, or one described in a text file.
+/// A built-in topology by name, or one described in a TOML topology file.
 fn load(name: &str) -> Result<Topology, SimError> {
     let path = std::path::Path::new(name);
+    if path.extension().is_some_and(|e| e == "topo") {
+        return Err(SimError::config(format!(
+            "{name}: the text topology format is gone; topologies are TOML files \
+             (osap-sim/topologies/*.toml, see osap_sim::from_machine)"
+        )));
+    }
     if path.is_file() {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| SimError::config(format!("{}: {e}", path.display())))?;
-        return Topology::parse(&text);
+        return Topology::load(path);
     }
     Topology::named(name)
 }

@@ -20,10 +20,13 @@
 //!
 //! A machine is described by a [`Topology`], usually read from a TOML file
 //! ([`load`]), and started against a host with [`SimMachine::start`]. The
-//! repository ships four in `osap-sim/topologies/`: `single-usb.toml` (one
+//! repository ships six in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
-//! UARTs), `loop.toml` (a network with a loop) and `corexy-plotter.toml`
-//! (a hub with three MAXL axes, one with an endstop).
+//! UARTs), `loop.toml` (a network with a loop), `corexy-plotter.toml`
+//! (a hub with three steppers, one with a limit switch), and, written for
+//! the clock-sync report, `uart-chain.toml` and `chain4-hub-root.toml`.
+//! The discrete-event simulator reads the same files
+//! ([`crate::Topology::load`], [`crate::from_machine`]).
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::HostError> {
@@ -48,9 +51,14 @@
 //! sync = true                # optional: modules synchronise their clocks
 //! seed = 0                   # optional: seeds the links' random latencies
 //!
+//! [host]                     # optional, DES only (see below)
+//! kind = "host"              # "host" (a PC process) or "mcu"
+//! clock = "fixed"            # "fixed": an ideal clock; "drawn": from the seed
+//! busy = false               # busy spells
+//!
 //! [[module]]
 //! name = "hub"               # unique, at most 31 bytes, not "host"
-//! type = "hub"               # the runtime's type name, at most 31 bytes
+//! type = "hub"               # "hub" or "stepper" (its runtime's type name)
 //!
 //! [[module]]
 //! name = "x"
@@ -59,16 +67,12 @@
 //! offset_us = 0.0            # optional: the clock's reading at boot, µs
 //! wander_ppm = 0.0           # optional: slow sinusoidal rate wander, ppm
 //! wander_period_s = 300.0    # optional: its period, s
-//!
-//! [[module]]
-//! name = "z"
-//! type = "axis"              # a MAXL axis; its hardware in [module.axis]
-//! [module.axis]              # optional, for type "axis" only; defaults shown
-//! steps_per_unit = 80.0      # steps per user unit (positions are in units)
-//! interval_us = 2048         # control-point interval: 2^k µs, 256..=16384
-//! endstop = -2.0             # optional: a minimum endstop at this position
-//! stop_acc = 2000.0          # safety stop limits when the stream runs dry,
-//! stop_jerk = 200000.0       # units/s² and units/s³
+//! root = false               # optional, DES only: the clock root, not the host
+//! busy = false               # optional, DES only: busy spells
+//! clock = "fixed"            # optional, DES only: "drawn" draws the clock
+//! [module.motor]             # optional, for "stepper" only; defaults shown
+//! full_steps_per_unit = 80.0 # full steps per unit of carriage travel
+//! limit_min = -2.0           # optional: a limit switch pressed below this
 //!
 //! [[link]]
 //! a = "host"                 # "host" is the Host the machine attaches to
@@ -82,17 +86,37 @@
 //! baud = 2000000             # optional, uart and rs485 only (default 2 Mbaud)
 //! mtu = 256                  # optional: 16..=256 (default 256)
 //! name = ""                  # optional: instance name reported to scans
+//! loss = 0.0                 # optional, DES only: frame loss (not memory)
+//! jitter_us = 0.0            # optional, DES only, uart/rs485: U[0, x] µs
+//! corrupt_per_byte = 0.0     # optional, DES only, uart/rs485: byte errors
 //! ```
 //!
 //! Unknown keys are errors. A module's link indices (what routes name)
-//! follow the order its links are listed in the file, from 0; the host's
+//! follow the order its links are listed in the file, from 0 (a
+//! `stepper`'s are the firmware's: its `usb` link 0, its `uart` or `rs485`
+//! link 1, and one it lacks is there and never opens); the host's
 //! links are attached in file order after any it already has
 //! ([`SimMachine::host_links`] tells their indices). Validation rejects, with
 //! a message naming the module or link: duplicate or empty names, names or
 //! types over 31 bytes, a module named `host`, a link end that names no
 //! module, a link from a module to itself, `baud` on a link that is not a
 //! UART, a baud rate or MTU out of range, more than 8 links on one module,
-//! no link to the host, and modules the host cannot reach.
+//! no link to the host, modules the host cannot reach, more than one
+//! module with `root = true`, a `loss` or `corrupt_per_byte` outside
+//! `[0, 1]`, `loss` on a `memory` link, and `jitter_us` or
+//! `corrupt_per_byte` on a link that is not a UART.
+//!
+//! # Keys for the discrete-event simulator
+//!
+//! The same files describe networks for the discrete-event simulator
+//! ([`crate::Topology::load`]; how each key maps: [`crate::from_machine`]),
+//! which needs a few things a machine does not: the `[host]` table (the
+//! host as a PC process or a microcontroller, its clock, busy spells), a
+//! module's `root`, `busy` and `clock`, and a link's `loss`, `jitter_us`
+//! and `corrupt_per_byte`. The simulated machines check them and otherwise
+//! ignore them: their host is a real [`Host`] and the time root, their
+//! module clocks are always `rate_ppm`, `offset_us` and the wander, and
+//! their links lose and corrupt nothing.
 //!
 //! # Link timing
 //!

@@ -4,6 +4,7 @@
 use super::board::{IoSpec, MotorSpec};
 use super::module::{FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU};
 use crate::clock::ClockSpec;
+use crate::from_machine::{ClockSource, HostSpec};
 use osap_core::netresponder::NAME_MAX;
 use osap_host::HostError;
 use serde::{Deserialize, Serialize};
@@ -45,9 +46,14 @@ pub struct Topology {
     #[serde(default = "yes")]
     pub sync: bool,
     /// Seed of the links' random latencies (USB scheduling), so a machine
-    /// behaves the same from run to run.
+    /// behaves the same from run to run. The discrete-event simulator's
+    /// [`Scenario::from_machine`](crate::Scenario::from_machine) takes it
+    /// as the run's seed.
     #[serde(default)]
     pub seed: u64,
+    /// DES only: how the discrete-event simulator runs the host (`[host]`).
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub host: HostSpec,
     /// The modules, `[[module]]` in a file.
     #[serde(rename = "module", default)]
     pub modules: Vec<ModuleSpec>,
@@ -86,6 +92,18 @@ pub struct ModuleSpec {
     /// absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub io: Option<IoSpec>,
+    /// DES only: this module is the clock root (tier 0) instead of the host;
+    /// at most one module may be.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub root: bool,
+    /// DES only: busy spells ([`crate::busy::BusyModel::MOTOR`]: motor
+    /// control that holds off the main loop and delays receive stamps).
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub busy: bool,
+    /// DES only: where its oscillator comes from (default `"fixed"`: the
+    /// values above).
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub clock: ClockSource,
 }
 
 impl ModuleSpec {
@@ -100,6 +118,9 @@ impl ModuleSpec {
             wander_period_s: default_wander_period(),
             motor: None,
             io: None,
+            root: false,
+            busy: false,
+            clock: ClockSource::Fixed,
         }
     }
 
@@ -216,6 +237,18 @@ pub struct LinkSpec {
     /// Instance name both ends report to scans (default empty).
     #[serde(default, skip_serializing_if = "String::is_empty")]
     pub name: String,
+    /// DES only: probability that a frame is lost, `[0, 1]` (not on
+    /// `memory` links).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loss: Option<f64>,
+    /// DES only, UART and RS-485: random extra latency of each frame,
+    /// uniform in `[0, jitter_us]` µs (frames never overtake).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub jitter_us: Option<f64>,
+    /// DES only, UART and RS-485: probability that a byte is corrupted (one
+    /// bit flipped), `[0, 1]`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub corrupt_per_byte: Option<f64>,
 }
 
 impl LinkSpec {
@@ -228,6 +261,9 @@ impl LinkSpec {
             baud: None,
             mtu: None,
             name: String::new(),
+            loss: None,
+            jitter_us: None,
+            corrupt_per_byte: None,
         }
     }
 
@@ -325,6 +361,7 @@ impl Topology {
             zero_latency: false,
             sync: true,
             seed: 0,
+            host: HostSpec::default(),
             modules: Vec::new(),
             links: Vec::new(),
         }
@@ -400,6 +437,7 @@ impl Topology {
             ));
         }
         let mut names: HashMap<&str, usize> = HashMap::new();
+        let mut root: Option<usize> = None;
         for (i, m) in self.modules.iter().enumerate() {
             let at = |message: String| CheckError::at(Item::Module(i), message);
             let what = format!("module {} ({:?})", i + 1, m.name);
@@ -449,6 +487,16 @@ impl Topology {
             if let Some(io) = &m.io {
                 io.check().map_err(|e| at(format!("{what}: {e}")))?;
             }
+            if m.root {
+                if let Some(first) = root {
+                    return Err(at(format!(
+                        "{what}: module {} ({:?}) is already the clock root; set root = true on one module at most",
+                        first + 1,
+                        self.modules[first].name
+                    )));
+                }
+                root = Some(i);
+            }
         }
         Ok(())
     }
@@ -487,6 +535,37 @@ impl Topology {
                 if !(16..=MODULE_MTU as u16).contains(&mtu) {
                     return Err(at(format!(
                         "{what}: mtu {mtu} must be within 16..={MODULE_MTU} (a module's packet size)"
+                    )));
+                }
+            }
+            let probability = |key: &str, p: Option<f64>| match p {
+                Some(p) if !(0.0..=1.0).contains(&p) => Err(at(format!(
+                    "{what}: {key} {p} must be a probability within [0, 1]"
+                ))),
+                _ => Ok(()),
+            };
+            probability("loss", l.loss)?;
+            probability("corrupt_per_byte", l.corrupt_per_byte)?;
+            if l.loss.is_some() && l.kind == LinkKind::Memory {
+                return Err(at(format!(
+                    "{what}: a memory link loses nothing; remove loss"
+                )));
+            }
+            for (key, set) in [
+                ("jitter_us", l.jitter_us.is_some()),
+                ("corrupt_per_byte", l.corrupt_per_byte.is_some()),
+            ] {
+                if set && !l.kind.has_baud() {
+                    return Err(at(format!(
+                        "{what}: {key} applies to uart and rs485 links, not {:?}; remove it",
+                        l.kind.type_name()
+                    )));
+                }
+            }
+            if let Some(j) = l.jitter_us {
+                if !(j.is_finite() && (0.0..=1e9).contains(&j)) {
+                    return Err(at(format!(
+                        "{what}: jitter_us {j} must be within [0, 1e9] µs"
                     )));
                 }
             }
