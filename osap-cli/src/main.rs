@@ -65,6 +65,9 @@ enum Command {
         /// system object model (the input of `proxygen`) as JSON to this file.
         #[arg(long, value_name = "FILE")]
         som: Option<PathBuf>,
+        /// Also list every runtime's PIPES functions with their signatures.
+        #[arg(short = 'f', long)]
+        functions: bool,
         /// Retries for a request that got no reply.
         #[arg(long, default_value_t = 2)]
         retries: u8,
@@ -251,10 +254,12 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
             connect: args,
             output,
             som,
+            functions,
             retries,
         } => {
             let c = connect(&args).await?;
-            if let Some(path) = &som {
+            let mut listing = String::new();
+            if som.is_some() || functions {
                 let mut manager = osap_host::som::Manager::new(&c.host)
                     .await
                     .map_err(|e| e.to_string())?;
@@ -262,6 +267,12 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
                 for f in &refresh.function_failures {
                     eprintln!("warning: {f:?}");
                 }
+                if functions {
+                    listing = function_listing(manager.som());
+                }
+                let Some(path) = &som else {
+                    return scan_and_print(&c, retries, output, &listing).await;
+                };
                 std::fs::write(path, manager.som().to_json())
                     .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
                 println!(
@@ -275,31 +286,7 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
                         .sum::<usize>()
                 );
             }
-            let report = scan(&c, retries).await?;
-            print!("{}", report.map.tree());
-            println!(
-                "{} runtimes, {} links, scanned in {:.1} ms",
-                report.map.runtimes.len(),
-                report.map.links.len(),
-                report.elapsed.as_secs_f64() * 1e3
-            );
-            if let Some(path) = output {
-                std::fs::write(&path, report.map.to_json())
-                    .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
-                println!("map written to {}", path.display());
-            }
-            if report.failures.is_empty() {
-                Ok(ExitCode::SUCCESS)
-            } else {
-                for f in &report.failures {
-                    eprintln!("warning: route {:?}: {}", f.route, f.error);
-                }
-                eprintln!(
-                    "the map is partial: {} request(s) failed",
-                    report.failures.len()
-                );
-                Ok(ExitCode::from(2))
-            }
+            scan_and_print(&c, retries, output, &listing).await
         }
         Command::Rename {
             connect: args,
@@ -433,6 +420,70 @@ async fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Scans, prints the tree (and `listing` after it), writes the map to
+/// `output` if given; exit code 2 when the map is partial.
+async fn scan_and_print(
+    c: &Connection,
+    retries: u8,
+    output: Option<PathBuf>,
+    listing: &str,
+) -> Result<ExitCode, String> {
+    let report = scan(c, retries).await?;
+    print!("{}", report.map.tree());
+    println!(
+        "{} runtimes, {} links, scanned in {:.1} ms",
+        report.map.runtimes.len(),
+        report.map.links.len(),
+        report.elapsed.as_secs_f64() * 1e3
+    );
+    print!("{listing}");
+    if let Some(path) = output {
+        std::fs::write(&path, report.map.to_json())
+            .map_err(|e| format!("cannot write {}: {e}", path.display()))?;
+        println!("map written to {}", path.display());
+    }
+    if report.failures.is_empty() {
+        Ok(ExitCode::SUCCESS)
+    } else {
+        for f in &report.failures {
+            eprintln!("warning: route {:?}: {}", f.route, f.error);
+        }
+        eprintln!(
+            "the map is partial: {} request(s) failed",
+            report.failures.len()
+        );
+        Ok(ExitCode::from(2))
+    }
+}
+
+/// Every runtime's functions, one signature a line:
+/// `x: add_point(time: u64, position: f32)`,
+/// `x: get_position() -> (time: u64, position: f32)`.
+fn function_listing(som: &osap_host::som::Som) -> String {
+    let args = |a: &[osap_host::som::model::SomArg]| {
+        a.iter()
+            .map(|a| format!("{}: {}", a.name, a.type_name))
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let mut out = String::new();
+    for rt in &som.runtimes {
+        for f in &rt.functions {
+            out.push_str(&format!(
+                "{}: {}({})",
+                rt.record.name,
+                f.name,
+                args(&f.inputs)
+            ));
+            if !f.outputs.is_empty() {
+                out.push_str(&format!(" -> ({})", args(&f.outputs)));
+            }
+            out.push('\n');
+        }
+    }
+    out
 }
 
 #[cfg(test)]
