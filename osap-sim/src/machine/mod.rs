@@ -1,22 +1,30 @@
 //! Simulated modules: whole machines on the host, without hardware.
 //!
-//! A simulated module runs a real osap-core runtime, sized like firmware
-//! ([`ModuleRuntime`]: 32 slots of 256 bytes, 16 port indices, 8 links;
-//! build key `RustSimulated`), in its own tokio task, behind simulated links,
-//! on a drifting clock ([`DriftClock`]). Unlike this crate's discrete-event
-//! simulator ([`crate::Sim`]) it runs in *real time*, so a real [`Host`] (and the CLI, and
-//! any script) talks to it exactly as to hardware: scans, requests and clock
-//! sync all go over the network.
+//! A simulated module runs a real osap-core runtime ([`ModuleRuntime`]: 32
+//! slots of 256 bytes, the firmware's port indices, up to 8 links; build key
+//! `RustSimulated`), in its own tokio task, behind simulated links, on a
+//! drifting clock ([`DriftClock`]). Unlike this crate's discrete-event
+//! simulator ([`crate::Sim`]) a real [`Host`] (and the CLI, and any script)
+//! talks to it exactly as to hardware: scans, requests and clock sync all go
+//! over the network, in real time or in virtual time ([`TimeMode`]).
 //!
-//! A module exposes its netresponder (port 0) and clock sync; its `type` is
-//! the type name it reports, and also selects the PIPES functions the
-//! firmware of that type exposes ([`functions`]: a `stepper` adds control
-//! points and reports its position, an `axis` follows MAXL spline tracks on
-//! its synchronized clock ([`axis`]; [`SimModule::axis`] reads what it
-//! executed), an `io` module reads and pulses pins and compares an analog
-//! input, a `hub` reports its uptime), run as ports of
-//! the same runtime from port 1 on, so scans list them (type
-//! `pipes_function`) and scripts call them over the network.
+//! Module types:
+//!
+//! - `stepper` is the module firmware itself: an [`osap_module::Module`]
+//!   on a simulated board ([`board::SimBoard`]), with the same 17 PIPES
+//!   functions, failure codes and step-word path as every board's firmware
+//!   (a scan of it gives the firmware's `FUNCTION_SET_ID`, so proxies
+//!   generated from it bind on hardware). Its step words are clocked out
+//!   as the firmware's step generator clocks them; the board's motor keeps
+//!   every step edge with its local time, moves a carriage, and presses a
+//!   limit switch at a carriage position; its I/O pins read what the
+//!   topology or a test sets and record what the module writes.
+//!   [`SimModule::module`] reaches the instance.
+//! - `hub` is host-only (no firmware build exists for it): a runtime that
+//!   forwards between up to 8 links and has no functions, standing for a
+//!   USB or RS-485 fan-out.
+//!
+//! No module logic lives here: what a `stepper` does is osap-module's.
 //!
 //! A machine is described by a [`Topology`], usually read from a TOML file
 //! ([`load`]), and started against a host with [`SimMachine::start`]. The
@@ -73,6 +81,12 @@
 //! [module.motor]             # optional, for "stepper" only; defaults shown
 //! full_steps_per_unit = 80.0 # full steps per unit of carriage travel
 //! limit_min = -2.0           # optional: a limit switch pressed below this
+//!                            # (or limit_max: pressed above); the input
+//!                            # reads high released, low pressed
+//! record = true              # keep every step edge
+//! [module.io]                # optional, for "stepper" only
+//! digital = [false, false]   # levels of pins 0..4 while nothing drives them
+//! analog = [0.5, 0.0, 1.0]   # analog inputs 0..3, fractions of full scale
 //!
 //! [[link]]
 //! a = "host"                 # "host" is the Host the machine attaches to
@@ -117,6 +131,17 @@
 //! ignore them: their host is a real [`Host`] and the time root, their
 //! module clocks are always `rate_ppm`, `offset_us` and the wander, and
 //! their links lose and corrupt nothing.
+//!
+//! # Virtual time
+//!
+//! [`SimMachine::start_with`]`(.., TimeMode::Virtual)` on a
+//! [`virtual_runtime`] (tokio's current-thread runtime with time paused)
+//! runs the machine, the host and the script on tokio's clock: time jumps
+//! to the next thing due, so a long job takes a fraction of its duration
+//! (a 60 s CoreXY job in about 2 s; `cargo bench -p osap-sim --bench
+//! virtual_time`), and one seed gives the same step edges every run. Link
+//! deliveries then fall on tokio's 1 ms timer ticks (their time stamps keep
+//! the link model's µs), and nothing may block the runtime's thread.
 //!
 //! # Link timing
 //!
