@@ -26,11 +26,13 @@
 //! - [`probe`]: a port that sends and records packets, for tests;
 //! - `plot` (with the feature `plot`): SVG plots of error over time.
 //!
-//! Beside it, [`machine`]: real-time simulated machines. Modules on
-//! drifting clocks behind simulated links, in tokio tasks, that a real
-//! [`osap_host::Host`] (and the `osap` CLI, and any script) talks to as to
-//! hardware; described by TOML topology files (`osap-sim/topologies/`),
-//! which the discrete-event simulator runs too ([`Topology::load`]).
+//! Beside it, [`machine`]: simulated machines a real [`osap_host::Host`]
+//! (and the `osap` CLI, and any script) talks to as to hardware, in real
+//! time or in virtual time (deterministic per seed, many times faster than
+//! real time). Their `stepper` modules are the module firmware's own logic
+//! (osap-module instances on simulated boards), so what a script does
+//! against them it does against hardware. Both simulators read the same
+//! TOML topology files (`osap-sim/topologies/`, [`Topology::load`]).
 //!
 //! Run a topology in one call and look at the result:
 //!
