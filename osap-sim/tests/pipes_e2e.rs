@@ -1,9 +1,9 @@
 //! PIPES end to end on a simulated machine: `small-machine.toml` (a hub on
-//! USB, steppers x, y, z and a spindle on UARTs) started against a host
-//! runtime `h`, read by `Manager::refresh`, then called and piped through
-//! the manager: RPC with every scalar type, a weaving three-runtime chain,
-//! input and output modes, a self-loop, type errors, and a module dying
-//! under a pipe.
+//! USB, stepper modules x, y, z and tool on UARTs, each running the module
+//! firmware's functions) started against a host runtime `h`, read by
+//! `Manager::refresh`, then called and piped through the manager: RPC with
+//! every scalar type, a weaving three-runtime chain, input and output modes,
+//! a self-loop, type errors, and a module dying under a pipe.
 
 use osap_host::link::memory;
 use osap_host::som::{
@@ -120,15 +120,38 @@ fn u64_of(v: &OwnedValue) -> u64 {
     }
 }
 
-/// Powers stepper `axis` (1 A) so it takes control points.
-async fn power(m: &Manager, axis: &str) {
+/// Powers (or unpowers) stepper `axis`'s motor: powered, it takes control
+/// points.
+async fn enable(m: &Manager, axis: &str, on: bool) {
     let out = m
-        .function(&FnRef::new(axis, "set_current"))
+        .function(&FnRef::new(axis, "set_enable"))
         .unwrap()
-        .call(&[OwnedValue::F32(1.0)])
+        .call(&[OwnedValue::Bool(on)])
         .await
         .unwrap();
     assert!(out.is_empty());
+}
+
+/// Powers stepper `axis`'s motor.
+async fn power(m: &Manager, axis: &str) {
+    enable(m, axis, true).await;
+}
+
+/// `get_status` as the firmware reports it: mode (0 disabled, 1 idle),
+/// points queued, powered, faults.
+fn status(mode: u8, queued: u16, enabled: bool) -> Vec<OwnedValue> {
+    vec![
+        OwnedValue::U8(mode),
+        OwnedValue::U16(queued),
+        OwnedValue::Bool(enabled),
+        OwnedValue::U32(0),
+    ]
+}
+
+/// A control-point time on the modules' default 2048 µs grid, `ahead` µs
+/// after the host's synchronized time now.
+async fn aligned(h: &Host, ahead: u64) -> u64 {
+    (h.system_time().await.unwrap() + ahead).next_multiple_of(2048)
 }
 
 async fn position(f: &FunctionHandle) -> (u64, f32) {
@@ -212,32 +235,61 @@ async fn rpc_round_trips_every_scalar_type_and_module_functions() {
     assert_eq!(out[4], OwnedValue::F32(-3.0));
     assert_eq!(out[7], OwnedValue::Utf8("abc".into()));
 
-    // Module functions on the stepper x (over USB and a UART), with their
-    // own types: set_current(f32), add_control_point(u64, f32),
-    // get_position() -> (u64, f32).
+    // Module functions on the stepper x (over USB and a UART), with the
+    // firmware's types: set_microsteps(u16), add_point(u64, f32),
+    // get_position() -> (u64, f32), get_steps() -> (i64, u64, u64, u64).
     let get = m.function(&FnRef::new("x", "get_position")).unwrap();
     let outs: Vec<_> = get.outputs().iter().map(|a| a.type_name.as_str()).collect();
     assert_eq!(outs, ["u64", "f32"]);
     let (t0, p0) = position(&get).await;
     assert_eq!(p0, 0.0, "the axis boots at 0");
+    // A u8 converts to the u16 input.
+    let micro = m.function(&FnRef::new("x", "set_microsteps")).unwrap();
+    assert!(micro.call(&[OwnedValue::U8(4)]).await.unwrap().is_empty());
     power(m, "x").await;
-    let add = m.function(&FnRef::new("x", "add_control_point")).unwrap();
-    // A point already due is reached at once; a u32 time converts to u64.
+    let add = m.function(&FnRef::new("x", "add_point")).unwrap();
+    // A stream that starts where the axis stands; a u32 time converts to
+    // u64 (a time long past: the point is queued all the same).
     let out = add
-        .call(&[OwnedValue::U32(1), OwnedValue::F32(12.25)])
+        .call(&[OwnedValue::U32(2048), OwnedValue::F32(0.0)])
         .await
         .unwrap();
     assert!(out.is_empty());
-    let (t1, p1) = position(&get).await;
-    assert_eq!(p1, 12.25);
-    assert!(t1 > t0, "local time moves on: {t0} then {t1}");
-    let status = m
-        .function(&FnRef::new("x", "get_status"))
+    let counters = m
+        .function(&FnRef::new("x", "get_counters"))
         .unwrap()
         .call(&[])
         .await
         .unwrap();
-    assert_eq!(status, [OwnedValue::U16(0), OwnedValue::Bool(true)]);
+    assert_eq!(
+        counters,
+        [
+            OwnedValue::U32(1),
+            OwnedValue::U32(0),
+            OwnedValue::U8(0),
+            OwnedValue::U32(0)
+        ]
+    );
+    let (t1, p1) = position(&get).await;
+    assert_eq!(p1, 0.0);
+    assert!(t1 > t0, "time moves on: {t0} then {t1}");
+    let steps = m
+        .function(&FnRef::new("x", "get_steps"))
+        .unwrap()
+        .call(&[])
+        .await
+        .unwrap();
+    assert_eq!(
+        steps,
+        [
+            OwnedValue::I64(0),
+            OwnedValue::U64(0),
+            OwnedValue::U64(0),
+            OwnedValue::U64(0)
+        ]
+    );
+    let x = lab.machine.module("x").unwrap().module().unwrap();
+    assert_eq!(x.lock(|m| m.board().driver().microsteps()), 4);
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
@@ -282,7 +334,7 @@ async fn three_runtime_chain_weaves_arguments() {
     .unwrap();
     attach_function(&b, mid).await.unwrap();
     let topology = machine::load(shipped("small-machine.toml")).unwrap();
-    let _machine = SimMachine::start(&h, &topology).await.unwrap();
+    let machine = SimMachine::start(&h, &topology).await.unwrap();
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;
     power(&m, "x").await;
@@ -290,7 +342,7 @@ async fn three_runtime_chain_weaves_arguments() {
     let (src, mid, sink) = (
         FnRef::new("a", "src"),
         FnRef::new("b", "mid"),
-        FnRef::new("x", "add_control_point"),
+        FnRef::new("x", "add_point"),
     );
     // (0, 3) -> (0, 1), then (1, 0) -> (0, 1).
     let p1 = m
@@ -314,25 +366,32 @@ async fn three_runtime_chain_weaves_arguments() {
     assert_eq!(p2.route.len(), 3, "{:?}", p2.route);
     assert_eq!(
         p2.destination.as_ref().unwrap().function.as_deref(),
-        Some("add_control_point")
+        Some("add_point")
     );
 
+    // A stream's first point, where x stands (0; within a microstep, 1/80
+    // unit), a second ahead on the interval grid: x takes it only with
+    // both arguments in place (a wrong time is misaligned, a wrong
+    // position too far).
+    let t = aligned(&h, 1_000_000).await;
+    let p = 0.01f32;
     let out = m
         .function(&src)
         .unwrap()
-        .call(&[OwnedValue::U64(5), OwnedValue::F32(3.5)])
+        .call(&[OwnedValue::U64(t), OwnedValue::F32(p)])
         .await
         .unwrap();
-    assert_eq!(out[1], OwnedValue::F32(-3.5));
+    assert_eq!(out[1], OwnedValue::F32(-p));
     let rows = wait_for_row("mid to run", &mid_seen, |_| true).await;
-    assert_eq!(rows, [vec![OwnedValue::U64(5), OwnedValue::F32(3.5)]]);
-    // The point (time 5, already due) reached x: it stands at 3.5.
-    let get = m.function(&FnRef::new("x", "get_position")).unwrap();
-    wait_until_async("x to reach 3.5", || {
-        let get = get.clone();
-        async move { (position(&get).await.1 == 3.5).then_some(()) }
+    assert_eq!(rows, [vec![OwnedValue::U64(t), OwnedValue::F32(p)]]);
+    // The point reached x and was queued.
+    let x = machine.module("x").unwrap().module().unwrap();
+    wait_until("x to queue the point", || {
+        (x.lock(|m| m.stepper.queued()) == 1).then_some(())
     })
     .await;
+    let c = x.lock(|m| m.stepper.counters());
+    assert_eq!((c.points, c.refused), (1, 0), "{c:?}");
 
     // The model read back from the network agrees.
     let before = m.som().pipes.clone();
@@ -345,7 +404,7 @@ async fn three_runtime_chain_weaves_arguments() {
 async fn on_all_fresh_waits_for_both_sources() {
     let mut lab = lab().await;
     let m = &mut lab.m;
-    let (sink, sink_seen) = recorder("both", &[("pos_time", U64), ("uptime", U64)]);
+    let (sink, sink_seen) = recorder("both", &[("x_time", U64), ("y_time", U64)]);
     let sink = m
         .define(sink.with_input_mode(InputMode::OnAllFresh))
         .await
@@ -353,23 +412,24 @@ async fn on_all_fresh_waits_for_both_sources() {
     // Probes on the same routes, piped after the sink: when a probe has a
     // value, the sink has had it too.
     let (p1, probe_x) = recorder("probe_x", &[("t", U64)]);
-    let (p2, probe_hub) = recorder("probe_hub", &[("t", U64)]);
+    let (p2, probe_y) = recorder("probe_y", &[("t", U64)]);
     let p1 = m.define(p1).await.unwrap();
     let p2 = m.define(p2).await.unwrap();
-    let (get_pos, uptime) = (
+    // Two sources on two modules: the time of x's and of y's position.
+    let (get_pos, y_pos) = (
         FnRef::new("x", "get_position"),
-        FnRef::new("hub", "get_uptime"),
+        FnRef::new("y", "get_position"),
     );
     let o = PipeOptions::default();
     m.connect(&get_pos, &sink, &[0], &[0], o).await.unwrap();
     m.connect(&get_pos, &p1, &[0], &[0], o).await.unwrap();
-    m.connect(&uptime, &sink, &[0], &[1], o).await.unwrap();
-    m.connect(&uptime, &p2, &[0], &[0], o).await.unwrap();
+    m.connect(&y_pos, &sink, &[0], &[1], o).await.unwrap();
+    m.connect(&y_pos, &p2, &[0], &[0], o).await.unwrap();
     assert_eq!(
         m.som().function(0, "both").unwrap().input_mode,
         osap_host::som::model::SomInputMode::OnAllFresh
     );
-    let (gx, gh) = (m.function(&get_pos).unwrap(), m.function(&uptime).unwrap());
+    let (gx, gh) = (m.function(&get_pos).unwrap(), m.function(&y_pos).unwrap());
     let call = |f: &FunctionHandle| {
         let f = f.clone();
         async move { u64_of(&f.call(&[]).await.unwrap()[0]) }
@@ -387,7 +447,7 @@ async fn on_all_fresh_waits_for_both_sources() {
     assert_eq!(rows, [vec![OwnedValue::U64(t2), OwnedValue::U64(u1)]]);
     // Input 1 again alone: no run (input 0 is no longer fresh).
     let u2 = call(&gh).await;
-    wait_for_row("probe_hub u2", &probe_hub, |r| r[0] == OwnedValue::U64(u2)).await;
+    wait_for_row("probe_y u2", &probe_y, |r| r[0] == OwnedValue::U64(u2)).await;
     assert_eq!(sink_seen.lock().unwrap().len(), 1);
     // Both fresh again: the second run.
     let t3 = call(&gx).await;
@@ -408,18 +468,32 @@ async fn on_all_fresh_waits_for_both_sources() {
 async fn on_change_suppresses_repeats() {
     let mut lab = lab().await;
     let m = &mut lab.m;
-    let (sink, seen) = recorder("status_sink", &[("queued", U16), ("enabled", BOOL)]);
+    let (sink, seen) = recorder(
+        "status_sink",
+        &[
+            ("mode", U8),
+            ("queued", U16),
+            ("enabled", BOOL),
+            ("faults", U32),
+        ],
+    );
     let sink = m.define(sink).await.unwrap();
-    let status = FnRef::new("x", "get_status");
-    m.connect(&status, &sink, &[0, 1], &[0, 1], PipeOptions::default())
+    let status_fn = FnRef::new("x", "get_status");
+    m.connect(
+        &status_fn,
+        &sink,
+        &[0, 1, 2, 3],
+        &[0, 1, 2, 3],
+        PipeOptions::default(),
+    )
+    .await
+    .unwrap();
+    m.set_output_mode(&status_fn, OutputMode::OnChange)
         .await
         .unwrap();
-    m.set_output_mode(&status, OutputMode::OnChange)
-        .await
-        .unwrap();
-    let f = m.function(&status).unwrap();
-    let off = vec![OwnedValue::U16(0), OwnedValue::Bool(false)];
-    let on = vec![OwnedValue::U16(0), OwnedValue::Bool(true)];
+    let f = m.function(&status_fn).unwrap();
+    let off = status(0, 0, false);
+    let on = status(1, 0, true);
     for _ in 0..3 {
         // The caller always gets the outputs; only the pipe suppresses.
         assert_eq!(f.call(&[]).await.unwrap(), off);
@@ -433,11 +507,7 @@ async fn on_change_suppresses_repeats() {
     assert_eq!(rows, [off.clone(), on.clone()]);
     // And the repeat after the change is held back too: a new change
     // (disabled again) arrives right after it.
-    m.function(&FnRef::new("x", "set_current"))
-        .unwrap()
-        .call(&[OwnedValue::F32(0.0)])
-        .await
-        .unwrap();
+    enable(m, "x", false).await;
     assert_eq!(f.call(&[]).await.unwrap(), off);
     let rows = wait_until("the second change", || {
         let v = seen.lock().unwrap();
@@ -459,12 +529,13 @@ async fn on_timer_source_produces_at_its_interval() {
     })
     .unwrap();
     let sink = m.define(sink).await.unwrap();
-    let uptime = FnRef::new("hub", "get_uptime");
-    m.connect(&uptime, &sink, &[0], &[0], PipeOptions::default())
+    // A source without inputs on a module behind the hub.
+    let source = FnRef::new("z", "get_position");
+    m.connect(&source, &sink, &[0], &[0], PipeOptions::default())
         .await
         .unwrap();
     const INTERVAL_US: u32 = 20_000;
-    m.set_input_mode(&uptime, InputMode::OnTimer(INTERVAL_US))
+    m.set_input_mode(&source, InputMode::OnTimer(INTERVAL_US))
         .await
         .unwrap();
     // Let it settle, then count over a window.
@@ -540,7 +611,7 @@ async fn a_pipe_to_itself_feeds_back_and_stops() {
 async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument() {
     let mut lab = lab().await;
     let m = &mut lab.m;
-    let add = m.function(&FnRef::new("x", "add_control_point")).unwrap();
+    let add = m.function(&FnRef::new("x", "add_point")).unwrap();
     // Refused before sending: a string for the f32 position.
     let e = add
         .call(&[OwnedValue::U64(0), OwnedValue::from("far")])
@@ -549,7 +620,7 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     assert!(matches!(e, SomError::BadArguments { .. }), "{e:?}");
     let msg = e.to_string();
     for part in [
-        "\"add_control_point\"",
+        "\"add_point\"",
         "runtime \"x\"",
         "input 1 (position: f32)",
         "cannot take a utf8",
@@ -567,7 +638,7 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     let e = add.call(&[OwnedValue::U64(0)]).await.unwrap_err();
     assert_eq!(
         e.to_string(),
-        "function \"add_control_point\" on runtime \"x\": expected 2 arguments \
+        "function \"add_point\" on runtime \"x\": expected 2 arguments \
          (time: u64, position: f32), got 1"
     );
     // Refused by the module itself: f64 0.1 is lossy as an f32, and a
@@ -581,12 +652,12 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
             function,
             error: ControlError::Convert { index: 1, .. },
             ..
-        } => assert_eq!(function, &FnRef::new("x", "add_control_point")),
+        } => assert_eq!(function, &FnRef::new("x", "add_point")),
         other => panic!("{other:?}"),
     }
     assert!(
         e.to_string()
-            .starts_with("function \"add_control_point\" on runtime \"x\": call refused"),
+            .starts_with("function \"add_point\" on runtime \"x\": call refused"),
         "{e}"
     );
     let e = add
@@ -603,18 +674,18 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
         ),
         "{e:?}"
     );
-    // The module's own refusal: the axis is not powered (code 3).
+    // The module's own refusal: the motor is not powered (code 6).
     let e = add
         .call(&[OwnedValue::U64(0), OwnedValue::F32(1.0)])
         .await
         .unwrap_err();
-    assert!(e.to_string().contains("failed with code 3"), "{e}");
-    // A pipe whose types never convert: bool -> f32.
+    assert!(e.to_string().contains("failed with code 6"), "{e}");
+    // A pipe whose types never convert: bool (get_status's enabled) -> f32.
     let e = m
         .connect(
             &FnRef::new("y", "get_status"),
-            &FnRef::new("x", "add_control_point"),
-            &[1],
+            &FnRef::new("x", "add_point"),
+            &[2],
             &[1],
             PipeOptions::default(),
         )
@@ -625,9 +696,9 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     for part in [
         "\"get_status\"",
         "runtime \"y\"",
-        "\"add_control_point\"",
+        "\"add_point\"",
         "runtime \"x\"",
-        "output 1 (bool)",
+        "output 2 (bool)",
         "input 1 (f32)",
     ] {
         assert!(msg.contains(part), "{msg} lacks {part}");
@@ -639,31 +710,23 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
 async fn a_pipe_to_a_module_that_died_is_reported() {
     let mut lab = lab().await;
     let m = &mut lab.m;
-    power(m, "y").await;
-    let (src, dst) = (
-        FnRef::new("x", "get_position"),
-        FnRef::new("y", "add_control_point"),
-    );
+    // x's power state (get_status output 2) drives y's (set_enable).
+    let (src, dst) = (FnRef::new("x", "get_status"), FnRef::new("y", "set_enable"));
     let p = m
-        .connect(&src, &dst, &[0, 1], &[0, 1], PipeOptions::default())
+        .connect(&src, &dst, &[2], &[0], PipeOptions::default())
         .await
         .unwrap();
-    // x -> hub -> y, module to module.
-    assert_eq!(p.route, [0, 2]);
+    // x -> hub -> y, module to module: out of x's UART (its link 1), then
+    // the hub's link 2.
+    assert_eq!(p.route, [1, 2]);
     let y_status = m.function(&FnRef::new("y", "get_status")).unwrap();
-    let y_pos = m.function(&FnRef::new("y", "get_position")).unwrap();
     let gx = m.function(&src).unwrap();
-    // Move x to 7, then pipe its position to y: y follows to 7.
+    // Power x, then read its status: y follows, powered too.
     power(m, "x").await;
-    m.function(&FnRef::new("x", "add_control_point"))
-        .unwrap()
-        .call(&[OwnedValue::U64(1), OwnedValue::F32(7.0)])
-        .await
-        .unwrap();
-    assert_eq!(position(&gx).await.1, 7.0);
-    wait_until_async("y to follow x to 7", || {
-        let y = y_pos.clone();
-        async move { (position(&y).await.1 == 7.0).then_some(()) }
+    assert_eq!(gx.call(&[]).await.unwrap(), status(1, 0, true));
+    wait_until_async("y to follow x", || {
+        let y = y_status.clone();
+        async move { (y.call(&[]).await.unwrap()[2] == OwnedValue::Bool(true)).then_some(()) }
     })
     .await;
 
@@ -712,8 +775,8 @@ async fn a_pipe_to_a_module_that_died_is_reported() {
     let link = hub_rt.record.links.iter().find(|l| l.index == 2).unwrap();
     assert!(!link.open, "{link:?}");
     let xi = som.runtime_index("x").unwrap();
-    let pipe = &som.function(xi, "get_position").unwrap().pipes[0];
-    assert_eq!(pipe.route, [0, 2]);
+    let pipe = &som.function(xi, "get_status").unwrap().pipes[0];
+    assert_eq!(pipe.route, [1, 2]);
     assert_eq!(pipe.destination, None, "the route leaves the model");
     let flat = som.pipes.iter().find(|p| p.source.runtime == xi).unwrap();
     assert_eq!(flat.destination, None);

@@ -8,7 +8,7 @@ use osap_core::route::Route;
 use osap_core::transport::Transport;
 use osap_host::netrunner::{self, Netrunner, ScanOptions};
 use osap_host::{Host, HostConfig, HostError, PortHandle};
-use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
+use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimMachine, Topology};
 use std::time::{Duration, Instant};
 
 mod common;
@@ -75,11 +75,16 @@ async fn single_module_on_usb_answers() {
     let info = nr.runtime_info(&motor, 1).await.unwrap();
     assert_eq!(info.build, 3, "BuildKey::RustSimulated");
     assert_eq!(info.packet_size, 256);
-    assert_eq!(info.link_count, 1);
+    // The module firmware's two links: USB (link 0, this one) and a UART
+    // (link 1), which nothing joins here, so it never opens.
+    assert_eq!(info.link_count, 2);
     assert_eq!(info.arrival_link, 0);
     let link = nr.link_info(&motor, 0).await.unwrap();
     assert_eq!(link.type_name, "usb_cdc");
     assert!(link.open);
+    let uart = nr.link_info(&motor, 1).await.unwrap();
+    assert_eq!(uart.type_name, "uart");
+    assert!(!uart.open);
 }
 
 #[tokio::test]
@@ -103,15 +108,24 @@ async fn small_machine_modules_answer_over_the_routes_in_the_file() {
         assert_eq!(machine.route_to(name), Some(r), "{name}");
         assert_eq!(name_at(&port, &r, ANSWER).await.unwrap(), name);
     }
-    // Each module's link 0 leads back to the hub.
+    // Each stepper's link 1, the firmware's UART, leads back to the hub;
+    // its link 0, the firmware's USB, is joined to nothing and stays closed.
     assert_eq!(
-        name_at(&port, &route(&[h, 3, 0]), ANSWER).await.unwrap(),
+        name_at(&port, &route(&[h, 3, 1]), ANSWER).await.unwrap(),
         "hub"
     );
     let nr = Netrunner::new(&host).await.unwrap();
-    let uart = nr.link_info(&route(&[h, 4]), 0).await.unwrap();
+    let uart = nr.link_info(&route(&[h, 4]), 1).await.unwrap();
     assert_eq!(uart.type_name, "uart");
     assert_eq!(uart.mtu, 256);
+    assert!(uart.open);
+    let usb = nr.link_info(&route(&[h, 4]), 0).await.unwrap();
+    assert_eq!(usb.type_name, "usb_cdc");
+    assert!(!usb.open);
+    let err = name_at(&port, &route(&[h, 4, 0]), Duration::from_millis(100))
+        .await
+        .unwrap_err();
+    assert!(matches!(err, HostError::Timeout { .. }), "{err}");
 }
 
 #[tokio::test]
@@ -139,6 +153,9 @@ async fn loop_modules_answer_both_ways_round_the_loop() {
     assert_eq!(name_at(&port, &long, ANSWER).await.unwrap(), "m1");
     let round = route(&[h, 1, 1, 1]);
     assert_eq!(name_at(&port, &round, ANSWER).await.unwrap(), "a");
+    // m1 is a stepper: c is behind its link 1, the firmware's UART.
+    let back = route(&[h, 2, 2, 1]);
+    assert_eq!(name_at(&port, &back, ANSWER).await.unwrap(), "c");
 }
 
 #[tokio::test]
@@ -180,8 +197,9 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
                 .iter()
                 .position(|r| r.name == if name == machine::HOST { "host" } else { name })
                 .unwrap();
-            // The link's index at this end: its position among this end's
-            // links in the file.
+            // The link's index at this end: a stepper's follows the
+            // firmware (USB is link 0, a UART link 1), others' their
+            // position among this end's links in the file.
             let position = topology
                 .links_of(name)
                 .iter()
@@ -190,8 +208,17 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
                     (l.a == name && l.b == other) || (l.b == name && l.a == other)
                 })
                 .unwrap();
+            let stepper = topology
+                .modules
+                .iter()
+                .any(|m| m.name == name && m.kind() == Some(ModuleKind::Stepper));
             let index = if name == machine::HOST {
                 machine.host_links()[position]
+            } else if stepper {
+                match topology.links[topology.links_of(name)[position]].kind {
+                    LinkKind::Usb => 0,
+                    _ => 1,
+                }
             } else {
                 position as u8
             };
@@ -455,6 +482,8 @@ fn parse_error(text: &str) -> String {
 
 const HUB: &str = "[[module]]\nname = \"hub\"\ntype = \"hub\"\n";
 const HOST_HUB: &str = "[[link]]\na = \"host\"\nb = \"hub\"\nkind = \"usb\"\n";
+const STEPPER: &str = "[[module]]\nname = \"s\"\ntype = \"stepper\"\n";
+const HUB_S: &str = "[[link]]\na = \"hub\"\nb = \"s\"\nkind = \"uart\"\n";
 
 #[test]
 fn bad_topologies_are_refused_with_reasons() {
@@ -465,18 +494,18 @@ fn bad_topologies_are_refused_with_reasons() {
         ),
         (
             format!("{HUB}{HUB}{HOST_HUB}"),
-            "another module is also named \"hub\"",
+            "module 1 is also named \"hub\"",
         ),
         (
             format!(
-                "[[module]]\nname = \"{}\"\ntype = \"m\"\n[[link]]\na = \"host\"\nb = \"{0}\"\nkind = \"usb\"\n",
+                "[[module]]\nname = \"{}\"\ntype = \"stepper\"\n[[link]]\na = \"host\"\nb = \"{0}\"\nkind = \"usb\"\n",
                 "n".repeat(32)
             ),
             "is 32 bytes long; names are at most 31 bytes",
         ),
         (HUB.to_string(), "no link joins a module to the host"),
         (
-            format!("{HUB}[[module]]\nname = \"lost\"\ntype = \"m\"\n{HOST_HUB}"),
+            format!("{HUB}[[module]]\nname = \"lost\"\ntype = \"stepper\"\n{HOST_HUB}"),
             "module \"lost\" is not connected to the host",
         ),
         (
@@ -489,7 +518,7 @@ fn bad_topologies_are_refused_with_reasons() {
         ),
         (format!("{HUB}{HOST_HUB}colour = \"red\"\n"), "unknown field"),
         (
-            format!("[[module]]\nname = \"host\"\ntype = \"m\"\n{HOST_HUB}"),
+            format!("[[module]]\nname = \"host\"\ntype = \"hub\"\n{HOST_HUB}"),
             "reserved for the host runtime",
         ),
         (
@@ -501,6 +530,44 @@ fn bad_topologies_are_refused_with_reasons() {
             "rate_ppm",
         ),
         (String::new(), "no modules"),
+        // Only the module firmware and a hub can be simulated.
+        (
+            format!("{HUB}{HOST_HUB}[[module]]\nname = \"m\"\ntype = \"m\"\n"),
+            "unknown type \"m\"; a simulated module is \"stepper\" (the module firmware) or \"hub\"",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}[[module]]\nname = \"z\"\ntype = \"axis\"\n"),
+            "(an \"axis\" is now a \"stepper\": its [module.axis] table becomes [module.motor])",
+        ),
+        (
+            format!("{HUB}[module.motor]\nlimit_min = -2.0\n{HOST_HUB}"),
+            "[module.motor] and [module.io] are for modules of type \"stepper\", not \"hub\"",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}{STEPPER}[module.motor]\nlimit_min = -2.0\nlimit_max = 2.0\n"),
+            "has both limit_min and limit_max",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}{STEPPER}[module.motor]\nfull_steps_per_unit = 0.0\n"),
+            "full_steps_per_unit 0 must be finite and positive",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}{STEPPER}[module.io]\nanalog = [0.5, 1.5]\n"),
+            "analog value 1.5 must be a fraction of full scale",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}{STEPPER}[module.io]\ndigital = [true, true, true, true, true]\n"),
+            "digital lists 5 pins; a module has 4",
+        ),
+        // A stepper has the firmware's links: one USB, one UART or RS-485.
+        (
+            format!("{HUB}{STEPPER}[[link]]\na = \"host\"\nb = \"s\"\nkind = \"memory\"\n{HOST_HUB}"),
+            "a \"memory\" link cannot reach stepper \"s\"",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}{STEPPER}{HUB_S}{HUB_S}"),
+            "stepper \"s\" already has its uart/rs485 link (link 2)",
+        ),
     ];
     for (text, reason) in cases {
         let error = parse_error(&text);
@@ -510,12 +577,34 @@ fn bad_topologies_are_refused_with_reasons() {
     let mut many = format!("{HUB}{HOST_HUB}");
     for i in 0..8 {
         many += &format!(
-            "[[module]]\nname = \"m{i}\"\ntype = \"m\"\n[[link]]\na = \"hub\"\nb = \"m{i}\"\nkind = \"uart\"\n"
+            "[[module]]\nname = \"m{i}\"\ntype = \"stepper\"\n[[link]]\na = \"hub\"\nb = \"m{i}\"\nkind = \"uart\"\n"
         );
     }
     let error = parse_error(&many);
     assert!(
         error.contains("module \"hub\" has 9 links; a simulated module has at most 8"),
+        "{error}"
+    );
+    // Errors about one module or link name the line of its header, in a
+    // file the file's path too.
+    let text = format!(
+        "{HUB}{HOST_HUB}{STEPPER}{HUB_S}[[link]]\na = \"s\"\nb = \"nowhere\"\nkind = \"uart\"\n"
+    );
+    let error = parse_error(&text);
+    assert!(
+        error
+            .starts_with("topology, line 15: link 3 (s – nowhere): no module is named \"nowhere\""),
+        "{error}"
+    );
+    let path = std::env::temp_dir().join(format!("osap-sim-bad-{}.toml", std::process::id()));
+    std::fs::write(&path, format!("{HUB}{HOST_HUB}{STEPPER}{HUB_S}{HUB_S}")).unwrap();
+    let error = machine::load(&path).unwrap_err().to_string();
+    let _ = std::fs::remove_file(&path);
+    assert!(
+        error.starts_with(&format!(
+            "topology file {}, line 15: link 3 (hub – s)",
+            path.display()
+        )),
         "{error}"
     );
     // A missing file names itself.
