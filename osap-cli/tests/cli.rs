@@ -59,10 +59,26 @@ fn scan_writes_the_system_object_model_for_proxygen() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
+    // Four steppers with the module firmware's 17 functions each; the hub
+    // has none.
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("(68 functions)"), "{stdout}");
     let som = osap_host::som::Som::from_json(&std::fs::read_to_string(&path).unwrap()).unwrap();
-    let x = som.runtimes.iter().find(|r| r.record.name == "x").unwrap();
-    assert!(x.functions.iter().any(|f| f.name == "get_position"));
     let _ = std::fs::remove_file(path);
+    for name in ["x", "y", "z", "tool"] {
+        let r = som.runtimes.iter().find(|r| r.record.name == name).unwrap();
+        let names: Vec<&str> = r.functions.iter().map(|f| f.name.as_str()).collect();
+        assert_eq!(names.len(), 17, "{name}: {names:?}");
+        for f in ["add_point", "get_position", "read_limit", "analog_read"] {
+            assert!(names.contains(&f), "{name} lacks {f}: {names:?}");
+        }
+    }
+    let hub = som
+        .runtimes
+        .iter()
+        .find(|r| r.record.name == "hub")
+        .unwrap();
+    assert!(hub.functions.is_empty(), "{:?}", hub.functions);
 }
 
 #[test]

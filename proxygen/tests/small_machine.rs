@@ -1,9 +1,10 @@
 //! The generated proxies compile and work: the proxies of the shipped
 //! `small-machine.toml` (checked in under `generated_small_machine/`, kept
 //! equal to the generator's output by `golden.rs` and below) are compiled
-//! into this test and run against the simulated modules: calls, return
-//! values, connect, set_input_mode, and binding refused for a changed
-//! signature, a missing device and a wrong type.
+//! into this test and run against the simulated modules (each runs the
+//! module firmware's functions): calls, return values, failure codes,
+//! connect, set_input_mode, and binding refused for a changed signature, a
+//! missing device and a wrong type.
 
 mod common;
 
@@ -21,7 +22,7 @@ use osap_host::{Host, HostConfig};
 use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::InputMode;
 use pipes_core::{ScalarType, Type};
-use proxies::{BindError, Hub, Stepper};
+use proxies::{BindError, Stepper, DEVICES};
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -45,45 +46,65 @@ async fn proxies_drive_the_simulated_small_machine() {
     }
     let files = proxygen::generate(m.som(), &proxygen::Options::default()).unwrap();
     common::golden(&common::tests_dir("generated_small_machine"), &files);
+    // One proxy serves every module: they all run the module firmware. The
+    // hub has no functions, so no proxy.
+    assert_eq!(
+        DEVICES,
+        [("stepper", "0.1.0", &["x", "y", "z", "tool"][..])]
+    );
 
     // Bind every stepper by name; calls and return values.
     let x = Stepper::bind(&m, "x").unwrap();
     let y = Stepper::bind(&m, "y").unwrap();
     let _z = Stepper::bind(&m, "z").unwrap();
-    let hub = Hub::bind(&m, "hub").unwrap();
+    let _tool = Stepper::bind(&m, "tool").unwrap();
     assert_eq!(x.runtime(), "x");
-    assert!(hub.get_uptime().await.unwrap() > 0);
     let start = x.get_position().await.unwrap();
     assert_eq!(start.position, 0.0);
     let status = x.get_status().await.unwrap();
-    assert_eq!((status.points_queued, status.enabled), (0, false));
-    // Disabled: the device refuses (failure code 3), and the error says so.
-    let refused = x.add_control_point(start.time, 1.0).await.unwrap_err();
+    assert_eq!(
+        (status.mode, status.queued, status.enabled, status.faults),
+        (0, 0, false, 0)
+    );
+    // Disabled: the device refuses (failure code 6), and the error says so.
+    let t = (start.time + 5_000_000).next_multiple_of(2048);
+    let refused = x.add_point(t, 0.0).await.unwrap_err().to_string();
     assert!(
-        refused.to_string().contains("add_control_point"),
+        refused.contains("add_point") && refused.contains("code 6"),
         "{refused}"
     );
-    x.set_current(1.0).await.unwrap();
-    // A point already due is reached at once.
-    x.add_control_point(start.time, 12.5).await.unwrap();
-    let now = x.get_position().await.unwrap();
-    assert_eq!(now.position, 12.5);
-    assert!(now.time >= start.time);
-    assert!(x.get_status().await.unwrap().enabled);
-    assert!(y.set_current(5.0).await.is_err(), "over the current limit");
+    x.set_enable(true).await.unwrap();
+    let status = x.get_status().await.unwrap();
+    assert_eq!((status.mode, status.enabled), (1, true));
+    // A stream's first point, where the axis stands, on the interval grid.
+    x.add_point(t, 0.0).await.unwrap();
+    assert_eq!(x.get_status().await.unwrap().queued, 1);
+    let counters = x.get_counters().await.unwrap();
+    assert_eq!(
+        (counters.points, counters.refused, counters.last_refused),
+        (1, 1, 6)
+    );
+    // The simulated driver sets 1 to 32 microsteps (code 10, a bad value).
+    let e = y.set_microsteps(64).await.unwrap_err().to_string();
+    assert!(e.contains("set_microsteps") && e.contains("code 10"), "{e}");
+    y.set_microsteps(32).await.unwrap();
+    let limit = x.read_limit().await.unwrap();
+    assert_eq!((limit.time, limit.level, limit.edges), (0, true, 0));
+    assert!(x.digital_read(9).await.is_err(), "no pin 9");
+    assert_eq!(x.analog_read(0).await.unwrap().value, 0.0);
 
-    // Connect x.get_position's position to a host function and call it.
+    // Connect x.get_status's points queued to a host function and call it.
     let seen: Arc<Mutex<Vec<Vec<OwnedValue>>>> = Arc::default();
     let s = seen.clone();
-    let f32t = Type::Scalar(ScalarType::F32);
-    let sink = HostFunction::new("sink", &[("position", f32t)], &[], move |i| {
+    let u16t = Type::Scalar(ScalarType::U16);
+    let sink = HostFunction::new("sink", &[("queued", u16t)], &[], move |i| {
         s.lock().unwrap().push(i.to_vec());
         Ok(vec![])
     })
     .unwrap();
     let sink = m.define(sink).await.unwrap();
     m.connect(
-        x.get_position_ref(),
+        x.get_status_ref(),
         &sink,
         &[1],
         &[0],
@@ -91,9 +112,9 @@ async fn proxies_drive_the_simulated_small_machine() {
     )
     .await
     .unwrap();
-    x.get_position().await.unwrap();
+    x.get_status().await.unwrap();
     let deadline = Instant::now() + Duration::from_secs(5);
-    while !seen.lock().unwrap().contains(&vec![OwnedValue::F32(12.5)]) {
+    while !seen.lock().unwrap().contains(&vec![OwnedValue::U16(1)]) {
         assert!(Instant::now() < deadline, "the pipe never delivered");
         tokio::time::sleep(Duration::from_millis(2)).await;
     }
@@ -131,20 +152,22 @@ async fn proxies_drive_the_simulated_small_machine() {
         e.to_string(),
         "runtime \"hub\" is a \"hub\", not a \"stepper\": bind another proxy"
     );
-    // A function gone and one with an input more.
+    // A function gone and one with an input less.
     let mut som = m.som().clone();
     let ri = som.runtime_index("z").unwrap();
     som.runtimes[ri]
         .functions
-        .retain(|f| f.name != "set_current");
-    som.runtimes[ri].functions[0].inputs.pop();
+        .retain(|f| f.name != "set_enable");
+    let add = &mut som.runtimes[ri].functions[0];
+    assert_eq!(add.name, "add_point");
+    add.inputs.pop();
     let e = Stepper::check(&som, "z").unwrap_err().to_string();
     assert!(
-        e.contains("function \"set_current\": not found on the device"),
+        e.contains("function \"set_enable\": not found on the device"),
         "{e}"
     );
     assert!(
-        e.contains("function \"add_control_point\": 1 inputs (time: u64) but the proxy expects 2 (time: u64, position: f32)"),
+        e.contains("function \"add_point\": 1 inputs (time: u64) but the proxy expects 2 (time: u64, position: f32)"),
         "{e}"
     );
 }

@@ -4,8 +4,7 @@
 //!
 //! | proxy | runtime type | firmware | runtimes found |
 //! |---|---|---|---|
-//! | [`Hub`] | `hub` | 0.1.0 | `hub` |
-//! | [`Stepper`] | `stepper` | 0.1.0 | `x`, `y`, `z` |
+//! | [`Stepper`] | `stepper` | 0.1.0 | `x`, `y`, `z`, `tool` |
 //!
 //! Bind a proxy to a runtime by name (`Stepper::bind(&manager, "x")`):
 //! binding checks every function's signature against the manager's current
@@ -15,18 +14,14 @@
 #![allow(dead_code, unused_imports)]
 
 #[rustfmt::skip]
-pub mod hub;
-#[rustfmt::skip]
 pub mod stepper;
 
-pub use hub::Hub;
 pub use stepper::Stepper;
 
 /// Every runtime type the proxies were generated for, with its firmware
 /// version and the names of the runtimes found in the scan.
 pub const DEVICES: &[(&str, &str, &[&str])] = &[
-    ("hub", "0.1.0", &["hub"]),
-    ("stepper", "0.1.0", &["x", "y", "z"]),
+    ("stepper", "0.1.0", &["x", "y", "z", "tool"]),
 ];
 
 pub use osap_host::som::proxy::{support, BindError, CallError, Difference};

@@ -30,14 +30,14 @@ async fn main() -> Result<(), Box<dyn Error>> {
     manager.refresh().await?;
     println!("{} runtimes found", manager.som().runtimes.len());
 
-    let hub = proxies::Hub::bind(&manager, "hub")?;
-    println!("{:?}: {} {}", hub.runtime(), proxies::Hub::TYPE_NAME, proxies::Hub::FIRMWARE_VERSION);
     let x = proxies::Stepper::bind(&manager, "x")?;
     println!("{:?}: {} {}", x.runtime(), proxies::Stepper::TYPE_NAME, proxies::Stepper::FIRMWARE_VERSION);
     let y = proxies::Stepper::bind(&manager, "y")?;
     println!("{:?}: {} {}", y.runtime(), proxies::Stepper::TYPE_NAME, proxies::Stepper::FIRMWARE_VERSION);
     let z = proxies::Stepper::bind(&manager, "z")?;
     println!("{:?}: {} {}", z.runtime(), proxies::Stepper::TYPE_NAME, proxies::Stepper::FIRMWARE_VERSION);
+    let tool = proxies::Stepper::bind(&manager, "tool")?;
+    println!("{:?}: {} {}", tool.runtime(), proxies::Stepper::TYPE_NAME, proxies::Stepper::FIRMWARE_VERSION);
 
     // Your script goes here, e.g. (on a stepper named x):
     //   let (t, p) = { let o = x.get_position().await?; (o.time, o.position) };
