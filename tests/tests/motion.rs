@@ -1,13 +1,15 @@
 //! MAXL end to end on simulated modules (`corexy-plotter.toml`: a hub on
-//! USB with axis modules a, b and z on UARTs), wired with pipes exactly as a
-//! machine script would wire hardware:
+//! USB with stepper modules a, b and z on UARTs, each running the module
+//! firmware's logic, `osap_module::Module`, on a simulated board), wired with
+//! pipes exactly as a machine script would wire hardware:
 //!
 //! - a square drawn by `Timer → Planner → CoreXY → add_point` on a and b,
-//!   with the executed path (read from the simulated axes, at true time)
-//!   compared with the stream the modules were sent and with the planned
-//!   square;
-//! - homing `Timer → OneDof → add_point` on z, with z's endstop piped into
-//!   `OneDof.limit_hit`: the switch position found from its time stamp.
+//!   with the executed path (the motors' step edges, each at the true time
+//!   of its step tick) compared with the stream the modules were sent and
+//!   with the planned square;
+//! - homing `Timer → OneDof → add_point` on z, with z's `read_limit` (its
+//!   limit switch's edge time stamp) piped into `OneDof.limit_hit`: the
+//!   switch position found from its time stamp.
 
 use maxl::blocks::interp::InterpolatorBlock;
 use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
@@ -15,16 +17,18 @@ use maxl::blocks::onedof::OneDofBlock;
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
+use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions, SharedState};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::axis::{AxisMode, AxisProbe};
-use osap_sim::machine::{self, SimMachine, SimModule};
+use osap_module::stepper::{Mode, StepperCounters, StepperError};
+use osap_sim::machine::board::StepEdge;
+use osap_sim::machine::{self, SharedModule, SimMachine, SimModule};
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::pipe::PipeDelivery;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-/// The axes' control-point interval (the topology's `interval_us`).
+/// The axes' control-point interval: the modules' default (`set_interval`
+/// is not called).
 const IV: u32 = 2048;
 /// How far the timer leads real time: 32 intervals (66 ms). The spline
 /// needs 2; the rest covers delivery over USB and a UART and the host being
@@ -112,8 +116,8 @@ impl Rig {
     }
 
     /// A timer class as a source: ticking at a quarter interval, sending
-    /// each stamp once.
-    async fn timer(&mut self) -> FnRef {
+    /// each stamp once. Its state tells how far the host fell behind.
+    async fn timer(&mut self) -> (FnRef, SharedState<TimerBlock>) {
         let timer = self
             .m
             .define_class(TimerBlock::new(IV, LEAD).unwrap())
@@ -128,18 +132,20 @@ impl Rig {
             .set_output_mode(&tick, OutputMode::OnChange)
             .await
             .unwrap();
-        tick
+        (tick, timer.state().clone())
     }
 
+    /// Powers an axis's motor (it then takes points).
     async fn enable(&self, axis: &str) {
-        self.call(&FnRef::new(axis, "set_current"), &[OwnedValue::F32(1.0)])
+        self.call(&FnRef::new(axis, "set_enable"), &[OwnedValue::Bool(true)])
             .await;
     }
 
-    fn module(&self, name: &str) -> (SimModule, AxisProbe) {
+    /// A stepper module and its osap-module instance.
+    fn module(&self, name: &str) -> (SimModule, SharedModule) {
         let m = self.machine.module(name).unwrap();
-        let probe = m.axis().unwrap();
-        (m.clone(), probe)
+        let module = m.module().unwrap();
+        (m.clone(), module)
     }
 
     async fn sleep_until_system(&self, t: u64) {
@@ -169,24 +175,81 @@ async fn until_or_timeout(limit: Duration, mut what: impl FnMut() -> bool) -> bo
     true
 }
 
-/// An axis's executed positions keyed by true (host) time.
-fn executed(module: &SimModule, probe: &AxisProbe) -> Vec<(f64, f64)> {
-    probe
-        .history()
+/// What a motor did, from its step edges.
+struct Stepped {
+    /// After each step: the true (host) time of its step tick, µs, and the
+    /// carriage position, units; oldest first.
+    path: Vec<(f64, f64)>,
+    /// The step edges themselves (local times).
+    edges: Vec<StepEdge>,
+    /// One step, units.
+    step: f64,
+}
+
+/// A stepper module's step edges as a path at true time. Positions are the
+/// edges replayed from 0 the way the simulated motor adds them up (one
+/// step of `1 / (full steps per unit × microsteps)` at a time), so they are
+/// bit for bit the carriage positions the limit switch saw.
+fn stepped(module: &SimModule, shared: &SharedModule) -> Stepped {
+    let (edges, step, now_at) = shared.lock(|m| {
+        let motor = m.board().motor();
+        let per_unit =
+            motor.spec().full_steps_per_unit * f64::from(m.board().driver().microsteps());
+        (motor.edges().to_vec(), 1.0 / per_unit, motor.position())
+    });
+    let mut p = 0.0;
+    let path = edges
         .iter()
-        .filter(|e| e.mode != AxisMode::Idle)
-        .map(|e| (module.host_time_at(e.local) as f64, e.position))
+        .map(|e| {
+            p += if e.up { step } else { -step };
+            (module.host_time_at(e.local) as f64, p)
+        })
+        .collect();
+    assert_eq!(p, now_at, "the replayed steps end where the motor stands");
+    Stepped { path, edges, step }
+}
+
+/// The carriage position at true time `t`: where the last step at or before
+/// `t` left it (0, where it booted, before any).
+fn at(path: &[(f64, f64)], t: f64) -> f64 {
+    let i = path.partition_point(|p| p.0 <= t);
+    i.checked_sub(1).map_or(0.0, |i| path[i].1)
+}
+
+/// The pen `[x, y]` after every step of either motor, at true time
+/// (CoreXY: x = (a + b) / 2, y = (a − b) / 2).
+fn pen(a: &[(f64, f64)], b: &[(f64, f64)]) -> Vec<(f64, [f64; 2])> {
+    let mut times: Vec<f64> = a.iter().chain(b).map(|p| p.0).collect();
+    times.sort_by(f64::total_cmp);
+    times.dedup();
+    times
+        .into_iter()
+        .map(|t| {
+            let (pa, pb) = (at(a, t), at(b, t));
+            (t, [(pa + pb) / 2.0, (pa - pb) / 2.0])
+        })
         .collect()
 }
 
-/// Linear interpolation of `path` at `t`, where its samples around `t` are
-/// at most 2.5 ms apart (far below a micrometre of error on these curves;
-/// a longer gap, when the simulated module's task was held up, is skipped).
-fn at(path: &[(f64, f64)], t: f64) -> Option<f64> {
-    let i = path.partition_point(|p| p.0 <= t);
-    let (t0, p0) = *path.get(i.checked_sub(1)?)?;
-    let (t1, p1) = *path.get(i)?;
-    (t1 - t0 <= 2500.0).then(|| p0 + (p1 - p0) * (t - t0) / (t1 - t0))
+/// The most stamps the timer had due at once: how far the host fell behind,
+/// in intervals (the lead is 32; a stall near it runs the axes dry).
+fn max_burst(timer: &SharedState<TimerBlock>) -> u64 {
+    timer.lock().unwrap().status().2
+}
+
+fn counters(m: &SharedModule) -> StepperCounters {
+    m.lock(|m| m.stepper.counters())
+}
+
+/// At most `max` points were refused, all for arriving out of order: stale
+/// (after a later point), or a gap (ahead of two earlier points still on
+/// their way).
+fn only_late_points(name: &str, c: StepperCounters, max: u32) {
+    let late = [StepperError::Stale.code(), StepperError::Gap.code()];
+    assert!(
+        c.refused <= max && (c.refused == 0 || late.contains(&c.last_refused)),
+        "{name}: {c:?}"
+    );
 }
 
 /// Distance from `p` to the segment `a`–`b`.
@@ -201,7 +264,7 @@ fn to_segment(p: [f64; 2], a: [f64; 2], b: [f64; 2]) -> f64 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
     let mut r = rig().await;
-    let tick = r.timer().await;
+    let (tick, timer) = r.timer().await;
     let planner =
         r.m.define_class(
             PlannerBlock::new(
@@ -245,11 +308,9 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
         "both axes to follow the stream",
         Duration::from_secs(5),
         || {
-            [&a, &b].iter().all(|p| {
-                p.history()
-                    .last()
-                    .is_some_and(|e| e.mode == AxisMode::Tracking)
-            })
+            [&a, &b]
+                .iter()
+                .all(|m| m.lock(|m| m.stepper.mode()) == Mode::Tracking)
         },
     )
     .await;
@@ -275,26 +336,28 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
     let end = r.host.system_time().await.unwrap() + u64::from(LEAD);
     r.sleep_until_system(end + 4 * u64::from(IV)).await;
 
-    let a_path = executed(&a_mod, &a);
-    let b_path = executed(&b_mod, &b);
+    let a_steps = stepped(&a_mod, &a);
+    let b_steps = stepped(&b_mod, &b);
     let interp = reference.state().lock().unwrap().clone();
-    let in_run = |p: &&(f64, f64)| p.0 >= start as f64 && p.0 <= end as f64;
+    let in_run = |t: f64| t >= start as f64 && t <= end as f64;
     // Each motor against the spline of the stream it was sent (CoreXY:
-    // a = x + y, b = x − y), at true time: clock sync, transport and fixed
-    // point, with no interpolation between samples.
+    // a = x + y, b = x − y), at true time, right after each of its steps:
+    // half a step (6.25 µm; the step generator rounds to the nearest step,
+    // so a step is made as the spline crosses its middle) plus clock sync,
+    // transport and fixed point.
     let mut worst_stream = 0.0f64;
-    for (path, sign) in [(&a_path, 1.0), (&b_path, -1.0)] {
-        for &(t, p) in path.iter().filter(in_run) {
+    for (s, sign) in [(&a_steps, 1.0), (&b_steps, -1.0)] {
+        for &(t, p) in s.path.iter().filter(|p| in_run(p.0)) {
             let sent = interp.0.eval(t as u64).expect("the stream covers the run");
             worst_stream = worst_stream.max((p - (sent.pos[0] + sign * sent.pos[1])).abs());
         }
     }
-    // The pen against the planned square: plus the spline's corner rounding.
+    // The pen against the planned square: plus the spline's corner rounding
+    // (after each step of either motor, so half a step of each).
+    let pen = pen(&a_steps.path, &b_steps.path);
     let (mut worst_plan, mut n) = (0.0f64, 0);
     let mut nearest_corner = [f64::INFINITY; 4];
-    for &(t, pa) in a_path.iter().filter(in_run) {
-        let Some(pb) = at(&b_path, t) else { continue };
-        let xy = [(pa + pb) / 2.0, (pa - pb) / 2.0];
+    for &(_, xy) in pen.iter().filter(|p| in_run(p.0)) {
         let d = corners
             .windows(2)
             .map(|w| to_segment(xy, w[0], w[1]))
@@ -306,34 +369,48 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
         }
         n += 1;
     }
+    let (ca, cb) = (counters(&a), counters(&b));
     eprintln!(
-        "{n} pen positions: worst {:.1} µm from the sent stream (per motor), {:.1} µm from the planned square; corners reached within {:?} µm",
+        "{n} pen positions ({} + {} steps): worst {:.1} µm from the sent stream (per motor), {:.1} µm from the planned square; corners reached within {:?} µm",
+        a_steps.edges.len(),
+        b_steps.edges.len(),
         worst_stream * 1e3,
         worst_plan * 1e3,
         nearest_corner.map(|d| (d * 1e4).round() / 10.0)
     );
-    eprintln!("counters: a {:?}, b {:?}", a.counters(), b.counters());
+    eprintln!(
+        "counters: a {ca:?}, b {cb:?}; the host fell behind by up to {} intervals",
+        max_burst(&timer)
+    );
     assert!(n > 300, "only {n} pen positions");
-    // 30 µm is 500 µs of clock error at 60 mm/s.
+    // 30 µm is half a step (6.25 µm) and 400 µs of clock error at 60 mm/s.
     assert!(worst_stream < 0.030, "{worst_stream} mm from the stream");
     assert!(worst_plan < 0.050, "{worst_plan} mm from the square");
-    // Samples are ~1 ms apart (a few ms when the machine is loaded): a
-    // corner is passed within that much travel at the (slowed) corner
-    // speed, plus the rounding.
+    // The pen passes a corner within a step of travel of either motor at
+    // the (slowed) corner speed, plus the rounding.
     assert!(
         nearest_corner.iter().all(|d| *d < 0.100),
         "{nearest_corner:?}"
     );
-    for (name, p) in [("a", &a), ("b", &b)] {
-        let c = p.counters();
-        assert_eq!(c.faults, 0, "{name}: {c:?}");
-        // Under CPU pressure a best-effort pipe may lose a datagram (the axis
-        // fills a single gap) or deliver one after its successor (refused as
-        // stale, code 2); nothing else may be refused.
-        assert!(
-            c.refused <= 2 && (c.refused == 0 || c.last_refused == 2),
-            "{name}: {c:?}"
+    for (name, c) in [("a", ca), ("b", cb)] {
+        assert_eq!(
+            c.faults,
+            0,
+            "{name}: {c:?}; the host fell behind by up to {} intervals, the lead is {}",
+            max_burst(&timer),
+            LEAD / IV
         );
+        // Under CPU pressure a best-effort pipe may deliver a datagram after
+        // its successor: the axis fills the single gap, then refuses the
+        // late point as stale (code 2), or refuses a point that overtook two
+        // as a gap (code 3); nothing else may be refused. How often depends
+        // on how far the host falls behind: on a 2-core machine shared with
+        // other builds and tests (load 5) it was 0 to 13 per motor in ~800
+        // points (the host up to 27 intervals behind), and the hand-written
+        // axis module this test ran on before refused up to 5 on the same
+        // machine; so the bound is 2 % of the points, not 2 refusals. The
+        // path bounds above held all the same (worst 10.3 µm).
+        only_late_points(name, c, c.points / 50);
     }
     r.machine.stop().await.unwrap();
 }
@@ -341,41 +418,47 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn homing_finds_the_switch_from_its_time_stamp() {
     let mut r = rig().await;
-    let tick = r.timer().await;
+    let (tick, timer) = r.timer().await;
     let axis =
         r.m.define_class(OneDofBlock::new(20.0, 200.0, 1.0, 0.0, IV).unwrap())
             .await
             .unwrap();
     let sample = on_host(axis.member("sample").unwrap());
     let limit_hit = on_host(axis.member("limit_hit").unwrap());
-    let endstop = FnRef::new("z", "endstop");
+    let read_limit = FnRef::new("z", "read_limit");
+    // z is a lead screw: 400 full steps per mm (set while no stream runs).
+    r.call(&FnRef::new("z", "set_scale"), &[OwnedValue::F32(400.0)])
+        .await;
     r.enable("z").await;
     r.pipe(&tick, &sample, &[0], &[0]).await;
     r.pipe(&sample, &FnRef::new("z", "add_point"), &[0, 1], &[0, 1])
         .await;
-    // The switch's trigger time, sent once per trigger.
-    r.m.set_input_mode(&endstop, InputMode::OnTimer(1000))
+    // The switch's latest edge time (output 0 of time, level, edges), read
+    // every ms and sent once per edge. On change, the first reading (time 0,
+    // no edge yet) may go out too: `limit_hit` refuses it (not homing yet,
+    // or a time before the homing started), and the pipe's delivery is
+    // still acknowledged, so it does no harm.
+    r.m.set_input_mode(&read_limit, InputMode::OnTimer(1000))
         .await
         .unwrap();
-    r.m.set_output_mode(&endstop, OutputMode::OnChange)
+    r.m.set_output_mode(&read_limit, OutputMode::OnChange)
         .await
         .unwrap();
-    // Acknowledged: the trigger is sent once, and a lost one would leave
-    // the axis driving on into the switch.
+    // Acknowledged: the edge is sent once, and a lost one would leave the
+    // axis driving on into the switch.
     let acked = PipeOptions {
         delivery: PipeDelivery::Acked,
         ..PipeOptions::default()
     };
-    r.pipe_with(&endstop, &limit_hit, &[0], &[0], acked).await;
-    let (_, z) = r.module("z");
+    r.pipe_with(&read_limit, &limit_hit, &[0], &[0], acked)
+        .await;
+    let (z_mod, z) = r.module("z");
     until("z to follow the stream", Duration::from_secs(5), || {
-        z.history()
-            .last()
-            .is_some_and(|e| e.mode == AxisMode::Tracking)
+        z.lock(|m| m.stepper.mode()) == Mode::Tracking
     })
     .await;
 
-    // Down at 5 mm/s towards the endstop at -2 mm.
+    // Down at 5 mm/s towards the switch at -2 mm.
     let speed = 5.0f32;
     let home = on_host(axis.member("home").unwrap());
     r.call(&home, &[OwnedValue::I8(-1), OwnedValue::F32(speed)])
@@ -385,55 +468,81 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     })
     .await;
     if !homed {
-        let out = r.call(&endstop, &[]).await;
-        // Where the stream stopped: the evaluations around the first that
-        // was not tracking, with each one's clock offset (a clock step shows
-        // as a jump in it).
-        let h = z.history();
-        let first_off = h
-            .iter()
-            .position(|e| e.mode != AxisMode::Tracking && e.mode != AxisMode::Idle)
-            .unwrap_or(h.len().saturating_sub(1));
-        for e in &h[first_off.saturating_sub(20)..(first_off + 5).min(h.len())] {
+        let out = r.call(&read_limit, &[]).await;
+        // Where the motor stopped: its last steps, each with its local
+        // time, its true time and the offset between them (a clock step
+        // shows as a jump in it), and the module's state.
+        let s = stepped(&z_mod, &z);
+        let from = s.edges.len().saturating_sub(20);
+        for (e, &(t, p)) in s.edges[from..].iter().zip(&s.path[from..]) {
             eprintln!(
-                "  t {} local {} offset {} pos {:.6} v {:.3} {:?}",
-                e.time,
+                "  local {} true {t} offset {} pos {p:.6} {}",
                 e.local,
-                e.time as i64 - e.local as i64,
-                e.position,
-                e.velocity,
-                e.mode
+                t as i64 - e.local as i64,
+                if e.up { "up" } else { "down" }
             );
         }
+        let state = z.lock(|m| {
+            format!(
+                "mode {:?}, queued {}, position {:?}, {:?}, limit {:?}, motor at {:.6}, switch level {}",
+                m.stepper.mode(),
+                m.stepper.queued(),
+                m.stepper.position(),
+                m.stepper.counters(),
+                m.limit,
+                m.board().motor().position(),
+                m.board().motor().limit_level(),
+            )
+        });
         panic!(
-            "not homed after 5 s: endstop {out:?}, z last {:?}, z {:?}",
-            h.last(),
-            z.counters()
+            "not homed after 5 s: read_limit {out:?}, {} steps, z {state}; the host fell behind by up to {} intervals",
+            s.edges.len(),
+            max_burst(&timer)
         );
     }
-    let (hit, count) = {
-        let out = r.call(&endstop, &[]).await;
-        match (&out[0], &out[1]) {
-            (OwnedValue::U64(t), OwnedValue::U32(n)) => (*t, *n),
+    let (hit, level, count) = {
+        let out = r.call(&read_limit, &[]).await;
+        match (&out[0], &out[1], &out[2]) {
+            (OwnedValue::U64(t), OwnedValue::Bool(l), OwnedValue::U32(n)) => (*t, *l, *n),
             _ => panic!("{out:?}"),
         }
     };
-    assert_eq!(count, 1);
+    assert_eq!((level, count), (false, 1), "pressed (pulled low), once");
     // The axis's offset now puts the home coordinate (0) at the switch:
     // where it found the switch is minus the offset.
     let found = -axis.state().lock().unwrap().0.config().offset;
     let travel_per_interval = f64::from(speed) * f64::from(IV) * 1e-6;
+    // The switch closed on the first step that put the carriage at or below
+    // -2 mm, a step the generator made as the spline crossed the middle of
+    // that step (it rounds to the nearest step): the spline was half a step
+    // (1.25 µm at 400 steps/mm) short of where that step put the carriage.
+    // (Adding up steps of 1/400 mm, the carriage reaches -1.99999999999997
+    // after 800 steps, so it is the 801st, 2.0025 mm, that closes it.)
+    let s = stepped(&z_mod, &z);
+    let closing = s
+        .path
+        .iter()
+        .position(|p| p.1 <= -2.0)
+        .expect("a step closed the switch");
+    let crossed = s.path[closing].1 + s.step / 2.0;
     eprintln!(
-        "switch at -2 mm found at {found:.6} mm ({:.2} µm; one interval's travel is {:.1} µm), triggered at {hit}",
+        "switch at -2 mm found at {found:.6} mm ({:.2} µm; one interval's travel is {:.1} µm; the closing step was made at {crossed:.6} mm, {:.3} µm from what was found), triggered at {hit}",
         (found + 2.0) * 1e3,
-        travel_per_interval * 1e3
+        travel_per_interval * 1e3,
+        (found - crossed) * 1e3,
     );
     assert!(
         (found + 2.0).abs() < travel_per_interval,
         "switch found at {found}"
     );
-    // Time stamps, not arrival times: far better than the bound.
-    assert!((found + 2.0).abs() < 1e-3, "switch found at {found}");
+    // Time stamps, not arrival times: far better than the bound. The step
+    // and its time stamp share the module's clock, so what is left is the
+    // step quantization.
+    assert!((found - crossed).abs() < 1e-3, "switch found at {found}");
+    assert!(
+        (found + 2.0).abs() < 1e-3 + s.step / 2.0,
+        "switch found at {found}"
+    );
 
     // It then stops within its limits and without a fault on the module.
     until("the axis to stop", Duration::from_secs(5), || {
@@ -442,26 +551,44 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     .await;
     let stop = axis.state().lock().unwrap().0.state().unwrap().stamp;
     r.sleep_until_system(stop + 4 * u64::from(IV)).await;
-    let last = z.history().last().copied().unwrap();
-    assert!(last.velocity.abs() < 1e-9, "{last:?}");
+    // At rest: the spline through points at rest from `stop` on is still
+    // from `stop` + one interval, so no step after that (one more interval
+    // of slack for the clocks).
+    let s = stepped(&z_mod, &z);
+    let &(last_step, last) = s.path.last().unwrap();
+    assert!(
+        last_step < (stop + 2 * u64::from(IV)) as f64,
+        "a step at {last_step}, {} µs after the stop stamp {stop}",
+        last_step - stop as f64
+    );
     // Past the switch by what was already sent when the trigger arrived
-    // (the timer's lead, plus the endstop's 1 ms poll, delivery and one
+    // (the timer's lead, plus read_limit's 1 ms poll, delivery and one
     // 20 ms retransmission of the trigger) and then braking from 5 mm/s at
     // 200 mm/s² (62.5 µm).
     let speed = f64::from(speed);
     let committed = speed * (f64::from(LEAD) + 40_000.0) * 1e-6;
     let braking = speed * speed / (2.0 * 200.0);
     assert!(
-        last.position < -2.0 && last.position > -2.0 - committed - braking,
-        "{last:?}"
+        last < -2.0 && last > -2.0 - committed - braking,
+        "stopped at {last}"
     );
-    let c = z.counters();
-    assert_eq!(c.faults, 0, "{c:?}");
-    // As for the square: only a point delivered after its successor (code 2)
-    // may be refused.
-    assert!(
-        c.refused <= 2 && (c.refused == 0 || c.last_refused == 2),
-        "{c:?}"
+    let c = counters(&z);
+    eprintln!(
+        "z stopped at {last:.4} mm after {} steps, the last at the stop stamp {:+.0} µs; {c:?}; the host fell behind by up to {} intervals",
+        s.edges.len(),
+        last_step - stop as f64,
+        max_burst(&timer)
     );
+    assert_eq!(
+        c.faults,
+        0,
+        "{c:?}; the host fell behind by up to {} intervals, the lead is {}",
+        max_burst(&timer),
+        LEAD / IV
+    );
+    // As for the square: only points delivered out of order may be refused,
+    // at most 2 % of them (on the same loaded machine: 0 to 3 in ~315
+    // points, where the hand-written axis module's bound was 2 refusals).
+    only_late_points("z", c, c.points / 50);
     r.machine.stop().await.unwrap();
 }

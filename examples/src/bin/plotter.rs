@@ -1,12 +1,14 @@
 //! A machine script for a CoreXY plotter, run on simulated modules.
 //!
 //! It starts `osap-sim/topologies/corexy-plotter.toml` (a hub on USB, belt
-//! motors `a` and `b` on UARTs, each module on its own drifting clock), waits
-//! for their clocks to follow the host's, wires
+//! motors `a` and `b` on UARTs, each a stepper module running the module
+//! firmware's logic on a simulated board with its own drifting clock), waits
+//! for their clocks to follow the host's, powers the motors, wires
 //! `Timer → Planner → CoreXY → add_point` with pipes, draws a square with one
-//! rounded corner, and compares what the axes executed (at true time) with
-//! the stream they were sent. The same script drives hardware: only the
-//! machine's start differs.
+//! rounded corner, and compares what the motors did (every step edge, at the
+//! true time of its step tick) with the stream they were sent. The same
+//! script drives hardware: only the machine's start differs (and the
+//! comparison, which reads the simulated motors' step edges).
 //!
 //! ```text
 //! cargo run -p osap-examples --release --bin plotter -- --out docs/img/plotter.svg
@@ -45,7 +47,7 @@ struct Args {
     feed: f64,
 }
 
-/// The axes' control-point interval (the topology's `interval_us`), µs.
+/// The axes' control-point interval: the modules' default, µs.
 const IV: u32 = 2048;
 const HOST: &str = "script";
 /// How far the timer leads real time: 16 intervals (33 ms), room for the
@@ -104,9 +106,11 @@ async fn main() -> Result<(), Box<dyn Error>> {
     let inverse = host_fn(corexy.member("inverse"));
     m.set_input_mode(&tick, InputMode::OnTimer(IV / 4)).await?;
     m.set_output_mode(&tick, OutputMode::OnChange).await?;
+    // Power the motors (a and b keep the firmware's default scale, 80 full
+    // steps per mm, the belts' in the topology).
     for motor in ["a", "b"] {
-        m.function(&FnRef::new(motor, "set_current"))?
-            .call(&[OwnedValue::F32(1.0)])
+        m.function(&FnRef::new(motor, "set_enable"))?
+            .call(&[OwnedValue::Bool(true)])
             .await?;
     }
     let o = PipeOptions::default();
@@ -156,57 +160,80 @@ async fn main() -> Result<(), Box<dyn Error>> {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
 
-    // What ran: each motor's executed states at true (host) time.
+    // What ran: each motor's steps, as (true time of the step tick, carriage
+    // position after it), from where it booted (0).
     let path = |name: &str| -> Result<Vec<(f64, f64)>, Box<dyn Error>> {
-        let module = machine.module(name).ok_or("no module")?;
-        let probe = module.axis().ok_or("not an axis")?;
-        Ok(probe
-            .history()
+        let sim = machine.module(name).ok_or("no module")?;
+        let module = sim.module().ok_or("not a stepper")?;
+        let (edges, step) = module.lock(|m| {
+            let per_unit = m.board().motor().spec().full_steps_per_unit
+                * f64::from(m.board().driver().microsteps());
+            (m.board().motor().edges().to_vec(), 1.0 / per_unit)
+        });
+        let mut p = 0.0;
+        Ok(edges
             .iter()
-            .map(|e| (module.host_time_at(e.local) as f64, e.position))
-            .filter(|(t, _)| *t >= begin as f64 && *t <= end as f64)
+            .map(|e| {
+                p += if e.up { step } else { -step };
+                (sim.host_time_at(e.local) as f64, p)
+            })
             .collect())
     };
     let (a, b) = (path("a")?, path("b")?);
+    let in_run = |t: f64| t >= begin as f64 && t <= end as f64;
     let reference = sent
         .state()
         .lock()
         .map_err(|_| "interpolator lock poisoned")?
         .clone();
-    // Each motor against the stream it was sent (a = x + y, b = x − y).
+    // Each motor against the stream it was sent (a = x + y, b = x − y), right
+    // after each of its steps: half a step (6.25 µm) plus timing.
     let mut worst = 0.0f64;
     for (motor, sign) in [(&a, 1.0), (&b, -1.0)] {
-        for &(t, p) in motor {
+        for &(t, p) in motor.iter().filter(|s| in_run(s.0)) {
             if let Some(k) = reference.0.eval(t as u64) {
                 worst = worst.max((p - (k.pos[0] + sign * k.pos[1])).abs());
             }
         }
     }
-    // The pen: b at a's sample times, between b's neighbouring samples.
-    let mut pen = Vec::new();
-    for &(t, pa) in &a {
-        let i = b.partition_point(|s| s.0 <= t);
-        if let (Some(&(t0, b0)), Some(&(t1, b1))) =
-            (i.checked_sub(1).and_then(|i| b.get(i)), b.get(i))
-        {
-            let pb = b0 + (b1 - b0) * (t - t0) / (t1 - t0);
-            pen.push(((pa + pb) / 2.0, (pa - pb) / 2.0));
-        }
-    }
+    // The pen after every step of either motor: each motor stands where its
+    // last step left it.
+    let at = |path: &[(f64, f64)], t: f64| {
+        let i = path.partition_point(|s| s.0 <= t);
+        i.checked_sub(1).map_or(0.0, |i| path[i].1)
+    };
+    let mut times: Vec<f64> = a.iter().chain(&b).map(|s| s.0).collect();
+    times.sort_by(f64::total_cmp);
+    times.dedup();
+    let pen: Vec<(f64, f64)> = std::iter::once(0.0)
+        .chain(times)
+        .map(|t| {
+            let (pa, pb) = (at(&a, t), at(&b, t));
+            ((pa + pb) / 2.0, (pa - pb) / 2.0)
+        })
+        .collect();
     println!(
-        "{} pen positions over {:.2} s; worst motor distance from its sent stream at true time: {:.1} µm",
+        "{} pen positions ({} + {} steps) over {:.2} s; worst motor distance from its sent stream at true time: {:.1} µm",
         pen.len(),
+        a.len(),
+        b.len(),
         (end - begin) as f64 * 1e-6,
         worst * 1e3
     );
     let mut faulted = Vec::new();
     for name in ["a", "b"] {
-        let c = machine
+        let module = machine
             .module(name)
-            .and_then(|m| m.axis())
-            .ok_or("no axis")?
-            .counters();
-        println!("motor {name}: {c:?}");
+            .and_then(|m| m.module())
+            .ok_or("not a stepper")?;
+        let (mode, c, steps) = module.lock(|m| {
+            (
+                m.stepper.mode(),
+                m.stepper.counters(),
+                m.stepper.step_counts(),
+            )
+        });
+        println!("motor {name}: {mode:?}, {c:?}, steps (net, up, down, overruns) {steps:?}");
         if c.faults > 0 {
             faulted.push(name);
         }
@@ -226,7 +253,17 @@ async fn main() -> Result<(), Box<dyn Error>> {
         .x_desc("x (mm)")
         .y_desc("y (mm)")
         .draw()?;
-    chart.draw_series(LineSeries::new(pen, &BLUE))?;
+    // A point every 0.05 mm of pen travel (under a pixel) keeps the SVG small.
+    let mut drawn: Vec<(f64, f64)> = Vec::new();
+    for p in pen {
+        if drawn
+            .last()
+            .is_none_or(|q| (p.0 - q.0).hypot(p.1 - q.1) >= 0.05)
+        {
+            drawn.push(p);
+        }
+    }
+    chart.draw_series(LineSeries::new(drawn, &BLUE))?;
     root.present()?;
     println!("wrote {}", args.out.display());
     machine.stop().await?;
@@ -234,8 +271,8 @@ async fn main() -> Result<(), Box<dyn Error>> {
         return Err(format!(
             "motor(s) {faulted:?} stopped on their safety backstop: their stream ran dry, \
              so the host fell behind by more than the timer's lead ({} ms); \
-             give the machine more CPU or a longer lead, and cycle the motor \
-             current to clear the fault",
+             give the machine more CPU or a longer lead, and disable and \
+             enable the motor (set_enable) to clear the fault",
             LEAD / 1000
         )
         .into());
