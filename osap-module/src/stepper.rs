@@ -329,7 +329,9 @@ impl Stepper {
                 }
             }
             self.last_tick = t0 + u64::from((TICKS_PER_WORD - 1) * STEP_TICK_US);
-            if self.enabled && !self.halted {
+            // A stream whose stop has ended stays in its mode until the
+            // next stream clears it.
+            if self.enabled && !self.halted && self.track.is_empty() {
                 self.mode = Mode::Idle;
             }
             return word;
@@ -354,10 +356,14 @@ impl Stepper {
     }
 
     /// Whether the axis stands and will stand until a call changes that: it
-    /// is disabled or halted, or has no stream and no steps owed. Step words
-    /// are then all empty (a simulator need not clock them out on time).
+    /// is disabled or halted, or owes no steps and has no stream or one
+    /// whose stop has ended at rest. Step words are then all empty, and
+    /// cost what an idle word costs (a simulator need not even clock them
+    /// out on time).
     pub fn is_standing(&self) -> bool {
-        !self.enabled || self.halted || (self.track.is_empty() && self.gen.backlog() == 0)
+        !self.enabled
+            || self.halted
+            || (self.gen.backlog() == 0 && (self.track.is_empty() || self.settled()))
     }
 
     /// Powers the motor (`true`) or lets it go limp. Powering down drops

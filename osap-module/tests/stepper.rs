@@ -223,3 +223,33 @@ fn a_disabled_axis_makes_no_steps() {
     }
     assert_eq!(s.mode(), Mode::Disabled);
 }
+
+#[test]
+fn an_axis_stands_once_a_stream_has_stopped_at_rest() {
+    let mut s = enabled();
+    assert!(s.is_standing(), "no stream");
+    let t0 = 100 * IV;
+    let points = [0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0];
+    for (k, p) in points.iter().enumerate() {
+        s.add_point(t0 + k as u64 * IV, *p).unwrap();
+    }
+    assert!(!s.is_standing(), "a stream is queued");
+    let end = t0 + (points.len() as u64 + 4) * IV;
+    assert_eq!(run(&mut s, t0 - 4 * IV, end), 80);
+    assert_eq!(
+        s.mode(),
+        Mode::Backstop,
+        "the stream ended on repeated points"
+    );
+    assert!(
+        s.is_standing(),
+        "stopped at rest: words may take the idle path"
+    );
+    // Standing words make no steps and keep the mode; a new stream starts
+    // where the axis stands.
+    assert_eq!(run(&mut s, end, end + 8 * IV), 0);
+    assert_eq!(s.mode(), Mode::Backstop);
+    let t1 = end + 16 * IV;
+    s.add_point(t1, 1.0).unwrap();
+    assert!(!s.is_standing());
+}

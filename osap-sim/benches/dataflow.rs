@@ -14,7 +14,7 @@
 //!   `get_position` (no inputs, two outputs) over an in-process
 //!   zero-latency link (`single-usb.toml` with `zero_latency`), from a
 //!   task on the multi-thread tokio runtime.
-//! - `rpc/add_control_point`: the same with two inputs and no outputs.
+//! - `rpc/add_point`: the same with two inputs and no outputs.
 //!
 //! Before criterion runs, each is also measured over a fixed wall time and
 //! its rate printed (messages/s, calls/s). `cargo bench -p osap-sim
@@ -253,7 +253,7 @@ struct Rpc {
     port: PortHandle,
     route: Route,
     get_position: u16,
-    add_control_point: u16,
+    add_point: u16,
     // Kept alive for the benchmark's duration.
     _keep: (SimMachine, Host),
 }
@@ -297,20 +297,20 @@ async fn rpc_setup() -> Rpc {
         port: host.open_port("bench").await.expect("port"),
         route: motor.route(),
         get_position: port_of("get_position"),
-        add_control_point: port_of("add_control_point"),
+        add_point: port_of("add_point"),
         _keep: (machine, host),
     };
-    let set_current = port_of("set_current");
+    let set_enable = port_of("set_enable");
     let reply = rpc
         .port
         .request(
             &rpc.route,
-            set_current,
-            &call_body(&[(0, Value::F32(1.0))]),
+            set_enable,
+            &call_body(&[(0, Value::Bool(true))]),
             Duration::from_secs(1),
         )
         .await
-        .expect("set_current");
+        .expect("set_enable");
     assert!(Reply::parse(&reply.body).expect("reply").result.is_ok());
     rpc
 }
@@ -318,7 +318,7 @@ async fn rpc_setup() -> Rpc {
 #[derive(Clone, Copy)]
 enum Call {
     GetPosition,
-    AddControlPoint,
+    AddPoint,
 }
 
 async fn calls(rpc: &Rpc, call: Call, n: u64) -> Duration {
@@ -327,10 +327,12 @@ async fn calls(rpc: &Rpc, call: Call, n: u64) -> Duration {
     for i in 0..n {
         let (port, body) = match call {
             Call::GetPosition => (rpc.get_position, get.clone()),
-            // Points far in the future, in order: the queue fills, then
-            // every further call is refused (still a full round trip).
-            Call::AddControlPoint => (
-                rpc.add_control_point,
+            // Points far in the future: the first starts too far from
+            // where the axis stands or the rest come after a gap, so every
+            // call is refused by the module's logic (still a full round
+            // trip).
+            Call::AddPoint => (
+                rpc.add_point,
                 call_body(&[(0, Value::U64(u64::MAX / 2 + i)), (1, Value::F32(1.0))]),
             ),
         };
@@ -351,7 +353,7 @@ fn bench_rpc(c: &mut Criterion, rt: &tokio::runtime::Runtime, n: u64) {
     let rpc = Arc::new(rt.block_on(rpc_setup()));
     for (name, call) in [
         ("get_position", Call::GetPosition),
-        ("add_control_point", Call::AddControlPoint),
+        ("add_point", Call::AddPoint),
     ] {
         let r = rpc.clone();
         let elapsed = rt
@@ -371,7 +373,7 @@ fn bench_rpc(c: &mut Criterion, rt: &tokio::runtime::Runtime, n: u64) {
     g.throughput(Throughput::Elements(1));
     for (name, call) in [
         ("get_position", Call::GetPosition),
-        ("add_control_point", Call::AddControlPoint),
+        ("add_point", Call::AddPoint),
     ] {
         g.bench_function(name, |b| {
             b.iter_custom(|iters| {

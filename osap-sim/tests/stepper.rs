@@ -264,22 +264,15 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     );
 
     // The limit switch below -2 mm closed once, on the first step that put
-    // the carriage at or below -2 mm (the steps replayed as the motor adds
-    // them up), stamped with that step's time.
+    // the carriage at or below -2 mm, stamped with that step's time.
     let out = call(&m, "read_limit", &[]).await;
     let [OwnedValue::U64(hit), OwnedValue::Bool(level), OwnedValue::U32(count)] = out[..] else {
         panic!("read_limit returned {out:?}");
     };
     assert_eq!((level, count), (false, 1), "pressed (pulled low), once");
-    let size = 1.0 / STEPS_PER_MM;
-    let mut p = 0.0f64;
     let closing = edges
         .iter()
-        .enumerate()
-        .find_map(|(i, e)| {
-            p += if e.up { size } else { -size };
-            (p <= -2.0).then_some(i)
-        })
+        .position(|e| e.position <= -2.0)
         .expect("a step closed the switch");
     let edge = edges[closing];
     let at = -(closing as f64 + 1.0);
@@ -304,10 +297,9 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     assert!(stamps.contains(&hit), "{hit}: not one of {stamps:?}");
     let stepped = step_time(&maps, edge.local, due);
     assert!((stepped - due).abs() <= TICK_US + 2.0, "{stepped} vs {due}");
-    // The switch closes on the step that reaches -2 mm (in the motor's
-    // floating-point sums, 800 steps of 1/400 mm come to -1.99999999999997:
-    // it is the 801st), made half a step (32 µs of this ramp) from where
-    // the stream crosses -2 mm, plus a tick.
+    // The switch closes on the step that reaches -2 mm (the 800th: the
+    // motor counts positions exactly), made half a step (32 µs of this
+    // ramp) from where the stream crosses -2 mm, plus a tick.
     assert!(
         (stepped - switch).abs() <= 0.5 / speed + TICK_US + 2.0,
         "{stepped} vs {switch}"

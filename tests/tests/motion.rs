@@ -186,10 +186,8 @@ struct Stepped {
     step: f64,
 }
 
-/// A stepper module's step edges as a path at true time. Positions are the
-/// edges replayed from 0 the way the simulated motor adds them up (one
-/// step of `1 / (full steps per unit × microsteps)` at a time), so they are
-/// bit for bit the carriage positions the limit switch saw.
+/// A stepper module's step edges as a path at true time: each edge with
+/// the carriage position it left (bit for bit what the limit switch saw).
 fn stepped(module: &SimModule, shared: &SharedModule) -> Stepped {
     let (edges, step, now_at) = shared.lock(|m| {
         let motor = m.board().motor();
@@ -197,15 +195,15 @@ fn stepped(module: &SimModule, shared: &SharedModule) -> Stepped {
             motor.spec().full_steps_per_unit * f64::from(m.board().driver().microsteps());
         (motor.edges().to_vec(), 1.0 / per_unit, motor.position())
     });
-    let mut p = 0.0;
-    let path = edges
+    let path: Vec<(f64, f64)> = edges
         .iter()
-        .map(|e| {
-            p += if e.up { step } else { -step };
-            (module.host_time_at(e.local) as f64, p)
-        })
+        .map(|e| (module.host_time_at(e.local) as f64, e.position))
         .collect();
-    assert_eq!(p, now_at, "the replayed steps end where the motor stands");
+    let last = path.last().map_or(0.0, |p| p.1);
+    assert_eq!(
+        last, now_at,
+        "the last step leaves the motor where it stands"
+    );
     Stepped { path, edges, step }
 }
 
@@ -515,9 +513,8 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     // The switch closed on the first step that put the carriage at or below
     // -2 mm, a step the generator made as the spline crossed the middle of
     // that step (it rounds to the nearest step): the spline was half a step
-    // (1.25 µm at 400 steps/mm) short of where that step put the carriage.
-    // (Adding up steps of 1/400 mm, the carriage reaches -1.99999999999997
-    // after 800 steps, so it is the 801st, 2.0025 mm, that closes it.)
+    // (1.25 µm at 400 steps/mm) short of where that step put the carriage
+    // (the 800th step, at exactly -2 mm: the motor counts exactly).
     let s = stepped(&z_mod, &z);
     let closing = s
         .path

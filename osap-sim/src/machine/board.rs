@@ -133,13 +133,20 @@ impl IoSpec {
 }
 
 /// One step the motor took.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepEdge {
     /// The step tick's time on the module's local clock, µs.
     pub local: Micros,
     /// Upward (`true`) or downward.
     pub up: bool,
+    /// Where the step left the carriage, units.
+    pub position: f64,
 }
+
+/// The finest microstep the motor counts in: every step is a whole number
+/// of these (`FINEST / microsteps`), so positions are exact however the
+/// driver's mode changed.
+const FINEST: i64 = 32;
 
 /// The simulated stepper driver's pins.
 #[derive(Debug, Clone)]
@@ -178,8 +185,9 @@ impl StepperHw for Driver {
 #[derive(Debug, Clone)]
 pub struct Motor {
     spec: MotorSpec,
+    /// Where the carriage is, in 1/[`FINEST`] full steps.
+    fine: i64,
     /// Net steps taken, in the microstep mode of each step.
-    position: f64,
     steps: i64,
     edges: Vec<StepEdge>,
     /// Limit-switch edges not yet delivered to the module: (local time,
@@ -193,7 +201,7 @@ impl Motor {
     fn new(spec: MotorSpec) -> Self {
         let mut m = Motor {
             spec,
-            position: 0.0,
+            fine: 0,
             steps: 0,
             edges: Vec::new(),
             pending_limit: Vec::new(),
@@ -216,13 +224,18 @@ impl Motor {
 
     /// Takes one step at local time `local` with the driver in `microsteps`.
     fn step(&mut self, local: Micros, up: bool, microsteps: u16) {
-        let size = 1.0 / (self.spec.full_steps_per_unit * f64::from(microsteps));
-        self.position += if up { size } else { -size };
+        let size = FINEST / i64::from(microsteps.max(1));
+        self.fine += if up { size } else { -size };
         self.steps += if up { 1 } else { -1 };
+        let position = self.position();
         if self.spec.record {
-            self.edges.push(StepEdge { local, up });
+            self.edges.push(StepEdge {
+                local,
+                up,
+                position,
+            });
         }
-        let level = self.level_at(self.position);
+        let level = self.level_at(position);
         if level != self.limit_level {
             self.limit_level = level;
             self.pending_limit.push((local, level));
@@ -237,7 +250,7 @@ impl Motor {
     /// Where the carriage is, units (after the newest step clocked out,
     /// which may be up to a step-generator lead ahead of now).
     pub fn position(&self) -> f64 {
-        self.position
+        self.fine as f64 / (self.spec.full_steps_per_unit * FINEST as f64)
     }
 
     /// Net microsteps taken.
