@@ -2,7 +2,12 @@
 # End-to-end test of the RP2040 firmware on an emulated RP2040: builds the
 # release firmware (ELF + UF2), installs the emulator bridge's pinned node
 # packages, and runs the Rust test that scans, renames, calls, syncs and
-# drives the emulated module (tests/tests/emulator.rs).
+# drives the emulated module (tests/tests/emulator.rs). One stage binds
+# the stepper proxy generated from a *simulated* scan
+# (tests/tests/stepper_proxy/, checked against proxygen's output by
+# tests/tests/stepper_proxy_golden.rs) to the firmware, unchanged, and runs
+# one control-point sequence through it on the emulated module and on a
+# simulated stepper: the step counts must be equal.
 #
 # Needs node (20 or later) and npm. Usage: scripts/emulator-test.sh
 set -euo pipefail
