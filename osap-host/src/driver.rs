@@ -11,6 +11,10 @@ use std::ops::ControlFlow;
 use tokio::sync::{mpsc, Notify};
 use tokio::time::Instant;
 
+/// Polls in a row with a deadline already due before the loop waits for
+/// the next timer tick.
+const DUE_SPINS: u32 = 16;
+
 /// What one poll of a driven runtime asks of the loop.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PollOutcome {
@@ -41,6 +45,8 @@ pub async fn drive<D: Driven>(
     commands: &mut mpsc::UnboundedReceiver<D::Command>,
     wake: &Notify,
 ) {
+    // Polls in a row that left a deadline already due.
+    let mut due_in_a_row = 0u32;
     loop {
         // Take every pending command before polling, so a send issued just
         // now goes out in this pass.
@@ -60,12 +66,24 @@ pub async fn drive<D: Driven>(
             tokio::task::yield_now().await;
             continue;
         }
-        // A deadline already due (a clock that maps its µs to instants with
-        // rounding may report one) waits for the next timer tick rather
-        // than spinning: with tokio's clock paused, a spin would keep time
-        // from ever advancing.
-        let earliest = Instant::now() + std::time::Duration::from_micros(1);
-        let deadline = outcome.wake_at.map(|t| t.max(earliest));
+        // A deadline already due is polled again at once, but not for ever:
+        // a clock that maps its µs to instants with rounding may keep
+        // reporting one, and with tokio's clock paused such a spin would
+        // keep time from ever advancing. After a few, it waits for the next
+        // timer tick.
+        let now = Instant::now();
+        let deadline = match outcome.wake_at {
+            Some(t) if t <= now => {
+                due_in_a_row += 1;
+                if due_in_a_row < DUE_SPINS {
+                    tokio::task::yield_now().await;
+                    continue;
+                }
+                Some(now + std::time::Duration::from_micros(1))
+            }
+            other => other,
+        };
+        due_in_a_row = 0;
         let notified = wake.notified();
         tokio::select! {
             biased;

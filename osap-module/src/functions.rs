@@ -76,8 +76,10 @@ impl<B: Board> Module<B> {
         Ok((c.points, c.refused, c.last_refused, c.filled))
     }
 
-    /// Net microsteps sent since boot, steps up, steps down, and ticks that
-    /// owed more than one step (their steps went out on later ticks).
+    /// Net microsteps, steps up, steps down, and ticks that owed more than
+    /// one step (their steps went out on later ticks), counted since the
+    /// step generator last started: at boot, on `set_enable`, and on a
+    /// scale or microstep change (which restart it where the axis stands).
     pub fn get_steps(&mut self) -> Result<(i64, u64, u64, u64), CallError> {
         Ok(self.stepper.step_counts())
     }

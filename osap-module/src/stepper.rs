@@ -470,7 +470,8 @@ impl Stepper {
         self.units(self.gen.position() as f64)
     }
 
-    /// Net microsteps sent since boot (up minus down), steps up, steps down
+    /// Net microsteps sent since the step generator last started (boot,
+    /// enable, disable, halt or a scale change; up minus down), steps up, steps down
     /// and overrun ticks (ticks that owed more than one step; the steps
     /// still went out later).
     pub fn step_counts(&self) -> (i64, u64, u64, u64) {
