@@ -76,10 +76,11 @@ impl<B: Board> Module<B> {
         Ok((c.points, c.refused, c.last_refused, c.filled))
     }
 
-    /// Net microsteps, steps up, steps down, and ticks that owed more than
-    /// one step (their steps went out on later ticks), counted since the
-    /// step generator last started: at boot, on `set_enable`, and on a
-    /// scale or microstep change (which restart it where the axis stands).
+    /// Where the steps put the motor, in microsteps (net steps; a scale or
+    /// microstep change re-expresses it), then the steps up, steps down and
+    /// ticks that owed more than one step (their steps went out on later
+    /// ticks) since the step generator last started: at boot, on
+    /// `set_enable`, `halt`, and a scale or microstep change.
     pub fn get_steps(&mut self) -> Result<(i64, u64, u64, u64), CallError> {
         Ok(self.stepper.step_counts())
     }

@@ -470,10 +470,10 @@ impl Stepper {
         self.units(self.gen.position() as f64)
     }
 
-    /// Net microsteps sent since the step generator last started (boot,
-    /// enable, disable, halt or a scale change; up minus down), steps up, steps down
-    /// and overrun ticks (ticks that owed more than one step; the steps
-    /// still went out later).
+    /// Where the steps put the motor, in microsteps, then the steps up,
+    /// steps down and overrun ticks (ticks that owed more than one step;
+    /// the steps still went out later) since the step generator last
+    /// started (boot, enable, disable, halt, or a scale or microstep change).
     pub fn step_counts(&self) -> (i64, u64, u64, u64) {
         let s = self.gen.stats();
         (self.gen.position(), s.up, s.down, s.overruns)
