@@ -2,53 +2,16 @@
 // linked into SRAM) on rp2040js's Cortex-M0+ core and prints the cycles
 // between its bkpt marker pairs. Usage: node maxl-cycles.js ELF RP2040JS_DIR
 'use strict';
-const fs = require('fs');
 const path = require('path');
+const { runProbe } = require(path.join(__dirname, 'cycle-probe.js'));
 
 const [elfPath, jsDir] = process.argv.slice(2);
-const { RP2040 } = require(path.join(jsDir, 'node_modules', 'rp2040js'));
-
-const elf = fs.readFileSync(elfPath);
-if (elf.readUInt32BE(0) !== 0x7f454c46 || elf[4] !== 1 || elf[5] !== 1) {
-  throw new Error('not a 32-bit little-endian ELF');
-}
-const entry = elf.readUInt32LE(24);
-const phoff = elf.readUInt32LE(28);
-const phentsize = elf.readUInt16LE(42);
-const phnum = elf.readUInt16LE(44);
-
-const mcu = new RP2040();
-const RAM = 0x20000000;
-for (let i = 0; i < phnum; i++) {
-  const o = phoff + i * phentsize;
-  const type = elf.readUInt32LE(o);
-  const offset = elf.readUInt32LE(o + 4);
-  const paddr = elf.readUInt32LE(o + 12);
-  const filesz = elf.readUInt32LE(o + 16);
-  if (type !== 1 || filesz === 0) continue; // PT_LOAD with bytes
-  if (paddr < RAM || paddr + filesz > RAM + mcu.sram.length) {
-    throw new Error(`segment at 0x${paddr.toString(16)} is not in SRAM`);
-  }
-  mcu.sram.set(elf.subarray(offset, offset + filesz), paddr - RAM);
-}
-
-const core = mcu.core;
-core.SP = RAM + 256 * 1024;
-core.PC = entry & ~1;
-
 const marks = {};
 const r0At = {};
-let done = false;
-mcu.onBreak = (code) => {
-  if (code === 0xff) { done = true; return; }
-  if (code === 0xee) throw new Error('probe panicked');
+runProbe(elfPath, jsDir, (code, core) => {
   marks[code] = core.cycles;
   r0At[code] = core.registers[0];
-};
-for (let n = 0; !done; n++) {
-  if (n > 50e6) throw new Error('probe did not finish');
-  core.executeInstruction();
-}
+}, 50e6);
 
 // Cycles between markers a and b, less the cost of an empty marker pair.
 const overhead = marks[1] - marks[0];
