@@ -1,0 +1,1072 @@
+//! The machine file: a TOML description of a machine in machine terms.
+//!
+//! A machine file names the modules a machine is built from, the motors on
+//! them, the axes and the kinematics that map axes to motors, the motion
+//! limits, soft travel limits, homing, tools, an optional bed mesh and an
+//! optional `[sim]` section. See `examples/machines/plotter.toml` and
+//! `examples/machines/mill.toml` for commented examples of every key.
+//!
+//! [`MachineFile::parse`] reads and validates a file's text,
+//! [`MachineFile::load`] a file on disk. Unknown keys are refused, and every
+//! validation error names the key (`axes.x.max`) and how to fix it:
+//!
+//! ```text
+//! machine file plotter.toml: axes.x: min 10 must be below max 5; swap them or fix the travel
+//! ```
+//!
+//! Nothing here panics, whatever the input.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+/// The axis names a machine file may use, in the order
+/// [`MachineFile::axis_names`] lists them.
+pub const AXIS_NAMES: [&str; 9] = ["x", "y", "z", "a", "b", "c", "u", "v", "w"];
+
+/// The most hops a module's route may have (OSAP routes hold 32).
+pub const MAX_ROUTE_HOPS: usize = 32;
+
+/// PWM channels a module has (`pwm_write` channel 0..=1).
+pub const PWM_CHANNELS: u8 = 2;
+
+/// Digital output pins a module has (`digital_write` pin 0..=3).
+pub const DIGITAL_PINS: u8 = 4;
+
+/// An error reading or validating a machine file.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("machine file {}: {source}", .path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// Why it could not be read.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The text is not TOML, or does not have the machine file's shape
+    /// (an unknown key, a wrong type, a missing key).
+    #[error("machine file{}{}: {message}", file_part(.file), line_part(*.line))]
+    Parse {
+        /// The file, when read with [`MachineFile::load`].
+        file: Option<PathBuf>,
+        /// The 1-based line the error is on, when known.
+        line: Option<usize>,
+        /// What is wrong.
+        message: String,
+    },
+    /// The file is well-formed but describes an impossible machine.
+    #[error("machine file{}: {key}: {message}", file_part(.file))]
+    Invalid {
+        /// The file, when read with [`MachineFile::load`].
+        file: Option<PathBuf>,
+        /// The key path the error is about, e.g. `axes.x` or `motors.a.module`.
+        key: String,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+}
+
+fn file_part(file: &Option<PathBuf>) -> String {
+    match file {
+        Some(path) => format!(" {}", path.display()),
+        None => String::new(),
+    }
+}
+
+fn line_part(line: Option<usize>) -> String {
+    match line {
+        Some(line) => format!(", line {line}"),
+        None => String::new(),
+    }
+}
+
+impl ConfigError {
+    /// The key path a validation error is about (`None` for read and parse
+    /// errors).
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            ConfigError::Invalid { key, .. } => Some(key),
+            _ => None,
+        }
+    }
+
+    fn with_file(self, path: &Path) -> ConfigError {
+        match self {
+            ConfigError::Parse { line, message, .. } => ConfigError::Parse {
+                file: Some(path.to_path_buf()),
+                line,
+                message,
+            },
+            ConfigError::Invalid { key, message, .. } => ConfigError::Invalid {
+                file: Some(path.to_path_buf()),
+                key,
+                message,
+            },
+            other => other,
+        }
+    }
+}
+
+fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        file: None,
+        key: key.into(),
+        message: message.into(),
+    }
+}
+
+/// A machine file.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MachineFile {
+    /// The machine's name.
+    pub name: String,
+    /// The modules the machine is built from, by the name this file uses for
+    /// them.
+    #[serde(default)]
+    pub modules: BTreeMap<String, ModuleRef>,
+    /// The motors, by name.
+    #[serde(default)]
+    pub motors: BTreeMap<String, Motor>,
+    /// How axes map to motors (default: cartesian).
+    #[serde(default)]
+    pub kinematics: Kinematics,
+    /// The axes, by name (one of [`AXIS_NAMES`]).
+    #[serde(default)]
+    pub axes: BTreeMap<String, Axis>,
+    /// Limits on the toolhead's vector motion.
+    pub limits: Limits,
+    /// Tools, by name.
+    #[serde(default)]
+    pub tools: BTreeMap<String, Tool>,
+    /// A bed mesh file, relative to the machine file.
+    #[serde(default)]
+    pub bed_mesh: Option<PathBuf>,
+    /// Simulation settings, used only when the machine runs in simulation.
+    #[serde(default)]
+    pub sim: Option<Sim>,
+}
+
+/// How to find a module on the network: by name or by route (exactly one).
+#[derive(Debug, Clone, PartialEq, Eq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModuleRef {
+    /// The module's name, as set by `osap rename`.
+    #[serde(default)]
+    pub name: Option<String>,
+    /// The module's route from the host: link indices, one per hop.
+    #[serde(default)]
+    pub route: Option<Vec<u16>>,
+}
+
+/// A stepper motor on a module.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Motor {
+    /// The module (a key of `[modules]`) the motor is on.
+    pub module: String,
+    /// Full steps per unit of motor travel (mm, or radians for arm joints).
+    pub full_steps_per_unit: f64,
+    /// Microsteps per full step: a power of two, 1 to 256.
+    #[serde(default = "default_microsteps")]
+    pub microsteps: u16,
+    /// Reverse the motor's direction.
+    #[serde(default)]
+    pub invert: bool,
+    /// Enable the driver when the machine starts.
+    #[serde(default = "default_true")]
+    pub enable: bool,
+}
+
+fn default_microsteps() -> u16 {
+    16
+}
+
+fn default_true() -> bool {
+    true
+}
+
+/// Which side an arm's elbow (or tool) is on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Side {
+    /// Counter-clockwise of the line (looking along it).
+    Left,
+    /// Clockwise of the line.
+    Right,
+}
+
+/// How the axes map to motors.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase", deny_unknown_fields)]
+pub enum Kinematics {
+    /// Every axis has its own motor (`axes.NAME.motor`).
+    Cartesian {},
+    /// Two belt motors drive x and y together: x = (a + b) / 2,
+    /// y = (a − b) / 2.
+    CoreXy {
+        /// The two motors (a, b).
+        motors: Vec<String>,
+    },
+    /// A two-link arm with its shoulder at the origin; the motors turn the
+    /// shoulder and the elbow (units: radians).
+    Scara {
+        /// The two motors (shoulder, elbow).
+        motors: Vec<String>,
+        /// Shoulder-to-elbow link length.
+        l1: f64,
+        /// Elbow-to-tool link length.
+        l2: f64,
+        /// The elbow's side of the line from shoulder to tool.
+        elbow: Side,
+        /// How close (degrees) to stretched or folded the arm may come.
+        #[serde(default = "default_margin_deg")]
+        margin_deg: f64,
+    },
+    /// A symmetric five-bar arm: motors at (±span/2, 0), proximal links
+    /// `l1`, distal links `l2` joined at the tool (units: radians).
+    FiveBar {
+        /// The two motors (left, right).
+        motors: Vec<String>,
+        /// Distance between the two motors.
+        span: f64,
+        /// Proximal link length.
+        l1: f64,
+        /// Distal link length.
+        l2: f64,
+        /// The left elbow's side of the line from the left motor to the tool.
+        left_elbow: Side,
+        /// The right elbow's side of the line from the right motor to the
+        /// tool.
+        right_elbow: Side,
+        /// The tool's side of the line from the left elbow to the right one.
+        tool: Side,
+        /// How close (degrees) to a singularity the arm may come.
+        #[serde(default = "default_margin_deg")]
+        margin_deg: f64,
+    },
+}
+
+impl Default for Kinematics {
+    /// Cartesian.
+    fn default() -> Self {
+        Kinematics::Cartesian {}
+    }
+}
+
+fn default_margin_deg() -> f64 {
+    5.0
+}
+
+impl Kinematics {
+    /// The motors the mechanism drives (empty for cartesian).
+    pub fn motors(&self) -> &[String] {
+        match self {
+            Kinematics::Cartesian {} => &[],
+            Kinematics::CoreXy { motors }
+            | Kinematics::Scara { motors, .. }
+            | Kinematics::FiveBar { motors, .. } => motors,
+        }
+    }
+
+    /// The kinematics' name as written in the file.
+    pub fn type_name(&self) -> &'static str {
+        match self {
+            Kinematics::Cartesian {} => "cartesian",
+            Kinematics::CoreXy { .. } => "corexy",
+            Kinematics::Scara { .. } => "scara",
+            Kinematics::FiveBar { .. } => "fivebar",
+        }
+    }
+}
+
+/// An axis: travel, limits, homing, and (outside a mechanism) its motor.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Axis {
+    /// The motor driving this axis alone; required for axes the kinematics
+    /// do not drive, refused for x and y under corexy, scara and fivebar.
+    #[serde(default)]
+    pub motor: Option<String>,
+    /// Soft travel limit, low end.
+    pub min: f64,
+    /// Soft travel limit, high end.
+    pub max: f64,
+    /// Most velocity, units/s.
+    pub velocity: f64,
+    /// Most acceleration, units/s².
+    pub acceleration: f64,
+    /// Most jerk, units/s³.
+    pub jerk: f64,
+    /// How to home the axis (no homing when absent).
+    #[serde(default)]
+    pub homing: Option<Homing>,
+}
+
+/// Which end of its travel an axis homes to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Direction {
+    /// Towards `min`.
+    Min,
+    /// Towards `max`.
+    Max,
+}
+
+/// How an axis homes: against a module's limit switch or by motor stall.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Homing {
+    /// Home on the limit input of this module (a key of `[modules]`).
+    #[serde(default)]
+    pub switch: Option<String>,
+    /// Home by stall detection on this motor (a key of `[motors]`).
+    #[serde(default)]
+    pub stall: Option<String>,
+    /// The end of travel to home to.
+    pub direction: Direction,
+    /// Speed to seek the switch or stall, units/s.
+    pub search_speed: f64,
+    /// Speed of the slow second approach to the switch, units/s (required
+    /// with `switch`).
+    #[serde(default)]
+    pub latch_speed: Option<f64>,
+    /// Distance to back off after the switch or stall, units.
+    #[serde(default)]
+    pub backoff: f64,
+    /// Homing order: lower first; axes with the same order home together.
+    #[serde(default)]
+    pub order: u32,
+}
+
+/// Limits on the toolhead's vector motion.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Limits {
+    /// Most vector velocity, units/s.
+    pub velocity: f64,
+    /// Most vector acceleration, units/s².
+    pub acceleration: f64,
+    /// Junction deviation for cornering, units.
+    pub junction_deviation: f64,
+}
+
+/// What a tool is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ToolKind {
+    /// A spindle (speed by PWM duty, or on/off on a digital pin).
+    Spindle,
+    /// A pen (a servo on PWM, or a solenoid on a digital pin).
+    Pen,
+    /// A laser (power by PWM duty, or on/off on a digital pin).
+    Laser,
+}
+
+/// A module output a tool is wired to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Deserialize)]
+#[serde(rename_all = "lowercase", deny_unknown_fields)]
+pub enum Output {
+    /// A PWM channel (`pwm_write`, 0..=1).
+    Pwm(u8),
+    /// A digital pin (`digital_write`, 0..=3).
+    Digital(u8),
+}
+
+/// A tool on a module's output.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Tool {
+    /// What the tool is.
+    pub kind: ToolKind,
+    /// The module (a key of `[modules]`) the tool is wired to.
+    pub module: String,
+    /// The output on that module.
+    pub output: Output,
+    /// PWM duty (0..=1) with the tool on (pen down, full power, full speed).
+    #[serde(default = "default_on_duty")]
+    pub on_duty: f64,
+    /// PWM duty (0..=1) with the tool off (pen up).
+    #[serde(default)]
+    pub off_duty: f64,
+    /// Spindle speed at `on_duty`, rpm (spindles only; scales `S` words).
+    #[serde(default)]
+    pub max_rpm: Option<f64>,
+    /// Time to wait after switching the tool, milliseconds.
+    #[serde(default)]
+    pub settle_ms: u32,
+}
+
+fn default_on_duty() -> f64 {
+    1.0
+}
+
+/// Simulation settings.
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct Sim {
+    /// Per-axis simulated dynamics, by axis name.
+    #[serde(default)]
+    pub axes: BTreeMap<String, SimAxis>,
+}
+
+/// An axis's simulated dynamics: a mass-spring resonance.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimAxis {
+    /// Natural frequency, Hz.
+    pub resonance_hz: f64,
+    /// Damping ratio (0 undamped, 1 critically damped).
+    pub damping_ratio: f64,
+}
+
+/// Where a homing switch sits, derived from an axis's homing.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SwitchPlacement<'a> {
+    /// The axis the switch homes.
+    pub axis: &'a str,
+    /// The module whose limit input the switch is on.
+    pub module: &'a str,
+    /// The end of travel the switch is at.
+    pub direction: Direction,
+    /// The axis position at which the switch closes (the travel end).
+    pub position: f64,
+}
+
+impl MachineFile {
+    /// Parses and validates a machine file's text.
+    pub fn parse(text: &str) -> Result<MachineFile, ConfigError> {
+        let file: MachineFile = toml::from_str(text).map_err(|e| {
+            let line = e
+                .span()
+                .map(|span| line_of(text, span.start))
+                .filter(|_| !text.is_empty());
+            let mut message = e.message().trim().to_string();
+            if let Some(quoted) = line.and_then(|n| quote_line(text, n)) {
+                message = format!("{message} (at `{quoted}`)");
+            }
+            ConfigError::Parse {
+                file: None,
+                line,
+                message,
+            }
+        })?;
+        file.validate()?;
+        Ok(file)
+    }
+
+    /// Reads, parses and validates a machine file; errors name the file.
+    pub fn load(path: impl AsRef<Path>) -> Result<MachineFile, ConfigError> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        MachineFile::parse(&text).map_err(|e| e.with_file(path))
+    }
+
+    /// The axis names in order (x, y, z, a, b, c, u, v, w).
+    pub fn axis_names(&self) -> Vec<&str> {
+        AXIS_NAMES
+            .iter()
+            .copied()
+            .filter(|name| self.axes.contains_key(*name))
+            .collect()
+    }
+
+    /// The motor driving `axis` alone (`None` for an unknown axis or one the
+    /// kinematics drive).
+    pub fn motor_for_axis(&self, axis: &str) -> Option<&str> {
+        self.axes.get(axis)?.motor.as_deref()
+    }
+
+    /// The motors that move when `axis` moves: its own motor, or both of a
+    /// mechanism's motors for x and y under corexy, scara and fivebar.
+    pub fn motors_for_axis(&self, axis: &str) -> Vec<&str> {
+        let Some(entry) = self.axes.get(axis) else {
+            return Vec::new();
+        };
+        match &entry.motor {
+            Some(motor) => vec![motor.as_str()],
+            None if is_mechanism_axis(&self.kinematics, axis) => self
+                .kinematics
+                .motors()
+                .iter()
+                .map(String::as_str)
+                .collect(),
+            None => Vec::new(),
+        }
+    }
+
+    /// Axes with homing, grouped by `order` (lower first; each group homes
+    /// together, axes in [`MachineFile::axis_names`] order).
+    pub fn homing_order(&self) -> Vec<Vec<&str>> {
+        let mut groups: BTreeMap<u32, Vec<&str>> = BTreeMap::new();
+        for name in self.axis_names() {
+            if let Some(homing) = self.axes.get(name).and_then(|a| a.homing.as_ref()) {
+                groups.entry(homing.order).or_default().push(name);
+            }
+        }
+        groups.into_values().collect()
+    }
+
+    /// Where the homing switches sit, for placing simulated limit switches:
+    /// one per axis that homes on a switch, at the travel end it homes to.
+    pub fn switch_placements(&self) -> Vec<SwitchPlacement<'_>> {
+        let mut placements = Vec::new();
+        for name in self.axis_names() {
+            let Some(axis) = self.axes.get(name) else {
+                continue;
+            };
+            let Some(homing) = &axis.homing else {
+                continue;
+            };
+            let Some(module) = &homing.switch else {
+                continue;
+            };
+            placements.push(SwitchPlacement {
+                axis: name,
+                module,
+                direction: homing.direction,
+                position: match homing.direction {
+                    Direction::Min => axis.min,
+                    Direction::Max => axis.max,
+                },
+            });
+        }
+        placements
+    }
+
+    /// Checks the file describes a possible machine; the error names the
+    /// first offending key and the fix.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        if self.name.trim().is_empty() {
+            return Err(invalid(
+                "name",
+                "the machine name is empty; give the machine a name",
+            ));
+        }
+        self.validate_modules()?;
+        self.validate_kinematics()?;
+        self.validate_motors()?;
+        self.validate_axes()?;
+        self.validate_limits()?;
+        self.validate_tools()?;
+        self.validate_sim()?;
+        if let Some(mesh) = &self.bed_mesh {
+            if mesh.as_os_str().is_empty() {
+                return Err(invalid(
+                    "bed_mesh",
+                    "the bed mesh path is empty; name a mesh file or remove the key",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn validate_modules(&self) -> Result<(), ConfigError> {
+        let mut names = BTreeMap::new();
+        let mut routes = BTreeMap::new();
+        for (key, module) in &self.modules {
+            let at = format!("modules.{key}");
+            match (&module.name, &module.route) {
+                (Some(_), Some(_)) => {
+                    return Err(invalid(
+                        at,
+                        "both name and route are given; keep one of them",
+                    ))
+                }
+                (None, None) => {
+                    return Err(invalid(
+                        at,
+                        "neither name nor route is given; add name = \"...\" (as set by osap rename) or route = [link, ...]",
+                    ))
+                }
+                (Some(name), None) => {
+                    if name.trim().is_empty() {
+                        return Err(invalid(
+                            format!("{at}.name"),
+                            "the module name is empty; use the name set by osap rename",
+                        ));
+                    }
+                    if let Some(other) = names.insert(name.as_str(), key.as_str()) {
+                        return Err(invalid(
+                            format!("{at}.name"),
+                            format!(
+                                "duplicate module name {name:?}, also used by modules.{other}; each module appears once"
+                            ),
+                        ));
+                    }
+                }
+                (None, Some(route)) => {
+                    if route.is_empty() {
+                        return Err(invalid(
+                            format!("{at}.route"),
+                            "the route is empty; list the link index of each hop from the host",
+                        ));
+                    }
+                    if route.len() > MAX_ROUTE_HOPS {
+                        return Err(invalid(
+                            format!("{at}.route"),
+                            format!(
+                                "the route has {} hops, more than {MAX_ROUTE_HOPS}; check the route",
+                                route.len()
+                            ),
+                        ));
+                    }
+                    if let Some(other) = routes.insert(route.as_slice(), key.as_str()) {
+                        return Err(invalid(
+                            format!("{at}.route"),
+                            format!(
+                                "duplicate route {route:?}, also used by modules.{other}; each module appears once"
+                            ),
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn module_exists(&self, key: String, module: &str) -> Result<(), ConfigError> {
+        if self.modules.contains_key(module) {
+            Ok(())
+        } else {
+            Err(invalid(
+                key,
+                format!(
+                    "module {module:?} is not in [modules]; add it there ({}) or fix the name",
+                    known(self.modules.keys())
+                ),
+            ))
+        }
+    }
+
+    fn motor_exists(&self, key: String, motor: &str) -> Result<(), ConfigError> {
+        if self.motors.contains_key(motor) {
+            Ok(())
+        } else {
+            Err(invalid(
+                key,
+                format!(
+                    "motor {motor:?} is not in [motors]; add it there ({}) or fix the name",
+                    known(self.motors.keys())
+                ),
+            ))
+        }
+    }
+
+    fn validate_motors(&self) -> Result<(), ConfigError> {
+        for (key, motor) in &self.motors {
+            let at = format!("motors.{key}");
+            self.module_exists(format!("{at}.module"), &motor.module)?;
+            positive(
+                &format!("{at}.full_steps_per_unit"),
+                motor.full_steps_per_unit,
+                "full steps per unit of travel, e.g. 80 for a GT2 belt on a 20-tooth pulley",
+            )?;
+            let m = motor.microsteps;
+            if !(1..=256).contains(&m) || !m.is_power_of_two() {
+                return Err(invalid(
+                    format!("{at}.microsteps"),
+                    format!("microsteps {m} is not a power of two from 1 to 256; use e.g. 16"),
+                ));
+            }
+        }
+        // Each motor drives exactly one thing.
+        let mut users: BTreeMap<&str, String> = BTreeMap::new();
+        let mechanism = self
+            .kinematics
+            .motors()
+            .iter()
+            .enumerate()
+            .map(|(i, m)| (format!("kinematics.motors[{i}]"), m.as_str()));
+        let own = self
+            .axes
+            .iter()
+            .filter_map(|(axis, a)| Some((format!("axes.{axis}.motor"), a.motor.as_deref()?)));
+        for (at, motor) in mechanism.chain(own) {
+            self.motor_exists(at.clone(), motor)?;
+            if let Some(other) = users.insert(motor, at.clone()) {
+                return Err(invalid(
+                    at,
+                    format!(
+                        "duplicate: motor {motor:?} already drives {other}; give each a motor of its own"
+                    ),
+                ));
+            }
+        }
+        for key in self.motors.keys() {
+            if !users.contains_key(key.as_str()) {
+                return Err(invalid(
+                    format!("motors.{key}"),
+                    "the motor drives nothing; name it in an axis (motor = \"...\") or in kinematics.motors, or remove it",
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    fn validate_kinematics(&self) -> Result<(), ConfigError> {
+        let kin = &self.kinematics;
+        if let Kinematics::Cartesian {} = kin {
+            return Ok(());
+        }
+        let kind = kin.type_name();
+        if kin.motors().len() != 2 {
+            return Err(invalid(
+                "kinematics.motors",
+                format!(
+                    "{kind} needs exactly 2 motors (for x and y), found {}; list two motors",
+                    kin.motors().len()
+                ),
+            ));
+        }
+        for axis in ["x", "y"] {
+            match self.axes.get(axis) {
+                None => {
+                    return Err(invalid(
+                        format!("axes.{axis}"),
+                        format!("{kind} kinematics drive x and y; add [axes.{axis}]"),
+                    ))
+                }
+                Some(a) if a.motor.is_some() => {
+                    return Err(invalid(
+                        format!("axes.{axis}.motor"),
+                        format!(
+                            "{kind} kinematics drive {axis} with kinematics.motors; remove the axis's motor key"
+                        ),
+                    ))
+                }
+                Some(_) => {}
+            }
+        }
+        match kin {
+            Kinematics::Scara {
+                l1, l2, margin_deg, ..
+            } => {
+                positive("kinematics.l1", *l1, "the shoulder link length")?;
+                positive("kinematics.l2", *l2, "the forearm link length")?;
+                margin("kinematics.margin_deg", *margin_deg)?;
+            }
+            Kinematics::FiveBar {
+                span,
+                l1,
+                l2,
+                margin_deg,
+                ..
+            } => {
+                positive("kinematics.span", *span, "the distance between the motors")?;
+                positive("kinematics.l1", *l1, "the proximal link length")?;
+                positive("kinematics.l2", *l2, "the distal link length")?;
+                margin("kinematics.margin_deg", *margin_deg)?;
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn validate_axes(&self) -> Result<(), ConfigError> {
+        for (name, axis) in &self.axes {
+            let at = format!("axes.{name}");
+            if !AXIS_NAMES.contains(&name.as_str()) {
+                return Err(invalid(
+                    at,
+                    format!("unknown axis; use one of {}", AXIS_NAMES.join(", ")),
+                ));
+            }
+            if axis.motor.is_none() && !is_mechanism_axis(&self.kinematics, name) {
+                return Err(invalid(
+                    format!("{at}.motor"),
+                    format!(
+                        "no motor drives the axis under {} kinematics; add motor = \"...\" ({})",
+                        self.kinematics.type_name(),
+                        known(self.motors.keys())
+                    ),
+                ));
+            }
+            finite(&format!("{at}.min"), axis.min)?;
+            finite(&format!("{at}.max"), axis.max)?;
+            if axis.min >= axis.max {
+                return Err(invalid(
+                    at,
+                    format!(
+                        "min {} must be below max {}; swap them or fix the travel",
+                        axis.min, axis.max
+                    ),
+                ));
+            }
+            positive(&format!("{at}.velocity"), axis.velocity, "units/s")?;
+            positive(&format!("{at}.acceleration"), axis.acceleration, "units/s²")?;
+            positive(&format!("{at}.jerk"), axis.jerk, "units/s³")?;
+            if let Some(homing) = &axis.homing {
+                self.validate_homing(&format!("{at}.homing"), axis, homing)?;
+            }
+        }
+        Ok(())
+    }
+
+    fn validate_homing(&self, at: &str, axis: &Axis, homing: &Homing) -> Result<(), ConfigError> {
+        match (&homing.switch, &homing.stall) {
+            (Some(_), Some(_)) => {
+                return Err(invalid(
+                    at,
+                    "both switch and stall are given; keep one of them",
+                ))
+            }
+            (None, None) => {
+                return Err(invalid(
+                    at,
+                    "neither switch nor stall is given; add switch = \"<module>\" (its limit input) or stall = \"<motor>\"",
+                ))
+            }
+            (Some(module), None) => {
+                self.module_exists(format!("{at}.switch"), module)?;
+                match homing.latch_speed {
+                    None => {
+                        return Err(invalid(
+                            format!("{at}.latch_speed"),
+                            "switch homing needs a latch speed; add latch_speed (slower than search_speed)",
+                        ))
+                    }
+                    Some(latch) => {
+                        positive(&format!("{at}.latch_speed"), latch, "units/s")?;
+                        if latch > homing.search_speed {
+                            return Err(invalid(
+                                format!("{at}.latch_speed"),
+                                format!(
+                                    "latch speed {latch} is above search speed {}; make the latch the slower approach",
+                                    homing.search_speed
+                                ),
+                            ));
+                        }
+                    }
+                }
+            }
+            (None, Some(motor)) => {
+                self.motor_exists(format!("{at}.stall"), motor)?;
+                if let Some(latch) = homing.latch_speed {
+                    positive(&format!("{at}.latch_speed"), latch, "units/s")?;
+                }
+            }
+        }
+        positive(
+            &format!("{at}.search_speed"),
+            homing.search_speed,
+            "units/s",
+        )?;
+        if homing.search_speed > axis.velocity {
+            return Err(invalid(
+                format!("{at}.search_speed"),
+                format!(
+                    "search speed {} is above the axis velocity {}; lower it",
+                    homing.search_speed, axis.velocity
+                ),
+            ));
+        }
+        finite(&format!("{at}.backoff"), homing.backoff)?;
+        if homing.backoff < 0.0 {
+            return Err(invalid(
+                format!("{at}.backoff"),
+                format!(
+                    "backoff {} is negative; give the distance to move away, e.g. 2",
+                    homing.backoff
+                ),
+            ));
+        }
+        if homing.backoff >= axis.max - axis.min {
+            return Err(invalid(
+                format!("{at}.backoff"),
+                format!(
+                    "backoff {} is not shorter than the travel {}; shorten it",
+                    homing.backoff,
+                    axis.max - axis.min
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    fn validate_limits(&self) -> Result<(), ConfigError> {
+        let l = &self.limits;
+        positive("limits.velocity", l.velocity, "units/s")?;
+        positive("limits.acceleration", l.acceleration, "units/s²")?;
+        positive(
+            "limits.junction_deviation",
+            l.junction_deviation,
+            "units, e.g. 0.02",
+        )?;
+        Ok(())
+    }
+
+    fn validate_tools(&self) -> Result<(), ConfigError> {
+        let mut outputs: BTreeMap<(&str, Output), &str> = BTreeMap::new();
+        for (key, tool) in &self.tools {
+            let at = format!("tools.{key}");
+            self.module_exists(format!("{at}.module"), &tool.module)?;
+            match tool.output {
+                Output::Pwm(channel) if channel >= PWM_CHANNELS => {
+                    return Err(invalid(
+                        format!("{at}.output.pwm"),
+                        format!(
+                            "PWM channel {channel} does not exist; a module has channels 0 to {}",
+                            PWM_CHANNELS - 1
+                        ),
+                    ))
+                }
+                Output::Digital(pin) if pin >= DIGITAL_PINS => {
+                    return Err(invalid(
+                        format!("{at}.output.digital"),
+                        format!(
+                            "digital pin {pin} does not exist; a module has pins 0 to {}",
+                            DIGITAL_PINS - 1
+                        ),
+                    ))
+                }
+                _ => {}
+            }
+            if let Some(other) = outputs.insert((tool.module.as_str(), tool.output), key) {
+                return Err(invalid(
+                    format!("{at}.output"),
+                    format!(
+                        "duplicate: tools.{other} already uses this output of module {:?}; wire each tool to its own output",
+                        tool.module
+                    ),
+                ));
+            }
+            for (name, duty) in [("on_duty", tool.on_duty), ("off_duty", tool.off_duty)] {
+                if !(0.0..=1.0).contains(&duty) {
+                    return Err(invalid(
+                        format!("{at}.{name}"),
+                        format!("duty {duty} is outside 0 to 1; give a fraction of full duty"),
+                    ));
+                }
+            }
+            if let Some(rpm) = tool.max_rpm {
+                if tool.kind != ToolKind::Spindle {
+                    return Err(invalid(
+                        format!("{at}.max_rpm"),
+                        "max_rpm is for spindles only; remove it or set kind = \"spindle\"",
+                    ));
+                }
+                positive(&format!("{at}.max_rpm"), rpm, "rpm")?;
+            }
+        }
+        Ok(())
+    }
+
+    fn validate_sim(&self) -> Result<(), ConfigError> {
+        let Some(sim) = &self.sim else {
+            return Ok(());
+        };
+        for (name, axis) in &sim.axes {
+            let at = format!("sim.axes.{name}");
+            if !self.axes.contains_key(name) {
+                return Err(invalid(
+                    at,
+                    format!(
+                        "unknown axis; simulate one of the machine's axes ({})",
+                        known(self.axes.keys())
+                    ),
+                ));
+            }
+            positive(&format!("{at}.resonance_hz"), axis.resonance_hz, "Hz")?;
+            finite(&format!("{at}.damping_ratio"), axis.damping_ratio)?;
+            if axis.damping_ratio < 0.0 {
+                return Err(invalid(
+                    format!("{at}.damping_ratio"),
+                    format!(
+                        "damping ratio {} is negative; use 0 (undamped) or more, e.g. 0.1",
+                        axis.damping_ratio
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn is_mechanism_axis(kin: &Kinematics, axis: &str) -> bool {
+    !matches!(kin, Kinematics::Cartesian {}) && (axis == "x" || axis == "y")
+}
+
+fn known<'a>(names: impl Iterator<Item = &'a String>) -> String {
+    let names: BTreeSet<&str> = names.map(String::as_str).collect();
+    if names.is_empty() {
+        "none defined yet".to_string()
+    } else {
+        format!(
+            "defined: {}",
+            names.into_iter().collect::<Vec<_>>().join(", ")
+        )
+    }
+}
+
+fn finite(key: &str, value: f64) -> Result<(), ConfigError> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(invalid(
+            key,
+            format!("{value} is not a finite number; give a number"),
+        ))
+    }
+}
+
+fn positive(key: &str, value: f64, what: &str) -> Result<(), ConfigError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(
+            key,
+            format!("{value} must be positive; give a positive value ({what})"),
+        ))
+    }
+}
+
+fn margin(key: &str, value: f64) -> Result<(), ConfigError> {
+    if value.is_finite() && (0.0..90.0).contains(&value) {
+        Ok(())
+    } else {
+        Err(invalid(
+            key,
+            format!("margin {value}° is outside 0 to 90; use a few degrees, e.g. 5"),
+        ))
+    }
+}
+
+/// Line `n` (1-based) of `text`, trimmed and cut to 60 characters; `None`
+/// when blank.
+fn quote_line(text: &str, n: usize) -> Option<String> {
+    let line = text.lines().nth(n.checked_sub(1)?)?.trim();
+    if line.is_empty() {
+        return None;
+    }
+    let mut quoted: String = line.chars().take(60).collect();
+    if quoted.len() < line.len() {
+        quoted.push('…');
+    }
+    Some(quoted)
+}
+
+fn line_of(text: &str, offset: usize) -> usize {
+    let end = offset.min(text.len());
+    text.as_bytes()[..end]
+        .iter()
+        .filter(|&&b| b == b'\n')
+        .count()
+        + 1
+}
+
+impl fmt::Display for Direction {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Direction::Min => "min",
+            Direction::Max => "max",
+        })
+    }
+}

@@ -1,0 +1,510 @@
+//! The machine file: the examples parse and validate, every validation
+//! error names its key, and no input panics the parser.
+
+use std::path::PathBuf;
+
+use osap_machine::config::{ConfigError, Direction, Kinematics, MachineFile, Output, ToolKind};
+use proptest::prelude::*;
+
+fn example(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../examples/machines")
+        .join(name)
+}
+
+/// A small valid CoreXY machine the error tests edit.
+const BASE: &str = r#"
+name = "t"
+[modules]
+a = { name = "a" }
+b = { name = "b" }
+z = { route = [0, 3] }
+[motors.a]
+module = "a"
+full_steps_per_unit = 80.0
+[motors.b]
+module = "b"
+full_steps_per_unit = 80.0
+[motors.z]
+module = "z"
+full_steps_per_unit = 400.0
+[kinematics]
+type = "corexy"
+motors = ["a", "b"]
+[axes.x]
+min = 0.0
+max = 200.0
+velocity = 300.0
+acceleration = 3000.0
+jerk = 100000.0
+homing = { switch = "a", direction = "min", search_speed = 20.0, latch_speed = 2.0, backoff = 2.0, order = 1 }
+[axes.y]
+min = 0.0
+max = 150.0
+velocity = 300.0
+acceleration = 3000.0
+jerk = 100000.0
+[axes.z]
+motor = "z"
+min = -10.0
+max = 0.0
+velocity = 10.0
+acceleration = 100.0
+jerk = 1000.0
+[limits]
+velocity = 250.0
+acceleration = 2500.0
+junction_deviation = 0.02
+[tools.pen]
+kind = "pen"
+module = "z"
+output = { pwm = 0 }
+settle_ms = 150
+"#;
+
+fn edited(from: &str, to: &str) -> String {
+    assert!(BASE.contains(from), "BASE has no {from:?}");
+    BASE.replacen(from, to, 1)
+}
+
+fn invalid_key(text: &str) -> (String, String) {
+    match MachineFile::parse(text) {
+        Err(e @ ConfigError::Invalid { .. }) => (e.key().unwrap().to_string(), e.to_string()),
+        other => panic!("expected a validation error, got {other:?}"),
+    }
+}
+
+#[test]
+fn plotter_example_loads() {
+    let m = MachineFile::load(example("plotter.toml")).unwrap();
+    assert_eq!(m.name, "plotter");
+    assert!(matches!(m.kinematics, Kinematics::CoreXy { .. }));
+    assert_eq!(m.axis_names(), ["x", "y"]);
+    assert!(m.axes["x"].max - m.axes["x"].min >= 200.0);
+    assert!(m.axes["y"].max - m.axes["y"].min >= 150.0);
+    assert_eq!(m.motors["a"].full_steps_per_unit, 80.0);
+    assert_eq!(m.motors["b"].full_steps_per_unit, 80.0);
+    assert_eq!(m.motor_for_axis("x"), None);
+    assert_eq!(m.motors_for_axis("x"), ["a", "b"]);
+    assert_eq!(m.tools["pen"].kind, ToolKind::Pen);
+    assert_eq!(m.homing_order(), vec![vec!["x"], vec!["y"]]);
+    let switches = m.switch_placements();
+    assert_eq!(switches.len(), 2);
+    assert_eq!(switches[0].module, "a");
+    assert_eq!(switches[0].direction, Direction::Min);
+    assert_eq!(switches[0].position, 0.0);
+    assert_eq!(m.sim.as_ref().unwrap().axes["x"].resonance_hz, 45.0);
+}
+
+#[test]
+fn mill_example_loads() {
+    let m = MachineFile::load(example("mill.toml")).unwrap();
+    assert_eq!(m.name, "mill");
+    assert_eq!(m.kinematics, Kinematics::Cartesian {});
+    assert_eq!(m.axis_names(), ["x", "y", "z"]);
+    assert_eq!(m.motor_for_axis("z"), Some("z"));
+    assert_eq!(m.motors_for_axis("y"), ["y"]);
+    let spindle = &m.tools["spindle"];
+    assert_eq!(spindle.kind, ToolKind::Spindle);
+    assert_eq!(spindle.output, Output::Pwm(1));
+    assert_eq!(spindle.max_rpm, Some(24000.0));
+    assert_eq!(m.homing_order(), vec![vec!["z"], vec!["x", "y"]]);
+    assert_eq!(m.bed_mesh.as_deref(), Some("mill-mesh.toml".as_ref()));
+}
+
+#[test]
+fn base_is_valid() {
+    let m = MachineFile::parse(BASE).unwrap();
+    assert_eq!(m.axis_names(), ["x", "y", "z"]);
+    assert_eq!(m.modules["z"].route.as_deref(), Some(&[0u16, 3][..]));
+}
+
+#[test]
+fn min_above_max_names_the_axis_and_the_fix() {
+    let (key, msg) = invalid_key(&edited("min = 0.0\nmax = 200.0", "min = 10.0\nmax = 5.0"));
+    assert_eq!(key, "axes.x");
+    assert_eq!(
+        msg,
+        "machine file: axes.x: min 10 must be below max 5; swap them or fix the travel"
+    );
+}
+
+#[test]
+fn load_names_the_file() {
+    let dir = std::env::temp_dir().join(format!("osap-machine-config-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("plotter.toml");
+    std::fs::write(
+        &path,
+        edited("min = 0.0\nmax = 200.0", "min = 10.0\nmax = 5.0"),
+    )
+    .unwrap();
+    let msg = MachineFile::load(&path).unwrap_err().to_string();
+    assert!(
+        msg.starts_with("machine file ")
+            && msg.ends_with(
+                "plotter.toml: axes.x: min 10 must be below max 5; swap them or fix the travel"
+            ),
+        "{msg}"
+    );
+    let missing = MachineFile::load(dir.join("none.toml")).unwrap_err();
+    assert!(matches!(missing, ConfigError::Io { .. }));
+    assert!(missing.to_string().contains("none.toml"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn unknown_key_is_a_parse_error_with_its_line() {
+    let text = BASE.replace(
+        "[motors.a]\nmodule = \"a\"",
+        "[motors.a]\nmodule = \"a\"\ninvrt = true",
+    );
+    let err = MachineFile::parse(&text).unwrap_err();
+    let ConfigError::Parse { line, message, .. } = &err else {
+        panic!("expected a parse error, got {err:?}");
+    };
+    let expected = text.lines().position(|l| l.starts_with("invrt")).unwrap() + 1;
+    assert_eq!(*line, Some(expected));
+    assert!(message.contains("invrt"), "{message}");
+    assert!(
+        err.to_string().contains(&format!("line {expected}")),
+        "{err}"
+    );
+}
+
+#[test]
+fn unknown_kinematics_type_is_a_parse_error() {
+    let err = MachineFile::parse(&edited("type = \"corexy\"", "type = \"delta\"")).unwrap_err();
+    assert!(matches!(err, ConfigError::Parse { .. }), "{err:?}");
+    assert!(err.to_string().contains("delta"), "{err}");
+}
+
+#[test]
+fn unknown_axis() {
+    let (key, msg) = invalid_key(&edited("[axes.z]", "[axes.q]"));
+    assert_eq!(key, "axes.q");
+    assert!(msg.contains("unknown axis; use one of x, y, z"), "{msg}");
+}
+
+#[test]
+fn missing_module_in_motor_tool_and_homing() {
+    let (key, msg) = invalid_key(&edited("module = \"b\"", "module = \"bb\""));
+    assert_eq!(key, "motors.b.module");
+    assert!(msg.contains("\"bb\" is not in [modules]"), "{msg}");
+    let (key, _) = invalid_key(&edited(
+        "kind = \"pen\"\nmodule = \"z\"",
+        "kind = \"pen\"\nmodule = \"q\"",
+    ));
+    assert_eq!(key, "tools.pen.module");
+    let (key, _) = invalid_key(&edited("switch = \"a\"", "switch = \"nope\""));
+    assert_eq!(key, "axes.x.homing.switch");
+}
+
+#[test]
+fn missing_motor() {
+    let (key, msg) = invalid_key(&edited("motor = \"z\"", "motor = \"w\""));
+    assert_eq!(key, "axes.z.motor");
+    assert!(msg.contains("\"w\" is not in [motors]"), "{msg}");
+}
+
+#[test]
+fn non_positive_steps() {
+    let (key, msg) = invalid_key(&edited(
+        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = 0.0",
+    ));
+    assert_eq!(key, "motors.z.full_steps_per_unit");
+    assert!(msg.contains("must be positive"), "{msg}");
+    let (key, _) = invalid_key(&edited(
+        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = -3.0",
+    ));
+    assert_eq!(key, "motors.z.full_steps_per_unit");
+    let (key, _) = invalid_key(&edited(
+        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = nan",
+    ));
+    assert_eq!(key, "motors.z.full_steps_per_unit");
+}
+
+#[test]
+fn microsteps_must_be_a_power_of_two() {
+    let text = edited(
+        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = 400.0\nmicrosteps = 12",
+    );
+    assert_eq!(invalid_key(&text).0, "motors.z.microsteps");
+    let text = edited(
+        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = 400.0\nmicrosteps = 512",
+    );
+    assert_eq!(invalid_key(&text).0, "motors.z.microsteps");
+}
+
+#[test]
+fn non_positive_limits() {
+    assert_eq!(
+        invalid_key(&edited(
+            "junction_deviation = 0.02",
+            "junction_deviation = 0.0"
+        ))
+        .0,
+        "limits.junction_deviation"
+    );
+    assert_eq!(
+        invalid_key(&edited("velocity = 250.0", "velocity = -1.0")).0,
+        "limits.velocity"
+    );
+    assert_eq!(
+        invalid_key(&edited("jerk = 1000.0", "jerk = 0.0")).0,
+        "axes.z.jerk"
+    );
+    assert_eq!(
+        invalid_key(&edited("acceleration = 100.0", "acceleration = inf")).0,
+        "axes.z.acceleration"
+    );
+}
+
+#[test]
+fn mechanisms_need_two_motors_on_x_and_y() {
+    let (key, msg) = invalid_key(&edited("motors = [\"a\", \"b\"]", "motors = [\"a\"]"));
+    assert_eq!(key, "kinematics.motors");
+    assert!(msg.contains("corexy needs exactly 2 motors"), "{msg}");
+    // x may not also name a motor.
+    let (key, _) = invalid_key(&edited("[axes.x]\n", "[axes.x]\nmotor = \"z\"\n"));
+    assert_eq!(key, "axes.x.motor");
+}
+
+#[test]
+fn cartesian_axes_need_their_own_motor() {
+    let (key, msg) = invalid_key(&edited(
+        "type = \"corexy\"\nmotors = [\"a\", \"b\"]",
+        "type = \"cartesian\"",
+    ));
+    // a and b now drive nothing; the first complaint is about them or x.
+    assert!(key == "motors.a" || key == "axes.x.motor", "{key}: {msg}");
+}
+
+#[test]
+fn duplicate_motor_use_and_modules() {
+    let (key, msg) = invalid_key(&edited(
+        "motors = [\"a\", \"b\"]",
+        "motors = [\"a\", \"a\"]",
+    ));
+    assert_eq!(key, "kinematics.motors[1]");
+    assert!(msg.contains("duplicate"), "{msg}");
+    let (key, msg) = invalid_key(&edited("b = { name = \"b\" }", "b = { name = \"a\" }"));
+    assert_eq!(key, "modules.b.name");
+    assert!(msg.contains("duplicate module name"), "{msg}");
+    let text = edited(
+        "settle_ms = 150",
+        "settle_ms = 150\n[tools.laser]\nkind = \"laser\"\nmodule = \"z\"\noutput = { pwm = 0 }",
+    );
+    let (key, msg) = invalid_key(&text);
+    assert_eq!(key, "tools.pen.output");
+    assert!(msg.contains("duplicate"), "{msg}");
+}
+
+#[test]
+fn module_needs_exactly_one_of_name_and_route() {
+    assert_eq!(
+        invalid_key(&edited(
+            "z = { route = [0, 3] }",
+            "z = { name = \"z\", route = [0, 3] }"
+        ))
+        .0,
+        "modules.z"
+    );
+    assert_eq!(
+        invalid_key(&edited("z = { route = [0, 3] }", "z = {}")).0,
+        "modules.z"
+    );
+    assert_eq!(
+        invalid_key(&edited("z = { route = [0, 3] }", "z = { route = [] }")).0,
+        "modules.z.route"
+    );
+}
+
+#[test]
+fn homing_checks() {
+    assert_eq!(
+        invalid_key(&edited("latch_speed = 2.0, ", "")).0,
+        "axes.x.homing.latch_speed"
+    );
+    assert_eq!(
+        invalid_key(&edited("search_speed = 20.0", "search_speed = 2000.0")).0,
+        "axes.x.homing.search_speed"
+    );
+    assert_eq!(
+        invalid_key(&edited("backoff = 2.0", "backoff = 500.0")).0,
+        "axes.x.homing.backoff"
+    );
+    assert_eq!(
+        invalid_key(&edited("switch = \"a\"", "switch = \"a\", stall = \"a\"")).0,
+        "axes.x.homing"
+    );
+    // Stall homing names a motor and needs no latch speed.
+    let m = MachineFile::parse(&edited(
+        "switch = \"a\", direction = \"min\", search_speed = 20.0, latch_speed = 2.0",
+        "stall = \"a\", direction = \"max\", search_speed = 20.0",
+    ))
+    .unwrap();
+    assert!(m.switch_placements().is_empty());
+}
+
+#[test]
+fn tool_output_range() {
+    assert_eq!(
+        invalid_key(&edited("output = { pwm = 0 }", "output = { pwm = 2 }")).0,
+        "tools.pen.output.pwm"
+    );
+    assert_eq!(
+        invalid_key(&edited("output = { pwm = 0 }", "output = { digital = 4 }")).0,
+        "tools.pen.output.digital"
+    );
+    let m =
+        MachineFile::parse(&edited("output = { pwm = 0 }", "output = { digital = 3 }")).unwrap();
+    assert_eq!(m.tools["pen"].output, Output::Digital(3));
+    assert!(MachineFile::parse(&edited(
+        "output = { pwm = 0 }",
+        "output = { pwm = 0, digital = 1 }"
+    ))
+    .is_err());
+    assert_eq!(
+        invalid_key(&edited(
+            "settle_ms = 150",
+            "settle_ms = 150\nmax_rpm = 1000.0"
+        ))
+        .0,
+        "tools.pen.max_rpm"
+    );
+}
+
+#[test]
+fn sim_section() {
+    let text = format!("{BASE}\n[sim.axes.x]\nresonance_hz = 40.0\ndamping_ratio = 0.1\n");
+    let m = MachineFile::parse(&text).unwrap();
+    assert_eq!(m.sim.unwrap().axes["x"].damping_ratio, 0.1);
+    let text = format!("{BASE}\n[sim.axes.a]\nresonance_hz = 40.0\ndamping_ratio = 0.1\n");
+    assert_eq!(invalid_key(&text).0, "sim.axes.a");
+    let text = format!("{BASE}\n[sim.axes.x]\nresonance_hz = 0.0\ndamping_ratio = 0.1\n");
+    assert_eq!(invalid_key(&text).0, "sim.axes.x.resonance_hz");
+    let text =
+        format!("{BASE}\n[sim.axes.x]\nresonance_hz = 40.0\ndamping_ratio = 0.1\nmass = 2\n");
+    assert!(matches!(
+        MachineFile::parse(&text),
+        Err(ConfigError::Parse { .. })
+    ));
+}
+
+#[test]
+fn scara_and_fivebar() {
+    let scara = edited(
+        "type = \"corexy\"",
+        "type = \"scara\"\nl1 = 100.0\nl2 = 80.0\nelbow = \"right\"",
+    );
+    let m = MachineFile::parse(&scara).unwrap();
+    assert!(matches!(m.kinematics, Kinematics::Scara { margin_deg, .. } if margin_deg == 5.0));
+    assert_eq!(
+        invalid_key(&scara.replace("l2 = 80.0", "l2 = 0.0")).0,
+        "kinematics.l2"
+    );
+    // A scara without its link lengths does not parse.
+    assert!(matches!(
+        MachineFile::parse(&edited("type = \"corexy\"", "type = \"scara\"")),
+        Err(ConfigError::Parse { .. })
+    ));
+    let fivebar = edited(
+        "type = \"corexy\"",
+        "type = \"fivebar\"\nspan = 50.0\nl1 = 100.0\nl2 = 120.0\nleft_elbow = \"left\"\nright_elbow = \"right\"\ntool = \"left\"\nmargin_deg = 3.0",
+    );
+    MachineFile::parse(&fivebar).unwrap();
+    assert_eq!(
+        invalid_key(&fivebar.replace("margin_deg = 3.0", "margin_deg = 95.0")).0,
+        "kinematics.margin_deg"
+    );
+    // corexy takes no link lengths.
+    assert!(matches!(
+        MachineFile::parse(&edited("type = \"corexy\"", "type = \"corexy\"\nl1 = 1.0")),
+        Err(ConfigError::Parse { .. })
+    ));
+}
+
+proptest! {
+    #[test]
+    fn arbitrary_text_never_panics(text in "\\PC*") {
+        let _ = MachineFile::parse(&text);
+    }
+
+    #[test]
+    fn toml_ish_text_never_panics(
+        lines in prop::collection::vec(
+            prop_oneof![
+                Just("name = \"m\"".to_string()),
+                Just("[limits]".to_string()),
+                Just("[kinematics]".to_string()),
+                Just("type = \"corexy\"".to_string()),
+                Just("type = \"scara\"".to_string()),
+                Just("motors = [\"a\", \"b\"]".to_string()),
+                "\\[(axes|motors|modules|tools|sim\\.axes)\\.[a-z]\\]",
+                "[a-z_]{1,12} = -?[0-9]{1,4}(\\.[0-9]{1,3})?",
+                "[a-z_]{1,12} = \"[a-z]{0,3}\"",
+                "[a-z]{1,3} = \\{ (name|route|pwm|digital|switch) = (\\[[0-9, ]{0,6}\\]|\"[a-z]\"|[0-9]) \\}",
+                "(velocity|acceleration|jerk|min|max|junction_deviation|full_steps_per_unit) = -?[0-9e.+-]{1,8}",
+                "\\PC{0,20}",
+            ],
+            0..40,
+        ),
+    ) {
+        let _ = MachineFile::parse(&lines.join("\n"));
+    }
+
+    #[test]
+    fn mutated_examples_never_panic(cut in 0usize..4000, insert in "\\PC{0,8}") {
+        for file in ["plotter.toml", "mill.toml"] {
+            let text = std::fs::read_to_string(example(file)).unwrap();
+            let mut at = cut.min(text.len());
+            while !text.is_char_boundary(at) {
+                at -= 1;
+            }
+            let mutated = format!("{}{}{}", &text[..at], insert, &text[at..]);
+            let _ = MachineFile::parse(&mutated);
+            let _ = MachineFile::parse(&text[..at]);
+        }
+    }
+}
+
+#[test]
+fn deep_nesting_is_an_error_not_a_crash() {
+    for text in [
+        format!("a = {}", "[".repeat(100_000)),
+        format!("a = {}", "{ b = ".repeat(100_000)),
+        "[a.".repeat(50_000),
+    ] {
+        assert!(matches!(
+            MachineFile::parse(&text),
+            Err(ConfigError::Parse { .. })
+        ));
+    }
+}
+
+#[test]
+fn parse_errors_quote_the_line() {
+    let text = "name = \"x\"\n[limits]\nvelocity = 1.0\n";
+    let msg = MachineFile::parse(text).unwrap_err().to_string();
+    assert_eq!(
+        msg,
+        "machine file, line 2: missing field `acceleration` (at `[limits]`)"
+    );
+}
+
+#[test]
+fn cartesian_takes_no_mechanism_keys() {
+    let mill = std::fs::read_to_string(example("mill.toml")).unwrap();
+    let text = mill.replace("type = \"cartesian\"", "type = \"cartesian\"\nl1 = 3.0");
+    assert!(
+        matches!(MachineFile::parse(&text), Err(ConfigError::Parse { .. })),
+        "{:?}",
+        MachineFile::parse(&text)
+    );
+}
