@@ -4,8 +4,8 @@
 # packages, and runs the Rust test that scans, renames, calls, syncs and
 # drives the emulated module (tests/tests/emulator.rs). One stage binds
 # the stepper proxy generated from a *simulated* scan
-# (tests/tests/stepper_proxy/, checked against proxygen's output by
-# tests/tests/stepper_proxy_golden.rs) to the firmware, unchanged, and runs
+# (proxygen/tests/generated_small_machine/, checked against a live
+# simulated scan by proxygen's small_machine.rs) to the firmware, unchanged, and runs
 # one control-point sequence through it on the emulated module and on a
 # simulated stepper: the step counts must be equal.
 #

@@ -268,11 +268,6 @@ fn error(line: usize, message: impl Into<String>) -> GcodeError {
     }
 }
 
-/// A word's value.
-fn value(_line: usize, w: &Word) -> Result<f64, GcodeError> {
-    Ok(w.value)
-}
-
 fn find(words: &[Word], letter: char) -> Option<&Word> {
     words.iter().find(|w| w.letter == letter)
 }
@@ -289,7 +284,7 @@ fn run(state: &mut State, job: &mut Job, line: usize, code: &Command) -> Result<
         ('G', 4) if known => {
             let p =
                 find(words, 'P').ok_or_else(|| error(line, "G4 needs P, the dwell in seconds"))?;
-            let seconds = value(line, p)?;
+            let seconds = p.value;
             if seconds < 0.0 {
                 return Err(error(line, "G4 P must not be negative"));
             }
@@ -322,7 +317,7 @@ fn run(state: &mut State, job: &mut Job, line: usize, code: &Command) -> Result<
         ('G', 92) if known => {
             for (i, axis) in ['X', 'Y', 'Z'].into_iter().enumerate() {
                 if let Some(w) = find(words, axis) {
-                    let program = value(line, w)? * state.unit();
+                    let program = w.value * state.unit();
                     state.offset[i] = state.pos[i] - program;
                 }
             }
@@ -330,7 +325,7 @@ fn run(state: &mut State, job: &mut Job, line: usize, code: &Command) -> Result<
         }
         ('M', 3) if known => {
             if let Some(s) = find(words, 'S') {
-                state.speed = Some(value(line, s)?);
+                state.speed = Some(s.value);
             }
             job.steps.push(Step {
                 line,
@@ -379,7 +374,7 @@ fn continuation(
     for w in words {
         match w.letter {
             'F' | 'X' | 'Y' | 'Z' | 'I' | 'J' | 'R' => {}
-            'S' => state.speed = Some(value(line, w)?),
+            'S' => state.speed = Some(w.value),
             other => job.warnings.push(Warning {
                 line,
                 message: format!("{other}{} is not supported; skipped", w.value),
@@ -403,7 +398,7 @@ fn continuation(
 }
 
 fn set_feed(state: &mut State, line: usize, f: &Word) -> Result<(), GcodeError> {
-    let per_minute = value(line, f)?;
+    let per_minute = f.value;
     if per_minute <= 0.0 {
         return Err(error(line, "F must be positive (units per minute)"));
     }
@@ -427,7 +422,7 @@ fn motion(
     let mut any = false;
     for (i, axis) in ['X', 'Y', 'Z'].into_iter().enumerate() {
         if let Some(w) = find(words, axis) {
-            let v = value(line, w)? * unit;
+            let v = w.value * unit;
             to[i] = if state.relative {
                 state.pos[i] + v
             } else {
@@ -486,11 +481,11 @@ fn arc_center(
 ) -> Result<[f64; 2], GcodeError> {
     let (i, j, r) = (find(words, 'I'), find(words, 'J'), find(words, 'R'));
     let center = if i.is_some() || j.is_some() {
-        let di = i.map(|w| value(line, w)).transpose()?.unwrap_or(0.0) * unit;
-        let dj = j.map(|w| value(line, w)).transpose()?.unwrap_or(0.0) * unit;
+        let di = i.map_or(0.0, |w| w.value) * unit;
+        let dj = j.map_or(0.0, |w| w.value) * unit;
         [from[0] + di, from[1] + dj]
     } else if let Some(r) = r {
-        let r = value(line, r)? * unit;
+        let r = r.value * unit;
         let (dx, dy) = (to[0] - from[0], to[1] - from[1]);
         let chord = dx.hypot(dy);
         if chord == 0.0 {

@@ -815,7 +815,7 @@ impl SimModule {
             commands: rx,
             wake: self.inner.wake.clone(),
             clock,
-            stepper: stepper.clone(),
+            stepper: stepper.as_ref().map(|(_, steps)| steps.clone()),
         };
         *lock(&self.inner.live) = Live {
             commands: Some(commands),

@@ -5,6 +5,7 @@
 
 use super::board::SimBoard;
 use super::clock::DriftClock;
+use osap_core::clock::TimeMap;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::port::Port;
 use osap_core::Micros;
@@ -90,43 +91,47 @@ impl StepClock {
         }
     }
 
-    /// Clocks out every word up to local `until`, and delivers the limit
-    /// edges due by local `now`.
-    fn run(&mut self, now: Micros, until: Micros) {
-        let next = &mut self.next;
-        self.module.lock(|m| {
-            while *next <= until {
-                let word = m.fill_step_word(*next);
-                for k in 0..TICKS_PER_WORD {
-                    let bits = (word >> (2 * k)) & 3;
-                    if bits & 1 != 0 {
-                        let t = *next + Micros::from(k * STEP_TICK_US);
-                        m.board_mut().step(t, bits & 2 != 0);
-                    }
+    /// Clocks out every word of `m` up to local `until`, and delivers the
+    /// limit edges due by local `now`.
+    fn run(next: &mut Micros, m: &mut Module<SimBoard>, now: Micros, until: Micros) {
+        while *next <= until {
+            let word = m.fill_step_word(*next);
+            for k in 0..TICKS_PER_WORD {
+                let bits = (word >> (2 * k)) & 3;
+                if bits & 1 != 0 {
+                    let t = *next + Micros::from(k * STEP_TICK_US);
+                    m.board_mut().step(t, bits & 2 != 0);
                 }
-                *next += WORD_US;
             }
-            for (t, level) in m.board_mut().motor_mut().take_limit_edges(now) {
-                m.limit_changed(t, level);
-            }
-        });
+            *next += WORD_US;
+        }
+        for (t, level) in m.board_mut().motor_mut().take_limit_edges(now) {
+            m.limit_changed(t, level);
+        }
     }
 
     /// Before a poll at local `now`: the words and limit edges up to now.
     pub(crate) fn catch_up(&mut self, now: Micros) {
-        self.run(now, now);
+        let next = &mut self.next;
+        self.module.lock(|m| Self::run(next, m, now, now));
     }
 
-    /// After a poll at local `now`: words a lead ahead, if the axis may
-    /// move; returns when it next needs a turn (local µs).
-    pub(crate) fn fill_ahead(&mut self, now: Micros) -> Option<Micros> {
-        let standing = self.module.lock(|m| m.stepper.is_standing());
-        if !standing {
-            self.run(now, now + STEP_LEAD_US);
-        }
-        let limit = self.module.lock(|m| m.board().motor().next_limit_edge());
-        let refill = (!standing).then_some(now + STEP_REFILL_US);
-        [limit, refill].into_iter().flatten().min()
+    /// After a poll at local `now`, which left the runtime's time map `map`:
+    /// hands the module the map, then fills words a lead ahead if the axis
+    /// may move; returns when it next needs a turn (local µs). One lock for
+    /// all of it: this runs after every poll.
+    pub(crate) fn fill_ahead(&mut self, now: Micros, map: TimeMap) -> Option<Micros> {
+        let next = &mut self.next;
+        self.module.lock(|m| {
+            m.publish_time(map);
+            let standing = m.stepper.is_standing();
+            if !standing {
+                Self::run(next, m, now, now + STEP_LEAD_US);
+            }
+            let limit = m.board().motor().next_limit_edge();
+            let refill = (!standing).then_some(now + STEP_REFILL_US);
+            [limit, refill].into_iter().flatten().min()
+        })
     }
 }
 
@@ -204,8 +209,8 @@ pub(crate) struct ModuleTask {
     pub(crate) commands: mpsc::UnboundedReceiver<ModuleCommand>,
     pub(crate) wake: Arc<Notify>,
     pub(crate) clock: DriftClock,
-    /// A `stepper`'s module and step generator.
-    pub(crate) stepper: Option<(SharedModule, StepClock)>,
+    /// A `stepper`'s step generator (it holds the module).
+    pub(crate) stepper: Option<StepClock>,
 }
 
 impl Driven for ModuleTask {
@@ -224,14 +229,13 @@ impl Driven for ModuleTask {
 
     fn poll(&mut self) -> PollOutcome {
         let now = self.clock.now_us();
-        if let Some((_, steps)) = &mut self.stepper {
+        if let Some(steps) = &mut self.stepper {
             steps.catch_up(now);
         }
         let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
         let mut wake_at = result.wake_at;
-        if let Some((module, steps)) = &mut self.stepper {
-            module.publish_time(self.runtime.time_map());
-            if let Some(t) = steps.fill_ahead(now) {
+        if let Some(steps) = &mut self.stepper {
+            if let Some(t) = steps.fill_ahead(now, self.runtime.time_map()) {
                 wake_at = Some(wake_at.map_or(t, |w| w.min(t)));
             }
         }

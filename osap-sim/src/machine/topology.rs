@@ -577,7 +577,7 @@ impl Topology {
             }
         }
         // A stepper has the firmware's two links: USB (0) and a UART (1).
-        for (m, spec) in self.modules.iter().enumerate() {
+        for spec in &self.modules {
             if spec.kind() != Some(ModuleKind::Stepper) {
                 continue;
             }
@@ -615,7 +615,6 @@ impl Topology {
                 }
                 taken[index] = Some(i);
             }
-            let _ = m;
         }
         Ok(())
     }
