@@ -58,9 +58,9 @@ const LIMIT_PIN: u8 = 5;
 /// Limit edges whose time stamps are checked.
 const EDGE_CHECKS: usize = 21;
 /// How far a synchronized emulated module's time stamps may be from the
-/// host's (median over the edges), µs. The emulator's pace against wall
-/// time wanders by a millisecond or two and falls behind in bursts on a
-/// busy machine; the error follows it (see the check).
+/// host's once the emulator's lag behind wall time is taken out (median
+/// over the edges), µs. The emulator's pace wanders by a millisecond or two
+/// and falls behind in bursts on a busy machine (see the check).
 const EMULATED_CLOCK_BOUND_US: i128 = 5_000;
 /// How long to wait for each reply from the emulated module.
 const PATIENCE: Duration = Duration::from_secs(2);
@@ -563,9 +563,14 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         spread[(spread.len() - 1) * 9 / 10],
         spread[spread.len() - 1]
     );
+    // Held to what synchronization left: the raw error also carries how
+    // far the emulator ran behind wall time, which is the host machine's
+    // load, not the firmware's clock (a clean CI run failed on a 9.8 ms raw
+    // median whose lag-corrected median was 0.8 ms). An unsynchronized
+    // clock is off by far more than any lag, so it still fails here.
     assert!(
-        median <= EMULATED_CLOCK_BOUND_US,
-        "module time is {median} µs off the host's (median of {EDGE_CHECKS} edges)"
+        mid.abs() <= EMULATED_CLOCK_BOUND_US,
+        "module time is {mid} µs off the host's once the emulator's lag is taken out (median of {EDGE_CHECKS} edges; raw median {median} µs)"
     );
 
     // 4. Motion: a smooth move of 2 units (160 full steps) stamped in
