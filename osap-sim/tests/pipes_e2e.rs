@@ -751,7 +751,9 @@ async fn a_pipe_to_a_module_that_died_is_reported() {
         (n > before).then_some(n)
     })
     .await;
-    assert_eq!(after, before + 1);
+    // At least this datagram; one of x's earlier outputs still in flight
+    // when y died may be dropped there too (seen on a clean CI run: 2).
+    assert!(after > before, "{after} > {before}");
     // Requests to y fail, naming it.
     let e = y_status
         .with_timeout(Duration::from_millis(100))
