@@ -444,6 +444,8 @@ fn pipes_class_signatures() {
             "Planner.start(stamp: u64) -> ()",
             "Planner.set_position(x: f64, y: f64, z: f64) -> ()",
             "Planner.status() -> (queued: u32, executed: u64, idle: bool)",
+            "Planner.halt() -> (x: f64, y: f64, z: f64)",
+            "Planner.set_feed_scale(k: f64) -> ()",
         ],
     );
 }

@@ -130,11 +130,14 @@ fn planner_members() {
         let _ = p.arc(x, 0.0, 0.0, 5.0, 5.0, true, 50.0);
         let _ = p.arc(10.0, 0.0, 0.0, x, 0.0, false, x);
         let _ = p.set_position(x, x, x);
+        let _ = p.set_feed_scale(x);
     }
     for &stamp in &STAMPS {
         let _ = p.start(stamp);
         let _ = p.sample(stamp);
         let _ = p.status();
+        let _ = p.line(5.0, 5.0, 0.0, 50.0);
+        let _ = p.halt();
     }
     for &x in &F64S {
         let _ = PlannerBlock::new(x, 1.0, 1.0, 1.0, 1.0, 1.0, x, x);

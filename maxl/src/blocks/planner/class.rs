@@ -28,7 +28,13 @@ impl From<PlanError> for CallError {
 ///   planned position at a Timer's stamp, to pipe on to kinematics;
 /// - `Planner.start(stamp: u64)`; `Planner.set_position(x, y, z: f64)`;
 /// - `Planner.status() -> (queued: u32, executed: u64, idle: bool)`:
-///   segments not yet finished, segments finished, at rest.
+///   segments not yet finished, segments finished, at rest;
+/// - `Planner.halt() -> (x, y, z: f64)`: a controlled stop along the
+///   planned path from the last sampled stamp, dropping everything after
+///   it; returns where the machine comes to rest;
+/// - `Planner.set_feed_scale(k: f64)`: a feed override, `k` in (0, 10], on
+///   every segment not yet started and those queued later (within the axis
+///   limits).
 ///
 /// The class's members are the methods of the same names. `queued` outputs
 /// count segments not yet finished. Failures are `CallError::Failed(code)`
@@ -139,5 +145,19 @@ impl PlannerBlock {
     pub fn status(&self) -> (u32, u64, bool) {
         let s = self.planner.stats();
         (self.pending(), s.executed, s.idle)
+    }
+
+    /// `Planner.halt`: a controlled stop ([`Planner::halt`]); returns where
+    /// the machine comes to rest.
+    #[outputs = "x, y, z"]
+    pub fn halt(&mut self) -> Result<(f64, f64, f64), PlanError> {
+        let [x, y, z] = self.planner.halt()?;
+        Ok((x, y, z))
+    }
+
+    /// `Planner.set_feed_scale`: [`Planner::set_feed_scale`] (fails with 9
+    /// outside (0, 10]).
+    pub fn set_feed_scale(&mut self, k: f64) -> Result<(), PlanError> {
+        self.planner.set_feed_scale(k)
     }
 }

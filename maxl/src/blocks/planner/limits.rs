@@ -115,6 +115,8 @@ pub enum PlanError {
     Busy,
     /// The queue capacity is 0.
     InvalidCapacity,
+    /// The feed scale is not finite and in (0, [`super::MAX_FEED_SCALE`]].
+    InvalidFeedScale(f64),
 }
 
 impl PlanError {
@@ -130,6 +132,7 @@ impl PlanError {
             PlanError::StampNotMonotonic { .. } => 6,
             PlanError::Busy => 7,
             PlanError::InvalidCapacity => 8,
+            PlanError::InvalidFeedScale(_) => 9,
         }
     }
 }
@@ -160,6 +163,11 @@ impl fmt::Display for PlanError {
             }
             PlanError::Busy => write!(f, "the planner is not idle"),
             PlanError::InvalidCapacity => write!(f, "queue capacity must be > 0"),
+            PlanError::InvalidFeedScale(k) => write!(
+                f,
+                "feed scale {k} is not finite and in (0, {}]",
+                super::MAX_FEED_SCALE
+            ),
         }
     }
 }

@@ -20,6 +20,11 @@
 //!   synchronized stamp (µs, non-decreasing). Queued segments start when
 //!   first sampled (at the first stamp after they were queued, or at
 //!   [`Planner::start`]) and follow one another without pause.
+//! - **Halt**: [`Planner::halt`] stops along the planned path as fast as
+//!   each segment's acceleration allows, from the last sampled stamp on, and
+//!   drops everything after the stop point.
+//! - **Feed scale**: [`Planner::set_feed_scale`] scales the requested feed
+//!   of every segment not yet started (within the axis limits) and replans.
 //! - **Observability**: [`Planner::plan`] returns every running and queued
 //!   segment's profile and timing, and can be evaluated at any time;
 //!   [`Planner::stats`] counts segments.
@@ -28,7 +33,7 @@
 //! its failure codes are [`PlanError::code`]:
 //! 1 invalid limit, 2 non-finite coordinate, 3 invalid feed, 4 invalid arc,
 //! 5 queue full, 6 stamp before the previous one, 7 busy (not idle),
-//! 8 invalid capacity.
+//! 8 invalid capacity, 9 invalid feed scale.
 
 mod arc;
 mod class;
@@ -49,7 +54,11 @@ use profile::{junction_speed, Segment};
 /// Default number of queued (not yet running) segments.
 pub const DEFAULT_CAPACITY: usize = 4096;
 
-/// The segment running now, with its frozen profile.
+/// Largest feed scale [`Planner::set_feed_scale`] takes.
+pub const MAX_FEED_SCALE: f64 = 10.0;
+
+/// A segment with its frozen profile and start: the running one, or one of
+/// a halt's stop that follows it.
 #[derive(Clone, Debug)]
 struct Running<const N: usize> {
     seg: Segment<N>,
@@ -63,8 +72,8 @@ impl<const N: usize> Running<N> {
         self.t0 + self.prof.duration()
     }
 
-    fn planned(&self, epoch: u64) -> PlannedSegment<N> {
-        planned(&self.seg, self.prof, epoch as f64 + self.t0 * 1e6, true)
+    fn planned(&self, epoch: u64, running: bool) -> PlannedSegment<N> {
+        planned(&self.seg, self.prof, epoch as f64 + self.t0 * 1e6, running)
     }
 }
 
@@ -94,9 +103,13 @@ pub struct Planner<const N: usize> {
     capacity: usize,
     /// Segments not yet started, in path order.
     queue: VecDeque<Segment<N>>,
-    running: Option<Running<N>>,
-    /// Entry speed of `queue[0]`, fixed by the running segment's exit.
+    /// The running segment (front) and the segments whose profiles are
+    /// frozen after it (the rest of a halt's stop), back to back.
+    frozen: VecDeque<Running<N>>,
+    /// Entry speed of `queue[0]`, fixed by the last frozen segment's exit.
     fixed_entry: f64,
+    /// Factor on the requested feed of segments not yet started.
+    feed_scale: f64,
     /// Where the next appended segment starts.
     tail: [f64; N],
     /// Where the machine is (or will be) when nothing runs.
@@ -125,8 +138,9 @@ impl<const N: usize> Planner<N> {
             limits,
             capacity,
             queue: VecDeque::new(),
-            running: None,
+            frozen: VecDeque::new(),
             fixed_entry: 0.0,
+            feed_scale: 1.0,
             tail: [0.0; N],
             rest: [0.0; N],
             epoch: None,
@@ -160,7 +174,24 @@ impl<const N: usize> Planner<N> {
 
     /// Nothing running and nothing queued.
     pub fn is_idle(&self) -> bool {
-        self.running.is_none() && self.queue.is_empty()
+        self.frozen.is_empty() && self.queue.is_empty()
+    }
+
+    /// The last stamp sampled (µs), if any: its position is already sent,
+    /// so nothing at or before it can change.
+    pub fn last_stamp(&self) -> Option<u64> {
+        self.last_stamp
+    }
+
+    /// The synchronized time (µs) the planner's times are measured from:
+    /// the first stamp sampled or passed to [`Planner::start`], if any.
+    pub fn epoch(&self) -> Option<u64> {
+        self.epoch
+    }
+
+    /// The feed scale set by [`Planner::set_feed_scale`] (1 at first).
+    pub fn feed_scale(&self) -> f64 {
+        self.feed_scale
     }
 
     /// Queue a straight move from the tail to `target` at up to `feed` mm/s.
@@ -195,12 +226,101 @@ impl<const N: usize> Planner<N> {
     /// sampled after queuing. Only while nothing runs, and not before the
     /// last sampled stamp.
     pub fn start(&mut self, t: u64) -> Result<(), PlanError> {
-        if self.running.is_some() {
+        if !self.frozen.is_empty() {
             return Err(PlanError::Busy);
         }
         self.check_stamp(t)?;
         self.epoch.get_or_insert(t);
         self.pending_start = Some(t);
+        Ok(())
+    }
+
+    /// A controlled stop: from the last sampled stamp on, the path slows to
+    /// rest as fast as each segment's own acceleration limit allows, along
+    /// the planned path, and everything after the stop point is dropped.
+    /// Returns where the machine comes to rest.
+    ///
+    /// - Stamps already sampled (up to [`Planner::last_stamp`]) keep their
+    ///   position and velocity: the running segment's profile is frozen
+    ///   from its start, so it is replaced by one that starts at the last
+    ///   sampled stamp's position and speed along the path and decelerates.
+    ///   The speed stays continuous there; only the acceleration steps (to
+    ///   the deceleration limit).
+    /// - The stopping distance may span several segments (short chords of a
+    ///   curve): the stop follows them through their corners, each at its
+    ///   own acceleration limit, and the segment where the speed reaches 0
+    ///   is cut at exactly that point. These segments are frozen: the
+    ///   feed scale and later appends do not change them.
+    /// - Afterwards [`Planner::tail`] is the stop point, so new moves
+    ///   continue from there (starting from rest once the stop is done), and
+    ///   [`Planner::is_idle`] turns true once the stop has been sampled
+    ///   through. Times stay keyed to the planner's epoch.
+    /// - With nothing running (idle, nothing sampled yet, or segments queued
+    ///   but not started) the queue (and any pending [`Planner::start`]) is
+    ///   cleared and the rest position returned.
+    ///
+    /// The running segment, and each segment the stop runs through, counts
+    /// as executed once its part of the stop has run (the running one at
+    /// once if the halt finds it at rest); dropped segments never do.
+    /// Never fails today; the `Result` keeps the wire API's shape.
+    pub fn halt(&mut self) -> Result<[f64; N], PlanError> {
+        self.pending_start = None;
+        let queue = std::mem::take(&mut self.queue);
+        let fixed_entry = std::mem::replace(&mut self.fixed_entry, 0.0);
+        let (Some(last), Some(epoch), Some(run)) =
+            (self.last_stamp, self.epoch, self.frozen.front())
+        else {
+            self.frozen.clear();
+            self.tail = self.rest;
+            return Ok(self.rest);
+        };
+        // The last sample lies within the running segment (t0 ≤ ts < end).
+        let ts = secs(last, epoch);
+        let (s0, v0, _) = run.prof.at(ts - run.t0);
+        let mut first = run.seg.clone();
+        first.start = point_along(&run.seg.start, &run.seg.dir, s0);
+        first.len = (run.seg.len - s0).max(0.0);
+        let at_halt = first.start;
+        // The path ahead: the rest of the running segment, the frozen ones
+        // after it, and the queue if the frozen ones run into it.
+        let ahead = if fixed_entry > 0.0 { queue.len() } else { 0 };
+        let path = std::iter::once(first)
+            .chain(self.frozen.iter().skip(1).map(|r| r.seg.clone()))
+            .chain(queue.into_iter().take(ahead));
+        let stop = decelerate(path, v0, ts);
+        let stop_point = stop.back().map_or(at_halt, |r| r.seg.end);
+        if stop.is_empty() {
+            // At rest already: the running segment ends here.
+            self.rest = at_halt;
+            self.executed += 1;
+        }
+        self.frozen = stop;
+        self.tail = stop_point;
+        Ok(stop_point)
+    }
+
+    /// A feed override: the requested feed of every segment not yet started,
+    /// and of every segment queued later, is scaled by `k` (finite, in
+    /// (0, [`MAX_FEED_SCALE`]]; [`PlanError::InvalidFeedScale`] otherwise).
+    /// The axis limits still bound each segment, so a large `k` cannot push
+    /// a segment past them. The whole queue is replanned (junction limits,
+    /// backward and forward passes).
+    ///
+    /// The running segment, and a halt's frozen stop, keep their profiles;
+    /// so the first queued segment is entered at the speed the running one
+    /// was planned to exit with. When a lower `k` leaves the path faster
+    /// than its new limit there, the following segments slow at their
+    /// acceleration limit until they are under it (above the new feed, never
+    /// above the axis limits, for that stretch).
+    pub fn set_feed_scale(&mut self, k: f64) -> Result<(), PlanError> {
+        if !(k.is_finite() && k > 0.0 && k <= MAX_FEED_SCALE) {
+            return Err(PlanError::InvalidFeedScale(k));
+        }
+        self.feed_scale = k;
+        for s in self.queue.iter_mut() {
+            s.scale_feed(k);
+        }
+        self.replan_all();
         Ok(())
     }
 
@@ -217,15 +337,19 @@ impl<const N: usize> Planner<N> {
         let epoch = *self.epoch.get_or_insert(t);
         let ts = secs(t, epoch);
         loop {
-            if let Some(run) = &self.running {
+            if let Some(run) = self.frozen.front() {
                 if ts < run.t_end() {
                     let (seg, tau) = (&run.seg, ts - run.t0);
                     return Ok(plan::kin_at(&seg.start, &seg.dir, &run.prof, tau));
                 }
                 let t_end = run.t_end();
                 self.rest = run.seg.end;
-                self.running = None;
+                self.frozen.pop_front();
                 self.executed += 1;
+                if !self.frozen.is_empty() {
+                    // The next frozen segment starts at `t_end` already.
+                    continue;
+                }
                 if self.queue.is_empty() {
                     self.fixed_entry = 0.0;
                     return Ok(Kin::rest(self.rest));
@@ -249,12 +373,15 @@ impl<const N: usize> Planner<N> {
     /// The running and queued segments as planned now.
     pub fn plan(&self) -> Plan<N> {
         let epoch = self.epoch.unwrap_or(0);
-        let mut segments = Vec::with_capacity(self.queue.len() + 1);
-        let mut t = match &self.running {
-            Some(r) => {
-                segments.push(r.planned(epoch));
-                epoch as f64 + r.t_end() * 1e6
-            }
+        let mut segments = Vec::with_capacity(self.queue.len() + self.frozen.len());
+        segments.extend(
+            self.frozen
+                .iter()
+                .enumerate()
+                .map(|(i, r)| r.planned(epoch, i == 0)),
+        );
+        let mut t = match self.frozen.back() {
+            Some(r) => epoch as f64 + r.t_end() * 1e6,
             None => self.pending_start.or(self.last_stamp).unwrap_or(epoch) as f64,
         };
         for (i, s) in self.queue.iter().enumerate() {
@@ -275,7 +402,7 @@ impl<const N: usize> Planner<N> {
         Stats {
             queued_total: self.next_id,
             executed: self.executed,
-            pending: self.queue.len() + self.running.is_some() as usize,
+            pending: self.queue.len() + self.frozen.len(),
             idle: self.is_idle(),
         }
     }
@@ -289,6 +416,7 @@ impl<const N: usize> Planner<N> {
     }
 
     /// Starts `queue[0]` at `t0` seconds after the epoch, freezing its exit.
+    /// Only while nothing is frozen.
     fn begin(&mut self, t0: f64) {
         let Some(seg) = self.queue.pop_front() else {
             return;
@@ -296,19 +424,25 @@ impl<const N: usize> Planner<N> {
         let exit = self.queue.front().map_or(0.0, |n| n.entry);
         let prof = Profile::plan(seg.len, self.fixed_entry, exit, seg.v_max, seg.acc);
         self.fixed_entry = exit;
-        self.running = Some(Running { seg, prof, t0 });
+        self.frozen.push_back(Running { seg, prof, t0 });
     }
 
     /// Appends a checked segment to `target` and replans; false if too short.
     fn push(&mut self, target: [f64; N], feed: f64) -> bool {
-        let Some(mut seg) = Segment::new(self.next_id, self.tail, target, feed, &self.limits)
-        else {
+        let Some(mut seg) = Segment::new(
+            self.next_id,
+            self.tail,
+            target,
+            feed,
+            self.feed_scale,
+            &self.limits,
+        ) else {
             return false;
         };
         let prev = self
             .queue
             .back()
-            .or_else(|| self.running.as_ref().map(|r| &r.seg));
+            .or_else(|| self.frozen.back().map(|r| &r.seg));
         seg.junction_max = prev.map_or(0.0, |p| junction_speed(p, &seg, &self.limits));
         self.next_id += 1;
         self.tail = target;
@@ -322,17 +456,23 @@ impl<const N: usize> Planner<N> {
     fn replan(&mut self) {
         let q = &mut self.queue;
         let k = q.len() - 1;
-        q[k].back = q[k].junction_max.min(q[k].reach(0.0));
+        q[k].back = q[k].bound().min(q[k].reach(0.0));
         let mut from = 0;
         for i in (0..k).rev() {
-            let nb = q[i].junction_max.min(q[i].reach(q[i + 1].back));
+            let nb = q[i].bound().min(q[i].reach(q[i + 1].back));
             if nb == q[i].back {
                 from = i + 1;
                 break;
             }
             q[i].back = nb;
         }
-        for i in from..=k {
+        self.forward(from);
+    }
+
+    /// Forward pass from `queue[from]` to the tail.
+    fn forward(&mut self, from: usize) {
+        let q = &mut self.queue;
+        for i in from..q.len() {
             q[i].entry = if i == 0 {
                 self.fixed_entry
             } else {
@@ -340,6 +480,89 @@ impl<const N: usize> Planner<N> {
             };
         }
     }
+
+    /// Recomputes every queued segment's junction limit (its speed limit
+    /// changed) and replans the whole queue.
+    ///
+    /// The entry of `queue[0]` is fixed by the frozen profile before it, so
+    /// the path cannot slow faster than full deceleration from there: the
+    /// floors carry that speed forward and raise the backward pass's bounds
+    /// to it, keeping the plan within the acceleration limits when a lower
+    /// feed scale would ask for a sharper slowdown (the segments above their
+    /// new speed limit decelerate at their limit until they are under it).
+    fn replan_all(&mut self) {
+        let limits = &self.limits;
+        let q = &mut self.queue;
+        let mut floor = self.fixed_entry;
+        for i in 0..q.len() {
+            let prev = match i {
+                0 => self.frozen.back().map(|r| &r.seg),
+                _ => Some(&q[i - 1]),
+            };
+            let jm = prev.map_or(0.0, |p| junction_speed(p, &q[i], limits));
+            let s = &mut q[i];
+            s.junction_max = jm;
+            s.floor = floor;
+            floor = (floor * floor - 2.0 * s.acc * s.len).max(0.0).sqrt();
+        }
+        let mut next = 0.0;
+        for s in q.iter_mut().rev() {
+            s.back = s.bound().min(s.reach(next));
+            next = s.back;
+        }
+        self.forward(0);
+    }
+}
+
+/// The point `s` along `dir` from `start` (as [`plan::kin_at`] computes it).
+fn point_along<const N: usize>(start: &[f64; N], dir: &[f64; N], s: f64) -> [f64; N] {
+    std::array::from_fn(|i| start[i] + dir[i] * s)
+}
+
+/// Full deceleration from speed `v` at `t` (s after the epoch) along
+/// `path`, each segment at its own acceleration limit: the segments passed
+/// through and the one where the speed reaches 0, cut at that point, with
+/// their profiles and start times.
+fn decelerate<const N: usize>(
+    path: impl Iterator<Item = Segment<N>>,
+    mut v: f64,
+    mut t: f64,
+) -> VecDeque<Running<N>> {
+    let mut out: VecDeque<Running<N>> = VecDeque::new();
+    for mut seg in path {
+        if v <= 0.0 {
+            break;
+        }
+        if seg.len <= 0.0 {
+            continue;
+        }
+        let d = v * v / (2.0 * seg.acc);
+        // Within rounding of the end counts as stopping at the end, so a
+        // stop planned onto a vertex does not leak a sliver past it.
+        let v1 = if d <= seg.len * (1.0 + 1e-12) + 1e-12 {
+            if d < seg.len {
+                seg.len = d;
+                seg.end = point_along(&seg.start, &seg.dir, d);
+            }
+            0.0
+        } else {
+            (v * v - 2.0 * seg.acc * seg.len).max(0.0).sqrt()
+        };
+        seg.entry = v;
+        seg.back = v;
+        let prof = Profile::plan(seg.len, v, v1, v, seg.acc);
+        let run = Running { seg, prof, t0: t };
+        t = run.t_end();
+        out.push_back(run);
+        v = v1;
+    }
+    // The path ahead ends at rest, so speed left at its end is rounding:
+    // end the last segment at rest.
+    if let (true, Some(last)) = (v > 0.0, out.back_mut()) {
+        let (s, e) = (&last.seg, last.prof.entry);
+        last.prof = Profile::plan(s.len, e, 0.0, e, s.acc);
+    }
+    out
 }
 
 /// Seconds from `epoch` to `t` (µs), negative if `t` is earlier.

@@ -18,12 +18,20 @@ pub(crate) struct Segment<const N: usize> {
     pub end: [f64; N],
     pub dir: [f64; N],
     pub len: f64,
-    /// Largest speed: the feed and every axis's speed limit along `dir`.
+    /// The requested feed (mm/s), before the feed scale.
+    pub feed: f64,
+    /// Largest speed keeping every axis within its speed limit along `dir`.
+    pub v_axis: f64,
+    /// Largest speed: the scaled feed and `v_axis`.
     pub v_max: f64,
     /// Largest acceleration keeping every axis within its limit along `dir`.
     pub acc: f64,
     /// Largest entry speed the junction with the previous segment allows.
     pub junction_max: f64,
+    /// Slowest entry speed reachable at full deceleration from the entry the
+    /// running segment fixed, as of the last full replan (0 unless a lower
+    /// feed scale leaves the path above its new speed limit for a while).
+    pub floor: f64,
     /// Entry-speed bound from the backward pass (reaching rest at the tail).
     pub back: f64,
     /// Planned entry speed.
@@ -43,12 +51,14 @@ pub(crate) fn along<const N: usize>(limit: &[f64; N], dir: &[f64; N]) -> f64 {
 }
 
 impl<const N: usize> Segment<N> {
-    /// A segment from `start` to `end`, or `None` if it is too short to move.
+    /// A segment from `start` to `end` at up to `feed` × `scale`, or `None`
+    /// if it is too short to move.
     pub fn new(
         id: u64,
         start: [f64; N],
         end: [f64; N],
         feed: f64,
+        scale: f64,
         limits: &Limits<N>,
     ) -> Option<Self> {
         let mut d = [0.0; N];
@@ -64,20 +74,36 @@ impl<const N: usize> Segment<N> {
         for c in d.iter_mut() {
             *c /= len;
         }
-        let v_max = feed.min(along(&limits.max_vel, &d));
+        let v_axis = along(&limits.max_vel, &d);
         let acc = along(&limits.max_acc, &d);
-        Some(Segment {
+        let mut seg = Segment {
             id,
             start,
             end,
             dir: d,
             len,
-            v_max,
+            feed,
+            v_axis,
+            v_max: v_axis,
             acc,
             junction_max: 0.0,
+            floor: 0.0,
             back: 0.0,
             entry: 0.0,
-        })
+        };
+        seg.scale_feed(scale);
+        Some(seg)
+    }
+
+    /// Sets the speed limit to the feed scaled by `k`, within the axes'.
+    pub fn scale_feed(&mut self, k: f64) {
+        self.v_max = (self.feed * k).min(self.v_axis);
+    }
+
+    /// The entry-speed bound of the backward pass: the junction's, raised
+    /// to the floor a feed-scale change may leave.
+    pub fn bound(&self) -> f64 {
+        self.junction_max.max(self.floor)
     }
 
     /// The speed reachable at the far end of this segment from `v` at one end.
@@ -140,7 +166,10 @@ pub struct Profile {
     pub accel: f64,
     /// Segment length (mm).
     pub length: f64,
-    /// Duration of the accelerating ramp (s).
+    /// Duration of the first ramp, from the entry to the cruise speed (s):
+    /// accelerating, or decelerating when the segment is entered above its
+    /// speed limit (after [`super::Planner::set_feed_scale`] lowered it while
+    /// the path ran faster).
     pub t_acc: f64,
     /// Duration at cruise speed (s).
     pub t_cruise: f64,
@@ -154,10 +183,17 @@ impl Profile {
     /// The fastest profile over `len` from `v0` to `v1` within `v_max` and
     /// `acc`. The caller guarantees `v1` is reachable from `v0`; rounding
     /// beyond that is absorbed.
+    ///
+    /// An entry above `v_max` (a lowered feed scale) first decelerates to
+    /// `v_max` (or straight to `v1` if that is higher), then cruises.
     pub fn plan(len: f64, v0: f64, v1: f64, v_max: f64, acc: f64) -> Self {
-        let peak = ((2.0 * acc * len + v0 * v0 + v1 * v1) * 0.5).sqrt();
-        let vc = v_max.min(peak).max(v0).max(v1);
-        let d_acc = (vc * vc - v0 * v0) / (2.0 * acc);
+        let vc = if v0 > v_max {
+            v_max.max(v1)
+        } else {
+            let peak = ((2.0 * acc * len + v0 * v0 + v1 * v1) * 0.5).sqrt();
+            v_max.min(peak).max(v0).max(v1)
+        };
+        let d_acc = (vc * vc - v0 * v0).abs() / (2.0 * acc);
         let d_dec = (vc * vc - v1 * v1) / (2.0 * acc);
         let d_cruise = (len - d_acc - d_dec).max(0.0);
         let t_cruise = if vc > 0.0 { d_cruise / vc } else { 0.0 };
@@ -167,7 +203,7 @@ impl Profile {
             exit: v1,
             accel: acc,
             length: len,
-            t_acc: (vc - v0) / acc,
+            t_acc: (vc - v0).abs() / acc,
             t_cruise,
             t_dec: (vc - v1) / acc,
             d_acc,
@@ -186,10 +222,12 @@ impl Profile {
         let tau = tau.max(0.0);
         let a = self.accel;
         let (s, v, acc) = if tau < self.t_acc {
+            // The first ramp decelerates when entered above the cruise speed.
+            let a1 = if self.cruise < self.entry { -a } else { a };
             (
-                self.entry * tau + 0.5 * a * tau * tau,
-                self.entry + a * tau,
-                a,
+                self.entry * tau + 0.5 * a1 * tau * tau,
+                self.entry + a1 * tau,
+                a1,
             )
         } else if tau < self.t_acc + self.t_cruise {
             (
