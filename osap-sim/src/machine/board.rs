@@ -43,7 +43,9 @@ pub struct MotorSpec {
     #[serde(default = "default_full_steps_per_unit")]
     pub full_steps_per_unit: f64,
     /// A limit switch at this carriage position (units), pressed below it
-    /// (a minimum endstop); absent: no switch (its input reads released).
+    /// (a minimum endstop); absent: no switch (its input reads released,
+    /// unless a [`SwitchSpec`](super::SwitchSpec) over several motors
+    /// drives it).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub limit_min: Option<f64>,
     /// A limit switch pressed above this carriage position (a maximum
@@ -268,7 +270,9 @@ impl Motor {
         std::mem::take(&mut self.edges)
     }
 
-    /// The limit input's level after the newest step (`true`: released).
+    /// The motor's own switch's level after the newest step (`true`:
+    /// released; always `true` without `limit_min`/`limit_max`, also when
+    /// a [`SwitchSpec`](super::SwitchSpec) drives the module's input).
     pub fn limit_level(&self) -> bool {
         self.limit_level
     }

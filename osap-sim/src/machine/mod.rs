@@ -103,6 +103,14 @@
 //! loss = 0.0                 # optional, DES only: frame loss (not memory)
 //! jitter_us = 0.0            # optional, DES only, uart/rs485: U[0, x] µs
 //! corrupt_per_byte = 0.0     # optional, DES only, uart/rs485: byte errors
+//!
+//! [[switch]]                 # optional: a limit switch over several motors
+//! module = "a"               # the stepper whose limit input it is wired to
+//! terms = [["a", 0.5], ["b", 0.5]]  # [stepper, coefficient]: its motor's
+//!                            # carriage position (units) times the coefficient
+//! offset = 100.0             # optional: added to the sum (default 0)
+//! at = 0.0                   # where it closes
+//! pressed_below = true       # pressed while sum + offset <= at (false: >= at)
 //! ```
 //!
 //! Unknown keys are errors. A module's link indices (what routes name)
@@ -117,8 +125,30 @@
 //! UART, a baud rate or MTU out of range, more than 8 links on one module,
 //! no link to the host, modules the host cannot reach, more than one
 //! module with `root = true`, a `loss` or `corrupt_per_byte` outside
-//! `[0, 1]`, `loss` on a `memory` link, and `jitter_us` or
-//! `corrupt_per_byte` on a link that is not a UART.
+//! `[0, 1]`, `loss` on a `memory` link, `jitter_us` or
+//! `corrupt_per_byte` on a link that is not a UART, and a `[[switch]]`
+//! (message naming the switch and its key) on or over a module that is not
+//! a `stepper`, on a module whose motor has `limit_min` or `limit_max`
+//! (one limit input), with no terms, a term named twice, a zero or
+//! non-finite coefficient, or a non-finite `offset` or `at`.
+//!
+//! # Switches over several motors
+//!
+//! A `[[switch]]` ([`SwitchSpec`]) is pressed by a linear form of several
+//! motors' carriage positions: a CoreXY machine's x endstop, wired to
+//! module a's limit input, closes when x = (a + b) / 2 reaches it, however
+//! a and b got there. Each watched motor publishes its steps with their
+//! times; the switch's module merges them in time order and is handed each
+//! edge (`limit_changed`) stamped with the tick of the step that made the
+//! sum cross, to within 1 µs of converting between the two modules'
+//! clocks, exactly as a switch on its own motor is. Motors clock their
+//! words 2.28 ms ahead and a module watching a moving motor takes a turn
+//! every 1 ms (a standing one is woken when a watched motor starts), so an
+//! edge normally reaches the module at its time, and at worst at the first
+//! turn after every watched motor clocked its words past it. Several
+//! switches on one module are wired in parallel (low while any is
+//! pressed). Only the simulated machines run them: the discrete-event
+//! simulator has no motors and ignores them.
 //!
 //! # Keys for the discrete-event simulator
 //!
@@ -172,6 +202,7 @@
 pub mod board;
 mod clock;
 mod module;
+mod switch;
 mod topology;
 mod wire;
 
@@ -181,7 +212,8 @@ pub use module::{
     MODULE_SLOTS,
 };
 pub use topology::{
-    load, LinkKind, LinkSpec, ModuleKind, ModuleSpec, Topology, DEFAULT_BAUD, HOST, MAX_HOST_LINKS,
+    load, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SwitchSpec, Topology, DEFAULT_BAUD, HOST,
+    MAX_HOST_LINKS,
 };
 
 /// How a simulated machine keeps time.
@@ -223,6 +255,7 @@ use osap_module::{Module, ModulePorts};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
+use switch::{Input, Positions, Publisher};
 use tokio::sync::{mpsc, oneshot, Notify};
 use tokio::task::JoinHandle;
 use topology::Node;
@@ -255,6 +288,8 @@ struct Machine {
     running: Vec<AtomicBool>,
     /// How deliveries are scheduled (`None`: no link has latency).
     wire: Option<WireHandle>,
+    /// Where watched motors' carriages are (`None`: no switch over motors).
+    positions: Option<Arc<Positions>>,
     // Last: dropped after the links are down.
     _wire_thread: Option<Wire>,
 }
@@ -440,7 +475,9 @@ impl SimMachine {
                 generation: Arc::new(AtomicU64::new(0)),
             });
         }
+        let positions = Positions::new(topology, &wakes, epoch);
         let machine = Arc::new(Machine {
+            positions,
             topology: topology.clone(),
             epoch,
             host_clock,
@@ -737,6 +774,9 @@ impl SimModule {
             unreachable!("checked above");
         };
         let parked = task.await.map_err(|_| HostError::Stopped)?;
+        if let Some(positions) = &machine.positions {
+            positions.stopped(self.inner.index);
+        }
         *state = ModuleState::Stopped(parked);
         Ok(())
     }
@@ -795,17 +835,22 @@ impl SimModule {
                 &spec.io.clone().unwrap_or_default(),
             );
             let module = SharedModule::new(Module::new(board));
-            module.lock(|m| {
-                let level = m.board().motor().limit_level();
-                m.limit_initial(level);
-            });
+            let (publisher, input) = match &machine.positions {
+                Some(board) => (
+                    Publisher::new(board, self.inner.index, clock, 0.0),
+                    Input::new(board, &machine.topology, self.inner.index, clock),
+                ),
+                None => (None, None),
+            };
+            let steps = StepClock::new(module.clone(), clock.now_us(), publisher, input);
+            let level = steps.initial_level();
+            module.lock(|m| m.limit_initial(level));
             let module_ports = ModulePorts::new(module.clone())
                 .map_err(|e| HostError::Malformed(format!("module {:?}: {e:?}", spec.name)))?;
             // The functions, then the pulse timer (it takes no port index).
             for port in module_ports.into_ports() {
                 ports.push(Box::new(port));
             }
-            let steps = StepClock::new(module.clone(), clock.now_us());
             stepper = Some((module, steps));
         }
         let task = ModuleTask {

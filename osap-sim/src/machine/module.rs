@@ -5,6 +5,7 @@
 
 use super::board::SimBoard;
 use super::clock::DriftClock;
+use super::switch::{self, Input, Publisher};
 use osap_core::clock::TimeMap;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::port::Port;
@@ -74,46 +75,113 @@ const STEP_REFILL_US: Micros = 1_000;
 /// word of 16 ticks (the same `fill_step_word` the firmware's step
 /// interrupt calls) and hands the board each step in it, and it delivers
 /// the limit switch's edges to the module at their times, as the firmware's
-/// edge interrupt does.
+/// edge interrupt does. With switches over several motors
+/// ([`SwitchSpec`](super::SwitchSpec)) it also publishes its motor's steps
+/// to the modules whose switches watch it, and merges what the motors its
+/// own input watches published (see `switch.rs`).
 #[derive(Clone)]
 pub(crate) struct StepClock {
     module: SharedModule,
     /// Local time of the next word's first tick.
     next: Micros,
+    /// Publishes this motor's steps, if a switch watches it.
+    publisher: Option<Publisher>,
+    /// The limit input, if switches over motors drive it (else the motor's
+    /// own switch does).
+    input: Option<Input>,
 }
 
 impl StepClock {
-    pub(crate) fn new(module: SharedModule, boot_local: Micros) -> Self {
+    pub(crate) fn new(
+        module: SharedModule,
+        boot_local: Micros,
+        publisher: Option<Publisher>,
+        input: Option<Input>,
+    ) -> Self {
         StepClock {
             module,
             // Word-aligned to the counter, as a step generator started at boot.
             next: boot_local.div_ceil(WORD_US) * WORD_US,
+            publisher,
+            input,
         }
     }
 
-    /// Clocks out every word of `m` up to local `until`, and delivers the
-    /// limit edges due by local `now`.
-    fn run(next: &mut Micros, m: &mut Module<SimBoard>, now: Micros, until: Micros) {
+    /// Clocks out every word of `m` up to local `until`, publishing the
+    /// steps if a switch watches the motor.
+    fn run(
+        next: &mut Micros,
+        publisher: &mut Option<Publisher>,
+        m: &mut Module<SimBoard>,
+        until: Micros,
+    ) {
         while *next <= until {
             let word = m.fill_step_word(*next);
+            let mut start = None;
             for k in 0..TICKS_PER_WORD {
                 let bits = (word >> (2 * k)) & 3;
                 if bits & 1 != 0 {
                     let t = *next + Micros::from(k * STEP_TICK_US);
                     m.board_mut().step(t, bits & 2 != 0);
+                    if let Some(p) = publisher {
+                        let word_at = *start.get_or_insert_with(|| p.instant_at(*next));
+                        let at = switch::tick_instant(word_at, k, STEP_TICK_US);
+                        p.step(at, m.board().motor().position());
+                    }
                 }
             }
             *next += WORD_US;
         }
-        for (t, level) in m.board_mut().motor_mut().take_limit_edges(now) {
-            m.limit_changed(t, level);
+    }
+
+    /// Delivers the limit edges due by local `now`: the motor's own
+    /// switch's, or the input's after merging what its motors published.
+    fn deliver(input: &mut Option<Input>, m: &mut Module<SimBoard>, now: Micros) {
+        match input {
+            Some(input) => {
+                input.merge(now);
+                for (t, level) in input.take_edges(now) {
+                    m.limit_changed(t, level);
+                }
+            }
+            None => {
+                for (t, level) in m.board_mut().motor_mut().take_limit_edges(now) {
+                    m.limit_changed(t, level);
+                }
+            }
+        }
+    }
+
+    /// The limit input's level at boot.
+    pub(crate) fn initial_level(&self) -> bool {
+        match &self.input {
+            Some(input) => input.level(),
+            None => self.module.lock(|m| m.board().motor().limit_level()),
+        }
+    }
+
+    /// Before the module reads its clock for a poll.
+    pub(crate) fn begin_poll(&self) {
+        if let Some(p) = &self.publisher {
+            p.begin_poll();
         }
     }
 
     /// Before a poll at local `now`: the words and limit edges up to now.
     pub(crate) fn catch_up(&mut self, now: Micros) {
-        let next = &mut self.next;
-        self.module.lock(|m| Self::run(next, m, now, now));
+        let StepClock {
+            module,
+            next,
+            publisher,
+            input,
+        } = self;
+        module.lock(|m| {
+            Self::run(next, publisher, m, now);
+            if let Some(p) = publisher {
+                p.publish(*next, None);
+            }
+            Self::deliver(input, m, now);
+        });
     }
 
     /// After a poll at local `now`, which left the runtime's time map `map`:
@@ -121,14 +189,26 @@ impl StepClock {
     /// may move; returns when it next needs a turn (local µs). One lock for
     /// all of it: this runs after every poll.
     pub(crate) fn fill_ahead(&mut self, now: Micros, map: TimeMap) -> Option<Micros> {
-        let next = &mut self.next;
-        self.module.lock(|m| {
+        let StepClock {
+            module,
+            next,
+            publisher,
+            input,
+        } = self;
+        module.lock(|m| {
             m.publish_time(map);
             let standing = m.stepper.is_standing();
             if !standing {
-                Self::run(next, m, now, now + STEP_LEAD_US);
+                Self::run(next, publisher, m, now + STEP_LEAD_US);
             }
-            let limit = m.board().motor().next_limit_edge();
+            if let Some(p) = publisher {
+                p.publish(*next, Some(standing));
+            }
+            Self::deliver(input, m, now);
+            let limit = match input {
+                Some(input) => input.next_turn(now, STEP_REFILL_US),
+                None => m.board().motor().next_limit_edge(),
+            };
             let refill = (!standing).then_some(now + STEP_REFILL_US);
             [limit, refill].into_iter().flatten().min()
         })
@@ -228,6 +308,9 @@ impl Driven for ModuleTask {
     }
 
     fn poll(&mut self) -> PollOutcome {
+        if let Some(steps) = &self.stepper {
+            steps.begin_poll();
+        }
         let now = self.clock.now_us();
         if let Some(steps) = &mut self.stepper {
             steps.catch_up(now);

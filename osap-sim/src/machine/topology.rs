@@ -61,6 +61,83 @@ pub struct Topology {
     /// order its links are listed here.
     #[serde(rename = "link", default)]
     pub links: Vec<LinkSpec>,
+    /// Limit switches over several motors, `[[switch]]` in a file: each on
+    /// a `stepper`'s limit input, pressed by a linear form of carriage
+    /// positions.
+    #[serde(rename = "switch", default, skip_serializing_if = "Vec::is_empty")]
+    pub switches: Vec<SwitchSpec>,
+}
+
+/// A limit switch over several motors, `[[switch]]` in a topology file: on
+/// module `module`'s limit input, pressed while
+///
+/// ```text
+/// Σ coef·(carriage position of that module's motor) + offset ≤ at
+/// ```
+///
+/// (`pressed_below`; else `≥ at`). A CoreXY machine's x endstop, wired to
+/// module a's input, with x = (a + b) / 2 and the carriage at x = 100 when
+/// both carriages read 0: `terms = [["a", 0.5], ["b", 0.5]]`,
+/// `offset = 100`, `at = 0`, `pressed_below = true`.
+///
+/// Like a switch on the module's own motor ([`MotorSpec::limit_min`]) the
+/// input reads high released and low pressed, the module reads the level
+/// at boot (`limit_initial`) and is handed each edge with its time on its
+/// own clock (`limit_changed`), stamped with the tick of the step that
+/// made the form cross. Several switches on one module are wired in
+/// parallel: the input is low while any is pressed. A module with a
+/// `[[switch]]` has no `limit_min`/`limit_max` on its motor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SwitchSpec {
+    /// The `stepper` whose limit input the switch is wired to.
+    pub module: String,
+    /// The form's terms: a `stepper` module (its motor's carriage position,
+    /// units) and its coefficient, e.g. `[["a", 0.5], ["b", 0.5]]`.
+    pub terms: Vec<(String, f64)>,
+    /// Added to the form (default 0).
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub offset: f64,
+    /// Where the switch closes.
+    pub at: f64,
+    /// Pressed while the form is at or below `at` (a minimum endstop);
+    /// `false`: at or above it.
+    pub pressed_below: bool,
+}
+
+impl SwitchSpec {
+    /// A switch on `module`'s input pressed while `Σ coef·position + offset`
+    /// is at or below `at` (`pressed_below`) or at or above it.
+    pub fn new(
+        module: &str,
+        terms: &[(&str, f64)],
+        offset: f64,
+        at: f64,
+        pressed_below: bool,
+    ) -> Self {
+        SwitchSpec {
+            module: module.to_string(),
+            terms: terms.iter().map(|(m, c)| (m.to_string(), *c)).collect(),
+            offset,
+            at,
+            pressed_below,
+        }
+    }
+
+    /// The form's value with carriages at `position(module)`.
+    pub fn value(&self, mut position: impl FnMut(&str) -> f64) -> f64 {
+        self.offset + self.terms.iter().map(|(m, c)| c * position(m)).sum::<f64>()
+    }
+
+    /// Whether the switch is pressed with carriages at `position(module)`.
+    pub fn pressed(&self, position: impl FnMut(&str) -> f64) -> bool {
+        let v = self.value(position);
+        if self.pressed_below {
+            v <= self.at
+        } else {
+            v >= self.at
+        }
+    }
 }
 
 /// One simulated module.
@@ -307,6 +384,7 @@ pub(crate) fn firmware_link(kind: LinkKind) -> Option<usize> {
 enum Item {
     Module(usize),
     Link(usize),
+    Switch(usize),
 }
 
 struct CheckError {
@@ -336,6 +414,7 @@ fn item_line(text: &str, item: Item) -> Option<usize> {
     let (header, n) = match item {
         Item::Module(i) => ("[[module]]", i),
         Item::Link(i) => ("[[link]]", i),
+        Item::Switch(i) => ("[[switch]]", i),
     };
     text.lines()
         .enumerate()
@@ -364,6 +443,7 @@ impl Topology {
             host: HostSpec::default(),
             modules: Vec::new(),
             links: Vec::new(),
+            switches: Vec::new(),
         }
     }
 
@@ -376,6 +456,12 @@ impl Topology {
     /// Adds a link.
     pub fn with_link(mut self, link: LinkSpec) -> Self {
         self.links.push(link);
+        self
+    }
+
+    /// Adds a limit switch over several motors.
+    pub fn with_switch(mut self, switch: SwitchSpec) -> Self {
+        self.switches.push(switch);
         self
     }
 
@@ -418,7 +504,8 @@ impl Topology {
     /// Checks the topology: unique module names of at most 31 bytes (and
     /// not `host`), links between known, distinct ends, valid link
     /// settings and clocks, at most 8 links on a module, at least one link
-    /// to the host and every module reachable from it.
+    /// to the host and every module reachable from it, and switches over
+    /// motors on and over `stepper` modules, with finite numbers.
     pub fn validate(&self) -> Result<(), HostError> {
         self.check()
             .map_err(|e| invalid(format!("topology {:?}", self.name), e.message))
@@ -427,7 +514,84 @@ impl Topology {
     fn check(&self) -> Result<(), CheckError> {
         self.check_modules()?;
         self.check_links()?;
+        self.check_switches()?;
         self.check_graph().map_err(CheckError::file)
+    }
+
+    fn check_switches(&self) -> Result<(), CheckError> {
+        for (i, s) in self.switches.iter().enumerate() {
+            let at = |message: String| CheckError::at(Item::Switch(i), message);
+            let what = format!("switch {} (on {:?})", i + 1, s.module);
+            let stepper = |key: &str, name: &str| -> Result<(), CheckError> {
+                match self.module_index(name).map(|m| &self.modules[m]) {
+                    None => Err(at(format!(
+                        "{what}: {key}: no module is named {name:?}; name one of: {}",
+                        self.known_stepper_names()
+                    ))),
+                    Some(m) if m.kind() != Some(ModuleKind::Stepper) => Err(at(format!(
+                        "{what}: {key}: module {name:?} is a {:?}; a switch is on, and over, modules of type \"stepper\" (with a limit input and a motor)",
+                        m.type_name
+                    ))),
+                    Some(_) => Ok(()),
+                }
+            };
+            stepper("module", &s.module)?;
+            if let Some(motor) = self
+                .module_index(&s.module)
+                .and_then(|m| self.modules[m].motor.as_ref())
+            {
+                let own = match (motor.limit_min, motor.limit_max) {
+                    (Some(_), _) => Some("limit_min"),
+                    (None, Some(_)) => Some("limit_max"),
+                    _ => None,
+                };
+                if let Some(key) = own {
+                    return Err(at(format!(
+                        "{what}: module: {:?} already has a switch on its own motor ({key} in its [module.motor]) and a module has one limit input; remove {key} and give that switch as a [[switch]] with terms = [[{:?}, 1.0]]",
+                        s.module, s.module
+                    )));
+                }
+            }
+            if s.terms.is_empty() {
+                return Err(at(format!(
+                    "{what}: terms is empty; list [module, coefficient] pairs, e.g. terms = [[\"a\", 0.5], [\"b\", 0.5]]"
+                )));
+            }
+            for (k, (module, coef)) in s.terms.iter().enumerate() {
+                let key = format!("terms[{k}]");
+                stepper(&key, module)?;
+                if !(coef.is_finite() && *coef != 0.0) {
+                    return Err(at(format!(
+                        "{what}: {key}: coefficient {coef} must be finite and not zero; drop the term or give its weight"
+                    )));
+                }
+                if let Some(first) = s.terms[..k].iter().position(|(m, _)| m == module) {
+                    return Err(at(format!(
+                        "{what}: {key}: module {module:?} is already terms[{first}]; add the coefficients into one term"
+                    )));
+                }
+            }
+            for (key, v) in [("offset", s.offset), ("at", s.at)] {
+                if !v.is_finite() {
+                    return Err(at(format!("{what}: {key} {v} must be finite")));
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn known_stepper_names(&self) -> String {
+        let names: Vec<String> = self
+            .modules
+            .iter()
+            .filter(|m| m.kind() == Some(ModuleKind::Stepper))
+            .map(|m| format!("{:?}", m.name))
+            .collect();
+        if names.is_empty() {
+            "(no stepper modules)".into()
+        } else {
+            names.join(", ")
+        }
     }
 
     fn check_modules(&self) -> Result<(), CheckError> {
