@@ -409,19 +409,78 @@ fn default_on_duty() -> f64 {
 #[derive(Debug, Clone, PartialEq, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
 pub struct Sim {
-    /// Per-axis simulated dynamics, by axis name.
+    /// Per-axis simulation settings, by axis name.
     #[serde(default)]
     pub axes: BTreeMap<String, SimAxis>,
 }
 
-/// An axis's simulated dynamics: a mass-spring resonance.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
+/// An axis in simulation (`[sim.axes.NAME]`): where its carriage stands at
+/// boot, and optionally a mass-spring resonance (`resonance_hz` and
+/// `damping_ratio`, both or neither).
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(from = "SimAxisKeys")]
 pub struct SimAxis {
-    /// Natural frequency, Hz.
+    /// Natural frequency, Hz; 0 when the axis has no resonance (read both
+    /// values with [`SimAxis::resonance`]).
     pub resonance_hz: f64,
-    /// Damping ratio (0 undamped, 1 critically damped).
+    /// Damping ratio (0 undamped, 1 critically damped); 0 when the axis has
+    /// no resonance.
     pub damping_ratio: f64,
+    /// Where the simulated carriage stands at boot, in axis units, within
+    /// `[min, max]`; `None`: the middle of the travel (so homing has to
+    /// find the switch). [`crate::sim::start_position`] gives the position
+    /// in effect.
+    pub start: Option<f64>,
+    /// Which of `resonance_hz` and `damping_ratio` the file gave.
+    given: [bool; 2],
+}
+
+/// `[sim.axes.NAME]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SimAxisKeys {
+    #[serde(default)]
+    resonance_hz: Option<f64>,
+    #[serde(default)]
+    damping_ratio: Option<f64>,
+    #[serde(default)]
+    start: Option<f64>,
+}
+
+impl From<SimAxisKeys> for SimAxis {
+    fn from(k: SimAxisKeys) -> Self {
+        SimAxis {
+            resonance_hz: k.resonance_hz.unwrap_or(0.0),
+            damping_ratio: k.damping_ratio.unwrap_or(0.0),
+            start: k.start,
+            given: [k.resonance_hz.is_some(), k.damping_ratio.is_some()],
+        }
+    }
+}
+
+impl SimAxis {
+    /// An axis with no resonance, starting at `start` (`None`: the middle
+    /// of its travel).
+    pub fn new(start: Option<f64>) -> Self {
+        SimAxis {
+            start,
+            ..SimAxis::default()
+        }
+    }
+
+    /// The same axis with a resonance at `resonance_hz`, damped by
+    /// `damping_ratio`.
+    pub fn with_resonance(mut self, resonance_hz: f64, damping_ratio: f64) -> Self {
+        self.resonance_hz = resonance_hz;
+        self.damping_ratio = damping_ratio;
+        self.given = [true, true];
+        self
+    }
+
+    /// The resonance, `(resonance_hz, damping_ratio)`, if the axis has one.
+    pub fn resonance(&self) -> Option<(f64, f64)> {
+        (self.given == [true, true]).then_some((self.resonance_hz, self.damping_ratio))
+    }
 }
 
 /// Where a homing switch sits, derived from an axis's homing.
@@ -965,7 +1024,7 @@ impl MachineFile {
         };
         for (name, axis) in &sim.axes {
             let at = format!("sim.axes.{name}");
-            if !self.axes.contains_key(name) {
+            let Some(travel) = self.axes.get(name) else {
                 return Err(invalid(
                     at,
                     format!(
@@ -973,6 +1032,34 @@ impl MachineFile {
                         known(self.axes.keys())
                     ),
                 ));
+            };
+            if let Some(start) = axis.start {
+                finite(&format!("{at}.start"), start)?;
+                if !(travel.min..=travel.max).contains(&start) {
+                    return Err(invalid(
+                        format!("{at}.start"),
+                        format!(
+                            "start {start} is outside the axis's travel [{}, {}]; give a position within it, or leave start out for the middle of the travel",
+                            travel.min, travel.max
+                        ),
+                    ));
+                }
+            }
+            match axis.given {
+                [false, false] => continue,
+                [true, false] => {
+                    return Err(invalid(
+                        format!("{at}.damping_ratio"),
+                        "resonance_hz is given without damping_ratio; give both (e.g. damping_ratio = 0.1) or neither",
+                    ))
+                }
+                [false, true] => {
+                    return Err(invalid(
+                        format!("{at}.resonance_hz"),
+                        "damping_ratio is given without resonance_hz; give both (e.g. resonance_hz = 40) or neither",
+                    ))
+                }
+                [true, true] => {}
             }
             positive(&format!("{at}.resonance_hz"), axis.resonance_hz, "Hz")?;
             finite(&format!("{at}.damping_ratio"), axis.damping_ratio)?;

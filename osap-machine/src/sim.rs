@@ -1,0 +1,781 @@
+//! The simulated machine a machine file describes: the
+//! [`osap_sim::machine::Topology`] `Machine::simulate` starts, derived from
+//! the file alone ([`topology`]), so no second file is needed.
+//!
+//! # Conventions
+//!
+//! - **Network**: the host –USB– one hub module named `hub` (type `hub`) –
+//!   UART at 2 Mbaud – every module of `[modules]`, each of type `stepper`
+//!   (the module firmware, which carries the stepper and the I/O
+//!   functions). A module is named by its entry's `name` if it has one,
+//!   else by its key. A module given by `route = [0, k]` sits on hub link
+//!   `k` (1 to 7; hub link 0 is its USB uplink, the host's link 0); modules
+//!   given by name take the free hub links in key order from 1. Hub links
+//!   left free below the highest one taken hold a placeholder `hub` named
+//!   `spare-K` (the hub's links are numbered in the order they are joined).
+//!   The hub and modules get distinct clock rate errors spread evenly over
+//!   −60..+60 ppm (hub first, then by hub link), so clock sync has work.
+//! - **Boards**: a motor's module gets
+//!   [`MotorSpec`]`{ full_steps_per_unit: motor.full_steps_per_unit, .. }`
+//!   (the machine sets the module's scale and microsteps to match, so its
+//!   positions, and the simulated carriage's, are in motor units); a module
+//!   a tool is wired to gets a default [`IoSpec`]; others the defaults.
+//! - **Where the machine is**: the machine sends motor `i`
+//!   `m_i = s_i·q_i(p) − o_i` (`q` the kinematics' inverse: cartesian
+//!   `q = ` the axis's coordinate, corexy `q_a = x + y`, `q_b = x − y`;
+//!   `s_i = −1` for `invert = true`), with `o_i` such that every motor reads
+//!   0 at boot while the machine believes it stands at `p0` (per axis 0 if
+//!   `min ≤ 0 ≤ max`, else `min`). The simulated carriage of motor `i`
+//!   starts at 0 and follows `m_i`, while the machine physically boots at
+//!   the `[sim]` start ([`start_position`]: `[sim.axes.NAME] start`, by
+//!   default the middle of the travel, so homing has to find the switch).
+//!   So `q_i(p_phys) = q_i(start) + s_i·p_i`, which for these linear
+//!   kinematics gives each axis as a linear form of carriage positions
+//!   ([`axis_form`]): cartesian `axis = start + s·p_motor`; corexy
+//!   `x = start_x + (s_a·p_a + s_b·p_b)/2`,
+//!   `y = start_y + (s_a·p_a − s_b·p_b)/2`.
+//! - **Switches**: one [`SwitchSpec`] per axis that homes on a switch
+//!   ([`MachineFile::switch_placements`]), on the homing `switch` module's
+//!   limit input, over that axis's form, pressed at the travel end it homes
+//!   to (`direction = "min"`: while the axis is at or below `min`; `"max"`:
+//!   at or above `max`). Its edges carry the time of the step that crossed
+//!   (see [`osap_sim::machine`]'s switches over several motors). Scara and
+//!   fivebar machines homing x or y on a switch are refused (not linear;
+//!   not simulated yet).
+
+use std::collections::BTreeMap;
+
+use osap_core::netresponder::NAME_MAX;
+use osap_host::HostError;
+use osap_sim::machine::board::{IoSpec, MotorSpec, DRIVER_MICROSTEPS};
+use osap_sim::machine::{LinkKind, LinkSpec, ModuleSpec, SwitchSpec, Topology, HOST, MODULE_LINKS};
+
+use crate::config::{Direction, Kinematics, MachineFile};
+
+/// The simulated hub's name.
+pub const HUB: &str = "hub";
+
+/// Hub links modules can sit on (1 to 7; link 0 is the hub's uplink).
+pub const HUB_MODULE_LINKS: usize = MODULE_LINKS - 1;
+
+/// The baud rate of the hub's UARTs to the modules.
+pub const UART_BAUD: u32 = 2_000_000;
+
+/// The clock rate errors of the hub and modules spread over ± this, ppm.
+pub const RATE_SPREAD_PPM: f64 = 60.0;
+
+/// A machine file the simulation cannot build.
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    /// The file describes something the simulation does not (yet) do.
+    #[error("simulating the machine file: {key}: {message}")]
+    Unsupported {
+        /// The key path the error is about, e.g. `modules.z.route`.
+        key: String,
+        /// What is wrong and how to fix it.
+        message: String,
+    },
+    /// The derived topology failed the simulator's own check (a bug here,
+    /// or a limit this module does not check first).
+    #[error("simulating the machine file: the derived topology is invalid: {0}")]
+    Topology(#[source] HostError),
+}
+
+impl SimError {
+    /// The key path an [`SimError::Unsupported`] is about.
+    pub fn key(&self) -> Option<&str> {
+        match self {
+            SimError::Unsupported { key, .. } => Some(key),
+            SimError::Topology(_) => None,
+        }
+    }
+}
+
+fn unsupported(key: impl Into<String>, message: impl Into<String>) -> SimError {
+    SimError::Unsupported {
+        key: key.into(),
+        message: message.into(),
+    }
+}
+
+/// Where the simulated machine boots on `axis`, axis units: its
+/// `[sim.axes.NAME] start`, else the middle of its travel. `None` for an
+/// axis the file does not have.
+pub fn start_position(cfg: &MachineFile, axis: &str) -> Option<f64> {
+    let a = cfg.axes.get(axis)?;
+    let start = cfg
+        .sim
+        .as_ref()
+        .and_then(|s| s.axes.get(axis))
+        .and_then(|s| s.start);
+    Some(start.unwrap_or((a.min + a.max) / 2.0))
+}
+
+/// The simulated module's name of `[modules]` entry `key`: its `name`, else
+/// the key. `None` for a key the file does not have.
+pub fn module_name<'a>(cfg: &'a MachineFile, key: &'a str) -> Option<&'a str> {
+    let m = cfg.modules.get(key)?;
+    Some(m.name.as_deref().unwrap_or(key))
+}
+
+/// An axis's physical coordinate as a linear form of the simulated
+/// carriages' positions: `offset + Σ coef·(carriage of module)`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct AxisForm {
+    /// (simulated module name, coefficient).
+    pub terms: Vec<(String, f64)>,
+    /// The axis's coordinate with every carriage at 0 (its start).
+    pub offset: f64,
+}
+
+impl AxisForm {
+    /// The axis's coordinate with the carriages at `position(module)`.
+    pub fn value(&self, mut position: impl FnMut(&str) -> f64) -> f64 {
+        self.offset + self.terms.iter().map(|(m, c)| c * position(m)).sum::<f64>()
+    }
+}
+
+/// `axis`'s physical coordinate on the simulated machine as a linear form
+/// of its motors' carriage positions (see the conventions above): its own
+/// motor's, or under corexy both belt motors' for x and y. Scara and
+/// fivebar x and y are not linear: an error naming `key`.
+pub fn axis_form(cfg: &MachineFile, axis: &str) -> Result<AxisForm, SimError> {
+    let key = format!("axes.{axis}");
+    let Some(start) = start_position(cfg, axis) else {
+        return Err(unsupported(key, "no such axis in [axes]"));
+    };
+    let motor_term = |motor: &str, coef: f64| -> Result<(String, f64), SimError> {
+        let m = cfg.motors.get(motor).ok_or_else(|| {
+            unsupported(key.clone(), format!("motor {motor:?} is not in [motors]"))
+        })?;
+        let name = module_name(cfg, &m.module).ok_or_else(|| {
+            unsupported(
+                format!("motors.{motor}.module"),
+                format!("module {:?} is not in [modules]", m.module),
+            )
+        })?;
+        let sign = if m.invert { -1.0 } else { 1.0 };
+        Ok((name.to_string(), sign * coef))
+    };
+    if let Some(motor) = cfg.motor_for_axis(axis) {
+        return Ok(AxisForm {
+            terms: vec![motor_term(motor, 1.0)?],
+            offset: start,
+        });
+    }
+    match (&cfg.kinematics, axis) {
+        (Kinematics::CoreXy { motors }, "x" | "y") if motors.len() == 2 => {
+            // x = (q_a + q_b)/2, y = (q_a − q_b)/2, q_i = q_i(start) + s_i·p_i.
+            let b = if axis == "x" { 0.5 } else { -0.5 };
+            Ok(AxisForm {
+                terms: vec![motor_term(&motors[0], 0.5)?, motor_term(&motors[1], b)?],
+                offset: start,
+            })
+        }
+        (Kinematics::Scara { .. } | Kinematics::FiveBar { .. }, "x" | "y") => Err(unsupported(
+            key,
+            format!(
+                "{} kinematics are not linear in the motors: switches on x and y are not simulated yet; home x and y another way (stall), or simulate without homing them",
+                cfg.kinematics.type_name()
+            ),
+        )),
+        _ => Err(unsupported(
+            format!("{key}.motor"),
+            "no motor drives the axis; add motor = \"...\"",
+        )),
+    }
+}
+
+/// The simulated machine `cfg` describes (see the module docs for the
+/// conventions): a hub on the host's USB, every module of `[modules]` on a
+/// hub UART, motors, I/O and one switch over motors per axis homed on a
+/// switch. Validated; errors name the key and the fix.
+pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
+    // Names.
+    let mut names: BTreeMap<&str, String> = BTreeMap::new();
+    for key in cfg.modules.keys() {
+        let Some(name) = module_name(cfg, key) else {
+            continue;
+        };
+        let at = if cfg.modules[key].name.is_some() {
+            format!("modules.{key}.name")
+        } else {
+            format!("modules.{key}")
+        };
+        if name == HUB || name == HOST {
+            return Err(unsupported(
+                at,
+                format!(
+                    "the name {name:?} is the simulated {}'s; rename the module",
+                    if name == HUB { "hub" } else { "host runtime" }
+                ),
+            ));
+        }
+        if name.len() > NAME_MAX {
+            return Err(unsupported(
+                at,
+                format!(
+                    "the module name {name:?} is {} bytes long; a module's name is at most {NAME_MAX} bytes",
+                    name.len()
+                ),
+            ));
+        }
+        if let Some(other) = names.insert(name, key.clone()) {
+            return Err(unsupported(
+                at,
+                format!(
+                    "module {other:?} already has the name {name:?} in simulation (a module given by route is named by its key); give the modules distinct names"
+                ),
+            ));
+        }
+    }
+
+    // Hub links: routes first, then the rest in key order.
+    let mut slots: Vec<Option<&str>> = vec![None; HUB_MODULE_LINKS + 1];
+    for (key, m) in &cfg.modules {
+        let Some(route) = &m.route else { continue };
+        let at = format!("modules.{key}.route");
+        let k = match route.as_slice() {
+            [0, k] if (1..=HUB_MODULE_LINKS as u16).contains(k) => usize::from(*k),
+            _ => {
+                return Err(unsupported(
+                    at,
+                    format!(
+                        "route {route:?} cannot be simulated: the simulated machine has its modules on one hub on the host's link 0, so a route is [0, k] with k the hub link, 1 to {HUB_MODULE_LINKS}; use e.g. route = [0, 1], or name the module instead"
+                    ),
+                ))
+            }
+        };
+        if let Some(other) = slots[k] {
+            return Err(unsupported(
+                at,
+                format!("hub link {k} is already modules.{other}'s; give each module its own link"),
+            ));
+        }
+        slots[k] = Some(key);
+    }
+    let by_name = cfg.modules.iter().filter(|(_, m)| m.route.is_none());
+    let mut free = 1..;
+    for (key, _) in by_name {
+        let Some(k) = free
+            .by_ref()
+            .find(|&k| k > HUB_MODULE_LINKS || slots[k].is_none())
+        else {
+            unreachable!("an unbounded range");
+        };
+        if k > HUB_MODULE_LINKS {
+            return Err(unsupported(
+                "modules",
+                format!(
+                    "{} modules: the simulated hub has {HUB_MODULE_LINKS} links for modules; simulate fewer modules",
+                    cfg.modules.len()
+                ),
+            ));
+        }
+        slots[k] = Some(key);
+    }
+    let used = slots.iter().rposition(Option::is_some).unwrap_or(0);
+
+    // Motors and tools.
+    let mut motor_of: BTreeMap<&str, &str> = BTreeMap::new();
+    for (key, motor) in &cfg.motors {
+        if let Some(other) = motor_of.insert(&motor.module, key) {
+            return Err(unsupported(
+                format!("motors.{key}.module"),
+                format!(
+                    "module {:?} already drives motor {other:?}; a simulated module has one motor: put each motor on its own module",
+                    motor.module
+                ),
+            ));
+        }
+        let most = DRIVER_MICROSTEPS[DRIVER_MICROSTEPS.len() - 1];
+        if !DRIVER_MICROSTEPS.contains(&motor.microsteps) {
+            return Err(unsupported(
+                format!("motors.{key}.microsteps"),
+                format!(
+                    "microsteps {} is more than the simulated driver's {most}; use {most} or fewer to simulate",
+                    motor.microsteps
+                ),
+            ));
+        }
+    }
+
+    // Runtimes: the hub, then the modules by hub link; rates spread.
+    let count = used + 1;
+    let rate = |i: usize| {
+        if count < 2 {
+            0.0
+        } else {
+            -RATE_SPREAD_PPM + 2.0 * RATE_SPREAD_PPM * i as f64 / (count - 1) as f64
+        }
+    };
+    let mut t = Topology::new(&cfg.name)
+        .with_module(ModuleSpec::new(HUB, "hub").with_rate_ppm(rate(0)))
+        .with_link(LinkSpec::new(HOST, HUB, LinkKind::Usb));
+    for (k, slot) in slots.iter().enumerate().take(used + 1).skip(1) {
+        let (name, spec) = match slot {
+            None => {
+                let mut name = format!("spare-{k}");
+                while names.contains_key(name.as_str()) {
+                    name.push('_');
+                }
+                (name.clone(), ModuleSpec::new(&name, "hub"))
+            }
+            Some(key) => {
+                let name = module_name(cfg, key).unwrap_or(key).to_string();
+                let mut spec = ModuleSpec::new(&name, "stepper");
+                if let Some(motor) = motor_of.get(key).map(|m| &cfg.motors[*m]) {
+                    spec = spec.with_motor(MotorSpec {
+                        full_steps_per_unit: motor.full_steps_per_unit,
+                        ..MotorSpec::default()
+                    });
+                }
+                if cfg.tools.values().any(|tool| tool.module == *key) {
+                    spec = spec.with_io(IoSpec::default());
+                }
+                (name, spec)
+            }
+        };
+        t = t
+            .with_module(spec.with_rate_ppm(rate(k)))
+            .with_link(LinkSpec {
+                baud: Some(UART_BAUD),
+                ..LinkSpec::new(HUB, &name, LinkKind::Uart)
+            });
+    }
+
+    // Switches.
+    for placement in cfg.switch_placements() {
+        let form = axis_form(cfg, placement.axis).map_err(|e| match e {
+            SimError::Unsupported { message, .. } => {
+                unsupported(format!("axes.{}.homing.switch", placement.axis), message)
+            }
+            other => other,
+        })?;
+        let Some(module) = module_name(cfg, placement.module) else {
+            return Err(unsupported(
+                format!("axes.{}.homing.switch", placement.axis),
+                format!("module {:?} is not in [modules]", placement.module),
+            ));
+        };
+        t = t.with_switch(SwitchSpec {
+            module: module.to_string(),
+            terms: form.terms,
+            offset: form.offset,
+            at: placement.position,
+            pressed_below: placement.direction == Direction::Min,
+        });
+    }
+
+    t.validate().map_err(SimError::Topology)?;
+    Ok(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use osap_host::som::Manager;
+    use osap_host::{Host, HostConfig};
+    use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
+    use std::path::PathBuf;
+
+    fn example(name: &str) -> MachineFile {
+        let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+            .join("../examples/machines")
+            .join(name);
+        MachineFile::load(path).unwrap()
+    }
+
+    fn parse(text: &str) -> MachineFile {
+        MachineFile::parse(text).unwrap()
+    }
+
+    fn err(cfg: &MachineFile) -> (String, String) {
+        let e = topology(cfg).unwrap_err();
+        (e.key().unwrap_or("").to_string(), e.to_string())
+    }
+
+    /// The module on hub link `k`.
+    fn on_hub_link(t: &Topology, k: usize) -> &str {
+        let l = &t.links[t.links_of(HUB)[k]];
+        if l.a == HUB {
+            &l.b
+        } else {
+            &l.a
+        }
+    }
+
+    /// Where the machine believes it stands at boot (0 in the travel, else
+    /// min), as the machine layer takes it.
+    fn believed_boot(cfg: &MachineFile, axis: &str) -> f64 {
+        let a = &cfg.axes[axis];
+        if a.min <= 0.0 && 0.0 <= a.max {
+            0.0
+        } else {
+            a.min
+        }
+    }
+
+    /// What the machine sends each motor (by simulated module name) to go
+    /// to believed `x, y` on a corexy machine, from believed `p0`.
+    fn corexy_motors(cfg: &MachineFile, x: f64, y: f64) -> BTreeMap<String, f64> {
+        let (x0, y0) = (believed_boot(cfg, "x"), believed_boot(cfg, "y"));
+        let q = |x: f64, y: f64| [x + y, x - y];
+        let (q, q0) = (q(x, y), q(x0, y0));
+        let Kinematics::CoreXy { motors } = &cfg.kinematics else {
+            panic!("corexy");
+        };
+        motors
+            .iter()
+            .enumerate()
+            .map(|(i, m)| {
+                let motor = &cfg.motors[m];
+                let s = if motor.invert { -1.0 } else { 1.0 };
+                // m_i = s_i·q_i(p) − o_i, o_i = s_i·q_i(p0).
+                let name = module_name(cfg, &motor.module).unwrap().to_string();
+                (name, s * q[i] - s * q0[i])
+            })
+            .collect()
+    }
+
+    #[test]
+    fn the_plotter_derives() {
+        let cfg = example("plotter.toml");
+        let t = topology(&cfg).unwrap();
+        assert_eq!(t.name, "plotter");
+        let names: Vec<&str> = t.modules.iter().map(|m| m.name.as_str()).collect();
+        assert_eq!(names, ["hub", "a", "b", "z"]);
+        assert_eq!(t.modules[0].type_name, "hub");
+        assert!(t.modules[1..].iter().all(|m| m.type_name == "stepper"));
+        // z by route [0, 3]: hub link 3; a and b by name: links 1 and 2.
+        assert_eq!(
+            [1, 2, 3].map(|k| on_hub_link(&t, k)),
+            ["a", "b", "z"],
+            "hub links"
+        );
+        assert_eq!(t.links[0].kind, LinkKind::Usb);
+        assert!(t.links[1..]
+            .iter()
+            .all(|l| l.kind == LinkKind::Uart && l.baud() == UART_BAUD));
+        // Motors with the file's scale; the pen's module has I/O.
+        for m in ["a", "b"] {
+            let spec = &t.modules[t.module_index(m).unwrap()];
+            assert_eq!(spec.motor.as_ref().unwrap().full_steps_per_unit, 80.0);
+            assert_eq!(spec.motor.as_ref().unwrap().limit_min, None);
+        }
+        let z = &t.modules[t.module_index("z").unwrap()];
+        assert_eq!((z.motor.is_none(), z.io.is_some()), (true, true));
+        // Distinct clocks, within ±60 ppm.
+        let mut rates: Vec<f64> = t.modules.iter().map(|m| m.rate_ppm).collect();
+        assert!(rates.iter().all(|r| r.abs() <= RATE_SPREAD_PPM));
+        rates.sort_by(f64::total_cmp);
+        rates.dedup();
+        assert_eq!(rates.len(), t.modules.len(), "{rates:?}");
+        // x homes on a's input, y on b's, both at their min.
+        assert_eq!(t.switches.len(), 2);
+        assert_eq!(t.switches[0].module, "a");
+        assert_eq!(t.switches[1].module, "b");
+        assert!(t.switches.iter().all(|s| s.pressed_below && s.at == 0.0));
+    }
+
+    #[test]
+    fn the_mill_derives() {
+        let cfg = example("mill.toml");
+        let t = topology(&cfg).unwrap();
+        let names: Vec<&str> = t.modules.iter().map(|m| m.name.as_str()).collect();
+        // By name, in key order x, y, z: hub links 1, 2, 3.
+        assert_eq!(names, ["hub", "mill-x", "mill-y", "mill-z"]);
+        assert_eq!(
+            [1, 2, 3].map(|k| on_hub_link(&t, k)),
+            ["mill-x", "mill-y", "mill-z"]
+        );
+        let spec = |n: &str| &t.modules[t.module_index(n).unwrap()];
+        assert_eq!(
+            spec("mill-z").motor.as_ref().unwrap().full_steps_per_unit,
+            80.0
+        );
+        assert_eq!(
+            spec("mill-x").motor.as_ref().unwrap().full_steps_per_unit,
+            40.0
+        );
+        assert!(spec("mill-z").io.is_some(), "the spindle's module");
+        assert!(spec("mill-x").io.is_none());
+        // Three switches at the max ends, each over its own motor; y's motor
+        // is inverted. Starts: the middles of the travels.
+        assert_eq!(t.switches.len(), 3);
+        let x = &t.switches[0];
+        assert_eq!(
+            x,
+            &SwitchSpec::new("mill-x", &[("mill-x", 1.0)], 150.0, 300.0, false)
+        );
+        let y = &t.switches[1];
+        assert_eq!(
+            y,
+            &SwitchSpec::new("mill-y", &[("mill-y", -1.0)], 100.0, 200.0, false)
+        );
+        let z = &t.switches[2];
+        assert_eq!(
+            z,
+            &SwitchSpec::new("mill-z", &[("mill-z", 1.0)], -40.0, 0.0, false)
+        );
+        // z (believed at 0, physically at -40) presses when raised 40 mm:
+        // the machine sends z's motor +40.
+        assert!(!z.pressed(|_| 39.99));
+        assert!(z.pressed(|_| 40.0));
+        // y's motor is inverted: raising y by 100 sends it -100.
+        assert!(y.pressed(|_| -100.0));
+        assert!(!y.pressed(|_| 100.0));
+    }
+
+    #[test]
+    fn the_corexy_switches_follow_x_and_y() {
+        let cfg = example("plotter.toml");
+        let t = topology(&cfg).unwrap();
+        let (xs, ys) = (&t.switches[0], &t.switches[1]);
+        // The machine believes it boots at (0, 0); it is at the middle,
+        // (100, 75). So x reaches its min (0) when the machine believes
+        // x = -100, and y its min when it believes y = -75.
+        let pressed = |s: &SwitchSpec, x: f64, y: f64| {
+            let m = corexy_motors(&cfg, x, y);
+            s.pressed(|name| m[name])
+        };
+        let x_at = |x: f64, y: f64| {
+            let m = corexy_motors(&cfg, x, y);
+            xs.value(|name| m[name])
+        };
+        for y in [-70.0, -20.0, 0.0, 30.0, 70.0] {
+            assert!(!pressed(xs, -99.9, y), "x at 0.1, y {y}");
+            assert!(pressed(xs, -100.0, y), "x at 0, y {y}");
+            assert!(pressed(xs, -101.0, y), "x past 0, y {y}");
+            assert!((x_at(-40.0, y) - 60.0).abs() < 1e-9, "physical x");
+        }
+        // y moving alone never presses x, wherever x stands off its switch;
+        // and it presses y at its min whatever x.
+        for x in [-99.0, -50.0, 0.0, 99.0] {
+            for k in -74..=74 {
+                let y = k as f64;
+                assert!(!pressed(xs, x, y), "x {x}, y {y}");
+                assert!(!pressed(ys, x, y), "x {x}, y {y}");
+            }
+            assert!(pressed(ys, x, -75.0), "y at its min, x {x}");
+        }
+        // b is inverted: its term's sign says so (x = 100 + (a − b)/2).
+        assert_eq!(
+            xs.terms,
+            vec![("a".to_string(), 0.5), ("b".to_string(), -0.5)]
+        );
+        assert_eq!(
+            ys.terms,
+            vec![("a".to_string(), 0.5), ("b".to_string(), 0.5)]
+        );
+        // The same form for any start the [sim] section gives.
+        let text = std::fs::read_to_string(
+            PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/machines/plotter.toml"),
+        )
+        .unwrap()
+        .replace(
+            "[sim.axes.x]\nresonance_hz = 45.0",
+            "[sim.axes.x]\nstart = 10.0\nresonance_hz = 45.0",
+        );
+        let cfg = parse(&text);
+        assert_eq!(start_position(&cfg, "x"), Some(10.0));
+        let t = topology(&cfg).unwrap();
+        assert_eq!(t.switches[0].offset, 10.0);
+        let m = corexy_motors(&cfg, -10.0, 50.0);
+        assert!(t.switches[0].pressed(|name| m[name]));
+        let m = corexy_motors(&cfg, -9.9, 50.0);
+        assert!(!t.switches[0].pressed(|name| m[name]));
+    }
+
+    const BASE: &str = r#"
+name = "m"
+[limits]
+velocity = 100.0
+acceleration = 1000.0
+junction_deviation = 0.02
+[motors.x]
+module = "x"
+full_steps_per_unit = 80.0
+[axes.x]
+motor = "x"
+min = 0.0
+max = 100.0
+velocity = 50.0
+acceleration = 500.0
+jerk = 10000.0
+"#;
+
+    #[test]
+    fn routes_place_modules_on_hub_links() {
+        let cfg = parse(&format!(
+            "{BASE}\n[modules]\nx = {{ route = [0, 2] }}\np = {{ name = \"p\" }}\nq = {{ name = \"q\" }}\nr = {{ route = [0, 5] }}\n"
+        ));
+        let t = topology(&cfg).unwrap();
+        // p and q by name take the free links 1 and 3; 4 is held by a
+        // placeholder so that r sits on 5.
+        assert_eq!(
+            [1, 2, 3, 4, 5].map(|k| on_hub_link(&t, k)),
+            ["p", "x", "q", "spare-4", "r"]
+        );
+        assert_eq!(
+            t.modules[t.module_index("spare-4").unwrap()].type_name,
+            "hub"
+        );
+        assert!(t.modules[t.module_index("x").unwrap()].motor.is_some());
+    }
+
+    #[test]
+    fn bad_files_are_refused_naming_the_key() {
+        for route in ["[1, 2]", "[0]", "[0, 0]", "[0, 8]", "[0, 1, 2]"] {
+            let cfg = parse(&format!("{BASE}\n[modules]\nx = {{ route = {route} }}\n"));
+            let (key, message) = err(&cfg);
+            assert_eq!(key, "modules.x.route", "{route}: {message}");
+            assert!(message.contains("[0, k]"), "{message}");
+        }
+        // The hub's name is taken.
+        let cfg = parse(&format!("{BASE}\n[modules]\nx = {{ name = \"hub\" }}\n"));
+        assert_eq!(err(&cfg).0, "modules.x.name");
+        // A route module is named by its key, which another module's name
+        // may clash with.
+        let cfg = parse(&format!(
+            "{BASE}\n[modules]\nx = {{ route = [0, 1] }}\ny = {{ name = \"x\" }}\n"
+        ));
+        let (key, message) = err(&cfg);
+        assert!(key.starts_with("modules."), "{key}: {message}");
+        // More modules than the hub has links.
+        let many: String = (0..8)
+            .map(|i| format!("m{i} = {{ name = \"m{i}\" }}\n"))
+            .collect();
+        let cfg = parse(&format!(
+            "{BASE}\n[modules]\nx = {{ name = \"x\" }}\n{many}"
+        ));
+        assert_eq!(err(&cfg).0, "modules");
+        // Microsteps beyond the simulated driver's.
+        let cfg = parse(
+            &format!("{BASE}\n[modules]\nx = {{ name = \"x\" }}\n").replace(
+                "full_steps_per_unit = 80.0",
+                "full_steps_per_unit = 80.0\nmicrosteps = 64",
+            ),
+        );
+        assert_eq!(err(&cfg).0, "motors.x.microsteps");
+        // Scara homing x on a switch: not simulated yet.
+        let scara = r#"
+name = "arm"
+[limits]
+velocity = 100.0
+acceleration = 1000.0
+junction_deviation = 0.02
+[modules]
+s = { name = "s" }
+e = { name = "e" }
+[motors.s]
+module = "s"
+full_steps_per_unit = 100.0
+[motors.e]
+module = "e"
+full_steps_per_unit = 100.0
+[kinematics]
+type = "scara"
+motors = ["s", "e"]
+l1 = 100.0
+l2 = 100.0
+elbow = "left"
+[axes.x]
+min = 10.0
+max = 150.0
+velocity = 50.0
+acceleration = 500.0
+jerk = 10000.0
+homing = { switch = "s", direction = "min", search_speed = 10.0, latch_speed = 1.0, backoff = 2.0 }
+[axes.y]
+min = 10.0
+max = 150.0
+velocity = 50.0
+acceleration = 500.0
+jerk = 10000.0
+"#;
+        let (key, message) = err(&parse(scara));
+        assert_eq!(key, "axes.x.homing.switch");
+        assert!(
+            message.contains("scara") && message.contains("not simulated yet"),
+            "{message}"
+        );
+        // Without switch homing a scara arm simulates.
+        let t = topology(&parse(&scara.replace(
+            "homing = { switch = \"s\", direction = \"min\", search_speed = 10.0, latch_speed = 1.0, backoff = 2.0 }\n",
+            "",
+        )))
+        .unwrap();
+        assert!(t.switches.is_empty());
+    }
+
+    #[test]
+    fn sim_axes_take_a_start_and_an_optional_resonance() {
+        let with = |extra: &str| {
+            MachineFile::parse(&format!(
+                "{BASE}\n[modules]\nx = {{ name = \"x\" }}\n{extra}"
+            ))
+        };
+        let cfg = with("[sim.axes.x]\nstart = 20.0\n").unwrap();
+        let axis = &cfg.sim.as_ref().unwrap().axes["x"];
+        assert_eq!((axis.start, axis.resonance()), (Some(20.0), None));
+        assert_eq!(start_position(&cfg, "x"), Some(20.0));
+        let cfg = with("[sim.axes.x]\nresonance_hz = 40.0\ndamping_ratio = 0.1\n").unwrap();
+        assert_eq!(
+            cfg.sim.as_ref().unwrap().axes["x"].resonance(),
+            Some((40.0, 0.1))
+        );
+        assert_eq!(start_position(&cfg, "x"), Some(50.0), "the middle");
+        for (extra, key) in [
+            ("[sim.axes.x]\nstart = 120.0\n", "sim.axes.x.start"),
+            ("[sim.axes.x]\nstart = -1.0\n", "sim.axes.x.start"),
+            (
+                "[sim.axes.x]\nresonance_hz = 40.0\n",
+                "sim.axes.x.damping_ratio",
+            ),
+            (
+                "[sim.axes.x]\ndamping_ratio = 0.1\n",
+                "sim.axes.x.resonance_hz",
+            ),
+        ] {
+            let e = with(extra).unwrap_err();
+            assert_eq!(e.key(), Some(key), "{extra}: {e}");
+        }
+    }
+
+    #[test]
+    fn the_plotter_starts_and_a_scan_finds_every_module() {
+        let cfg = example("plotter.toml");
+        let t = topology(&cfg).unwrap();
+        virtual_runtime().unwrap().block_on(async {
+            let host = Host::start(HostConfig::named("machine")).unwrap();
+            let sim = SimMachine::start_with(&host, &t, TimeMode::Virtual)
+                .await
+                .unwrap();
+            let mut m = Manager::new(&host).await.unwrap();
+            let report = m.refresh().await.unwrap();
+            assert!(
+                report.scan_failures.is_empty(),
+                "{:?}",
+                report.scan_failures
+            );
+            let som = m.som();
+            let mut found: Vec<&str> = som.runtimes[1..]
+                .iter()
+                .map(|r| r.record.name.as_str())
+                .collect();
+            found.sort();
+            assert_eq!(found, ["a", "b", "hub", "z"]);
+            // The route in the file reaches z.
+            let z = som.walk(0, &[0, 3]).unwrap();
+            assert_eq!(som.runtimes[z].record.name, "z");
+            // Every switch reads released at boot: the carriage starts in
+            // the middle of the travel.
+            for name in ["a", "b"] {
+                let module = sim.module(name).unwrap().module().unwrap();
+                assert!(module.lock(|m| m.limit.level), "{name} released");
+            }
+            sim.stop().await.unwrap();
+        });
+    }
+}
