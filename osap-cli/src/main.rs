@@ -15,6 +15,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod machine_cmd;
+
 #[derive(Parser)]
 #[command(
     name = "osap",
@@ -95,6 +97,53 @@ enum Command {
     Time {
         #[command(flatten)]
         connect: Connect,
+    },
+    /// Run a job (G-code or SVG) on a machine: home, run, summarize, and
+    /// write planned.csv, executed.csv and plots.
+    Run(machine_cmd::RunArgs),
+    /// Home a machine (every axis, or the ones named).
+    Home {
+        #[command(flatten)]
+        target: machine_cmd::Target,
+        /// Axes to home (default: all, in the file's order).
+        #[arg(long = "axis", value_name = "AXIS")]
+        axes: Vec<String>,
+    },
+    /// Move one axis by a distance (relative; within travel once homed).
+    Jog {
+        #[command(flatten)]
+        target: machine_cmd::Target,
+        /// The axis, e.g. x.
+        #[arg(long)]
+        axis: String,
+        /// How far, in the axis's units (negative: toward min).
+        #[arg(long, allow_negative_numbers = true)]
+        distance: f64,
+        /// Speed, units/s (default: a quarter of the axis's limit).
+        #[arg(long)]
+        rate: Option<f64>,
+    },
+    /// Home, then move to a position given as AXIS=VALUE (axes not named
+    /// stay).
+    Move {
+        #[command(flatten)]
+        target: machine_cmd::Target,
+        /// Coordinates, e.g. x=10 y=20.
+        #[arg(
+            long = "to",
+            value_name = "AXIS=VALUE",
+            required = true,
+            allow_hyphen_values = true
+        )]
+        coords: Vec<String>,
+        /// Speed, units/s (default: half the machine's velocity limit).
+        #[arg(long)]
+        rate: Option<f64>,
+    },
+    /// Stop every motor of a machine at once (each module's halt).
+    Halt {
+        #[command(flatten)]
+        target: machine_cmd::Target,
     },
     /// Run a simulated machine that other processes can connect to.
     Serve {
@@ -248,8 +297,29 @@ fn percentile(sorted: &[Duration], p: f64) -> Duration {
     sorted[i.min(sorted.len() - 1)]
 }
 
-async fn run(cli: Cli) -> Result<ExitCode, String> {
+async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> {
+    let machine_result = |r: Result<ExitCode, machine_cmd::Failure>| match r {
+        Ok(code) => Ok(code),
+        Err(f) => {
+            eprintln!("error: {}", f.message);
+            Ok(ExitCode::from(f.code))
+        }
+    };
     match cli.command {
+        Command::Run(args) => machine_result(machine_cmd::run(args, started).await),
+        Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
+        Command::Jog {
+            target,
+            axis,
+            distance,
+            rate,
+        } => machine_result(machine_cmd::jog(target, axis, distance, rate).await),
+        Command::Move {
+            target,
+            coords,
+            rate,
+        } => machine_result(machine_cmd::move_to(target, coords, rate).await),
+        Command::Halt { target } => machine_result(machine_cmd::halt(target).await),
         Command::Scan {
             connect: args,
             output,
@@ -410,10 +480,34 @@ async fn run(cli: Cli) -> Result<ExitCode, String> {
     }
 }
 
-#[tokio::main]
-async fn main() -> ExitCode {
+fn main() -> ExitCode {
+    let started = std::time::Instant::now();
     let cli = Cli::parse();
-    match run(cli).await {
+    // A simulated machine in virtual time runs on one paused
+    // current-thread runtime; everything else on tokio's default.
+    let virtual_time = match &cli.command {
+        Command::Run(a) => a.target.virtual_time(),
+        Command::Home { target, .. }
+        | Command::Jog { target, .. }
+        | Command::Move { target, .. }
+        | Command::Halt { target } => target.virtual_time(),
+        _ => false,
+    };
+    let runtime = if virtual_time {
+        machine::virtual_runtime()
+    } else {
+        tokio::runtime::Builder::new_multi_thread()
+            .enable_all()
+            .build()
+    };
+    let runtime = match runtime {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(cli, started)) {
         Ok(code) => code,
         Err(e) => {
             eprintln!("error: {e}");

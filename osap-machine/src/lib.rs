@@ -10,13 +10,25 @@
 //!   it does not carry out;
 //! - [`svg`]: an SVG drawing flattened to polylines in millimetres;
 //! - [`sim`]: the simulated machine (osap-sim topology) a machine file
-//!   describes, with its homing switches.
+//!   describes, with its homing switches;
+//! - [`record`]: what a run leaves behind (`osap run --out DIR`): planned
+//!   and executed positions as CSV, following error, durations, SVG plots
+//!   of path, speed and error, and resampling of per-motor readbacks onto
+//!   a common time grid.
 //!
-//! Work in progress toward the `Machine` API and `osap run`: nothing here
-//! drives modules yet.
+//! - [`machine`]: [`Machine`], a machine in machine terms (home, goto,
+//!   queued lines and arcs, tools, halt, events, feed override), the same
+//!   on simulated modules and on hardware;
+//! - [`job`]: a G-code program or SVG drawing as a checked machine
+//!   [`job::Program`], and running it.
 #![deny(missing_docs)]
 
 pub mod config;
 pub mod gcode;
+pub mod job;
+pub mod machine;
+pub mod record;
 pub mod sim;
 pub mod svg;
+
+pub use machine::{Machine, MachineError, MachineEvent, MachineState};

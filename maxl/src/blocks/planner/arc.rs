@@ -22,7 +22,7 @@ pub struct Arc<const N: usize> {
 
 impl<const N: usize> Arc<N> {
     /// The chord end points after `start` (the last is exactly `end`).
-    pub(crate) fn chords(&self, start: [f64; N]) -> Result<Vec<[f64; N]>, PlanError> {
+    pub fn chords(&self, start: [f64; N]) -> Result<Vec<[f64; N]>, PlanError> {
         let (a, b) = self.plane;
         if a >= N || b >= N || a == b {
             return Err(PlanError::InvalidArc("plane axes out of range or equal"));

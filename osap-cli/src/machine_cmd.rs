@@ -1,0 +1,478 @@
+//! `osap run|home|jog|move|halt MACHINE.toml ...`: machine commands.
+
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use clap::Args;
+use indicatif::{ProgressBar, ProgressStyle};
+use osap_host::link::serial;
+use osap_machine::config::MachineFile;
+use osap_machine::job::{self, Program};
+use osap_machine::machine::{Link, SimOptions};
+use osap_machine::svg::SvgOptions;
+use osap_machine::{Machine, MachineError, MachineEvent};
+use osap_sim::machine::TimeMode;
+
+/// Exit code of a job or argument refused before any motion.
+pub const REFUSED: u8 = 2;
+/// Exit code of a fault during motion.
+pub const FAULTED: u8 = 1;
+
+/// Where a machine command finds the machine.
+#[derive(Args, Clone, Debug)]
+pub struct Target {
+    /// The machine file (TOML), e.g. examples/machines/plotter.toml.
+    pub machine: PathBuf,
+    /// Run on simulated modules derived from the machine file.
+    #[arg(long)]
+    pub sim: bool,
+    /// With --sim: run in virtual time, as fast as the host computes it.
+    #[arg(long, requires = "sim")]
+    pub fast: bool,
+    /// Serial port of a module or adapter (repeatable).
+    #[arg(long = "port", value_name = "PATH", conflicts_with = "sim")]
+    pub ports: Vec<String>,
+    /// Baud rate for --port (USB CDC modules ignore it).
+    #[arg(long, default_value_t = serial::DEFAULT_BAUD)]
+    pub baud: u32,
+    /// Connect over TCP (repeatable), e.g. to `osap serve`.
+    #[arg(long = "tcp", value_name = "ADDR", conflicts_with = "sim")]
+    pub tcp: Vec<String>,
+}
+
+impl Target {
+    /// Whether the command must run on a virtual-time runtime.
+    pub fn virtual_time(&self) -> bool {
+        self.sim && self.fast
+    }
+
+    fn load(&self) -> Result<MachineFile, Failure> {
+        MachineFile::load(&self.machine).map_err(|e| Failure::refused(e.to_string()))
+    }
+
+    async fn start(&self, cfg: &MachineFile) -> Result<Machine, Failure> {
+        let result = if self.sim {
+            let time = if self.fast {
+                TimeMode::Virtual
+            } else {
+                TimeMode::RealTime
+            };
+            Machine::simulate_with(cfg, SimOptions { time }).await
+        } else {
+            let mut links: Vec<Link> = self
+                .ports
+                .iter()
+                .map(|p| Link::Serial {
+                    path: p.clone(),
+                    baud: self.baud,
+                })
+                .collect();
+            links.extend(self.tcp.iter().map(|a| Link::Tcp(a.clone())));
+            if links.is_empty() {
+                let found =
+                    serial::available_ports().map_err(|e| Failure::refused(e.to_string()))?;
+                links.extend(found.into_iter().map(|c| Link::Serial {
+                    path: c.path,
+                    baud: self.baud,
+                }));
+            }
+            if links.is_empty() {
+                return Err(Failure::refused(
+                    "no modules found: plug them in over USB, name them with --port PATH or --tcp ADDR, or add --sim to run on simulated modules",
+                ));
+            }
+            Machine::connect(cfg, &links).await
+        };
+        result.map_err(Failure::from_machine)
+    }
+}
+
+/// Why a command failed, and its exit code.
+pub struct Failure {
+    /// The exit code.
+    pub code: u8,
+    /// The message.
+    pub message: String,
+}
+
+impl Failure {
+    fn refused(message: impl Into<String>) -> Failure {
+        Failure {
+            code: REFUSED,
+            message: message.into(),
+        }
+    }
+
+    fn from_machine(e: MachineError) -> Failure {
+        let code = match e {
+            MachineError::Faulted(_) | MachineError::Homing { .. } | MachineError::Stopped => {
+                FAULTED
+            }
+            MachineError::Host(_)
+            | MachineError::Network(_)
+            | MachineError::NotSynchronised { .. } => FAULTED,
+            _ => REFUSED,
+        };
+        Failure {
+            code,
+            message: e.to_string(),
+        }
+    }
+}
+
+/// `osap run` options.
+#[derive(Args, Clone, Debug)]
+pub struct RunArgs {
+    #[command(flatten)]
+    pub target: Target,
+    /// The job: G-code (.gcode, .nc, .ngc, .g) or a drawing (.svg).
+    pub job: PathBuf,
+    /// Where to write planned.csv, executed.csv and the plots (default: a
+    /// new folder osap-run-NAME-TIME in the current directory).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Drawing speed for SVG jobs, units/s (default: half the machine's
+    /// velocity limit).
+    #[arg(long)]
+    pub feed: Option<f64>,
+    /// SVG: scale the drawing about its bottom-left corner.
+    #[arg(long, default_value_t = 1.0)]
+    pub scale: f64,
+    /// SVG: where the drawing's bottom-left corner goes, "X,Y".
+    #[arg(long, value_parser = parse_pair, value_name = "X,Y")]
+    pub offset: Option<[f64; 2]>,
+    /// Do not home first: the machine is taken to be at its start position
+    /// (0 on each axis, or its min).
+    #[arg(long)]
+    pub no_home: bool,
+}
+
+fn parse_pair(s: &str) -> Result<[f64; 2], String> {
+    let (a, b) = s
+        .split_once(',')
+        .ok_or_else(|| format!("{s:?}: give X,Y"))?;
+    let p = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("{v:?} is not a number"))
+    };
+    Ok([p(a)?, p(b)?])
+}
+
+/// Reads the job into a program checked against the machine's travel.
+fn read_job(cfg: &MachineFile, args: &RunArgs) -> Result<Program, Failure> {
+    let text = std::fs::read_to_string(&args.job)
+        .map_err(|e| Failure::refused(format!("job {}: {e}", args.job.display())))?;
+    let ext = args
+        .job
+        .extension()
+        .and_then(|e| e.to_str())
+        .unwrap_or("")
+        .to_ascii_lowercase();
+    let start = osap_machine::machine::drive::start_position(cfg);
+    let name = args.job.display();
+    match ext.as_str() {
+        "svg" => {
+            let options = SvgOptions {
+                scale: args.scale,
+                offset: args.offset.unwrap_or([0.0, 0.0]),
+                ..SvgOptions::default()
+            };
+            let drawing = osap_machine::svg::read(&text, &options)
+                .map_err(|e| Failure::refused(format!("{name}: {e}")))?;
+            let feed = args.feed.unwrap_or(cfg.limits.velocity / 2.0);
+            job::from_svg(cfg, &drawing, feed).map_err(|e| Failure::refused(format!("{name}: {e}; nothing moved")))
+        }
+        "gcode" | "nc" | "ngc" | "g" | "gc" | "tap" => {
+            let program = osap_machine::gcode::read(&text)
+                .map_err(|e| Failure::refused(format!("{name}: {e}")))?;
+            job::from_gcode(cfg, &program, &start)
+                .map_err(|e| Failure::refused(format!("{name}: {e}; nothing moved")))
+        }
+        other => Err(Failure::refused(format!(
+            "{name}: unknown job type {other:?}: give a .svg drawing or G-code (.gcode, .nc, .ngc, .g)"
+        ))),
+    }
+}
+
+fn default_out(cfg: &MachineFile) -> PathBuf {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let safe: String = cfg
+        .name
+        .chars()
+        .map(|c| {
+            if c.is_ascii_alphanumeric() || c == '-' {
+                c
+            } else {
+                '_'
+            }
+        })
+        .collect();
+    PathBuf::from(format!("osap-run-{safe}-{secs}"))
+}
+
+/// Refuses an output folder inside a repository's `docs` (runs are not
+/// documentation).
+fn check_out(dir: &Path) -> Result<(), Failure> {
+    let abs = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
+    let mut p = abs.as_path();
+    while let Some(parent) = p.parent() {
+        if p.file_name().is_some_and(|n| n == "docs") && parent.join(".git").exists() {
+            return Err(Failure::refused(format!(
+                "--out {}: not inside a repository's docs; pick another folder",
+                dir.display()
+            )));
+        }
+        p = parent;
+    }
+    Ok(())
+}
+
+/// `osap run`.
+pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
+    let cfg = args.target.load()?;
+    let program = read_job(&cfg, &args)?;
+    for w in &program.warnings {
+        eprintln!("warning: {w}");
+    }
+    let out = args.out.clone().unwrap_or_else(|| default_out(&cfg));
+    check_out(&out)?;
+    let start = osap_machine::machine::drive::start_position(&cfg);
+    let planned_s = program
+        .planned_seconds(&cfg, &start)
+        .map_err(Failure::from_machine)?;
+
+    let machine = args.target.start(&cfg).await?;
+    let mut events = machine.events();
+    eprintln!(
+        "machine {} ready ({} modules, {}) after {:.2} s",
+        cfg.name,
+        machine.modules().len(),
+        if args.target.sim {
+            if args.target.fast {
+                "simulated, virtual time"
+            } else {
+                "simulated"
+            }
+        } else {
+            "hardware"
+        },
+        started.elapsed().as_secs_f64()
+    );
+    if args.no_home {
+        machine
+            .set_position(&start)
+            .map_err(Failure::from_machine)?;
+    } else {
+        machine.home().await.map_err(Failure::from_machine)?;
+        eprintln!("homed after {:.2} s", started.elapsed().as_secs_f64());
+    }
+
+    let bar = ProgressBar::new(program.moves.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template("{bar:40} {pos}/{len} moves  {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    machine.start_recording();
+    let t0 = machine.now_us().await.map_err(Failure::from_machine)?;
+    let mut first = true;
+    let result = machine
+        .run_program(&program, |p| {
+            if first {
+                first = false;
+                bar.println(format!(
+                    "first motion queued {:.2} s after start",
+                    started.elapsed().as_secs_f64()
+                ));
+            }
+            bar.set_position(p.done as u64);
+            bar.set_message(format!("line/path {}", p.line));
+        })
+        .await;
+    bar.finish_and_clear();
+    let t1 = machine.now_us().await.map_err(Failure::from_machine)?;
+    let recording = machine.take_recording(t0);
+
+    let mut faults = Vec::new();
+    while let Ok(e) = events.try_recv() {
+        match e {
+            MachineEvent::Fault { module, reason } => {
+                faults.push(format!("module {module}: {reason}"))
+            }
+            MachineEvent::LinkLost { module } => faults.push(format!("module {module}: link lost")),
+            MachineEvent::Refused {
+                module,
+                count,
+                reason,
+            } => faults.push(format!(
+                "module {module}: {count} points refused ({reason})"
+            )),
+            MachineEvent::Limit {
+                module,
+                pressed: true,
+                expected: false,
+                ..
+            } => faults.push(format!("module {module}: limit switch hit")),
+            _ => {}
+        }
+    }
+    faults.dedup();
+
+    println!("job {}: {} moves", args.job.display(), program.moves.len());
+    println!("planned duration   {:>9.3} s", planned_s);
+    println!(
+        "executed duration  {:>9.3} s (motion; {:.3} s with tool waits)",
+        recording.executed_duration(),
+        (t1.saturating_sub(t0)) as f64 * 1e-6
+    );
+    for (axis, err) in recording.following_error() {
+        println!("largest following error {axis}: {:.4} mm", err);
+    }
+    if faults.is_empty() {
+        println!("faults: none");
+    } else {
+        for f in &faults {
+            println!("fault: {f}");
+        }
+    }
+    let files = recording
+        .write_csv(&out)
+        .and_then(|mut f| {
+            f.extend(recording.plot(&out)?);
+            Ok(f)
+        })
+        .map_err(|e| Failure {
+            code: FAULTED,
+            message: e.to_string(),
+        })?;
+    println!(
+        "wrote {} files to {}: {}",
+        files.len(),
+        out.display(),
+        files
+            .iter()
+            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let stopped = machine.stop().await;
+    result.map_err(Failure::from_machine)?;
+    stopped.map_err(Failure::from_machine)?;
+    if faults.iter().any(|f| !f.contains("points refused")) {
+        return Ok(ExitCode::from(FAULTED));
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `osap home MACHINE [AXIS ..]`.
+pub async fn home(target: Target, axes: Vec<String>) -> Result<ExitCode, Failure> {
+    let cfg = target.load()?;
+    let machine = target.start(&cfg).await?;
+    let names: Vec<&str> = axes.iter().map(String::as_str).collect();
+    let r = if names.is_empty() {
+        machine.home().await
+    } else {
+        machine.home_axes(&names).await
+    };
+    r.map_err(Failure::from_machine)?;
+    println!("homed; position {}", show(&machine));
+    machine.stop().await.map_err(Failure::from_machine)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+fn show(machine: &Machine) -> String {
+    machine
+        .axes()
+        .iter()
+        .zip(machine.position())
+        .map(|(a, v)| format!("{a}={v:.3}"))
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// `osap jog MACHINE AXIS DISTANCE`.
+pub async fn jog(
+    target: Target,
+    axis: String,
+    distance: f64,
+    rate: Option<f64>,
+) -> Result<ExitCode, Failure> {
+    let cfg = target.load()?;
+    if !cfg.axes.contains_key(&axis) {
+        return Err(Failure::refused(format!(
+            "no axis {axis:?} in {}; it has {}",
+            target.machine.display(),
+            cfg.axis_names().join(", ")
+        )));
+    }
+    let rate = rate.unwrap_or(cfg.axes[&axis].velocity / 4.0);
+    let machine = target.start(&cfg).await?;
+    machine
+        .jog(&axis, distance, rate)
+        .await
+        .map_err(Failure::from_machine)?;
+    println!("jogged {axis} by {distance}; position {}", show(&machine));
+    machine.stop().await.map_err(Failure::from_machine)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `osap move MACHINE AXIS=VALUE ..`: homes, then moves there.
+pub async fn move_to(
+    target: Target,
+    coords: Vec<String>,
+    rate: Option<f64>,
+) -> Result<ExitCode, Failure> {
+    let cfg = target.load()?;
+    let axes: Vec<String> = cfg.axis_names().iter().map(|s| s.to_string()).collect();
+    let mut to: Vec<Option<f64>> = vec![None; axes.len()];
+    for c in &coords {
+        let (a, v) = c
+            .split_once('=')
+            .ok_or_else(|| Failure::refused(format!("{c:?}: give AXIS=VALUE, e.g. x=10")))?;
+        let k = axes.iter().position(|n| n == a).ok_or_else(|| {
+            Failure::refused(format!(
+                "no axis {a:?}; the machine has {}",
+                axes.join(", ")
+            ))
+        })?;
+        let v: f64 = v
+            .parse()
+            .ok()
+            .filter(|x: &f64| x.is_finite())
+            .ok_or_else(|| Failure::refused(format!("{c:?}: {v:?} is not a number")))?;
+        to[k] = Some(v);
+    }
+    let rate = rate.unwrap_or(cfg.limits.velocity / 2.0);
+    let machine = target.start(&cfg).await?;
+    machine.home().await.map_err(Failure::from_machine)?;
+    let here = machine.position();
+    let target_pos: Vec<f64> = to.iter().zip(&here).map(|(t, h)| t.unwrap_or(*h)).collect();
+    machine
+        .goto_now(&target_pos, rate)
+        .await
+        .map_err(Failure::from_machine)?;
+    println!("moved; position {}", show(&machine));
+    machine.stop().await.map_err(Failure::from_machine)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `osap halt MACHINE`: every motor module stops at once.
+pub async fn halt(target: Target) -> Result<ExitCode, Failure> {
+    let cfg = target.load()?;
+    let machine = target.start(&cfg).await?;
+    machine
+        .emergency_stop()
+        .await
+        .map_err(Failure::from_machine)?;
+    println!(
+        "halted every motor of {} (power-cycle the motors or run `osap home` to move again)",
+        cfg.name
+    );
+    let _ = tokio::time::timeout(Duration::from_secs(1), machine.stop()).await;
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,498 @@
+//! Jobs: a G-code program or an SVG drawing turned into a machine
+//! [`Program`] (moves in the machine's axes, tool changes, dwells), checked
+//! against the travel before any motion, and run on a [`Machine`].
+
+use std::time::Duration;
+
+use maxl::blocks::planner::{Arc as PlanArc, Limits, Planner};
+
+use crate::config::{MachineFile, ToolKind};
+use crate::gcode::{Action, Job};
+use crate::machine::{Machine, MachineError, MAX_AXES};
+use crate::svg::Drawing;
+
+/// One thing a program does.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Move {
+    /// A straight move at the machine's fastest (a rapid, or pen-up travel).
+    Rapid(Vec<f64>),
+    /// A straight move at a feed (units/s).
+    Line(Vec<f64>, f64),
+    /// An arc in the xy plane around `center`, at a feed.
+    Arc {
+        /// Where to (axis order).
+        to: Vec<f64>,
+        /// The centre (x, y).
+        center: [f64; 2],
+        /// Clockwise seen from +z.
+        clockwise: bool,
+        /// Units/s.
+        feed: f64,
+    },
+    /// Wait for the moves before to finish, then this long (s).
+    Dwell(f64),
+    /// The job's tool on at a level (0..=1) or a speed (rpm, for a
+    /// spindle with `max_rpm`), or off (`None`).
+    Tool(Option<ToolLevel>),
+}
+
+/// How far a tool is turned on.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum ToolLevel {
+    /// Full on.
+    Full,
+    /// A speed from the job (rpm, or power for a laser without `max_rpm`).
+    Speed(f64),
+}
+
+/// A job, ready to run: moves with where they came from.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Program {
+    /// Each move, with its source line (G-code) or path number (SVG), from 1.
+    pub moves: Vec<(usize, Move)>,
+    /// What the readers skipped or changed, for the user.
+    pub warnings: Vec<String>,
+}
+
+/// Why a job cannot run on a machine.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum JobError {
+    /// A move leaves the machine's travel (found before any motion).
+    #[error("{place}: axis {axis} would go to {value:.3}, outside its travel [{min}, {max}]")]
+    OutOfTravel {
+        /// `line N` or `path N`.
+        place: String,
+        /// The axis.
+        axis: String,
+        /// The coordinate.
+        value: f64,
+        /// Travel, low end.
+        min: f64,
+        /// Travel, high end.
+        max: f64,
+    },
+    /// The job moves an axis the machine does not have.
+    #[error("{place}: the job moves {axis}, but the machine has no axis {axis}")]
+    NoSuchAxis {
+        /// `line N`.
+        place: String,
+        /// The axis.
+        axis: String,
+    },
+    /// An arc the planner cannot draw.
+    #[error("{place}: {reason}")]
+    BadArc {
+        /// `line N`.
+        place: String,
+        /// Why.
+        reason: String,
+    },
+    /// A drawing needs x and y.
+    #[error("a drawing needs axes x and y; this machine has {0}")]
+    NotPlanar(String),
+    /// A feed rate that is not finite and positive.
+    #[error("feed {0} must be finite and positive")]
+    BadFeed(f64),
+}
+
+/// Where a G-code axis (0 x, 1 y, 2 z) is among the machine's axes.
+fn slots(cfg: &MachineFile) -> [Option<usize>; 3] {
+    let names = cfg.axis_names();
+    ["x", "y", "z"].map(|a| names.iter().position(|n| *n == a))
+}
+
+/// Machine coordinates of a G-code position, checked against the axes the
+/// machine has; `from` gives the coordinates of axes the program does not
+/// move.
+fn place_gcode(
+    cfg: &MachineFile,
+    to: [f64; 3],
+    from: &[f64],
+    line: usize,
+) -> Result<Vec<f64>, JobError> {
+    let mut out = from.to_vec();
+    for (g, slot) in slots(cfg).iter().enumerate() {
+        match slot {
+            Some(k) => out[*k] = to[g],
+            // G-code starts at 0: an axis the machine lacks may stay there.
+            None if to[g].abs() <= 1e-9 => {}
+            None => {
+                return Err(JobError::NoSuchAxis {
+                    place: format!("line {line}"),
+                    axis: ["x", "y", "z"][g].into(),
+                })
+            }
+        }
+    }
+    Ok(out)
+}
+
+fn check(cfg: &MachineFile, p: &[f64], place: &str) -> Result<(), JobError> {
+    for (name, v) in cfg.axis_names().iter().zip(p) {
+        let a = &cfg.axes[*name];
+        // A hair of tolerance for arcs chorded to the edge.
+        if !(v.is_finite() && *v >= a.min - 1e-9 && *v <= a.max + 1e-9) {
+            return Err(JobError::OutOfTravel {
+                place: place.into(),
+                axis: name.to_string(),
+                value: *v,
+                min: a.min,
+                max: a.max,
+            });
+        }
+    }
+    Ok(())
+}
+
+fn pad(p: &[f64]) -> [f64; MAX_AXES] {
+    let mut out = [0.0; MAX_AXES];
+    for (o, v) in out.iter_mut().zip(p) {
+        *o = *v;
+    }
+    out
+}
+
+/// A G-code job as a program for machine `cfg`, starting at `start`
+/// (axis order). Every move, arcs included, is checked against the travel.
+pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program, JobError> {
+    let mut moves = Vec::new();
+    let mut at = start.to_vec();
+    for step in &job.steps {
+        let place = format!("line {}", step.line);
+        let mv = match step.action {
+            Action::Rapid { to } => {
+                let p = place_gcode(cfg, to, &at, step.line)?;
+                check(cfg, &p, &place)?;
+                at.clone_from(&p);
+                Move::Rapid(p)
+            }
+            Action::Line { to, feed } => {
+                let p = place_gcode(cfg, to, &at, step.line)?;
+                check(cfg, &p, &place)?;
+                at.clone_from(&p);
+                Move::Line(p, feed)
+            }
+            Action::Arc {
+                to,
+                center,
+                clockwise,
+                feed,
+            } => {
+                let p = place_gcode(cfg, to, &at, step.line)?;
+                if slots(cfg)[0] != Some(0) || slots(cfg)[1] != Some(1) {
+                    return Err(JobError::NotPlanar(cfg.axis_names().join(", ")));
+                }
+                let arc = PlanArc {
+                    end: pad(&p),
+                    plane: (0, 1),
+                    center,
+                    clockwise,
+                    chord_tolerance: 0.002,
+                };
+                let chords = arc.chords(pad(&at)).map_err(|e| JobError::BadArc {
+                    place: place.clone(),
+                    reason: e.to_string(),
+                })?;
+                for c in &chords {
+                    check(cfg, &c[..at.len()], &place)?;
+                }
+                at.clone_from(&p);
+                Move::Arc {
+                    to: p,
+                    center,
+                    clockwise,
+                    feed,
+                }
+            }
+            Action::Dwell { seconds } => Move::Dwell(seconds),
+            Action::ToolOn { speed } => Move::Tool(Some(match speed {
+                Some(s) => ToolLevel::Speed(s),
+                None => ToolLevel::Full,
+            })),
+            Action::ToolOff => Move::Tool(None),
+            Action::End => break,
+        };
+        moves.push((step.line, mv));
+    }
+    Ok(Program {
+        moves,
+        warnings: job.warnings.iter().map(|w| w.to_string()).collect(),
+    })
+}
+
+/// An SVG drawing as a program: for each polyline, tool off, travel to its
+/// start, tool on, draw at `feed`; tool off at the end. Checked against the
+/// travel.
+pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Program, JobError> {
+    if !(feed.is_finite() && feed > 0.0) {
+        return Err(JobError::BadFeed(feed));
+    }
+    let names = cfg.axis_names();
+    if names.len() < 2 || names[0] != "x" || names[1] != "y" {
+        return Err(JobError::NotPlanar(names.join(", ")));
+    }
+    let n = names.len();
+    // Axes beyond x and y stay where homing or the start left them: 0 if
+    // within travel, else their min.
+    let rest: Vec<f64> = crate::machine::drive::start_position(cfg);
+    let mut moves = Vec::new();
+    let mut warnings = drawing.warnings.clone();
+    let has_tool = cfg
+        .tools
+        .values()
+        .any(|t| matches!(t.kind, ToolKind::Pen | ToolKind::Laser));
+    if !has_tool {
+        warnings.push(
+            "the machine has no pen or laser tool: the drawing runs with no tool switching".into(),
+        );
+    }
+    for (i, poly) in drawing.polylines.iter().enumerate() {
+        let place = format!("path {}", i + 1);
+        let mut pts = poly.iter().map(|p| {
+            let mut v = rest.clone();
+            v[0] = p[0];
+            v[1] = p[1];
+            v.truncate(n);
+            v
+        });
+        let Some(first) = pts.next() else { continue };
+        check(cfg, &first, &place)?;
+        if has_tool {
+            moves.push((i + 1, Move::Tool(None)));
+        }
+        moves.push((i + 1, Move::Rapid(first)));
+        if has_tool {
+            moves.push((i + 1, Move::Tool(Some(ToolLevel::Full))));
+        }
+        for p in pts {
+            check(cfg, &p, &place)?;
+            moves.push((i + 1, Move::Line(p, feed)));
+        }
+    }
+    if has_tool {
+        moves.push((drawing.polylines.len(), Move::Tool(None)));
+    }
+    Ok(Program { moves, warnings })
+}
+
+/// How far a program has come.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Progress {
+    /// Moves handed to the machine.
+    pub done: usize,
+    /// Moves in the program.
+    pub total: usize,
+    /// Source line or path of the newest move.
+    pub line: usize,
+}
+
+impl Program {
+    /// How long the moves take as planned, s (tool settling and dwells
+    /// included; waiting for the tool is counted from its settle time).
+    pub fn planned_seconds(&self, cfg: &MachineFile, start: &[f64]) -> Result<f64, MachineError> {
+        let mut planner = Planner::new(machine_limits(cfg))?;
+        planner.set_position(pad(start))?;
+        let mut total = 0.0;
+        let rapid = cfg.limits.velocity;
+        let settle = |kind: Option<ToolKind>| -> f64 {
+            cfg.tools
+                .values()
+                .filter(|t| kind.is_none_or(|k| t.kind == k))
+                .map(|t| f64::from(t.settle_ms) * 1e-3)
+                .fold(0.0, f64::max)
+        };
+        let drain = |planner: &mut Planner<MAX_AXES>| -> Result<f64, MachineError> {
+            let d = planner.plan().duration_us() * 1e-6;
+            let t = planner.last_stamp().unwrap_or(0) + (d * 1e6).ceil() as u64 + 1;
+            planner.sample(t)?;
+            Ok(d)
+        };
+        for (_, m) in &self.moves {
+            match m {
+                Move::Rapid(p) => {
+                    planner.line(pad(p), rapid)?;
+                }
+                Move::Line(p, f) => {
+                    planner.line(pad(p), *f)?;
+                }
+                Move::Arc {
+                    to,
+                    center,
+                    clockwise,
+                    feed,
+                } => {
+                    let arc = PlanArc {
+                        end: pad(to),
+                        plane: (0, 1),
+                        center: *center,
+                        clockwise: *clockwise,
+                        chord_tolerance: 0.002,
+                    };
+                    planner.arc(&arc, *feed)?;
+                }
+                Move::Dwell(s) => {
+                    total += drain(&mut planner)? + s.max(0.0);
+                }
+                Move::Tool(_) => {
+                    total += drain(&mut planner)? + settle(None);
+                }
+            }
+            if planner.stats().pending >= maxl::blocks::planner::DEFAULT_CAPACITY - 2 {
+                // Keep the queue within capacity: run the front of it.
+                let first = planner.plan().segments.first().map(|s| s.duration_us);
+                let t = planner.last_stamp().unwrap_or(0) + first.unwrap_or(0.0).ceil() as u64 + 1;
+                let before = planner.plan().duration_us();
+                planner.sample(t)?;
+                total += (before - planner.plan().duration_us()) * 1e-6;
+            }
+        }
+        total += drain(&mut planner)?;
+        Ok(total)
+    }
+}
+
+/// The planner limits of a machine (as [`Machine`] plans with).
+pub fn machine_limits(cfg: &MachineFile) -> Limits<MAX_AXES> {
+    let mut vel = [1.0; MAX_AXES];
+    let mut acc = [1.0; MAX_AXES];
+    for (k, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
+        let a = &cfg.axes[*name];
+        vel[k] = a.velocity.min(cfg.limits.velocity);
+        acc[k] = a.acceleration.min(cfg.limits.acceleration);
+    }
+    Limits {
+        max_vel: vel,
+        max_acc: acc,
+        junction_deviation: cfg.limits.junction_deviation,
+        max_jump: [f64::INFINITY; MAX_AXES],
+    }
+}
+
+impl Machine {
+    /// Runs `program`: queues its moves with lookahead, switches the tool
+    /// at rest (waiting for it to settle), and waits until the last move
+    /// has run. `progress` is told of every move handed over.
+    pub async fn run_program(
+        &self,
+        program: &Program,
+        mut progress: impl FnMut(Progress),
+    ) -> Result<(), MachineError> {
+        let rapid = self.config().limits.velocity;
+        let tool = self
+            .config()
+            .tools
+            .iter()
+            .find(|(_, t)| matches!(t.kind, ToolKind::Pen | ToolKind::Laser | ToolKind::Spindle))
+            .map(|(name, _)| name.clone());
+        let total = program.moves.len();
+        for (i, (line, m)) in program.moves.iter().enumerate() {
+            match m {
+                Move::Rapid(p) => self.goto_via_queue(p, rapid).await?,
+                Move::Line(p, f) => self.goto_via_queue(p, *f).await?,
+                Move::Arc {
+                    to,
+                    center,
+                    clockwise,
+                    feed,
+                } => self.arc(to, *center, *clockwise, *feed).await?,
+                Move::Dwell(s) => self.dwell(*s).await?,
+                Move::Tool(level) => {
+                    let Some(name) = &tool else { continue };
+                    let t = self.tool(name)?;
+                    let want = match level {
+                        None => 0.0,
+                        Some(ToolLevel::Full) => 1.0,
+                        Some(ToolLevel::Speed(s)) => match self.config().tools[name].max_rpm {
+                            Some(max) if max > 0.0 => (s / max).clamp(0.0, 1.0),
+                            _ => 1.0,
+                        },
+                    };
+                    if (t.level() - want).abs() > 1e-9 {
+                        self.idle().await?;
+                        t.set(want).await?;
+                        t.await_ready().await?;
+                    }
+                }
+            }
+            progress(Progress {
+                done: i + 1,
+                total,
+                line: *line,
+            });
+        }
+        self.idle().await?;
+        // Let the last step reports arrive.
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(name: &str) -> MachineFile {
+        MachineFile::load(format!(
+            "{}/../examples/machines/{name}.toml",
+            env!("CARGO_MANIFEST_DIR")
+        ))
+        .unwrap()
+    }
+
+    #[test]
+    fn gcode_outside_travel_is_refused_with_its_line() {
+        let mill = cfg("mill");
+        let job = crate::gcode::read("G21 G90\nG1 X10 Y10 F600\nG1 X400\n").unwrap();
+        let e = from_gcode(&mill, &job, &[0.0; 3]).unwrap_err();
+        assert!(
+            matches!(&e, JobError::OutOfTravel { place, axis, .. } if place == "line 3" && axis == "x"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn gcode_arc_bulging_out_of_travel_is_refused() {
+        let mill = cfg("mill");
+        // A half circle from (10, 5) to (10, 45) around (10, 25) clockwise
+        // bulges to x = 30; counter-clockwise to x = -10 (outside).
+        let ok = crate::gcode::read("G0 X10 Y5\nG2 X10 Y45 I0 J20 F300\n").unwrap();
+        assert!(from_gcode(&mill, &ok, &[0.0; 3]).is_ok());
+        let bad = crate::gcode::read("G0 X10 Y5\nG3 X10 Y45 I0 J20 F300\n").unwrap();
+        let e = from_gcode(&mill, &bad, &[0.0; 3]).unwrap_err();
+        assert!(
+            matches!(&e, JobError::OutOfTravel { place, .. } if place == "line 2"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn gcode_z_on_a_plotter_is_refused() {
+        let plotter = cfg("plotter");
+        let job = crate::gcode::read("G1 X10 Y10 Z-1 F600\n").unwrap();
+        let e = from_gcode(&plotter, &job, &[0.0; 2]).unwrap_err();
+        assert!(matches!(e, JobError::NoSuchAxis { .. }), "{e}");
+    }
+
+    #[test]
+    fn svg_becomes_pen_moves() {
+        let plotter = cfg("plotter");
+        let svg = r#"<svg xmlns="http://www.w3.org/2000/svg" width="100mm" height="100mm" viewBox="0 0 100 100"><path d="M10 10 L90 10 L90 90" stroke="black" fill="none"/></svg>"#;
+        let d = crate::svg::read(svg, &Default::default()).unwrap();
+        let p = from_svg(&plotter, &d, 50.0).unwrap();
+        let kinds: Vec<&str> = p
+            .moves
+            .iter()
+            .map(|(_, m)| match m {
+                Move::Tool(None) => "up",
+                Move::Tool(Some(_)) => "down",
+                Move::Rapid(_) => "rapid",
+                Move::Line(..) => "line",
+                _ => "other",
+            })
+            .collect();
+        assert_eq!(kinds, ["up", "rapid", "down", "line", "line", "up"]);
+        let secs = p.planned_seconds(&plotter, &[0.0, 0.0]).unwrap();
+        // 160 mm of drawing at 50 mm/s plus travel and two pen settles.
+        assert!(secs > 3.2 + 0.3 && secs < 6.0, "{secs}");
+    }
+}

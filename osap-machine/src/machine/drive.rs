@@ -1,0 +1,316 @@
+//! From machine coordinates to what each motor is sent, and back.
+//!
+//! The planner works in machine coordinates (the axes, in the file's
+//! order). Each motor `i` is sent `m_i = s_i · q_i(p) − o_i`: `q` is the
+//! kinematics' joint coordinate for the machine position `p` (cartesian: the
+//! axis's own coordinate), `s_i` is −1 for an inverted motor, and `o_i` is
+//! an offset chosen so that re-defining where the machine is (homing,
+//! [`Drive::rebase`]) never moves a motor. At start every motor reads 0
+//! (where the module booted) and the machine takes itself to be at
+//! [`start_position`].
+
+use maxl::blocks::kinematics::{CoreXy, FiveBar, FiveBarMode, KinError, Planar, Scara, Side};
+use nalgebra::Vector2;
+
+use crate::config::{Kinematics, MachineFile, Side as FileSide};
+
+/// The most axes a machine plans together.
+pub const MAX_AXES: usize = 3;
+
+/// What moves one motor.
+#[derive(Debug, Clone, PartialEq)]
+enum Source {
+    /// A cartesian axis: the machine coordinate in this slot.
+    Axis(usize),
+    /// Joint 0 or 1 of the xy mechanism.
+    Joint(usize),
+}
+
+/// One driven motor.
+#[derive(Debug, Clone)]
+pub struct DriveMotor {
+    /// The motor's key in `[motors]`.
+    pub name: String,
+    /// The module's key in `[modules]`.
+    pub module: String,
+    /// Full steps per motor unit.
+    pub full_steps_per_unit: f64,
+    /// Microsteps per full step.
+    pub microsteps: u16,
+    /// Enable the driver at start.
+    pub enable: bool,
+    sign: f64,
+    source: Source,
+}
+
+/// The machine's mapping from coordinates to motor positions.
+pub struct Drive {
+    axes: Vec<String>,
+    motors: Vec<DriveMotor>,
+    planar: Option<Box<dyn Planar + Send + Sync>>,
+    offsets: Vec<f64>,
+}
+
+impl std::fmt::Debug for Drive {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Drive")
+            .field("axes", &self.axes)
+            .field("motors", &self.motors)
+            .field("planar", &self.planar.is_some())
+            .field("offsets", &self.offsets)
+            .finish()
+    }
+}
+
+/// Where a machine takes itself to be before it is homed: 0 on every axis
+/// whose travel includes 0, else the axis's `min`.
+pub fn start_position(cfg: &MachineFile) -> Vec<f64> {
+    cfg.axis_names()
+        .iter()
+        .map(|name| {
+            let a = &cfg.axes[*name];
+            if a.min <= 0.0 && 0.0 <= a.max {
+                0.0
+            } else {
+                a.min
+            }
+        })
+        .collect()
+}
+
+fn side(s: FileSide) -> Side {
+    match s {
+        FileSide::Left => Side::Left,
+        FileSide::Right => Side::Right,
+    }
+}
+
+/// The xy mechanism of a machine file, if it has one.
+pub fn mechanism(cfg: &MachineFile) -> Result<Option<Box<dyn Planar + Send + Sync>>, KinError> {
+    Ok(match &cfg.kinematics {
+        Kinematics::Cartesian {} => None,
+        Kinematics::CoreXy { .. } => Some(Box::new(CoreXy::new(1.0)?)),
+        Kinematics::Scara {
+            l1,
+            l2,
+            elbow,
+            margin_deg,
+            ..
+        } => Some(Box::new(Scara::new(
+            *l1,
+            *l2,
+            side(*elbow),
+            margin_deg.to_radians(),
+        )?)),
+        Kinematics::FiveBar {
+            span,
+            l1,
+            l2,
+            left_elbow,
+            right_elbow,
+            tool,
+            margin_deg,
+            ..
+        } => Some(Box::new(FiveBar::new(
+            *span,
+            *l1,
+            *l2,
+            FiveBarMode {
+                left_elbow: side(*left_elbow),
+                right_elbow: side(*right_elbow),
+                tool: side(*tool),
+            },
+            margin_deg.to_radians(),
+        )?)),
+    })
+}
+
+impl Drive {
+    /// The drive of a validated machine file, with every motor at 0 while
+    /// the machine stands at `at` (axis order).
+    pub fn new(cfg: &MachineFile, at: &[f64]) -> Result<Drive, String> {
+        let axes: Vec<String> = cfg.axis_names().iter().map(|s| s.to_string()).collect();
+        if axes.len() > MAX_AXES {
+            return Err(format!(
+                "axes: {} axes ({}); a machine plans at most {MAX_AXES} together",
+                axes.len(),
+                axes.join(", ")
+            ));
+        }
+        let planar = mechanism(cfg).map_err(|e| format!("kinematics: {e}"))?;
+        let mut motors = Vec::new();
+        let mut add = |name: &str, source: Source| -> Result<(), String> {
+            let m = cfg
+                .motors
+                .get(name)
+                .ok_or_else(|| format!("motors.{name}: no such motor"))?;
+            motors.push(DriveMotor {
+                name: name.to_string(),
+                module: m.module.clone(),
+                full_steps_per_unit: m.full_steps_per_unit,
+                microsteps: m.microsteps,
+                enable: m.enable,
+                sign: if m.invert { -1.0 } else { 1.0 },
+                source,
+            });
+            Ok(())
+        };
+        if planar.is_some() {
+            for (j, name) in cfg.kinematics.motors().iter().enumerate() {
+                add(name, Source::Joint(j))?;
+            }
+        }
+        for (slot, axis) in axes.iter().enumerate() {
+            if let Some(motor) = cfg.motor_for_axis(axis) {
+                add(motor, Source::Axis(slot))?;
+            }
+        }
+        let mut drive = Drive {
+            offsets: vec![0.0; motors.len()],
+            axes,
+            motors,
+            planar,
+        };
+        let zeros = vec![0.0; drive.motors.len()];
+        drive
+            .rebase(at, &zeros)
+            .map_err(|e| format!("the start position {at:?} is outside the kinematics: {e}"))?;
+        Ok(drive)
+    }
+
+    /// The axis names, in slot order.
+    pub fn axes(&self) -> &[String] {
+        &self.axes
+    }
+
+    /// The driven motors, in the order of [`Drive::motor_positions`].
+    pub fn motors(&self) -> &[DriveMotor] {
+        &self.motors
+    }
+
+    /// Joint coordinates of machine position `p`.
+    fn joints(&self, p: &[f64]) -> Result<Option<Vector2<f64>>, KinError> {
+        match &self.planar {
+            None => Ok(None),
+            Some(k) => {
+                let xy = Vector2::new(p[0], p.get(1).copied().unwrap_or(0.0));
+                if !(xy.x.is_finite() && xy.y.is_finite()) {
+                    return Err(KinError::NonFinite);
+                }
+                k.inverse_xy(xy).map(Some)
+            }
+        }
+    }
+
+    /// The motor positions (motor units) for machine position `p`.
+    pub fn motor_positions(&self, p: &[f64]) -> Result<Vec<f64>, KinError> {
+        let q = self.joints(p)?;
+        Ok(self
+            .motors
+            .iter()
+            .zip(&self.offsets)
+            .map(|(m, o)| {
+                let joint = match m.source {
+                    Source::Axis(slot) => p.get(slot).copied().unwrap_or(0.0),
+                    Source::Joint(j) => q.map_or(0.0, |q| q[j]),
+                };
+                m.sign * joint - o
+            })
+            .collect())
+    }
+
+    /// The machine position of motor positions `m` (the inverse of
+    /// [`Drive::motor_positions`]).
+    pub fn machine_position(&self, m: &[f64]) -> Result<Vec<f64>, KinError> {
+        let mut p = vec![0.0; self.axes.len()];
+        let mut q = Vector2::zeros();
+        for ((motor, o), v) in self.motors.iter().zip(&self.offsets).zip(m) {
+            let joint = (v + o) * motor.sign;
+            match motor.source {
+                Source::Axis(slot) => p[slot] = joint,
+                Source::Joint(j) => q[j] = joint,
+            }
+        }
+        if let Some(k) = &self.planar {
+            let xy = k.forward_xy(q)?;
+            if !(xy.x.is_finite() && xy.y.is_finite()) {
+                return Err(KinError::Overflow);
+            }
+            p[0] = xy.x;
+            if p.len() > 1 {
+                p[1] = xy.y;
+            }
+        }
+        Ok(p)
+    }
+
+    /// Re-defines where the machine is: from now on, machine position `p`
+    /// is where the motors stand at `m` (so no motor moves).
+    pub fn rebase(&mut self, p: &[f64], m: &[f64]) -> Result<(), KinError> {
+        self.offsets = vec![0.0; self.motors.len()];
+        let raw = self.motor_positions(p)?;
+        self.offsets = raw.iter().zip(m).map(|(r, m)| r - m).collect();
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn plotter() -> MachineFile {
+        MachineFile::load(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/plotter.toml"
+        ))
+        .unwrap()
+    }
+
+    #[test]
+    fn corexy_round_trips_and_inverts() {
+        let cfg = plotter();
+        let d = Drive::new(&cfg, &start_position(&cfg)).unwrap();
+        assert_eq!(d.axes(), ["x", "y"]);
+        let m = d.motor_positions(&[10.0, 5.0]).unwrap();
+        // a = x + y; b is inverted: −(x − y).
+        assert!(
+            (m[0] - 15.0).abs() < 1e-12 && (m[1] + 5.0).abs() < 1e-12,
+            "{m:?}"
+        );
+        let p = d.machine_position(&m).unwrap();
+        assert!((p[0] - 10.0).abs() < 1e-12 && (p[1] - 5.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn rebase_keeps_the_motors_where_they_are() {
+        let cfg = plotter();
+        let mut d = Drive::new(&cfg, &[0.0, 0.0]).unwrap();
+        let m = d.motor_positions(&[20.0, 30.0]).unwrap();
+        d.rebase(&[0.0, 0.0], &m).unwrap();
+        let again = d.motor_positions(&[0.0, 0.0]).unwrap();
+        for (a, b) in m.iter().zip(&again) {
+            assert!((a - b).abs() < 1e-12);
+        }
+        // A 1 mm move in x after rebasing moves each belt by 1 mm.
+        let moved = d.motor_positions(&[1.0, 0.0]).unwrap();
+        assert!((moved[0] - m[0] - 1.0).abs() < 1e-12);
+        assert!((moved[1] - m[1] + 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn start_is_zero_inside_travel_else_min() {
+        let cfg = MachineFile::load(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/mill.toml"
+        ))
+        .unwrap();
+        assert_eq!(start_position(&cfg), vec![0.0, 0.0, 0.0]);
+        let d = Drive::new(&cfg, &start_position(&cfg)).unwrap();
+        assert_eq!(d.motor_positions(&[0.0; 3]).unwrap(), vec![0.0; 3]);
+        // y is inverted.
+        assert_eq!(
+            d.motor_positions(&[1.0, 2.0, 3.0]).unwrap(),
+            vec![1.0, -2.0, 3.0]
+        );
+    }
+}

@@ -1,0 +1,149 @@
+//! What can go wrong driving a machine, by reason.
+
+use crate::config::ConfigError;
+use maxl::blocks::kinematics::KinError;
+use maxl::blocks::planner::PlanError;
+use osap_host::som::SomError;
+use osap_host::HostError;
+use osap_module::stepper::StepperError;
+
+/// An error of the [`Machine`](super::Machine) API.
+#[derive(Debug, thiserror::Error)]
+pub enum MachineError {
+    /// The machine file is not valid.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The machine file describes something this machine layer cannot
+    /// drive; the message names the key and the fix.
+    #[error("machine file: {0}")]
+    Unsupported(String),
+    /// The host runtime or a link failed.
+    #[error(transparent)]
+    Host(#[from] HostError),
+    /// A request to a module or to the host's functions failed.
+    #[error(transparent)]
+    Network(#[from] SomError),
+    /// A module of `[modules]` is not on the network.
+    #[error("modules.{key}: no module {wanted} on the network (found: {found}); check the cables, `osap scan`, or the name set with `osap rename`")]
+    ModuleNotFound {
+        /// The key in `[modules]`.
+        key: String,
+        /// What was looked for: a name or a route.
+        wanted: String,
+        /// The runtimes that were found.
+        found: String,
+    },
+    /// A module's clock did not settle on the machine's clock.
+    #[error("module {module}: its clock did not follow the machine's: {detail}")]
+    NotSynchronised {
+        /// The module's key.
+        module: String,
+        /// Why.
+        detail: String,
+    },
+    /// A module refused a setting or a command.
+    #[error("module {module}: {function} refused: {reason}")]
+    ModuleRefused {
+        /// The module's key.
+        module: String,
+        /// The function called.
+        function: String,
+        /// The reason, by name.
+        reason: String,
+    },
+    /// A target is outside an axis's soft travel limits.
+    #[error("axis {axis}: {value} is outside its travel [{min}, {max}]")]
+    OutOfTravel {
+        /// The axis.
+        axis: String,
+        /// The coordinate asked for.
+        value: f64,
+        /// The soft limit, low end.
+        min: f64,
+        /// The soft limit, high end.
+        max: f64,
+    },
+    /// A target does not have one coordinate per axis.
+    #[error("a target needs {expected} coordinates ({axes}), got {got}")]
+    WrongAxisCount {
+        /// The machine's axis count.
+        expected: usize,
+        /// The machine's axes.
+        axes: String,
+        /// The coordinates given.
+        got: usize,
+    },
+    /// A feed rate that is not finite and positive.
+    #[error("feed rate {0} must be finite and positive (units/s)")]
+    BadRate(f64),
+    /// A move before the axes it needs were homed.
+    #[error("axis {0} is not homed: call home() first, or set_position() if you know where it is")]
+    NotHomed(String),
+    /// The planner refused a move.
+    #[error("planner: {0}")]
+    Plan(#[from] PlanError),
+    /// A position the kinematics cannot reach.
+    #[error("kinematics: {0}")]
+    Kinematics(#[from] KinError),
+    /// The machine stopped on a fault; [`Machine::recover`](super::Machine::recover)
+    /// clears it.
+    #[error("machine faulted: {0}")]
+    Faulted(String),
+    /// Homing an axis failed.
+    #[error("homing axis {axis}: {reason}")]
+    Homing {
+        /// The axis.
+        axis: String,
+        /// Why.
+        reason: String,
+    },
+    /// No tool of that name in `[tools]`.
+    #[error("no tool {0:?} in [tools]")]
+    UnknownTool(String),
+    /// No axis of that name.
+    #[error("no axis {0:?} on this machine")]
+    UnknownAxis(String),
+    /// A tool setting out of range.
+    #[error("tool {tool}: {reason}")]
+    Tool {
+        /// The tool.
+        tool: String,
+        /// Why.
+        reason: String,
+    },
+    /// The machine has stopped (its host or simulation is gone).
+    #[error("the machine has stopped")]
+    Stopped,
+}
+
+/// The name of a stepper failure code, as the module documents it.
+pub fn stepper_reason(code: u8) -> String {
+    use StepperError as E;
+    let all = [
+        E::Misaligned,
+        E::Stale,
+        E::Gap,
+        E::Faulted,
+        E::OutOfRange,
+        E::Disabled,
+        E::Discontinuous,
+        E::QueueFull,
+        E::Busy,
+        E::BadValue,
+    ];
+    match all.iter().find(|e| e.code() == code) {
+        Some(E::Misaligned) => "time not a multiple of the interval".into(),
+        Some(E::Stale) => "point not after the newest queued one (arrived late)".into(),
+        Some(E::Gap) => "two or more points missing before this one".into(),
+        Some(E::Faulted) => "the axis is faulted or halted (cycle the motor's enable)".into(),
+        Some(E::OutOfRange) => {
+            "position beyond the module's track range (±32 767 microsteps)".into()
+        }
+        Some(E::Disabled) => "the motor is disabled".into(),
+        Some(E::Discontinuous) => "a new stream must start where the axis stands".into(),
+        Some(E::QueueFull) => "the module's queue is full (stream too far ahead)".into(),
+        Some(E::Busy) => "the setting can only change while no stream is queued".into(),
+        Some(E::BadValue) => "the value is not allowed".into(),
+        None => format!("failure code {code}"),
+    }
+}

@@ -1,0 +1,63 @@
+//! What a machine reports while it runs.
+
+/// What the machine is doing.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MachineState {
+    /// At rest, ready for moves.
+    Idle,
+    /// Moves are running or queued.
+    Moving,
+    /// Homing.
+    Homing,
+    /// Stopped on a fault: moves are refused until
+    /// [`Machine::recover`](super::Machine::recover).
+    Faulted(String),
+    /// The machine has been stopped.
+    Stopped,
+}
+
+/// Something that happened on the machine, as [`Machine::events`](super::Machine::events)
+/// streams it. Times are synchronized system µs.
+#[derive(Debug, Clone, PartialEq)]
+pub enum MachineEvent {
+    /// A module stopped its axis on its own: its stream ran dry mid-motion
+    /// (the backstop) or it was halted.
+    Fault {
+        /// The module's key.
+        module: String,
+        /// Why.
+        reason: String,
+    },
+    /// A limit switch changed.
+    Limit {
+        /// The module whose limit input changed.
+        module: String,
+        /// When (the module's time stamp of the edge).
+        time: u64,
+        /// Pressed (true) or released.
+        pressed: bool,
+        /// Whether homing was expecting it (otherwise the machine halts).
+        expected: bool,
+    },
+    /// A module stopped answering.
+    LinkLost {
+        /// The module's key.
+        module: String,
+    },
+    /// A module refused control points.
+    Refused {
+        /// The module's key.
+        module: String,
+        /// Points refused since the machine started.
+        count: u32,
+        /// The latest refusal's reason.
+        reason: String,
+    },
+    /// An axis was homed.
+    Homed {
+        /// The axis.
+        axis: String,
+    },
+    /// The machine's state changed.
+    State(MachineState),
+}

@@ -1,0 +1,1196 @@
+//! [`Machine`]: a machine in machine terms, the same on simulated modules
+//! ([`Machine::simulate`]) and on hardware ([`Machine::connect`]).
+//!
+//! Underneath, the machine is a PIPES graph on the host and its modules:
+//!
+//! ```text
+//! Timer.tick ──► machine.motion (planner + kinematics) ──► <motor>.add_point (each motor)
+//! <module>.get_status / get_counters / read_limit / get_position ──► machine.* monitors
+//! ```
+//!
+//! The timer leads the synchronized clock by [`LEAD_US`]; the motion
+//! function samples the lookahead planner at each stamp and turns the
+//! machine position into motor positions ([`drive::Drive`]). Modules
+//! report faults, refused points, limit edges and stepped positions through
+//! pipes of their own functions, so waiting ([`Machine::idle`]) and
+//! homing are driven by what arrives, not by polling.
+//! [`Machine::manager`] reaches the graph for anything the machine API
+//! does not cover.
+
+pub mod drive;
+pub mod error;
+pub mod events;
+mod homing;
+pub mod monitor;
+pub mod motion;
+mod tool;
+
+use std::collections::BTreeMap;
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use maxl::blocks::planner::{Arc as PlanArc, Planner};
+use maxl::blocks::timer::TimerBlock;
+use osap_core::route::Route;
+use osap_host::netrunner::{Netrunner, SyncGoal};
+use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions, SomError};
+use osap_host::{Host, HostConfig};
+use osap_sim::machine::{SimMachine, TimeMode};
+use pipes_core::control::{ControlError, InputMode, OutputMode};
+use tokio::sync::{broadcast, watch};
+
+use crate::config::MachineFile;
+pub use drive::{Drive, MAX_AXES};
+pub use error::MachineError;
+pub use events::{MachineEvent, MachineState};
+use monitor::{LimitEdge, SharedReports};
+use motion::{MotionStatus, SharedMotion};
+pub use tool::Tool;
+
+/// The control-point interval the machine streams at, µs.
+pub const INTERVAL_US: u32 = 2048;
+/// How far the timer leads the synchronized clock: 16 intervals (33 ms),
+/// room for the host to be held up.
+pub const LEAD_US: u32 = 16 * INTERVAL_US;
+/// The host runtime's name on the network.
+pub const HOST_NAME: &str = "machine";
+/// Period of the modules' status reports, µs.
+const STATUS_PERIOD_US: u32 = 50_000;
+/// Period of the limit switch and stepped position reports, µs.
+const FAST_PERIOD_US: u32 = 1_000;
+/// A module silent for this long is lost.
+const LINK_LOST_AFTER: Duration = Duration::from_millis(1_000);
+
+/// How to reach a machine's modules.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum Link {
+    /// A serial port (USB CDC or a UART adapter) at a baud rate.
+    Serial {
+        /// The port's path, e.g. `/dev/ttyACM0`.
+        path: String,
+        /// Baud rate (USB CDC ignores it).
+        baud: u32,
+    },
+    /// A TCP link to a network (for example `osap serve`).
+    Tcp(String),
+}
+
+/// Options of [`Machine::simulate_with`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SimOptions {
+    /// Real time, or virtual time (the caller runs on
+    /// [`osap_sim::machine::virtual_runtime`]).
+    pub time: TimeMode,
+}
+
+/// A module of the machine, found on the network.
+#[derive(Debug, Clone)]
+pub struct ModuleInfo {
+    /// Its runtime name on the network.
+    pub runtime: String,
+    /// Its route from the host.
+    pub route: Route,
+}
+
+/// A machine: its modules, its motion graph, its tools.
+///
+/// Cheap to clone: clones share the machine (a script may hand one to a
+/// task serving a control socket).
+#[derive(Clone)]
+pub struct Machine {
+    inner: Arc<Inner>,
+}
+
+struct Inner {
+    cfg: MachineFile,
+    host: Host,
+    manager: tokio::sync::Mutex<Manager>,
+    modules: BTreeMap<String, ModuleInfo>,
+    motion: SharedMotion,
+    status: watch::Receiver<MotionStatus>,
+    reports: SharedReports,
+    events: broadcast::Sender<MachineEvent>,
+    limit_edges: broadcast::Sender<(String, LimitEdge)>,
+    state: watch::Sender<MachineState>,
+    homed: Mutex<Vec<bool>>,
+    homing: std::sync::atomic::AtomicBool,
+    tools: Mutex<BTreeMap<String, tool::ToolState>>,
+    sim: Mutex<Option<SimMachine>>,
+    _links: Vec<osap_host::link::stream::LinkHandle>,
+    watchdog: tokio::task::JoinHandle<()>,
+}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        self.watchdog.abort();
+    }
+}
+
+fn som_refusal(module: &str, function: &str, e: SomError) -> MachineError {
+    match e {
+        SomError::Remote {
+            error: ControlError::CallFailed(code),
+            ..
+        } => MachineError::ModuleRefused {
+            module: module.into(),
+            function: function.into(),
+            reason: error::stepper_reason(code),
+        },
+        other => MachineError::Network(other),
+    }
+}
+
+impl Machine {
+    /// The machine on simulated modules, derived from the machine file
+    /// (its `[sim]` section), in real time.
+    pub async fn simulate(cfg: &MachineFile) -> Result<Machine, MachineError> {
+        Self::simulate_with(cfg, SimOptions::default()).await
+    }
+
+    /// [`Machine::simulate`] with options (virtual time).
+    pub async fn simulate_with(
+        cfg: &MachineFile,
+        options: SimOptions,
+    ) -> Result<Machine, MachineError> {
+        cfg.validate()?;
+        let topology =
+            crate::sim::topology(cfg).map_err(|e| MachineError::Unsupported(e.to_string()))?;
+        let host = Host::start(HostConfig::named(HOST_NAME))?;
+        let sim = SimMachine::start_with(&host, &topology, options.time).await?;
+        Self::start(cfg, host, Vec::new(), Some(sim)).await
+    }
+
+    /// The machine on hardware, reached over `links`.
+    pub async fn connect(cfg: &MachineFile, links: &[Link]) -> Result<Machine, MachineError> {
+        cfg.validate()?;
+        if links.is_empty() {
+            return Err(MachineError::Unsupported(
+                "no link given: name a serial port or a TCP address".into(),
+            ));
+        }
+        let host = Host::start(HostConfig::named(HOST_NAME))?;
+        let mut handles = Vec::new();
+        for link in links {
+            match link {
+                Link::Serial { path, baud } => {
+                    let l = osap_host::link::serial::spawn_serial(&host, path, *baud).await?;
+                    l.probe(&host, Duration::from_millis(500)).await?;
+                    handles.push(l);
+                }
+                Link::Tcp(addr) => handles.push(osap_host::link::tcp::connect(&host, addr).await?),
+            }
+        }
+        Self::start(cfg, host, handles, None).await
+    }
+
+    async fn start(
+        cfg: &MachineFile,
+        host: Host,
+        links: Vec<osap_host::link::stream::LinkHandle>,
+        sim: Option<SimMachine>,
+    ) -> Result<Machine, MachineError> {
+        let start = drive::start_position(cfg);
+        let drive = Drive::new(cfg, &start).map_err(MachineError::Unsupported)?;
+        check_track_range(cfg, &drive)?;
+        let mut manager = Manager::new(&host).await?;
+        manager.refresh().await?;
+        let modules = find_modules(cfg, &manager)?;
+
+        // Motion is keyed by synchronized time: every module's clock must
+        // follow the host's before a point is sent.
+        let netrunner = Netrunner::new(&host).await?;
+        let goal = SyncGoal {
+            max_offset: Duration::from_micros(200),
+            quiet: Duration::from_millis(200),
+            timeout: Duration::from_secs(20),
+        };
+        for (key, m) in &modules {
+            netrunner
+                .wait_synchronised(&m.route, goal)
+                .await
+                .map_err(|e| MachineError::NotSynchronised {
+                    module: key.clone(),
+                    detail: e.to_string(),
+                })?;
+        }
+
+        // Motors: scale, microsteps, interval, power; then where they stand.
+        let mut motor_at = Vec::new();
+        for motor in drive.motors() {
+            let runtime = &modules[&motor.module].runtime;
+            let call = |f: &'static str, args: Vec<OwnedValue>| {
+                let h = manager.function(&FnRef::new(runtime.as_str(), f));
+                let module = motor.module.clone();
+                async move {
+                    h.map_err(MachineError::Network)?
+                        .call(&args)
+                        .await
+                        .map_err(|e| som_refusal(&module, f, e))
+                }
+            };
+            call(
+                "set_scale",
+                vec![OwnedValue::F32(motor.full_steps_per_unit as f32)],
+            )
+            .await?;
+            call("set_microsteps", vec![OwnedValue::U16(motor.microsteps)]).await?;
+            call("set_interval", vec![OwnedValue::U32(INTERVAL_US)]).await?;
+            call("set_enable", vec![OwnedValue::Bool(motor.enable)]).await?;
+            let out = call("get_position", vec![]).await?;
+            let at = out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0);
+            motor_at.push(at);
+        }
+        let mut drive = drive;
+        drive.rebase(&start, &motor_at)?;
+
+        let planner = Planner::new(crate::job::machine_limits(cfg))?;
+        let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
+        let mut start3 = [0.0; MAX_AXES];
+        start3[..start.len()].copy_from_slice(&start);
+        motion.planner.set_position(start3)?;
+        let motion = Arc::new(Mutex::new(motion));
+
+        let (events, _) = broadcast::channel(1024);
+        let (limit_edges, _) = broadcast::channel(256);
+        let reports: SharedReports = Arc::default();
+
+        // The graph.
+        let host_name = manager
+            .som()
+            .runtimes
+            .first()
+            .map(|r| r.record.name.clone())
+            .unwrap_or_else(|| HOST_NAME.into());
+        let timer = manager
+            .define_class(
+                TimerBlock::new(INTERVAL_US, LEAD_US)
+                    .map_err(|e| MachineError::Unsupported(format!("timer: {e}")))?,
+            )
+            .await?;
+        let tick = FnRef::new(
+            host_name.as_str(),
+            timer.member("tick").unwrap_or("Timer.tick"),
+        );
+        manager
+            .set_input_mode(&tick, InputMode::OnTimer(INTERVAL_US / 4))
+            .await?;
+        manager.set_output_mode(&tick, OutputMode::OnChange).await?;
+        let n_motors = lock_motion(&motion).drive.motors().len();
+        let motion_fn = manager
+            .define(
+                motion::function("machine.motion", motion.clone(), n_motors)
+                    .map_err(MachineError::Unsupported)?,
+            )
+            .await?;
+        let o = PipeOptions::default();
+        manager.connect(&tick, &motion_fn, &[0], &[0], o).await?;
+        let motors: Vec<_> = lock_motion(&motion).drive.motors().to_vec();
+        for (i, motor) in motors.iter().enumerate() {
+            let runtime = &modules[&motor.module].runtime;
+            let out = u8::try_from(1 + i)
+                .map_err(|_| MachineError::Unsupported("more than 254 motors".into()))?;
+            manager
+                .connect(
+                    &motion_fn,
+                    &FnRef::new(runtime.as_str(), "add_point"),
+                    &[0, out],
+                    &[0, 1],
+                    o,
+                )
+                .await?;
+        }
+
+        // Reports from the modules.
+        for motor in &motors {
+            let runtime = modules[&motor.module].runtime.clone();
+            let key = motor.module.as_str();
+            let status_fn = manager
+                .define(
+                    monitor::status(key, reports.clone(), events.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &runtime,
+                "get_status",
+                STATUS_PERIOD_US,
+                false,
+                &status_fn,
+                4,
+            )
+            .await?;
+            let counters_fn = manager
+                .define(
+                    monitor::counters(key, reports.clone(), events.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &runtime,
+                "get_counters",
+                STATUS_PERIOD_US,
+                true,
+                &counters_fn,
+                4,
+            )
+            .await?;
+        }
+        for (i, motor) in motors.iter().enumerate() {
+            let runtime = modules[&motor.module].runtime.clone();
+            let f = manager
+                .define(
+                    monitor::position(&motor.name, i, reports.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &runtime,
+                "get_position",
+                FAST_PERIOD_US,
+                true,
+                &f,
+                2,
+            )
+            .await?;
+        }
+        let mut switch_modules: Vec<&str> = cfg
+            .axes
+            .values()
+            .filter_map(|a| a.homing.as_ref()?.switch.as_deref())
+            .collect();
+        switch_modules.sort();
+        switch_modules.dedup();
+        for key in switch_modules {
+            let runtime = modules[key].runtime.clone();
+            let f = manager
+                .define(
+                    monitor::limit(key, reports.clone(), limit_edges.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &runtime,
+                "read_limit",
+                FAST_PERIOD_US,
+                true,
+                &f,
+                3,
+            )
+            .await?;
+        }
+
+        let (state, _) = watch::channel(MachineState::Idle);
+        let homed = cfg
+            .axis_names()
+            .iter()
+            .map(|a| cfg.axes[*a].homing.is_none())
+            .collect();
+        let tools = cfg
+            .tools
+            .keys()
+            .map(|k| (k.clone(), tool::ToolState::default()))
+            .collect();
+        let watchdog = tokio::spawn(watch_modules(
+            motors.iter().map(|m| m.module.clone()).collect(),
+            reports.clone(),
+            events.clone(),
+            motion.clone(),
+        ));
+        let machine = Machine {
+            inner: Arc::new(Inner {
+                cfg: cfg.clone(),
+                host,
+                manager: tokio::sync::Mutex::new(manager),
+                modules,
+                motion,
+                status,
+                reports,
+                events,
+                limit_edges,
+                state,
+                homed: Mutex::new(homed),
+                homing: Default::default(),
+                tools: Mutex::new(tools),
+                sim: Mutex::new(sim),
+                _links: links,
+                watchdog,
+            }),
+        };
+        machine.spawn_fault_handler();
+        Ok(machine)
+    }
+
+    /// Halts the machine and marks it faulted on every fault, limit hit
+    /// outside homing, or lost module.
+    fn spawn_fault_handler(&self) {
+        let weak = Arc::downgrade(&self.inner);
+        let mut rx = self.inner.events.subscribe();
+        let mut edges = self.inner.limit_edges.subscribe();
+        tokio::spawn(async move {
+            loop {
+                let reason = tokio::select! {
+                    e = rx.recv() => match e {
+                        Ok(MachineEvent::Fault { module, reason }) => format!("module {module}: {reason}"),
+                        Ok(MachineEvent::LinkLost { module }) => format!("module {module} stopped answering"),
+                        Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                        Err(broadcast::error::RecvError::Closed) => return,
+                    },
+                    e = edges.recv() => match e {
+                        Ok((module, edge)) => {
+                            let Some(inner) = weak.upgrade() else { return };
+                            let homing = inner.homing.load(std::sync::atomic::Ordering::SeqCst);
+                            let _ = inner.events.send(MachineEvent::Limit {
+                                module: module.clone(),
+                                time: edge.time,
+                                pressed: edge.pressed,
+                                expected: homing,
+                            });
+                            if homing || !edge.pressed || !edge.is_edge() {
+                                continue;
+                            }
+                            format!("limit switch on module {module} pressed outside homing")
+                        }
+                        Err(broadcast::error::RecvError::Lagged(_)) => continue,
+                        Err(broadcast::error::RecvError::Closed) => return,
+                    },
+                };
+                let Some(inner) = weak.upgrade() else { return };
+                Machine { inner }.fault(reason);
+            }
+        });
+    }
+
+    /// Stops motion (a controlled stop) and marks the machine faulted.
+    fn fault(&self, reason: String) {
+        {
+            let mut m = lock_motion(&self.inner.motion);
+            let _ = m.planner.halt();
+            m.mark_busy();
+        }
+        tracing::warn!("machine faulted: {reason}");
+        let state = MachineState::Faulted(reason);
+        self.inner.state.send_replace(state.clone());
+        let _ = self.inner.events.send(MachineEvent::State(state));
+    }
+
+    /// The machine file it was started from.
+    pub fn config(&self) -> &MachineFile {
+        &self.inner.cfg
+    }
+
+    /// The axis names, in the order targets and positions use.
+    pub fn axes(&self) -> Vec<String> {
+        lock_motion(&self.inner.motion).drive.axes().to_vec()
+    }
+
+    /// The host runtime.
+    pub fn host(&self) -> &Host {
+        &self.inner.host
+    }
+
+    /// The PIPES manager of the machine's network: its functions, classes
+    /// and pipes, to reach below the machine API.
+    pub fn manager(&self) -> &tokio::sync::Mutex<Manager> {
+        &self.inner.manager
+    }
+
+    /// The modules of `[modules]`, found.
+    pub fn modules(&self) -> &BTreeMap<String, ModuleInfo> {
+        &self.inner.modules
+    }
+
+    /// The simulated machine underneath, when simulated: runs `f` on it.
+    pub fn with_sim<R>(&self, f: impl FnOnce(&SimMachine) -> R) -> Option<R> {
+        let sim = self.inner.sim.lock().unwrap_or_else(|e| e.into_inner());
+        sim.as_ref().map(f)
+    }
+
+    /// Events from now on: faults, limit edges, lost modules, refused
+    /// points, homing, state changes.
+    pub fn events(&self) -> broadcast::Receiver<MachineEvent> {
+        self.inner.events.subscribe()
+    }
+
+    /// What the machine is doing.
+    pub fn state(&self) -> MachineState {
+        let s = self.inner.state.borrow().clone();
+        match s {
+            MachineState::Idle | MachineState::Moving => {
+                if lock_motion(&self.inner.motion).planner.is_idle() {
+                    MachineState::Idle
+                } else {
+                    MachineState::Moving
+                }
+            }
+            other => other,
+        }
+    }
+
+    /// The planned machine position now (axis order): where the motors are
+    /// being sent.
+    pub fn position(&self) -> Vec<f64> {
+        let m = lock_motion(&self.inner.motion);
+        let n = m.drive.axes().len();
+        let stamp = m.planner.last_stamp();
+        match stamp.and_then(|_| m.planner.plan().segments.first().map(|_| ())) {
+            Some(()) => {
+                let t = stamp.unwrap_or(0) as f64;
+                m.planner.plan().state_at(t).pos[..n].to_vec()
+            }
+            None => m.planner.tail()[..n].to_vec(),
+        }
+    }
+
+    /// Scales the feed of every move not yet started (1: as given; 0.5:
+    /// half speed), never beyond the machine's limits.
+    pub fn set_feed_override(&self, scale: f64) -> Result<(), MachineError> {
+        Ok(lock_motion(&self.inner.motion)
+            .planner
+            .set_feed_scale(scale)?)
+    }
+
+    /// The synchronized system time, µs.
+    pub async fn now_us(&self) -> Result<u64, MachineError> {
+        Ok(self.inner.host.system_time().await?)
+    }
+
+    fn check_running(&self) -> Result<(), MachineError> {
+        match &*self.inner.state.borrow() {
+            MachineState::Faulted(r) => Err(MachineError::Faulted(r.clone())),
+            MachineState::Stopped => Err(MachineError::Stopped),
+            _ => Ok(()),
+        }
+    }
+
+    /// Checks a target: one coordinate per axis, within travel, homed.
+    fn check_target(&self, target: &[f64]) -> Result<[f64; MAX_AXES], MachineError> {
+        let axes = self.axes();
+        if target.len() != axes.len() {
+            return Err(MachineError::WrongAxisCount {
+                expected: axes.len(),
+                axes: axes.join(", "),
+                got: target.len(),
+            });
+        }
+        let homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
+        let mut out = [0.0; MAX_AXES];
+        for (k, (name, &v)) in axes.iter().zip(target).enumerate() {
+            let a = &self.inner.cfg.axes[name];
+            if !homed[k] {
+                return Err(MachineError::NotHomed(name.clone()));
+            }
+            if !(v.is_finite() && a.min <= v && v <= a.max) {
+                return Err(MachineError::OutOfTravel {
+                    axis: name.clone(),
+                    value: v,
+                    min: a.min,
+                    max: a.max,
+                });
+            }
+            out[k] = v;
+        }
+        Ok(out)
+    }
+
+    fn check_rate(rate: f64) -> Result<f64, MachineError> {
+        if rate.is_finite() && rate > 0.0 {
+            Ok(rate)
+        } else {
+            Err(MachineError::BadRate(rate))
+        }
+    }
+
+    /// Waits until the planner has room for `n` more segments.
+    async fn wait_for_room(&self, n: usize) -> Result<(), MachineError> {
+        let mut status = self.inner.status.clone();
+        loop {
+            self.check_running()?;
+            {
+                let m = lock_motion(&self.inner.motion);
+                if m.planner.stats().pending + n < maxl::blocks::planner::DEFAULT_CAPACITY {
+                    return Ok(());
+                }
+            }
+            status.changed().await.map_err(|_| MachineError::Stopped)?;
+        }
+    }
+
+    /// Queues a straight move to `target` (one coordinate per axis) at up to
+    /// `rate` units/s, planned with lookahead after the moves queued before
+    /// it. Returns once queued (waiting for room in the queue if needed).
+    pub async fn goto_via_queue(
+        &self,
+        target: impl AsRef<[f64]>,
+        rate: f64,
+    ) -> Result<(), MachineError> {
+        let to = self.check_target(target.as_ref())?;
+        let rate = Self::check_rate(rate)?;
+        self.wait_for_room(1).await?;
+        self.check_running()?;
+        let mut m = lock_motion(&self.inner.motion);
+        m.planner.line(to, rate)?;
+        m.mark_busy();
+        Ok(())
+    }
+
+    /// [`Machine::goto_via_queue`]: a queued straight line.
+    pub async fn line(&self, target: impl AsRef<[f64]>, rate: f64) -> Result<(), MachineError> {
+        self.goto_via_queue(target, rate).await
+    }
+
+    /// Queues an arc in the xy plane around `center` (x, y) to `target`
+    /// (other axes move linearly), chorded within 2 µm.
+    pub async fn arc(
+        &self,
+        target: impl AsRef<[f64]>,
+        center: [f64; 2],
+        clockwise: bool,
+        rate: f64,
+    ) -> Result<(), MachineError> {
+        let to = self.check_target(target.as_ref())?;
+        let rate = Self::check_rate(rate)?;
+        if self.axes().len() < 2 {
+            return Err(MachineError::Unsupported(
+                "arcs need two axes (x and y)".into(),
+            ));
+        }
+        let arc = PlanArc {
+            end: to,
+            plane: (0, 1),
+            center,
+            clockwise,
+            chord_tolerance: 0.002,
+        };
+        // The arc's bulge must stay within travel too.
+        let tail = lock_motion(&self.inner.motion).planner.tail();
+        let chords = arc.chords(tail)?;
+        for p in &chords {
+            self.check_target(&p[..self.axes().len()])?;
+        }
+        self.wait_for_room(chords.len()).await?;
+        self.check_running()?;
+        let mut m = lock_motion(&self.inner.motion);
+        m.planner.arc(&arc, rate)?;
+        m.mark_busy();
+        Ok(())
+    }
+
+    /// Waits until every queued move has run and the motors stand, then
+    /// `seconds` longer.
+    pub async fn dwell(&self, seconds: f64) -> Result<(), MachineError> {
+        self.idle().await?;
+        if seconds.is_finite() && seconds > 0.0 {
+            tokio::time::sleep(Duration::from_secs_f64(seconds)).await;
+        }
+        Ok(())
+    }
+
+    /// Moves to `target` now and waits until the machine stands there:
+    /// moves still queued are stopped first (a controlled stop).
+    pub async fn goto_now(&self, target: impl AsRef<[f64]>, rate: f64) -> Result<(), MachineError> {
+        let to = self.check_target(target.as_ref())?;
+        let rate = Self::check_rate(rate)?;
+        self.check_running()?;
+        {
+            let mut m = lock_motion(&self.inner.motion);
+            m.planner.halt()?;
+            m.planner.line(to, rate)?;
+            m.mark_busy();
+        }
+        self.idle().await
+    }
+
+    /// Waits until every queued move has run and the motors stand at the
+    /// end. Woken by the motion source's reports, not by polling; fails if
+    /// the machine faults meanwhile.
+    pub async fn idle(&self) -> Result<(), MachineError> {
+        let mut status = self.inner.status.clone();
+        let mut state = self.inner.state.subscribe();
+        let rest = loop {
+            self.check_running()?;
+            let s = *status.borrow_and_update();
+            let idle = lock_motion(&self.inner.motion).planner.is_idle();
+            if idle && !s.busy && s.rest_stamp != 0 {
+                break s.rest_stamp;
+            }
+            tokio::select! {
+                r = status.changed() => r.map_err(|_| MachineError::Stopped)?,
+                r = state.changed() => r.map_err(|_| MachineError::Stopped)?,
+            }
+        };
+        // The modules run the last points two intervals after their stamp.
+        let done = rest + 2 * u64::from(INTERVAL_US);
+        let now = self.now_us().await?;
+        if done > now {
+            tokio::time::sleep(Duration::from_micros(done - now)).await;
+        }
+        self.check_running()
+    }
+
+    /// A controlled stop: every axis decelerates within its limits along
+    /// the path and queued moves are dropped. Returns once stopped.
+    pub async fn halt(&self) -> Result<(), MachineError> {
+        {
+            let mut m = lock_motion(&self.inner.motion);
+            m.planner.halt()?;
+            m.mark_busy();
+        }
+        let mut status = self.inner.status.clone();
+        loop {
+            let s = *status.borrow_and_update();
+            if lock_motion(&self.inner.motion).planner.is_idle() && !s.busy {
+                break;
+            }
+            status.changed().await.map_err(|_| MachineError::Stopped)?;
+        }
+        let done = status.borrow().rest_stamp + 2 * u64::from(INTERVAL_US);
+        let now = self.now_us().await?;
+        if done > now {
+            tokio::time::sleep(Duration::from_micros(done - now)).await;
+        }
+        Ok(())
+    }
+
+    /// Moves one axis by `delta` and waits until it stands. A homed axis
+    /// stays within its travel; an axis not yet homed moves relative to
+    /// wherever it is (the machine cannot know its travel then: watch it).
+    pub async fn jog(&self, axis: &str, delta: f64, rate: f64) -> Result<(), MachineError> {
+        let k = self
+            .axes()
+            .iter()
+            .position(|a| a == axis)
+            .ok_or_else(|| MachineError::UnknownAxis(axis.into()))?;
+        let rate = Self::check_rate(rate)?;
+        if !delta.is_finite() {
+            return Err(MachineError::OutOfTravel {
+                axis: axis.into(),
+                value: delta,
+                min: f64::NEG_INFINITY,
+                max: f64::INFINITY,
+            });
+        }
+        self.check_running()?;
+        self.idle().await?;
+        let homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner())[k];
+        {
+            let mut m = lock_motion(&self.inner.motion);
+            let mut to = m.planner.tail();
+            to[k] += delta;
+            if homed {
+                let a = &self.inner.cfg.axes[axis];
+                if !(a.min..=a.max).contains(&to[k]) {
+                    return Err(MachineError::OutOfTravel {
+                        axis: axis.into(),
+                        value: to[k],
+                        min: a.min,
+                        max: a.max,
+                    });
+                }
+            }
+            m.planner.line(to, rate)?;
+            m.mark_busy();
+        }
+        self.idle().await
+    }
+
+    /// Which axes are homed (axis order).
+    pub fn homed(&self) -> Vec<bool> {
+        self.inner
+            .homed
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clone()
+    }
+
+    /// Stops every motor at once (each module's `halt`: no deceleration, an
+    /// emergency stop) and marks the machine faulted; [`Machine::recover`]
+    /// powers the motors up again.
+    pub async fn emergency_stop(&self) -> Result<(), MachineError> {
+        self.fault("emergency stop".into());
+        let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
+        for m in motors {
+            self.call(&m.module, "halt", &[]).await?;
+        }
+        Ok(())
+    }
+
+    /// Declares where the machine is (axis order), without moving, and
+    /// counts every axis as homed. Only at rest.
+    pub fn set_position(&self, at: impl AsRef<[f64]>) -> Result<(), MachineError> {
+        let at = at.as_ref();
+        let axes = self.axes();
+        if at.len() != axes.len() {
+            return Err(MachineError::WrongAxisCount {
+                expected: axes.len(),
+                axes: axes.join(", "),
+                got: at.len(),
+            });
+        }
+        self.rebase(at)?;
+        self.inner
+            .homed
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter_mut()
+            .for_each(|h| *h = true);
+        Ok(())
+    }
+
+    /// Re-defines the machine position as `at` where the motors stand.
+    fn rebase(&self, at: &[f64]) -> Result<(), MachineError> {
+        let mut m = lock_motion(&self.inner.motion);
+        if !m.planner.is_idle() {
+            return Err(MachineError::Plan(maxl::blocks::planner::PlanError::Busy));
+        }
+        let mut p = [0.0; MAX_AXES];
+        p[..at.len()].copy_from_slice(at);
+        let motors = m.last_motors.clone();
+        m.drive.rebase(at, &motors)?;
+        m.planner.set_position(p)?;
+        Ok(())
+    }
+
+    /// Clears a fault: powers every motor off and on (which a module needs
+    /// after its backstop), takes the machine to be where the motors stand,
+    /// and resumes. Homing is kept: the motors counted every step.
+    pub async fn recover(&self) -> Result<(), MachineError> {
+        lock_motion(&self.inner.motion).paused = true;
+        let result = self.recover_paused().await;
+        lock_motion(&self.inner.motion).paused = false;
+        result?;
+        self.inner.state.send_replace(MachineState::Idle);
+        let _ = self
+            .inner
+            .events
+            .send(MachineEvent::State(MachineState::Idle));
+        Ok(())
+    }
+
+    async fn recover_paused(&self) -> Result<(), MachineError> {
+        // Let the points in flight land (the timer's lead) before cycling.
+        tokio::time::sleep(Duration::from_micros(u64::from(LEAD_US + 4 * INTERVAL_US))).await;
+        let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
+        let mut at = Vec::new();
+        for motor in &motors {
+            self.call(&motor.module, "set_enable", &[OwnedValue::Bool(false)])
+                .await?;
+            self.call(
+                &motor.module,
+                "set_enable",
+                &[OwnedValue::Bool(motor.enable)],
+            )
+            .await?;
+            let out = self.call(&motor.module, "get_position", &[]).await?;
+            at.push(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0));
+        }
+        let mut m = lock_motion(&self.inner.motion);
+        let p = m.drive.machine_position(&at)?;
+        let _ = m.planner.halt();
+        let mut p3 = [0.0; MAX_AXES];
+        p3[..p.len()].copy_from_slice(&p);
+        m.planner.set_position(p3)?;
+        m.last_motors = at;
+        m.error = None;
+        Ok(())
+    }
+
+    /// Calls function `function` on module `key` (of `[modules]`).
+    pub async fn call(
+        &self,
+        key: &str,
+        function: &str,
+        args: &[OwnedValue],
+    ) -> Result<Vec<OwnedValue>, MachineError> {
+        let runtime = &self
+            .inner
+            .modules
+            .get(key)
+            .ok_or_else(|| MachineError::ModuleNotFound {
+                key: key.into(),
+                wanted: key.into(),
+                found: self
+                    .inner
+                    .modules
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?
+            .runtime;
+        let h = self
+            .inner
+            .manager
+            .lock()
+            .await
+            .function(&FnRef::new(runtime.as_str(), function))?;
+        h.call(args)
+            .await
+            .map_err(|e| som_refusal(key, function, e))
+    }
+
+    /// Starts keeping what was planned and what the motors stepped, for
+    /// [`Machine::take_recording`].
+    pub fn start_recording(&self) {
+        lock_motion(&self.inner.motion).record = Some(Vec::new());
+        let n = lock_motion(&self.inner.motion).drive.motors().len();
+        monitor::lock(&self.inner.reports).positions = Some(vec![Vec::new(); n]);
+    }
+
+    /// What was planned and stepped since [`Machine::start_recording`],
+    /// from synchronized time `from_us` on, as machine positions: planned
+    /// at every stamp, executed read back from the motors' stepped
+    /// positions on a 1 kHz grid. Stops recording.
+    pub fn take_recording(&self, from_us: u64) -> crate::record::Recording {
+        let (planned, drive_axes) = {
+            let mut m = lock_motion(&self.inner.motion);
+            (m.record.take().unwrap_or_default(), m.drive.axes().to_vec())
+        };
+        let positions = monitor::lock(&self.inner.reports)
+            .positions
+            .take()
+            .unwrap_or_default();
+        let n = drive_axes.len();
+        let secs = |t: u64| (t as f64 - from_us as f64) * 1e-6;
+        let planned: Vec<crate::record::Sample> = planned
+            .iter()
+            .filter(|s| s.0 >= from_us)
+            .map(|s| crate::record::Sample {
+                t: secs(s.0),
+                pos: s.1[..n].to_vec(),
+            })
+            .collect();
+        let mut executed = Vec::new();
+        let end = positions
+            .iter()
+            .filter_map(|p| p.last().map(|l| l.0))
+            .min()
+            .unwrap_or(0);
+        if end > from_us && positions.iter().all(|p| !p.is_empty()) {
+            let dt = 1e-3;
+            let count = ((secs(end) / dt).floor() as usize).saturating_add(1);
+            let series: Vec<Vec<f64>> = positions
+                .iter()
+                .map(|p| {
+                    let pts: Vec<(f64, f64)> = p.iter().map(|s| (secs(s.0), s.1)).collect();
+                    crate::record::resample_hold(&pts, 0.0, dt, count)
+                })
+                .collect();
+            let m = lock_motion(&self.inner.motion);
+            for i in 0..count {
+                let motors: Vec<f64> = series.iter().map(|s| s[i]).collect();
+                if let Ok(pos) = m.drive.machine_position(&motors) {
+                    executed.push(crate::record::Sample {
+                        t: i as f64 * dt,
+                        pos,
+                    });
+                }
+            }
+        }
+        crate::record::Recording {
+            axes: drive_axes,
+            planned,
+            executed,
+        }
+    }
+
+    /// Stops the machine: a controlled stop, then the motors are left
+    /// powered where they stand; a simulated machine is shut down.
+    pub async fn stop(self) -> Result<(), MachineError> {
+        let _ = self.halt().await;
+        self.inner.state.send_replace(MachineState::Stopped);
+        let sim = self
+            .inner
+            .sim
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .take();
+        if let Some(sim) = sim {
+            sim.stop().await?;
+        }
+        Ok(())
+    }
+}
+
+fn lock_motion(m: &SharedMotion) -> std::sync::MutexGuard<'_, motion::Motion> {
+    motion::lock(m)
+}
+
+/// Pipes module function `function` (a source, on the module's timer every
+/// `period_us`) into host function `to`, outputs `0..n` to inputs `0..n`.
+async fn source(
+    manager: &mut Manager,
+    runtime: &str,
+    function: &str,
+    period_us: u32,
+    on_change: bool,
+    to: &FnRef,
+    n: u8,
+) -> Result<(), MachineError> {
+    let from = FnRef::new(runtime, function);
+    // Pipe first, then the modes: a run before the pipe exists would count
+    // as sent, and "on change" would hold back the first report.
+    let map: Vec<u8> = (0..n).collect();
+    manager
+        .connect(&from, to, &map, &map, PipeOptions::default())
+        .await?;
+    let mode = if on_change {
+        OutputMode::OnChange
+    } else {
+        OutputMode::Always
+    };
+    manager.set_output_mode(&from, mode).await?;
+    manager
+        .set_input_mode(&from, InputMode::OnTimer(period_us))
+        .await?;
+    Ok(())
+}
+
+/// Reports a module whose status reports stop arriving.
+async fn watch_modules(
+    modules: Vec<String>,
+    reports: SharedReports,
+    events: broadcast::Sender<MachineEvent>,
+    _motion: SharedMotion,
+) {
+    let mut lost: Vec<String> = Vec::new();
+    let started = tokio::time::Instant::now();
+    loop {
+        tokio::time::sleep(LINK_LOST_AFTER / 4).await;
+        let now = tokio::time::Instant::now();
+        let r = monitor::lock(&reports);
+        for key in &modules {
+            let last = r.seen.get(key).map_or(started, |s| s.2);
+            let silent = now.duration_since(last) > LINK_LOST_AFTER;
+            if silent && !lost.contains(key) {
+                lost.push(key.clone());
+                let _ = events.send(MachineEvent::LinkLost {
+                    module: key.clone(),
+                });
+            } else if !silent {
+                lost.retain(|k| k != key);
+            }
+        }
+    }
+}
+
+/// Room kept beyond a motor's span over the travel: stopping past a
+/// switch, backing off.
+const RANGE_MARGIN: f64 = 1.05;
+
+/// A module's track holds ±32 767 microsteps: refuse a machine whose
+/// travel would not fit.
+fn check_track_range(cfg: &MachineFile, drive: &Drive) -> Result<(), MachineError> {
+    // The motor's span over the whole travel box (a grid over it, for
+    // arms). A motor reads 0 where it booted, somewhere in that box, so
+    // it stays within ±span (plus a little for stopping past a switch).
+    let axes = drive.axes();
+    let n = axes.len();
+    let steps = 8usize;
+    let mut lo = vec![f64::INFINITY; drive.motors().len()];
+    let mut hi = vec![f64::NEG_INFINITY; drive.motors().len()];
+    let total = (steps + 1).pow(n as u32);
+    for idx in 0..total {
+        let mut k = idx;
+        let mut p = vec![0.0; n];
+        for (j, name) in axes.iter().enumerate() {
+            let a = &cfg.axes[name];
+            let f = (k % (steps + 1)) as f64 / steps as f64;
+            k /= steps + 1;
+            p[j] = a.min + f * (a.max - a.min);
+        }
+        if let Ok(m) = drive.motor_positions(&p) {
+            for (i, v) in m.iter().enumerate() {
+                lo[i] = lo[i].min(*v);
+                hi[i] = hi[i].max(*v);
+            }
+        }
+    }
+    for (i, motor) in drive.motors().iter().enumerate() {
+        let span = (hi[i] - lo[i]).max(0.0);
+        let per_unit = motor.full_steps_per_unit * f64::from(motor.microsteps);
+        let need = RANGE_MARGIN * span * per_unit;
+        let room = osap_module::stepper::MAX_STEPS;
+        if need > room {
+            let fit = (room / (RANGE_MARGIN * span * motor.full_steps_per_unit)).floor();
+            let fit = (0..9)
+                .map(|e| 1u32 << e)
+                .filter(|m| f64::from(*m) <= fit)
+                .max();
+            return Err(MachineError::Unsupported(format!(
+                "motors.{}: the travel spans {span:.1} units of this motor: {:.0} microsteps at {} full steps × {} microsteps per unit, and a module's track holds ±{room:.0} microsteps from where it booted. {}",
+                motor.name,
+                span * per_unit,
+                motor.full_steps_per_unit,
+                motor.microsteps,
+                match fit {
+                    Some(m) => format!("Set microsteps = {m} (or fewer)."),
+                    None => "Use a coarser drive (fewer full steps per unit).".into(),
+                }
+            )));
+        }
+    }
+    Ok(())
+}
+
+/// Finds every module of `[modules]` in the manager's model.
+fn find_modules(
+    cfg: &MachineFile,
+    manager: &Manager,
+) -> Result<BTreeMap<String, ModuleInfo>, MachineError> {
+    let som = manager.som();
+    let names: Vec<String> = som.runtimes.iter().map(|r| r.record.name.clone()).collect();
+    let found = names.iter().skip(1).cloned().collect::<Vec<_>>().join(", ");
+    let mut out = BTreeMap::new();
+    for (key, m) in &cfg.modules {
+        let (index, wanted) = if let Some(name) = &m.name {
+            let hits: Vec<usize> = (0..names.len()).filter(|i| &names[*i] == name).collect();
+            if hits.len() > 1 {
+                return Err(MachineError::Unsupported(format!(
+                    "modules.{key}: {} modules are named {name:?}; rename them apart with `osap rename`",
+                    hits.len()
+                )));
+            }
+            (hits.first().copied(), format!("named {name:?}"))
+        } else {
+            let route: Vec<u8> = m
+                .route
+                .iter()
+                .flatten()
+                .map(|&h| u8::try_from(h).unwrap_or(u8::MAX))
+                .collect();
+            (som.walk(0, &route), format!("at route {route:?}"))
+        };
+        let Some(index) = index else {
+            return Err(MachineError::ModuleNotFound {
+                key: key.clone(),
+                wanted,
+                found,
+            });
+        };
+        let name = names[index].clone();
+        if names.iter().filter(|n| **n == name).count() > 1 {
+            return Err(MachineError::Unsupported(format!(
+                "modules.{key}: the module {wanted} is named {name:?} like another runtime; give it a name of its own with `osap rename`"
+            )));
+        }
+        let route = som.path(0, index).and_then(|p| p.route()).ok_or_else(|| {
+            MachineError::ModuleNotFound {
+                key: key.clone(),
+                wanted: wanted.clone(),
+                found: found.clone(),
+            }
+        })?;
+        out.insert(
+            key.clone(),
+            ModuleInfo {
+                runtime: name,
+                route,
+            },
+        );
+    }
+    Ok(out)
+}

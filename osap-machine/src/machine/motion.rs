@@ -1,0 +1,188 @@
+//! The machine's motion source: the planner and the drive behind one lock,
+//! sampled at the timer's stamps by a host PIPES function whose outputs
+//! are piped to every motor's `add_point`.
+//!
+//! One lock holds both so that re-defining where the machine is (homing)
+//! changes the planner's coordinates and the drive's offsets between two
+//! samples, never across one: no motor ever sees a jump.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use maxl::blocks::planner::Planner;
+use osap_host::som::{HostFunction, OwnedValue};
+use pipes_core::types::{ScalarType, Type};
+use tokio::sync::watch;
+
+use super::drive::{Drive, MAX_AXES};
+
+/// Failure code of the motion function while the machine is paused (no
+/// points are sent, so the motors stand).
+pub const PAUSED: u8 = 1;
+/// Failure code of the motion function on a stamp the planner refuses.
+pub const BAD_STAMP: u8 = 2;
+
+/// How many recent samples are kept to find where the machine was at an
+/// event's time (limit edges): 16 s at 2 ms.
+const RECENT: usize = 8192;
+
+/// What the motion source reports after each sample.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct MotionStatus {
+    /// The newest stamp sampled (synchronized µs).
+    pub stamp: u64,
+    /// Moves are running or queued.
+    pub busy: bool,
+    /// The first stamp sampled at rest after the last move (0: never).
+    pub rest_stamp: u64,
+    /// Segments finished since start.
+    pub executed: u64,
+}
+
+/// The planner, the drive and what they produced.
+pub struct Motion {
+    /// The lookahead planner, in machine coordinates (3 slots).
+    pub planner: Planner<MAX_AXES>,
+    /// Machine coordinates to motor positions.
+    pub drive: Drive,
+    /// No points are sent while set (recovering motors).
+    pub paused: bool,
+    /// Planned samples kept for a recording: (stamp, machine position).
+    pub record: Option<Vec<(u64, [f64; MAX_AXES])>>,
+    recent: VecDeque<(u64, [f64; MAX_AXES])>,
+    /// The motor positions sent last.
+    pub last_motors: Vec<f64>,
+    /// Why sampling failed last (kinematics), if it did.
+    pub error: Option<String>,
+    status: MotionStatus,
+    notify: watch::Sender<MotionStatus>,
+}
+
+/// A shared [`Motion`].
+pub type SharedMotion = Arc<Mutex<Motion>>;
+
+/// Locks the motion state (a poisoned lock is still the state).
+pub fn lock(m: &SharedMotion) -> MutexGuard<'_, Motion> {
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Motion {
+    /// A motion source for `planner` and `drive`, with the motors at
+    /// `motors`; the receiver follows its status.
+    pub fn new(
+        planner: Planner<MAX_AXES>,
+        drive: Drive,
+        motors: Vec<f64>,
+    ) -> (Motion, watch::Receiver<MotionStatus>) {
+        let (notify, rx) = watch::channel(MotionStatus::default());
+        (
+            Motion {
+                planner,
+                drive,
+                paused: false,
+                record: None,
+                recent: VecDeque::with_capacity(RECENT),
+                last_motors: motors,
+                error: None,
+                status: MotionStatus::default(),
+                notify,
+            },
+            rx,
+        )
+    }
+
+    /// The machine position (axis order) at the tail of the queue: where
+    /// the next queued move starts.
+    pub fn tail(&self) -> Vec<f64> {
+        let n = self.drive.axes().len();
+        self.planner.tail()[..n].to_vec()
+    }
+
+    /// Tells waiters that moves were queued (so `idle` waits for them).
+    pub fn mark_busy(&mut self) {
+        if !self.status.busy {
+            self.status.busy = true;
+            self.notify.send_replace(self.status);
+        }
+    }
+
+    /// The planned position at synchronized stamp `t` from the recent
+    /// samples, interpolated linearly (the modules' B-spline reproduces
+    /// straight constant-speed motion exactly); `None` outside them.
+    pub fn position_at(&self, t: u64) -> Option<Vec<f64>> {
+        let n = self.drive.axes().len();
+        let i = self.recent.partition_point(|s| s.0 <= t);
+        let (a, b) = (self.recent.get(i.checked_sub(1)?)?, self.recent.get(i)?);
+        let f = (t - a.0) as f64 / (b.0 - a.0).max(1) as f64;
+        Some((0..n).map(|k| a.1[k] + f * (b.1[k] - a.1[k])).collect())
+    }
+
+    /// The planner's position at `stamp` and the motor positions for it.
+    pub fn sample(&mut self, stamp: u64) -> Result<Vec<f64>, u8> {
+        if self.paused {
+            return Err(PAUSED);
+        }
+        let kin = self.planner.sample_kin(stamp).map_err(|_| BAD_STAMP)?;
+        let pos = kin.pos;
+        let n = self.drive.axes().len();
+        let motors = match self.drive.motor_positions(&pos[..n]) {
+            Ok(m) => m,
+            Err(e) => {
+                // Hold where the motors are: the planner's path left the
+                // mechanism's reach. The machine faults on it.
+                self.error = Some(format!("the path left the kinematics' reach: {e}"));
+                self.last_motors.clone()
+            }
+        };
+        self.last_motors.clone_from(&motors);
+        if self.recent.len() == RECENT {
+            self.recent.pop_front();
+        }
+        self.recent.push_back((stamp, pos));
+        if let Some(rec) = &mut self.record {
+            rec.push((stamp, pos));
+        }
+        let stats = self.planner.stats();
+        let busy = !stats.idle;
+        let was = self.status;
+        self.status.stamp = stamp;
+        self.status.executed = stats.executed;
+        if !busy && (was.busy || was.rest_stamp == 0) {
+            self.status.rest_stamp = stamp;
+        }
+        self.status.busy = busy;
+        if was.busy != busy || was.executed != stats.executed || was.rest_stamp == 0 {
+            self.notify.send_replace(self.status);
+        }
+        Ok(motors)
+    }
+}
+
+/// The host function `name(stamp) -> (stamp, m0, m1, ..)` that samples
+/// `motion`: its outputs are piped to each motor's `add_point`
+/// (`[0, 1 + i] → [0, 1]`).
+pub fn function(name: &str, motion: SharedMotion, motors: usize) -> Result<HostFunction, String> {
+    let out_names: Vec<String> = (0..motors).map(|i| format!("m{i}")).collect();
+    let mut outputs: Vec<(&str, Type)> = vec![("stamp", Type::Scalar(ScalarType::U64))];
+    outputs.extend(
+        out_names
+            .iter()
+            .map(|n| (n.as_str(), Type::Scalar(ScalarType::F32))),
+    );
+    HostFunction::new(
+        name,
+        &[("stamp", Type::Scalar(ScalarType::U64))],
+        &outputs,
+        move |ins: &[OwnedValue]| {
+            let Some(OwnedValue::U64(stamp)) = ins.first() else {
+                return Err(BAD_STAMP);
+            };
+            let m = lock(&motion).sample(*stamp)?;
+            let mut out = Vec::with_capacity(1 + m.len());
+            out.push(OwnedValue::U64(*stamp));
+            out.extend(m.iter().map(|&v| OwnedValue::F32(v as f32)));
+            Ok(out)
+        },
+    )
+    .map_err(|e| e.to_string())
+}

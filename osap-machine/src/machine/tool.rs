@@ -1,0 +1,157 @@
+//! Tools: a spindle, pen or laser on a module's PWM or digital output.
+
+use std::time::Duration;
+
+use osap_host::som::OwnedValue;
+
+use super::{Machine, MachineError};
+use crate::config::Output;
+
+/// What the machine remembers of a tool.
+#[derive(Debug, Default, Clone)]
+pub(crate) struct ToolState {
+    /// The level set last (0 off, 1 full).
+    level: f64,
+    /// When the tool will have settled after the last change.
+    ready_at: Option<tokio::time::Instant>,
+}
+
+/// A tool of the machine (see [`Machine::tool`]).
+#[derive(Clone)]
+pub struct Tool {
+    machine: Machine,
+    name: String,
+}
+
+impl Machine {
+    /// The tool `name` of `[tools]`.
+    pub fn tool(&self, name: &str) -> Result<Tool, MachineError> {
+        if !self.config().tools.contains_key(name) {
+            return Err(MachineError::UnknownTool(name.into()));
+        }
+        Ok(Tool {
+            machine: self.clone(),
+            name: name.into(),
+        })
+    }
+
+    /// The first tool of a kind (pen, spindle, laser), if any.
+    pub fn tool_of_kind(&self, kind: crate::config::ToolKind) -> Option<Tool> {
+        let name = self
+            .config()
+            .tools
+            .iter()
+            .find(|(_, t)| t.kind == kind)?
+            .0
+            .clone();
+        self.tool(&name).ok()
+    }
+}
+
+impl Tool {
+    /// The tool's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Sets the tool's level now: 0 off, 1 on (full speed or power), and
+    /// between for PWM tools; a digital output is on for any level > 0.
+    /// The tool is ready [`Tool::await_ready`] after its settle time.
+    pub async fn set(&self, level: f64) -> Result<(), MachineError> {
+        if !(level.is_finite() && (0.0..=1.0).contains(&level)) {
+            return Err(MachineError::Tool {
+                tool: self.name.clone(),
+                reason: format!("level {level} must be within 0..=1"),
+            });
+        }
+        let t = &self.machine.config().tools[&self.name];
+        match t.output {
+            Output::Pwm(channel) => {
+                let duty = t.off_duty + level * (t.on_duty - t.off_duty);
+                self.machine
+                    .call(
+                        &t.module,
+                        "pwm_write",
+                        &[OwnedValue::U8(channel), OwnedValue::F32(duty as f32)],
+                    )
+                    .await?;
+            }
+            Output::Digital(pin) => {
+                self.machine
+                    .call(
+                        &t.module,
+                        "digital_write",
+                        &[OwnedValue::U8(pin), OwnedValue::Bool(level > 0.0)],
+                    )
+                    .await?;
+            }
+        }
+        let settle = Duration::from_millis(u64::from(t.settle_ms));
+        let mut tools = self
+            .machine
+            .inner
+            .tools
+            .lock()
+            .unwrap_or_else(|e| e.into_inner());
+        let s = tools.entry(self.name.clone()).or_default();
+        s.level = level;
+        s.ready_at = Some(tokio::time::Instant::now() + settle);
+        Ok(())
+    }
+
+    /// Full on (pen down, full power, full speed).
+    pub async fn on(&self) -> Result<(), MachineError> {
+        self.set(1.0).await
+    }
+
+    /// Off (pen up).
+    pub async fn off(&self) -> Result<(), MachineError> {
+        self.set(0.0).await
+    }
+
+    /// A spindle at `rpm` (scaled by its `max_rpm`).
+    pub async fn set_rpm(&self, rpm: f64) -> Result<(), MachineError> {
+        let t = &self.machine.config().tools[&self.name];
+        let Some(max) = t.max_rpm else {
+            return Err(MachineError::Tool {
+                tool: self.name.clone(),
+                reason: "no max_rpm in its [tools] entry: give one to set speeds in rpm".into(),
+            });
+        };
+        if !(rpm.is_finite() && (0.0..=max).contains(&rpm)) {
+            return Err(MachineError::Tool {
+                tool: self.name.clone(),
+                reason: format!("{rpm} rpm is outside 0..={max}"),
+            });
+        }
+        self.set(rpm / max).await
+    }
+
+    /// The level set last.
+    pub fn level(&self) -> f64 {
+        self.machine
+            .inner
+            .tools
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&self.name)
+            .map_or(0.0, |s| s.level)
+    }
+
+    /// Waits until the tool has settled after its last change (a spindle
+    /// at speed, a pen down), by its `settle_ms`.
+    pub async fn await_ready(&self) -> Result<(), MachineError> {
+        let at = self
+            .machine
+            .inner
+            .tools
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .get(&self.name)
+            .and_then(|s| s.ready_at);
+        if let Some(at) = at {
+            tokio::time::sleep_until(at).await;
+        }
+        Ok(())
+    }
+}
