@@ -285,10 +285,10 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         .run_program(&program, |p| {
             if first {
                 first = false;
-                bar.println(format!(
-                    "first motion queued {:.2} s after start",
+                eprintln!(
+                    "first job move queued {:.2} s after start",
                     started.elapsed().as_secs_f64()
-                ));
+                );
             }
             bar.set_position(p.done as u64);
             bar.set_message(format!("line/path {}", p.line));

@@ -294,19 +294,29 @@ impl Program {
         planner.set_position(pad(start))?;
         let mut total = 0.0;
         let rapid = cfg.limits.velocity;
-        let settle = |kind: Option<ToolKind>| -> f64 {
-            cfg.tools
-                .values()
-                .filter(|t| kind.is_none_or(|k| t.kind == k))
-                .map(|t| f64::from(t.settle_ms) * 1e-3)
-                .fold(0.0, f64::max)
-        };
-        let drain = |planner: &mut Planner<MAX_AXES>| -> Result<f64, MachineError> {
-            let d = planner.plan().duration_us() * 1e-6;
-            let t = planner.last_stamp().unwrap_or(0) + (d * 1e6).ceil() as u64 + 1;
-            planner.sample(t)?;
-            Ok(d)
-        };
+        let tool = job_tool(cfg);
+        let mut level = 0.0;
+        // A clock for the planner (µs): segments start when first sampled,
+        // so sample at `now` to start what is queued, then at its end.
+        let mut now: u64 = 1;
+        let mut run_to =
+            |planner: &mut Planner<MAX_AXES>, last: bool| -> Result<f64, MachineError> {
+                if planner.is_idle() {
+                    return Ok(0.0);
+                }
+                planner.sample(now)?;
+                let plan = planner.plan();
+                let seg = if last {
+                    plan.segments.last()
+                } else {
+                    plan.segments.first()
+                };
+                let end = seg.map_or(now, |s| s.end_us().ceil() as u64 + 1).max(now);
+                let took = (end - now) as f64 * 1e-6;
+                now = end;
+                planner.sample(now)?;
+                Ok(took)
+            };
         for (_, m) in &self.moves {
             match m {
                 Move::Rapid(p) => {
@@ -331,23 +341,49 @@ impl Program {
                     planner.arc(&arc, *feed)?;
                 }
                 Move::Dwell(s) => {
-                    total += drain(&mut planner)? + s.max(0.0);
+                    total += run_to(&mut planner, true)? + s.max(0.0);
                 }
-                Move::Tool(_) => {
-                    total += drain(&mut planner)? + settle(None);
+                Move::Tool(l) => {
+                    let Some((_, t)) = tool else { continue };
+                    let want = tool_level(t, *l);
+                    if (want - level).abs() > 1e-9 {
+                        level = want;
+                        total += run_to(&mut planner, true)? + f64::from(t.settle_ms) * 1e-3;
+                    }
                 }
             }
             if planner.stats().pending >= maxl::blocks::planner::DEFAULT_CAPACITY - 2 {
-                // Keep the queue within capacity: run the front of it.
-                let first = planner.plan().segments.first().map(|s| s.duration_us);
-                let t = planner.last_stamp().unwrap_or(0) + first.unwrap_or(0.0).ceil() as u64 + 1;
-                let before = planner.plan().duration_us();
-                planner.sample(t)?;
-                total += (before - planner.plan().duration_us()) * 1e-6;
+                // Keep the queue within capacity: run its first segment.
+                total += run_to(&mut planner, false)?;
             }
         }
-        total += drain(&mut planner)?;
+        total += run_to(&mut planner, true)?;
         Ok(total)
+    }
+}
+
+/// The tool a job switches: the machine's first pen or laser, else its
+/// first spindle.
+fn job_tool(cfg: &MachineFile) -> Option<(&str, &crate::config::Tool)> {
+    let of = |kinds: &[ToolKind]| {
+        cfg.tools
+            .iter()
+            .find(|(_, t)| kinds.contains(&t.kind))
+            .map(|(n, t)| (n.as_str(), t))
+    };
+    of(&[ToolKind::Pen, ToolKind::Laser]).or_else(|| of(&[ToolKind::Spindle]))
+}
+
+/// The level (0..=1) a job's tool command asks of `tool`: a speed is
+/// scaled by `max_rpm` when the tool has one.
+fn tool_level(tool: &crate::config::Tool, level: Option<ToolLevel>) -> f64 {
+    match level {
+        None => 0.0,
+        Some(ToolLevel::Full) => 1.0,
+        Some(ToolLevel::Speed(s)) => match tool.max_rpm {
+            Some(max) if max > 0.0 => (s / max).clamp(0.0, 1.0),
+            _ => 1.0,
+        },
     }
 }
 
@@ -378,12 +414,7 @@ impl Machine {
         mut progress: impl FnMut(Progress),
     ) -> Result<(), MachineError> {
         let rapid = self.config().limits.velocity;
-        let tool = self
-            .config()
-            .tools
-            .iter()
-            .find(|(_, t)| matches!(t.kind, ToolKind::Pen | ToolKind::Laser | ToolKind::Spindle))
-            .map(|(name, _)| name.clone());
+        let tool = job_tool(self.config()).map(|(name, _)| name.to_string());
         let total = program.moves.len();
         for (i, (line, m)) in program.moves.iter().enumerate() {
             match m {
@@ -399,14 +430,7 @@ impl Machine {
                 Move::Tool(level) => {
                     let Some(name) = &tool else { continue };
                     let t = self.tool(name)?;
-                    let want = match level {
-                        None => 0.0,
-                        Some(ToolLevel::Full) => 1.0,
-                        Some(ToolLevel::Speed(s)) => match self.config().tools[name].max_rpm {
-                            Some(max) if max > 0.0 => (s / max).clamp(0.0, 1.0),
-                            _ => 1.0,
-                        },
-                    };
+                    let want = tool_level(&self.config().tools[name], *level);
                     if (t.level() - want).abs() > 1e-9 {
                         self.idle().await?;
                         t.set(want).await?;

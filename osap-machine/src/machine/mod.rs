@@ -49,9 +49,10 @@ pub use tool::Tool;
 
 /// The control-point interval the machine streams at, µs.
 pub const INTERVAL_US: u32 = 2048;
-/// How far the timer leads the synchronized clock: 16 intervals (33 ms),
-/// room for the host to be held up.
-pub const LEAD_US: u32 = 16 * INTERVAL_US;
+/// How far the timer leads the synchronized clock: 40 intervals (82 ms),
+/// room for a busy host to be held up without a motor's stream running
+/// dry, within the 64 points a module queues.
+pub const LEAD_US: u32 = 40 * INTERVAL_US;
 /// The host runtime's name on the network.
 pub const HOST_NAME: &str = "machine";
 /// Period of the modules' status reports, µs.
