@@ -977,7 +977,7 @@ impl Machine {
                 .iter()
                 .map(|p| {
                     let pts: Vec<(f64, f64)> = p.iter().map(|s| (secs(s.0), s.1)).collect();
-                    crate::record::resample_hold(&pts, 0.0, dt, count)
+                    crate::record::resample_linear(&pts, 0.0, dt, count)
                 })
                 .collect();
             let m = lock_motion(&self.inner.motion);
