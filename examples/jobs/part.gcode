@@ -5,8 +5,8 @@ G21 G90
 G0 Z-55          ; clear the stock
 G0 X20 Y20       ; above the first corner
 M3 S12000        ; spindle on; the machine waits for it to settle
-G1 Z-61 F120     ; plunge 1 mm into the stock
-G1 X55 F600      ; bottom edge
+G1 Z-61 F300     ; plunge 1 mm into the stock
+G1 X55 F1200     ; bottom edge
 G2 X60 Y25 I0 J5 ; rounded corner (5 mm radius)
 G1 Y45
 G3 X55 Y50 I-5 J0
@@ -18,15 +18,15 @@ G1 X55           ; close the outline
 G0 Z-55
 ; three holes along the pocket's middle, each a 1.5 mm peck
 G0 X30 Y35
-G1 Z-61.5 F60
+G1 Z-61.5 F300
 G4 P0.2          ; dwell at depth
 G0 Z-55
 G0 X40 Y35
-G1 Z-61.5 F60
+G1 Z-61.5 F300
 G4 P0.2
 G0 Z-55
 G0 X50 Y35
-G1 Z-61.5 F60
+G1 Z-61.5 F300
 G4 P0.2
 G0 Z-55
 M5               ; spindle off

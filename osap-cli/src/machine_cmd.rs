@@ -243,9 +243,6 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let out = args.out.clone().unwrap_or_else(|| default_out(&cfg));
     check_out(&out)?;
     let start = osap_machine::machine::drive::start_position(&cfg);
-    let planned_s = program
-        .planned_seconds(&cfg, &start)
-        .map_err(Failure::from_machine)?;
 
     let machine = args.target.start(&cfg).await?;
     let mut events = machine.events();
@@ -273,6 +270,9 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         eprintln!("homed after {:.2} s", started.elapsed().as_secs_f64());
     }
 
+    let planned_s = program
+        .planned_seconds(&cfg, &machine.position())
+        .map_err(Failure::from_machine)?;
     let bar = ProgressBar::new(program.moves.len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} moves  {msg}")
@@ -281,6 +281,8 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     machine.start_recording();
     let t0 = machine.now_us().await.map_err(Failure::from_machine)?;
     let mut first = true;
+    // Machine time (tokio's clock: virtual with --fast).
+    let began = tokio::time::Instant::now();
     let result = machine
         .run_program(&program, |p| {
             if first {
@@ -291,7 +293,8 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
                 );
             }
             bar.set_position(p.done as u64);
-            bar.set_message(format!("line/path {}", p.line));
+            let left = (planned_s - began.elapsed().as_secs_f64()).max(0.0);
+            bar.set_message(format!("about {left:.0} s left (line/path {})", p.line));
         })
         .await;
     bar.finish_and_clear();
