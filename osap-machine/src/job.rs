@@ -477,11 +477,12 @@ mod tests {
     #[test]
     fn gcode_arc_bulging_out_of_travel_is_refused() {
         let mill = cfg("mill");
-        // A half circle from (10, 5) to (10, 45) around (10, 25) clockwise
-        // bulges to x = 30; counter-clockwise to x = -10 (outside).
-        let ok = crate::gcode::read("G0 X10 Y5\nG2 X10 Y45 I0 J20 F300\n").unwrap();
+        // A half circle from (10, 5) to (10, 45) around (10, 25):
+        // counter-clockwise it bulges to x = 30, clockwise to x = -10
+        // (outside).
+        let ok = crate::gcode::read("G0 X10 Y5\nG3 X10 Y45 I0 J20 F300\n").unwrap();
         assert!(from_gcode(&mill, &ok, &[0.0; 3]).is_ok());
-        let bad = crate::gcode::read("G0 X10 Y5\nG3 X10 Y45 I0 J20 F300\n").unwrap();
+        let bad = crate::gcode::read("G0 X10 Y5\nG2 X10 Y45 I0 J20 F300\n").unwrap();
         let e = from_gcode(&mill, &bad, &[0.0; 3]).unwrap_err();
         assert!(
             matches!(&e, JobError::OutOfTravel { place, .. } if place == "line 2"),

@@ -101,3 +101,102 @@ fn plotter_homes_and_draws_a_square() {
         m.stop().await.unwrap();
     });
 }
+
+#[test]
+fn halt_stops_within_limits_and_moves_resume() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start("plotter").await;
+        let mut events = m.events();
+        // The simulated carriage starts mid-travel: say so instead of homing.
+        m.set_position([100.0, 75.0]).unwrap();
+        m.goto_via_queue([190.0, 75.0], 100.0).await.unwrap();
+        tokio::time::sleep(std::time::Duration::from_millis(400)).await;
+        m.halt().await.unwrap();
+        let p = m.position();
+        assert!(p[0] > 110.0 && p[0] < 180.0, "{p:?}");
+        assert_eq!(m.state(), osap_machine::MachineState::Idle);
+        m.goto_now([100.0, 75.0], 100.0).await.unwrap();
+        assert_eq!(m.position(), vec![100.0, 75.0]);
+        while let Ok(e) = events.try_recv() {
+            assert!(!matches!(e, MachineEvent::Fault { .. }), "{e:?}");
+        }
+        m.stop().await.unwrap();
+    });
+}
+
+#[test]
+fn feed_override_scales_moves_not_yet_started() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start("plotter").await;
+        m.set_position([20.0, 75.0]).unwrap();
+        let mut took = Vec::new();
+        for (k, to) in [(1.0, 120.0), (0.5, 20.0)] {
+            m.set_feed_override(k).unwrap();
+            let t = tokio::time::Instant::now();
+            m.goto_via_queue([to, 75.0], 50.0).await.unwrap();
+            m.idle().await.unwrap();
+            took.push(t.elapsed().as_secs_f64());
+        }
+        // 100 mm at 50 then 25 mm/s (plus the same start-up lead each time).
+        let ratio = (took[1] - 0.09) / (took[0] - 0.09);
+        assert!((ratio - 2.0).abs() < 0.1, "{took:?}");
+        assert!(m.set_feed_override(0.0).is_err());
+        m.stop().await.unwrap();
+    });
+}
+
+#[test]
+fn a_lost_module_faults_the_machine_and_the_script_hears_why() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start("plotter").await;
+        let mut events = m.events();
+        m.set_position([20.0, 75.0]).unwrap();
+        m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
+        tokio::time::sleep(std::time::Duration::from_millis(300)).await;
+        let b = m.with_sim(|s| s.module("b").cloned()).flatten().unwrap();
+        b.kill().await.unwrap();
+        let e = m.idle().await.unwrap_err();
+        assert!(
+            matches!(&e, MachineError::Faulted(r) if r.contains("module b")),
+            "{e}"
+        );
+        // Moves are refused until recovered.
+        let e = m.goto_via_queue([20.0, 75.0], 50.0).await.unwrap_err();
+        assert!(matches!(e, MachineError::Faulted(_)), "{e}");
+        let mut lost = false;
+        while let Ok(e) = events.try_recv() {
+            lost |= matches!(&e, MachineEvent::LinkLost { module } if module == "b");
+        }
+        assert!(lost);
+        m.stop().await.unwrap();
+    });
+}
+
+#[test]
+fn a_limit_hit_outside_homing_halts_the_machine() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start("plotter").await;
+        let mut events = m.events();
+        // Wrong: the carriage is really at (100, 75), mid-travel, so going
+        // to x = 10 drives it 40 mm past the x switch at 0.
+        m.set_position([150.0, 75.0]).unwrap();
+        m.goto_via_queue([10.0, 75.0], 50.0).await.unwrap();
+        let e = m.idle().await.unwrap_err();
+        assert!(matches!(&e, MachineError::Faulted(r) if r.contains("limit switch")), "{e}");
+        let mut hit = false;
+        while let Ok(e) = events.try_recv() {
+            hit |= matches!(&e, MachineEvent::Limit { module, pressed: true, expected: false, .. } if module == "a");
+        }
+        assert!(hit);
+        // Recovery: the machine is where its motors stopped, at once, at the
+        // switch (50 mm travelled, not 140), and must home before moving.
+        m.recover().await.unwrap();
+        let p = m.position();
+        assert!(p[0] > 49.0 && p[0] < 50.2, "{p:?}");
+        let e = m.goto_now([120.0, 75.0], 50.0).await.unwrap_err();
+        assert!(matches!(e, MachineError::NotHomed(_)), "{e}");
+        m.home().await.unwrap();
+        m.goto_now([120.0, 75.0], 50.0).await.unwrap();
+        m.stop().await.unwrap();
+    });
+}

@@ -433,10 +433,10 @@ impl Machine {
         let mut edges = self.inner.limit_edges.subscribe();
         tokio::spawn(async move {
             loop {
-                let reason = tokio::select! {
+                let (reason, crash) = tokio::select! {
                     e = rx.recv() => match e {
-                        Ok(MachineEvent::Fault { module, reason }) => format!("module {module}: {reason}"),
-                        Ok(MachineEvent::LinkLost { module }) => format!("module {module} stopped answering"),
+                        Ok(MachineEvent::Fault { module, reason }) => (format!("module {module}: {reason}"), false),
+                        Ok(MachineEvent::LinkLost { module }) => (format!("module {module} stopped answering"), false),
                         Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => continue,
                         Err(broadcast::error::RecvError::Closed) => return,
                     },
@@ -453,14 +453,30 @@ impl Machine {
                             if homing || !edge.pressed || !edge.is_edge() {
                                 continue;
                             }
-                            format!("limit switch on module {module} pressed outside homing")
+                            (format!("limit switch on module {module} pressed outside homing: every motor stopped at once; home again"), true)
                         }
                         Err(broadcast::error::RecvError::Lagged(_)) => continue,
                         Err(broadcast::error::RecvError::Closed) => return,
                     },
                 };
                 let Some(inner) = weak.upgrade() else { return };
-                Machine { inner }.fault(reason);
+                let machine = Machine { inner };
+                if crash {
+                    // The points already sent run a lead ahead: only the
+                    // modules can stop at once. Where the axes are is then
+                    // known only to a step count, not to the switch: re-home.
+                    let _ = machine.emergency_stop_as(reason).await;
+                    machine
+                        .inner
+                        .homed
+                        .lock()
+                        .unwrap_or_else(|e| e.into_inner())
+                        .iter_mut()
+                        .zip(machine.homing_axes())
+                        .for_each(|(h, homes)| *h = !homes);
+                } else {
+                    machine.fault(reason);
+                }
             }
         });
     }
@@ -798,6 +814,15 @@ impl Machine {
         self.idle().await
     }
 
+    /// Which axes have homing configured (axis order).
+    fn homing_axes(&self) -> Vec<bool> {
+        let cfg = &self.inner.cfg;
+        cfg.axis_names()
+            .iter()
+            .map(|a| cfg.axes[*a].homing.is_some())
+            .collect()
+    }
+
     /// Which axes are homed (axis order).
     pub fn homed(&self) -> Vec<bool> {
         self.inner
@@ -811,7 +836,11 @@ impl Machine {
     /// emergency stop) and marks the machine faulted; [`Machine::recover`]
     /// powers the motors up again.
     pub async fn emergency_stop(&self) -> Result<(), MachineError> {
-        self.fault("emergency stop".into());
+        self.emergency_stop_as("emergency stop".into()).await
+    }
+
+    async fn emergency_stop_as(&self, reason: String) -> Result<(), MachineError> {
+        self.fault(reason);
         let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
         for m in motors {
             self.call(&m.module, "halt", &[]).await?;
@@ -890,10 +919,15 @@ impl Machine {
         }
         let mut m = lock_motion(&self.inner.motion);
         let p = m.drive.machine_position(&at)?;
-        let _ = m.planner.halt();
+        // Whatever was planned is void: a fresh planner, where the motors
+        // stand, with the same feed override.
+        let scale = m.planner.feed_scale();
+        let mut planner = Planner::new(m.planner.limits().clone())?;
+        planner.set_feed_scale(scale)?;
         let mut p3 = [0.0; MAX_AXES];
         p3[..p.len()].copy_from_slice(&p);
-        m.planner.set_position(p3)?;
+        planner.set_position(p3)?;
+        m.planner = planner;
         m.last_motors = at;
         m.error = None;
         Ok(())

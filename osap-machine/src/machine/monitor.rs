@@ -61,8 +61,7 @@ fn t(s: ScalarType) -> Type {
     Type::Scalar(s)
 }
 
-/// Stepper modes (`get_status`) that stop an axis on the module's own.
-const BACKSTOP: u8 = 3;
+/// The stepper mode (`get_status`) of an axis halted by `halt`.
 const HALTED: u8 = 4;
 
 /// `machine.status.<key>(mode, queued, enabled, faults)`, fed by the
@@ -94,7 +93,9 @@ pub fn status(
                 .insert(module.clone(), (*mode, *faults, now));
             let (was_mode, was_faults) = before.map_or((0, *faults), |b| (b.0, b.1));
             let newly = |m: u8| *mode == m && was_mode != m;
-            let reason = if newly(BACKSTOP) || *faults > was_faults {
+            // A stream that ran dry at rest parks the axis in the backstop
+            // mode harmlessly; only one cut off mid-motion counts a fault.
+            let reason = if *faults > was_faults {
                 Some("its stream ran dry mid-motion and the backstop braked it (the host fell behind: more CPU, a longer timer lead, or a faster link)")
             } else if newly(HALTED) {
                 Some("it was halted")
