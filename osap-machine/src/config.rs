@@ -146,6 +146,10 @@ pub struct MachineFile {
     /// A bed mesh file, relative to the machine file.
     #[serde(default)]
     pub bed_mesh: Option<PathBuf>,
+    /// The folder of the file this was loaded from (for relative paths);
+    /// `None` when parsed from text.
+    #[serde(skip)]
+    pub source_dir: Option<PathBuf>,
     /// Simulation settings, used only when the machine runs in simulation.
     #[serde(default)]
     pub sim: Option<Sim>,
@@ -525,7 +529,19 @@ impl MachineFile {
             path: path.to_path_buf(),
             source,
         })?;
-        MachineFile::parse(&text).map_err(|e| e.with_file(path))
+        let mut file = MachineFile::parse(&text).map_err(|e| e.with_file(path))?;
+        file.source_dir = path.parent().map(Path::to_path_buf);
+        Ok(file)
+    }
+
+    /// The bed mesh file's path, resolved against the machine file's
+    /// folder.
+    pub fn bed_mesh_path(&self) -> Option<PathBuf> {
+        let mesh = self.bed_mesh.as_ref()?;
+        Some(match &self.source_dir {
+            Some(dir) if mesh.is_relative() => dir.join(mesh),
+            _ => mesh.clone(),
+        })
     }
 
     /// The axis names in order (x, y, z, a, b, c, u, v, w).

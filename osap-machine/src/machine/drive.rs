@@ -9,6 +9,7 @@
 //! (where the module booted) and the machine takes itself to be at
 //! [`start_position`].
 
+use maxl::blocks::bedlevel::BedMesh;
 use maxl::blocks::kinematics::{CoreXy, FiveBar, FiveBarMode, KinError, Planar, Scara, Side};
 use nalgebra::Vector2;
 
@@ -49,6 +50,8 @@ pub struct Drive {
     motors: Vec<DriveMotor>,
     planar: Option<Box<dyn Planar + Send + Sync>>,
     offsets: Vec<f64>,
+    /// A bed mesh, added to z (slot 2) under the tool's x and y.
+    mesh: Option<BedMesh>,
 }
 
 impl std::fmt::Debug for Drive {
@@ -58,6 +61,7 @@ impl std::fmt::Debug for Drive {
             .field("motors", &self.motors)
             .field("planar", &self.planar.is_some())
             .field("offsets", &self.offsets)
+            .field("mesh", &self.mesh.is_some())
             .finish()
     }
 }
@@ -170,12 +174,28 @@ impl Drive {
             axes,
             motors,
             planar,
+            mesh: None,
         };
         let zeros = vec![0.0; drive.motors.len()];
         drive
             .rebase(at, &zeros)
             .map_err(|e| format!("the start position {at:?} is outside the kinematics: {e}"))?;
         Ok(drive)
+    }
+
+    /// The same drive following a bed mesh: z (the axis named z, which
+    /// must come after x and y) is raised by the mesh's height under x, y.
+    /// The motors keep their positions at `at` (motor positions `m`).
+    pub fn with_mesh(mut self, mesh: BedMesh, at: &[f64], m: &[f64]) -> Result<Drive, String> {
+        if self.axes.len() != 3 || self.axes[..] != ["x", "y", "z"] {
+            return Err(format!(
+                "bed_mesh: a bed mesh needs axes x, y and z; this machine has {}",
+                self.axes.join(", ")
+            ));
+        }
+        self.mesh = Some(mesh);
+        self.rebase(at, m).map_err(|e| format!("bed_mesh: {e}"))?;
+        Ok(self)
     }
 
     /// The axis names, in slot order.
@@ -204,6 +224,17 @@ impl Drive {
 
     /// The motor positions (motor units) for machine position `p`.
     pub fn motor_positions(&self, p: &[f64]) -> Result<Vec<f64>, KinError> {
+        let meshed;
+        let p = match &self.mesh {
+            Some(mesh) if p.len() == 3 => {
+                let z = mesh
+                    .apply(p[0], p[1], p[2])
+                    .map_err(|_| KinError::NonFinite)?;
+                meshed = [p[0], p[1], z];
+                &meshed[..]
+            }
+            _ => p,
+        };
         let q = self.joints(p)?;
         Ok(self
             .motors
@@ -240,6 +271,11 @@ impl Drive {
             if p.len() > 1 {
                 p[1] = xy.y;
             }
+        }
+        if let (Some(mesh), 3) = (&self.mesh, p.len()) {
+            p[2] = mesh
+                .unapply(p[0], p[1], p[2])
+                .map_err(|_| KinError::NonFinite)?;
         }
         Ok(p)
     }
@@ -295,6 +331,28 @@ mod tests {
         let moved = d.motor_positions(&[1.0, 0.0]).unwrap();
         assert!((moved[0] - m[0] - 1.0).abs() < 1e-12);
         assert!((moved[1] - m[1] + 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn a_bed_mesh_raises_z_under_the_tool_and_reads_back() {
+        let cfg = MachineFile::load(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/mill.toml"
+        ))
+        .unwrap();
+        let mesh = crate::mesh::load(&cfg.bed_mesh_path().unwrap()).unwrap();
+        let d = Drive::new(&cfg, &[0.0; 3])
+            .unwrap()
+            .with_mesh(mesh, &[0.0; 3], &[0.0; 3])
+            .unwrap();
+        // The mesh rises 0.15 mm from x = 20 to x = 280 (at y = 20).
+        let a = d.motor_positions(&[20.0, 20.0, -10.0]).unwrap();
+        let b = d.motor_positions(&[280.0, 20.0, -10.0]).unwrap();
+        assert!((b[2] - a[2] - 0.15).abs() < 1e-12, "{a:?} {b:?}");
+        let back = d.machine_position(&b).unwrap();
+        assert!((back[2] + 10.0).abs() < 1e-12 && (back[0] - 280.0).abs() < 1e-12);
+        // Where the machine stood when the mesh was applied, no motor moved.
+        assert_eq!(d.motor_positions(&[0.0; 3]).unwrap(), vec![0.0; 3]);
     }
 
     #[test]

@@ -193,6 +193,9 @@ impl Machine {
         let start = drive::start_position(cfg);
         let drive = Drive::new(cfg, &start).map_err(MachineError::Unsupported)?;
         check_track_range(cfg, &drive)?;
+        if let Some(path) = cfg.bed_mesh_path() {
+            crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+        }
         let mut manager = Manager::new(&host).await?;
         manager.refresh().await?;
         let modules = find_modules(cfg, &manager)?;
@@ -243,6 +246,12 @@ impl Machine {
         }
         let mut drive = drive;
         drive.rebase(&start, &motor_at)?;
+        if let Some(path) = cfg.bed_mesh_path() {
+            let mesh = crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+            drive = drive
+                .with_mesh(mesh, &start, &motor_at)
+                .map_err(MachineError::Unsupported)?;
+        }
 
         let planner = Planner::new(crate::job::machine_limits(cfg))?;
         let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
@@ -442,6 +451,10 @@ impl Machine {
                     },
                     e = edges.recv() => match e {
                         Ok((module, edge)) => {
+                            if !edge.is_edge() {
+                                // The switch's state when its pipe began.
+                                continue;
+                            }
                             let Some(inner) = weak.upgrade() else { return };
                             let homing = inner.homing.load(std::sync::atomic::Ordering::SeqCst);
                             let _ = inner.events.send(MachineEvent::Limit {
@@ -450,7 +463,7 @@ impl Machine {
                                 pressed: edge.pressed,
                                 expected: homing,
                             });
-                            if homing || !edge.pressed || !edge.is_edge() {
+                            if homing || !edge.pressed {
                                 continue;
                             }
                             (format!("limit switch on module {module} pressed outside homing: every motor stopped at once; home again"), true)
