@@ -257,7 +257,7 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
                 "simulated"
             }
         } else {
-            "hardware"
+            "connected"
         },
         started.elapsed().as_secs_f64()
     );

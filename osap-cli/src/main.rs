@@ -147,7 +147,8 @@ enum Command {
     },
     /// Run a simulated machine that other processes can connect to.
     Serve {
-        /// The machine: a topology file.
+        /// The machine: a topology file, or a machine file (its simulated
+        /// network is derived from it).
         #[arg(long, value_name = "FILE")]
         sim: PathBuf,
         /// Address to listen on for TCP peers.
@@ -455,7 +456,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
                 ..HostConfig::default()
             })
             .map_err(|e| e.to_string())?;
-            let topology = machine::load(&path).map_err(|e| e.to_string())?;
+            let topology = load_sim(&path)?;
             let machine = SimMachine::start(&host, &topology)
                 .await
                 .map_err(|e| format!("cannot start {}: {e}", path.display()))?;
@@ -513,6 +514,23 @@ fn main() -> ExitCode {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// The simulated machine of `path`: a topology file, or a machine file
+/// (with `[motors]` or `[axes]`), whose simulated network is derived from it.
+fn load_sim(path: &std::path::Path) -> Result<machine::Topology, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let is_machine_file = text.lines().any(|l| {
+        let l = l.trim_start();
+        l.starts_with("[motors") || l.starts_with("[axes")
+    });
+    if is_machine_file {
+        let cfg = osap_machine::config::MachineFile::load(path).map_err(|e| e.to_string())?;
+        cfg.validate().map_err(|e| e.to_string())?;
+        osap_machine::sim::topology(&cfg).map_err(|e| e.to_string())
+    } else {
+        machine::load(path).map_err(|e| e.to_string())
     }
 }
 

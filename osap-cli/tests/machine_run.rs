@@ -234,3 +234,60 @@ fn one_off_commands_home_jog_and_move() {
     assert!(o.status.success(), "{}", text(&o));
     assert!(text(&o).contains("y=-5.000"), "{}", text(&o));
 }
+
+/// Kills the child when dropped, so a failed test leaves no server behind.
+struct Killed(std::process::Child);
+
+impl Drop for Killed {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn a_job_runs_over_tcp_on_a_machine_served_from_its_machine_file() {
+    use std::io::{BufRead, BufReader};
+    let dir = scratch("tcp");
+    let mill = example("machines/mill.toml");
+    let mut server = Killed(
+        Command::new(env!("CARGO_BIN_EXE_osap"))
+            .args(["serve", "--tcp", "127.0.0.1:0", "--sim", s(&mill)])
+            .stdout(std::process::Stdio::piped())
+            .spawn()
+            .unwrap(),
+    );
+    let mut line = String::new();
+    BufReader::new(server.0.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let addr = line
+        .split_whitespace()
+        .find(|w| w.starts_with("127.0.0.1:"))
+        .unwrap_or_else(|| panic!("no address in {line:?}"))
+        .trim_end_matches(';')
+        .to_string();
+    // Real time, so a short job; the simulated carriage stands mid-travel,
+    // where --no-home takes the machine to be at its start (0, 0, 0).
+    std::fs::write(
+        dir.join("short.gcode"),
+        "G21 G90\nG1 X5 Y5 F1200\nG1 Z-2 F300\nG1 X10\nG0 Z0\n",
+    )
+    .unwrap();
+    let o = osap(
+        &[
+            "run",
+            s(&mill),
+            "short.gcode",
+            "--tcp",
+            &addr,
+            "--no-home",
+            "--out",
+            "out",
+        ],
+        &dir,
+    );
+    assert!(o.status.success(), "{}", text(&o));
+    assert!(text(&o).contains("(3 modules, connected)"), "{}", text(&o));
+    assert!(dir.join("out/executed.csv").exists());
+}

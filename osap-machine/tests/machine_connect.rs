@@ -37,8 +37,14 @@ async fn square(m: &Machine) -> Result<Vec<f64>, MachineError> {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_same_script_runs_on_connect() {
     let cfg = mill();
-    // Another host serves the simulated mill over TCP.
-    let server = Host::start(HostConfig::named("server")).unwrap();
+    // Another host serves the simulated mill over TCP, as `osap serve`
+    // does: it relays, and the machine's host is the clock root.
+    let server = Host::start(HostConfig {
+        name: "server".into(),
+        time: osap_core::clock::TimeConfig::default(),
+        ..HostConfig::default()
+    })
+    .unwrap();
     let topology = osap_machine::sim::topology(&cfg).unwrap();
     let sim = SimMachine::start(&server, &topology).await.unwrap();
     let listener = osap_host::link::tcp::listen(&server, "127.0.0.1:0".parse().unwrap(), false)
