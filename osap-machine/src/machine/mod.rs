@@ -408,7 +408,6 @@ impl Machine {
             motors.iter().map(|m| m.module.clone()).collect(),
             reports.clone(),
             events.clone(),
-            motion.clone(),
         ));
         let machine = Machine {
             inner: Arc::new(Inner {
@@ -565,13 +564,11 @@ impl Machine {
     pub fn position(&self) -> Vec<f64> {
         let m = lock_motion(&self.inner.motion);
         let n = m.drive.axes().len();
-        let stamp = m.planner.last_stamp();
-        match stamp.and_then(|_| m.planner.plan().segments.first().map(|_| ())) {
-            Some(()) => {
-                let t = stamp.unwrap_or(0) as f64;
-                m.planner.plan().state_at(t).pos[..n].to_vec()
+        match m.planner.last_stamp() {
+            Some(t) if !m.planner.is_idle() => {
+                m.planner.plan().state_at(t as f64).pos[..n].to_vec()
             }
-            None => m.planner.tail()[..n].to_vec(),
+            _ => m.planner.tail()[..n].to_vec(),
         }
     }
 
@@ -1102,7 +1099,6 @@ async fn watch_modules(
     modules: Vec<String>,
     reports: SharedReports,
     events: broadcast::Sender<MachineEvent>,
-    _motion: SharedMotion,
 ) {
     let mut lost: Vec<String> = Vec::new();
     let started = tokio::time::Instant::now();
