@@ -275,6 +275,12 @@ pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Progr
     Ok(Program { moves, warnings })
 }
 
+/// What a stop at rest costs besides its wait: the machine waits for the
+/// motors to finish (two intervals past the last point), and the next move
+/// starts a timer lead after it is queued.
+const RESTART_S: f64 =
+    (crate::machine::LEAD_US as f64 + 2.0 * crate::machine::INTERVAL_US as f64) * 1e-6;
+
 /// How far a program has come.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Progress {
@@ -287,8 +293,9 @@ pub struct Progress {
 }
 
 impl Program {
-    /// How long the moves take as planned, s (tool settling and dwells
-    /// included; waiting for the tool is counted from its settle time).
+    /// How long the moves take as planned, s: motion, dwells, tool settle
+    /// times, and the restart after each stop at rest (a timer lead plus
+    /// two intervals).
     pub fn planned_seconds(&self, cfg: &MachineFile, start: &[f64]) -> Result<f64, MachineError> {
         let mut planner = Planner::new(machine_limits(cfg))?;
         planner.set_position(pad(start))?;
@@ -341,14 +348,15 @@ impl Program {
                     planner.arc(&arc, *feed)?;
                 }
                 Move::Dwell(s) => {
-                    total += run_to(&mut planner, true)? + s.max(0.0);
+                    total += run_to(&mut planner, true)? + s.max(0.0) + RESTART_S;
                 }
                 Move::Tool(l) => {
                     let Some((_, t)) = tool else { continue };
                     let want = tool_level(t, *l);
                     if (want - level).abs() > 1e-9 {
                         level = want;
-                        total += run_to(&mut planner, true)? + f64::from(t.settle_ms) * 1e-3;
+                        total +=
+                            run_to(&mut planner, true)? + f64::from(t.settle_ms) * 1e-3 + RESTART_S;
                     }
                 }
             }
