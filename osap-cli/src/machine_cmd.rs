@@ -302,6 +302,7 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let recording = machine.take_recording(t0);
 
     let mut faults = Vec::new();
+    let mut refusals: std::collections::BTreeMap<String, (u32, String)> = Default::default();
     while let Ok(e) = events.try_recv() {
         match e {
             MachineEvent::Fault { module, reason } => {
@@ -312,9 +313,10 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
                 module,
                 count,
                 reason,
-            } => faults.push(format!(
-                "module {module}: {count} points refused ({reason})"
-            )),
+            } => {
+                // The newest count per module says it all.
+                refusals.insert(module, (count, reason));
+            }
             MachineEvent::Limit {
                 module,
                 pressed: true,
@@ -335,6 +337,9 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     );
     for (axis, err) in recording.following_error() {
         println!("largest following error {axis}: {:.4} mm", err);
+    }
+    for (module, (count, reason)) in &refusals {
+        println!("warning: module {module} refused {count} points (the latest: {reason})");
     }
     if faults.is_empty() {
         println!("faults: none");
@@ -366,7 +371,7 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let stopped = machine.stop().await;
     result.map_err(Failure::from_machine)?;
     stopped.map_err(Failure::from_machine)?;
-    if faults.iter().any(|f| !f.contains("points refused")) {
+    if !faults.is_empty() {
         return Ok(ExitCode::from(FAULTED));
     }
     Ok(ExitCode::SUCCESS)

@@ -11,6 +11,15 @@ fn example(path: &str) -> PathBuf {
         .join(path)
 }
 
+/// One machine at a time: the simulated machines of these tests share two
+/// cores, and one of them runs in real time, where a starved simulation
+/// would miss its deadlines.
+static ONE_AT_A_TIME: std::sync::Mutex<()> = std::sync::Mutex::new(());
+
+fn serial() -> std::sync::MutexGuard<'static, ()> {
+    ONE_AT_A_TIME.lock().unwrap_or_else(|e| e.into_inner())
+}
+
 fn osap(args: &[&str], cwd: &Path) -> Output {
     Command::new(env!("CARGO_BIN_EXE_osap"))
         .args(args)
@@ -40,6 +49,7 @@ fn s(p: &Path) -> &str {
 
 #[test]
 fn plotter_draws_the_example_drawing() {
+    let _one = serial();
     let dir = scratch("plotter");
     let machine = example("machines/plotter.toml");
     let job = example("jobs/drawing.svg");
@@ -104,6 +114,7 @@ fn plotter_draws_the_example_drawing() {
 
 #[test]
 fn mill_cuts_the_example_part() {
+    let _one = serial();
     let dir = scratch("mill");
     let o = osap(
         &[
@@ -130,6 +141,7 @@ fn mill_cuts_the_example_part() {
 
 #[test]
 fn jobs_that_leave_the_travel_are_refused_before_motion() {
+    let _one = serial();
     let dir = scratch("refuse");
     std::fs::write(dir.join("far.gcode"), "G21 G90\nG0 X10 Y10\nG1 X250 F600\n").unwrap();
     let o = osap(
@@ -159,6 +171,7 @@ fn jobs_that_leave_the_travel_are_refused_before_motion() {
 
 #[test]
 fn bad_arguments_and_files_get_clear_messages() {
+    let _one = serial();
     let dir = scratch("bad");
     let plotter = example("machines/plotter.toml");
     // An unknown job type.
@@ -192,6 +205,7 @@ fn bad_arguments_and_files_get_clear_messages() {
 
 #[test]
 fn one_off_commands_home_jog_and_move() {
+    let _one = serial();
     let dir = scratch("oneoff");
     let plotter = example("machines/plotter.toml");
     let o = osap(&["home", s(&plotter), "--sim", "--fast"], &dir);
@@ -247,6 +261,7 @@ impl Drop for Killed {
 
 #[test]
 fn a_job_runs_over_tcp_on_a_machine_served_from_its_machine_file() {
+    let _one = serial();
     use std::io::{BufRead, BufReader};
     let dir = scratch("tcp");
     let mill = example("machines/mill.toml");
