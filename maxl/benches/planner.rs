@@ -1,10 +1,12 @@
 //! Planner throughput: segments per second through append + plan + sample,
 //! on a 3D random walk of short segments with varied corner angles.
+//! The `*_klipper` cases add toolhead (vector) limits and Klipper's minimum
+//! cruise ratio 0.5 to the same per-axis limits.
 //!
 //! `cargo bench -p maxl --features std --bench planner`
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use maxl::blocks::planner::{Limits, Planner};
+use maxl::blocks::planner::{Limits, Planner, VectorLimits, KLIPPER_MIN_CRUISE_RATIO};
 
 // The generator the tests use.
 #[path = "../tests/common/rng.rs"]
@@ -40,9 +42,17 @@ fn limits() -> Limits<3> {
     Limits::new([500.0, 300.0, 50.0], [10_000.0, 6_000.0, 1_000.0], 0.02).unwrap()
 }
 
+/// Toolhead limits within the per-axis ones, and Klipper's minimum cruise
+/// ratio.
+fn vector() -> VectorLimits {
+    VectorLimits::new(400.0, 8_000.0)
+        .and_then(|v| v.with_min_cruise_ratio(KLIPPER_MIN_CRUISE_RATIO))
+        .unwrap()
+}
+
 /// Queue everything, then sample every stamp until rest.
-fn batch(path: &[[f64; 3]]) -> u64 {
-    let mut p = Planner::with_capacity(limits(), path.len()).unwrap();
+fn batch(path: &[[f64; 3]], vector: VectorLimits) -> u64 {
+    let mut p = Planner::with_vector_limits(limits(), vector, path.len()).unwrap();
     for q in path {
         p.line(*q, 250.0).unwrap();
     }
@@ -58,8 +68,8 @@ fn batch(path: &[[f64; 3]]) -> u64 {
 
 /// Feed while running: keep `depth` segments ahead, sampling one stamp at a
 /// time and appending whenever the queue drops below it.
-fn fed(path: &[[f64; 3]], depth: usize) -> u64 {
-    let mut p = Planner::with_capacity(limits(), depth).unwrap();
+fn fed(path: &[[f64; 3]], depth: usize, vector: VectorLimits) -> u64 {
+    let mut p = Planner::with_vector_limits(limits(), vector, depth).unwrap();
     let mut next = path.iter();
     let mut t = 0;
     let mut acc = 0.0;
@@ -83,8 +93,8 @@ fn fed(path: &[[f64; 3]], depth: usize) -> u64 {
 }
 
 /// Append and plan only (no sampling), in a queue as long as the path.
-fn append_only(path: &[[f64; 3]]) -> usize {
-    let mut p = Planner::with_capacity(limits(), path.len()).unwrap();
+fn append_only(path: &[[f64; 3]], vector: VectorLimits) -> usize {
+    let mut p = Planner::with_vector_limits(limits(), vector, path.len()).unwrap();
     for q in path {
         p.line(*q, 250.0).unwrap();
     }
@@ -96,15 +106,15 @@ fn bench(c: &mut Criterion) {
     g.throughput(Throughput::Elements(SEGMENTS as u64));
     for (name, turn) in [("turn45", 0.785), ("turn10", 0.175)] {
         let path = walk(SEGMENTS, turn);
-        g.bench_with_input(BenchmarkId::new("append_only", name), &path, |b, p| {
-            b.iter(|| append_only(p))
-        });
-        g.bench_with_input(BenchmarkId::new("batch", name), &path, |b, p| {
-            b.iter(|| batch(p))
-        });
-        for depth in [16, 256] {
-            let id = BenchmarkId::new(format!("fed{depth}"), name);
-            g.bench_with_input(id, &path, |b, p| b.iter(|| fed(p, depth)));
+        for (suffix, v) in [("", VectorLimits::NONE), ("_klipper", vector())] {
+            let id = BenchmarkId::new(format!("append_only{suffix}"), name);
+            g.bench_with_input(id, &path, |b, p| b.iter(|| append_only(p, v)));
+            let id = BenchmarkId::new(format!("batch{suffix}"), name);
+            g.bench_with_input(id, &path, |b, p| b.iter(|| batch(p, v)));
+            for depth in [16, 256] {
+                let id = BenchmarkId::new(format!("fed{depth}{suffix}"), name);
+                g.bench_with_input(id, &path, |b, p| b.iter(|| fed(p, depth, v)));
+            }
         }
     }
     g.finish();

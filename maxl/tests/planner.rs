@@ -446,6 +446,7 @@ fn pipes_class_signatures() {
             "Planner.status() -> (queued: u32, executed: u64, idle: bool)",
             "Planner.halt() -> (x: f64, y: f64, z: f64)",
             "Planner.set_feed_scale(k: f64) -> ()",
+            "Planner.set_vector_limits(speed: f64, accel: f64, min_cruise_ratio: f64) -> ()",
         ],
     );
 }

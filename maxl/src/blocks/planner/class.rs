@@ -3,7 +3,7 @@
 
 use pipes_core::function::CallError;
 
-use super::{Arc, Limits, PlanError, Planner};
+use super::{Arc, Limits, PlanError, Planner, VectorLimits};
 
 /// Chord tolerance (mm) of arcs queued through the wire API.
 pub const WIRE_CHORD_TOLERANCE: f64 = 0.002;
@@ -34,7 +34,12 @@ impl From<PlanError> for CallError {
 ///   it; returns where the machine comes to rest;
 /// - `Planner.set_feed_scale(k: f64)`: a feed override, `k` in (0, 10], on
 ///   every segment not yet started and those queued later (within the axis
-///   limits).
+///   limits);
+/// - `Planner.set_vector_limits(speed, accel, min_cruise_ratio: f64)`: the
+///   toolhead's largest speed |v| (mm/s) and acceleration |a| (mm/s²), `inf`
+///   for none, and Klipper's minimum cruise ratio in [0, 1) (0 off), on top
+///   of the per-axis limits ([`Planner::set_vector_limits`]; fails with 1).
+///   A new block has none (`inf, inf, 0`).
 ///
 /// The class's members are the methods of the same names. `queued` outputs
 /// count segments not yet finished. Failures are `CallError::Failed(code)`
@@ -159,5 +164,21 @@ impl PlannerBlock {
     /// outside (0, 10]).
     pub fn set_feed_scale(&mut self, k: f64) -> Result<(), PlanError> {
         self.planner.set_feed_scale(k)
+    }
+
+    /// `Planner.set_vector_limits`: [`Planner::set_vector_limits`] with
+    /// [`VectorLimits`] `{ max_speed: speed, max_accel: accel,
+    /// min_cruise_ratio }` (fails with 1 on a bad value, changing nothing).
+    pub fn set_vector_limits(
+        &mut self,
+        speed: f64,
+        accel: f64,
+        min_cruise_ratio: f64,
+    ) -> Result<(), PlanError> {
+        self.planner.set_vector_limits(VectorLimits {
+            max_speed: speed,
+            max_accel: accel,
+            min_cruise_ratio,
+        })
     }
 }

@@ -46,6 +46,18 @@ impl<const N: usize> Limits<N> {
         Ok(self)
     }
 
+    /// The same limits with the junction deviation Klipper derives from a
+    /// square-corner velocity (see [`square_corner_deviation`]).
+    pub fn with_square_corner_velocity(
+        mut self,
+        square_corner_velocity: f64,
+        accel: f64,
+    ) -> Result<Self, PlanError> {
+        self.junction_deviation = square_corner_deviation(square_corner_velocity, accel)?;
+        self.validate()?;
+        Ok(self)
+    }
+
     /// Checks every value.
     pub fn validate(&self) -> Result<(), PlanError> {
         if N == 0 {
@@ -78,10 +90,118 @@ impl<const N: usize> Limits<N> {
     }
 }
 
+/// Klipper's junction deviation for a square-corner velocity `scv` (mm/s,
+/// finite, ≥ 0) at acceleration `accel` (mm/s², finite, > 0):
+/// `scv² · (√2 − 1) / accel` (klippy/toolhead.py), the deviation at which
+/// a 90° corner is taken at `scv` when the corner's acceleration is `accel`.
+pub fn square_corner_deviation(scv: f64, accel: f64) -> Result<f64, PlanError> {
+    let bad = |name, value| PlanError::InvalidLimit {
+        name,
+        axis: None,
+        value,
+    };
+    if !(scv.is_finite() && scv >= 0.0) {
+        return Err(bad("square_corner_velocity", scv));
+    }
+    if !(accel.is_finite() && accel > 0.0) {
+        return Err(bad("accel", accel));
+    }
+    Ok(scv * scv * (std::f64::consts::SQRT_2 - 1.0) / accel)
+}
+
+/// Klipper's default `minimum_cruise_ratio` (its `[printer]` section).
+pub const KLIPPER_MIN_CRUISE_RATIO: f64 = 0.5;
+
+/// Limits of the toolhead as a whole, on top of the per-axis [`Limits`]:
+/// the largest path speed |v| and acceleration |a| in any direction
+/// (Klipper's `max_velocity` and `max_accel`), and Klipper's minimum cruise
+/// ratio.
+///
+/// A segment's speed and acceleration limits are the smaller of the
+/// per-axis ones along its direction and these; a junction's corner
+/// acceleration likewise. [`VectorLimits::NONE`] (the default, and what
+/// [`super::Planner::new`] uses) bounds nothing: the planner is per-axis
+/// only.
+///
+/// They are a separate value rather than fields of [`Limits`] so that code
+/// building `Limits { .. }` literally keeps compiling.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VectorLimits {
+    /// Largest toolhead speed |v| (mm/s), > 0; `f64::INFINITY` for none.
+    pub max_speed: f64,
+    /// Largest toolhead acceleration |a| (mm/s²), > 0; `f64::INFINITY` for
+    /// none.
+    pub max_accel: f64,
+    /// Klipper's `minimum_cruise_ratio`, in [0, 1): each segment reaches at
+    /// most the peak speed of a lookahead run at `acc · (1 − ratio)` (its
+    /// "accel to decel" limit), so a short move between two slow corners
+    /// cruises over about `ratio` of its length instead of accelerating and
+    /// braking all the way. 0 (the default) turns it off; Klipper's default
+    /// is [`KLIPPER_MIN_CRUISE_RATIO`].
+    pub min_cruise_ratio: f64,
+}
+
+impl Default for VectorLimits {
+    fn default() -> Self {
+        VectorLimits::NONE
+    }
+}
+
+impl VectorLimits {
+    /// No vector limits and no minimum cruise ratio.
+    pub const NONE: VectorLimits = VectorLimits {
+        max_speed: f64::INFINITY,
+        max_accel: f64::INFINITY,
+        min_cruise_ratio: 0.0,
+    };
+
+    /// Largest toolhead speed and acceleration (`f64::INFINITY` for none),
+    /// minimum cruise ratio 0.
+    pub fn new(max_speed: f64, max_accel: f64) -> Result<Self, PlanError> {
+        let v = VectorLimits {
+            max_speed,
+            max_accel,
+            min_cruise_ratio: 0.0,
+        };
+        v.validate()?;
+        Ok(v)
+    }
+
+    /// The same limits with a minimum cruise ratio in [0, 1).
+    pub fn with_min_cruise_ratio(mut self, ratio: f64) -> Result<Self, PlanError> {
+        self.min_cruise_ratio = ratio;
+        self.validate()?;
+        Ok(self)
+    }
+
+    /// Checks every value: speed and acceleration > 0 (not NaN, infinite
+    /// allowed), ratio finite in [0, 1).
+    pub fn validate(&self) -> Result<(), PlanError> {
+        let bad = |name, value| PlanError::InvalidLimit {
+            name,
+            axis: None,
+            value,
+        };
+        if self.max_speed.is_nan() || self.max_speed <= 0.0 {
+            return Err(bad("max_speed", self.max_speed));
+        }
+        if self.max_accel.is_nan() || self.max_accel <= 0.0 {
+            return Err(bad("max_accel", self.max_accel));
+        }
+        let r = self.min_cruise_ratio;
+        if !(r.is_finite() && (0.0..1.0).contains(&r)) {
+            return Err(bad("min_cruise_ratio", r));
+        }
+        Ok(())
+    }
+}
+
 /// Why the planner refused a call.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum PlanError {
-    /// A limit is not finite, or not > 0 (≥ 0 for the junction deviation).
+    /// A limit is not finite, or not > 0 (≥ 0 for the junction deviation; the
+    /// vector speed and acceleration may be infinite; the minimum cruise
+    /// ratio must lie in [0, 1)).
     InvalidLimit {
         /// Which limit.
         name: &'static str,
@@ -117,6 +237,9 @@ pub enum PlanError {
     InvalidCapacity,
     /// The feed scale is not finite and in (0, [`super::MAX_FEED_SCALE`]].
     InvalidFeedScale(f64),
+    /// A move whose length overflows (finite coordinates whose differences
+    /// do not fit an `f64`).
+    MoveTooLong,
 }
 
 impl PlanError {
@@ -133,6 +256,7 @@ impl PlanError {
             PlanError::Busy => 7,
             PlanError::InvalidCapacity => 8,
             PlanError::InvalidFeedScale(_) => 9,
+            PlanError::MoveTooLong => 10,
         }
     }
 }
@@ -168,6 +292,7 @@ impl fmt::Display for PlanError {
                 "feed scale {k} is not finite and in (0, {}]",
                 super::MAX_FEED_SCALE
             ),
+            PlanError::MoveTooLong => write!(f, "the move's length overflows"),
         }
     }
 }

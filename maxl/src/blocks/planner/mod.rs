@@ -1,16 +1,25 @@
 //! Lookahead motion planner: straight segments (and arcs split into chords)
-//! in `N` axes, trapezoidal speed profiles, junction deviation at corners,
-//! sampled at the timer's synchronized stamps.
+//! in `N` axes, trapezoidal speed profiles, Klipper's junction and cruise
+//! model, sampled at the timer's synchronized stamps.
 //!
 //! Model (see `docs/planner.md`):
-//! - **Limits** ([`Limits`]): each axis has a speed and an acceleration
-//!   limit. A segment's largest speed and acceleration are the largest that
-//!   keep every axis within its limit along the segment's direction, and the
+//! - **Limits** ([`Limits`], [`VectorLimits`]): each axis has a speed and an
+//!   acceleration limit, and the toolhead optionally a largest |v| and |a|
+//!   (Klipper's `max_velocity`, `max_accel`). A segment's largest speed and
+//!   acceleration are the largest that keep every axis within its limit
+//!   along the segment's direction and within the vector limits, and the
 //!   speed is also at most the segment's requested feed.
-//! - **Junctions**: the speed through a corner comes from the junction
-//!   deviation model, is 0 at reversals, the full speed for collinear
-//!   segments, and keeps each axis's velocity jump within
-//!   [`Limits::max_jump`].
+//! - **Junctions**: the speed through a corner is bounded by the junction
+//!   deviation model (δ set directly or from Klipper's square-corner
+//!   velocity, [`square_corner_deviation`]) and by Klipper's centripetal
+//!   limit on the shorter neighbouring segment, which keeps chained chords
+//!   of a curve within the acceleration laterally at any chord length; it
+//!   is 0 at reversals, the full speed for collinear segments, and keeps
+//!   each axis's velocity jump within [`Limits::max_jump`].
+//! - **Minimum cruise ratio** ([`VectorLimits::min_cruise_ratio`], off by
+//!   default): Klipper's cap on each segment's speed from a second
+//!   lookahead at `acc · (1 − ratio)`, so short moves between slow corners
+//!   cruise instead of accelerating and braking all the way.
 //! - **Queue**: segments can be appended at any time, also while running.
 //!   Each append runs a backward pass from the new tail (stopping where
 //!   nothing changes) and a forward pass over the same stretch; the tail
@@ -33,7 +42,7 @@
 //! its failure codes are [`PlanError::code`]:
 //! 1 invalid limit, 2 non-finite coordinate, 3 invalid feed, 4 invalid arc,
 //! 5 queue full, 6 stamp before the previous one, 7 busy (not idle),
-//! 8 invalid capacity, 9 invalid feed scale.
+//! 8 invalid capacity, 9 invalid feed scale, 10 move too long.
 
 mod arc;
 mod class;
@@ -45,7 +54,9 @@ use std::collections::VecDeque;
 
 pub use arc::Arc;
 pub use class::{PlannerBlock, WIRE_CHORD_TOLERANCE};
-pub use limits::{Limits, PlanError};
+pub use limits::{
+    square_corner_deviation, Limits, PlanError, VectorLimits, KLIPPER_MIN_CRUISE_RATIO,
+};
 pub use plan::{Kin, Plan, PlannedSegment, Stats};
 pub use profile::Profile;
 
@@ -100,6 +111,7 @@ fn planned<const N: usize>(
 #[derive(Clone, Debug)]
 pub struct Planner<const N: usize> {
     limits: Limits<N>,
+    vector: VectorLimits,
     capacity: usize,
     /// Segments not yet started, in path order.
     queue: VecDeque<Segment<N>>,
@@ -130,12 +142,25 @@ impl<const N: usize> Planner<N> {
 
     /// A planner holding at most `capacity` segments not yet started.
     pub fn with_capacity(limits: Limits<N>, capacity: usize) -> Result<Self, PlanError> {
+        Self::with_vector_limits(limits, VectorLimits::NONE, capacity)
+    }
+
+    /// A planner with toolhead (vector) limits and a minimum cruise ratio
+    /// besides the per-axis limits, holding at most `capacity` segments not
+    /// yet started.
+    pub fn with_vector_limits(
+        limits: Limits<N>,
+        vector: VectorLimits,
+        capacity: usize,
+    ) -> Result<Self, PlanError> {
         limits.validate()?;
+        vector.validate()?;
         if capacity == 0 {
             return Err(PlanError::InvalidCapacity);
         }
         Ok(Planner {
             limits,
+            vector,
             capacity,
             queue: VecDeque::new(),
             frozen: VecDeque::new(),
@@ -154,6 +179,29 @@ impl<const N: usize> Planner<N> {
     /// The limits.
     pub fn limits(&self) -> &Limits<N> {
         &self.limits
+    }
+
+    /// The toolhead (vector) limits and minimum cruise ratio.
+    pub fn vector_limits(&self) -> &VectorLimits {
+        &self.vector
+    }
+
+    /// Sets the toolhead (vector) limits and minimum cruise ratio, at any
+    /// time: every segment not yet started takes the new limits and the
+    /// whole queue is replanned, as [`Planner::set_feed_scale`] does (the
+    /// running segment, and a halt's stop, keep their profiles; if the path
+    /// runs faster than a lowered limit there, the following segments brake
+    /// at their acceleration limit until they are under it). Refused
+    /// ([`PlanError::InvalidLimit`]) unless [`VectorLimits::validate`]
+    /// passes; nothing changes then.
+    pub fn set_vector_limits(&mut self, vector: VectorLimits) -> Result<(), PlanError> {
+        vector.validate()?;
+        self.vector = vector;
+        for s in self.queue.iter_mut() {
+            s.set_limits(&self.limits, &vector, self.feed_scale);
+        }
+        self.replan_all();
+        Ok(())
     }
 
     /// Where the next segment starts: the end of the last one queued.
@@ -196,10 +244,12 @@ impl<const N: usize> Planner<N> {
 
     /// Queue a straight move from the tail to `target` at up to `feed` mm/s.
     /// Returns the number of segments queued: 0 for a move shorter than 1 nm
-    /// (nothing to do), else 1.
+    /// (nothing to do), else 1. A move whose length overflows `f64` is
+    /// refused ([`PlanError::MoveTooLong`]).
     pub fn line(&mut self, target: [f64; N], feed: f64) -> Result<usize, PlanError> {
         check_finite(&target)?;
         check_feed(feed)?;
+        check_length(&self.tail, &target)?;
         if self.queue.len() >= self.capacity {
             return Err(PlanError::QueueFull {
                 capacity: self.capacity,
@@ -214,6 +264,12 @@ impl<const N: usize> Planner<N> {
     pub fn arc(&mut self, arc: &Arc<N>, feed: f64) -> Result<usize, PlanError> {
         check_feed(feed)?;
         let pts = arc.chords(self.tail)?;
+        let mut from = self.tail;
+        for p in &pts {
+            check_finite(p)?;
+            check_length(&from, p)?;
+            from = *p;
+        }
         if self.queue.len() + pts.len() > self.capacity {
             return Err(PlanError::QueueFull {
                 capacity: self.capacity,
@@ -384,9 +440,11 @@ impl<const N: usize> Planner<N> {
             Some(r) => epoch as f64 + r.t_end() * 1e6,
             None => self.pending_start.or(self.last_stamp).unwrap_or(epoch) as f64,
         };
+        let mut entry = self.junction(0);
         for (i, s) in self.queue.iter().enumerate() {
-            let exit = self.queue.get(i + 1).map_or(0.0, |n| n.entry);
-            let prof = Profile::plan(s.len, s.entry, exit, s.v_max, s.acc);
+            let exit = self.junction(i + 1);
+            let prof = Profile::plan(s.len, entry, exit, s.v_cap(), s.acc);
+            entry = exit;
             let p = planned(s, prof, t, false);
             t = p.end_us();
             segments.push(p);
@@ -418,42 +476,82 @@ impl<const N: usize> Planner<N> {
     /// Starts `queue[0]` at `t0` seconds after the epoch, freezing its exit.
     /// Only while nothing is frozen.
     fn begin(&mut self, t0: f64) {
+        let exit = self.junction(1);
         let Some(seg) = self.queue.pop_front() else {
             return;
         };
-        let exit = self.queue.front().map_or(0.0, |n| n.entry);
-        let prof = Profile::plan(seg.len, self.fixed_entry, exit, seg.v_max, seg.acc);
+        let prof = Profile::plan(seg.len, self.fixed_entry, exit, seg.v_cap(), seg.acc);
         self.fixed_entry = exit;
         self.frozen.push_back(Running { seg, prof, t0 });
+        self.refix_front();
+    }
+
+    /// The speed the plan passes into `queue[i]` at: the fixed entry for
+    /// `i = 0`, the lookahead's entry within the minimum cruise ratio's caps
+    /// on both sides of the junction otherwise, and 0 past the tail.
+    fn junction(&self, i: usize) -> f64 {
+        let q = &self.queue;
+        match (i, q.get(i)) {
+            (_, None) => 0.0,
+            (0, Some(_)) => self.fixed_entry,
+            (_, Some(s)) => {
+                let cap2 = s.cruise2.min(q[i - 1].cruise2);
+                if cap2 < s.entry * s.entry {
+                    cap2.sqrt()
+                } else {
+                    s.entry
+                }
+            }
+        }
+    }
+
+    /// Whether the minimum cruise ratio is on.
+    fn mcr(&self) -> bool {
+        self.vector.min_cruise_ratio > 0.0
     }
 
     /// Appends a checked segment to `target` and replans; false if too short.
     fn push(&mut self, target: [f64; N], feed: f64) -> bool {
-        let Some(mut seg) = Segment::new(
+        let Ok(Some(mut seg)) = Segment::new(
             self.next_id,
             self.tail,
             target,
             feed,
             self.feed_scale,
             &self.limits,
+            &self.vector,
         ) else {
+            // The caller checked the length; a move under 1 nm is dropped.
             return false;
         };
         let prev = self
             .queue
             .back()
             .or_else(|| self.frozen.back().map(|r| &r.seg));
-        seg.junction_max = prev.map_or(0.0, |p| junction_speed(p, &seg, &self.limits));
+        seg.junction_max =
+            prev.map_or(0.0, |p| junction_speed(p, &seg, &self.limits, &self.vector));
+        let mcr = self.mcr();
+        if mcr {
+            let r = self.vector.min_cruise_ratio;
+            seg.mcr_fwd = match self.queue.back() {
+                Some(p) => (seg.junction_max * seg.junction_max).min(p.mcr_fwd + p.mcr_delta(r)),
+                None => self.fixed_entry * self.fixed_entry,
+            };
+        }
         self.next_id += 1;
         self.tail = target;
         self.queue.push_back(seg);
-        self.replan();
+        let from = self.replan();
+        if mcr {
+            self.smooth_tail(from);
+        }
         true
     }
 
     /// Backward pass from the new tail until an entry bound stops changing,
-    /// then a forward pass over the changed stretch.
-    fn replan(&mut self) {
+    /// then a forward pass over the changed stretch. Returns the first index
+    /// whose entry may have changed.
+    fn replan(&mut self) -> usize {
         let q = &mut self.queue;
         let k = q.len() - 1;
         q[k].back = q[k].bound().min(q[k].reach(0.0));
@@ -467,6 +565,7 @@ impl<const N: usize> Planner<N> {
             q[i].back = nb;
         }
         self.forward(from);
+        from
     }
 
     /// Forward pass from `queue[from]` to the tail.
@@ -481,6 +580,148 @@ impl<const N: usize> Planner<N> {
         }
     }
 
+    /// Minimum cruise ratio, after an append whose lookahead changed the
+    /// entries from `from` on: the smoothed pass's backward bounds from the
+    /// tail until they stop changing, then the caps of every segment whose
+    /// hill may have changed.
+    fn smooth_tail(&mut self, from: usize) {
+        let r = self.vector.min_cruise_ratio;
+        let q = &mut self.queue;
+        let k = q.len() - 1;
+        let mut next = 0.0;
+        let mut changed = 0;
+        for i in (0..=k).rev() {
+            let s = q[i].mcr_fwd.min(next + q[i].mcr_delta(r));
+            if i < k && s == q[i].mcr_start {
+                changed = i + 1;
+                break;
+            }
+            q[i].mcr_start = s;
+            next = s;
+        }
+        // The segment before the first change sees a new next segment; the
+        // rising segments before it take their hill's peak from it, up to
+        // one whose peak lies within itself.
+        let mut h = changed.min(from).saturating_sub(1);
+        while h > 0 {
+            let p = &q[h - 1];
+            if p.hill >= 0.0 && p.mcr_fwd + p.mcr_delta(r) <= q[h].mcr_start {
+                h -= 1;
+            } else {
+                break;
+            }
+        }
+        self.refresh_caps(h, k);
+    }
+
+    /// After `queue[0]` became the first segment not started: its entry is
+    /// the fixed one, which the minimum cruise ratio's caps may have lowered
+    /// below its planned entry. Carries that forward through the entries
+    /// (and, with the ratio on, the smoothed pass) until nothing changes.
+    fn refix_front(&mut self) {
+        let fixed = self.fixed_entry;
+        let mcr = self.mcr();
+        let r = self.vector.min_cruise_ratio;
+        let q = &mut self.queue;
+        if q.is_empty() {
+            return;
+        }
+        let mut hi = 0;
+        if q[0].entry != fixed {
+            q[0].entry = fixed;
+            for i in 1..q.len() {
+                let e = q[i].back.min(q[i - 1].reach(q[i - 1].entry));
+                if e == q[i].entry {
+                    break;
+                }
+                q[i].entry = e;
+                hi = i;
+            }
+        }
+        if !mcr {
+            return;
+        }
+        if q[0].mcr_fwd != fixed * fixed {
+            q[0].mcr_fwd = fixed * fixed;
+            let mut tf = 0;
+            for i in 1..q.len() {
+                let c = q[i].bound();
+                let f = (c * c).min(q[i - 1].mcr_fwd + q[i - 1].mcr_delta(r));
+                if f == q[i].mcr_fwd {
+                    break;
+                }
+                q[i].mcr_fwd = f;
+                tf = i;
+            }
+            let mut next = q.get(tf + 1).map_or(0.0, |n| n.mcr_start);
+            for i in (0..=tf).rev() {
+                let s = q[i].mcr_fwd.min(next + q[i].mcr_delta(r));
+                q[i].mcr_start = s;
+                next = s;
+            }
+            hi = hi.max(tf);
+        }
+        self.refresh_caps(0, hi);
+    }
+
+    /// Minimum cruise ratio: each segment's cap from the smoothed pass (run
+    /// at `acc · (1 − ratio)`), as Klipper's lookahead assigns it. Where the
+    /// smoothed profile rises at a segment's start, the cap is the peak of
+    /// its hill (the point where the smoothed rise meets the smoothed fall,
+    /// in this segment or a later one) and of the segment's own trapezoid;
+    /// where it falls, the cap of the segment before, within its own entry.
+    ///
+    /// Recomputes the hills over `lo..=hi` (backward, from the stored values
+    /// after `hi`), then the caps from `lo` on, past `hi` as long as they
+    /// change. The caller guarantees that after `hi` the smoothed bounds and
+    /// entries are unchanged.
+    fn refresh_caps(&mut self, lo: usize, hi: usize) {
+        let r = self.vector.min_cruise_ratio;
+        let q = &mut self.queue;
+        let k = q.len() - 1;
+        let (mut next_s, mut next_hill) =
+            q.get(hi + 1).map_or((0.0, 0.0), |n| (n.mcr_start, n.hill));
+        let mut last = hi == k;
+        for i in (lo..=hi).rev() {
+            let s = &mut q[i];
+            let d = s.mcr_delta(r);
+            let reach = next_s + d;
+            s.hill = if s.mcr_fwd < reach {
+                // Rising: the peak lies in this segment if the rise meets
+                // the fall within it, or if the next one falls (or is none).
+                if last || s.mcr_fwd + d > next_s || next_hill < 0.0 {
+                    (s.mcr_start + reach) * 0.5
+                } else {
+                    next_hill
+                }
+            } else {
+                -1.0
+            };
+            next_s = s.mcr_start;
+            next_hill = s.hill;
+            last = false;
+        }
+        let mut prev = match lo {
+            0 => self.frozen.back().map_or(f64::INFINITY, |r| r.seg.cruise2),
+            _ => q[lo - 1].cruise2,
+        };
+        for i in lo..=k {
+            let s = &q[i];
+            let c = if s.hill >= 0.0 {
+                let e1 = q.get(i + 1).map_or(0.0, |n| n.entry);
+                let peak = (s.entry * s.entry + e1 * e1 + 2.0 * s.acc * s.len) * 0.5;
+                peak.min(s.hill)
+            } else {
+                prev.min(s.entry * s.entry)
+            };
+            if i > hi && c == s.cruise2 {
+                break;
+            }
+            q[i].cruise2 = c;
+            prev = c;
+        }
+    }
+
     /// Recomputes every queued segment's junction limit (its speed limit
     /// changed) and replans the whole queue.
     ///
@@ -492,6 +733,7 @@ impl<const N: usize> Planner<N> {
     /// new speed limit decelerate at their limit until they are under it).
     fn replan_all(&mut self) {
         let limits = &self.limits;
+        let vector = &self.vector;
         let q = &mut self.queue;
         let mut floor = self.fixed_entry;
         for i in 0..q.len() {
@@ -499,7 +741,7 @@ impl<const N: usize> Planner<N> {
                 0 => self.frozen.back().map(|r| &r.seg),
                 _ => Some(&q[i - 1]),
             };
-            let jm = prev.map_or(0.0, |p| junction_speed(p, &q[i], limits));
+            let jm = prev.map_or(0.0, |p| junction_speed(p, &q[i], limits, vector));
             let s = &mut q[i];
             s.junction_max = jm;
             s.floor = floor;
@@ -511,6 +753,32 @@ impl<const N: usize> Planner<N> {
             next = s.back;
         }
         self.forward(0);
+        if self.queue.is_empty() {
+            return;
+        }
+        if !self.mcr() {
+            for s in self.queue.iter_mut() {
+                s.cruise2 = f64::INFINITY;
+            }
+            return;
+        }
+        let r = self.vector.min_cruise_ratio;
+        let q = &mut self.queue;
+        let mut f = self.fixed_entry * self.fixed_entry;
+        for i in 0..q.len() {
+            if i > 0 {
+                let c = q[i].bound();
+                f = (c * c).min(f + q[i - 1].mcr_delta(r));
+            }
+            q[i].mcr_fwd = f;
+        }
+        let mut next = 0.0;
+        for s in q.iter_mut().rev() {
+            s.mcr_start = s.mcr_fwd.min(next + s.mcr_delta(r));
+            next = s.mcr_start;
+        }
+        let k = q.len() - 1;
+        self.refresh_caps(0, k);
     }
 }
 
@@ -574,6 +842,16 @@ fn check_finite<const N: usize>(p: &[f64; N]) -> Result<(), PlanError> {
     match p.iter().position(|c| !c.is_finite()) {
         Some(axis) => Err(PlanError::NonFiniteCoordinate { axis }),
         None => Ok(()),
+    }
+}
+
+/// Refuses a move whose length overflows `f64`.
+fn check_length<const N: usize>(from: &[f64; N], to: &[f64; N]) -> Result<(), PlanError> {
+    let len2: f64 = (0..N).map(|i| (to[i] - from[i]) * (to[i] - from[i])).sum();
+    if len2.is_finite() {
+        Ok(())
+    } else {
+        Err(PlanError::MoveTooLong)
     }
 }
 

@@ -4,7 +4,7 @@
 // Index loops run over several `[f64; N]` at once.
 #![allow(clippy::needless_range_loop)]
 
-use super::limits::Limits;
+use super::limits::{Limits, VectorLimits};
 
 /// Components below this are treated as zero when dividing a limit by a
 /// direction component.
@@ -34,8 +34,22 @@ pub(crate) struct Segment<const N: usize> {
     pub floor: f64,
     /// Entry-speed bound from the backward pass (reaching rest at the tail).
     pub back: f64,
-    /// Planned entry speed.
+    /// Planned entry speed of the acceleration-limited lookahead (before
+    /// the minimum cruise ratio's caps).
     pub entry: f64,
+    /// Minimum cruise ratio: the smoothed pass's forward bound on the entry
+    /// (v², mm²/s²), `min(junction², previous + 2·a'·L_previous)`.
+    pub mcr_fwd: f64,
+    /// Minimum cruise ratio: the smoothed entry (v²), the forward bound
+    /// limited by reaching the next smoothed entry at `a'`.
+    pub mcr_start: f64,
+    /// Minimum cruise ratio: the peak (v²) of the smoothed profile's hill
+    /// this segment lies on if the smoothed profile rises at its start,
+    /// negative if it falls there.
+    pub hill: f64,
+    /// Square of the largest speed within the segment the minimum cruise
+    /// ratio allows (`f64::INFINITY` with the ratio off).
+    pub cruise2: f64,
 }
 
 /// The largest value `limit[i] / |dir[i]|` keeps within every axis's limit.
@@ -53,6 +67,8 @@ pub(crate) fn along<const N: usize>(limit: &[f64; N], dir: &[f64; N]) -> f64 {
 impl<const N: usize> Segment<N> {
     /// A segment from `start` to `end` at up to `feed` × `scale`, or `None`
     /// if it is too short to move.
+    ///
+    /// `Err(())` if the length overflows (finite coordinates far apart).
     pub fn new(
         id: u64,
         start: [f64; N],
@@ -60,7 +76,8 @@ impl<const N: usize> Segment<N> {
         feed: f64,
         scale: f64,
         limits: &Limits<N>,
-    ) -> Option<Self> {
+        vector: &VectorLimits,
+    ) -> Result<Option<Self>, ()> {
         let mut d = [0.0; N];
         let mut len2 = 0.0;
         for i in 0..N {
@@ -68,14 +85,15 @@ impl<const N: usize> Segment<N> {
             len2 += d[i] * d[i];
         }
         let len = len2.sqrt();
-        if !len.is_finite() || len <= 1e-9 {
-            return None;
+        if !len.is_finite() {
+            return Err(());
+        }
+        if len <= 1e-9 {
+            return Ok(None);
         }
         for c in d.iter_mut() {
             *c /= len;
         }
-        let v_axis = along(&limits.max_vel, &d);
-        let acc = along(&limits.max_acc, &d);
         let mut seg = Segment {
             id,
             start,
@@ -83,16 +101,43 @@ impl<const N: usize> Segment<N> {
             dir: d,
             len,
             feed,
-            v_axis,
-            v_max: v_axis,
-            acc,
+            v_axis: 0.0,
+            v_max: 0.0,
+            acc: 0.0,
             junction_max: 0.0,
             floor: 0.0,
             back: 0.0,
             entry: 0.0,
+            mcr_fwd: 0.0,
+            mcr_start: 0.0,
+            hill: 0.0,
+            cruise2: f64::INFINITY,
         };
-        seg.scale_feed(scale);
-        Some(seg)
+        seg.set_limits(limits, vector, scale);
+        Ok(Some(seg))
+    }
+
+    /// Sets the speed and acceleration limits along the direction: the
+    /// per-axis ones and the vector ones, the feed scaled by `scale`.
+    pub fn set_limits(&mut self, limits: &Limits<N>, vector: &VectorLimits, scale: f64) {
+        self.v_axis = along(&limits.max_vel, &self.dir).min(vector.max_speed);
+        self.acc = along(&limits.max_acc, &self.dir).min(vector.max_accel);
+        self.scale_feed(scale);
+    }
+
+    /// The speed limit within the minimum cruise ratio's cap.
+    pub fn v_cap(&self) -> f64 {
+        if self.cruise2 < self.v_max * self.v_max {
+            self.cruise2.sqrt()
+        } else {
+            self.v_max
+        }
+    }
+
+    /// The change of v² (mm²/s²) over the segment at the smoothed pass's
+    /// acceleration `acc · (1 − ratio)`.
+    pub fn mcr_delta(&self, ratio: f64) -> f64 {
+        2.0 * self.acc * (1.0 - ratio) * self.len
     }
 
     /// Sets the speed limit to the feed scaled by `k`, within the axes'.
@@ -114,38 +159,58 @@ impl<const N: usize> Segment<N> {
 
 /// Largest speed through the corner from `prev` into `next`.
 ///
-/// Junction deviation: the corner is treated as a circular arc tangent to
-/// both segments whose closest point lies `δ` from the corner; the speed is
-/// the one whose centripetal acceleration on that arc equals the acceleration
-/// limit along the direction of the velocity change. Reversals give 0,
-/// collinear segments the smaller of the two speed limits. Each axis's
-/// velocity change is also kept within `max_jump`.
+/// With `θ` the angle between the reversed incoming direction and the
+/// outgoing one (180° straight on, 0 a reversal) and `a_c` the acceleration
+/// allowed along the direction of the velocity change (the per-axis limits
+/// along it, and the vector limit), the speed is the smallest of:
+/// - junction deviation: the corner is treated as a circular arc tangent to
+///   both segments whose closest point lies `δ` from the corner, of radius
+///   `δ·sin(θ/2)/(1 − sin(θ/2))`, and the speed keeps its centripetal
+///   acceleration at `a_c` (skipped within 0.08° of straight, so `δ = 0`
+///   still runs straight through collinear chords);
+/// - centripetal (Klipper's): the arc tangent to both segments no further
+///   than half the shorter one from the corner, of radius
+///   `½·min(L_prev, L_next)·tan(θ/2)`, again at `a_c`. On a chain of chords
+///   along a curve this radius is at most the radius of the circle through
+///   the three points around the junction, so `v²/R ≤ a_c` at any chord
+///   length;
+/// - a reversal (θ = 0) gives 0 from both: `sin(θ/2)` is computed as
+///   `|u_prev + u_next| / 2`, exactly 0 there;
+/// - both segments' speed limits;
+/// - each axis's velocity change within `max_jump`.
 pub(crate) fn junction_speed<const N: usize>(
     prev: &Segment<N>,
     next: &Segment<N>,
     limits: &Limits<N>,
+    vector: &VectorLimits,
 ) -> f64 {
-    let mut cos = 0.0;
-    for i in 0..N {
-        cos -= prev.dir[i] * next.dir[i];
-    }
-    let cap = prev.v_max.min(next.v_max);
-    if cos > 0.999_999 {
-        return 0.0;
-    }
+    let mut dot = 0.0;
     let mut w = [0.0; N];
-    let mut wn = 0.0;
+    let (mut wn2, mut sn2) = (0.0, 0.0);
     for i in 0..N {
+        dot += prev.dir[i] * next.dir[i];
         w[i] = next.dir[i] - prev.dir[i];
-        wn += w[i] * w[i];
+        wn2 += w[i] * w[i];
+        let s = next.dir[i] + prev.dir[i];
+        sn2 += s * s;
     }
-    let wn = wn.sqrt();
-    let mut v = cap;
-    if cos > -0.999_999 && wn > TINY {
+    let mut v = prev.v_max.min(next.v_max);
+    if wn2 > 0.0 {
+        let wn = wn2.sqrt();
+        // |u_next − u_prev| = 2·cos(θ/2), |u_next + u_prev| = 2·sin(θ/2),
+        // both without cancellation near straight.
+        let cos_half = 0.5 * wn;
+        let sin_half = 0.5 * sn2.sqrt();
         let unit = w.map(|c| c / wn);
-        let a = along(&limits.max_acc, &unit);
-        let sin_half = (0.5 * (1.0 - cos)).sqrt();
-        let r = limits.junction_deviation * sin_half / (1.0 - sin_half);
+        let a = along(&limits.max_acc, &unit).min(vector.max_accel);
+        // Centripetal: ½·min(L)·tan(θ/2).
+        let mut r = 0.5 * prev.len.min(next.len) * sin_half / cos_half;
+        if -dot > -0.999_999 {
+            // Junction deviation; 1 − sin(θ/2) = cos²(θ/2)/(1 + sin(θ/2)).
+            let r_jd =
+                limits.junction_deviation * sin_half * (1.0 + sin_half) / (cos_half * cos_half);
+            r = r.min(r_jd);
+        }
         v = v.min((a * r).sqrt());
     }
     // The per-axis jump: |v · Δdir_i| ≤ max_jump_i.
