@@ -33,7 +33,6 @@ use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use maxl::blocks::planner::Planner;
 use maxl::blocks::timer::TimerBlock;
 use osap_core::clock::SyncState;
 use osap_core::route::Route;
@@ -383,7 +382,7 @@ async fn set_up(cfg: &MachineFile, m: &mut Manager) -> (Duration, Duration) {
     let calls = t.elapsed();
 
     let t = Instant::now();
-    let planner = Planner::new(job::machine_limits(cfg)).expect("planner");
+    let planner = job::machine_planner(cfg).expect("planner");
     let (motion, _status) = Motion::new(planner, drv, at);
     let motion = Arc::new(Mutex::new(motion));
     let (events, _) = broadcast::channel::<MachineEvent>(1024);

@@ -357,6 +357,11 @@ pub struct Limits {
     pub acceleration: f64,
     /// Junction deviation for cornering, units.
     pub junction_deviation: f64,
+    /// The share of each move kept for cruising, in [0, 1): moves that
+    /// cannot cruise accelerate less (the meaning Klipper gives
+    /// `minimum_cruise_ratio`; 0.5 is Klipper's default). Default 0: off.
+    #[serde(default)]
+    pub minimum_cruise_ratio: f64,
 }
 
 /// What a tool is.
@@ -975,6 +980,13 @@ impl MachineFile {
             l.junction_deviation,
             "units, e.g. 0.02",
         )?;
+        let r = l.minimum_cruise_ratio;
+        if !(r.is_finite() && (0.0..1.0).contains(&r)) {
+            return Err(invalid(
+                "limits.minimum_cruise_ratio",
+                format!("{r} must be in [0, 1), e.g. 0.5"),
+            ));
+        }
         Ok(())
     }
 

@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use maxl::blocks::planner::{Arc as PlanArc, Limits, Planner};
+use maxl::blocks::planner::{Arc as PlanArc, Limits, Planner, VectorLimits};
 
 use crate::config::{MachineFile, ToolKind};
 use crate::gcode::{Action, Job};
@@ -297,7 +297,7 @@ impl Program {
     /// times, and the restart after each stop at rest (a timer lead plus
     /// two intervals).
     pub fn planned_seconds(&self, cfg: &MachineFile, start: &[f64]) -> Result<f64, MachineError> {
-        let mut planner = Planner::new(machine_limits(cfg))?;
+        let mut planner = machine_planner(cfg)?;
         planner.set_position(pad(start))?;
         let mut total = 0.0;
         let rapid = cfg.limits.velocity;
@@ -395,21 +395,26 @@ fn tool_level(tool: &crate::config::Tool, level: Option<ToolLevel>) -> f64 {
     }
 }
 
-/// The planner limits of a machine (as [`Machine`] plans with).
-pub fn machine_limits(cfg: &MachineFile) -> Limits<MAX_AXES> {
+/// The planner a machine plans with: each axis's own velocity and
+/// acceleration, the toolhead's vector limits and minimum cruise ratio from
+/// `[limits]`, and its junction deviation (with the centripetal limit on
+/// chorded curves that maxl's planner always applies).
+pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineError> {
     let mut vel = [1.0; MAX_AXES];
     let mut acc = [1.0; MAX_AXES];
     for (k, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
         let a = &cfg.axes[*name];
-        vel[k] = a.velocity.min(cfg.limits.velocity);
-        acc[k] = a.acceleration.min(cfg.limits.acceleration);
+        vel[k] = a.velocity;
+        acc[k] = a.acceleration;
     }
-    Limits {
-        max_vel: vel,
-        max_acc: acc,
-        junction_deviation: cfg.limits.junction_deviation,
-        max_jump: [f64::INFINITY; MAX_AXES],
-    }
+    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?;
+    let vector = VectorLimits::new(cfg.limits.velocity, cfg.limits.acceleration)?
+        .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?;
+    Ok(Planner::with_vector_limits(
+        limits,
+        vector,
+        maxl::blocks::planner::DEFAULT_CAPACITY,
+    )?)
 }
 
 impl Machine {

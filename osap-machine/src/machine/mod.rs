@@ -29,7 +29,7 @@ use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
-use maxl::blocks::planner::{Arc as PlanArc, Planner};
+use maxl::blocks::planner::Arc as PlanArc;
 use maxl::blocks::timer::TimerBlock;
 use osap_core::route::Route;
 use osap_host::netrunner::{Netrunner, SyncGoal};
@@ -253,7 +253,7 @@ impl Machine {
                 .map_err(MachineError::Unsupported)?;
         }
 
-        let planner = Planner::new(crate::job::machine_limits(cfg))?;
+        let planner = crate::job::machine_planner(cfg)?;
         let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
         let mut start3 = [0.0; MAX_AXES];
         start3[..start.len()].copy_from_slice(&start);
@@ -932,7 +932,7 @@ impl Machine {
         // Whatever was planned is void: a fresh planner, where the motors
         // stand, with the same feed override.
         let scale = m.planner.feed_scale();
-        let mut planner = Planner::new(m.planner.limits().clone())?;
+        let mut planner = crate::job::machine_planner(&self.inner.cfg)?;
         planner.set_feed_scale(scale)?;
         let mut p3 = [0.0; MAX_AXES];
         p3[..p.len()].copy_from_slice(&p);
