@@ -16,10 +16,24 @@
 //! `[ptr=5][ttl][mtu][link_forward(0)][link_forward(1)][port_handle(1->1)][payload]`:
 //! the first hop is the one the sender executed; this runtime's ingest
 //! overwrites it with the way back and advances `ptr` to `link_forward(1)`.
+//!
+//! Clock sync: the runtimes keep the default time configuration, as a module
+//! or hub runs it (with the default `sync` feature: synchronisation on,
+//! following a neighbour). Such a runtime sends a time stamp request on every
+//! open link at its first poll, to discover its neighbours, and then one per
+//! interval (50 ms). Time stands still in the benchmarks, so [`settle`] polls
+//! each runtime once before anything is measured, checks that exactly those
+//! requests came out (one per open link with `sync`, none without) and
+//! clears them; after that no request falls due, so every packet counted is
+//! one the benchmark sent, while each poll still pays the clock's check of
+//! its schedule. `cargo bench -p osap-core --no-default-features --bench
+//! forwarding` measures the runtime without the clock controller.
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use osap_core::clock::CODE_TIME_REQUEST;
 use osap_core::link::queue::QueueLink;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
+use osap_core::packet::Packet;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::transport::Transport;
 use osap_core::{Instruction, Micros, Route, Runtime, RuntimeConfig};
@@ -32,6 +46,12 @@ const MTU: usize = 256;
 const TTL: u16 = 50_000;
 /// Largest batch measured, and the depth of the benchmark's link queues.
 const MAX_BATCH: usize = 64;
+/// The local time of every poll: time stands still in the benchmarks.
+const NOW: Micros = 1_000;
+/// Time stamp requests a fresh runtime sends on each open link at its first
+/// poll: one with the clock controller (the default `sync` feature), none
+/// without.
+const SYNC_REQUESTS: usize = if cfg!(feature = "sync") { 1 } else { 0 };
 
 type Link = QueueLink<MAX_BATCH, MTU>;
 
@@ -197,6 +217,62 @@ fn run<
     }
 }
 
+/// Whether `packet`, as it leaves on `link`, is a time stamp request of the
+/// runtime's own clock.
+fn is_time_request(packet: &[u8], link: u8) -> bool {
+    let Ok(p) = Packet::new(packet) else {
+        return false;
+    };
+    p.instruction() == Ok(Instruction::LinkForward(link))
+        && p.after_instruction()
+            .and_then(Instruction::decode)
+            .is_ok_and(|i| i == Instruction::SystemMsg(CODE_TIME_REQUEST))
+}
+
+/// Runs a fresh runtime's first poll with nothing to receive, so its clock
+/// sends the time stamp requests it sends at start (see the module's
+/// header); returns what each link sent. Then checks that, with time
+/// standing still at [`NOW`], no further request can fall due while the
+/// benchmark runs.
+fn first_poll<
+    const S: usize,
+    const M: usize,
+    const P: usize,
+    const L: usize,
+    Po: Port,
+    Li: LinkGateway,
+>(
+    rt: &mut Runtime<S, M, P, L>,
+    ports: &mut [Po],
+    links: &mut [Li],
+) {
+    run(rt, NOW, ports, links);
+    if let Some(t) = rt.clock().next_request() {
+        assert!(t > NOW, "a time request would fall due while measuring");
+    }
+}
+
+/// [`first_poll`] on `QueueLink`s: takes the time stamp requests out of
+/// every link's outbox and checks there are exactly [`SYNC_REQUESTS`] each.
+fn settle<const S: usize, const M: usize, const P: usize, const L: usize, Po: Port>(
+    rt: &mut Runtime<S, M, P, L>,
+    ports: &mut [Po],
+    links: &mut [Link],
+) {
+    first_poll(rt, ports, links);
+    for (i, link) in links.iter_mut().enumerate() {
+        let mut requests = 0;
+        while let Some(p) = link.take_sent() {
+            assert!(
+                is_time_request(&p, i as u8),
+                "link {i}: a packet other than a time request at start: {p:?}"
+            );
+            requests += 1;
+        }
+        assert_eq!(requests, SYNC_REQUESTS, "link {i}: time requests at start");
+    }
+}
+
 type Group<'a> = criterion::BenchmarkGroup<'a, criterion::measurement::WallTime>;
 
 /// Runs `step` (which handles one batch and returns how many packets came
@@ -223,14 +299,17 @@ fn forward_queue<const S: usize>(
     let mut links = [Link::new(), Link::new()];
     let mut ports: [CountingPort; 0] = [];
     let packet = forward_packet();
+    settle(&mut rt, &mut ports, &mut links);
     // What leaves on link 1: the same packet with the first hop rewritten to
     // the way back (link_forward(0)) and ptr moved on to link_forward(1).
     links[0].inject(&packet);
-    run(&mut rt, 1_000, &mut ports, &mut links);
+    run(&mut rt, NOW, &mut ports, &mut links);
     let out = links[1].take_sent().expect("the packet was forwarded");
     let mut expected = packet.clone();
     expected[0] = 6;
     assert_eq!(out.as_slice(), expected.as_slice());
+    assert_eq!(links[1].take_sent(), None, "one packet in, one out");
+    assert_eq!(links[0].take_sent(), None, "nothing goes back on link 0");
     measure(g, label, batch, || {
         for _ in 0..batch {
             links[0].inject(&packet);
@@ -238,7 +317,7 @@ fn forward_queue<const S: usize>(
         // Ingest takes at most `link_quota` packets per poll; keep polling
         // until the inbox is drained.
         while links[0].inbox_len() > 0 {
-            run(&mut rt, 1_000, &mut ports, &mut links);
+            run(&mut rt, NOW, &mut ports, &mut links);
         }
         let mut n = 0;
         while let Some(p) = links[1].take_sent() {
@@ -262,11 +341,17 @@ fn forward_bare<const S: usize>(
     let packet = forward_packet();
     let mut links = [BareLink::new(&packet), BareLink::new(&packet)];
     let mut ports: [CountingPort; 0] = [];
+    // A bare link only counts what it sends: the first poll's sends are the
+    // clock's requests.
+    first_poll(&mut rt, &mut ports, &mut links);
+    for (i, link) in links.iter().enumerate() {
+        assert_eq!(link.sent, SYNC_REQUESTS as u64, "link {i}: time requests");
+    }
     measure(g, label, batch, || {
         let before = links[1].sent;
         links[0].budget = batch;
         while links[0].budget > 0 {
-            run(&mut rt, 1_000, &mut ports, &mut links);
+            run(&mut rt, NOW, &mut ports, &mut links);
         }
         (links[1].sent - before) as usize
     });
@@ -300,13 +385,14 @@ fn delivery(c: &mut Criterion) {
         let mut links = [Link::new()];
         let mut ports = [CountingPort::default()];
         let packet = deliver_packet();
+        settle(&mut rt, &mut ports, &mut links);
         measure(&mut g, label, batch, || {
             let before = ports[0].packets;
             for _ in 0..batch {
                 links[0].inject(&packet);
             }
             while links[0].inbox_len() > 0 {
-                run(&mut rt, 1_000, &mut ports, &mut links);
+                run(&mut rt, NOW, &mut ports, &mut links);
             }
             (ports[0].packets - before) as usize
         });
@@ -324,6 +410,7 @@ fn netresponder(c: &mut Criterion) {
         let mut links = [Link::new()];
         let mut ports: [CountingPort; 0] = [];
         let request = netresponder_request(7);
+        settle(&mut rt, &mut ports, &mut links);
         measure(&mut g, label, batch, || {
             for _ in 0..batch {
                 links[0].inject(&request);
@@ -332,7 +419,7 @@ fn netresponder(c: &mut Criterion) {
             // Port 0 may hold only `port_quota` replies at once, so requests
             // beyond that wait for the next poll.
             for _ in 0..4 * batch {
-                run(&mut rt, 1_000, &mut ports, &mut links);
+                run(&mut rt, NOW, &mut ports, &mut links);
                 while let Some(p) = links[0].take_sent() {
                     black_box(&p);
                     replies += 1;

@@ -9,8 +9,9 @@
 //! - `rpc/host_host`: for comparison, the same query between two plain
 //!   hosts joined in process (no simulated module).
 //! - `scan/{1,8,64}`: a full network scan (`netrunner::scan`) of that many
-//!   simulated modules on zero-latency links (a tree of hubs with up to 7
-//!   children each), clock sync running as on hardware.
+//!   simulated stepper modules on zero-latency links (each on a hub's UART,
+//!   the hubs in a tree under the host's USB, up to 7 children each; see
+//!   [`tree`]), clock sync running as on hardware.
 //!
 //! The requests are made from a task on the (multi-thread) tokio runtime,
 //! as a script's tasks would. `rpc_block_on/*` makes them from outside the
@@ -126,24 +127,44 @@ async fn loopback_tcp() -> Path {
     }
 }
 
-/// `n` modules: `m0` on the host, then each module `i` under `m((i-1)/7)`,
-/// so every hub has its uplink and up to 7 children (8 links).
-fn tree(n: usize, sync: bool) -> Topology {
+/// `n` stepper modules `m0`, `m1`, … (the module firmware: a USB link and
+/// one UART, so a stepper joins others only through a hub), each on a UART
+/// of a hub; the hubs `h0`, `h1`, … in a tree with an uplink and up to 7
+/// children each (8 links), as few levels as fit, the top hub on the host's
+/// USB. Returns the topology and how many runtimes a scan finds: the host,
+/// the hubs and the modules.
+fn tree(n: usize, sync: bool) -> (Topology, usize) {
+    const CHILDREN: usize = 7;
     let mut t = Topology {
         sync,
         ..Topology::new(&format!("tree{n}"))
     }
     .with_zero_latency(true);
-    for i in 0..n {
-        t = t.with_module(ModuleSpec::new(&format!("m{i}"), "stepper"));
-        let parent = if i == 0 {
-            machine::HOST.to_string()
-        } else {
-            format!("m{}", (i - 1) / 7)
-        };
-        t = t.with_link(LinkSpec::new(&parent, &format!("m{i}"), LinkKind::Uart));
+    let mut level: Vec<String> = (0..n).map(|i| format!("m{i}")).collect();
+    for name in &level {
+        t = t.with_module(ModuleSpec::new(name, "stepper"));
     }
-    t
+    let mut hubs = 0;
+    loop {
+        let parents: Vec<String> = (0..level.len().div_ceil(CHILDREN))
+            .map(|_| {
+                hubs += 1;
+                format!("h{}", hubs - 1)
+            })
+            .collect();
+        for name in &parents {
+            t = t.with_module(ModuleSpec::new(name, "hub"));
+        }
+        for (i, child) in level.iter().enumerate() {
+            t = t.with_link(LinkSpec::new(&parents[i / CHILDREN], child, LinkKind::Uart));
+        }
+        if let [top] = parents.as_slice() {
+            t = t.with_link(LinkSpec::new(machine::HOST, top, LinkKind::Usb));
+            break;
+        }
+        level = parents;
+    }
+    (t, 1 + hubs + n)
 }
 
 fn percentile(sorted: &[Duration], p: f64) -> Duration {
@@ -237,13 +258,12 @@ fn bench_scan(c: &mut Criterion, rt: &tokio::runtime::Runtime) {
     group.sample_size(10);
     for n in [1usize, 8, 64] {
         let host = host("bench");
-        let machine = rt
-            .block_on(SimMachine::start(&host, &tree(n, true)))
-            .unwrap();
+        let (topology, runtimes) = tree(n, true);
+        let machine = rt.block_on(SimMachine::start(&host, &topology)).unwrap();
         let options = ScanOptions::default();
         // Once up front: the scan finds them all.
         let report = rt.block_on(netrunner::scan(&host, &options)).unwrap();
-        assert_eq!(report.map.runtimes.len(), n + 1, "{:?}", report.failures);
+        assert_eq!(report.map.runtimes.len(), runtimes, "{:?}", report.failures);
         println!(
             "scan/{n}: first scan {:.1} ms, {} runtimes, {} links",
             report.elapsed.as_secs_f64() * 1e3,
