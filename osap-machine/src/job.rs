@@ -7,7 +7,7 @@ use std::time::Duration;
 use maxl::blocks::planner::{Arc as PlanArc, Limits, Planner, VectorLimits};
 
 use crate::config::{MachineFile, ToolKind};
-use crate::gcode::{Action, Job};
+use crate::gcode::{Action, GcodeError, Job};
 use crate::machine::{Machine, MachineError, MAX_AXES};
 use crate::svg::Drawing;
 
@@ -155,20 +155,26 @@ fn pad(p: &[f64]) -> [f64; MAX_AXES] {
 /// A G-code job as a program for machine `cfg`, starting at `start`
 /// (axis order). Every move, arcs included, is checked against the travel.
 pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program, JobError> {
+    // The reader's own travel check covers whole arcs; axes the machine
+    // lacks are checked by `place_gcode` (they must stay at 0).
+    let (mut min, mut max) = ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]);
+    for (g, slot) in slots(cfg).iter().enumerate() {
+        if let Some(k) = slot {
+            let a = &cfg.axes[cfg.axis_names()[*k]];
+            (min[g], max[g]) = (a.min, a.max);
+        }
+    }
     let mut moves = Vec::new();
     let mut at = start.to_vec();
     for step in &job.steps {
-        let place = format!("line {}", step.line);
         let mv = match step.action {
             Action::Rapid { to } => {
                 let p = place_gcode(cfg, to, &at, step.line)?;
-                check(cfg, &p, &place)?;
                 at.clone_from(&p);
                 Move::Rapid(p)
             }
             Action::Line { to, feed } => {
                 let p = place_gcode(cfg, to, &at, step.line)?;
-                check(cfg, &p, &place)?;
                 at.clone_from(&p);
                 Move::Line(p, feed)
             }
@@ -181,20 +187,6 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
                 let p = place_gcode(cfg, to, &at, step.line)?;
                 if slots(cfg)[0] != Some(0) || slots(cfg)[1] != Some(1) {
                     return Err(JobError::NotPlanar(cfg.axis_names().join(", ")));
-                }
-                let arc = PlanArc {
-                    end: pad(&p),
-                    plane: (0, 1),
-                    center,
-                    clockwise,
-                    chord_tolerance: 0.002,
-                };
-                let chords = arc.chords(pad(&at)).map_err(|e| JobError::BadArc {
-                    place: place.clone(),
-                    reason: e.to_string(),
-                })?;
-                for c in &chords {
-                    check(cfg, &c[..at.len()], &place)?;
                 }
                 at.clone_from(&p);
                 Move::Arc {
@@ -214,6 +206,25 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
         };
         moves.push((step.line, mv));
     }
+    job.check_travel(min, max).map_err(|e| match e {
+        GcodeError::Travel {
+            line,
+            axis,
+            value,
+            min,
+            max,
+        } => JobError::OutOfTravel {
+            place: format!("line {line}"),
+            axis: axis.to_ascii_lowercase().to_string(),
+            value,
+            min,
+            max,
+        },
+        other => JobError::BadArc {
+            place: "G-code".into(),
+            reason: other.to_string(),
+        },
+    })?;
     Ok(Program {
         moves,
         warnings: job.warnings.iter().map(|w| w.to_string()).collect(),

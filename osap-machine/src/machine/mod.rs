@@ -695,8 +695,9 @@ impl Machine {
         // The arc's bulge must stay within travel too.
         let tail = lock_motion(&self.inner.motion).planner.tail();
         let chords = arc.chords(tail)?;
+        let n = target.as_ref().len();
         for p in &chords {
-            self.check_target(&p[..self.axes().len()])?;
+            self.check_target(&p[..n])?;
         }
         self.wait_for_room(chords.len()).await?;
         self.check_running()?;
@@ -749,12 +750,7 @@ impl Machine {
                 r = state.changed() => r.map_err(|_| MachineError::Stopped)?,
             }
         };
-        // The modules run the last points two intervals after their stamp.
-        let done = rest + 2 * u64::from(INTERVAL_US);
-        let now = self.now_us().await?;
-        if done > now {
-            tokio::time::sleep(Duration::from_micros(done - now)).await;
-        }
+        self.wait_motors_past(rest).await?;
         self.check_running()
     }
 
@@ -774,7 +770,14 @@ impl Machine {
             }
             status.changed().await.map_err(|_| MachineError::Stopped)?;
         }
-        let done = status.borrow().rest_stamp + 2 * u64::from(INTERVAL_US);
+        let rest = status.borrow().rest_stamp;
+        self.wait_motors_past(rest).await
+    }
+
+    /// Sleeps until the motors have run the points up to stamp `rest`: a
+    /// module evaluates a point two intervals after its stamp.
+    async fn wait_motors_past(&self, rest: u64) -> Result<(), MachineError> {
+        let done = rest + 2 * u64::from(INTERVAL_US);
         let now = self.now_us().await?;
         if done > now {
             tokio::time::sleep(Duration::from_micros(done - now)).await;
