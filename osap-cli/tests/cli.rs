@@ -1,9 +1,10 @@
 //! The `osap` command line, run as a user would run it.
 
 use osap_host::map::NetworkMap;
-use std::io::{BufRead, BufReader};
+
+mod common;
 use std::path::PathBuf;
-use std::process::{Child, Command, Stdio};
+use std::process::Command;
 
 /// The path of a topology shipped in `osap-sim/topologies/`.
 fn shipped(name: &str) -> PathBuf {
@@ -155,36 +156,10 @@ fn nothing_to_talk_to_is_a_clear_error() {
     assert!(stderr.contains("/dev/definitely-not-here"), "{stderr}");
 }
 
-struct Killed(Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn a_served_machine_is_scanned_from_another_process() {
     // Port 0: the server picks a free port and prints it.
-    let mut server = Killed(
-        osap()
-            .args(["serve", "--tcp", "127.0.0.1:0", "--sim"])
-            .arg(shipped("small-machine.toml"))
-            .stdout(Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    let mut line = String::new();
-    BufReader::new(server.0.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .split_whitespace()
-        .find(|w| w.starts_with("127.0.0.1:"))
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .trim_end_matches(';')
-        .to_string();
+    let (_server, addr) = common::serve(&shipped("small-machine.toml"));
     let out = osap().args(["scan", "--tcp", &addr]).output().unwrap();
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(

@@ -5,6 +5,8 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+mod common;
+
 fn example(path: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../examples")
@@ -249,39 +251,12 @@ fn one_off_commands_home_jog_and_move() {
     assert!(text(&o).contains("y=-5.000"), "{}", text(&o));
 }
 
-/// Kills the child when dropped, so a failed test leaves no server behind.
-struct Killed(std::process::Child);
-
-impl Drop for Killed {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
-    }
-}
-
 #[test]
 fn a_job_runs_over_tcp_on_a_machine_served_from_its_machine_file() {
     let _one = serial();
-    use std::io::{BufRead, BufReader};
     let dir = scratch("tcp");
     let mill = example("machines/mill.toml");
-    let mut server = Killed(
-        Command::new(env!("CARGO_BIN_EXE_osap"))
-            .args(["serve", "--tcp", "127.0.0.1:0", "--sim", s(&mill)])
-            .stdout(std::process::Stdio::piped())
-            .spawn()
-            .unwrap(),
-    );
-    let mut line = String::new();
-    BufReader::new(server.0.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
-    let addr = line
-        .split_whitespace()
-        .find(|w| w.starts_with("127.0.0.1:"))
-        .unwrap_or_else(|| panic!("no address in {line:?}"))
-        .trim_end_matches(';')
-        .to_string();
+    let (_server, addr) = common::serve(&mill);
     // Real time, so a short job; the simulated carriage stands mid-travel,
     // where --no-home takes the machine to be at its start (0, 0, 0).
     std::fs::write(
