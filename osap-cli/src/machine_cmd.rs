@@ -278,7 +278,10 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         ProgressStyle::with_template("{bar:40} {pos}/{len} moves  {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    machine.start_recording();
+    machine
+        .start_recording()
+        .await
+        .map_err(Failure::from_machine)?;
     let t0 = machine.now_us().await.map_err(Failure::from_machine)?;
     let mut first = true;
     // Machine time (tokio's clock: virtual with --fast).
@@ -299,7 +302,10 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         .await;
     bar.finish_and_clear();
     let t1 = machine.now_us().await.map_err(Failure::from_machine)?;
-    let recording = machine.take_recording(t0);
+    let recording = machine
+        .take_recording(t0)
+        .await
+        .map_err(Failure::from_machine)?;
 
     let mut faults = Vec::new();
     let mut refusals: std::collections::BTreeMap<String, (u32, String)> = Default::default();

@@ -860,7 +860,7 @@ async fn run_job(cfg: &MachineFile, program: &Program, variant: Variant) -> JobR
     let planned = program
         .planned_seconds(cfg, &machine.position())
         .expect("planned");
-    machine.start_recording();
+    machine.start_recording().await.expect("recording");
     let t0 = machine.now_us().await.expect("time");
     let w = Instant::now();
     let v = tokio::time::Instant::now();
@@ -870,7 +870,7 @@ async fn run_job(cfg: &MachineFile, program: &Program, variant: Variant) -> JobR
     let (wall, machine_s) = (w.elapsed(), v.elapsed());
     let t1 = machine.now_us().await.expect("time");
     let w = Instant::now();
-    let recording = machine.take_recording(t0);
+    let recording = machine.take_recording(t0).await.expect("recording");
     let take = w.elapsed();
     result.expect("the job runs");
 

@@ -61,7 +61,7 @@ fn plotter_homes_and_draws_a_square() {
                 p[k]
             );
         }
-        m.start_recording();
+        m.start_recording().await.unwrap();
         let t0 = m.now_us().await.unwrap();
         let pen = m.tool("pen").unwrap();
         m.goto_now([20.0, 20.0], 100.0).await.unwrap();
@@ -72,7 +72,7 @@ fn plotter_homes_and_draws_a_square() {
         }
         m.idle().await.unwrap();
         pen.off().await.unwrap();
-        let rec = m.take_recording(t0);
+        let rec = m.take_recording(t0).await.unwrap();
         let p = m.position();
         assert!(
             (p[0] - 20.0).abs() < 1e-9 && (p[1] - 20.0).abs() < 1e-9,

@@ -324,7 +324,7 @@ impl Machine {
                 &mut manager,
                 &runtime,
                 "get_status",
-                STATUS_PERIOD_US,
+                Some(STATUS_PERIOD_US),
                 false,
                 &status_fn,
                 4,
@@ -340,7 +340,7 @@ impl Machine {
                 &mut manager,
                 &runtime,
                 "get_counters",
-                STATUS_PERIOD_US,
+                Some(STATUS_PERIOD_US),
                 true,
                 &counters_fn,
                 4,
@@ -355,16 +355,9 @@ impl Machine {
                         .map_err(MachineError::Unsupported)?,
                 )
                 .await?;
-            source(
-                &mut manager,
-                &runtime,
-                "get_position",
-                FAST_PERIOD_US,
-                true,
-                &f,
-                2,
-            )
-            .await?;
+            // Wired now, run only while recording (start_recording): at
+            // 1 kHz per motor it is most of a simulation's work otherwise.
+            source(&mut manager, &runtime, "get_position", None, true, &f, 2).await?;
         }
         let mut switch_modules: Vec<&str> = cfg
             .axes
@@ -385,7 +378,7 @@ impl Machine {
                 &mut manager,
                 &runtime,
                 "read_limit",
-                FAST_PERIOD_US,
+                Some(FAST_PERIOD_US),
                 true,
                 &f,
                 3,
@@ -982,17 +975,37 @@ impl Machine {
 
     /// Starts keeping what was planned and what the motors stepped, for
     /// [`Machine::take_recording`].
-    pub fn start_recording(&self) {
+    pub async fn start_recording(&self) -> Result<(), MachineError> {
         lock_motion(&self.inner.motion).record = Some(Vec::new());
         let n = lock_motion(&self.inner.motion).drive.motors().len();
         monitor::lock(&self.inner.reports).positions = Some(vec![Vec::new(); n]);
+        self.position_reports(InputMode::OnTimer(FAST_PERIOD_US))
+            .await
+    }
+
+    /// Sets the input mode of every motor module's `get_position` source:
+    /// on a timer while recording, idle otherwise.
+    async fn position_reports(&self, mode: InputMode) -> Result<(), MachineError> {
+        let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
+        let mut manager = self.inner.manager.lock().await;
+        for m in motors {
+            let runtime = &self.inner.modules[&m.module].runtime;
+            manager
+                .set_input_mode(&FnRef::new(runtime.as_str(), "get_position"), mode)
+                .await?;
+        }
+        Ok(())
     }
 
     /// What was planned and stepped since [`Machine::start_recording`],
     /// from synchronized time `from_us` on, as machine positions: planned
     /// at every stamp, executed read back from the motors' stepped
     /// positions on a 1 kHz grid. Stops recording.
-    pub fn take_recording(&self, from_us: u64) -> crate::record::Recording {
+    pub async fn take_recording(
+        &self,
+        from_us: u64,
+    ) -> Result<crate::record::Recording, MachineError> {
+        self.position_reports(InputMode::OnAnyFresh).await?;
         let (planned, drive_axes) = {
             let mut m = lock_motion(&self.inner.motion);
             (m.record.take().unwrap_or_default(), m.drive.axes().to_vec())
@@ -1038,11 +1051,11 @@ impl Machine {
                 }
             }
         }
-        crate::record::Recording {
+        Ok(crate::record::Recording {
             axes: drive_axes,
             planned,
             executed,
-        }
+        })
     }
 
     /// Stops the machine: a controlled stop, then the motors are left
@@ -1067,13 +1080,15 @@ fn lock_motion(m: &SharedMotion) -> std::sync::MutexGuard<'_, motion::Motion> {
     motion::lock(m)
 }
 
-/// Pipes module function `function` (a source, on the module's timer every
-/// `period_us`) into host function `to`, outputs `0..n` to inputs `0..n`.
+/// Pipes module function `function` into host function `to`, outputs
+/// `0..n` to inputs `0..n`, and runs it as a source on the module's timer
+/// every `period_us` (`None`: not yet; a function without inputs idles in
+/// its default input mode).
 async fn source(
     manager: &mut Manager,
     runtime: &str,
     function: &str,
-    period_us: u32,
+    period_us: Option<u32>,
     on_change: bool,
     to: &FnRef,
     n: u8,
@@ -1091,9 +1106,11 @@ async fn source(
         OutputMode::Always
     };
     manager.set_output_mode(&from, mode).await?;
-    manager
-        .set_input_mode(&from, InputMode::OnTimer(period_us))
-        .await?;
+    if let Some(period) = period_us {
+        manager
+            .set_input_mode(&from, InputMode::OnTimer(period))
+            .await?;
+    }
     Ok(())
 }
 
