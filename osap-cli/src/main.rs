@@ -4,7 +4,7 @@ use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use osap_core::clock::SyncState;
 use osap_core::route::Route;
-use osap_host::link::stream::{LinkHandle, Listener};
+use osap_host::link::stream::LinkHandle;
 use osap_host::link::{serial, tcp, udp};
 use osap_host::map::NetworkMap;
 use osap_host::netrunner::{self, Netrunner, ScanOptions, ScanReport};
@@ -16,6 +16,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 mod machine_cmd;
+mod serve_cmd;
 
 #[derive(Parser)]
 #[command(
@@ -146,18 +147,7 @@ enum Command {
         target: machine_cmd::Target,
     },
     /// Run a simulated machine that other processes can connect to.
-    Serve {
-        /// The machine: a topology file, or a machine file (its simulated
-        /// network is derived from it).
-        #[arg(long, value_name = "FILE")]
-        sim: PathBuf,
-        /// Address to listen on for TCP peers.
-        #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7077")]
-        tcp: SocketAddr,
-        /// Allow listening on an address other than loopback.
-        #[arg(long)]
-        allow_remote: bool,
-    },
+    Serve(serve_cmd::ServeArgs),
 }
 
 /// What keeps the host's links alive while a command runs.
@@ -443,41 +433,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
             }
             Ok(ExitCode::SUCCESS)
         }
-        Command::Serve {
-            sim: path,
-            tcp: addr,
-            allow_remote,
-        } => {
-            // The serving host relays for the machine; the client's host
-            // is the clock root.
-            let host = Host::start(HostConfig {
-                name: "sim-host".into(),
-                time: osap_core::clock::TimeConfig::default(),
-                ..HostConfig::default()
-            })
-            .map_err(|e| e.to_string())?;
-            let topology = load_sim(&path)?;
-            let machine = SimMachine::start(&host, &topology)
-                .await
-                .map_err(|e| format!("cannot start {}: {e}", path.display()))?;
-            let listener: Listener = tcp::listen(&host, addr, allow_remote)
-                .await
-                .map_err(|e| e.to_string())?;
-            println!(
-                "serving {} ({} modules) on tcp {}; stop with Ctrl-C",
-                topology.name,
-                machine.modules().len(),
-                listener
-                    .socket_addr()
-                    .map_or(addr.to_string(), |a| a.to_string())
-            );
-            tokio::signal::ctrl_c()
-                .await
-                .map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?;
-            drop(listener);
-            machine.stop().await.map_err(|e| e.to_string())?;
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Serve(args) => serve_cmd::serve(args).await,
     }
 }
 
