@@ -76,6 +76,9 @@ pub enum Status {
     NoSuchIndex = 3,
     /// A value was out of range (a name too long, a bad configuration).
     InvalidValue = 4,
+    /// Not allowed from where the request came: a clock write over a link
+    /// the clock does not trust.
+    Refused = 5,
 }
 
 impl Status {
@@ -87,6 +90,7 @@ impl Status {
             2 => Status::Malformed,
             3 => Status::NoSuchIndex,
             4 => Status::InvalidValue,
+            5 => Status::Refused,
             _ => return None,
         })
     }
@@ -488,6 +492,10 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
                 TimeConfigError::Codec(_) => Fail::Status(Status::Malformed),
                 _ => Fail::Status(Status::InvalidValue),
             })?;
+            // Who may demote, promote or retune this clock is local policy.
+            if !ctx.clock.admits_write_from(ctx.arrival_link) {
+                return Err(Fail::Status(Status::Refused));
+            }
             ctx.clock
                 .set_config(config)
                 .map_err(|_| Fail::Status(Status::InvalidValue))?;
@@ -526,6 +534,9 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
         key::SET_CLOCK_RATE => {
             let ppb = r.u32()? as i32;
             end(r)?;
+            if !ctx.clock.admits_write_from(ctx.arrival_link) {
+                return Err(Fail::Status(Status::Refused));
+            }
             ctx.clock.set_rate_ppb(ctx.now, ppb);
             ctx.changes.time_config = true;
             out.u32(ctx.clock.rate_ppb() as u32)?;

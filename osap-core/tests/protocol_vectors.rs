@@ -236,7 +236,11 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
                     rejected_residual: 9,
                     bogus: 1,
                     jumps: 1,
+                    untrusted: 3,
+                    deferred_steps: 0,
                 },
+                settled: true,
+                motion_active: false,
             }
             .encode(w)
             .unwrap()

@@ -41,10 +41,14 @@
 //! root cannot make time run away. A new root (set by configuration) is
 //! followed as soon as its tier is heard.
 
+mod authority;
 mod map;
 pub mod neighbour;
+mod status;
 
+pub use authority::{Trust, SETTLED_OFFSET_US};
 pub use map::TimeMap;
+pub use status::{ClockStatus, ClockStatusError, SyncStats, CLOCK_STATUS_LEN, CLOCK_STATUS_LEN_V1};
 
 use crate::codec::{CodecError, Reader, Writer};
 use crate::Micros;
@@ -340,72 +344,6 @@ pub enum SyncState {
     Root = 3,
 }
 
-/// Counts of what the synchroniser did with its samples.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
-pub struct SyncStats {
-    /// Replies received.
-    pub samples: u32,
-    /// Samples used.
-    pub accepted: u32,
-    /// Rejected: round trip too long.
-    pub rejected_rtt: u32,
-    /// Rejected: too far from the fit (a late stamp).
-    pub rejected_residual: u32,
-    /// Replies that were not answers to our requests.
-    pub bogus: u32,
-    /// Hard jumps of system time.
-    pub jumps: u32,
-}
-
-/// A snapshot of the clock, readable over the netresponder.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ClockStatus {
-    /// Current tier.
-    pub tier: u8,
-    /// Current state.
-    pub state: SyncState,
-    /// Latest estimate of the followed neighbours' time minus ours, ns.
-    pub offset_ns: i64,
-    /// Current rate correction against the local counter, parts per billion.
-    pub rate_ppb: i32,
-    /// Neighbours followed (those of the best tier).
-    pub following: u8,
-    /// Latest round trip to a followed neighbour, µs.
-    pub last_rtt_us: u32,
-    /// Smallest recent round trip to a followed neighbour, µs.
-    pub min_rtt_us: u32,
-    /// Sample counts.
-    pub stats: SyncStats,
-}
-
-/// Encoded length of a [`ClockStatus`].
-pub const CLOCK_STATUS_LEN: usize = 1 + 1 + 8 + 4 + 1 + 4 + 4 + 6 * 4;
-
-impl ClockStatus {
-    /// Writes the status in its wire layout.
-    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), CodecError> {
-        w.u8(self.tier)?;
-        w.u8(self.state as u8)?;
-        w.i64(self.offset_ns)?;
-        w.u32(self.rate_ppb as u32)?;
-        w.u8(self.following)?;
-        w.u32(self.last_rtt_us)?;
-        w.u32(self.min_rtt_us)?;
-        let s = &self.stats;
-        for v in [
-            s.samples,
-            s.accepted,
-            s.rejected_rtt,
-            s.rejected_residual,
-            s.bogus,
-            s.jumps,
-        ] {
-            w.u32(v)?;
-        }
-        Ok(())
-    }
-}
-
 /// Per-link neighbour state. Only the controller (`sync`) keeps any: a
 /// runtime without it answers time requests but follows no one, and its
 /// firmware should not carry a few KiB of samples per link for nothing.
@@ -450,6 +388,12 @@ pub struct Clock<const LINKS: usize> {
     rng: u32,
     neighbours: Neighbours<LINKS>,
     stats: SyncStats,
+    /// Links followed and taken remote writes from (local configuration).
+    trust: Trust,
+    /// Motion is queued or running: offsets are slewed, never stepped.
+    motion_active: bool,
+    /// A step was due under motion and is being slewed instead.
+    deferring: bool,
 }
 
 impl<const LINKS: usize> Clock<LINKS> {
@@ -479,6 +423,9 @@ impl<const LINKS: usize> Clock<LINKS> {
             rng: 0x9e37_79b9,
             neighbours: core::array::from_fn(|_| Neighbour::default()),
             stats: SyncStats::default(),
+            trust: Trust::ALL,
+            motion_active: false,
+            deferring: false,
         }
     }
 
@@ -587,6 +534,8 @@ impl<const LINKS: usize> Clock<LINKS> {
             last_rtt_us: last,
             min_rtt_us: if min == u32::MAX { 0 } else { min },
             stats: self.stats,
+            settled: self.is_settled(),
+            motion_active: self.motion_active,
         }
     }
 
@@ -631,7 +580,9 @@ impl<const LINKS: usize> Clock<LINKS> {
             due |= 1 << i;
             let n = &mut self.neighbours[i];
             n.unanswered = n.unanswered.saturating_add(1);
-            let burst = if n.unanswered > SILENT_REQUESTS {
+            let burst = if n.unanswered > SILENT_REQUESTS || !self.trust.trusts(i) {
+                // (An untrusted link is asked only to notice, and count,
+                // a neighbour that claims a lower tier.)
                 // Nobody answers: ask at the plain rate, so an idle link
                 // costs next to nothing until a neighbour appears.
                 1
@@ -704,8 +655,11 @@ impl<const LINKS: usize> Clock<LINKS> {
     fn best_tier(&self, now: Micros) -> Option<u8> {
         self.neighbours
             .iter()
-            .filter(|n| n.is_fresh(now, &self.config) && n.tier < TIER_LIMIT)
-            .map(|n| n.tier)
+            .enumerate()
+            .filter(|(i, n)| {
+                self.trust.trusts(*i) && n.is_fresh(now, &self.config) && n.tier < TIER_LIMIT
+            })
+            .map(|(_, n)| n.tier)
             .min()
     }
 
@@ -752,6 +706,14 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// `received` (the link's wire stamp when it has one), then steers.
     pub fn on_reply(&mut self, link: usize, reply: &TimeReply, received: Micros) {
         self.stats.samples = self.stats.samples.wrapping_add(1);
+        if !self.trust.trusts(link) {
+            // Not a source this runtime may follow, whatever it claims; a
+            // claim that would have been followed is counted.
+            if reply.responder_tier < self.tier {
+                self.count_untrusted();
+            }
+            return;
+        }
         let config = self.config;
         let prior = self.learned_q32 as f32 / Q32;
         let Some(n) = self.neighbours.get_mut(link) else {
@@ -932,7 +894,10 @@ impl<const LINKS: usize> Clock<LINKS> {
         if slopes > 0 {
             self.settled = true;
         }
-        if !self.synced || settling || offset.abs() > self.config.hard_jump_us as f32 {
+        let jump = !self.synced || settling || offset.abs() > self.config.hard_jump_us as f32;
+        if !jump {
+            self.deferring = false;
+        } else if self.may_step() {
             self.rebase(now, self.learned_q32);
             self.base_system = self.base_system.saturating_add(round(offset));
             self.synced = true;
@@ -982,11 +947,16 @@ impl<const LINKS: usize> Clock<LINKS> {
         // slew, not a rate held until the next sample, since samples may be
         // seconds apart. Precise measurements are acted on within one
         // interval; noisy ones over up to 1/kp; never faster than the clamp
-        // leaves room for.
-        if cfg.kp > 0.0 {
+        // leaves room for. A step deferred under motion is slewed whatever
+        // kp says, as fast as the clamp allows.
+        if cfg.kp > 0.0 || self.deferring {
             let max = cfg.max_rate_ppm * 1e-6;
             let room = (max - learned.abs()).max(0.1 * max);
-            let settle = (1e6 / cfg.kp) * (slew_noise / SLEW_NOISE_REF_US).min(1.0);
+            let settle = if self.deferring {
+                0.0
+            } else {
+                (1e6 / cfg.kp) * (slew_noise / SLEW_NOISE_REF_US).min(1.0)
+            };
             let duration_us = settle.max(cfg.interval_us as f32).max(offset.abs() / room);
             self.slew_q32 = round(offset / duration_us * Q32);
             self.slew_len = duration_us as i64;
