@@ -99,6 +99,11 @@ pub async fn run<F: NameFlash, H: ModuleHandle, const LINKS: usize>(
     let mut rx_errors = [0u32; LINKS];
     loop {
         let now = Instant::now().as_micros();
+        // Queued or running motion: the clock slews, never steps.
+        let moving = ports.module().with(|m| !m.stepper.is_standing());
+        runtime
+            .clock_mut()
+            .set_motion_active(moving.unwrap_or(false));
         let result = {
             let mut gateways = links.each_mut().map(|l| &mut **l as &mut dyn LinkGateway);
             runtime.poll(now, ports.ports(), &mut gateways)
