@@ -10,6 +10,7 @@ use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
 use crate::port::{HostPort, PortHandle, PortShared};
 use crate::{HostError, HostRuntime};
 use osap_core::clock::{ClockStatus, TimeConfig};
+use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::netresponder::BuildKey;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::runtime::RuntimeConfig;
@@ -65,6 +66,7 @@ type RuntimeFn = Box<dyn FnOnce(&mut HostRuntime, Micros) + Send>;
 
 enum Command {
     AttachLink(ChannelLink, oneshot::Sender<Result<u8, HostError>>),
+    DetachLink(u8, Option<oneshot::Sender<bool>>),
     OpenPort(Arc<PortShared>, oneshot::Sender<Result<u16, HostError>>),
     ClosePort(u16),
     AttachPort(
@@ -198,6 +200,7 @@ impl Host {
             runtime,
             ports: Vec::new(),
             links: Vec::new(),
+            detached: 0,
             commands: rx,
             wake: wake.clone(),
             clock,
@@ -227,6 +230,23 @@ impl Host {
         let (tx, rx) = oneshot::channel();
         self.send(Command::AttachLink(link, tx))?;
         rx.await.map_err(|_| HostError::Stopped)?
+    }
+
+    /// Detaches the link at `index` and frees its index for a later
+    /// [`attach_link`](Self::attach_link). Until then the index is vacant:
+    /// it reports closed, packets routed to it are dropped (counted as
+    /// `link_closed` in the runtime's counters), and the clock has
+    /// forgotten the neighbour that was there. Returns whether a link was
+    /// attached there.
+    pub async fn detach_link(&self, index: u8) -> Result<bool, HostError> {
+        let (tx, rx) = oneshot::channel();
+        self.send(Command::DetachLink(index, Some(tx)))?;
+        rx.await.map_err(|_| HostError::Stopped)
+    }
+
+    /// [`detach_link`](Self::detach_link) without waiting (from a `Drop`).
+    pub(crate) fn release_link(&self, index: u8) {
+        let _ = self.send(Command::DetachLink(index, None));
     }
 
     /// Makes and attaches a link; returns its index and its I/O half.
@@ -321,7 +341,9 @@ fn version() -> [u8; 3] {
 struct RuntimeTask {
     runtime: Box<HostRuntime>,
     ports: Vec<PortSlot>,
-    links: Vec<ChannelLink>,
+    links: Vec<LinkSlot>,
+    /// Detachments so far, to order vacant link indices by age.
+    detached: u64,
     commands: mpsc::UnboundedReceiver<Command>,
     wake: Arc<Notify>,
     clock: HostClock,
@@ -359,14 +381,13 @@ impl RuntimeTask {
     fn handle_command(&mut self, command: Command) {
         match command {
             Command::AttachLink(link, reply) => {
-                let max = 32usize; // the HostRuntime's LINKS
-                let result = if self.links.len() >= max {
-                    Err(HostError::NoFreeLink(max))
-                } else {
-                    self.links.push(link);
-                    Ok((self.links.len() - 1) as u8)
-                };
-                let _ = reply.send(result);
+                let _ = reply.send(self.attach_link(link));
+            }
+            Command::DetachLink(index, reply) => {
+                let detached = self.detach_link(index);
+                if let Some(reply) = reply {
+                    let _ = reply.send(detached);
+                }
             }
             Command::OpenPort(shared, reply) => {
                 // Port indices are positions: reuse a closed handle's slot
@@ -426,6 +447,64 @@ impl RuntimeTask {
 }
 
 impl RuntimeTask {
+    /// Attaches `link` at a vacant index, or a new one. A vacancy left by
+    /// a link of the same type and name comes first (a peer that
+    /// reconnects keeps its index, so routes through it stay valid), then
+    /// the one vacant longest (replies still on their way to the old
+    /// neighbour have had the most time to expire).
+    fn attach_link(&mut self, link: ChannelLink) -> Result<u8, HostError> {
+        let max = 32usize; // the HostRuntime's LINKS
+        let same = |slot: &LinkSlot| {
+            let info = link.info();
+            matches!(slot, LinkSlot::Vacant { type_name, name, .. }
+                if type_name == info.type_name && name == info.name)
+        };
+        let vacancy = self.links.iter().position(same).or_else(|| {
+            self.links
+                .iter()
+                .enumerate()
+                .filter_map(|(i, s)| match s {
+                    LinkSlot::Vacant { order, .. } => Some((*order, i)),
+                    LinkSlot::Attached(_) => None,
+                })
+                .min()
+                .map(|(_, i)| i)
+        });
+        if let Some((i, slot)) = vacancy.and_then(|i| Some((i, self.links.get_mut(i)?))) {
+            *slot = LinkSlot::Attached(link);
+            return Ok(i as u8);
+        }
+        if self.links.len() >= max {
+            return Err(HostError::NoFreeLink(max));
+        }
+        self.links.push(LinkSlot::Attached(link));
+        Ok((self.links.len() - 1) as u8)
+    }
+
+    /// Makes the link at `index` vacant; see [`Host::detach_link`].
+    fn detach_link(&mut self, index: u8) -> bool {
+        let Some(slot) = self.links.get_mut(usize::from(index)) else {
+            return false;
+        };
+        let LinkSlot::Attached(link) = slot else {
+            return false;
+        };
+        let info = link.info();
+        let (type_name, name) = (info.type_name.to_string(), info.name.to_string());
+        self.detached += 1;
+        *slot = LinkSlot::Vacant {
+            type_name,
+            name,
+            order: self.detached,
+        };
+        // Forget the neighbour now: the index may be attached again before
+        // the next poll would have seen it closed.
+        self.runtime.clock_mut().forget(usize::from(index));
+        // And drop what is routed to it now, for the same reason.
+        let _ = crate::driver::Driven::poll(self);
+        true
+    }
+
     /// The first port index of slot `i` (slots take consecutive indices
     /// from 1, each as many as its port count).
     fn base_of(&self, i: usize) -> u16 {
@@ -447,5 +526,85 @@ impl RuntimeTask {
     fn slot_at(&mut self, index: u16) -> Option<&mut PortSlot> {
         let i = (0..self.ports.len()).find(|i| self.base_of(*i) == index)?;
         self.ports.get_mut(i)
+    }
+}
+
+/// One entry of the runtime's link table: an attached link, or the index
+/// a detached one left, free for the next.
+enum LinkSlot {
+    Attached(ChannelLink),
+    Vacant {
+        /// Who held it last (a returning peer gets it back).
+        type_name: String,
+        name: String,
+        /// When it was vacated, in detachments (lower: longer ago).
+        order: u64,
+    },
+}
+
+impl LinkGateway for LinkSlot {
+    fn info(&self) -> LinkInfo<'_> {
+        match self {
+            LinkSlot::Attached(l) => l.info(),
+            LinkSlot::Vacant { .. } => LinkInfo {
+                type_name: "vacant",
+                name: "",
+            },
+        }
+    }
+
+    fn is_open(&self) -> bool {
+        match self {
+            LinkSlot::Attached(l) => l.is_open(),
+            LinkSlot::Vacant { .. } => false,
+        }
+    }
+
+    fn mtu(&self) -> u16 {
+        match self {
+            LinkSlot::Attached(l) => l.mtu(),
+            LinkSlot::Vacant { .. } => 0,
+        }
+    }
+
+    fn clear_to_send(&self) -> bool {
+        match self {
+            LinkSlot::Attached(l) => l.clear_to_send(),
+            LinkSlot::Vacant { .. } => false,
+        }
+    }
+
+    fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
+        match self {
+            LinkSlot::Attached(l) => l.send(packet),
+            LinkSlot::Vacant { .. } => Err(LinkSendError),
+        }
+    }
+
+    fn transmit_time(&self, len: usize) -> Micros {
+        match self {
+            LinkSlot::Attached(l) => l.transmit_time(len),
+            LinkSlot::Vacant { .. } => 0,
+        }
+    }
+
+    fn queue_delay(&self) -> Micros {
+        match self {
+            LinkSlot::Attached(l) => l.queue_delay(),
+            LinkSlot::Vacant { .. } => 0,
+        }
+    }
+
+    fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
+        match self {
+            LinkSlot::Attached(l) => l.receive(buf),
+            LinkSlot::Vacant { .. } => None,
+        }
+    }
+
+    fn poll(&mut self, now: Micros) {
+        if let LinkSlot::Attached(l) = self {
+            l.poll(now);
+        }
     }
 }

@@ -12,6 +12,7 @@
 //! clock samples of its neighbour there.
 
 pub mod memory;
+pub mod noise;
 pub mod serial;
 pub mod stream;
 pub mod tcp;
@@ -71,6 +72,27 @@ pub struct LinkStats {
     pub frame_errors: u64,
     /// Times the link went down.
     pub disconnects: u64,
+    /// Packets dropped because the link's send queue was full (links that
+    /// drop rather than wait: sockets, whose peer may stop reading).
+    pub tx_dropped: u64,
+    /// Connections closed because the peer stopped reading (a write could
+    /// not complete within the stall bound).
+    pub stalled: u64,
+    /// Connections closed because nothing arrived within the idle timeout.
+    pub idle_closed: u64,
+}
+
+/// What a link's send queue does when it is full.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum TxOverflow {
+    /// The runtime waits until there is room (the packet stays in its
+    /// stack): right for a wire that drains at its own pace (serial, USB).
+    #[default]
+    Wait,
+    /// The packet is dropped and counted in [`LinkStats::tx_dropped`], so a
+    /// peer that stops reading cannot hold the runtime's packet slots:
+    /// right for sockets, whose kernel buffers are already full by then.
+    Drop,
 }
 
 #[derive(Debug)]
@@ -78,6 +100,7 @@ struct Queues {
     rx: VecDeque<(Vec<u8>, Micros)>,
     tx: VecDeque<Vec<u8>>,
     open: bool,
+    overflow: TxOverflow,
     stats: LinkStats,
 }
 
@@ -133,6 +156,7 @@ pub fn channel(
             rx: VecDeque::new(),
             tx: VecDeque::new(),
             open: false,
+            overflow: TxOverflow::Wait,
             stats: LinkStats::default(),
         }),
         runtime,
@@ -155,12 +179,17 @@ impl LinkIo {
     }
 
     /// Marks the link up or down and wakes the runtime. Going down drops
-    /// whatever was queued to send (it was meant for the old connection).
+    /// whatever was queued either way (it belonged to the old connection:
+    /// received packets left over would otherwise reach the runtime as if
+    /// the next connection had sent them).
     pub fn set_open(&self, open: bool) {
         let mut q = self.shared.lock();
         if q.open && !open {
             q.stats.disconnects += 1;
             q.tx.clear();
+            let stale = q.rx.len() as u64;
+            q.stats.rx_dropped += stale;
+            q.rx.clear();
         }
         q.open = open;
         drop(q);
@@ -233,6 +262,22 @@ impl LinkIo {
         self.shared.lock().stats.frame_errors += n;
     }
 
+    /// Sets what happens to a packet sent while the send queue is full
+    /// ([`TxOverflow::Wait`] unless set).
+    pub fn set_tx_overflow(&self, overflow: TxOverflow) {
+        self.shared.lock().overflow = overflow;
+    }
+
+    /// Counts a connection closed because its peer stopped reading.
+    pub(crate) fn count_stalled(&self) {
+        self.shared.lock().stats.stalled += 1;
+    }
+
+    /// Counts a connection closed for being idle.
+    pub(crate) fn count_idle(&self) {
+        self.shared.lock().stats.idle_closed += 1;
+    }
+
     /// The link's counts.
     pub fn stats(&self) -> LinkStats {
         self.shared.lock().stats
@@ -284,7 +329,7 @@ impl LinkGateway for ChannelLink {
             }
             None => {
                 let q = self.shared.lock();
-                q.open && q.tx.len() < self.shared.config.depth
+                q.open && (q.overflow == TxOverflow::Drop || q.tx.len() < self.shared.config.depth)
             }
         }
     }
@@ -304,7 +349,12 @@ impl LinkGateway for ChannelLink {
             }
             None => {
                 let mut q = self.shared.lock();
-                if !q.open || q.tx.len() >= self.shared.config.depth {
+                if !q.open {
+                    return Err(LinkSendError);
+                }
+                if q.tx.len() >= self.shared.config.depth {
+                    // Only a dropping link says it is clear while full.
+                    q.stats.tx_dropped += 1;
                     return Err(LinkSendError);
                 }
                 q.tx.push_back(packet.to_vec());

@@ -12,7 +12,7 @@
 //! Enumeration reads sysfs (`/sys/class/tty`) directly, so nothing beyond
 //! the C library is needed on Linux (no libudev).
 
-use super::stream::{link_error, LinkHandle};
+use super::stream::{link_error, LinkHandle, StreamLimits};
 use super::LinkConfig;
 use crate::runtime::Host;
 use crate::HostError;
@@ -316,9 +316,14 @@ pub async fn spawn_serial(host: &Host, path: &str, baud: u32) -> Result<SerialLi
     }
     let (index, io) = host.add_link(config).await?;
     let path = path.to_string();
-    Ok(LinkHandle::spawn_client(index, io, None, port, move || {
-        std::future::ready(reopen(&path, baud, usb.as_ref()))
-    }))
+    Ok(LinkHandle::spawn_client(
+        index,
+        io,
+        None,
+        port,
+        move || std::future::ready(reopen(&path, baud, usb.as_ref())),
+        StreamLimits::NONE,
+    ))
 }
 
 #[cfg(test)]

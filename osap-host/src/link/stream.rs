@@ -12,7 +12,8 @@
 //! and stops the task when closed or dropped. A [`Listener`] accepts
 //! connections and gives each one a link.
 
-use super::{LinkConfig, LinkIo, LinkStats};
+use super::noise::{self, Key};
+use super::{LinkConfig, LinkIo, LinkStats, TxOverflow};
 use crate::runtime::Host;
 use crate::{HostError, HOST_MTU};
 use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
@@ -23,6 +24,7 @@ use std::future::Future;
 use std::io;
 use std::net::{IpAddr, Ipv4Addr, SocketAddr};
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::io::{AsyncRead, AsyncReadExt, AsyncWrite, AsyncWriteExt};
@@ -42,9 +44,48 @@ pub const RECONNECT_MAX: Duration = Duration::from_secs(2);
 /// How long one connection attempt may take before it counts as failed.
 pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 
+/// How long an accepted connection may stay silent before it is closed,
+/// by default.
+pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
+/// How long one frame's write may take before the peer counts as not
+/// reading and its connection is closed, by default.
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
+/// Connections a listener serves at once, by default.
+pub const MAX_CONNECTIONS: usize = 16;
+
+/// Bounds on one connection of a stream link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct StreamLimits {
+    /// Close when nothing arrives for this long (`None`: never).
+    pub idle: Option<Duration>,
+    /// Close when one frame's write cannot complete within this long: the
+    /// peer has stopped reading and the socket no longer drains (`None`:
+    /// never).
+    pub stall: Option<Duration>,
+}
+
+impl StreamLimits {
+    /// No bounds: a serial port waits as long as its device does.
+    pub const NONE: StreamLimits = StreamLimits {
+        idle: None,
+        stall: None,
+    };
+    /// A socket client's: no idle bound (the link reconnects anyway), the
+    /// default stall bound.
+    pub const CLIENT: StreamLimits = StreamLimits {
+        idle: None,
+        stall: Some(STALL_TIMEOUT),
+    };
+}
+
 /// Why [`run_stream`] returned.
 #[derive(Debug)]
 pub enum StreamEnd {
+    /// Nothing arrived within the idle timeout.
+    Idle(Duration),
+    /// A write could not complete within the stall bound: the peer does
+    /// not read.
+    Stalled(Duration),
     /// The peer closed the stream (end of file, hang-up).
     Eof,
     /// Reading or writing failed (the device went away, the connection was
@@ -60,6 +101,11 @@ impl fmt::Display for StreamEnd {
             StreamEnd::Eof => f.write_str("the peer closed the connection"),
             StreamEnd::Error(e) => write!(f, "{e}"),
             StreamEnd::Closed => f.write_str("the link was closed by the host"),
+            StreamEnd::Idle(t) => write!(f, "nothing arrived for {t:?} (idle timeout)"),
+            StreamEnd::Stalled(t) => write!(
+                f,
+                "the peer stopped reading (a write did not complete within {t:?})"
+            ),
         }
     }
 }
@@ -89,23 +135,50 @@ pub async fn run_stream<S>(stream: S, io: &LinkIo) -> StreamEnd
 where
     S: AsyncRead + AsyncWrite,
 {
+    run_stream_with(stream, io, StreamLimits::NONE).await
+}
+
+/// [`run_stream`] within `limits`: a connection that stays silent past
+/// `limits.idle`, or whose peer stops reading for `limits.stall`, is
+/// closed (counted in the link's `idle_closed` or `stalled`).
+pub async fn run_stream_with<S>(stream: S, io: &LinkIo, limits: StreamLimits) -> StreamEnd
+where
+    S: AsyncRead + AsyncWrite,
+{
     let (reader, writer) = tokio::io::split(stream);
     io.set_open(true);
     let end = tokio::select! {
-        end = read_frames(reader, io) => end,
-        end = write_frames(writer, io) => end,
+        end = read_frames(reader, io, limits.idle) => end,
+        end = write_frames(writer, io, limits.stall) => end,
     };
+    match end {
+        StreamEnd::Idle(_) => io.count_idle(),
+        StreamEnd::Stalled(_) => io.count_stalled(),
+        _ => {}
+    }
     io.set_open(false);
     end
 }
 
 /// The receive half of [`run_stream`].
-async fn read_frames<R: AsyncRead + Unpin>(mut reader: R, io: &LinkIo) -> StreamEnd {
+async fn read_frames<R: AsyncRead + Unpin>(
+    mut reader: R,
+    io: &LinkIo,
+    idle: Option<Duration>,
+) -> StreamEnd {
     let mut decoder = Box::new(FrameDecoder::<MAX_FRAME>::new());
     let mut buf = vec![0u8; READ_CHUNK];
     loop {
         io.rx_ready().await;
-        let n = match reader.read(&mut buf).await {
+        let read = reader.read(&mut buf);
+        let read = match idle {
+            Some(t) => match tokio::time::timeout(t, read).await {
+                Ok(r) => r,
+                Err(_) => return StreamEnd::Idle(t),
+            },
+            None => read.await,
+        };
+        let n = match read {
             Ok(0) => return StreamEnd::Eof,
             Ok(n) => n,
             Err(e) => return StreamEnd::Error(e),
@@ -129,10 +202,14 @@ async fn read_frames<R: AsyncRead + Unpin>(mut reader: R, io: &LinkIo) -> Stream
 }
 
 /// The transmit half of [`run_stream`].
-async fn write_frames<W: AsyncWrite + Unpin>(mut writer: W, io: &LinkIo) -> StreamEnd {
+async fn write_frames<W: AsyncWrite + Unpin>(
+    mut writer: W,
+    io: &LinkIo,
+    stall: Option<Duration>,
+) -> StreamEnd {
     // Resynchronise the peer's decoder: end whatever it was assembling.
-    if let Err(e) = writer.write_all(&[0]).await {
-        return StreamEnd::Error(e);
+    if let Err(e) = write_within(&mut writer, &[0], stall).await {
+        return e;
     }
     let mut frame = vec![0u8; MAX_FRAME];
     while let Some(packet) = io.next_tx().await {
@@ -151,11 +228,29 @@ async fn write_frames<W: AsyncWrite + Unpin>(mut writer: W, io: &LinkIo) -> Stre
                 continue;
             }
         };
-        if let Err(e) = writer.write_all(frame.get(..len).unwrap_or_default()).await {
-            return StreamEnd::Error(e);
+        if let Err(e) = write_within(&mut writer, frame.get(..len).unwrap_or_default(), stall).await
+        {
+            return e;
         }
     }
     StreamEnd::Closed
+}
+
+/// Writes all of `bytes`, failing with [`StreamEnd::Stalled`] if that
+/// takes longer than `stall`.
+async fn write_within<W: AsyncWrite + Unpin>(
+    writer: &mut W,
+    bytes: &[u8],
+    stall: Option<Duration>,
+) -> Result<(), StreamEnd> {
+    let write = writer.write_all(bytes);
+    let result = match stall {
+        Some(t) => tokio::time::timeout(t, write)
+            .await
+            .map_err(|_| StreamEnd::Stalled(t))?,
+        None => write.await,
+    };
+    result.map_err(StreamEnd::Error)
 }
 
 /// Where a link stands, as its [`LinkHandle`] reports it.
@@ -211,6 +306,7 @@ impl LinkHandle {
         local: Option<SocketAddr>,
         first: S,
         reconnect: C,
+        limits: StreamLimits,
     ) -> LinkHandle
     where
         S: AsyncRead + AsyncWrite + Send + 'static,
@@ -218,7 +314,7 @@ impl LinkHandle {
         F: Future<Output = Result<S, HostError>> + Send + 'static,
     {
         LinkHandle::spawn(index, io, local, LinkState::Connected, move |io, state| {
-            run_client(io, state, first, reconnect)
+            run_client(io, state, first, reconnect, limits)
         })
     }
 
@@ -403,6 +499,7 @@ pub(crate) async fn run_client<S, C, F>(
     state: Arc<watch::Sender<LinkState>>,
     first: S,
     mut connect: C,
+    limits: StreamLimits,
 ) where
     S: AsyncRead + AsyncWrite + Send,
     C: FnMut() -> F + Send,
@@ -417,7 +514,7 @@ pub(crate) async fn run_client<S, C, F>(
             io.set_open(true);
             state.send_replace(LinkState::Connected);
             tracing::info!("{what}: connected");
-            let end = run_stream(stream, &io).await;
+            let end = run_stream_with(stream, &io, limits).await;
             tracing::warn!("{what}: lost ({end}); reconnecting");
             state.send_replace(LinkState::Disconnected {
                 attempts: 0,
@@ -462,19 +559,37 @@ pub fn loopback(port: u16) -> SocketAddr {
 }
 
 /// Refuses to bind `addr` if it is reachable from other machines, unless
-/// `allow_remote` says the user asked for that.
-pub(crate) fn check_bind(addr: SocketAddr, allow_remote: bool) -> Result<(), HostError> {
-    if addr.ip().is_loopback() || allow_remote {
+/// `allow_remote` says the user asked for that and `keyed` says that
+/// connections must prove they hold the link key.
+pub(crate) fn check_bind(
+    addr: SocketAddr,
+    allow_remote: bool,
+    keyed: bool,
+) -> Result<(), HostError> {
+    if addr.ip().is_loopback() {
         return Ok(());
     }
-    Err(link_error(
-        format!("refusing to listen on {addr}"),
-        io::ErrorKind::PermissionDenied,
-        "that address is reachable from other machines, and anyone who can reach it could \
-         drive this machine; listen on 127.0.0.1 (the default), or pass allow_remote \
-         (--allow-remote) if you really mean to open it to the network"
-            .into(),
-    ))
+    if !allow_remote {
+        return Err(link_error(
+            format!("refusing to listen on {addr}"),
+            io::ErrorKind::PermissionDenied,
+            "that address is reachable from other machines, and anyone who can reach it could \
+             drive this machine; listen on 127.0.0.1 (the default), or pass allow_remote \
+             (--allow-remote) with a key (--key FILE) if you really mean to open it to the \
+             network"
+                .into(),
+        ));
+    }
+    if !keyed {
+        return Err(link_error(
+            format!("refusing to listen on {addr} without a key"),
+            io::ErrorKind::PermissionDenied,
+            "a link reachable from other machines must authenticate its peers: make a key \
+             with `osap keygen FILE`, copy it to the clients, and pass --key FILE on both ends"
+                .into(),
+        ));
+    }
+    Ok(())
 }
 
 /// Where a [`Listener`] listens.
@@ -495,7 +610,7 @@ impl fmt::Display for ListenAddr {
     }
 }
 
-/// A link a [`Listener`] made for accepted connections.
+/// A link a [`Listener`] made for an accepted connection.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct AcceptedLink {
     /// The link's index in the host runtime.
@@ -503,28 +618,85 @@ pub struct AcceptedLink {
     /// Who it was made for: the peer's IP address for TCP, the socket path
     /// for Unix sockets (Unix peers have no address).
     pub peer: String,
-    /// Whether a connection is using it now.
+    /// Whether a connection is using it now (always, while listed: a link
+    /// is detached, and leaves the list, when its connection ends).
     pub connected: bool,
+}
+
+/// How a [`Listener`] treats the connections it accepts.
+#[derive(Debug, Clone)]
+pub struct ListenOptions {
+    /// Allow an address other than loopback; it then needs `key` too.
+    pub allow_remote: bool,
+    /// The key every connection must prove it holds, in a Noise handshake,
+    /// before it gets a link; `None`: plain frames (loopback only).
+    pub key: Option<Key>,
+    /// Connections served at once; one more is closed at once, unread, and
+    /// logged ([`MAX_CONNECTIONS`] by default).
+    pub max_connections: usize,
+    /// Close a connection that sends nothing for this long
+    /// ([`IDLE_TIMEOUT`] by default; `None`: never).
+    pub idle_timeout: Option<Duration>,
+    /// Close a connection whose peer stops reading for this long
+    /// ([`STALL_TIMEOUT`] by default; `None`: never).
+    pub stall_timeout: Option<Duration>,
+    /// How long a keyed connection's handshake may take.
+    pub handshake_timeout: Duration,
+}
+
+impl Default for ListenOptions {
+    fn default() -> Self {
+        ListenOptions {
+            allow_remote: false,
+            key: None,
+            max_connections: MAX_CONNECTIONS,
+            idle_timeout: Some(IDLE_TIMEOUT),
+            stall_timeout: Some(STALL_TIMEOUT),
+            handshake_timeout: noise::HANDSHAKE_TIMEOUT,
+        }
+    }
+}
+
+/// What a [`Listener`] has done with the connections it was offered.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ListenerStats {
+    /// Connections accepted (given a link, or a handshake first).
+    pub accepted: u64,
+    /// Connections closed at once because `max_connections` were open.
+    pub refused: u64,
+    /// Keyed connections closed because their handshake failed (wrong
+    /// key, replay, garbage, timeout).
+    pub handshake_failed: u64,
+}
+
+#[derive(Debug, Default)]
+struct Counters {
+    accepted: AtomicU64,
+    refused: AtomicU64,
+    handshake_failed: AtomicU64,
 }
 
 /// Accepts connections for a [`Listener`].
 pub(crate) trait Accept: Send + 'static {
     /// The connections it yields.
-    type Stream: AsyncRead + AsyncWrite + Send + 'static;
+    type Stream: AsyncRead + AsyncWrite + Send + Unpin + 'static;
     /// Waits for the next connection; returns it and the peer's name.
     fn accept(&mut self) -> impl Future<Output = io::Result<(Self::Stream, String)>> + Send;
 }
 
-/// Accepts connections on a socket and gives each one a link: a link that
-/// an earlier connection from the same peer left closed is reused (so a
-/// module that reconnects keeps its link index and routes stay valid),
-/// otherwise a new link is added. Closing or dropping the listener stops
-/// accepting and closes every connection it accepted; while it lives, it
-/// keeps the host running.
+/// Accepts connections on a socket and gives each one a link of its own
+/// for as long as it lasts; when it ends, the link is detached and its
+/// index is free again (a peer that comes back gets its old index if it is
+/// still free, so routes through it stay valid). At most
+/// `max_connections` are served at once; connections that stay silent or
+/// stop reading are closed (see [`ListenOptions`]). Closing or dropping
+/// the listener stops accepting and closes every connection it accepted;
+/// while it lives, it keeps the host running.
 #[derive(Debug)]
 pub struct Listener {
     addr: ListenAddr,
     links: watch::Receiver<Vec<AcceptedLink>>,
+    counters: Arc<Counters>,
     stop: Arc<Notify>,
     task: Option<JoinHandle<()>>,
     /// A Unix socket file to remove when the listener goes.
@@ -539,20 +711,28 @@ impl Listener {
         addr: ListenAddr,
         type_name: &'static str,
         unlink: Option<PathBuf>,
+        options: ListenOptions,
     ) -> Listener {
         let (links_tx, links) = watch::channel(Vec::new());
         let stop = Arc::new(Notify::new());
+        let counters = Arc::new(Counters::default());
         let task = tokio::spawn(accept_loop(
-            host.clone(),
+            Shared {
+                host: host.clone(),
+                addr: addr.clone(),
+                type_name,
+                options,
+                links: links_tx,
+                table: std::sync::Mutex::new(Vec::new()),
+                counters: counters.clone(),
+            },
             acceptor,
-            addr.clone(),
-            type_name,
-            links_tx,
             stop.clone(),
         ));
         Listener {
             addr,
             links,
+            counters,
             stop,
             task: Some(task),
             unlink,
@@ -573,7 +753,7 @@ impl Listener {
         }
     }
 
-    /// The links it has made so far.
+    /// The links of the connections it serves now.
     pub fn links(&self) -> Vec<AcceptedLink> {
         self.links.borrow().clone()
     }
@@ -581,6 +761,15 @@ impl Listener {
     /// A receiver that sees every change of [`links`](Self::links).
     pub fn subscribe(&self) -> watch::Receiver<Vec<AcceptedLink>> {
         self.links.clone()
+    }
+
+    /// What it has done with the connections offered so far.
+    pub fn stats(&self) -> ListenerStats {
+        ListenerStats {
+            accepted: self.counters.accepted.load(Ordering::Relaxed),
+            refused: self.counters.refused.load(Ordering::Relaxed),
+            handshake_failed: self.counters.handshake_failed.load(Ordering::Relaxed),
+        }
     }
 
     /// Waits up to `timeout` until some accepted connection is up; returns
@@ -620,43 +809,44 @@ impl Drop for Listener {
     }
 }
 
-/// One link made by a listener.
-struct Slot {
-    io: LinkIo,
-    info: AcceptedLink,
-}
+/// A connection's stream once it is authenticated (or needs not be).
+trait Duplex: AsyncRead + AsyncWrite + Send + Unpin {}
+impl<T: AsyncRead + AsyncWrite + Send + Unpin> Duplex for T {}
 
-/// The listener task: accepts, assigns links, runs each connection in a
-/// task of its own, and on stop closes them all.
-async fn accept_loop<A: Accept>(
+/// What a listener's task and its connections' tasks share.
+struct Shared {
     host: Host,
-    mut acceptor: A,
     addr: ListenAddr,
     type_name: &'static str,
+    options: ListenOptions,
     links: watch::Sender<Vec<AcceptedLink>>,
-    stop: Arc<Notify>,
-) {
-    let mut slots: Vec<Slot> = Vec::new();
-    let mut connections: JoinSet<(usize, StreamEnd)> = JoinSet::new();
-    let publish = |slots: &[Slot]| {
-        links.send_replace(slots.iter().map(|s| s.info.clone()).collect());
-    };
+    /// The published links, each with its connection's number.
+    table: std::sync::Mutex<Vec<(u64, AcceptedLink)>>,
+    counters: Arc<Counters>,
+}
+
+impl Shared {
+    fn edit(&self, f: impl FnOnce(&mut Vec<(u64, AcceptedLink)>)) {
+        let mut table = self.table.lock().unwrap_or_else(|e| e.into_inner());
+        f(&mut table);
+        self.links
+            .send_replace(table.iter().map(|(_, l)| l.clone()).collect());
+    }
+}
+
+/// The listener task: accepts, refuses past the limit, runs each
+/// connection in a task of its own, and on stop closes them all.
+async fn accept_loop<A: Accept>(shared: Shared, mut acceptor: A, stop: Arc<Notify>) {
+    let shared = Arc::new(shared);
+    let (type_name, addr) = (shared.type_name, shared.addr.clone());
+    let max = shared.options.max_connections;
+    let mut connections: JoinSet<()> = JoinSet::new();
+    let mut number = 0u64;
     tracing::info!("{type_name}: listening on {addr}");
     loop {
         tokio::select! {
             _ = stop.notified() => break,
-            Some(done) = connections.join_next() => {
-                if let Ok((i, end)) = done {
-                    if let Some(slot) = slots.get_mut(i) {
-                        slot.info.connected = false;
-                        tracing::info!(
-                            "{type_name} link {} from {}: disconnected ({end})",
-                            slot.info.index, slot.info.peer
-                        );
-                    }
-                    publish(&slots);
-                }
-            }
+            Some(_) = connections.join_next() => {}
             accepted = acceptor.accept() => {
                 let (stream, peer) = match accepted {
                     Ok(a) => a,
@@ -667,46 +857,109 @@ async fn accept_loop<A: Accept>(
                         continue;
                     }
                 };
-                let reuse = slots.iter().position(|s| !s.info.connected && s.info.peer == peer);
-                let i = match reuse {
-                    Some(i) => i,
-                    None => match host.add_link(LinkConfig::new(type_name, &peer)).await {
-                        Ok((index, io)) => {
-                            slots.push(Slot {
-                                io,
-                                info: AcceptedLink { index, peer: peer.clone(), connected: false },
-                            });
-                            slots.len() - 1
-                        }
-                        Err(e) => {
-                            tracing::warn!(
-                                "{type_name}: refused a connection from {peer} on {addr}: {e}"
-                            );
-                            continue;
-                        }
-                    },
-                };
-                let Some(slot) = slots.get_mut(i) else { continue };
-                slot.info.connected = true;
-                tracing::info!(
-                    "{type_name} link {} from {peer}: connected on {addr}",
-                    slot.info.index
-                );
-                let io = slot.io.clone();
-                connections.spawn(async move { (i, run_stream(stream, &io).await) });
-                publish(&slots);
+                if connections.len() >= max {
+                    shared.counters.refused.fetch_add(1, Ordering::Relaxed);
+                    tracing::warn!(
+                        "{type_name}: refused a connection from {peer} on {addr}: {max} \
+                         connections are open, the limit (max_connections, \
+                         osap serve --max-connections)"
+                    );
+                    // Closed unread: the peer sees the connection end at once.
+                    drop(stream);
+                    continue;
+                }
+                shared.counters.accepted.fetch_add(1, Ordering::Relaxed);
+                number += 1;
+                connections.spawn(serve_connection(shared.clone(), stream, peer, number));
             }
         }
     }
-    // Waits for every connection task to be gone, so none can reopen its
-    // link after the links are marked closed below.
+    // Waits for every connection task to be gone (each detaches its link
+    // as it goes), so none can reopen its link after this.
     connections.shutdown().await;
-    for slot in &mut slots {
-        slot.io.set_open(false);
-        slot.info.connected = false;
-    }
-    publish(&slots);
+    shared.edit(Vec::clear);
     tracing::info!("{type_name}: stopped listening on {addr}");
+}
+
+/// Serves one accepted connection: authenticates it if the listener has a
+/// key, gives it a link, runs it, and frees the link when it ends (also
+/// when the task is aborted).
+async fn serve_connection<S>(shared: Arc<Shared>, stream: S, peer: String, number: u64)
+where
+    S: AsyncRead + AsyncWrite + Send + Unpin + 'static,
+{
+    let (type_name, addr) = (shared.type_name, &shared.addr);
+    // A peer without the key never gets a link, nor a byte.
+    let stream: Box<dyn Duplex> = match &shared.options.key {
+        Some(key) => match noise::accept(stream, key, shared.options.handshake_timeout).await {
+            Ok(s) => Box::new(s),
+            Err(e) => {
+                shared
+                    .counters
+                    .handshake_failed
+                    .fetch_add(1, Ordering::Relaxed);
+                tracing::warn!(
+                    "{type_name}: closed a connection from {peer} on {addr}: no valid \
+                     handshake ({e})"
+                );
+                return;
+            }
+        },
+        None => Box::new(stream),
+    };
+    let (index, io) = match shared
+        .host
+        .add_link(LinkConfig::new(type_name, &peer))
+        .await
+    {
+        Ok(link) => link,
+        Err(e) => {
+            tracing::warn!("{type_name}: refused a connection from {peer} on {addr}: {e}");
+            return;
+        }
+    };
+    // A peer that stops reading loses its own packets, not everyone's slots.
+    io.set_tx_overflow(TxOverflow::Drop);
+    let _release = Release {
+        shared: shared.clone(),
+        io: io.clone(),
+        index,
+        number,
+    };
+    shared.edit(|t| {
+        t.push((
+            number,
+            AcceptedLink {
+                index,
+                peer: peer.clone(),
+                connected: true,
+            },
+        ))
+    });
+    tracing::info!("{type_name} link {index} from {peer}: connected on {addr}");
+    let limits = StreamLimits {
+        idle: shared.options.idle_timeout,
+        stall: shared.options.stall_timeout,
+    };
+    let end = run_stream_with(stream, &io, limits).await;
+    tracing::info!("{type_name} link {index} from {peer}: disconnected ({end})");
+}
+
+/// Frees a connection's link when its task ends, however it ends.
+struct Release {
+    shared: Arc<Shared>,
+    io: LinkIo,
+    index: u8,
+    number: u64,
+}
+
+impl Drop for Release {
+    fn drop(&mut self) {
+        self.io.set_open(false);
+        self.shared.host.release_link(self.index);
+        let number = self.number;
+        self.shared.edit(|t| t.retain(|(n, _)| *n != number));
+    }
 }
 
 #[cfg(test)]
@@ -715,16 +968,18 @@ mod tests {
 
     #[test]
     fn only_loopback_binds_by_default() {
-        assert!(check_bind(loopback(7000), false).is_ok());
-        assert!(check_bind("[::1]:7000".parse().unwrap(), false).is_ok());
-        assert!(check_bind("127.0.0.2:1".parse().unwrap(), false).is_ok());
-        let err = check_bind("0.0.0.0:7000".parse().unwrap(), false).unwrap_err();
+        assert!(check_bind(loopback(7000), false, false).is_ok());
+        assert!(check_bind("[::1]:7000".parse().unwrap(), false, false).is_ok());
+        assert!(check_bind("127.0.0.2:1".parse().unwrap(), false, false).is_ok());
+        let err = check_bind("0.0.0.0:7000".parse().unwrap(), false, true).unwrap_err();
         let text = err.to_string();
         assert!(
             text.contains("refusing to listen on 0.0.0.0:7000"),
             "{text}"
         );
         assert!(text.contains("allow_remote"), "{text}");
-        assert!(check_bind("0.0.0.0:7000".parse().unwrap(), true).is_ok());
+        let err = check_bind("0.0.0.0:7000".parse().unwrap(), true, false).unwrap_err();
+        assert!(err.to_string().contains("osap keygen"), "{err}");
+        assert!(check_bind("0.0.0.0:7000".parse().unwrap(), true, true).is_ok());
     }
 }

@@ -10,15 +10,23 @@
 //! somewhere in between) when a send fails; a peer that closes or resets
 //! the connection is noticed at once.
 
-use super::stream::{check_bind, link_error, Accept, LinkHandle, ListenAddr, Listener};
-use super::LinkConfig;
+use super::noise::{self, Key, NoiseStream};
+use super::stream::{
+    check_bind, link_error, Accept, LinkHandle, ListenAddr, ListenOptions, Listener, StreamLimits,
+};
+use super::{LinkConfig, TxOverflow};
 use crate::runtime::Host;
 use crate::HostError;
 use std::io;
 use std::net::SocketAddr;
+use std::time::Duration;
 use tokio::net::{TcpListener, TcpStream};
 
 pub use super::stream::loopback;
+
+/// How long a plain client waits for the listener's first byte (it sends
+/// one at once) before going on without it.
+const GREETING_TIMEOUT: Duration = Duration::from_secs(2);
 
 /// Connects to `addr` (`host:port`), once.
 async fn dial(addr: &str) -> Result<TcpStream, HostError> {
@@ -36,17 +44,46 @@ async fn dial(addr: &str) -> Result<TcpStream, HostError> {
     Ok(stream)
 }
 
+/// [`dial`], then waits for the listener's first byte: a listener that
+/// closes the connection before it says a word refused it.
+async fn dial_plain(addr: &str) -> Result<TcpStream, HostError> {
+    let stream = dial(addr).await?;
+    let mut first = [0u8; 1];
+    match tokio::time::timeout(GREETING_TIMEOUT, stream.peek(&mut first)).await {
+        Ok(Ok(0)) | Ok(Err(_)) => Err(link_error(
+            format!("cannot connect to {addr}"),
+            io::ErrorKind::ConnectionRefused,
+            "the server closed the connection at once: it may be at its connection limit \
+             (osap serve --max-connections), or it may require a key (--key FILE)"
+                .into(),
+        )),
+        // A byte, or a slow listener: go on (the stream sorts out the rest).
+        Ok(Ok(_)) | Err(_) => Ok(stream),
+    }
+}
+
+/// [`dial`], then the Noise handshake with `key`.
+async fn dial_keyed(addr: &str, key: &Key) -> Result<NoiseStream, HostError> {
+    let stream = dial(addr).await?;
+    noise::initiate(stream, key, noise::HANDSHAKE_TIMEOUT)
+        .await
+        .map_err(|e| link_error(format!("cannot connect to {addr}"), e.kind(), e.to_string()))
+}
+
 /// Connects to a listener at `addr` (`host:port`; names are resolved on
 /// every attempt) and adds the connection to `host` as a link of type
 /// `tcp` named `addr`. If the connection is lost the link is marked closed
 /// and the task reconnects, with backoff from 100 ms to 2 s, until the
 /// listener is back.
 ///
-/// Fails, without adding a link, if the first connection cannot be made.
+/// Fails, without adding a link, if the first connection cannot be made,
+/// or if the listener closes it at once (at its connection limit, or it
+/// wants a key: see [`connect_with_key`]).
 pub async fn connect(host: &Host, addr: &str) -> Result<LinkHandle, HostError> {
-    let stream = dial(addr).await?;
+    let stream = dial_plain(addr).await?;
     let local = stream.local_addr().ok();
     let (index, io) = host.add_link(LinkConfig::new("tcp", addr)).await?;
+    io.set_tx_overflow(TxOverflow::Drop);
     let addr = addr.to_string();
     Ok(LinkHandle::spawn_client(
         index,
@@ -55,22 +92,60 @@ pub async fn connect(host: &Host, addr: &str) -> Result<LinkHandle, HostError> {
         stream,
         move || {
             let addr = addr.clone();
-            async move { dial(&addr).await }
+            async move { dial_plain(&addr).await }
         },
+        StreamLimits::CLIENT,
+    ))
+}
+
+/// [`connect`] to a listener that requires a key: every connection starts
+/// with a Noise handshake proving that both ends hold `key`, and carries
+/// its frames encrypted. Fails if the first handshake does (wrong key,
+/// a listener without a key, or one at its connection limit).
+pub async fn connect_with_key(host: &Host, addr: &str, key: &Key) -> Result<LinkHandle, HostError> {
+    let stream = dial_keyed(addr, key).await?;
+    let (index, io) = host.add_link(LinkConfig::new("tcp", addr)).await?;
+    io.set_tx_overflow(TxOverflow::Drop);
+    let (addr, key) = (addr.to_string(), key.clone());
+    Ok(LinkHandle::spawn_client(
+        index,
+        io,
+        None,
+        stream,
+        move || {
+            let (addr, key) = (addr.clone(), key.clone());
+            async move { dial_keyed(&addr, &key).await }
+        },
+        StreamLimits::CLIENT,
     ))
 }
 
 /// Listens for TCP connections at `addr` and gives each a link of `host`
-/// (see [`Listener`]). Use [`loopback`]`(port)` for the default; any address
-/// that is not loopback is refused unless `allow_remote` is true, because
-/// whoever can reach it can drive the machine. Port 0 picks a free port;
-/// [`Listener::socket_addr`] tells which.
+/// (see [`Listener`]), with the default limits. Use [`loopback`]`(port)`
+/// for the default; any address that is not loopback is refused unless
+/// `allow_remote` is true, and then [`listen_with`] a key is needed,
+/// because whoever can reach it can drive the machine. Port 0 picks a
+/// free port; [`Listener::socket_addr`] tells which.
 pub async fn listen(
     host: &Host,
     addr: SocketAddr,
     allow_remote: bool,
 ) -> Result<Listener, HostError> {
-    check_bind(addr, allow_remote)?;
+    let options = ListenOptions {
+        allow_remote,
+        ..ListenOptions::default()
+    };
+    listen_with(host, addr, options).await
+}
+
+/// [`listen`] with every option: a key that connections must prove they
+/// hold, the connection limit, idle and stall timeouts.
+pub async fn listen_with(
+    host: &Host,
+    addr: SocketAddr,
+    options: ListenOptions,
+) -> Result<Listener, HostError> {
+    check_bind(addr, options.allow_remote, options.key.is_some())?;
     let listener = TcpListener::bind(addr).await.map_err(|e| {
         let hint = match e.kind() {
             io::ErrorKind::AddrInUse => {
@@ -87,6 +162,7 @@ pub async fn listen(
         ListenAddr::Inet(bound),
         "tcp",
         None,
+        options,
     ))
 }
 

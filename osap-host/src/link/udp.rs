@@ -39,7 +39,8 @@ pub async fn bind(
     peer: Option<SocketAddr>,
     allow_remote: bool,
 ) -> Result<LinkHandle, HostError> {
-    check_bind(local, allow_remote)?;
+    // UDP links carry no key: allow_remote alone opens them (docs/security.md).
+    check_bind(local, allow_remote, true)?;
     let socket = UdpSocket::bind(local).await.map_err(|e| {
         link_error(
             format!("cannot bind UDP socket {local}"),

@@ -5,8 +5,10 @@
 //! Unix sockets never leave the machine, so there is nothing to refuse; the
 //! socket file's permissions decide who may connect.
 
-use super::stream::{link_error, Accept, LinkHandle, ListenAddr, Listener};
-use super::LinkConfig;
+use super::stream::{
+    link_error, Accept, LinkHandle, ListenAddr, ListenOptions, Listener, StreamLimits,
+};
+use super::{LinkConfig, TxOverflow};
 use crate::runtime::Host;
 use crate::HostError;
 use std::io;
@@ -42,6 +44,7 @@ pub async fn connect(host: &Host, path: impl AsRef<Path>) -> Result<LinkHandle, 
     let stream = dial(&path).await?;
     let name = path.display().to_string();
     let (index, io) = host.add_link(LinkConfig::new("unix", &name)).await?;
+    io.set_tx_overflow(TxOverflow::Drop);
     Ok(LinkHandle::spawn_client(
         index,
         io,
@@ -51,6 +54,7 @@ pub async fn connect(host: &Host, path: impl AsRef<Path>) -> Result<LinkHandle, 
             let path = path.clone();
             async move { dial(&path).await }
         },
+        StreamLimits::CLIENT,
     ))
 }
 
@@ -78,6 +82,7 @@ pub async fn listen(host: &Host, path: impl AsRef<Path>) -> Result<Listener, Hos
         ListenAddr::Unix(path.clone()),
         "unix",
         Some(path),
+        ListenOptions::default(),
     ))
 }
 
