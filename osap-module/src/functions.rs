@@ -25,10 +25,13 @@
 //! | `pulse` | `pin: u8`, `duration_us: u32` | — |
 //! | `pulse_at` | `time: u64`, `pin: u8`, `duration_us: u32` | — |
 //! | `analog_read` | `channel: u8` | `time: u64`, `value: f32` |
+//! | `get_fault` | — | `time: u64`, `code: u8`, `detail: u32`, `count: u32` |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
-//! with the edge's own time stamp, taken in the pin interrupt.
+//! with the edge's own time stamp, taken in the pin interrupt. So is
+//! `get_fault`: it then sends each new fault once (kinds and details in
+//! [`crate::fault`]).
 
 use crate::board::Board;
 use crate::io::IoError;
@@ -47,7 +50,7 @@ impl<B: Board> Module<B> {
     /// Queues a control point: the axis is at `position` (user units) at
     /// synchronized `time` (a multiple of the interval).
     pub fn add_point(&mut self, time: u64, position: f32) -> Result<(), CallError> {
-        Ok(self.stepper.add_point(time, position)?)
+        Ok(self.queue_point(time, position)?)
     }
 
     /// Sets the control-point interval, µs (a power of two, 256 to 16 384),
@@ -119,8 +122,15 @@ impl<B: Board> Module<B> {
     /// Stops stepping at once and drops the stream (an emergency stop); the
     /// axis refuses points until the motor is disabled and enabled again.
     pub fn halt(&mut self) -> Result<(), CallError> {
-        self.stepper.halt();
+        self.halt_axis();
         Ok(())
+    }
+
+    /// The latest fault: its synchronized time, its kind
+    /// ([`crate::fault::FaultKind`] code), its detail, and the faults since
+    /// boot (see [`crate::fault`]).
+    pub fn get_fault(&mut self) -> Result<(u64, u8, u32, u32), CallError> {
+        Ok(self.fault.outputs())
     }
 
     /// Drives digital pin `pin` high or low.
@@ -254,6 +264,7 @@ module_functions! {
     pulse(pin: u8, duration_us: u32);
     pulse_at(time: u64, pin: u8, duration_us: u32);
     analog_read(channel: u8) -> (time: u64, value: f32);
+    get_fault() -> (time: u64, code: u8, detail: u32, count: u32);
 }
 
 /// One of the module's functions bound to one module: what a function

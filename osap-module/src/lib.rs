@@ -34,6 +34,7 @@
 extern crate std;
 
 pub mod board;
+pub mod fault;
 pub mod functions;
 pub mod io;
 pub mod ports;
@@ -46,6 +47,7 @@ pub use stepper::{STEP_TICK_US, TICKS_PER_WORD};
 use board::Board;
 use core::cell::RefCell;
 use critical_section::Mutex;
+use fault::{Fault, FaultKind};
 use io::Io;
 use osap_core::clock::TimeMap;
 use osap_core::Micros;
@@ -72,6 +74,10 @@ pub struct Module<B> {
     pub limit: Limit,
     /// The runtime's latest local-to-system time map.
     pub time: TimeMap,
+    /// The latest fault and the faults since boot (`get_fault`).
+    pub fault: Fault,
+    /// When the latest control point was accepted, synchronized µs.
+    last_point_at: u64,
     board: B,
     /// The step words' time anchor: a (local, system) pair read off `time`.
     step_anchor: Option<StepAnchor>,
@@ -102,6 +108,8 @@ impl<B: Board> Module<B> {
             io: Io::new(),
             limit: Limit::default(),
             time: TimeMap::IDENTITY,
+            fault: Fault::default(),
+            last_point_at: 0,
             board,
             step_anchor: None,
         }
@@ -153,7 +161,44 @@ impl<B: Board> Module<B> {
                 system
             }
         };
-        self.stepper.fill_word(t0)
+        let faults = self.stepper.counters().faults;
+        let overruns = self.stepper.step_counts().3;
+        let word = self.stepper.fill_word(t0);
+        if self.stepper.counters().faults != faults {
+            let quiet = t0.saturating_sub(self.last_point_at);
+            let quiet = u32::try_from(quiet).unwrap_or(u32::MAX);
+            self.fault.record(t0, FaultKind::Backstop, quiet, true);
+        }
+        // Once per run of the step generator: a fast move overruns on many
+        // ticks, and one report says it all.
+        if overruns == 0 && self.stepper.step_counts().3 > 0 {
+            let owed = u32::try_from(self.stepper.backlog()).unwrap_or(u32::MAX);
+            self.fault.record(t0, FaultKind::StepOverrun, owed, false);
+        }
+        word
+    }
+
+    /// Queues a control point (see [`Stepper::add_point`]), recording a
+    /// refusal as a fault.
+    pub fn queue_point(&mut self, time: u64, position: f32) -> Result<(), stepper::StepperError> {
+        let now = self.system_now();
+        let result = self.stepper.add_point(time, position);
+        match result {
+            Ok(()) => self.last_point_at = now,
+            Err(e) => {
+                let stopped = self.stepper.is_stopped();
+                self.fault
+                    .record(now, FaultKind::Refused, u32::from(e.code()), stopped);
+            }
+        }
+        result
+    }
+
+    /// Halts the axis (see [`Stepper::halt`]), recording it as a fault.
+    pub fn halt_axis(&mut self) {
+        self.stepper.halt();
+        let now = self.system_now();
+        self.fault.record(now, FaultKind::Halted, 0, true);
     }
 
     /// The limit switch's level as read at boot, before any edge: sets the
@@ -165,11 +210,21 @@ impl<B: Board> Module<B> {
 
     /// The limit switch's level changed to `level` at local time `local`
     /// (the edge interrupt's time stamp).
+    /// A press (the input reads low) is recorded as a fault.
     pub fn limit_changed(&mut self, local: Micros, level: bool) {
         self.limit = Limit {
             level,
             time: self.time.system_time(local),
             edges: self.limit.edges.wrapping_add(1),
+        };
+        if !level {
+            let stopped = self.stepper.is_stopped();
+            self.fault.record(
+                self.limit.time,
+                FaultKind::LimitHit,
+                self.limit.edges,
+                stopped,
+            );
         }
     }
 

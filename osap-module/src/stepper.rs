@@ -479,6 +479,19 @@ impl Stepper {
         (self.gen.position(), s.up, s.down, s.overruns)
     }
 
+    /// Steps the step generator still owes (more than one at a tick is an
+    /// overrun).
+    pub fn backlog(&self) -> u64 {
+        self.gen.backlog()
+    }
+
+    /// Whether a backstop or a halt holds the axis (points are refused
+    /// until the motor is cycled, or until a stream that ended at rest is
+    /// followed by a new one).
+    pub fn is_stopped(&self) -> bool {
+        matches!(self.mode, Mode::Backstop | Mode::Halted)
+    }
+
     /// What the axis is doing.
     pub fn mode(&self) -> Mode {
         self.mode

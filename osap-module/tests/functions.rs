@@ -326,3 +326,90 @@ fn a_firmware_cell_refuses_until_installed() {
         "the driver has no mode pins"
     );
 }
+
+#[test]
+fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
+    use osap_module::fault::FaultKind;
+    let Fixture {
+        module: mut m, now, ..
+    } = fresh(false);
+    m.publish_time(TimeMap::IDENTITY);
+    assert_eq!(m.get_fault().unwrap(), (0, 0, 0, 0), "none yet");
+    // A refused point: disabled (code 6), at the module's time.
+    now.set(5_000);
+    assert_eq!(m.add_point(0, 0.0), Err(CallError::Failed(6)));
+    assert_eq!(
+        m.get_fault().unwrap(),
+        (5_000, FaultKind::Refused.code(), 6, 1)
+    );
+    m.set_enable(true).unwrap();
+    // A stream cut off mid-motion: the backstop, with the upstream's quiet
+    // time since the last point was accepted (at 10 000).
+    let iv = 2048u64;
+    now.set(10_000);
+    for k in 0..3 {
+        m.add_point(k * iv, 0.0).unwrap();
+    }
+    for k in 3..10 {
+        m.add_point(k * iv, (k - 2) as f32 * 0.5).unwrap();
+    }
+    let mut local = 0;
+    while local < 40 * iv {
+        m.fill_step_word(local);
+        local += 160;
+    }
+    let (time, code, quiet, count) = m.get_fault().unwrap();
+    assert_eq!((code, count), (FaultKind::Backstop.code(), 2));
+    assert!(
+        time > 5 * iv && u64::from(quiet) == time - 10_000,
+        "{time} {quiet}"
+    );
+    // The refusals behind it count but keep their cause.
+    assert_eq!(m.add_point(50 * iv, 0.0), Err(CallError::Failed(4)));
+    assert_eq!(
+        m.get_fault().unwrap(),
+        (time, FaultKind::Backstop.code(), quiet, 3)
+    );
+    // A limit press (the input reads low) is a fault; its release is not.
+    m.limit_changed(100_000, false);
+    assert_eq!(
+        m.get_fault().unwrap(),
+        (100_000, FaultKind::LimitHit.code(), 1, 4)
+    );
+    m.limit_changed(101_000, true);
+    assert_eq!(m.get_fault().unwrap().3, 4);
+    // A halt.
+    now.set(200_000);
+    m.halt().unwrap();
+    assert_eq!(
+        m.get_fault().unwrap(),
+        (200_000, FaultKind::Halted.code(), 0, 5)
+    );
+    // A move faster than the step rate overruns, reported once per run of
+    // the step generator.
+    m.set_enable(false).unwrap();
+    m.set_enable(true).unwrap();
+    m.set_microsteps(16).unwrap();
+    let t0 = 300 * iv;
+    now.set(t0);
+    let (_, here) = m.get_position().unwrap();
+    for k in 0..3 {
+        m.add_point(t0 + k * iv, here).unwrap();
+    }
+    // 1 unit per interval: 1280 microsteps in 2048 µs, 6x the tick rate.
+    for k in 3..8 {
+        m.add_point(t0 + k * iv, here + (k - 2) as f32).unwrap();
+    }
+    // Ending at rest: no backstop fault.
+    for k in 8..12 {
+        m.add_point(t0 + k * iv, here + 5.0).unwrap();
+    }
+    let mut local = t0;
+    while local < t0 + 30 * iv {
+        m.fill_step_word(local);
+        local += 160;
+    }
+    let (_, code, owed, count) = m.get_fault().unwrap();
+    assert_eq!((code, count), (FaultKind::StepOverrun.code(), 6));
+    assert!(owed > 1, "{owed}");
+}

@@ -30,6 +30,7 @@ pub struct Stepper {
     pulse: FunctionHandle,
     pulse_at: FunctionHandle,
     analog_read: FunctionHandle,
+    get_fault: FunctionHandle,
 }
 
 impl Stepper {
@@ -124,6 +125,11 @@ impl Stepper {
             inputs: &[("channel", "u8")],
             outputs: &[("time", "u64"), ("value", "f32")],
         },
+        support::Signature {
+            function: "get_fault",
+            inputs: &[],
+            outputs: &[("time", "u64"), ("code", "u8"), ("detail", "u32"), ("count", "u32")],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -158,6 +164,7 @@ impl Stepper {
             pulse: support::function(manager, runtime, "pulse")?,
             pulse_at: support::function(manager, runtime, "pulse_at")?,
             analog_read: support::function(manager, runtime, "analog_read")?,
+            get_fault: support::function(manager, runtime, "get_fault")?,
         })
     }
 
@@ -584,6 +591,34 @@ impl Stepper {
     pub fn analog_read_ref(&self) -> &FnRef {
         self.analog_read.function()
     }
+
+    /// `get_fault`.
+    ///
+    /// - inputs: none
+    /// - outputs: `time: u64`, `code: u8`, `detail: u32`, `count: u32`
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn get_fault(&self) -> Result<GetFaultOutputs, CallError> {
+        let h = &self.get_fault;
+        let values = h.call(&[]).await?;
+        let mut out = support::Outputs::new(h, values, 4)?;
+        Ok(GetFaultOutputs {
+            time: out.next(support::from_u64)?,
+            code: out.next(support::from_u8)?,
+            detail: out.next(support::from_u32)?,
+            count: out.next(support::from_u32)?,
+        })
+    }
+
+    /// The handle of `get_fault`, for `push` and raw calls.
+    pub fn get_fault_handle(&self) -> &FunctionHandle {
+        &self.get_fault
+    }
+
+    /// `get_fault` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn get_fault_ref(&self) -> &FnRef {
+        self.get_fault.function()
+    }
 }
 
 /// Outputs of `get_position`.
@@ -661,4 +696,17 @@ pub struct AnalogReadOutputs {
     pub time: u64,
     /// `value: f32`.
     pub value: f32,
+}
+
+/// Outputs of `get_fault`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GetFaultOutputs {
+    /// `time: u64`.
+    pub time: u64,
+    /// `code: u8`.
+    pub code: u8,
+    /// `detail: u32`.
+    pub detail: u32,
+    /// `count: u32`.
+    pub count: u32,
 }

@@ -1,0 +1,156 @@
+//! The module's faults: what stopped, refused or disturbed its axis, kept
+//! as one record that the `get_fault` function reports.
+//!
+//! `get_fault` returns `(time, code, detail, count)`: the latest fault's
+//! synchronized time (µs), its kind ([`FaultKind`] code), a detail whose
+//! meaning depends on the kind, and the faults counted since boot. Run as a
+//! pipe source with the output mode "on change", it sends each new fault
+//! once; when several happen between two runs, the count says how many.
+//!
+//! | code | kind | detail |
+//! |---|---|---|
+//! | 0 | none yet | 0 |
+//! | 1 | [`FaultKind::Refused`]: a control point was refused | the refusal's [`StepperError`] code |
+//! | 2 | [`FaultKind::Backstop`]: the stream ran dry mid-motion and the backstop braked the axis | µs since the module last accepted a point (the upstream's quiet time) |
+//! | 3 | [`FaultKind::StepOverrun`]: a step tick owed more than one step | the steps owed at that tick |
+//! | 4 | [`FaultKind::LimitHit`]: the limit switch was pressed | limit edges since boot |
+//! | 5 | [`FaultKind::Halted`]: `halt` stopped the axis | 0 |
+//!
+//! While the axis stands stopped by a backstop or a halt, the refusals that
+//! follow (code `Faulted`) are counted but keep the record of their cause.
+//! A step overrun is recorded once per run of the step generator (the
+//! steps still go out on later ticks; nothing is lost).
+//!
+//! [`StepperError`]: crate::stepper::StepperError
+
+use crate::stepper::StepperError;
+
+/// What kind of fault a module saw: the `code` output of `get_fault`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+#[repr(u8)]
+pub enum FaultKind {
+    /// No fault since boot.
+    None = 0,
+    /// A control point was refused; the detail is the refusal's
+    /// [`StepperError`] code.
+    Refused = 1,
+    /// The stream ran dry mid-motion and the backstop braked the axis; the
+    /// detail is how long (µs) the module had gone without accepting a point.
+    Backstop = 2,
+    /// A step tick owed more than one step (the axis was asked to move
+    /// faster than the step rate); the detail is the steps owed.
+    StepOverrun = 3,
+    /// The limit switch was pressed; the detail is the edges seen since boot.
+    LimitHit = 4,
+    /// `halt` stopped the axis.
+    Halted = 5,
+}
+
+impl FaultKind {
+    /// Every kind, in code order.
+    pub const ALL: [FaultKind; 6] = [
+        FaultKind::None,
+        FaultKind::Refused,
+        FaultKind::Backstop,
+        FaultKind::StepOverrun,
+        FaultKind::LimitHit,
+        FaultKind::Halted,
+    ];
+
+    /// The kind's code.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+
+    /// The kind of code `code`, if it is one.
+    pub fn from_code(code: u8) -> Option<FaultKind> {
+        FaultKind::ALL.get(usize::from(code)).copied()
+    }
+
+    /// A short name.
+    pub fn name(self) -> &'static str {
+        match self {
+            FaultKind::None => "none",
+            FaultKind::Refused => "refused point",
+            FaultKind::Backstop => "backstop",
+            FaultKind::StepOverrun => "step overrun",
+            FaultKind::LimitHit => "limit hit",
+            FaultKind::Halted => "halted",
+        }
+    }
+}
+
+/// The latest fault and the count since boot, as `get_fault` reports them.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fault {
+    /// When, synchronized µs.
+    pub time: u64,
+    /// What.
+    pub kind: FaultKind,
+    /// The kind's detail (see the module docs).
+    pub detail: u32,
+    /// Faults since boot.
+    pub count: u32,
+}
+
+impl Default for Fault {
+    fn default() -> Self {
+        Fault {
+            time: 0,
+            kind: FaultKind::None,
+            detail: 0,
+            count: 0,
+        }
+    }
+}
+
+impl Fault {
+    /// Counts a fault of `kind` at synchronized `time` and makes it the
+    /// record, unless it is a consequence of the recorded one (a `Faulted`
+    /// refusal behind a backstop or halt that still holds the axis,
+    /// `stopped`).
+    pub fn record(&mut self, time: u64, kind: FaultKind, detail: u32, stopped: bool) {
+        self.count = self.count.wrapping_add(1);
+        let consequence = stopped
+            && kind == FaultKind::Refused
+            && detail == u32::from(StepperError::Faulted.code())
+            && matches!(self.kind, FaultKind::Backstop | FaultKind::Halted);
+        if !consequence {
+            self.time = time;
+            self.kind = kind;
+            self.detail = detail;
+        }
+    }
+
+    /// The `get_fault` outputs.
+    pub fn outputs(&self) -> (u64, u8, u32, u32) {
+        (self.time, self.kind.code(), self.detail, self.count)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn codes_round_trip() {
+        for k in FaultKind::ALL {
+            assert_eq!(FaultKind::from_code(k.code()), Some(k));
+        }
+        assert_eq!(FaultKind::from_code(6), None);
+        assert_eq!(FaultKind::from_code(255), None);
+    }
+
+    #[test]
+    fn a_refusal_behind_a_backstop_keeps_its_cause() {
+        let mut f = Fault::default();
+        f.record(10, FaultKind::Backstop, 5_000, true);
+        f.record(20, FaultKind::Refused, 4, true);
+        assert_eq!(f.outputs(), (10, 2, 5_000, 2));
+        // Once the axis runs again, a refusal is the record.
+        f.record(30, FaultKind::Refused, 4, false);
+        assert_eq!(f.outputs(), (30, 1, 4, 3));
+        f.record(40, FaultKind::Refused, 2, true);
+        assert_eq!(f.outputs(), (40, 1, 2, 4));
+    }
+}
