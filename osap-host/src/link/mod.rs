@@ -194,7 +194,7 @@ impl LinkIo {
         q.open = open;
         drop(q);
         self.shared.runtime.notify_one();
-        self.shared.io.notify_one();
+        self.shared.io.notify_waiters();
     }
 
     /// Whether the link is up.
@@ -225,12 +225,20 @@ impl LinkIo {
     }
 
     /// Waits until the runtime has room for a received packet (for stream
-    /// links, which can push back by not reading).
+    /// links, which can push back by not reading). A link that drops when
+    /// its send queue is full also waits while it is full: a peer that
+    /// does not read its replies is not read either, so it costs the
+    /// runtime nothing until it reads again (or is closed for stalling).
     pub async fn rx_ready(&self) {
         loop {
             let notified = self.shared.io.notified();
-            if self.shared.lock().rx.len() < self.shared.config.depth {
-                return;
+            {
+                let q = self.shared.lock();
+                let depth = self.shared.config.depth;
+                let unread = q.overflow == TxOverflow::Drop && q.tx.len() >= depth;
+                if q.rx.len() < depth && !unread {
+                    return;
+                }
             }
             notified.await;
         }
@@ -248,8 +256,10 @@ impl LinkIo {
                 }
                 if let Some(p) = q.tx.pop_front() {
                     drop(q);
-                    // Room to send again: the runtime may have packets waiting.
+                    // Room to send again: the runtime may have packets
+                    // waiting, and the reader may wait for the peer to read.
                     self.shared.runtime.notify_one();
+                    self.shared.io.notify_waiters();
                     return Some(p);
                 }
             }
@@ -359,7 +369,7 @@ impl LinkGateway for ChannelLink {
                 }
                 q.tx.push_back(packet.to_vec());
                 drop(q);
-                self.shared.io.notify_one();
+                self.shared.io.notify_waiters();
             }
         }
         self.shared.lock().stats.sent += 1;
@@ -379,7 +389,7 @@ impl LinkGateway for ChannelLink {
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
         let (packet, stamp) = self.shared.lock().rx.pop_front()?;
         // Room again: a stream link may be waiting to read more.
-        self.shared.io.notify_one();
+        self.shared.io.notify_waiters();
         if let Some(dst) = buf.get_mut(..packet.len()) {
             dst.copy_from_slice(&packet);
         }

@@ -52,6 +52,12 @@ pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
 /// Connections a listener serves at once, by default.
 pub const MAX_CONNECTIONS: usize = 16;
+/// How long a connection past the limit waits for one to end before it is
+/// refused, by default: a burst of short connections is served in turn.
+pub const QUEUE_TIMEOUT: Duration = Duration::from_secs(1);
+/// Connections past the limit that may wait at once; more are refused at
+/// once.
+pub const MAX_WAITING: usize = 256;
 
 /// Bounds on one connection of a stream link.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -631,9 +637,14 @@ pub struct ListenOptions {
     /// The key every connection must prove it holds, in a Noise handshake,
     /// before it gets a link; `None`: plain frames (loopback only).
     pub key: Option<Key>,
-    /// Connections served at once; one more is closed at once, unread, and
-    /// logged ([`MAX_CONNECTIONS`] by default).
+    /// Connections served at once ([`MAX_CONNECTIONS`] by default). One
+    /// more waits up to `queue_timeout` for a connection to end, and is
+    /// then closed unread, and logged; past [`MAX_WAITING`] waiting, at
+    /// once.
     pub max_connections: usize,
+    /// How long a connection past the limit waits ([`QUEUE_TIMEOUT`] by
+    /// default).
+    pub queue_timeout: Duration,
     /// Close a connection that sends nothing for this long
     /// ([`IDLE_TIMEOUT`] by default; `None`: never).
     pub idle_timeout: Option<Duration>,
@@ -650,6 +661,7 @@ impl Default for ListenOptions {
             allow_remote: false,
             key: None,
             max_connections: MAX_CONNECTIONS,
+            queue_timeout: QUEUE_TIMEOUT,
             idle_timeout: Some(IDLE_TIMEOUT),
             stall_timeout: Some(STALL_TIMEOUT),
             handshake_timeout: noise::HANDSHAKE_TIMEOUT,
@@ -662,7 +674,8 @@ impl Default for ListenOptions {
 pub struct ListenerStats {
     /// Connections accepted (given a link, or a handshake first).
     pub accepted: u64,
-    /// Connections closed at once because `max_connections` were open.
+    /// Connections closed unread because `max_connections` were open (and
+    /// none ended within `queue_timeout`).
     pub refused: u64,
     /// Keyed connections closed because their handshake failed (wrong
     /// key, replay, garbage, timeout).
@@ -840,6 +853,7 @@ async fn accept_loop<A: Accept>(shared: Shared, mut acceptor: A, stop: Arc<Notif
     let shared = Arc::new(shared);
     let (type_name, addr) = (shared.type_name, shared.addr.clone());
     let max = shared.options.max_connections;
+    let slots = Arc::new(tokio::sync::Semaphore::new(max));
     let mut connections: JoinSet<()> = JoinSet::new();
     let mut number = 0u64;
     tracing::info!("{type_name}: listening on {addr}");
@@ -857,20 +871,25 @@ async fn accept_loop<A: Accept>(shared: Shared, mut acceptor: A, stop: Arc<Notif
                         continue;
                     }
                 };
-                if connections.len() >= max {
-                    shared.counters.refused.fetch_add(1, Ordering::Relaxed);
-                    tracing::warn!(
-                        "{type_name}: refused a connection from {peer} on {addr}: {max} \
-                         connections are open, the limit (max_connections, \
-                         osap serve --max-connections)"
-                    );
+                if connections.len() >= max.saturating_add(MAX_WAITING) {
+                    refuse(&shared, &peer);
                     // Closed unread: the peer sees the connection end at once.
                     drop(stream);
                     continue;
                 }
-                shared.counters.accepted.fetch_add(1, Ordering::Relaxed);
                 number += 1;
-                connections.spawn(serve_connection(shared.clone(), stream, peer, number));
+                let (shared, slots) = (shared.clone(), slots.clone());
+                connections.spawn(async move {
+                    let wait = shared.options.queue_timeout;
+                    let Ok(Ok(slot)) = tokio::time::timeout(wait, slots.acquire_owned()).await
+                    else {
+                        refuse(&shared, &peer);
+                        return;
+                    };
+                    shared.counters.accepted.fetch_add(1, Ordering::Relaxed);
+                    serve_connection(shared, stream, peer, number).await;
+                    drop(slot);
+                });
             }
         }
     }
@@ -879,6 +898,18 @@ async fn accept_loop<A: Accept>(shared: Shared, mut acceptor: A, stop: Arc<Notif
     connections.shutdown().await;
     shared.edit(Vec::clear);
     tracing::info!("{type_name}: stopped listening on {addr}");
+}
+
+/// Counts and logs a connection refused at the limit.
+fn refuse(shared: &Shared, peer: &str) {
+    shared.counters.refused.fetch_add(1, Ordering::Relaxed);
+    tracing::warn!(
+        "{}: refused a connection from {peer} on {}: {} connections are open, the limit \
+         (max_connections, osap serve --max-connections)",
+        shared.type_name,
+        shared.addr,
+        shared.options.max_connections
+    );
 }
 
 /// Serves one accepted connection: authenticates it if the listener has a

@@ -25,8 +25,9 @@ use tokio::net::{TcpListener, TcpStream};
 pub use super::stream::loopback;
 
 /// How long a plain client waits for the listener's first byte (it sends
-/// one at once) before going on without it.
-const GREETING_TIMEOUT: Duration = Duration::from_secs(2);
+/// one as soon as it serves the connection, which at its connection limit
+/// may take its queue timeout) before going on without it.
+const GREETING_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Connects to `addr` (`host:port`), once.
 async fn dial(addr: &str) -> Result<TcpStream, HostError> {
