@@ -9,6 +9,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use osap_host::link::serial;
 use osap_machine::config::MachineFile;
 use osap_machine::job::{self, Program};
+use osap_machine::machine::events::FaultKind;
 use osap_machine::machine::{Link, SimOptions};
 use osap_machine::svg::SvgOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
@@ -16,8 +17,13 @@ use osap_sim::machine::TimeMode;
 
 /// Exit code of a job or argument refused before any motion.
 pub const REFUSED: u8 = 2;
-/// Exit code of a fault during motion.
+/// Exit code of a failure during motion that is not the machine's own
+/// fault report: the host runtime, a link, or a lost clock.
 pub const FAULTED: u8 = 1;
+/// Exit code of a machine fault: a module reported a fault (a refused
+/// point, its backstop, a limit press, a halt) or stopped answering, and
+/// the machine stopped; the message names the module and why.
+pub const MACHINE_FAULT: u8 = 3;
 
 /// Where a machine command finds the machine.
 #[derive(Args, Clone, Debug)]
@@ -106,9 +112,8 @@ impl Failure {
 
     fn from_machine(e: MachineError) -> Failure {
         let code = match e {
-            MachineError::Faulted(_) | MachineError::Homing { .. } | MachineError::Stopped => {
-                FAULTED
-            }
+            MachineError::Faulted(_) => MACHINE_FAULT,
+            MachineError::Homing { .. } | MachineError::Stopped => FAULTED,
             MachineError::Host(_)
             | MachineError::Network(_)
             | MachineError::NotSynchronised { .. } => FAULTED,
@@ -308,11 +313,18 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         .map_err(Failure::from_machine)?;
 
     let mut faults = Vec::new();
+    let mut warnings = Vec::new();
     let mut refusals: std::collections::BTreeMap<String, (u32, String)> = Default::default();
     while let Ok(e) = events.try_recv() {
         match e {
-            MachineEvent::Fault { module, reason } => {
-                faults.push(format!("module {module}: {reason}"))
+            MachineEvent::Fault {
+                module,
+                kind: FaultKind::StepOverrun,
+                reason,
+                ..
+            } => warnings.push(format!("module {module} {reason}")),
+            MachineEvent::Fault { module, reason, .. } => {
+                faults.push(format!("module {module} {reason}"))
             }
             MachineEvent::LinkLost { module } => faults.push(format!("module {module}: link lost")),
             MachineEvent::Refused {
@@ -333,6 +345,7 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         }
     }
     faults.dedup();
+    warnings.dedup();
 
     println!("job {}: {} moves", args.job.display(), program.moves.len());
     println!("planned duration   {:>9.3} s", planned_s);
@@ -346,6 +359,9 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     }
     for (module, (count, reason)) in &refusals {
         println!("warning: module {module} refused {count} points (the latest: {reason})");
+    }
+    for w in &warnings {
+        println!("warning: {w}");
     }
     if faults.is_empty() {
         println!("faults: none");
@@ -377,8 +393,9 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let stopped = machine.stop().await;
     result.map_err(Failure::from_machine)?;
     stopped.map_err(Failure::from_machine)?;
-    if !faults.is_empty() {
-        return Ok(ExitCode::from(FAULTED));
+    if let Some(first) = faults.first() {
+        eprintln!("error: machine fault: {first}");
+        return Ok(ExitCode::from(MACHINE_FAULT));
     }
     Ok(ExitCode::SUCCESS)
 }

@@ -877,7 +877,7 @@ async fn run_job(cfg: &MachineFile, program: &Program, variant: Variant) -> JobR
     let mut faults = Vec::new();
     while let Ok(e) = events.try_recv() {
         match e {
-            MachineEvent::Fault { module, reason } => faults.push(format!("{module}: {reason}")),
+            MachineEvent::Fault { module, reason, .. } => faults.push(format!("{module}: {reason}")),
             MachineEvent::LinkLost { module } => faults.push(format!("{module}: link lost")),
             MachineEvent::Refused { module, count, .. } => {
                 faults.push(format!("{module}: {count} refused"))

@@ -5,6 +5,7 @@ use maxl::blocks::kinematics::KinError;
 use maxl::blocks::planner::PlanError;
 use osap_host::som::SomError;
 use osap_host::HostError;
+use osap_module::fault::FaultKind;
 use osap_module::stepper::StepperError;
 
 /// An error of the [`Machine`](super::Machine) API.
@@ -145,5 +146,26 @@ pub fn stepper_reason(code: u8) -> String {
         Some(E::Busy) => "the setting can only change while no stream is queued".into(),
         Some(E::BadValue) => "the value is not allowed".into(),
         None => format!("failure code {code}"),
+    }
+}
+
+/// What a module's fault means, as a predicate of the module ("module y
+/// refused a point: ..."): the `get_fault` kind and detail, by name.
+pub fn fault_reason(kind: FaultKind, detail: u32) -> String {
+    match kind {
+        FaultKind::None => "reported no fault".into(),
+        FaultKind::Refused => {
+            let code = u8::try_from(detail).unwrap_or(u8::MAX);
+            format!("refused a point: {}", stepper_reason(code))
+        }
+        FaultKind::Backstop => format!(
+            "braked on its backstop: its stream ran dry mid-motion, {:.1} ms after its last point (the host fell behind or the link went quiet: more CPU, a longer timer lead, or a faster link)",
+            f64::from(detail) / 1e3
+        ),
+        FaultKind::StepOverrun => format!(
+            "was asked to step faster than its step rate ({detail} steps owed at one tick; the steps went out late): lower the axis's velocity or its microsteps"
+        ),
+        FaultKind::LimitHit => "had its limit switch pressed".into(),
+        FaultKind::Halted => "was halted (its motor must be cycled: recover())".into(),
     }
 }

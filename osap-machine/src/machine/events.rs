@@ -1,5 +1,7 @@
 //! What a machine reports while it runs.
 
+pub use osap_module::fault::FaultKind;
+
 /// What the machine is doing.
 #[derive(Debug, Clone, PartialEq)]
 pub enum MachineState {
@@ -20,12 +22,22 @@ pub enum MachineState {
 /// streams it. Times are synchronized system µs.
 #[derive(Debug, Clone, PartialEq)]
 pub enum MachineEvent {
-    /// A module stopped its axis on its own: its stream ran dry mid-motion
-    /// (the backstop) or it was halted.
+    /// A module reported a fault through its `get_fault` source: a
+    /// refused point, its backstop, a step overrun, a limit press (on a
+    /// module whose switch homing does not watch) or a halt. Every kind but
+    /// a step overrun stops the machine.
     Fault {
         /// The module's key.
         module: String,
-        /// Why.
+        /// What kind of fault.
+        kind: FaultKind,
+        /// The kind's detail: the refusal code, the backstop's quiet time
+        /// (µs), the steps owed, the limit edges (see
+        /// [`osap_module::fault`]).
+        detail: u32,
+        /// When the module saw it (its synchronized time stamp).
+        time: u64,
+        /// Why, in words (what follows "module NAME ").
         reason: String,
     },
     /// A limit switch changed.

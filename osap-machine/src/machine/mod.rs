@@ -57,6 +57,9 @@ pub const LEAD_US: u32 = 40 * INTERVAL_US;
 pub const HOST_NAME: &str = "machine";
 /// Period of the modules' status reports, µs.
 const STATUS_PERIOD_US: u32 = 50_000;
+/// Period of the modules' fault sources, µs: a fault stops the machine
+/// within this and a link's latency.
+const FAULT_PERIOD_US: u32 = 5_000;
 /// Period of the limit switch and stepped position reports, µs.
 const FAST_PERIOD_US: u32 = 1_000;
 /// A module silent for this long is lost.
@@ -169,7 +172,13 @@ impl Machine {
                 "no link given: name a serial port or a TCP address".into(),
             ));
         }
-        let host = Host::start(HostConfig::named(HOST_NAME))?;
+        // Over serial the modules are ours and this host is their clock
+        // root; over TCP only, the machine is served and its host is the
+        // root: follow it, and trust no other link.
+        let served = links.iter().all(|l| matches!(l, Link::Tcp(_)));
+        let mut config = HostConfig::named(HOST_NAME);
+        config.time.root = !served;
+        let host = Host::start(config)?;
         let mut handles = Vec::new();
         for link in links {
             match link {
@@ -315,10 +324,7 @@ impl Machine {
             let runtime = modules[&motor.module].runtime.clone();
             let key = motor.module.as_str();
             let status_fn = manager
-                .define(
-                    monitor::status(key, reports.clone(), events.clone())
-                        .map_err(MachineError::Unsupported)?,
-                )
+                .define(monitor::status(key, reports.clone()).map_err(MachineError::Unsupported)?)
                 .await?;
             source(
                 &mut manager,
@@ -366,6 +372,32 @@ impl Machine {
             .collect();
         switch_modules.sort();
         switch_modules.dedup();
+        // Every module's faults, pushed once each as they happen.
+        for (key, m) in &modules {
+            if manager
+                .function(&FnRef::new(m.runtime.as_str(), "get_fault"))
+                .is_err()
+            {
+                continue;
+            }
+            let watched = switch_modules.contains(&key.as_str());
+            let f = manager
+                .define(
+                    monitor::fault(key, watched, reports.clone(), events.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &m.runtime,
+                "get_fault",
+                Some(FAULT_PERIOD_US),
+                true,
+                &f,
+                4,
+            )
+            .await?;
+        }
         for key in switch_modules {
             let runtime = modules[key].runtime.clone();
             let f = manager
@@ -436,7 +468,13 @@ impl Machine {
             loop {
                 let (reason, crash) = tokio::select! {
                     e = rx.recv() => match e {
-                        Ok(MachineEvent::Fault { module, reason }) => (format!("module {module}: {reason}"), false),
+                        Ok(MachineEvent::Fault { module, kind, detail, reason, .. }) => {
+                            let Some(inner) = weak.upgrade() else { return };
+                            if !stops_motion(&inner, &module, kind, detail) {
+                                continue;
+                            }
+                            (format!("module {module} {reason}"), false)
+                        }
                         Ok(MachineEvent::LinkLost { module }) => (format!("module {module} stopped answering"), false),
                         Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => continue,
                         Err(broadcast::error::RecvError::Closed) => return,
@@ -486,7 +524,10 @@ impl Machine {
         });
     }
 
-    /// Stops motion (a controlled stop) and marks the machine faulted.
+    /// Stops motion (a controlled stop) and marks the machine faulted. The
+    /// first fault is the one the machine reports until it recovers: what
+    /// follows (the halts of an emergency stop, refusals behind a stopped
+    /// axis) is its consequence.
     fn fault(&self, reason: String) {
         {
             let mut m = lock_motion(&self.inner.motion);
@@ -494,6 +535,9 @@ impl Machine {
             m.mark_busy();
         }
         tracing::warn!("machine faulted: {reason}");
+        if matches!(*self.inner.state.borrow(), MachineState::Faulted(_)) {
+            return;
+        }
         let state = MachineState::Faulted(reason);
         self.inner.state.send_replace(state.clone());
         let _ = self.inner.events.send(MachineEvent::State(state));
@@ -1112,6 +1156,24 @@ async fn source(
             .await?;
     }
     Ok(())
+}
+
+/// Whether a module's fault stops the machine: every kind but a step
+/// overrun (its steps went out late, none was lost), and a refusal for a
+/// disabled motor only when the machine file enables a motor of that module.
+fn stops_motion(inner: &Inner, module: &str, kind: events::FaultKind, detail: u32) -> bool {
+    use events::FaultKind as K;
+    match kind {
+        K::None | K::StepOverrun => false,
+        K::Refused if detail == u32::from(osap_module::stepper::StepperError::Disabled.code()) => {
+            lock_motion(&inner.motion)
+                .drive
+                .motors()
+                .iter()
+                .any(|m| m.module == module && m.enable)
+        }
+        K::Refused | K::Backstop | K::LimitHit | K::Halted => true,
+    }
 }
 
 /// Reports a module whose status reports stop arriving.

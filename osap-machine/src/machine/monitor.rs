@@ -1,7 +1,7 @@
 //! Host functions that receive what the modules report through pipes:
-//! each motor module's status (faults, link loss), refused points, limit
-//! switch edges (homing and limit hits), and stepped positions (what the
-//! machine executed).
+//! each module's faults (`get_fault`), each motor module's status (link
+//! loss) and refused points, limit switch edges (homing and limit hits),
+//! and stepped positions (what the machine executed).
 //!
 //! Every report is pushed by the module (a pipe from its function, run on
 //! the module's own timer), so nothing here polls the network.
@@ -13,8 +13,8 @@ use osap_host::som::{HostFunction, OwnedValue};
 use pipes_core::types::{ScalarType, Type};
 use tokio::sync::broadcast;
 
-use super::error::stepper_reason;
-use super::events::MachineEvent;
+use super::error::{fault_reason, stepper_reason};
+use super::events::{FaultKind, MachineEvent};
 
 /// A limit switch edge, as its module stamped it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -42,6 +42,8 @@ pub struct Reports {
     pub seen: BTreeMap<String, (u8, u32, tokio::time::Instant)>,
     /// Per module key: refused points seen so far.
     pub refused: BTreeMap<String, u32>,
+    /// Per module key: the fault count of its newest `get_fault` report.
+    pub faults: BTreeMap<String, u32>,
     /// Per module key: the newest limit edge.
     pub limit: BTreeMap<String, LimitEdge>,
     /// Per motor index: stepped positions (synchronized µs, motor units),
@@ -61,16 +63,10 @@ fn t(s: ScalarType) -> Type {
     Type::Scalar(s)
 }
 
-/// The stepper mode (`get_status`) of an axis halted by `halt`.
-const HALTED: u8 = 4;
-
 /// `machine.status.<key>(mode, queued, enabled, faults)`, fed by the
-/// module's `get_status`.
-pub fn status(
-    key: &str,
-    reports: SharedReports,
-    events: broadcast::Sender<MachineEvent>,
-) -> Result<HostFunction, String> {
+/// module's `get_status`: each report says the module still answers (the
+/// watchdog's link-loss check). Faults come through [`fault`].
+pub fn status(key: &str, reports: SharedReports) -> Result<HostFunction, String> {
     let module = key.to_string();
     HostFunction::new(
         &format!("machine.status.{key}"),
@@ -88,26 +84,65 @@ pub fn status(
                 return Err(1);
             };
             let now = tokio::time::Instant::now();
-            let before = lock(&reports)
+            lock(&reports)
                 .seen
                 .insert(module.clone(), (*mode, *faults, now));
-            let (was_mode, was_faults) = before.map_or((0, *faults), |b| (b.0, b.1));
-            let newly = |m: u8| *mode == m && was_mode != m;
-            // A stream that ran dry at rest parks the axis in the backstop
-            // mode harmlessly; only one cut off mid-motion counts a fault.
-            let reason = if *faults > was_faults {
-                Some("its stream ran dry mid-motion and the backstop braked it (the host fell behind: more CPU, a longer timer lead, or a faster link)")
-            } else if newly(HALTED) {
-                Some("it was halted")
-            } else {
-                None
+            Ok(Vec::new())
+        },
+    )
+    .map_err(|e| e.to_string())
+}
+
+/// `machine.fault.<key>(time, code, detail, count)`, fed by the module's
+/// `get_fault` (on change): each new fault becomes a
+/// [`MachineEvent::Fault`]. The first report is the count the machine
+/// started with. A limit press is left to the limit monitor when homing
+/// watches the module's switch (`limit_watched`).
+pub fn fault(
+    key: &str,
+    limit_watched: bool,
+    reports: SharedReports,
+    events: broadcast::Sender<MachineEvent>,
+) -> Result<HostFunction, String> {
+    let module = key.to_string();
+    HostFunction::new(
+        &format!("machine.fault.{key}"),
+        &[
+            ("time", t(ScalarType::U64)),
+            ("code", t(ScalarType::U8)),
+            ("detail", t(ScalarType::U32)),
+            ("count", t(ScalarType::U32)),
+        ],
+        &[],
+        move |ins: &[OwnedValue]| {
+            let (
+                Some(OwnedValue::U64(time)),
+                Some(OwnedValue::U8(code)),
+                Some(OwnedValue::U32(detail)),
+                Some(OwnedValue::U32(count)),
+            ) = (ins.first(), ins.get(1), ins.get(2), ins.get(3))
+            else {
+                return Err(1);
             };
-            if let Some(reason) = reason {
-                let _ = events.send(MachineEvent::Fault {
-                    module: module.clone(),
-                    reason: reason.into(),
-                });
+            let before = lock(&reports).faults.insert(module.clone(), *count);
+            // A count that moved either way is news (a module that restarted
+            // counts from 0 again).
+            if before.is_none_or(|b| b == *count) {
+                return Ok(Vec::new());
             }
+            let Some(kind) = FaultKind::from_code(*code) else {
+                return Err(2);
+            };
+            if kind == FaultKind::None || (kind == FaultKind::LimitHit && limit_watched) {
+                return Ok(Vec::new());
+            }
+            let _ = events.send(MachineEvent::Fault {
+                module: module.clone(),
+                kind,
+                detail: *detail,
+                time: *time,
+                reason: fault_reason(kind, *detail),
+            });
             Ok(Vec::new())
         },
     )

@@ -1,0 +1,148 @@
+//! Faults reach the script: a module's `get_fault` source pushes each fault
+//! to the host, the machine stops, the events stream names the module, the
+//! kind, the detail and the time, and every waiting call fails naming the
+//! module and the reason. In virtual time, on the simulated plotter.
+
+use osap_host::som::OwnedValue;
+use osap_machine::config::MachineFile;
+use osap_machine::machine::events::FaultKind;
+use osap_machine::machine::SimOptions;
+use osap_machine::{Machine, MachineError, MachineEvent};
+use osap_module::stepper::StepperError;
+use osap_sim::machine::{virtual_runtime, TimeMode};
+use std::time::Duration;
+use tokio::sync::broadcast;
+
+async fn plotter() -> Machine {
+    let cfg = MachineFile::load(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../examples/machines/plotter.toml"
+    ))
+    .unwrap();
+    Machine::simulate_with(
+        &cfg,
+        SimOptions {
+            time: TimeMode::Virtual,
+        },
+    )
+    .await
+    .unwrap()
+}
+
+/// The fault events heard so far: (module, kind, detail, time).
+fn faults(events: &mut broadcast::Receiver<MachineEvent>) -> Vec<(String, FaultKind, u32, u64)> {
+    let mut out = Vec::new();
+    while let Ok(e) = events.try_recv() {
+        if let MachineEvent::Fault {
+            module,
+            kind,
+            detail,
+            time,
+            ..
+        } = e
+        {
+            out.push((module, kind, detail, time));
+        }
+    }
+    out
+}
+
+#[test]
+fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = plotter().await;
+        let mut events = m.events();
+        m.set_position([20.0, 75.0]).unwrap();
+        m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        assert!(faults(&mut events).is_empty(), "a clean move has no fault");
+        // A point whose time has passed, mid-stream: module b refuses it.
+        let now = m.now_us().await.unwrap();
+        let late = now / 2048 * 2048 - 10 * 2048;
+        let e = m
+            .call(
+                "b",
+                "add_point",
+                &[OwnedValue::U64(late), OwnedValue::F32(0.0)],
+            )
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(&e, MachineError::ModuleRefused { module, .. } if module == "b"),
+            "{e}"
+        );
+        // The waiting call fails, naming the module and the reason.
+        let e = m.idle().await.unwrap_err();
+        let MachineError::Faulted(reason) = &e else {
+            panic!("{e}")
+        };
+        assert!(
+            reason.starts_with("module b refused a point:") && reason.contains("late"),
+            "{reason}"
+        );
+        // So does every call after it, until recovered.
+        let e = m.goto_via_queue([20.0, 75.0], 50.0).await.unwrap_err();
+        assert!(matches!(&e, MachineError::Faulted(r) if r == reason), "{e}");
+        // The event: module, kind, refusal code, the module's time stamp.
+        let heard = faults(&mut events);
+        let stale = u32::from(StepperError::Stale.code());
+        assert!(
+            heard
+                .iter()
+                .any(|(module, kind, detail, time)| module == "b"
+                    && *kind == FaultKind::Refused
+                    && *detail == stale
+                    && time.abs_diff(now) < 100_000),
+            "{heard:?}"
+        );
+        assert!(
+            heard.iter().all(|f| f.0 == "b"),
+            "only b faulted: {heard:?}"
+        );
+        // The axes stopped: the planner halted, short of the target.
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let p = m.position();
+        assert!(p[0] < 179.0, "{p:?}");
+        // Recovered, the machine moves again and hears no new fault.
+        m.recover().await.unwrap();
+        m.goto_now([100.0, 75.0], 50.0).await.unwrap();
+        assert!(faults(&mut events).is_empty());
+        m.stop().await.unwrap();
+    });
+}
+
+#[test]
+fn a_module_halted_mid_move_faults_the_machine_with_its_first_reason() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = plotter().await;
+        let mut events = m.events();
+        m.set_position([20.0, 75.0]).unwrap();
+        m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        // Another client halts module a behind the script's back.
+        m.call("a", "halt", &[]).await.unwrap();
+        let e = m.idle().await.unwrap_err();
+        assert!(
+            matches!(&e, MachineError::Faulted(r) if r.starts_with("module a was halted")),
+            "{e}"
+        );
+        // The refusals of the stream behind the halt keep the halt as their
+        // cause: the reason stays the first fault's.
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let e = m.idle().await.unwrap_err();
+        assert!(
+            matches!(&e, MachineError::Faulted(r) if r.starts_with("module a was halted")),
+            "{e}"
+        );
+        let heard = faults(&mut events);
+        assert!(
+            heard
+                .iter()
+                .any(|(module, kind, ..)| module == "a" && *kind == FaultKind::Halted),
+            "{heard:?}"
+        );
+        m.recover().await.unwrap();
+        m.goto_now([60.0, 75.0], 50.0).await.unwrap();
+        m.stop().await.unwrap();
+    });
+}
