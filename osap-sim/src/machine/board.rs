@@ -255,6 +255,19 @@ impl Motor {
         self.fine as f64 / (self.spec.full_steps_per_unit * FINEST as f64)
     }
 
+    /// Where the carriage is, in the motor's finest unit (kept across a
+    /// module's power cycle: the carriage does not move when it reboots).
+    pub(crate) fn carriage(&self) -> i64 {
+        self.fine
+    }
+
+    /// Puts the carriage at `fine` (see [`carriage`](Self::carriage)) with no
+    /// steps counted, as a freshly booted module finds it.
+    pub(crate) fn place(&mut self, fine: i64) {
+        self.fine = fine;
+        self.limit_level = self.level_at(self.position());
+    }
+
     /// Net microsteps taken.
     pub fn steps(&self) -> i64 {
         self.steps

@@ -201,12 +201,14 @@
 
 pub mod board;
 mod clock;
+pub mod faults;
 mod module;
 mod switch;
 mod topology;
 mod wire;
 
 pub use clock::DriftClock;
+pub use faults::{CorruptionStats, Fault, FaultError, FaultParseError};
 pub use module::{
     ModuleRuntime, SharedModule, FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU, MODULE_PORTS,
     MODULE_SLOTS,
@@ -249,7 +251,7 @@ use osap_core::link::LinkGateway;
 use osap_core::netresponder::BuildKey;
 use osap_core::route::Route;
 use osap_core::Micros;
-use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo};
+use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo, LinkStats};
 use osap_host::{Host, HostError};
 use osap_module::{Module, ModulePorts};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
@@ -304,6 +306,8 @@ struct LinkState {
     up: bool,
     carriers: Vec<JoinHandle<()>>,
     generation: Arc<AtomicU64>,
+    /// Injected faults (cut, corruption) and their counts.
+    faults: Arc<faults::LinkFaults>,
 }
 
 struct End {
@@ -319,6 +323,8 @@ struct ModuleShared {
     wake: Arc<Notify>,
     state: tokio::sync::Mutex<ModuleState>,
     live: Mutex<Live>,
+    /// The main loop is frozen (fault injection): the runtime is not polled.
+    frozen: Arc<AtomicBool>,
 }
 
 struct Live {
@@ -473,6 +479,7 @@ impl SimMachine {
                 up: false,
                 carriers: Vec::new(),
                 generation: Arc::new(AtomicU64::new(0)),
+                faults: Arc::default(),
             });
         }
         let positions = Positions::new(topology, &wakes, epoch);
@@ -535,11 +542,13 @@ impl SimMachine {
                     clock: DriftClock::new(epoch, spec.clock_model()),
                     module: None,
                 }),
+                frozen: Arc::default(),
             });
             let module = SimModule { inner: shared };
             let parked = Parked {
                 links,
                 name: spec.name.clone(),
+                carriage: 0,
             };
             *module.inner.state.lock().await = ModuleState::Running(module.spawn(parked)?);
             machine.running[index].store(true, Ordering::SeqCst);
@@ -599,12 +608,163 @@ impl SimMachine {
             .map(|l| l.up)
     }
 
+    /// A handle that injects faults into this machine (see [`Fault`]).
+    /// It holds the modules, so keep it no longer than the machine.
+    pub fn injector(&self) -> FaultInjector {
+        FaultInjector {
+            machine: self.machine.clone(),
+            modules: self.modules.clone(),
+        }
+    }
+
+    /// Injects `fault` (see [`FaultInjector::inject`]).
+    pub async fn inject(&self, fault: &Fault) -> Result<(), FaultError> {
+        self.injector().inject(fault).await
+    }
+
     /// Stops every module and takes every link down.
     pub async fn stop(self) -> Result<(), HostError> {
         for m in &self.modules {
             m.kill().await?;
         }
         Ok(())
+    }
+}
+
+/// Injects faults into a running [`SimMachine`]. Cheap to clone.
+#[derive(Clone)]
+pub struct FaultInjector {
+    machine: Arc<Machine>,
+    modules: Vec<SimModule>,
+}
+
+impl FaultInjector {
+    /// Applies `fault`:
+    /// - `Cut` takes the link down at both ends (each end sees it closed, as
+    ///   after a pulled cable) until `Restore`;
+    /// - `Corrupt` flips bytes of every frame on the link from now on, in
+    ///   both directions, through the real framing (a rate of 0 stops it);
+    /// - `Reset` power-cycles the module: its links drop, it boots afresh;
+    /// - `Freeze` stops the module's main loop (its steps run on from what
+    ///   is queued) until `Thaw`.
+    pub async fn inject(&self, fault: &Fault) -> Result<(), FaultError> {
+        match fault {
+            Fault::Cut(link) | Fault::Restore(link) => {
+                let cut = matches!(fault, Fault::Cut(_));
+                let index = self.link_index(link)?;
+                let mut links = lock(&self.machine.links);
+                let l = &mut links[index];
+                l.faults.cut.store(cut, Ordering::SeqCst);
+                let up = !cut && l.ends.iter().all(|e| self.machine.alive(e.node));
+                if up && !l.up {
+                    self.machine.open(l);
+                } else if !up && l.up {
+                    Machine::close(l);
+                }
+                Ok(())
+            }
+            Fault::Corrupt { link, per_byte } => {
+                let index = self.link_index(link)?;
+                let links = lock(&self.machine.links);
+                if links[index].model.is_none() || self.machine.wire.is_none() {
+                    return Err(FaultError::NoWire(link.clone()));
+                }
+                links[index].faults.set_corruption(*per_byte);
+                Ok(())
+            }
+            Fault::Reset(module) => {
+                let m = self.module(module)?;
+                m.inner.frozen.store(false, Ordering::Release);
+                m.kill().await?;
+                m.restart().await?;
+                Ok(())
+            }
+            Fault::Freeze(module) | Fault::Thaw(module) => {
+                let m = self.module(module)?;
+                m.inner
+                    .frozen
+                    .store(matches!(fault, Fault::Freeze(_)), Ordering::Release);
+                m.inner.wake.notify_one();
+                Ok(())
+            }
+        }
+    }
+
+    /// The topology position of a link named by its index, its name, or its
+    /// two ends (`hub-a` or `a-hub`).
+    pub fn link_index(&self, link: &str) -> Result<usize, FaultError> {
+        let specs = &self.machine.topology.links;
+        if let Ok(i) = link.parse::<usize>() {
+            if i < specs.len() {
+                return Ok(i);
+            }
+        }
+        let matches: Vec<usize> = specs
+            .iter()
+            .enumerate()
+            .filter(|(_, l)| {
+                (!l.name.is_empty() && l.name == link)
+                    || link == format!("{}-{}", l.a, l.b)
+                    || link == format!("{}-{}", l.b, l.a)
+            })
+            .map(|(i, _)| i)
+            .collect();
+        match matches.as_slice() {
+            [i] => Ok(*i),
+            [] => Err(FaultError::UnknownLink {
+                link: link.to_string(),
+                known: specs
+                    .iter()
+                    .enumerate()
+                    .map(|(i, l)| format!("{i}: {}-{}", l.a, l.b))
+                    .collect(),
+            }),
+            _ => Err(FaultError::AmbiguousLink(link.to_string())),
+        }
+    }
+
+    fn module(&self, name: &str) -> Result<&SimModule, FaultError> {
+        self.modules
+            .iter()
+            .find(|m| m.name() == name)
+            .ok_or_else(|| FaultError::UnknownModule {
+                module: name.to_string(),
+                known: self.modules.iter().map(|m| m.name().to_string()).collect(),
+            })
+    }
+
+    /// What injected corruption has done on a link so far.
+    pub fn corruption(&self, link: &str) -> Result<CorruptionStats, FaultError> {
+        let index = self.link_index(link)?;
+        Ok(lock(&self.machine.links)[index].faults.stats())
+    }
+
+    /// Each end's link counters (side A, then side B; on USB, A is the
+    /// host), as the runtimes at the ends keep them.
+    pub fn link_stats(&self, link: &str) -> Result<[LinkStats; 2], FaultError> {
+        let index = self.link_index(link)?;
+        let links = lock(&self.machine.links);
+        let l = &links[index];
+        Ok([l.ends[0].io.stats(), l.ends[1].io.stats()])
+    }
+
+    /// Every link's position and its ends, as `index: a-b`.
+    pub fn links(&self) -> Vec<String> {
+        self.machine
+            .topology
+            .links
+            .iter()
+            .enumerate()
+            .map(|(i, l)| format!("{i}: {}-{}", l.a, l.b))
+            .collect()
+    }
+}
+
+impl std::fmt::Debug for FaultInjector {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("FaultInjector")
+            .field("topology", &self.machine.topology.name)
+            .finish()
     }
 }
 
@@ -624,7 +784,8 @@ impl Machine {
             if !l.ends.iter().any(|e| e.node == Node::Module(m)) {
                 continue;
             }
-            let up = l.ends.iter().all(|e| self.alive(e.node));
+            let up =
+                !l.faults.cut.load(Ordering::SeqCst) && l.ends.iter().all(|e| self.alive(e.node));
             if up && !l.up {
                 self.open(l);
             } else if !up && l.up {
@@ -658,6 +819,8 @@ impl Machine {
                 host_clock: self.host_clock,
                 generation: l.generation.clone(),
                 started,
+                faults: l.faults.clone(),
+                fault_rng: Rng::stream(self.topology.seed, "osap-sim-fault", stream),
             };
             l.carriers.push(tokio::spawn(carrier.run()));
         }
@@ -829,15 +992,17 @@ impl SimModule {
         let mut ports: Vec<Box<dyn osap_core::port::Port + Send>> = Vec::new();
         let mut stepper = None;
         if spec.kind() == Some(ModuleKind::Stepper) {
-            let board = SimBoard::new(
+            let mut board = SimBoard::new(
                 clock,
                 spec.motor.clone().unwrap_or_default(),
                 &spec.io.clone().unwrap_or_default(),
             );
+            board.motor_mut().place(parked.carriage);
+            let carriage = board.motor().position();
             let module = SharedModule::new(Module::new(board));
             let (publisher, input) = match &machine.positions {
                 Some(board) => (
-                    Publisher::new(board, self.inner.index, clock, 0.0),
+                    Publisher::new(board, self.inner.index, clock, carriage),
                     Input::new(board, &machine.topology, self.inner.index, clock),
                 ),
                 None => (None, None),
@@ -861,6 +1026,7 @@ impl SimModule {
             wake: self.inner.wake.clone(),
             clock,
             stepper: stepper.as_ref().map(|(_, steps)| steps.clone()),
+            frozen: self.inner.frozen.clone(),
         };
         *lock(&self.inner.live) = Live {
             commands: Some(commands),

@@ -14,6 +14,7 @@ use osap_host::clock::HostClock;
 use osap_host::driver::{self, Driven, PollOutcome};
 use osap_host::link::ChannelLink;
 use osap_module::{Module, ModuleHandle, STEP_TICK_US, TICKS_PER_WORD};
+use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::{mpsc, Notify};
 
@@ -280,6 +281,8 @@ pub(crate) enum ModuleCommand {
 pub(crate) struct Parked {
     pub(crate) links: Vec<ChannelLink>,
     pub(crate) name: String,
+    /// Where a stepper's carriage stood (the motor's finest unit).
+    pub(crate) carriage: i64,
 }
 
 pub(crate) struct ModuleTask {
@@ -291,6 +294,9 @@ pub(crate) struct ModuleTask {
     pub(crate) clock: DriftClock,
     /// A `stepper`'s step generator (it holds the module).
     pub(crate) stepper: Option<StepClock>,
+    /// Fault injection: the main loop hangs (the runtime is not polled)
+    /// while the step generator runs on, as a step interrupt would.
+    pub(crate) frozen: Arc<AtomicBool>,
 }
 
 impl Driven for ModuleTask {
@@ -315,7 +321,11 @@ impl Driven for ModuleTask {
         if let Some(steps) = &mut self.stepper {
             steps.catch_up(now);
         }
-        let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
+        let result = if self.frozen.load(Ordering::Acquire) {
+            osap_core::runtime::PollResult::default()
+        } else {
+            self.runtime.poll(now, &mut self.ports, &mut self.links)
+        };
         let mut wake_at = result.wake_at;
         if let Some(steps) = &mut self.stepper {
             if let Some(t) = steps.fill_ahead(now, self.runtime.time_map()) {
@@ -343,6 +353,9 @@ impl ModuleTask {
     fn park(self) -> Parked {
         Parked {
             name: self.runtime.identity().name.to_string(),
+            carriage: self.stepper.as_ref().map_or(0, |s| {
+                s.module.lock(|m| m.board().motor().carriage())
+            }),
             links: self.links.into_iter().map(|l| l.inner).collect(),
         }
     }

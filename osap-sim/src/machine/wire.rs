@@ -16,7 +16,9 @@
 //! delivery is due and spins through the last [`SPIN`], so packets land
 //! within a few µs of their time.
 
+use super::faults::LinkFaults;
 use crate::medium::{StampMode, Transmitter};
+use crate::rng::Rng;
 use osap_host::clock::HostClock;
 use osap_host::link::LinkIo;
 use std::cmp::Ordering as CmpOrdering;
@@ -220,6 +222,9 @@ pub(crate) struct Carrier {
     /// after the link went down (and maybe up again) is dropped.
     pub(crate) generation: Arc<AtomicU64>,
     pub(crate) started: u64,
+    /// Injected corruption, applied through the real framing.
+    pub(crate) faults: Arc<LinkFaults>,
+    pub(crate) fault_rng: Rng,
 }
 
 impl Carrier {
@@ -263,12 +268,18 @@ impl Carrier {
                 .instant(stamp_ns)
                 .saturating_duration_since(self.host_clock.instant_at(0))
                 .as_micros() as u64;
+            let (packets, frame_errors) = self.faults.pass(&mut self.fault_rng, bytes);
             let to = self.to.clone();
             let generation = self.generation.clone();
             let started = self.started;
             self.wire.at(self.instant(transit.visible_ns), move || {
                 if generation.load(Ordering::Acquire) == started {
-                    to.deliver_stamped(bytes, stamp_us);
+                    if frame_errors > 0 {
+                        to.count_frame_errors(frame_errors);
+                    }
+                    for packet in packets {
+                        to.deliver_stamped(packet, stamp_us);
+                    }
                 }
             });
         }
