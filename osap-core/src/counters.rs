@@ -62,3 +62,103 @@ impl Counters {
 pub(crate) fn bump(counter: &mut u32) {
     *counter = counter.wrapping_add(1);
 }
+
+/// What a link gateway counts of its own traffic, below the runtime (see
+/// [`crate::link::LinkGateway::counters`]). All counts wrap at `u32::MAX`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct GatewayCounters {
+    /// Frames (packets) received off the wire.
+    pub frames: u32,
+    /// Frames dropped as damaged: bad CRC or COBS, too short, too long.
+    pub frame_errors: u32,
+    /// Received packets the gateway dropped because its queue to the
+    /// runtime was full.
+    pub rx_dropped: u32,
+    /// Packets to send the gateway dropped because its send queue was full
+    /// (a peer that stopped reading).
+    pub tx_dropped: u32,
+    /// Times the link went down.
+    pub disconnects: u32,
+}
+
+/// One link's counters: what the runtime counted of the packets it took
+/// from and sent on the link, and what the link's gateway counts itself
+/// (`None` when it keeps no counters). The runtime's counts wrap at
+/// `u32::MAX`.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct LinkCounters {
+    /// Packets taken in from the link.
+    pub received: u32,
+    /// Packets sent on the link.
+    pub sent: u32,
+    /// Packets in from the link dropped at once: malformed, or longer than
+    /// a slot or their header's `mtu`.
+    pub rx_dropped: u32,
+    /// Packets bound out on the link dropped because their deadline passed
+    /// (waiting for it, or before they could land).
+    pub expired: u32,
+    /// Packets bound out on the link dropped because it was closed.
+    pub closed: u32,
+    /// Sends the gateway failed after saying it was clear.
+    pub send_errors: u32,
+    /// The gateway's own counts.
+    pub gateway: Option<GatewayCounters>,
+}
+
+impl LinkCounters {
+    /// Bytes of [`encode`](Self::encode)'s output.
+    pub const ENCODED_LEN: usize = 6 * 4 + 1 + 5 * 4;
+
+    /// Writes the netresponder's link-counters fields (after the link
+    /// index): six `u32` runtime counts, a `u8` saying whether gateway
+    /// counts follow (1) or not (0), and five `u32` gateway counts (zero
+    /// when there are none). `docs/protocol.md` lays them out.
+    pub fn encode(&self, w: &mut crate::codec::Writer<'_>) -> Result<(), crate::codec::CodecError> {
+        for v in [
+            self.received,
+            self.sent,
+            self.rx_dropped,
+            self.expired,
+            self.closed,
+            self.send_errors,
+        ] {
+            w.u32(v)?;
+        }
+        w.u8(u8::from(self.gateway.is_some()))?;
+        let g = self.gateway.unwrap_or_default();
+        for v in [
+            g.frames,
+            g.frame_errors,
+            g.rx_dropped,
+            g.tx_dropped,
+            g.disconnects,
+        ] {
+            w.u32(v)?;
+        }
+        Ok(())
+    }
+
+    /// Reads what [`encode`](Self::encode) wrote. Extra bytes after it are
+    /// left for later versions of the layout.
+    pub fn decode(r: &mut crate::codec::Reader<'_>) -> Result<Self, crate::codec::CodecError> {
+        let mut c = LinkCounters {
+            received: r.u32()?,
+            sent: r.u32()?,
+            rx_dropped: r.u32()?,
+            expired: r.u32()?,
+            closed: r.u32()?,
+            send_errors: r.u32()?,
+            gateway: None,
+        };
+        let kept = r.u8()? != 0;
+        let g = GatewayCounters {
+            frames: r.u32()?,
+            frame_errors: r.u32()?,
+            rx_dropped: r.u32()?,
+            tx_dropped: r.u32()?,
+            disconnects: r.u32()?,
+        };
+        c.gateway = kept.then_some(g);
+        Ok(c)
+    }
+}

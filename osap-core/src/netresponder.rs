@@ -10,7 +10,7 @@ use crate::clock::Clock;
 #[cfg(feature = "sync")]
 use crate::clock::{TimeConfig, TimeConfigError};
 use crate::codec::{CodecError, Reader, Writer};
-use crate::counters::Counters;
+use crate::counters::{Counters, LinkCounters};
 use crate::link::LinkGateway;
 use crate::port::Port;
 use core::fmt::Write as _;
@@ -60,6 +60,8 @@ pub mod key {
     pub const TIME_STATUS: u8 = 0x0C;
     /// Set the clock's rate correction (hot start from a persisted rate).
     pub const SET_CLOCK_RATE: u8 = 0x0D;
+    /// Read one link's frame and drop counters.
+    pub const LINK_COUNTERS: u8 = 0x0E;
 }
 
 /// Outcome code in every netresponder reply.
@@ -304,6 +306,7 @@ pub(crate) struct Context<'a, P, L, const LINKS: usize> {
     pub state: &'a mut State,
     pub clock: &'a mut Clock<LINKS>,
     pub counters: &'a Counters,
+    pub link_counters: &'a [LinkCounters],
     pub changes: &'a mut Changes,
     pub ports: &'a [P],
     pub links: &'a [L],
@@ -524,6 +527,20 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             ] {
                 out.u32(v)?;
             }
+        }
+        key::LINK_COUNTERS => {
+            let index = r.u8()?;
+            end(r)?;
+            let i = usize::from(index);
+            let link = ctx
+                .links
+                .get(i)
+                .filter(|_| index < 64)
+                .ok_or(Fail::Status(Status::NoSuchIndex))?;
+            let mut counters = ctx.link_counters.get(i).copied().unwrap_or_default();
+            counters.gateway = link.counters();
+            out.u8(index)?;
+            counters.encode(out)?;
         }
         #[cfg(feature = "sync")]
         key::TIME_STATUS => {

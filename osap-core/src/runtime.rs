@@ -18,7 +18,7 @@ use crate::clock::{
     TIME_REQUEST_LEN,
 };
 use crate::codec::Writer;
-use crate::counters::{bump, Counters};
+use crate::counters::{bump, Counters, LinkCounters};
 use crate::link::LinkGateway;
 use crate::netresponder::{self, BuildKey, Changes, Identity, Level, NameTooLong};
 use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError, HEADER_LEN};
@@ -95,6 +95,7 @@ pub struct Runtime<
     netresponder: netresponder::State,
     clock: Clock<LINKS>,
     counters: Counters,
+    link_counters: [LinkCounters; LINKS],
     changes: Changes,
     scratch: [u8; MTU],
 }
@@ -124,6 +125,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             netresponder: netresponder::State::default(),
             clock: Clock::new(TimeConfig::default()),
             counters: Counters::default(),
+            link_counters: [LinkCounters::default(); LINKS],
             changes: Changes::default(),
             scratch: [0; MTU],
         };
@@ -206,6 +208,12 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// The drop and event counters.
     pub fn counters(&self) -> &Counters {
         &self.counters
+    }
+
+    /// What the runtime counted of link `index`'s traffic (the gateway's
+    /// own counts are not included: see [`LinkGateway::counters`]).
+    pub fn link_counters(&self, index: usize) -> Option<&LinkCounters> {
+        self.link_counters.get(index)
     }
 
     /// The packet stack (for inspection).
@@ -369,9 +377,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     let arrival = rx.timestamp.unwrap_or(now);
                     Ok((rx.len, arrival.saturating_add(u64::from(view.ttl()))))
                 });
+                let tally = &mut self.link_counters[i];
                 match pushed {
                     Ok(slot) => {
                         bump(&mut self.counters.received);
+                        bump(&mut tally.received);
                         if let Some(ts) = stamp.take() {
                             self.stack.set_arrival(slot, ts);
                         }
@@ -380,10 +390,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     Err(PushError::Write(Rx::Oversize)) | Err(PushError::Length) => {
                         bump(&mut self.counters.received);
                         bump(&mut self.counters.oversize);
+                        bump(&mut tally.received);
+                        bump(&mut tally.rx_dropped);
                     }
                     Err(PushError::Write(Rx::Malformed)) => {
                         bump(&mut self.counters.received);
                         bump(&mut self.counters.malformed);
+                        bump(&mut tally.received);
+                        bump(&mut tally.rx_dropped);
                     }
                 }
             }
@@ -450,6 +464,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             cursor = self.stack.next(slot);
             let meta = *self.stack.meta(slot);
             if now > meta.deadline {
+                // Counted against the link it was bound for, if any.
+                if let Ok(Instruction::LinkForward(j)) =
+                    Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction())
+                {
+                    if let Some(t) = self.link_counters.get_mut(usize::from(j)) {
+                        bump(&mut t.expired);
+                    }
+                }
                 self.stack.release(slot);
                 bump(&mut self.counters.expired);
                 result.dropped += 1;
@@ -505,7 +527,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         else {
             return self.drop_slot(slot, Drop::NoRoute);
         };
+        let i = usize::from(index);
         if !link.is_open() {
+            bump(&mut self.link_counters[i].closed);
             return self.drop_slot(slot, Drop::LinkClosed);
         }
         if !link.clear_to_send() {
@@ -520,6 +544,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         if landing > deadline {
             self.stack.release(slot);
             bump(&mut self.counters.expired);
+            bump(&mut self.link_counters[i].expired);
             return Served::Dropped;
         }
         let on_wire = now.saturating_add(link.queue_delay());
@@ -529,8 +554,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         // Packet::new validated the header, so the TTL field exists.
         let _ = set_ttl(packet, ttl);
         match link.send(packet) {
-            Ok(()) => bump(&mut self.counters.forwarded),
-            Err(_) => bump(&mut self.counters.link_errors),
+            Ok(()) => {
+                bump(&mut self.counters.forwarded);
+                bump(&mut self.link_counters[i].sent);
+            }
+            Err(_) => {
+                bump(&mut self.counters.link_errors);
+                bump(&mut self.link_counters[i].send_errors);
+            }
         }
         self.stack.release(slot);
         Served::Done
@@ -627,6 +658,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             state: &mut self.netresponder,
             clock: &mut self.clock,
             counters: &counters,
+            link_counters: &self.link_counters,
             changes: &mut self.changes,
             ports,
             links,

@@ -8,6 +8,7 @@
 
 pub mod queue;
 
+pub use crate::counters::GatewayCounters;
 use crate::Micros;
 
 /// The names a link gateway reports to a network scan.
@@ -84,6 +85,13 @@ pub trait LinkGateway {
     fn poll(&mut self, now: Micros) {
         let _ = now;
     }
+
+    /// What the gateway counts of its own traffic (frames, frame errors,
+    /// its own drops, disconnects), for the netresponder's link-counters
+    /// request; `None` if it keeps no counters.
+    fn counters(&self) -> Option<GatewayCounters> {
+        None
+    }
 }
 
 macro_rules! forward_link_gateway {
@@ -114,6 +122,9 @@ macro_rules! forward_link_gateway {
         }
         fn poll(&mut self, now: Micros) {
             (**self).poll(now)
+        }
+        fn counters(&self) -> Option<GatewayCounters> {
+            (**self).counters()
         }
     };
 }

@@ -22,6 +22,7 @@ pub struct QueueLink<const DEPTH: usize, const MTU: usize> {
     name: &'static str,
     sent: u32,
     received: u32,
+    disconnects: u32,
     wire_time: (u32, u32),
 }
 
@@ -41,6 +42,7 @@ impl<const DEPTH: usize, const MTU: usize> QueueLink<DEPTH, MTU> {
             name: "",
             sent: 0,
             received: 0,
+            disconnects: 0,
             wire_time: (0, 0),
         }
     }
@@ -59,7 +61,11 @@ impl<const DEPTH: usize, const MTU: usize> QueueLink<DEPTH, MTU> {
     }
 
     /// Opens or closes the link (a closed link neither sends nor receives).
+    /// Closing an open link counts a disconnect.
     pub fn set_open(&mut self, open: bool) {
+        if self.open && !open {
+            self.disconnects = self.disconnects.wrapping_add(1);
+        }
         self.open = open;
     }
 
@@ -145,6 +151,14 @@ impl<const DEPTH: usize, const MTU: usize> LinkGateway for QueueLink<DEPTH, MTU>
     fn transmit_time(&self, len: usize) -> crate::Micros {
         let (per_packet, per_byte_ns) = self.wire_time;
         u64::from(per_packet) + (len as u64 * u64::from(per_byte_ns)).div_ceil(1000)
+    }
+
+    fn counters(&self) -> Option<super::GatewayCounters> {
+        Some(super::GatewayCounters {
+            frames: self.received,
+            disconnects: self.disconnects,
+            ..Default::default()
+        })
     }
 
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
