@@ -5,6 +5,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use osap_core::clock::SyncState;
 use osap_core::route::Route;
 use osap_host::link::stream::LinkHandle;
+use osap_host::link::noise::Key;
 use osap_host::link::{serial, tcp, udp};
 use osap_host::map::NetworkMap;
 use osap_host::netrunner::{self, Netrunner, ScanOptions, ScanReport};
@@ -50,6 +51,10 @@ struct Connect {
     /// Run a simulated machine described by a topology file and use it.
     #[arg(long, value_name = "FILE")]
     sim: Option<PathBuf>,
+    /// Key file for --tcp peers that require one (`osap keygen FILE`
+    /// makes it; docs/security.md).
+    #[arg(long, value_name = "FILE")]
+    key: Option<PathBuf>,
     /// How long to wait for each reply, ms.
     #[arg(long, default_value_t = 200)]
     timeout_ms: u64,
@@ -148,6 +153,12 @@ enum Command {
     },
     /// Run a simulated machine that other processes can connect to.
     Serve(serve_cmd::ServeArgs),
+    /// Make a key file for keyed TCP links (`--key FILE` on both ends),
+    /// readable by its owner only.
+    Keygen {
+        /// Where to write it (an existing file is not overwritten).
+        file: PathBuf,
+    },
 }
 
 /// What keeps the host's links alive while a command runs.
@@ -171,8 +182,17 @@ async fn connect(args: &Connect) -> Result<Connection, String> {
                 .map_err(|e| format!("cannot start {}: {e}", path.display()))?,
         );
     }
+    let key = match &args.key {
+        Some(path) => Some(Key::load(path).map_err(|e| e.to_string())?),
+        None => None,
+    };
     for addr in &args.tcp {
-        links.push(tcp::connect(&host, addr).await.map_err(|e| e.to_string())?);
+        let link = match &key {
+            Some(key) => tcp::connect_with_key(&host, addr, key).await,
+            None => tcp::connect(&host, addr).await,
+        }
+        .map_err(|e| e.to_string())?;
+        links.push(link);
     }
     for peer in &args.udp {
         let local = SocketAddr::new(peer.ip(), 0);
@@ -434,6 +454,16 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
             Ok(ExitCode::SUCCESS)
         }
         Command::Serve(args) => serve_cmd::serve(args).await,
+        Command::Keygen { file } => {
+            Key::write_new(&file).map_err(|e| e.to_string())?;
+            println!(
+                "key written to {} (mode 600); copy it to each client over a safe channel \
+                 and pass --key {} on both ends",
+                file.display(),
+                file.display()
+            );
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -2,7 +2,8 @@
 //! over TCP.
 
 use clap::Args;
-use osap_host::link::stream::Listener;
+use osap_host::link::noise::Key;
+use osap_host::link::stream::{ListenOptions, Listener, IDLE_TIMEOUT, MAX_CONNECTIONS};
 use osap_host::link::tcp;
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::SimMachine;
@@ -20,18 +21,54 @@ pub struct ServeArgs {
     /// Address to listen on for TCP peers.
     #[arg(long, value_name = "ADDR", default_value = "127.0.0.1:7077")]
     pub tcp: SocketAddr,
-    /// Allow listening on an address other than loopback.
-    #[arg(long)]
+    /// Allow listening on an address other than loopback (needs --key).
+    #[arg(long, requires = "key")]
     pub allow_remote: bool,
+    /// Key file that clients must prove they hold (Noise handshake) before
+    /// they get a link; make one with `osap keygen FILE`.
+    #[arg(long, value_name = "FILE")]
+    pub key: Option<PathBuf>,
+    /// Clients served at once (1 to 32, the host's link slots; the
+    /// machine's own links take some); one more waits up to a second for a
+    /// place, then is refused (and logged).
+    #[arg(long, value_name = "N", default_value_t = MAX_CONNECTIONS as u16,
+          value_parser = clap::value_parser!(u16).range(1..=32))]
+    pub max_connections: u16,
+    /// Close a client's connection after this many seconds without a frame
+    /// from it (0: never).
+    #[arg(long, value_name = "SECONDS", default_value_t = IDLE_TIMEOUT.as_secs())]
+    pub idle_timeout: u64,
 }
 
 /// Runs `osap serve` until Ctrl-C.
 pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
+    // A server's log is its connections: who came, who was refused or
+    // closed, and why.
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_max_level(tracing_subscriber::filter::LevelFilter::INFO)
+        .with_target(false)
+        .try_init();
     let ServeArgs {
         sim: path,
         tcp: addr,
         allow_remote,
+        key,
+        max_connections,
+        idle_timeout,
     } = args;
+    let key = match &key {
+        Some(file) => Some(Key::load(file).map_err(|e| e.to_string())?),
+        None => None,
+    };
+    let keyed = key.is_some();
+    let options = ListenOptions {
+        allow_remote,
+        key,
+        max_connections: usize::from(max_connections),
+        idle_timeout: (idle_timeout > 0).then(|| std::time::Duration::from_secs(idle_timeout)),
+        ..ListenOptions::default()
+    };
     // The serving host relays for the machine; the client's host
     // is the clock root.
     let host = Host::start(HostConfig {
@@ -44,16 +81,18 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
     let machine = SimMachine::start(&host, &topology)
         .await
         .map_err(|e| format!("cannot start {}: {e}", path.display()))?;
-    let listener: Listener = tcp::listen(&host, addr, allow_remote)
+    let listener: Listener = tcp::listen_with(&host, addr, options)
         .await
         .map_err(|e| e.to_string())?;
     println!(
-        "serving {} ({} modules) on tcp {}; stop with Ctrl-C",
+        "serving {} ({} modules) on tcp {}{}; at most {max_connections} clients at once; \
+         stop with Ctrl-C",
         topology.name,
         machine.modules().len(),
         listener
             .socket_addr()
-            .map_or(addr.to_string(), |a| a.to_string())
+            .map_or(addr.to_string(), |a| a.to_string()),
+        if keyed { " with a key" } else { "" }
     );
     // Control commands for the served machine (fault injection) go here,
     // beside the wait for Ctrl-C.

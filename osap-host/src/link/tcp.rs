@@ -20,6 +20,7 @@ use crate::HostError;
 use std::io;
 use std::net::SocketAddr;
 use std::time::Duration;
+use tokio::io::AsyncWriteExt;
 use tokio::net::{TcpListener, TcpStream};
 
 pub use super::stream::loopback;
@@ -48,7 +49,14 @@ async fn dial(addr: &str) -> Result<TcpStream, HostError> {
 /// [`dial`], then waits for the listener's first byte: a listener that
 /// closes the connection before it says a word refused it.
 async fn dial_plain(addr: &str) -> Result<TcpStream, HostError> {
-    let stream = dial(addr).await?;
+    let mut stream = dial(addr).await?;
+    // Two delimiters: empty frames to a plain listener, and to a keyed one
+    // a zero-length handshake message, which it refuses at once (instead
+    // of both ends waiting for the other to speak first).
+    stream
+        .write_all(&[0, 0])
+        .await
+        .map_err(|e| link_error(format!("cannot connect to {addr}"), e.kind(), e.to_string()))?;
     let mut first = [0u8; 1];
     match tokio::time::timeout(GREETING_TIMEOUT, stream.peek(&mut first)).await {
         Ok(Ok(0)) | Ok(Err(_)) => Err(link_error(
