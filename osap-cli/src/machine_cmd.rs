@@ -507,3 +507,27 @@ pub async fn halt(target: Target) -> Result<ExitCode, Failure> {
     let _ = tokio::time::timeout(Duration::from_secs(1), machine.stop()).await;
     Ok(ExitCode::SUCCESS)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_machine_fault_exits_with_its_own_code_and_names_the_module() {
+        let f = Failure::from_machine(MachineError::Faulted(
+            "module y refused a point: point not after the newest queued one (arrived late)".into(),
+        ));
+        assert_eq!(f.code, MACHINE_FAULT);
+        assert!(
+            f.message.contains("module y refused a point"),
+            "{}",
+            f.message
+        );
+        assert_eq!(Failure::from_machine(MachineError::Stopped).code, FAULTED);
+        assert_eq!(
+            Failure::from_machine(MachineError::BadRate(-1.0)).code,
+            REFUSED
+        );
+        assert!(![0, FAULTED, REFUSED].contains(&MACHINE_FAULT));
+    }
+}

@@ -18,6 +18,7 @@ use crate::port::{Datagram, PortHandle};
 use crate::{Host, HostError};
 use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig};
 use osap_core::codec::{Reader, Writer};
+use osap_core::counters::LinkCounters;
 use osap_core::netresponder::{key, Status};
 use osap_core::route::Route;
 use std::collections::{HashMap, VecDeque};
@@ -336,6 +337,23 @@ impl Netrunner {
                 jumps: r.u32().map_err(m)?,
             },
         })
+    }
+
+    /// The counters of link `link` of the runtime at `route`: what that
+    /// runtime counted of the link's packets, and the link gateway's own
+    /// frame, error, drop and disconnect counts (when it keeps them).
+    pub async fn link_counters(&self, route: &Route, link: u8) -> Result<LinkCounters, HostError> {
+        let f = self.query(route, &[key::LINK_COUNTERS, link]).await?;
+        let mut r = Reader::new(&f);
+        let m = |e| malformed("link counters", e);
+        let index = r.u8().map_err(m)?;
+        if index != link {
+            return Err(malformed(
+                "link counters",
+                format!("answers link {index}, not {link}"),
+            ));
+        }
+        LinkCounters::decode(&mut r).map_err(m)
     }
 
     /// Round-trip times of `count` name queries to the runtime at `route`.

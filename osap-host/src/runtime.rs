@@ -607,4 +607,11 @@ impl LinkGateway for LinkSlot {
             l.poll(now);
         }
     }
+
+    fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {
+        match self {
+            LinkSlot::Attached(l) => l.counters(),
+            LinkSlot::Vacant { .. } => None,
+        }
+    }
 }

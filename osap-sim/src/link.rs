@@ -289,6 +289,24 @@ impl LinkGateway for SimLink {
         (self.tx.queue_delay_ns(self.now) + 500) / 1000
     }
 
+    fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {
+        let s = &self.stats;
+        let frame_errors = self.frame_counters().map_or(0, |f| {
+            f.cobs_errors
+                .wrapping_add(f.crc_errors)
+                .wrapping_add(f.too_short)
+                .wrapping_add(f.oversize)
+        });
+        // The wire's counts, cut to the u32 they wrap at.
+        Some(osap_core::counters::GatewayCounters {
+            frames: s.packets_received as u32,
+            frame_errors,
+            rx_dropped: s.rx_overflow as u32,
+            tx_dropped: 0,
+            disconnects: 0,
+        })
+    }
+
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
         if !self.open {
             return None;

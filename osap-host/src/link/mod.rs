@@ -386,6 +386,19 @@ impl LinkGateway for ChannelLink {
         (bits * 1_000_000).div_ceil(u64::from(c.bits_per_second))
     }
 
+    fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {
+        // The wire's counts, cut to the u32 they wrap at.
+        let s = self.shared.lock().stats;
+        let c = |v: u64| v as u32;
+        Some(osap_core::counters::GatewayCounters {
+            frames: c(s.received),
+            frame_errors: c(s.frame_errors),
+            rx_dropped: c(s.rx_dropped),
+            tx_dropped: c(s.tx_dropped),
+            disconnects: c(s.disconnects),
+        })
+    }
+
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
         let (packet, stamp) = self.shared.lock().rx.pop_front()?;
         // Room again: a stream link may be waiting to read more.

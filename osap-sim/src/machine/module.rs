@@ -259,6 +259,9 @@ impl LinkGateway for ModuleLink {
     fn queue_delay(&self) -> Micros {
         self.inner.queue_delay()
     }
+    fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {
+        self.inner.counters()
+    }
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
         let mut rx = self.inner.receive(buf)?;
         rx.timestamp = rx
