@@ -46,6 +46,9 @@ async fn dial(addr: &str) -> Result<TcpStream, HostError> {
     Ok(stream)
 }
 
+/// Send buffer of an accepted socket, bytes (the kernel doubles it).
+const SEND_BUFFER: usize = 32 * 1024;
+
 /// [`dial`], then waits for the listener's first byte: a listener that
 /// closes the connection before it says a word refused it.
 async fn dial_plain(addr: &str) -> Result<TcpStream, HostError> {
@@ -184,6 +187,11 @@ impl Accept for Tcp {
     async fn accept(&mut self) -> io::Result<(TcpStream, String)> {
         let (stream, peer) = self.0.accept().await?;
         let _ = stream.set_nodelay(true);
+        // Without a bound the kernel grows the send buffer to megabytes, and
+        // a peer that floods requests without reading gets that many
+        // replies' worth of service before its link backs up and stops
+        // being read. A window this size still fills any LAN.
+        let _ = socket2::SockRef::from(&stream).set_send_buffer_size(SEND_BUFFER);
         Ok((stream, peer.ip().to_string()))
     }
 }
