@@ -579,6 +579,57 @@ impl Manager {
         }
     }
 
+    /// Installs again, over the network, every pipe and mode the model
+    /// lists for the functions of `runtime`: for a runtime that rebooted
+    /// and lost what was set on it (the model keeps what this manager
+    /// set). Each pipe goes back in its own slot, before the modes (a run
+    /// before its pipe exists would count as sent). Returns how many pipes
+    /// were installed.
+    pub async fn reinstate(&mut self, runtime: &str) -> Result<usize, SomError> {
+        let ri = self
+            .som
+            .runtime_index(runtime)
+            .map_err(|_| SomError::NoSuchRuntime(runtime.to_string()))?;
+        let functions = self.som.runtimes[ri].functions.clone();
+        let mut installed = 0;
+        for f in &functions {
+            let fref = FnRef::new(runtime, &f.name);
+            let (_, at) = self.target(&fref)?;
+            for p in &f.pipes {
+                let pipe = p.config().ok_or_else(|| SomError::NoSuchPipe {
+                    function: fref.clone(),
+                    detail: format!("slot {}: the model's route is not valid", p.slot),
+                })?;
+                let request = Request::SetPipe { slot: p.slot, pipe };
+                self.control
+                    .ask(&at, "set pipe", &request, false)
+                    .await?
+                    .body(&at, "set pipe", ControlKey::SetPipe)?;
+                installed += 1;
+            }
+            let output: OutputMode = f.output_mode.into();
+            if output != OutputMode::default() {
+                self.control
+                    .ask(
+                        &at,
+                        "set output mode",
+                        &Request::SetOutputMode(output),
+                        true,
+                    )
+                    .await?
+                    .body(&at, "set output mode", ControlKey::SetOutputMode)?;
+            }
+            let input: InputMode = f.input_mode.into();
+            if input != InputMode::default() {
+                self.control
+                    .ask(&at, "set input mode", &Request::SetInputMode(input), true)
+                    .await?
+                    .body(&at, "set input mode", ControlKey::SetInputMode)?;
+            }
+        }
+        Ok(installed)
+    }
+
     /// Sets when `f` runs on dataflow.
     pub async fn set_input_mode(&mut self, f: &FnRef, mode: InputMode) -> Result<(), SomError> {
         let (ri, at) = self.target(f)?;

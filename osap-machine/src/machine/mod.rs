@@ -120,6 +120,9 @@ struct Inner {
     homing: std::sync::atomic::AtomicBool,
     tools: Mutex<BTreeMap<String, tool::ToolState>>,
     sim: Mutex<Option<SimMachine>>,
+    /// Modules that stopped answering since the last recovery: they may
+    /// have rebooted, losing their set-up and their step count.
+    lost: Mutex<std::collections::BTreeSet<String>>,
     _links: Vec<osap_host::link::stream::LinkHandle>,
     watchdog: tokio::task::JoinHandle<()>,
 }
@@ -231,27 +234,7 @@ impl Machine {
         let mut motor_at = Vec::new();
         for motor in drive.motors() {
             let runtime = &modules[&motor.module].runtime;
-            let call = |f: &'static str, args: Vec<OwnedValue>| {
-                let h = manager.function(&FnRef::new(runtime.as_str(), f));
-                let module = motor.module.clone();
-                async move {
-                    h.map_err(MachineError::Network)?
-                        .call(&args)
-                        .await
-                        .map_err(|e| som_refusal(&module, f, e))
-                }
-            };
-            call(
-                "set_scale",
-                vec![OwnedValue::F32(motor.full_steps_per_unit as f32)],
-            )
-            .await?;
-            call("set_microsteps", vec![OwnedValue::U16(motor.microsteps)]).await?;
-            call("set_interval", vec![OwnedValue::U32(INTERVAL_US)]).await?;
-            call("set_enable", vec![OwnedValue::Bool(motor.enable)]).await?;
-            let out = call("get_position", vec![]).await?;
-            let at = out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0);
-            motor_at.push(at);
+            motor_at.push(configure_motor(&manager, runtime, motor).await?);
         }
         let mut drive = drive;
         drive.rebase(&start, &motor_at)?;
@@ -450,6 +433,7 @@ impl Machine {
                 homing: Default::default(),
                 tools: Mutex::new(tools),
                 sim: Mutex::new(sim),
+                lost: Mutex::default(),
                 _links: links,
                 watchdog,
             }),
@@ -475,7 +459,11 @@ impl Machine {
                             }
                             (format!("module {module} {reason}"), false)
                         }
-                        Ok(MachineEvent::LinkLost { module }) => (format!("module {module} stopped answering"), false),
+                        Ok(MachineEvent::LinkLost { module }) => {
+                            let Some(inner) = weak.upgrade() else { return };
+                            inner.lost.lock().unwrap_or_else(|e| e.into_inner()).insert(module.clone());
+                            (format!("module {module} stopped answering"), false)
+                        }
                         Ok(_) | Err(broadcast::error::RecvError::Lagged(_)) => continue,
                         Err(broadcast::error::RecvError::Closed) => return,
                     },
@@ -819,7 +807,44 @@ impl Machine {
         if done > now {
             tokio::time::sleep(Duration::from_micros(done - now)).await;
         }
-        Ok(())
+        self.confirm_motors_report().await
+    }
+
+    /// Waits for a status report from every motor module sent after now:
+    /// the time alone says the motion should have run, a report says the
+    /// module was there to run it. A module silent for the link-loss time
+    /// faults the machine, as the watchdog would.
+    async fn confirm_motors_report(&self) -> Result<(), MachineError> {
+        let since = tokio::time::Instant::now();
+        let deadline = since + LINK_LOST_AFTER;
+        let keys: Vec<String> = lock_motion(&self.inner.motion)
+            .drive
+            .motors()
+            .iter()
+            .map(|m| m.module.clone())
+            .collect();
+        loop {
+            self.check_running()?;
+            let silent = {
+                let r = monitor::lock(&self.inner.reports);
+                keys.iter()
+                    .find(|k| r.seen.get(*k).is_none_or(|s| s.2 < since))
+                    .cloned()
+            };
+            let Some(key) = silent else {
+                return Ok(());
+            };
+            if tokio::time::Instant::now() >= deadline {
+                let _ = self.inner.events.send(MachineEvent::LinkLost {
+                    module: key.clone(),
+                });
+                let reason = format!("module {key} stopped answering");
+                self.fault(reason.clone());
+                return Err(MachineError::Faulted(reason));
+            }
+            // Reports come every status period; look again at half that.
+            tokio::time::sleep(Duration::from_micros(u64::from(STATUS_PERIOD_US / 2))).await;
+        }
     }
 
     /// Moves one axis by `delta` and waits until it stands. A homed axis
@@ -936,7 +961,9 @@ impl Machine {
 
     /// Clears a fault: powers every motor off and on (which a module needs
     /// after its backstop), takes the machine to be where the motors stand,
-    /// and resumes. Homing is kept: the motors counted every step.
+    /// and resumes. Homing is kept when the motors counted every step: a
+    /// module that stopped answering may have rebooted, so its set-up and
+    /// pipes are installed again and every homed axis must be homed again.
     pub async fn recover(&self) -> Result<(), MachineError> {
         lock_motion(&self.inner.motion).paused = true;
         let result = self.recover_paused().await;
@@ -954,6 +981,29 @@ impl Machine {
         // Let the points in flight land (the timer's lead) before cycling.
         tokio::time::sleep(Duration::from_micros(u64::from(LEAD_US + 4 * INTERVAL_US))).await;
         let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
+        let lost: Vec<String> = self
+            .inner
+            .lost
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .iter()
+            .cloned()
+            .collect();
+        if !lost.is_empty() {
+            let mut manager = self.inner.manager.lock().await;
+            for key in &lost {
+                let runtime = &self.inner.modules[key].runtime;
+                manager.reinstate(runtime).await?;
+                for motor in motors.iter().filter(|m| &m.module == key) {
+                    configure_motor(&manager, runtime, motor).await?;
+                }
+            }
+            drop(manager);
+            let mut homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
+            for (h, axis) in homed.iter_mut().zip(self.inner.cfg.axis_names()) {
+                *h = self.inner.cfg.axes[axis].homing.is_none();
+            }
+        }
         let mut at = Vec::new();
         for motor in &motors {
             self.call(&motor.module, "set_enable", &[OwnedValue::Bool(false)])
@@ -980,6 +1030,11 @@ impl Machine {
         m.planner = planner;
         m.last_motors = at;
         m.error = None;
+        drop(m);
+        let mut gone = self.inner.lost.lock().unwrap_or_else(|e| e.into_inner());
+        for key in &lost {
+            gone.remove(key);
+        }
         Ok(())
     }
 
@@ -1174,6 +1229,35 @@ fn stops_motion(inner: &Inner, module: &str, kind: events::FaultKind, detail: u3
         }
         K::Refused | K::Backstop | K::LimitHit | K::Halted => true,
     }
+}
+
+/// Sets a motor's module up (scale, microsteps, interval, power) and reads
+/// where its steps put it.
+async fn configure_motor(
+    manager: &Manager,
+    runtime: &str,
+    motor: &drive::DriveMotor,
+) -> Result<f64, MachineError> {
+    let call = |f: &'static str, args: Vec<OwnedValue>| {
+        let h = manager.function(&FnRef::new(runtime, f));
+        let module = motor.module.clone();
+        async move {
+            h.map_err(MachineError::Network)?
+                .call(&args)
+                .await
+                .map_err(|e| som_refusal(&module, f, e))
+        }
+    };
+    call(
+        "set_scale",
+        vec![OwnedValue::F32(motor.full_steps_per_unit as f32)],
+    )
+    .await?;
+    call("set_microsteps", vec![OwnedValue::U16(motor.microsteps)]).await?;
+    call("set_interval", vec![OwnedValue::U32(INTERVAL_US)]).await?;
+    call("set_enable", vec![OwnedValue::Bool(motor.enable)]).await?;
+    let out = call("get_position", vec![]).await?;
+    Ok(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0))
 }
 
 /// Reports a module whose status reports stop arriving.
