@@ -417,10 +417,15 @@ async fn set_up(cfg: &MachineFile, m: &mut Manager) -> (Duration, Duration) {
     for motor in &motors {
         let key = motor.module.as_str();
         let f = m
-            .define(monitor::status(key, reports.clone(), events.clone()).expect("status"))
+            .define(monitor::status(key, reports.clone()).expect("status"))
             .await
             .expect("define");
         source(m, key, "get_status", 50_000, &f, 4).await;
+        let f = m
+            .define(monitor::fault(key, false, reports.clone(), events.clone()).expect("fault"))
+            .await
+            .expect("define");
+        source(m, key, "get_fault", 5_000, &f, 4).await;
         let f = m
             .define(monitor::counters(key, reports.clone(), events.clone()).expect("counters"))
             .await
@@ -877,7 +882,9 @@ async fn run_job(cfg: &MachineFile, program: &Program, variant: Variant) -> JobR
     let mut faults = Vec::new();
     while let Ok(e) = events.try_recv() {
         match e {
-            MachineEvent::Fault { module, reason, .. } => faults.push(format!("{module}: {reason}")),
+            MachineEvent::Fault { module, reason, .. } => {
+                faults.push(format!("{module}: {reason}"))
+            }
             MachineEvent::LinkLost { module } => faults.push(format!("{module}: link lost")),
             MachineEvent::Refused { module, count, .. } => {
                 faults.push(format!("{module}: {count} refused"))
