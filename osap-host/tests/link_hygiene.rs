@@ -418,3 +418,21 @@ async fn a_peer_that_floods_and_never_reads_loses_only_its_own_link() {
         attempts.join("\n")
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn closed_client_links_give_their_index_back() {
+    let server = Server::start(ListenOptions::default(), 0);
+    let client = Host::start(HostConfig::named("client")).unwrap();
+    let port = client.open_port("rpc").await.unwrap();
+    // More than the host's 32 link slots, one after another.
+    for i in 0..40 {
+        let link = tcp::connect(&client, &server.addr.to_string())
+            .await
+            .unwrap_or_else(|e| panic!("connection {i}: {e}"));
+        let route = Route::through_links(&[link.index()]).unwrap();
+        port.request(&route, 0, &[key::NAME], PATIENCE)
+            .await
+            .unwrap_or_else(|e| panic!("connection {i}: {e}"));
+        link.close().await;
+    }
+}

@@ -317,6 +317,7 @@ pub async fn spawn_serial(host: &Host, path: &str, baud: u32) -> Result<SerialLi
     let (index, io) = host.add_link(config).await?;
     let path = path.to_string();
     Ok(LinkHandle::spawn_client(
+        host,
         index,
         io,
         None,

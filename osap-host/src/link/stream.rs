@@ -290,9 +290,9 @@ impl fmt::Display for LinkState {
 }
 
 /// A link whose I/O runs in its own task (a serial port, a TCP, UDP or Unix
-/// socket). Closing or dropping the handle stops the task and marks the
-/// link closed; the link index stays allocated in the runtime (closed) for
-/// the host's lifetime.
+/// socket). Closing or dropping the handle stops the task, marks the link
+/// closed and detaches it from the runtime (see
+/// [`Host::detach_link`]): its index is free for the next link.
 #[derive(Debug)]
 pub struct LinkHandle {
     index: u8,
@@ -307,6 +307,7 @@ impl LinkHandle {
     /// A client link, connected on `first`: [`run_client`] carries its
     /// frames and calls `reconnect` after a loss.
     pub(crate) fn spawn_client<S, C, F>(
+        host: &Host,
         index: u8,
         io: LinkIo,
         local: Option<SocketAddr>,
@@ -319,14 +320,24 @@ impl LinkHandle {
         C: FnMut() -> F + Send + 'static,
         F: Future<Output = Result<S, HostError>> + Send + 'static,
     {
-        LinkHandle::spawn(index, io, local, LinkState::Connected, move |io, state| {
-            run_client(io, state, first, reconnect, limits)
-        })
+        // Connected already: open now, so that a packet sent as soon as
+        // this returns is not dropped before the task has run.
+        io.set_open(true);
+        LinkHandle::spawn(
+            host,
+            index,
+            io,
+            local,
+            LinkState::Connected,
+            move |io, state| run_client(io, state, first, reconnect, limits),
+        )
     }
 
     /// Starts `body` in a task that stops on [`close`](Self::close) or drop,
-    /// and that marks the link closed when it stops.
+    /// and that marks the link closed and detaches it from `host` when it
+    /// stops.
     pub(crate) fn spawn<F>(
+        host: &Host,
         index: u8,
         io: LinkIo,
         local: Option<SocketAddr>,
@@ -341,6 +352,7 @@ impl LinkHandle {
         let body = body(io.clone(), state.clone());
         let task = {
             let (io, state, stop) = (io.clone(), state.clone(), stop.clone());
+            let host = host.clone();
             tokio::spawn(async move {
                 tokio::select! {
                     _ = stop.notified() => {}
@@ -349,6 +361,8 @@ impl LinkHandle {
                 // The body has been dropped here, in this task, so nothing
                 // can reopen the link after this.
                 io.set_open(false);
+                // Its index is free for the next link.
+                host.release_link(index);
                 state.send_replace(LinkState::Closed);
                 tracing::info!(link = %io.config().name, "link closed");
             })

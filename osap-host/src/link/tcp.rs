@@ -98,6 +98,7 @@ pub async fn connect(host: &Host, addr: &str) -> Result<LinkHandle, HostError> {
     io.set_tx_overflow(TxOverflow::Drop);
     let addr = addr.to_string();
     Ok(LinkHandle::spawn_client(
+        host,
         index,
         io,
         local,
@@ -120,6 +121,7 @@ pub async fn connect_with_key(host: &Host, addr: &str, key: &Key) -> Result<Link
     io.set_tx_overflow(TxOverflow::Drop);
     let (addr, key) = (addr.to_string(), key.clone());
     Ok(LinkHandle::spawn_client(
+        host,
         index,
         io,
         None,

@@ -68,6 +68,7 @@ pub async fn bind(
         },
     };
     Ok(LinkHandle::spawn(
+        host,
         index,
         io,
         Some(bound),

@@ -46,6 +46,7 @@ pub async fn connect(host: &Host, path: impl AsRef<Path>) -> Result<LinkHandle, 
     let (index, io) = host.add_link(LinkConfig::new("unix", &name)).await?;
     io.set_tx_overflow(TxOverflow::Drop);
     Ok(LinkHandle::spawn_client(
+        host,
         index,
         io,
         None,
