@@ -377,11 +377,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     let arrival = rx.timestamp.unwrap_or(now);
                     Ok((rx.len, arrival.saturating_add(u64::from(view.ttl()))))
                 });
-                let tally = &mut self.link_counters[i];
                 match pushed {
                     Ok(slot) => {
                         bump(&mut self.counters.received);
-                        bump(&mut tally.received);
+                        self.count_link(i, |t| &mut t.received);
                         if let Some(ts) = stamp.take() {
                             self.stack.set_arrival(slot, ts);
                         }
@@ -390,14 +389,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     Err(PushError::Write(Rx::Oversize)) | Err(PushError::Length) => {
                         bump(&mut self.counters.received);
                         bump(&mut self.counters.oversize);
-                        bump(&mut tally.received);
-                        bump(&mut tally.rx_dropped);
+                        self.count_link(i, |t| &mut t.received);
+                        self.count_link(i, |t| &mut t.rx_dropped);
                     }
                     Err(PushError::Write(Rx::Malformed)) => {
                         bump(&mut self.counters.received);
                         bump(&mut self.counters.malformed);
-                        bump(&mut tally.received);
-                        bump(&mut tally.rx_dropped);
+                        self.count_link(i, |t| &mut t.received);
+                        self.count_link(i, |t| &mut t.rx_dropped);
                     }
                 }
             }
@@ -468,9 +467,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 if let Ok(Instruction::LinkForward(j)) =
                     Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction())
                 {
-                    if let Some(t) = self.link_counters.get_mut(usize::from(j)) {
-                        bump(&mut t.expired);
-                    }
+                    self.count_link(usize::from(j), |t| &mut t.expired);
                 }
                 self.stack.release(slot);
                 bump(&mut self.counters.expired);
@@ -496,6 +493,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 Served::Dropped => result.dropped += 1,
                 Served::Wait => {}
             }
+        }
+    }
+
+    /// Counts one on link `i`'s tally (a link index beyond `LINKS` has
+    /// none).
+    fn count_link(&mut self, i: usize, counter: fn(&mut LinkCounters) -> &mut u32) {
+        if let Some(t) = self.link_counters.get_mut(i) {
+            bump(counter(t));
         }
     }
 
@@ -529,7 +534,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         };
         let i = usize::from(index);
         if !link.is_open() {
-            bump(&mut self.link_counters[i].closed);
+            self.count_link(i, |t| &mut t.closed);
             return self.drop_slot(slot, Drop::LinkClosed);
         }
         if !link.clear_to_send() {
@@ -544,7 +549,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         if landing > deadline {
             self.stack.release(slot);
             bump(&mut self.counters.expired);
-            bump(&mut self.link_counters[i].expired);
+            self.count_link(i, |t| &mut t.expired);
             return Served::Dropped;
         }
         let on_wire = now.saturating_add(link.queue_delay());
@@ -556,11 +561,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         match link.send(packet) {
             Ok(()) => {
                 bump(&mut self.counters.forwarded);
-                bump(&mut self.link_counters[i].sent);
+                self.count_link(i, |t| &mut t.sent);
             }
             Err(_) => {
                 bump(&mut self.counters.link_errors);
-                bump(&mut self.link_counters[i].send_errors);
+                self.count_link(i, |t| &mut t.send_errors);
             }
         }
         self.stack.release(slot);
