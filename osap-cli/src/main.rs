@@ -553,14 +553,36 @@ async fn scan_and_print(
     if report.failures.is_empty() {
         Ok(ExitCode::SUCCESS)
     } else {
+        eprintln!("unreachable:");
         for f in &report.failures {
-            eprintln!("warning: route {:?}: {}", f.route, f.error);
+            eprintln!("  {}: {}", describe_route(&report.map, &f.route), f.error);
         }
         eprintln!(
-            "the map is partial: {} request(s) failed",
+            "the map is partial: {} request(s) failed (exit code 2); check the cables \
+             and power of what is listed, or raise --timeout-ms and --retries for slow links",
             report.failures.len()
         );
         Ok(ExitCode::from(2))
+    }
+}
+
+/// Where a route leads, in the map's terms: `the runtime behind hub's
+/// link 2 (route 0,0,2)`, or the runtime's name if it is on the map.
+fn describe_route(map: &NetworkMap, route: &[u8]) -> String {
+    let hops = route
+        .iter()
+        .map(u8::to_string)
+        .collect::<Vec<_>>()
+        .join(",");
+    if let Some(r) = map.runtimes.iter().find(|r| r.route == route) {
+        return format!("{} (route {hops})", r.name);
+    }
+    match route.split_last() {
+        Some((link, parent)) => match map.runtimes.iter().find(|r| r.route == parent) {
+            Some(p) => format!("the runtime behind {}'s link {link} (route {hops})", p.name),
+            None => format!("route {hops}"),
+        },
+        None => "this host".to_string(),
     }
 }
 

@@ -6,10 +6,11 @@ use osap_host::link::noise::Key;
 use osap_host::link::stream::{ListenOptions, Listener, IDLE_TIMEOUT, MAX_CONNECTIONS};
 use osap_host::link::tcp;
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::SimMachine;
+use osap_sim::machine::{Fault, FaultInjector, SimMachine};
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use tokio::io::{AsyncBufReadExt, BufReader};
 
 /// The arguments of `osap serve`.
 #[derive(Args, Clone)]
@@ -38,6 +39,13 @@ pub struct ServeArgs {
     /// from it (0: never).
     #[arg(long, value_name = "SECONDS", default_value_t = IDLE_TIMEOUT.as_secs())]
     pub idle_timeout: u64,
+    /// Read fault-injection commands from standard input, one a line:
+    /// `cut LINK`, `restore LINK`, `corrupt LINK RATE`, `reset MODULE`,
+    /// `freeze MODULE`, `thaw MODULE`, `links`, `stats LINK` (LINK: its
+    /// index or its ends, e.g. hub-a). Each is answered on standard output
+    /// with a line starting `ok` or `error`.
+    #[arg(long)]
+    pub control: bool,
 }
 
 /// Runs `osap serve` until Ctrl-C.
@@ -56,6 +64,7 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
         key,
         max_connections,
         idle_timeout,
+        control,
     } = args;
     let key = match &key {
         Some(file) => Some(Key::load(file).map_err(|e| e.to_string())?),
@@ -94,12 +103,67 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
             .map_or(addr.to_string(), |a| a.to_string()),
         if keyed { " with a key" } else { "" }
     );
-    // Control commands for the served machine (fault injection) go here,
-    // beside the wait for Ctrl-C.
-    tokio::signal::ctrl_c()
-        .await
-        .map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?;
+    if control {
+        let injector = machine.injector();
+        tokio::select! {
+            r = tokio::signal::ctrl_c() => r.map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?,
+            // Standard input closed: keep serving until Ctrl-C.
+            () = control_loop(&injector) => tokio::signal::ctrl_c()
+                .await
+                .map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?,
+        }
+    } else {
+        tokio::signal::ctrl_c()
+            .await
+            .map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?;
+    }
     drop(listener);
     machine.stop().await.map_err(|e| e.to_string())?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// Answers fault-injection commands from standard input until it closes.
+async fn control_loop(injector: &FaultInjector) {
+    let mut lines = BufReader::new(tokio::io::stdin()).lines();
+    while let Ok(Some(line)) = lines.next_line().await {
+        let line = line.trim();
+        if line.is_empty() {
+            continue;
+        }
+        let reply = control_command(injector, line).await;
+        println!("{reply}");
+    }
+}
+
+/// One control command's answer: a line starting `ok` or `error`.
+async fn control_command(injector: &FaultInjector, line: &str) -> String {
+    let words: Vec<&str> = line.split_whitespace().collect();
+    match words.as_slice() {
+        ["links"] => format!("ok links: {}", injector.links().join(", ")),
+        ["stats", link] => match (injector.corruption(link), injector.link_stats(link)) {
+            (Ok(c), Ok([a, b])) => format!(
+                "ok stats {link}: corrupted {} rejected {} undetected {}; \
+                 frame errors counted {} (side a {}, side b {}); received a {} b {}",
+                c.corrupted,
+                c.rejected,
+                c.undetected,
+                a.frame_errors + b.frame_errors,
+                a.frame_errors,
+                b.frame_errors,
+                a.received,
+                b.received
+            ),
+            (Err(e), _) | (_, Err(e)) => format!("error: {e}"),
+        },
+        _ => match line.parse::<Fault>() {
+            Ok(fault) => match injector.inject(&fault).await {
+                Ok(()) => {
+                    eprintln!("fault injected: {fault}");
+                    format!("ok {fault}")
+                }
+                Err(e) => format!("error: {fault}: {e}"),
+            },
+            Err(e) => format!("error: {e} (or: links, stats LINK)"),
+        },
+    }
 }

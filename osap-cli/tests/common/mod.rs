@@ -1,8 +1,8 @@
 //! What the CLI's test binaries share: an `osap serve` child process.
 
-use std::io::{BufRead, BufReader};
+use std::io::{BufRead, BufReader, Write};
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
+use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 /// Kills the child when dropped, so a failed test leaves no server behind.
 pub struct Killed(pub Child);
@@ -16,24 +16,66 @@ impl Drop for Killed {
 
 /// Starts `osap serve --sim FILE` on a free loopback port; the server and
 /// the address it printed.
+#[allow(dead_code)] // not every test binary uses it
 pub fn serve(file: &Path) -> (Killed, String) {
+    let (server, addr, _) = spawn(file, &[]);
+    (server, addr)
+}
+
+/// A served machine taking fault-injection commands (`--control`).
+#[allow(dead_code)] // not every test binary injects faults
+pub struct Controlled {
+    pub server: Killed,
+    pub addr: String,
+    stdin: ChildStdin,
+    stdout: BufReader<ChildStdout>,
+}
+
+#[allow(dead_code)]
+impl Controlled {
+    /// Starts `osap serve --control --sim FILE`.
+    pub fn start(file: &Path) -> Controlled {
+        let (mut server, addr, stdout) = spawn(file, &["--control"]);
+        let stdin = server.0.stdin.take().unwrap();
+        Controlled {
+            server,
+            addr,
+            stdin,
+            stdout,
+        }
+    }
+
+    /// Sends one control command and returns the server's answer line.
+    pub fn command(&mut self, line: &str) -> String {
+        writeln!(self.stdin, "{line}").unwrap();
+        self.stdin.flush().unwrap();
+        let mut answer = String::new();
+        self.stdout.read_line(&mut answer).unwrap();
+        answer.trim_end().to_string()
+    }
+}
+
+/// Starts `osap serve --tcp 127.0.0.1:0 --sim FILE EXTRA..`; the server,
+/// the address it printed, and the rest of its standard output.
+fn spawn(file: &Path, extra: &[&str]) -> (Killed, String, BufReader<ChildStdout>) {
     let mut server = Killed(
         Command::new(env!("CARGO_BIN_EXE_osap"))
             .args(["serve", "--tcp", "127.0.0.1:0", "--sim"])
             .arg(file)
+            .args(extra)
+            .stdin(Stdio::piped())
             .stdout(Stdio::piped())
             .spawn()
             .unwrap(),
     );
     let mut line = String::new();
-    BufReader::new(server.0.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
+    let mut stdout = BufReader::new(server.0.stdout.take().unwrap());
+    stdout.read_line(&mut line).unwrap();
     let addr = line
         .split_whitespace()
         .find(|w| w.starts_with("127.0.0.1:"))
         .unwrap_or_else(|| panic!("no address in {line:?}"))
         .trim_end_matches(';')
         .to_string();
-    (server, addr)
+    (server, addr, stdout)
 }
