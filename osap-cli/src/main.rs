@@ -48,7 +48,8 @@ struct Connect {
     /// Connect to an OSAP peer over a Unix socket (repeatable).
     #[arg(long = "unix", value_name = "PATH")]
     unix: Vec<PathBuf>,
-    /// Run a simulated machine described by a topology file and use it.
+    /// Run a simulated machine and use it: a topology file, or a machine
+    /// file (its simulated network is derived from it).
     #[arg(long, value_name = "FILE")]
     sim: Option<PathBuf>,
     /// Key file for --tcp peers that require one (`osap keygen FILE`
@@ -178,7 +179,7 @@ async fn connect(args: &Connect) -> Result<Connection, String> {
     let mut links = Vec::new();
     let mut sim_machine = None;
     if let Some(path) = &args.sim {
-        let topology = machine::load(path).map_err(|e| e.to_string())?;
+        let topology = load_sim(path)?;
         sim_machine = Some(
             SimMachine::start(&host, &topology)
                 .await
