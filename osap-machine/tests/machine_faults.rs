@@ -71,8 +71,15 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
             matches!(&e, MachineError::ModuleRefused { module, .. } if module == "b"),
             "{e}"
         );
-        // The waiting call fails, naming the module and the reason.
+        // The waiting call fails, naming the module and the reason, within
+        // the fault source's 5 ms period and the links' latency.
         let e = m.idle().await.unwrap_err();
+        let heard_after = m.now_us().await.unwrap() - now;
+        eprintln!(
+            "fault to failed call: {:.1} ms (virtual time)",
+            heard_after as f64 / 1e3
+        );
+        assert!(heard_after < 30_000, "{heard_after} µs");
         let MachineError::Faulted(reason) = &e else {
             panic!("{e}")
         };
