@@ -2,7 +2,6 @@
 
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
-use osap_core::clock::SyncState;
 use osap_core::route::Route;
 use osap_host::link::stream::LinkHandle;
 use osap_host::link::noise::Key;
@@ -18,6 +17,7 @@ use std::time::Duration;
 
 mod machine_cmd;
 mod serve_cmd;
+mod time_cmd;
 
 #[derive(Parser)]
 #[command(
@@ -59,6 +59,23 @@ struct Connect {
     /// How long to wait for each reply, ms.
     #[arg(long, default_value_t = 200)]
     timeout_ms: u64,
+    /// Whose clock rules: `auto` follows the peer when every link is
+    /// --tcp, --udp or --unix (a served machine's host is its root) and is
+    /// the root otherwise; `root` is always the root; `follow` follows
+    /// every link given.
+    #[arg(long, value_enum, default_value_t = ClockRole::Auto)]
+    clock: ClockRole,
+}
+
+/// Whether this process's host is a clock root or follows its links.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum ClockRole {
+    /// Follow a served machine over the network, the root otherwise.
+    Auto,
+    /// The root: never follows anyone.
+    Root,
+    /// Follow (trust) every link given.
+    Follow,
 }
 
 #[derive(Subcommand)]
@@ -103,11 +120,9 @@ enum Command {
         #[arg(short = 'n', long, default_value_t = 100)]
         count: usize,
     },
-    /// Show the clock-sync status of every runtime.
-    Time {
-        #[command(flatten)]
-        connect: Connect,
-    },
+    /// Show the clock-sync status of every runtime (settled or not),
+    /// once or with --watch, as a table or --json.
+    Time(time_cmd::TimeArgs),
     /// Run a job (G-code or SVG) on a machine: home, run, summarize, and
     /// write planned.csv, executed.csv and plots.
     Run(machine_cmd::RunArgs),
@@ -174,7 +189,29 @@ struct Connection {
 }
 
 async fn connect(args: &Connect) -> Result<Connection, String> {
-    let host = Host::start(HostConfig::default()).map_err(|e| e.to_string())?;
+    let network = !(args.tcp.is_empty() && args.udp.is_empty() && args.unix.is_empty());
+    let local = args.sim.is_some() || !args.ports.is_empty() || !network;
+    // A served machine's host is its clock root: over the network, follow
+    // it (and only it); with modules of our own, be the root.
+    let follow = match args.clock {
+        ClockRole::Auto => !local,
+        ClockRole::Root => false,
+        ClockRole::Follow => true,
+    };
+    let mut config = HostConfig::default();
+    config.time.root = !follow;
+    let host = Host::start(config).map_err(|e| e.to_string())?;
+    let trust = |index: u8| {
+        let host = host.clone();
+        async move {
+            if follow {
+                host.trust_time_link(index)
+                    .await
+                    .map_err(|e| e.to_string())?;
+            }
+            Ok::<(), String>(())
+        }
+    };
     let timeout = Duration::from_millis(args.timeout_ms.max(1));
     let mut links = Vec::new();
     let mut sim_machine = None;
@@ -196,24 +233,25 @@ async fn connect(args: &Connect) -> Result<Connection, String> {
             None => tcp::connect(&host, addr).await,
         }
         .map_err(|e| e.to_string())?;
+        trust(link.index()).await?;
         links.push(link);
     }
     for peer in &args.udp {
         let local = SocketAddr::new(peer.ip(), 0);
         let remote = !peer.ip().is_loopback();
-        links.push(
-            udp::bind(&host, local, Some(*peer), remote)
-                .await
-                .map_err(|e| e.to_string())?,
-        );
+        let link = udp::bind(&host, local, Some(*peer), remote)
+            .await
+            .map_err(|e| e.to_string())?;
+        trust(link.index()).await?;
+        links.push(link);
     }
     #[cfg(unix)]
     for path in &args.unix {
-        links.push(
-            osap_host::link::unix::connect(&host, path)
-                .await
-                .map_err(|e| e.to_string())?,
-        );
+        let link = osap_host::link::unix::connect(&host, path)
+            .await
+            .map_err(|e| e.to_string())?;
+        trust(link.index()).await?;
+        links.push(link);
     }
     let mut paths = args.ports.clone();
     let nothing_given = paths.is_empty()
@@ -239,6 +277,7 @@ async fn connect(args: &Connect) -> Result<Connection, String> {
         link.probe(&host, timeout.max(Duration::from_millis(500)))
             .await
             .map_err(|e| format!("{path}: {e}"))?;
+        trust(link.index()).await?;
         links.push(link);
     }
     Ok(Connection {
@@ -413,51 +452,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
             );
             Ok(ExitCode::SUCCESS)
         }
-        Command::Time { connect: args } => {
-            let c = connect(&args).await?;
-            let map = scan(&c, 2).await?.map;
-            let runner = Netrunner::new(&c.host).await.map_err(|e| e.to_string())?;
-            println!(
-                "{:<16} {:>4} {:<9} {:>11} {:>10} {:>9} {:>8} {:>8}",
-                "runtime",
-                "tier",
-                "state",
-                "offset µs",
-                "rate ppm",
-                "rtt µs",
-                "accepted",
-                "rejected"
-            );
-            for r in &map.runtimes {
-                match runner.clock_status(&r.route()).await {
-                    Ok(s) => {
-                        let state = match s.state {
-                            SyncState::Root => "root",
-                            SyncState::Synced => "synced",
-                            SyncState::Holdover => "holdover",
-                            SyncState::Unsynced => "unsynced",
-                        };
-                        println!(
-                            "{:<16} {:>4} {:<9} {:>11.1} {:>10.3} {:>9} {:>8} {:>8}",
-                            r.name,
-                            if s.tier == 255 {
-                                "-".into()
-                            } else {
-                                s.tier.to_string()
-                            },
-                            state,
-                            s.offset_ns as f64 / 1000.0,
-                            f64::from(s.rate_ppb) / 1000.0,
-                            s.min_rtt_us,
-                            s.stats.accepted,
-                            s.stats.rejected_rtt + s.stats.rejected_residual
-                        );
-                    }
-                    Err(e) => println!("{:<16} {e}", r.name),
-                }
-            }
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Time(args) => time_cmd::time(args).await,
         Command::Serve(args) => serve_cmd::serve(args).await,
         Command::Keygen { file } => {
             Key::write_new(&file).map_err(|e| e.to_string())?;

@@ -78,11 +78,11 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
         idle_timeout: (idle_timeout > 0).then(|| std::time::Duration::from_secs(idle_timeout)),
         ..ListenOptions::default()
     };
-    // The serving host relays for the machine; the client's host
-    // is the clock root.
+    // The serving host is the clock root of its machine, and trusts no
+    // link: a client cannot take the clock or demote it (clients follow
+    // it instead, see docs/clock-sync.md "Clock authority").
     let host = Host::start(HostConfig {
         name: "sim-host".into(),
-        time: osap_core::clock::TimeConfig::default(),
         ..HostConfig::default()
     })
     .map_err(|e| e.to_string())?;

@@ -16,7 +16,7 @@ use crate::map::{
 };
 use crate::port::{Datagram, PortHandle};
 use crate::{Host, HostError};
-use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig};
+use osap_core::clock::{ClockStatus, SyncState, TimeConfig};
 use osap_core::codec::{Reader, Writer};
 use osap_core::counters::LinkCounters;
 use osap_core::netresponder::{key, Status};
@@ -307,36 +307,11 @@ impl Netrunner {
         }
     }
 
-    /// The clock's status.
+    /// The clock's status (a runtime of the first layout reads as not
+    /// settled, without the untrusted and deferred-step counts).
     pub async fn clock_status(&self, route: &Route) -> Result<ClockStatus, HostError> {
         let f = self.query(route, &[key::TIME_STATUS]).await?;
-        let mut r = Reader::new(&f);
-        let m = |e| malformed("clock status", e);
-        let tier = r.u8().map_err(m)?;
-        let state = match r.u8().map_err(m)? {
-            0 => SyncState::Unsynced,
-            1 => SyncState::Synced,
-            2 => SyncState::Holdover,
-            3 => SyncState::Root,
-            s => return Err(malformed("clock status", format!("unknown state {s}"))),
-        };
-        Ok(ClockStatus {
-            tier,
-            state,
-            offset_ns: r.i64().map_err(m)?,
-            rate_ppb: r.u32().map_err(m)? as i32,
-            following: r.u8().map_err(m)?,
-            last_rtt_us: r.u32().map_err(m)?,
-            min_rtt_us: r.u32().map_err(m)?,
-            stats: SyncStats {
-                samples: r.u32().map_err(m)?,
-                accepted: r.u32().map_err(m)?,
-                rejected_rtt: r.u32().map_err(m)?,
-                rejected_residual: r.u32().map_err(m)?,
-                bogus: r.u32().map_err(m)?,
-                jumps: r.u32().map_err(m)?,
-            },
-        })
+        ClockStatus::decode(&f).map_err(|e| malformed("clock status", e))
     }
 
     /// The counters of link `link` of the runtime at `route`: what that

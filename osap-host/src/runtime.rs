@@ -9,7 +9,7 @@ use crate::clock::HostClock;
 use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
 use crate::port::{HostPort, PortHandle, PortShared};
 use crate::{HostError, HostRuntime};
-use osap_core::clock::{ClockStatus, TimeConfig};
+use osap_core::clock::{ClockStatus, TimeConfig, Trust};
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::netresponder::BuildKey;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
@@ -30,6 +30,12 @@ pub struct HostConfig {
     pub runtime: RuntimeConfig,
     /// Clock sync; the host is the root (tier 0) by default.
     pub time: TimeConfig,
+    /// The links whose neighbours the host's clock may follow, and whose
+    /// remote writes of its time configuration and rate it takes (default:
+    /// none). A host that attaches to a machine served by another sets this
+    /// for that one link ([`Host::trust_time_link`]) and `time.root` to
+    /// false; a root with no trusted link cannot be demoted remotely.
+    pub trust: Trust,
 }
 
 impl HostConfig {
@@ -58,6 +64,7 @@ impl Default for HostConfig {
                 root: true,
                 ..TimeConfig::default()
             },
+            trust: Trust::NONE,
         }
     }
 }
@@ -166,6 +173,7 @@ fn build_runtime(config: HostConfig) -> Result<Box<HostRuntime>, HostError> {
             .clock_mut()
             .set_config(config.time)
             .map_err(|e| HostError::Malformed(e.to_string()))?;
+        runtime.clock_mut().set_trust(config.trust);
         Ok(runtime)
     };
     std::thread::Builder::new()
@@ -312,6 +320,38 @@ impl Host {
     /// The host clock's sync status.
     pub async fn clock_status(&self) -> Result<ClockStatus, HostError> {
         self.with_runtime(|rt, _| rt.clock().status()).await
+    }
+
+    /// Trusts the neighbour on link `index` as a time source (and for
+    /// remote clock writes): a host attached to a served machine follows
+    /// the serving host this way. Exchanges on the link before this are
+    /// counted as untrusted.
+    pub async fn trust_time_link(&self, index: u8) -> Result<(), HostError> {
+        self.with_runtime(move |rt, _| {
+            let trust = rt.clock().trust().with_link(index);
+            rt.clock_mut().set_trust(trust);
+        })
+        .await
+    }
+
+    /// Tells the host's clock whether motion planned in its time is under
+    /// way: while it is, the clock slews offsets away (within
+    /// `max_rate_ppm`) instead of stepping. A host that follows a served
+    /// machine's clock and plans motion holds this on once synchronised,
+    /// so its timeline never jumps.
+    pub async fn set_motion_active(&self, active: bool) -> Result<(), HostError> {
+        self.with_runtime(move |rt, _| rt.clock_mut().set_motion_active(active))
+            .await
+    }
+
+    /// Withdraws the trust of [`trust_time_link`](Self::trust_time_link):
+    /// the neighbour on link `index` is forgotten and no longer followed.
+    pub async fn distrust_time_link(&self, index: u8) -> Result<(), HostError> {
+        self.with_runtime(move |rt, _| {
+            let trust = rt.clock().trust().without_link(index);
+            rt.clock_mut().set_trust(trust);
+        })
+        .await
     }
 
     /// Wakes the runtime task (a port or link has news).
@@ -498,8 +538,11 @@ impl RuntimeTask {
             order: self.detached,
         };
         // Forget the neighbour now: the index may be attached again before
-        // the next poll would have seen it closed.
+        // the next poll would have seen it closed. Its time trust goes
+        // with it: whoever takes the index next is someone else.
         self.runtime.clock_mut().forget(usize::from(index));
+        let trust = self.runtime.clock().trust().without_link(index);
+        self.runtime.clock_mut().set_trust(trust);
         // And drop what is routed to it now, for the same reason.
         let _ = crate::driver::Driven::poll(self);
         true

@@ -108,7 +108,14 @@ async fn an_unanswering_runtime_gives_a_partial_map_not_a_hang() {
 async fn time_configuration_and_clock_status_over_the_network() {
     use osap_core::clock::{SyncState, TimeConfig};
     use osap_host::netrunner::Netrunner;
-    let (h, a) = (host("h"), host("a"));
+    // `a` takes clock writes from (and follows) its link to `h`: a root
+    // trusting no link would refuse them (see tests/clock_authority.rs).
+    let h = host("h");
+    let a = osap_host::Host::start(osap_host::HostConfig {
+        trust: osap_core::clock::Trust::ALL,
+        ..osap_host::HostConfig::named("a")
+    })
+    .unwrap();
     memory::connect(&h, &a).await.unwrap();
     let runner = Netrunner::new(&h).await.unwrap();
     let route = Route::through_links(&[0]).unwrap();

@@ -38,10 +38,10 @@ async fn square(m: &Machine) -> Result<Vec<f64>, MachineError> {
 async fn the_same_script_runs_on_connect() {
     let cfg = mill();
     // Another host serves the simulated mill over TCP, as `osap serve`
-    // does: it relays, and the machine's host is the clock root.
+    // does: it is the machine's clock root, and the connecting host
+    // follows it.
     let server = Host::start(HostConfig {
         name: "server".into(),
-        time: osap_core::clock::TimeConfig::default(),
         ..HostConfig::default()
     })
     .unwrap();

@@ -40,8 +40,12 @@
 //! points down the tiers, no two runtimes can chase each other: losing the
 //! root cannot make time run away. A new root (set by configuration) is
 //! followed as soon as its tier is heard.
+//!
+//! **Authority** ([`authority`]): only neighbours on trusted links are
+//! followed, only trusted links may write the clock, and no step is taken
+//! while the runtime reports motion queued.
 
-mod authority;
+pub mod authority;
 mod map;
 pub mod neighbour;
 mod status;
@@ -606,9 +610,16 @@ impl<const LINKS: usize> Clock<LINKS> {
                 interval / burst
             };
             // Keep to the phase of the latest accepted exchange; without
-            // one, search with dither.
+            // one, search with dither. At the plain rate a request a host
+            // timer woke late (by up to its millisecond grain) moved the
+            // anchor by that much, and the next phase point may then be
+            // that little from now: take the one after (bursts keep every
+            // point: they hunt for a good phase against USB frames).
             let next = match self.neighbours[i].anchor {
-                Some(a) if a <= now => a + (now - a) / interval * interval + interval,
+                Some(a) if a <= now => {
+                    let grain = if burst == 1 { MS.min(interval / 4) } else { 0 };
+                    a + (now - a + grain) / interval * interval + interval
+                }
                 _ => {
                     // Search over half a spacing either way when bursting:
                     // any phase against a frame grid is equally likely.

@@ -147,6 +147,13 @@ fn som_refusal(module: &str, function: &str, e: SomError) -> MachineError {
     }
 }
 
+/// How closely a clock must follow its source before motion starts.
+const SYNC_GOAL: SyncGoal = SyncGoal {
+    max_offset: Duration::from_micros(200),
+    quiet: Duration::from_millis(200),
+    timeout: Duration::from_secs(20),
+};
+
 impl Machine {
     /// The machine on simulated modules, derived from the machine file
     /// (its `[sim]` section), in real time.
@@ -167,7 +174,9 @@ impl Machine {
         Self::start(cfg, host, Vec::new(), Some(sim)).await
     }
 
-    /// The machine on hardware, reached over `links`.
+    /// The machine on hardware, reached over `links`. Over TCP links only
+    /// (a machine another process serves) this host follows that
+    /// process's clock; with any serial link it is the machine's root.
     pub async fn connect(cfg: &MachineFile, links: &[Link]) -> Result<Machine, MachineError> {
         cfg.validate()?;
         if links.is_empty() {
@@ -190,8 +199,29 @@ impl Machine {
                     l.probe(&host, Duration::from_millis(500)).await?;
                     handles.push(l);
                 }
-                Link::Tcp(addr) => handles.push(osap_host::link::tcp::connect(&host, addr).await?),
+                Link::Tcp(addr) => {
+                    let l = osap_host::link::tcp::connect(&host, addr).await?;
+                    if served {
+                        host.trust_time_link(l.index()).await?;
+                    }
+                    handles.push(l);
+                }
             }
+        }
+        if served {
+            // Points are stamped in this host's time: it must follow the
+            // served clock before the first one, and never step after.
+            let runner = Netrunner::new(&host).await?;
+            let here =
+                Route::through_links(&[]).map_err(|e| MachineError::Unsupported(e.to_string()))?;
+            runner
+                .wait_synchronised(&here, SYNC_GOAL)
+                .await
+                .map_err(|e| MachineError::NotSynchronised {
+                    module: HOST_NAME.into(),
+                    detail: e.to_string(),
+                })?;
+            host.set_motion_active(true).await?;
         }
         Self::start(cfg, host, handles, None).await
     }
@@ -215,14 +245,9 @@ impl Machine {
         // Motion is keyed by synchronized time: every module's clock must
         // follow the host's before a point is sent.
         let netrunner = Netrunner::new(&host).await?;
-        let goal = SyncGoal {
-            max_offset: Duration::from_micros(200),
-            quiet: Duration::from_millis(200),
-            timeout: Duration::from_secs(20),
-        };
         for (key, m) in &modules {
             netrunner
-                .wait_synchronised(&m.route, goal)
+                .wait_synchronised(&m.route, SYNC_GOAL)
                 .await
                 .map_err(|e| MachineError::NotSynchronised {
                     module: key.clone(),

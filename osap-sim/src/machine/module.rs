@@ -169,7 +169,9 @@ impl StepClock {
     }
 
     /// Before a poll at local `now`: the words and limit edges up to now.
-    pub(crate) fn catch_up(&mut self, now: Micros) {
+    /// Returns whether the axis has motion queued or running (its clock
+    /// must not step then).
+    pub(crate) fn catch_up(&mut self, now: Micros) -> bool {
         let StepClock {
             module,
             next,
@@ -182,7 +184,8 @@ impl StepClock {
                 p.publish(*next, None);
             }
             Self::deliver(input, m, now);
-        });
+            !m.stepper.is_standing()
+        })
     }
 
     /// After a poll at local `now`, which left the runtime's time map `map`:
@@ -322,7 +325,8 @@ impl Driven for ModuleTask {
         }
         let now = self.clock.now_us();
         if let Some(steps) = &mut self.stepper {
-            steps.catch_up(now);
+            let moving = steps.catch_up(now);
+            self.runtime.clock_mut().set_motion_active(moving);
         }
         let result = if self.frozen.load(Ordering::Acquire) {
             osap_core::runtime::PollResult::default()
@@ -356,9 +360,10 @@ impl ModuleTask {
     fn park(self) -> Parked {
         Parked {
             name: self.runtime.identity().name.to_string(),
-            carriage: self.stepper.as_ref().map_or(0, |s| {
-                s.module.lock(|m| m.board().motor().carriage())
-            }),
+            carriage: self
+                .stepper
+                .as_ref()
+                .map_or(0, |s| s.module.lock(|m| m.board().motor().carriage())),
             links: self.links.into_iter().map(|l| l.inner).collect(),
         }
     }
