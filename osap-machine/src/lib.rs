@@ -33,4 +33,5 @@ pub mod record;
 pub mod sim;
 pub mod svg;
 
+pub use machine::events::FaultKind;
 pub use machine::{Machine, MachineError, MachineEvent, MachineState};
