@@ -20,7 +20,7 @@ use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
 use osap_core::framing::{encode_frame, max_frame_len};
-use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
+use osap_core::link::{GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::Micros;
 
 pub use crate::framer::ChunkTime;
@@ -65,6 +65,10 @@ pub struct LinkShared {
     open: AtomicBool,
     /// Frames dropped by the receive side (bad COBS or CRC, oversize).
     rx_errors: AtomicU32,
+    /// Good frames received.
+    frames: AtomicU32,
+    /// Times the link went down.
+    disconnects: AtomicU32,
 }
 
 impl LinkShared {
@@ -75,6 +79,8 @@ impl LinkShared {
             tx: Pipe::new(),
             open: AtomicBool::new(false),
             rx_errors: AtomicU32::new(0),
+            frames: AtomicU32::new(0),
+            disconnects: AtomicU32::new(0),
         }
     }
 
@@ -82,9 +88,13 @@ impl LinkShared {
     /// closed link's clock-sync state and stops routing to it). Going up
     /// drops whatever was queued for a previous peer.
     pub fn set_open(&self, open: bool) {
-        if open && !self.open.load(Ordering::Relaxed) {
+        let was = self.open.load(Ordering::Relaxed);
+        if open && !was {
             self.tx.clear();
             self.rx.clear();
+        }
+        if was && !open {
+            self.disconnects.fetch_add(1, Ordering::Relaxed);
         }
         self.open.store(open, Ordering::Relaxed);
         wake_runtime();
@@ -136,7 +146,10 @@ impl LinkShared {
         let mut rest = chunk;
         loop {
             match framer.next(&mut rest, time) {
-                Next::Packet(packet, stamp) => self.deliver(packet, stamp).await,
+                Next::Packet(packet, stamp) => {
+                    self.frames.fetch_add(1, Ordering::Relaxed);
+                    self.deliver(packet, stamp).await
+                }
                 Next::Bad(_) => {
                     self.rx_errors.fetch_add(1, Ordering::Relaxed);
                 }
@@ -243,6 +256,18 @@ impl<W: WireTiming> LinkGateway for FramedGateway<W> {
 
     fn queue_delay(&self) -> Micros {
         self.wire.queue_delay(self.shared.tx_queued())
+    }
+
+    fn counters(&self) -> Option<GatewayCounters> {
+        // The receive queue waits rather than drops, and so does the send
+        // pipe: those counts stay 0.
+        Some(GatewayCounters {
+            frames: self.shared.frames.load(Ordering::Relaxed),
+            frame_errors: self.shared.rx_errors(),
+            rx_dropped: 0,
+            tx_dropped: 0,
+            disconnects: self.shared.disconnects.load(Ordering::Relaxed),
+        })
     }
 
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
