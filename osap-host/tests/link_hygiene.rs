@@ -401,11 +401,18 @@ async fn a_peer_that_floods_and_never_reads_loses_only_its_own_link() {
             );
         }
         assert_eq!(link.stats().disconnects, 0, "the client lost its link");
+        let counters = server.hosts[0]
+            .with_runtime(|rt, _| *rt.counters())
+            .await
+            .unwrap();
         let line = format!(
             "p99 of {RPCS} name requests: {quiet:?} alone ({quiet_lost} lost), {loaded:?} \
              beside the flooder ({loaded_lost} lost; {took:?} in all; the flooder was closed \
-             {} times)",
-            kicked.load(Ordering::Relaxed)
+             {} times); the server so far: {} expired, {} link errors, {} link closed",
+            kicked.load(Ordering::Relaxed),
+            counters.expired,
+            counters.link_errors,
+            counters.link_closed
         );
         eprintln!("{line}");
         attempts.push(line);

@@ -27,6 +27,11 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use tokio::sync::Notify;
 
+/// How long a socket link's send queue may stay full before packets for
+/// it are dropped instead of waiting in the runtime's stack (see
+/// [`LinkIo::set_drop_when_full_for`]).
+pub const DROP_AFTER: std::time::Duration = std::time::Duration::from_millis(500);
+
 /// How a link is described and sized.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LinkConfig {
@@ -72,8 +77,10 @@ pub struct LinkStats {
     pub frame_errors: u64,
     /// Times the link went down.
     pub disconnects: u64,
-    /// Packets dropped because the link's send queue was full (links that
-    /// drop rather than wait: sockets, whose peer may stop reading).
+    /// Packets dropped unsent: queued when the link went down (a
+    /// connection closed, stalled or timed out), or sent to it after its
+    /// send queue had been full too long (see
+    /// [`LinkIo::set_drop_when_full_for`]).
     pub tx_dropped: u64,
     /// Connections closed because the peer stopped reading (a write could
     /// not complete within the stall bound).
@@ -82,26 +89,30 @@ pub struct LinkStats {
     pub idle_closed: u64,
 }
 
-/// What a link's send queue does when it is full.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum TxOverflow {
-    /// The runtime waits until there is room (the packet stays in its
-    /// stack): right for a wire that drains at its own pace (serial, USB).
-    #[default]
-    Wait,
-    /// The packet is dropped and counted in [`LinkStats::tx_dropped`], so a
-    /// peer that stops reading cannot hold the runtime's packet slots:
-    /// right for sockets, whose kernel buffers are already full by then.
-    Drop,
-}
-
 #[derive(Debug)]
 struct Queues {
     rx: VecDeque<(Vec<u8>, Micros)>,
     tx: VecDeque<Vec<u8>>,
     open: bool,
-    overflow: TxOverflow,
+    /// Stop reading the peer while the send queue is full (accepted
+    /// sockets).
+    pause_reads: bool,
+    /// Drop, rather than wait, once the send queue has been full this long.
+    drop_after: Option<std::time::Duration>,
+    /// Since when the send queue has been full, if it is.
+    full_since: Option<std::time::Instant>,
     stats: LinkStats,
+}
+
+impl Queues {
+    /// Whether packets for the link are dropped now: its send queue has
+    /// been full for longer than it may be.
+    fn dropping(&self) -> bool {
+        match (self.drop_after, self.full_since) {
+            (Some(after), Some(since)) => since.elapsed() >= after,
+            _ => false,
+        }
+    }
 }
 
 /// State shared by a link's two halves.
@@ -156,7 +167,9 @@ pub fn channel(
             rx: VecDeque::new(),
             tx: VecDeque::new(),
             open: false,
-            overflow: TxOverflow::Wait,
+            pause_reads: false,
+            drop_after: None,
+            full_since: None,
             stats: LinkStats::default(),
         }),
         runtime,
@@ -186,7 +199,9 @@ impl LinkIo {
         let mut q = self.shared.lock();
         if q.open && !open {
             q.stats.disconnects += 1;
+            q.stats.tx_dropped += q.tx.len() as u64;
             q.tx.clear();
+            q.full_since = None;
             let stale = q.rx.len() as u64;
             q.stats.rx_dropped += stale;
             q.rx.clear();
@@ -225,17 +240,16 @@ impl LinkIo {
     }
 
     /// Waits until the runtime has room for a received packet (for stream
-    /// links, which can push back by not reading). A link that drops when
-    /// its send queue is full also waits while it is full: a peer that
-    /// does not read its replies is not read either, so it costs the
-    /// runtime nothing until it reads again (or is closed for stalling).
+    /// links, which can push back by not reading). A link set to
+    /// [`pause reads`](Self::set_pause_reads_when_full) also waits while its
+    /// send queue is full.
     pub async fn rx_ready(&self) {
         loop {
             let notified = self.shared.io.notified();
             {
                 let q = self.shared.lock();
                 let depth = self.shared.config.depth;
-                let unread = q.overflow == TxOverflow::Drop && q.tx.len() >= depth;
+                let unread = q.pause_reads && q.tx.len() >= depth;
                 if q.rx.len() < depth && !unread {
                     return;
                 }
@@ -255,6 +269,7 @@ impl LinkIo {
                     return None;
                 }
                 if let Some(p) = q.tx.pop_front() {
+                    q.full_since = None;
                     drop(q);
                     // Room to send again: the runtime may have packets
                     // waiting, and the reader may wait for the peer to read.
@@ -272,10 +287,25 @@ impl LinkIo {
         self.shared.lock().stats.frame_errors += n;
     }
 
-    /// Sets what happens to a packet sent while the send queue is full
-    /// ([`TxOverflow::Wait`] unless set).
-    pub fn set_tx_overflow(&self, overflow: TxOverflow) {
-        self.shared.lock().overflow = overflow;
+    /// Whether to stop reading the peer while the link's send queue is
+    /// full (off unless set). Listeners set it on the connections they
+    /// accept: a client that sends requests and does not read the replies
+    /// is then not read either, so it cannot keep the runtime busy nor keep
+    /// refilling its packet slots with replies that wait for it; the stall
+    /// bound closes the connection if it never reads again. (Only one end
+    /// of a link may pause: two that both did could wait on each other.)
+    pub fn set_pause_reads_when_full(&self, pause: bool) {
+        self.shared.lock().pause_reads = pause;
+    }
+
+    /// Drop packets sent to the link once its send queue has been full for
+    /// `after` (counted in [`LinkStats::tx_dropped`]), instead of leaving
+    /// them in the runtime's stack until room comes (`None`, the default:
+    /// right for a wire that drains at its own pace). Socket links set
+    /// [`DROP_AFTER`]: a peer that stops reading must not hold packet slots
+    /// that other links' traffic needs.
+    pub fn set_drop_when_full_for(&self, after: Option<std::time::Duration>) {
+        self.shared.lock().drop_after = after;
     }
 
     /// Counts a connection closed because its peer stopped reading.
@@ -339,7 +369,7 @@ impl LinkGateway for ChannelLink {
             }
             None => {
                 let q = self.shared.lock();
-                q.open && (q.overflow == TxOverflow::Drop || q.tx.len() < self.shared.config.depth)
+                q.open && (q.tx.len() < self.shared.config.depth || q.dropping())
             }
         }
     }
@@ -363,11 +393,15 @@ impl LinkGateway for ChannelLink {
                     return Err(LinkSendError);
                 }
                 if q.tx.len() >= self.shared.config.depth {
-                    // Only a dropping link says it is clear while full.
-                    q.stats.tx_dropped += 1;
+                    if q.dropping() {
+                        q.stats.tx_dropped += 1;
+                    }
                     return Err(LinkSendError);
                 }
                 q.tx.push_back(packet.to_vec());
+                if q.tx.len() >= self.shared.config.depth && q.full_since.is_none() {
+                    q.full_since = Some(std::time::Instant::now());
+                }
                 drop(q);
                 self.shared.io.notify_waiters();
             }

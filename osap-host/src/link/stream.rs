@@ -13,7 +13,7 @@
 //! connections and gives each one a link.
 
 use super::noise::{self, Key};
-use super::{LinkConfig, LinkIo, LinkStats, TxOverflow};
+use super::{LinkConfig, LinkIo, LinkStats, DROP_AFTER};
 use crate::runtime::Host;
 use crate::{HostError, HOST_MTU};
 use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
@@ -963,8 +963,10 @@ where
             return;
         }
     };
-    // A peer that stops reading loses its own packets, not everyone's slots.
-    io.set_tx_overflow(TxOverflow::Drop);
+    // A peer that stops reading is not read, and what waits for it is
+    // dropped soon: it cannot crowd out the others.
+    io.set_pause_reads_when_full(true);
+    io.set_drop_when_full_for(Some(DROP_AFTER));
     let _release = Release {
         shared: shared.clone(),
         io: io.clone(),
