@@ -182,8 +182,8 @@ impl Key {
     }
 }
 
-/// Why a handshake failed.
-fn handshake_error(what: &str, why: impl fmt::Display) -> io::Error {
+/// An error of the handshake or of a session, with what was being done.
+fn noise_error(what: &str, why: impl fmt::Display) -> io::Error {
     io::Error::new(io::ErrorKind::PermissionDenied, format!("{what}: {why}"))
 }
 
@@ -277,11 +277,11 @@ where
         let mut state = key
             .builder()
             .and_then(|b| b.build_initiator())
-            .map_err(|e| handshake_error("starting the handshake", e))?;
+            .map_err(|e| noise_error("starting the handshake", e))?;
         let mut buf = vec![0u8; MAX_HANDSHAKE];
         let n = state
             .write_message(&[], &mut buf)
-            .map_err(|e| handshake_error("writing the handshake", e))?;
+            .map_err(|e| noise_error("writing the handshake", e))?;
         write_message(&mut stream, buf.get(..n).unwrap_or_default()).await?;
         let n = match read_message(&mut stream, &mut buf, MAX_HANDSHAKE).await {
             Ok(n) => n,
@@ -294,7 +294,7 @@ where
                 ))
             }
             Err(e) => {
-                return Err(handshake_error(
+                return Err(noise_error(
                     "the server's handshake does not parse (does it use a key?)",
                     e,
                 ))
@@ -303,16 +303,14 @@ where
         let mut none = [0u8; 0];
         state
             .read_message(buf.get(..n).unwrap_or_default(), &mut none)
-            .map_err(|e| {
-                handshake_error("the server's handshake does not verify (another key?)", e)
-            })?;
+            .map_err(|e| noise_error("the server's handshake does not verify (another key?)", e))?;
         let mut transport = state
             .into_transport_mode()
-            .map_err(|e| handshake_error("finishing the handshake", e))?;
+            .map_err(|e| noise_error("finishing the handshake", e))?;
         // The proof that this is a live session, not a replay.
         let n = transport
             .write_message(&[], &mut buf)
-            .map_err(|e| handshake_error("confirming the handshake", e))?;
+            .map_err(|e| noise_error("confirming the handshake", e))?;
         write_message(&mut stream, buf.get(..n).unwrap_or_default()).await?;
         Ok(transport)
     };
@@ -342,14 +340,14 @@ where
         let mut state = key
             .builder()
             .and_then(|b| b.build_responder())
-            .map_err(|e| handshake_error("starting the handshake", e))?;
+            .map_err(|e| noise_error("starting the handshake", e))?;
         let mut buf = vec![0u8; MAX_MESSAGE];
         let n = read_message(&mut stream, &mut buf, MAX_HANDSHAKE).await?;
         let mut none = [0u8; 0];
         state
             .read_message(buf.get(..n).unwrap_or_default(), &mut none)
             .map_err(|e| {
-                handshake_error(
+                noise_error(
                     "the first handshake message does not verify (wrong key?)",
                     e,
                 )
@@ -357,17 +355,17 @@ where
         let mut reply = [0u8; MAX_HANDSHAKE];
         let n = state
             .write_message(&[], &mut reply)
-            .map_err(|e| handshake_error("writing the handshake", e))?;
+            .map_err(|e| noise_error("writing the handshake", e))?;
         write_message(&mut stream, reply.get(..n).unwrap_or_default()).await?;
         let mut transport = state
             .into_transport_mode()
-            .map_err(|e| handshake_error("finishing the handshake", e))?;
+            .map_err(|e| noise_error("finishing the handshake", e))?;
         let n = read_message(&mut stream, &mut buf, MAX_MESSAGE).await?;
         let mut plain = vec![0u8; n];
         let m = transport
             .read_message(buf.get(..n).unwrap_or_default(), &mut plain)
             .map_err(|e| {
-                handshake_error(
+                noise_error(
                     "the handshake's confirmation does not verify (a replay?)",
                     e,
                 )
@@ -418,7 +416,7 @@ where
                     let n = read_message(&mut net_rx, &mut msg, MAX_MESSAGE).await?;
                     let m = lock(&transport)
                         .read_message(msg.get(..n).unwrap_or_default(), &mut plain)
-                        .map_err(|e| handshake_error("a message does not verify", e))?;
+                        .map_err(|e| noise_error("a message does not verify", e))?;
                     plain_tx
                         .write_all(plain.get(..m).unwrap_or_default())
                         .await?;
@@ -436,7 +434,7 @@ where
                 }
                 let m = lock(&transport)
                     .write_message(plain.get(..n).unwrap_or_default(), &mut msg)
-                    .map_err(|e| handshake_error("encrypting", e))?;
+                    .map_err(|e| noise_error("encrypting", e))?;
                 write_message(&mut net_tx, msg.get(..m).unwrap_or_default()).await?;
             }
         };

@@ -9,6 +9,13 @@
 //! TCP only notices a peer that vanished without closing (a cable pulled
 //! somewhere in between) when a send fails; a peer that closes or resets
 //! the connection is noticed at once.
+//!
+//! A listener with a key ([`listen_with`], [`ListenOptions::key`]) serves
+//! only clients that prove they hold it in a Noise handshake
+//! ([`connect_with_key`], see [`noise`]); a listener on a non-loopback
+//! address must have one. Listeners bound how many connections they serve,
+//! and close connections that stay silent or stop reading (see
+//! [`ListenOptions`] and `docs/security.md`).
 
 use super::noise::{self, Key, NoiseStream};
 use super::stream::{
