@@ -185,3 +185,21 @@ async fn a_second_process_cannot_move_a_served_clock() {
     assert_eq!((name.as_str(), root.state), ("sim-host", SyncState::Root));
     assert!(root.stats.untrusted >= 1, "{root:?}");
 }
+
+#[test]
+fn time_exits_non_zero_when_a_runtime_cannot_be_read() {
+    let plotter =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/machines/plotter.toml");
+    let mut served = common::Controlled::start(&plotter);
+    assert_eq!(served.command("freeze b"), "ok freeze b");
+    let out = Command::new(env!("CARGO_BIN_EXE_osap"))
+        .args(["time", "--json", "--tcp", &served.addr])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("could not be read"), "{stderr}");
+    // The others are still listed.
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("\"runtime\":\"sim-host\""), "{stdout}");
+}
