@@ -56,7 +56,9 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
         m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
         assert!(faults(&mut events).is_empty(), "a clean move has no fault");
-        // A point whose time has passed, mid-stream: module b refuses it.
+        // A point whose time has passed, mid-stream: module b refuses it
+        // and the script hears so, with the refusal code and the module's
+        // time stamp.
         let now = m.now_us().await.unwrap();
         let late = now / 2048 * 2048 - 10 * 2048;
         let e = m
@@ -71,10 +73,43 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
             matches!(&e, MachineError::ModuleRefused { module, .. } if module == "b"),
             "{e}"
         );
+        let stale = u32::from(StepperError::Stale.code());
+        let mut heard = Vec::new();
+        for _ in 0..100 {
+            if heard.iter().any(|(_, _, detail, _)| *detail == stale) {
+                break;
+            }
+            tokio::time::sleep(Duration::from_millis(5)).await;
+            heard.extend(faults(&mut events));
+        }
+        assert!(
+            heard
+                .iter()
+                .any(|(module, kind, detail, time)| module == "b"
+                    && *kind == FaultKind::Refused
+                    && *detail == stale
+                    && time.abs_diff(now) < 100_000),
+            "{heard:?}"
+        );
+        // A point the module cannot follow (beyond its track's range).
+        let t0 = m.now_us().await.unwrap();
+        let next = t0 / 2048 * 2048 + 200 * 2048;
+        let e = m
+            .call(
+                "b",
+                "add_point",
+                &[OwnedValue::U64(next), OwnedValue::F32(1.0e6)],
+            )
+            .await
+            .unwrap_err();
+        assert!(
+            matches!(&e, MachineError::ModuleRefused { module, .. } if module == "b"),
+            "{e}"
+        );
         // The waiting call fails, naming the module and the reason, within
         // the fault source's 5 ms period and the links' latency.
         let e = m.idle().await.unwrap_err();
-        let heard_after = m.now_us().await.unwrap() - now;
+        let heard_after = m.now_us().await.unwrap() - t0;
         eprintln!(
             "fault to failed call: {:.1} ms (virtual time)",
             heard_after as f64 / 1e3
@@ -84,22 +119,18 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
             panic!("{e}")
         };
         assert!(
-            reason.starts_with("module b refused a point:") && reason.contains("late"),
+            reason.starts_with("module b refused a point:") && reason.contains("track range"),
             "{reason}"
         );
         // So does every call after it, until recovered.
         let e = m.goto_via_queue([20.0, 75.0], 50.0).await.unwrap_err();
         assert!(matches!(&e, MachineError::Faulted(r) if r == reason), "{e}");
-        // The event: module, kind, refusal code, the module's time stamp.
-        let heard = faults(&mut events);
-        let stale = u32::from(StepperError::Stale.code());
+        heard.extend(faults(&mut events));
+        let out_of_range = u32::from(StepperError::OutOfRange.code());
         assert!(
-            heard
-                .iter()
-                .any(|(module, kind, detail, time)| module == "b"
-                    && *kind == FaultKind::Refused
-                    && *detail == stale
-                    && time.abs_diff(now) < 100_000),
+            heard.iter().any(|(module, kind, detail, _)| module == "b"
+                && *kind == FaultKind::Refused
+                && *detail == out_of_range),
             "{heard:?}"
         );
         assert!(
