@@ -13,7 +13,7 @@
 //! connections and gives each one a link.
 
 use super::noise::{self, Key};
-use super::{LinkConfig, LinkIo, LinkStats, DROP_AFTER};
+use super::{LinkConfig, LinkIo, LinkStats};
 use crate::runtime::Host;
 use crate::{HostError, HOST_MTU};
 use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
@@ -55,6 +55,10 @@ pub const MAX_CONNECTIONS: usize = 16;
 /// How long a connection past the limit waits for one to end before it is
 /// refused, by default: a burst of short connections is served in turn.
 pub const QUEUE_TIMEOUT: Duration = Duration::from_secs(1);
+/// How long an accepted connection's send queue may stay full before
+/// packets for it are dropped, by default (a client's own links wait
+/// [`DROP_AFTER`](super::DROP_AFTER)).
+pub const ACCEPTED_DROP_AFTER: Duration = Duration::from_millis(25);
 /// Connections past the limit that may wait at once; more are refused at
 /// once.
 pub const MAX_WAITING: usize = 256;
@@ -667,6 +671,11 @@ pub struct ListenOptions {
     pub stall_timeout: Option<Duration>,
     /// How long a keyed connection's handshake may take.
     pub handshake_timeout: Duration,
+    /// How long a connection's send queue may stay full before packets for
+    /// it are dropped ([`ACCEPTED_DROP_AFTER`] by default): short, so that
+    /// replies waiting for a peer that does not read do not hold the
+    /// packet slots that other peers' requests need.
+    pub drop_after: Duration,
 }
 
 impl Default for ListenOptions {
@@ -679,6 +688,7 @@ impl Default for ListenOptions {
             idle_timeout: Some(IDLE_TIMEOUT),
             stall_timeout: Some(STALL_TIMEOUT),
             handshake_timeout: noise::HANDSHAKE_TIMEOUT,
+            drop_after: ACCEPTED_DROP_AFTER,
         }
     }
 }
@@ -966,7 +976,7 @@ where
     // A peer that stops reading is not read, and what waits for it is
     // dropped soon: it cannot crowd out the others.
     io.set_pause_reads_when_full(true);
-    io.set_drop_when_full_for(Some(DROP_AFTER));
+    io.set_drop_when_full_for(Some(shared.options.drop_after));
     let _release = Release {
         shared: shared.clone(),
         io: io.clone(),
