@@ -12,7 +12,7 @@ use osap_machine::job::{self, Program};
 use osap_machine::machine::events::FaultKind;
 use osap_machine::machine::{Link, SimOptions};
 use osap_machine::svg::SvgOptions;
-use osap_machine::{Machine, MachineError, MachineEvent};
+use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
 use osap_sim::machine::TimeMode;
 
 /// Exit code of a job or argument refused before any motion.
@@ -344,8 +344,14 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
             _ => {}
         }
     }
-    faults.dedup();
-    warnings.dedup();
+    unique(&mut faults);
+    unique(&mut warnings);
+    // Whether a fault stopped the machine (some, like a stale point, are
+    // only reported): its first fault is the reason.
+    let stopped_by = match machine.state() {
+        MachineState::Faulted(reason) => Some(reason),
+        _ => None,
+    };
 
     println!("job {}: {} moves", args.job.display(), program.moves.len());
     println!("planned duration   {:>9.3} s", planned_s);
@@ -365,6 +371,10 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     }
     if faults.is_empty() {
         println!("faults: none");
+    } else if stopped_by.is_none() {
+        for f in &faults {
+            println!("warning: {f} (reported; the machine went on)");
+        }
     } else {
         for f in &faults {
             println!("fault: {f}");
@@ -393,11 +403,17 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let stopped = machine.stop().await;
     result.map_err(Failure::from_machine)?;
     stopped.map_err(Failure::from_machine)?;
-    if let Some(first) = faults.first() {
-        eprintln!("error: machine fault: {first}");
+    if let Some(reason) = stopped_by {
+        eprintln!("error: machine fault: {reason}");
         return Ok(ExitCode::from(MACHINE_FAULT));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// Keeps the first of each repeated line, in order.
+fn unique(lines: &mut Vec<String>) {
+    let mut seen = std::collections::BTreeSet::new();
+    lines.retain(|l| seen.insert(l.clone()));
 }
 
 /// `osap home MACHINE [AXIS ..]`.
@@ -529,5 +545,12 @@ mod tests {
             REFUSED
         );
         assert!(![0, FAULTED, REFUSED].contains(&MACHINE_FAULT));
+    }
+
+    #[test]
+    fn repeated_reports_are_listed_once_in_order() {
+        let mut l: Vec<String> = ["b", "a", "b", "c", "a"].map(String::from).into();
+        unique(&mut l);
+        assert_eq!(l, ["b", "a", "c"]);
     }
 }
