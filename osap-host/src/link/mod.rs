@@ -27,11 +27,6 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use tokio::sync::Notify;
 
-/// How long a socket link's send queue may stay full before packets for
-/// it are dropped instead of waiting in the runtime's stack (see
-/// [`LinkIo::set_drop_when_full_for`]).
-pub const DROP_AFTER: std::time::Duration = std::time::Duration::from_millis(500);
-
 /// How a link is described and sized.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct LinkConfig {
@@ -301,9 +296,8 @@ impl LinkIo {
     /// Drop packets sent to the link once its send queue has been full for
     /// `after` (counted in [`LinkStats::tx_dropped`]), instead of leaving
     /// them in the runtime's stack until room comes (`None`, the default:
-    /// right for a wire that drains at its own pace). Socket links set
-    /// [`DROP_AFTER`]: a peer that stops reading must not hold packet slots
-    /// that other links' traffic needs.
+    /// right for a wire that drains at its own pace, and for a peer that
+    /// may fall behind for a while but reads everything in the end).
     pub fn set_drop_when_full_for(&self, after: Option<std::time::Duration>) {
         self.shared.lock().drop_after = after;
     }

@@ -55,10 +55,6 @@ pub const MAX_CONNECTIONS: usize = 16;
 /// How long a connection past the limit waits for one to end before it is
 /// refused, by default: a burst of short connections is served in turn.
 pub const QUEUE_TIMEOUT: Duration = Duration::from_secs(1);
-/// How long an accepted connection's send queue may stay full before
-/// packets for it are dropped, by default (a client's own links wait
-/// [`DROP_AFTER`](super::DROP_AFTER)).
-pub const ACCEPTED_DROP_AFTER: Duration = Duration::from_millis(25);
 /// Connections past the limit that may wait at once; more are refused at
 /// once.
 pub const MAX_WAITING: usize = 256;
@@ -671,11 +667,14 @@ pub struct ListenOptions {
     pub stall_timeout: Option<Duration>,
     /// How long a keyed connection's handshake may take.
     pub handshake_timeout: Duration,
-    /// How long a connection's send queue may stay full before packets for
-    /// it are dropped ([`ACCEPTED_DROP_AFTER`] by default): short, so that
-    /// replies waiting for a peer that does not read do not hold the
-    /// packet slots that other peers' requests need.
-    pub drop_after: Duration,
+    /// Drop packets for a connection once its send queue has been full
+    /// this long, so that they do not hold packet slots other peers need
+    /// (`None`, the default: they wait, and expire at their deadlines).
+    /// A busy client legitimately stops reading for a while: 25 ms and
+    /// even 500 ms lost a served machine's acknowledgements (and so its
+    /// points) to a client planning motion, so this is for peers that are
+    /// expected to keep up.
+    pub drop_after: Option<Duration>,
 }
 
 impl Default for ListenOptions {
@@ -688,7 +687,7 @@ impl Default for ListenOptions {
             idle_timeout: Some(IDLE_TIMEOUT),
             stall_timeout: Some(STALL_TIMEOUT),
             handshake_timeout: noise::HANDSHAKE_TIMEOUT,
-            drop_after: ACCEPTED_DROP_AFTER,
+            drop_after: None,
         }
     }
 }
@@ -973,10 +972,10 @@ where
             return;
         }
     };
-    // A peer that stops reading is not read, and what waits for it is
-    // dropped soon: it cannot crowd out the others.
+    // A peer that stops reading is not read: it cannot keep the runtime
+    // busy, and the stall bound closes it if it never reads again.
     io.set_pause_reads_when_full(true);
-    io.set_drop_when_full_for(Some(shared.options.drop_after));
+    io.set_drop_when_full_for(shared.options.drop_after);
     let _release = Release {
         shared: shared.clone(),
         io: io.clone(),

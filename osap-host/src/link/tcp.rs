@@ -21,7 +21,7 @@ use super::noise::{self, Key, NoiseStream};
 use super::stream::{
     check_bind, link_error, Accept, LinkHandle, ListenAddr, ListenOptions, Listener, StreamLimits,
 };
-use super::{LinkConfig, DROP_AFTER};
+use super::LinkConfig;
 use crate::runtime::Host;
 use crate::HostError;
 use std::io;
@@ -102,7 +102,6 @@ pub async fn connect(host: &Host, addr: &str) -> Result<LinkHandle, HostError> {
     let stream = dial_plain(addr).await?;
     let local = stream.local_addr().ok();
     let (index, io) = host.add_link(LinkConfig::new("tcp", addr)).await?;
-    io.set_drop_when_full_for(Some(DROP_AFTER));
     let addr = addr.to_string();
     Ok(LinkHandle::spawn_client(
         host,
@@ -125,7 +124,6 @@ pub async fn connect(host: &Host, addr: &str) -> Result<LinkHandle, HostError> {
 pub async fn connect_with_key(host: &Host, addr: &str, key: &Key) -> Result<LinkHandle, HostError> {
     let stream = dial_keyed(addr, key).await?;
     let (index, io) = host.add_link(LinkConfig::new("tcp", addr)).await?;
-    io.set_drop_when_full_for(Some(DROP_AFTER));
     let (addr, key) = (addr.to_string(), key.clone());
     Ok(LinkHandle::spawn_client(
         host,

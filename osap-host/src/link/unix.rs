@@ -8,7 +8,7 @@
 use super::stream::{
     link_error, Accept, LinkHandle, ListenAddr, ListenOptions, Listener, StreamLimits,
 };
-use super::{LinkConfig, DROP_AFTER};
+use super::LinkConfig;
 use crate::runtime::Host;
 use crate::HostError;
 use std::io;
@@ -44,7 +44,6 @@ pub async fn connect(host: &Host, path: impl AsRef<Path>) -> Result<LinkHandle, 
     let stream = dial(&path).await?;
     let name = path.display().to_string();
     let (index, io) = host.add_link(LinkConfig::new("unix", &name)).await?;
-    io.set_drop_when_full_for(Some(DROP_AFTER));
     Ok(LinkHandle::spawn_client(
         host,
         index,
