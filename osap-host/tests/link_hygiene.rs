@@ -279,7 +279,8 @@ async fn an_idle_connection_is_closed_and_its_slot_freed() {
 }
 
 /// Floods the server from its own address with name requests and never
-/// reads; reconnects whenever the server closes it, until `stop`.
+/// reads, until the server closes the connection (counted in `kicked`) or
+/// `stop`.
 fn flood(server: SocketAddr, request: Vec<u8>, stop: Arc<AtomicBool>, kicked: Arc<AtomicU64>) {
     let rt = tokio::runtime::Builder::new_current_thread()
         .enable_all()
@@ -292,23 +293,15 @@ fn flood(server: SocketAddr, request: Vec<u8>, stop: Arc<AtomicBool>, kicked: Ar
         .take(request.len() * 500)
         .collect();
     rt.block_on(async move {
+        let mut s = connect_from(Ipv4Addr::new(127, 0, 0, 99), server)
+            .await
+            .unwrap();
         while !stop.load(Ordering::Relaxed) {
-            let Ok(mut s) = connect_from(Ipv4Addr::new(127, 0, 0, 99), server).await else {
-                tokio::time::sleep(Duration::from_millis(10)).await;
-                continue;
-            };
-            loop {
-                if stop.load(Ordering::Relaxed) {
-                    return;
-                }
-                let write = tokio::time::timeout(Duration::from_millis(100), s.write_all(&burst));
-                match write.await {
-                    Ok(Ok(())) | Err(_) => {}
-                    Ok(Err(_)) => {
-                        kicked.fetch_add(1, Ordering::Relaxed);
-                        break;
-                    }
-                }
+            // Bounded, so that `stop` is seen while the socket is full.
+            let write = tokio::time::timeout(Duration::from_millis(100), s.write_all(&burst));
+            if let Ok(Err(_)) = write.await {
+                kicked.fetch_add(1, Ordering::Relaxed);
+                return;
             }
         }
     });
@@ -388,6 +381,11 @@ async fn a_peer_that_floods_and_never_reads_loses_only_its_own_link() {
         let (loaded, loaded_lost) = rpcs(&port, &route, RPCS).await;
         let loaded = p99(loaded);
         let took = started.elapsed();
+        let flooded = server
+            .listener()
+            .links()
+            .iter()
+            .any(|l| l.peer == "127.0.0.99");
         // The scan finds every runtime; the only failures are routes to
         // the flooder (not a runtime: it answers nothing).
         let flooder_links: Vec<u8> = server
@@ -398,6 +396,14 @@ async fn a_peer_that_floods_and_never_reads_loses_only_its_own_link() {
             .map(|l| l.index)
             .collect();
         let report = netrunner::scan(&client, &options).await.unwrap();
+        // The flooder loses its link for not reading (the stall bound).
+        tokio::time::timeout(
+            PATIENCE,
+            rx.wait_for(|l| !l.iter().any(|l| l.peer == "127.0.0.99")),
+        )
+        .await
+        .expect("the flooder kept its link")
+        .unwrap();
         stop.store(true, Ordering::Relaxed);
         flooder.join().unwrap();
         assert_eq!(report.map.runtimes.len(), runtimes, "{:?}", report.failures);
@@ -414,8 +420,10 @@ async fn a_peer_that_floods_and_never_reads_loses_only_its_own_link() {
             .unwrap();
         let line = format!(
             "p99 of {RPCS} name requests: {quiet:?} alone ({quiet_lost} lost), {loaded:?} \
-             beside the flooder ({loaded_lost} lost; {took:?} in all; the flooder was closed \
-             {} times); the server so far: {} expired, {} link errors, {} link closed",
+             beside the flooder ({loaded_lost} lost; {took:?} in all; the flooder was {} by \
+             the end, and saw its connection closed {} times); the server so far: {} expired, \
+             {} link errors, {} link closed",
+            if flooded { "still connected" } else { "closed" },
             kicked.load(Ordering::Relaxed),
             counters.expired,
             counters.link_errors,
