@@ -49,7 +49,7 @@ pub const CONNECT_TIMEOUT: Duration = Duration::from_secs(5);
 pub const IDLE_TIMEOUT: Duration = Duration::from_secs(60);
 /// How long one frame's write may take before the peer counts as not
 /// reading and its connection is closed, by default.
-pub const STALL_TIMEOUT: Duration = Duration::from_secs(2);
+pub const STALL_TIMEOUT: Duration = Duration::from_secs(5);
 /// Connections a listener serves at once, by default.
 pub const MAX_CONNECTIONS: usize = 16;
 /// How long a connection past the limit waits for one to end before it is
