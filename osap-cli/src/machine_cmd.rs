@@ -45,6 +45,10 @@ pub struct Target {
     /// Connect over TCP (repeatable), e.g. to `osap serve`.
     #[arg(long = "tcp", value_name = "ADDR", conflicts_with = "sim")]
     pub tcp: Vec<String>,
+    /// Key file for --tcp servers that require one (`osap serve --key`;
+    /// docs/security.md).
+    #[arg(long, value_name = "FILE", requires = "tcp")]
+    pub key: Option<PathBuf>,
 }
 
 impl Target {
@@ -74,7 +78,20 @@ impl Target {
                     baud: self.baud,
                 })
                 .collect();
-            links.extend(self.tcp.iter().map(|a| Link::Tcp(a.clone())));
+            let key = match &self.key {
+                Some(file) => Some(
+                    osap_host::link::noise::Key::load(file)
+                        .map_err(|e| Failure::refused(e.to_string()))?,
+                ),
+                None => None,
+            };
+            links.extend(self.tcp.iter().map(|a| match &key {
+                Some(key) => Link::TcpKeyed {
+                    addr: a.clone(),
+                    key: key.clone(),
+                },
+                None => Link::Tcp(a.clone()),
+            }));
             if links.is_empty() {
                 let found =
                     serial::available_ports().map_err(|e| Failure::refused(e.to_string()))?;

@@ -8,6 +8,10 @@ use osap_machine::machine::Link;
 use osap_machine::{Machine, MachineError};
 use osap_sim::machine::SimMachine;
 
+/// The real-time machines of these tests run one at a time: two at once on
+/// a 2-core machine starve each other's timers.
+static REAL_TIME: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 fn mill() -> MachineFile {
     MachineFile::load(concat!(
         env!("CARGO_MANIFEST_DIR"),
@@ -36,6 +40,7 @@ async fn square(m: &Machine) -> Result<Vec<f64>, MachineError> {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn the_same_script_runs_on_connect() {
+    let _one_at_a_time = REAL_TIME.lock().await;
     let cfg = mill();
     // Another host serves the simulated mill over TCP, as `osap serve`
     // does: it is the machine's clock root, and the connecting host
@@ -110,4 +115,46 @@ async fn connect_without_links_or_modules_says_why() {
         "{e}"
     );
     assert!(e.to_string().contains("mill-x"), "{e}");
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_keyed_server_takes_only_clients_with_its_key() {
+    let _one_at_a_time = REAL_TIME.lock().await;
+    use osap_host::link::noise::Key;
+    use osap_host::link::stream::ListenOptions;
+    let cfg = mill();
+    let server = Host::start(HostConfig::named("server")).unwrap();
+    let topology = osap_machine::sim::topology(&cfg).unwrap();
+    let _sim = SimMachine::start(&server, &topology).await.unwrap();
+    let key = Key::from_bytes([7; 32]);
+    let listener = osap_host::link::tcp::listen_with(
+        &server,
+        "127.0.0.1:0".parse().unwrap(),
+        ListenOptions {
+            key: Some(key.clone()),
+            ..ListenOptions::default()
+        },
+    )
+    .await
+    .unwrap();
+    let addr = listener.socket_addr().unwrap().to_string();
+
+    // The wrong key, or none: no machine.
+    let wrong = Link::TcpKeyed {
+        addr: addr.clone(),
+        key: Key::from_bytes([8; 32]),
+    };
+    assert!(Machine::connect(&cfg, &[wrong]).await.is_err());
+    assert!(Machine::connect(&cfg, &[Link::Tcp(addr.clone())])
+        .await
+        .is_err());
+
+    // The right key: the same machine as over a plain loopback link.
+    let m = Machine::connect(&cfg, &[Link::TcpKeyed { addr, key }])
+        .await
+        .unwrap();
+    assert_eq!(m.modules()["x"].runtime, "mill-x");
+    m.set_position([100.0, 100.0, -10.0]).unwrap();
+    m.goto_now([101.0, 100.0, -10.0], 20.0).await.unwrap();
+    m.stop().await.unwrap();
 }

@@ -85,18 +85,29 @@ fn names_module(e: &MachineEvent, module: &str) -> bool {
     }
 }
 
-/// Injects `fault` while a square runs, expects the machine to fault on
-/// `module`, checks the stop, then lifts the fault with `lift` and recovers.
+/// A way to lose a module: the fault, what lifts it (if anything does),
+/// and the module lost.
+struct Loss {
+    fault: Fault,
+    lift: Option<Fault>,
+    module: &'static str,
+}
+
+/// Injects the loss's fault while a move runs, expects the machine to fault
+/// on its module, checks the stop, then lifts the fault and recovers.
 async fn lose_module_mid_move(
     m: &Machine,
     cfg: &MachineFile,
     faults: &FaultInjector,
     events: &mut broadcast::Receiver<MachineEvent>,
     tally: &mut Tally,
-    fault: Fault,
-    lift: Option<Fault>,
-    module: &str,
+    loss: Loss,
 ) {
+    let Loss {
+        fault,
+        lift,
+        module,
+    } = loss;
     drain(events);
     // Across the sheet, slowly enough that the fault lands mid-move.
     let p = m.position();
@@ -235,39 +246,24 @@ async fn soak(rounds: usize) -> Tally {
         }
 
         // A cut link, a frozen loop, a power cycle.
-        lose_module_mid_move(
-            &m,
-            &cfg,
-            &faults,
-            &mut events,
-            &mut tally,
-            Fault::Cut("hub-b".into()),
-            Some(Fault::Restore("hub-b".into())),
-            "b",
-        )
-        .await;
-        lose_module_mid_move(
-            &m,
-            &cfg,
-            &faults,
-            &mut events,
-            &mut tally,
-            Fault::Freeze("a".into()),
-            Some(Fault::Thaw("a".into())),
-            "a",
-        )
-        .await;
-        lose_module_mid_move(
-            &m,
-            &cfg,
-            &faults,
-            &mut events,
-            &mut tally,
-            Fault::Reset("b".into()),
-            None,
-            "b",
-        )
-        .await;
+        let loss = Loss {
+            fault: Fault::Cut("hub-b".into()),
+            lift: Some(Fault::Restore("hub-b".into())),
+            module: "b",
+        };
+        lose_module_mid_move(&m, &cfg, &faults, &mut events, &mut tally, loss).await;
+        let loss = Loss {
+            fault: Fault::Freeze("a".into()),
+            lift: Some(Fault::Thaw("a".into())),
+            module: "a",
+        };
+        lose_module_mid_move(&m, &cfg, &faults, &mut events, &mut tally, loss).await;
+        let loss = Loss {
+            fault: Fault::Reset("b".into()),
+            lift: None,
+            module: "b",
+        };
+        lose_module_mid_move(&m, &cfg, &faults, &mut events, &mut tally, loss).await;
         // Whatever happened, the machine still draws.
         square(&m).await.unwrap();
         tally.squares += 1;

@@ -247,6 +247,23 @@ impl FunctionHandle {
     /// own refusal ([`SomError::Remote`], e.g. a lossy conversion or the
     /// function failing), no reply, or a malformed reply.
     pub async fn call(&self, args: &[OwnedValue]) -> Result<Vec<OwnedValue>, SomError> {
+        self.call_once_or_more(args, false).await
+    }
+
+    /// [`call`](Self::call) for a function whose effect does not depend on
+    /// how often it runs (a getter, or a setter of a value): a request or
+    /// reply lost on the way is retried on timeout, as the manager's own
+    /// idempotent requests are. Never use it for a function that queues or
+    /// counts what it is given.
+    pub async fn call_idempotent(&self, args: &[OwnedValue]) -> Result<Vec<OwnedValue>, SomError> {
+        self.call_once_or_more(args, true).await
+    }
+
+    async fn call_once_or_more(
+        &self,
+        args: &[OwnedValue],
+        idempotent: bool,
+    ) -> Result<Vec<OwnedValue>, SomError> {
         if args.len() != self.inputs.len() {
             return Err(SomError::BadArguments {
                 function: self.target.function.clone(),
@@ -267,7 +284,7 @@ impl FunctionHandle {
         let body = encode_args(&self.target.function, ControlKey::Call, &indexed)?;
         let reply = self
             .control
-            .ask_raw(&self.target, "call", &body, false)
+            .ask_raw(&self.target, "call", &body, idempotent)
             .await?;
         match reply.body(&self.target, "call", ControlKey::Call)? {
             ReplyBody::Returned(outs) => self.outputs_of(&outs),

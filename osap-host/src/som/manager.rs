@@ -601,8 +601,9 @@ impl Manager {
                     detail: format!("slot {}: the model's route is not valid", p.slot),
                 })?;
                 let request = Request::SetPipe { slot: p.slot, pipe };
+                // Its own slot: setting it twice sets it once.
                 self.control
-                    .ask(&at, "set pipe", &request, false)
+                    .ask(&at, "set pipe", &request, true)
                     .await?
                     .body(&at, "set pipe", ControlKey::SetPipe)?;
                 installed += 1;

@@ -77,6 +77,14 @@ pub enum Link {
     },
     /// A TCP link to a network (for example `osap serve`).
     Tcp(String),
+    /// A TCP link to a network that requires a key (`osap serve --key`):
+    /// the Noise handshake proves this end holds it (docs/security.md).
+    TcpKeyed {
+        /// `host:port`.
+        addr: String,
+        /// The key the server was given.
+        key: osap_host::link::noise::Key,
+    },
 }
 
 /// Options of [`Machine::simulate_with`].
@@ -187,26 +195,29 @@ impl Machine {
         // Over serial the modules are ours and this host is their clock
         // root; over TCP only, the machine is served and its host is the
         // root: follow it, and trust no other link.
-        let served = links.iter().all(|l| matches!(l, Link::Tcp(_)));
+        let served = links
+            .iter()
+            .all(|l| matches!(l, Link::Tcp(_) | Link::TcpKeyed { .. }));
         let mut config = HostConfig::named(HOST_NAME);
         config.time.root = !served;
         let host = Host::start(config)?;
         let mut handles = Vec::new();
         for link in links {
-            match link {
+            let l = match link {
                 Link::Serial { path, baud } => {
                     let l = osap_host::link::serial::spawn_serial(&host, path, *baud).await?;
                     l.probe(&host, Duration::from_millis(500)).await?;
-                    handles.push(l);
+                    l
                 }
-                Link::Tcp(addr) => {
-                    let l = osap_host::link::tcp::connect(&host, addr).await?;
-                    if served {
-                        host.trust_time_link(l.index()).await?;
-                    }
-                    handles.push(l);
+                Link::Tcp(addr) => osap_host::link::tcp::connect(&host, addr).await?,
+                Link::TcpKeyed { addr, key } => {
+                    osap_host::link::tcp::connect_with_key(&host, addr, key).await?
                 }
+            };
+            if served {
+                host.trust_time_link(l.index()).await?;
             }
+            handles.push(l);
         }
         if served {
             // Points are stamped in this host's time: it must follow the
@@ -1031,15 +1042,17 @@ impl Machine {
         }
         let mut at = Vec::new();
         for motor in &motors {
-            self.call(&motor.module, "set_enable", &[OwnedValue::Bool(false)])
+            self.call_idempotent(&motor.module, "set_enable", &[OwnedValue::Bool(false)])
                 .await?;
-            self.call(
+            self.call_idempotent(
                 &motor.module,
                 "set_enable",
                 &[OwnedValue::Bool(motor.enable)],
             )
             .await?;
-            let out = self.call(&motor.module, "get_position", &[]).await?;
+            let out = self
+                .call_idempotent(&motor.module, "get_position", &[])
+                .await?;
             at.push(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0));
         }
         let mut m = lock_motion(&self.inner.motion);
@@ -1070,6 +1083,28 @@ impl Machine {
         function: &str,
         args: &[OwnedValue],
     ) -> Result<Vec<OwnedValue>, MachineError> {
+        self.call_as(key, function, args, false).await
+    }
+
+    /// [`call`](Self::call) for a function that sets or reads a value,
+    /// asked again if its reply is lost (a noisy link must not fail a
+    /// recovery).
+    async fn call_idempotent(
+        &self,
+        key: &str,
+        function: &str,
+        args: &[OwnedValue],
+    ) -> Result<Vec<OwnedValue>, MachineError> {
+        self.call_as(key, function, args, true).await
+    }
+
+    async fn call_as(
+        &self,
+        key: &str,
+        function: &str,
+        args: &[OwnedValue],
+        idempotent: bool,
+    ) -> Result<Vec<OwnedValue>, MachineError> {
         let runtime = &self
             .inner
             .modules
@@ -1092,9 +1127,12 @@ impl Machine {
             .lock()
             .await
             .function(&FnRef::new(runtime.as_str(), function))?;
-        h.call(args)
-            .await
-            .map_err(|e| som_refusal(key, function, e))
+        let result = if idempotent {
+            h.call_idempotent(args).await
+        } else {
+            h.call(args).await
+        };
+        result.map_err(|e| som_refusal(key, function, e))
     }
 
     /// Starts keeping what was planned and what the motors stepped, for
@@ -1277,8 +1315,9 @@ async fn configure_motor(
         let h = manager.function(&FnRef::new(runtime, f));
         let module = motor.module.clone();
         async move {
+            // Each sets a value or reads one: a lost reply is asked again.
             h.map_err(MachineError::Network)?
-                .call(&args)
+                .call_idempotent(&args)
                 .await
                 .map_err(|e| som_refusal(&module, f, e))
         }
