@@ -3,8 +3,8 @@
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
 use osap_core::route::Route;
-use osap_host::link::stream::LinkHandle;
 use osap_host::link::noise::Key;
+use osap_host::link::stream::LinkHandle;
 use osap_host::link::{serial, tcp, udp};
 use osap_host::map::NetworkMap;
 use osap_host::netrunner::{self, Netrunner, ScanOptions, ScanReport};

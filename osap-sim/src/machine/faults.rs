@@ -118,8 +118,12 @@ pub struct CorruptionStats {
     /// as a frame error; a flipped byte that forms a delimiter can make one
     /// frame two errors).
     pub rejected: u64,
-    /// Frame errors the receivers counted for them.
+    /// Frame errors the receivers counted for them, once they arrived (a
+    /// frame still on the wire is not counted yet).
     pub frame_errors: u64,
+    /// Corrupted frames lost with their link: it went down while they were
+    /// on the wire, so no receiver saw them.
+    pub lost_with_link: u64,
     /// Corrupted frames that passed the CRC and were delivered altered
     /// (expected about once in 65 536 corrupted frames).
     pub undetected: u64,
@@ -134,6 +138,7 @@ pub(crate) struct LinkFaults {
     corrupted: AtomicU64,
     rejected: AtomicU64,
     frame_errors: AtomicU64,
+    lost_with_link: AtomicU64,
     undetected: AtomicU64,
 }
 
@@ -151,13 +156,25 @@ impl LinkFaults {
             corrupted: self.corrupted.load(Ordering::Relaxed),
             rejected: self.rejected.load(Ordering::Relaxed),
             frame_errors: self.frame_errors.load(Ordering::Relaxed),
+            lost_with_link: self.lost_with_link.load(Ordering::Relaxed),
             undetected: self.undetected.load(Ordering::Relaxed),
+        }
+    }
+
+    /// A corrupted frame's `frame_errors` reached the receiver (which counts
+    /// them itself), or, if `arrived` is false, were lost with the link.
+    pub(crate) fn landed(&self, frame_errors: u64, arrived: bool) {
+        if arrived {
+            self.frame_errors.fetch_add(frame_errors, Ordering::Relaxed);
+        } else {
+            self.lost_with_link.fetch_add(1, Ordering::Relaxed);
         }
     }
 
     /// Sends `packet` through the real framing with bytes flipped at the
     /// configured rate. Returns the packets the receiver's decoder yields
-    /// and the frame errors it counted.
+    /// and the frame errors it will count when the frame arrives (report
+    /// that with [`landed`](Self::landed)).
     pub(crate) fn pass(&self, rng: &mut Rng, packet: Vec<u8>) -> (Vec<Vec<u8>>, u64) {
         let rate = self.corruption();
         if rate <= 0.0 || packet.len() > MAX_PACKET {
@@ -194,7 +211,6 @@ impl LinkFaults {
             errors += 1;
         }
         self.corrupted.fetch_add(1, Ordering::Relaxed);
-        self.frame_errors.fetch_add(errors, Ordering::Relaxed);
         if !out.contains(&packet) {
             self.rejected.fetch_add(1, Ordering::Relaxed);
         }
@@ -295,6 +311,9 @@ mod tests {
         for _ in 0..2_000 {
             let (out, e) = faults.pass(&mut rng, packet.clone());
             delivered += out.iter().filter(|p| **p == packet).count() as u64;
+            if e > 0 {
+                faults.landed(e, true);
+            }
             errors += e;
         }
         let s = faults.stats();

@@ -272,8 +272,13 @@ impl Carrier {
             let to = self.to.clone();
             let generation = self.generation.clone();
             let started = self.started;
+            let faults = self.faults.clone();
             self.wire.at(self.instant(transit.visible_ns), move || {
-                if generation.load(Ordering::Acquire) == started {
+                let arrived = generation.load(Ordering::Acquire) == started;
+                if frame_errors > 0 {
+                    faults.landed(frame_errors, arrived);
+                }
+                if arrived {
                     if frame_errors > 0 {
                         to.count_frame_errors(frame_errors);
                     }
