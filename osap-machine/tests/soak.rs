@@ -36,6 +36,7 @@ struct Tally {
     faults_heard: usize,
     frames_corrupted: u64,
     frame_errors: u64,
+    /// Packets received at both ends of the two belt UARTs, whole run.
     packets_received: u64,
 }
 
@@ -242,7 +243,6 @@ async fn soak(rounds: usize) -> Tally {
                 "{link}: {c:?} {a:?} {b:?}"
             );
             assert!(c.frame_errors >= c.rejected, "{link}: {c:?}");
-            tally.packets_received += a.received + b.received;
         }
         // Two points lost at the very end of a move can leave a module
         // parked a hair from where the host holds the axis: it refuses the
@@ -300,6 +300,8 @@ async fn soak(rounds: usize) -> Tally {
         let c = faults.corruption(link).unwrap();
         tally.frames_corrupted += c.corrupted;
         tally.frame_errors += c.frame_errors;
+        let [a, b] = faults.link_stats(link).unwrap();
+        tally.packets_received += a.received + b.received;
     }
     m.stop().await.unwrap();
     tally
