@@ -2,16 +2,10 @@
 //! prints one line per link: packets in and out, the runtime's drops, and
 //! the link gateway's own frame counts.
 
-use std::process::Command;
+mod common;
 
-/// The first number after `word ` in `line`.
-fn number_after(line: &str, word: &str) -> Option<u64> {
-    let rest = &line[line.find(word)? + word.len()..];
-    rest.split(|c: char| !c.is_ascii_digit())
-        .find(|s| !s.is_empty())?
-        .parse()
-        .ok()
-}
+use common::number_after;
+use std::process::Command;
 
 #[test]
 fn scan_v_prints_every_links_counters() {

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::Controlled;
+use common::{number_after, Controlled};
 use std::path::PathBuf;
 use std::process::{Command, Output};
 
@@ -65,18 +65,10 @@ fn faults_injected_through_serve_show_in_scans_and_lift() {
     assert_eq!(served.command("corrupt hub-a 0"), "ok corrupt hub-a 0");
     let stats = served.command("stats hub-a");
     assert!(stats.starts_with("ok stats hub-a: corrupted "), "{stats}");
-    let number_after = |key: &str| -> u64 {
-        let at = stats.find(key).unwrap() + key.len();
-        stats[at..]
-            .split(|c: char| !c.is_ascii_digit())
-            .find(|w| !w.is_empty())
-            .unwrap()
-            .parse()
-            .unwrap()
-    };
-    assert!(number_after("corrupted ") > 0, "{stats}");
+    let count = |key: &str| number_after(&stats, key).unwrap();
+    assert!(count("corrupted ") > 0, "{stats}");
     assert!(
-        number_after("frame errors counted ") >= number_after("rejected "),
+        count("frame errors counted ") >= count("rejected "),
         "{stats}"
     );
 

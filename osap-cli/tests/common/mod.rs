@@ -79,3 +79,13 @@ fn spawn(file: &Path, extra: &[&str]) -> (Killed, String, BufReader<ChildStdout>
         .to_string();
     (server, addr, stdout)
 }
+
+/// The first number after `word` in `line`.
+#[allow(dead_code)] // not every test binary reads numbers from output
+pub fn number_after(line: &str, word: &str) -> Option<u64> {
+    let rest = &line[line.find(word)? + word.len()..];
+    rest.split(|c: char| !c.is_ascii_digit())
+        .find(|s| !s.is_empty())?
+        .parse()
+        .ok()
+}
