@@ -11,9 +11,14 @@
 //!   crosses it;
 //! - the **I/O pins** (as on the RP2040 board: 4 digital pins, 2 PWM
 //!   outputs, 3 analog inputs) record what the module writes and read what
-//!   the topology or a test sets.
+//!   the topology or a test sets; an analog input may carry an
+//!   **accelerometer** ([`accel`]) that sees the carriage through a
+//!   mass-spring mode.
+
+pub mod accel;
 
 use super::clock::DriftClock;
+use accel::{Accel, AccelSpec};
 use osap_core::Micros;
 use osap_module::board::{Board, IoHw, StepperHw};
 use serde::{Deserialize, Serialize};
@@ -108,6 +113,10 @@ pub struct IoSpec {
     /// Analog inputs, fractions of full scale `0..=1` (at most 3).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub analog: Vec<f64>,
+    /// An accelerometer on one analog input, seeing this module's carriage
+    /// (`[module.io.accel]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel: Option<AccelSpec>,
 }
 
 impl IoSpec {
@@ -129,6 +138,9 @@ impl IoSpec {
             return Err(format!(
                 "[module.io] analog value {v} must be a fraction of full scale, 0 to 1"
             ));
+        }
+        if let Some(a) = &self.accel {
+            a.check()?;
         }
         Ok(())
     }
@@ -333,6 +345,7 @@ pub struct Pins {
     pwm: [u16; PWM_OUTPUTS as usize],
     writes: Vec<DigitalWrite>,
     pwm_writes: Vec<PwmWrite>,
+    accel: Option<Accel>,
 }
 
 impl Pins {
@@ -352,7 +365,13 @@ impl Pins {
             pwm: [0; PWM_OUTPUTS as usize],
             writes: Vec::new(),
             pwm_writes: Vec::new(),
+            accel: spec.accel.clone().map(Accel::new),
         }
+    }
+
+    /// The accelerometer, if an analog input carries one.
+    pub fn accel(&self) -> Option<&Accel> {
+        self.accel.as_ref()
     }
 
     /// Sets what digital pin `pin` reads (an outside signal); `false` if
@@ -439,11 +458,15 @@ impl IoHw for Pins {
     }
     fn read_analog(&mut self, channel: u8) -> u16 {
         // A 12-bit converter's reading, shifted left by 4, as on the boards.
-        let v = self
-            .analog
-            .get(usize::from(channel))
-            .copied()
-            .unwrap_or(0.0);
+        let now = self.clock.now_us();
+        let v = match &mut self.accel {
+            Some(a) if a.spec().channel == channel => a.read(now),
+            _ => self
+                .analog
+                .get(usize::from(channel))
+                .copied()
+                .unwrap_or(0.0),
+        };
         ((v * 4095.0).round() as u16) << 4
     }
 }
@@ -505,7 +528,11 @@ impl SimBoard {
     /// Takes one step of a step word, at local `local`.
     pub(crate) fn step(&mut self, local: Micros, up: bool) {
         let microsteps = self.driver.microsteps;
+        let before = self.motor.position();
         self.motor.step(local, up, microsteps);
+        if let Some(a) = &mut self.pins.accel {
+            a.step(local, self.motor.position() - before);
+        }
     }
 }
 

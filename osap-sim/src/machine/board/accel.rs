@@ -1,0 +1,265 @@
+//! A simulated accelerometer on a module's analog input, seeing the
+//! module's own carriage through a mass-spring mode.
+//!
+//! The tool (mass) hangs on the carriage through a spring and a damper:
+//!
+//! ```text
+//! y'' = ω² (x − y) + 2ζω (x' − y')      ω = 2π·resonance_hz, ζ = damping_ratio
+//! ```
+//!
+//! where `x` is the carriage (moved by the motor's steps) and `y` the tool.
+//! The carriage moves in steps, so between two steps `x` is constant and the
+//! relative displacement `e = y − x` rings freely; the model integrates that
+//! in closed form (no integrator error, whatever the spacing of steps and
+//! readings). A step of `Δ` moves `x` at once: `e` drops by `Δ`, and the
+//! damper's impulse adds `2ζωΔ` to the tool's velocity.
+//!
+//! A reading is the tool's mean acceleration since the previous reading,
+//! `(y'(now) − y'(before)) / (now − before)`, as an accelerometer with a
+//! boxcar (averaging) filter reports it: no step's impulse is missed, and
+//! the converter does not alias the steps' fine structure. It is mapped to
+//! a fraction of full scale as `0.5 + a / (2·range)` and clamped, so the
+//! module's own `analog_read` reads it through the 12-bit converter.
+
+use osap_core::Micros;
+use serde::{Deserialize, Serialize};
+use std::collections::VecDeque;
+use std::f64::consts::PI;
+
+/// An accelerometer on a module's analog input (`[module.io.accel]` in a
+/// topology file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccelSpec {
+    /// The analog input it is wired to (0..=2).
+    pub channel: u8,
+    /// The mode's natural frequency, Hz (> 0).
+    pub resonance_hz: f64,
+    /// The mode's damping ratio (≥ 0).
+    pub damping_ratio: f64,
+    /// Acceleration at full scale, carriage units/s² (> 0): a reading of
+    /// 0 is `−range`, 1 is `+range`, 0.5 is at rest.
+    pub range: f64,
+    /// Axis units per carriage unit (±1 for an axis on this motor alone; a
+    /// CoreXY belt motor moves with x and y alike). The sensor measures
+    /// along the axis, so its reading is the carriage's times this.
+    #[serde(default = "one")]
+    pub coef: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl AccelSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if self.channel >= super::ANALOG_INPUTS {
+            return Err(format!(
+                "[module.io.accel] channel {} does not exist: a module has analog inputs 0 to {}",
+                self.channel,
+                super::ANALOG_INPUTS - 1
+            ));
+        }
+        if !(self.resonance_hz.is_finite() && self.resonance_hz > 0.0) {
+            return Err(format!(
+                "[module.io.accel] resonance_hz {} must be finite and positive",
+                self.resonance_hz
+            ));
+        }
+        if !(self.damping_ratio.is_finite() && self.damping_ratio >= 0.0) {
+            return Err(format!(
+                "[module.io.accel] damping_ratio {} must be finite and 0 or more",
+                self.damping_ratio
+            ));
+        }
+        if !(self.range.is_finite() && self.range > 0.0) {
+            return Err(format!(
+                "[module.io.accel] range {} must be finite and positive (units/s² at full scale)",
+                self.range
+            ));
+        }
+        if !(self.coef.is_finite() && self.coef != 0.0) {
+            return Err(format!(
+                "[module.io.accel] coef {} must be finite and not 0",
+                self.coef
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The running model.
+#[derive(Debug, Clone)]
+pub struct Accel {
+    spec: AccelSpec,
+    omega: f64,
+    /// Relative displacement `e = y − x`, axis units.
+    e: f64,
+    /// The tool's velocity, axis units/s (equal to `e'` between steps).
+    v: f64,
+    /// Local time the state is at, µs.
+    at: Micros,
+    /// Steps clocked out but not yet due: (local µs, axis units moved).
+    pending: VecDeque<(Micros, f64)>,
+    /// The tool's velocity and the time at the previous reading.
+    last_read: Option<(Micros, f64)>,
+}
+
+impl Accel {
+    /// An accelerometer at rest at local time 0.
+    pub fn new(spec: AccelSpec) -> Self {
+        let omega = 2.0 * PI * spec.resonance_hz;
+        Accel {
+            spec,
+            omega,
+            e: 0.0,
+            v: 0.0,
+            at: 0,
+            pending: VecDeque::new(),
+            last_read: None,
+        }
+    }
+
+    /// What it is.
+    pub fn spec(&self) -> &AccelSpec {
+        &self.spec
+    }
+
+    /// The carriage moved by `delta` carriage units at local `local` (the
+    /// step generator clocks steps out ahead of time; they act when due).
+    pub(crate) fn step(&mut self, local: Micros, delta: f64) {
+        self.pending.push_back((local, delta * self.spec.coef));
+    }
+
+    /// Rings the free mode for `dt` seconds (exact for any damping).
+    fn ring(&mut self, dt: f64) {
+        if dt <= 0.0 {
+            return;
+        }
+        let (w, z) = (self.omega, self.spec.damping_ratio);
+        let sigma = z * w;
+        let decay = (-sigma * dt).exp();
+        // c: cos-like term; s: sin(ω_d t)/ω_d-like term (also for ζ ≥ 1).
+        let (c, s) = if z < 1.0 {
+            let wd = w * (1.0 - z * z).sqrt();
+            ((wd * dt).cos(), (wd * dt).sin() / wd)
+        } else if z > 1.0 {
+            let wd = w * (z * z - 1.0).sqrt();
+            ((wd * dt).cosh(), (wd * dt).sinh() / wd)
+        } else {
+            (1.0, dt)
+        };
+        let (e0, v0) = (self.e, self.v);
+        self.e = decay * (e0 * c + (v0 + sigma * e0) * s);
+        self.v = decay * (v0 * c - (sigma * v0 + w * w * e0) * s);
+    }
+
+    /// Advances the model to local `now`, applying the steps due.
+    fn advance(&mut self, now: Micros) {
+        while let Some(&(t, d)) = self.pending.front() {
+            if t > now {
+                break;
+            }
+            self.pending.pop_front();
+            let t = t.max(self.at);
+            self.ring((t - self.at) as f64 * 1e-6);
+            self.at = t;
+            self.e -= d;
+            self.v += 2.0 * self.spec.damping_ratio * self.omega * d;
+        }
+        if now > self.at {
+            self.ring((now - self.at) as f64 * 1e-6);
+            self.at = now;
+        }
+    }
+
+    /// The mean acceleration since the previous reading at local `now`,
+    /// axis units/s² (0 for the first reading).
+    pub fn acceleration(&mut self, now: Micros) -> f64 {
+        self.advance(now);
+        let a = match self.last_read {
+            Some((t, v)) if now > t => (self.v - v) / ((now - t) as f64 * 1e-6),
+            _ => 0.0,
+        };
+        if self.last_read.is_none_or(|(t, _)| now > t) {
+            self.last_read = Some((now, self.v));
+        }
+        a
+    }
+
+    /// A reading at local `now` as a fraction of full scale (`0..=1`).
+    pub fn read(&mut self, now: Micros) -> f64 {
+        let a = self.acceleration(now);
+        (0.5 + a / (2.0 * self.spec.range)).clamp(0.0, 1.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(f: f64, z: f64) -> AccelSpec {
+        AccelSpec {
+            channel: 0,
+            resonance_hz: f,
+            damping_ratio: z,
+            range: 1e6,
+            coef: 1.0,
+        }
+    }
+
+    /// A carriage stepped along a sine: the steady-state amplitude ratio of
+    /// the tool's acceleration to the carriage's is the base-excitation
+    /// transmissibility `|(1 + 2jζr)/(1 − r² + 2jζr)|`.
+    #[test]
+    fn transmissibility_of_a_stepped_sine() {
+        for &(f, z, r) in &[(40.0, 0.05, 1.0), (40.0, 0.1, 0.5), (40.0, 0.2, 1.5)] {
+            let mut a = Accel::new(spec(f, z));
+            let fin = f * r;
+            let w = 2.0 * PI * fin;
+            let amp = 1.0;
+            let q = 1e-4; // step size: its impulses are noise
+            let mut pos = 0.0_f64;
+            let mut peak: f64 = 0.0;
+            let total_us = 4_000_000u64;
+            let mut t = 0;
+            while t < total_us {
+                let want = amp * (w * t as f64 * 1e-6).sin();
+                while (want - pos).abs() >= q {
+                    let d = q * (want - pos).signum();
+                    pos += d;
+                    a.step(t, d);
+                }
+                if t % 100 == 0 {
+                    let acc = a.acceleration(t);
+                    if t > total_us / 2 {
+                        peak = peak.max(acc.abs());
+                    }
+                }
+                t += 1;
+            }
+            let num = (1.0f64).hypot(2.0 * z * r);
+            let den = (1.0 - r * r).hypot(2.0 * z * r);
+            let want = amp * w * w * num / den;
+            // The 100 µs boxcar lowers a sine's peak by sinc(f·100 µs).
+            let x = PI * fin * 1e-4;
+            let want = want * x.sin() / x;
+            assert!(
+                (peak / want - 1.0).abs() < 0.01,
+                "f {f} z {z} r {r}: peak {peak} want {want}"
+            );
+        }
+    }
+
+    #[test]
+    fn bad_specs_are_named() {
+        let mut s = spec(40.0, 0.1);
+        s.channel = 3;
+        assert!(s.check().unwrap_err().contains("channel"));
+        let mut s = spec(40.0, 0.1);
+        s.range = 0.0;
+        assert!(s.check().unwrap_err().contains("range"));
+        assert!(spec(0.0, 0.1).check().unwrap_err().contains("resonance_hz"));
+    }
+}
