@@ -153,6 +153,9 @@ pub struct MachineFile {
     /// Simulation settings, used only when the machine runs in simulation.
     #[serde(default)]
     pub sim: Option<Sim>,
+    /// A bed probe, for `osap level` ([`crate::level`]).
+    #[serde(default)]
+    pub probe: Option<crate::level::Probe>,
 }
 
 /// How to find a module on the network: by name or by route (exactly one).
@@ -421,6 +424,10 @@ pub struct Sim {
     /// Per-axis simulation settings, by axis name.
     #[serde(default)]
     pub axes: BTreeMap<String, SimAxis>,
+    /// A tilted, warped bed that the simulated probe touches
+    /// ([`crate::level::SimBed`]).
+    #[serde(default)]
+    pub bed: Option<crate::level::SimBed>,
 }
 
 /// An axis in simulation (`[sim.axes.NAME]`): where its carriage stands at
@@ -637,6 +644,7 @@ impl MachineFile {
         self.validate_limits()?;
         self.validate_tools()?;
         self.validate_sim()?;
+        crate::level::validate(self)?;
         if let Some(mesh) = &self.bed_mesh {
             if mesh.as_os_str().is_empty() {
                 return Err(invalid(

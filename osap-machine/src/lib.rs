@@ -20,6 +20,7 @@
 //!   queued lines and arcs, tools, halt, events, feed override), the same
 //!   on simulated modules and on hardware;
 //! - [`mesh`]: bed mesh files, which the machine follows in z;
+//! - [`level`]: bed levelling: probe a grid, fit and save a mesh, plot it;
 //! - [`job`]: a G-code program or SVG drawing as a checked machine
 //!   [`job::Program`], and running it.
 #![deny(missing_docs)]
@@ -27,6 +28,7 @@
 pub mod config;
 pub mod gcode;
 pub mod job;
+pub mod level;
 pub mod machine;
 pub mod mesh;
 pub mod record;

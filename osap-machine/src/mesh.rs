@@ -61,6 +61,34 @@ pub fn parse(text: &str) -> Result<BedMesh, String> {
     Ok(mesh)
 }
 
+/// The mesh as a mesh file's text, `header` (lines) as comments on top.
+/// Unprobed nodes are written as 0.
+pub fn to_toml(mesh: &BedMesh, header: &str) -> String {
+    let g = mesh.grid();
+    let mut s = String::new();
+    for line in header.lines() {
+        s.push_str(&format!("# {line}\n"));
+    }
+    s.push_str(&format!(
+        "x0 = {:?}\ny0 = {:?}\ndx = {:?}\ndy = {:?}\nz = [\n",
+        g.x0, g.y0, g.dx, g.dy
+    ));
+    for iy in 0..g.ny {
+        let row: Vec<String> = (0..g.nx)
+            .map(|ix| format!("{:.5}", mesh.probe(ix, iy).unwrap_or(0.0)))
+            .collect();
+        s.push_str(&format!("  [{}],   # y = {:.3}\n", row.join(", "), g.node(0, iy).1));
+    }
+    s.push_str("]\n");
+    s
+}
+
+/// Writes the mesh to `path` ([`to_toml`]); the error names the file.
+pub fn save(path: &Path, mesh: &BedMesh, header: &str) -> Result<(), String> {
+    std::fs::write(path, to_toml(mesh, header))
+        .map_err(|e| format!("writing bed mesh {}: {e}", path.display()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -47,6 +47,7 @@ use std::collections::BTreeMap;
 
 use osap_core::netresponder::NAME_MAX;
 use osap_host::HostError;
+use osap_sim::machine::bed::BedContact;
 use osap_sim::machine::board::{IoSpec, MotorSpec, DRIVER_MICROSTEPS};
 use osap_sim::machine::{LinkKind, LinkSpec, ModuleSpec, SwitchSpec, Topology, HOST, MODULE_LINKS};
 
@@ -364,6 +365,39 @@ pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
             offset: form.offset,
             at: placement.position,
             pressed_below: placement.direction == Direction::Min,
+            bed: None,
+        });
+    }
+
+    // The bed probe: pressed while its tip is at or below the bed.
+    let bed = cfg.sim.as_ref().and_then(|s| s.bed.as_ref());
+    if let (Some(probe), Some(bed)) = (&cfg.probe, bed) {
+        let (Some(surface), Some(module)) = (bed.surface(cfg), module_name(cfg, &probe.module))
+        else {
+            return Err(unsupported(
+                "probe",
+                "a simulated probe needs axes x and y and its module in [modules]",
+            ));
+        };
+        let [ox, oy, oz] = probe.offset;
+        let (x, y, z) = (
+            axis_form(cfg, "x")?,
+            axis_form(cfg, "y")?,
+            axis_form(cfg, "z")?,
+        );
+        t = t.with_switch(SwitchSpec {
+            module: module.to_string(),
+            terms: z.terms,
+            offset: z.offset + oz,
+            at: 0.0,
+            pressed_below: true,
+            bed: Some(BedContact {
+                x_terms: x.terms,
+                x_offset: x.offset + ox,
+                y_terms: y.terms,
+                y_offset: y.offset + oy,
+                surface,
+            }),
         });
     }
 
@@ -502,7 +536,9 @@ mod tests {
         assert!(spec("mill-x").io.is_none());
         // Three switches at the max ends, each over its own motor; y's motor
         // is inverted. Starts: the middles of the travels.
-        assert_eq!(t.switches.len(), 3);
+        // And the bed probe on z's input (mill.toml's [probe], [sim.bed]).
+        assert_eq!(t.switches.len(), 4);
+        assert!(t.switches[3].bed.is_some());
         let x = &t.switches[0];
         assert_eq!(
             x,

@@ -198,6 +198,17 @@ impl Drive {
         Ok(self)
     }
 
+    /// Replaces the bed mesh (or drops it) keeping the offsets: the same
+    /// motor positions then read as another machine z.
+    pub(crate) fn set_mesh(&mut self, mesh: Option<BedMesh>) {
+        self.mesh = mesh;
+    }
+
+    /// The bed mesh followed, if any.
+    pub fn mesh(&self) -> Option<&BedMesh> {
+        self.mesh.as_ref()
+    }
+
     /// The axis names, in slot order.
     pub fn axes(&self) -> &[String] {
         &self.axes

@@ -98,6 +98,14 @@ pub enum MachineError {
         /// Why.
         reason: String,
     },
+    /// Probing the bed failed (`[probe]`, [`crate::level`]).
+    #[error("probing {point}: {reason}")]
+    Probe {
+        /// Which probe point, and where.
+        point: String,
+        /// Why.
+        reason: String,
+    },
     /// No tool of that name in `[tools]`.
     #[error("no tool {0:?} in [tools]")]
     UnknownTool(String),

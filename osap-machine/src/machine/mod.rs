@@ -23,6 +23,7 @@ pub mod events;
 mod homing;
 pub mod monitor;
 pub mod motion;
+mod probing;
 mod tool;
 
 use std::collections::BTreeMap;
@@ -388,6 +389,7 @@ impl Machine {
             .axes
             .values()
             .filter_map(|a| a.homing.as_ref()?.switch.as_deref())
+            .chain(cfg.probe.as_ref().map(|p| p.module.as_str()))
             .collect();
         switch_modules.sort();
         switch_modules.dedup();

@@ -199,6 +199,7 @@
 //! [`SimModule::restart`] boots it again: a fresh runtime, its clock
 //! restarting from its boot value, the name it last had, its links back up.
 
+pub mod bed;
 pub mod board;
 mod clock;
 pub mod faults;

@@ -37,6 +37,7 @@
 //! moving from the clock reading it took). A motor that stops running is
 //! standing.
 
+use super::bed::{BedContact, BedSurface};
 use super::topology::{SwitchSpec, Topology};
 use super::DriftClock;
 use osap_core::Micros;
@@ -138,7 +139,8 @@ fn watched(topology: &Topology, input: usize) -> Vec<usize> {
     let name = &topology.modules[input].name;
     let mut terms = Vec::new();
     for s in topology.switches.iter().filter(|s| &s.module == name) {
-        for (module, _) in &s.terms {
+        let bed = s.bed.iter().flat_map(|b| b.x_terms.iter().chain(&b.y_terms));
+        for (module, _) in s.terms.iter().chain(bed) {
             if let Some(i) = topology.module_index(module) {
                 if !terms.contains(&i) {
                     terms.push(i);
@@ -250,6 +252,26 @@ struct Switch {
     offset: f64,
     at: f64,
     pressed_below: bool,
+    /// A bed probe's contact, its forms over slots.
+    bed: Option<BedSlots>,
+}
+
+/// A [`BedContact`] whose forms name slots of the input's motors.
+#[derive(Clone)]
+struct BedSlots {
+    x: Vec<(usize, f64)>,
+    x_offset: f64,
+    y: Vec<(usize, f64)>,
+    y_offset: f64,
+    surface: BedSurface,
+}
+
+fn form(terms: &[(usize, f64)], offset: f64, positions: &[f64]) -> f64 {
+    offset
+        + terms
+            .iter()
+            .map(|&(slot, coef)| coef * positions[slot])
+            .sum::<f64>()
 }
 
 impl Switch {
@@ -260,10 +282,17 @@ impl Switch {
                 .iter()
                 .map(|&(slot, coef)| coef * positions[slot])
                 .sum::<f64>();
+        let at = self.at
+            + self.bed.as_ref().map_or(0.0, |b| {
+                b.surface.height(
+                    form(&b.x, b.x_offset, positions),
+                    form(&b.y, b.y_offset, positions),
+                )
+            });
         if self.pressed_below {
-            v <= self.at
+            v <= at
         } else {
-            v >= self.at
+            v >= at
         }
     }
 }
@@ -312,20 +341,33 @@ impl Input {
             return None;
         }
         let terms = watched(topology, module);
+        let slot_of = |m: &str| {
+            let i = topology.module_index(m)?;
+            terms.iter().position(|&t| t == i)
+        };
+        let slots = |ts: &[(String, f64)]| -> Vec<(usize, f64)> {
+            ts.iter()
+                .filter_map(|(m, coef)| Some((slot_of(m)?, *coef)))
+                .collect()
+        };
         let switches = specs
             .iter()
             .map(|s| Switch {
                 terms: s
                     .terms
                     .iter()
-                    .filter_map(|(m, coef)| {
-                        let i = topology.module_index(m)?;
-                        Some((terms.iter().position(|&t| t == i)?, *coef))
-                    })
+                    .filter_map(|(m, coef)| Some((slot_of(m)?, *coef)))
                     .collect(),
                 offset: s.offset,
                 at: s.at,
                 pressed_below: s.pressed_below,
+                bed: s.bed.as_ref().map(|b: &BedContact| BedSlots {
+                    x: slots(&b.x_terms),
+                    x_offset: b.x_offset,
+                    y: slots(&b.y_terms),
+                    y_offset: b.y_offset,
+                    surface: b.surface.clone(),
+                }),
             })
             .collect();
         let positions = terms

@@ -103,6 +103,11 @@ pub struct SwitchSpec {
     /// Pressed while the form is at or below `at` (a minimum endstop);
     /// `false`: at or above it.
     pub pressed_below: bool,
+    /// A bed probe: the switch closes at `at` plus the bed's height under
+    /// the probe tip ([`BedContact`](super::bed::BedContact)); absent: at
+    /// `at`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bed: Option<super::bed::BedContact>,
 }
 
 impl SwitchSpec {
@@ -121,6 +126,7 @@ impl SwitchSpec {
             offset,
             at,
             pressed_below,
+            bed: None,
         }
     }
 
@@ -130,12 +136,13 @@ impl SwitchSpec {
     }
 
     /// Whether the switch is pressed with carriages at `position(module)`.
-    pub fn pressed(&self, position: impl FnMut(&str) -> f64) -> bool {
-        let v = self.value(position);
+    pub fn pressed(&self, mut position: impl FnMut(&str) -> f64) -> bool {
+        let v = self.value(&mut position);
+        let at = self.at + self.bed.as_ref().map_or(0.0, |b| b.height(&mut position));
         if self.pressed_below {
-            v <= self.at
+            v <= at
         } else {
-            v >= self.at
+            v >= at
         }
     }
 }
@@ -575,6 +582,12 @@ impl Topology {
                 if !v.is_finite() {
                     return Err(at(format!("{what}: {key} {v} must be finite")));
                 }
+            }
+            if let Some(bed) = &s.bed {
+                for module in bed.modules() {
+                    stepper("bed", module)?;
+                }
+                bed.check().map_err(|e| at(format!("{what}: {e}")))?;
             }
         }
         Ok(())
