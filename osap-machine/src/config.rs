@@ -312,6 +312,14 @@ pub struct Axis {
     /// How to home the axis (no homing when absent).
     #[serde(default)]
     pub homing: Option<Homing>,
+    /// An accelerometer measuring along the axis, for `osap resonance`
+    /// ([`crate::resonance`]).
+    #[serde(default)]
+    pub accelerometer: Option<crate::resonance::Accelerometer>,
+    /// The axis's input shaper, as `osap resonance --write` puts it
+    /// (validated; not yet applied by the planner).
+    #[serde(default)]
+    pub shaper: Option<crate::resonance::AxisShaper>,
 }
 
 /// Which end of its travel an axis homes to.
@@ -644,6 +652,7 @@ impl MachineFile {
         self.validate_limits()?;
         self.validate_tools()?;
         self.validate_sim()?;
+        crate::resonance::validate(self)?;
         crate::level::validate(self)?;
         if let Some(mesh) = &self.bed_mesh {
             if mesh.as_os_str().is_empty() {

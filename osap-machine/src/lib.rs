@@ -32,6 +32,7 @@ pub mod level;
 pub mod machine;
 pub mod mesh;
 pub mod record;
+pub mod resonance;
 pub mod sim;
 pub mod svg;
 

@@ -334,6 +334,14 @@ pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
                 if cfg.tools.values().any(|tool| tool.module == *key) {
                     spec = spec.with_io(IoSpec::default());
                 }
+                // An accelerometer of `osap resonance` on this module.
+                if let Some(accel) =
+                    crate::resonance::sim_accel(cfg, key).map_err(|(k, m)| unsupported(k, m))?
+                {
+                    let mut io = spec.io.clone().unwrap_or_default();
+                    io.accel = Some(accel);
+                    spec = spec.with_io(io);
+                }
                 (name, spec)
             }
         };

@@ -1137,6 +1137,14 @@ impl Machine {
         result.map_err(|e| som_refusal(key, function, e))
     }
 
+    /// Adds `excitation(stamp)` to the planned machine position at every
+    /// control-point stamp from now on (a test signal such as the chirp of
+    /// [`crate::resonance`]; the planner does not see it, so keep the
+    /// machine at rest meanwhile); `None` removes it.
+    pub fn set_excitation(&self, excitation: Option<motion::Excitation>) {
+        lock_motion(&self.inner.motion).excitation = excitation;
+    }
+
     /// Starts keeping what was planned and what the motors stepped, for
     /// [`Machine::take_recording`].
     pub async fn start_recording(&self) -> Result<(), MachineError> {

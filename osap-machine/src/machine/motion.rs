@@ -26,6 +26,11 @@ pub const BAD_STAMP: u8 = 2;
 /// event's time (limit edges): 16 s at 2 ms.
 const RECENT: usize = 8192;
 
+/// A test signal added to the planned machine position at every stamp
+/// (synchronized µs → offset per axis slot), such as the chirp of
+/// [`crate::resonance`].
+pub type Excitation = Box<dyn FnMut(u64) -> [f64; MAX_AXES] + Send>;
+
 /// What the motion source reports after each sample.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct MotionStatus {
@@ -54,6 +59,8 @@ pub struct Motion {
     pub last_motors: Vec<f64>,
     /// Why sampling failed last (kinematics), if it did.
     pub error: Option<String>,
+    /// Added to the planned position at each stamp, while set.
+    pub excitation: Option<Excitation>,
     status: MotionStatus,
     notify: watch::Sender<MotionStatus>,
 }
@@ -84,6 +91,7 @@ impl Motion {
                 recent: VecDeque::with_capacity(RECENT),
                 last_motors: motors,
                 error: None,
+                excitation: None,
                 status: MotionStatus::default(),
                 notify,
             },
@@ -123,7 +131,12 @@ impl Motion {
             return Err(PAUSED);
         }
         let kin = self.planner.sample_kin(stamp).map_err(|_| BAD_STAMP)?;
-        let pos = kin.pos;
+        let mut pos = kin.pos;
+        if let Some(x) = &mut self.excitation {
+            for (p, d) in pos.iter_mut().zip(x(stamp)) {
+                *p += d;
+            }
+        }
         let n = self.drive.axes().len();
         let motors = match self.drive.motor_positions(&pos[..n]) {
             Ok(m) => m,
