@@ -57,11 +57,11 @@ impl Target {
         self.sim && self.fast
     }
 
-    fn load(&self) -> Result<MachineFile, Failure> {
+    pub(crate) fn load(&self) -> Result<MachineFile, Failure> {
         MachineFile::load(&self.machine).map_err(|e| Failure::refused(e.to_string()))
     }
 
-    async fn start(&self, cfg: &MachineFile) -> Result<Machine, Failure> {
+    pub(crate) async fn start(&self, cfg: &MachineFile) -> Result<Machine, Failure> {
         let result = if self.sim {
             let time = if self.fast {
                 TimeMode::Virtual
@@ -120,14 +120,14 @@ pub struct Failure {
 }
 
 impl Failure {
-    fn refused(message: impl Into<String>) -> Failure {
+    pub(crate) fn refused(message: impl Into<String>) -> Failure {
         Failure {
             code: REFUSED,
             message: message.into(),
         }
     }
 
-    fn from_machine(e: MachineError) -> Failure {
+    pub(crate) fn from_machine(e: MachineError) -> Failure {
         let code = match e {
             MachineError::Faulted(_) => MACHINE_FAULT,
             MachineError::Homing { .. } | MachineError::Stopped => FAULTED,

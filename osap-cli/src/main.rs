@@ -15,6 +15,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod level_cmd;
 mod machine_cmd;
 mod serve_cmd;
 mod time_cmd;
@@ -126,6 +127,9 @@ enum Command {
     /// Run a job (G-code or SVG) on a machine: home, run, summarize, and
     /// write planned.csv, executed.csv and plots.
     Run(machine_cmd::RunArgs),
+    /// Level the bed: home, probe the grid of the machine file's [probe],
+    /// fit a mesh, save it (bed_mesh or --mesh) and plot it.
+    Level(level_cmd::LevelArgs),
     /// Home a machine (every axis, or the ones named).
     Home {
         #[command(flatten)]
@@ -361,6 +365,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
     };
     match cli.command {
         Command::Run(args) => machine_result(machine_cmd::run(args, started).await),
+        Command::Level(args) => machine_result(level_cmd::level(args).await),
         Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
         Command::Jog {
             target,
@@ -474,6 +479,7 @@ fn main() -> ExitCode {
     // current-thread runtime; everything else on tokio's default.
     let virtual_time = match &cli.command {
         Command::Run(a) => a.target.virtual_time(),
+        Command::Level(a) => a.target.virtual_time(),
         Command::Home { target, .. }
         | Command::Jog { target, .. }
         | Command::Move { target, .. }

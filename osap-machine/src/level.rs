@@ -540,6 +540,8 @@ pub fn plot(levelled: &Levelled, path: &Path) -> Result<(), String> {
         .configure_mesh()
         .disable_x_axis()
         .disable_mesh()
+        .y_label_style(("sans-serif", 13))
+        .axis_desc_style(("sans-serif", 14))
         .y_desc("height")
         .draw()
         .map_err(|e| err(&e))?;
