@@ -23,8 +23,11 @@
 //! - [`level`]: bed levelling: probe a grid, fit and save a mesh, plot it;
 //! - [`job`]: a G-code program or SVG drawing as a checked machine
 //!   [`job::Program`], and running it.
+//! - [`capture`]: any numeric function output recorded beside a job
+//!   ([`Machine::record`]) to Parquet or CSV, on the synchronized clock.
 #![deny(missing_docs)]
 
+pub mod capture;
 pub mod config;
 pub mod gcode;
 pub mod job;

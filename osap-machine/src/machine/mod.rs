@@ -132,6 +132,8 @@ struct Inner {
     /// Modules that stopped answering since the last recovery: they may
     /// have rebooted, losing their set-up and their step count.
     lost: Mutex<std::collections::BTreeSet<String>>,
+    /// Timers recorders ask of module functions ([`crate::capture`]).
+    capture_holds: crate::capture::Holds,
     _links: Vec<osap_host::link::stream::LinkHandle>,
     watchdog: tokio::task::JoinHandle<()>,
 }
@@ -472,6 +474,7 @@ impl Machine {
                 tools: Mutex::new(tools),
                 sim: Mutex::new(sim),
                 lost: Mutex::default(),
+                capture_holds: Default::default(),
                 _links: links,
                 watchdog,
             }),
@@ -1156,17 +1159,24 @@ impl Machine {
     }
 
     /// Sets the input mode of every motor module's `get_position` source:
-    /// on a timer while recording, idle otherwise.
+    /// on a timer while recording, idle otherwise (or a recorder's timer,
+    /// while one samples it).
     async fn position_reports(&self, mode: InputMode) -> Result<(), MachineError> {
         let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
         let mut manager = self.inner.manager.lock().await;
         for m in motors {
             let runtime = &self.inner.modules[&m.module].runtime;
-            manager
-                .set_input_mode(&FnRef::new(runtime.as_str(), "get_position"), mode)
-                .await?;
+            let f = FnRef::new(runtime.as_str(), "get_position");
+            let mode = self.inner.capture_holds.machine_sets(&f, mode);
+            manager.set_input_mode(&f, mode).await?;
         }
         Ok(())
+    }
+
+    /// Who holds which module function's timer: the recorders'
+    /// ([`crate::capture`]) beside the machine's own reports.
+    pub(crate) fn capture_holds(&self) -> &crate::capture::Holds {
+        &self.inner.capture_holds
     }
 
     /// What was planned and stepped since [`Machine::start_recording`],

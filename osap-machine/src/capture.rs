@@ -1,0 +1,1168 @@
+//! Captures: any numeric function output, sampled over pipes beside a job
+//! and streamed to a Parquet or CSV file, each sample with its source's
+//! synchronized time stamp.
+//!
+//! ```no_run
+//! # async fn f(machine: osap_machine::Machine) -> Result<(), Box<dyn std::error::Error>> {
+//! use osap_machine::capture::RecordOptions;
+//! let options = RecordOptions::new("run.parquet").period_us(1_000);
+//! let recorder = machine.record(&["z.analog_read(0)", "a.get_position"], options).await?;
+//! // ... run a job ...
+//! let file = recorder.finish().await?;
+//! println!("{} rows in {}", file.rows, file.path.display());
+//! # Ok(()) }
+//! ```
+//!
+//! A source is `MODULE.FUNCTION[(ARG, ..)][.OUTPUT]`:
+//!
+//! - `MODULE` is a `[modules]` key of the machine file, or the runtime name
+//!   of any module on the network;
+//! - `FUNCTION` is one of its PIPES functions; arguments fill its inputs
+//!   in order (`analog_read(2)` samples channel 2); inputs not given are 0;
+//! - `OUTPUT` picks one output; without it every numeric output but `time`
+//!   is recorded. Each becomes a series `MODULE.FUNCTION.OUTPUT` (with the
+//!   arguments when there are any: `z.analog_read(2).value`).
+//!
+//! Numeric means an integer, a float or a bool (0 or 1); strings, arrays
+//! and tensors are refused, as are unknown modules, functions and outputs,
+//! all before anything is started.
+//!
+//! **Time stamps.** A function with a `time: u64` output (`get_position`,
+//! `analog_read`, `digital_read`, `read_limit`, ..) stamps each sample
+//! itself, on the synchronized clock: [`Clock::Source`]. Samples of other
+//! functions (`get_steps`, `get_status`) are stamped with the host's
+//! synchronized time when they arrive ([`Clock::Arrival`]), later by the
+//! link's latency. Per series, samples are kept in time order: one that
+//! arrives with a time not after the last kept (a datagram overtaken on a
+//! multi-hop link, or an unchanged `read_limit`) is counted as stale and
+//! not written.
+//!
+//! **How.** For each source the recorder defines a host function, pipes
+//! the source's outputs to it (a free pipe slot of the source) and runs the
+//! source on its module's timer every [`RecordOptions::period_us`]. A
+//! source the machine already runs faster (its fault and limit reports)
+//! keeps its own period; its timer goes back to what it was when the
+//! recorder finishes. The host function hands each sample to a writer
+//! thread through a queue of [`RecordOptions::queue_rows`]; a sample that
+//! finds the queue full is dropped and counted, so a slow disk never holds
+//! up the host's network runtime. The writer ([`writer::SampleWriter`])
+//! flushes a row group as it fills: memory stays bounded.
+//!
+//! **Closing.** [`Recorder::finish`] unwires the sources and closes the
+//! file properly. Dropping a recorder without finishing still closes the
+//! file (its pipes stay until the machine stops). A write error (a full
+//! disk) stops writing, shows in [`Recorder::check`] at once, and is
+//! returned by [`Recorder::finish`].
+
+pub mod writer;
+
+use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, AtomicU32, AtomicU64, Ordering};
+use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use osap_host::som::{Disconnect, FnRef, HostFunction, Manager, OwnedValue, PipeOptions, SomError};
+use pipes_core::control::InputMode;
+use pipes_core::types::{ScalarType, Type};
+use thiserror::Error;
+
+use crate::machine::Machine;
+pub use writer::{
+    Capture, Clock, Format, Row, SampleWriter, SeriesData, SeriesInfo, WriterOptions,
+};
+
+/// The shortest sampling period, µs: a module's timers run on its main
+/// loop, and a faster source would fill its links with samples.
+pub const MIN_PERIOD_US: u32 = 100;
+
+/// Why a capture could not start, run or be read; each names the source,
+/// the option or the file, and how to fix it.
+#[derive(Debug, Error)]
+pub enum CaptureError {
+    /// A source is not of the form `MODULE.FUNCTION[(ARGS)][.OUTPUT]`.
+    #[error("source {source_name:?}: {reason}")]
+    BadSource {
+        /// The source as given.
+        source_name: String,
+        /// What is wrong.
+        reason: String,
+    },
+    /// No module of that name.
+    #[error("source {source_name:?}: no module {module:?} (machine modules: {found}; or give a runtime name)")]
+    UnknownModule {
+        /// The source as given.
+        source_name: String,
+        /// The module asked for.
+        module: String,
+        /// The modules there are.
+        found: String,
+    },
+    /// The module has no such function.
+    #[error("source {source_name:?}: module {module:?} has no function {function:?} (functions with numeric outputs: {found})")]
+    UnknownFunction {
+        /// The source as given.
+        source_name: String,
+        /// The module.
+        module: String,
+        /// The function asked for.
+        function: String,
+        /// Its functions with a numeric output.
+        found: String,
+    },
+    /// The function has no such output.
+    #[error("source {source_name:?}: no output {output:?} (outputs: {found})")]
+    UnknownOutput {
+        /// The source as given.
+        source_name: String,
+        /// The output asked for.
+        output: String,
+        /// The function's outputs.
+        found: String,
+    },
+    /// An output that is not a number.
+    #[error("source {source_name:?}: output {output:?} is a {type_name}, not a number: only integers, floats and bools are recorded")]
+    NotNumeric {
+        /// The source as given.
+        source_name: String,
+        /// The output.
+        output: String,
+        /// Its type.
+        type_name: String,
+    },
+    /// Every pipe slot of the source is taken.
+    #[error("source {source_name:?}: all {slots} pipe slots of the function are in use; record fewer captures of it at once")]
+    NoFreeSlot {
+        /// The source as given.
+        source_name: String,
+        /// Its slot count.
+        slots: u8,
+    },
+    /// Options that cannot work.
+    #[error("capture options: {0}")]
+    BadOptions(String),
+    /// The file's extension names no format.
+    #[error("{}: unknown format: name the file .parquet or .csv", .path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+    },
+    /// Writing or reading a file failed (a full disk, a missing folder).
+    #[error("{}: {source}", .path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        #[source]
+        source: std::io::Error,
+    },
+    /// The Parquet writer failed.
+    #[error("{}: parquet: {message}", .path.display())]
+    Parquet {
+        /// The file.
+        path: PathBuf,
+        /// What it said.
+        message: String,
+    },
+    /// A file is not a capture.
+    #[error("{}: not a capture: {message}", .path.display())]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// The network refused to wire a source.
+    #[error(transparent)]
+    Network(#[from] SomError),
+    /// The writer thread stopped without a result.
+    #[error("{}: the writer thread stopped unexpectedly", .path.display())]
+    WriterLost {
+        /// The file.
+        path: PathBuf,
+    },
+}
+
+/// Options of [`Machine::record`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct RecordOptions {
+    /// The file: `.parquet` or `.csv` (see [`RecordOptions::format`]).
+    pub out: PathBuf,
+    /// Sampling period of every source, µs (at least [`MIN_PERIOD_US`]).
+    pub period_us: u32,
+    /// The format; `None`: by the file's extension.
+    pub format: Option<Format>,
+    /// Rows the queue to the writer thread holds; samples that find it
+    /// full are dropped and counted.
+    pub queue_rows: usize,
+    /// Batching and row groups.
+    pub writer: WriterOptions,
+}
+
+impl RecordOptions {
+    /// Into `out`, every 1 ms, format by extension.
+    pub fn new(out: impl Into<PathBuf>) -> RecordOptions {
+        RecordOptions {
+            out: out.into(),
+            period_us: 1_000,
+            format: None,
+            queue_rows: 1 << 17,
+            writer: WriterOptions::default(),
+        }
+    }
+
+    /// The same with sampling period `us`.
+    pub fn period_us(mut self, us: u32) -> RecordOptions {
+        self.period_us = us;
+        self
+    }
+}
+
+/// A parsed source: `MODULE.FUNCTION[(ARGS)][.OUTPUT]`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SourceSpec {
+    /// The source as given.
+    pub text: String,
+    /// Module key or runtime name.
+    pub module: String,
+    /// Function name.
+    pub function: String,
+    /// Arguments, as written.
+    pub args: Vec<String>,
+    /// One output, or every numeric one.
+    pub output: Option<String>,
+}
+
+impl SourceSpec {
+    /// Parses `MODULE.FUNCTION[(ARG, ..)][.OUTPUT]`.
+    pub fn parse(text: &str) -> Result<SourceSpec, CaptureError> {
+        let bad = |reason: &str| CaptureError::BadSource {
+            source_name: text.to_string(),
+            reason: format!(
+                "{reason}; write MODULE.FUNCTION[(ARG, ..)][.OUTPUT], e.g. z.analog_read(0).value"
+            ),
+        };
+        let t = text.trim();
+        let (head, args, tail) = match t.find('(') {
+            Some(open) => {
+                let close = t[open..]
+                    .find(')')
+                    .map(|c| open + c)
+                    .ok_or_else(|| bad("no closing parenthesis"))?;
+                let inner = &t[open + 1..close];
+                let args: Vec<String> = if inner.trim().is_empty() {
+                    Vec::new()
+                } else {
+                    inner.split(',').map(|a| a.trim().to_string()).collect()
+                };
+                let tail = &t[close + 1..];
+                let tail = if tail.is_empty() {
+                    None
+                } else {
+                    Some(
+                        tail.strip_prefix('.')
+                            .ok_or_else(|| bad("after the arguments comes .OUTPUT or nothing"))?,
+                    )
+                };
+                (&t[..open], args, tail)
+            }
+            None => (t, Vec::new(), None),
+        };
+        let mut parts = head.split('.');
+        let module = parts.next().unwrap_or("");
+        let function = parts.next().ok_or_else(|| bad("no function named"))?;
+        let mut output = parts.next();
+        if parts.next().is_some() || (output.is_some() && tail.is_some()) {
+            return Err(bad("too many dots"));
+        }
+        if tail.is_some() {
+            output = tail;
+        }
+        let empty = |s: &str| s.trim().is_empty();
+        if output.is_some_and(|o| o.contains('.')) {
+            return Err(bad("too many dots"));
+        }
+        if empty(module) || empty(function) || output.is_some_and(empty) {
+            return Err(bad("an empty name"));
+        }
+        if args.iter().any(|a| a.is_empty()) {
+            return Err(bad("an empty argument"));
+        }
+        Ok(SourceSpec {
+            text: text.to_string(),
+            module: module.to_string(),
+            function: function.to_string(),
+            args,
+            output: output.map(str::to_string),
+        })
+    }
+
+    /// The series name prefix: `MODULE.FUNCTION` or `MODULE.FUNCTION(ARGS)`.
+    fn prefix(&self) -> String {
+        if self.args.is_empty() {
+            format!("{}.{}", self.module, self.function)
+        } else {
+            format!("{}.{}({})", self.module, self.function, self.args.join(","))
+        }
+    }
+}
+
+/// A source checked against the network: where it is, what it sends.
+#[derive(Debug, Clone)]
+struct Resolved {
+    spec: SourceSpec,
+    function: FnRef,
+    /// The outputs piped, in host-function input order: the time first (if
+    /// the function has one), then the recorded ones.
+    outputs: Vec<u8>,
+    /// Types of the piped outputs.
+    types: Vec<(String, Type)>,
+    /// Whether input 0 of the host function is the time stamp.
+    stamped: bool,
+    /// Argument values for the function's inputs.
+    args: Vec<(u8, OwnedValue)>,
+    /// Series names, one per recorded output.
+    series: Vec<String>,
+}
+
+fn is_numeric(t: &Type) -> bool {
+    matches!(t, Type::Scalar(_))
+}
+
+fn found_list(items: impl Iterator<Item = String>) -> String {
+    let v: Vec<String> = items.collect();
+    if v.is_empty() {
+        "none".into()
+    } else {
+        v.join(", ")
+    }
+}
+
+/// The value of argument `text` for an input of type `ty`.
+fn arg_value(
+    spec: &SourceSpec,
+    name: &str,
+    ty: &Type,
+    text: &str,
+) -> Result<OwnedValue, CaptureError> {
+    let bad = |what: &str| CaptureError::BadSource {
+        source_name: spec.text.clone(),
+        reason: format!("argument {text:?} for input {name} ({ty}): {what}"),
+    };
+    let int = || text.parse::<i128>().map_err(|_| bad("not an integer"));
+    let v = match ty {
+        Type::Scalar(s) => match s {
+            ScalarType::Bool => match text {
+                "true" | "1" => OwnedValue::Bool(true),
+                "false" | "0" => OwnedValue::Bool(false),
+                _ => return Err(bad("write true or false")),
+            },
+            ScalarType::F16 | ScalarType::F32 | ScalarType::F64 => {
+                let x: f64 = text.parse().map_err(|_| bad("not a number"))?;
+                if !x.is_finite() {
+                    return Err(bad("not a finite number"));
+                }
+                match s {
+                    ScalarType::F64 => OwnedValue::F64(x),
+                    _ => OwnedValue::F32(x as f32),
+                }
+            }
+            ScalarType::U8 => OwnedValue::U8(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::U16 => OwnedValue::U16(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::U32 => OwnedValue::U32(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::U64 => OwnedValue::U64(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::I8 => OwnedValue::I8(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::I16 => OwnedValue::I16(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::I32 => OwnedValue::I32(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::I64 => OwnedValue::I64(int()?.try_into().map_err(|_| bad("out of range"))?),
+            ScalarType::I128 => OwnedValue::I128(int()?),
+            ScalarType::U128 => {
+                OwnedValue::U128(int()?.try_into().map_err(|_| bad("out of range"))?)
+            }
+        },
+        _ => return Err(bad("only numeric inputs can be given as arguments")),
+    };
+    Ok(v)
+}
+
+/// The zero of a numeric input type (an input not given).
+fn zero(ty: &Type) -> Option<OwnedValue> {
+    let Type::Scalar(s) = ty else { return None };
+    Some(match s {
+        ScalarType::Bool => OwnedValue::Bool(false),
+        ScalarType::I8 => OwnedValue::I8(0),
+        ScalarType::I16 => OwnedValue::I16(0),
+        ScalarType::I32 => OwnedValue::I32(0),
+        ScalarType::I64 => OwnedValue::I64(0),
+        ScalarType::I128 => OwnedValue::I128(0),
+        ScalarType::U8 => OwnedValue::U8(0),
+        ScalarType::U16 => OwnedValue::U16(0),
+        ScalarType::U32 => OwnedValue::U32(0),
+        ScalarType::U64 => OwnedValue::U64(0),
+        ScalarType::U128 => OwnedValue::U128(0),
+        ScalarType::F16 => OwnedValue::F16(0),
+        ScalarType::F32 => OwnedValue::F32(0.0),
+        ScalarType::F64 => OwnedValue::F64(0.0),
+    })
+}
+
+/// Checks `spec` against the manager's model: the module (a machine key,
+/// then any runtime name), the function, its outputs, its arguments and a
+/// free pipe slot.
+fn resolve(
+    spec: &SourceSpec,
+    machine_modules: &BTreeMap<String, String>,
+    manager: &Manager,
+) -> Result<Resolved, CaptureError> {
+    let som = manager.som();
+    let runtime = match machine_modules.get(&spec.module) {
+        Some(r) => r.clone(),
+        None => {
+            // Runtime 0 is this host: its functions are not sources.
+            let hits: Vec<&str> = som
+                .runtimes
+                .iter()
+                .skip(1)
+                .map(|r| r.record.name.as_str())
+                .filter(|n| *n == spec.module)
+                .collect();
+            if hits.len() != 1 {
+                return Err(CaptureError::UnknownModule {
+                    source_name: spec.text.clone(),
+                    module: spec.module.clone(),
+                    found: found_list(machine_modules.keys().cloned()),
+                });
+            }
+            spec.module.clone()
+        }
+    };
+    let ri = som
+        .runtime_index(&runtime)
+        .map_err(|_| SomError::NoSuchRuntime(runtime.clone()))?;
+    let Some(f) = som.function(ri, &spec.function) else {
+        let with_numbers = som.runtimes[ri]
+            .functions
+            .iter()
+            .filter(|f| {
+                f.outputs
+                    .iter()
+                    .any(|o| o.ty().is_some_and(|t| is_numeric(&t)))
+            })
+            .map(|f| f.name.clone());
+        return Err(CaptureError::UnknownFunction {
+            source_name: spec.text.clone(),
+            module: spec.module.clone(),
+            function: spec.function.clone(),
+            found: found_list(with_numbers),
+        });
+    };
+    let outs: Vec<(String, Option<Type>, String)> = f
+        .outputs
+        .iter()
+        .map(|o| (o.name.clone(), o.ty(), o.type_name.clone()))
+        .collect();
+    let time = outs
+        .iter()
+        .position(|(n, t, _)| n == "time" && *t == Some(Type::Scalar(ScalarType::U64)));
+    let chosen: Vec<usize> = match &spec.output {
+        Some(name) => {
+            let i = outs.iter().position(|o| &o.0 == name).ok_or_else(|| {
+                CaptureError::UnknownOutput {
+                    source_name: spec.text.clone(),
+                    output: name.clone(),
+                    found: found_list(outs.iter().map(|o| format!("{}: {}", o.0, o.2))),
+                }
+            })?;
+            if !outs[i].1.as_ref().is_some_and(is_numeric) {
+                return Err(CaptureError::NotNumeric {
+                    source_name: spec.text.clone(),
+                    output: name.clone(),
+                    type_name: outs[i].2.clone(),
+                });
+            }
+            vec![i]
+        }
+        None => {
+            let v: Vec<usize> = (0..outs.len())
+                .filter(|i| Some(*i) != time && outs[*i].1.as_ref().is_some_and(is_numeric))
+                .collect();
+            if v.is_empty() {
+                return match outs.iter().enumerate().find(|(i, _)| Some(*i) != time) {
+                    Some((_, o)) => Err(CaptureError::NotNumeric {
+                        source_name: spec.text.clone(),
+                        output: o.0.clone(),
+                        type_name: o.2.clone(),
+                    }),
+                    None => Err(CaptureError::BadSource {
+                        source_name: spec.text.clone(),
+                        reason: format!("{} has no output to record", spec.function),
+                    }),
+                };
+            }
+            v
+        }
+    };
+    // The time first, so the host function finds it at input 0.
+    let piped: Vec<usize> = time.into_iter().chain(chosen.iter().copied()).collect();
+    if piped.len() > 8 {
+        return Err(CaptureError::BadSource {
+            source_name: spec.text.clone(),
+            reason: "more than 7 numeric outputs: name one with .OUTPUT".into(),
+        });
+    }
+    let mut types = Vec::new();
+    let mut outputs = Vec::new();
+    for &i in &piped {
+        let ty = outs[i].1.ok_or_else(|| CaptureError::NotNumeric {
+            source_name: spec.text.clone(),
+            output: outs[i].0.clone(),
+            type_name: outs[i].2.clone(),
+        })?;
+        types.push((outs[i].0.clone(), ty));
+        outputs.push(u8::try_from(i).map_err(|_| CaptureError::BadSource {
+            source_name: spec.text.clone(),
+            reason: "output index beyond 255".into(),
+        })?);
+    }
+    if spec.args.len() > f.inputs.len() {
+        return Err(CaptureError::BadSource {
+            source_name: spec.text.clone(),
+            reason: format!(
+                "{} arguments, but {} takes {}",
+                spec.args.len(),
+                spec.function,
+                f.inputs.len()
+            ),
+        });
+    }
+    let mut args = Vec::new();
+    for (i, input) in f.inputs.iter().enumerate() {
+        let ty = input.ty().ok_or_else(|| CaptureError::BadSource {
+            source_name: spec.text.clone(),
+            reason: format!(
+                "input {} has a type this build does not know ({})",
+                input.name, input.type_name
+            ),
+        })?;
+        let v = match spec.args.get(i) {
+            Some(text) => arg_value(spec, &input.name, &ty, text)?,
+            None => zero(&ty).ok_or_else(|| CaptureError::BadSource {
+                source_name: spec.text.clone(),
+                reason: format!(
+                    "input {} is a {ty}: only functions with numeric inputs are sampled",
+                    input.name
+                ),
+            })?,
+        };
+        args.push((u8::try_from(i).unwrap_or(u8::MAX), v));
+    }
+    if f.pipes.len() >= usize::from(f.pipe_slots) {
+        return Err(CaptureError::NoFreeSlot {
+            source_name: spec.text.clone(),
+            slots: f.pipe_slots,
+        });
+    }
+    let prefix = spec.prefix();
+    let series = chosen
+        .iter()
+        .map(|&i| format!("{prefix}.{}", outs[i].0))
+        .collect();
+    Ok(Resolved {
+        spec: spec.clone(),
+        function: FnRef::new(runtime, spec.function.clone()),
+        outputs,
+        types,
+        stamped: time.is_some(),
+        args,
+        series,
+    })
+}
+
+/// Who asks a module function to run on its timer, and how often: the
+/// machine's own reports and any number of recorders share one input
+/// mode per function, the fastest timer.
+#[derive(Debug, Default)]
+pub struct Holds {
+    by_function: Mutex<BTreeMap<(String, String), HoldSet>>,
+}
+
+#[derive(Debug)]
+struct HoldSet {
+    /// What the machine itself wants.
+    base: InputMode,
+    /// Recorders: id and period.
+    holders: Vec<(u32, u32)>,
+}
+
+impl HoldSet {
+    fn effective(&self) -> InputMode {
+        let held = self.holders.iter().map(|h| h.1).min();
+        match (self.base, held) {
+            (InputMode::OnTimer(b), Some(h)) => InputMode::OnTimer(b.min(h)),
+            (_, Some(h)) => InputMode::OnTimer(h),
+            (b, None) => b,
+        }
+    }
+}
+
+fn key(f: &FnRef) -> (String, String) {
+    (f.runtime.clone(), f.function.clone())
+}
+
+impl Holds {
+    fn lock(&self) -> std::sync::MutexGuard<'_, BTreeMap<(String, String), HoldSet>> {
+        self.by_function.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// A recorder `id` wants `f` run every `period_us`; `current` is its
+    /// mode now. Returns the mode to set.
+    fn acquire(&self, f: &FnRef, id: u32, period_us: u32, current: InputMode) -> InputMode {
+        let mut map = self.lock();
+        let set = map.entry(key(f)).or_insert(HoldSet {
+            base: current,
+            holders: Vec::new(),
+        });
+        set.holders.push((id, period_us));
+        set.effective()
+    }
+
+    /// Recorder `id` is done with `f`. Returns the mode to set.
+    fn release(&self, f: &FnRef, id: u32) -> Option<InputMode> {
+        let mut map = self.lock();
+        let set = map.get_mut(&key(f))?;
+        set.holders.retain(|h| h.0 != id);
+        let mode = set.effective();
+        if set.holders.is_empty() {
+            map.remove(&key(f));
+        }
+        Some(mode)
+    }
+
+    /// The machine wants `f` in `mode`: the mode to set, faster if a
+    /// recorder holds it.
+    pub fn machine_sets(&self, f: &FnRef, mode: InputMode) -> InputMode {
+        match self.lock().get_mut(&key(f)) {
+            Some(set) => {
+                set.base = mode;
+                set.effective()
+            }
+            None => mode,
+        }
+    }
+}
+
+/// Counters shared by the host functions, the writer thread and the
+/// recorder.
+#[derive(Debug, Default)]
+struct Shared {
+    received: AtomicU64,
+    dropped: AtomicU64,
+    stale: AtomicU64,
+    stop: AtomicBool,
+    error: Mutex<Option<String>>,
+}
+
+/// Samples received, dropped and out of order so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct RecorderStats {
+    /// Sample values handed to the writer.
+    pub received: u64,
+    /// Sample values dropped on a full queue.
+    pub dropped: u64,
+    /// Samples not after the series' last (not written).
+    pub stale: u64,
+}
+
+/// Per series in a finished capture.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct SeriesSummary {
+    /// Its name and clock.
+    pub info: SeriesInfo,
+    /// Rows written, and their span.
+    pub stats: writer::SeriesStats,
+}
+
+/// A finished capture: the file and what went into it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct CaptureFile {
+    /// The file.
+    pub path: PathBuf,
+    /// Its format.
+    pub format: Format,
+    /// Rows written.
+    pub rows: u64,
+    /// Per series.
+    pub series: Vec<SeriesSummary>,
+    /// Samples received, dropped and stale.
+    pub stats: RecorderStats,
+}
+
+impl CaptureFile {
+    /// Reads the file back.
+    pub fn read(&self) -> Result<Capture, CaptureError> {
+        Capture::read(&self.path)
+    }
+}
+
+struct Wired {
+    source: FnRef,
+    dest: FnRef,
+    port: Option<u16>,
+}
+
+/// A capture running beside whatever the machine does; see the module
+/// docs. Made by [`Machine::record`].
+pub struct Recorder {
+    machine: Machine,
+    id: u32,
+    path: PathBuf,
+    format: Format,
+    series: Vec<SeriesInfo>,
+    wired: Vec<Wired>,
+    shared: Arc<Shared>,
+    done: Option<tokio::sync::oneshot::Receiver<Result<Vec<writer::SeriesStats>, CaptureError>>>,
+}
+
+static NEXT_ID: AtomicU32 = AtomicU32::new(1);
+
+/// The writer thread: rows from the queue to the file, until told to stop
+/// or every sender is gone; then the file is closed.
+fn write_loop(
+    mut w: SampleWriter,
+    rx: Receiver<Row>,
+    shared: Arc<Shared>,
+) -> Result<Vec<writer::SeriesStats>, CaptureError> {
+    let mut failed: Option<CaptureError> = None;
+    let take = |row: Row, w: &mut SampleWriter, failed: &mut Option<CaptureError>| {
+        if failed.is_none() {
+            if let Err(e) = w.push(row) {
+                *shared.error.lock().unwrap_or_else(|p| p.into_inner()) = Some(e.to_string());
+                *failed = Some(e);
+            }
+        }
+    };
+    loop {
+        match rx.recv_timeout(Duration::from_millis(50)) {
+            Ok(row) => take(row, &mut w, &mut failed),
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) => break,
+        }
+        if shared.stop.load(Ordering::Acquire) {
+            while let Ok(row) = rx.try_recv() {
+                take(row, &mut w, &mut failed);
+            }
+            break;
+        }
+    }
+    match failed {
+        Some(e) => Err(e),
+        None => w.finish(),
+    }
+}
+
+impl Machine {
+    /// Starts recording `sources` (see [`crate::capture`]) into
+    /// `options.out`. Every source is checked, and the file created, before
+    /// anything is wired.
+    pub async fn record(
+        &self,
+        sources: &[&str],
+        options: RecordOptions,
+    ) -> Result<Recorder, CaptureError> {
+        if sources.is_empty() {
+            return Err(CaptureError::BadOptions(
+                "no source given: name one as MODULE.FUNCTION, e.g. x.get_position".into(),
+            ));
+        }
+        if options.period_us < MIN_PERIOD_US {
+            return Err(CaptureError::BadOptions(format!(
+                "period_us = {}: at least {MIN_PERIOD_US} µs",
+                options.period_us
+            )));
+        }
+        if options.queue_rows == 0 {
+            return Err(CaptureError::BadOptions("queue_rows must be > 0".into()));
+        }
+        let format = match options.format {
+            Some(f) => f,
+            None => Format::from_path(&options.out)?,
+        };
+        let specs: Vec<SourceSpec> = sources
+            .iter()
+            .map(|s| SourceSpec::parse(s))
+            .collect::<Result<_, _>>()?;
+        let keys: BTreeMap<String, String> = self
+            .modules()
+            .iter()
+            .map(|(k, m)| (k.clone(), m.runtime.clone()))
+            .collect();
+        let resolved: Vec<Resolved> = {
+            let manager = self.manager().lock().await;
+            specs
+                .iter()
+                .map(|s| resolve(s, &keys, &manager))
+                .collect::<Result<_, _>>()?
+        };
+        for (i, r) in resolved.iter().enumerate() {
+            if resolved[..i].iter().any(|o| o.function == r.function) {
+                return Err(CaptureError::BadSource {
+                    source_name: r.spec.text.clone(),
+                    reason: format!(
+                        "{} is sampled by another source too: a function has one set of inputs and one timer; name it once (without .OUTPUT it records every numeric output)",
+                        r.function
+                    ),
+                });
+            }
+        }
+        let mut series = Vec::new();
+        for r in &resolved {
+            for name in &r.series {
+                if series.iter().any(|s: &SeriesInfo| &s.name == name) {
+                    return Err(CaptureError::BadSource {
+                        source_name: r.spec.text.clone(),
+                        reason: format!("series {name} is recorded twice"),
+                    });
+                }
+                series.push(SeriesInfo {
+                    name: name.clone(),
+                    clock: if r.stamped {
+                        Clock::Source
+                    } else {
+                        Clock::Arrival
+                    },
+                });
+            }
+        }
+        let w = SampleWriter::create_as(&options.out, format, &series, options.writer)?;
+
+        let id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
+        let shared = Arc::new(Shared::default());
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Row>(options.queue_rows);
+        let (done_tx, done_rx) = tokio::sync::oneshot::channel();
+        {
+            let shared = shared.clone();
+            std::thread::Builder::new()
+                .name(format!("capture-{id}"))
+                .spawn(move || {
+                    let _ = done_tx.send(write_loop(w, rx, shared));
+                })
+                .map_err(|e| CaptureError::Io {
+                    path: options.out.clone(),
+                    source: e,
+                })?;
+        }
+        // Arrival stamps: the host's local clock, moved onto the
+        // synchronized one.
+        let host = self.host().clone();
+        let sys = host.system_time().await.map_err(SomError::from)?;
+        let offset = i128::from(sys) - i128::from(host.clock().now_us());
+        let mut recorder = Recorder {
+            machine: self.clone(),
+            id,
+            path: options.out.clone(),
+            format,
+            series,
+            wired: Vec::new(),
+            shared: shared.clone(),
+            done: Some(done_rx),
+        };
+        let mut first_series = 0u16;
+        for r in &resolved {
+            let result = recorder
+                .wire(r, first_series, tx.clone(), offset, options.period_us)
+                .await;
+            if let Err(e) = result {
+                recorder.unwire().await;
+                return Err(e);
+            }
+            first_series += r.series.len() as u16;
+        }
+        Ok(recorder)
+    }
+}
+
+impl Recorder {
+    async fn wire(
+        &mut self,
+        r: &Resolved,
+        first_series: u16,
+        tx: SyncSender<Row>,
+        offset: i128,
+        period_us: u32,
+    ) -> Result<(), CaptureError> {
+        let name = format!("capture{}.{}.{}", self.id, r.spec.module, r.spec.function);
+        let inputs: Vec<(&str, Type)> = r.types.iter().map(|(n, t)| (n.as_str(), *t)).collect();
+        let stamped = r.stamped;
+        let count = r.series.len();
+        let shared = self.shared.clone();
+        let clock = self.machine.host().clock();
+        let mut last: Option<u64> = None;
+        let body = move |ins: &[OwnedValue]| {
+            let (time, values) = if stamped {
+                let Some(OwnedValue::U64(t)) = ins.first() else {
+                    return Err(1);
+                };
+                (*t, &ins[1..])
+            } else {
+                let t = i128::from(clock.now_us()) + offset;
+                (u64::try_from(t.max(0)).unwrap_or(u64::MAX), ins)
+            };
+            if last.is_some_and(|l| time <= l) {
+                shared.stale.fetch_add(1, Ordering::Relaxed);
+                return Ok(Vec::new());
+            }
+            last = Some(time);
+            for (k, v) in values.iter().take(count).enumerate() {
+                let value = v.as_f64().or_else(|| lossy_f64(v)).unwrap_or(f64::NAN);
+                let row = Row {
+                    time_us: time,
+                    series: first_series + k as u16,
+                    value,
+                };
+                match tx.try_send(row) {
+                    Ok(()) => shared.received.fetch_add(1, Ordering::Relaxed),
+                    Err(TrySendError::Full(_)) => shared.dropped.fetch_add(1, Ordering::Relaxed),
+                    // The writer is gone (finished or dropped).
+                    Err(TrySendError::Disconnected(_)) => return Ok(Vec::new()),
+                };
+            }
+            Ok(Vec::new())
+        };
+        let function = HostFunction::new(&name, &inputs, &[], body)?;
+        let mut manager = self.machine.manager().lock().await;
+        let dest = manager.define(function).await?;
+        let port = manager
+            .som()
+            .runtimes
+            .first()
+            .and_then(|h| h.functions.iter().find(|f| f.name == name))
+            .map(|f| f.port);
+        self.wired.push(Wired {
+            source: r.function.clone(),
+            dest: dest.clone(),
+            port,
+        });
+        let map: Vec<u8> = (0..r.outputs.len() as u8).collect();
+        manager
+            .connect(&r.function, &dest, &r.outputs, &map, PipeOptions::default())
+            .await?;
+        if !r.args.is_empty() {
+            // Stored in its inputs: its timer runs it with them.
+            manager.function(&r.function)?.push(&r.args).await?;
+        }
+        let current = manager
+            .som()
+            .runtime_index(&r.function.runtime)
+            .ok()
+            .and_then(|ri| manager.som().function(ri, &r.function.function))
+            .map(|f| InputMode::from(f.input_mode))
+            .unwrap_or_default();
+        let mode = self
+            .machine
+            .capture_holds()
+            .acquire(&r.function, self.id, period_us, current);
+        manager.set_input_mode(&r.function, mode).await?;
+        Ok(())
+    }
+
+    /// Undoes the wiring: the sources' timers back, the pipes gone, the
+    /// host functions detached. Best effort: a module that stopped
+    /// answering keeps its pipe until it reboots.
+    async fn unwire(&mut self) {
+        let holds = self.machine.capture_holds();
+        let mut manager = self.machine.manager().lock().await;
+        for w in self.wired.drain(..) {
+            if let Some(mode) = holds.release(&w.source, self.id) {
+                if let Err(e) = manager.set_input_mode(&w.source, mode).await {
+                    tracing::warn!("capture: {}: timer not restored: {e}", w.source);
+                }
+            }
+            if let Err(e) = manager
+                .disconnect(&w.source, Disconnect::To(w.dest.clone()))
+                .await
+            {
+                tracing::warn!("capture: {}: pipe not removed: {e}", w.source);
+            }
+            if let Some(port) = w.port {
+                let _ = self.machine.host().detach_port(port).await;
+            }
+        }
+    }
+
+    /// The file being written.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The series, in file order.
+    pub fn series(&self) -> &[SeriesInfo] {
+        &self.series
+    }
+
+    /// Samples received, dropped and stale so far.
+    pub fn stats(&self) -> RecorderStats {
+        RecorderStats {
+            received: self.shared.received.load(Ordering::Relaxed),
+            dropped: self.shared.dropped.load(Ordering::Relaxed),
+            stale: self.shared.stale.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Whether writing still works: a full disk shows here at once (the
+    /// recorder then writes nothing more).
+    pub fn check(&self) -> Result<(), CaptureError> {
+        match &*self.shared.error.lock().unwrap_or_else(|p| p.into_inner()) {
+            Some(message) => Err(CaptureError::Parquet {
+                path: self.path.clone(),
+                message: format!("writing stopped: {message}"),
+            }),
+            None => Ok(()),
+        }
+    }
+
+    /// Stops sampling, unwires the sources and closes the file properly.
+    pub async fn finish(mut self) -> Result<CaptureFile, CaptureError> {
+        self.unwire().await;
+        self.shared.stop.store(true, Ordering::Release);
+        let done = self.done.take();
+        let stats = match done {
+            Some(rx) => rx.await.map_err(|_| CaptureError::WriterLost {
+                path: self.path.clone(),
+            })??,
+            None => {
+                return Err(CaptureError::WriterLost {
+                    path: self.path.clone(),
+                })
+            }
+        };
+        let series: Vec<SeriesSummary> = self
+            .series
+            .iter()
+            .cloned()
+            .zip(stats)
+            .map(|(info, stats)| SeriesSummary { info, stats })
+            .collect();
+        Ok(CaptureFile {
+            path: self.path.clone(),
+            format: self.format,
+            rows: series.iter().map(|s| s.stats.rows).sum(),
+            series,
+            stats: self.stats(),
+        })
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        // Closes the file even when finish was not called (a script that
+        // returned early with an error).
+        self.shared.stop.store(true, Ordering::Release);
+    }
+}
+
+/// Integers an f64 cannot hold exactly, rounded; f16 widened.
+fn lossy_f64(v: &OwnedValue) -> Option<f64> {
+    Some(match v {
+        OwnedValue::U64(x) => *x as f64,
+        OwnedValue::I64(x) => *x as f64,
+        OwnedValue::U128(x) => *x as f64,
+        OwnedValue::I128(x) => *x as f64,
+        OwnedValue::F16(bits) => f16_to_f64(*bits),
+        _ => return None,
+    })
+}
+
+fn f16_to_f64(bits: u16) -> f64 {
+    let sign = if bits & 0x8000 != 0 { -1.0 } else { 1.0 };
+    let exp = i32::from((bits >> 10) & 0x1f);
+    let frac = f64::from(bits & 0x3ff);
+    match exp {
+        0 => sign * frac * 2f64.powi(-24),
+        31 if frac == 0.0 => sign * f64::INFINITY,
+        31 => f64::NAN,
+        e => sign * (1.0 + frac / 1024.0) * 2f64.powi(e - 15),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sources_parse() {
+        let s = SourceSpec::parse("z.analog_read(2).value").unwrap();
+        assert_eq!(
+            (
+                s.module.as_str(),
+                s.function.as_str(),
+                s.args.clone(),
+                s.output.as_deref()
+            ),
+            ("z", "analog_read", vec!["2".to_string()], Some("value"))
+        );
+        let s = SourceSpec::parse("a.get_position").unwrap();
+        assert_eq!(s.output, None);
+        assert!(s.args.is_empty());
+        let s = SourceSpec::parse("a.get_steps.steps").unwrap();
+        assert_eq!(s.output.as_deref(), Some("steps"));
+        assert_eq!(s.prefix(), "a.get_steps");
+        for bad in [
+            "",
+            "z",
+            "z.",
+            ".f",
+            "z.f(1",
+            "z.f(1)x",
+            "z.f.o.p",
+            "z.f(,)",
+            "z.f(1).o.p",
+        ] {
+            let e = SourceSpec::parse(bad).unwrap_err();
+            assert!(e.to_string().contains("MODULE.FUNCTION"), "{bad}: {e}");
+        }
+    }
+
+    #[test]
+    fn holds_keep_the_fastest_timer_and_give_the_machine_its_own_back() {
+        let h = Holds::default();
+        let f = FnRef::new("a", "get_fault");
+        assert_eq!(
+            h.acquire(&f, 1, 10_000, InputMode::OnTimer(5_000)),
+            InputMode::OnTimer(5_000)
+        );
+        assert_eq!(
+            h.acquire(&f, 2, 1_000, InputMode::OnTimer(5_000)),
+            InputMode::OnTimer(1_000)
+        );
+        assert_eq!(h.release(&f, 2), Some(InputMode::OnTimer(5_000)));
+        assert_eq!(h.release(&f, 1), Some(InputMode::OnTimer(5_000)));
+        assert_eq!(h.release(&f, 1), None);
+        let p = FnRef::new("a", "get_position");
+        assert_eq!(
+            h.acquire(&p, 3, 2_000, InputMode::OnAnyFresh),
+            InputMode::OnTimer(2_000)
+        );
+        // The machine starts and stops its own recording meanwhile.
+        assert_eq!(
+            h.machine_sets(&p, InputMode::OnTimer(1_000)),
+            InputMode::OnTimer(1_000)
+        );
+        assert_eq!(
+            h.machine_sets(&p, InputMode::OnAnyFresh),
+            InputMode::OnTimer(2_000)
+        );
+        assert_eq!(h.release(&p, 3), Some(InputMode::OnAnyFresh));
+        assert_eq!(
+            h.machine_sets(&p, InputMode::OnAnyFresh),
+            InputMode::OnAnyFresh
+        );
+    }
+
+    #[test]
+    fn f16_widens() {
+        assert_eq!(f16_to_f64(0x3c00), 1.0);
+        assert_eq!(f16_to_f64(0xc000), -2.0);
+        assert_eq!(f16_to_f64(0x0001), 2f64.powi(-24));
+    }
+}
