@@ -82,6 +82,9 @@ pub const MIN_STEPS: f64 = 2.0;
 pub const MIN_FREQ_HZ: f64 = 5.0;
 /// The highest chirp frequency, Hz.
 pub const MAX_FREQ_HZ: f64 = 200.0;
+/// The recording after the sweep, s: a mode at 20 Hz with damping 0.02
+/// rings down to 0.05 % of its amplitude.
+pub const TAIL_S: f64 = 3.0;
 /// The share of the acceleration and velocity limits the chirp uses.
 const LIMIT_SHARE: f64 = 0.9;
 /// The share of the module's step rate the chirp's velocity keeps under.
@@ -334,13 +337,24 @@ impl Plan {
             f1,
             duration_s,
             fade_s: (0.05 * duration_s).min(0.5),
-            tail_s: 3.0,
+            tail_s: TAIL_S,
             acceleration,
             velocity,
             max_amplitude: 0.1 * (ax.max - ax.min),
             step,
             accelerometer,
         })
+    }
+
+    /// The frequencies swept at full amplitude (between the fades), Hz:
+    /// the range the response is analysed over. At the fades the
+    /// commanded motion is small and its spectrum near the ends carries
+    /// more quantization noise than motion.
+    pub fn range(&self) -> (f64, f64) {
+        let t = self.duration_s;
+        let k = self.f1 / self.f0;
+        let at = |tau: f64| self.f0 * k.powf(tau / t);
+        (at(self.fade_s), at(t - self.fade_s))
     }
 
     /// The displacement amplitude at `f` Hz.
@@ -508,7 +522,7 @@ pub async fn measure(
     };
     let measured: Vec<f64> = rows.iter().map(|r| r.1).collect();
     let commanded: Vec<f64> = rows.iter().map(|r| r.2).collect();
-    let analysis = analysis::analyze(dt, &measured, &commanded, (plan.f0, plan.f1))?;
+    let analysis = analysis::analyze(dt, &measured, &commanded, plan.range())?;
     Ok(Measurement {
         plan,
         samples: rows,
@@ -604,8 +618,15 @@ fn pair_samples(
 pub fn summary(m: &Measurement) -> Vec<String> {
     let a = &m.analysis;
     let mut out = vec![format!(
-        "axis {}: chirp {:.1} to {:.1} Hz over {:.1} s about {:.3}, at most {:.0} units/s²",
-        m.plan.axis, m.plan.f0, m.plan.f1, m.plan.duration_s, m.plan.center, m.plan.acceleration
+        "axis {}: chirp {:.1} to {:.1} Hz over {:.1} s about {:.3}, at most {:.0} units/s²; analysed {:.1} to {:.1} Hz",
+        m.plan.axis,
+        m.plan.f0,
+        m.plan.f1,
+        m.plan.duration_s,
+        m.plan.center,
+        m.plan.acceleration,
+        a.range.0,
+        a.range.1
     )];
     match a.peak {
         Peak::Found { freq_hz, magnitude } => {

@@ -428,7 +428,13 @@ pub fn recommend(scores: &[ShaperScore]) -> Option<ShaperConfig> {
     scores
         .iter()
         .filter(|s| s.worst <= SHAPER_RESIDUAL)
-        .min_by(|a, b| a.duration_s.total_cmp(&b.duration_s))
+        // Shortest first; of equal lengths (EI and ZVD), the more robust.
+        .min_by(|a, b| {
+            (1e6 * a.duration_s)
+                .round()
+                .total_cmp(&(1e6 * b.duration_s).round())
+                .then(a.worst.total_cmp(&b.worst))
+        })
         .or_else(|| scores.iter().min_by(|a, b| a.worst.total_cmp(&b.worst)))
         .map(|s| s.shaper)
 }
