@@ -15,8 +15,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod capture_cmd;
 mod level_cmd;
 mod machine_cmd;
+mod resonance_cmd;
 mod serve_cmd;
 mod time_cmd;
 
@@ -127,9 +129,16 @@ enum Command {
     /// Run a job (G-code or SVG) on a machine: home, run, summarize, and
     /// write planned.csv, executed.csv and plots.
     Run(machine_cmd::RunArgs),
+    /// Record function outputs (sensors, positions) on the synchronized
+    /// clock into a Parquet or CSV file, for --seconds or until Ctrl-C.
+    Capture(capture_cmd::CaptureArgs),
     /// Level the bed: home, probe the grid of the machine file's [probe],
     /// fit a mesh, save it (bed_mesh or --mesh) and plot it.
     Level(level_cmd::LevelArgs),
+    /// Measure an axis's resonance: shake it with a chirp, record its
+    /// accelerometer, write the response (CSV, Bode SVG), and print the
+    /// peak and the recommended input shaper (--write: into the file).
+    Resonance(resonance_cmd::ResonanceArgs),
     /// Home a machine (every axis, or the ones named).
     Home {
         #[command(flatten)]
@@ -366,6 +375,8 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
     match cli.command {
         Command::Run(args) => machine_result(machine_cmd::run(args, started).await),
         Command::Level(args) => machine_result(level_cmd::level(args).await),
+        Command::Resonance(args) => machine_result(resonance_cmd::resonance(args).await),
+        Command::Capture(args) => machine_result(capture_cmd::capture(args).await),
         Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
         Command::Jog {
             target,
@@ -480,6 +491,8 @@ fn main() -> ExitCode {
     let virtual_time = match &cli.command {
         Command::Run(a) => a.target.virtual_time(),
         Command::Level(a) => a.target.virtual_time(),
+        Command::Resonance(a) => a.target.virtual_time(),
+        Command::Capture(a) => a.target.virtual_time(),
         Command::Home { target, .. }
         | Command::Jog { target, .. }
         | Command::Move { target, .. }

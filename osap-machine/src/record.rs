@@ -707,6 +707,166 @@ fn reduce_minmax(points: &[(f64, f64)]) -> Vec<(f64, f64)> {
     out
 }
 
+/// A named time series for [`plot_timeline`]: seconds since the run's
+/// start on the synchronized clock, and values.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Stream {
+    /// Its name, as the legend shows it.
+    pub name: String,
+    /// (seconds, value), in time order.
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Velocity of axis `axis` from differences over windows of at least
+/// `window` seconds, at each window's middle.
+fn axis_velocity(samples: &[&Sample], axis: usize, window: f64) -> Vec<(f64, f64)> {
+    let mut out = Vec::with_capacity(samples.len());
+    let mut j = 0;
+    for (i, a) in samples.iter().enumerate() {
+        j = j.max(i + 1);
+        while j < samples.len() && !(samples[j].t - a.t >= window && samples[j].t > a.t) {
+            j += 1;
+        }
+        let Some(b) = samples.get(j) else {
+            break;
+        };
+        out.push(((a.t + b.t) / 2.0, (b.pos[axis] - a.pos[axis]) / (b.t - a.t)));
+    }
+    out
+}
+
+/// Height of one panel of [`plot_timeline`], pixels.
+const PANEL_PX: u32 = 260;
+
+/// One SVG of panels stacked on one time axis (seconds since the run's
+/// start, on the synchronized clock): with a recording, each axis's
+/// planned and executed position, its planned and executed velocity (the
+/// executed one differenced over at least [`SPEED_WINDOW_S`]) and its
+/// following error; then one panel per stream (sensor readings, captured
+/// positions). Streams and recording must share their origin: a capture's
+/// times minus the `from_us` given to [`crate::Machine::take_recording`]
+/// ([`crate::capture::Capture::streams`]). Each series is reduced to at
+/// most [`PLOT_POINTS`] points.
+pub fn plot_timeline(
+    path: &Path,
+    recording: Option<&Recording>,
+    streams: &[Stream],
+) -> Result<(), RecordError> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        create_dir(dir)?;
+    }
+    let err = plot_err(path);
+    // Panels: (title, y label, series (label, colour, points)).
+    type Series = (String, RGBAColor, Vec<(f64, f64)>);
+    let mut panels: Vec<(String, String, Vec<Series>)> = Vec::new();
+    if let Some(rec) = recording {
+        let planned = rec.usable(&rec.planned);
+        let executed = rec.usable(&rec.executed);
+        let n = rec.axes.len();
+        let track = |s: &[&Sample], i: usize| -> Vec<(f64, f64)> {
+            reduce_minmax(&s.iter().map(|s| (s.t, s.pos[i])).collect::<Vec<_>>())
+        };
+        let mut pos = Vec::new();
+        let mut vel = Vec::new();
+        for (i, axis) in rec.axes.iter().enumerate() {
+            let c = Palette99::pick(i);
+            pos.push((format!("{axis} planned"), c.mix(0.5), track(&planned, i)));
+            pos.push((format!("{axis} executed"), c.to_rgba(), track(&executed, i)));
+            vel.push((
+                format!("{axis} planned"),
+                c.mix(0.5),
+                reduce_minmax(&axis_velocity(&planned, i, 0.0)),
+            ));
+            vel.push((
+                format!("{axis} executed"),
+                c.to_rgba(),
+                reduce_minmax(&axis_velocity(&executed, i, SPEED_WINDOW_S)),
+            ));
+        }
+        let errors = rec.errors();
+        let err_series = (0..n)
+            .map(|i| {
+                let v: Vec<(f64, f64)> = errors
+                    .iter()
+                    .map(|(t, e)| (*t, e[i]))
+                    .filter(|(_, e)| e.is_finite())
+                    .collect();
+                (
+                    rec.axes[i].clone(),
+                    Palette99::pick(i).to_rgba(),
+                    reduce_minmax(&v),
+                )
+            })
+            .collect();
+        panels.push((
+            "position: planned and executed".into(),
+            "machine units".into(),
+            pos,
+        ));
+        panels.push((
+            "velocity: planned and executed".into(),
+            "units/s".into(),
+            vel,
+        ));
+        panels.push((
+            "following error (executed − planned)".into(),
+            "machine units".into(),
+            err_series,
+        ));
+    }
+    for (k, s) in streams.iter().enumerate() {
+        let points: Vec<(f64, f64)> = s
+            .points
+            .iter()
+            .copied()
+            .filter(|(t, v)| t.is_finite() && v.is_finite())
+            .collect();
+        let c = Palette99::pick(k + 3).to_rgba();
+        panels.push((
+            s.name.clone(),
+            "value".into(),
+            vec![(s.name.clone(), c, reduce_minmax(&points))],
+        ));
+    }
+    if panels.is_empty() {
+        return Err(RecordError::Plot {
+            path: path.to_path_buf(),
+            message: "nothing to plot: no recording and no stream".into(),
+        });
+    }
+    let xr = range(
+        panels
+            .iter()
+            .flat_map(|p| p.2.iter())
+            .flat_map(|s| s.2.iter().map(|q| q.0)),
+    );
+    let height = PANEL_PX.saturating_mul(panels.len() as u32);
+    let area = SVGBackend::new(path, (1100, height)).into_drawing_area();
+    area.fill(&WHITE).map_err(&err)?;
+    let parts = area.split_evenly((panels.len(), 1));
+    for (part, (title, y_desc, series)) in parts.iter().zip(panels) {
+        let yr = pad(range(series.iter().flat_map(|s| s.2.iter().map(|q| q.1))));
+        let mut chart = ChartBuilder::on(part)
+            .caption(title, ("sans-serif", 16))
+            .margin(8)
+            .x_label_area_size(30)
+            .y_label_area_size(70)
+            .build_cartesian_2d(xr.clone(), yr)
+            .map_err(&err)?;
+        chart
+            .configure_mesh()
+            .x_desc("time (s, synchronized clock)")
+            .y_desc(y_desc)
+            .draw()
+            .map_err(&err)?;
+        for (label, color, points) in series {
+            draw_line(&mut chart, points, color, &label, &err)?;
+        }
+        legend(&mut chart, &err)?;
+    }
+    area.present().map_err(&err)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1053,5 +1213,38 @@ mod tests {
         assert!(odd[2].write_csv(&dir.join("odd2")).is_err());
         assert_eq!(odd[1].following_error().len(), 2);
         let _ = fs::remove_dir_all(&dir);
+    }
+
+    #[test]
+    fn a_timeline_stacks_motion_and_streams() {
+        let dir = std::env::temp_dir().join(format!("osap-timeline-{}", std::process::id()));
+        let rec = Recording {
+            axes: vec!["x".into()],
+            planned: (0..100)
+                .map(|i| Sample {
+                    t: i as f64 * 0.01,
+                    pos: vec![i as f64],
+                })
+                .collect(),
+            executed: (0..100)
+                .map(|i| Sample {
+                    t: i as f64 * 0.01,
+                    pos: vec![i as f64 - 0.1],
+                })
+                .collect(),
+        };
+        let stream = Stream {
+            name: "z.analog_read(0).value".into(),
+            points: (0..500)
+                .map(|i| (i as f64 * 0.002, (i as f64).sin()))
+                .collect(),
+        };
+        let path = dir.join("timeline.svg");
+        plot_timeline(&path, Some(&rec), std::slice::from_ref(&stream)).unwrap();
+        let svg = std::fs::read_to_string(&path).unwrap();
+        assert!(svg.contains("following error") && svg.contains("z.analog_read(0).value"));
+        plot_timeline(&path, None, &[stream]).unwrap();
+        assert!(plot_timeline(&path, None, &[]).is_err());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

@@ -439,6 +439,25 @@ impl Capture {
         self.series.iter().find(|s| s.name == name)
     }
 
+    /// Every series as a [`Stream`](crate::record::Stream) for
+    /// [`plot_timeline`](crate::record::plot_timeline): times in seconds
+    /// since synchronized time `origin_us` (the `from_us` of the machine's
+    /// own recording, to align with it).
+    pub fn streams(&self, origin_us: u64) -> Vec<crate::record::Stream> {
+        self.series
+            .iter()
+            .map(|s| crate::record::Stream {
+                name: s.name.clone(),
+                points: s
+                    .time_us
+                    .iter()
+                    .zip(&s.value)
+                    .map(|(t, v)| ((*t as f64 - origin_us as f64) * 1e-6, *v))
+                    .collect(),
+            })
+            .collect()
+    }
+
     /// Rows in all series.
     pub fn rows(&self) -> usize {
         self.series.iter().map(|s| s.time_us.len()).sum()
