@@ -240,7 +240,7 @@ fn default_out(cfg: &MachineFile) -> PathBuf {
 
 /// Refuses an output folder inside a repository's `docs` (runs are not
 /// documentation).
-fn check_out(dir: &Path) -> Result<(), Failure> {
+pub(crate) fn check_out(dir: &Path) -> Result<(), Failure> {
     let abs = std::path::absolute(dir).unwrap_or_else(|_| dir.to_path_buf());
     let mut p = abs.as_path();
     while let Some(parent) = p.parent() {

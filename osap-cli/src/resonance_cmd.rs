@@ -1,0 +1,109 @@
+//! `osap resonance MACHINE.toml --axis X`: home, shake the axis with a
+//! chirp about the middle of its travel, record its accelerometer on the
+//! synchronized clock, and report the frequency response, its peak and
+//! the input shaper for it ([`osap_machine::resonance`]).
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::Args;
+use osap_machine::resonance::{self, ResonanceError};
+
+use crate::machine_cmd::{check_out, Failure, Target, FAULTED};
+
+/// `osap resonance` options.
+#[derive(Args, Debug)]
+pub struct ResonanceArgs {
+    /// Where to find the machine.
+    #[command(flatten)]
+    pub target: Target,
+    /// The axis to measure; it needs `accelerometer = { .. }` in the
+    /// machine file.
+    #[arg(long)]
+    pub axis: String,
+    /// How long the sweep lasts, s (3 s of ring-down follow).
+    #[arg(long, default_value_t = 8.0)]
+    pub seconds: f64,
+    /// Where to write response.csv, samples.csv and bode.svg (default: a
+    /// new folder osap-resonance-NAME-AXIS-TIME).
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<PathBuf>,
+    /// Put the recommended shaper into the machine file (`[axes.AXIS]
+    /// shaper = { .. }`).
+    #[arg(long)]
+    pub write: bool,
+    /// Do not home first (the axis must already be homed, e.g. on a
+    /// served machine).
+    #[arg(long)]
+    pub no_home: bool,
+}
+
+fn failure(e: ResonanceError) -> Failure {
+    match e {
+        ResonanceError::Machine(e) => Failure::from_machine(e),
+        ResonanceError::Refused(m) => Failure::refused(m),
+        e @ (ResonanceError::Analysis(_) | ResonanceError::Io { .. }) => Failure {
+            code: FAULTED,
+            message: e.to_string(),
+        },
+    }
+}
+
+/// Runs `osap resonance`.
+pub async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> {
+    let cfg = args.target.load()?;
+    // Refuse a bad axis or a missing accelerometer before anything starts.
+    let plan = resonance::Plan::for_axis(&cfg, &args.axis, args.seconds).map_err(failure)?;
+    let out = args.out.clone().unwrap_or_else(|| {
+        let secs = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .map_or(0, |d| d.as_secs());
+        let safe: String = cfg
+            .name
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '-' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        PathBuf::from(format!("osap-resonance-{safe}-{}-{secs}", plan.axis))
+    });
+    check_out(&out)?;
+    let machine = args.target.start(&cfg).await?;
+    if !args.no_home {
+        machine.home().await.map_err(Failure::from_machine)?;
+    }
+    println!(
+        "shaking {} from {:.1} to {:.1} Hz for {:.1} s",
+        plan.axis, plan.f0, plan.f1, plan.duration_s
+    );
+    let result = resonance::measure(&machine, &args.axis, args.seconds).await;
+    let _ = machine.stop().await;
+    let m = result.map_err(failure)?;
+    for line in resonance::summary(&m) {
+        println!("{line}");
+    }
+    for f in resonance::write(&m, &out).map_err(failure)? {
+        println!("wrote {}", f.display());
+    }
+    if args.write {
+        match m.analysis.recommended {
+            Some(s) => {
+                resonance::write_shaper(&args.target.machine, &args.axis, &s).map_err(failure)?;
+                println!(
+                    "wrote shaper = {} at {:.2} Hz into {} (validated; the planner does not apply it yet)",
+                    s.kind().name(),
+                    s.freq_hz(),
+                    args.target.machine.display()
+                );
+            }
+            None => return Err(Failure::refused(
+                "--write: no shaper to write, as no mode was measured within the range (see above)",
+            )),
+        }
+    }
+    Ok(ExitCode::SUCCESS)
+}
