@@ -130,7 +130,9 @@ impl Failure {
     pub(crate) fn from_machine(e: MachineError) -> Failure {
         let code = match e {
             MachineError::Faulted(_) => MACHINE_FAULT,
-            MachineError::Homing { .. } | MachineError::Stopped => FAULTED,
+            MachineError::Homing { .. } | MachineError::Probe { .. } | MachineError::Stopped => {
+                FAULTED
+            }
             MachineError::Host(_)
             | MachineError::Network(_)
             | MachineError::NotSynchronised { .. } => FAULTED,

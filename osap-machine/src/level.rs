@@ -156,9 +156,9 @@ pub(crate) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
             ),
         ));
     }
-    let (Some(x), Some(y), Some(z)) = (cfg.axes.get("x"), cfg.axes.get("y"), cfg.axes.get("z"))
-    else {
-        return Err(invalid("probe", "a bed probe needs axes x, y and z".into()));
+    let z = match (cfg.axes.get("x"), cfg.axes.get("y"), cfg.axes.get("z")) {
+        (Some(_), Some(_), Some(z)) => z,
+        _ => return Err(invalid("probe", "a bed probe needs axes x, y and z".into())),
     };
     for (k, v) in p.offset.iter().enumerate() {
         if !v.is_finite() {
@@ -217,7 +217,6 @@ pub(crate) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
             ),
         ));
     }
-    let _ = (x, y);
     p.grid(cfg).map_err(|e| invalid("probe.grid", e))?;
     Ok(())
 }
