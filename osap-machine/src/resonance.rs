@@ -179,13 +179,22 @@ pub(crate) fn sim_accel(
     cfg: &MachineFile,
     key: &str,
 ) -> Result<Option<AccelSpec>, (String, String)> {
-    let Some((axis, acc)) = cfg
+    let on_key: Vec<(&String, &Accelerometer)> = cfg
         .axes
         .iter()
-        .find_map(|(n, a)| Some((n, a.accelerometer.as_ref().filter(|a| a.module == key)?)))
-    else {
+        .filter_map(|(n, a)| Some((n, a.accelerometer.as_ref().filter(|a| a.module == key)?)))
+        .collect();
+    let Some(&(axis, acc)) = on_key.first() else {
         return Ok(None);
     };
+    if let Some((other, _)) = on_key.get(1) {
+        return Err((
+            format!("axes.{other}.accelerometer.module"),
+            format!(
+                "axes {axis} and {other} both have their accelerometer on module {key:?}; the simulator carries one per module: put them on different modules"
+            ),
+        ));
+    }
     let at = format!("axes.{axis}.accelerometer.module");
     let form = crate::sim::axis_form(cfg, axis).map_err(|e| (at.clone(), e.to_string()))?;
     let name = crate::sim::module_name(cfg, key).unwrap_or(key);
@@ -851,6 +860,48 @@ mod tests {
     }
 
     #[test]
+    fn bad_keys_are_refused_naming_them() {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/plotter.toml"
+        ))
+        .unwrap();
+        let err = |from: &str, to: &str| {
+            assert!(text.contains(from), "{from}");
+            MachineFile::parse(&text.replacen(from, to, 1))
+                .and_then(|c| c.validate())
+                .unwrap_err()
+                .to_string()
+        };
+        let acc = r#"accelerometer = { module = "a", channel = 0, range = 50000.0 }"#;
+        let e = err(acc, r#"accelerometer = { module = "q", range = 50000.0 }"#);
+        assert!(e.contains("axes.x.accelerometer.module"), "{e}");
+        let e = err(acc, r#"accelerometer = { module = "a", range = -1.0 }"#);
+        assert!(e.contains("axes.x.accelerometer.range"), "{e}");
+        let e = err(
+            acc,
+            &format!("{acc}\nshaper = {{ kind = \"zz\", freq_hz = 40.0, damping = 0.1 }}"),
+        );
+        assert!(e.contains("axes.x.shaper") && e.contains("mzv"), "{e}");
+        let e = err(
+            acc,
+            &format!("{acc}\nshaper = {{ kind = \"ei\", freq_hz = 40.0, damping = 0.9 }}"),
+        );
+        assert!(e.contains("axes.x.shaper"), "{e}");
+        // Both accelerometers on one module: not simulated.
+        let cfg = MachineFile::parse(&text.replace(
+            r#"accelerometer = { module = "b", channel = 0"#,
+            r#"accelerometer = { module = "a", channel = 1"#,
+        ))
+        .unwrap();
+        let (key, m) = sim_accel(&cfg, "a").unwrap_err();
+        assert!(
+            key.contains("accelerometer.module") && m.contains("one per module"),
+            "{m}"
+        );
+    }
+
+    #[test]
     fn the_spline_velocity_of_a_ramp_is_its_slope() {
         let iv = u64::from(INTERVAL_US);
         let sent: Vec<(u64, f64)> = (0..10).map(|i| (i * iv, i as f64 * 2.0)).collect();
@@ -868,7 +919,7 @@ mod tests {
         ))
         .unwrap();
         let p = Plan::for_axis(&cfg, "x", 8.0).unwrap();
-        // 2500 units/s² × 0.9 at 12.5 µm steps: 4 steps at 47.7 Hz.
+        // 2500 units/s² × 0.9 at 12.5 µm steps: 2 steps at 47.7 Hz.
         assert!((p.f1 - 47.7).abs() < 0.5, "{p:?}");
         for f in [5.0, 20.0, 47.0] {
             let w = 2.0 * PI * f;
