@@ -494,7 +494,13 @@ pub async fn measure(
     // The chirp, from a stamp far enough ahead that its first point is
     // not yet sent.
     let interval = u64::from(INTERVAL_US);
-    let now = machine.now_us().await?;
+    let now = match machine.now_us().await {
+        Ok(t) => t,
+        Err(e) => {
+            stop_sampling(machine, &from, to).await;
+            return Err(e.into());
+        }
+    };
     let start = (now + 4 * u64::from(crate::machine::LEAD_US)).div_ceil(interval) * interval;
     let sent: Arc<Mutex<Vec<(u64, f64)>>> = Arc::default();
     let record = sent.clone();
@@ -513,11 +519,7 @@ pub async fn measure(
     let end = start + ((plan.duration_s + plan.tail_s) * 1e6) as u64;
     let result = wait_until(machine, end).await;
     machine.set_excitation(None);
-    {
-        let mut m = machine.manager().lock().await;
-        let _ = m.set_input_mode(&from, InputMode::OnAnyFresh).await;
-        let _ = m.disconnect(&from, Disconnect::To(to)).await;
-    }
+    stop_sampling(machine, &from, to).await;
     result?;
 
     let samples = std::mem::take(&mut *samples.lock().unwrap_or_else(|e| e.into_inner()));
@@ -537,6 +539,14 @@ pub async fn measure(
         samples: rows,
         analysis,
     })
+}
+
+/// Stops the accelerometer's timer and removes its pipe (best effort: a
+/// module that no longer answers keeps neither once it reboots).
+async fn stop_sampling(machine: &Machine, from: &FnRef, to: FnRef) {
+    let mut m = machine.manager().lock().await;
+    let _ = m.set_input_mode(from, InputMode::OnAnyFresh).await;
+    let _ = m.disconnect(from, Disconnect::To(to)).await;
 }
 
 /// Waits until the machine's synchronized clock passes `end` µs, failing
