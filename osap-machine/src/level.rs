@@ -238,6 +238,11 @@ impl Probe {
             ));
         }
         let [nx, ny] = self.grid;
+        if nx < 2 || ny < 2 {
+            return Err(format!(
+                "grid [{nx}, {ny}]: give at least 2 probe points along each axis"
+            ));
+        }
         MeshGrid::new(
             x0,
             y0,
@@ -592,7 +597,7 @@ mod tests {
         };
         let e = bad("grid = [5, 4]", "grid = [1, 4]");
         assert!(e.contains("probe.grid[0]"), "{e}");
-        let e = bad("search_depth = 12.0", "search_depth = 200.0");
+        let e = bad("search_depth = 7.0", "search_depth = 200.0");
         assert!(e.contains("probe.start_z"), "{e}");
         let e = bad(
             "module = \"z\"                 # the module whose limit",
