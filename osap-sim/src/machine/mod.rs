@@ -150,6 +150,11 @@
 //! pressed). Only the simulated machines run them: the discrete-event
 //! simulator has no motors and ignores them.
 //!
+//! A switch with a `bed` ([`bed::BedContact`]) is a bed levelling probe:
+//! it closes at `at` plus the height of a tilted, warped bed
+//! ([`bed::BedSurface`]) under the probe tip, whose x and y are two more
+//! forms of carriage positions.
+//!
 //! # Keys for the discrete-event simulator
 //!
 //! The same files describe networks for the discrete-event simulator
