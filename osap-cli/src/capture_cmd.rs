@@ -136,6 +136,12 @@ pub async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
             file.stats.dropped, file.stats.stale
         );
     }
+    if file.stats.lost_at_source > 0 {
+        println!(
+            "  {} samples lost at the modules (a pipe queue was full: sample less often with --period-us, or record fewer sources per module)",
+            file.stats.lost_at_source
+        );
+    }
     if let Some(plot) = &args.plot {
         let capture = Capture::read(&file.path).map_err(refused)?;
         osap_machine::record::plot_timeline(plot, None, &capture.streams(t0))

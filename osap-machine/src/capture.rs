@@ -63,6 +63,7 @@ use std::sync::mpsc::{Receiver, RecvTimeoutError, SyncSender, TrySendError};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
+use osap_host::som::model::SomFunction;
 use osap_host::som::{Disconnect, FnRef, HostFunction, Manager, OwnedValue, PipeOptions, SomError};
 use pipes_core::control::InputMode;
 use pipes_core::types::{ScalarType, Type};
@@ -457,6 +458,16 @@ fn resolve(
             found: found_list(with_numbers),
         });
     };
+    resolve_function(spec, runtime, f)
+}
+
+/// Checks `spec` against function `f` of `runtime`: its outputs, its
+/// arguments and a free pipe slot.
+fn resolve_function(
+    spec: &SourceSpec,
+    runtime: String,
+    f: &SomFunction,
+) -> Result<Resolved, CaptureError> {
     let outs: Vec<(String, Option<Type>, String)> = f
         .outputs
         .iter()
@@ -659,6 +670,7 @@ struct Shared {
     received: AtomicU64,
     dropped: AtomicU64,
     stale: AtomicU64,
+    lost: AtomicU64,
     stop: AtomicBool,
     error: Mutex<Option<String>>,
 }
@@ -672,6 +684,10 @@ pub struct RecorderStats {
     pub dropped: u64,
     /// Samples not after the series' last (not written).
     pub stale: u64,
+    /// Samples the modules could not send: the capture's pipe queue was
+    /// full (counted by the modules, read when the capture finishes; 0
+    /// before). Each is one sample of every series of its source.
+    pub lost_at_source: u64,
 }
 
 /// Per series in a finished capture.
@@ -709,6 +725,8 @@ struct Wired {
     source: FnRef,
     dest: FnRef,
     port: Option<u16>,
+    /// The capture's pipe slot on the source, once connected.
+    slot: Option<u8>,
 }
 
 /// A capture running beside whatever the machine does; see the module
@@ -942,11 +960,15 @@ impl Recorder {
             source: r.function.clone(),
             dest: dest.clone(),
             port,
+            slot: None,
         });
         let map: Vec<u8> = (0..r.outputs.len() as u8).collect();
-        manager
+        let pipe = manager
             .connect(&r.function, &dest, &r.outputs, &map, PipeOptions::default())
             .await?;
+        if let Some(w) = self.wired.last_mut() {
+            w.slot = Some(pipe.slot);
+        }
         if !r.args.is_empty() {
             // Stored in its inputs: its timer runs it with them.
             manager.function(&r.function)?.push(&r.args).await?;
@@ -978,6 +1000,19 @@ impl Recorder {
                     tracing::warn!("capture: {}: timer not restored: {e}", w.source);
                 }
             }
+            // What the module could not send: its pipe's queue was full
+            // (the function's port busy with its other pipes' datagrams).
+            if let Some(slot) = w.slot {
+                match manager.pipe_stats(&w.source, slot).await {
+                    Ok(st) => {
+                        let lost = u64::from(st.overflows)
+                            + u64::from(st.send_errors)
+                            + u64::from(st.failures);
+                        self.shared.lost.fetch_add(lost, Ordering::Relaxed);
+                    }
+                    Err(e) => tracing::warn!("capture: {}: pipe counters not read: {e}", w.source),
+                }
+            }
             if let Err(e) = manager
                 .disconnect(&w.source, Disconnect::To(w.dest.clone()))
                 .await
@@ -1006,6 +1041,7 @@ impl Recorder {
             received: self.shared.received.load(Ordering::Relaxed),
             dropped: self.shared.dropped.load(Ordering::Relaxed),
             stale: self.shared.stale.load(Ordering::Relaxed),
+            lost_at_source: self.shared.lost.load(Ordering::Relaxed),
         }
     }
 
@@ -1068,21 +1104,9 @@ fn lossy_f64(v: &OwnedValue) -> Option<f64> {
         OwnedValue::I64(x) => *x as f64,
         OwnedValue::U128(x) => *x as f64,
         OwnedValue::I128(x) => *x as f64,
-        OwnedValue::F16(bits) => f16_to_f64(*bits),
+        OwnedValue::F16(bits) => pipes_core::f16::f16_to_f64(*bits),
         _ => return None,
     })
-}
-
-fn f16_to_f64(bits: u16) -> f64 {
-    let sign = if bits & 0x8000 != 0 { -1.0 } else { 1.0 };
-    let exp = i32::from((bits >> 10) & 0x1f);
-    let frac = f64::from(bits & 0x3ff);
-    match exp {
-        0 => sign * frac * 2f64.powi(-24),
-        31 if frac == 0.0 => sign * f64::INFINITY,
-        31 => f64::NAN,
-        e => sign * (1.0 + frac / 1024.0) * 2f64.powi(e - 15),
-    }
 }
 
 #[cfg(test)]
@@ -1159,10 +1183,39 @@ mod tests {
         );
     }
 
+    fn function(outputs: &[(&str, &str)]) -> SomFunction {
+        let arg = |(name, ty): &(&str, &str)| osap_host::som::model::SomArg {
+            name: name.to_string(),
+            type_name: ty.to_string(),
+        };
+        SomFunction {
+            name: "f".into(),
+            port: 1,
+            pipe_ports: vec![2, 3],
+            inputs: Vec::new(),
+            outputs: outputs.iter().map(arg).collect(),
+            input_mode: osap_host::som::model::SomInputMode::OnAnyFresh,
+            output_mode: osap_host::som::model::SomOutputMode::Always,
+            pipe_slots: 2,
+            pipes: Vec::new(),
+        }
+    }
+
     #[test]
-    fn f16_widens() {
-        assert_eq!(f16_to_f64(0x3c00), 1.0);
-        assert_eq!(f16_to_f64(0xc000), -2.0);
-        assert_eq!(f16_to_f64(0x0001), 2f64.powi(-24));
+    fn outputs_that_are_not_numbers_are_refused_naming_their_type() {
+        let f = function(&[("time", "u64"), ("name", "utf8"), ("level", "f32")]);
+        let spec = |t: &str| SourceSpec::parse(t).unwrap();
+        let e = resolve_function(&spec("m.f.name"), "m".into(), &f).unwrap_err();
+        assert!(matches!(e, CaptureError::NotNumeric { .. }), "{e}");
+        assert!(e.to_string().contains("utf8, not a number"), "{e}");
+        // Without .OUTPUT the numeric ones are taken, the time first.
+        let r = resolve_function(&spec("m.f"), "m".into(), &f).unwrap();
+        assert_eq!(r.outputs, [0, 2]);
+        assert_eq!(r.series, ["m.f.level"]);
+        assert!(r.stamped);
+        // A function with only a string: refused, naming it.
+        let only = function(&[("name", "utf8")]);
+        let e = resolve_function(&spec("m.f"), "m".into(), &only).unwrap_err();
+        assert!(e.to_string().contains("output \"name\" is a utf8"), "{e}");
     }
 }

@@ -77,7 +77,11 @@ pub fn to_toml(mesh: &BedMesh, header: &str) -> String {
         let row: Vec<String> = (0..g.nx)
             .map(|ix| format!("{:.5}", mesh.probe(ix, iy).unwrap_or(0.0)))
             .collect();
-        s.push_str(&format!("  [{}],   # y = {:.3}\n", row.join(", "), g.node(0, iy).1));
+        s.push_str(&format!(
+            "  [{}],   # y = {:.3}\n",
+            row.join(", "),
+            g.node(0, iy).1
+        ));
     }
     s.push_str("]\n");
     s

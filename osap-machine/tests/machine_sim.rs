@@ -43,18 +43,8 @@ fn plotter_homes_and_draws_a_square() {
         );
         // Where the simulated carriage really is, from the motors' steps:
         // homing found the switches within a step or two (12.5 µm).
-        let cfg = load("plotter");
         for (k, axis) in ["x", "y"].iter().enumerate() {
-            let form = osap_machine::sim::axis_form(&cfg, axis).unwrap();
-            let real = m
-                .with_sim(|s| {
-                    form.value(|module| {
-                        s.module(module)
-                            .and_then(|sm| sm.module())
-                            .map_or(f64::NAN, |sm| sm.lock(|mm| mm.board().motor().position()))
-                    })
-                })
-                .unwrap();
+            let real = m.sim_axis_position(axis).unwrap();
             assert!(
                 (real - p[k]).abs() < 0.03,
                 "{axis}: machine {} real {real}",

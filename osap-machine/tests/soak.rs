@@ -50,21 +50,11 @@ async fn square(m: &Machine) -> Result<(), MachineError> {
 }
 
 /// Where the simulated carriage really is (x, y), from the motors' steps.
-fn carriage(m: &Machine, cfg: &MachineFile) -> [f64; 2] {
-    let mut at = [0.0; 2];
-    for (k, axis) in ["x", "y"].iter().enumerate() {
-        let form = osap_machine::sim::axis_form(cfg, axis).unwrap();
-        at[k] = m
-            .with_sim(|s| {
-                form.value(|module| {
-                    s.module(module)
-                        .and_then(|sm| sm.module())
-                        .map_or(f64::NAN, |sm| sm.lock(|mm| mm.board().motor().position()))
-                })
-            })
-            .unwrap();
-    }
-    at
+fn carriage(m: &Machine) -> [f64; 2] {
+    [
+        m.sim_axis_position("x").unwrap(),
+        m.sim_axis_position("y").unwrap(),
+    ]
 }
 
 fn drain(events: &mut broadcast::Receiver<MachineEvent>) -> Vec<MachineEvent> {
@@ -98,7 +88,6 @@ struct Loss {
 /// on its module, checks the stop, then lifts the fault and recovers.
 async fn lose_module_mid_move(
     m: &Machine,
-    cfg: &MachineFile,
     faults: &FaultInjector,
     events: &mut broadcast::Receiver<MachineEvent>,
     tally: &mut Tally,
@@ -134,11 +123,11 @@ async fn lose_module_mid_move(
     // The carriage comes to rest soon (the points already sent run a
     // timer lead, 82 ms, ahead; then a stop at 3000 mm/s²: under 6 mm at
     // 60 mm/s), and stays inside the travel.
-    let at_fault = carriage(m, cfg);
+    let at_fault = carriage(m);
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let before = carriage(m, cfg);
+    let before = carriage(m);
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let after = carriage(m, cfg);
+    let after = carriage(m);
     for k in 0..2 {
         assert!(
             (after[k] - before[k]).abs() < 1e-9,
@@ -165,7 +154,7 @@ async fn lose_module_mid_move(
     }
     // Where the machine believes it is, the carriage is.
     let p = m.position();
-    let real = carriage(m, cfg);
+    let real = carriage(m);
     for k in 0..2 {
         assert!(
             (p[k] - real[k]).abs() < 0.05,
@@ -273,19 +262,19 @@ async fn soak(rounds: usize) -> Tally {
             lift: Some(Fault::Restore("hub-b".into())),
             module: "b",
         };
-        lose_module_mid_move(&m, &cfg, &faults, &mut events, &mut tally, loss).await;
+        lose_module_mid_move(&m, &faults, &mut events, &mut tally, loss).await;
         let loss = Loss {
             fault: Fault::Freeze("a".into()),
             lift: Some(Fault::Thaw("a".into())),
             module: "a",
         };
-        lose_module_mid_move(&m, &cfg, &faults, &mut events, &mut tally, loss).await;
+        lose_module_mid_move(&m, &faults, &mut events, &mut tally, loss).await;
         let loss = Loss {
             fault: Fault::Reset("b".into()),
             lift: None,
             module: "b",
         };
-        lose_module_mid_move(&m, &cfg, &faults, &mut events, &mut tally, loss).await;
+        lose_module_mid_move(&m, &faults, &mut events, &mut tally, loss).await;
         // Whatever happened, the machine still draws.
         square(&m).await.unwrap();
         tally.squares += 1;

@@ -604,6 +604,23 @@ impl Machine {
         sim.as_ref().map(f)
     }
 
+    /// Where the simulated machine's carriage really is on `axis`, axis
+    /// units, from its motors' steps (not from the plan): what a dial
+    /// gauge on the real machine would read. `None` when the machine is
+    /// not simulated, for an axis it does not have, or for scara and
+    /// fivebar x and y (not linear in the motors).
+    pub fn sim_axis_position(&self, axis: &str) -> Option<f64> {
+        let form = crate::sim::axis_form(self.config(), axis).ok()?;
+        self.with_sim(|s| {
+            form.value(|module| {
+                s.module(module)
+                    .and_then(|sm| sm.module())
+                    .map_or(f64::NAN, |sm| sm.lock(|mm| mm.board().motor().position()))
+            })
+        })
+        .filter(|v| v.is_finite())
+    }
+
     /// Events from now on: faults, limit edges, lost modules, refused
     /// points, homing, state changes.
     pub fn events(&self) -> broadcast::Receiver<MachineEvent> {

@@ -139,7 +139,10 @@ fn watched(topology: &Topology, input: usize) -> Vec<usize> {
     let name = &topology.modules[input].name;
     let mut terms = Vec::new();
     for s in topology.switches.iter().filter(|s| &s.module == name) {
-        let bed = s.bed.iter().flat_map(|b| b.x_terms.iter().chain(&b.y_terms));
+        let bed = s
+            .bed
+            .iter()
+            .flat_map(|b| b.x_terms.iter().chain(&b.y_terms));
         for (module, _) in s.terms.iter().chain(bed) {
             if let Some(i) = topology.module_index(module) {
                 if !terms.contains(&i) {
