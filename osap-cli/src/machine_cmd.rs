@@ -186,28 +186,59 @@ fn parse_pair(s: &str) -> Result<[f64; 2], String> {
     Ok([p(a)?, p(b)?])
 }
 
+/// How an SVG job is placed and drawn.
+pub(crate) struct SvgPlacement {
+    pub scale: f64,
+    pub offset: [f64; 2],
+    pub feed: Option<f64>,
+}
+
+impl Default for SvgPlacement {
+    fn default() -> Self {
+        SvgPlacement {
+            scale: 1.0,
+            offset: [0.0, 0.0],
+            feed: None,
+        }
+    }
+}
+
 /// Reads the job into a program checked against the machine's travel.
 fn read_job(cfg: &MachineFile, args: &RunArgs) -> Result<Program, Failure> {
-    let text = std::fs::read_to_string(&args.job)
-        .map_err(|e| Failure::refused(format!("job {}: {e}", args.job.display())))?;
-    let ext = args
-        .job
+    let placement = SvgPlacement {
+        scale: args.scale,
+        offset: args.offset.unwrap_or([0.0, 0.0]),
+        feed: args.feed,
+    };
+    read_job_file(cfg, &args.job, &placement)
+}
+
+/// Reads the job `path` (G-code or SVG) into a program checked against the
+/// machine's travel.
+pub(crate) fn read_job_file(
+    cfg: &MachineFile,
+    path: &std::path::Path,
+    placement: &SvgPlacement,
+) -> Result<Program, Failure> {
+    let text = std::fs::read_to_string(path)
+        .map_err(|e| Failure::refused(format!("job {}: {e}", path.display())))?;
+    let ext = path
         .extension()
         .and_then(|e| e.to_str())
         .unwrap_or("")
         .to_ascii_lowercase();
     let start = osap_machine::machine::drive::start_position(cfg);
-    let name = args.job.display();
+    let name = path.display();
     match ext.as_str() {
         "svg" => {
             let options = SvgOptions {
-                scale: args.scale,
-                offset: args.offset.unwrap_or([0.0, 0.0]),
+                scale: placement.scale,
+                offset: placement.offset,
                 ..SvgOptions::default()
             };
             let drawing = osap_machine::svg::read(&text, &options)
                 .map_err(|e| Failure::refused(format!("{name}: {e}")))?;
-            let feed = args.feed.unwrap_or(cfg.limits.velocity / 2.0);
+            let feed = placement.feed.unwrap_or(cfg.limits.velocity / 2.0);
             job::from_svg(cfg, &drawing, feed).map_err(|e| Failure::refused(format!("{name}: {e}; nothing moved")))
         }
         "gcode" | "nc" | "ngc" | "g" | "gc" | "tap" => {

@@ -21,6 +21,7 @@ mod machine_cmd;
 mod resonance_cmd;
 mod serve_cmd;
 mod time_cmd;
+mod view;
 
 #[derive(Parser)]
 #[command(
@@ -185,6 +186,10 @@ enum Command {
     },
     /// Run a simulated machine that other processes can connect to.
     Serve(serve_cmd::ServeArgs),
+    /// The live machine in a browser: the graph of runtimes, links and
+    /// pipes, link load, clocks, axes and faults; call functions, plot
+    /// captures (docs/view.md).
+    View(view::ViewArgs),
     /// Make a key file for keyed TCP links (`--key FILE` on both ends),
     /// readable by its owner only.
     Keygen {
@@ -377,6 +382,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Level(args) => machine_result(level_cmd::level(args).await),
         Command::Resonance(args) => machine_result(resonance_cmd::resonance(args).await),
         Command::Capture(args) => machine_result(capture_cmd::capture(args).await),
+        Command::View(args) => machine_result(view::view(args).await),
         Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
         Command::Jog {
             target,

@@ -103,11 +103,27 @@ pub struct LinkCounters {
     pub send_errors: u32,
     /// The gateway's own counts.
     pub gateway: Option<GatewayCounters>,
+    /// Bytes of the packets taken in from the link (those counted in
+    /// `received`).
+    pub rx_bytes: u32,
+    /// Bytes of the packets sent on the link (those counted in `sent`).
+    pub tx_bytes: u32,
+    /// What the link carries, packet bytes per second, from its
+    /// [`transmit_time`](crate::link::LinkGateway::transmit_time); 0 when
+    /// it cannot tell (a socket). Filled in by the netresponder.
+    pub capacity_bytes_per_s: u32,
+    /// Packet slots of the runtime's stack held now by packets that
+    /// arrived on this link. Filled in by the netresponder.
+    pub held: u16,
+    /// The runtime's packet slots in all. Filled in by the netresponder;
+    /// 0 from a runtime of the first layout (without the load fields).
+    pub slots: u16,
 }
 
 impl LinkCounters {
-    /// Bytes of [`encode`](Self::encode)'s output.
-    pub const ENCODED_LEN: usize = 6 * 4 + 1 + 5 * 4;
+    /// Bytes of [`encode`](Self::encode)'s output: the first layout (45
+    /// bytes) and the load fields (16).
+    pub const ENCODED_LEN: usize = 6 * 4 + 1 + 5 * 4 + 3 * 4 + 2 * 2;
 
     /// Writes the netresponder's link-counters fields (after the link
     /// index): six `u32` runtime counts, a `u8` saying whether gateway
@@ -135,6 +151,11 @@ impl LinkCounters {
         ] {
             w.u32(v)?;
         }
+        w.u32(self.rx_bytes)?;
+        w.u32(self.tx_bytes)?;
+        w.u32(self.capacity_bytes_per_s)?;
+        w.u16(self.held)?;
+        w.u16(self.slots)?;
         Ok(())
     }
 
@@ -148,7 +169,7 @@ impl LinkCounters {
             expired: r.u32()?,
             closed: r.u32()?,
             send_errors: r.u32()?,
-            gateway: None,
+            ..LinkCounters::default()
         };
         let kept = r.u8()? != 0;
         let g = GatewayCounters {
@@ -159,6 +180,15 @@ impl LinkCounters {
             disconnects: r.u32()?,
         };
         c.gateway = kept.then_some(g);
+        // The load fields came later: a runtime of the first layout ends
+        // here, and they read as 0. A part of them is a truncated reply.
+        if !r.rest().is_empty() {
+            c.rx_bytes = r.u32()?;
+            c.tx_bytes = r.u32()?;
+            c.capacity_bytes_per_s = r.u32()?;
+            c.held = r.u16()?;
+            c.slots = r.u16()?;
+        }
         Ok(c)
     }
 }

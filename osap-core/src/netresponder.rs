@@ -307,6 +307,10 @@ pub(crate) struct Context<'a, P, L, const LINKS: usize> {
     pub clock: &'a mut Clock<LINKS>,
     pub counters: &'a Counters,
     pub link_counters: &'a [LinkCounters],
+    /// Per link: stack slots held by packets that arrived on it.
+    pub link_held: &'a [u8],
+    /// The stack's slot count.
+    pub slots: u16,
     pub changes: &'a mut Changes,
     pub ports: &'a [P],
     pub links: &'a [L],
@@ -539,6 +543,14 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
                 .ok_or(Fail::Status(Status::NoSuchIndex))?;
             let mut counters = ctx.link_counters.get(i).copied().unwrap_or_default();
             counters.gateway = link.counters();
+            // Packet bytes per second the link carries, from its wire time
+            // for 1 KiB (0: it cannot tell).
+            let us = link.transmit_time(1024);
+            counters.capacity_bytes_per_s = (1024u64 * 1_000_000)
+                .checked_div(us)
+                .map_or(0, |b| b.min(u64::from(u32::MAX)) as u32);
+            counters.held = ctx.link_held.get(i).copied().map_or(0, u16::from);
+            counters.slots = ctx.slots;
             out.u8(index)?;
             counters.encode(out)?;
         }

@@ -381,6 +381,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     Ok(slot) => {
                         bump(&mut self.counters.received);
                         self.count_link(i, |t| &mut t.received);
+                        let len = self.stack.packet(slot).len();
+                        self.count_link_bytes(i, len, |t| &mut t.rx_bytes);
                         if let Some(ts) = stamp.take() {
                             self.stack.set_arrival(slot, ts);
                         }
@@ -504,6 +506,19 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
     }
 
+    /// Adds `len` bytes to link `i`'s byte tally (wrapping).
+    fn count_link_bytes(
+        &mut self,
+        i: usize,
+        len: usize,
+        counter: fn(&mut LinkCounters) -> &mut u32,
+    ) {
+        if let Some(t) = self.link_counters.get_mut(i) {
+            let c = counter(t);
+            *c = c.wrapping_add(len as u32);
+        }
+    }
+
     fn drop_slot(&mut self, slot: SlotId, why: Drop) -> Served {
         self.stack.release(slot);
         let c = &mut self.counters;
@@ -558,10 +573,12 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let ttl = (deadline - landing).min(u64::from(u16::MAX)) as u16;
         // Packet::new validated the header, so the TTL field exists.
         let _ = set_ttl(packet, ttl);
+        let len = packet.len();
         match link.send(packet) {
             Ok(()) => {
                 bump(&mut self.counters.forwarded);
                 self.count_link(i, |t| &mut t.sent);
+                self.count_link_bytes(i, len, |t| &mut t.tx_bytes);
             }
             Err(_) => {
                 bump(&mut self.counters.link_errors);
@@ -664,6 +681,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             clock: &mut self.clock,
             counters: &counters,
             link_counters: &self.link_counters,
+            link_held: &core::array::from_fn::<u8, LINKS, _>(|i| {
+                self.stack.held(Owner::Link(i as u8)).unwrap_or(0)
+            }),
+            slots: SLOTS as u16,
             changes: &mut self.changes,
             ports,
             links,

@@ -121,14 +121,27 @@ fn link_counters_count_what_each_link_took_sent_and_dropped() {
                 disconnects: 1,
                 ..Default::default()
             }),
+            tx_bytes: one.tx_bytes,
+            // 1 KiB takes 5 ms on link 1's wire.
+            capacity_bytes_per_s: 204_800,
+            held: 0,
+            slots: one.slots,
+            ..Default::default()
         }
     );
+    // The one packet sent: its header, route and "fine".
+    assert!((10..40).contains(&one.tx_bytes), "{one:?}");
+    assert!(one.slots > 0, "{one:?}");
     // Link 0: four packets and this query in, one dropped, one reply out
     // before this query's (counted when sent).
     let zero = counters_of(&mut rt, &mut links, 4_000, 0);
     assert_eq!((zero.received, zero.rx_dropped), (6, 1), "{zero:?}");
     assert_eq!(zero.sent, 1, "{zero:?}");
     assert_eq!(zero.gateway.map(|g| g.frames), Some(6));
+    // Bytes of the five packets taken in (the garbage never was), and a
+    // link that cannot tell its wire time has no capacity.
+    assert!(zero.rx_bytes > 3 * 10, "{zero:?}");
+    assert_eq!(zero.capacity_bytes_per_s, 0);
     assert_eq!(rt.link_counters(0).map(|c| c.sent), Some(2));
 
     // No such link; a request with a byte too many.
@@ -156,6 +169,11 @@ fn link_counters_round_trip_and_reject_truncation() {
             tx_dropped: 10,
             disconnects: u32::MAX,
         }),
+        rx_bytes: 11,
+        tx_bytes: 12,
+        capacity_bytes_per_s: 13,
+        held: 14,
+        slots: 15,
     };
     for c in [c, LinkCounters { gateway: None, ..c }] {
         let mut buf = [0u8; LinkCounters::ENCODED_LEN];
@@ -163,9 +181,24 @@ fn link_counters_round_trip_and_reject_truncation() {
         c.encode(&mut w).unwrap();
         assert_eq!(w.len(), LinkCounters::ENCODED_LEN);
         assert_eq!(LinkCounters::decode(&mut Reader::new(&buf)), Ok(c));
-        for n in 0..buf.len() {
+        // The first layout (45 bytes) reads with the load fields 0; any
+        // other truncation is an error.
+        const FIRST: usize = 45;
+        for n in (0..buf.len()).filter(|n| *n != FIRST) {
             assert!(LinkCounters::decode(&mut Reader::new(&buf[..n])).is_err());
         }
+        let old = LinkCounters::decode(&mut Reader::new(&buf[..FIRST])).unwrap();
+        assert_eq!(
+            old,
+            LinkCounters {
+                rx_bytes: 0,
+                tx_bytes: 0,
+                capacity_bytes_per_s: 0,
+                held: 0,
+                slots: 0,
+                ..c
+            }
+        );
     }
     let mut small = [0u8; LinkCounters::ENCODED_LEN - 1];
     assert!(c

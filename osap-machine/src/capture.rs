@@ -347,44 +347,14 @@ fn arg_value(
     ty: &Type,
     text: &str,
 ) -> Result<OwnedValue, CaptureError> {
-    let bad = |what: &str| CaptureError::BadSource {
+    let bad = |what: String| CaptureError::BadSource {
         source_name: spec.text.clone(),
         reason: format!("argument {text:?} for input {name} ({ty}): {what}"),
     };
-    let int = || text.parse::<i128>().map_err(|_| bad("not an integer"));
-    let v = match ty {
-        Type::Scalar(s) => match s {
-            ScalarType::Bool => match text {
-                "true" | "1" => OwnedValue::Bool(true),
-                "false" | "0" => OwnedValue::Bool(false),
-                _ => return Err(bad("write true or false")),
-            },
-            ScalarType::F16 | ScalarType::F32 | ScalarType::F64 => {
-                let x: f64 = text.parse().map_err(|_| bad("not a number"))?;
-                if !x.is_finite() {
-                    return Err(bad("not a finite number"));
-                }
-                match s {
-                    ScalarType::F64 => OwnedValue::F64(x),
-                    _ => OwnedValue::F32(x as f32),
-                }
-            }
-            ScalarType::U8 => OwnedValue::U8(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::U16 => OwnedValue::U16(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::U32 => OwnedValue::U32(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::U64 => OwnedValue::U64(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::I8 => OwnedValue::I8(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::I16 => OwnedValue::I16(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::I32 => OwnedValue::I32(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::I64 => OwnedValue::I64(int()?.try_into().map_err(|_| bad("out of range"))?),
-            ScalarType::I128 => OwnedValue::I128(int()?),
-            ScalarType::U128 => {
-                OwnedValue::U128(int()?.try_into().map_err(|_| bad("out of range"))?)
-            }
-        },
-        _ => return Err(bad("only numeric inputs can be given as arguments")),
-    };
-    Ok(v)
+    if !matches!(ty, Type::Scalar(_)) {
+        return Err(bad("only numeric inputs can be given as arguments".into()));
+    }
+    OwnedValue::parse(ty, text).map_err(bad)
 }
 
 /// The zero of a numeric input type (an input not given).

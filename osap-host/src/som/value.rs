@@ -218,6 +218,54 @@ impl OwnedValue {
             _ => None,
         }
     }
+
+    /// The value of type `ty` written as `text`, as a person types it:
+    /// integers and floats in decimal, bools as `true`/`false` or `1`/`0`,
+    /// strings as they are. Out-of-range integers, non-finite floats and
+    /// types without a text form (arrays, tensors) are refused, saying why.
+    pub fn parse(ty: &Type, text: &str) -> Result<OwnedValue, String> {
+        let text = text.trim();
+        let int = || {
+            text.parse::<i128>()
+                .map_err(|_| format!("{text:?} is not an integer"))
+        };
+        let range = |_| format!("{text:?} is out of range for {ty}");
+        Ok(match ty {
+            Type::Scalar(s) => match s {
+                ScalarType::Bool => match text {
+                    "true" | "1" => OwnedValue::Bool(true),
+                    "false" | "0" => OwnedValue::Bool(false),
+                    _ => return Err(format!("{text:?}: write true or false")),
+                },
+                ScalarType::F16 | ScalarType::F32 | ScalarType::F64 => {
+                    let x: f64 = text
+                        .parse()
+                        .map_err(|_| format!("{text:?} is not a number"))?;
+                    if !x.is_finite() {
+                        return Err(format!("{text:?} is not a finite number"));
+                    }
+                    match s {
+                        ScalarType::F64 => OwnedValue::F64(x),
+                        _ => OwnedValue::F32(x as f32),
+                    }
+                }
+                ScalarType::U8 => OwnedValue::U8(int()?.try_into().map_err(range)?),
+                ScalarType::U16 => OwnedValue::U16(int()?.try_into().map_err(range)?),
+                ScalarType::U32 => OwnedValue::U32(int()?.try_into().map_err(range)?),
+                ScalarType::U64 => OwnedValue::U64(int()?.try_into().map_err(range)?),
+                ScalarType::U128 => OwnedValue::U128(int()?.try_into().map_err(range)?),
+                ScalarType::I8 => OwnedValue::I8(int()?.try_into().map_err(range)?),
+                ScalarType::I16 => OwnedValue::I16(int()?.try_into().map_err(range)?),
+                ScalarType::I32 => OwnedValue::I32(int()?.try_into().map_err(range)?),
+                ScalarType::I64 => OwnedValue::I64(int()?.try_into().map_err(range)?),
+                ScalarType::I128 => OwnedValue::I128(int()?),
+            },
+            Type::Utf8 => OwnedValue::Utf8(text.to_string()),
+            Type::Ascii if text.is_ascii() => OwnedValue::Ascii(text.to_string()),
+            Type::Ascii => return Err(format!("{text:?} is not ASCII")),
+            other => return Err(format!("a {other} cannot be given as text")),
+        })
+    }
 }
 
 impl fmt::Display for OwnedValue {
