@@ -343,7 +343,10 @@ function updateLinks(list) {
     if (!c) continue;
     c.rx.textContent = fmtBytes(l.rx_bytes_per_s);
     c.tx.textContent = fmtBytes(l.tx_bytes_per_s);
-    c.load.textContent = fmtPct(l.load);
+    // The link's rate: what it carries, in packet bytes per second.
+    c.load.textContent = isNum(l.capacity_bytes_per_s)
+      ? `${fmtPct(l.load)} of ${fmtBytes(l.capacity_bytes_per_s)}`
+      : fmtPct(l.load);
     c.bar.className = loadClass(l.load);
     c.bar.style.width = isNum(l.load) ? `${Math.min(100, l.load * 100)}%` : "0";
     c.packets.textContent = `${l.packets_in ?? "–"} / ${l.packets_out ?? "–"}`;
@@ -355,7 +358,9 @@ function updateLinks(list) {
     const s = view.linkStats.get(`${edge.from}-${edge.from_link}`) || view.linkStats.get(`${edge.to}-${edge.to_link}`);
     if (!s) continue;
     const total = (isNum(s.rx_bytes_per_s) ? s.rx_bytes_per_s : 0) + (isNum(s.tx_bytes_per_s) ? s.tx_bytes_per_s : 0);
-    const kind = edge.kind ?? "link";
+    const kind = isNum(s.capacity_bytes_per_s)
+      ? `${edge.kind ?? "link"} ${fmtBytes(s.capacity_bytes_per_s)}`
+      : (edge.kind ?? "link");
     label.textContent = isNum(s.load) ? `${kind} · ${fmtBytes(total)} · ${fmtPct(s.load)}` : `${kind} · ${fmtBytes(total)}`;
     label.setAttribute("data-bytes-per-s", String(total));
     line.setAttribute("class", `edge ${loadClass(s.load)}`);
