@@ -33,6 +33,10 @@ mod view;
 struct Cli {
     #[command(subcommand)]
     command: Command,
+    /// More log output (-v info, -vv debug, -vvv trace; RUST_LOG overrides);
+    /// with scan, also every link's counters.
+    #[arg(short = 'v', long = "verbose", global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
 }
 
 #[derive(Args, Clone)]
@@ -98,9 +102,6 @@ enum Command {
         /// Also list every runtime's PIPES functions with their signatures.
         #[arg(short = 'f', long)]
         functions: bool,
-        /// Also read and print every link's packet, frame and drop counters.
-        #[arg(short = 'v', long)]
-        verbose: bool,
         /// Retries for a request that got no reply.
         #[arg(long, default_value_t = 2)]
         retries: u8,
@@ -401,9 +402,9 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
             output,
             som,
             functions,
-            verbose,
             retries,
         } => {
+            let verbose = cli.verbose > 0;
             let c = connect(&args).await?;
             let mut listing = String::new();
             if som.is_some() || functions {
@@ -412,7 +413,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
                     .map_err(|e| e.to_string())?;
                 let refresh = manager.refresh().await.map_err(|e| e.to_string())?;
                 for f in &refresh.function_failures {
-                    eprintln!("warning: {f:?}");
+                    eprintln!("warning: {f}");
                 }
                 if functions {
                     listing = function_listing(manager.som());
@@ -492,6 +493,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
 fn main() -> ExitCode {
     let started = std::time::Instant::now();
     let cli = Cli::parse();
+    init_logging(cli.verbose, matches!(cli.command, Command::Serve(_)));
     // A simulated machine in virtual time runs on one paused
     // current-thread runtime; everything else on tokio's default.
     let virtual_time = match &cli.command {
@@ -526,6 +528,25 @@ fn main() -> ExitCode {
             ExitCode::FAILURE
         }
     }
+}
+
+/// Logs to stderr through tracing: RUST_LOG when set (e.g.
+/// `RUST_LOG=osap_host=debug`), else warnings and errors, raised by each
+/// -v; a server logs its connections (info) by default.
+fn init_logging(verbose: u8, serving: bool) {
+    use tracing_subscriber::EnvFilter;
+    let level = match (verbose, serving) {
+        (0, false) => "warn",
+        (0, true) | (1, _) => "info",
+        (2, _) => "debug",
+        _ => "trace",
+    };
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(filter)
+        .with_target(verbose > 1)
+        .try_init();
 }
 
 /// The simulated machine of `path`: a topology file, or a machine file

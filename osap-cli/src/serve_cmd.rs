@@ -51,12 +51,7 @@ pub struct ServeArgs {
 /// Runs `osap serve` until Ctrl-C.
 pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
     // A server's log is its connections: who came, who was refused or
-    // closed, and why.
-    let _ = tracing_subscriber::fmt()
-        .with_writer(std::io::stderr)
-        .with_max_level(tracing_subscriber::filter::LevelFilter::INFO)
-        .with_target(false)
-        .try_init();
+    // closed, and why (main logs at info for `serve`).
     let ServeArgs {
         sim: path,
         tcp: addr,

@@ -38,7 +38,8 @@ pub async fn time(args: TimeArgs) -> Result<ExitCode, String> {
     let c = connect(&args.connect).await?;
     let report = scan(&c, 2).await?;
     for f in &report.failures {
-        eprintln!("warning: route {:?}: {}", f.route, f.error);
+        let hops: Vec<String> = f.route.iter().map(u8::to_string).collect();
+        eprintln!("warning: route {}: {}", hops.join(","), f.error);
     }
     let mut runner = Netrunner::new(&c.host).await.map_err(|e| e.to_string())?;
     runner.timeout = c.timeout;

@@ -29,9 +29,14 @@ struct Args {
     /// Where to write the proxies (`mod.rs` and one file per runtime type).
     #[arg(short, long)]
     out: Option<PathBuf>,
-    /// Write a starter script (a binary crate) into this directory.
+    /// Write a starter script (a binary crate) into this directory. Files
+    /// already there are not overwritten unless --force is given.
     #[arg(long)]
     starter: Option<PathBuf>,
+    /// With --starter: overwrite files that already exist (your edits to
+    /// src/main.rs and Cargo.toml are lost).
+    #[arg(long, requires = "starter")]
+    force: bool,
     /// The `osap-host` crate's path for the starter's Cargo.toml.
     #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/../osap-host"))]
     osap_host: String,
@@ -97,17 +102,57 @@ async fn run(args: Args) -> Result<(), String> {
             },
         )
         .map_err(|e| e.to_string())?;
+        if !args.force {
+            refuse_overwrite(dir, &files)?;
+        }
         proxygen::write(dir, &files).map_err(|e| format!("{}: {e}", dir.display()))?;
         println!(
-            "starter written to {} (cargo run -- --sim FILE | --port PATH)",
+            "starter written to {} (cargo run -- --sim FILE | --port PATH | --tcp ADDR)",
             dir.display()
         );
     }
     Ok(())
 }
 
+/// Refuses to write a starter over files that exist: the user may have
+/// edited them.
+fn refuse_overwrite(dir: &Path, files: &[proxygen::GeneratedFile]) -> Result<(), String> {
+    let existing: Vec<String> = files
+        .iter()
+        .filter(|f| dir.join(&f.path).exists())
+        .map(|f| f.path.display().to_string())
+        .collect();
+    if existing.is_empty() {
+        return Ok(());
+    }
+    let shown = existing
+        .iter()
+        .take(4)
+        .cloned()
+        .collect::<Vec<_>>()
+        .join(", ");
+    let more = existing
+        .len()
+        .checked_sub(4)
+        .filter(|n| *n > 0)
+        .map_or(String::new(), |n| format!(" and {n} more"));
+    Err(format!(
+        "{} already holds {shown}{more}: nothing written. Give --force to overwrite them (edits are lost), \
+         or refresh only the proxies with -o {}",
+        dir.display(),
+        dir.join("src/proxies").display()
+    ))
+}
+
 #[tokio::main]
 async fn main() -> ExitCode {
+    // RUST_LOG (e.g. RUST_LOG=osap_host=debug) shows what the scan does.
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env()
+        .unwrap_or_else(|_| tracing_subscriber::EnvFilter::new("warn"));
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(filter)
+        .try_init();
     match run(Args::parse()).await {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

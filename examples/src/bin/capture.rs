@@ -52,7 +52,7 @@ struct Args {
     #[arg(long, default_value_t = 2_000)]
     period_us: u32,
     /// Where to write capture.parquet and timeline.svg.
-    #[arg(long, default_value = "capture-out")]
+    #[arg(long, default_value = "examples-out/capture")]
     out: PathBuf,
 }
 

@@ -34,7 +34,7 @@ use plotters::prelude::*;
 #[command(about = "Spline deviation from the planned path at corners")]
 struct Args {
     /// Directory for the SVG plots.
-    #[arg(long, default_value = "docs/img")]
+    #[arg(long, default_value = "examples-out")]
     out: PathBuf,
     /// Also write every case as CSV to this file.
     #[arg(long)]

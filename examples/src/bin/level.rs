@@ -34,7 +34,7 @@ struct Args {
     #[arg(long, default_value_t = 0.5)]
     height: f64,
     /// Where to write mesh.toml and mesh.svg.
-    #[arg(long, default_value = "level-out")]
+    #[arg(long, default_value = "examples-out/level")]
     out: PathBuf,
 }
 

@@ -16,7 +16,7 @@ use plotters::prelude::*;
 #[command(about = "Plot the planner's profile for a square with a rounded corner")]
 struct Args {
     /// The SVG to write.
-    #[arg(long, default_value = "docs/img/plan.svg")]
+    #[arg(long, default_value = "examples-out/plan.svg")]
     out: PathBuf,
     /// Side of the square (mm).
     #[arg(long, default_value_t = 40.0)]

@@ -34,7 +34,7 @@ use plotters::prelude::*;
 #[command(about = "Draw a shape on a simulated CoreXY plotter and compare executed with sent")]
 struct Args {
     /// The SVG of the executed path to write.
-    #[arg(long, default_value = "docs/img/plotter.svg")]
+    #[arg(long, default_value = "examples-out/plotter.svg")]
     out: PathBuf,
     /// Side of the square (mm).
     #[arg(long, default_value_t = 30.0)]

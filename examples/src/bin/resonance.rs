@@ -34,7 +34,7 @@ struct Args {
     #[arg(long, default_value_t = 4.0)]
     seconds: f64,
     /// Where to write response.csv, samples.csv and bode.svg.
-    #[arg(long, default_value = "resonance-out")]
+    #[arg(long, default_value = "examples-out/resonance")]
     out: PathBuf,
 }
 

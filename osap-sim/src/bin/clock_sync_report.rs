@@ -4,7 +4,7 @@
 //!
 //! ```text
 //! cargo run --release -p osap-sim --features plot --bin clock_sync_report -- \
-//!     [--minutes 10] [--seed 1] [--out docs/clock-sync] \
+//!     [--minutes 10] [--seed 1] [--out DIR (default examples-out/clock-sync)] \
 //!     [--topologies chain4,star8,loop] [--variants cold,hot,busy] [--jobs 2]
 //! ```
 //!
@@ -80,7 +80,7 @@ fn parse_args() -> Result<Args, String> {
     let mut args = Args {
         minutes: 10.0,
         seed: 1,
-        out: PathBuf::from("docs/clock-sync"),
+        out: PathBuf::from("examples-out/clock-sync"),
         topologies: vec!["chain4".into(), "star8".into(), "loop".into()],
         variants: vec![Variant::Cold, Variant::Hot, Variant::Busy],
         jobs: 2,

@@ -2,29 +2,83 @@
 //! to its proxy and prints what it found. Start here.
 //!
 //! ```text
-//! cargo run -- --sim machine.toml     # a simulated machine
-//! cargo run -- --port /dev/ttyACM0    # a module or hub over USB
+//! cargo run -- --sim topology.toml      # a simulated machine
+//! cargo run -- --port /dev/ttyACM0      # a module or hub over USB
+//! cargo run -- --tcp 127.0.0.1:7077     # a machine served by `osap serve`
 //! ```
 
 mod proxies;
 
-use osap_host::link::serial;
-use osap_sim::machine::{self, SimMachine};
+use clap::Parser;
+use osap_host::link::stream::LinkHandle;
+use osap_host::link::{serial, tcp, udp};
 use osap_host::som::Manager;
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::{self, SimMachine};
 use std::error::Error;
+use std::net::SocketAddr;
+use std::path::PathBuf;
+
+/// Where the machine is: the same link options as `osap`.
+#[derive(Parser)]
+struct Args {
+    /// Serial port of a module or hub (repeatable), e.g. /dev/ttyACM0.
+    #[arg(long = "port", value_name = "PATH")]
+    ports: Vec<String>,
+    /// Baud rate for --port (USB modules ignore it).
+    #[arg(long, default_value_t = serial::DEFAULT_BAUD)]
+    baud: u32,
+    /// A peer over TCP (repeatable), e.g. `osap serve`'s address.
+    #[arg(long = "tcp", value_name = "ADDR")]
+    tcp: Vec<String>,
+    /// A peer over UDP (repeatable).
+    #[arg(long = "udp", value_name = "ADDR")]
+    udp: Vec<SocketAddr>,
+    /// A peer over a Unix socket (repeatable).
+    #[arg(long = "unix", value_name = "PATH")]
+    unix: Vec<PathBuf>,
+    /// Run a simulated machine (a topology file) and use it.
+    #[arg(long, value_name = "FILE")]
+    sim: Option<PathBuf>,
+}
 
 #[tokio::main]
 async fn main() -> Result<(), Box<dyn Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
-    let host = Host::start(HostConfig::default())?;
-    // Keep the machine (or the serial link) alive while the script runs.
+    let args = Args::parse();
+    let network = !(args.tcp.is_empty() && args.udp.is_empty() && args.unix.is_empty());
+    if !network && args.ports.is_empty() && args.sim.is_none() {
+        return Err("give --sim FILE, --port PATH, --tcp ADDR, --udp ADDR or --unix PATH".into());
+    }
+    // A served machine's host keeps its clock: over the network only,
+    // follow it; with modules of our own, be the clock root.
+    let follow = network && args.ports.is_empty() && args.sim.is_none();
+    let mut config = HostConfig::default();
+    config.time.root = !follow;
+    let host = Host::start(config)?;
+    // Keep the simulated machine and the links alive while the script runs.
     let mut _sim: Option<SimMachine> = None;
-    let mut _link = None;
-    match args.iter().map(String::as_str).collect::<Vec<_>>().as_slice() {
-        ["--sim", file] => _sim = Some(SimMachine::start(&host, &machine::load(file)?).await?),
-        ["--port", path] => _link = Some(serial::spawn_serial(&host, path, serial::DEFAULT_BAUD).await?),
-        _ => return Err("usage: my-machine --sim FILE | --port PATH".into()),
+    let mut links: Vec<LinkHandle> = Vec::new();
+    if let Some(file) = &args.sim {
+        _sim = Some(SimMachine::start(&host, &machine::load(file)?).await?);
+    }
+    for path in &args.ports {
+        links.push(serial::spawn_serial(&host, path, args.baud).await?);
+    }
+    for addr in &args.tcp {
+        links.push(tcp::connect(&host, addr).await?);
+    }
+    for peer in &args.udp {
+        let local = SocketAddr::new(peer.ip(), 0);
+        links.push(udp::bind(&host, local, Some(*peer), !peer.ip().is_loopback()).await?);
+    }
+    #[cfg(unix)]
+    for path in &args.unix {
+        links.push(osap_host::link::unix::connect(&host, path).await?);
+    }
+    if follow {
+        for link in &links {
+            host.trust_time_link(link.index()).await?;
+        }
     }
     let mut manager = Manager::new(&host).await?;
     manager.refresh().await?;
