@@ -29,6 +29,8 @@ pub(crate) struct Poller {
     source: Arc<Source>,
     runner: Netrunner,
     runtimes: Vec<RuntimeInfo>,
+    /// Per runtime, its route and link indices: what each reading asks.
+    targets: Vec<(Route, Vec<u8>)>,
     last: BTreeMap<(usize, u8), Reading>,
     /// Per module runtime: the fault count last seen (plain networks).
     fault_counts: BTreeMap<usize, u32>,
@@ -44,6 +46,11 @@ impl Poller {
             source: source.clone(),
             runner,
             runtimes: info.runtimes.clone(),
+            targets: info
+                .runtimes
+                .iter()
+                .map(|r| (route_of(r), r.links.clone()))
+                .collect(),
             last: BTreeMap::new(),
             fault_counts: BTreeMap::new(),
             events: source.machine.as_ref().map(|m| m.events()),
@@ -73,11 +80,11 @@ impl Poller {
     async fn read(&mut self) -> Value {
         let mut links = Vec::new();
         let mut runtimes = Vec::new();
-        for (id, r) in self.runtimes.clone().iter().enumerate() {
-            let route = route_of(r);
+        for id in 0..self.targets.len() {
+            let (route, indices) = self.targets[id].clone();
             // The stack: slots held by what arrived on each link, summed.
             let (mut held, mut slots) = (0u32, None);
-            for &index in &r.links {
+            for index in indices {
                 if let Some((l, h, n)) = self.link(id, &route, index).await {
                     links.push(l);
                     held += u32::from(h);
