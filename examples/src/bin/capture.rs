@@ -28,7 +28,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::machine::SimOptions;
 use osap_machine::svg::SvgOptions;
 use osap_machine::{job, record, Machine};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::TimeMode;
 
 #[derive(Parser, Debug)]
 #[command(about = "Record sensor streams during a job and plot them against the motion")]
@@ -158,19 +158,5 @@ async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    let runtime = match virtual_runtime() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("error: cannot start the runtime: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(run(args)) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    osap_examples::run_virtual(run(Args::parse()))
 }

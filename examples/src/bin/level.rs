@@ -22,7 +22,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::level;
 use osap_machine::machine::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::TimeMode;
 
 #[derive(Parser, Debug)]
 #[command(about = "Level a simulated mill's bed and run a job that follows it")]
@@ -146,19 +146,5 @@ async fn level_and_run(
 }
 
 fn main() -> ExitCode {
-    let args = Args::parse();
-    let runtime = match virtual_runtime() {
-        Ok(r) => r,
-        Err(e) => {
-            eprintln!("error: cannot start the runtime: {e}");
-            return ExitCode::FAILURE;
-        }
-    };
-    match runtime.block_on(run(args)) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    osap_examples::run_virtual(run(Args::parse()))
 }
