@@ -20,16 +20,42 @@
 //! 3. prints the firmware's flash and RAM use on stderr, which rustc shows
 //!    as a `linker stderr` warning because the firmware's rustflags turn on
 //!    the `linker-messages` lint.
-
-mod report;
-mod uf2;
+//!
+//! It is also each firmware's cargo runner (its `flash.sh`, named as
+//! `runner` in `.cargo/config.toml`), so `cargo run --release` flashes a
+//! board in its UF2 bootloader:
+//!
+//! ```text
+//! uf2-link flash --family rp2040|samd51 -- <ELF>
+//! ```
+//!
+//! copies `<elf>.uf2` onto the one mounted boot drive of that family
+//! (see `uf2_link::runner`); with no drive it says how to get one and exits
+//! with status 1.
 
 use std::ffi::OsString;
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
+use uf2_link::{report, runner, uf2, uf2_path};
+
 fn main() -> ExitCode {
     let args: Vec<OsString> = std::env::args_os().skip(1).collect();
+    if args.first().is_some_and(|a| a == "flash") {
+        return match runner::run(&args[1..]) {
+            Ok(flashed) => {
+                println!(
+                    "uf2-link: {}",
+                    flashed.to_string().replace('\n', "\nuf2-link: ")
+                );
+                ExitCode::SUCCESS
+            }
+            Err(e) => {
+                eprintln!("uf2-link: {e}");
+                ExitCode::FAILURE
+            }
+        };
+    }
     match run(&args) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -178,27 +204,6 @@ fn lld() -> PathBuf {
     }
 }
 
-/// Where the UF2 goes: next to the ELF, `<elf>.uf2`. Cargo links a binary
-/// as `<profile>/deps/<crate>-<hash>` and then copies it to
-/// `<profile>/<bin name>`, so for a link inside `deps/` the UF2 is written
-/// next to that final copy instead (cargo tells rustc, and so us, the bin
-/// name in `CARGO_BIN_NAME`).
-fn uf2_path(elf: &Path, bin_name: Option<OsString>) -> PathBuf {
-    let parent = elf.parent().unwrap_or(Path::new("."));
-    match (bin_name, parent.file_name()) {
-        (Some(bin), Some(dir)) if dir == "deps" => {
-            let mut name = bin;
-            name.push(".uf2");
-            parent.parent().unwrap_or(Path::new(".")).join(name)
-        }
-        _ => {
-            let mut p = elf.as_os_str().to_owned();
-            p.push(".uf2");
-            PathBuf::from(p)
-        }
-    }
-}
-
 /// The value of `-o` (as `-o path` or `-opath`).
 fn output_path(args: &[OsString]) -> Option<PathBuf> {
     let mut it = args.iter();
@@ -223,9 +228,10 @@ fn file_name(p: &Path) -> String {
 
 #[cfg(test)]
 mod tests {
-    use super::{chip_args, output_path, uf2_path, Chip};
+    use super::{chip_args, output_path, Chip};
     use std::ffi::OsString;
     use std::path::PathBuf;
+    use uf2_link::uf2_path;
 
     fn args(a: &[&str]) -> Vec<OsString> {
         a.iter().map(OsString::from).collect()
