@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # End-to-end test of the RP2040 firmware on an emulated RP2040: builds the
 # release firmware (ELF + UF2), installs the emulator bridge's pinned node
-# packages, and runs the Rust test that scans, renames, calls, syncs and
-# drives the emulated module (tests/tests/emulator.rs). One stage binds
+# packages, and runs the Rust tests that scan, rename, call, sync and
+# drive the emulated module, and see `enter_bootloader` answer and then
+# call the boot ROM's reset_to_usb_boot (tests/tests/emulator.rs). One stage binds
 # the stepper proxy generated from a *simulated* scan
 # (proxygen/tests/generated_small_machine/, checked against a live
 # simulated scan by proxygen's small_machine.rs) to the firmware, unchanged, and runs

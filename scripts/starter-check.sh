@@ -22,3 +22,7 @@ echo "$out" | grep -q "runtimes found"
 bound=$(echo "$out" | grep -c '^".*": ')
 [ "$bound" -ge 3 ] || { echo "only $bound devices bound"; exit 1; }
 echo "starter: built and bound $bound devices"
+# RUST_LOG reaches the starter's log (the host's manager logs at debug).
+log=$(RUST_LOG=osap_host=debug "$root/target/starter/debug/my-machine" --sim "$topology" 2>&1 >/dev/null)
+echo "$log" | grep -q DEBUG || { echo "RUST_LOG=osap_host=debug logged nothing in the starter"; exit 1; }
+echo "starter: RUST_LOG works"

@@ -135,6 +135,20 @@ impl IoHw for IoPins {
     }
 }
 
+/// Reboots into the boot ROM's USB mass-storage bootloader (the
+/// `RPI-RP2` drive, as a power-up with BOOTSEL held gives) for a firmware
+/// update. The ROM resets the chip through the watchdog, which returns
+/// every pin to an input, so the driver's EN pull-up lets the motor go limp.
+pub fn reboot_to_usb_boot() -> ! {
+    // No activity LED pin (the Pico's LED, GP25, is not ours to drive);
+    // both the mass-storage and the PICOBOOT interfaces, as on a cold boot.
+    embassy_rp::rom_data::reset_to_usb_boot(0, 0);
+    // The ROM does not return; should it ever, wait for the reset.
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
 /// Digital I/O pins start as inputs with pull-downs, so nothing connected
 /// is driven until a script writes it.
 pub fn digital_input(mut pin: Flex<'static>) -> Flex<'static> {

@@ -154,6 +154,7 @@ async fn main(spawner: Spawner) {
         stepper,
         io: Some(io),
         clock: local_now,
+        bootloader: Some(board::reboot_to_usb_boot),
     });
 
     // The runtime and its ports.

@@ -187,6 +187,27 @@ pub fn start_adc(mclk: &mut pac::Mclk) {
     adc_sync();
 }
 
+/// Where Adafruit's UF2 bootloader looks for its double-tap magic: the
+/// last word of the SAMD51J19's 192 KiB SRAM (`HSRAM_ADDR + HSRAM_SIZE -
+/// 4`). memory.x leaves it (and the word below it, for the stack's 8-byte
+/// alignment) out of RAM, so nothing of the program lives there.
+const DOUBLE_TAP_WORD: *mut u32 = 0x2002_FFFC as *mut u32;
+
+/// The value that makes the bootloader stay in its UF2 drive instead of
+/// starting the program (what a double tap of reset writes).
+const DOUBLE_TAP_MAGIC: u32 = 0xF016_69EF;
+
+/// Reboots into the UF2 bootloader (its drive appears for a firmware
+/// update): the double-tap magic in its word, then a system reset. The
+/// reset returns every pin to an input, so the driver's EN pull-up lets the
+/// motor go limp.
+pub fn reboot_to_uf2() -> ! {
+    // SAFETY: a word outside the program's RAM (memory.x), aligned, that
+    // the bootloader reads after the reset; SRAM keeps it through one.
+    unsafe { core::ptr::write_volatile(DOUBLE_TAP_WORD, DOUBLE_TAP_MAGIC) };
+    cortex_m::peripheral::SCB::sys_reset()
+}
+
 impl IoHw for IoPins {
     fn digital_pins(&self) -> u8 {
         self.digital.len() as u8

@@ -204,6 +204,7 @@ async fn main(spawner: Spawner) {
         stepper,
         io: Some(io),
         clock: local_now,
+        bootloader: Some(board::reboot_to_uf2),
     });
 
     // The runtime and its ports.

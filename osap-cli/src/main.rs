@@ -15,7 +15,9 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod call_cmd;
 mod capture_cmd;
+mod flash_cmd;
 mod level_cmd;
 mod machine_cmd;
 mod resonance_cmd;
@@ -115,6 +117,13 @@ enum Command {
         /// New name (at most 31 bytes).
         name: String,
     },
+    /// Call a runtime's PIPES function once: its outputs print one a
+    /// line, a refusal by name (exit code 3).
+    Call(call_cmd::CallArgs),
+    /// Update a module's firmware over the network: reboot it into its
+    /// UF2 bootloader, copy FIRMWARE (a .uf2, or an ELF with its .uf2)
+    /// onto the drive, check it came back, and optionally rename it.
+    Flash(flash_cmd::FlashArgs),
     /// Measure round-trip times to a runtime.
     Ping {
         #[command(flatten)]
@@ -476,6 +485,8 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
             Ok(ExitCode::SUCCESS)
         }
         Command::Time(args) => time_cmd::time(args).await,
+        Command::Flash(args) => flash_cmd::flash(args).await,
+        Command::Call(args) => call_cmd::call(args).await,
         Command::Serve(args) => serve_cmd::serve(args).await,
         Command::Keygen { file } => {
             Key::write_new(&file).map_err(|e| e.to_string())?;
@@ -567,7 +578,9 @@ fn load_sim(path: &std::path::Path) -> Result<machine::Topology, String> {
 }
 
 /// Scans, prints the tree (and `listing` after it), writes the map to
-/// `output` if given; exit code 2 when the map is partial.
+/// `output` if given; exit code 2 when the map is partial. An open link
+/// where nothing was heard and nothing answered (an unwired UART) has no
+/// neighbour: the tree marks it, and it leaves the map whole.
 async fn scan_and_print(
     c: &Connection,
     retries: u8,
@@ -580,8 +593,20 @@ async fn scan_and_print(
     if verbose {
         print!("{}", link_counter_listing(c, &report.map).await?);
     }
+    let lone = report
+        .map
+        .runtimes
+        .iter()
+        .flat_map(|r| &r.links)
+        .filter(|l| l.no_neighbour())
+        .count();
+    let lone = match lone {
+        0 => String::new(),
+        1 => " (1 open link with no neighbour)".to_string(),
+        n => format!(" ({n} open links with no neighbour)"),
+    };
     println!(
-        "{} runtimes, {} links, scanned in {:.1} ms",
+        "{} runtimes, {} links{lone}, scanned in {:.1} ms",
         report.map.runtimes.len(),
         report.map.links.len(),
         report.elapsed.as_secs_f64() * 1e3

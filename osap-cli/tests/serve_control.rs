@@ -34,7 +34,9 @@ fn faults_injected_through_serve_show_in_scans_and_lift() {
     assert!(bad.contains("no module \"nobody\""), "{bad}");
 
     // A frozen module answers nothing: the scan is partial, says where,
-    // and exits with 2.
+    // and exits with 2. (Heard first: a module frozen before it ever
+    // spoke is, to a scan, an open link with no neighbour.)
+    assert_eq!(scan(&served.addr).status.code(), Some(0));
     assert_eq!(served.command("freeze b"), "ok freeze b");
     let out = scan(&served.addr);
     let stderr = String::from_utf8_lossy(&out.stderr);

@@ -191,6 +191,13 @@ fn time_exits_non_zero_when_a_runtime_cannot_be_read() {
     let plotter =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples/machines/plotter.toml");
     let mut served = common::Controlled::start(&plotter);
+    // Heard first: a module that never said a word before it froze is,
+    // to a scan, an open link with no neighbour, not a failure.
+    let scan = Command::new(env!("CARGO_BIN_EXE_osap"))
+        .args(["scan", "--tcp", &served.addr])
+        .output()
+        .unwrap();
+    assert!(scan.status.success(), "{scan:?}");
     assert_eq!(served.command("freeze b"), "ok freeze b");
     let out = Command::new(env!("CARGO_BIN_EXE_osap"))
         .args(["time", "--json", "--tcp", &served.addr])

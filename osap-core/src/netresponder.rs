@@ -23,6 +23,21 @@ pub const PORT_TYPE_NAME: &str = "netresponder";
 /// in the same runtime.
 pub const ARRIVED_LOCALLY: u8 = 255;
 
+/// A link counts as having a neighbour if a packet came in on it within
+/// this long, µs. Generous: every clock-synchronised neighbour sends at least
+/// once per `interval_us` (50 ms by default).
+pub const NEIGHBOUR_HEARD_US: crate::Micros = 2_000_000;
+
+/// The `open` byte of a link-information reply: the link is closed.
+pub const LINK_CLOSED: u8 = 0;
+/// The `open` byte of a link-information reply: open, and a packet came in
+/// on it within [`NEIGHBOUR_HEARD_US`].
+pub const LINK_HEARD: u8 = 1;
+/// The `open` byte of a link-information reply: open, but nothing came in
+/// on it within [`NEIGHBOUR_HEARD_US`] (a UART cannot tell whether anything
+/// is wired to it). Readers that only know open/closed take it as open.
+pub const LINK_UNHEARD: u8 = 2;
+
 /// Longest runtime, type, port or link name, in bytes of UTF-8.
 pub const NAME_MAX: usize = 31;
 /// Lines kept in the debug log ring.
@@ -300,13 +315,14 @@ impl Changes {
 
 /// Everything a request may read or change.
 pub(crate) struct Context<'a, P, L, const LINKS: usize> {
-    #[cfg_attr(not(feature = "sync"), allow(dead_code))]
     pub now: crate::Micros,
     pub identity: &'a mut Identity,
     pub state: &'a mut State,
     pub clock: &'a mut Clock<LINKS>,
     pub counters: &'a Counters,
     pub link_counters: &'a [LinkCounters],
+    /// Per link: the local time a packet last came in on it.
+    pub link_heard: &'a [Option<crate::Micros>],
     /// Per link: stack slots held by packets that arrived on it.
     pub link_held: &'a [u8],
     /// The stack's slot count.
@@ -439,8 +455,19 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
                 .filter(|_| index < 64)
                 .ok_or(Fail::Status(Status::NoSuchIndex))?;
             let info = link.info();
+            let heard = ctx
+                .link_heard
+                .get(usize::from(index))
+                .copied()
+                .flatten()
+                .is_some_and(|t| ctx.now.saturating_sub(t) <= NEIGHBOUR_HEARD_US);
+            let open = match (link.is_open(), heard) {
+                (false, _) => LINK_CLOSED,
+                (true, true) => LINK_HEARD,
+                (true, false) => LINK_UNHEARD,
+            };
             out.u8(index)?;
-            out.u8(u8::from(link.is_open()))?;
+            out.u8(open)?;
             out.u16(link.mtu())?;
             out.str8(info.type_name)?;
             out.str8(info.name)?;
@@ -573,4 +600,129 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
         _ => return Err(Fail::Status(Status::UnknownKey)),
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::link::queue::QueueLink;
+    use crate::packet::Instruction;
+    use crate::port::{Delivery, PortInfo, PortTx};
+    use crate::route::Route;
+    use crate::transport::Transport;
+    use crate::{Micros, Runtime};
+
+    struct NoPort;
+
+    impl Port for NoPort {
+        fn info(&self, _: u16) -> PortInfo<'_> {
+            PortInfo {
+                type_name: "none",
+                name: "",
+            }
+        }
+        fn on_packet(&mut self, _: Delivery<'_>, _: &mut PortTx<'_>) {}
+    }
+
+    type Rt = Runtime<8, 128, 2, 2>;
+    type Link = QueueLink<8, 128>;
+
+    fn runtime() -> Rt {
+        let rt = Rt::new("test", "t").unwrap();
+        // No time requests of its own: link 0's outbox holds only replies.
+        #[cfg(feature = "sync")]
+        let rt = rt
+            .with_time_config(crate::clock::TimeConfig {
+                enabled: false,
+                ..Default::default()
+            })
+            .unwrap();
+        rt
+    }
+
+    /// A packet that arrives on a link, for port `dst` of the runtime.
+    fn packet(dst: u16, payload: &[u8]) -> heapless::Vec<u8, 128> {
+        let route = Route::through_links(&[0]).unwrap();
+        let mut buf = [0u8; 128];
+        let n = route
+            .write_packet(
+                &mut buf,
+                Instruction::PortHandle { src: 1, dst },
+                10_000,
+                128,
+                payload,
+            )
+            .unwrap();
+        heapless::Vec::from_slice(&buf[..n]).unwrap()
+    }
+
+    fn poll(rt: &mut Rt, links: &mut [Link; 2], now: Micros) {
+        let mut ports: [NoPort; 0] = [];
+        rt.poll(now, &mut ports, links);
+    }
+
+    /// The `open` byte link information gives for link 1, asked over
+    /// link 0 at `now`.
+    fn open_byte(rt: &mut Rt, links: &mut [Link; 2], now: Micros) -> u8 {
+        let mut payload = [0u8; 5];
+        let n = Transport::Request(7).encode(&mut payload).unwrap();
+        payload[n..n + 2].copy_from_slice(&[key::LINK_INFO, 1]);
+        assert!(links[0].inject(&packet(0, &payload[..n + 2])));
+        poll(rt, links, now);
+        let reply = links[0].take_sent().expect("a reply");
+        // [header 5][link_forward(0)][port_handle(0 -> 1)][reply 3]
+        // [key][status][index][open]...
+        assert_eq!(&reply[12..15], &[key::LINK_INFO, Status::Ok as u8, 1]);
+        reply[15]
+    }
+
+    #[test]
+    fn a_link_never_heard_is_open_without_a_neighbour() {
+        let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+        assert_eq!(open_byte(&mut rt, &mut links, 1_000), LINK_UNHEARD);
+        assert_eq!(rt.link_heard(1), None);
+        // The link the question came in on was heard, by the question.
+        assert_eq!(rt.link_heard(0), Some(1_000));
+    }
+
+    #[test]
+    fn a_packet_in_makes_a_neighbour_heard_for_the_window_only() {
+        let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+        let t = 5_000_000;
+        // A packet for a port the runtime lacks: dropped, but heard.
+        assert!(links[1].inject(&packet(9, b"hi")));
+        poll(&mut rt, &mut links, t);
+        assert_eq!(rt.link_heard(1), Some(t));
+        assert_eq!(open_byte(&mut rt, &mut links, t + 10), LINK_HEARD);
+        assert_eq!(
+            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD_US),
+            LINK_HEARD
+        );
+        assert_eq!(
+            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD_US + 1),
+            LINK_UNHEARD
+        );
+    }
+
+    #[test]
+    fn a_malformed_packet_is_heard_too() {
+        let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+        assert!(links[1].inject(&[0xff; 12]));
+        poll(&mut rt, &mut links, 1_000);
+        assert_eq!(rt.counters().malformed, 1);
+        assert_eq!(open_byte(&mut rt, &mut links, 2_000), LINK_HEARD);
+    }
+
+    #[test]
+    fn a_closed_link_reports_closed_and_forgets_its_neighbour() {
+        let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+        assert!(links[1].inject(&packet(9, b"hi")));
+        poll(&mut rt, &mut links, 1_000);
+        assert_eq!(open_byte(&mut rt, &mut links, 2_000), LINK_HEARD);
+        links[1].set_open(false);
+        assert_eq!(open_byte(&mut rt, &mut links, 3_000), LINK_CLOSED);
+        // Reopened within the window: whoever is there now is not heard yet.
+        links[1].set_open(true);
+        assert_eq!(open_byte(&mut rt, &mut links, 4_000), LINK_UNHEARD);
+    }
 }

@@ -96,6 +96,10 @@ pub struct Runtime<
     clock: Clock<LINKS>,
     counters: Counters,
     link_counters: [LinkCounters; LINKS],
+    /// Per link: the local time a packet last came in on it, whether the
+    /// runtime took it or dropped it as malformed or oversize (anything
+    /// there is a neighbour); cleared while the link is closed.
+    link_heard: [Option<Micros>; LINKS],
     changes: Changes,
     scratch: [u8; MTU],
 }
@@ -126,6 +130,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             clock: Clock::new(TimeConfig::default()),
             counters: Counters::default(),
             link_counters: [LinkCounters::default(); LINKS],
+            link_heard: [None; LINKS],
             changes: Changes::default(),
             scratch: [0; MTU],
         };
@@ -214,6 +219,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// own counts are not included: see [`LinkGateway::counters`]).
     pub fn link_counters(&self, index: usize) -> Option<&LinkCounters> {
         self.link_counters.get(index)
+    }
+
+    /// The local time a packet last came in on link `index` (taken, or
+    /// dropped as malformed or oversize), or `None` if none has since the
+    /// link last opened. A scan reads it through the netresponder's link
+    /// information ([`netresponder::NEIGHBOUR_HEARD_US`]).
+    pub fn link_heard(&self, index: usize) -> Option<Micros> {
+        self.link_heard.get(index).copied().flatten()
     }
 
     /// The packet stack (for inspection).
@@ -356,6 +369,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
         for (i, link) in links.iter_mut().enumerate().take(LINKS) {
             if !link.is_open() {
+                // Whoever is there after it reopens must be heard anew.
+                self.link_heard[i] = None;
                 continue;
             }
             let index = i as u8;
@@ -377,6 +392,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     let arrival = rx.timestamp.unwrap_or(now);
                     Ok((rx.len, arrival.saturating_add(u64::from(view.ttl()))))
                 });
+                if !matches!(
+                    pushed,
+                    Err(PushError::Write(Rx::Empty)) | Err(PushError::Claim(_))
+                ) {
+                    // Even a packet dropped below came from a neighbour.
+                    self.link_heard[i] = Some(now);
+                }
                 match pushed {
                     Ok(slot) => {
                         bump(&mut self.counters.received);
@@ -681,6 +703,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             clock: &mut self.clock,
             counters: &counters,
             link_counters: &self.link_counters,
+            link_heard: &self.link_heard,
             link_held: &core::array::from_fn::<u8, LINKS, _>(|i| {
                 self.stack.held(Owner::Link(i as u8)).unwrap_or(0)
             }),

@@ -190,7 +190,7 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             w.u8(key::LINK_INFO).unwrap();
             w.u8(0).unwrap();
             w.u8(1).unwrap(); // index
-            w.u8(1).unwrap(); // open
+            w.u8(1).unwrap(); // open, a neighbour heard
             w.u16(128).unwrap(); // mtu
             w.str8("uart").unwrap();
             w.str8("").unwrap();

@@ -10,8 +10,14 @@
 use osap_core::route::Route;
 use serde::{Deserialize, Serialize};
 
-/// Layout version of [`NetworkMap`].
+/// Layout version of [`NetworkMap`]. Fields added with a default (as
+/// [`LinkRecord::heard`]) keep it: older maps still load, and older readers
+/// skip fields they do not know.
 pub const MAP_VERSION: u32 = 1;
+
+fn yes() -> bool {
+    true
+}
 
 /// Everything a scan found.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -61,8 +67,23 @@ pub struct LinkRecord {
     pub name: String,
     /// Whether it was up.
     pub open: bool,
+    /// Whether a neighbour was there: its runtime heard something on the
+    /// link lately, the scan's request across it was answered, or the scan
+    /// lists it as a failure. An open link with `heard` false has nothing
+    /// at the other end (an unwired UART); a closed link has it false too.
+    /// Runtimes that cannot tell, and maps written before this field, give
+    /// `true`.
+    #[serde(default = "yes")]
+    pub heard: bool,
     /// Largest packet it carries.
     pub mtu: u16,
+}
+
+impl LinkRecord {
+    /// Open, but with nothing at the other end.
+    pub fn no_neighbour(&self) -> bool {
+        self.open && !self.heard
+    }
 }
 
 /// One port of a runtime.
@@ -145,7 +166,9 @@ impl NetworkMap {
     }
 
     /// The map as an indented tree from the host, following each runtime's
-    /// route (loops appear as links back to runtimes already shown).
+    /// route (loops appear as links back to runtimes already shown). Open
+    /// links with nothing at the other end are listed under their runtime
+    /// as `link 1 uart "uart0" (no neighbour)`.
     pub fn tree(&self) -> String {
         let mut out = String::new();
         let mut children: Vec<Vec<usize>> = vec![Vec::new(); self.runtimes.len()];
@@ -191,6 +214,19 @@ impl NetworkMap {
                 functions,
                 if functions == 1 { "" } else { "s" }
             ));
+            for l in r.links.iter().filter(|l| l.no_neighbour()) {
+                let name = if l.name.is_empty() {
+                    String::new()
+                } else {
+                    format!(" {:?}", l.name)
+                };
+                out.push_str(&format!(
+                    "{}link {} {}{name} (no neighbour)\n",
+                    "  ".repeat(depth + 1),
+                    l.index,
+                    l.type_name
+                ));
+            }
             for &c in &children[i] {
                 line(map, c, depth + 1, children, out);
             }

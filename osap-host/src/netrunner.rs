@@ -9,6 +9,15 @@
 //! request came in on, so every link is mapped end to end. A runtime that
 //! does not answer (after retries) is listed as a failure and the scan goes
 //! on: the map is partial, never a hang.
+//!
+//! A link whose runtime heard nothing on it lately (link information's
+//! `open` byte 2, e.g. a UART with nothing wired to it) is asked once,
+//! without retries. If nothing answers, its runtime still heard nothing
+//! there, and the link never carried a packet in (link counters), the link
+//! is recorded as having no neighbour ([`LinkRecord::heard`] false), not as
+//! a failure. If the runtime heard something meanwhile (a late reply, a
+//! neighbour waking), the request is retried as on any link; if the link
+//! carried packets before, its neighbour went silent: a failure.
 
 use crate::error::NotSynchronised;
 use crate::map::{
@@ -19,7 +28,7 @@ use crate::{Host, HostError};
 use osap_core::clock::{ClockStatus, SyncState, TimeConfig};
 use osap_core::codec::{Reader, Writer};
 use osap_core::counters::LinkCounters;
-use osap_core::netresponder::{key, Status};
+use osap_core::netresponder::{key, Status, LINK_CLOSED, LINK_UNHEARD};
 use osap_core::route::Route;
 use std::collections::{HashMap, VecDeque};
 use std::time::Duration;
@@ -30,7 +39,8 @@ use tokio::time::Instant;
 pub struct ScanOptions {
     /// How long to wait for each reply.
     pub timeout: Duration,
-    /// How many times to retry a request that got no reply.
+    /// How many times to retry a request that got no reply (the first
+    /// request across a link where nothing was heard is sent once).
     pub retries: u8,
     /// Stop after this many runtimes (a guard against runaway networks).
     pub max_runtimes: usize,
@@ -136,11 +146,21 @@ impl Netrunner {
     /// returns the reply's fields (after key and status), retrying on
     /// timeouts.
     pub async fn query(&self, route: &Route, body: &[u8]) -> Result<Vec<u8>, HostError> {
+        self.query_tries(route, body, self.retries).await
+    }
+
+    /// [`query`](Self::query) with `retries` retries.
+    async fn query_tries(
+        &self,
+        route: &Route,
+        body: &[u8],
+        retries: u8,
+    ) -> Result<Vec<u8>, HostError> {
         let mut attempt = 0;
         let reply: Datagram = loop {
             match self.port.request(route, 0, body, self.timeout).await {
                 Ok(r) => break r,
-                Err(HostError::Timeout { .. }) if attempt < self.retries => attempt += 1,
+                Err(HostError::Timeout { .. }) if attempt < retries => attempt += 1,
                 Err(e) => return Err(e),
             }
         };
@@ -168,9 +188,19 @@ impl Netrunner {
         route: &Route,
         scan_id: u32,
     ) -> Result<RuntimeInfo, HostError> {
+        self.runtime_info_tries(route, scan_id, self.retries).await
+    }
+
+    /// [`runtime_info`](Self::runtime_info) with `retries` retries.
+    async fn runtime_info_tries(
+        &self,
+        route: &Route,
+        scan_id: u32,
+        retries: u8,
+    ) -> Result<RuntimeInfo, HostError> {
         let mut body = vec![key::RUNTIME_INFO];
         body.extend_from_slice(&scan_id.to_le_bytes());
-        let f = self.query(route, &body).await?;
+        let f = self.query_tries(route, &body, retries).await?;
         let mut r = Reader::new(&f);
         let m = |e| malformed("runtime information", e);
         Ok(RuntimeInfo {
@@ -218,14 +248,20 @@ impl Netrunner {
             .map_err(|e| malformed("name", e))
     }
 
-    /// Information on link `index`.
+    /// Information on link `index`. `heard` is false for a closed link and
+    /// for an open one its runtime heard nothing on lately (`open` byte
+    /// [`LINK_UNHEARD`]); runtimes that only say open or closed give true
+    /// for an open link.
     pub async fn link_info(&self, route: &Route, index: u8) -> Result<LinkRecord, HostError> {
         let f = self.query(route, &[key::LINK_INFO, index]).await?;
         let mut r = Reader::new(&f);
         let m = |e| malformed("link information", e);
+        let index = r.u8().map_err(m)?;
+        let open = r.u8().map_err(m)?;
         Ok(LinkRecord {
-            index: r.u8().map_err(m)?,
-            open: r.u8().map_err(m)? != 0,
+            index,
+            open: open != LINK_CLOSED,
+            heard: open != LINK_CLOSED && open != LINK_UNHEARD,
             mtu: r.u16().map_err(m)?,
             type_name: r.str8().map_err(m)?.to_string(),
             name: r.str8().map_err(m)?.to_string(),
@@ -403,16 +439,24 @@ pub async fn scan_with_progress(
             let route = route.with_mtu(mtu);
             let id = next_id;
             next_id = next_id.wrapping_add(1);
-            let info = match runner.runtime_info(&route, id).await {
-                Ok(info) => info,
-                Err(e) => {
+            let info = match probe(&runner, &here, &route, link, id).await {
+                Probe::Answered(info) => info,
+                Probe::NoNeighbour => {
+                    set_heard(&mut found[i].record, link.index, false);
+                    continue;
+                }
+                Probe::Failed(error) => {
+                    // Listed as a failure, so not as a link with no neighbour.
+                    set_heard(&mut found[i].record, link.index, true);
                     failures.push(ScanFailure {
                         route: hops(&route),
-                        error: e.to_string(),
+                        error,
                     });
                     continue;
                 }
             };
+            // Answered: whatever its runtime heard lately, a neighbour is there.
+            set_heard(&mut found[i].record, link.index, true);
             let far = match sent_to.get(&info.previous_scan_id) {
                 // Seen before in this scan: a loop, or the way back.
                 Some(&known) => known,
@@ -466,6 +510,65 @@ pub async fn scan_with_progress(
         failures,
         elapsed: start.elapsed(),
     })
+}
+
+/// What a runtime-information request across a link came to.
+enum Probe {
+    Answered(RuntimeInfo),
+    /// Nothing answered and nothing was heard there: no neighbour.
+    NoNeighbour,
+    /// Why it is a failure.
+    Failed(String),
+}
+
+/// Sends runtime information request `id` across `link` of the runtime at
+/// `here` (to `route`). A link where a neighbour was heard gets the usual
+/// retries. One where nothing was heard gets one try; if that goes
+/// unanswered its runtime is asked again whether it heard anything there
+/// meanwhile (a late reply, a neighbour that just woke): if so the request
+/// is retried as on any link. If not, the link has no neighbour, unless it
+/// ever carried a packet in (its link counters): then a neighbour was there
+/// and went silent (hung, or lost power behind a UART that stays open),
+/// which is a failure.
+async fn probe(
+    runner: &Netrunner,
+    here: &Route,
+    route: &Route,
+    link: &LinkRecord,
+    id: u32,
+) -> Probe {
+    let answer = |r: Result<RuntimeInfo, HostError>| match r {
+        Ok(info) => Probe::Answered(info),
+        Err(e) => Probe::Failed(e.to_string()),
+    };
+    if link.heard {
+        return answer(runner.runtime_info(route, id).await);
+    }
+    let unanswered = match runner.runtime_info_tries(route, id, 0).await {
+        Err(e @ HostError::Timeout { .. }) => e,
+        other => return answer(other),
+    };
+    match runner.link_info(here, link.index).await {
+        Ok(now) if now.no_neighbour() => {
+            // A runtime without link counters tells nothing more.
+            match runner.link_counters(here, link.index).await {
+                Ok(c) if c.received > 0 => Probe::Failed(format!(
+                    "{unanswered} (nothing heard on link {} lately, but {} packets came in on it before: its neighbour went silent)",
+                    link.index, c.received
+                )),
+                _ => Probe::NoNeighbour,
+            }
+        }
+        Ok(now) if now.open => answer(runner.runtime_info(route, id).await),
+        // Closed meanwhile, or its runtime stopped answering: a failure.
+        _ => Probe::Failed(unanswered.to_string()),
+    }
+}
+
+fn set_heard(record: &mut RuntimeRecord, index: u8, heard: bool) {
+    if let Some(l) = record.links.iter_mut().find(|l| l.index == index) {
+        l.heard = heard;
+    }
 }
 
 fn hops(route: &Route) -> Vec<u8> {

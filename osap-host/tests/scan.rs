@@ -14,11 +14,22 @@ async fn scans_a_chain_and_round_trips_the_map_through_json() {
     let (h, a, b) = (host("h"), host("a"), host("b"));
     memory::connect(&h, &a).await.unwrap();
     memory::connect(&a, &b).await.unwrap();
+    // Host runtimes are clock roots and send nothing by themselves: before
+    // the scan nothing was heard on h's link to a.
+    let runner = netrunner::Netrunner::new(&h).await.unwrap();
+    let before = runner.link_info(&Route::local(), 0).await.unwrap();
+    assert!(before.no_neighbour(), "{before:?}");
     let report = netrunner::scan(&h, &ScanOptions::default()).await.unwrap();
     assert!(report.failures.is_empty(), "{:?}", report.failures);
     let map = &report.map;
     let names: Vec<_> = map.runtimes.iter().map(|r| r.name.as_str()).collect();
     assert_eq!(names, ["h", "a", "b"]);
+    // Each silent link answered the scan: mapped, with a neighbour.
+    assert!(map
+        .runtimes
+        .iter()
+        .flat_map(|r| &r.links)
+        .all(|l| l.open && l.heard));
     assert_eq!(map.find("b").unwrap().route, vec![0, 1]);
     assert_eq!(map.links.len(), 2);
     // h's link 0 meets a's link 0; a's link 1 meets b's link 0.
@@ -78,30 +89,157 @@ async fn renames_survive_a_rescan() {
     assert!(map.find("a").is_none());
 }
 
+/// Options for scans that wait on silent links: short timeouts.
+fn quick() -> ScanOptions {
+    ScanOptions {
+        timeout: Duration::from_millis(30),
+        retries: 2,
+        ..ScanOptions::default()
+    }
+}
+
+/// A packet as a neighbour on the far end of a link would send it: to a
+/// port the host lacks, so nothing answers it.
+fn stray_packet() -> Vec<u8> {
+    let mut buf = [0u8; 64];
+    let n = Route::through_links(&[0])
+        .unwrap()
+        .write_packet(
+            &mut buf,
+            osap_core::Instruction::PortHandle { src: 1, dst: 200 },
+            10_000,
+            64,
+            b"hello",
+        )
+        .unwrap();
+    buf[..n].to_vec()
+}
+
 #[tokio::test]
-async fn an_unanswering_runtime_gives_a_partial_map_not_a_hang() {
+async fn an_open_link_with_nothing_on_it_has_no_neighbour() {
     let (h, a) = (host("h"), host("a"));
     memory::connect(&h, &a).await.unwrap();
-    // A link that is open but leads nowhere answers nothing.
-    let (_, io) = h
-        .add_link(osap_host::LinkConfig::new("memory", "dead end"))
+    // A link that is open but leads nowhere: nothing is heard on it and
+    // nothing answers (an unwired UART).
+    let (index, io) = h
+        .add_link(osap_host::LinkConfig::new("uart", "uart0"))
         .await
         .unwrap();
     io.set_open(true);
-    let options = ScanOptions {
-        timeout: Duration::from_millis(30),
-        retries: 1,
-        ..ScanOptions::default()
-    };
+    let report = netrunner::scan(&h, &quick()).await.unwrap();
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    assert_eq!(report.map.runtimes.len(), 2);
+    let dead = &report.map.runtimes[0].links[usize::from(index)];
+    assert!(dead.open && !dead.heard && dead.no_neighbour(), "{dead:?}");
+    // Asked once, without retries (the host is a clock root: it sends
+    // nothing else there).
+    assert_eq!(io.stats().sent, 1);
+    // The link to `a`, silent before the scan too, answered: a neighbour.
+    let to_a = &report.map.runtimes[0].links[0];
+    assert!(to_a.heard && !to_a.no_neighbour(), "{to_a:?}");
+    assert!(
+        report
+            .map
+            .tree()
+            .contains(&format!("  link {index} uart \"uart0\" (no neighbour)\n")),
+        "{}",
+        report.map.tree()
+    );
+    // It survives a round trip through JSON; a map from before the field
+    // reads every link as heard.
+    let json = report.map.to_json();
+    assert_eq!(NetworkMap::from_json(&json).unwrap(), report.map);
+    let old: String = json.lines().filter(|l| !l.contains("\"heard\"")).collect();
+    assert!(NetworkMap::from_json(&old).unwrap().runtimes[0]
+        .links
+        .iter()
+        .all(|l| l.heard));
+}
+
+#[tokio::test]
+async fn a_heard_neighbour_that_does_not_answer_is_a_failure() {
+    let (h, a) = (host("h"), host("a"));
+    memory::connect(&h, &a).await.unwrap();
+    let (index, io) = h
+        .add_link(osap_host::LinkConfig::new("uart", "uart0"))
+        .await
+        .unwrap();
+    io.set_open(true);
+    // Something was there a moment ago, and has stopped answering.
+    assert!(io.deliver(stray_packet()));
+    let options = quick();
     let report = netrunner::scan(&h, &options).await.unwrap();
     assert_eq!(report.map.runtimes.len(), 2);
-    assert_eq!(report.failures.len(), 1);
-    assert_eq!(report.failures[0].route, vec![1]);
+    assert_eq!(report.failures.len(), 1, "{:?}", report.failures);
+    assert_eq!(report.failures[0].route, vec![index]);
     assert!(
         report.failures[0].error.contains("no reply"),
         "{:?}",
         report.failures
     );
+    let link = &report.map.runtimes[0].links[usize::from(index)];
+    assert!(link.heard && !link.no_neighbour(), "{link:?}");
+    // Asked with every retry.
+    assert_eq!(io.stats().sent, 1 + u64::from(options.retries));
+    assert!(!report.map.tree().contains("no neighbour"));
+}
+
+#[tokio::test]
+async fn a_neighbour_silent_for_longer_than_the_window_is_still_a_failure() {
+    use osap_core::netresponder::NEIGHBOUR_HEARD_US;
+    let h = host("h");
+    let (index, io) = h
+        .add_link(osap_host::LinkConfig::new("uart", "uart0"))
+        .await
+        .unwrap();
+    io.set_open(true);
+    // Something was there, then went silent (hung, or lost its power
+    // behind a UART that stays open) for longer than the window.
+    assert!(io.deliver(stray_packet()));
+    tokio::time::sleep(Duration::from_micros(NEIGHBOUR_HEARD_US + 100_000)).await;
+    let runner = netrunner::Netrunner::new(&h).await.unwrap();
+    let now = runner.link_info(&Route::local(), index).await.unwrap();
+    assert!(now.no_neighbour(), "nothing heard lately: {now:?}");
+    let report = netrunner::scan(&h, &quick()).await.unwrap();
+    assert_eq!(report.failures.len(), 1, "{:?}", report.failures);
+    assert_eq!(report.failures[0].route, vec![index]);
+    assert!(
+        report.failures[0].error.contains("went silent"),
+        "{:?}",
+        report.failures
+    );
+    let link = &report.map.runtimes[0].links[usize::from(index)];
+    assert!(!link.no_neighbour(), "{link:?}");
+}
+
+#[tokio::test]
+async fn a_neighbour_heard_only_after_the_first_try_is_retried() {
+    let h = host("h");
+    let (index, io) = h
+        .add_link(osap_host::LinkConfig::new("uart", "uart0"))
+        .await
+        .unwrap();
+    io.set_open(true);
+    // Silent until asked; then it sends something, but never an answer.
+    let far = io.clone();
+    let talker = tokio::spawn(async move {
+        let mut asked = 0u64;
+        while far.next_tx().await.is_some() {
+            asked += 1;
+            if asked == 1 {
+                far.deliver(stray_packet());
+            }
+        }
+        asked
+    });
+    let options = quick();
+    let report = netrunner::scan(&h, &options).await.unwrap();
+    assert_eq!(report.failures.len(), 1, "{:?}", report.failures);
+    assert_eq!(report.failures[0].route, vec![index]);
+    assert!(!report.map.runtimes[0].links[usize::from(index)].no_neighbour());
+    io.set_open(false);
+    // The first try, then the request again with every retry.
+    assert_eq!(talker.await.unwrap(), 2 + u64::from(options.retries));
 }
 
 #[tokio::test]

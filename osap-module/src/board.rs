@@ -96,10 +96,26 @@ pub trait Board {
     fn io(&mut self) -> Option<&mut dyn IoHw>;
     /// Local time, µs.
     fn now(&self) -> Micros;
+
+    /// Whether this board can reboot into its bootloader
+    /// ([`reboot_to_bootloader`](Self::reboot_to_bootloader)). The default
+    /// cannot: `enter_bootloader` then refuses with
+    /// [`BootError::Unsupported`](crate::boot::BootError::Unsupported).
+    fn has_bootloader(&self) -> bool {
+        false
+    }
+
+    /// Reboots into the bootloader (a UF2 drive for a firmware update).
+    /// Called from the runtime's loop once an armed `enter_bootloader` is
+    /// due (see [`crate::boot`]), never from inside the call, and only if
+    /// [`has_bootloader`](Self::has_bootloader). On hardware it does not
+    /// return; a simulated board takes its module off the network. The
+    /// default does nothing.
+    fn reboot_to_bootloader(&mut self) {}
 }
 
-/// A board assembled from a stepper driver, optional I/O hardware and a
-/// clock function: what a firmware usually hands to
+/// A board assembled from a stepper driver, optional I/O hardware, a
+/// clock function and a bootloader entry: what a firmware usually hands to
 /// [`crate::ModuleCell::install`].
 pub struct Parts<S, I> {
     /// The stepper driver.
@@ -108,6 +124,10 @@ pub struct Parts<S, I> {
     pub io: Option<I>,
     /// The local clock, µs.
     pub clock: fn() -> Micros,
+    /// Reboots the chip into its bootloader, if the board has one
+    /// ([`Board::reboot_to_bootloader`]); `None`: `enter_bootloader`
+    /// refuses.
+    pub bootloader: Option<fn() -> !>,
 }
 
 impl<S: StepperHw, I: IoHw> Board for Parts<S, I> {
@@ -119,6 +139,14 @@ impl<S: StepperHw, I: IoHw> Board for Parts<S, I> {
     }
     fn now(&self) -> Micros {
         (self.clock)()
+    }
+    fn has_bootloader(&self) -> bool {
+        self.bootloader.is_some()
+    }
+    fn reboot_to_bootloader(&mut self) {
+        if let Some(reboot) = self.bootloader {
+            reboot()
+        }
     }
 }
 

@@ -4,7 +4,8 @@
 //! Each is a method of [`Module`] (callable from Rust as is) and a PIPES
 //! function: a [`ModuleFn`] binds one of them to one module through a
 //! [`ModuleHandle`], so a runtime can hold them in one array. Failure codes
-//! are [`StepperError`] and [`IoError`] codes, plus [`NOT_INSTALLED`].
+//! are [`StepperError`], [`IoError`] and [`BootError`] codes, plus
+//! [`NOT_INSTALLED`].
 //!
 //! | function | inputs | outputs |
 //! |---|---|---|
@@ -26,14 +27,18 @@
 //! | `pulse_at` | `time: u64`, `pin: u8`, `duration_us: u32` | — |
 //! | `analog_read` | `channel: u8` | `time: u64`, `value: f32` |
 //! | `get_fault` | — | `time: u64`, `code: u8`, `detail: u32`, `count: u32` |
+//! | `enter_bootloader` | — | — |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
 //! with the edge's own time stamp, taken in the pin interrupt. So is
 //! `get_fault`: it then sends each new fault once (kinds and details in
-//! [`crate::fault`]).
+//! [`crate::fault`]). `enter_bootloader` answers first and reboots the
+//! board into its UF2 bootloader 100 ms later, for a firmware update
+//! (`osap flash`; see [`crate::boot`]).
 
 use crate::board::Board;
+use crate::boot::BootError;
 use crate::io::IoError;
 use crate::stepper::StepperError;
 use crate::{Module, ModuleHandle};
@@ -175,6 +180,21 @@ impl<B: Board> Module<B> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         Ok((now, self.io.analog_read(hw, channel)?))
     }
+
+    /// Reboots the board into its bootloader for a firmware update, after
+    /// this call has answered (see [`crate::boot`]): refused on a board
+    /// without one, and while the axis has motion queued or running.
+    pub fn enter_bootloader(&mut self) -> Result<(), CallError> {
+        if !self.board.has_bootloader() {
+            return Err(BootError::Unsupported.into());
+        }
+        if !self.stepper.is_standing() {
+            return Err(BootError::Moving.into());
+        }
+        let now = self.board.now();
+        self.boot.arm(now);
+        Ok(())
+    }
 }
 
 /// The next input of a call, as a `T`.
@@ -265,6 +285,7 @@ module_functions! {
     pulse_at(time: u64, pin: u8, duration_us: u32);
     analog_read(channel: u8) -> (time: u64, value: f32);
     get_fault() -> (time: u64, code: u8, detail: u32, count: u32);
+    enter_bootloader();
 }
 
 /// One of the module's functions bound to one module: what a function

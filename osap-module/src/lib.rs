@@ -34,6 +34,8 @@
 extern crate std;
 
 pub mod board;
+pub mod boot;
+pub mod failure;
 pub mod fault;
 pub mod functions;
 pub mod io;
@@ -45,6 +47,7 @@ pub use ports::{ModulePort, ModulePorts, PORT_COUNT, PORT_INDICES};
 pub use stepper::{STEP_TICK_US, TICKS_PER_WORD};
 
 use board::Board;
+use boot::BootRequest;
 use core::cell::RefCell;
 use critical_section::Mutex;
 use fault::{Fault, FaultKind};
@@ -76,6 +79,8 @@ pub struct Module<B> {
     pub time: TimeMap,
     /// The latest fault and the faults since boot (`get_fault`).
     pub fault: Fault,
+    /// A reboot into the bootloader, armed by `enter_bootloader`.
+    pub boot: BootRequest,
     /// When the latest control point was accepted, synchronized µs.
     last_point_at: u64,
     board: B,
@@ -109,6 +114,7 @@ impl<B: Board> Module<B> {
             limit: Limit::default(),
             time: TimeMap::IDENTITY,
             fault: Fault::default(),
+            boot: BootRequest::default(),
             last_point_at: 0,
             board,
             step_anchor: None,
@@ -239,6 +245,18 @@ impl<B: Board> Module<B> {
     /// When [`poll_io`](Self::poll_io) next has work, local µs.
     pub fn io_wake_at(&self, now: Micros, system: u64) -> Option<Micros> {
         self.io.wake_at(now, system)
+    }
+
+    /// Reboots into the bootloader if `enter_bootloader` armed it and it is
+    /// due at local time `now` (see [`boot`]): disables the driver, then
+    /// hands over to the board, which on hardware does not return. The
+    /// runtime's loop calls it through the pulse timer port.
+    pub fn poll_boot(&mut self, now: Micros) {
+        if self.boot.take_due(now) {
+            self.stepper.set_enable(false);
+            self.board.stepper().set_enable(false);
+            self.board.reboot_to_bootloader();
+        }
     }
 }
 

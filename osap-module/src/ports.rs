@@ -1,6 +1,7 @@
 //! The module's ports, for the firmware's runtime: one PIPES function port
 //! per module function, and a port with no index of its own that ends and
-//! starts timed pulses from the runtime's loop.
+//! starts timed pulses from the runtime's loop (and performs an armed
+//! reboot into the bootloader, see [`crate::boot`]).
 
 use crate::functions::{ModuleFn, ALL};
 use crate::ModuleHandle;
@@ -20,8 +21,8 @@ pub const FN_STORE: usize = 48;
 /// A module function as a runtime port.
 pub type ModuleFunction<H> = PipesFunction<ModuleFn<H>, FN_PIPES, FN_QUEUE, FN_STORE>;
 
-/// The timer for pulses: serves no port index; the runtime polls it and
-/// wakes for it.
+/// The timer for pulses and for an armed reboot into the bootloader:
+/// serves no port index; the runtime polls it and wakes for it.
 #[derive(Debug)]
 pub struct PulseTimer<H> {
     module: H,
@@ -57,12 +58,20 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         let (now, system) = (tx.now(), tx.system_time());
         self.last = (now, system);
-        self.module.with(|m| m.poll_io(now, system));
+        self.module.with(|m| {
+            m.poll_io(now, system);
+            m.poll_boot(now);
+        });
     }
 
     fn wake_at(&self) -> Option<Micros> {
         let (now, system) = self.last;
-        self.module.with(|m| m.io_wake_at(now, system)).flatten()
+        self.module
+            .with(|m| {
+                let io = m.io_wake_at(now, system);
+                [io, m.boot.due_at()].into_iter().flatten().min()
+            })
+            .flatten()
     }
 }
 

@@ -304,6 +304,7 @@ fn a_firmware_cell_refuses_until_installed() {
         stepper: Limp,
         io: None,
         clock: zero,
+        bootloader: None,
     });
     call(&&CELL, FnId::set_enable, &[Value::Bool(true)]).unwrap();
     CELL.limit_changed(5, true);

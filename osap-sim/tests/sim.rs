@@ -568,6 +568,15 @@ fn bad_topologies_are_refused_with_reasons() {
             format!("{HUB}{HOST_HUB}{STEPPER}{HUB_S}{HUB_S}"),
             "stepper \"s\" already has its uart/rs485 link (link 2)",
         ),
+        // A dangling UART is a stepper's, and only while nothing joins it.
+        (
+            format!("{HUB}dangling_uart = true\n{HOST_HUB}"),
+            "dangling_uart is for modules of type \"stepper\"",
+        ),
+        (
+            format!("{HUB}{HOST_HUB}{STEPPER}dangling_uart = true\n{HUB_S}"),
+            "stepper \"s\" has dangling_uart = true, so nothing may join its uart/rs485 link",
+        ),
     ];
     for (text, reason) in cases {
         let error = parse_error(&text);
@@ -612,6 +621,86 @@ fn bad_topologies_are_refused_with_reasons() {
         .unwrap_err()
         .to_string();
     assert!(error.contains("no/such/topology.toml"), "{error}");
+}
+
+/// One stepper on USB whose UART is open with nothing wired to it: a lone
+/// board plugged in.
+const LONE: &str = r#"
+name = "lone"
+[[module]]
+name = "motor"
+type = "stepper"
+dangling_uart = true
+[[link]]
+a = "host"
+b = "motor"
+kind = "usb"
+"#;
+
+#[tokio::test]
+async fn a_lone_module_with_an_unwired_uart_scans_whole() {
+    let host = host();
+    let topology = Topology::parse(LONE).unwrap();
+    assert!(topology.modules[0].dangling_uart);
+    let machine = SimMachine::start(&host, &topology).await.unwrap();
+    let motor = machine.route_to("motor").unwrap();
+    // The UART is open, and nothing is heard on it.
+    let nr = Netrunner::new(&host).await.unwrap();
+    let uart = nr.link_info(&motor, 1).await.unwrap();
+    assert_eq!(uart.type_name, "uart");
+    assert!(uart.open && !uart.heard, "{uart:?}");
+    let report = netrunner::scan(&host, &ScanOptions::default())
+        .await
+        .unwrap();
+    assert!(report.failures.is_empty(), "{:?}", report.failures);
+    let map = &report.map;
+    assert_eq!(map.runtimes.len(), 2);
+    assert_eq!(map.links.len(), 1);
+    let links = &map.find("motor").unwrap().links;
+    assert!(!links[0].no_neighbour(), "USB: the host");
+    assert!(links[1].no_neighbour(), "{:?}", links[1]);
+    assert!(
+        map.tree().contains("    link 1 uart (no neighbour)\n"),
+        "{}",
+        map.tree()
+    );
+}
+
+#[tokio::test]
+async fn a_heard_module_that_stops_answering_is_a_failure() {
+    let host = host();
+    let topology = machine::load(shipped("small-machine.toml"))
+        .unwrap()
+        .with_zero_latency(true);
+    let machine = SimMachine::start(&host, &topology).await.unwrap();
+    let h = machine.host_links()[0];
+    let hub = route(&[h]);
+    // Wait until the hub has heard y (its clock requests), then freeze y:
+    // heard a moment ago, answering nothing now.
+    let nr = Netrunner::new(&host).await.unwrap();
+    let start = Instant::now();
+    while !nr.link_info(&hub, 2).await.unwrap().heard {
+        assert!(start.elapsed() < Duration::from_secs(5), "y never heard");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    machine
+        .inject(&osap_sim::machine::Fault::Freeze("y".into()))
+        .await
+        .unwrap();
+    let report = netrunner::scan(&host, &ScanOptions::default())
+        .await
+        .unwrap();
+    assert!(report.map.find("y").is_none());
+    assert_eq!(report.failures.len(), 1, "{:?}", report.failures);
+    assert_eq!(report.failures[0].route, vec![h, 2]);
+    assert!(
+        report.failures[0].error.contains("no reply"),
+        "{:?}",
+        report.failures
+    );
+    let to_y = &report.map.find("hub").unwrap().links[2];
+    assert!(to_y.heard && !to_y.no_neighbour(), "{to_y:?}");
+    assert!(!report.map.tree().contains("no neighbour"));
 }
 
 #[tokio::test]

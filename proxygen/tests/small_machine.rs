@@ -66,11 +66,13 @@ async fn proxies_drive_the_simulated_small_machine() {
         (status.mode, status.queued, status.enabled, status.faults),
         (0, 0, false, 0)
     );
-    // Disabled: the device refuses (failure code 6), and the error says so.
+    // Disabled: the device refuses (failure code 6), and the error says
+    // so by name, with the fix.
     let t = (start.time + 5_000_000).next_multiple_of(2048);
     let refused = x.add_point(t, 0.0).await.unwrap_err().to_string();
     assert!(
-        refused.contains("add_point") && refused.contains("code 6"),
+        refused.contains("add_point")
+            && refused.contains("Disabled (code 6): the motor is disabled: enable it"),
         "{refused}"
     );
     x.set_enable(true).await.unwrap();
@@ -86,7 +88,10 @@ async fn proxies_drive_the_simulated_small_machine() {
     );
     // The simulated driver sets 1 to 32 microsteps (code 10, a bad value).
     let e = y.set_microsteps(64).await.unwrap_err().to_string();
-    assert!(e.contains("set_microsteps") && e.contains("code 10"), "{e}");
+    assert!(
+        e.contains("set_microsteps") && e.contains("BadValue (code 10)"),
+        "{e}"
+    );
     y.set_microsteps(32).await.unwrap();
     let limit = x.read_limit().await.unwrap();
     assert_eq!((limit.time, limit.level, limit.edges), (0, true, 0));

@@ -19,9 +19,13 @@
 //! then runs on the emulated module and on a simulated stepper started on
 //! the same host, and both must report the same step counts.
 //!
-//! It needs the release firmware and node with the bridge's packages, so it
-//! is ignored by a plain `cargo test`; `scripts/emulator-test.sh` builds
-//! both and runs it (CI does).
+//! A second, short test calls `enter_bootloader` on the emulated firmware:
+//! it answers, then the firmware calls the boot ROM's `reset_to_usb_boot`
+//! (the emulator's fake ROM halts there; BOOTSEL mode is not emulated).
+//!
+//! They need the release firmware and node with the bridge's packages, so
+//! they are ignored by a plain `cargo test`; `scripts/emulator-test.sh`
+//! builds both and runs them, one emulator at a time (CI does).
 
 use osap_core::clock::SyncState;
 use osap_core::route::Route;
@@ -414,9 +418,14 @@ fn pct(sorted: &[Duration], p: f64) -> Duration {
     sorted[((sorted.len() - 1) as f64 * p).round() as usize]
 }
 
+/// One emulator at a time: each takes a core, and the long test's timing
+/// checks need it.
+static ONE_EMULATOR: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "needs the release firmware and node: scripts/emulator-test.sh runs it"]
 async fn the_firmware_runs_on_an_emulated_rp2040() {
+    let _one = ONE_EMULATOR.lock().await;
     let dir = std::env::temp_dir().join(format!("osap-emulator-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let flash = dir.join("flash.bin");
@@ -746,5 +755,79 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     let stats = emu.control(json!({"cmd": "stats"})).await;
     println!("emulator: {stats}");
 
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `enter_bootloader` on the firmware: the call answers, then (its delay
+/// later) the firmware calls the boot ROM's `reset_to_usb_boot`, once. The
+/// emulator's fake ROM halts the core there: BOOTSEL mode (the USB drive)
+/// is not emulated, so what follows the ROM call is not seen here.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "needs the release firmware and node: scripts/emulator-test.sh runs it"]
+async fn enter_bootloader_answers_then_calls_the_rom_usb_boot() {
+    let _one = ONE_EMULATOR.lock().await;
+    let dir = std::env::temp_dir().join(format!("osap-emulator-boot-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let flash = dir.join("flash.bin");
+    let _ = std::fs::remove_file(&flash);
+    let emu = Emulator::start(&flash).await;
+    let host = Host::start(HostConfig::named("script")).unwrap();
+    let link = join(&host, &emu).await;
+    let route = Route::through_links(&[link.index()]).unwrap();
+    let mut nr = Netrunner::new(&host).await.unwrap();
+    nr.timeout = PATIENCE;
+    let name = module_name(&nr, &route).await;
+    let options = ManagerOptions {
+        scan: ScanOptions {
+            timeout: PATIENCE,
+            ..ScanOptions::default()
+        },
+        timeout: PATIENCE,
+        retries: 2,
+    };
+    let mut m = Manager::with_options(&host, options).await.unwrap();
+    m.refresh().await.unwrap();
+    let enter = m.function(&FnRef::new(&name, "enter_bootloader")).unwrap();
+    let before = emu.control(json!({"cmd": "stats"})).await;
+    assert_eq!(before["halted"], Value::Null, "{before}");
+    assert_eq!(
+        before["rom_calls"]["reset_to_usb_boot"],
+        json!(0),
+        "{before}"
+    );
+
+    let asked = Instant::now();
+    let outputs = enter.call(&[]).await.unwrap();
+    assert!(outputs.is_empty(), "{outputs:?}");
+    let answered = asked.elapsed();
+    // The answer came back: the core had not called the ROM before it.
+    let deadline = Instant::now() + Duration::from_secs(30);
+    let halted = loop {
+        let stats = emu.control(json!({"cmd": "stats"})).await;
+        if !stats["halted"].is_null() {
+            break stats;
+        }
+        assert!(
+            Instant::now() < deadline,
+            "the firmware never rebooted into its bootloader: {stats}"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
+    assert!(
+        halted["halted"]
+            .as_str()
+            .is_some_and(|h| h.contains("reset_to_usb_boot")),
+        "{halted}"
+    );
+    assert_eq!(
+        halted["rom_calls"]["reset_to_usb_boot"],
+        json!(1),
+        "{halted}"
+    );
+    println!(
+        "enter_bootloader answered in {answered:?}; then the firmware called the ROM's \
+         reset_to_usb_boot ({})",
+        halted["halted"]
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -69,6 +69,7 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
         stepper: Driver,
         io: Some(Board([false; 8])),
         clock,
+        bootloader: None,
     });
     let module = Host::start(HostConfig::named("stepper-0")).unwrap();
     for port in ModulePorts::new(&MODULE).unwrap().into_ports() {

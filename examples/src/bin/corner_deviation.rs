@@ -421,6 +421,7 @@ where
 }
 
 fn main() -> Result<(), Box<dyn Error>> {
+    osap_examples::init_logging();
     let args = Args::parse();
     if !(args.accel.is_finite() && args.accel > 0.0) {
         return Err("--accel must be finite and > 0".into());

@@ -161,6 +161,7 @@ fn fmt(p: &[f64]) -> String {
 }
 
 fn main() -> ExitCode {
+    osap_examples::init_logging();
     let args = Args::parse();
     let runtime = if args.fast {
         virtual_runtime()

@@ -153,6 +153,7 @@ impl Demo {
 }
 
 fn main() {
+    osap_examples::init_logging();
     let mut demo = Demo::new();
     let routes = [
         ("hub", vec![0]),

@@ -66,6 +66,7 @@ impl Panel {
 }
 
 fn main() -> Result<(), Box<dyn Error>> {
+    osap_examples::init_logging();
     let a = Args::parse();
     if a.step == 0 {
         return Err("--step must be > 0".into());

@@ -56,6 +56,7 @@ const LEAD: u32 = 16 * IV;
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
 async fn main() -> Result<(), Box<dyn Error>> {
+    osap_examples::init_logging();
     let args = Args::parse();
     let (side, r) = (args.side, args.radius);
     if !(side > 0.0 && r >= 0.0 && r < side && args.feed > 0.0) {

@@ -548,6 +548,7 @@ async fn play_to(addr: &str, tune: &str) -> Result<(), BoxError> {
 }
 
 fn main() -> ExitCode {
+    osap_examples::init_logging();
     let args = Args::parse();
     let result = if let Some(addr) = args.play_to.clone() {
         tokio::runtime::Builder::new_current_thread()

@@ -88,6 +88,8 @@ pub(crate) fn from_som(som: &Som, title: &str, machine: Option<Value>) -> Info {
                     "kind": l.type_name,
                     "name": l.name,
                     "open": l.open,
+                    // False: open with nothing at the other end.
+                    "heard": l.heard,
                     "peer": peer(id, l.index),
                     "capacity_bytes_per_s": Value::Null,
                 })

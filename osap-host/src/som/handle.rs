@@ -6,7 +6,7 @@ use super::{FnRef, OwnedValue, SomError};
 use crate::{HostError, PortHandle, HOST_MTU};
 use osap_core::codec::Writer;
 use osap_core::route::Route;
-use pipes_core::control::{ControlKey, Reply, ReplyBody, Request};
+use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::convert::{rule, Rule};
 use pipes_core::{Args, ArgsWriter, Type};
 use std::sync::Arc;
@@ -26,6 +26,22 @@ pub(crate) struct Target {
     pub(crate) function: FnRef,
     pub(crate) route: Route,
     pub(crate) port: u16,
+    /// Whether the runtime is an osap-rs module, so its failure codes
+    /// print by name ([`super::failure`]).
+    pub(crate) module_codes: bool,
+}
+
+impl Target {
+    /// What failure code `error` means, if it is one and the runtime's
+    /// codes are known.
+    fn failure(&self, error: &ControlError) -> Option<Box<super::failure::Failure>> {
+        match error {
+            ControlError::CallFailed(code) if self.module_codes => {
+                osap_module::failure::failure(&self.function.function, *code).map(Box::new)
+            }
+            _ => None,
+        }
+    }
 }
 
 /// A successful reply's bytes (key and status included), parsed on demand.
@@ -48,6 +64,7 @@ impl ReplyBytes {
             Err(error) => Err(SomError::Remote {
                 function: at.function.clone(),
                 request,
+                failure: at.failure(&error),
                 error,
             }),
             Ok(_) if reply.key != key.to_u8() => Err(SomError::Malformed {

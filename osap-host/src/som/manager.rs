@@ -189,6 +189,27 @@ impl Manager {
         som.resolve_pipes();
         self.som = som;
         report.elapsed = start.elapsed();
+        // RUST_LOG=osap_host=debug: what a script's model holds.
+        tracing::debug!(
+            "system object model read in {:.1} ms: {} runtimes ({} osap-rs modules), \
+             {} functions, {} classes, {} pipes; {} unreachable, {} functions unread",
+            report.elapsed.as_secs_f64() * 1e3,
+            self.som.runtimes.len(),
+            self.som
+                .runtimes
+                .iter()
+                .filter(|r| super::failure::is_osap_module(r))
+                .count(),
+            self.som
+                .runtimes
+                .iter()
+                .map(|r| r.functions.len())
+                .sum::<usize>(),
+            self.som.classes.len(),
+            self.som.pipes.len(),
+            report.scan_failures.len(),
+            report.function_failures.len()
+        );
         Ok(report)
     }
 
@@ -211,6 +232,8 @@ impl Manager {
             function: FnRef::new(r.record.name.clone(), listed),
             route: host_route(som, ri),
             port,
+            // Mid-scan the function set is not known yet.
+            module_codes: false,
         };
         let sig = self
             .control
@@ -372,6 +395,7 @@ impl Manager {
                 function: f.clone(),
                 route: host_route(&self.som, ri),
                 port: func.port,
+                module_codes: super::failure::is_osap_module(&self.som.runtimes[ri]),
             },
         ))
     }
@@ -759,6 +783,8 @@ impl Manager {
             function: fref,
             route: host_route(&self.som, ri),
             port: c.port,
+            // osap-rs modules have no classes.
+            module_codes: false,
         };
         Ok(FunctionHandle::new(
             self.control.clone(),

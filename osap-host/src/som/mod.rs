@@ -30,6 +30,7 @@
 //! # let _ = out; Ok(()) }
 //! ```
 
+pub mod failure;
 mod handle;
 mod host_class;
 mod host_fn;
@@ -79,6 +80,15 @@ impl fmt::Display for FnRef {
     }
 }
 
+/// A remote error as [`SomError::Remote`] prints it: a named failure, or
+/// the error as it is.
+fn refusal(error: &ControlError, failure: &Option<Box<failure::Failure>>) -> String {
+    match (error, failure) {
+        (ControlError::CallFailed(_), Some(f)) => f.to_string(),
+        _ => error.to_string(),
+    }
+}
+
 /// What can go wrong building or using the system object model. Every
 /// error about a function names it and its runtime.
 #[derive(Debug, thiserror::Error)]
@@ -100,8 +110,9 @@ pub enum SomError {
     /// The runtime has no function with this name.
     #[error("{0}: no such function in the system object model")]
     NoSuchFunction(FnRef),
-    /// A function answered a request with an error.
-    #[error("{function}: {request} refused: {error}")]
+    /// A function answered a request with an error. A failure code of an
+    /// osap-rs module's function prints by name (`QueueFull (code 8): ..`).
+    #[error("{function}: {request} refused: {}", refusal(error, failure))]
     Remote {
         /// The function.
         function: FnRef,
@@ -109,6 +120,10 @@ pub enum SomError {
         request: &'static str,
         /// Its answer.
         error: ControlError,
+        /// What `error`'s failure code means, when it is one
+        /// ([`ControlError::CallFailed`]) and the host knows the device's
+        /// codes (see [`failure`]). Boxed: errors stay small.
+        failure: Option<Box<failure::Failure>>,
     },
     /// A request to a function got no reply, or could not be sent.
     #[error("{function}: {request} failed: {source}")]

@@ -5,8 +5,8 @@ use maxl::blocks::kinematics::KinError;
 use maxl::blocks::planner::PlanError;
 use osap_host::som::SomError;
 use osap_host::HostError;
+use osap_module::failure::{failure, generic, Family};
 use osap_module::fault::FaultKind;
-use osap_module::stepper::StepperError;
 
 /// An error of the [`Machine`](super::Machine) API.
 #[derive(Debug, thiserror::Error)]
@@ -125,36 +125,19 @@ pub enum MachineError {
     Stopped,
 }
 
-/// The name of a stepper failure code, as the module documents it.
+/// A stepper failure code (`add_point`'s, say) by name and reason, from
+/// osap-module's table: `QueueFull (code 8): the module's queue is full ..`.
 pub fn stepper_reason(code: u8) -> String {
-    use StepperError as E;
-    let all = [
-        E::Misaligned,
-        E::Stale,
-        E::Gap,
-        E::Faulted,
-        E::OutOfRange,
-        E::Disabled,
-        E::Discontinuous,
-        E::QueueFull,
-        E::Busy,
-        E::BadValue,
-    ];
-    match all.iter().find(|e| e.code() == code) {
-        Some(E::Misaligned) => "time not a multiple of the interval".into(),
-        Some(E::Stale) => "point not after the newest queued one (arrived late)".into(),
-        Some(E::Gap) => "two or more points missing before this one".into(),
-        Some(E::Faulted) => "the axis is faulted or halted (cycle the motor's enable)".into(),
-        Some(E::OutOfRange) => {
-            "position beyond the module's track range (±32 767 microsteps)".into()
-        }
-        Some(E::Disabled) => "the motor is disabled".into(),
-        Some(E::Discontinuous) => "a new stream must start where the axis stands".into(),
-        Some(E::QueueFull) => "the module's queue is full (stream too far ahead)".into(),
-        Some(E::Busy) => "the setting can only change while no stream is queued".into(),
-        Some(E::BadValue) => "the value is not allowed".into(),
-        None => format!("failure code {code}"),
-    }
+    Family::Stepper
+        .failure(code)
+        .or_else(|| generic(code))
+        .map_or_else(|| format!("failure code {code}"), |f| f.to_string())
+}
+
+/// A failure code of the module function `function` by name and reason
+/// (osap-module's table); unknown codes by number.
+pub fn module_reason(function: &str, code: u8) -> String {
+    failure(function, code).map_or_else(|| format!("failure code {code}"), |f| f.to_string())
 }
 
 /// What a module's fault means, as a predicate of the module ("module y

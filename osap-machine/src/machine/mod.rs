@@ -152,7 +152,7 @@ fn som_refusal(module: &str, function: &str, e: SomError) -> MachineError {
         } => MachineError::ModuleRefused {
             module: module.into(),
             function: function.into(),
-            reason: error::stepper_reason(code),
+            reason: error::module_reason(function, code),
         },
         other => MachineError::Network(other),
     }

@@ -153,6 +153,7 @@ pub extern "C" fn _start() -> ! {
         stepper: Driver { on: false },
         io: None,
         clock,
+        bootloader: None,
     });
     // A non-identity map: +400 ppm since local 0.
     let mut c: Clock<1> = Clock::new(Default::default());

@@ -13,12 +13,17 @@
 //!   outputs, 3 analog inputs) record what the module writes and read what
 //!   the topology or a test sets; an analog input may carry an
 //!   **accelerometer** ([`accel`]) that sees the carriage through a
-//!   mass-spring mode.
+//!   mass-spring mode;
+//! - a **UF2 bootloader** ([`bootloader`]), if the topology gives the
+//!   module one: `enter_bootloader` then takes the module off the network
+//!   and shows a drive a UF2 file can be copied onto.
 
 pub mod accel;
+pub mod bootloader;
 
 use super::clock::DriftClock;
 use accel::{Accel, AccelSpec};
+use bootloader::BootHook;
 use osap_core::Micros;
 use osap_module::board::{Board, IoHw, StepperHw};
 use serde::{Deserialize, Serialize};
@@ -471,14 +476,16 @@ impl IoHw for Pins {
     }
 }
 
-/// A simulated module's board: driver, motor, pins and the module's
-/// drifting local clock.
+/// A simulated module's board: driver, motor, pins, the module's
+/// drifting local clock, and a UF2 bootloader if it has one.
 #[derive(Debug, Clone)]
 pub struct SimBoard {
     clock: DriftClock,
     driver: Driver,
     motor: Motor,
     pins: Pins,
+    /// What rebooting into the bootloader does (`None`: no bootloader).
+    boot: Option<BootHook>,
 }
 
 impl SimBoard {
@@ -492,7 +499,13 @@ impl SimBoard {
             },
             motor: Motor::new(motor),
             pins: Pins::new(io, clock),
+            boot: None,
         }
+    }
+
+    /// Gives the board a bootloader: rebooting into it calls `hook`.
+    pub(crate) fn set_bootloader(&mut self, hook: BootHook) {
+        self.boot = Some(hook);
     }
 
     /// The stepper driver.
@@ -545,5 +558,13 @@ impl Board for SimBoard {
     }
     fn now(&self) -> Micros {
         self.clock.now_us()
+    }
+    fn has_bootloader(&self) -> bool {
+        self.boot.is_some()
+    }
+    fn reboot_to_bootloader(&mut self) {
+        if let Some(hook) = &self.boot {
+            hook.call();
+        }
     }
 }

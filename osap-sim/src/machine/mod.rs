@@ -11,7 +11,7 @@
 //! Module types:
 //!
 //! - `stepper` is the module firmware itself: an [`osap_module::Module`]
-//!   on a simulated board ([`board::SimBoard`]), with the same 17 PIPES
+//!   on a simulated board ([`board::SimBoard`]), with the same 19 PIPES
 //!   functions, failure codes and step-word path as every board's firmware
 //!   (a scan of it gives the firmware's `FUNCTION_SET_ID`, so proxies
 //!   generated from it bind on hardware). Its step words are clocked out
@@ -78,6 +78,9 @@
 //! root = false               # optional, DES only: the clock root, not the host
 //! busy = false               # optional, DES only: busy spells
 //! clock = "fixed"            # optional, DES only: "drawn" draws the clock
+//! dangling_uart = false      # optional, "stepper" only: its UART (link 1),
+//!                            # joined by no [[link]], is open with nothing
+//!                            # wired to it (else it stays closed)
 //! [module.motor]             # optional, for "stepper" only; defaults shown
 //! full_steps_per_unit = 80.0 # full steps per unit of carriage travel
 //! limit_min = -2.0           # optional: a limit switch pressed below this
@@ -87,6 +90,10 @@
 //! [module.io]                # optional, for "stepper" only
 //! digital = [false, false]   # levels of pins 0..4 while nothing drives them
 //! analog = [0.5, 0.0, 1.0]   # analog inputs 0..3, fractions of full scale
+//! [module.bootloader]        # optional, for "stepper" only: a UF2 bootloader
+//! drive = "/tmp/x-drive"     # the directory its USB drive appears in
+//! chip = "rp2040"            # optional: "rp2040" (default) or "samd51"
+//! reboot_ms = 300            # optional: reboot into a new firmware, ms
 //!
 //! [[link]]
 //! a = "host"                 # "host" is the Host the machine attaches to
@@ -116,7 +123,9 @@
 //! Unknown keys are errors. A module's link indices (what routes name)
 //! follow the order its links are listed in the file, from 0 (a
 //! `stepper`'s are the firmware's: its `usb` link 0, its `uart` or `rs485`
-//! link 1, and one it lacks is there and never opens); the host's
+//! link 1, and one it lacks is there and never opens, unless
+//! `dangling_uart` opens its UART onto nothing, as a real board's UART is
+//! always open; a scan then finds no neighbour there); the host's
 //! links are attached in file order after any it already has
 //! ([`SimMachine::host_links`] tells their indices). Validation rejects, with
 //! a message naming the module or link: duplicate or empty names, names or
@@ -126,10 +135,11 @@
 //! no link to the host, modules the host cannot reach, more than one
 //! module with `root = true`, a `loss` or `corrupt_per_byte` outside
 //! `[0, 1]`, `loss` on a `memory` link, `jitter_us` or
-//! `corrupt_per_byte` on a link that is not a UART, and a `[[switch]]`
-//! (message naming the switch and its key) on or over a module that is not
-//! a `stepper`, on a module whose motor has `limit_min` or `limit_max`
-//! (one limit input), with no terms, a term named twice, a zero or
+//! `corrupt_per_byte` on a link that is not a UART, `dangling_uart` on a
+//! module that is not a `stepper` or whose UART a `[[link]]` joins, and a
+//! `[[switch]]` (message naming the switch and its key) on or over a module
+//! that is not a `stepper`, on a module whose motor has `limit_min` or
+//! `limit_max` (one limit input), with no terms, a term named twice, a zero or
 //! non-finite coefficient, or a non-finite `offset` or `at`.
 //!
 //! # Switches over several motors
@@ -250,6 +260,7 @@ pub fn virtual_runtime() -> std::io::Result<tokio::runtime::Runtime> {
 
 use crate::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
 use crate::rng::Rng;
+use board::bootloader::{Arrival, BootHook, BootStats, Drive};
 use board::SimBoard;
 use module::{ModuleCommand, ModuleLink, ModuleTask, Parked, StepClock};
 use osap_core::clock::TimeConfig;
@@ -298,6 +309,9 @@ struct Machine {
     wire: Option<WireHandle>,
     /// Where watched motors' carriages are (`None`: no switch over motors).
     positions: Option<Arc<Positions>>,
+    /// The I/O sides of dangling UARTs, closed on drop (ending their
+    /// drains).
+    dangling: Mutex<Vec<LinkIo>>,
     // Last: dropped after the links are down.
     _wire_thread: Option<Wire>,
 }
@@ -331,6 +345,10 @@ struct ModuleShared {
     live: Mutex<Live>,
     /// The main loop is frozen (fault injection): the runtime is not polled.
     frozen: Arc<AtomicBool>,
+    /// In its UF2 bootloader (off the network, its drive shown).
+    in_bootloader: Arc<AtomicBool>,
+    /// What its bootloader has done.
+    boot_stats: Mutex<BootStats>,
 }
 
 struct Live {
@@ -490,6 +508,7 @@ impl SimMachine {
         }
         let positions = Positions::new(topology, &wakes, epoch);
         let machine = Arc::new(Machine {
+            dangling: Mutex::new(Vec::new()),
             positions,
             topology: topology.clone(),
             epoch,
@@ -504,7 +523,9 @@ impl SimMachine {
             _wire_thread: wire_thread,
         });
         // A stepper always has the firmware's two links; one the topology
-        // leaves out is there, and never opens.
+        // leaves out is there, and never opens (but a dangling UART is open
+        // onto nothing).
+        let mut dangling = Vec::new();
         let module_links: Vec<Vec<ChannelLink>> = module_links
             .into_iter()
             .zip(&topology.modules)
@@ -524,12 +545,25 @@ impl SimMachine {
                                 LinkKind::Uart
                             };
                             let spec = LinkSpec::new(HOST, HOST, kind);
-                            link::channel(link_config(&spec, false), wake.clone(), host_clock).0
+                            let (link, io) =
+                                link::channel(link_config(&spec, false), wake.clone(), host_clock);
+                            if m.dangling_uart && kind == LinkKind::Uart {
+                                io.set_open(true);
+                                dangling.push(io);
+                            }
+                            link
                         })
                     })
                     .collect()
             })
             .collect();
+        // What a dangling UART sends goes nowhere: drain it until the
+        // machine closes it.
+        for io in &dangling {
+            let io = io.clone();
+            tokio::spawn(async move { while io.next_tx().await.is_some() {} });
+        }
+        *lock(&machine.dangling) = dangling;
         let mut modules = Vec::new();
         for ((index, spec), (wake, links)) in topology
             .modules
@@ -549,6 +583,8 @@ impl SimMachine {
                     module: None,
                 }),
                 frozen: Arc::default(),
+                in_bootloader: Arc::default(),
+                boot_stats: Mutex::default(),
             });
             let module = SimModule { inner: shared };
             let parked = Parked {
@@ -850,6 +886,9 @@ impl Drop for Machine {
         for l in links.iter_mut() {
             Self::close(l);
         }
+        for io in lock(&self.dangling).iter() {
+            io.set_open(false);
+        }
     }
 }
 
@@ -971,6 +1010,101 @@ impl SimModule {
         }
     }
 
+    /// Whether it is in its UF2 bootloader (off the network, its drive
+    /// shown; see [`board::bootloader`]).
+    pub fn in_bootloader(&self) -> bool {
+        self.inner.in_bootloader.load(Ordering::SeqCst)
+    }
+
+    /// What its UF2 bootloader has done since the machine started.
+    pub fn boot_stats(&self) -> BootStats {
+        lock(&self.inner.boot_stats).clone()
+    }
+
+    /// What the board does when osap-module's `enter_bootloader` comes
+    /// due: the chip stops at once (the runtime is no longer polled), then
+    /// a task takes the module off the network and runs its bootloader.
+    fn boot_hook(&self) -> BootHook {
+        let weak = Arc::downgrade(&self.inner);
+        let runtime = tokio::runtime::Handle::current();
+        BootHook::new(move || {
+            let Some(inner) = weak.upgrade() else {
+                return;
+            };
+            inner.frozen.store(true, Ordering::Release);
+            inner.in_bootloader.store(true, Ordering::SeqCst);
+            runtime.spawn(SimModule { inner }.run_bootloader());
+        })
+    }
+
+    /// The module in its bootloader: off the network, its drive mounted
+    /// until a UF2 of its family lands (then it reboots into it, the name
+    /// kept) or it is restarted, or the machine is gone.
+    async fn run_bootloader(self) {
+        let Some(spec) = self.inner.spec.bootloader.clone() else {
+            return;
+        };
+        let name = self.name().to_string();
+        let left = self.kill().await;
+        let drive = left
+            .map_err(|e| e.to_string())
+            .and_then(|()| Drive::mount(&spec).map_err(|e| format!("cannot mount its drive: {e}")));
+        let mut drive = match drive {
+            Ok(d) => d,
+            Err(e) => {
+                tracing::error!("simulated module {name}: bootloader failed: {e}");
+                self.inner.in_bootloader.store(false, Ordering::SeqCst);
+                return;
+            }
+        };
+        lock(&self.inner.boot_stats).entered += 1;
+        tracing::info!(
+            "simulated module {name}: in its UF2 bootloader ({}), drive at {}",
+            spec.chip.name(),
+            drive.dir().display()
+        );
+        // Held weakly from here: a machine dropped meanwhile powers off.
+        let weak = Arc::downgrade(&self.inner);
+        drop(self);
+        loop {
+            tokio::time::sleep(std::time::Duration::from_millis(20)).await;
+            let Some(inner) = weak.upgrade() else {
+                drive.unmount();
+                return;
+            };
+            let module = SimModule { inner };
+            if module.is_running() {
+                // Restarted from outside: a reset leaves the bootloader.
+                drive.unmount();
+                module.inner.in_bootloader.store(false, Ordering::SeqCst);
+                return;
+            }
+            match drive.poll() {
+                None => {}
+                Some(Arrival::Rejected(why)) => {
+                    tracing::warn!(
+                        "simulated module {name}: its bootloader refused {why}; it stays in its bootloader"
+                    );
+                    let mut stats = lock(&module.inner.boot_stats);
+                    stats.rejected += 1;
+                    stats.last_rejection = Some(why);
+                }
+                Some(Arrival::Flashed(info)) => {
+                    drive.unmount();
+                    lock(&module.inner.boot_stats).flashed += 1;
+                    tracing::info!("simulated module {name}: flashed {info}; rebooting into it");
+                    tokio::time::sleep(std::time::Duration::from_millis(spec.reboot_ms)).await;
+                    module.inner.frozen.store(false, Ordering::Release);
+                    module.inner.in_bootloader.store(false, Ordering::SeqCst);
+                    if let Err(e) = module.restart().await {
+                        tracing::error!("simulated module {name}: did not come back: {e}");
+                    }
+                    return;
+                }
+            }
+        }
+    }
+
     /// Boots the module's runtime on `parked`'s links.
     fn spawn(&self, parked: Parked) -> Result<JoinHandle<Parked>, HostError> {
         let spec = &self.inner.spec;
@@ -1004,6 +1138,9 @@ impl SimModule {
                 &spec.io.clone().unwrap_or_default(),
             );
             board.motor_mut().place(parked.carriage);
+            if spec.bootloader.is_some() {
+                board.set_bootloader(self.boot_hook());
+            }
             let carriage = board.motor().position();
             let module = SharedModule::new(Module::new(board));
             let (publisher, input) = match &machine.positions {

@@ -1,6 +1,7 @@
 //! Topology files: which simulated modules a machine has and how they are
 //! linked. The format is described in the [module docs](super).
 
+use super::board::bootloader::BootloaderSpec;
 use super::board::{IoSpec, MotorSpec};
 use super::module::{FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU};
 use crate::clock::ClockSpec;
@@ -176,6 +177,12 @@ pub struct ModuleSpec {
     /// absent).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub io: Option<IoSpec>,
+    /// A `stepper` module's UF2 bootloader (`[module.bootloader]`): with
+    /// one, `enter_bootloader` takes the module off the network and shows
+    /// its drive (see [`bootloader`](super::board::bootloader)); without,
+    /// `enter_bootloader` refuses, as on a board that has none.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bootloader: Option<BootloaderSpec>,
     /// DES only: this module is the clock root (tier 0) instead of the host;
     /// at most one module may be.
     #[serde(default, skip_serializing_if = "is_default")]
@@ -188,6 +195,12 @@ pub struct ModuleSpec {
     /// values above).
     #[serde(default, skip_serializing_if = "is_default")]
     pub clock: ClockSource,
+    /// Simulated machines only, `stepper` only: its UART (link 1), which
+    /// no `[[link]]` joins, is open with nothing at the other end, as on a
+    /// board whose UART is not wired (a UART cannot tell); what it sends
+    /// is lost. Default false: a firmware link nothing joins stays closed.
+    #[serde(default, skip_serializing_if = "is_default")]
+    pub dangling_uart: bool,
 }
 
 impl ModuleSpec {
@@ -202,9 +215,11 @@ impl ModuleSpec {
             wander_period_s: default_wander_period(),
             motor: None,
             io: None,
+            bootloader: None,
             root: false,
             busy: false,
             clock: ClockSource::Fixed,
+            dangling_uart: false,
         }
     }
 
@@ -220,9 +235,22 @@ impl ModuleSpec {
         self
     }
 
+    /// The same module with a UF2 bootloader (a `stepper`).
+    pub fn with_bootloader(mut self, bootloader: BootloaderSpec) -> Self {
+        self.bootloader = Some(bootloader);
+        self
+    }
+
     /// What kind of module it is, if its type is one the simulator has.
     pub fn kind(&self) -> Option<ModuleKind> {
         ModuleKind::of(&self.type_name)
+    }
+
+    /// The same `stepper` with its UART open and joined to nothing
+    /// ([`dangling_uart`](Self::dangling_uart)).
+    pub fn with_dangling_uart(mut self) -> Self {
+        self.dangling_uart = true;
+        self
     }
 
     /// The same module with a clock `rate_ppm` fast.
@@ -244,7 +272,7 @@ impl ModuleSpec {
 /// The module types a topology may use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum ModuleKind {
-    /// `stepper`: the osap-rs module firmware (osap-module's logic, the 17
+    /// `stepper`: the osap-rs module firmware (osap-module's logic, the 19
     /// functions a scan finds on every board) on a simulated board. Its
     /// links follow the firmware's: a `usb` link is its link 0, a `uart` or
     /// `rs485` link its link 1.
@@ -652,6 +680,12 @@ impl Topology {
             if !(m.wander_period_s.is_finite() && m.wander_period_s > 0.0) {
                 return Err(at(format!("{what}: wander_period_s must be positive")));
             }
+            if kind != ModuleKind::Stepper && m.dangling_uart {
+                return Err(at(format!(
+                    "{what}: dangling_uart is for modules of type \"stepper\" (the firmware's UART), not {:?}",
+                    m.type_name
+                )));
+            }
             if kind != ModuleKind::Stepper && (m.motor.is_some() || m.io.is_some()) {
                 return Err(at(format!(
                     "{what}: [module.motor] and [module.io] are for modules of type \"stepper\", not {:?}",
@@ -663,6 +697,25 @@ impl Topology {
             }
             if let Some(io) = &m.io {
                 io.check().map_err(|e| at(format!("{what}: {e}")))?;
+            }
+            if let Some(boot) = &m.bootloader {
+                if kind != ModuleKind::Stepper {
+                    return Err(at(format!(
+                        "{what}: [module.bootloader] is for modules of type \"stepper\" (the module firmware), not {:?}",
+                        m.type_name
+                    )));
+                }
+                boot.check().map_err(|e| at(format!("{what}: {e}")))?;
+                let shared = self.modules[..i]
+                    .iter()
+                    .position(|o| o.bootloader.as_ref().is_some_and(|b| b.drive == boot.drive));
+                if let Some(first) = shared {
+                    return Err(at(format!(
+                        "{what}: [module.bootloader] drive {} is module {}'s too; give each module its own drive directory",
+                        boot.drive.display(),
+                        first + 1
+                    )));
+                }
             }
             if m.root {
                 if let Some(first) = root {
@@ -791,6 +844,18 @@ impl Topology {
                     ));
                 }
                 taken[index] = Some(i);
+            }
+            if let (true, Some(i)) = (spec.dangling_uart, taken[1]) {
+                return Err(CheckError::at(
+                    Item::Link(i),
+                    format!(
+                        "link {} ({} – {}): stepper {:?} has dangling_uart = true, so nothing may join its uart/rs485 link; remove one or the other",
+                        i + 1,
+                        self.links[i].a,
+                        self.links[i].b,
+                        spec.name
+                    ),
+                ));
             }
         }
         Ok(())

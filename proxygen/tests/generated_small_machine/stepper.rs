@@ -31,6 +31,7 @@ pub struct Stepper {
     pulse_at: FunctionHandle,
     analog_read: FunctionHandle,
     get_fault: FunctionHandle,
+    enter_bootloader: FunctionHandle,
 }
 
 impl Stepper {
@@ -130,6 +131,11 @@ impl Stepper {
             inputs: &[],
             outputs: &[("time", "u64"), ("code", "u8"), ("detail", "u32"), ("count", "u32")],
         },
+        support::Signature {
+            function: "enter_bootloader",
+            inputs: &[],
+            outputs: &[],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -165,6 +171,7 @@ impl Stepper {
             pulse_at: support::function(manager, runtime, "pulse_at")?,
             analog_read: support::function(manager, runtime, "analog_read")?,
             get_fault: support::function(manager, runtime, "get_fault")?,
+            enter_bootloader: support::function(manager, runtime, "enter_bootloader")?,
         })
     }
 
@@ -618,6 +625,29 @@ impl Stepper {
     /// `set_input_mode` and `set_output_mode`.
     pub fn get_fault_ref(&self) -> &FnRef {
         self.get_fault.function()
+    }
+
+    /// `enter_bootloader`.
+    ///
+    /// - inputs: none
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn enter_bootloader(&self) -> Result<(), CallError> {
+        let h = &self.enter_bootloader;
+        let values = h.call(&[]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `enter_bootloader`, for `push` and raw calls.
+    pub fn enter_bootloader_handle(&self) -> &FunctionHandle {
+        &self.enter_bootloader
+    }
+
+    /// `enter_bootloader` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn enter_bootloader_ref(&self) -> &FnRef {
+        self.enter_bootloader.function()
     }
 }
 

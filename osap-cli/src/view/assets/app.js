@@ -321,7 +321,9 @@ function buildLinkRows(runtimes) {
     for (const l of arr(rt.links)) {
       const num = () => el("td", { class: "num" }, "–");
       const cells = { rx: num(), tx: num(), load: num(), bar: el("div"), packets: num(), dropped: num() };
-      const kind = l.name ? `${l.kind ?? "?"} (${l.name})` : String(l.kind ?? "?");
+      const named = l.name ? `${l.kind ?? "?"} (${l.name})` : String(l.kind ?? "?");
+      // Open, but nothing heard and nothing answered a scan: an unwired UART.
+      const kind = l.open !== false && l.heard === false ? `${named} · no neighbour` : named;
       const row = el("tr", { id: `row-${rt.id}-${l.index}`, class: l.open === false ? "closed" : null },
         el("td", {}, String(rt.name)), el("td", { class: "num" }, String(l.index)),
         el("td", { title: l.peer == null ? "no neighbour" : `to ${view.byId.get(l.peer)?.name ?? l.peer}` }, kind),

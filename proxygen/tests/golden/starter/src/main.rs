@@ -18,6 +18,7 @@ use osap_sim::machine::{self, SimMachine};
 use std::error::Error;
 use std::net::SocketAddr;
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 /// Where the machine is: the same link options as `osap`.
 #[derive(Parser)]
@@ -40,11 +41,39 @@ struct Args {
     /// Run a simulated machine (a topology file) and use it.
     #[arg(long, value_name = "FILE")]
     sim: Option<PathBuf>,
+    /// Log more (repeatable: -v info, -vv debug, -vvv trace). RUST_LOG,
+    /// when set, decides instead (e.g. RUST_LOG=osap_host=debug).
+    #[arg(short, long, action = clap::ArgAction::Count)]
+    verbose: u8,
+}
+
+/// Logs to stderr: RUST_LOG when set, else warnings raised by each -v.
+fn init_logging(verbose: u8) {
+    use tracing_subscriber::EnvFilter;
+    let level = ["warn", "info", "debug", "trace"][usize::from(verbose.min(3))];
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(level));
+    let _ = tracing_subscriber::fmt()
+        .with_writer(std::io::stderr)
+        .with_env_filter(filter)
+        .try_init();
 }
 
 #[tokio::main]
-async fn main() -> Result<(), Box<dyn Error>> {
+async fn main() -> ExitCode {
     let args = Args::parse();
+    init_logging(args.verbose);
+    match run(args).await {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // Display, not Debug: errors name the function, a refusal its
+            // code by name, and the fix.
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+async fn run(args: Args) -> Result<(), Box<dyn Error>> {
     let network = !(args.tcp.is_empty() && args.udp.is_empty() && args.unix.is_empty());
     if !network && args.ports.is_empty() && args.sim.is_none() {
         return Err("give --sim FILE, --port PATH, --tcp ADDR, --udp ADDR or --unix PATH".into());

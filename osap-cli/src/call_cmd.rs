@@ -1,0 +1,166 @@
+//! `osap call RUNTIME FUNCTION [ARGS..]`: one call of a PIPES function
+//! from the command line, its outputs printed one a line, a refusal by
+//! name.
+
+use crate::{connect, Connect};
+use osap_host::som::{FnRef, Manager, OwnedValue, SomError};
+use pipes_core::control::ControlError;
+use std::process::ExitCode;
+
+/// Exit code of a call the function refused with a failure code of its
+/// own (anything else that fails exits with 1).
+pub const REFUSED: u8 = 3;
+
+/// `osap call`'s arguments.
+#[derive(clap::Args)]
+pub struct CallArgs {
+    #[command(flatten)]
+    connect: Connect,
+    /// The runtime's name (`osap scan` lists them).
+    runtime: String,
+    /// The function's name (`osap scan -f` lists every runtime's).
+    function: String,
+    /// One value per input, in input order, e.g. `motor set_interval 1024`.
+    #[arg(allow_negative_numbers = true, value_name = "ARG")]
+    args: Vec<String>,
+}
+
+/// Calls the function once (never retried: a call may have effects) and
+/// prints `name = value` per output.
+pub async fn call(args: CallArgs) -> Result<ExitCode, String> {
+    let c = connect(&args.connect).await?;
+    let mut manager = Manager::new(&c.host).await.map_err(|e| e.to_string())?;
+    let refresh = manager.refresh().await.map_err(|e| e.to_string())?;
+    for f in &refresh.function_failures {
+        eprintln!("warning: {f}");
+    }
+    let fref = FnRef::new(args.runtime.as_str(), args.function.as_str());
+    let handle = manager
+        .function(&fref)
+        .map_err(|e| format!("{e} (`osap scan -f` lists every runtime's functions)"))?
+        .with_timeout(c.timeout);
+    let inputs = handle.inputs().to_vec();
+    if args.args.len() != inputs.len() {
+        return Err(format!(
+            "{}.{} takes {} input(s) ({}), {} given",
+            args.runtime,
+            args.function,
+            inputs.len(),
+            signature(&inputs),
+            args.args.len()
+        ));
+    }
+    let mut values = Vec::new();
+    for (input, text) in inputs.iter().zip(&args.args) {
+        let ty = input.ty().ok_or_else(|| {
+            format!(
+                "input {}: type {} is unknown to this build of osap (update it)",
+                input.name, input.type_name
+            )
+        })?;
+        values.push(
+            OwnedValue::parse(&ty, text)
+                .map_err(|e| format!("input {} ({}): {e}", input.name, input.type_name))?,
+        );
+    }
+    match handle.call(&values).await {
+        Ok(outputs) => {
+            for (o, v) in handle.outputs().iter().zip(&outputs) {
+                println!("{} = {}", o.name, plain(v));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(e) => match refusal(&args.runtime, &args.function, &e) {
+            Some(line) => {
+                eprintln!("error: {line}");
+                Ok(ExitCode::from(REFUSED))
+            }
+            None => Err(e.to_string()),
+        },
+    }
+}
+
+/// A refusal with a failure code, as one line: by name when the host knows
+/// the device's codes (an osap-rs module), else by number.
+fn refusal(runtime: &str, function: &str, e: &SomError) -> Option<String> {
+    let SomError::Remote {
+        error: ControlError::CallFailed(code),
+        failure,
+        ..
+    } = e
+    else {
+        return None;
+    };
+    Some(match failure {
+        Some(f) => format!("{runtime}.{function} refused: {f}"),
+        None => format!(
+            "{runtime}.{function} refused with failure code {code} (not an osap-rs module's \
+             function: the device's own documentation names its codes)"
+        ),
+    })
+}
+
+/// A value as a person types it: numbers and bools bare (the value's own
+/// Display names scalar types, `U8(0)`), others as the value prints.
+fn plain(v: &OwnedValue) -> String {
+    match v {
+        OwnedValue::Bool(x) => x.to_string(),
+        OwnedValue::I8(x) => x.to_string(),
+        OwnedValue::I16(x) => x.to_string(),
+        OwnedValue::I32(x) => x.to_string(),
+        OwnedValue::I64(x) => x.to_string(),
+        OwnedValue::I128(x) => x.to_string(),
+        OwnedValue::U8(x) => x.to_string(),
+        OwnedValue::U16(x) => x.to_string(),
+        OwnedValue::U32(x) => x.to_string(),
+        OwnedValue::U64(x) => x.to_string(),
+        OwnedValue::U128(x) => x.to_string(),
+        OwnedValue::F32(x) => x.to_string(),
+        OwnedValue::F64(x) => x.to_string(),
+        other => other.to_string(),
+    }
+}
+
+/// `time: u64, position: f32`, or `none`.
+fn signature(args: &[osap_host::som::model::SomArg]) -> String {
+    if args.is_empty() {
+        return "none".into();
+    }
+    args.iter()
+        .map(|a| format!("{}: {}", a.name, a.type_name))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use osap_module::failure::failure;
+
+    fn remote(function: &str, code: u8, named: bool) -> SomError {
+        SomError::Remote {
+            function: FnRef::new("a", function),
+            request: "call",
+            error: ControlError::CallFailed(code),
+            failure: if named {
+                failure(function, code).map(Box::new)
+            } else {
+                None
+            },
+        }
+    }
+
+    #[test]
+    fn refusals_print_by_name_when_known_and_by_number_otherwise() {
+        assert_eq!(
+            refusal("a", "add_point", &remote("add_point", 8, true)).unwrap(),
+            "a.add_point refused: QueueFull (code 8): the module's queue is full \
+             (stream too far ahead): send points closer to their time"
+        );
+        let other = refusal("a", "add_point", &remote("add_point", 8, false)).unwrap();
+        assert!(other.contains("failure code 8"), "{other}");
+        assert!(!other.contains("QueueFull"), "{other}");
+        let e = SomError::NoSuchRuntime("a".into());
+        assert_eq!(refusal("a", "add_point", &e), None);
+    }
+}

@@ -1,0 +1,80 @@
+//! Rebooting into the board's bootloader for a firmware update
+//! (`enter_bootloader`, what `osap flash` calls).
+//!
+//! The function only arms the request: a module that rebooted inside the
+//! call would never send its answer, and the caller could not tell a
+//! module that obeyed from one that was lost. The runtime's loop performs
+//! the reboot ([`crate::board::Board::reboot_to_bootloader`], from the pulse
+//! timer port it polls) [`BOOTLOADER_DELAY_US`] after the call, by which
+//! time the answer has left on its link. Before rebooting the driver is
+//! disabled, as a reset would leave it.
+
+use osap_core::Micros;
+
+/// How long after `enter_bootloader` answers the board reboots, µs of the
+/// module's local clock: time for the answer to leave (a USB CDC reply
+/// waits for the host's next poll, at most a 1 ms frame; a UART reply of
+/// a few dozen bytes takes well under 1 ms at 1 Mbaud) with a wide margin.
+pub const BOOTLOADER_DELAY_US: Micros = 100_000;
+
+/// Why `enter_bootloader` was refused: the failure code a caller sees.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u8)]
+pub enum BootError {
+    /// This board has no bootloader the firmware can reboot into (its
+    /// [`crate::board::Board`] does not offer one): put it into its
+    /// bootloader by hand (BOOTSEL held at power-up on a Pico, a double
+    /// tap of reset on a SAMD51 board).
+    Unsupported = 1,
+    /// The axis has motion queued or running: a reboot would stop the motor
+    /// mid-move. Let the motion finish, or halt it, first.
+    Moving = 2,
+}
+
+impl BootError {
+    /// The failure code.
+    pub fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+impl From<BootError> for pipes_core::function::CallError {
+    fn from(e: BootError) -> Self {
+        pipes_core::function::CallError::Failed(e.code())
+    }
+}
+
+/// A reboot request: armed by `enter_bootloader`, performed by the
+/// runtime's loop once due.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct BootRequest {
+    at: Option<Micros>,
+}
+
+impl BootRequest {
+    /// Arms the request for [`BOOTLOADER_DELAY_US`] after local time `now`
+    /// (a second call keeps the first time: the answer to the first call
+    /// has been sent already).
+    pub fn arm(&mut self, now: Micros) {
+        if self.at.is_none() {
+            self.at = Some(now.saturating_add(BOOTLOADER_DELAY_US));
+        }
+    }
+
+    /// When the reboot is due, local µs (`None`: not armed).
+    pub fn due_at(&self) -> Option<Micros> {
+        self.at
+    }
+
+    /// Whether the reboot is due at local time `now`; if so, disarms it
+    /// (the board is told once).
+    pub fn take_due(&mut self, now: Micros) -> bool {
+        match self.at {
+            Some(at) if now >= at => {
+                self.at = None;
+                true
+            }
+            _ => false,
+        }
+    }
+}

@@ -1,0 +1,310 @@
+//! Failure codes by name: what a refusal of one of the module's functions
+//! means, and how to fix it.
+//!
+//! A function that refuses answers `CallError::Failed(code)`; over the
+//! network that is a bare byte, and its meaning depends on the function:
+//! `add_point`'s code 2 is [`StepperError::Stale`], `pulse`'s code 2 is
+//! [`IoError::BadValue`]. [`failure`] names a code for a function of this
+//! crate's function set ([`crate::functions::SIGNATURES`]); it knows
+//! nothing of other devices' functions, so a host must first tell that a
+//! device runs osap-module (osap-host does so by its whole function set).
+//!
+//! The names come from the error enums themselves: each table below is an
+//! exhaustive match, so a new variant does not compile until it is named
+//! here, and the list of variants a code is looked up in is made by the
+//! same macro from the same lines.
+//!
+//! Nothing here is called by a firmware, so the linker drops it from
+//! firmware images.
+
+use crate::boot::BootError;
+use crate::functions::{FnId, ALL, NOT_INSTALLED, SIGNATURES};
+use crate::io::IoError;
+use crate::stepper::StepperError;
+use pipes_core::export::{INPUT_DECODE_FAILED, NO_SUCH_MEMBER, STATE_BUSY};
+
+/// One failure code, by name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Failure {
+    /// The code, as `CallError::Failed` carries it.
+    pub code: u8,
+    /// Its short name, the error enum's variant (`QueueFull`).
+    pub name: &'static str,
+    /// What it means and how to fix it, one sentence without a capital
+    /// or a full stop, to follow "refused: ".
+    pub reason: &'static str,
+}
+
+impl core::fmt::Display for Failure {
+    /// `QueueFull (code 8): the module's queue is full (..): ..`.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(f, "{} (code {}): {}", self.name, self.code, self.reason)
+    }
+}
+
+/// Which failure codes a function returns, besides the [`generic`] ones.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Family {
+    /// [`StepperError`] codes.
+    Stepper,
+    /// [`IoError`] codes.
+    Io,
+    /// [`BootError`] codes (`enter_bootloader`).
+    Boot,
+    /// None of its own: the function cannot refuse (beyond [`generic`]).
+    None,
+}
+
+impl Family {
+    /// The family of function `id`, as the table at the top of
+    /// [`crate::functions`] has it.
+    pub const fn of(id: FnId) -> Family {
+        use FnId as F;
+        // Exhaustive: a new function does not compile until its family is
+        // chosen here. A function with an error enum of its own gets a new
+        // `Family` variant, named by a new `failures!` table below and an
+        // arm in `Family::failure`, as `enter_bootloader` does.
+        match id {
+            F::add_point | F::set_interval | F::set_scale | F::set_microsteps => Family::Stepper,
+            F::digital_write
+            | F::digital_read
+            | F::pwm_write
+            | F::pulse
+            | F::pulse_at
+            | F::analog_read => Family::Io,
+            F::get_position
+            | F::get_status
+            | F::get_counters
+            | F::get_steps
+            | F::set_enable
+            | F::read_limit
+            | F::halt
+            | F::get_fault => Family::None,
+            F::enter_bootloader => Family::Boot,
+        }
+    }
+
+    /// What `code` means for a function of this family (its own codes
+    /// only; see [`failure`] for the generic ones too).
+    pub fn failure(self, code: u8) -> Option<Failure> {
+        match self {
+            Family::Stepper => find(STEPPER.iter().map(|&e| stepper(e)), code),
+            Family::Io => find(IO.iter().map(|&e| io(e)), code),
+            Family::Boot => find(BOOT.iter().map(|&e| boot(e)), code),
+            Family::None => None,
+        }
+    }
+}
+
+/// What failure `code` of the module function named `function` means:
+/// its family's code, or a [`generic`] one; `None` for a code the function
+/// does not return, or a name that is not one of the module's functions.
+pub fn failure(function: &str, code: u8) -> Option<Failure> {
+    let id = function_id(function)?;
+    Family::of(id).failure(code).or_else(|| generic(code))
+}
+
+/// The module function named `function`.
+pub fn function_id(function: &str) -> Option<FnId> {
+    ALL.iter()
+        .copied()
+        .find(|&id| SIGNATURES[id as usize].name == function)
+}
+
+/// The codes every module function may return whatever its family:
+/// [`NOT_INSTALLED`] and pipes-core's generated wrappers' codes
+/// ([`pipes_core::export`]).
+pub fn generic(code: u8) -> Option<Failure> {
+    let (name, reason) = match code {
+        NOT_INSTALLED => (
+            "NotInstalled",
+            "the firmware never installed its board (a firmware bug): flash a released firmware",
+        ),
+        INPUT_DECODE_FAILED => (
+            "InputDecodeFailed",
+            "an input was missing or not of its declared type (inputs are converted before \
+             the call, so this is a bug): report it with the call that caused it",
+        ),
+        STATE_BUSY => (
+            "StateBusy",
+            "a class member ran while the class's state was in use elsewhere: call it again",
+        ),
+        NO_SUCH_MEMBER => (
+            "NoSuchMember",
+            "the class has no such member: scan again (the firmware may have changed)",
+        ),
+        _ => return None,
+    };
+    Some(Failure { code, name, reason })
+}
+
+fn find(mut all: impl Iterator<Item = Failure>, code: u8) -> Option<Failure> {
+    all.find(|f| f.code == code)
+}
+
+/// `fn $name(e) -> Failure`, an exhaustive match naming each variant of
+/// `$enum` with its reason, and `$all`, every variant, from the same lines.
+macro_rules! failures {
+    (
+        $(#[$doc:meta])*
+        $vis:vis fn $name:ident, $all:ident: $enum:ident {
+            $($variant:ident => $reason:expr,)*
+        }
+    ) => {
+        $(#[$doc])*
+        $vis const fn $name(e: $enum) -> Failure {
+            match e {
+                $($enum::$variant => Failure {
+                    code: $enum::$variant as u8,
+                    name: stringify!($variant),
+                    reason: $reason,
+                },)*
+            }
+        }
+
+        #[doc = concat!("Every [`", stringify!($enum), "`].")]
+        pub const $all: &[$enum] = &[$($enum::$variant),*];
+    };
+}
+
+failures! {
+    /// A stepper function's refusal ([`StepperError`]), by name.
+    pub fn stepper, STEPPER: StepperError {
+        Misaligned => "time not a multiple of the interval: stamp points on the interval's \
+                       grid (set_interval sets it)",
+        Stale => "point not after the newest queued one (arrived late): send points in time \
+                  order, further ahead of their time",
+        Gap => "two or more points missing before this one: send every interval's point \
+                (a lossy link drops them: check its counters)",
+        Faulted => "the axis is faulted or halted: cycle the motor's enable (set_enable \
+                    false, then true)",
+        OutOfRange => "position not finite or beyond the module's track range (±32 767 \
+                       microsteps): lower the scale or the microsteps, or stay within travel",
+        Disabled => "the motor is disabled: enable it first (set_enable true)",
+        Discontinuous => "a new stream must start where the axis stands: start it at \
+                          get_position's position",
+        QueueFull => "the module's queue is full (stream too far ahead): send points closer \
+                      to their time",
+        Busy => "the setting can only change while no stream is queued: let the stream run \
+                 out (or halt) first",
+        BadValue => "the value is not allowed: an interval is a power of two from 256 to \
+                     16 384 µs, a scale finite and positive, microsteps a mode the board's \
+                     driver has",
+    }
+}
+
+failures! {
+    /// An I/O function's refusal ([`IoError`]), by name.
+    pub fn io, IO: IoError {
+        NoSuchPin => "no such pin, PWM output or analog input on this board: check the \
+                      board's pin numbers",
+        BadValue => "a value out of range: a duty cycle is within 0..=1, a pulse at most \
+                     10 s long, a scheduled start at most 60 s ahead",
+        Full => "every slot for scheduled pulses (16) is taken: wait for some to run, or \
+                 schedule less far ahead",
+        NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
+    }
+}
+
+failures! {
+    /// `enter_bootloader`'s refusal ([`BootError`]), by name.
+    pub fn boot, BOOT: BootError {
+        Unsupported => "this board cannot reboot into a bootloader from its firmware: put it \
+                        into its bootloader by hand (hold BOOTSEL while plugging a Pico in, \
+                        double-tap reset on a SAMD51 board)",
+        Moving => "the axis has motion queued or running: let it finish, or halt it, then \
+                   ask again",
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::BTreeSet;
+    use std::string::ToString;
+
+    #[test]
+    fn every_stepper_error_is_named_by_its_variant() {
+        let mut codes = BTreeSet::new();
+        for &e in STEPPER {
+            let f = stepper(e);
+            assert_eq!(f.code, e.code());
+            assert_eq!(std::format!("{e:?}"), f.name);
+            assert!(codes.insert(f.code), "{} twice", f.code);
+            assert!(f.reason.contains(": "), "{f}: name the fix");
+            assert_eq!(failure("add_point", f.code), Some(f));
+            assert_eq!(failure("set_microsteps", f.code), Some(f));
+        }
+        assert_eq!(
+            failure("add_point", 8).unwrap().to_string(),
+            "QueueFull (code 8): the module's queue is full (stream too far ahead): \
+             send points closer to their time"
+        );
+    }
+
+    #[test]
+    fn every_io_error_is_named_by_its_variant() {
+        let mut codes = BTreeSet::new();
+        for &e in IO {
+            let f = io(e);
+            assert_eq!(f.code, e.code());
+            assert_eq!(std::format!("{e:?}"), f.name);
+            assert!(codes.insert(f.code), "{} twice", f.code);
+            assert!(f.reason.contains(": "), "{f}: name the fix");
+            assert_eq!(failure("pulse_at", f.code), Some(f));
+        }
+        // The same code means different things in different families.
+        assert_eq!(failure("pulse", 2).unwrap().name, "BadValue");
+        assert_eq!(failure("add_point", 2).unwrap().name, "Stale");
+    }
+
+    #[test]
+    fn every_boot_error_is_named_by_its_variant() {
+        for &e in BOOT {
+            let f = boot(e);
+            assert_eq!((f.code, std::format!("{e:?}")), (e.code(), f.name.into()));
+            assert!(f.reason.contains(": "), "{f}: name the fix");
+            assert_eq!(failure("enter_bootloader", f.code), Some(f));
+            assert_eq!(generic(f.code), None);
+        }
+    }
+
+    #[test]
+    fn every_function_has_a_family_and_the_generic_codes() {
+        for &id in &ALL {
+            let name = SIGNATURES[id as usize].name;
+            assert_eq!(function_id(name), Some(id));
+            let f = failure(name, NOT_INSTALLED).unwrap();
+            assert_eq!(f.name, "NotInstalled");
+            assert_eq!(failure(name, INPUT_DECODE_FAILED).unwrap().code, 255);
+        }
+        assert_eq!(Family::of(FnId::halt), Family::None);
+        assert_eq!(failure("halt", 1), None);
+        assert_eq!(failure("get_status", StepperError::QueueFull.code()), None);
+        for code in [STATE_BUSY, NO_SUCH_MEMBER] {
+            assert!(generic(code).is_some());
+        }
+    }
+
+    #[test]
+    fn family_and_generic_codes_do_not_overlap() {
+        for &e in STEPPER {
+            assert_eq!(generic(e.code()), None);
+        }
+        for &e in IO {
+            assert_eq!(generic(e.code()), None);
+        }
+    }
+
+    #[test]
+    fn unknown_codes_and_other_functions_have_no_name() {
+        assert_eq!(failure("add_point", 0), None);
+        assert_eq!(failure("add_point", 11), None);
+        assert_eq!(failure("add_point", 99), None);
+        assert_eq!(failure("pulse", 5), None);
+        // Not one of the module's functions: its codes are its own.
+        assert_eq!(failure("add_pointx", 8), None);
+        assert_eq!(failure("move_to", 8), None);
+        assert_eq!(failure("move_to", NOT_INSTALLED), None);
+    }
+}
