@@ -26,6 +26,18 @@ pub fn init_logging() {
         .try_init();
 }
 
+/// A script's result as its exit code: an error prints with Display
+/// (`error: …`), never Debug.
+pub fn exit_code(result: Result<(), Box<dyn std::error::Error>>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
 /// Runs a script's `main` future on a virtual-time runtime (simulated
 /// machines run as fast as the host computes them) and turns its result
 /// into the exit code, printing the error. Logging is set up first
@@ -42,11 +54,5 @@ where
             return ExitCode::FAILURE;
         }
     };
-    match runtime.block_on(script) {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            ExitCode::FAILURE
-        }
-    }
+    exit_code(runtime.block_on(script))
 }

@@ -420,8 +420,12 @@ where
     Ok(())
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
+fn main() -> std::process::ExitCode {
     osap_examples::init_logging();
+    osap_examples::exit_code(run())
+}
+
+fn run() -> Result<(), Box<dyn Error>> {
     let args = Args::parse();
     if !(args.accel.is_finite() && args.accel > 0.0) {
         return Err("--accel must be finite and > 0".into());

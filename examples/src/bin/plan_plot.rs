@@ -65,8 +65,12 @@ impl Panel {
     }
 }
 
-fn main() -> Result<(), Box<dyn Error>> {
+fn main() -> std::process::ExitCode {
     osap_examples::init_logging();
+    osap_examples::exit_code(run())
+}
+
+fn run() -> Result<(), Box<dyn Error>> {
     let a = Args::parse();
     if a.step == 0 {
         return Err("--step must be > 0".into());

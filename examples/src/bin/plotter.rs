@@ -6,9 +6,11 @@
 //! for their clocks to follow the host's, powers the motors, wires
 //! `Timer → Planner → CoreXY → add_point` with pipes, draws a square with one
 //! rounded corner, and compares what the motors did (every step edge, at the
-//! true time of its step tick) with the stream they were sent. The same
-//! script drives hardware: only the machine's start differs (and the
-//! comparison, which reads the simulated motors' step edges).
+//! true time of its step tick) with the stream they were sent. The calls
+//! it makes are the ones module firmware serves (osap-module is shared by
+//! firmware and simulator), so on hardware only the start would differ
+//! (and the comparison, which reads the simulated motors' step edges);
+//! it has not been run on a real board.
 //!
 //! ```text
 //! cargo run -p osap-examples --release --bin plotter -- --out docs/img/plotter.svg
@@ -55,8 +57,12 @@ const HOST: &str = "script";
 const LEAD: u32 = 16 * IV;
 
 #[tokio::main(flavor = "multi_thread", worker_threads = 2)]
-async fn main() -> Result<(), Box<dyn Error>> {
+async fn main() -> std::process::ExitCode {
     osap_examples::init_logging();
+    osap_examples::exit_code(run().await)
+}
+
+async fn run() -> Result<(), Box<dyn Error>> {
     let args = Args::parse();
     let (side, r) = (args.side, args.radius);
     if !(side > 0.0 && r >= 0.0 && r < side && args.feed > 0.0) {
