@@ -46,7 +46,7 @@ pub async fn call(args: CallArgs) -> Result<ExitCode, String> {
             args.runtime,
             args.function,
             inputs.len(),
-            signature(&inputs),
+            osap_host::som::describe(&inputs),
             args.args.len()
         ));
     }
@@ -119,17 +119,6 @@ fn plain(v: &OwnedValue) -> String {
         OwnedValue::F64(x) => x.to_string(),
         other => other.to_string(),
     }
-}
-
-/// `time: u64, position: f32`, or `none`.
-fn signature(args: &[osap_host::som::model::SomArg]) -> String {
-    if args.is_empty() {
-        return "none".into();
-    }
-    args.iter()
-        .map(|a| format!("{}: {}", a.name, a.type_name))
-        .collect::<Vec<_>>()
-        .join(", ")
 }
 
 #[cfg(test)]

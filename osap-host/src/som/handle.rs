@@ -352,8 +352,8 @@ impl FunctionHandle {
     }
 }
 
-/// `a: f32, b: f32`.
-pub(crate) fn describe(args: &[SomArg]) -> String {
+/// A function's inputs or outputs as text: `a: f32, b: f32`, or `none`.
+pub fn describe(args: &[SomArg]) -> String {
     if args.is_empty() {
         return "none".into();
     }

@@ -39,7 +39,7 @@ pub mod model;
 pub mod proxy;
 mod value;
 
-pub use handle::FunctionHandle;
+pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{attach_function, HostBody, HostFunction, HOST_FN_PIPES, HOST_FN_STORE};
 pub use manager::{Disconnect, Manager, ManagerOptions, PipeOptions, RefreshReport};
