@@ -25,6 +25,12 @@
 //!
 //! The first point after [`Limiter::new`] or [`Limiter::reset`] is taken as
 //! a rest position and passed unchanged.
+//!
+//! [`Limiter::push`] takes the point it returns as the stream's newest (a
+//! clamped point too). To check a point without taking it (to refuse it
+//! rather than clamp it, as osap-module's firmware does), push it into a
+//! copy: a `Limiter` is `Copy`, and the copy is kept only if the point is
+//! accepted.
 
 use crate::eval::Fx;
 use crate::track::Interval;

@@ -152,6 +152,12 @@ impl<P: Point, const N: usize> Track<P, N> {
         (self.len > 0).then(|| self.last_idx() << self.iv.shift())
     }
 
+    /// The newest point (for a check of the next one against it, such as a
+    /// [`crate::Limiter`]'s, before it is pushed).
+    pub fn last_point(&self) -> Option<P> {
+        (self.len > 0).then(|| self.buf[(self.head + self.len - 1) % N])
+    }
+
     /// Knot index of the newest point (meaningful when `len > 0`).
     fn last_idx(&self) -> u64 {
         self.first + self.len as u64 - 1

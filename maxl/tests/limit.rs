@@ -212,3 +212,26 @@ fn bad_limits_are_errors() {
     assert!(Limiter::<f32>::new(tiny, i256).is_ok());
     assert!(!LimitError::TooSmall.to_string().is_empty());
 }
+
+#[test]
+fn a_copy_checks_a_point_without_taking_it() {
+    // osap-module refuses a point past a limit instead of clamping it:
+    // it pushes into a copy and keeps the copy only for an accepted point.
+    let mut l = Limiter::<Fx>::new(LIM, iv()).unwrap();
+    for k in 0..4 {
+        assert!(!l.push(Fx(k)).clamped.any());
+    }
+    let before = l;
+    let mut probe = l;
+    assert!(probe.push(Fx(1000 << 16)).clamped.any());
+    // The original still continues the stream where it was.
+    let mut again = before;
+    assert_eq!(l.push(Fx(4)), again.push(Fx(4)));
+    assert!(!l.push(Fx(5)).clamped.any());
+    // A clamped push does move the limiter on (to the clamped point).
+    let mut moved = before;
+    let r = moved.push(Fx(1000 << 16));
+    assert_ne!(r.point, Fx(1000 << 16));
+    let mut fresh = before;
+    assert_ne!(moved.push(Fx(4)), fresh.push(Fx(4)));
+}

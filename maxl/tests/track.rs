@@ -28,6 +28,7 @@ fn interval_rules() {
 fn push_rules_and_gap_fill() {
     let mut tr: Track<f32, 8> = Track::new(iv(1024), LIM);
     let base = 1_000_000 * 1024u64;
+    assert_eq!(tr.last_point(), None);
     assert_eq!(tr.push(base + 1, 0.0), Err(PushError::Misaligned));
     assert_eq!(tr.push(base, 0.0), Ok(PushOutcome::Appended));
     assert_eq!(tr.push(base, 1.0), Err(PushError::Stale));
@@ -36,6 +37,7 @@ fn push_rules_and_gap_fill() {
     assert_eq!(tr.push(base + 3 * 1024, 5.0), Ok(PushOutcome::FilledGap));
     assert_eq!(tr.len(), 4);
     assert_eq!(tr.last_time(), Some(base + 3 * 1024));
+    assert_eq!(tr.last_point(), Some(5.0));
     // Two missing: refused, queue unchanged.
     assert_eq!(
         tr.push(base + 6 * 1024, 9.0),
@@ -51,6 +53,7 @@ fn push_rules_and_gap_fill() {
         tr.push(base + k * 1024, k as f32).unwrap();
     }
     assert_eq!(tr.len(), 8);
+    assert_eq!(tr.last_point(), Some(19.0), "the newest, past the wrap");
     assert_eq!(tr.sample(base + 1024), Err(EvalError::TooEarly));
     let mut fx: Track<Fx, 8> = Track::new(iv(256), LIM);
     fx.push(0, Fx(1)).unwrap();

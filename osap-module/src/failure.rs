@@ -65,7 +65,9 @@ impl Family {
         // `Family` variant, named by a new `failures!` table below and an
         // arm in `Family::failure`, as `enter_bootloader` does.
         match id {
-            F::add_point | F::set_interval | F::set_scale | F::set_microsteps => Family::Stepper,
+            F::add_point | F::set_interval | F::set_scale | F::set_microsteps | F::set_limits => {
+                Family::Stepper
+            }
             F::digital_write
             | F::digital_read
             | F::pwm_write
@@ -189,7 +191,11 @@ failures! {
                  out (or halt) first",
         BadValue => "the value is not allowed: an interval is a power of two from 256 to \
                      16 384 µs, a scale finite and positive, microsteps a mode the board's \
-                     driver has",
+                     driver has, limits finite and not negative (and not so small that they \
+                     round to nothing at the interval and scale)",
+        OverLimit => "the point is past the axis's velocity, acceleration or jerk limit \
+                      (set_limits; get_fault says which): plan the motion within the limits, \
+                      or raise them",
     }
 }
 
@@ -299,7 +305,7 @@ mod tests {
     #[test]
     fn unknown_codes_and_other_functions_have_no_name() {
         assert_eq!(failure("add_point", 0), None);
-        assert_eq!(failure("add_point", 11), None);
+        assert_eq!(failure("add_point", 12), None);
         assert_eq!(failure("add_point", 99), None);
         assert_eq!(failure("pulse", 5), None);
         // Not one of the module's functions: its codes are its own.

@@ -15,15 +15,50 @@
 //! | 3 | [`FaultKind::StepOverrun`]: a step tick owed more than one step | the steps owed at that tick |
 //! | 4 | [`FaultKind::LimitHit`]: the limit switch was pressed | limit edges since boot |
 //! | 5 | [`FaultKind::Halted`]: `halt` stopped the axis | 0 |
+//! | 6 | [`FaultKind::OverLimit`]: a control point past the axis's limits (`set_limits`) was refused | which limits it went past, as bits: [`OVER_VELOCITY`] 1, [`OVER_ACCELERATION`] 2, [`OVER_JERK`] 4 |
 //!
 //! While the axis stands stopped by a backstop or a halt, the refusals that
 //! follow (code `Faulted`) are counted but keep the record of their cause.
 //! A step overrun is recorded once per run of the step generator (the
-//! steps still go out on later ticks; nothing is lost).
+//! steps still go out on later ticks; nothing is lost). A point refused
+//! for being past a limit (`OverLimit`) is an [`FaultKind::OverLimit`]
+//! fault, not a [`FaultKind::Refused`] one, so that its detail can say
+//! which limit.
 //!
 //! [`StepperError`]: crate::stepper::StepperError
 
 use crate::stepper::StepperError;
+use maxl::Clamped;
+
+/// [`FaultKind::OverLimit`]'s detail bit: past the velocity limit (the
+/// limiter's velocity window looks ahead: the axis could not have ramped its
+/// acceleration back to zero at the jerk limit without passing it).
+pub const OVER_VELOCITY: u32 = 1;
+/// [`FaultKind::OverLimit`]'s detail bit: past the acceleration limit.
+pub const OVER_ACCELERATION: u32 = 2;
+/// [`FaultKind::OverLimit`]'s detail bit: past the jerk limit.
+pub const OVER_JERK: u32 = 4;
+
+/// The [`FaultKind::OverLimit`] detail for the limits `c` says a point
+/// went past.
+pub fn over_limit_detail(c: Clamped) -> u32 {
+    (if c.vel { OVER_VELOCITY } else { 0 })
+        | (if c.acc { OVER_ACCELERATION } else { 0 })
+        | (if c.jerk { OVER_JERK } else { 0 })
+}
+
+/// The names of the limits an [`FaultKind::OverLimit`] detail holds
+/// ("velocity", "acceleration", "jerk"), in that order.
+pub fn over_limit_names(detail: u32) -> impl Iterator<Item = &'static str> {
+    [
+        (OVER_VELOCITY, "velocity"),
+        (OVER_ACCELERATION, "acceleration"),
+        (OVER_JERK, "jerk"),
+    ]
+    .into_iter()
+    .filter(move |(bit, _)| detail & bit != 0)
+    .map(|(_, name)| name)
+}
 
 /// What kind of fault a module saw: the `code` output of `get_fault`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -44,17 +79,22 @@ pub enum FaultKind {
     LimitHit = 4,
     /// `halt` stopped the axis.
     Halted = 5,
+    /// A control point past the axis's velocity, acceleration or jerk limit
+    /// (`set_limits`) was refused; the detail says which, as bits
+    /// ([`OVER_VELOCITY`], [`OVER_ACCELERATION`], [`OVER_JERK`]).
+    OverLimit = 6,
 }
 
 impl FaultKind {
     /// Every kind, in code order.
-    pub const ALL: [FaultKind; 6] = [
+    pub const ALL: [FaultKind; 7] = [
         FaultKind::None,
         FaultKind::Refused,
         FaultKind::Backstop,
         FaultKind::StepOverrun,
         FaultKind::LimitHit,
         FaultKind::Halted,
+        FaultKind::OverLimit,
     ];
 
     /// The kind's code.
@@ -76,6 +116,7 @@ impl FaultKind {
             FaultKind::StepOverrun => "step overrun",
             FaultKind::LimitHit => "limit hit",
             FaultKind::Halted => "halted",
+            FaultKind::OverLimit => "point over limit",
         }
     }
 }
@@ -137,7 +178,7 @@ mod tests {
         for k in FaultKind::ALL {
             assert_eq!(FaultKind::from_code(k.code()), Some(k));
         }
-        assert_eq!(FaultKind::from_code(6), None);
+        assert_eq!(FaultKind::from_code(7), None);
         assert_eq!(FaultKind::from_code(255), None);
     }
 
@@ -152,5 +193,28 @@ mod tests {
         assert_eq!(f.outputs(), (30, 1, 4, 3));
         f.record(40, FaultKind::Refused, 2, true);
         assert_eq!(f.outputs(), (40, 1, 2, 4));
+    }
+
+    #[test]
+    fn over_limit_details_name_their_limits() {
+        use std::vec::Vec;
+        let all = Clamped {
+            jerk: true,
+            acc: true,
+            vel: true,
+        };
+        assert_eq!(over_limit_detail(Clamped::default()), 0);
+        assert_eq!(over_limit_detail(all), 7);
+        let acc = Clamped {
+            acc: true,
+            ..Clamped::default()
+        };
+        assert_eq!(over_limit_detail(acc), OVER_ACCELERATION);
+        assert_eq!(
+            over_limit_names(7).collect::<Vec<_>>(),
+            ["velocity", "acceleration", "jerk"]
+        );
+        assert_eq!(over_limit_names(OVER_JERK).collect::<Vec<_>>(), ["jerk"]);
+        assert_eq!(over_limit_names(0).count(), 0);
     }
 }

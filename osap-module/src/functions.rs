@@ -18,6 +18,7 @@
 //! | `set_enable` | `on: bool` | — |
 //! | `set_scale` | `full_steps_per_unit: f32` | — |
 //! | `set_microsteps` | `microsteps: u16` | — |
+//! | `set_limits` | `max_vel: f32`, `max_acc: f32`, `max_jerk: f32` | — |
 //! | `read_limit` | — | `time: u64`, `level: bool`, `edges: u32` |
 //! | `halt` | — | — |
 //! | `digital_write` | `pin: u8`, `level: bool` | — |
@@ -36,6 +37,12 @@
 //! [`crate::fault`]). `enter_bootloader` answers first and reboots the
 //! board into its UF2 bootloader 100 ms later, for a firmware update
 //! (`osap flash`; see [`crate::boot`]).
+//!
+//! `set_limits` turns on the firmware's check of incoming points: with
+//! limits set, `add_point` refuses a point past the velocity, acceleration
+//! or jerk limit (`OverLimit`) and `get_fault` reports it, saying which
+//! limit (see [`crate::stepper`] and [`crate::fault`]). Limits are off
+//! until set.
 
 use crate::board::Board;
 use crate::boot::BootError;
@@ -116,6 +123,27 @@ impl<B: Board> Module<B> {
             return Err(StepperError::BadValue.into());
         }
         Ok(self.stepper.set_microsteps(microsteps)?)
+    }
+
+    /// Sets the limits on incoming points, in user units (those of
+    /// `add_point`'s position) per s, s² and s³, while no stream is queued:
+    /// `add_point` then refuses a point past one (`OverLimit`, a fault
+    /// `get_fault` reports). 0 turns a limit off; `set_limits(0, 0, 0)`
+    /// (the default) turns the check off. A limit that is not finite, is
+    /// negative, or rounds to nothing at the interval and scale is a
+    /// `BadValue`; a later interval, scale or microstep change that would
+    /// make one round to nothing is refused the same way.
+    pub fn set_limits(
+        &mut self,
+        max_vel: f32,
+        max_acc: f32,
+        max_jerk: f32,
+    ) -> Result<(), CallError> {
+        Ok(self.stepper.set_limits(crate::stepper::Limits {
+            max_vel,
+            max_acc,
+            max_jerk,
+        })?)
     }
 
     /// The limit switch: when its level last changed (synchronized µs, 0:
@@ -276,6 +304,7 @@ module_functions! {
     set_enable(on: bool);
     set_scale(full_steps_per_unit: f32);
     set_microsteps(microsteps: u16);
+    set_limits(max_vel: f32, max_acc: f32, max_jerk: f32);
     read_limit() -> (time: u64, level: bool, edges: u32);
     halt();
     digital_write(pin: u8, level: bool);

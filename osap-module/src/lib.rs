@@ -185,12 +185,18 @@ impl<B: Board> Module<B> {
     }
 
     /// Queues a control point (see [`Stepper::add_point`]), recording a
-    /// refusal as a fault.
+    /// refusal as a fault: [`FaultKind::OverLimit`] with the limits it went
+    /// past for a point past the axis's limits, [`FaultKind::Refused`] with
+    /// the refusal's code for any other.
     pub fn queue_point(&mut self, time: u64, position: f32) -> Result<(), stepper::StepperError> {
         let now = self.system_now();
         let result = self.stepper.add_point(time, position);
         match result {
             Ok(()) => self.last_point_at = now,
+            Err(stepper::StepperError::OverLimit) => {
+                let which = fault::over_limit_detail(self.stepper.over_limit());
+                self.fault.record(now, FaultKind::OverLimit, which, false);
+            }
             Err(e) => {
                 let stopped = self.stepper.is_stopped();
                 self.fault

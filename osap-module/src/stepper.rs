@@ -13,10 +13,18 @@
 //! jerk-limited backstop; that is a fault until the motor is disabled and
 //! enabled again. A stream that ends on repeated points stops cleanly, and
 //! a new stream may then start where the axis stands.
+//!
+//! With [`Limits`] set ([`Stepper::set_limits`]; off by default) every
+//! incoming point is checked by a [`maxl::Limiter`] before it is queued:
+//! one the limiter would change (it is past the velocity, acceleration or
+//! jerk limit, as the stream's finite differences at the interval measure
+//! them) is refused with [`StepperError::OverLimit`], and the limiter stays
+//! where the last accepted point left it. Each stream starts the limiter
+//! afresh, at rest where the axis stands.
 
 use maxl::{
-    BackstopLimits, EvalError, Fx, Interval, PioPacker, PushError, PushOutcome, Rounding, StepGen,
-    TickEval, Track, TrackStatus,
+    AxisLimits, BackstopLimits, Clamped, EvalError, Fx, Interval, Limiter, PioPacker, Point,
+    PushError, PushOutcome, Rounding, StepGen, TickEval, Track, TrackStatus,
 };
 
 /// Step ticks per second: one tick every [`STEP_TICK_US`] µs (100 kHz).
@@ -60,8 +68,12 @@ pub enum StepperError {
     Busy = 9,
     /// The value is not allowed (an interval that is not a power of two
     /// from 256 to 16 384 µs, a scale that is not finite and positive, a
-    /// microstep mode the board cannot set).
+    /// microstep mode the board cannot set, limits that are not finite and
+    /// non-negative or that round to nothing at the interval and scale).
     BadValue = 10,
+    /// The point is past the axis's velocity, acceleration or jerk limit
+    /// ([`Stepper::set_limits`]): the limiter would have changed it.
+    OverLimit = 11,
 }
 
 impl StepperError {
@@ -74,6 +86,37 @@ impl StepperError {
 impl From<StepperError> for pipes_core::function::CallError {
     fn from(e: StepperError) -> Self {
         pipes_core::function::CallError::Failed(e.code())
+    }
+}
+
+/// Limits on the stream of incoming points, in user units (those of the
+/// points' positions) per s, s² and s³: `set_limits`. A limit of 0 is off;
+/// all three 0 (the default) is no limiter at all.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Limits {
+    /// Largest velocity, units/s.
+    pub max_vel: f32,
+    /// Largest acceleration, units/s².
+    pub max_acc: f32,
+    /// Largest jerk, units/s³.
+    pub max_jerk: f32,
+}
+
+impl Limits {
+    /// No limits: every point passes unchecked.
+    pub const OFF: Limits = Limits {
+        max_vel: 0.0,
+        max_acc: 0.0,
+        max_jerk: 0.0,
+    };
+
+    /// Whether every limit is off.
+    pub fn is_off(&self) -> bool {
+        self.max_vel == 0.0 && self.max_acc == 0.0 && self.max_jerk == 0.0
+    }
+
+    fn all(&self) -> [f32; 3] {
+        [self.max_vel, self.max_acc, self.max_jerk]
     }
 }
 
@@ -131,6 +174,12 @@ pub struct Stepper {
     last_tick: u64,
     mode: Mode,
     counters: StepperCounters,
+    limits: Limits,
+    /// The limiter for `limits` at the interval and scale; its state is the
+    /// stream's as of the latest accepted point.
+    limiter: Option<Limiter<Fx>>,
+    /// The limits the latest `OverLimit` point went past.
+    over_limit: Clamped,
 }
 
 impl Default for Stepper {
@@ -165,6 +214,9 @@ impl Stepper {
             last_tick: 0,
             mode: Mode::Disabled,
             counters: StepperCounters::default(),
+            limits: Limits::OFF,
+            limiter: None,
+            over_limit: Clamped::default(),
         }
     }
 
@@ -242,7 +294,8 @@ impl Stepper {
                 return Err(StepperError::QueueFull);
             }
         }
-        match self.track.push(time, p) {
+        let limiter = self.check_limits(time, p)?;
+        let outcome = match self.track.push(time, p) {
             Ok(PushOutcome::Appended) => Ok(()),
             Ok(PushOutcome::FilledGap) => {
                 self.counters.filled = self.counters.filled.wrapping_add(1);
@@ -252,7 +305,48 @@ impl Stepper {
             Err(PushError::Stale) => Err(StepperError::Stale),
             Err(PushError::Gap { .. }) => Err(StepperError::Gap),
             Err(PushError::Backstopped) => Err(StepperError::Faulted),
+        };
+        if outcome.is_ok() && limiter.is_some() {
+            self.limiter = limiter;
         }
+        outcome
+    }
+
+    /// The limiter as it would be after the point `p` stamped `time` is
+    /// queued, checked against the limits: `OverLimit` if the limiter would
+    /// change the point (or the midpoint the track fills a single gap
+    /// with), `None` with no limits or for a point the track refuses
+    /// anyway. The axis's own limiter is left as it is.
+    fn check_limits(&mut self, time: u64, p: Fx) -> Result<Option<Limiter<Fx>>, StepperError> {
+        let Some(mut next) = self.limiter else {
+            return Ok(None);
+        };
+        let iv = self.track.interval();
+        if time & (u64::from(iv.micros()) - 1) != 0 {
+            return Ok(None);
+        }
+        let mut over = Clamped::default();
+        match (self.track.last_time(), self.track.last_point()) {
+            // A new stream: it starts at rest where the axis stands.
+            (None, _) => next.reset(),
+            (Some(last), Some(prev)) if time > last => match (time - last) >> iv.shift() {
+                1 => {}
+                2 => over = next.push(Fx::midpoint(prev, p)).clamped,
+                _ => return Ok(None),
+            },
+            _ => return Ok(None),
+        }
+        let c = next.push(p).clamped;
+        over = Clamped {
+            jerk: over.jerk || c.jerk,
+            acc: over.acc || c.acc,
+            vel: over.vel || c.vel,
+        };
+        if over.any() {
+            self.over_limit = over;
+            return Err(StepperError::OverLimit);
+        }
+        Ok(Some(next))
     }
 
     fn clear_track(&mut self) {
@@ -396,12 +490,40 @@ impl Stepper {
     }
 
     /// Sets the control-point interval (a power of two from 256 to
-    /// 16 384 µs) while no stream is queued.
+    /// 16 384 µs) while no stream is queued. Refused (`BadValue`) if a limit
+    /// would round to nothing at the new interval.
     pub fn set_interval(&mut self, interval_us: u32) -> Result<(), StepperError> {
         let iv = Interval::from_micros(interval_us).map_err(|_| StepperError::BadValue)?;
         self.check_idle()?;
+        self.limiter = limiter(self.limits, self.steps_per_unit(), iv)?;
         self.rebuild_track(iv);
         Ok(())
+    }
+
+    /// Sets the limits on incoming points (user units per s, s², s³; 0
+    /// turns one off, all three 0 turn the limiter off) while no stream is
+    /// queued. Refused (`BadValue`) for a limit that is not finite or is
+    /// negative, or that rounds to nothing at the interval and scale (a
+    /// jerk limit at short intervals: a jerk of `J` steps/s³ is
+    /// `J·Δt³·65 536` Q16.16 units per interval³).
+    pub fn set_limits(&mut self, limits: Limits) -> Result<(), StepperError> {
+        if !limits.all().iter().all(|x| x.is_finite() && *x >= 0.0) {
+            return Err(StepperError::BadValue);
+        }
+        self.check_idle()?;
+        self.limiter = limiter(limits, self.steps_per_unit(), self.track.interval())?;
+        self.limits = limits;
+        Ok(())
+    }
+
+    /// The limits on incoming points.
+    pub fn limits(&self) -> Limits {
+        self.limits
+    }
+
+    /// The limits the latest point refused with `OverLimit` went past.
+    pub fn over_limit(&self) -> Clamped {
+        self.over_limit
     }
 
     /// The control-point interval, µs.
@@ -446,11 +568,12 @@ impl Stepper {
         if !steps.is_finite() || steps.abs() > MAX_STEPS {
             return Err(StepperError::OutOfRange);
         }
+        let iv = self.track.interval();
+        self.limiter = limiter(self.limits, full * f32::from(microsteps), iv)?;
         self.full_steps_per_unit = full;
         self.microsteps = microsteps;
         self.rest = Fx::from_f64(steps);
         self.gen = StepGen::new(self.rest, Rounding::Nearest);
-        let iv = self.track.interval();
         self.rebuild_track(iv);
         Ok(())
     }
@@ -519,6 +642,35 @@ fn stop_limits(steps_per_unit: f32, acc: f32, jerk: f32) -> BackstopLimits {
         max_acc: acc * steps_per_unit,
         max_jerk: jerk * steps_per_unit,
     }
+}
+
+/// The limiter for `limits` (user units) at `steps_per_unit` and `iv`;
+/// `None` when they are off. A limit that is off is set beyond anything the
+/// track holds (differences of Q16.16 positions stay below 2³⁵ raw units;
+/// the limiter takes at most 2⁴⁰). `BadValue` if one rounds to nothing.
+fn limiter(
+    limits: Limits,
+    steps_per_unit: f32,
+    iv: Interval,
+) -> Result<Option<Limiter<Fx>>, StepperError> {
+    if limits.is_off() {
+        return Ok(None);
+    }
+    let steps = |x: f32| {
+        if x == 0.0 {
+            f32::MAX
+        } else {
+            (f64::from(x) * f64::from(steps_per_unit)).min(f64::from(f32::MAX)) as f32
+        }
+    };
+    let axis = AxisLimits {
+        max_vel: steps(limits.max_vel),
+        max_acc: steps(limits.max_acc),
+        max_jerk: steps(limits.max_jerk),
+    };
+    Limiter::<Fx>::new(axis, iv)
+        .map(Some)
+        .map_err(|_| StepperError::BadValue)
 }
 
 /// The interval an axis starts with, 2048 µs.

@@ -158,5 +158,37 @@ pub fn fault_reason(kind: FaultKind, detail: u32) -> String {
         ),
         FaultKind::LimitHit => "had its limit switch pressed".into(),
         FaultKind::Halted => "was halted (its motor must be cycled: recover())".into(),
+        FaultKind::OverLimit => {
+            let which: Vec<&str> = osap_module::fault::over_limit_names(detail).collect();
+            let which = match which.len() {
+                0 => "its limits".to_string(),
+                1 => format!("its {} limit", which[0]),
+                _ => format!("its {} limits", which.join(" and ")),
+            };
+            format!(
+                "refused a point past {which} (the module's set_limits): plan the motion within the limits, or raise them"
+            )
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use osap_module::fault::{OVER_ACCELERATION, OVER_JERK, OVER_VELOCITY};
+
+    #[test]
+    fn an_over_limit_fault_names_its_limits() {
+        assert_eq!(
+            fault_reason(FaultKind::OverLimit, OVER_JERK),
+            "refused a point past its jerk limit (the module's set_limits): plan the motion \
+             within the limits, or raise them"
+        );
+        let both = fault_reason(FaultKind::OverLimit, OVER_VELOCITY | OVER_ACCELERATION);
+        assert!(
+            both.contains("past its velocity and acceleration limit"),
+            "{both}"
+        );
+        assert!(fault_reason(FaultKind::OverLimit, 0).contains("past its limits"));
     }
 }

@@ -22,6 +22,7 @@ pub struct Stepper {
     set_enable: FunctionHandle,
     set_scale: FunctionHandle,
     set_microsteps: FunctionHandle,
+    set_limits: FunctionHandle,
     read_limit: FunctionHandle,
     halt: FunctionHandle,
     digital_write: FunctionHandle,
@@ -84,6 +85,11 @@ impl Stepper {
         support::Signature {
             function: "set_microsteps",
             inputs: &[("microsteps", "u16")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "set_limits",
+            inputs: &[("max_vel", "f32"), ("max_acc", "f32"), ("max_jerk", "f32")],
             outputs: &[],
         },
         support::Signature {
@@ -162,6 +168,7 @@ impl Stepper {
             set_enable: support::function(manager, runtime, "set_enable")?,
             set_scale: support::function(manager, runtime, "set_scale")?,
             set_microsteps: support::function(manager, runtime, "set_microsteps")?,
+            set_limits: support::function(manager, runtime, "set_limits")?,
             read_limit: support::function(manager, runtime, "read_limit")?,
             halt: support::function(manager, runtime, "halt")?,
             digital_write: support::function(manager, runtime, "digital_write")?,
@@ -403,6 +410,29 @@ impl Stepper {
     /// `set_input_mode` and `set_output_mode`.
     pub fn set_microsteps_ref(&self) -> &FnRef {
         self.set_microsteps.function()
+    }
+
+    /// `set_limits`.
+    ///
+    /// - inputs: `max_vel: f32`, `max_acc: f32`, `max_jerk: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn set_limits(&self, max_vel: f32, max_acc: f32, max_jerk: f32) -> Result<(), CallError> {
+        let h = &self.set_limits;
+        let values = h.call(&[support::to_f32(max_vel), support::to_f32(max_acc), support::to_f32(max_jerk)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `set_limits`, for `push` and raw calls.
+    pub fn set_limits_handle(&self) -> &FunctionHandle {
+        &self.set_limits
+    }
+
+    /// `set_limits` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn set_limits_ref(&self) -> &FnRef {
+        self.set_limits.function()
     }
 
     /// `read_limit`.
