@@ -187,6 +187,24 @@ pub struct Motor {
     /// Enable the driver when the machine starts.
     #[serde(default = "default_true")]
     pub enable: bool,
+    /// The limits the module's firmware holds incoming points to, in motor
+    /// units. Absent: derived from the axes and `[limits]` (see
+    /// [`crate::module_limits`]).
+    #[serde(default)]
+    pub limits: Option<MotorLimits>,
+}
+
+/// A motor's firmware limits, in motor units (mm or radians) per s, s², s³.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotorLimits {
+    /// Most velocity.
+    pub velocity: f64,
+    /// Most acceleration.
+    pub acceleration: f64,
+    /// Most jerk; 0 (the default) leaves jerk unchecked.
+    #[serde(default)]
+    pub jerk: f64,
 }
 
 fn default_microsteps() -> u16 {
@@ -373,6 +391,14 @@ pub struct Limits {
     /// `minimum_cruise_ratio`; 0.5 is Klipper's default). Default 0: off.
     #[serde(default)]
     pub minimum_cruise_ratio: f64,
+    /// How far above what the plan can command the modules' firmware
+    /// limits sit (≥ 1; 0 turns the firmware limits off). Default 1.5.
+    #[serde(default = "default_module_margin")]
+    pub module_margin: f64,
+}
+
+fn default_module_margin() -> f64 {
+    1.5
 }
 
 /// What a tool is.
@@ -1003,6 +1029,30 @@ impl MachineFile {
                 "limits.minimum_cruise_ratio",
                 format!("{r} must be in [0, 1), e.g. 0.5"),
             ));
+        }
+        let m = l.module_margin;
+        if !(m.is_finite() && (m == 0.0 || m >= 1.0)) {
+            return Err(invalid(
+                "limits.module_margin",
+                format!("{m} must be 0 (firmware limits off) or at least 1, e.g. 1.5"),
+            ));
+        }
+        for (name, motor) in &self.motors {
+            if let Some(ml) = &motor.limits {
+                let at = format!("motors.{name}.limits");
+                positive(&format!("{at}.velocity"), ml.velocity, "motor units/s")?;
+                positive(
+                    &format!("{at}.acceleration"),
+                    ml.acceleration,
+                    "motor units/s²",
+                )?;
+                if !(ml.jerk.is_finite() && ml.jerk >= 0.0) {
+                    return Err(invalid(
+                        format!("{at}.jerk"),
+                        format!("{} must be 0 (unchecked) or positive", ml.jerk),
+                    ));
+                }
+            }
         }
         Ok(())
     }

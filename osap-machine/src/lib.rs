@@ -34,6 +34,7 @@ pub mod job;
 pub mod level;
 pub mod machine;
 pub mod mesh;
+pub mod module_limits;
 pub mod record;
 pub mod resonance;
 pub mod sim;

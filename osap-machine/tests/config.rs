@@ -508,3 +508,30 @@ fn cartesian_takes_no_mechanism_keys() {
         MachineFile::parse(&text)
     );
 }
+
+#[test]
+fn firmware_limits_are_validated_with_their_key() {
+    let margin = edited(
+        "junction_deviation = 0.02",
+        "junction_deviation = 0.02\nmodule_margin = 0.5",
+    );
+    let (key, msg) = invalid_key(&margin);
+    assert_eq!(key, "limits.module_margin");
+    assert!(msg.contains("at least 1"), "{msg}");
+    let off = edited(
+        "junction_deviation = 0.02",
+        "junction_deviation = 0.02\nmodule_margin = 0.0",
+    );
+    assert_eq!(MachineFile::parse(&off).unwrap().limits.module_margin, 0.0);
+    assert_eq!(MachineFile::parse(BASE).unwrap().limits.module_margin, 1.5);
+    let own = edited(
+        "[motors.b]\nmodule = \"b\"\nfull_steps_per_unit = 80.0",
+        "[motors.b]\nmodule = \"b\"\nfull_steps_per_unit = 80.0\nlimits = { velocity = 400.0, acceleration = -1.0 }",
+    );
+    let (key, _) = invalid_key(&own);
+    assert_eq!(key, "motors.b.limits.acceleration");
+    let good = own.replace("acceleration = -1.0", "acceleration = 9000.0");
+    let m = MachineFile::parse(&good).unwrap();
+    let l = m.motors["b"].limits.unwrap();
+    assert_eq!((l.velocity, l.acceleration, l.jerk), (400.0, 9000.0, 0.0));
+}

@@ -4,7 +4,7 @@
 //! module and the reason. In virtual time, on the simulated plotter.
 
 use osap_host::som::OwnedValue;
-use osap_machine::config::MachineFile;
+use osap_machine::config::{MachineFile, MotorLimits};
 use osap_machine::machine::events::FaultKind;
 use osap_machine::machine::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
@@ -181,6 +181,57 @@ fn a_module_halted_mid_move_faults_the_machine_with_its_first_reason() {
         );
         m.recover().await.unwrap();
         m.goto_now([60.0, 75.0], 50.0).await.unwrap();
+        m.stop().await.unwrap();
+    });
+}
+
+#[test]
+fn a_motor_limit_below_the_plan_is_held_by_the_module_and_reported() {
+    virtual_runtime().unwrap().block_on(async {
+        // Every other test here runs its moves under the limits derived
+        // from the machine file. Here motor b's own limits sit below what
+        // a 50 mm/s move asks of it: the module refuses the stream.
+        let mut cfg = MachineFile::load(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/plotter.toml"
+        ))
+        .unwrap();
+        cfg.motors.get_mut("b").unwrap().limits = Some(MotorLimits {
+            velocity: 10.0,
+            acceleration: 1.0e5,
+            jerk: 0.0,
+        });
+        let m = Machine::simulate_with(
+            &cfg,
+            SimOptions {
+                time: TimeMode::Virtual,
+            },
+        )
+        .await
+        .unwrap();
+        let mut events = m.events();
+        m.set_position([20.0, 75.0]).unwrap();
+        m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
+        let e = m.idle().await.unwrap_err();
+        let MachineError::Faulted(reason) = &e else {
+            panic!("{e}")
+        };
+        assert!(
+            reason.starts_with("module b refused a point past its velocity limit")
+                && reason.contains("module_margin"),
+            "{reason}"
+        );
+        let p = m.position();
+        assert!(p[0] < 179.0, "the axes stopped short: {p:?}");
+        let heard = faults(&mut events);
+        assert!(
+            heard.iter().any(|(module, kind, detail, _)| module == "b"
+                && *kind == FaultKind::OverLimit
+                && detail & osap_module::fault::OVER_VELOCITY != 0),
+            "{heard:?}"
+        );
+        // Module a's limits (derived from the file) let the move through.
+        assert!(heard.iter().all(|f| f.0 == "b"), "{heard:?}");
         m.stop().await.unwrap();
     });
 }

@@ -166,7 +166,7 @@ pub fn fault_reason(kind: FaultKind, detail: u32) -> String {
                 _ => format!("its {} limits", which.join(" and ")),
             };
             format!(
-                "refused a point past {which} (the module's set_limits): plan the motion within the limits, or raise them"
+                "refused a point past {which} (the module's set_limits; a machine sets them from its axes, [limits] module_margin or [motors.NAME] limits): plan the motion within the limits, or raise them"
             )
         }
     }
@@ -181,7 +181,8 @@ mod tests {
     fn an_over_limit_fault_names_its_limits() {
         assert_eq!(
             fault_reason(FaultKind::OverLimit, OVER_JERK),
-            "refused a point past its jerk limit (the module's set_limits): plan the motion \
+            "refused a point past its jerk limit (the module's set_limits; a machine sets them \
+             from its axes, [limits] module_margin or [motors.NAME] limits): plan the motion \
              within the limits, or raise them"
         );
         let both = fault_reason(FaultKind::OverLimit, OVER_VELOCITY | OVER_ACCELERATION);

@@ -41,6 +41,7 @@ use pipes_core::control::{ControlError, InputMode, OutputMode};
 use tokio::sync::{broadcast, watch};
 
 use crate::config::MachineFile;
+use crate::module_limits::{module_limits, ModuleLimits};
 pub use drive::{Drive, MAX_AXES};
 pub use error::MachineError;
 pub use events::{MachineEvent, MachineState};
@@ -54,6 +55,8 @@ pub const INTERVAL_US: u32 = 2048;
 /// room for a busy host to be held up without a motor's stream running
 /// dry, within the 64 points a module queues.
 pub const LEAD_US: u32 = 40 * INTERVAL_US;
+/// The control-point interval in seconds.
+const INTERVAL_S: f64 = INTERVAL_US as f64 * 1e-6;
 /// The host runtime's name on the network.
 pub const HOST_NAME: &str = "machine";
 /// Period of the modules' status reports, µs.
@@ -273,7 +276,8 @@ impl Machine {
         let mut motor_at = Vec::new();
         for motor in drive.motors() {
             let runtime = &modules[&motor.module].runtime;
-            motor_at.push(configure_motor(&manager, runtime, motor).await?);
+            let limits = module_limits(cfg, &motor.name, INTERVAL_S);
+            motor_at.push(configure_motor(&manager, runtime, motor, limits).await?);
         }
         let mut drive = drive;
         drive.rebase(&start, &motor_at)?;
@@ -1053,7 +1057,8 @@ impl Machine {
                 let runtime = &self.inner.modules[key].runtime;
                 manager.reinstate(runtime).await?;
                 for motor in motors.iter().filter(|m| &m.module == key) {
-                    configure_motor(&manager, runtime, motor).await?;
+                    let limits = module_limits(&self.inner.cfg, &motor.name, INTERVAL_S);
+                    configure_motor(&manager, runtime, motor, limits).await?;
                 }
             }
             drop(manager);
@@ -1341,12 +1346,13 @@ fn stops_motion(inner: &Inner, module: &str, kind: events::FaultKind, detail: u3
     }
 }
 
-/// Sets a motor's module up (scale, microsteps, interval, power) and reads
-/// where its steps put it.
+/// Sets a motor's module up (scale, microsteps, interval, the limits it
+/// holds points to, power) and reads where its steps put it.
 async fn configure_motor(
     manager: &Manager,
     runtime: &str,
     motor: &drive::DriveMotor,
+    limits: Option<ModuleLimits>,
 ) -> Result<f64, MachineError> {
     let call = |f: &'static str, args: Vec<OwnedValue>| {
         let h = manager.function(&FnRef::new(runtime, f));
@@ -1366,6 +1372,20 @@ async fn configure_motor(
     .await?;
     call("set_microsteps", vec![OwnedValue::U16(motor.microsteps)]).await?;
     call("set_interval", vec![OwnedValue::U32(INTERVAL_US)]).await?;
+    // All three 0 turns a module's limiter off (a reconnect may follow a
+    // machine file that had limits).
+    let l = limits.unwrap_or(ModuleLimits {
+        velocity: 0.0,
+        acceleration: 0.0,
+        jerk: 0.0,
+    });
+    call(
+        "set_limits",
+        [l.velocity, l.acceleration, l.jerk]
+            .map(|x| OwnedValue::F32(x as f32))
+            .to_vec(),
+    )
+    .await?;
     call("set_enable", vec![OwnedValue::Bool(motor.enable)]).await?;
     let out = call("get_position", vec![]).await?;
     Ok(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0))
