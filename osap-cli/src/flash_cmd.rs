@@ -24,8 +24,8 @@ use osap_host::link::serial;
 use osap_host::netrunner::{self, Netrunner, ScanOptions};
 use osap_host::som::model::{SomArg, SomRuntime};
 use osap_host::som::{FnRef, Manager, ManagerOptions, SomError};
+use osap_module::functions::FunctionSetHasher;
 use pipes_core::control::ControlError;
-use pipes_core::signature::{Arg, Signature};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::{Duration, Instant};
@@ -362,34 +362,20 @@ fn seen(rt: &SomRuntime) -> Seen {
 /// (`osap_module::functions::function_set_id` over its scanned signatures,
 /// in port order); `None` if a type is unknown to this build.
 fn function_set(rt: &SomRuntime) -> Option<u32> {
-    // Signatures hold `'static` strings: leaked, a few hundred bytes once
-    // per scan of one module in a short-lived process.
-    fn args(list: &[SomArg]) -> Option<&'static [Arg]> {
-        let args = list
-            .iter()
-            .map(|a| {
-                let name: &'static str = Box::leak(a.name.clone().into_boxed_str());
-                a.ty().map(|ty| Arg::new(name, ty))
-            })
-            .collect::<Option<Vec<Arg>>>()?;
-        Some(Box::leak(args.into_boxed_slice()))
+    fn keys(list: &[SomArg]) -> Option<Vec<(&str, u8)>> {
+        list.iter()
+            .map(|a| a.ty().map(|ty| (a.name.as_str(), ty.key())))
+            .collect()
     }
-    let signatures = rt
-        .functions
-        .iter()
-        .map(|f| {
-            Some(Signature {
-                name: Box::leak(f.name.clone().into_boxed_str()),
-                inputs: args(&f.inputs)?,
-                outputs: args(&f.outputs)?,
-            })
-        })
-        .collect::<Option<Vec<Signature>>>()?;
-    let refs: Vec<&Signature> = signatures.iter().collect();
-    Some(osap_module::functions::function_set_id(&refs))
+    let mut id = FunctionSetHasher::new(rt.functions.len());
+    for f in &rt.functions {
+        let (inputs, outputs) = (keys(&f.inputs)?, keys(&f.outputs)?);
+        id.function(&f.name, inputs.into_iter(), outputs.into_iter());
+    }
+    Some(id.finish())
 }
 
-/// `0xd0e78734`, or `unknown`.
+/// `0xe59fafca`, or `unknown`.
 fn id_text(id: Option<u32>) -> String {
     id.map_or_else(
         || "unknown (a type this osap does not know)".into(),

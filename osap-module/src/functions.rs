@@ -400,6 +400,43 @@ pub const fn function_set_id(signatures: &[&Signature]) -> u32 {
     hash
 }
 
+/// [`function_set_id`] over signatures a scan read (borrowed names and
+/// type keys), one function at a time, so a host need not build
+/// `'static` [`Signature`]s to check a module's set.
+#[derive(Debug, Clone, Copy)]
+pub struct FunctionSetHasher(u32);
+
+impl FunctionSetHasher {
+    /// Starts the id of a set of `count` functions.
+    pub fn new(count: usize) -> Self {
+        FunctionSetHasher(fnv1a(FNV_OFFSET, &[count as u8]))
+    }
+
+    /// Adds the next function: its name, and its inputs' and outputs'
+    /// names with their type keys.
+    pub fn function<'a, I, O>(&mut self, name: &str, inputs: I, outputs: O)
+    where
+        I: ExactSizeIterator<Item = (&'a str, u8)>,
+        O: ExactSizeIterator<Item = (&'a str, u8)>,
+    {
+        self.0 = hash_str8(self.0, name);
+        self.args(inputs);
+        self.args(outputs);
+    }
+
+    fn args<'a>(&mut self, args: impl ExactSizeIterator<Item = (&'a str, u8)>) {
+        self.0 = fnv1a(self.0, &[args.len() as u8]);
+        for (name, key) in args {
+            self.0 = fnv1a(hash_str8(self.0, name), &[key]);
+        }
+    }
+
+    /// The id.
+    pub fn finish(self) -> u32 {
+        self.0
+    }
+}
+
 /// The identity of [`SIGNATURES`]: every firmware embeds it, so a check of
 /// the built images proves they all present the same functions (one proxy
 /// serves them all).

@@ -2,7 +2,7 @@
 //! the built images proves they present the same functions.
 
 use osap_core::codec::Writer;
-use osap_module::functions::{function_set_id, SIGNATURES};
+use osap_module::functions::{function_set_id, FunctionSetHasher, SIGNATURES};
 use osap_module::FUNCTION_SET_ID;
 use pipes_core::signature::{Arg, Signature};
 use pipes_core::types::{ScalarType, Type};
@@ -31,6 +31,17 @@ fn from_wire(signatures: &[&Signature]) -> u32 {
 fn id_is_the_hash_of_what_a_scan_reads() {
     assert_eq!(FUNCTION_SET_ID, from_wire(&SIGNATURES));
     assert_eq!(FUNCTION_SET_ID, function_set_id(&SIGNATURES));
+    // The same id from borrowed names and keys, as a host computes it.
+    let mut h = FunctionSetHasher::new(SIGNATURES.len());
+    for sig in SIGNATURES {
+        let pairs = |args: &'static [Arg]| args.iter().map(|a| (a.name, a.ty.key()));
+        h.function(
+            &String::from(sig.name),
+            pairs(sig.inputs),
+            pairs(sig.outputs),
+        );
+    }
+    assert_eq!(h.finish(), FUNCTION_SET_ID);
 }
 
 #[test]
