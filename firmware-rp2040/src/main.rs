@@ -23,6 +23,7 @@
 
 mod board;
 mod name_store;
+mod rate_store;
 mod runtime_task;
 mod steps;
 mod uart_link;
@@ -41,6 +42,7 @@ use embassy_rp::uart::{self, BufferedUart};
 use embassy_rp::{bind_interrupts, usb};
 use embassy_time::Instant;
 use osap_core::Micros;
+use osap_firmware::hot_start::RateKeeper;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;
 use osap_firmware::usb::USB_TIMING;
@@ -120,6 +122,12 @@ async fn main(spawner: Spawner) {
     let _ = flash.blocking_unique_id(&mut unique_id);
     let mut names = NameStore::new(NameSector(flash));
     let name = names.load_or_default(MODULE_TYPE, &unique_id);
+    // SAFETY: the name and rate drivers are both used only by the runtime
+    // task, one at a time.
+    let rates = RateKeeper::open(
+        unsafe { rate_store::RateSector::steal() },
+        Default::default(),
+    );
 
     // The module's hardware.
     static STEPPER: StaticCell<StepperPins> = StaticCell::new();
@@ -220,6 +228,7 @@ async fn main(spawner: Spawner) {
         usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &USB_TIMING),
         uart: FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
         names,
+        rates,
     })));
 }
 

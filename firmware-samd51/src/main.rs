@@ -40,6 +40,7 @@ mod board;
 mod clocks;
 mod cs;
 mod name_store;
+mod rate_store;
 mod runtime_task;
 mod steps;
 mod time_driver;
@@ -56,6 +57,7 @@ use atsamd_hal::usb::UsbBus;
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_time::Instant;
 use osap_core::Micros;
+use osap_firmware::hot_start::RateKeeper;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;
 use osap_firmware::usb::{product_string, serial_string, ProductString, SerialString, USB_TIMING};
@@ -167,6 +169,12 @@ async fn main(spawner: Spawner) {
     let unique_id = atsamd_hal::serial_number();
     let mut names = NameStore::new(NameBlock(Nvm::new(p.nvmctrl)));
     let name = names.load_or_default(MODULE_TYPE, &unique_id);
+    // SAFETY: the name and rate drivers are both used only by the runtime
+    // task, one at a time.
+    let rates = RateKeeper::open(
+        unsafe { rate_store::RateBlock::steal() },
+        Default::default(),
+    );
 
     let pins = board::take(Pins::new(p.port));
 
@@ -298,6 +306,7 @@ async fn main(spawner: Spawner) {
         usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &USB_TIMING),
         uart: FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
         names,
+        rates,
     })));
 }
 

@@ -1,21 +1,24 @@
 //! The OSAP runtime's task: osap-firmware's runtime loop over this board's
-//! two links (USB is link 0, UART link 1) and its name block.
+//! two links (USB is link 0, UART link 1), its name block and its clock
+//! rate block.
 
 use osap_firmware::runtime::ModuleParts;
 
 use crate::name_store::NameBlock;
+use crate::rate_store::RateBlock;
 
 /// The module's runtime: two links.
 pub type ModuleRuntime = osap_firmware::runtime::ModuleRuntime<2>;
 
 /// Runs the runtime forever.
 #[embassy_executor::task]
-pub async fn runtime_task(mut parts: ModuleParts<NameBlock, crate::Module>) {
+pub async fn runtime_task(mut parts: ModuleParts<NameBlock, crate::Module, RateBlock>) {
     osap_firmware::runtime::run(
         parts.runtime,
         parts.ports,
         [&mut parts.usb, &mut parts.uart],
         &mut parts.names,
+        &mut parts.rates,
     )
     .await
 }

@@ -11,6 +11,8 @@
 //! - [`stack`]: fixed packet slots kept in earliest-deadline order, with
 //!   per-owner hold quotas.
 //! - [`transport`]: the sequential request/reply transport.
+//! - [`segment`]: datagrams larger than one packet, sent as segments and
+//!   reassembled in bounded memory.
 //! - [`runtime`]: the loop that serves the stack, forwards packets over link
 //!   gateways, delivers them to ports and answers the netresponder (port 0).
 //!
@@ -25,6 +27,7 @@
 #[cfg(feature = "std")]
 extern crate std;
 
+pub mod bus;
 pub mod clock;
 pub mod codec;
 pub mod counters;
@@ -35,6 +38,7 @@ pub mod packet;
 pub mod port;
 pub mod route;
 pub mod runtime;
+pub mod segment;
 pub mod stack;
 pub mod transport;
 pub mod usb;

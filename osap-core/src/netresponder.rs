@@ -38,6 +38,10 @@ pub const LINK_HEARD: u8 = 1;
 /// is wired to it). Readers that only know open/closed take it as open.
 pub const LINK_UNHEARD: u8 = 2;
 
+/// Link information's optional trailing section: a bus link follows with
+/// its drop address (`u8`) and the drops it knows present (256 bits as
+/// eight `u32`, bit `d % 32` of word `d / 32`).
+pub const LINK_KIND_BUS: u8 = 1;
 /// Longest runtime, type, port or link name, in bytes of UTF-8.
 pub const NAME_MAX: usize = 31;
 /// Lines kept in the debug log ring.
@@ -471,6 +475,15 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             out.u16(link.mtu())?;
             out.str8(info.type_name)?;
             out.str8(info.name)?;
+            // A bus link appends its address and the drops it knows; hosts
+            // that predate buses ignore the trailing bytes.
+            if let Some(bus) = link.bus() {
+                out.u8(LINK_KIND_BUS)?;
+                out.u8(bus.drop)?;
+                for word in bus.present {
+                    out.u32(word)?;
+                }
+            }
         }
         key::PORT_INFO => {
             let index = r.u16()?;

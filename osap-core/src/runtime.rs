@@ -100,6 +100,11 @@ pub struct Runtime<
     /// runtime took it or dropped it as malformed or oversize (anything
     /// there is a neighbour); cleared while the link is closed.
     link_heard: [Option<Micros>; LINKS],
+    /// Bus links (as a drop) with a time request of ours waiting for the
+    /// medium, one bit per link: a drop asks again only once it has left.
+    bus_time_waiting: u64,
+    /// When each bus link (as a drop) last asked the head for time.
+    bus_time_asked: [Option<Micros>; LINKS],
     changes: Changes,
     scratch: [u8; MTU],
 }
@@ -131,6 +136,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             counters: Counters::default(),
             link_counters: [LinkCounters::default(); LINKS],
             link_heard: [None; LINKS],
+            bus_time_waiting: 0,
+            bus_time_asked: [None; LINKS],
             changes: Changes::default(),
             scratch: [0; MTU],
         };
@@ -299,7 +306,15 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// tools). The stamp is our local counter, rewritten when the request
     /// starts onto the wire.
     pub fn request_time(&mut self, now: Micros, link: u8) -> Result<(), SendError> {
-        let route = Route::through_links(&[link]).map_err(SendError::BadAddress)?;
+        self.request_time_via(now, Instruction::LinkForward(link))
+    }
+
+    /// Sends a time stamp request across one forwarding hop (a link, or a
+    /// bus to its head).
+    fn request_time_via(&mut self, now: Micros, hop: Instruction) -> Result<(), SendError> {
+        let route = Route::local()
+            .with_hop(hop)
+            .map_err(SendError::BadAddress)?;
         let stamp = now;
         let ttl = self.config.reply_ttl_us;
         self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| w.u64(stamp).ok())
@@ -321,7 +336,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         ports: &mut [P],
         links: &mut [L],
     ) -> PollResult {
-        for link in links.iter_mut() {
+        for (i, link) in links.iter_mut().enumerate() {
+            if i < LINKS {
+                link.set_rx_room(self.stack.room(Owner::Link(i as u8)));
+            }
             link.poll(now);
         }
         self.ingest(now, links);
@@ -332,10 +350,16 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         self.sync_clock(now, links);
         let mut result = self.serve(now, ports, links);
         let ports_due = ports.iter().filter_map(|p| p.wake_at()).min();
-        result.wake_at = [result.wake_at, self.clock.next_request(), ports_due]
-            .into_iter()
-            .flatten()
-            .min();
+        let links_due = links.iter().filter_map(|l| l.wake_at()).min();
+        result.wake_at = [
+            result.wake_at,
+            self.clock.next_request(),
+            ports_due,
+            links_due,
+        ]
+        .into_iter()
+        .flatten()
+        .min();
         result
     }
 
@@ -345,18 +369,45 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     fn sync_clock<L: LinkGateway>(&mut self, now: Micros, links: &[L]) {
         let mut open = 0u64;
         for (i, link) in links.iter().enumerate().take(LINKS) {
-            if link.is_open() {
+            // Time flows down a bus from its head: a drop's neighbour on it
+            // is the head alone, and the head asks none of its drops.
+            let head = link.bus().is_some_and(|b| b.drop == crate::bus::HEAD);
+            if link.is_open() && !head {
                 open |= 1 << i;
             } else {
                 self.clock.forget(i);
+                self.bus_time_waiting &= !(1 << i);
             }
         }
         let due = self.clock.due_requests(now, open);
-        for i in 0..LINKS {
+        let interval = u64::from(self.clock.config().interval_us);
+        for (i, link) in links.iter().enumerate().take(LINKS) {
             // A full stack skips this request rather than stalling: the next
             // interval tries again.
             if due & (1 << i) != 0 {
-                let _ = self.request_time(now, i as u8);
+                let hop = match link.bus() {
+                    // A shared medium carries one request per drop at a
+                    // time: the discovery burst of a point-to-point link
+                    // would take the whole bus.
+                    // and at the plain rate: the bursts that hunt for a
+                    // phase against USB frames would take the bus from
+                    // every other drop.
+                    Some(_)
+                        if self.bus_time_waiting & (1 << i) != 0
+                            || self.bus_time_asked[i].is_some_and(|t| now < t + interval) =>
+                    {
+                        continue
+                    }
+                    Some(_) => Instruction::BusForward {
+                        bus: i as u8,
+                        drop: crate::bus::HEAD,
+                    },
+                    None => Instruction::LinkForward(i as u8),
+                };
+                if self.request_time_via(now, hop).is_ok() && link.bus().is_some() {
+                    self.bus_time_waiting |= 1 << i;
+                    self.bus_time_asked[i] = Some(now);
+                }
             }
         }
     }
@@ -375,16 +426,23 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             }
             let index = i as u8;
             let owner = Owner::Link(index);
+            let bus = link.bus().is_some();
             // Take packets only while the link has quota: otherwise they stay
             // in the link's own buffer, which pushes back on the sender.
+            let mut refused = None;
             while self.stack.check_claim(owner).is_ok() {
                 let mut stamp = None;
                 let pushed = self.stack.push_with(owner, now, |buf| {
                     let rx = link.receive(buf).ok_or(Rx::Empty)?;
                     stamp = rx.timestamp;
                     let packet = buf.get_mut(..rx.len).ok_or(Rx::Oversize)?;
-                    ingest_rewrite(packet, Instruction::LinkForward(index))
-                        .map_err(|_| Rx::Malformed)?;
+                    // Off a bus, the hop back names the sender's drop.
+                    let back = match (bus, link.received_from()) {
+                        (false, _) => Instruction::LinkForward(index),
+                        (true, Some(drop)) => Instruction::BusForward { bus: index, drop },
+                        (true, None) => return Err(Rx::Malformed),
+                    };
+                    ingest_rewrite(packet, back).map_err(|_| Rx::Malformed)?;
                     let view = Packet::new(packet).map_err(|_| Rx::Malformed)?;
                     if rx.len > usize::from(view.mtu()) {
                         return Err(Rx::Oversize);
@@ -409,7 +467,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                             self.stack.set_arrival(slot, ts);
                         }
                     }
-                    Err(PushError::Write(Rx::Empty)) | Err(PushError::Claim(_)) => break,
+                    Err(PushError::Write(Rx::Empty)) => break,
+                    Err(PushError::Claim(e)) => {
+                        refused = Some(e);
+                        break;
+                    }
                     Err(PushError::Write(Rx::Oversize)) | Err(PushError::Length) => {
                         bump(&mut self.counters.received);
                         bump(&mut self.counters.oversize);
@@ -422,6 +484,25 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                         self.count_link(i, |t| &mut t.received);
                         self.count_link(i, |t| &mut t.rx_dropped);
                     }
+                }
+            }
+            if let Err(e) = self.stack.check_claim(owner) {
+                refused = refused.or(Some(e));
+            }
+            // A bus cannot push back on one sender, and its turns are
+            // handed on in its frames: keep reading it so a turn's END is
+            // seen, dropping (and counting) packets there is no room for.
+            // The head's flow control (`set_rx_room`) keeps this rare.
+            if let (true, Some(e)) = (bus, refused) {
+                while link.receive(&mut self.scratch).is_some() {
+                    self.link_heard[i] = Some(now);
+                    bump(&mut self.counters.received);
+                    bump(match e {
+                        ClaimError::StackFull => &mut self.counters.stack_full,
+                        _ => &mut self.counters.quota_refused,
+                    });
+                    self.count_link(i, |t| &mut t.received);
+                    self.count_link(i, |t| &mut t.rx_dropped);
                 }
             }
         }
@@ -488,10 +569,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             let meta = *self.stack.meta(slot);
             if now > meta.deadline {
                 // Counted against the link it was bound for, if any.
-                if let Ok(Instruction::LinkForward(j)) =
+                if let Ok(Instruction::LinkForward(j) | Instruction::BusForward { bus: j, .. }) =
                     Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction())
                 {
                     self.count_link(usize::from(j), |t| &mut t.expired);
+                    if let Some(bit) = 1u64.checked_shl(u32::from(j)) {
+                        self.bus_time_waiting &= !bit;
+                    }
                 }
                 self.stack.release(slot);
                 bump(&mut self.counters.expired);
@@ -501,9 +585,12 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             let instruction = Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction());
             let served = match instruction {
                 Err(_) => self.drop_slot(slot, Drop::Malformed),
-                Ok(Instruction::LinkForward(j)) => self.forward(slot, j, now, meta.deadline, links),
-                // No bus gateways exist yet: a bus hop has nowhere to go.
-                Ok(Instruction::BusForward { .. }) => self.drop_slot(slot, Drop::NoRoute),
+                Ok(Instruction::LinkForward(j)) => {
+                    self.forward(slot, j, None, now, meta.deadline, links)
+                }
+                Ok(Instruction::BusForward { bus, drop }) => {
+                    self.forward(slot, bus, Some(drop), now, meta.deadline, links)
+                }
                 Ok(Instruction::PortHandle { src, dst: 0 }) => {
                     self.answer_netresponder(slot, src, now, ports, links)
                 }
@@ -555,10 +642,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         Served::Dropped
     }
 
+    /// Sends the packet in `slot` on link `index`: to drop `drop` if the
+    /// hop was a `bus_forward` (which needs a bus link), point to point if
+    /// it was a `link_forward` (which needs a point-to-point link).
     fn forward<L: LinkGateway>(
         &mut self,
         slot: SlotId,
         index: u8,
+        drop: Option<u8>,
         now: Micros,
         deadline: Micros,
         links: &mut [L],
@@ -570,6 +661,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             return self.drop_slot(slot, Drop::NoRoute);
         };
         let i = usize::from(index);
+        if link.bus().is_some() != drop.is_some() {
+            return self.drop_slot(slot, Drop::NoRoute);
+        }
         if !link.is_open() {
             self.count_link(i, |t| &mut t.closed);
             return self.drop_slot(slot, Drop::LinkClosed);
@@ -583,6 +677,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         // Wire time counts against the deadline: a packet that would land
         // after it is dropped here rather than spending the link on it.
         let landing = now.saturating_add(link.transmit_time(self.stack.packet(slot).len()));
+        // Whatever leaves for (or expires on) a bus ends the wait of our
+        // time request there (it goes first, by its deadline, or is gone).
+        if let Some(bit) = 1u64.checked_shl(u32::from(index)) {
+            self.bus_time_waiting &= !bit;
+        }
         if landing > deadline {
             self.stack.release(slot);
             bump(&mut self.counters.expired);
@@ -596,7 +695,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         // Packet::new validated the header, so the TTL field exists.
         let _ = set_ttl(packet, ttl);
         let len = packet.len();
-        match link.send(packet) {
+        let sent = match drop {
+            Some(d) => link.send_to(d, packet),
+            None => link.send(packet),
+        };
+        match sent {
             Ok(()) => {
                 bump(&mut self.counters.forwarded);
                 self.count_link(i, |t| &mut t.sent);
@@ -713,7 +816,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             links,
             packet_size: MTU as u16,
             arrival_link: match route.hops().next() {
-                Some(Instruction::LinkForward(l)) => l,
+                Some(Instruction::LinkForward(l) | Instruction::BusForward { bus: l, .. }) => l,
                 _ => netresponder::ARRIVED_LOCALLY,
             },
         };
@@ -780,9 +883,17 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 let (len, meta) = self.take_to_scratch(slot);
                 let reply = split_delivery(&self.scratch[..len]).and_then(|(route, body)| {
                     let mut hops = route.hops();
-                    let (Some(Instruction::LinkForward(link)), None) = (hops.next(), hops.next())
-                    else {
-                        return None;
+                    // From a point-to-point neighbour, or from our bus's head.
+                    let link = match (hops.next(), hops.next()) {
+                        (Some(Instruction::LinkForward(link)), None) => link,
+                        (
+                            Some(Instruction::BusForward {
+                                bus,
+                                drop: crate::bus::HEAD,
+                            }),
+                            None,
+                        ) => bus,
+                        _ => return None,
                     };
                     Some((link, TimeReply::decode(body).ok()?))
                 });

@@ -233,6 +233,13 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         self.hold(owner).map(|h| h.max)
     }
 
+    /// How many more slots `owner` could claim now (its quota left, at
+    /// most the free slots).
+    pub fn room(&self, owner: Owner) -> u8 {
+        let left = self.hold(owner).map_or(0, |h| h.max.saturating_sub(h.held));
+        left.min(self.free.len().min(usize::from(u8::MAX)) as u8)
+    }
+
     /// How many slots `owner` holds now.
     pub fn held(&self, owner: Owner) -> Option<u8> {
         self.hold(owner).map(|h| h.held)

@@ -5,6 +5,11 @@
 //! request carries a `u16` sequence number and its reply echoes it, so a
 //! caller with several calls in flight knows which one each reply answers.
 //! [`Requester`] keeps that bookkeeping for the caller.
+//!
+//! Key 3 ([`KEY_SEGMENT`]) carries one segment of a payload too large for
+//! one packet; the reassembled payload starts with its own key again (see
+//! [`crate::segment`]). [`Transport::decode`] does not unwrap segments: a
+//! receiver reassembles first and decodes the whole payload.
 
 use crate::Micros;
 use core::fmt;
@@ -15,6 +20,8 @@ pub const KEY_RAW: u8 = 0;
 pub const KEY_REQUEST: u8 = 1;
 /// Transport key of a sequential reply.
 pub const KEY_REPLY: u8 = 2;
+/// Transport key of a segment of a larger payload ([`crate::segment`]).
+pub const KEY_SEGMENT: u8 = crate::segment::KEY_SEGMENT;
 /// Highest key reserved for the project's own transports.
 pub const KEY_RESERVED_MAX: u8 = 15;
 
@@ -34,7 +41,8 @@ pub enum Transport {
 pub enum TransportError {
     /// The payload is empty or ends inside the header.
     Truncated,
-    /// The key is reserved (3..=15) or unknown (above 15).
+    /// The key is a segment (3, reassemble first with [`crate::segment`]),
+    /// reserved (4..=15) or unknown (above 15).
     UnknownKey(u8),
 }
 

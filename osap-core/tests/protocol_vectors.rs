@@ -246,6 +246,7 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             .unwrap()
         }),
     );
+    v.extend(segment_vectors());
     v
 }
 
@@ -325,4 +326,68 @@ fn document_vectors_decode_to_their_meaning() {
         TimeConfig::decode(&get("netresponder.time_config.default")),
         Ok(TimeConfig::default())
     );
+}
+
+/// The `add` signature reply (pipes.md §5) to request 0x1234, 22 bytes,
+/// as a sender whose packets take 16 payload bytes cuts it (§3).
+fn segmented_reply() -> (Vec<u8>, osap_core::segment::Plan) {
+    let sig = [
+        0x03, b'a', b'd', b'd', 0x02, 0x01, b'a', 0x22, 0x01, b'b', 0x22, 0x01, 0x03, b's', b'u',
+        b'm', 0x22,
+    ];
+    let mut body = vec![0x02, 0x00];
+    body.extend(sig);
+    let whole = transport(Transport::Reply(0x1234), &body);
+    let plan = osap_core::segment::Plan::new(whole.len(), 16).unwrap();
+    (whole, plan)
+}
+
+fn segment_vectors() -> BTreeMap<String, Vec<u8>> {
+    use osap_core::segment::{SegmentHeader, HEADER_LEN};
+    let (whole, plan) = segmented_reply();
+    (0..plan.count)
+        .map(|i| {
+            let mut s = vec![0u8; HEADER_LEN];
+            SegmentHeader {
+                id: 7,
+                index: i,
+                count: plan.count,
+                len: plan.len,
+            }
+            .encode(&mut s)
+            .unwrap();
+            let at = plan.offset(i);
+            s.extend_from_slice(&whole[at..at + plan.body_len(i)]);
+            (format!("segment.reply.{i}_of_{}", plan.count), s)
+        })
+        .collect()
+}
+
+#[test]
+fn segment_vectors_reassemble_to_the_reply() {
+    use osap_core::segment::Reassembler;
+    let doc = document_vectors();
+    let (whole, _) = segmented_reply();
+    let mut r: Reassembler<1, 64> = Reassembler::new();
+    let route = Route::through_links(&[2]).unwrap();
+    let mut out = None;
+    // Out of order, one duplicate.
+    for k in [
+        "segment.reply.2_of_3",
+        "segment.reply.0_of_3",
+        "segment.reply.0_of_3",
+        "segment.reply.1_of_3",
+    ] {
+        let seg = doc.get(k).unwrap_or_else(|| panic!("missing {k}"));
+        if let Some(d) = r.on_segment(0, &route, 1, seg).unwrap() {
+            out = Some(d.to_vec());
+        }
+    }
+    assert_eq!(out.as_deref(), Some(&whole[..]));
+    let (t, body) = Transport::decode(&whole).unwrap();
+    assert_eq!(
+        (t, &body[..2]),
+        (Transport::Reply(0x1234), &[0x02, 0x00][..])
+    );
+    assert_eq!(r.stats().duplicates, 1);
 }

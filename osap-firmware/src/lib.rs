@@ -9,6 +9,9 @@
 //!   [`serial`] and USB's in [`usb`];
 //! - [`runtime`]: the runtime's loop;
 //! - [`name_store`]: the name record in flash;
+//! - [`rate_store`]: the learned clock rate, logged in its own flash
+//!   sector, and [`hot_start`]: when to preset the clock from it and when
+//!   to save it;
 //! - [`timebase`]: a 64-bit time base on a 32-bit hardware counter, for
 //!   boards that bring their own embassy time driver.
 //!
@@ -19,8 +22,10 @@
 #![forbid(unsafe_code)]
 
 pub mod framer;
+pub mod hot_start;
 pub mod link;
 pub mod name_store;
+pub mod rate_store;
 pub mod runtime;
 pub mod serial;
 pub mod timebase;

@@ -5,7 +5,9 @@
 //! hub, and the runtime forwards between them) and the module's ports, then
 //! sleeps until a link has news ([`wake_runtime`]) or the earliest deadline
 //! the poll reported comes due. After every poll it hands the module the
-//! clock's time map and persists a name the network set. A board wraps
+//! clock's time map, persists a name the network set, and runs the hot
+//! start policy ([`crate::hot_start`]): the clock starts from the rate
+//! saved in flash and its learned rate is saved, sparingly. A board wraps
 //! [`run`] in its own `#[embassy_executor::task]` (tasks cannot be generic).
 
 use embassy_futures::select::select;
@@ -18,8 +20,10 @@ use osap_core::netresponder::Level;
 use osap_core::Runtime;
 use osap_module::{ModuleHandle, ModulePorts};
 
+use crate::hot_start::{HotStartEvent, RateKeeper};
 use crate::link::{FirmwareLink, FramedGateway, MTU};
 use crate::name_store::{NameFlash, NameStore};
+use crate::rate_store::RateFlash;
 use crate::serial::SerialTiming;
 use crate::usb::UsbTiming;
 
@@ -36,7 +40,7 @@ pub type ModuleRuntime<const LINKS: usize> = Runtime<SLOTS, MTU, PORTS, LINKS>;
 /// it to its runtime task, which passes its fields to [`run`] by reference
 /// (moving them into another future would keep a second copy of the
 /// gateways' frame buffers in the task).
-pub struct ModuleParts<F: NameFlash + 'static, H: 'static> {
+pub struct ModuleParts<F: NameFlash + 'static, H: 'static, R: RateFlash + 'static> {
     /// The runtime.
     pub runtime: &'static mut ModuleRuntime<2>,
     /// The module's ports.
@@ -47,6 +51,8 @@ pub struct ModuleParts<F: NameFlash + 'static, H: 'static> {
     pub uart: FramedGateway<SerialTiming>,
     /// Where the name is kept.
     pub names: NameStore<F>,
+    /// Where the learned clock rate is kept, and when it is used.
+    pub rates: RateKeeper<R>,
 }
 
 /// A module's runtime: of type `module_type`, named `name`, reporting
@@ -79,6 +85,34 @@ pub fn module_ports<H: ModuleHandle>(module: H) -> ModulePorts<H> {
     }
 }
 
+/// Runs the hot start policy after a poll at local time `now` and logs
+/// what it did (readable over the network in the runtime's debug log).
+fn hot_start<R: RateFlash, const LINKS: usize>(
+    runtime: &mut ModuleRuntime<LINKS>,
+    rates: &mut RateKeeper<R>,
+    now: u64,
+) {
+    match rates.poll(now, runtime.clock_mut()) {
+        Ok(None) => {}
+        Ok(Some(HotStartEvent::Preset(ppb))) => runtime.log(
+            Level::Info,
+            format_args!("hot start: clock rate {ppb} ppb from flash"),
+        ),
+        Ok(Some(HotStartEvent::Declined(src))) => runtime.log(
+            Level::Info,
+            format_args!(
+                "cold start: saved clock rate was learned on link {} at tier {}",
+                src.link, src.tier
+            ),
+        ),
+        Ok(Some(HotStartEvent::Saved(r))) => runtime.log(
+            Level::Info,
+            format_args!("clock rate {} ppb saved (record {})", r.rate_ppb, r.seq),
+        ),
+        Err(_) => runtime.log(Level::Error, format_args!("clock rate not saved to flash")),
+    }
+}
+
 /// Set by the link tasks when there is something for the runtime to do.
 static WAKE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
@@ -88,12 +122,14 @@ pub fn wake_runtime() {
 }
 
 /// Runs the runtime forever over `links` (link `i` is the runtime's link
-/// `i`), serving `ports`, keeping the name in `names`.
-pub async fn run<F: NameFlash, H: ModuleHandle, const LINKS: usize>(
+/// `i`), serving `ports`, keeping the name in `names` and the clock rate
+/// in `rates`.
+pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize>(
     runtime: &mut ModuleRuntime<LINKS>,
     ports: &mut ModulePorts<H>,
     mut links: [&mut dyn FirmwareLink; LINKS],
     names: &mut NameStore<F>,
+    rates: &mut RateKeeper<R>,
 ) -> ! {
     // Bad frames seen so far on each link, to log new ones.
     let mut rx_errors = [0u32; LINKS];
@@ -109,6 +145,7 @@ pub async fn run<F: NameFlash, H: ModuleHandle, const LINKS: usize>(
             runtime.poll(now, ports.ports(), &mut gateways)
         };
         ports.module().publish_time(runtime.time_map());
+        hot_start(runtime, rates, now);
 
         if runtime.take_changes().name {
             let saved = names.save(runtime.identity().name.as_str());

@@ -48,6 +48,11 @@ pub struct RuntimeRecord {
     pub tier: u8,
     /// Link indices from the host to it (empty: the host itself).
     pub route: Vec<u8>,
+    /// Per hop of `route`: the drop address where the hop crosses a bus
+    /// (`bus_forward`), `None` for a point-to-point link. Empty when no hop
+    /// crosses a bus (and in maps written before buses).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub route_drops: Vec<Option<u8>>,
     /// Smallest MTU along the route (its own packet size included).
     pub route_mtu: u16,
     /// Its link gateways, by index.
@@ -77,6 +82,20 @@ pub struct LinkRecord {
     pub heard: bool,
     /// Largest packet it carries.
     pub mtu: u16,
+    /// For a bus link: this station's drop address and the drops it knows
+    /// present. `None` for point-to-point links and in older maps.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bus: Option<BusRecord>,
+}
+
+/// What a bus link reported of its bus.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct BusRecord {
+    /// The station's own drop address (0 = the head).
+    pub drop: u8,
+    /// The other stations it knows present (for the head its drops, for a
+    /// drop the head, 0).
+    pub present: Vec<u8>,
 }
 
 impl LinkRecord {
@@ -121,9 +140,27 @@ impl RuntimeRecord {
     pub fn route(&self) -> Route {
         // Routes in a map come from scans and are short; a hand-edited map
         // with an impossible route yields the local route.
-        Route::through_links(&self.route)
-            .map(|r| r.with_mtu(self.route_mtu))
-            .unwrap_or_default()
+        let mut route = Route::local();
+        for (hop, drop) in self.path() {
+            let ins = match drop {
+                Some(drop) => osap_core::Instruction::BusForward { bus: hop, drop },
+                None => osap_core::Instruction::LinkForward(hop),
+            };
+            match route.push(ins) {
+                Ok(()) => {}
+                Err(_) => return Route::default(),
+            }
+        }
+        route.with_mtu(self.route_mtu)
+    }
+
+    /// The hops from the host: link index, and the drop where it is a bus.
+    pub fn path(&self) -> Vec<(u8, Option<u8>)> {
+        self.route
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| (l, self.route_drops.get(i).copied().flatten()))
+            .collect()
     }
 }
 
@@ -172,9 +209,10 @@ impl NetworkMap {
     pub fn tree(&self) -> String {
         let mut out = String::new();
         let mut children: Vec<Vec<usize>> = vec![Vec::new(); self.runtimes.len()];
-        for (i, r) in self.runtimes.iter().enumerate().skip(1) {
-            let parent_route = &r.route[..r.route.len().saturating_sub(1)];
-            if let Some(p) = self.runtimes.iter().position(|x| x.route == parent_route) {
+        let paths: Vec<Vec<(u8, Option<u8>)>> = self.runtimes.iter().map(|r| r.path()).collect();
+        for (i, path) in paths.iter().enumerate().skip(1) {
+            let parent = &path[..path.len().saturating_sub(1)];
+            if let Some(p) = paths.iter().position(|x| x == parent) {
                 children[p].push(i);
             }
         }
@@ -186,16 +224,20 @@ impl NetworkMap {
             out: &mut String,
         ) {
             let r = &map.runtimes[i];
-            let via = match r.route.last() {
-                Some(l) => {
-                    let parent_route = &r.route[..r.route.len() - 1];
+            let path = r.path();
+            let via = match path.last() {
+                Some((l, drop)) => {
+                    let parent_path = &path[..path.len() - 1];
                     let kind = map
                         .runtimes
                         .iter()
-                        .find(|x| x.route == parent_route)
+                        .find(|x| x.path() == parent_path)
                         .and_then(|p| p.links.get(usize::from(*l)))
                         .map_or("?", |k| k.type_name.as_str());
-                    format!("via {kind} link {l}: ")
+                    match drop {
+                        Some(d) => format!("via {kind} link {l} drop {d}: "),
+                        None => format!("via {kind} link {l}: "),
+                    }
                 }
                 None => String::new(),
             };

@@ -21,14 +21,14 @@
 
 use crate::error::NotSynchronised;
 use crate::map::{
-    LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord, MAP_VERSION,
+    BusRecord, LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord, MAP_VERSION,
 };
 use crate::port::{Datagram, PortHandle};
 use crate::{Host, HostError};
 use osap_core::clock::{ClockStatus, SyncState, TimeConfig};
 use osap_core::codec::{Reader, Writer};
 use osap_core::counters::LinkCounters;
-use osap_core::netresponder::{key, Status, LINK_CLOSED, LINK_UNHEARD};
+use osap_core::netresponder::{key, Status, LINK_CLOSED, LINK_KIND_BUS, LINK_UNHEARD};
 use osap_core::route::Route;
 use std::collections::{HashMap, VecDeque};
 use std::time::Duration;
@@ -258,14 +258,31 @@ impl Netrunner {
         let m = |e| malformed("link information", e);
         let index = r.u8().map_err(m)?;
         let open = r.u8().map_err(m)?;
-        Ok(LinkRecord {
+        let mut record = LinkRecord {
             index,
             open: open != LINK_CLOSED,
             heard: open != LINK_CLOSED && open != LINK_UNHEARD,
             mtu: r.u16().map_err(m)?,
             type_name: r.str8().map_err(m)?.to_string(),
             name: r.str8().map_err(m)?.to_string(),
-        })
+            bus: None,
+        };
+        // A bus link follows with its address and the drops it knows.
+        if r.u8().ok() == Some(LINK_KIND_BUS) {
+            let drop = r.u8().map_err(m)?;
+            let mut info = osap_core::link::BusInfo {
+                drop,
+                ..Default::default()
+            };
+            for word in info.present.iter_mut() {
+                *word = r.u32().map_err(m)?;
+            }
+            record.bus = Some(BusRecord {
+                drop,
+                present: info.drops().filter(|&d| d != drop).collect(),
+            });
+        }
+        Ok(record)
     }
 
     /// Information on port `index`.
@@ -427,8 +444,24 @@ pub async fn scan_with_progress(
     while let Some(i) = queue.pop_front() {
         let here = found[i].route;
         let link_list = found[i].record.links.clone();
-        for link in link_list.iter().filter(|l| l.open) {
-            let Ok(route) = here.with_hop(osap_core::Instruction::LinkForward(link.index)) else {
+        // A point-to-point link leads to one neighbour; a bus head's link
+        // to each drop it knows, a drop's to its head.
+        let targets = link_list.iter().filter(|l| l.open).flat_map(|link| {
+            let hops: Vec<osap_core::Instruction> = match &link.bus {
+                None => vec![osap_core::Instruction::LinkForward(link.index)],
+                Some(bus) => bus
+                    .present
+                    .iter()
+                    .map(|&drop| osap_core::Instruction::BusForward {
+                        bus: link.index,
+                        drop,
+                    })
+                    .collect(),
+            };
+            hops.into_iter().map(move |hop| (link, hop))
+        });
+        for (link, hop) in targets {
+            let Ok(route) = here.with_hop(hop) else {
                 failures.push(ScanFailure {
                     route: hops(&here),
                     error: format!("route through link {} is too long", link.index),
@@ -576,9 +609,27 @@ fn hops(route: &Route) -> Vec<u8> {
         .hops()
         .filter_map(|h| match h {
             osap_core::Instruction::LinkForward(l) => Some(l),
+            osap_core::Instruction::BusForward { bus, .. } => Some(bus),
             _ => None,
         })
         .collect()
+}
+
+/// Per hop of `route`, the drop where it crosses a bus; empty if no hop
+/// does.
+fn route_drops(route: &Route) -> Vec<Option<u8>> {
+    let drops: Vec<Option<u8>> = route
+        .hops()
+        .map(|h| match h {
+            osap_core::Instruction::BusForward { drop, .. } => Some(drop),
+            _ => None,
+        })
+        .collect();
+    if drops.iter().any(Option::is_some) {
+        drops
+    } else {
+        Vec::new()
+    }
 }
 
 /// Asks a newly found runtime everything about itself; what it fails to
@@ -633,6 +684,7 @@ async fn describe(
         packet_size: info.packet_size,
         tier: info.tier,
         route: hops(route),
+        route_drops: route_drops(route),
         route_mtu,
         links,
         ports,

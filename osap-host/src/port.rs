@@ -4,12 +4,15 @@
 //! either side: sends wait (without blocking the runtime) until the port is
 //! clear to send; received datagrams wait in an inbox; replies to requests
 //! made through [`PortHandle::request`] go straight to the caller that is
-//! waiting for them, matched by sequence number.
+//! waiting for them, matched by sequence number. Payloads that arrive in
+//! segments (transport key 3, `osap_core::segment`) are reassembled first,
+//! so a reply longer than the route's MTU reaches its caller whole.
 
 use crate::runtime::Host;
 use crate::HostError;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx, SendError};
 use osap_core::route::Route;
+use osap_core::segment::{self, ReassemblyStats};
 use osap_core::transport::Transport;
 use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::{AtomicBool, AtomicU16, Ordering};
@@ -20,6 +23,15 @@ use tokio::sync::{oneshot, Notify};
 /// Datagrams a port keeps before it stops accepting (the runtime then
 /// holds further packets for it until their deadlines).
 const INBOX_DEPTH: usize = 64;
+/// Segmented datagrams a host port reassembles at once.
+pub const SEGMENT_SLOTS: usize = 4;
+/// Largest segmented datagram a host port takes, bytes: more than the
+/// longest signature reply (name and 16 arguments of 255-byte names, 4.4 KB).
+pub const SEGMENT_BYTES: usize = 8192;
+
+/// A host port's reassembler (boxed: 32 KiB, made on the first segment).
+type HostReassembler = segment::Reassembler<SEGMENT_SLOTS, SEGMENT_BYTES>;
+
 /// Time to live given to sends unless the caller sets one, µs.
 pub const DEFAULT_TTL_US: u16 = 50_000;
 
@@ -51,6 +63,7 @@ struct PortQueues {
     outbox: VecDeque<Outgoing>,
     pending: HashMap<u16, oneshot::Sender<Datagram>>,
     stray_replies: u64,
+    segments: Option<Box<HostReassembler>>,
 }
 
 /// State shared by a port's runtime side and its handles.
@@ -72,6 +85,7 @@ impl PortShared {
                 outbox: VecDeque::new(),
                 pending: HashMap::new(),
                 stray_replies: 0,
+                segments: None,
             }),
             inbox_ready: Notify::new(),
             runtime,
@@ -136,7 +150,22 @@ impl Port for HostPort {
         let Some(shared) = &self.shared else {
             return;
         };
-        let Ok((transport, body)) = Transport::decode(d.payload) else {
+        let mut q = shared.lock();
+        let whole;
+        let payload = if segment::is_segment(d.payload) {
+            let r = q.segments.get_or_insert_with(Box::default);
+            // Refusals and duplicates are counted by the reassembler.
+            match r.on_segment(d.arrival, &d.reply_route, d.source_port, d.payload) {
+                Ok(Some(p)) => {
+                    whole = p.to_vec();
+                    &whole[..]
+                }
+                Ok(None) | Err(_) => return,
+            }
+        } else {
+            d.payload
+        };
+        let Ok((transport, body)) = Transport::decode(payload) else {
             return;
         };
         let datagram = Datagram {
@@ -146,7 +175,6 @@ impl Port for HostPort {
             source_port: d.source_port,
             arrival: d.arrival,
         };
-        let mut q = shared.lock();
         if let Transport::Reply(seq) = transport {
             match q.pending.remove(&seq) {
                 Some(waiter) => {
@@ -166,6 +194,9 @@ impl Port for HostPort {
             return;
         };
         let mut q = shared.lock();
+        if let Some(r) = q.segments.as_mut() {
+            r.expire(tx.now());
+        }
         while tx.clear_to_send() {
             let Some(out) = q.outbox.pop_front() else {
                 break;
@@ -305,5 +336,15 @@ impl PortHandle {
     /// Replies that matched no waiting request (late, after a timeout).
     pub fn stray_replies(&self) -> u64 {
         self.shared.lock().stray_replies
+    }
+
+    /// What the port's reassembler of segmented datagrams counted (all
+    /// zero until the first segment arrives).
+    pub fn segment_stats(&self) -> ReassemblyStats {
+        self.shared
+            .lock()
+            .segments
+            .as_ref()
+            .map_or_else(ReassemblyStats::default, |r| *r.stats())
     }
 }

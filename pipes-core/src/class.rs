@@ -237,4 +237,9 @@ impl<C: PipesClass, const B: usize> Port for ClassPort<'_, C, B> {
         }
         self.ctor.poll(tx);
     }
+
+    fn wake_at(&self) -> Option<Micros> {
+        // The constructor's own timers (a segmented reply in progress).
+        self.ctor.wake_at()
+    }
 }

@@ -24,6 +24,7 @@ use core::fmt;
 
 use osap_core::codec::{Reader, Writer};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx, SendError};
+use osap_core::segment::{Pump, SegmentSender, SegmentSource, Window};
 use osap_core::transport::Transport;
 use osap_core::Micros;
 
@@ -255,6 +256,8 @@ pub struct FunctionStats {
     pub reply_drops: u32,
     /// Packets that could not be read at all (transport header, stray replies).
     pub malformed: u32,
+    /// Signature replies too long for the route's MTU, sent in segments.
+    pub segmented_replies: u32,
 }
 
 /// What a handled request answers with.
@@ -283,6 +286,33 @@ pub struct PipesFunction<I, const PIPES: usize = 2, const Q: usize = 2, const B:
     reply_ttl: u16,
     stats: FunctionStats,
     last_error: Option<ControlError>,
+    /// Sends a signature reply longer than one packet, over several loops.
+    seg: SegmentSender,
+    /// The transport header of the signature reply `seg` is sending.
+    seg_reply: Transport,
+}
+
+/// A signature reply, `[transport][2][0][signature]`, read a window at a
+/// time so that it can go out in segments without a buffer of its own.
+struct SignatureReply {
+    transport: Transport,
+    sig: &'static Signature,
+}
+
+impl SegmentSource for SignatureReply {
+    fn len(&self) -> usize {
+        self.transport.encoded_len() + 2 + self.sig.encoded_len()
+    }
+
+    fn read_at(&self, offset: usize, out: &mut [u8]) -> usize {
+        let mut w = Window::new(offset, out);
+        let mut head = [0u8; 3];
+        let n = self.transport.encode(&mut head).unwrap_or(0);
+        w.put(&head[..n]);
+        w.put(&[ControlKey::GetSignature.to_u8(), 0]);
+        self.sig.write_pieces(&mut w);
+        w.written()
+    }
 }
 
 impl<I, const PIPES: usize, const Q: usize, const B: usize> fmt::Debug
@@ -326,6 +356,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             reply_ttl: DEFAULT_REPLY_TTL,
             stats: FunctionStats::default(),
             last_error: None,
+            seg: SegmentSender::new(),
+            seg_reply: Transport::Raw,
         })
     }
 
@@ -744,9 +776,43 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             ok.ok()?;
             Some(h + w.len())
         });
-        if r.is_err() {
+        match (r, &result) {
+            (Ok(()), _) => {}
+            (Err(SendError::TooLong), Ok(Answer::Signature)) => {
+                // Longer than the route allows: send it in segments.
+                self.stats.segmented_replies = self.stats.segmented_replies.wrapping_add(1);
+                self.seg_reply = transport;
+                let len = self.signature_reply().len();
+                let ttl = self.reply_ttl;
+                self.seg
+                    .start(tx.now(), &d.reply_route, d.source_port, ttl, len);
+                self.send_segments(tx);
+            }
+            (Err(_), _) => self.stats.reply_drops = self.stats.reply_drops.wrapping_add(1),
+        }
+    }
+
+    fn signature_reply(&self) -> SignatureReply {
+        SignatureReply {
+            transport: self.seg_reply,
+            sig: self.sig,
+        }
+    }
+
+    /// Sends what the port is clear to send of a segmented reply.
+    fn send_segments(&mut self, tx: &mut PortTx<'_>) {
+        if !self.seg.is_busy() {
+            return;
+        }
+        let src = self.signature_reply();
+        if let Pump::Abandoned(_) = self.seg.pump(tx, 0, &src) {
             self.stats.reply_drops = self.stats.reply_drops.wrapping_add(1);
         }
+    }
+
+    /// What the sender of segmented replies counted.
+    pub fn segment_stats(&self) -> &osap_core::segment::SenderStats {
+        self.seg.stats()
     }
 
     fn on_control(&mut self, d: &Delivery<'_>, tx: &mut PortTx<'_>) {
@@ -907,6 +973,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
             self.on_pipe_port(usize::from(d.offset - 1), &d);
         }
         self.flush(tx);
+        self.send_segments(tx);
     }
 
     fn wake_at(&self) -> Option<Micros> {
@@ -922,7 +989,10 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
             .flatten()
             .filter_map(|p| p.ack_deadline())
             .min();
-        [timer, acks].into_iter().flatten().min()
+        [timer, acks, self.seg.wake_at()]
+            .into_iter()
+            .flatten()
+            .min()
     }
 
     fn poll(&mut self, tx: &mut PortTx<'_>) {
@@ -943,5 +1013,6 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
             }
         }
         self.flush(tx);
+        self.send_segments(tx);
     }
 }

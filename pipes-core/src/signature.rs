@@ -14,6 +14,7 @@
 use core::fmt;
 
 use osap_core::codec::{CodecError, Reader, Writer};
+use osap_core::segment::Window;
 
 use crate::types::Type;
 use crate::value::ValueError;
@@ -150,6 +151,30 @@ impl Signature {
             }
         }
         Ok(())
+    }
+
+    /// Writes the same bytes as [`encode`](Signature::encode), field by
+    /// field, into a window: how a signature longer than one packet is
+    /// sent in segments without a buffer for all of it. The signature must
+    /// pass [`check`](Signature::check) (a function checks it once, when it
+    /// is made); a longer name is cut to 255 bytes here.
+    pub fn write_pieces(&self, w: &mut Window<'_>) {
+        let str8 = |w: &mut Window<'_>, s: &str| {
+            let b = &s.as_bytes()[..s.len().min(255)];
+            w.put(&[b.len() as u8]);
+            w.put(b);
+        };
+        str8(w, self.name);
+        for list in [self.inputs, self.outputs] {
+            w.put(&[list.len().min(MAX_ARGS) as u8]);
+            for a in list.iter().take(MAX_ARGS) {
+                if w.is_full() {
+                    return;
+                }
+                str8(w, a.name);
+                w.put(&[a.ty.key()]);
+            }
+        }
     }
 
     /// Whether `view` describes this same signature.
@@ -334,6 +359,24 @@ mod tests {
         ],
         outputs: &[Arg::new("sum", Type::Scalar(ScalarType::F32))],
     };
+
+    #[test]
+    fn pieces_in_any_window_are_the_encoding() {
+        let mut full = [0u8; 64];
+        let mut w = Writer::new(&mut full);
+        ADD.encode(&mut w).unwrap();
+        let n = w.len();
+        for start in 0..=n {
+            for size in 0..=n - start + 2 {
+                let mut out = [0xAAu8; 64];
+                let mut win = Window::new(start, &mut out[..size]);
+                ADD.write_pieces(&mut win);
+                let got = win.written();
+                assert_eq!(got, size.min(n - start), "{start} {size}");
+                assert_eq!(out[..got], full[start..start + got]);
+            }
+        }
+    }
 
     #[test]
     fn round_trip() {

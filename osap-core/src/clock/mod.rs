@@ -543,6 +543,20 @@ impl<const LINKS: usize> Clock<LINKS> {
         }
     }
 
+    /// The links (a bit per link index below 64) whose neighbours the
+    /// clock follows now; 0 when it follows no one. With the tier, this
+    /// tells a rate saved across a reboot was learned against the same
+    /// source.
+    pub fn followed_links(&self) -> u64 {
+        let followed = self.followed();
+        self.neighbours
+            .iter()
+            .take(64)
+            .enumerate()
+            .filter(|(_, n)| followed.is_some() && Some(n.tier) == followed)
+            .fold(0, |mask, (i, _)| mask | 1 << i)
+    }
+
     /// When the clock next needs a poll (local time): a request due on some
     /// link, or the once-per-interval tier housekeeping.
     pub fn next_request(&self) -> Option<Micros> {

@@ -20,6 +20,29 @@ pub struct LinkInfo<'a> {
     pub name: &'a str,
 }
 
+/// What a bus link reports of itself (see [`crate::bus`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct BusInfo {
+    /// This station's drop address (0 = the head).
+    pub drop: u8,
+    /// Drops known present, one bit per address (bit `d % 32` of word
+    /// `d / 32`): the drops that answered their last turn for the head,
+    /// the head (drop 0) for a drop.
+    pub present: [u32; 8],
+}
+
+impl BusInfo {
+    /// Whether drop `d` is known present.
+    pub fn is_present(&self, d: u8) -> bool {
+        self.present[usize::from(d / 32)] & (1 << (d % 32)) != 0
+    }
+
+    /// The drops known present, ascending.
+    pub fn drops(&self) -> impl Iterator<Item = u8> + '_ {
+        (0..=254u8).filter(|&d| self.is_present(d))
+    }
+}
+
 /// A packet a link gateway has received.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Received {
@@ -92,6 +115,41 @@ pub trait LinkGateway {
     fn counters(&self) -> Option<GatewayCounters> {
         None
     }
+
+    /// For a bus link (one link index serving many drops, addressed with
+    /// `bus_forward`): its address and the drops it knows. `None` for a
+    /// point-to-point link.
+    fn bus(&self) -> Option<BusInfo> {
+        None
+    }
+
+    /// Transmits one packet to drop `drop` of a bus link (255 = every
+    /// drop). Only called after `clear_to_send` returned true; a
+    /// point-to-point link ignores the address.
+    fn send_to(&mut self, drop: u8, packet: &[u8]) -> Result<(), LinkSendError> {
+        let _ = drop;
+        self.send(packet)
+    }
+
+    /// For a bus link: the drop that sent the packet most recently returned
+    /// by [`receive`](Self::receive).
+    fn received_from(&self) -> Option<u8> {
+        None
+    }
+
+    /// When the link needs [`poll`](Self::poll) again by itself (a bus
+    /// turn to hand on or time out), on the runtime's local clock.
+    fn wake_at(&self) -> Option<Micros> {
+        None
+    }
+
+    /// Told by the runtime before each [`poll`](Self::poll): how many
+    /// packets it could take from this link now. A bus head lends the
+    /// medium only while a drop's whole turn would fit, so what a drop
+    /// sends is never left unread (its turn's `END` behind it).
+    fn set_rx_room(&mut self, room: u8) {
+        let _ = room;
+    }
 }
 
 macro_rules! forward_link_gateway {
@@ -125,6 +183,21 @@ macro_rules! forward_link_gateway {
         }
         fn counters(&self) -> Option<GatewayCounters> {
             (**self).counters()
+        }
+        fn bus(&self) -> Option<BusInfo> {
+            (**self).bus()
+        }
+        fn send_to(&mut self, drop: u8, packet: &[u8]) -> Result<(), LinkSendError> {
+            (**self).send_to(drop, packet)
+        }
+        fn received_from(&self) -> Option<u8> {
+            (**self).received_from()
+        }
+        fn wake_at(&self) -> Option<Micros> {
+            (**self).wake_at()
+        }
+        fn set_rx_room(&mut self, room: u8) {
+            (**self).set_rx_room(room)
         }
     };
 }

@@ -93,6 +93,7 @@ mod tests {
                 packet_size: 256,
                 tier: 1,
                 route: vec![0],
+                route_drops: Vec::new(),
                 route_mtu: 256,
                 links: Vec::new(),
                 ports: Vec::new(),

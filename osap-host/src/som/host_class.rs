@@ -105,6 +105,11 @@ impl<C: PipesClass> Port for HostClassPort<C> {
         lock(&self.state).loop_hook(tx.system_time());
         self.ctor.poll(tx);
     }
+
+    fn wake_at(&self) -> Option<osap_core::Micros> {
+        // The constructor's own timers (a segmented reply in progress).
+        self.ctor.wake_at()
+    }
 }
 
 /// A class attached to a host runtime by [`attach_class`]: its shared state

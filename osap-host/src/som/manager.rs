@@ -830,11 +830,9 @@ fn group_members(som: &mut Som) {
 
 /// The route from the host (runtime 0) to runtime `ri`, with its MTU.
 fn host_route(som: &Som, ri: usize) -> Route {
-    som.runtimes.get(ri).map_or(Route::local(), |r| {
-        Route::through_links(&r.record.route)
-            .map(|x| x.with_mtu(r.record.route_mtu))
-            .unwrap_or_default()
-    })
+    som.runtimes
+        .get(ri)
+        .map_or(Route::local(), |r| r.record.route())
 }
 
 fn unexpected(at: &Target, request: &'static str, body: &ReplyBody<'_>) -> SomError {

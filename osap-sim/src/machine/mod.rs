@@ -216,6 +216,7 @@
 
 pub mod bed;
 pub mod board;
+mod bus;
 mod clock;
 pub mod faults;
 mod module;
@@ -223,6 +224,7 @@ mod switch;
 mod topology;
 mod wire;
 
+pub use bus::BusStats;
 pub use clock::DriftClock;
 pub use faults::{CorruptionStats, Fault, FaultError, FaultParseError};
 pub use module::{
@@ -230,8 +232,8 @@ pub use module::{
     MODULE_SLOTS,
 };
 pub use topology::{
-    load, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SwitchSpec, Topology, DEFAULT_BAUD, HOST,
-    MAX_HOST_LINKS,
+    load, BusSpec, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SwitchSpec, Topology, DEFAULT_BAUD,
+    HOST, MAX_HOST_LINKS,
 };
 
 /// How a simulated machine keeps time.
@@ -267,6 +269,7 @@ use osap_core::clock::TimeConfig;
 use osap_core::link::LinkGateway;
 use osap_core::netresponder::BuildKey;
 use osap_core::route::Route;
+use osap_core::Instruction;
 use osap_core::Micros;
 use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo, LinkStats};
 use osap_host::{Host, HostError};
@@ -312,6 +315,10 @@ struct Machine {
     /// The I/O sides of dangling UARTs, closed on drop (ending their
     /// drains).
     dangling: Mutex<Vec<LinkIo>>,
+    /// Per module: its bus stations (link index, bus configuration).
+    bus_roles: Vec<Vec<(usize, osap_core::bus::BusConfig)>>,
+    /// Per `[[bus]]`: what its pair carried.
+    bus_stats: Vec<Arc<BusStats>>,
     // Last: dropped after the links are down.
     _wire_thread: Option<Wire>,
 }
@@ -430,21 +437,23 @@ impl SimMachine {
         let epoch = osap_host::clock::now();
         let host_clock = host.clock();
         let timed = !topology.zero_latency;
-        let (wire, wire_thread) =
-            if timed && topology.links.iter().any(|l| l.kind != LinkKind::Memory) {
-                match mode {
-                    TimeMode::RealTime => {
-                        let thread = Wire::start().map_err(|source| HostError::Io {
-                            context: "starting the simulated wire thread".into(),
-                            source,
-                        })?;
-                        (Some(thread.handle()), Some(thread))
-                    }
-                    TimeMode::Virtual => (Some(WireHandle::Virtual), None),
+        let (wire, wire_thread) = if (timed
+            && topology.links.iter().any(|l| l.kind != LinkKind::Memory))
+            || !topology.buses.is_empty()
+        {
+            match mode {
+                TimeMode::RealTime => {
+                    let thread = Wire::start().map_err(|source| HostError::Io {
+                        context: "starting the simulated wire thread".into(),
+                        source,
+                    })?;
+                    (Some(thread.handle()), Some(thread))
                 }
-            } else {
-                (None, None)
-            };
+                TimeMode::Virtual => (Some(WireHandle::Virtual), None),
+            }
+        } else {
+            (None, None)
+        };
         let wakes: Vec<Arc<Notify>> = topology
             .modules
             .iter()
@@ -506,6 +515,54 @@ impl SimMachine {
                 faults: Arc::default(),
             });
         }
+        // Buses: one station link per member, after its [[link]]s.
+        let mut bus_roles: Vec<Vec<(usize, osap_core::bus::BusConfig)>> =
+            topology.modules.iter().map(|_| Vec::new()).collect();
+        let mut bus_ios: Vec<(Vec<LinkIo>, u32)> = Vec::new();
+        for bus in &topology.buses {
+            let config = LinkConfig {
+                type_name: "rs485_bus".into(),
+                name: bus.name.clone(),
+                mtu: 256,
+                depth: LINK_DEPTH,
+                bits_per_second: bus.baud,
+                bits_per_byte: 10,
+            };
+            let mut ios = Vec::new();
+            for (name, drop) in bus.stations() {
+                let Some(Node::Module(m)) = topology.node(name) else {
+                    unreachable!("validated");
+                };
+                let (link, io) = link::channel(config.clone(), wakes[m].clone(), host_clock);
+                let slots = &mut module_links[m];
+                let at = match topology.modules[m].kind() {
+                    Some(ModuleKind::Stepper) => {
+                        topology::firmware_link(LinkKind::Rs485).unwrap_or(slots.len())
+                    }
+                    _ => slots.len(),
+                };
+                if slots.len() <= at {
+                    slots.resize_with(at + 1, || None);
+                }
+                slots[at] = Some(link);
+                let role = if drop == osap_core::bus::HEAD {
+                    // A simulated module answers as late as its task is
+                    // scheduled (hundreds of µs on a busy host): a firmware
+                    // head's 500 µs would time drops out.
+                    osap_core::bus::BusConfig {
+                        reply_timeout_us: 5_000,
+                        absent_every: 4,
+                        ..osap_core::bus::BusConfig::head(bus.drops.len().min(254) as u8)
+                    }
+                } else {
+                    osap_core::bus::BusConfig::drop(drop)
+                };
+                bus_roles[m].push((at, role));
+                ios.push(io);
+            }
+            bus_ios.push((ios, bus.baud));
+        }
+        let bus_stats: Vec<Arc<BusStats>> = bus_ios.iter().map(|_| Arc::default()).collect();
         let positions = Positions::new(topology, &wakes, epoch);
         let machine = Arc::new(Machine {
             dangling: Mutex::new(Vec::new()),
@@ -520,6 +577,8 @@ impl SimMachine {
                 .map(|_| AtomicBool::new(false))
                 .collect(),
             wire,
+            bus_roles,
+            bus_stats: bus_stats.clone(),
             _wire_thread: wire_thread,
         });
         // A stepper always has the firmware's two links; one the topology
@@ -602,11 +661,30 @@ impl SimMachine {
                 machine.open(l);
             }
         }
+        for ((stations, baud), stats) in bus_ios.into_iter().zip(bus_stats) {
+            let Some(wire) = machine.wire.clone() else {
+                unreachable!("a machine with a bus has a wire");
+            };
+            bus::SimBus {
+                stations,
+                baud,
+                wire,
+                epoch,
+                host_clock,
+                stats,
+            }
+            .start();
+        }
         Ok(SimMachine {
             machine,
             modules,
             host_links,
         })
+    }
+
+    /// What the pair of `[[bus]]` number `index` (file order) carried.
+    pub fn bus_stats(&self, index: usize) -> Option<&BusStats> {
+        self.machine.bus_stats.get(index).map(|s| &**s)
     }
 
     /// The topology it was started from.
@@ -635,10 +713,18 @@ impl SimMachine {
         let topology = &self.machine.topology;
         let index = topology.module_index(name)?;
         let path = topology.paths().into_iter().nth(index)??;
-        let (first, rest) = path.split_first()?;
-        let mut hops = vec![*self.host_links.get(*first)?];
-        hops.extend(rest.iter().map(|&k| k as u8));
-        Route::through_links(&hops).ok()
+        let ((first, _), rest) = path.split_first()?;
+        let mut route = Route::local()
+            .with_hop(Instruction::LinkForward(*self.host_links.get(*first)?))
+            .ok()?;
+        for &(k, drop) in rest {
+            let hop = match drop {
+                Some(drop) => Instruction::BusForward { bus: k as u8, drop },
+                None => Instruction::LinkForward(k as u8),
+            };
+            route = route.with_hop(hop).ok()?;
+        }
+        Some(route)
     }
 
     /// Whether link `index` (its position in the topology) is up: both its
@@ -1122,10 +1208,15 @@ impl SimModule {
         let links = parked
             .links
             .into_iter()
-            .map(|mut link| {
+            .enumerate()
+            .map(|(i, mut link)| {
                 // Whatever arrived while it was down is gone with the power.
                 while link.receive(&mut []).is_some() {}
-                ModuleLink::new(link, clock, machine.host_clock)
+                let role = machine.bus_roles[self.inner.index]
+                    .iter()
+                    .find(|(at, _)| *at == i)
+                    .map(|(_, role)| *role);
+                ModuleLink::new(link, clock, machine.host_clock).on_bus(role)
             })
             .collect();
         let (commands, rx) = mpsc::unbounded_channel();

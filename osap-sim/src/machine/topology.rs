@@ -67,6 +67,52 @@ pub struct Topology {
     /// positions.
     #[serde(rename = "switch", default, skip_serializing_if = "Vec::is_empty")]
     pub switches: Vec<SwitchSpec>,
+    /// RS-485 buses, `[[bus]]` in a file: one head module and its drops on
+    /// one shared pair (see `osap_core::bus`).
+    #[serde(rename = "bus", default, skip_serializing_if = "Vec::is_empty")]
+    pub buses: Vec<BusSpec>,
+}
+
+fn default_bus_baud() -> u32 {
+    1_000_000
+}
+
+/// An RS-485 bus, `[[bus]]` in a topology file: the `head` module polls
+/// the `drops`, which get drop addresses 1, 2, ... in list order. The bus
+/// is a link of each of them, numbered after the module's `[[link]]`s (a
+/// `stepper` has it as its UART, link 1).
+///
+/// ```toml
+/// [[bus]]
+/// head = "hub"
+/// drops = ["a", "b", "c"]
+/// baud = 1000000
+/// ```
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BusSpec {
+    /// Instance name reported to scans.
+    #[serde(default)]
+    pub name: String,
+    /// The module that polls the bus (drop 0).
+    pub head: String,
+    /// The drop modules, drop addresses 1.. in order.
+    pub drops: Vec<String>,
+    /// Bits per second on the pair (10 bits per byte).
+    #[serde(default = "default_bus_baud")]
+    pub baud: u32,
+}
+
+impl BusSpec {
+    /// The stations (head first) with their drop addresses.
+    pub fn stations(&self) -> impl Iterator<Item = (&str, u8)> {
+        std::iter::once((self.head.as_str(), 0)).chain(
+            self.drops
+                .iter()
+                .enumerate()
+                .map(|(i, d)| (d.as_str(), (i + 1).min(254) as u8)),
+        )
+    }
 }
 
 /// A limit switch over several motors, `[[switch]]` in a topology file: on
@@ -403,6 +449,8 @@ pub(crate) enum Node {
 pub(crate) struct Hop {
     pub(crate) peer: Node,
     pub(crate) index: usize,
+    /// Across a bus: the peer's drop address.
+    pub(crate) drop: Option<u8>,
 }
 
 /// Which firmware link a link of `kind` is on a `stepper`.
@@ -479,7 +527,14 @@ impl Topology {
             modules: Vec::new(),
             links: Vec::new(),
             switches: Vec::new(),
+            buses: Vec::new(),
         }
+    }
+
+    /// Adds a bus.
+    pub fn with_bus(mut self, bus: BusSpec) -> Self {
+        self.buses.push(bus);
+        self
     }
 
     /// Adds a module.
@@ -864,12 +919,39 @@ impl Topology {
     fn check_graph(&self) -> Result<(), String> {
         let adjacency = self.adjacency();
         for (i, m) in self.modules.iter().enumerate() {
-            let n = adjacency[i + 1].len();
+            let indices: std::collections::BTreeSet<usize> =
+                adjacency[i + 1].iter().map(|h| h.index).collect();
+            let n = indices.len();
             if n > MODULE_LINKS {
                 return Err(format!(
                     "module {:?} has {n} links; a simulated module has at most {MODULE_LINKS}",
                     m.name
                 ));
+            }
+        }
+        for bus in &self.buses {
+            let what = format!("[[bus]] with head {:?}", bus.head);
+            if bus.drops.is_empty() || bus.drops.len() > 254 {
+                return Err(format!("{what}: list 1 to 254 drops"));
+            }
+            if bus.baud == 0 {
+                return Err(format!("{what}: baud must be above 0"));
+            }
+            for (name, _) in bus.stations() {
+                match self.node(name) {
+                    Some(Node::Module(_)) => {}
+                    Some(Node::Host) => {
+                        return Err(format!(
+                            "{what}: the host cannot be on a bus; put a hub module at its head"
+                        ))
+                    }
+                    None => {
+                        return Err(format!(
+                            "{what}: no module is named {name:?}; name one of: {}",
+                            self.known_names()
+                        ))
+                    }
+                }
             }
         }
         let host_links = adjacency[0].len();
@@ -946,10 +1028,40 @@ impl Topology {
                 continue;
             };
             let index = index_at(a, &adj, l.kind);
-            adj[slot(a)].push(Hop { peer: b, index });
+            adj[slot(a)].push(Hop {
+                peer: b,
+                index,
+                drop: None,
+            });
             if a != b {
                 let index = index_at(b, &adj, l.kind);
-                adj[slot(b)].push(Hop { peer: a, index });
+                adj[slot(b)].push(Hop {
+                    peer: a,
+                    index,
+                    drop: None,
+                });
+            }
+        }
+        // A bus is one link index at each station, with a hop to every
+        // other station on it.
+        for bus in &self.buses {
+            let stations: Vec<(Node, u8, usize)> = bus
+                .stations()
+                .filter_map(|(name, drop)| {
+                    let n = self.node(name)?;
+                    Some((n, drop, index_at(n, &adj, LinkKind::Rs485)))
+                })
+                .collect();
+            for &(n, _, index) in &stations {
+                for &(peer, drop, _) in &stations {
+                    if peer != n {
+                        adj[slot(n)].push(Hop {
+                            peer,
+                            index,
+                            drop: Some(drop),
+                        });
+                    }
+                }
             }
         }
         adj
@@ -957,11 +1069,12 @@ impl Topology {
 
     /// For each module, the shortest way there from the host (fewest hops;
     /// among equals, the one through earlier-listed links): at each node on
-    /// the way, the index of the link taken among that node's link
-    /// gateways (for the host, its position among the host's links). `None` for modules the host cannot reach.
-    pub(crate) fn paths(&self) -> Vec<Option<Vec<usize>>> {
+    /// the way, the [`PathHop`] taken. `None` for modules the host cannot
+    /// reach.
+    pub(crate) fn paths(&self) -> Vec<Option<Vec<PathHop>>> {
         let adj = self.adjacency();
-        let mut from: Vec<Option<(usize, usize)>> = vec![None; adj.len()];
+        // For each node: the node before it and the hop taken from there.
+        let mut from: Vec<Option<(usize, PathHop)>> = vec![None; adj.len()];
         let mut seen = vec![false; adj.len()];
         seen[0] = true;
         let mut queue = VecDeque::from([0usize]);
@@ -970,7 +1083,7 @@ impl Topology {
                 let Node::Module(m) = hop.peer else { continue };
                 if !seen[m + 1] {
                     seen[m + 1] = true;
-                    from[m + 1] = Some((n, hop.index));
+                    from[m + 1] = Some((n, (hop.index, hop.drop)));
                     queue.push_back(m + 1);
                 }
             }
@@ -992,6 +1105,11 @@ impl Topology {
             .collect()
     }
 }
+
+/// One hop of a path from the host: the index of the link taken among
+/// that node's link gateways (for the host, its position among the host's
+/// links), and the drop addressed if that link is a bus.
+pub(crate) type PathHop = (usize, Option<u8>);
 
 fn check_name(what: &str, field: &str, value: &str) -> Result<(), String> {
     if value.is_empty() {

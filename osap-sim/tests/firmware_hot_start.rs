@@ -1,0 +1,122 @@
+//! The module firmware's hot start, simulated: every module runs
+//! osap-firmware's policy over a simulated rate sector. A first boot
+//! (cold, erased flash) saves the rate its clock learned; a reboot from
+//! that flash presets it and settles sooner than the cold boot did.
+//!
+//! The figures in docs/clock-sync.md ("Hot start") come from
+//! `cargo test -p osap-sim --release --test firmware_hot_start -- --nocapture`.
+
+use osap_firmware::hot_start::{Preset, SavePolicy};
+use osap_sim::hot_start::{run_with_rate_flash, SimRateFlash};
+use osap_sim::{Scenario, Topology};
+
+/// A topology shipped in `osap-sim/topologies/`.
+fn shipped(file: &str) -> Topology {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("topologies")
+        .join(file);
+    Topology::load(path).expect("valid topology")
+}
+
+/// The firmware's poll period is its runtime loop's (tens of µs to a few
+/// ms); 1 ms of simulated time is within that.
+const POLL_US: u64 = 1_000;
+
+/// Seconds until every node stays within 50 µs: cold, firmware hot start
+/// from the record a first boot saved, and the simulator's exact preset.
+struct Starts {
+    cold: f64,
+    firmware: f64,
+    exact: f64,
+}
+
+fn starts(topology: Topology, seed: u64) -> Starts {
+    let name = topology.name.clone();
+    let nodes = topology.nodes.len();
+    let mut flash = vec![SimRateFlash::erased(); nodes];
+    let policy = SavePolicy::default();
+
+    // First boot: settles, then saves after the hold (60 s).
+    let first = Scenario::new(topology.clone()).seed(seed).seconds(75.0);
+    let boot = run_with_rate_flash(&first, &mut flash, policy, POLL_US).unwrap();
+    let root = boot.metrics.root;
+    for (i, record) in boot.records.iter().enumerate() {
+        assert_eq!(record.is_some(), i != root, "{name} seed {seed} node {i}");
+    }
+    assert_eq!(boot.saves as usize, nodes - 1, "{name}: one save each");
+
+    // Reboot from the saved flash.
+    let again = Scenario::new(topology.clone()).seed(seed).seconds(10.0);
+    let hot = run_with_rate_flash(&again, &mut flash, policy, POLL_US).unwrap();
+    for (i, preset) in hot.presets.iter().enumerate() {
+        let want = if i == root {
+            Preset::Nothing
+        } else {
+            Preset::Applied
+        };
+        assert_eq!(*preset, want, "{name} seed {seed} node {i}");
+    }
+    // The same rate again: nothing written in the first 10 minutes.
+    assert_eq!(hot.saves, 0);
+
+    let cold = Scenario::new(topology.clone()).seed(seed).seconds(10.0);
+    let exact = cold.clone().hot_start(true);
+    let to_50 = |m: &osap_sim::metrics::Metrics| {
+        m.summary()
+            .converged_50us_s
+            .unwrap_or_else(|| panic!("{name} seed {seed}: did not converge"))
+    };
+    Starts {
+        cold: to_50(&cold.run().unwrap().metrics),
+        firmware: to_50(&hot.metrics),
+        exact: to_50(&exact.run().unwrap().metrics),
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+#[test]
+fn a_reboot_presets_the_saved_rate_and_settles_no_later_than_a_cold_boot() {
+    let mut rows = Vec::new();
+    for seed in 1..=4 {
+        // (In chain4 and star8 the modules behind the USB hub do not
+        // report settled within a minute in this tree, so their first boot
+        // saves nothing to restore.)
+        for topology in [shipped("uart-chain.toml"), shipped("single-usb.toml")] {
+            let name = topology.name.clone();
+            let s = starts(topology, seed);
+            eprintln!(
+                "{name:>12} seed {seed}: within 50 µs after cold {:.2} s, firmware hot start {:.2} s, exact preset {:.2} s",
+                s.cold, s.firmware, s.exact
+            );
+            rows.push((name, s));
+        }
+    }
+    let (cold, firmware): (Vec<f64>, Vec<f64>) =
+        rows.iter().map(|(_, s)| (s.cold, s.firmware)).unzip();
+    let exact: Vec<f64> = rows.iter().map(|(_, s)| s.exact).collect();
+    let sooner: Vec<f64> = rows.iter().map(|(_, s)| s.cold - s.firmware).collect();
+    eprintln!(
+        "median over {} runs: cold {:.2} s, firmware hot start {:.2} s, exact preset {:.2} s; \
+         sooner by median {:.2} s, least {:.2} s; worst firmware hot start {:.2} s",
+        rows.len(),
+        median(cold.clone()),
+        median(firmware.clone()),
+        median(exact),
+        median(sooner.clone()),
+        sooner.iter().copied().fold(f64::INFINITY, f64::min),
+        firmware.iter().copied().fold(0.0, f64::max),
+    );
+    // Never much later than a cold start.
+    for ((name, s), d) in rows.iter().zip(&sooner) {
+        assert!(
+            *d > -0.25,
+            "{name}: hot {} s against cold {} s",
+            s.firmware,
+            s.cold
+        );
+    }
+}
