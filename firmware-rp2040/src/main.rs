@@ -53,7 +53,7 @@ use static_cell::StaticCell;
 
 use board::{IoPins, StepperPins};
 use name_store::NameSector;
-use osap_firmware::runtime::{module_ports, module_runtime, ModuleParts};
+use osap_firmware::runtime::{module_ports, module_runtime, uart_in_stored_role, ModuleParts};
 use runtime_task::ModuleRuntime;
 use usb_link::UsbStrings;
 
@@ -226,7 +226,11 @@ async fn main(spawner: Spawner) {
         runtime,
         ports,
         usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &USB_TIMING),
-        uart: FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
+        // Point to point, or an RS-485 bus station, as the stored role says.
+        uart: uart_in_stored_role(
+            FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
+            &mut names,
+        ),
         names,
         rates,
     })));

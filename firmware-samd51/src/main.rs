@@ -69,7 +69,7 @@ use usb_device::bus::UsbBusAllocator;
 
 use board::{BoardUart, FastPin, IoPins, StepperPins};
 use name_store::NameBlock;
-use osap_firmware::runtime::{module_ports, module_runtime, ModuleParts};
+use osap_firmware::runtime::{module_ports, module_runtime, uart_in_stored_role, ModuleParts};
 use runtime_task::ModuleRuntime;
 
 /// The module type: the runtime's type name, the USB product string's
@@ -304,7 +304,11 @@ async fn main(spawner: Spawner) {
         runtime,
         ports,
         usb: FramedGateway::new(&USB_SHARED, "usb_cdc", &USB_TIMING),
-        uart: FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
+        // Point to point, or an RS-485 bus station, as the stored role says.
+        uart: uart_in_stored_role(
+            FramedGateway::new(&UART_SHARED, "uart", &uart_link::UART_TIMING),
+            &mut names,
+        ),
         names,
         rates,
     })));

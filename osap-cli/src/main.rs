@@ -2,13 +2,14 @@
 
 use clap::{Args, Parser, Subcommand};
 use indicatif::{ProgressBar, ProgressStyle};
+use osap_core::bus::BusRole;
 use osap_core::route::Route;
 use osap_host::link::noise::Key;
 use osap_host::link::stream::LinkHandle;
 use osap_host::link::{serial, tcp, udp};
 use osap_host::map::NetworkMap;
 use osap_host::netrunner::{self, Netrunner, ScanOptions, ScanReport};
-use osap_host::{Host, HostConfig};
+use osap_host::{Host, HostConfig, HostError};
 use osap_sim::machine::{self, SimMachine};
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -116,6 +117,23 @@ enum Command {
         target: String,
         /// New name (at most 31 bytes).
         name: String,
+    },
+    /// Set a module's bus role on one of its links (its UART, link 1, by
+    /// default): off (point to point), head:N (the bus head, polling drops
+    /// 1..=N) or drop:D. The module keeps the role in flash. Set roles over
+    /// another link (USB) before wiring the bus: a role changed over the
+    /// link itself cuts it until the other end matches.
+    Bus {
+        #[command(flatten)]
+        connect: Connect,
+        /// The runtime: its name, or its route as link indices (e.g. 0,2).
+        target: String,
+        /// off, head:N or drop:D (N and D from 1 to 254).
+        #[arg(value_parser = parse_bus_role)]
+        role: BusRole,
+        /// The link to set (a module's UART is link 1).
+        #[arg(long, default_value_t = 1)]
+        link: u8,
     },
     /// Call a runtime's PIPES function once: its outputs print one a
     /// line, a refusal by name (exit code 3).
@@ -354,6 +372,60 @@ fn parse_route(target: &str) -> Option<Result<Route, String>> {
 }
 
 /// The route to `target`: parsed, or found by name in a scan.
+/// `off`, `head:N` or `drop:D`, as `osap bus` takes it.
+fn parse_bus_role(text: &str) -> Result<BusRole, String> {
+    let address = |n: &str, what: &str| {
+        n.parse::<u8>()
+            .ok()
+            .filter(|d| (1..=254).contains(d))
+            .ok_or_else(|| format!("{what} {n:?} must be a number from 1 to 254"))
+    };
+    match text.split_once(':') {
+        None if text == "off" => Ok(BusRole::Off),
+        Some(("head", n)) => Ok(BusRole::Head {
+            max_drop: address(n, "the highest drop")?,
+        }),
+        Some(("drop", n)) => Ok(BusRole::Drop(address(n, "the drop address")?)),
+        _ => Err(format!(
+            "{text:?} is not a bus role: use off, head:N (polls drops 1..=N) or drop:D"
+        )),
+    }
+}
+
+/// A role as `osap bus` names it.
+fn bus_role_text(role: BusRole) -> String {
+    match role {
+        BusRole::Off => "off (point to point)".into(),
+        BusRole::Head { max_drop } => format!("the bus head, polling drops 1 to {max_drop}"),
+        BusRole::Drop(d) => format!("drop {d} on its bus"),
+    }
+}
+
+/// What `osap bus` says when the runtime does not take the role.
+fn bus_error(e: HostError, route: &Route, link: u8) -> String {
+    use osap_core::netresponder::Status;
+    match e {
+        HostError::Remote {
+            status: Status::Refused,
+            ..
+        } => format!(
+            "the runtime at {route} cannot give link {link} a bus role: only a module \
+             firmware's UART can take one (USB links and simulated links cannot)"
+        ),
+        HostError::Remote {
+            status: Status::NoSuchIndex,
+            ..
+        } => format!("the runtime at {route} has no link {link}"),
+        HostError::Remote {
+            status: Status::UnknownKey,
+            ..
+        } => format!(
+            "the runtime at {route} does not know bus roles: update its firmware (osap flash)"
+        ),
+        e => e.to_string(),
+    }
+}
+
 async fn resolve(c: &Connection, target: &str) -> Result<Route, String> {
     if let Some(route) = parse_route(target) {
         return route;
@@ -456,6 +528,25 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
                 .await
                 .map_err(|e| e.to_string())?;
             println!("renamed the runtime at {route} to {stored}");
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Bus {
+            connect: args,
+            target,
+            role,
+            link,
+        } => {
+            let c = connect(&args).await?;
+            let route = resolve(&c, &target).await?;
+            let runner = Netrunner::new(&c.host).await.map_err(|e| e.to_string())?;
+            let set = runner
+                .set_bus(&route, link, role)
+                .await
+                .map_err(|e| bus_error(e, &route, link))?;
+            println!(
+                "link {link} of the runtime at {route} is now {}",
+                bus_role_text(set)
+            );
             Ok(ExitCode::SUCCESS)
         }
         Command::Ping {

@@ -175,3 +175,35 @@ fn a_served_machine_is_scanned_from_another_process() {
     assert!(stdout.contains(": tool ("), "{stdout}");
     assert!(stdout.contains("7 runtimes"), "{stdout}");
 }
+
+#[test]
+fn bus_roles_are_refused_where_a_link_cannot_take_one_and_bad_roles_say_why() {
+    let file = shipped("single-usb.toml");
+    let run = |args: &[&str]| {
+        let out = osap()
+            .args(["bus", "--sim"])
+            .arg(&file)
+            .args(args)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr).to_string();
+        (out.status.code(), stderr)
+    };
+    // A simulated module's USB link cannot switch to a bus.
+    let (code, stderr) = run(&["motor", "drop:3", "--link", "0"]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("cannot give link 0 a bus role"), "{stderr}");
+    let (code, stderr) = run(&["motor", "head:8", "--link", "9"]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert!(stderr.contains("has no link 9"), "{stderr}");
+    // Bad roles stop before anything is asked.
+    for (role, says) in [
+        ("drop:0", "from 1 to 254"),
+        ("head:255", "from 1 to 254"),
+        ("bus:1", "use off, head:N"),
+    ] {
+        let (code, stderr) = run(&["motor", role]);
+        assert_eq!(code, Some(2), "{role}: {stderr}");
+        assert!(stderr.contains(says), "{role}: {stderr}");
+    }
+}

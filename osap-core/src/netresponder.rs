@@ -6,6 +6,7 @@
 //! [`Status::Ok`] or says why there are no fields. The layouts are in
 //! `docs/protocol.md`.
 
+use crate::bus::BusRole;
 use crate::clock::Clock;
 #[cfg(feature = "sync")]
 use crate::clock::{TimeConfig, TimeConfigError};
@@ -81,6 +82,9 @@ pub mod key {
     pub const SET_CLOCK_RATE: u8 = 0x0D;
     /// Read one link's frame and drop counters.
     pub const LINK_COUNTERS: u8 = 0x0E;
+    /// Set one link's bus role (off, head, or drop; see
+    /// [`crate::bus::BusRole`]), on a link that can take one.
+    pub const SET_BUS: u8 = 0x0F;
 }
 
 /// Outcome code in every netresponder reply.
@@ -216,6 +220,15 @@ pub struct State {
     verbosity: Level,
     log: Deque<LogLine, LOG_LINES>,
     next_seq: u32,
+    /// The latest bus role set over the network, for the owner to apply.
+    bus_request: Option<(u8, BusRole)>,
+}
+
+impl State {
+    /// Takes the latest bus role set over the network: (link, role).
+    pub(crate) fn take_bus_request(&mut self) -> Option<(u8, BusRole)> {
+        self.bus_request.take()
+    }
 }
 
 impl Default for State {
@@ -225,6 +238,7 @@ impl Default for State {
             verbosity: Level::Info,
             log: Deque::new(),
             next_seq: 0,
+            bus_request: None,
         }
     }
 }
@@ -308,12 +322,14 @@ pub struct Changes {
     pub time_config: bool,
     /// The log verbosity was set.
     pub verbosity: bool,
+    /// A link's bus role was set ([`crate::Runtime::take_bus_request`]).
+    pub bus: bool,
 }
 
 impl Changes {
     /// Whether anything changed.
     pub fn any(&self) -> bool {
-        self.name || self.time_config || self.verbosity
+        self.name || self.time_config || self.verbosity || self.bus
     }
 }
 
@@ -610,6 +626,26 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             ctx.changes.time_config = true;
             out.u32(ctx.clock.rate_ppb() as u32)?;
         }
+        key::SET_BUS => {
+            let index = r.u8()?;
+            let bytes = [r.u8()?, r.u8()?];
+            end(r)?;
+            let link = ctx
+                .links
+                .get(usize::from(index))
+                .filter(|_| index < 64)
+                .ok_or(Fail::Status(Status::NoSuchIndex))?;
+            let role =
+                BusRole::from_bytes(bytes).map_err(|_| Fail::Status(Status::InvalidValue))?;
+            if !link.bus_configurable() {
+                return Err(Fail::Status(Status::Refused));
+            }
+            ctx.state.bus_request = Some((index, role));
+            ctx.changes.bus = true;
+            ctx.state.log_parts(Level::Info, &["bus role set"]);
+            out.u8(index)?;
+            out.bytes(&role.to_bytes())?;
+        }
         _ => return Err(Fail::Status(Status::UnknownKey)),
     }
     Ok(())
@@ -737,5 +773,66 @@ mod tests {
         // Reopened within the window: whoever is there now is not heard yet.
         links[1].set_open(true);
         assert_eq!(open_byte(&mut rt, &mut links, 4_000), LINK_UNHEARD);
+    }
+
+    /// Asks `SET_BUS` with `body` over link 0 and returns the reply's
+    /// `[key][status][fields]`.
+    fn set_bus<L: LinkGateway>(
+        rt: &mut Rt,
+        links: &mut [L; 2],
+        inject: impl Fn(&mut L, &[u8]) -> bool,
+        take: impl Fn(&mut L) -> Option<heapless::Vec<u8, 128>>,
+        body: &[u8],
+    ) -> heapless::Vec<u8, 16> {
+        let mut payload = [0u8; 16];
+        let n = Transport::Request(3).encode(&mut payload).unwrap();
+        payload[n] = key::SET_BUS;
+        payload[n + 1..n + 1 + body.len()].copy_from_slice(body);
+        assert!(inject(
+            &mut links[0],
+            &packet(0, &payload[..n + 1 + body.len()])
+        ));
+        let mut ports: [NoPort; 0] = [];
+        rt.poll(1_000, &mut ports, links);
+        let reply = take(&mut links[0]).expect("a reply");
+        heapless::Vec::from_slice(&reply[12..]).unwrap()
+    }
+
+    #[test]
+    fn set_bus_takes_a_role_on_a_switchable_link_only() {
+        use crate::bus::{BusRole, Switchable};
+        type Sw = Switchable<Link, 128>;
+        let inject = |l: &mut Sw, p: &[u8]| l.lower.inject(p);
+        let take = |l: &mut Sw| l.lower.take_sent();
+        let mut rt = runtime();
+        let mut links = [
+            Sw::new(Link::new(), BusRole::Off),
+            Sw::new(Link::new(), BusRole::Off),
+        ];
+        let ok = set_bus(&mut rt, &mut links, inject, take, &[1, 2, 5]);
+        assert_eq!(&ok[..], &[key::SET_BUS, Status::Ok as u8, 1, 2, 5]);
+        assert!(rt.take_changes().bus);
+        assert_eq!(rt.take_bus_request(), Some((1, BusRole::Drop(5))));
+        assert_eq!(rt.take_bus_request(), None);
+        // A drop address out of range, an unknown link, a short body.
+        let bad = set_bus(&mut rt, &mut links, inject, take, &[1, 2, 255]);
+        assert_eq!(&bad[..], &[key::SET_BUS, Status::InvalidValue as u8]);
+        let none = set_bus(&mut rt, &mut links, inject, take, &[7, 0, 0]);
+        assert_eq!(&none[..], &[key::SET_BUS, Status::NoSuchIndex as u8]);
+        let short = set_bus(&mut rt, &mut links, inject, take, &[1, 2]);
+        assert_eq!(&short[..], &[key::SET_BUS, Status::Malformed as u8]);
+        assert_eq!(rt.take_bus_request(), None);
+
+        // A link that cannot change roles refuses.
+        let mut plain = [Link::new(), Link::new()];
+        let refused = set_bus(
+            &mut rt,
+            &mut plain,
+            |l, p| l.inject(p),
+            |l| l.take_sent(),
+            &[1, 1, 8],
+        );
+        assert_eq!(&refused[..], &[key::SET_BUS, Status::Refused as u8]);
+        assert_eq!(rt.take_bus_request(), None);
     }
 }

@@ -104,6 +104,7 @@ pub struct Runtime<
     /// medium, one bit per link: a drop asks again only once it has left.
     bus_time_waiting: u64,
     /// When each bus link (as a drop) last asked the head for time.
+    #[cfg_attr(not(feature = "sync"), allow(dead_code))]
     bus_time_asked: [Option<Micros>; LINKS],
     changes: Changes,
     scratch: [u8; MTU],
@@ -215,6 +216,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// (firmware persists a new name when `name` is set).
     pub fn take_changes(&mut self) -> Changes {
         core::mem::take(&mut self.changes)
+    }
+
+    /// Takes the latest bus role the network set (netresponder key
+    /// `SET_BUS`): the link index and its role, for the owner to apply to
+    /// that link (and persist). `None` if none was set since the last call.
+    pub fn take_bus_request(&mut self) -> Option<(u8, crate::bus::BusRole)> {
+        self.netresponder.take_bus_request()
     }
 
     /// The drop and event counters.

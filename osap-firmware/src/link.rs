@@ -19,6 +19,7 @@ use portable_atomic::AtomicU32;
 use embassy_sync::blocking_mutex::raw::CriticalSectionRawMutex;
 use embassy_sync::channel::Channel;
 use embassy_sync::pipe::Pipe;
+use osap_core::bus::{BusRole, Switchable};
 use osap_core::framing::{encode_frame, max_frame_len};
 use osap_core::link::{GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::Micros;
@@ -191,11 +192,29 @@ pub struct FramedGateway<W: WireTiming + 'static> {
 pub trait FirmwareLink: LinkGateway {
     /// The link's shared state.
     fn shared(&self) -> &'static LinkShared;
+
+    /// Takes a bus role at once; false if the link cannot (only a
+    /// [`Switchable`] link can).
+    fn set_bus_role(&mut self, role: BusRole) -> bool {
+        let _ = role;
+        false
+    }
 }
 
 impl<W: WireTiming> FirmwareLink for FramedGateway<W> {
     fn shared(&self) -> &'static LinkShared {
         self.shared
+    }
+}
+
+impl<W: WireTiming, const N: usize> FirmwareLink for Switchable<FramedGateway<W>, N> {
+    fn shared(&self) -> &'static LinkShared {
+        self.lower.shared
+    }
+
+    fn set_bus_role(&mut self, role: BusRole) -> bool {
+        self.set_role(role);
+        true
     }
 }
 

@@ -17,11 +17,26 @@
 //! board's unique id, e.g. `stepper-1a2b3c`, so two fresh modules on one
 //! network still have different names.
 //!
+//! The same sector keeps the module's bus role on its UART (off, head, or
+//! a drop address; [`BusRole`]) in a second record right after the room
+//! for the longest name record, at [`BUS_OFFSET`]:
+//!
+//! ```text
+//! offset 0  magic "OSBR" (0x5242534F, little-endian)
+//!        4  role: [0, 0] off, [1, max_drop] head, [2, drop] drop
+//!        6  CRC-16/IBM-3740 of bytes 0..6, most significant byte first
+//! ```
+//!
+//! A sector written before bus roles existed reads 0xFF there: the role is
+//! off. Each save rewrites both records, keeping the one it does not
+//! change.
+//!
 //! The flash itself is behind [`NameFlash`], so this logic runs and is tested
 //! on the host; the firmware implements it over its HAL's blocking flash
 //! driver.
 use core::fmt::Write;
 use heapless::String;
+use osap_core::bus::BusRole;
 use osap_core::framing::crc16;
 use osap_core::netresponder::NAME_MAX;
 
@@ -36,6 +51,14 @@ const HEADER: usize = 5;
 const CRC: usize = 2;
 /// The longest record, in bytes.
 pub const RECORD_MAX: usize = HEADER + NAME_MAX + CRC;
+/// Magic word of the bus role record ("OSBR" in memory).
+pub const BUS_MAGIC: u32 = 0x5242_534F;
+/// Where the bus role record starts in the sector.
+pub const BUS_OFFSET: usize = RECORD_MAX;
+/// Length of the bus role record.
+pub const BUS_RECORD: usize = 8;
+/// The bytes of the sector the store reads and writes.
+const IMAGE: usize = BUS_OFFSET + BUS_RECORD;
 
 /// The sector that holds the record.
 pub trait NameFlash {
@@ -89,6 +112,26 @@ pub fn decode(bytes: &[u8]) -> Option<&str> {
     core::str::from_utf8(&body[HEADER..]).ok()
 }
 
+/// The bus role record of `role`.
+pub fn encode_bus(role: BusRole) -> [u8; BUS_RECORD] {
+    let mut out = [0u8; BUS_RECORD];
+    out[..4].copy_from_slice(&BUS_MAGIC.to_le_bytes());
+    out[4..6].copy_from_slice(&role.to_bytes());
+    let crc = crc16(&out[..6]).to_be_bytes();
+    out[6..].copy_from_slice(&crc);
+    out
+}
+
+/// The role in a bus role record at the start of `bytes`, if the record
+/// is valid.
+pub fn decode_bus(bytes: &[u8]) -> Option<BusRole> {
+    let rec = bytes.get(..BUS_RECORD)?;
+    if rec[..4] != BUS_MAGIC.to_le_bytes() || rec[6..] != crc16(&rec[..6]).to_be_bytes() {
+        return None;
+    }
+    BusRole::from_bytes([rec[4], rec[5]]).ok()
+}
+
 /// The name of a fresh module: `type_name`, a dash, and the last three
 /// bytes of the board's unique id in hex (`stepper-1a2b3c`). The type name
 /// is shortened if the whole would not fit.
@@ -125,11 +168,44 @@ impl<F: NameFlash> NameStore<F> {
         self.flash
     }
 
+    /// The records' bytes at the start of the sector.
+    fn image(&mut self) -> Option<[u8; IMAGE]> {
+        let mut buf = [0u8; IMAGE];
+        self.flash.read(&mut buf).ok()?;
+        Some(buf)
+    }
+
     /// The stored name, if the sector holds a valid record.
     pub fn load(&mut self) -> Option<Name> {
-        let mut buf = [0u8; RECORD_MAX];
-        self.flash.read(&mut buf).ok()?;
+        let buf = self.image()?;
         decode(&buf).and_then(|s| Name::try_from(s).ok())
+    }
+
+    /// The stored bus role; off if none is stored (or the record is bad).
+    pub fn load_bus(&mut self) -> BusRole {
+        self.image()
+            .and_then(|buf| decode_bus(&buf[BUS_OFFSET..]))
+            .unwrap_or_default()
+    }
+
+    /// Stores `role`, keeping the stored name. Writes nothing if the role
+    /// is already stored. Returns whether the flash was written.
+    pub fn save_bus(&mut self, role: BusRole) -> Result<bool, StoreError<F::Error>> {
+        if self.load_bus() == role {
+            return Ok(false);
+        }
+        let mut image = [0xFF; IMAGE];
+        if let Some(name) = self.load() {
+            let mut record = [0u8; RECORD_MAX];
+            if let Some(len) = encode(&name, &mut record) {
+                image[..len].copy_from_slice(&record[..len]);
+            }
+        }
+        image[BUS_OFFSET..].copy_from_slice(&encode_bus(role));
+        self.flash
+            .erase_and_write(&image)
+            .map_err(StoreError::Flash)?;
+        Ok(true)
     }
 
     /// The stored name, or the default one for this board.
@@ -148,8 +224,19 @@ impl<F: NameFlash> NameStore<F> {
         if self.load().as_deref() == Some(name) {
             return Ok(false);
         }
+        // Keep a bus role other than off; without one, the sector holds the
+        // name record alone, as before bus roles existed.
+        let role = self.load_bus();
+        let mut image = [0xFF; IMAGE];
+        image[..len].copy_from_slice(&record[..len]);
+        let written = if role == BusRole::Off {
+            len
+        } else {
+            image[BUS_OFFSET..].copy_from_slice(&encode_bus(role));
+            IMAGE
+        };
         self.flash
-            .erase_and_write(&record[..len])
+            .erase_and_write(&image[..written])
             .map_err(StoreError::Flash)?;
         Ok(true)
     }
@@ -312,5 +399,42 @@ mod tests {
             store.save("0123456789012345678901234567890123"),
             Err(StoreError::BadName)
         );
+    }
+
+    #[test]
+    fn the_bus_role_is_kept_beside_the_name_and_each_save_keeps_the_other() {
+        let mut sector = RamSector::erased();
+        let mut store = NameStore::new(&mut sector);
+        // A fresh sector, and one written before bus roles: off.
+        assert_eq!(store.load_bus(), BusRole::Off);
+        assert_eq!(store.save("x-axis"), Ok(true));
+        assert_eq!(store.load_bus(), BusRole::Off);
+        // Setting the role keeps the name; setting it again writes nothing.
+        assert_eq!(store.save_bus(BusRole::Drop(4)), Ok(true));
+        assert_eq!(store.save_bus(BusRole::Drop(4)), Ok(false));
+        assert_eq!(store.load_bus(), BusRole::Drop(4));
+        assert_eq!(store.load().as_deref(), Some("x-axis"));
+        // Renaming keeps the role.
+        assert_eq!(store.save("y-axis"), Ok(true));
+        assert_eq!(store.load_bus(), BusRole::Drop(4));
+        assert_eq!(store.load().as_deref(), Some("y-axis"));
+        // A role with no name stored leaves the default name in force.
+        let _ = store.into_inner();
+        let mut blank = RamSector::erased();
+        let mut store = NameStore::new(&mut blank);
+        assert_eq!(store.save_bus(BusRole::Head { max_drop: 8 }), Ok(true));
+        assert_eq!(store.load(), None);
+        assert_eq!(store.load_bus(), BusRole::Head { max_drop: 8 });
+        let _ = store.into_inner();
+        assert_eq!(blank.erases, 1);
+        // A torn or corrupted role record reads as off.
+        blank.bytes[BUS_OFFSET + 5] ^= 1;
+        assert_eq!(NameStore::new(&mut blank).load_bus(), BusRole::Off);
+        assert_eq!(
+            decode_bus(&encode_bus(BusRole::Drop(9))),
+            Some(BusRole::Drop(9))
+        );
+        assert_eq!(decode_bus(&[0xFF; BUS_RECORD]), None);
+        assert_eq!(decode_bus(&[0; 3]), None);
     }
 }

@@ -25,6 +25,18 @@ use crate::link::{FirmwareLink, FramedGateway, MTU};
 use crate::name_store::{NameFlash, NameStore};
 use crate::rate_store::RateFlash;
 use crate::serial::SerialTiming;
+use osap_core::bus::{BusRole, Switchable};
+
+/// A board's UART link: framed, and a bus station when its role says so.
+pub type UartLink = Switchable<FramedGateway<SerialTiming>, MTU>;
+
+/// The UART link over `gateway`, in the bus role stored in `names`.
+pub fn uart_in_stored_role<F: NameFlash>(
+    gateway: FramedGateway<SerialTiming>,
+    names: &mut NameStore<F>,
+) -> UartLink {
+    Switchable::new(gateway, names.load_bus())
+}
 use crate::usb::UsbTiming;
 
 /// Packet slots: enough for two links' quotas, the ports' and replies.
@@ -47,8 +59,9 @@ pub struct ModuleParts<F: NameFlash + 'static, H: 'static, R: RateFlash + 'stati
     pub ports: &'static mut ModulePorts<H>,
     /// Link 0.
     pub usb: FramedGateway<UsbTiming>,
-    /// Link 1.
-    pub uart: FramedGateway<SerialTiming>,
+    /// Link 1: point to point, or a station on an RS-485 bus, as its
+    /// role says (kept in the name sector; see [`uart_in_stored_role`]).
+    pub uart: UartLink,
     /// Where the name is kept.
     pub names: NameStore<F>,
     /// Where the learned clock rate is kept, and when it is used.
@@ -113,6 +126,34 @@ fn hot_start<R: RateFlash, const LINKS: usize>(
     }
 }
 
+/// Puts link `index` in `role` (the network asked, netresponder key
+/// `SET_BUS`) and keeps the role in flash for the next boot.
+fn apply_bus_role<F: NameFlash, const LINKS: usize>(
+    runtime: &mut ModuleRuntime<LINKS>,
+    links: &mut [&mut dyn FirmwareLink; LINKS],
+    names: &mut NameStore<F>,
+    index: u8,
+    role: BusRole,
+) {
+    let Some(link) = links.get_mut(usize::from(index)) else {
+        return;
+    };
+    if !link.set_bus_role(role) {
+        return;
+    }
+    let [kind, param] = role.to_bytes();
+    match names.save_bus(role) {
+        Ok(_) => runtime.log(
+            Level::Info,
+            format_args!("link {index}: bus role {kind}/{param}, saved to flash"),
+        ),
+        Err(_) => runtime.log(
+            Level::Error,
+            format_args!("link {index}: bus role {kind}/{param} in force, not saved to flash"),
+        ),
+    }
+}
+
 /// Set by the link tasks when there is something for the runtime to do.
 static WAKE: Signal<CriticalSectionRawMutex, ()> = Signal::new();
 
@@ -152,6 +193,9 @@ pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize
             if saved.is_err() {
                 runtime.log(Level::Error, format_args!("name not saved to flash"));
             }
+        }
+        if let Some((index, role)) = runtime.take_bus_request() {
+            apply_bus_role(runtime, &mut links, names, index, role);
         }
 
         for (seen, link) in rx_errors.iter_mut().zip(links.iter()) {

@@ -248,6 +248,29 @@ impl Netrunner {
             .map_err(|e| malformed("name", e))
     }
 
+    /// Sets link `index`'s bus role (module firmware keeps it in flash and
+    /// applies it at once); returns the role as set. A runtime whose link
+    /// cannot take a role refuses (`Status::Refused`). A role changed over
+    /// the link itself cuts that link until the other end matches it: set
+    /// roles over another link (USB) before wiring a bus.
+    pub async fn set_bus(
+        &self,
+        route: &Route,
+        index: u8,
+        role: osap_core::bus::BusRole,
+    ) -> Result<osap_core::bus::BusRole, HostError> {
+        let [kind, param] = role.to_bytes();
+        let f = self
+            .query(route, &[key::SET_BUS, index, kind, param])
+            .await?;
+        match f.as_slice() {
+            [i, k, p] if *i == index => {
+                osap_core::bus::BusRole::from_bytes([*k, *p]).map_err(|e| malformed("bus role", e))
+            }
+            _ => Err(malformed("bus role", "unexpected reply")),
+        }
+    }
+
     /// Information on link `index`. `heard` is false for a closed link and
     /// for an open one its runtime heard nothing on lately (`open` byte
     /// [`LINK_UNHEARD`]); runtimes that only say open or closed give true

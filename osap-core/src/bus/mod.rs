@@ -41,10 +41,12 @@
 //! [`BusLink`] joins the two into a [`LinkGateway`].
 
 pub mod header;
+pub mod role;
 
 pub use header::{
     turn_flags, BusFrameError, BusHeader, BROADCAST, END, GRANT, HEAD, HEADER_LEN, TURN_MASK,
 };
+pub use role::{BadRole, BusRole, Switchable};
 
 use crate::link::{BusInfo, GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
 use crate::Micros;

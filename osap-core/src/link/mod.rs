@@ -150,6 +150,13 @@ pub trait LinkGateway {
     fn set_rx_room(&mut self, room: u8) {
         let _ = room;
     }
+
+    /// Whether the network may set this link's bus role (netresponder key
+    /// `SET_BUS`): true for a link that can switch between point to point
+    /// and a bus station ([`crate::bus::Switchable`]).
+    fn bus_configurable(&self) -> bool {
+        false
+    }
 }
 
 macro_rules! forward_link_gateway {
@@ -198,6 +205,9 @@ macro_rules! forward_link_gateway {
         }
         fn set_rx_room(&mut self, room: u8) {
             (**self).set_rx_room(room)
+        }
+        fn bus_configurable(&self) -> bool {
+            (**self).bus_configurable()
         }
     };
 }
