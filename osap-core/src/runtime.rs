@@ -395,11 +395,10 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             if due & (1 << i) != 0 {
                 let hop = match link.bus() {
                     // A shared medium carries one request per drop at a
-                    // time: the discovery burst of a point-to-point link
-                    // would take the whole bus.
-                    // and at the plain rate: the bursts that hunt for a
-                    // phase against USB frames would take the bus from
-                    // every other drop.
+                    // time, at the plain rate: a point-to-point link's
+                    // discovery burst, or the bursts that hunt for a phase
+                    // against USB frames, would take the bus from every
+                    // other drop.
                     Some(_)
                         if self.bus_time_waiting & (1 << i) != 0
                             || self.bus_time_asked[i].is_some_and(|t| now < t + interval) =>

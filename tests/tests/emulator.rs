@@ -2,8 +2,9 @@
 //! booted in rp2040js by the project's bridge (`firmware-rp2040/emulator`),
 //! its USB CDC link bridged to a TCP socket and joined to a host runtime.
 //!
-//! The test scans the module (it appears with its functions), renames it
-//! (the name survives an emulated reset, through the emulated flash),
+//! The test scans the module (it appears with its functions), gives its
+//! UART a bus role and renames it (both survive an emulated reset, through
+//! the emulated flash),
 //! calls its functions by RPC and times the round trip, waits for its
 //! clock to follow the host's and checks the error, and streams spline
 //! points whose step pulses, counted on the emulated step and direction
@@ -27,13 +28,15 @@
 //! they are ignored by a plain `cargo test`; `scripts/emulator-test.sh`
 //! builds both and runs them, one emulator at a time (CI does).
 
+use osap_core::bus::BusRole;
 use osap_core::clock::SyncState;
+use osap_core::netresponder::Status;
 use osap_core::route::Route;
 use osap_host::link::stream::LinkHandle;
 use osap_host::link::tcp;
 use osap_host::netrunner::{Netrunner, ScanOptions, SyncGoal};
 use osap_host::som::{FnRef, Manager, ManagerOptions, OwnedValue};
-use osap_host::{Host, HostConfig};
+use osap_host::{Host, HostConfig, HostError};
 use osap_module::functions::SIGNATURES;
 use osap_sim::machine::{self, SimMachine};
 use serde_json::{json, Value};
@@ -727,7 +730,37 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     assert_eq!(sim_run.steps.steps, (-0.5 * STEPS_PER_UNIT) as i64);
     sim.stop().await.unwrap();
 
-    // 6. A new name survives a reset (written to the emulated flash).
+    // 6. A bus role for the UART (link 1) is taken at once and kept in the
+    //    name sector; USB (link 0) cannot take one.
+    let refused = nr.set_bus(&route, 0, BusRole::Drop(3)).await.unwrap_err();
+    assert!(
+        matches!(
+            refused,
+            HostError::Remote {
+                status: Status::Refused,
+                ..
+            }
+        ),
+        "{refused}"
+    );
+    let rom_before = emu.control(json!({"cmd": "stats"})).await["rom_calls"].clone();
+    assert_eq!(
+        nr.set_bus(&route, 1, BusRole::Drop(3)).await.unwrap(),
+        BusRole::Drop(3)
+    );
+    let uart = nr.link_info(&route, 1).await.unwrap();
+    assert_eq!(uart.bus.as_ref().map(|b| b.drop), Some(3), "{uart:?}");
+    let deadline = Instant::now() + Duration::from_secs(10);
+    while emu.control(json!({"cmd": "stats"})).await["rom_calls"] == rom_before {
+        assert!(
+            Instant::now() < deadline,
+            "the firmware never wrote the bus role to its flash"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+
+    // 7. A new name survives a reset (written to the emulated flash), and
+    //    so does the bus role beside it.
     let rom_before = emu.control(json!({"cmd": "stats"})).await["rom_calls"].clone();
     let renamed = nr.set_name(&route, "x-axis").await.unwrap();
     assert_eq!(renamed, "x-axis");
@@ -755,6 +788,17 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         assert!(Instant::now() < deadline, "the module never came back");
         tokio::time::sleep(Duration::from_millis(100)).await;
     }
+    let uart = nr.link_info(&route, 1).await.unwrap();
+    assert_eq!(
+        uart.bus.as_ref().map(|b| b.drop),
+        Some(3),
+        "the bus role after a reset: {uart:?}"
+    );
+    assert_eq!(
+        nr.set_bus(&route, 1, BusRole::Off).await.unwrap(),
+        BusRole::Off
+    );
+    assert!(nr.link_info(&route, 1).await.unwrap().bus.is_none());
     let stats = emu.control(json!({"cmd": "stats"})).await;
     println!("emulator: {stats}");
 
