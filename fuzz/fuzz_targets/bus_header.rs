@@ -19,7 +19,7 @@
 
 use libfuzzer_sys::fuzz_target;
 use osap_core::bus::{
-    BusConfig, BusFrameError, BusHeader, Switchable, BROADCAST, END, GRANT, HEAD, HEADER_LEN,
+    BusConfig, BusFrameError, BusHeader, BusLink, BROADCAST, END, GRANT, HEAD, HEADER_LEN,
     TURN_MASK,
 };
 use osap_core::link::queue::QueueLink;
@@ -35,8 +35,7 @@ fuzz_target!(|data: &[u8]| {
         BusConfig::drop(3)
     };
     let step = u64::from(first >> 1) * 37;
-    let mut station: Switchable<QueueLink<4, 64>, 64> =
-        Switchable::with_config(QueueLink::new(), Some(config));
+    let mut station: BusLink<QueueLink<4, 64>, 64> = BusLink::new(QueueLink::new(), config);
     let mut buf = [0u8; 64];
     let mut now = 0u64;
     for frame in rest.split(|&b| b == 0).take(64) {

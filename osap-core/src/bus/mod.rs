@@ -38,8 +38,7 @@
 //!
 //! [`BusCore`] is the sans-IO state machine over any packet-level lower
 //! link (which frames bytes on a UART, or models a medium in simulation);
-//! [`Switchable`] joins the two into a [`LinkGateway`] that is a bus
-//! station or, with its role off, a point-to-point link.
+//! [`BusLink`] joins the two into a [`LinkGateway`].
 
 pub mod header;
 pub mod role;
@@ -49,7 +48,7 @@ pub use header::{
 };
 pub use role::{BadRole, BusRole, Switchable};
 
-use crate::link::{BusInfo, LinkGateway, LinkSendError, Received};
+use crate::link::{BusInfo, GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
 use crate::Micros;
 
 /// How a station behaves on its bus.
@@ -554,6 +553,84 @@ impl<const N: usize> BusCore<N> {
             (false, Turn::Granted { .. }) if !self.blocked => Some(self.now),
             _ => None,
         }
+    }
+}
+
+/// A bus station over a lower packet link: a [`LinkGateway`] whose
+/// [`bus`](LinkGateway::bus) is `Some`.
+#[derive(Debug, Clone)]
+pub struct BusLink<L, const N: usize = 259> {
+    /// The bus state.
+    pub core: BusCore<N>,
+    /// The link below (framing, wire).
+    pub lower: L,
+}
+
+impl<L: LinkGateway, const N: usize> BusLink<L, N> {
+    /// A bus station over `lower`.
+    pub fn new(lower: L, config: BusConfig) -> Self {
+        BusLink {
+            core: BusCore::new(config),
+            lower,
+        }
+    }
+}
+
+impl<L: LinkGateway, const N: usize> LinkGateway for BusLink<L, N> {
+    fn info(&self) -> LinkInfo<'_> {
+        self.lower.info()
+    }
+    fn is_open(&self) -> bool {
+        self.lower.is_open()
+    }
+    fn mtu(&self) -> u16 {
+        self.core.mtu(&self.lower)
+    }
+    fn clear_to_send(&self) -> bool {
+        self.core.clear_to_send(&self.lower)
+    }
+    fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
+        // Without an address: to the head, or from the head to all.
+        let to = if self.core.config().is_head() {
+            BROADCAST
+        } else {
+            HEAD
+        };
+        self.core.send_to(&mut self.lower, to, packet)
+    }
+    fn send_to(&mut self, drop: u8, packet: &[u8]) -> Result<(), LinkSendError> {
+        self.core.send_to(&mut self.lower, drop, packet)
+    }
+    fn transmit_time(&self, len: usize) -> Micros {
+        self.lower.transmit_time(len + HEADER_LEN)
+    }
+    fn queue_delay(&self) -> Micros {
+        self.lower.queue_delay()
+    }
+    fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
+        self.core.receive(&mut self.lower, buf)
+    }
+    fn poll(&mut self, now: Micros) {
+        self.lower.poll(now);
+        self.core.poll(&mut self.lower, now);
+    }
+    fn counters(&self) -> Option<GatewayCounters> {
+        let mut c = self.lower.counters().unwrap_or_default();
+        let b = self.core.counters();
+        c.frame_errors = c.frame_errors.wrapping_add(b.malformed);
+        Some(c)
+    }
+    fn bus(&self) -> Option<BusInfo> {
+        Some(self.core.info())
+    }
+    fn received_from(&self) -> Option<u8> {
+        self.core.received_from()
+    }
+    fn wake_at(&self) -> Option<Micros> {
+        self.core.wake_at()
+    }
+    fn set_rx_room(&mut self, room: u8) {
+        self.core.set_rx_room(room);
     }
 }
 

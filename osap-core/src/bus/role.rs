@@ -73,6 +73,7 @@ impl BusRole {
 /// says; the role can change while it runs. `N` is as in [`BusCore`].
 #[derive(Debug)]
 pub struct Switchable<L, const N: usize = 259> {
+    role: BusRole,
     core: Option<BusCore<N>>,
     /// The link below (framing, wire).
     pub lower: L,
@@ -81,33 +82,23 @@ pub struct Switchable<L, const N: usize = 259> {
 impl<L: LinkGateway, const N: usize> Switchable<L, N> {
     /// The link `lower` in `role`.
     pub fn new(lower: L, role: BusRole) -> Self {
-        Self::with_config(lower, role.config())
-    }
-
-    /// The link `lower`, a bus station configured by `config` (point to
-    /// point when `None`).
-    pub fn with_config(lower: L, config: Option<BusConfig>) -> Self {
         Switchable {
-            core: config.map(BusCore::new),
+            role,
+            core: role.config().map(BusCore::new),
             lower,
         }
     }
 
     /// The current role.
     pub fn role(&self) -> BusRole {
-        match self.core.as_ref().map(BusCore::config) {
-            None => BusRole::Off,
-            Some(c) if c.is_head() => BusRole::Head {
-                max_drop: c.max_drop,
-            },
-            Some(c) => BusRole::Drop(c.drop),
-        }
+        self.role
     }
 
     /// Takes a new role at once; a bus station starts afresh (its turn,
     /// counters and the drops it knew are forgotten).
     pub fn set_role(&mut self, role: BusRole) {
-        if role != self.role() {
+        if role != self.role {
+            self.role = role;
             self.core = role.config().map(BusCore::new);
         }
     }

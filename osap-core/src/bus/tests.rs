@@ -6,11 +6,7 @@ use crate::port::Port;
 use crate::route::Route;
 
 type Lower = QueueLink<8, 64>;
-type Station = Switchable<Lower, 64>;
-
-fn station(config: BusConfig) -> Station {
-    Station::with_config(Lower::new(), Some(config))
-}
+type Station = BusLink<Lower, 64>;
 
 /// Carries every frame any station sent to every other station.
 fn carry(stations: &mut [&mut Station]) {
@@ -35,20 +31,20 @@ fn packet_to(route: &Route, code: u8, body: &[u8]) -> heapless::Vec<u8, 64> {
 
 #[test]
 fn head_polls_each_drop_and_takes_the_medium_back() {
-    let mut head = station(BusConfig::head(2));
-    let mut d1 = station(BusConfig::drop(1));
-    let mut d2 = station(BusConfig::drop(2));
+    let mut head = Station::new(Lower::new(), BusConfig::head(2));
+    let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));
+    let mut d2 = Station::new(Lower::new(), BusConfig::drop(2));
     let mut buf = [0u8; 64];
     // Drops are silent until granted.
     assert!(!d1.clear_to_send());
     head.poll(0);
-    assert_eq!(head.bus_core().unwrap().counters().grants, 1);
+    assert_eq!(head.core.counters().grants, 1);
     carry(&mut [&mut head, &mut d1, &mut d2]);
     assert!(d1.receive(&mut buf).is_none()); // a bare grant
     assert!(d1.clear_to_send());
     assert!(d2.receive(&mut buf).is_none());
     assert!(!d2.clear_to_send());
-    assert_eq!(d2.bus_core().unwrap().counters().other_drop, 1);
+    assert_eq!(d2.core.counters().other_drop, 1);
     // d1 has nothing: its next poll hands the medium back.
     d1.poll(10);
     assert!(!d1.clear_to_send());
@@ -65,12 +61,12 @@ fn head_polls_each_drop_and_takes_the_medium_back() {
 
 #[test]
 fn a_silent_drop_times_out_and_is_polled_rarely() {
-    let mut head = station(BusConfig::head(3));
+    let mut head = Station::new(Lower::new(), BusConfig::head(3));
     head.poll(0);
     let until = head.wake_at().unwrap();
     assert!(until > 0);
     head.poll(until);
-    assert_eq!(head.bus_core().unwrap().counters().timeouts, 1);
+    assert_eq!(head.core.counters().timeouts, 1);
     assert!(!head.bus().unwrap().is_present(1));
     // Drop 1 is now skipped until the next discovery cycle.
     head.poll(until + 1);
@@ -81,9 +77,9 @@ fn a_silent_drop_times_out_and_is_polled_rarely() {
 
 #[test]
 fn broadcast_reaches_every_drop_and_others_frames_are_ignored() {
-    let mut head = station(BusConfig::head(2));
-    let mut d1 = station(BusConfig::drop(1));
-    let mut d2 = station(BusConfig::drop(2));
+    let mut head = Station::new(Lower::new(), BusConfig::head(2));
+    let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));
+    let mut d2 = Station::new(Lower::new(), BusConfig::drop(2));
     let p = packet_to(&Route::local(), 9, &[1, 2, 3]);
     head.send_to(BROADCAST, &p).unwrap();
     head.send_to(2, &p).unwrap();
@@ -96,12 +92,12 @@ fn broadcast_reaches_every_drop_and_others_frames_are_ignored() {
     }
     assert!(d2.receive(&mut buf).is_some());
     assert!(d1.receive(&mut buf).is_none());
-    assert_eq!(d1.bus_core().unwrap().counters().other_drop, 1);
+    assert_eq!(d1.core.counters().other_drop, 1);
 }
 
 #[test]
 fn malformed_headers_and_echoes_are_counted_not_taken() {
-    let mut d1 = station(BusConfig::drop(1));
+    let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));
     for frame in [
         &[][..],
         &[1, 0][..],
@@ -113,8 +109,8 @@ fn malformed_headers_and_echoes_are_counted_not_taken() {
     d1.lower.inject(&[0, 1, 0, 5]); // our own address as sender
     let mut buf = [0u8; 64];
     assert!(d1.receive(&mut buf).is_none());
-    assert_eq!(d1.bus_core().unwrap().counters().malformed, 4);
-    assert_eq!(d1.bus_core().unwrap().counters().echo, 1);
+    assert_eq!(d1.core.counters().malformed, 4);
+    assert_eq!(d1.core.counters().echo, 1);
     assert_eq!(d1.counters().unwrap().frame_errors, 4);
 }
 
@@ -133,7 +129,7 @@ impl Port for NoPorts {
 #[test]
 fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
     let mut rt: crate::Runtime<8, 64, 4, 2> = crate::Runtime::new("head", "h").unwrap();
-    let mut links = [station(BusConfig::head(1))];
+    let mut links = [Station::new(Lower::new(), BusConfig::head(1))];
     let ports: &mut [NoPorts] = &mut [];
     // Drop 1's time request, addressed bus 3 drop 0 as drop 1 wrote it.
     let route = Route::local()
@@ -143,7 +139,7 @@ fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
     // The head grants drop 1; drop 1 answers with its request and END.
     rt.poll(0, ports, &mut links);
     while links[0].lower.take_sent().is_some() {}
-    let end = END | turn_flags(links[0].bus_core().unwrap().turn_no);
+    let end = END | turn_flags(links[0].core.turn_no);
     let mut frame: heapless::Vec<u8, 64> = heapless::Vec::from_slice(&[HEAD, 1, end]).unwrap();
     frame.extend_from_slice(&request).unwrap();
     links[0].lower.inject(&frame);
@@ -177,9 +173,9 @@ fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
 
 #[test]
 fn a_frame_to_one_drop_grants_it_a_turn_to_answer_in() {
-    let mut head = station(BusConfig::head(2));
-    let mut d1 = station(BusConfig::drop(1));
-    let mut d2 = station(BusConfig::drop(2));
+    let mut head = Station::new(Lower::new(), BusConfig::head(2));
+    let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));
+    let mut d2 = Station::new(Lower::new(), BusConfig::drop(2));
     let mut buf = [0u8; 64];
     let p = packet_to(&Route::local(), 9, &[1, 2, 3]);
     head.send_to(1, &p).unwrap();
@@ -211,7 +207,7 @@ fn a_frame_to_one_drop_grants_it_a_turn_to_answer_in() {
             BusHeader {
                 dst: HEAD,
                 src: 1,
-                flags: END | turn_flags(head.bus_core().unwrap().turn_no)
+                flags: END | turn_flags(head.core.turn_no)
             },
             &[][..]
         )
@@ -222,19 +218,19 @@ fn a_frame_to_one_drop_grants_it_a_turn_to_answer_in() {
     assert_eq!(head.received_from(), Some(1));
     assert!(head.receive(&mut buf).is_none());
     assert!(head.clear_to_send());
-    assert_eq!(head.bus_core().unwrap().counters().timeouts, 0);
+    assert_eq!(head.core.counters().timeouts, 0);
 }
 
 #[test]
 fn the_head_polls_in_address_order_after_its_burst() {
-    let mut head = station(BusConfig::head(2));
+    let mut head = Station::new(Lower::new(), BusConfig::head(2));
     let p = packet_to(&Route::local(), 9, &[1]);
     let mut buf = [0u8; 64];
     for _ in 0..BusConfig::head(2).head_burst {
         assert!(head.clear_to_send());
         head.send_to(1, &p).unwrap();
         head.lower
-            .inject(&[HEAD, 1, END | turn_flags(head.bus_core().unwrap().turn_no)]);
+            .inject(&[HEAD, 1, END | turn_flags(head.core.turn_no)]);
         assert!(head.receive(&mut buf).is_none());
     }
     // Burst spent: the next frame waits for a poll of drop 1 then 2.
@@ -247,11 +243,11 @@ fn the_head_polls_in_address_order_after_its_burst() {
         BusHeader {
             dst: 1,
             src: HEAD,
-            flags: GRANT | turn_flags(head.bus_core().unwrap().turn_no)
+            flags: GRANT | turn_flags(head.core.turn_no)
         }
     );
     head.lower
-        .inject(&[HEAD, 1, END | turn_flags(head.bus_core().unwrap().turn_no)]);
+        .inject(&[HEAD, 1, END | turn_flags(head.core.turn_no)]);
     assert!(head.receive(&mut buf).is_none());
     assert!(head.clear_to_send());
 }
@@ -259,10 +255,7 @@ fn the_head_polls_in_address_order_after_its_burst() {
 #[test]
 fn a_grant_waits_out_what_the_head_queued_before_it() {
     // 100 µs a byte.
-    let mut head = Station::new(
-        Lower::new().with_wire_time(0, 100_000),
-        BusRole::Head { max_drop: 1 },
-    );
+    let mut head = Station::new(Lower::new().with_wire_time(0, 100_000), BusConfig::head(1));
     let p = packet_to(&Route::local(), 9, &[0; 40]);
     head.send_to(BROADCAST, &p).unwrap();
     head.send_to(BROADCAST, &p).unwrap();
@@ -274,28 +267,28 @@ fn a_grant_waits_out_what_the_head_queued_before_it() {
         "{until} {queued}"
     );
     head.poll(until - 1);
-    assert_eq!(head.bus_core().unwrap().counters().timeouts, 0);
+    assert_eq!(head.core.counters().timeouts, 0);
     head.poll(until);
-    assert_eq!(head.bus_core().unwrap().counters().timeouts, 1);
+    assert_eq!(head.core.counters().timeouts, 1);
 }
 
 #[test]
 fn a_late_end_from_an_earlier_turn_does_not_end_the_current_one() {
-    let mut head = station(BusConfig::head(2));
+    let mut head = Station::new(Lower::new(), BusConfig::head(2));
     let mut buf = [0u8; 64];
     head.poll(0);
-    let stale = END | turn_flags(head.bus_core().unwrap().turn_no);
+    let stale = END | turn_flags(head.core.turn_no);
     let until = head.wake_at().unwrap();
     head.poll(until); // drop 1 timed out
     head.poll(until + 1); // polls drop 2
-    assert_eq!(head.bus_core().unwrap().counters().grants, 2);
+    assert_eq!(head.core.counters().grants, 2);
     // Drop 1's END to the first grant comes only now.
     head.lower.inject(&[HEAD, 1, stale]);
     assert!(head.receive(&mut buf).is_none());
     assert!(!head.clear_to_send());
-    assert_eq!(head.bus_core().unwrap().counters().out_of_turn, 1);
+    assert_eq!(head.core.counters().out_of_turn, 1);
     head.lower
-        .inject(&[HEAD, 2, END | turn_flags(head.bus_core().unwrap().turn_no)]);
+        .inject(&[HEAD, 2, END | turn_flags(head.core.turn_no)]);
     assert!(head.receive(&mut buf).is_none());
     assert!(head.clear_to_send());
 }
@@ -303,12 +296,12 @@ fn a_late_end_from_an_earlier_turn_does_not_end_the_current_one() {
 #[test]
 fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
     let mut rt: crate::Runtime<8, 64, 4, 2> = crate::Runtime::new("head", "h").unwrap();
-    let mut links = [station(BusConfig::head(2))];
+    let mut links = [Station::new(Lower::new(), BusConfig::head(2))];
     let ports: &mut [NoPorts] = &mut [];
     // The head polls drop 1.
     rt.poll(0, ports, &mut links);
     while links[0].lower.take_sent().is_some() {}
-    let turn = turn_flags(links[0].bus_core().unwrap().turn_no);
+    let turn = turn_flags(links[0].core.turn_no);
     // Drop 1 sends five packets for drop 2 (they wait: the medium is drop
     // 1's) and ends its turn: one more than the link's quota of 4.
     let route = Route::local()
@@ -327,7 +320,7 @@ fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
     // head has the medium back and forwards to drop 2 at once.
     assert_eq!(rt.counters().quota_refused, 1);
     assert_eq!(rt.link_counters(0).unwrap().rx_dropped, 1);
-    assert_eq!(links[0].bus_core().unwrap().counters().timeouts, 0);
+    assert_eq!(links[0].core.counters().timeouts, 0);
     let sent = links[0].lower.take_sent().expect("forwarded to drop 2");
     let (h, _) = BusHeader::parse(&sent).unwrap();
     // With its quota taken it has no room for an answer: no grant.
@@ -338,7 +331,7 @@ fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
 #[test]
 fn a_drop_keeps_one_time_request_waiting_at_the_plain_rate() {
     let mut rt: crate::Runtime<8, 64, 4, 2> = crate::Runtime::new("drop", "d").unwrap();
-    let mut links = [station(BusConfig::drop(1))];
+    let mut links = [Station::new(Lower::new(), BusConfig::drop(1))];
     let ports: &mut [NoPorts] = &mut [];
     // Never granted: whatever the clock asks for waits in the stack.
     // Discovery would ask many times an interval on a point-to-point link.

@@ -264,7 +264,7 @@ use crate::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
 use crate::rng::Rng;
 use board::bootloader::{Arrival, BootHook, BootStats, Drive};
 use board::SimBoard;
-use module::{ModuleCommand, ModuleLink, ModuleTask, Parked, StampedLink, StepClock};
+use module::{ModuleCommand, ModuleLink, ModuleTask, Parked, StepClock};
 use osap_core::clock::TimeConfig;
 use osap_core::link::LinkGateway;
 use osap_core::netresponder::BuildKey;
@@ -1216,7 +1216,7 @@ impl SimModule {
                     .iter()
                     .find(|(at, _)| *at == i)
                     .map(|(_, role)| *role);
-                ModuleLink::with_config(StampedLink::new(link, clock, machine.host_clock), role)
+                ModuleLink::new(link, clock, machine.host_clock).on_bus(role)
             })
             .collect();
         let (commands, rx) = mpsc::unbounded_channel();

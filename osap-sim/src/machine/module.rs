@@ -6,7 +6,6 @@
 use super::board::SimBoard;
 use super::clock::DriftClock;
 use super::switch::{self, Input, Publisher};
-use osap_core::bus::Switchable;
 use osap_core::clock::TimeMap;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::port::Port;
@@ -223,30 +222,34 @@ impl StepClock {
 /// The runtime a simulated module runs: sized like firmware.
 pub type ModuleRuntime = osap_core::Runtime<MODULE_SLOTS, MODULE_MTU, MODULE_PORTS, MODULE_LINKS>;
 
-/// A module's side of a link: a [`StampedLink`], a bus station when its
-/// topology puts it on a bus (the same [`Switchable`] module firmware
-/// runs).
-pub(crate) type ModuleLink = Switchable<StampedLink, { MODULE_MTU + osap_core::bus::HEADER_LEN }>;
-
-/// A [`ChannelLink`] (whose receive stamps are on the host's clock) whose
-/// stamps are turned into the module's local time.
-pub(crate) struct StampedLink {
+/// A module's side of a link: a [`ChannelLink`] (whose receive stamps are on
+/// the host's clock) whose stamps are turned into the module's local time.
+pub(crate) struct ModuleLink {
     pub(crate) inner: ChannelLink,
     clock: DriftClock,
     host_clock: HostClock,
+    /// On a bus: the station's bus state over `inner`.
+    bus: Option<osap_core::bus::BusCore<{ MODULE_MTU + osap_core::bus::HEADER_LEN }>>,
 }
 
-impl StampedLink {
+impl ModuleLink {
     pub(crate) fn new(inner: ChannelLink, clock: DriftClock, host_clock: HostClock) -> Self {
-        StampedLink {
+        ModuleLink {
             inner,
             clock,
             host_clock,
+            bus: None,
         }
+    }
+
+    /// The same link as a station of a bus.
+    pub(crate) fn on_bus(mut self, config: Option<osap_core::bus::BusConfig>) -> Self {
+        self.bus = config.map(osap_core::bus::BusCore::new);
+        self
     }
 }
 
-impl LinkGateway for StampedLink {
+impl LinkGateway for ModuleLink {
     fn info(&self) -> LinkInfo<'_> {
         self.inner.info()
     }
@@ -254,19 +257,63 @@ impl LinkGateway for StampedLink {
         self.inner.is_open()
     }
     fn mtu(&self) -> u16 {
-        self.inner.mtu()
+        match &self.bus {
+            Some(bus) => bus.mtu(&self.inner),
+            None => self.inner.mtu(),
+        }
     }
     fn clear_to_send(&self) -> bool {
-        self.inner.clear_to_send()
+        match &self.bus {
+            Some(bus) => bus.clear_to_send(&self.inner),
+            None => self.inner.clear_to_send(),
+        }
     }
     fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
-        self.inner.send(packet)
+        match &mut self.bus {
+            Some(bus) => {
+                let to = if bus.config().is_head() {
+                    osap_core::bus::BROADCAST
+                } else {
+                    osap_core::bus::HEAD
+                };
+                bus.send_to(&mut self.inner, to, packet)
+            }
+            None => self.inner.send(packet),
+        }
+    }
+    fn send_to(&mut self, drop: u8, packet: &[u8]) -> Result<(), LinkSendError> {
+        match &mut self.bus {
+            Some(bus) => bus.send_to(&mut self.inner, drop, packet),
+            None => self.inner.send(packet),
+        }
+    }
+    fn bus(&self) -> Option<osap_core::link::BusInfo> {
+        self.bus.as_ref().map(|b| b.info())
+    }
+    fn received_from(&self) -> Option<u8> {
+        self.bus.as_ref().and_then(|b| b.received_from())
+    }
+    fn wake_at(&self) -> Option<Micros> {
+        self.bus.as_ref().and_then(|b| b.wake_at())
+    }
+    fn set_rx_room(&mut self, room: u8) {
+        if let Some(bus) = &mut self.bus {
+            bus.set_rx_room(room);
+        }
     }
     fn poll(&mut self, now: Micros) {
         self.inner.poll(now);
+        if let Some(bus) = &mut self.bus {
+            bus.poll(&mut self.inner, now);
+        }
     }
     fn transmit_time(&self, len: usize) -> Micros {
-        self.inner.transmit_time(len)
+        let extra = if self.bus.is_some() {
+            osap_core::bus::HEADER_LEN
+        } else {
+            0
+        };
+        self.inner.transmit_time(len + extra)
     }
     fn queue_delay(&self) -> Micros {
         self.inner.queue_delay()
@@ -275,7 +322,10 @@ impl LinkGateway for StampedLink {
         self.inner.counters()
     }
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
-        let mut rx = self.inner.receive(buf)?;
+        let mut rx = match &mut self.bus {
+            Some(bus) => bus.receive(&mut self.inner, buf)?,
+            None => self.inner.receive(buf)?,
+        };
         rx.timestamp = rx
             .timestamp
             .map(|host_us| self.clock.local_us_at(self.host_clock.instant_at(host_us)));
@@ -373,7 +423,7 @@ impl ModuleTask {
                 .stepper
                 .as_ref()
                 .map_or(0, |s| s.module.lock(|m| m.board().motor().carriage())),
-            links: self.links.into_iter().map(|l| l.lower.inner).collect(),
+            links: self.links.into_iter().map(|l| l.inner).collect(),
         }
     }
 }
