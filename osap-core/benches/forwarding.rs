@@ -36,7 +36,7 @@ use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::packet::Packet;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::transport::Transport;
-use osap_core::{Instruction, Micros, Route, Runtime, RuntimeConfig};
+use osap_core::{Instant, Instruction, Route, Runtime, RuntimeConfig};
 
 /// Total packet size on the wire, header included.
 const PACKET_LEN: usize = 32;
@@ -47,7 +47,7 @@ const TTL: u16 = 50_000;
 /// Largest batch measured, and the depth of the benchmark's link queues.
 const MAX_BATCH: usize = 64;
 /// The local time of every poll: time stands still in the benchmarks.
-const NOW: Micros = 1_000;
+const NOW: Instant = Instant::from_micros(1_000);
 /// Time stamp requests a fresh runtime sends on each open link at its first
 /// poll: one with the clock controller (the default `sync` feature), none
 /// without.
@@ -205,7 +205,7 @@ fn run<
     Li: LinkGateway,
 >(
     rt: &mut Runtime<S, M, P, L>,
-    now: Micros,
+    now: Instant,
     ports: &mut [Po],
     links: &mut [Li],
 ) {

@@ -10,6 +10,7 @@
 //! divided by the segment count (criterion's throughput line, elements/s).
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
+use osap_core::time::Instant;
 use osap_core::route::Route;
 use osap_core::segment::{
     DefaultReassembler, Plan, SegmentHeader, SegmentSender, SegmentSource, DEFAULT_BYTES,
@@ -61,12 +62,12 @@ fn reassembly(c: &mut Criterion) {
                 b.iter(|| {
                     let mut whole = 0;
                     for s in list {
-                        if let Ok(Some(d)) = r.on_segment(0, &route, 1, black_box(s)) {
+                        if let Ok(Some(d)) = r.on_segment(Instant::from_micros(0), &route, 1, black_box(s)) {
                             whole = d.len();
                         }
                     }
                     // Free the delivered slot so every iteration starts alike.
-                    r.expire(u64::MAX);
+                    r.expire(Instant::from_micros(u64::MAX));
                     assert_eq!(whole, DEFAULT_BYTES);
                 })
             });

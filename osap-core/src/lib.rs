@@ -8,6 +8,7 @@
 //!   written in place over a byte buffer.
 //! - [`route`]: building routes, walking them, reversing them.
 //! - [`framing`]: COBS + CRC-16 frames for byte-stream links.
+//! - [`time`]: typed local instants, system instants and durations.
 //! - [`stack`]: fixed packet slots kept in earliest-deadline order, with
 //!   per-owner hold quotas.
 //! - [`transport`]: the sequential request/reply transport.
@@ -40,12 +41,11 @@ pub mod route;
 pub mod runtime;
 pub mod segment;
 pub mod stack;
+pub mod time;
 pub mod transport;
 pub mod usb;
 
 pub use packet::{Instruction, PacketError};
 pub use route::Route;
 pub use runtime::{Runtime, RuntimeConfig};
-
-/// A time in microseconds on the runtime's own free-running clock.
-pub type Micros = u64;
+pub use time::{Duration, Instant, SystemInstant};

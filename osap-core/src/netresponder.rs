@@ -25,17 +25,17 @@ pub const PORT_TYPE_NAME: &str = "netresponder";
 pub const ARRIVED_LOCALLY: u8 = 255;
 
 /// A link counts as having a neighbour if a packet came in on it within
-/// this long, µs. Generous: every clock-synchronised neighbour sends at least
+/// this long. Generous: every clock-synchronised neighbour sends at least
 /// once per `interval_us` (50 ms by default).
-pub const NEIGHBOUR_HEARD_US: crate::Micros = 2_000_000;
+pub const NEIGHBOUR_HEARD: crate::time::Duration = crate::time::Duration::from_secs(2);
 
 /// The `open` byte of a link-information reply: the link is closed.
 pub const LINK_CLOSED: u8 = 0;
 /// The `open` byte of a link-information reply: open, and a packet came in
-/// on it within [`NEIGHBOUR_HEARD_US`].
+/// on it within [`NEIGHBOUR_HEARD`].
 pub const LINK_HEARD: u8 = 1;
 /// The `open` byte of a link-information reply: open, but nothing came in
-/// on it within [`NEIGHBOUR_HEARD_US`] (a UART cannot tell whether anything
+/// on it within [`NEIGHBOUR_HEARD`] (a UART cannot tell whether anything
 /// is wired to it). Readers that only know open/closed take it as open.
 pub const LINK_UNHEARD: u8 = 2;
 
@@ -335,14 +335,14 @@ impl Changes {
 
 /// Everything a request may read or change.
 pub(crate) struct Context<'a, P, L, const LINKS: usize> {
-    pub now: crate::Micros,
+    pub now: crate::time::Instant,
     pub identity: &'a mut Identity,
     pub state: &'a mut State,
     pub clock: &'a mut Clock<LINKS>,
     pub counters: &'a Counters,
     pub link_counters: &'a [LinkCounters],
     /// Per link: the local time a packet last came in on it.
-    pub link_heard: &'a [Option<crate::Micros>],
+    pub link_heard: &'a [Option<crate::time::Instant>],
     /// Per link: stack slots held by packets that arrived on it.
     pub link_held: &'a [u8],
     /// The stack's slot count.
@@ -480,7 +480,7 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
                 .get(usize::from(index))
                 .copied()
                 .flatten()
-                .is_some_and(|t| ctx.now.saturating_sub(t) <= NEIGHBOUR_HEARD_US);
+                .is_some_and(|t| ctx.now - t <= NEIGHBOUR_HEARD);
             let open = match (link.is_open(), heard) {
                 (false, _) => LINK_CLOSED,
                 (true, true) => LINK_HEARD,
@@ -601,7 +601,7 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             counters.gateway = link.counters();
             // Packet bytes per second the link carries, from its wire time
             // for 1 KiB (0: it cannot tell).
-            let us = link.transmit_time(1024);
+            let us = link.transmit_time(1024).as_micros();
             counters.capacity_bytes_per_s = (1024u64 * 1_000_000)
                 .checked_div(us)
                 .map_or(0, |b| b.min(u64::from(u32::MAX)) as u32);
@@ -654,12 +654,13 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::time::Duration;
     use crate::link::queue::QueueLink;
     use crate::packet::Instruction;
     use crate::port::{Delivery, PortInfo, PortTx};
     use crate::route::Route;
     use crate::transport::Transport;
-    use crate::{Micros, Runtime};
+    use crate::{time::Instant, Runtime};
 
     struct NoPort;
 
@@ -705,14 +706,14 @@ mod tests {
         heapless::Vec::from_slice(&buf[..n]).unwrap()
     }
 
-    fn poll(rt: &mut Rt, links: &mut [Link; 2], now: Micros) {
+    fn poll(rt: &mut Rt, links: &mut [Link; 2], now: Instant) {
         let mut ports: [NoPort; 0] = [];
         rt.poll(now, &mut ports, links);
     }
 
     /// The `open` byte link information gives for link 1, asked over
     /// link 0 at `now`.
-    fn open_byte(rt: &mut Rt, links: &mut [Link; 2], now: Micros) -> u8 {
+    fn open_byte(rt: &mut Rt, links: &mut [Link; 2], now: Instant) -> u8 {
         let mut payload = [0u8; 5];
         let n = Transport::Request(7).encode(&mut payload).unwrap();
         payload[n..n + 2].copy_from_slice(&[key::LINK_INFO, 1]);
@@ -728,10 +729,10 @@ mod tests {
     #[test]
     fn a_link_never_heard_is_open_without_a_neighbour() {
         let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
-        assert_eq!(open_byte(&mut rt, &mut links, 1_000), LINK_UNHEARD);
+        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(1_000)), LINK_UNHEARD);
         assert_eq!(rt.link_heard(1), None);
         // The link the question came in on was heard, by the question.
-        assert_eq!(rt.link_heard(0), Some(1_000));
+        assert_eq!(rt.link_heard(0), Some(Instant::from_micros(1_000)));
     }
 
     #[test]
@@ -740,15 +741,19 @@ mod tests {
         let t = 5_000_000;
         // A packet for a port the runtime lacks: dropped, but heard.
         assert!(links[1].inject(&packet(9, b"hi")));
+        let t = Instant::from_micros(t);
         poll(&mut rt, &mut links, t);
         assert_eq!(rt.link_heard(1), Some(t));
-        assert_eq!(open_byte(&mut rt, &mut links, t + 10), LINK_HEARD);
         assert_eq!(
-            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD_US),
+            open_byte(&mut rt, &mut links, t + Duration::from_micros(10)),
             LINK_HEARD
         );
         assert_eq!(
-            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD_US + 1),
+            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD),
+            LINK_HEARD
+        );
+        assert_eq!(
+            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD + Duration::from_micros(1)),
             LINK_UNHEARD
         );
     }
@@ -757,22 +762,22 @@ mod tests {
     fn a_malformed_packet_is_heard_too() {
         let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
         assert!(links[1].inject(&[0xff; 12]));
-        poll(&mut rt, &mut links, 1_000);
+        poll(&mut rt, &mut links, Instant::from_micros(1_000));
         assert_eq!(rt.counters().malformed, 1);
-        assert_eq!(open_byte(&mut rt, &mut links, 2_000), LINK_HEARD);
+        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(2_000)), LINK_HEARD);
     }
 
     #[test]
     fn a_closed_link_reports_closed_and_forgets_its_neighbour() {
         let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
         assert!(links[1].inject(&packet(9, b"hi")));
-        poll(&mut rt, &mut links, 1_000);
-        assert_eq!(open_byte(&mut rt, &mut links, 2_000), LINK_HEARD);
+        poll(&mut rt, &mut links, Instant::from_micros(1_000));
+        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(2_000)), LINK_HEARD);
         links[1].set_open(false);
-        assert_eq!(open_byte(&mut rt, &mut links, 3_000), LINK_CLOSED);
+        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(3_000)), LINK_CLOSED);
         // Reopened within the window: whoever is there now is not heard yet.
         links[1].set_open(true);
-        assert_eq!(open_byte(&mut rt, &mut links, 4_000), LINK_UNHEARD);
+        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(4_000)), LINK_UNHEARD);
     }
 
     /// Asks `SET_BUS` with `body` over link 0 and returns the reply's
@@ -793,7 +798,7 @@ mod tests {
             &packet(0, &payload[..n + 1 + body.len()])
         ));
         let mut ports: [NoPort; 0] = [];
-        rt.poll(1_000, &mut ports, links);
+        rt.poll(Instant::from_micros(1_000), &mut ports, links);
         let reply = take(&mut links[0]).expect("a reply");
         heapless::Vec::from_slice(&reply[12..]).unwrap()
     }

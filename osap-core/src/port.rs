@@ -12,7 +12,7 @@
 use crate::packet::{Instruction, PacketError};
 use crate::route::Route;
 use crate::stack::ClaimError;
-use crate::Micros;
+use crate::time::{Instant, SystemInstant};
 use core::fmt;
 
 /// The names a port reports to a network scan.
@@ -36,9 +36,9 @@ pub struct Delivery<'a> {
     /// The port it was sent from, in the sender's runtime.
     pub source_port: u16,
     /// When it arrived in this runtime.
-    pub arrival: Micros,
+    pub arrival: Instant,
     /// When it would have expired.
-    pub deadline: Micros,
+    pub deadline: Instant,
 }
 
 impl Delivery<'_> {
@@ -90,19 +90,19 @@ pub struct PortTx<'a> {
     pub(crate) sink: &'a mut dyn PacketSink,
     pub(crate) base: u16,
     pub(crate) count: u16,
-    pub(crate) now: Micros,
-    pub(crate) system: u64,
+    pub(crate) now: Instant,
+    pub(crate) system: SystemInstant,
 }
 
 impl PortTx<'_> {
     /// The runtime's current local time (its free-running counter), µs.
-    pub fn now(&self) -> Micros {
+    pub fn now(&self) -> Instant {
         self.now
     }
 
-    /// The synchronized system time at [`now`](Self::now), µs: what
+    /// The synchronized system time at [`now`](Self::now): what
     /// time-stamped data (motion control points, sensor readings) is keyed by.
-    pub fn system_time(&self) -> u64 {
+    pub fn system_time(&self) -> SystemInstant {
         self.system
     }
 
@@ -204,7 +204,7 @@ pub trait Port {
     /// [`PollResult::wake_at`](crate::runtime::PollResult::wake_at), so a
     /// runtime that sleeps until then never misses it. A time already past
     /// asks for a poll as soon as possible.
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         None
     }
 }
@@ -226,7 +226,7 @@ macro_rules! forward_port {
         fn poll(&mut self, tx: &mut PortTx<'_>) {
             (**self).poll(tx)
         }
-        fn wake_at(&self) -> Option<Micros> {
+        fn wake_at(&self) -> Option<Instant> {
             (**self).wake_at()
         }
     };

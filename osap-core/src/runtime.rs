@@ -26,7 +26,7 @@ use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
 use crate::route::Route;
 use crate::stack::{ClaimError, Owner, PacketStack, PushError, SlotId, SlotMeta};
 use crate::transport::Transport;
-use crate::Micros;
+use crate::time::{Duration, Instant, SystemInstant};
 
 /// Tunables of a runtime; the defaults suit a microcontroller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -70,7 +70,7 @@ pub struct PollResult {
     /// of a waiting packet, the next clock-sync request, or a port's own
     /// [`wake_at`](crate::port::Port::wake_at). Poll sooner when a link or
     /// port has news.
-    pub wake_at: Option<Micros>,
+    pub wake_at: Option<Instant>,
     /// The per-poll budget ran out with work left: poll again at once.
     pub more: bool,
 }
@@ -99,13 +99,13 @@ pub struct Runtime<
     /// Per link: the local time a packet last came in on it, whether the
     /// runtime took it or dropped it as malformed or oversize (anything
     /// there is a neighbour); cleared while the link is closed.
-    link_heard: [Option<Micros>; LINKS],
+    link_heard: [Option<Instant>; LINKS],
     /// Bus links (as a drop) with a time request of ours waiting for the
     /// medium, one bit per link: a drop asks again only once it has left.
     bus_time_waiting: u64,
     /// When each bus link (as a drop) last asked the head for time.
     #[cfg_attr(not(feature = "sync"), allow(dead_code))]
-    bus_time_asked: [Option<Micros>; LINKS],
+    bus_time_asked: [Option<Instant>; LINKS],
     changes: Changes,
     scratch: [u8; MTU],
 }
@@ -239,8 +239,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// The local time a packet last came in on link `index` (taken, or
     /// dropped as malformed or oversize), or `None` if none has since the
     /// link last opened. A scan reads it through the netresponder's link
-    /// information ([`netresponder::NEIGHBOUR_HEARD_US`]).
-    pub fn link_heard(&self, index: usize) -> Option<Micros> {
+    /// information ([`netresponder::NEIGHBOUR_HEARD`]).
+    pub fn link_heard(&self, index: usize) -> Option<Instant> {
         self.link_heard.get(index).copied().flatten()
     }
 
@@ -249,8 +249,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         &self.stack
     }
 
-    /// Synchronised system time at local time `local`, µs.
-    pub fn system_time(&self, local: Micros) -> u64 {
+    /// Synchronised system time at local time `local`.
+    pub fn system_time(&self, local: Instant) -> SystemInstant {
         self.clock.system_time(local)
     }
 
@@ -284,7 +284,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// that drives a port object directly, as a host does).
     pub fn send(
         &mut self,
-        now: Micros,
+        now: Instant,
         from: u16,
         route: &Route,
         dst: u16,
@@ -313,22 +313,22 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// clock does this by itself every interval; this is for tests and
     /// tools). The stamp is our local counter, rewritten when the request
     /// starts onto the wire.
-    pub fn request_time(&mut self, now: Micros, link: u8) -> Result<(), SendError> {
+    pub fn request_time(&mut self, now: Instant, link: u8) -> Result<(), SendError> {
         self.request_time_via(now, Instruction::LinkForward(link))
     }
 
     /// Sends a time stamp request across one forwarding hop (a link, or a
     /// bus to its head).
-    fn request_time_via(&mut self, now: Micros, hop: Instruction) -> Result<(), SendError> {
+    fn request_time_via(&mut self, now: Instant, hop: Instruction) -> Result<(), SendError> {
         let route = Route::local()
             .with_hop(hop)
             .map_err(SendError::BadAddress)?;
         let stamp = now;
         let ttl = self.config.reply_ttl_us;
-        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| w.u64(stamp).ok())
+        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| w.u64(stamp.as_micros()).ok())
     }
 
-    fn sender(&mut self, now: Micros) -> Sender<'_, SLOTS, MTU, PORTS, LINKS> {
+    fn sender(&mut self, now: Instant) -> Sender<'_, SLOTS, MTU, PORTS, LINKS> {
         Sender {
             stack: &mut self.stack,
             counters: &mut self.counters,
@@ -340,7 +340,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// (numbered from 1) and link gateways (numbered from 0).
     pub fn poll<P: Port, L: LinkGateway>(
         &mut self,
-        now: Micros,
+        now: Instant,
         ports: &mut [P],
         links: &mut [L],
     ) -> PollResult {
@@ -374,7 +374,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     /// Sends the clock's time stamp requests when they are due, and forgets
     /// neighbours whose links have closed.
     #[cfg(feature = "sync")]
-    fn sync_clock<L: LinkGateway>(&mut self, now: Micros, links: &[L]) {
+    fn sync_clock<L: LinkGateway>(&mut self, now: Instant, links: &[L]) {
         let mut open = 0u64;
         for (i, link) in links.iter().enumerate().take(LINKS) {
             // Time flows down a bus from its head: a drop's neighbour on it
@@ -388,7 +388,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             }
         }
         let due = self.clock.due_requests(now, open);
-        let interval = u64::from(self.clock.config().interval_us);
+        let interval = Duration::from_micros(self.clock.config().interval_us.into());
         for (i, link) in links.iter().enumerate().take(LINKS) {
             // A full stack skips this request rather than stalling: the next
             // interval tries again.
@@ -419,7 +419,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
     }
 
-    fn ingest<L: LinkGateway>(&mut self, now: Micros, links: &mut [L]) {
+    fn ingest<L: LinkGateway>(&mut self, now: Instant, links: &mut [L]) {
         enum Rx {
             Empty,
             Oversize,
@@ -455,7 +455,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                         return Err(Rx::Oversize);
                     }
                     let arrival = rx.timestamp.unwrap_or(now);
-                    Ok((rx.len, arrival.saturating_add(u64::from(view.ttl()))))
+                    Ok((rx.len, arrival + Duration::from_micros(view.ttl().into())))
                 });
                 if !matches!(
                     pushed,
@@ -515,7 +515,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
     }
 
-    fn poll_ports<P: Port>(&mut self, now: Micros, ports: &mut [P]) {
+    fn poll_ports<P: Port>(&mut self, now: Instant, ports: &mut [P]) {
         let mut base = 1u16;
         let system = self.clock.system_time(now);
         for port in ports.iter_mut() {
@@ -535,7 +535,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     fn serve<P: Port, L: LinkGateway>(
         &mut self,
-        now: Micros,
+        now: Instant,
         ports: &mut [P],
         links: &mut [L],
     ) -> PollResult {
@@ -558,7 +558,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     fn serve_pass<P: Port, L: LinkGateway>(
         &mut self,
-        now: Micros,
+        now: Instant,
         budget: usize,
         result: &mut PollResult,
         ports: &mut [P],
@@ -657,8 +657,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         slot: SlotId,
         index: u8,
         drop: Option<u8>,
-        now: Micros,
-        deadline: Micros,
+        now: Instant,
+        deadline: Instant,
         links: &mut [L],
     ) -> Served {
         let Some(link) = links
@@ -698,7 +698,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let on_wire = now.saturating_add(link.queue_delay());
         let packet = self.stack.packet_mut(slot);
         stamp_time_message(packet, on_wire, &self.clock);
-        let ttl = (deadline - landing).min(u64::from(u16::MAX)) as u16;
+        let ttl = (deadline - landing).as_micros().min(u64::from(u16::MAX)) as u16;
         // Packet::new validated the header, so the TTL field exists.
         let _ = set_ttl(packet, ttl);
         let len = packet.len();
@@ -737,7 +737,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         slot: SlotId,
         src: u16,
         dst: u16,
-        now: Micros,
+        now: Instant,
         ports: &mut [P],
     ) -> Served {
         let Some((object, offset, base)) = find_port(ports, dst) else {
@@ -785,7 +785,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         &mut self,
         slot: SlotId,
         src: u16,
-        now: Micros,
+        now: Instant,
         ports: &[P],
         links: &[L],
     ) -> Served {
@@ -851,7 +851,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         }
     }
 
-    fn system_message(&mut self, slot: SlotId, code: u8, now: Micros) -> Served {
+    fn system_message(&mut self, slot: SlotId, code: u8, now: Instant) -> Served {
         match code {
             CODE_TIME_REQUEST => {
                 if self.stack.check_claim(Owner::System).is_err() {
@@ -869,7 +869,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 // Our time when the request arrived; averaged with our time
                 // when the reply starts onto the wire at transmit.
                 let reply = TimeReply {
-                    request_time: u64::from_le_bytes(stamp),
+                    request_time: Instant::from_micros(u64::from_le_bytes(stamp)),
                     responder_time: self.clock.system_time(meta.arrival),
                     responder_tier: self.clock.tier(),
                 };
@@ -925,7 +925,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
     fn push_system(
         &mut self,
-        now: Micros,
+        now: Instant,
         route: &Route,
         code: u8,
         ttl: u16,
@@ -966,7 +966,7 @@ enum Drop {
 /// for the midpoint of our turnaround.
 fn stamp_time_message<const LINKS: usize>(
     packet: &mut [u8],
-    on_wire: Micros,
+    on_wire: Instant,
     clock: &Clock<LINKS>,
 ) {
     const BODY: usize = HEADER_LEN + 2;
@@ -982,15 +982,17 @@ fn stamp_time_message<const LINKS: usize>(
     };
     let body = &mut packet[BODY..];
     match (code, body.len()) {
-        (CODE_TIME_REQUEST, TIME_REQUEST_LEN) => body.copy_from_slice(&on_wire.to_le_bytes()),
+        (CODE_TIME_REQUEST, TIME_REQUEST_LEN) => {
+            body.copy_from_slice(&on_wire.as_micros().to_le_bytes())
+        }
         (CODE_TIME_REPLY, TIME_REPLY_LEN) => {
             let mut arrived = [0u8; 8];
             arrived.copy_from_slice(&body[8..16]);
-            let arrived = u64::from_le_bytes(arrived);
+            let arrived = SystemInstant::from_micros(u64::from_le_bytes(arrived));
             let leaving = clock.system_time(on_wire);
             // Signed: a hard jump between the two may have moved time back.
-            let half = (leaving.wrapping_sub(arrived) as i64) / 2;
-            let mid = arrived.wrapping_add(half as u64);
+            let half = leaving.signed_micros_since(arrived) / 2;
+            let mid = arrived.as_micros().wrapping_add(half as u64);
             body[8..16].copy_from_slice(&mid.to_le_bytes());
         }
         _ => {}
@@ -1025,7 +1027,7 @@ fn split_delivery(packet: &[u8]) -> Option<(Route, &[u8])> {
 struct Sender<'r, const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize> {
     stack: &'r mut PacketStack<SLOTS, MTU, PORTS, LINKS>,
     counters: &'r mut Counters,
-    now: Micros,
+    now: Instant,
 }
 
 impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize> PacketSink
@@ -1065,7 +1067,7 @@ fn queue_packet<const SLOTS: usize, const MTU: usize, const PORTS: usize, const 
     stack: &mut PacketStack<SLOTS, MTU, PORTS, LINKS>,
     counters: &mut Counters,
     owner: Owner,
-    now: Micros,
+    now: Instant,
     route: &Route,
     terminal: Instruction,
     ttl: u16,
@@ -1086,7 +1088,7 @@ fn queue_packet<const SLOTS: usize, const MTU: usize, const PORTS: usize, const 
         let n = write(room)
             .filter(|&n| n <= room_len)
             .ok_or(SendError::TooLong)?;
-        Ok((start + n, now.saturating_add(u64::from(ttl))))
+        Ok((start + n, now + Duration::from_micros(ttl.into())))
     });
     match pushed {
         Ok(_) => Ok(()),

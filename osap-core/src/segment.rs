@@ -26,7 +26,7 @@
 
 use crate::port::{PortTx, SendError};
 use crate::route::Route;
-use crate::Micros;
+use crate::time::{Duration, Instant};
 use core::fmt;
 
 /// Transport key of a segment.
@@ -34,8 +34,8 @@ pub const KEY_SEGMENT: u8 = 3;
 /// Bytes of a segment header, the transport key included.
 pub const HEADER_LEN: usize = 6;
 /// Default reassembly timeout: a datagram whose segments do not all arrive
-/// within this time of the first one is dropped, µs.
-pub const DEFAULT_TIMEOUT_US: Micros = 100_000;
+/// within this time of the first one is dropped.
+pub const DEFAULT_TIMEOUT: Duration = Duration::from_millis(100);
 /// Datagrams a default [`Reassembler`] keeps in flight.
 pub const DEFAULT_SLOTS: usize = 2;
 /// Largest datagram a default [`Reassembler`] takes, bytes.
@@ -43,8 +43,8 @@ pub const DEFAULT_BYTES: usize = 512;
 /// A reassembler in its default configuration (what a microcontroller
 /// keeps; hosts use larger ones).
 pub type DefaultReassembler = Reassembler<DEFAULT_SLOTS, DEFAULT_BYTES>;
-/// How long a blocked [`SegmentSender`] waits before it tries again, µs.
-pub const RETRY_US: Micros = 200;
+/// How long a blocked [`SegmentSender`] waits before it tries again.
+pub const RETRY: Duration = Duration::from_micros(200);
 
 /// Why a segment was refused, or a datagram could not be segmented.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -262,7 +262,7 @@ struct Slot<const B: usize> {
     plan: Plan,
     got: u8,
     seen: Seen,
-    deadline: Micros,
+    deadline: Instant,
     buf: [u8; B],
 }
 
@@ -279,7 +279,7 @@ impl<const B: usize> Slot<B> {
         },
         got: 0,
         seen: [0; 8],
-        deadline: 0,
+        deadline: Instant::ZERO,
         buf: [0; B],
     };
 
@@ -301,7 +301,7 @@ impl<const B: usize> Slot<B> {
 #[derive(Debug, Clone)]
 pub struct Reassembler<const SLOTS: usize, const BYTES: usize> {
     slots: [Slot<BYTES>; SLOTS],
-    timeout: Micros,
+    timeout: Duration,
     stats: ReassemblyStats,
 }
 
@@ -320,7 +320,7 @@ impl<const SLOTS: usize, const BYTES: usize> Reassembler<SLOTS, BYTES> {
     pub const fn new() -> Self {
         Reassembler {
             slots: [Slot::EMPTY; SLOTS],
-            timeout: DEFAULT_TIMEOUT_US,
+            timeout: DEFAULT_TIMEOUT,
             stats: ReassemblyStats {
                 segments: 0,
                 delivered: 0,
@@ -333,9 +333,9 @@ impl<const SLOTS: usize, const BYTES: usize> Reassembler<SLOTS, BYTES> {
         }
     }
 
-    /// The same reassembler with datagrams timing out `timeout` µs after
+    /// The same reassembler with datagrams timing out `timeout` after
     /// their first segment.
-    pub const fn with_timeout(mut self, timeout: Micros) -> Self {
+    pub const fn with_timeout(mut self, timeout: Duration) -> Self {
         self.timeout = timeout;
         self
     }
@@ -354,7 +354,7 @@ impl<const SLOTS: usize, const BYTES: usize> Reassembler<SLOTS, BYTES> {
     }
 
     /// The earliest time a datagram in progress times out.
-    pub fn next_deadline(&self) -> Option<Micros> {
+    pub fn next_deadline(&self) -> Option<Instant> {
         self.slots
             .iter()
             .filter(|s| s.state == SlotState::Open)
@@ -364,7 +364,7 @@ impl<const SLOTS: usize, const BYTES: usize> Reassembler<SLOTS, BYTES> {
 
     /// Drops every datagram whose timeout has passed at `now`, counting the
     /// incomplete ones as lost.
-    pub fn expire(&mut self, now: Micros) {
+    pub fn expire(&mut self, now: Instant) {
         for s in self.slots.iter_mut() {
             if s.state != SlotState::Free && now >= s.deadline {
                 if s.state == SlotState::Open {
@@ -383,7 +383,7 @@ impl<const SLOTS: usize, const BYTES: usize> Reassembler<SLOTS, BYTES> {
     /// error (also counted) when the segment is refused.
     pub fn on_segment<'s>(
         &'s mut self,
-        now: Micros,
+        now: Instant,
         route: &Route,
         port: u16,
         payload: &'s [u8],
@@ -442,7 +442,7 @@ impl<const SLOTS: usize, const BYTES: usize> Reassembler<SLOTS, BYTES> {
     /// kept longest for duplicates.
     fn open(
         &mut self,
-        now: Micros,
+        now: Instant,
         route: &Route,
         port: u16,
         id: u8,
@@ -582,7 +582,7 @@ struct Outgoing {
     /// Set by the first segment sent, from the room it found.
     plan: Option<Plan>,
     next: u8,
-    deadline: Micros,
+    deadline: Instant,
 }
 
 /// Sends one datagram at a time as segments from a port, resuming each loop
@@ -591,7 +591,7 @@ struct Outgoing {
 pub struct SegmentSender {
     next_id: u8,
     active: Option<Outgoing>,
-    wake: Micros,
+    wake: Instant,
     stats: SenderStats,
 }
 
@@ -601,7 +601,7 @@ impl SegmentSender {
         SegmentSender {
             next_id: 0,
             active: None,
-            wake: 0,
+            wake: Instant::ZERO,
             stats: SenderStats {
                 datagrams: 0,
                 segments: 0,
@@ -621,7 +621,7 @@ impl SegmentSender {
     }
 
     /// When the port should be polled again to go on sending.
-    pub fn wake_at(&self) -> Option<Micros> {
+    pub fn wake_at(&self) -> Option<Instant> {
         self.active.map(|_| self.wake)
     }
 
@@ -630,7 +630,7 @@ impl SegmentSender {
     /// up if unfinished `ttl` µs from `now`. A datagram still being sent is
     /// abandoned. The bytes are read from the source handed to
     /// [`pump`](Self::pump), which must describe this same datagram.
-    pub fn start(&mut self, now: Micros, route: &Route, dst: u16, ttl: u16, len: usize) {
+    pub fn start(&mut self, now: Instant, route: &Route, dst: u16, ttl: u16, len: usize) {
         if self.active.is_some() {
             bump(&mut self.stats.abandoned);
         }
@@ -646,7 +646,7 @@ impl SegmentSender {
             len,
             plan: None,
             next: 0,
-            deadline: now.saturating_add(u64::from(ttl)),
+            deadline: now + Duration::from_micros(ttl.into()),
         });
     }
 
@@ -674,7 +674,7 @@ impl SegmentSender {
                 return self.abandon(SegmentError::Inconsistent);
             }
             if !tx.clear_to_send_from(offset) {
-                self.wake = now.saturating_add(RETRY_US);
+                self.wake = now.saturating_add(RETRY);
                 return Pump::Blocked;
             }
             let mut failed = None;
@@ -717,7 +717,7 @@ impl SegmentSender {
                     }
                 }
                 Err(SendError::NotClear(_)) => {
-                    self.wake = now.saturating_add(RETRY_US);
+                    self.wake = now.saturating_add(RETRY);
                     return Pump::Blocked;
                 }
                 Err(SendError::TooLong) => {
@@ -791,7 +791,7 @@ mod tests {
         for (k, &i) in order.iter().enumerate() {
             let s = seg(7, i, plan, &data);
             let got = r
-                .on_segment(10, &route, 4, &s[..seg_len(plan, i)])
+                .on_segment(Instant::from_micros(10), &route, 4, &s[..seg_len(plan, i)])
                 .unwrap()
                 .map(|d| d.to_vec());
             if k < order.len() - 1 {
@@ -803,7 +803,7 @@ mod tests {
         // A late duplicate of a delivered datagram is only counted.
         let s = seg(7, 1, plan, &data);
         assert_eq!(
-            r.on_segment(11, &route, 4, &s[..seg_len(plan, 1)]),
+            r.on_segment(Instant::from_micros(11), &route, 4, &s[..seg_len(plan, 1)]),
             Ok(None)
         );
         assert_eq!(r.stats().duplicates, 2);
@@ -816,19 +816,19 @@ mod tests {
         let data = [1u8; 40];
         let plan = Plan::new(40, 26).unwrap();
         let route = Route::local();
-        let mut r: Reassembler<1, 64> = Reassembler::new().with_timeout(1000);
+        let mut r: Reassembler<1, 64> = Reassembler::new().with_timeout(Duration::from_micros(1000));
         let s = seg(1, 0, plan, &data);
-        assert_eq!(r.on_segment(0, &route, 1, &s[..seg_len(plan, 0)]), Ok(None));
-        assert_eq!(r.next_deadline(), Some(1000));
+        assert_eq!(r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(plan, 0)]), Ok(None));
+        assert_eq!(r.next_deadline(), Some(Instant::from_micros(1000)));
         // Segment 1 never comes; the last one arrives too late.
         let s = seg(1, 1, plan, &data);
         assert_eq!(
-            r.on_segment(1000, &route, 1, &s[..seg_len(plan, 1)]),
+            r.on_segment(Instant::from_micros(1000), &route, 1, &s[..seg_len(plan, 1)]),
             Ok(None)
         );
         assert_eq!(r.stats().lost, 1);
         assert_eq!(r.in_progress(), 1, "the late segment opened a new datagram");
-        r.expire(2000);
+        r.expire(Instant::from_micros(2000));
         assert_eq!(r.stats().lost, 2);
         assert_eq!(r.stats().delivered, 0);
     }
@@ -840,15 +840,15 @@ mod tests {
         let big = Plan::new(40, 26).unwrap();
         let s = seg(0, 0, big, &[0; 40]);
         assert_eq!(
-            r.on_segment(0, &route, 1, &s[..seg_len(big, 0)]),
+            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(big, 0)]),
             Err(SegmentError::TooLarge)
         );
         let p = Plan::new(30, 26).unwrap();
         let s = seg(0, 0, p, &[0; 30]);
-        assert_eq!(r.on_segment(0, &route, 1, &s[..seg_len(p, 0)]), Ok(None));
+        assert_eq!(r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]), Ok(None));
         let s = seg(1, 0, p, &[0; 30]);
         assert_eq!(
-            r.on_segment(0, &route, 1, &s[..seg_len(p, 0)]),
+            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]),
             Err(SegmentError::NoSlot)
         );
         for bad in [
@@ -859,7 +859,7 @@ mod tests {
             &[3, 0, 2, 2, 4, 0, 1, 2][..], // index 2 of 2
             &[3, 0, 0, 0, 4, 0][..],       // count 0
         ] {
-            assert!(r.on_segment(0, &route, 1, bad).is_err(), "{bad:?}");
+            assert!(r.on_segment(Instant::from_micros(0), &route, 1, bad).is_err(), "{bad:?}");
         }
         let st = r.stats();
         assert_eq!((st.too_large, st.no_slot, st.malformed), (1, 1, 6));
@@ -870,7 +870,7 @@ mod tests {
         let route = Route::local();
         let mut r: Reassembler<1, 32> = Reassembler::new();
         assert_eq!(
-            r.on_segment(0, &route, 1, &[3, 0, 0, 1, 1, 0, 3]),
+            r.on_segment(Instant::from_micros(0), &route, 1, &[3, 0, 0, 1, 1, 0, 3]),
             Err(SegmentError::Nested)
         );
         assert_eq!(r.stats().malformed, 1);

@@ -13,7 +13,7 @@
 //! and starve the rest; a producer over quota is simply not clear to send,
 //! which pushes back on it.
 
-use crate::Micros;
+use crate::time::Instant;
 use core::fmt;
 use heapless::Vec;
 
@@ -88,9 +88,9 @@ pub struct SlotMeta {
     /// Length of the packet in the slot.
     pub len: u16,
     /// When the packet entered this runtime.
-    pub arrival: Micros,
+    pub arrival: Instant,
     /// When the packet expires; it is dropped once `now > deadline`.
-    pub deadline: Micros,
+    pub deadline: Instant,
     /// Who the slot is charged to.
     pub owner: Owner,
 }
@@ -98,8 +98,8 @@ pub struct SlotMeta {
 impl SlotMeta {
     const EMPTY: SlotMeta = SlotMeta {
         len: 0,
-        arrival: 0,
-        deadline: 0,
+        arrival: Instant::ZERO,
+        deadline: Instant::ZERO,
         owner: Owner::System,
     };
 }
@@ -266,8 +266,8 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
     pub fn push_with<E>(
         &mut self,
         owner: Owner,
-        arrival: Micros,
-        write: impl FnOnce(&mut [u8]) -> Result<(usize, Micros), E>,
+        arrival: Instant,
+        write: impl FnOnce(&mut [u8]) -> Result<(usize, Instant), E>,
     ) -> Result<SlotId, PushError<E>> {
         self.check_claim(owner).map_err(PushError::Claim)?;
         let Some(slot) = self.free.pop() else {
@@ -299,7 +299,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
 
     /// Threads `slot` into the list after every packet due at or before
     /// `deadline`, so equal deadlines stay first come, first served.
-    fn link_by_deadline(&mut self, slot: u16, deadline: Micros) {
+    fn link_by_deadline(&mut self, slot: u16, deadline: Instant) {
         let mut after = self.tail;
         while after != NIL && self.meta[usize::from(after)].deadline > deadline {
             after = self.prev[usize::from(after)];
@@ -366,7 +366,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
     }
 
     /// The earliest deadline of any queued packet.
-    pub fn earliest_deadline(&self) -> Option<Micros> {
+    pub fn earliest_deadline(&self) -> Option<Instant> {
         self.first().map(|s| self.meta[s.index()].deadline)
     }
 
@@ -376,7 +376,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
     }
 
     /// Corrects when a queued packet arrived (a link's wire time stamp).
-    pub fn set_arrival(&mut self, slot: SlotId, arrival: Micros) {
+    pub fn set_arrival(&mut self, slot: SlotId, arrival: Instant) {
         if self.is_queued(slot) {
             self.meta[slot.index()].arrival = arrival;
         }
@@ -442,9 +442,9 @@ mod tests {
 
     type Stack = PacketStack<4, 16, 4, 2>;
 
-    fn push(s: &mut Stack, owner: Owner, deadline: Micros) -> Result<SlotId, ClaimError> {
-        s.push_with(owner, 0, |buf| {
-            buf[0] = deadline as u8;
+    fn push(s: &mut Stack, owner: Owner, deadline: Instant) -> Result<SlotId, ClaimError> {
+        s.push_with(owner, Instant::from_micros(0), |buf| {
+            buf[0] = deadline.as_micros() as u8;
             Ok::<_, ()>((1, deadline))
         })
         .map_err(|e| match e {
@@ -457,41 +457,41 @@ mod tests {
     fn serves_in_deadline_order_fifo_on_ties() {
         let mut s = Stack::new();
         s.set_quota(Owner::Port(0), 4).unwrap();
-        let a = push(&mut s, Owner::Port(0), 30).unwrap();
-        let b = push(&mut s, Owner::Port(0), 10).unwrap();
-        let c = push(&mut s, Owner::Port(0), 30).unwrap();
-        let d = push(&mut s, Owner::Port(0), 20).unwrap();
+        let a = push(&mut s, Owner::Port(0), Instant::from_micros(30)).unwrap();
+        let b = push(&mut s, Owner::Port(0), Instant::from_micros(10)).unwrap();
+        let c = push(&mut s, Owner::Port(0), Instant::from_micros(30)).unwrap();
+        let d = push(&mut s, Owner::Port(0), Instant::from_micros(20)).unwrap();
         let order: heapless::Vec<SlotId, 4> = (0..4).filter_map(|i| s.at(i)).collect();
         assert_eq!(order.as_slice(), &[b, d, a, c]);
-        assert_eq!(s.earliest_deadline(), Some(10));
+        assert_eq!(s.earliest_deadline(), Some(Instant::from_micros(10)));
     }
 
     #[test]
     fn quotas_and_fullness() {
         let mut s = Stack::new();
-        push(&mut s, Owner::Port(1), 1).unwrap();
-        push(&mut s, Owner::Port(1), 1).unwrap();
+        push(&mut s, Owner::Port(1), Instant::from_micros(1)).unwrap();
+        push(&mut s, Owner::Port(1), Instant::from_micros(1)).unwrap();
         assert_eq!(
-            push(&mut s, Owner::Port(1), 1),
+            push(&mut s, Owner::Port(1), Instant::from_micros(1)),
             Err(ClaimError::QuotaExceeded)
         );
-        push(&mut s, Owner::Link(0), 1).unwrap();
-        push(&mut s, Owner::Link(1), 1).unwrap();
-        assert_eq!(push(&mut s, Owner::Link(0), 1), Err(ClaimError::StackFull));
+        push(&mut s, Owner::Link(0), Instant::from_micros(1)).unwrap();
+        push(&mut s, Owner::Link(1), Instant::from_micros(1)).unwrap();
+        assert_eq!(push(&mut s, Owner::Link(0), Instant::from_micros(1)), Err(ClaimError::StackFull));
         assert_eq!(
-            push(&mut s, Owner::Port(9), 1),
+            push(&mut s, Owner::Port(9), Instant::from_micros(1)),
             Err(ClaimError::UnknownOwner)
         );
         let meta = s.release_at(0).unwrap();
         assert_eq!(meta.owner, Owner::Port(1));
         assert_eq!(s.held(Owner::Port(1)), Some(1));
-        push(&mut s, Owner::Port(1), 1).unwrap();
+        push(&mut s, Owner::Port(1), Instant::from_micros(1)).unwrap();
     }
 
     #[test]
     fn failed_writer_returns_the_slot() {
         let mut s = Stack::new();
-        let r = s.push_with(Owner::System, 0, |_| Err::<(usize, Micros), _>("nope"));
+        let r = s.push_with(Owner::System, Instant::from_micros(0), |_| Err::<(usize, Instant), _>("nope"));
         assert_eq!(r, Err(PushError::Write("nope")));
         assert_eq!(s.free_slots(), 4);
         assert_eq!(s.held(Owner::System), Some(0));

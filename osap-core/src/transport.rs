@@ -11,7 +11,7 @@
 //! [`crate::segment`]). [`Transport::decode`] does not unwrap segments: a
 //! receiver reassembles first and decodes the whole payload.
 
-use crate::Micros;
+use crate::time::Instant;
 use core::fmt;
 
 /// Transport key of a raw datagram.
@@ -114,9 +114,9 @@ pub struct Pending<T> {
     /// Sequence number the request was sent with.
     pub seq: u16,
     /// When it was sent.
-    pub sent: Micros,
+    pub sent: Instant,
     /// When to give up on it.
-    pub deadline: Micros,
+    pub deadline: Instant,
     /// Caller data carried with the request (e.g. which query it was).
     pub tag: T,
 }
@@ -174,7 +174,7 @@ impl<T: Copy, const N: usize> Requester<T, N> {
 
     /// Reserves a sequence number for a request sent at `now` that expires at
     /// `deadline`. Returns `None` when `N` requests are already outstanding.
-    pub fn issue(&mut self, now: Micros, deadline: Micros, tag: T) -> Option<u16> {
+    pub fn issue(&mut self, now: Instant, deadline: Instant, tag: T) -> Option<u16> {
         // Skip numbers still in flight so a wrapped counter never aliases.
         let mut seq = self.next_seq;
         while self.pending.iter().any(|p| p.seq == seq) {
@@ -210,14 +210,14 @@ impl<T: Copy, const N: usize> Requester<T, N> {
     }
 
     /// Removes and returns one request whose deadline has passed.
-    pub fn take_expired(&mut self, now: Micros) -> Option<Pending<T>> {
+    pub fn take_expired(&mut self, now: Instant) -> Option<Pending<T>> {
         let i = self.pending.iter().position(|p| now > p.deadline)?;
         self.timeouts = self.timeouts.wrapping_add(1);
         Some(self.pending.swap_remove(i))
     }
 
     /// The earliest deadline among outstanding requests.
-    pub fn next_deadline(&self) -> Option<Micros> {
+    pub fn next_deadline(&self) -> Option<Instant> {
         self.pending.iter().map(|p| p.deadline).min()
     }
 
@@ -258,15 +258,15 @@ mod tests {
     #[test]
     fn requester_matches_and_times_out() {
         let mut r: Requester<u8, 2> = Requester::new();
-        let a = r.issue(0, 100, 1).unwrap();
-        let b = r.issue(0, 50, 2).unwrap();
+        let a = r.issue(Instant::from_micros(0), Instant::from_micros(100), 1).unwrap();
+        let b = r.issue(Instant::from_micros(0), Instant::from_micros(50), 2).unwrap();
         assert_ne!(a, b);
-        assert!(r.issue(0, 10, 3).is_none());
-        assert_eq!(r.next_deadline(), Some(50));
+        assert!(r.issue(Instant::from_micros(0), Instant::from_micros(10), 3).is_none());
+        assert_eq!(r.next_deadline(), Some(Instant::from_micros(50)));
         assert!(matches!(r.on_reply(a), ReplyMatch::Matched(p) if p.tag == 1));
         assert_eq!(r.on_reply(a), ReplyMatch::Unknown);
-        assert_eq!(r.take_expired(50), None);
-        assert_eq!(r.take_expired(51).map(|p| p.tag), Some(2));
+        assert_eq!(r.take_expired(Instant::from_micros(50)), None);
+        assert_eq!(r.take_expired(Instant::from_micros(51)).map(|p| p.tag), Some(2));
         assert_eq!(r.timeouts(), 1);
         assert_eq!(r.stray_replies(), 1);
     }
@@ -275,10 +275,10 @@ mod tests {
     fn wrapped_sequence_numbers_skip_outstanding_ones() {
         let mut r: Requester<(), 2> = Requester::new();
         r.next_seq = u16::MAX;
-        let a = r.issue(0, 1, ()).unwrap();
+        let a = r.issue(Instant::from_micros(0), Instant::from_micros(1), ()).unwrap();
         assert_eq!(a, u16::MAX);
         r.next_seq = u16::MAX; // force a collision
-        let b = r.issue(0, 1, ()).unwrap();
+        let b = r.issue(Instant::from_micros(0), Instant::from_micros(1), ()).unwrap();
         assert_eq!(b, 0);
     }
 }

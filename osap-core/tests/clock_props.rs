@@ -2,6 +2,7 @@
 //! goes backward except by a counted hard jump.
 
 use osap_core::clock::{Clock, TimeConfig, TimeReply};
+use osap_core::time::{Instant, SystemInstant};
 use proptest::prelude::*;
 
 #[derive(Debug, Clone)]
@@ -42,20 +43,20 @@ proptest! {
     ) {
         let mut clock: Clock<2> = Clock::new(TimeConfig::default());
         let mut local = 1_000u64;
-        let mut last_system = clock.system_time(local);
+        let mut last_system = clock.system_time(Instant::from_micros(local));
         let mut jumps = 0;
         for x in exchanges {
             local += x.advance;
-            let _ = clock.due_requests(local, 0b11);
+            let _ = clock.due_requests(Instant::from_micros(local), 0b11);
             let sent = local.saturating_sub(x.rtt).saturating_add_signed(x.echo_skew);
             let reply = TimeReply {
-                request_time: sent,
-                responder_time: x.their_time,
+                request_time: Instant::from_micros(sent),
+                responder_time: SystemInstant::from_micros(x.their_time),
                 responder_tier: x.tier,
             };
             // Link 2 does not exist on a Clock<2>: must be ignored.
-            clock.on_reply(x.link, &reply, local);
-            let now = clock.system_time(local);
+            clock.on_reply(x.link, &reply, Instant::from_micros(local));
+            let now = clock.system_time(Instant::from_micros(local));
             let status = clock.status();
             if status.stats.jumps == jumps {
                 prop_assert!(now >= last_system, "went back {} µs without a jump", last_system - now);

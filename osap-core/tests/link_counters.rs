@@ -3,6 +3,7 @@
 //! gateway's own counts, read remotely.
 
 use osap_core::codec::Reader;
+use osap_core::time::Instant;
 use osap_core::counters::{GatewayCounters, LinkCounters};
 use osap_core::link::queue::QueueLink;
 use osap_core::netresponder::{key, Status};
@@ -56,7 +57,7 @@ fn ask(rt: &mut Rt, links: &mut [Link; 2], now: u64, body: &[u8]) -> (Status, Ve
     payload[3..3 + body.len()].copy_from_slice(body);
     assert!(links[0].inject(&packet(None, 10_000, &payload[..3 + body.len()])));
     let mut ports: [NoPort; 0] = [];
-    rt.poll(now, &mut ports, links);
+    rt.poll(Instant::from_micros(now), &mut ports, links);
     let reply = links[0].take_sent().expect("a reply");
     // [header 5][link_forward(0)][port_handle(0 -> 1)][request 3][key][status]
     assert_eq!(reply[12], body[0]);
@@ -95,7 +96,7 @@ fn link_counters_count_what_each_link_took_sent_and_dropped() {
     assert!(links[0].inject(&[0xff; 12]));
     assert!(links[0].inject(&packet(Some(1), 100, b"late")));
     assert!(links[0].inject(&packet(Some(1), 60_000, b"fine")));
-    rt.poll(1_000, &mut ports, &mut links);
+    rt.poll(Instant::from_micros(1_000), &mut ports, &mut links);
     assert!(
         links[1].take_sent().is_some(),
         "the packet in time went out"
@@ -104,7 +105,7 @@ fn link_counters_count_what_each_link_took_sent_and_dropped() {
     // Link 1 goes down: a packet for it is dropped as closed.
     links[1].set_open(false);
     assert!(links[0].inject(&packet(Some(1), 60_000, b"shut")));
-    rt.poll(2_000, &mut ports, &mut links);
+    rt.poll(Instant::from_micros(2_000), &mut ports, &mut links);
 
     let one = counters_of(&mut rt, &mut links, 3_000, 1);
     assert_eq!(

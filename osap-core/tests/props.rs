@@ -2,6 +2,7 @@
 //! stack against a simple model, and the runtime under arbitrary input.
 
 use osap_core::link::queue::QueueLink;
+use osap_core::time::Instant;
 use osap_core::packet::{ingest_rewrite, Instruction, Packet};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::{Route, MAX_ROUTE_LEN};
@@ -141,9 +142,9 @@ proptest! {
                         _ if model.len() >= N => Err(ClaimError::StackFull),
                         _ => Ok(()),
                     };
-                    let got = stack.push_with(owner, 0, |buf| {
+                    let got = stack.push_with(owner, Instant::from_micros(0), |buf| {
                         buf[..8].copy_from_slice(&(serial as u64).to_le_bytes());
-                        Ok::<_, ()>((8, deadline))
+                        Ok::<_, ()>((8, Instant::from_micros(deadline)))
                     });
                     match (expect, got) {
                         (Ok(()), Ok(_)) => {
@@ -158,7 +159,7 @@ proptest! {
                     let got = stack.release_at(pos);
                     if pos < model.len() {
                         let m = model.remove(pos);
-                        prop_assert_eq!(got.map(|g| (g.deadline, g.owner)), Some((m.0, m.2)));
+                        prop_assert_eq!(got.map(|g| (g.deadline.as_micros(), g.owner)), Some((m.0, m.2)));
                     } else {
                         prop_assert!(got.is_none());
                     }
@@ -168,7 +169,7 @@ proptest! {
             prop_assert_eq!(stack.len() + stack.free_slots(), N);
             for (pos, m) in model.iter().enumerate() {
                 let slot = stack.at(pos).unwrap();
-                prop_assert_eq!(stack.meta(slot).deadline, m.0);
+                prop_assert_eq!(stack.meta(slot).deadline.as_micros(), m.0);
                 prop_assert_eq!(stack.packet(slot), &(m.1 as u64).to_le_bytes()[..]);
             }
         }
@@ -230,12 +231,12 @@ proptest! {
         }
         let mut now = 0;
         for _ in 0..40 {
-            rt.poll(now, &mut ports, &mut links);
+            rt.poll(Instant::from_micros(now), &mut ports, &mut links);
             while links[0].take_sent().is_some() {}
             while links[1].take_sent().is_some() {}
             now += 5_000;
         }
-        rt.poll(now + 70_000, &mut ports, &mut links);
+        rt.poll(Instant::from_micros(now + 70_000), &mut ports, &mut links);
         prop_assert_eq!(rt.stack().len(), 0);
         prop_assert_eq!(rt.counters().received as usize, packets.len());
     }

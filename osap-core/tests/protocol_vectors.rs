@@ -4,6 +4,7 @@
 //! `OSAP_PRINT_VECTORS=1` to print the vectors as the code produces them.
 
 use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig, TimeReply};
+use osap_core::time::{Instant, SystemInstant};
 use osap_core::codec::Writer;
 use osap_core::framing::{encode_frame, FrameDecoder};
 use osap_core::netresponder::key;
@@ -153,8 +154,8 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
         "body.time_reply",
         body(|w| {
             TimeReply {
-                request_time: 1_000_000,
-                responder_time: 1_000_250,
+                request_time: Instant::from_micros(1_000_000),
+                responder_time: SystemInstant::from_micros(1_000_250),
                 responder_tier: 1,
             }
             .encode(w)
@@ -321,7 +322,10 @@ fn document_vectors_decode_to_their_meaning() {
     assert_eq!(p.instruction(), Ok(Instruction::LinkForward(1)));
 
     let reply = TimeReply::decode(&get("body.time_reply")).unwrap();
-    assert_eq!(reply.responder_time - reply.request_time, 250);
+    assert_eq!(
+        reply.responder_time.as_micros() - reply.request_time.as_micros(),
+        250
+    );
     assert_eq!(
         TimeConfig::decode(&get("netresponder.time_config.default")),
         Ok(TimeConfig::default())
@@ -379,7 +383,7 @@ fn segment_vectors_reassemble_to_the_reply() {
         "segment.reply.1_of_3",
     ] {
         let seg = doc.get(k).unwrap_or_else(|| panic!("missing {k}"));
-        if let Some(d) = r.on_segment(0, &route, 1, seg).unwrap() {
+        if let Some(d) = r.on_segment(Instant::from_micros(0), &route, 1, seg).unwrap() {
             out = Some(d.to_vec());
         }
     }

@@ -4,6 +4,7 @@
 //! panics the reassembler.
 
 use osap_core::route::Route;
+use osap_core::time::{Duration, Instant};
 use osap_core::segment::{
     Plan, Reassembler, SegmentError, SegmentHeader, SegmentSource, HEADER_LEN,
 };
@@ -85,7 +86,7 @@ proptest! {
         let mut r: Reassembler<2, 600> = Reassembler::new();
         let mut delivered = Vec::new();
         for &i in &sends {
-            if let Some(d) = r.on_segment(1, &route, 7, &segs[i]).unwrap() {
+            if let Some(d) = r.on_segment(Instant::from_micros(1), &route, 7, &segs[i]).unwrap() {
                 delivered.push(d.to_vec());
             }
         }
@@ -108,25 +109,25 @@ proptest! {
         let segs = segments(1, &data, room);
         prop_assume!(segs.len() >= 2);
         let gone = missing.index(segs.len());
-        let mut r: Reassembler<1, 600> = Reassembler::new().with_timeout(500);
+        let mut r: Reassembler<1, 600> = Reassembler::new().with_timeout(Duration::from_micros(500));
         let route = Route::local();
         for _ in 0..=dups {
             for (i, s) in segs.iter().enumerate().rev() {
                 if i != gone {
-                    prop_assert_eq!(r.on_segment(10, &route, 1, s), Ok(None));
+                    prop_assert_eq!(r.on_segment(Instant::from_micros(10), &route, 1, s), Ok(None));
                 }
             }
         }
         prop_assert_eq!(r.stats().lost, 0);
-        r.expire(509);
+        r.expire(Instant::from_micros(509));
         prop_assert_eq!(r.in_progress(), 1);
-        r.expire(510);
+        r.expire(Instant::from_micros(510));
         prop_assert_eq!(r.in_progress(), 0);
         let st = *r.stats();
         prop_assert_eq!((st.lost, st.delivered), (1, 0));
         // The missing segment, late, starts a new datagram and never
         // completes the old one.
-        prop_assert_eq!(r.on_segment(600, &route, 1, &segs[gone]), Ok(None));
+        prop_assert_eq!(r.on_segment(Instant::from_micros(600), &route, 1, &segs[gone]), Ok(None));
         prop_assert_eq!(r.stats().delivered, 0);
     }
 
@@ -143,12 +144,12 @@ proptest! {
         let mut got = Vec::new();
         for i in 0..sa.len().max(sb.len()) {
             if let Some(s) = sa.get(i) {
-                if let Some(d) = r.on_segment(0, &ra, 3, s).unwrap() {
+                if let Some(d) = r.on_segment(Instant::from_micros(0), &ra, 3, s).unwrap() {
                     got.push(("a", d.to_vec()));
                 }
             }
             if let Some(s) = sb.get(i) {
-                if let Some(d) = r.on_segment(0, &rb, 3, s).unwrap() {
+                if let Some(d) = r.on_segment(Instant::from_micros(0), &rb, 3, s).unwrap() {
                     got.push(("b", d.to_vec()));
                 }
             }
@@ -164,7 +165,7 @@ proptest! {
             0..60,
         ),
     ) {
-        let mut r: Reassembler<2, 64> = Reassembler::new().with_timeout(100);
+        let mut r: Reassembler<2, 64> = Reassembler::new().with_timeout(Duration::from_micros(100));
         let route = Route::local();
         let mut now = 0;
         for (mut p, port, dt) in packets {
@@ -172,7 +173,7 @@ proptest! {
                 *k = 3;
             }
             now += dt;
-            if let Ok(Some(d)) = r.on_segment(now, &route, port, &p) {
+            if let Ok(Some(d)) = r.on_segment(Instant::from_micros(now), &route, port, &p) {
                 prop_assert!(!d.is_empty() && d.len() <= 64 && d[0] != 3);
             }
         }

@@ -186,7 +186,7 @@ async fn a_heard_neighbour_that_does_not_answer_is_a_failure() {
 
 #[tokio::test]
 async fn a_neighbour_silent_for_longer_than_the_window_is_still_a_failure() {
-    use osap_core::netresponder::NEIGHBOUR_HEARD_US;
+    use osap_core::netresponder::NEIGHBOUR_HEARD;
     let h = host("h");
     let (index, io) = h
         .add_link(osap_host::LinkConfig::new("uart", "uart0"))
@@ -196,7 +196,7 @@ async fn a_neighbour_silent_for_longer_than_the_window_is_still_a_failure() {
     // Something was there, then went silent (hung, or lost its power
     // behind a UART that stays open) for longer than the window.
     assert!(io.deliver(stray_packet()));
-    tokio::time::sleep(Duration::from_micros(NEIGHBOUR_HEARD_US + 100_000)).await;
+    tokio::time::sleep(Duration::from_micros(NEIGHBOUR_HEARD.as_micros() + 100_000)).await;
     let runner = netrunner::Netrunner::new(&h).await.unwrap();
     let now = runner.link_info(&Route::local(), index).await.unwrap();
     assert!(now.no_neighbour(), "nothing heard lately: {now:?}");

@@ -21,7 +21,7 @@
 //!   frame. A turn that came with data for the drop lasts
 //!   [`BusConfig::answer_passes`] more runtime passes, so a port that
 //!   answers on its next pass still answers in this turn.
-//! - A drop that does not answer within [`BusConfig::reply_timeout_us`]
+//! - A drop that does not answer within [`BusConfig::reply_timeout`]
 //!   beyond the wire time of what the head queued and of one full frame
 //!   loses its turn and counts as absent; absent drops are polled only
 //!   every [`BusConfig::absent_every`] cycles, so empty addresses cost
@@ -49,7 +49,7 @@ pub use header::{
 pub use role::{BadRole, BusRole, Switchable};
 
 use crate::link::{BusInfo, GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
-use crate::Micros;
+use crate::time::{Duration, Instant};
 
 /// How a station behaves on its bus.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -69,7 +69,7 @@ pub struct BusConfig {
     pub answer_passes: u8,
     /// Head only: how long a granted drop has to start answering, beyond
     /// the wire time of the grant and of one full frame, µs.
-    pub reply_timeout_us: Micros,
+    pub reply_timeout: Duration,
     /// Head only: a drop that missed its last turn is polled once every
     /// this many cycles (1 polls every drop every cycle).
     pub absent_every: u8,
@@ -84,7 +84,7 @@ impl BusConfig {
             burst: 2,
             head_burst: 4,
             answer_passes: 1,
-            reply_timeout_us: 500,
+            reply_timeout: Duration::from_micros(500),
             absent_every: 16,
         }
     }
@@ -129,7 +129,7 @@ enum Turn {
     /// Head: the medium is granted to `drop` until `until`; `poll` if by a
     /// bare grant in address order (rather than with data). Drop: we hold
     /// it.
-    Granted { drop: u8, until: Micros, poll: bool },
+    Granted { drop: u8, until: Instant, poll: bool },
 }
 
 /// The bus state machine of one station, sans-IO: frames go out and come
@@ -152,7 +152,7 @@ pub struct BusCore<const N: usize> {
     turn_no: u8,
     /// Head: local time by which what it has queued on the lower link is
     /// on the wire (its own estimate, from the frames' lengths).
-    tx_free: Micros,
+    tx_free: Instant,
     /// Head: the last drop granted (the next grant goes to one after it).
     cursor: u8,
     /// Head: full polling cycles completed.
@@ -162,9 +162,9 @@ pub struct BusCore<const N: usize> {
     present: [u32; 8],
     /// The source of the packet last returned by `receive`.
     last_from: Option<u8>,
-    now: Micros,
+    now: Instant,
     /// Head: wire time of one full frame on the lower link, µs.
-    frame_us: Micros,
+    frame: Duration,
     /// The lower link was not clear at the last poll: wait for it to wake
     /// the runtime rather than asking to be polled at once.
     blocked: bool,
@@ -206,13 +206,13 @@ impl<const N: usize> BusCore<N> {
             hold: 0,
             room: u8::MAX,
             turn_no: 0,
-            tx_free: 0,
+            tx_free: Instant::ZERO,
             cursor: 0,
             cycle: 0,
             present,
             last_from: None,
-            now: 0,
-            frame_us: 0,
+            now: Instant::ZERO,
+            frame: Duration::ZERO,
             blocked: false,
             counters: BusCounters::default(),
             scratch: [0; N],
@@ -297,8 +297,8 @@ impl<const N: usize> BusCore<N> {
     /// Head: the deadline of a grant whose frame was just queued: its wire
     /// time and that of what was queued before it, one full frame of
     /// answer, and the reply timeout.
-    fn grant_deadline(&self) -> Micros {
-        self.tx_free + self.frame_us + self.config.reply_timeout_us
+    fn grant_deadline(&self) -> Instant {
+        self.tx_free + self.frame + self.config.reply_timeout
     }
 
     /// Sends `packet` to drop `to` (or [`BROADCAST`]) in our turn. A drop's
@@ -339,7 +339,7 @@ impl<const N: usize> BusCore<N> {
                 },
         };
         if head {
-            self.frame_us = lower.transmit_time(usize::from(lower.mtu()));
+            self.frame = lower.transmit_time(usize::from(lower.mtu()));
         }
         self.send_frame(lower, header, packet)?;
         self.sent = self.sent.saturating_add(1);
@@ -417,7 +417,7 @@ impl<const N: usize> BusCore<N> {
                         // More is coming: allow one more frame's wire time.
                         self.turn = Turn::Granted {
                             drop,
-                            until: self.now + self.frame_us + self.config.reply_timeout_us,
+                            until: self.now + self.frame + self.config.reply_timeout,
                             poll,
                         };
                     }
@@ -458,7 +458,7 @@ impl<const N: usize> BusCore<N> {
     /// Runs the turn at local time `now`; called once per runtime loop
     /// before packets are exchanged, so a turn that began while packets
     /// came in has had one serve pass of the runtime when it is ended here.
-    pub fn poll<L: LinkGateway + ?Sized>(&mut self, lower: &mut L, now: Micros) {
+    pub fn poll<L: LinkGateway + ?Sized>(&mut self, lower: &mut L, now: Instant) {
         self.now = now;
         if !lower.is_open() {
             return;
@@ -485,7 +485,7 @@ impl<const N: usize> BusCore<N> {
         }
     }
 
-    fn poll_head<L: LinkGateway + ?Sized>(&mut self, lower: &mut L, now: Micros) {
+    fn poll_head<L: LinkGateway + ?Sized>(&mut self, lower: &mut L, now: Instant) {
         if let Turn::Granted { drop, until, poll } = self.turn {
             if now < until {
                 return;
@@ -513,7 +513,7 @@ impl<const N: usize> BusCore<N> {
             src: HEAD,
             flags: GRANT | turn_flags(self.turn_no),
         };
-        self.frame_us = lower.transmit_time(usize::from(lower.mtu()));
+        self.frame = lower.transmit_time(usize::from(lower.mtu()));
         if self.send_frame(lower, grant, &[]).is_ok() {
             bump(&mut self.counters.grants);
             self.turn = Turn::Granted {
@@ -546,7 +546,7 @@ impl<const N: usize> BusCore<N> {
     /// When the station must be polled again: the head at once while it
     /// owns the medium (to grant), or at a grant's timeout; a granted drop
     /// at once (to hand the medium back).
-    pub fn wake_at(&self) -> Option<Micros> {
+    pub fn wake_at(&self) -> Option<Instant> {
         match (self.config.is_head(), self.turn) {
             (true, Turn::Idle) if self.config.max_drop > 0 && !self.blocked => Some(self.now),
             (true, Turn::Granted { until, .. }) => Some(until),
@@ -601,16 +601,16 @@ impl<L: LinkGateway, const N: usize> LinkGateway for BusLink<L, N> {
     fn send_to(&mut self, drop: u8, packet: &[u8]) -> Result<(), LinkSendError> {
         self.core.send_to(&mut self.lower, drop, packet)
     }
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         self.lower.transmit_time(len + HEADER_LEN)
     }
-    fn queue_delay(&self) -> Micros {
+    fn queue_delay(&self) -> Duration {
         self.lower.queue_delay()
     }
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
         self.core.receive(&mut self.lower, buf)
     }
-    fn poll(&mut self, now: Micros) {
+    fn poll(&mut self, now: Instant) {
         self.lower.poll(now);
         self.core.poll(&mut self.lower, now);
     }
@@ -626,7 +626,7 @@ impl<L: LinkGateway, const N: usize> LinkGateway for BusLink<L, N> {
     fn received_from(&self) -> Option<u8> {
         self.core.received_from()
     }
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         self.core.wake_at()
     }
     fn set_rx_room(&mut self, room: u8) {

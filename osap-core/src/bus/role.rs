@@ -9,7 +9,7 @@
 
 use super::{BusConfig, BusCore, HEAD};
 use crate::link::{BusInfo, GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
-use crate::Micros;
+use crate::time::{Duration, Instant};
 
 /// What a link is on its medium.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
@@ -148,7 +148,7 @@ impl<L: LinkGateway, const N: usize> LinkGateway for Switchable<L, N> {
             None => Err(LinkSendError),
         }
     }
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         let header = if self.core.is_some() {
             super::HEADER_LEN
         } else {
@@ -156,7 +156,7 @@ impl<L: LinkGateway, const N: usize> LinkGateway for Switchable<L, N> {
         };
         self.lower.transmit_time(len + header)
     }
-    fn queue_delay(&self) -> Micros {
+    fn queue_delay(&self) -> Duration {
         self.lower.queue_delay()
     }
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
@@ -165,7 +165,7 @@ impl<L: LinkGateway, const N: usize> LinkGateway for Switchable<L, N> {
             None => self.lower.receive(buf),
         }
     }
-    fn poll(&mut self, now: Micros) {
+    fn poll(&mut self, now: Instant) {
         self.lower.poll(now);
         if let Some(c) = &mut self.core {
             c.poll(&mut self.lower, now);
@@ -185,7 +185,7 @@ impl<L: LinkGateway, const N: usize> LinkGateway for Switchable<L, N> {
     fn received_from(&self) -> Option<u8> {
         self.core.as_ref().and_then(BusCore::received_from)
     }
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         match &self.core {
             Some(c) => c.wake_at(),
             None => self.lower.wake_at(),

@@ -37,7 +37,7 @@ fn head_polls_each_drop_and_takes_the_medium_back() {
     let mut buf = [0u8; 64];
     // Drops are silent until granted.
     assert!(!d1.clear_to_send());
-    head.poll(0);
+    head.poll(Instant::from_micros(0));
     assert_eq!(head.core.counters().grants, 1);
     carry(&mut [&mut head, &mut d1, &mut d2]);
     assert!(d1.receive(&mut buf).is_none()); // a bare grant
@@ -46,14 +46,14 @@ fn head_polls_each_drop_and_takes_the_medium_back() {
     assert!(!d2.clear_to_send());
     assert_eq!(d2.core.counters().other_drop, 1);
     // d1 has nothing: its next poll hands the medium back.
-    d1.poll(10);
+    d1.poll(Instant::from_micros(10));
     assert!(!d1.clear_to_send());
     carry(&mut [&mut head, &mut d1, &mut d2]);
     assert!(head.receive(&mut buf).is_none());
     assert!(head.clear_to_send());
     assert!(head.bus().unwrap().is_present(1));
     // Next turn goes to drop 2.
-    head.poll(20);
+    head.poll(Instant::from_micros(20));
     carry(&mut [&mut head, &mut d1, &mut d2]);
     d2.receive(&mut buf);
     assert!(d2.clear_to_send());
@@ -62,14 +62,14 @@ fn head_polls_each_drop_and_takes_the_medium_back() {
 #[test]
 fn a_silent_drop_times_out_and_is_polled_rarely() {
     let mut head = Station::new(Lower::new(), BusConfig::head(3));
-    head.poll(0);
+    head.poll(Instant::from_micros(0));
     let until = head.wake_at().unwrap();
-    assert!(until > 0);
+    assert!(until > Instant::from_micros(0));
     head.poll(until);
     assert_eq!(head.core.counters().timeouts, 1);
     assert!(!head.bus().unwrap().is_present(1));
     // Drop 1 is now skipped until the next discovery cycle.
-    head.poll(until + 1);
+    head.poll(until + Duration::from_micros(1));
     let frame = head.lower.take_sent().unwrap();
     let frame = head.lower.take_sent().unwrap_or(frame);
     assert_eq!(BusHeader::parse(&frame).unwrap().0.dst, 2);
@@ -137,13 +137,13 @@ fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
         .unwrap();
     let request = packet_to(&route, CODE_TIME_REQUEST, &42u64.to_le_bytes());
     // The head grants drop 1; drop 1 answers with its request and END.
-    rt.poll(0, ports, &mut links);
+    rt.poll(Instant::from_micros(0), ports, &mut links);
     while links[0].lower.take_sent().is_some() {}
     let end = END | turn_flags(links[0].core.turn_no);
     let mut frame: heapless::Vec<u8, 64> = heapless::Vec::from_slice(&[HEAD, 1, end]).unwrap();
     frame.extend_from_slice(&request).unwrap();
     links[0].lower.inject(&frame);
-    rt.poll(10, ports, &mut links);
+    rt.poll(Instant::from_micros(10), ports, &mut links);
     let reply = links[0]
         .lower
         .take_sent()
@@ -167,7 +167,7 @@ fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
         .extend_from_slice(&[5, 0xE8, 3, 64, 0, 0x80 | 3, HEAD, 0x40, 9])
         .unwrap();
     links[0].lower.inject(&frame);
-    rt.poll(20, ports, &mut links);
+    rt.poll(Instant::from_micros(20), ports, &mut links);
     assert_eq!(rt.counters().no_route, no_route + 1);
 }
 
@@ -181,7 +181,7 @@ fn a_frame_to_one_drop_grants_it_a_turn_to_answer_in() {
     head.send_to(1, &p).unwrap();
     // The head waits for drop 1 now: nothing more of its own, no poll.
     assert!(!head.clear_to_send());
-    head.poll(1);
+    head.poll(Instant::from_micros(1));
     let frame = head.lower.take_sent().unwrap();
     assert!(head.lower.take_sent().is_none());
     for d in [&mut d1, &mut d2] {
@@ -192,11 +192,11 @@ fn a_frame_to_one_drop_grants_it_a_turn_to_answer_in() {
     assert!(d2.receive(&mut buf).is_none());
     assert!(!d2.clear_to_send());
     // A port answering on the next pass still has the turn.
-    d1.poll(10);
+    d1.poll(Instant::from_micros(10));
     assert!(d1.clear_to_send());
-    assert_eq!(d1.wake_at(), Some(10));
+    assert_eq!(d1.wake_at(), Some(Instant::from_micros(10)));
     d1.send_to(HEAD, &p).unwrap();
-    d1.poll(20);
+    d1.poll(Instant::from_micros(20));
     assert!(!d1.clear_to_send());
     let answer = d1.lower.take_sent().unwrap();
     assert_eq!(BusHeader::parse(&answer).unwrap().0.flags & !TURN_MASK, 0);
@@ -236,7 +236,7 @@ fn the_head_polls_in_address_order_after_its_burst() {
     // Burst spent: the next frame waits for a poll of drop 1 then 2.
     assert!(!head.clear_to_send());
     while head.lower.take_sent().is_some() {}
-    head.poll(5);
+    head.poll(Instant::from_micros(5));
     let grant = head.lower.take_sent().unwrap();
     assert_eq!(
         BusHeader::parse(&grant).unwrap().0,
@@ -259,14 +259,16 @@ fn a_grant_waits_out_what_the_head_queued_before_it() {
     let p = packet_to(&Route::local(), 9, &[0; 40]);
     head.send_to(BROADCAST, &p).unwrap();
     head.send_to(BROADCAST, &p).unwrap();
-    head.poll(0);
-    let queued = 2 * head.transmit_time(p.len()) + head.lower.transmit_time(HEADER_LEN);
+    head.poll(Instant::ZERO);
+    let queued = Instant::ZERO
+        + head.transmit_time(p.len()) * 2
+        + head.lower.transmit_time(HEADER_LEN);
     let until = head.wake_at().unwrap();
     assert!(
-        until >= queued + BusConfig::head(1).reply_timeout_us,
+        until >= queued + BusConfig::head(1).reply_timeout,
         "{until} {queued}"
     );
-    head.poll(until - 1);
+    head.poll(until - Duration::from_micros(1));
     assert_eq!(head.core.counters().timeouts, 0);
     head.poll(until);
     assert_eq!(head.core.counters().timeouts, 1);
@@ -276,11 +278,11 @@ fn a_grant_waits_out_what_the_head_queued_before_it() {
 fn a_late_end_from_an_earlier_turn_does_not_end_the_current_one() {
     let mut head = Station::new(Lower::new(), BusConfig::head(2));
     let mut buf = [0u8; 64];
-    head.poll(0);
+    head.poll(Instant::from_micros(0));
     let stale = END | turn_flags(head.core.turn_no);
     let until = head.wake_at().unwrap();
     head.poll(until); // drop 1 timed out
-    head.poll(until + 1); // polls drop 2
+    head.poll(until + Duration::from_micros(1)); // polls drop 2
     assert_eq!(head.core.counters().grants, 2);
     // Drop 1's END to the first grant comes only now.
     head.lower.inject(&[HEAD, 1, stale]);
@@ -299,7 +301,7 @@ fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
     let mut links = [Station::new(Lower::new(), BusConfig::head(2))];
     let ports: &mut [NoPorts] = &mut [];
     // The head polls drop 1.
-    rt.poll(0, ports, &mut links);
+    rt.poll(Instant::from_micros(0), ports, &mut links);
     while links[0].lower.take_sent().is_some() {}
     let turn = turn_flags(links[0].core.turn_no);
     // Drop 1 sends five packets for drop 2 (they wait: the medium is drop
@@ -315,7 +317,7 @@ fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
         assert!(links[0].lower.inject(&frame));
     }
     assert!(links[0].lower.inject(&[HEAD, 1, END | turn]));
-    rt.poll(10, ports, &mut links);
+    rt.poll(Instant::from_micros(10), ports, &mut links);
     // Four taken, the fifth dropped and counted, and the END seen: the
     // head has the medium back and forwards to drop 2 at once.
     assert_eq!(rt.counters().quota_refused, 1);
@@ -337,18 +339,18 @@ fn a_drop_keeps_one_time_request_waiting_at_the_plain_rate() {
     // Discovery would ask many times an interval on a point-to-point link.
     let mut now = 0;
     while now < 15_000 {
-        rt.poll(now, ports, &mut links);
+        rt.poll(Instant::from_micros(now), ports, &mut links);
         now += 500;
     }
     assert_eq!(rt.stack().held(crate::stack::Owner::System), Some(1));
     // Granted, it sends that one; the next waits for the interval.
     links[0].lower.inject(&[1, HEAD, GRANT]);
-    rt.poll(now, ports, &mut links);
+    rt.poll(Instant::from_micros(now), ports, &mut links);
     let frame = links[0].lower.take_sent().expect("the time request");
     let (h, packet) = BusHeader::parse(&frame).unwrap();
     assert_eq!(h.dst, HEAD);
     assert_eq!(packet[7], CODE_TIME_REQUEST);
     assert_eq!(rt.stack().held(crate::stack::Owner::System), Some(0));
-    rt.poll(now + 1_000, ports, &mut links);
+    rt.poll(Instant::from_micros(now + 1_000), ports, &mut links);
     assert_eq!(rt.stack().held(crate::stack::Owner::System), Some(0));
 }

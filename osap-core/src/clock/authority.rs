@@ -126,9 +126,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         if self.config.root {
             return true;
         }
-        self.state() == super::SyncState::Synced
-            && self.settled
-            && !self.deferring
+        matches!(self.phase, super::Phase::Locked(l) if l.settled && !l.deferring)
             && self.offset_us.abs() <= SETTLED_OFFSET_US
     }
 
@@ -142,11 +140,11 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// counts) a deferral; the caller slews instead.
     pub(super) fn may_step(&mut self) -> bool {
         if !self.motion_active {
-            self.deferring = false;
+            self.set_lock(|l| l.deferring = false);
             return true;
         }
-        if !self.deferring {
-            self.deferring = true;
+        if self.phase.lock().is_some_and(|l| !l.deferring) {
+            self.set_lock(|l| l.deferring = true);
             self.stats.deferred_steps = self.stats.deferred_steps.wrapping_add(1);
         }
         false
@@ -158,6 +156,7 @@ mod tests {
     extern crate std;
     use super::super::{SyncState, TimeConfig, TimeReply, TIER_UNSYNCED};
     use super::*;
+    use crate::time::{Instant, SystemInstant};
 
     /// One exchange on `link` at local `sent` with a tier-`tier` neighbour
     /// whose time is `theirs(local)`; a symmetric 200 µs round trip.
@@ -172,11 +171,11 @@ mod tests {
         let rtt = 200;
         let mid = sent as f64 + rtt as f64 / 2.0;
         let reply = TimeReply {
-            request_time: sent,
-            responder_time: theirs(mid).round() as u64,
+            request_time: Instant::from_micros(sent),
+            responder_time: SystemInstant::from_micros(theirs(mid).round() as u64),
             responder_tier: tier,
         };
-        c.on_reply(link, &reply, sent + rtt);
+        c.on_reply(link, &reply, Instant::from_micros(sent + rtt));
         sent + rtt
     }
 
@@ -186,7 +185,7 @@ mod tests {
         c.set_trust(Trust::NONE.with_link(1));
         for i in 0..40u64 {
             let t = exchange(&mut c, 0, 0, 10_000 + i * 50_000, |l| l + 3.7e9);
-            assert_eq!(c.system_time(t), t, "moved by an untrusted root");
+            assert_eq!(c.system_time(Instant::from_micros(t)), SystemInstant::from_micros(t), "moved by an untrusted root");
         }
         assert_eq!(c.tier(), TIER_UNSYNCED);
         assert_eq!(c.state(), SyncState::Unsynced);
@@ -198,7 +197,7 @@ mod tests {
             t = exchange(&mut c, 1, 0, 3_000_000 + i * 50_000, |l| l + 1_000.0);
         }
         assert_eq!(c.tier(), 1);
-        assert!((c.system_time(t) as f64 - (t as f64 + 1_000.0)).abs() < 3.0);
+        assert!((c.system_time(Instant::from_micros(t)).as_micros() as f64 - (t as f64 + 1_000.0)).abs() < 3.0);
         // Trust withdrawn: the neighbour is forgotten and no longer moves
         // the clock.
         c.set_trust(Trust::NONE);
@@ -206,7 +205,7 @@ mod tests {
         let t = exchange(&mut c, 1, 0, 6_000_000, |l| l + 9_000.0);
         assert_eq!(c.status().stats.untrusted, before.untrusted + 1);
         assert_eq!(c.status().stats.jumps, before.jumps);
-        assert!((c.system_time(t) as f64 - (t as f64 + 1_000.0)).abs() < 10.0);
+        assert!((c.system_time(Instant::from_micros(t)).as_micros() as f64 - (t as f64 + 1_000.0)).abs() < 10.0);
     }
 
     #[test]
@@ -245,22 +244,23 @@ mod tests {
         let (mut c, mut sent, after) = settled_then_jump(true);
         let jumps = c.status().stats.jumps;
         let max = f64::from(c.config().max_rate_ppm) * 1e-6;
-        let (mut last_local, mut last_sys) = (sent, c.system_time(sent));
+        let (mut last_local, mut last_sys) =
+            (sent, c.system_time(Instant::from_micros(sent)).as_micros());
         let mut caught_up = None;
         while sent < 40_000_000 {
             let t = exchange(&mut c, 0, 0, sent, &after);
             // System time advances at the oscillator rate (20 ppm here)
             // plus at most the clamp, never by a step.
             for local in [t, sent + 25_000] {
-                let sys = c.system_time(local);
-                let rate = (sys as f64 - last_sys as f64) / (local - last_local) as f64 - 1.0;
+                let sys = c.system_time(Instant::from_micros(local));
+                let rate = (sys.as_micros() as f64 - last_sys as f64) / (local - last_local) as f64 - 1.0;
                 assert!(
                     rate.abs() <= 20e-6 + max * 1.01 + 1e-5,
                     "rate {rate} at {local}"
                 );
-                (last_local, last_sys) = (local, sys);
+                (last_local, last_sys) = (local, sys.as_micros());
             }
-            if caught_up.is_none() && (c.system_time(t) as f64 - after(t as f64)).abs() < 20.0 {
+            if caught_up.is_none() && (c.system_time(Instant::from_micros(t)).as_micros() as f64 - after(t as f64)).abs() < 20.0 {
                 caught_up = Some(t);
             }
             sent += 50_000;
@@ -287,6 +287,6 @@ mod tests {
         let s = c.status();
         assert_eq!(s.stats.jumps, jumps + 1);
         assert_eq!(s.stats.deferred_steps, 0);
-        assert!((c.system_time(t) as f64 - after(t as f64)).abs() < 20.0);
+        assert!((c.system_time(Instant::from_micros(t)).as_micros() as f64 - after(t as f64)).abs() < 20.0);
     }
 }

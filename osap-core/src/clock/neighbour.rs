@@ -21,7 +21,7 @@
 //!   the stamp), which the round trip alone cannot reveal.
 
 use super::TimeConfig;
-use crate::Micros;
+use crate::time::{Duration, Instant, SystemInstant};
 
 /// Most accepted samples kept for the fit.
 pub const FIT_WINDOW_MAX: usize = 64;
@@ -55,7 +55,7 @@ const RESET_AFTER_REJECTS: u8 = 6;
 #[derive(Debug, Clone, Copy, Default)]
 struct Sample {
     /// Local counter when the request left.
-    sent: Micros,
+    sent: Instant,
     /// Round trip, µs.
     rtt: u32,
     /// Neighbour time minus our local counter at the exchange's midpoint,
@@ -65,8 +65,8 @@ struct Sample {
 
 impl Sample {
     /// Local time of the midpoint, relative to `now`, µs.
-    fn x(&self, now: Micros) -> f32 {
-        (self.sent as i64).wrapping_sub(now as i64) as f32 + self.rtt as f32 * 0.5
+    fn x(&self, now: Instant) -> f32 {
+        self.sent.signed_micros_since(now) as f32 + self.rtt as f32 * 0.5
     }
 }
 
@@ -101,7 +101,7 @@ pub struct Estimate {
     /// Samples the estimate rests on.
     pub used: u8,
     /// Local send time of the newest sample it rests on.
-    pub newest: Micros,
+    pub newest: Instant,
     /// Noise of the phase, µs: `jitter` over the root of the number of
     /// newest samples it averages.
     pub phase_noise: f32,
@@ -119,16 +119,16 @@ pub struct Neighbour {
     /// The neighbour's tier in its latest reply.
     pub tier: u8,
     /// Local time of the latest reply.
-    pub last_heard: Option<Micros>,
+    pub last_heard: Option<Instant>,
     /// Latest round trip, µs.
     pub last_rtt: u32,
     /// When the next request to this neighbour is due (local time).
-    pub next_request: Option<Micros>,
+    pub next_request: Option<Instant>,
     /// Local send time of the latest accepted exchange: requests keep to
     /// its phase (a link that delivers on a frame grid, like USB, answers
     /// promptly only at some phases), until [`ANCHOR_MISSES`] exchanges in
     /// a row are refused there.
-    pub anchor: Option<Micros>,
+    pub anchor: Option<Instant>,
     /// Exchanges refused since the anchor's.
     pub anchor_misses: u8,
     /// Recent fraction of exchanges accepted (moving average). Starts at 0,
@@ -160,20 +160,20 @@ struct EnvelopeBucket {
     /// `sent / ENVELOPE_BUCKET_US`; `u64::MAX` when empty.
     id: u64,
     /// Our send stamp of the `ahead` exchange.
-    sent: Micros,
+    sent: Instant,
     /// Least `their time − our send stamp`, µs.
     ahead: i64,
     /// Our receive stamp of the `behind` exchange.
-    received: Micros,
+    received: Instant,
     /// Most `their time − our receive stamp`, µs.
     behind: i64,
 }
 
 const EMPTY_BUCKET: EnvelopeBucket = EnvelopeBucket {
     id: u64::MAX,
-    sent: 0,
+    sent: Instant::ZERO,
     ahead: 0,
-    received: 0,
+    received: Instant::ZERO,
     behind: 0,
 };
 
@@ -203,9 +203,9 @@ impl Default for Neighbour {
 
 impl Neighbour {
     /// Whether the neighbour has replied within the timeout.
-    pub fn is_fresh(&self, now: Micros, cfg: &TimeConfig) -> bool {
+    pub fn is_fresh(&self, now: Instant, cfg: &TimeConfig) -> bool {
         self.last_heard
-            .is_some_and(|t| now.saturating_sub(t) <= u64::from(cfg.neighbour_timeout_us))
+            .is_some_and(|t| now - t <= Duration::from_micros(cfg.neighbour_timeout_us.into()))
     }
 
     /// The round-trip floor, µs.
@@ -226,17 +226,18 @@ impl Neighbour {
     /// neighbour's system time at the midpoint of its turnaround.
     pub fn add(
         &mut self,
-        sent: Micros,
-        received: Micros,
-        their_time: u64,
+        sent: Instant,
+        received: Instant,
+        their_time: SystemInstant,
         tier: u8,
         cfg: &TimeConfig,
         prior_slope: f32,
     ) -> Verdict {
-        let Some(rtt) = received.checked_sub(sent) else {
+        let Some(rtt) = received.checked_duration_since(sent) else {
             return Verdict::Bogus;
         };
-        let rtt = u32::try_from(rtt).unwrap_or(u32::MAX);
+        let rtt = u32::try_from(rtt.as_micros()).unwrap_or(u32::MAX);
+        let their_time = their_time.as_micros();
         if tier != self.tier {
             // It started following someone else (or stopped): its time may
             // have jumped, so earlier samples describe another timescale.
@@ -248,7 +249,7 @@ impl Neighbour {
         self.unanswered = 0;
         // The floor forgets with time, not with samples: bursts of requests
         // must not loosen it faster.
-        let elapsed = self.last_heard.map_or(0, |t| received.saturating_sub(t)) as f32;
+        let elapsed = self.last_heard.map_or(0, |t| (received - t).as_micros()) as f32;
         let horizon = f32::from(cfg.rtt_window.max(1)) * cfg.interval_us as f32;
         let rise = self.rtt_floor * elapsed / horizon + 0.01;
         self.rtt_floor = (self.rtt_floor + rise).min(rtt as f32);
@@ -258,10 +259,10 @@ impl Neighbour {
             return Verdict::RejectedRtt;
         }
         // 2 × (their time − our counter at the midpoint), exactly.
-        let y_half = (2 * their_time as i128 - 2 * sent as i128 - i128::from(rtt))
+        let y_half = (2 * their_time as i128 - 2 * sent.as_micros() as i128 - i128::from(rtt))
             .clamp(i64::MIN as i128, i64::MAX as i128) as i64;
         let sample = Sample { sent, rtt, y_half };
-        let at = sent + u64::from(rtt / 2);
+        let at = sent + Duration::from_micros(u64::from(rtt / 2));
         if let Some(est) = self.estimate(at, cfg, prior_slope) {
             let predicted = est.y_rel;
             let actual = y_half.saturating_sub(est.y_ref_half) as f32 * 0.5;
@@ -273,7 +274,7 @@ impl Neighbour {
                 // does while it settles), or both timescales end up in one
                 // line and its slope is off by tens of ppm for seconds.
                 let newest = self.samples().map(|s| s.sent).max().unwrap_or(sent);
-                let age = sent.saturating_sub(newest) as f32;
+                let age = (sent - newest).as_micros() as f32;
                 let band = self.rtt_limit(cfg) - self.rtt_floor;
                 limit = limit.max(band + YOUNG_FIT_RATE * age);
             }
@@ -298,10 +299,10 @@ impl Neighbour {
     /// from the samples that pass the current round-trip limit and are not
     /// too old. Until enough samples span enough time to fit a slope, the
     /// line through them runs at `prior_slope` (the clock's learned rate).
-    pub fn estimate(&self, now: Micros, cfg: &TimeConfig, prior_slope: f32) -> Option<Estimate> {
+    pub fn estimate(&self, now: Instant, cfg: &TimeConfig, prior_slope: f32) -> Option<Estimate> {
         let limit = self.rtt_limit(cfg);
-        let max_age = u64::from(cfg.fit_max_age_ms) * 1000;
-        let usable = |s: &&Sample| s.rtt as f32 <= limit && now.saturating_sub(s.sent) <= max_age;
+        let max_age = Duration::from_millis(cfg.fit_max_age_ms.into());
+        let usable = |s: &&Sample| s.rtt as f32 <= limit && now - s.sent <= max_age;
         let newest = self.samples().filter(usable).max_by_key(|s| s.sent)?;
         let y_ref_half = newest.y_half;
         let newest_sent = newest.sent;
@@ -322,8 +323,8 @@ impl Neighbour {
             sw += w;
             sx += w * s.x(now);
             sv += w * s.y_half.saturating_sub(y_ref_half) as f32 * 0.5;
-            first = first.min(s.sent);
-            last = last.max(s.sent);
+            first = first.min(s.sent.as_micros());
+            last = last.max(s.sent.as_micros());
         }
         let count = f32::from(n);
         let (mx, mv) = (sx / sw, sv / sw);
@@ -412,10 +413,10 @@ impl Neighbour {
         })
     }
 
-    fn add_to_envelope(&mut self, sent: Micros, received: Micros, their_time: u64) {
-        let id = sent / ENVELOPE_BUCKET_US;
-        let diff = |ours: Micros| {
-            (their_time as i128 - ours as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64
+    fn add_to_envelope(&mut self, sent: Instant, received: Instant, their_time: u64) {
+        let id = sent.as_micros() / ENVELOPE_BUCKET_US;
+        let diff = |ours: Instant| {
+            (their_time as i128 - ours.as_micros() as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64
         };
         let (ahead, behind) = (diff(sent), diff(received));
         let slot = &mut self.envelope[(id % ENVELOPE_BUCKETS as u64) as usize];
@@ -455,8 +456,8 @@ impl Neighbour {
     /// less scattered envelope is taken as the prompt one for
     /// [`Neighbour::envelope_offset`]. `Some(None)`: a bucket finished, but
     /// fewer than four are there to fit.
-    pub fn new_envelope_slope(&mut self, now: Micros) -> Option<Option<(f32, f32)>> {
-        let current = now / ENVELOPE_BUCKET_US;
+    pub fn new_envelope_slope(&mut self, now: Instant) -> Option<Option<(f32, f32)>> {
+        let current = now.as_micros() / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64);
         let usable = |b: &&EnvelopeBucket| b.id != u64::MAX && b.id < current && b.id >= oldest;
         let newest = self.envelope.iter().filter(usable).map(|b| b.id).max()?;
@@ -509,7 +510,7 @@ impl Neighbour {
     /// midpoint.
     pub fn envelope_offset(
         &self,
-        now: Micros,
+        now: Instant,
         slope: f32,
         cfg: &TimeConfig,
     ) -> Option<(i64, f32, f32)> {
@@ -521,7 +522,7 @@ impl Neighbour {
         } else {
             0.125 * (self.rtt_limit(cfg) - self.rtt_floor).max(1.0)
         };
-        let current = now / ENVELOPE_BUCKET_US;
+        let current = now.as_micros() / ENVELOPE_BUCKET_US;
         let oldest = current.saturating_sub(ENVELOPE_BUCKETS as u64 - 1);
         // Every bucket's two extremes, projected to `now` at `slope`,
         // relative to the first bucket's `ahead`: the least `ahead` and the
@@ -536,7 +537,7 @@ impl Neighbour {
                 continue;
             }
             let r = *reference.get_or_insert(b.ahead);
-            let at = |t: Micros| slope * (now as i64).wrapping_sub(t as i64) as f32;
+            let at = |t: Instant| slope * now.signed_micros_since(t) as f32;
             let a = b.ahead.saturating_sub(r) as f32 + at(b.sent);
             let h = b.behind.saturating_sub(r) as f32 + at(b.received);
             ahead = ahead.min(a);
@@ -590,11 +591,11 @@ impl Neighbour {
 /// Least-squares slope of `(local µs, µs)` points, its standard error and
 /// the points' scatter about the line;
 /// `None` below four points or when they do not spread in time.
-fn line_fit(points: impl Iterator<Item = (Micros, i64)> + Clone) -> Option<(f32, f32, f32)> {
+fn line_fit(points: impl Iterator<Item = (Instant, i64)> + Clone) -> Option<(f32, f32, f32)> {
     let (x0, y0) = points.clone().next()?;
-    let rel = |(x, y): (Micros, i64)| {
+    let rel = |(x, y): (Instant, i64)| {
         (
-            (x as i64).wrapping_sub(x0 as i64) as f32,
+            x.signed_micros_since(x0) as f32,
             y.saturating_sub(y0) as f32,
         )
     };
@@ -656,7 +657,7 @@ mod tests {
             let sent = 1_000_000 + i * 50_000;
             let mid = sent as f64 + rtt as f64 / 2.0;
             let theirs = mid + offset + mid * ppm * 1e-6;
-            n.add(sent, sent + rtt, theirs.round() as u64, 0, &cfg(), 0.0);
+            n.add(Instant::from_micros(sent), Instant::from_micros(sent + rtt), SystemInstant::from_micros(theirs.round() as u64), 0, &cfg(), 0.0);
         }
     }
 
@@ -666,12 +667,12 @@ mod tests {
         // Under two seconds of samples: a line, but its slope is not yet
         // trusted as the rate.
         feed(&mut n, 16, 50.0, 1234.0, 100);
-        let e = n.estimate(1_000_000 + 16 * 50_000, &cfg(), 0.0).unwrap();
+        let e = n.estimate(Instant::from_micros(1_000_000 + 16 * 50_000), &cfg(), 0.0).unwrap();
         assert_eq!(e.slope, None);
         let mut n = Neighbour::default();
         feed(&mut n, 48, 50.0, 1234.0, 100);
         let now = 1_000_000 + 48 * 50_000;
-        let e = n.estimate(now, &cfg(), 0.0).unwrap();
+        let e = n.estimate(Instant::from_micros(now), &cfg(), 0.0).unwrap();
         let slope = e.slope.unwrap();
         assert!((slope - 50e-6).abs() < 0.5e-6, "slope {slope}");
         let y = e.y_ref_half as f64 * 0.5 + f64::from(e.y_rel);
@@ -684,7 +685,7 @@ mod tests {
         let mut n = Neighbour::default();
         feed(&mut n, 8, 0.0, 0.0, 100);
         assert_eq!(
-            n.add(2_000_000, 2_000_400, 2_000_200, 0, &cfg(), 0.0),
+            n.add(Instant::from_micros(2_000_000), Instant::from_micros(2_000_400), SystemInstant::from_micros(2_000_200), 0, &cfg(), 0.0),
             Verdict::RejectedRtt
         );
     }
@@ -696,14 +697,14 @@ mod tests {
         // Same round trip, but their time is 40 µs late.
         let sent = 2_000_000;
         assert_eq!(
-            n.add(sent, sent + 100, sent + 50 + 500 + 40, 0, &cfg(), 0.0),
+            n.add(Instant::from_micros(sent), Instant::from_micros(sent + 100), SystemInstant::from_micros(sent + 50 + 500 + 40), 0, &cfg(), 0.0),
             Verdict::RejectedResidual
         );
         // A real jump persists: after a few rejections the fit starts over.
         let mut last = Verdict::Accepted;
         for i in 1..=RESET_AFTER_REJECTS as u64 {
             let sent = 2_000_000 + i * 50_000;
-            last = n.add(sent, sent + 100, sent + 50 + 5_000, 0, &cfg(), 0.0);
+            last = n.add(Instant::from_micros(sent), Instant::from_micros(sent + 100), SystemInstant::from_micros(sent + 50 + 5_000), 0, &cfg(), 0.0);
         }
         assert_eq!(last, Verdict::Accepted);
     }
@@ -711,7 +712,7 @@ mod tests {
     #[test]
     fn replies_from_the_future_are_bogus() {
         let mut n = Neighbour::default();
-        assert_eq!(n.add(10, 5, 0, 0, &cfg(), 0.0), Verdict::Bogus);
+        assert_eq!(n.add(Instant::from_micros(10), Instant::from_micros(5), SystemInstant::from_micros(0), 0, &cfg(), 0.0), Verdict::Bogus);
     }
 
     /// A USB-like link: the way to the neighbour is prompt (20 µs plus a
@@ -719,7 +720,7 @@ mod tests {
     /// 1 ms frame. Their clock runs 60 ppm fast and 5 ms ahead. Returns
     /// the neighbour, our local time at the end, the envelopes' latest
     /// slope and the largest error of a single exchange's midpoint.
-    fn usb_like(seconds: u64) -> (Neighbour, Micros, f64, f64) {
+    fn usb_like(seconds: u64) -> (Neighbour, Instant, f64, f64) {
         extern crate std;
         let (offset, rate) = (5_000.0, 60e-6);
         let theirs = |t: f64| t + offset + t * rate;
@@ -740,18 +741,18 @@ mod tests {
             let received = (ready / 1000.0).ceil() * 1000.0 + 15.0;
             let their_time = theirs(sent as f64 + up + turnaround / 2.0);
             let received = received as u64;
-            n.add(sent, received, their_time as u64, 0, &cfg(), rate as f32);
+            n.add(Instant::from_micros(sent), Instant::from_micros(received), SystemInstant::from_micros(their_time as u64), 0, &cfg(), rate as f32);
             let midpoint = (sent + received) as f64 / 2.0;
             let error = their_time - theirs(midpoint);
             biggest_midpoint_error = biggest_midpoint_error.max(error.abs());
-            if let Some(Some((s, _))) = n.new_envelope_slope(received) {
+            if let Some(Some((s, _))) = n.new_envelope_slope(Instant::from_micros(received)) {
                 slope = f64::from(s);
             }
             // Requests search over the frame's phases (as the clock's
             // dither does while few exchanges pass).
             sent += 5_500 + exp(1_000.0).min(1_000.0) as u64;
         }
-        (n, sent, slope, biggest_midpoint_error)
+        (n, Instant::from_micros(sent), slope, biggest_midpoint_error)
     }
 
     #[test]
@@ -764,7 +765,7 @@ mod tests {
         // ... and, projected at it, the offset.
         let (whole, rest, sigma) = n.envelope_offset(now, 60e-6, &cfg()).unwrap();
         let y = whole as f64 + f64::from(rest);
-        let truth = 5_000.0 + now as f64 * 60e-6;
+        let truth = 5_000.0 + now.as_micros() as f64 * 60e-6;
         assert!((y - truth).abs() < 10.0, "envelope {y} truth {truth}");
         assert!(sigma < 10.0, "scatter {sigma}");
     }

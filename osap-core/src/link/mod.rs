@@ -9,7 +9,7 @@
 pub mod queue;
 
 pub use crate::counters::GatewayCounters;
-use crate::Micros;
+use crate::time::{Duration, Instant};
 
 /// The names a link gateway reports to a network scan.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -53,7 +53,7 @@ pub struct Received {
     /// clock, if the link can tell (a receive interrupt, or the frame's end
     /// minus its wire time). Clock sync is only as good as this stamp; links
     /// that cannot tell leave it `None` and the runtime uses the poll time.
-    pub timestamp: Option<Micros>,
+    pub timestamp: Option<Instant>,
 }
 
 /// A link gateway could not transmit a packet it had said it was clear for.
@@ -87,9 +87,9 @@ pub trait LinkGateway {
     /// (for a UART: framing overhead and bits at the baud rate). The runtime
     /// takes it off the TTL it writes, so time on the wire counts against a
     /// packet's deadline; links that cannot tell return 0.
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         let _ = len;
-        0
+        Duration::ZERO
     }
 
     /// How long from now until a packet sent now would start onto the wire,
@@ -97,15 +97,15 @@ pub trait LinkGateway {
     /// next bus slot (a USB device knows its frame timing from SOF). The
     /// runtime adds it to the time stamps of clock-sync messages it
     /// transmits, so they describe the moment on the wire.
-    fn queue_delay(&self) -> Micros {
-        0
+    fn queue_delay(&self) -> Duration {
+        Duration::ZERO
     }
 
     /// Copies the next received packet into `buf`, if there is one.
     fn receive(&mut self, buf: &mut [u8]) -> Option<Received>;
 
     /// Called once per runtime loop before packets are exchanged.
-    fn poll(&mut self, now: Micros) {
+    fn poll(&mut self, now: Instant) {
         let _ = now;
     }
 
@@ -139,7 +139,7 @@ pub trait LinkGateway {
 
     /// When the link needs [`poll`](Self::poll) again by itself (a bus
     /// turn to hand on or time out), on the runtime's local clock.
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         None
     }
 
@@ -176,16 +176,16 @@ macro_rules! forward_link_gateway {
         fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
             (**self).send(packet)
         }
-        fn transmit_time(&self, len: usize) -> Micros {
+        fn transmit_time(&self, len: usize) -> Duration {
             (**self).transmit_time(len)
         }
-        fn queue_delay(&self) -> Micros {
+        fn queue_delay(&self) -> Duration {
             (**self).queue_delay()
         }
         fn receive(&mut self, buf: &mut [u8]) -> Option<Received> {
             (**self).receive(buf)
         }
-        fn poll(&mut self, now: Micros) {
+        fn poll(&mut self, now: Instant) {
             (**self).poll(now)
         }
         fn counters(&self) -> Option<GatewayCounters> {
@@ -200,7 +200,7 @@ macro_rules! forward_link_gateway {
         fn received_from(&self) -> Option<u8> {
             (**self).received_from()
         }
-        fn wake_at(&self) -> Option<Micros> {
+        fn wake_at(&self) -> Option<Instant> {
             (**self).wake_at()
         }
         fn set_rx_room(&mut self, room: u8) {

@@ -148,9 +148,11 @@ impl<const DEPTH: usize, const MTU: usize> LinkGateway for QueueLink<DEPTH, MTU>
         Ok(())
     }
 
-    fn transmit_time(&self, len: usize) -> crate::Micros {
+    fn transmit_time(&self, len: usize) -> crate::time::Duration {
         let (per_packet, per_byte_ns) = self.wire_time;
-        u64::from(per_packet) + (len as u64 * u64::from(per_byte_ns)).div_ceil(1000)
+        crate::time::Duration::from_micros(
+            u64::from(per_packet) + (len as u64 * u64::from(per_byte_ns)).div_ceil(1000),
+        )
     }
 
     fn counters(&self) -> Option<super::GatewayCounters> {
