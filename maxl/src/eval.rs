@@ -588,6 +588,7 @@ impl Iterator for TickEval {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use osap_core::time::SystemInstant;
     use std::vec::Vec;
 
     // The test generators the integration tests share (`Lcg` here).
@@ -785,14 +786,14 @@ mod tests {
         let end = t0 + (n_points - 3) * us as u64;
         while t < end {
             while next * (us as u64) + t0 <= t + 2 * us as u64 {
-                tr.push(t0 + next * us as u64, Fx::from_f64(sig(next)))
+                tr.push(SystemInstant::from_micros(t0 + next * us as u64), Fx::from_f64(sig(next)))
                     .unwrap();
                 next += 1;
             }
             let pos = match e.next() {
                 Some(p) => p,
                 None => {
-                    let (seg, du) = tr.segment_at(t).unwrap();
+                    let (seg, du) = tr.segment_at(SystemInstant::from_micros(t)).unwrap();
                     if e.next_offset() != 0 || du != 0 {
                         // After the first load the grid carries over exactly.
                         assert!(t == t0 + us as u64 || du == e.next_offset());

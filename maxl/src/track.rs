@@ -12,6 +12,7 @@
 
 use crate::backstop::{BackstopLimits, StopProfile};
 use crate::eval::Point;
+use osap_core::time::SystemInstant;
 
 /// A control-point interval: a power of two from 256 to 16384 µs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -192,8 +193,9 @@ impl<P: Point, const N: usize> Track<P, N> {
         (off < self.len as u64).then(|| self.buf[(self.head + off as usize) % N])
     }
 
-    /// Add the point stamped `time`.
-    pub fn push(&mut self, time: u64, value: P) -> Result<PushOutcome, PushError> {
+    /// Add the point stamped `time` (system time).
+    pub fn push(&mut self, time: SystemInstant, value: P) -> Result<PushOutcome, PushError> {
+        let time = time.as_micros();
         if self.latched.is_some() {
             return Err(PushError::Backstopped);
         }
@@ -225,13 +227,14 @@ impl<P: Point, const N: usize> Track<P, N> {
         }
     }
 
-    /// Evaluate at synchronized time `t` (µs). Latches the backstop when `t`
+    /// Evaluate at synchronized time `t`. Latches the backstop when `t`
     /// is past the known curve (needs the point at `T_i + 2Δt`).
-    pub fn sample(&mut self, t: u64) -> Result<Sample<P::Kin>, EvalError> {
+    pub fn sample(&mut self, t: SystemInstant) -> Result<Sample<P::Kin>, EvalError> {
+        let t = t.as_micros();
         if let Some(l) = &self.latched {
             return Ok(self.backstop_at(l, t));
         }
-        if let Some((seg, du)) = self.segment_at(t) {
+        if let Some((seg, du)) = self.segment_at(SystemInstant::from_micros(t)) {
             return Ok(Sample {
                 status: TrackStatus::Tracking,
                 kin: P::eval(&seg, du, self.iv),
@@ -263,7 +266,8 @@ impl<P: Point, const N: usize> Track<P, N> {
     /// backstop has not latched; `None` otherwise (then [`Track::sample`]
     /// decides: `TooEarly`, `NotStarted` or the backstop). For a per-tick
     /// evaluator such as [`crate::eval::TickEval`].
-    pub fn segment_at(&self, t: u64) -> Option<([P; 4], u32)> {
+    pub fn segment_at(&self, t: SystemInstant) -> Option<([P; 4], u32)> {
+        let t = t.as_micros();
         if self.latched.is_some() || self.len < 4 {
             return None;
         }
@@ -304,18 +308,18 @@ mod tests {
         };
         let mut tr: Track<Fx, 8> = Track::new(iv, lim);
         for k in 0..3u64 {
-            tr.push(k * 256, Fx(k as i32)).unwrap();
+            tr.push(SystemInstant::from_micros(k * 256), Fx(k as i32)).unwrap();
         }
-        assert_eq!(tr.segment_at(256), None, "fewer than 4 points");
-        tr.push(768, Fx(3)).unwrap();
-        assert_eq!(tr.segment_at(255), None, "needs P_-1");
+        assert_eq!(tr.segment_at(SystemInstant::from_micros(256)), None, "fewer than 4 points");
+        tr.push(SystemInstant::from_micros(768), Fx(3)).unwrap();
+        assert_eq!(tr.segment_at(SystemInstant::from_micros(255)), None, "needs P_-1");
         assert_eq!(
-            tr.segment_at(256 + 17),
+            tr.segment_at(SystemInstant::from_micros(256 + 17)),
             Some(([Fx(0), Fx(1), Fx(2), Fx(3)], 17))
         );
-        assert_eq!(tr.segment_at(512), None, "needs the point at 1024");
+        assert_eq!(tr.segment_at(SystemInstant::from_micros(512)), None, "needs the point at 1024");
         // Running dry latches the backstop; then there is no segment.
-        assert!(tr.sample(600).is_ok());
-        assert_eq!(tr.segment_at(256), None);
+        assert!(tr.sample(SystemInstant::from_micros(600)).is_ok());
+        assert_eq!(tr.segment_at(SystemInstant::from_micros(256)), None);
     }
 }

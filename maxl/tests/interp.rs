@@ -5,6 +5,7 @@
 mod common;
 
 use common::rng::XorShift;
+use osap_core::time::SystemInstant;
 use maxl::blocks::interp::{InterpError, Interpolator, InterpolatorBlock, Pushed};
 use maxl::{BackstopLimits, Interval, Track};
 use pipes_core::class::PipesClass;
@@ -70,12 +71,12 @@ fn matches_the_modules_f32_track() {
         x += (rng.unit() - 0.5) * 40.0;
         span = span.max(x.abs());
         let p = x as f32;
-        track.push(T0 + k * step, p).unwrap();
+        track.push(SystemInstant::from_micros(T0 + k * step), p).unwrap();
         ip.push(T0 + k * step, [f64::from(p)]).unwrap();
         if k >= 4 {
             // Inside the known curve: the segment before the newest two.
             let t = T0 + (k - 2) * step + rng.next() % step;
-            let a = track.sample(t).unwrap().kin;
+            let a = track.sample(SystemInstant::from_micros(t)).unwrap().kin;
             let b = ip.eval(t).unwrap();
             let tol = 1e-5 * f64::from(a.pos.abs()).max(1.0);
             let err = (f64::from(a.pos) - b.pos[0]).abs();

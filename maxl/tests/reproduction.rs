@@ -4,6 +4,7 @@
 //! exactly (up to rounding) at any time, with every evaluator.
 
 use maxl::*;
+use osap_core::time::SystemInstant;
 
 const LIM: BackstopLimits = BackstopLimits {
     max_acc: 1e9,
@@ -62,8 +63,8 @@ fn every_evaluator_reproduces_cubics() {
                 let t = t0 + k * u64::from(us);
                 let p = f.point(secs(t), dt);
                 points.push(p);
-                tf.push(t, p as f32).unwrap();
-                tx.push(t, Fx::from_f64(p)).unwrap();
+                tf.push(SystemInstant::from_micros(t), p as f32).unwrap();
+                tx.push(SystemInstant::from_micros(t), Fx::from_f64(p)).unwrap();
             }
             let scale = f.0.iter().map(|c| c.abs()).fold(1.0, f64::max);
             let end = t0 + (n - 3) * u64::from(us);
@@ -87,7 +88,7 @@ fn every_evaluator_reproduces_cubics() {
                 }
                 // Fixed point: the points are rounded to 2^-16 step, so
                 // position is within the proven bound (1.25 LSB) of f.
-                let x = tx.sample(t).unwrap();
+                let x = tx.sample(SystemInstant::from_micros(t)).unwrap();
                 assert_eq!(x.status, TrackStatus::Tracking);
                 let e = (x.kin.pos.to_f64() - want[0]).abs() * 65536.0;
                 assert!(e <= 1.25, "fixed pos error {e} LSB at {t} ({f:?}, {us} µs)");
@@ -98,7 +99,7 @@ fn every_evaluator_reproduces_cubics() {
                     "fixed vel {ev}"
                 );
                 // f32: relative to the position's magnitude.
-                let y = tf.sample(t).unwrap();
+                let y = tf.sample(SystemInstant::from_micros(t)).unwrap();
                 let ef = (f64::from(y.kin.pos) - want[0]).abs();
                 assert!(ef <= 4e-7 * scale.max(want[0].abs()), "f32 pos error {ef}");
                 t += step;

@@ -9,6 +9,7 @@
 mod common;
 
 use std::f64::consts::PI;
+use osap_core::time::SystemInstant;
 
 use maxl::blocks::interp::Interpolator;
 use maxl::blocks::shaper::{
@@ -685,7 +686,7 @@ fn sits_between_the_planner_and_kinematics() {
         let mut now = T0;
         let mut rest = 0;
         while rest < 40 {
-            timer.set_now(now);
+            timer.set_now(SystemInstant::from_micros(now));
             let stamp = timer.tick().unwrap();
             now += DT;
             let (t, x, y, z) = planner.sample(stamp).unwrap();

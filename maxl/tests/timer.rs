@@ -4,6 +4,7 @@
 mod common;
 
 use common::rng::XorShift;
+use osap_core::time::SystemInstant;
 use maxl::blocks::timer::{
     Timer, TimerBlock, TimerError, FAIL_BAD_INTERVAL, FAIL_LEAD_TOO_SHORT, FAIL_NO_TIME,
 };
@@ -144,18 +145,18 @@ fn pipes_class_constructor_and_tick() {
         CallError::Failed(FAIL_NO_TIME)
     );
     assert_eq!(t.status(), (0, 0, 0, 0));
-    t.loop_hook(1000);
-    assert_eq!(t.now_us(), Some(1000));
+    t.loop_hook(SystemInstant::from_micros(1000));
+    assert_eq!(t.now(), Some(SystemInstant::from_micros(1000)));
     assert_eq!(t.tick(), Ok(3072));
     // Nothing new due: the same stamp again, which "on change" suppresses.
     assert_eq!(t.tick(), Ok(3072));
     // A stall of three intervals drains at one stamp per run.
-    t.loop_hook(1000 + 3 * 1024);
+    t.loop_hook(SystemInstant::from_micros(1000 + 3 * 1024));
     let runs: Vec<u64> = (0..5).map(|_| t.tick().unwrap()).collect();
     assert_eq!(runs, [4096, 5120, 6144, 6144, 6144]);
     assert_eq!(t.status(), (6144, 4, 3, 1000 + 3 * 1024));
     // Reset: the next tick starts again at the horizon.
     t.reset();
-    t.set_now(10_000);
+    t.set_now(SystemInstant::from_micros(10_000));
     assert_eq!(t.tick(), Ok(12_288), "10000 + 3072 rounded down");
 }

@@ -1,6 +1,7 @@
 mod common;
 
 use common::rng::Lcg;
+use osap_core::time::SystemInstant;
 use maxl::*;
 
 const LIM: BackstopLimits = BackstopLimits {
@@ -29,36 +30,36 @@ fn push_rules_and_gap_fill() {
     let mut tr: Track<f32, 8> = Track::new(iv(1024), LIM);
     let base = 1_000_000 * 1024u64;
     assert_eq!(tr.last_point(), None);
-    assert_eq!(tr.push(base + 1, 0.0), Err(PushError::Misaligned));
-    assert_eq!(tr.push(base, 0.0), Ok(PushOutcome::Appended));
-    assert_eq!(tr.push(base, 1.0), Err(PushError::Stale));
-    assert_eq!(tr.push(base + 1024, 1.0), Ok(PushOutcome::Appended));
+    assert_eq!(tr.push(SystemInstant::from_micros(base + 1), 0.0), Err(PushError::Misaligned));
+    assert_eq!(tr.push(SystemInstant::from_micros(base), 0.0), Ok(PushOutcome::Appended));
+    assert_eq!(tr.push(SystemInstant::from_micros(base), 1.0), Err(PushError::Stale));
+    assert_eq!(tr.push(SystemInstant::from_micros(base + 1024), 1.0), Ok(PushOutcome::Appended));
     // One missing: midpoint of 1.0 and 5.0.
-    assert_eq!(tr.push(base + 3 * 1024, 5.0), Ok(PushOutcome::FilledGap));
+    assert_eq!(tr.push(SystemInstant::from_micros(base + 3 * 1024), 5.0), Ok(PushOutcome::FilledGap));
     assert_eq!(tr.len(), 4);
     assert_eq!(tr.last_time(), Some(base + 3 * 1024));
     assert_eq!(tr.last_point(), Some(5.0));
     // Two missing: refused, queue unchanged.
     assert_eq!(
-        tr.push(base + 6 * 1024, 9.0),
+        tr.push(SystemInstant::from_micros(base + 6 * 1024), 9.0),
         Err(PushError::Gap { missing: 2 })
     );
     assert_eq!(tr.len(), 4);
     // The filled point is 3.0: curve at T_2 is (1 + 4·3 + 5)/6 = 3.
-    let s = tr.sample(base + 1024).unwrap();
+    let s = tr.sample(SystemInstant::from_micros(base + 1024)).unwrap();
     assert_eq!(s.status, TrackStatus::Tracking);
     assert!((s.kin.pos - (0.0 + 4.0 + 3.0) / 6.0).abs() < 1e-6);
     // Capacity: the oldest points drop, old times become TooEarly.
     for k in 4..20u64 {
-        tr.push(base + k * 1024, k as f32).unwrap();
+        tr.push(SystemInstant::from_micros(base + k * 1024), k as f32).unwrap();
     }
     assert_eq!(tr.len(), 8);
     assert_eq!(tr.last_point(), Some(19.0), "the newest, past the wrap");
-    assert_eq!(tr.sample(base + 1024), Err(EvalError::TooEarly));
+    assert_eq!(tr.sample(SystemInstant::from_micros(base + 1024)), Err(EvalError::TooEarly));
     let mut fx: Track<Fx, 8> = Track::new(iv(256), LIM);
-    fx.push(0, Fx(1)).unwrap();
-    assert_eq!(fx.push(512, Fx(4)), Ok(PushOutcome::FilledGap));
-    assert_eq!(fx.sample(0), Err(EvalError::NotStarted));
+    fx.push(SystemInstant::from_micros(0), Fx(1)).unwrap();
+    assert_eq!(fx.push(SystemInstant::from_micros(512), Fx(4)), Ok(PushOutcome::FilledGap));
+    assert_eq!(fx.sample(SystemInstant::from_micros(0)), Err(EvalError::NotStarted));
 }
 
 #[test]
@@ -69,13 +70,13 @@ fn knot_value_and_physical_units() {
     let mut f: Track<f32, 16> = Track::new(i, LIM);
     let mut x: Track<Fx, 16> = Track::new(i, LIM);
     for k in 0..12u64 {
-        f.push(k * 512, 3.0 * k as f32).unwrap();
-        x.push(k * 512, Fx(3 * k as i32 * Fx::ONE)).unwrap();
+        f.push(SystemInstant::from_micros(k * 512), 3.0 * k as f32).unwrap();
+        x.push(SystemInstant::from_micros(k * 512), Fx(3 * k as i32 * Fx::ONE)).unwrap();
     }
     let v = 3.0 / 512e-6;
     for t in (512..9 * 512).step_by(37) {
-        let a = f.sample(t).unwrap().kin;
-        let b = x.sample(t).unwrap().kin;
+        let a = f.sample(SystemInstant::from_micros(t)).unwrap().kin;
+        let b = x.sample(SystemInstant::from_micros(t)).unwrap().kin;
         let want = 3.0 * t as f64 / 512.0;
         assert!((a.pos as f64 - want).abs() < 1e-4);
         assert!((b.pos.to_f64() - want).abs() < 2.0 / 65536.0);
@@ -87,13 +88,13 @@ fn knot_value_and_physical_units() {
     // A single bump: knot value (P0 + 4P1 + P2)/6 and jerk in steps/s³.
     let mut g: Track<Fx, 8> = Track::new(i, LIM);
     for (k, p) in [0, 0, 6, 0, 0, 0].iter().enumerate() {
-        g.push(k as u64 * 512, Fx(p * Fx::ONE)).unwrap();
+        g.push(SystemInstant::from_micros(k as u64 * 512), Fx(p * Fx::ONE)).unwrap();
     }
-    assert_eq!(g.sample(2 * 512).unwrap().kin.pos, Fx(4 * Fx::ONE));
-    assert_eq!(g.sample(512).unwrap().kin.pos, Fx(Fx::ONE));
+    assert_eq!(g.sample(SystemInstant::from_micros(2 * 512)).unwrap().kin.pos, Fx(4 * Fx::ONE));
+    assert_eq!(g.sample(SystemInstant::from_micros(512)).unwrap().kin.pos, Fx(Fx::ONE));
     let dt = 512e-6f64;
     // Segment 1 uses P0..P3 = 0, 0, 6, 0: c3 = -3·6 = -18, j = c3 / Δt³.
-    let j = g.sample(512 + 100).unwrap().kin.jerk_f64();
+    let j = g.sample(SystemInstant::from_micros(512 + 100)).unwrap().kin.jerk_f64();
     assert!((j / (-18.0 / dt.powi(3)) - 1.0).abs() < 1e-9, "{j}");
 }
 
@@ -117,8 +118,8 @@ fn run_stream(n: u64, us: u32, samples_per_point: u32) -> (f64, f64, f64) {
     let (mut e_start, mut e_end, mut e_f32) = (0.0f64, 0.0f64, 0.0f64);
     for k in 0..n {
         let p = signal(k, dt);
-        fx.push(t0 + k * us as u64, Fx::from_f64(p)).unwrap();
-        f.push(t0 + k * us as u64, p as f32).unwrap();
+        fx.push(SystemInstant::from_micros(t0 + k * us as u64), Fx::from_f64(p)).unwrap();
+        f.push(SystemInstant::from_micros(t0 + k * us as u64), p as f32).unwrap();
         if k < 4 {
             continue;
         }
@@ -134,7 +135,7 @@ fn run_stream(n: u64, us: u32, samples_per_point: u32) -> (f64, f64, f64) {
             let du = (rng.next() % us as u64) as u32;
             let t = t0 + seg * us as u64 + du as u64;
             let r = eval_f64(&refp, du, i);
-            let a = fx.sample(t).unwrap();
+            let a = fx.sample(SystemInstant::from_micros(t)).unwrap();
             assert_eq!(a.status, TrackStatus::Tracking);
             let e = (a.kin.pos.to_f64() - r.pos).abs();
             if k < n / 10 {
@@ -143,7 +144,7 @@ fn run_stream(n: u64, us: u32, samples_per_point: u32) -> (f64, f64, f64) {
             if k >= n - n / 10 {
                 e_end = e_end.max(e);
             }
-            let b = f.sample(t).unwrap().kin;
+            let b = f.sample(SystemInstant::from_micros(t)).unwrap().kin;
             e_f32 = e_f32.max((b.pos as f64 - r.pos).abs());
         }
     }
@@ -190,7 +191,7 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
     let mut next = 0u64;
     let push_until = |tr: &mut Track<P, 16>, next: &mut u64, t: u64| {
         while *next < n && *next * us as u64 <= t + 3 * us as u64 {
-            tr.push(*next * us as u64, to_p(pos(*next))).unwrap();
+            tr.push(SystemInstant::from_micros(*next * us as u64), to_p(pos(*next))).unwrap();
             *next += 1;
         }
     };
@@ -201,7 +202,7 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
     let step = 50u64;
     while t < (n + 400) * us as u64 {
         push_until(&mut tr, &mut next, t);
-        let s = tr.sample(t).unwrap();
+        let s = tr.sample(SystemInstant::from_micros(t)).unwrap();
         let (p, v, a, j) = kin(&s.kin);
         if s.status == TrackStatus::Backstop {
             if !seen_backstop {
@@ -209,7 +210,7 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
                 // Latches at the end of the last known segment.
                 assert!(t >= (n - 2) * us as u64);
                 assert_eq!(
-                    tr.push(n * us as u64, to_p(0.0)),
+                    tr.push(SystemInstant::from_micros(n * us as u64), to_p(0.0)),
                     Err(PushError::Backstopped)
                 );
             }
@@ -242,7 +243,7 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
     let (_, v, a, j) = prev.unwrap();
     assert_eq!((v, a, j), (0.0, 0.0, 0.0), "at rest");
     tr.clear();
-    assert_eq!(tr.push(0, to_p(0.0)), Ok(PushOutcome::Appended));
+    assert_eq!(tr.push(SystemInstant::from_micros(0), to_p(0.0)), Ok(PushOutcome::Appended));
 }
 
 #[test]

@@ -5,6 +5,7 @@
 //! each answers with outputs or a failure code.
 
 use maxl::blocks::bedlevel::{BedMeshBlock, BedPlaneBlock};
+use osap_core::time::SystemInstant;
 use maxl::blocks::chirp::ChirpBlock;
 use maxl::blocks::interp::InterpolatorBlock;
 use maxl::blocks::kinematics::{CoreXy, CoreXyBlock, FiveBarBlock, KaosBlock, ScaraBlock};
@@ -40,14 +41,14 @@ fn timer_members() {
         let mut t = TimerBlock::new(iv, lead).unwrap();
         let _ = t.tick();
         for &now in &STAMPS {
-            t.set_now(now);
+            t.set_now(SystemInstant::from_micros(now));
             for _ in 0..3 {
                 let _ = t.tick();
             }
             let _ = t.status();
         }
         // Time going backwards, then a reset.
-        t.set_now(5);
+        t.set_now(SystemInstant::from_micros(5));
         let _ = t.tick();
         t.reset();
         let _ = t.tick();

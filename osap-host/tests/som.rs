@@ -487,7 +487,7 @@ impl Tally {
     }
 
     #[loop_hook]
-    fn tick(&mut self, _now_us: u64) {
+    fn tick(&mut self, _now: pipes_core::time::SystemInstant) {
         self.ticks += 1;
     }
 }

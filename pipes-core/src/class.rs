@@ -28,7 +28,7 @@ use core::cell::RefCell;
 use core::fmt;
 
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
-use osap_core::Micros;
+use osap_core::{Instant, SystemInstant};
 
 use crate::export::{NO_SUCH_MEMBER, STATE_BUSY};
 use crate::function::{CallError, Implementation, Outputs, PipesFunction};
@@ -66,8 +66,8 @@ pub trait PipesClass: Sized {
     /// Called once per runtime loop by the [`ClassPort`] with the runtime's
     /// synchronized system time (what stamped data is keyed by); does
     /// nothing by default.
-    fn loop_hook(&mut self, now_us: Micros) {
-        let _ = now_us;
+    fn loop_hook(&mut self, now: SystemInstant) {
+        let _ = now;
     }
 
     /// The index of the member named `name` (without the class prefix).
@@ -238,7 +238,7 @@ impl<C: PipesClass, const B: usize> Port for ClassPort<'_, C, B> {
         self.ctor.poll(tx);
     }
 
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         // The constructor's own timers (a segmented reply in progress).
         self.ctor.wake_at()
     }

@@ -26,7 +26,7 @@ use osap_core::codec::{Reader, Writer};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx, SendError};
 use osap_core::segment::{Pump, SegmentSender, SegmentSource, Window};
 use osap_core::transport::Transport;
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 
 use crate::control::{
     encode_error, encode_signature_reply, ControlError, ControlKey, InputMode, OutputMode, Reply,
@@ -277,7 +277,7 @@ pub struct PipesFunction<I, const PIPES: usize = 2, const Q: usize = 2, const B:
     fresh: u16,
     input_mode: InputMode,
     output_mode: OutputMode,
-    next_timer: Option<Micros>,
+    next_timer: Option<Instant>,
     out: [u8; B],
     out_len: usize,
     last_sent: [u8; B],
@@ -467,17 +467,17 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
     }
 
     /// Sets how the acknowledged pipe in slot `slot` retransmits: wait
-    /// `timeout_us` µs for each reply, send again at most `retries` times.
-    /// Pipes start with [`DEFAULT_ACK_TIMEOUT_US`] and
+    /// `timeout` for each reply, send again at most `retries` times.
+    /// Pipes start with [`DEFAULT_ACK_TIMEOUT`] and
     /// [`DEFAULT_ACK_RETRIES`]; setting the slot again resets them. (A
     /// best-effort pipe keeps the setting but does not use it.)
     ///
-    /// [`DEFAULT_ACK_TIMEOUT_US`]: crate::pipe::DEFAULT_ACK_TIMEOUT_US
+    /// [`DEFAULT_ACK_TIMEOUT`]: crate::pipe::DEFAULT_ACK_TIMEOUT
     /// [`DEFAULT_ACK_RETRIES`]: crate::pipe::DEFAULT_ACK_RETRIES
     pub fn set_ack_policy(
         &mut self,
         slot: u8,
-        timeout_us: u32,
+        timeout: Duration,
         retries: u8,
     ) -> Result<(), ControlError> {
         let p = self
@@ -485,7 +485,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             .get_mut(usize::from(slot))
             .and_then(Option::as_mut)
             .ok_or(ControlError::NoSuchPipe(slot))?;
-        p.ack_timeout = timeout_us;
+        p.ack_timeout = timeout;
         p.max_retries = retries;
         Ok(())
     }
@@ -976,10 +976,10 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
         self.send_segments(tx);
     }
 
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         let timer = match (self.input_mode, self.next_timer) {
             // Not started yet: the first poll starts it.
-            (InputMode::OnTimer(_), None) => Some(0),
+            (InputMode::OnTimer(_), None) => Some(Instant::ZERO),
             (InputMode::OnTimer(_), Some(t)) => Some(t),
             _ => None,
         };
@@ -998,7 +998,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         if let InputMode::OnTimer(iv) = self.input_mode {
             let now = tx.now();
-            let iv = Micros::from(iv);
+            let iv = Duration::from_micros(iv.into());
             match self.next_timer {
                 None => self.next_timer = Some(now + iv),
                 Some(t) if now >= t => {

@@ -41,8 +41,8 @@ pub const MAX_ARGMAP: usize = 8;
 pub const FLAG_ACKED: u8 = 0x01;
 
 /// How long an acknowledged pipe waits for a reply before it sends a
-/// datagram again, µs, unless set otherwise ([`PipeState::ack_timeout`]).
-pub const DEFAULT_ACK_TIMEOUT_US: u32 = 20_000;
+/// datagram again, unless set otherwise ([`PipeState::ack_timeout`]).
+pub const DEFAULT_ACK_TIMEOUT: osap_core::Duration = osap_core::Duration::from_millis(20);
 
 /// How many times an acknowledged pipe sends a datagram again before it
 /// counts a failure, unless set otherwise ([`PipeState::max_retries`]).
@@ -308,8 +308,8 @@ pub struct PipeState<const Q: usize, const B: usize> {
     /// Its counters.
     pub stats: PipeStats,
     /// Acknowledged pipes: how long to wait for a reply before sending
-    /// again, µs.
-    pub ack_timeout: u32,
+    /// again.
+    pub ack_timeout: osap_core::Duration,
     /// Acknowledged pipes: how many times to send a datagram again before
     /// dropping it as a failure.
     pub max_retries: u8,
@@ -321,7 +321,7 @@ pub struct PipeState<const Q: usize, const B: usize> {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct InFlight {
     seq: u16,
-    sent_at: osap_core::Micros,
+    sent_at: osap_core::Instant,
     sends: u8,
 }
 
@@ -356,7 +356,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
                 failures: 0,
                 last_remote_error: None,
             },
-            ack_timeout: DEFAULT_ACK_TIMEOUT_US,
+            ack_timeout: DEFAULT_ACK_TIMEOUT,
             max_retries: DEFAULT_ACK_RETRIES,
             next_seq: 0,
             in_flight: None,
@@ -375,10 +375,10 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
     }
 
     /// What to do with the front datagram at time `now` (acknowledged pipes).
-    pub fn ack_step(&self, now: osap_core::Micros) -> AckStep {
+    pub fn ack_step(&self, now: osap_core::Instant) -> AckStep {
         match self.in_flight {
             None => AckStep::SendNew,
-            Some(f) if now.saturating_sub(f.sent_at) < u64::from(self.ack_timeout) => AckStep::Wait,
+            Some(f) if now - f.sent_at < self.ack_timeout => AckStep::Wait,
             Some(f) if f.sends > self.max_retries => AckStep::GiveUp,
             Some(_) => AckStep::Resend,
         }
@@ -405,7 +405,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
 
     /// Records that the front datagram, request `seq`, was sent at `now`
     /// (first send or retry).
-    pub fn mark_sent(&mut self, seq: u16, now: osap_core::Micros) {
+    pub fn mark_sent(&mut self, seq: u16, now: osap_core::Instant) {
         match &mut self.in_flight {
             Some(f) if f.seq == seq => {
                 f.sends = f.sends.saturating_add(1);
@@ -424,9 +424,9 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
     }
 
     /// When the datagram in flight should be sent again if no ack comes.
-    pub fn ack_deadline(&self) -> Option<osap_core::Micros> {
+    pub fn ack_deadline(&self) -> Option<osap_core::Instant> {
         self.in_flight
-            .map(|f| f.sent_at.saturating_add(u64::from(self.ack_timeout)))
+            .map(|f| f.sent_at + self.ack_timeout)
     }
 
     /// The sequence number of the datagram in flight, if any.
@@ -513,6 +513,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use osap_core::time::Instant;
 
     #[test]
     fn config_round_trip() {
@@ -583,7 +584,7 @@ mod tests {
         let mut s: PipeState<2, 8> = PipeState::new(
             PipeConfig::new(Route::local(), 1, 1).with_delivery(PipeDelivery::Acked),
         );
-        s.ack_timeout = 10;
+        s.ack_timeout = osap_core::Duration::from_micros(10);
         s.max_retries = 1;
         for x in 1..=2u8 {
             s.push_with(|b| {
@@ -591,15 +592,15 @@ mod tests {
                 Some(4)
             });
         }
-        assert_eq!(s.ack_step(0), AckStep::SendNew);
+        assert_eq!(s.ack_step(Instant::from_micros(0)), AckStep::SendNew);
         let (seq, d) = s.front_as_new_request().unwrap();
         assert_eq!((seq, d), (0, &[1u8, 0, 0, 1][..]));
-        s.mark_sent(seq, 0);
-        assert_eq!(s.ack_step(9), AckStep::Wait);
-        assert_eq!(s.ack_step(10), AckStep::Resend);
-        s.mark_sent(seq, 10);
+        s.mark_sent(seq, Instant::from_micros(0));
+        assert_eq!(s.ack_step(Instant::from_micros(9)), AckStep::Wait);
+        assert_eq!(s.ack_step(Instant::from_micros(10)), AckStep::Resend);
+        s.mark_sent(seq, Instant::from_micros(10));
         assert_eq!((s.stats.sent, s.stats.retries), (1, 1));
-        assert_eq!(s.ack_step(20), AckStep::GiveUp);
+        assert_eq!(s.ack_step(Instant::from_micros(20)), AckStep::GiveUp);
         // A reply to another sequence number changes nothing.
         assert!(!s.on_reply(7, Ok(())));
         assert!(s.on_reply(0, Ok(())));
@@ -607,7 +608,7 @@ mod tests {
         assert_eq!((s.stats.acked, s.queued()), (1, 1));
         let (seq, d) = s.front_as_new_request().unwrap();
         assert_eq!((seq, d), (1, &[1u8, 1, 0, 2][..]));
-        s.mark_sent(seq, 30);
+        s.mark_sent(seq, Instant::from_micros(30));
         // Overflow drops the datagram in flight; its late reply is ignored.
         for _ in 0..2 {
             s.push_with(|b| {
@@ -619,7 +620,7 @@ mod tests {
         assert_eq!(s.stats.overflows, 1);
         assert!(!s.on_reply(1, Err(ControlError::Malformed)));
         assert_eq!(s.stats.remote_errors, 0);
-        s.mark_sent(9, 40);
+        s.mark_sent(9, Instant::from_micros(40));
         s.give_up();
         assert_eq!((s.stats.failures, s.queued()), (1, 1));
         // A best-effort datagram (raw header) is no request.

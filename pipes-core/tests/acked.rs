@@ -8,10 +8,11 @@ mod common;
 use std::ops::{Deref, DerefMut};
 
 use common::Net;
+use osap_core::Duration;
 use osap_core::route::Route;
 use pipes_core::control::{ControlError, Reply, ReplyBody, Request};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
-use pipes_core::pipe::{PipeConfig, PipeDelivery, DEFAULT_ACK_RETRIES, DEFAULT_ACK_TIMEOUT_US};
+use pipes_core::pipe::{PipeConfig, PipeDelivery, DEFAULT_ACK_RETRIES, DEFAULT_ACK_TIMEOUT};
 use pipes_core::signature::{Arg, Signature};
 use pipes_core::{ScalarType, Type, Value};
 
@@ -145,7 +146,7 @@ fn acked_datagrams_arrive_in_order() {
     let p = w.sensor().pipe(0).unwrap();
     assert_eq!(
         (p.ack_timeout, p.max_retries),
-        (DEFAULT_ACK_TIMEOUT_US, DEFAULT_ACK_RETRIES)
+        (DEFAULT_ACK_TIMEOUT, DEFAULT_ACK_RETRIES)
     );
     for x in [1.0, 2.0, 3.0] {
         w.call_sensor(x);
@@ -188,7 +189,7 @@ fn a_stalled_link_keeps_the_queue_in_order() {
 fn lost_acks_mean_retransmission_and_duplicates() {
     let mut w = World::new();
     w.sensor().set_pipe(0, acked_pipe(0)).unwrap();
-    w.sensor().set_ack_policy(0, 1_000, 3).unwrap();
+    w.sensor().set_ack_policy(0, Duration::from_millis(1), 3).unwrap();
     w.lose_to_a = true;
     w.call_sensor(1.0);
     w.steps(5);
@@ -218,7 +219,7 @@ fn lost_acks_mean_retransmission_and_duplicates() {
 fn unacknowledged_datagrams_fail_after_the_retries() {
     let mut w = World::new();
     w.sensor().set_pipe(0, acked_pipe(0)).unwrap();
-    w.sensor().set_ack_policy(0, 1_000, 2).unwrap();
+    w.sensor().set_ack_policy(0, Duration::from_millis(1), 2).unwrap();
     w.lose_to_b = true;
     w.call_sensor(1.0);
     w.call_sensor(2.0);

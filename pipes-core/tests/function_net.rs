@@ -5,6 +5,7 @@
 mod common;
 
 use std::ops::{Deref, DerefMut};
+use osap_core::time::Instant;
 
 use common::{args, err, ok, runtime, to_b, Net};
 use osap_core::codec::Writer;
@@ -452,7 +453,7 @@ fn timer_mode_runs_a_source() {
     let mut ports = [f];
     let mut links: [TestLink; 0] = [];
     for t in (0..=10_000).step_by(100) {
-        rt.poll(t, &mut ports, &mut links);
+        rt.poll(Instant::from_micros(t), &mut ports, &mut links);
     }
     // First tick is armed at t = 0, due at 1000, then every 1000 µs.
     assert_eq!(ports[0].stats().runs, 10);

@@ -236,8 +236,8 @@ impl Comparator {
     }
 
     #[loop_hook]
-    fn tick(&mut self, now_us: u64) {
-        self.now_us = now_us;
+    fn tick(&mut self, now: pipes_core::time::SystemInstant) {
+        self.now_us = now.as_micros();
         self.ticks += 1;
     }
 }

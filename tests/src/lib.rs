@@ -5,7 +5,7 @@ use osap_core::link::queue::{transfer, QueueLink};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::Route;
 use osap_core::transport::Transport;
-use osap_core::{Micros, Runtime};
+use osap_core::{Instant, Runtime, SystemInstant};
 use std::collections::VecDeque;
 
 /// The runtime used in tests: 16 slots of 256 bytes, 8 ports, 4 links.
@@ -22,8 +22,8 @@ pub struct Received {
     pub reply_route: Route,
     /// Port it came from.
     pub source_port: u16,
-    /// When it arrived.
-    pub arrival: Micros,
+    /// When it arrived (the receiving runtime's local time).
+    pub arrival: Instant,
 }
 
 /// A port that records what it receives, can echo it back, and sends what is
@@ -112,13 +112,14 @@ pub struct Node {
 }
 
 impl Node {
-    /// This node's local clock at network time `now`.
-    pub fn local_time(&self, now: Micros) -> Micros {
-        self.clock_offset + now + (now as f64 * self.clock_ppm * 1e-6) as u64
+    /// This node's local clock at network time `now` (µs of the fake
+    /// clock that drives the whole network).
+    pub fn local_time(&self, now: u64) -> Instant {
+        Instant::from_micros(self.clock_offset + now + (now as f64 * self.clock_ppm * 1e-6) as u64)
     }
 
     /// This node's synchronised system time at network time `now`.
-    pub fn system_time(&self, now: Micros) -> u64 {
+    pub fn system_time(&self, now: u64) -> SystemInstant {
         self.runtime.system_time(self.local_time(now))
     }
 }
@@ -143,8 +144,9 @@ pub struct Net {
     pub nodes: Vec<Node>,
     /// The wires.
     pub wires: Vec<Wire>,
-    /// Current time, µs.
-    pub now: Micros,
+    /// Current time of the fake clock, µs: the reference every node's
+    /// local clock is derived from.
+    pub now: u64,
 }
 
 impl Net {
@@ -199,7 +201,7 @@ impl Net {
 
     /// Polls every node once at the current time, then lets every wire
     /// carry packets, then advances the clock by `dt`.
-    pub fn step(&mut self, dt: Micros) {
+    pub fn step(&mut self, dt: u64) {
         for node in &mut self.nodes {
             let local = node.local_time(self.now);
             node.runtime.poll(local, &mut node.ports, &mut node.links);
@@ -234,7 +236,7 @@ impl Net {
     /// Steps until `done` holds or `max_steps` pass; returns the steps taken.
     pub fn run_until(
         &mut self,
-        dt: Micros,
+        dt: u64,
         max_steps: usize,
         mut done: impl FnMut(&Net) -> bool,
     ) -> Option<usize> {

@@ -46,6 +46,7 @@ use core::fmt;
 use pipes_core::function::CallError;
 
 use crate::track::Interval;
+use pipes_core::time::SystemInstant;
 
 /// The default lead, in intervals.
 pub const DEFAULT_LEAD_INTERVALS: u64 = 3;
@@ -303,7 +304,7 @@ pub struct TimerBlock {
     /// The timer.
     pub timer: Timer,
     /// The runtime's time as the loop hook last gave it.
-    now_us: Option<u64>,
+    now: Option<SystemInstant>,
 }
 
 impl TimerBlock {
@@ -311,13 +312,13 @@ impl TimerBlock {
     pub fn from_timer(timer: Timer) -> TimerBlock {
         TimerBlock {
             timer,
-            now_us: None,
+            now: None,
         }
     }
 
     /// The runtime's time as the loop hook last gave it.
-    pub fn now_us(&self) -> Option<u64> {
-        self.now_us
+    pub fn now(&self) -> Option<SystemInstant> {
+        self.now
     }
 }
 
@@ -338,7 +339,7 @@ impl TimerBlock {
     /// before the hook has run.
     #[outputs = "stamp"]
     pub fn tick(&mut self) -> Result<u64, TimerError> {
-        let now = self.now_us.ok_or(TimerError::NoTime)?;
+        let now = self.now.ok_or(TimerError::NoTime)?.as_micros();
         let t = &mut self.timer;
         // The first call always emits a stamp, so `last` is set from then on.
         t.next_due(now).or(t.last_stamp()).ok_or(TimerError::NoTime)
@@ -353,7 +354,7 @@ impl TimerBlock {
             self.timer.last_stamp().unwrap_or(0),
             stats.emitted,
             stats.max_burst,
-            self.now_us.unwrap_or(0),
+            self.now.map_or(0, SystemInstant::as_micros),
         )
     }
 
@@ -366,7 +367,7 @@ impl TimerBlock {
     /// The loop hook: stores the runtime's synchronized system time (call
     /// it by hand to drive the block from a script).
     #[loop_hook]
-    pub fn set_now(&mut self, now_us: u64) {
-        self.now_us = Some(now_us);
+    pub fn set_now(&mut self, now: SystemInstant) {
+        self.now = Some(now);
     }
 }

@@ -87,7 +87,7 @@ pub fn function(attr: TokenStream, item: TokenStream) -> TokenStream {
 ///     fn reading(&mut self) -> (u64, bool) { .. }
 ///     fn _private(&self) { .. }            // leading underscore: not exported
 ///     #[loop_hook]
-///     fn tick(&mut self, now_us: u64) { .. } // called from the class port's poll
+///     fn tick(&mut self, now: SystemInstant) { .. } // called from the class port's poll
 /// }
 /// ```
 ///
@@ -100,8 +100,9 @@ pub fn function(attr: TokenStream, item: TokenStream) -> TokenStream {
 ///   with `_` is an exported member, signature `"Type.method"`, with output
 ///   names from `#[outputs = ".."]` and `Result` returns as for
 ///   [`macro@function`];
-/// - at most one `#[loop_hook]` method `fn(&mut self, now_us: u64)`, given
-///   the runtime's synchronized system time.
+/// - at most one `#[loop_hook]` method
+///   `fn(&mut self, now: pipes_core::time::SystemInstant)`, given the
+///   runtime's synchronized system time.
 ///
 /// Options: `name = ".."` (the class name; default the type's name).
 #[proc_macro_attribute]
@@ -681,8 +682,8 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
     };
     let hook_fn = hook.map(|h| {
         quote! {
-            fn loop_hook(&mut self, now_us: u64) {
-                self.#h(now_us)
+            fn loop_hook(&mut self, now: ::pipes_core::time::SystemInstant) {
+                self.#h(now)
             }
         }
     });
