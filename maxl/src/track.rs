@@ -149,8 +149,8 @@ impl<P: Point, const N: usize> Track<P, N> {
     }
 
     /// Stamp of the newest point.
-    pub fn last_time(&self) -> Option<u64> {
-        (self.len > 0).then(|| self.last_idx() << self.iv.shift())
+    pub fn last_time(&self) -> Option<SystemInstant> {
+        (self.len > 0).then(|| SystemInstant::from_micros(self.last_idx() << self.iv.shift()))
     }
 
     /// The newest point (for a check of the next one against it, such as a
@@ -165,10 +165,10 @@ impl<P: Point, const N: usize> Track<P, N> {
     }
 
     /// The backstop's start time (µs) and duration (s) once it has latched.
-    pub fn backstop(&self) -> Option<(u64, f32)> {
+    pub fn backstop(&self) -> Option<(SystemInstant, f32)> {
         self.latched
             .as_ref()
-            .map(|l| (l.start_us, l.profile.duration()))
+            .map(|l| (SystemInstant::from_micros(l.start_us), l.profile.duration()))
     }
 
     /// Forget every point and leave the backstop.

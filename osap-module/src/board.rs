@@ -7,7 +7,7 @@
 //! quick and non-blocking: they run inside critical sections, where an
 //! interrupt waits for them.
 
-use osap_core::Micros;
+use osap_core::Instant;
 
 /// A stepper driver's control pins (step and direction are driven by the
 /// board's step generator from the words [`crate::Module::fill_step_word`]
@@ -95,7 +95,7 @@ pub trait Board {
     /// then fail with [`crate::io::IoError::NoHardware`]).
     fn io(&mut self) -> Option<&mut dyn IoHw>;
     /// Local time, µs.
-    fn now(&self) -> Micros;
+    fn now(&self) -> Instant;
 
     /// Whether this board can reboot into its bootloader
     /// ([`reboot_to_bootloader`](Self::reboot_to_bootloader)). The default
@@ -123,7 +123,7 @@ pub struct Parts<S, I> {
     /// The I/O hardware, if any.
     pub io: Option<I>,
     /// The local clock, µs.
-    pub clock: fn() -> Micros,
+    pub clock: fn() -> Instant,
     /// Reboots the chip into its bootloader, if the board has one
     /// ([`Board::reboot_to_bootloader`]); `None`: `enter_bootloader`
     /// refuses.
@@ -137,7 +137,7 @@ impl<S: StepperHw, I: IoHw> Board for Parts<S, I> {
     fn io(&mut self) -> Option<&mut dyn IoHw> {
         self.io.as_mut().map(|io| io as &mut dyn IoHw)
     }
-    fn now(&self) -> Micros {
+    fn now(&self) -> Instant {
         (self.clock)()
     }
     fn has_bootloader(&self) -> bool {

@@ -5,17 +5,17 @@
 //! call would never send its answer, and the caller could not tell a
 //! module that obeyed from one that was lost. The runtime's loop performs
 //! the reboot ([`crate::board::Board::reboot_to_bootloader`], from the pulse
-//! timer port it polls) [`BOOTLOADER_DELAY_US`] after the call, by which
+//! timer port it polls) [`BOOTLOADER_DELAY`] after the call, by which
 //! time the answer has left on its link. Before rebooting the driver is
 //! disabled, as a reset would leave it.
 
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 
-/// How long after `enter_bootloader` answers the board reboots, µs of the
+/// How long after `enter_bootloader` answers the board reboots, on the
 /// module's local clock: time for the answer to leave (a USB CDC reply
 /// waits for the host's next poll, at most a 1 ms frame; a UART reply of
 /// a few dozen bytes takes well under 1 ms at 1 Mbaud) with a wide margin.
-pub const BOOTLOADER_DELAY_US: Micros = 100_000;
+pub const BOOTLOADER_DELAY: Duration = Duration::from_millis(100);
 
 /// Why `enter_bootloader` was refused: the failure code a caller sees.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -48,27 +48,27 @@ impl From<BootError> for pipes_core::function::CallError {
 /// runtime's loop once due.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
 pub struct BootRequest {
-    at: Option<Micros>,
+    at: Option<Instant>,
 }
 
 impl BootRequest {
-    /// Arms the request for [`BOOTLOADER_DELAY_US`] after local time `now`
+    /// Arms the request for [`BOOTLOADER_DELAY`] after local time `now`
     /// (a second call keeps the first time: the answer to the first call
     /// has been sent already).
-    pub fn arm(&mut self, now: Micros) {
+    pub fn arm(&mut self, now: Instant) {
         if self.at.is_none() {
-            self.at = Some(now.saturating_add(BOOTLOADER_DELAY_US));
+            self.at = Some(now + BOOTLOADER_DELAY);
         }
     }
 
     /// When the reboot is due, local µs (`None`: not armed).
-    pub fn due_at(&self) -> Option<Micros> {
+    pub fn due_at(&self) -> Option<Instant> {
         self.at
     }
 
     /// Whether the reboot is due at local time `now`; if so, disarms it
     /// (the board is told once).
-    pub fn take_due(&mut self, now: Micros) -> bool {
+    pub fn take_due(&mut self, now: Instant) -> bool {
         match self.at {
             Some(at) if now >= at => {
                 self.at = None;

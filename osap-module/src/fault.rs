@@ -29,6 +29,7 @@
 
 use crate::stepper::StepperError;
 use maxl::Clamped;
+use osap_core::SystemInstant;
 
 /// [`FaultKind::OverLimit`]'s detail bit: past the velocity limit (the
 /// limiter's velocity window looks ahead: the axis could not have ramped its
@@ -124,8 +125,8 @@ impl FaultKind {
 /// The latest fault and the count since boot, as `get_fault` reports them.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Fault {
-    /// When, synchronized µs.
-    pub time: u64,
+    /// When (system time).
+    pub time: SystemInstant,
     /// What.
     pub kind: FaultKind,
     /// The kind's detail (see the module docs).
@@ -137,7 +138,7 @@ pub struct Fault {
 impl Default for Fault {
     fn default() -> Self {
         Fault {
-            time: 0,
+            time: SystemInstant::ZERO,
             kind: FaultKind::None,
             detail: 0,
             count: 0,
@@ -150,7 +151,7 @@ impl Fault {
     /// record, unless it is a consequence of the recorded one (a `Faulted`
     /// refusal behind a backstop or halt that still holds the axis,
     /// `stopped`).
-    pub fn record(&mut self, time: u64, kind: FaultKind, detail: u32, stopped: bool) {
+    pub fn record(&mut self, time: SystemInstant, kind: FaultKind, detail: u32, stopped: bool) {
         self.count = self.count.wrapping_add(1);
         let consequence = stopped
             && kind == FaultKind::Refused
@@ -163,9 +164,9 @@ impl Fault {
         }
     }
 
-    /// The `get_fault` outputs.
+    /// The `get_fault` outputs (the time as system µs, its wire form).
     pub fn outputs(&self) -> (u64, u8, u32, u32) {
-        (self.time, self.kind.code(), self.detail, self.count)
+        (self.time.as_micros(), self.kind.code(), self.detail, self.count)
     }
 }
 
@@ -185,13 +186,13 @@ mod tests {
     #[test]
     fn a_refusal_behind_a_backstop_keeps_its_cause() {
         let mut f = Fault::default();
-        f.record(10, FaultKind::Backstop, 5_000, true);
-        f.record(20, FaultKind::Refused, 4, true);
+        f.record(SystemInstant::from_micros(10), FaultKind::Backstop, 5_000, true);
+        f.record(SystemInstant::from_micros(20), FaultKind::Refused, 4, true);
         assert_eq!(f.outputs(), (10, 2, 5_000, 2));
         // Once the axis runs again, a refusal is the record.
-        f.record(30, FaultKind::Refused, 4, false);
+        f.record(SystemInstant::from_micros(30), FaultKind::Refused, 4, false);
         assert_eq!(f.outputs(), (30, 1, 4, 3));
-        f.record(40, FaultKind::Refused, 2, true);
+        f.record(SystemInstant::from_micros(40), FaultKind::Refused, 2, true);
         assert_eq!(f.outputs(), (40, 1, 2, 4));
     }
 

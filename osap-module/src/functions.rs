@@ -49,6 +49,7 @@ use crate::boot::BootError;
 use crate::io::IoError;
 use crate::stepper::StepperError;
 use crate::{Module, ModuleHandle};
+use osap_core::SystemInstant;
 use pipes_core::export::{FromPipes, PipesOutputs, PipesType};
 use pipes_core::function::{CallError, Implementation, Outputs};
 use pipes_core::signature::{Arg, Signature};
@@ -62,7 +63,7 @@ impl<B: Board> Module<B> {
     /// Queues a control point: the axis is at `position` (user units) at
     /// synchronized `time` (a multiple of the interval).
     pub fn add_point(&mut self, time: u64, position: f32) -> Result<(), CallError> {
-        Ok(self.queue_point(time, position)?)
+        Ok(self.queue_point(SystemInstant::from_micros(time), position)?)
     }
 
     /// Sets the control-point interval, µs (a power of two, 256 to 16 384),
@@ -74,7 +75,8 @@ impl<B: Board> Module<B> {
     /// Where the steps sent so far put the motor (user units), and the
     /// synchronized time of the latest step tick they include.
     pub fn get_position(&mut self) -> Result<(u64, f32), CallError> {
-        Ok(self.stepper.position())
+        let (time, position) = self.stepper.position();
+        Ok((time.as_micros(), position))
     }
 
     /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted),
@@ -149,7 +151,7 @@ impl<B: Board> Module<B> {
     /// The limit switch: when its level last changed (synchronized µs, 0:
     /// never), its level, and the edges seen since boot.
     pub fn read_limit(&mut self) -> Result<(u64, bool, u32), CallError> {
-        Ok((self.limit.time, self.limit.level, self.limit.edges))
+        Ok((self.limit.time.as_micros(), self.limit.level, self.limit.edges))
     }
 
     /// Stops stepping at once and drops the stream (an emergency stop); the
@@ -177,7 +179,7 @@ impl<B: Board> Module<B> {
     pub fn digital_read(&mut self, pin: u8) -> Result<(u64, bool), CallError> {
         let now = self.system_now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
-        Ok((now, self.io.digital_read(hw, pin)?))
+        Ok((now.as_micros(), self.io.digital_read(hw, pin)?))
     }
 
     /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`.
@@ -198,7 +200,8 @@ impl<B: Board> Module<B> {
     pub fn pulse_at(&mut self, time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
         let now = self.system_now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
-        Ok(self.io.pulse_at(hw, now, time, pin, duration_us)?)
+        let start = SystemInstant::from_micros(time);
+        Ok(self.io.pulse_at(hw, now, start, pin, duration_us)?)
     }
 
     /// Samples analog input `channel`: the synchronized time of the sample
@@ -206,7 +209,7 @@ impl<B: Board> Module<B> {
     pub fn analog_read(&mut self, channel: u8) -> Result<(u64, f32), CallError> {
         let now = self.system_now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
-        Ok((now, self.io.analog_read(hw, channel)?))
+        Ok((now.as_micros(), self.io.analog_read(hw, channel)?))
     }
 
     /// Reboots the board into its bootloader for a firmware update, after

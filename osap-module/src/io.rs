@@ -9,7 +9,7 @@
 //! modules together.
 
 use crate::board::IoHw;
-use osap_core::Micros;
+use osap_core::{Duration, Instant, SystemInstant};
 
 /// Digital pins the logic can time pulses on (boards with more pins pulse
 /// only the first ones).
@@ -18,8 +18,8 @@ pub const MAX_PULSE_PINS: usize = 32;
 pub const SCHEDULED_PULSES: usize = 16;
 /// The longest pulse, µs (10 s): a solenoid held longer burns.
 pub const MAX_PULSE_US: u32 = 10_000_000;
-/// How far ahead a pulse may be scheduled, µs (60 s).
-pub const MAX_PULSE_LEAD_US: u64 = 60_000_000;
+/// How far ahead a pulse may be scheduled (60 s).
+pub const MAX_PULSE_LEAD: Duration = Duration::from_secs(60);
 
 /// Why an I/O call was refused: the failure code a caller sees.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -51,7 +51,7 @@ impl From<IoError> for pipes_core::function::CallError {
 
 #[derive(Debug, Clone, Copy)]
 struct Scheduled {
-    start: u64,
+    start: SystemInstant,
     pin: u8,
     duration_us: u32,
 }
@@ -59,8 +59,8 @@ struct Scheduled {
 /// The I/O logic's state (the hardware is passed in to each call).
 #[derive(Debug, Clone)]
 pub struct Io {
-    /// When each pin's running pulse ends, local µs.
-    ends: [Option<Micros>; MAX_PULSE_PINS],
+    /// When each pin's running pulse ends, local time.
+    ends: [Option<Instant>; MAX_PULSE_PINS],
     /// Pulses waiting for their synchronized start time.
     scheduled: [Option<Scheduled>; SCHEDULED_PULSES],
     pulses: u32,
@@ -136,7 +136,7 @@ impl Io {
     pub fn pulse(
         &mut self,
         hw: &mut dyn IoHw,
-        now: Micros,
+        now: Instant,
         pin: u8,
         duration_us: u32,
     ) -> Result<(), IoError> {
@@ -148,7 +148,7 @@ impl Io {
             .ends
             .get_mut(usize::from(pin))
             .ok_or(IoError::NoSuchPin)?;
-        *end = Some(now + u64::from(duration_us));
+        *end = Some(now + Duration::from_micros(duration_us.into()));
         hw.write_digital(pin, true);
         self.pulses = self.pulses.wrapping_add(1);
         Ok(())
@@ -160,15 +160,15 @@ impl Io {
     pub fn pulse_at(
         &mut self,
         hw: &dyn IoHw,
-        system_now: u64,
-        start: u64,
+        system_now: SystemInstant,
+        start: SystemInstant,
         pin: u8,
         duration_us: u32,
     ) -> Result<(), IoError> {
         check_pin(hw, pin)?;
         if usize::from(pin) >= MAX_PULSE_PINS
             || duration_us > MAX_PULSE_US
-            || start > system_now.saturating_add(MAX_PULSE_LEAD_US)
+            || start > system_now + MAX_PULSE_LEAD
         {
             return Err(if usize::from(pin) >= MAX_PULSE_PINS {
                 IoError::NoSuchPin
@@ -191,17 +191,17 @@ impl Io {
 
     /// Starts scheduled pulses whose time has come and ends pulses whose
     /// time is up, at local time `now` (synchronized `system_now`).
-    pub fn poll(&mut self, hw: &mut dyn IoHw, now: Micros, system_now: u64) {
+    pub fn poll(&mut self, hw: &mut dyn IoHw, now: Instant, system_now: SystemInstant) {
         for slot in self.scheduled.iter_mut() {
             if let Some(s) = *slot {
                 if s.start <= system_now {
                     *slot = None;
                     // Start late by as much as the loop was late, but keep
                     // the end where the schedule put it.
-                    let late = (system_now - s.start).min(u64::from(s.duration_us));
+                    let late = (system_now - s.start).as_micros().min(u64::from(s.duration_us));
                     let left = s.duration_us - late as u32;
                     if let Some(end) = self.ends.get_mut(usize::from(s.pin)) {
-                        *end = Some(now + u64::from(left));
+                        *end = Some(now + Duration::from_micros(left.into()));
                         hw.write_digital(s.pin, true);
                         self.pulses = self.pulses.wrapping_add(1);
                     }
@@ -216,16 +216,16 @@ impl Io {
         }
     }
 
-    /// When [`poll`](Self::poll) next has work, local µs, given the local
+    /// When [`poll`](Self::poll) next has work, local time, given the local
     /// time `now` and synchronized `system_now` (to place scheduled starts
     /// on the local clock).
-    pub fn wake_at(&self, now: Micros, system_now: u64) -> Option<Micros> {
+    pub fn wake_at(&self, now: Instant, system_now: SystemInstant) -> Option<Instant> {
         let ends = self.ends.iter().flatten().copied();
         let starts = self
             .scheduled
             .iter()
             .flatten()
-            .map(|s| now + s.start.saturating_sub(system_now));
+            .map(|s| now + (s.start - system_now));
         ends.chain(starts).min()
     }
 

@@ -53,7 +53,7 @@ use critical_section::Mutex;
 use fault::{Fault, FaultKind};
 use io::Io;
 use osap_core::clock::TimeMap;
-use osap_core::Micros;
+use osap_core::{Duration, Instant, SystemInstant};
 use stepper::Stepper;
 
 /// The limit switch's latest edge.
@@ -61,8 +61,8 @@ use stepper::Stepper;
 pub struct Limit {
     /// The level after the edge.
     pub level: bool,
-    /// When the edge happened, synchronized µs (0: no edge yet).
-    pub time: u64,
+    /// When the edge happened ([`SystemInstant::ZERO`]: no edge yet).
+    pub time: SystemInstant,
     /// Edges since boot.
     pub edges: u32,
 }
@@ -81,8 +81,8 @@ pub struct Module<B> {
     pub fault: Fault,
     /// A reboot into the bootloader, armed by `enter_bootloader`.
     pub boot: BootRequest,
-    /// When the latest control point was accepted, synchronized µs.
-    last_point_at: u64,
+    /// When the latest control point was accepted.
+    last_point_at: SystemInstant,
     board: B,
     /// The step words' time anchor: a (local, system) pair read off `time`.
     step_anchor: Option<StepAnchor>,
@@ -90,18 +90,18 @@ pub struct Module<B> {
 
 /// Reading the time map takes 64-bit multiplies (library calls on a
 /// Cortex-M0+), too many to do for every step word; words within
-/// [`ANCHOR_SPAN_US`] of the last reading take its offset instead. Over
+/// [`ANCHOR_SPAN`] of the last reading take its offset instead. Over
 /// that span a rate error of 500 ppm (far beyond a crystal's) moves a tick
 /// by 2 µs, a typical 50 ppm by 0.2 µs.
 #[derive(Debug, Clone, Copy)]
 struct StepAnchor {
     map: TimeMap,
-    local: Micros,
-    system: u64,
+    local: Instant,
+    system: SystemInstant,
 }
 
-/// How long a step-word time anchor is used, µs.
-pub const ANCHOR_SPAN_US: u64 = 4096;
+/// How long a step-word time anchor is used.
+pub const ANCHOR_SPAN: Duration = Duration::from_micros(4096);
 
 impl<B: Board> Module<B> {
     /// A fresh module on `board`: the motor disabled (the driver is told at
@@ -115,7 +115,7 @@ impl<B: Board> Module<B> {
             time: TimeMap::IDENTITY,
             fault: Fault::default(),
             boot: BootRequest::default(),
-            last_point_at: 0,
+            last_point_at: SystemInstant::ZERO,
             board,
             step_anchor: None,
         }
@@ -131,13 +131,13 @@ impl<B: Board> Module<B> {
         &mut self.board
     }
 
-    /// Local time now, µs.
-    pub fn local_now(&self) -> Micros {
+    /// Local time now.
+    pub fn local_now(&self) -> Instant {
         self.board.now()
     }
 
     /// Synchronized time now.
-    pub fn system_now(&self) -> u64 {
+    pub fn system_now(&self) -> SystemInstant {
         self.time.system_time(self.board.now())
     }
 
@@ -150,10 +150,10 @@ impl<B: Board> Module<B> {
     /// The next step-generator word, its first tick at local time `local` (the
     /// step generator's own running count of ticks, anchored to the local
     /// clock, so interrupt latency does not move the ticks).
-    pub fn fill_step_word(&mut self, local: Micros) -> u32 {
+    pub fn fill_step_word(&mut self, local: Instant) -> u32 {
         let t0 = match self.step_anchor {
             Some(a)
-                if a.map == self.time && local >= a.local && local - a.local < ANCHOR_SPAN_US =>
+                if a.map == self.time && local >= a.local && local - a.local < ANCHOR_SPAN =>
             {
                 a.system + (local - a.local)
             }
@@ -171,7 +171,7 @@ impl<B: Board> Module<B> {
         let overruns = self.stepper.step_counts().3;
         let word = self.stepper.fill_word(t0);
         if self.stepper.counters().faults != faults {
-            let quiet = t0.saturating_sub(self.last_point_at);
+            let quiet = (t0 - self.last_point_at).as_micros();
             let quiet = u32::try_from(quiet).unwrap_or(u32::MAX);
             self.fault.record(t0, FaultKind::Backstop, quiet, true);
         }
@@ -188,7 +188,11 @@ impl<B: Board> Module<B> {
     /// refusal as a fault: [`FaultKind::OverLimit`] with the limits it went
     /// past for a point past the axis's limits, [`FaultKind::Refused`] with
     /// the refusal's code for any other.
-    pub fn queue_point(&mut self, time: u64, position: f32) -> Result<(), stepper::StepperError> {
+    pub fn queue_point(
+        &mut self,
+        time: SystemInstant,
+        position: f32,
+    ) -> Result<(), stepper::StepperError> {
         let now = self.system_now();
         let result = self.stepper.add_point(time, position);
         match result {
@@ -223,7 +227,7 @@ impl<B: Board> Module<B> {
     /// The limit switch's level changed to `level` at local time `local`
     /// (the edge interrupt's time stamp).
     /// A press (the input reads low) is recorded as a fault.
-    pub fn limit_changed(&mut self, local: Micros, level: bool) {
+    pub fn limit_changed(&mut self, local: Instant, level: bool) {
         self.limit = Limit {
             level,
             time: self.time.system_time(local),
@@ -242,14 +246,14 @@ impl<B: Board> Module<B> {
 
     /// Starts and ends timed pulses at local time `now` (synchronized
     /// `system`): the runtime's loop calls it through the pulse timer port.
-    pub fn poll_io(&mut self, now: Micros, system: u64) {
+    pub fn poll_io(&mut self, now: Instant, system: SystemInstant) {
         if let Some(hw) = self.board.io() {
             self.io.poll(hw, now, system);
         }
     }
 
-    /// When [`poll_io`](Self::poll_io) next has work, local µs.
-    pub fn io_wake_at(&self, now: Micros, system: u64) -> Option<Micros> {
+    /// When [`poll_io`](Self::poll_io) next has work, local time.
+    pub fn io_wake_at(&self, now: Instant, system: SystemInstant) -> Option<Instant> {
         self.io.wake_at(now, system)
     }
 
@@ -257,7 +261,7 @@ impl<B: Board> Module<B> {
     /// due at local time `now` (see [`boot`]): disables the driver, then
     /// hands over to the board, which on hardware does not return. The
     /// runtime's loop calls it through the pulse timer port.
-    pub fn poll_boot(&mut self, now: Micros) {
+    pub fn poll_boot(&mut self, now: Instant) {
         if self.boot.take_due(now) {
             self.stepper.set_enable(false);
             self.board.stepper().set_enable(false);
@@ -333,7 +337,7 @@ impl<B: Board> ModuleCell<B> {
 
     /// [`Module::fill_step_word`]; before [`install`](Self::install) the
     /// word makes no steps.
-    pub fn fill_step_word(&self, local: Micros) -> u32 {
+    pub fn fill_step_word(&self, local: Instant) -> u32 {
         self.with(|m| m.fill_step_word(local)).unwrap_or(0)
     }
 
@@ -343,7 +347,7 @@ impl<B: Board> ModuleCell<B> {
     }
 
     /// [`Module::limit_changed`].
-    pub fn limit_changed(&self, local: Micros, level: bool) {
+    pub fn limit_changed(&self, local: Instant, level: bool) {
         self.with(|m| m.limit_changed(local, level));
     }
 }

@@ -6,7 +6,7 @@
 use crate::functions::{ModuleFn, ALL};
 use crate::ModuleHandle;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
-use osap_core::Micros;
+use osap_core::{Instant, SystemInstant};
 use pipes_core::function::PipesFunction;
 use pipes_core::signature::SignatureError;
 
@@ -28,7 +28,7 @@ pub struct PulseTimer<H> {
     module: H,
     /// The (local, system) time of the latest poll: where `wake_at` places
     /// scheduled starts on the local clock.
-    last: (Micros, u64),
+    last: (Instant, SystemInstant),
 }
 
 impl<H: ModuleHandle> PulseTimer<H> {
@@ -36,7 +36,7 @@ impl<H: ModuleHandle> PulseTimer<H> {
     pub fn new(module: H) -> Self {
         PulseTimer {
             module,
-            last: (0, 0),
+            last: (Instant::ZERO, SystemInstant::ZERO),
         }
     }
 }
@@ -64,7 +64,7 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
         });
     }
 
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         let (now, system) = self.last;
         self.module
             .with(|m| {
@@ -118,7 +118,7 @@ impl<H: ModuleHandle> Port for ModulePort<H> {
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         delegate!(self, p => p.poll(tx))
     }
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         delegate!(self, p => p.wake_at())
     }
 }

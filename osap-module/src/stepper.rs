@@ -26,9 +26,12 @@ use maxl::{
     AxisLimits, BackstopLimits, Clamped, EvalError, Fx, Interval, Limiter, PioPacker, Point,
     PushError, PushOutcome, Rounding, StepGen, TickEval, Track, TrackStatus,
 };
+use osap_core::{Duration, SystemInstant};
 
 /// Step ticks per second: one tick every [`STEP_TICK_US`] µs (100 kHz).
 pub const STEP_TICK_US: u32 = 10;
+/// One step tick.
+const TICK: Duration = Duration::from_micros(STEP_TICK_US as u64);
 /// Ticks in one step-generator word (2 bits each, see
 /// [`maxl::PioPacker`]).
 pub const TICKS_PER_WORD: u32 = 16;
@@ -159,7 +162,7 @@ pub struct Stepper {
     track: Track<Fx, QUEUE>,
     tick: Option<TickEval>,
     /// The system time of the tick `tick` yields next, when it is loaded.
-    tick_next: Option<u64>,
+    tick_next: Option<SystemInstant>,
     gen: StepGen,
     packer: PioPacker,
     enabled: bool,
@@ -171,7 +174,7 @@ pub struct Stepper {
     /// Where the axis stands when no stream moves it, microsteps.
     rest: Fx,
     /// System time of the latest tick filled.
-    last_tick: u64,
+    last_tick: SystemInstant,
     mode: Mode,
     counters: StepperCounters,
     limits: Limits,
@@ -211,7 +214,7 @@ impl Stepper {
             stop_acc: STOP_ACC,
             stop_jerk: STOP_JERK,
             rest: Fx(0),
-            last_tick: 0,
+            last_tick: SystemInstant::ZERO,
             mode: Mode::Disabled,
             counters: StepperCounters::default(),
             limits: Limits::OFF,
@@ -246,9 +249,9 @@ impl Stepper {
         self.track.is_empty() || (self.track.backstop().is_some() && self.settled())
     }
 
-    /// Queues the control point stamped `time` (synchronized µs) at
+    /// Queues the control point stamped `time` (system time) at
     /// `position` (user units).
-    pub fn add_point(&mut self, time: u64, position: f32) -> Result<(), StepperError> {
+    pub fn add_point(&mut self, time: SystemInstant, position: f32) -> Result<(), StepperError> {
         let result = self.push(time, position);
         match result {
             Ok(()) => self.counters.points = self.counters.points.wrapping_add(1),
@@ -260,7 +263,7 @@ impl Stepper {
         result
     }
 
-    fn push(&mut self, time: u64, position: f32) -> Result<(), StepperError> {
+    fn push(&mut self, time: SystemInstant, position: f32) -> Result<(), StepperError> {
         if !self.enabled {
             return Err(StepperError::Disabled);
         }
@@ -288,9 +291,9 @@ impl Stepper {
         if self.track.len() == QUEUE {
             // The track would drop its oldest point: only if it has run.
             let shift = self.track.interval().shift();
-            let newest = self.track.last_time().unwrap_or(0) >> shift;
+            let newest = self.track.last_time().unwrap_or_default().as_micros() >> shift;
             let oldest = newest + 1 - QUEUE as u64;
-            if oldest + 1 >= self.last_tick >> shift {
+            if oldest + 1 >= self.last_tick.as_micros() >> shift {
                 return Err(StepperError::QueueFull);
             }
         }
@@ -317,19 +320,19 @@ impl Stepper {
     /// change the point (or the midpoint the track fills a single gap
     /// with), `None` with no limits or for a point the track refuses
     /// anyway. The axis's own limiter is left as it is.
-    fn check_limits(&mut self, time: u64, p: Fx) -> Result<Option<Limiter<Fx>>, StepperError> {
+    fn check_limits(&mut self, time: SystemInstant, p: Fx) -> Result<Option<Limiter<Fx>>, StepperError> {
         let Some(mut next) = self.limiter else {
             return Ok(None);
         };
         let iv = self.track.interval();
-        if time & (u64::from(iv.micros()) - 1) != 0 {
+        if time.as_micros() & (u64::from(iv.micros()) - 1) != 0 {
             return Ok(None);
         }
         let mut over = Clamped::default();
         match (self.track.last_time(), self.track.last_point()) {
             // A new stream: it starts at rest where the axis stands.
             (None, _) => next.reset(),
-            (Some(last), Some(prev)) if time > last => match (time - last) >> iv.shift() {
+            (Some(last), Some(prev)) if time > last => match (time - last).as_micros() >> iv.shift() {
                 1 => {}
                 2 => over = next.push(Fx::midpoint(prev, p)).clamped,
                 _ => return Ok(None),
@@ -358,7 +361,7 @@ impl Stepper {
     fn settled(&self) -> bool {
         match self.track.backstop() {
             Some((start, duration)) => {
-                let end = start + (f64::from(duration) * 1e6) as u64 + 1;
+                let end = start + Duration::from_micros((f64::from(duration) * 1e6) as u64 + 1);
                 self.last_tick >= end
             }
             None => false,
@@ -374,18 +377,18 @@ impl Stepper {
     }
 
     /// The position (microsteps) the track gives at synchronized `t`.
-    fn position_at(&mut self, t: u64) -> Fx {
+    fn position_at(&mut self, t: SystemInstant) -> Fx {
         if let Some(tick) = self.tick.as_mut() {
             if self.tick_next == Some(t) {
                 if let Some(p) = tick.next() {
-                    self.tick_next = Some(t + u64::from(STEP_TICK_US));
+                    self.tick_next = Some(t + TICK);
                     return p;
                 }
             }
             if let Some((seg, du)) = self.track.segment_at(t) {
                 if tick.load(&seg, du).is_ok() {
                     if let Some(p) = tick.next() {
-                        self.tick_next = Some(t + u64::from(STEP_TICK_US));
+                        self.tick_next = Some(t + TICK);
                         self.mode = Mode::Tracking;
                         return p;
                     }
@@ -411,7 +414,7 @@ impl Stepper {
     /// synchronized time `t0`, [`STEP_TICK_US`] apart, packed as
     /// [`maxl::PioPacker`] packs them. A disabled or halted axis makes no
     /// steps.
-    pub fn fill_word(&mut self, t0: u64) -> u32 {
+    pub fn fill_word(&mut self, t0: SystemInstant) -> u32 {
         self.counters.words = self.counters.words.wrapping_add(1);
         let mut word = 0;
         if self.is_standing() {
@@ -422,7 +425,7 @@ impl Stepper {
                     word = w;
                 }
             }
-            self.last_tick = t0 + u64::from((TICKS_PER_WORD - 1) * STEP_TICK_US);
+            self.last_tick = t0 + TICK * u64::from(TICKS_PER_WORD - 1);
             // A stream whose stop has ended stays in its mode until the
             // next stream clears it.
             if self.enabled && !self.halted && self.track.is_empty() {
@@ -431,7 +434,7 @@ impl Stepper {
             return word;
         }
         for k in 0..TICKS_PER_WORD {
-            let t = t0 + u64::from(k * STEP_TICK_US);
+            let t = t0 + TICK * u64::from(k);
             let step = if self.enabled && !self.halted {
                 let p = self.position_at(t);
                 self.gen.tick(p)
@@ -585,7 +588,7 @@ impl Stepper {
 
     /// The position the steps sent so far put the motor at, user units, and
     /// the synchronized time of the latest tick they include.
-    pub fn position(&self) -> (u64, f32) {
+    pub fn position(&self) -> (SystemInstant, f32) {
         (self.last_tick, self.position_units())
     }
 

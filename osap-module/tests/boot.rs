@@ -4,11 +4,12 @@
 //! `BootError::Unsupported`, a moving axis with `BootError::Moving`.
 
 use osap_core::clock::TimeMap;
+use osap_core::time::Duration;
+use osap_core::time::Instant;
 use osap_core::link::LinkGateway;
 use osap_core::port::Port;
-use osap_core::Micros;
 use osap_module::board::{Board, IoHw, StepperHw};
-use osap_module::boot::{BootError, BOOTLOADER_DELAY_US};
+use osap_module::boot::{BootError, BOOTLOADER_DELAY};
 use osap_module::functions::{FnId, ModuleFn};
 use osap_module::{Module, ModuleHandle, ModulePorts, PORT_INDICES};
 use pipes_core::function::{call_direct, CallError};
@@ -29,7 +30,7 @@ impl StepperHw for Driver {
 /// A board whose bootloader entry counts the reboots asked for.
 struct BootBoard {
     driver: Driver,
-    now: Rc<Cell<Micros>>,
+    now: Rc<Cell<Instant>>,
     /// `None`: the board has no bootloader (the trait's defaults).
     reboots: Option<Rc<Cell<u32>>>,
 }
@@ -41,7 +42,7 @@ impl Board for BootBoard {
     fn io(&mut self) -> Option<&mut dyn IoHw> {
         None
     }
-    fn now(&self) -> Micros {
+    fn now(&self) -> Instant {
         self.now.get()
     }
     fn has_bootloader(&self) -> bool {
@@ -65,8 +66,8 @@ impl Board for PlainBoard {
     fn io(&mut self) -> Option<&mut dyn IoHw> {
         None
     }
-    fn now(&self) -> Micros {
-        0
+    fn now(&self) -> Instant {
+        Instant::from_micros(0)
     }
 }
 
@@ -97,7 +98,7 @@ type TestRuntime = osap_core::Runtime<4, 128, PORT_INDICES, 1>;
 
 #[test]
 fn the_call_answers_then_the_loop_reboots_after_the_delay_once() {
-    let now = Rc::new(Cell::new(5_000));
+    let now = Rc::new(Cell::new(Instant::from_micros(5_000)));
     let enabled = Rc::new(Cell::new(false));
     let reboots = Rc::new(Cell::new(0));
     let module = Shared(Rc::new(RefCell::new(Module::new(BootBoard {
@@ -116,31 +117,32 @@ fn the_call_answers_then_the_loop_reboots_after_the_delay_once() {
     let mut links: [&mut dyn LinkGateway; 0] = [];
     // The runtime's loop, and when the pulse timer port (the last port)
     // asks it to wake.
-    let mut poll = |at: Micros| {
+    let mut poll = |at: Instant| {
         now.set(at);
         let result = runtime.poll(at, ports.ports(), &mut links);
         let timer = ports.ports().last().and_then(|p| p.wake_at());
         (result.wake_at, timer)
     };
-    assert_eq!(poll(5_000).1, None, "nothing armed, nothing to wake for");
+    assert_eq!(poll(Instant::from_micros(5_000)).1, None, "nothing armed, nothing to wake for");
 
     // The call answers (no outputs) and the board has been told nothing.
     assert_eq!(call_enter(&module), Ok(0));
     assert_eq!(reboots.get(), 0);
-    let due = 5_000 + BOOTLOADER_DELAY_US;
+    let due = Instant::from_micros(5_000) + BOOTLOADER_DELAY;
     assert_eq!(module.with(|m| m.boot.due_at()), Some(Some(due)));
 
     // The loop wakes for it, and does nothing before it is due (the answer
     // leaves on its link meanwhile).
-    let (wake, timer) = poll(5_001);
+    let (wake, timer) = poll(Instant::from_micros(5_001));
     assert_eq!(timer, Some(due));
     assert!(wake.is_some_and(|w| w <= due), "{wake:?}");
-    assert_eq!(poll(due - 1).1, Some(due));
+    let just_before = due - Duration::from_micros(1);
+    assert_eq!(poll(just_before).1, Some(due));
     assert_eq!(reboots.get(), 0);
     assert!(enabled.get(), "still running until the reboot");
 
     // A second call meanwhile does not push the reboot back.
-    now.set(due - 1);
+    now.set(just_before);
     assert_eq!(call_enter(&module), Ok(0));
     assert_eq!(module.with(|m| m.boot.due_at()), Some(Some(due)));
 
@@ -148,7 +150,7 @@ fn the_call_answers_then_the_loop_reboots_after_the_delay_once() {
     assert_eq!(poll(due).1, None);
     assert_eq!(reboots.get(), 1);
     assert!(!enabled.get(), "the driver is disabled before the reboot");
-    poll(due + 1_000_000);
+    poll(due + Duration::from_secs(1));
     assert_eq!(reboots.get(), 1, "told once");
 }
 
@@ -184,7 +186,7 @@ fn a_board_without_a_bootloader_refuses_with_its_named_code() {
     let parts = Shared(Rc::new(RefCell::new(Module::new(Parts::<Limp, NoIo> {
         stepper: Limp,
         io: None,
-        clock: || 0,
+        clock: || Instant::from_micros(0),
         bootloader: None,
     }))));
     assert_eq!(
@@ -195,7 +197,7 @@ fn a_board_without_a_bootloader_refuses_with_its_named_code() {
 
 #[test]
 fn a_moving_axis_refuses() {
-    let now = Rc::new(Cell::new(0));
+    let now = Rc::new(Cell::new(Instant::ZERO));
     let reboots = Rc::new(Cell::new(0));
     let module = Shared(Rc::new(RefCell::new(Module::new(BootBoard {
         driver: Driver(Rc::new(Cell::new(false))),
@@ -222,6 +224,6 @@ fn a_moving_axis_refuses() {
     // Halted, it stands: the request is taken.
     module.with(|m| m.halt().unwrap());
     assert_eq!(call_enter(&module), Ok(0));
-    module.with(|m| m.poll_boot(BOOTLOADER_DELAY_US));
+    module.with(|m| m.poll_boot(Instant::ZERO + BOOTLOADER_DELAY));
     assert_eq!(reboots.get(), 1);
 }

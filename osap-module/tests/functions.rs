@@ -2,7 +2,7 @@
 //! and as methods, and the firmware's static cell.
 
 use osap_core::clock::TimeMap;
-use osap_core::Micros;
+use osap_core::time::{Duration, Instant, SystemInstant};
 use osap_module::board::{Board, IoHw, StepperHw};
 use osap_module::functions::{FnId, ModuleFn, SIGNATURES};
 use osap_module::{Module, ModuleCell, ModuleHandle, ModulePorts, PORT_COUNT};
@@ -53,7 +53,7 @@ impl IoHw for Pins {
 struct TestBoard {
     driver: Driver,
     pins: Option<Pins>,
-    now: Rc<Cell<Micros>>,
+    now: Rc<Cell<Instant>>,
 }
 
 impl Board for TestBoard {
@@ -63,7 +63,7 @@ impl Board for TestBoard {
     fn io(&mut self) -> Option<&mut dyn IoHw> {
         self.pins.as_mut().map(|p| p as &mut dyn IoHw)
     }
-    fn now(&self) -> Micros {
+    fn now(&self) -> Instant {
         self.now.get()
     }
 }
@@ -71,12 +71,12 @@ impl Board for TestBoard {
 struct Fixture {
     module: Module<TestBoard>,
     enabled: Rc<Cell<bool>>,
-    now: Rc<Cell<Micros>>,
+    now: Rc<Cell<Instant>>,
 }
 
 fn fresh(io: bool) -> Fixture {
     let enabled = Rc::new(Cell::new(true));
-    let now = Rc::new(Cell::new(0));
+    let now = Rc::new(Cell::new(Instant::ZERO));
     let board = TestBoard {
         driver: Driver {
             enabled: enabled.clone(),
@@ -189,7 +189,7 @@ fn functions_drive_the_module() {
     }
     let mut local = 0;
     while local < 30 * iv {
-        m.fill_step_word(local);
+        m.fill_step_word(Instant::from_micros(local));
         local += 160;
     }
     let (steps, up, down, overruns) = m.get_steps().unwrap();
@@ -204,8 +204,8 @@ fn functions_drive_the_module() {
     // reports its own time stamp.
     m.limit_initial(true);
     assert_eq!(m.read_limit().unwrap(), (0, true, 0));
-    now.set(77_000);
-    m.limit_changed(70_000, false);
+    now.set(Instant::from_micros(77_000));
+    m.limit_changed(Instant::from_micros(70_000), false);
     assert_eq!(m.read_limit().unwrap(), (70_000, false, 1));
     // I/O: a read carries the synchronized time of the read.
     m.digital_write(2, true).unwrap();
@@ -234,18 +234,18 @@ fn step_words_follow_a_new_time_map_at_once() {
         m.fill_step_word(local);
         m.get_position().unwrap().0
     };
-    assert_eq!(last_tick(&mut m, 1_000_000), 1_000_150);
+    assert_eq!(last_tick(&mut m, Instant::from_micros(1_000_000)), 1_000_150);
     // A rate of +400 ppm since local 0: the next word, well within the
     // anchor's span, must use it, not the anchor taken under the old map.
     let mut clock: osap_core::clock::Clock<1> = osap_core::clock::Clock::new(Default::default());
-    clock.set_rate_ppb(0, 400_000);
+    clock.set_rate_ppb(Instant::from_micros(0), 400_000);
     let map = clock.time_map();
     m.publish_time(map);
     assert_eq!(
-        last_tick(&mut m, 1_000_160),
-        map.system_time(1_000_160) + 150
+        last_tick(&mut m, Instant::from_micros(1_000_160)),
+        (map.system_time(Instant::from_micros(1_000_160)) + Duration::from_micros(150)).as_micros()
     );
-    assert_eq!(map.system_time(1_000_160), 1_000_560);
+    assert_eq!(map.system_time(Instant::from_micros(1_000_160)), SystemInstant::from_micros(1_000_560));
 }
 
 #[test]
@@ -284,8 +284,8 @@ impl StepperHw for Limp {
     }
 }
 
-fn zero() -> Micros {
-    0
+fn zero() -> Instant {
+    Instant::ZERO
 }
 
 #[test]
@@ -298,8 +298,8 @@ fn a_firmware_cell_refuses_until_installed() {
         refused
     );
     assert_eq!(call(&&CELL, FnId::read_limit, &[]).map(|_| ()), refused);
-    assert_eq!(CELL.fill_step_word(0), 0);
-    CELL.limit_changed(0, true);
+    assert_eq!(CELL.fill_step_word(Instant::from_micros(0)), 0);
+    CELL.limit_changed(Instant::from_micros(0), true);
     CELL.install(Parts {
         stepper: Limp,
         io: None,
@@ -307,7 +307,7 @@ fn a_firmware_cell_refuses_until_installed() {
         bootloader: None,
     });
     call(&&CELL, FnId::set_enable, &[Value::Bool(true)]).unwrap();
-    CELL.limit_changed(5, true);
+    CELL.limit_changed(Instant::from_micros(5), true);
     assert_eq!(
         call(&&CELL, FnId::read_limit, &[]).unwrap(),
         vec![Value::U64(5), Value::Bool(true), Value::U32(1)]
@@ -337,7 +337,7 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     m.publish_time(TimeMap::IDENTITY);
     assert_eq!(m.get_fault().unwrap(), (0, 0, 0, 0), "none yet");
     // A refused point: disabled (code 6), at the module's time.
-    now.set(5_000);
+    now.set(Instant::from_micros(5_000));
     assert_eq!(m.add_point(0, 0.0), Err(CallError::Failed(6)));
     assert_eq!(
         m.get_fault().unwrap(),
@@ -347,7 +347,7 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     // A stream cut off mid-motion: the backstop, with the upstream's quiet
     // time since the last point was accepted (at 10 000).
     let iv = 2048u64;
-    now.set(10_000);
+    now.set(Instant::from_micros(10_000));
     for k in 0..3 {
         m.add_point(k * iv, 0.0).unwrap();
     }
@@ -356,7 +356,7 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     }
     let mut local = 0;
     while local < 40 * iv {
-        m.fill_step_word(local);
+        m.fill_step_word(Instant::from_micros(local));
         local += 160;
     }
     let (time, code, quiet, count) = m.get_fault().unwrap();
@@ -372,15 +372,15 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
         (time, FaultKind::Backstop.code(), quiet, 3)
     );
     // A limit press (the input reads low) is a fault; its release is not.
-    m.limit_changed(100_000, false);
+    m.limit_changed(Instant::from_micros(100_000), false);
     assert_eq!(
         m.get_fault().unwrap(),
         (100_000, FaultKind::LimitHit.code(), 1, 4)
     );
-    m.limit_changed(101_000, true);
+    m.limit_changed(Instant::from_micros(101_000), true);
     assert_eq!(m.get_fault().unwrap().3, 4);
     // A halt.
-    now.set(200_000);
+    now.set(Instant::from_micros(200_000));
     m.halt().unwrap();
     assert_eq!(
         m.get_fault().unwrap(),
@@ -392,7 +392,7 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     m.set_enable(true).unwrap();
     m.set_microsteps(16).unwrap();
     let t0 = 300 * iv;
-    now.set(t0);
+    now.set(Instant::from_micros(t0));
     let (_, here) = m.get_position().unwrap();
     for k in 0..3 {
         m.add_point(t0 + k * iv, here).unwrap();
@@ -407,7 +407,7 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     }
     let mut local = t0;
     while local < t0 + 30 * iv {
-        m.fill_step_word(local);
+        m.fill_step_word(Instant::from_micros(local));
         local += 160;
     }
     let (_, code, owed, count) = m.get_fault().unwrap();

@@ -7,7 +7,7 @@
 //! an interval or scale change.
 
 use osap_core::clock::TimeMap;
-use osap_core::Micros;
+use osap_core::time::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
 use osap_module::fault::{FaultKind, OVER_ACCELERATION, OVER_JERK, OVER_VELOCITY};
 use osap_module::functions::{FnId, ModuleFn};
@@ -48,7 +48,7 @@ impl StepperHw for Driver {
     }
 }
 
-struct TestBoard(Rc<Cell<Micros>>, Driver);
+struct TestBoard(Rc<Cell<Instant>>, Driver);
 
 impl Board for TestBoard {
     fn stepper(&mut self) -> &mut dyn StepperHw {
@@ -57,21 +57,21 @@ impl Board for TestBoard {
     fn io(&mut self) -> Option<&mut dyn IoHw> {
         None
     }
-    fn now(&self) -> Micros {
+    fn now(&self) -> Instant {
         self.0.get()
     }
 }
 
 /// An enabled module on the identity time map, and its clock.
-fn module() -> (Module<TestBoard>, Rc<Cell<Micros>>) {
-    let now = Rc::new(Cell::new(0));
+fn module() -> (Module<TestBoard>, Rc<Cell<Instant>>) {
+    let now = Rc::new(Cell::new(Instant::ZERO));
     let mut m = Module::new(TestBoard(now.clone(), Driver));
     m.publish_time(TimeMap::IDENTITY);
     m.set_enable(true).unwrap();
     (m, now)
 }
 
-fn limited() -> (Module<TestBoard>, Rc<Cell<Micros>>) {
+fn limited() -> (Module<TestBoard>, Rc<Cell<Instant>>) {
     let (mut m, now) = module();
     m.set_limits(V, A, J).unwrap();
     (m, now)
@@ -117,7 +117,7 @@ fn stream(
     let mut local = t0 - 20 * IV;
     let mut run_until = |m: &mut Module<TestBoard>, until: u64, words: &mut Vec<u32>| {
         while local < until {
-            words.push(m.fill_step_word(local));
+            words.push(m.fill_step_word(Instant::from_micros(local)));
             local += 160;
         }
     };
@@ -201,7 +201,7 @@ fn fault(m: &mut Module<TestBoard>) -> (u8, u32) {
 #[test]
 fn a_jerk_step_is_refused_and_the_stream_goes_on() {
     let (mut m, now) = limited();
-    now.set(77_000);
+    now.set(Instant::from_micros(77_000));
     for k in 0..3 {
         m.add_point(T0 + k * IV, 0.0).unwrap();
     }

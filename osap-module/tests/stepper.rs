@@ -1,6 +1,7 @@
 //! The stepper logic on its own: streams in, step ticks out.
 
 use maxl::{Fx, Interval, Track};
+use osap_core::time::SystemInstant;
 use osap_module::stepper::{Mode, Stepper, StepperError, QUEUE, STEP_TICK_US, TICKS_PER_WORD};
 
 const IV: u64 = 2048;
@@ -36,7 +37,7 @@ fn run(s: &mut Stepper, t0: u64, t1: u64) -> i64 {
     let mut net = 0;
     let mut t = t0;
     while t < t1 {
-        net += decode(s.fill_word(t)).0;
+        net += decode(s.fill_word(SystemInstant::from_micros(t))).0;
         t += WORD_US;
     }
     net
@@ -57,7 +58,7 @@ fn a_stream_becomes_exactly_its_steps() {
     // Feed points 8 intervals ahead of the ticks, as a stream would.
     for (k, p) in pts.iter().enumerate() {
         let stamp = t0 + k as u64 * IV;
-        s.add_point(stamp, *p).unwrap();
+        s.add_point(SystemInstant::from_micros(stamp), *p).unwrap();
         sent += 1;
         let until = stamp.saturating_sub(8 * IV);
         if until > t {
@@ -97,20 +98,20 @@ fn per_tick_positions_match_the_track() {
     for (k, p) in pts.iter().enumerate() {
         let stamp = k as u64 * IV;
         if k < QUEUE - 1 {
-            s.add_point(stamp, *p).unwrap();
+            s.add_point(SystemInstant::from_micros(stamp), *p).unwrap();
         }
         track
-            .push(stamp, Fx::from_f64(f64::from(*p) * 80.0))
+            .push(SystemInstant::from_micros(stamp), Fx::from_f64(f64::from(*p) * 80.0))
             .unwrap();
     }
     // Steps follow the exact track position at every tick: the step index
     // after each tick equals the track position rounded.
     let mut t = 2 * IV;
     while t < 50 * IV {
-        let word = s.fill_word(t);
+        let word = s.fill_word(SystemInstant::from_micros(t));
         let _ = word;
         let expect = track
-            .sample(t + WORD_US - STEP_TICK_US as u64)
+            .sample(SystemInstant::from_micros(t + WORD_US - STEP_TICK_US as u64))
             .unwrap()
             .kin
             .pos;
@@ -125,17 +126,17 @@ fn per_tick_positions_match_the_track() {
 #[test]
 fn refuses_bad_points_with_codes() {
     let mut s = Stepper::new();
-    assert_eq!(s.add_point(0, 0.0), Err(StepperError::Disabled));
+    assert_eq!(s.add_point(SystemInstant::from_micros(0), 0.0), Err(StepperError::Disabled));
     s.set_enable(true);
-    assert_eq!(s.add_point(0, f32::NAN), Err(StepperError::OutOfRange));
-    assert_eq!(s.add_point(0, 1e6), Err(StepperError::OutOfRange));
-    assert_eq!(s.add_point(0, 5.0), Err(StepperError::Discontinuous));
-    assert_eq!(s.add_point(7, 0.0), Err(StepperError::Misaligned));
-    assert_eq!(s.add_point(IV, 0.0), Ok(()));
-    assert_eq!(s.add_point(IV, 0.0), Err(StepperError::Stale));
-    assert_eq!(s.add_point(4 * IV, 0.0), Err(StepperError::Gap));
+    assert_eq!(s.add_point(SystemInstant::from_micros(0), f32::NAN), Err(StepperError::OutOfRange));
+    assert_eq!(s.add_point(SystemInstant::from_micros(0), 1e6), Err(StepperError::OutOfRange));
+    assert_eq!(s.add_point(SystemInstant::from_micros(0), 5.0), Err(StepperError::Discontinuous));
+    assert_eq!(s.add_point(SystemInstant::from_micros(7), 0.0), Err(StepperError::Misaligned));
+    assert_eq!(s.add_point(SystemInstant::from_micros(IV), 0.0), Ok(()));
+    assert_eq!(s.add_point(SystemInstant::from_micros(IV), 0.0), Err(StepperError::Stale));
+    assert_eq!(s.add_point(SystemInstant::from_micros(4 * IV), 0.0), Err(StepperError::Gap));
     assert_eq!(
-        s.add_point(3 * IV, 0.0),
+        s.add_point(SystemInstant::from_micros(3 * IV), 0.0),
         Ok(()),
         "one missing point is filled"
     );
@@ -147,13 +148,13 @@ fn refuses_bad_points_with_codes() {
     assert_eq!(s.set_scale(100.0), Err(StepperError::Busy));
     // A stream too far ahead fills the queue and is refused, not dropped.
     for k in 4..=QUEUE as u64 {
-        assert_eq!(s.add_point(k * IV, 0.0), Ok(()), "{k}");
+        assert_eq!(s.add_point(SystemInstant::from_micros(k * IV), 0.0), Ok(()), "{k}");
     }
     let next = (QUEUE as u64 + 1) * IV;
-    assert_eq!(s.add_point(next, 0.0), Err(StepperError::QueueFull));
+    assert_eq!(s.add_point(SystemInstant::from_micros(next), 0.0), Err(StepperError::QueueFull));
     // Once the oldest points have run, the stream goes on.
     run(&mut s, 0, 10 * IV);
-    assert_eq!(s.add_point(next, 0.0), Ok(()));
+    assert_eq!(s.add_point(SystemInstant::from_micros(next), 0.0), Ok(()));
 }
 
 #[test]
@@ -162,38 +163,38 @@ fn a_cut_stream_faults_and_a_halt_latches() {
     let mut pts: Vec<f32> = vec![0.0; 3];
     pts.extend((1..=10).map(|k| k as f32 * 0.5));
     for (k, p) in pts.iter().enumerate() {
-        s.add_point(k as u64 * IV, *p).unwrap();
+        s.add_point(SystemInstant::from_micros(k as u64 * IV), *p).unwrap();
     }
     run(&mut s, 0, 200 * IV);
     assert_eq!(s.counters().faults, 1);
     assert_eq!(s.mode(), Mode::Backstop);
     let (_, here) = s.position();
     assert!(here > 4.5, "braked beyond the last point it had: {here}");
-    assert_eq!(s.add_point(300 * IV, here), Err(StepperError::Faulted));
+    assert_eq!(s.add_point(SystemInstant::from_micros(300 * IV), here), Err(StepperError::Faulted));
     // Cycling the motor clears the fault where the axis stands.
     s.set_enable(false);
     s.set_enable(true);
-    assert_eq!(s.add_point(300 * IV, here), Ok(()));
+    assert_eq!(s.add_point(SystemInstant::from_micros(300 * IV), here), Ok(()));
     // A halt stops stepping at once and latches until the motor cycles.
     s.halt();
     assert_eq!(s.mode(), Mode::Halted);
     let before = s.step_counts().0;
     assert_eq!(run(&mut s, 300 * IV, 310 * IV), 0);
     assert_eq!(s.step_counts().0, before);
-    assert_eq!(s.add_point(301 * IV, here), Err(StepperError::Faulted));
+    assert_eq!(s.add_point(SystemInstant::from_micros(301 * IV), here), Err(StepperError::Faulted));
     s.set_enable(false);
     s.set_enable(true);
-    assert_eq!(s.add_point(320 * IV, here), Ok(()));
+    assert_eq!(s.add_point(SystemInstant::from_micros(320 * IV), here), Ok(()));
 }
 
 #[test]
 fn settings_change_while_idle_and_keep_the_place() {
     let mut s = enabled();
     for k in 0..4u64 {
-        s.add_point(k * IV, 0.0).unwrap();
+        s.add_point(SystemInstant::from_micros(k * IV), 0.0).unwrap();
     }
     for k in 4..12u64 {
-        s.add_point(k * IV, 1.0).unwrap();
+        s.add_point(SystemInstant::from_micros(k * IV), 1.0).unwrap();
     }
     run(&mut s, 0, 40 * IV);
     assert_eq!(s.step_counts().0, 80);
@@ -211,15 +212,15 @@ fn settings_change_while_idle_and_keep_the_place() {
     assert_eq!(s.interval_us(), 1024);
     // A new stream starts where it stands, in the new units and interval.
     let t = 100 * 2048;
-    assert_eq!(s.add_point(t, 1.0), Ok(()));
-    assert_eq!(s.add_point(t + 1024, 1.0), Ok(()));
+    assert_eq!(s.add_point(SystemInstant::from_micros(t), 1.0), Ok(()));
+    assert_eq!(s.add_point(SystemInstant::from_micros(t + 1024), 1.0), Ok(()));
 }
 
 #[test]
 fn a_disabled_axis_makes_no_steps() {
     let mut s = Stepper::new();
     for k in 0..40u64 {
-        assert_eq!(s.fill_word(k * WORD_US), 0);
+        assert_eq!(s.fill_word(SystemInstant::from_micros(k * WORD_US)), 0);
     }
     assert_eq!(s.mode(), Mode::Disabled);
 }
@@ -231,7 +232,7 @@ fn an_axis_stands_once_a_stream_has_stopped_at_rest() {
     let t0 = 100 * IV;
     let points = [0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0];
     for (k, p) in points.iter().enumerate() {
-        s.add_point(t0 + k as u64 * IV, *p).unwrap();
+        s.add_point(SystemInstant::from_micros(t0 + k as u64 * IV), *p).unwrap();
     }
     assert!(!s.is_standing(), "a stream is queued");
     let end = t0 + (points.len() as u64 + 4) * IV;
@@ -250,6 +251,6 @@ fn an_axis_stands_once_a_stream_has_stopped_at_rest() {
     assert_eq!(run(&mut s, end, end + 8 * IV), 0);
     assert_eq!(s.mode(), Mode::Backstop);
     let t1 = end + 16 * IV;
-    s.add_point(t1, 1.0).unwrap();
+    s.add_point(SystemInstant::from_micros(t1), 1.0).unwrap();
     assert!(!s.is_standing());
 }
