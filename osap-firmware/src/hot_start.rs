@@ -11,30 +11,30 @@
 //! otherwise, which leaves a cold start. One sample in, the controller has
 //! learned nothing a preset would overwrite.
 //!
-//! **Save.** Only a settled clock's rate is saved, [`SavePolicy::hold_us`]
+//! **Save.** Only a settled clock's rate is saved, [`SavePolicy::hold`]
 //! after it first settled on the source it follows, and only when it differs from the
 //! saved one by more than [`SavePolicy::threshold_ppb`] (or the source
-//! changed); never twice within [`SavePolicy::min_interval_us`], nor in
-//! the first `min_interval_us` after boot while a record of the same
+//! changed); never twice within [`SavePolicy::min_interval`], nor in
+//! the first `min_interval` after boot while a record of the same
 //! source exists; and not while motion is queued or running, since a
-//! flash write can stall the step generator. That bounds writes to one per `min_interval_us` of
+//! flash write can stall the step generator. That bounds writes to one per `min_interval` of
 //! uptime plus at most one per boot on a changed source; with the log's
 //! append-until-full sector ([`crate::rate_store`]) the erase cycles a year
 //! follow (docs/clock-sync.md, "Hot start").
 use osap_core::clock::{Clock, SyncState};
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 
 use crate::rate_store::{RateFlash, RateRecord, RateSource, RateStore, RateStoreError};
 
 /// When a rate is saved.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SavePolicy {
-    /// How long the clock must have been settled before its rate is saved,
-    /// µs: long enough that the rate is the fitted one, not a transient.
-    pub hold_us: Micros,
-    /// Least time between saves, µs (and from boot to the first save when
-    /// a record of the same source exists).
-    pub min_interval_us: Micros,
+    /// How long the clock must have been settled before its rate is saved:
+    /// long enough that the rate is the fitted one, not a transient.
+    pub hold: Duration,
+    /// Least time between saves (and from boot to the first save when a
+    /// record of the same source exists).
+    pub min_interval: Duration,
     /// Least change of the rate worth a save, ppb.
     pub threshold_ppb: u32,
 }
@@ -45,8 +45,8 @@ impl Default for SavePolicy {
     /// rate to be off).
     fn default() -> Self {
         SavePolicy {
-            hold_us: 60_000_000,
-            min_interval_us: 600_000_000,
+            hold: Duration::from_secs(60),
+            min_interval: Duration::from_secs(600),
             threshold_ppb: 500,
         }
     }
@@ -94,10 +94,10 @@ pub struct HotStart {
     saved: Option<(i32, RateSource)>,
     preset: Preset,
     /// Local time of the first poll.
-    boot: Option<Micros>,
+    boot: Option<Instant>,
     /// When the clock was first settled on the source it follows.
-    settled_since: Option<(Micros, RateSource)>,
-    last_save: Option<Micros>,
+    settled_since: Option<(Instant, RateSource)>,
+    last_save: Option<Instant>,
 }
 
 impl HotStart {
@@ -127,7 +127,7 @@ impl HotStart {
     /// and in `save` the rate and source to save now, if one is due.
     pub fn poll<const L: usize>(
         &mut self,
-        now: Micros,
+        now: Instant,
         clock: &mut Clock<L>,
     ) -> (Option<HotStartEvent>, Option<(i32, RateSource)>) {
         let boot = *self.boot.get_or_insert(now);
@@ -164,7 +164,7 @@ impl HotStart {
             return (event, None);
         }
         let (since, _) = *self.settled_since.get_or_insert((now, src));
-        if now.saturating_sub(since) < self.policy.hold_us {
+        if now - since < self.policy.hold {
             return (event, None);
         }
         if clock.motion_active() {
@@ -173,7 +173,7 @@ impl HotStart {
             return (event, None);
         }
         let rate = clock.rate_ppb();
-        let waited = |from: Micros| now.saturating_sub(from) >= self.policy.min_interval_us;
+        let waited = |from: Instant| now - from >= self.policy.min_interval;
         let due = match self.saved {
             Some((ppb, saved)) if saved == src => {
                 rate.abs_diff(ppb) > self.policy.threshold_ppb
@@ -188,8 +188,8 @@ impl HotStart {
 
     /// Tells the policy that a save was attempted at `now`; `saved` is the
     /// rate and source now on flash if it succeeded. A failed save is not
-    /// retried before `min_interval_us`.
-    pub fn saved(&mut self, now: Micros, saved: Option<(i32, RateSource)>) {
+    /// retried before `min_interval`.
+    pub fn saved(&mut self, now: Instant, saved: Option<(i32, RateSource)>) {
         self.last_save = Some(now);
         if saved.is_some() {
             self.saved = saved;
@@ -231,7 +231,7 @@ impl<F: RateFlash> RateKeeper<F> {
     /// (the event of the same poll, a preset, is then not reported).
     pub fn poll<const L: usize>(
         &mut self,
-        now: Micros,
+        now: Instant,
         clock: &mut Clock<L>,
     ) -> Result<Option<HotStartEvent>, RateStoreError<F::Error>> {
         let (event, due) = self.policy.poll(now, clock);
@@ -254,14 +254,15 @@ impl<F: RateFlash> RateKeeper<F> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use osap_core::SystemInstant;
     use crate::rate_store::RamRateFlash;
     use osap_core::clock::{TimeConfig, TimeReply};
 
     type Sector = RamRateFlash<256>;
 
     const POLICY: SavePolicy = SavePolicy {
-        hold_us: 1_000_000,
-        min_interval_us: 10_000_000,
+        hold: Duration::from_secs(1),
+        min_interval: Duration::from_secs(10),
         threshold_ppb: 500,
     };
 
@@ -299,13 +300,13 @@ mod tests {
                 let rtt = 200;
                 let mid = self.sent as f64 + rtt as f64 / 2.0;
                 let reply = TimeReply {
-                    request_time: self.sent,
-                    responder_time: (mid * (1.0 + self.ppm * 1e-6) + 1_000.0) as u64,
+                    request_time: Instant::from_micros(self.sent),
+                    responder_time: SystemInstant::from_micros((mid * (1.0 + self.ppm * 1e-6) + 1_000.0) as u64),
                     responder_tier: 0,
                 };
                 let now = self.sent + rtt;
-                self.clock.on_reply(self.link, &reply, now);
-                if let Some(e) = keeper.poll(now, &mut self.clock).unwrap() {
+                self.clock.on_reply(self.link, &reply, Instant::from_micros(now));
+                if let Some(e) = keeper.poll(Instant::from_micros(now), &mut self.clock).unwrap() {
                     self.events.push((now, e));
                 }
                 self.sent += 50_000;
@@ -342,8 +343,8 @@ mod tests {
         let saves = b.saves();
         assert_eq!(saves.len(), 1, "{saves:?}");
         let (at, r) = saves[0];
-        assert!(at >= settled_at - 50_000 + POLICY.hold_us, "saved at {at}");
-        assert!(at <= settled_at + POLICY.hold_us + 100_000, "saved at {at}");
+        assert!(at >= settled_at - 50_000 + POLICY.hold.as_micros(), "saved at {at}");
+        assert!(at <= settled_at + POLICY.hold.as_micros() + 100_000, "saved at {at}");
         assert_eq!(r.source, RateSource { link: 0, tier: 1 });
         // The clock's rate makes a 20 ppm fast neighbour's time.
         assert!((r.rate_ppb - 20_000).abs() < 1_000, "{r:?}");
@@ -367,7 +368,7 @@ mod tests {
         let saves = b.saves();
         assert!((2..=3).contains(&saves.len()), "{saves:?}");
         for w in saves.windows(2) {
-            assert!(w[1].0 - w[0].0 >= POLICY.min_interval_us, "{saves:?}");
+            assert!(w[1].0 - w[0].0 >= POLICY.min_interval.as_micros(), "{saves:?}");
         }
         let last = saves.last().unwrap().1;
         assert!((last.rate_ppb - 22_000).abs() < 500, "{saves:?}");
@@ -446,7 +447,7 @@ mod tests {
             ..TimeConfig::default()
         });
         for t in 0..100u64 {
-            assert_eq!(keeper.poll(t * 1_000_000, &mut clock), Ok(None));
+            assert_eq!(keeper.poll(Instant::from_micros(t * 1_000_000), &mut clock), Ok(None));
         }
         assert_eq!(keeper.preset(), Preset::Declined);
         assert_eq!(clock.rate_ppb(), 0);
@@ -465,12 +466,12 @@ mod tests {
         let mut attempts = std::vec::Vec::new();
         while sent < 20_000_000 {
             let reply = TimeReply {
-                request_time: sent,
-                responder_time: ((sent + 100) as f64 * (1.0 + 20e-6)) as u64,
+                request_time: Instant::from_micros(sent),
+                responder_time: SystemInstant::from_micros(((sent + 100) as f64 * (1.0 + 20e-6)) as u64),
                 responder_tier: 0,
             };
-            clock.on_reply(0, &reply, sent + 200);
-            if keeper.poll(sent + 200, &mut clock).is_err() {
+            clock.on_reply(0, &reply, Instant::from_micros(sent + 200));
+            if keeper.poll(Instant::from_micros(sent + 200), &mut clock).is_err() {
                 errors += 1;
                 attempts.push(sent + 200);
             }
@@ -480,8 +481,8 @@ mod tests {
         // none for min_interval.
         assert_eq!(errors, 2, "{attempts:?}");
         assert!(attempts[0] < 10_000_000);
-        assert!(attempts[1] - attempts[0] >= POLICY.min_interval_us);
-        assert!(attempts[1] - attempts[0] < POLICY.min_interval_us + 100_000);
+        assert!(attempts[1] - attempts[0] >= POLICY.min_interval.as_micros());
+        assert!(attempts[1] - attempts[0] < POLICY.min_interval.as_micros() + 100_000);
     }
 
     #[test]

@@ -30,3 +30,9 @@ pub mod runtime;
 pub mod serial;
 pub mod timebase;
 pub mod usb;
+
+/// This device's local clock now: embassy-time's µs counter as the
+/// runtime's [`osap_core::Instant`].
+pub fn local_now() -> osap_core::Instant {
+    osap_core::Instant::from_micros(embassy_time::Instant::now().as_micros())
+}

@@ -22,7 +22,7 @@ use embassy_sync::pipe::Pipe;
 use osap_core::bus::{BusRole, Switchable};
 use osap_core::framing::{encode_frame, max_frame_len};
 use osap_core::link::{GatewayCounters, LinkGateway, LinkInfo, LinkSendError, Received};
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 
 pub use crate::framer::ChunkTime;
 use crate::framer::{Next, RxFramer};
@@ -40,14 +40,14 @@ pub const TX_BYTES: usize = 4 * FRAME_MAX;
 /// One received packet and its time stamp.
 pub struct RxPacket {
     len: u16,
-    stamp: Micros,
+    stamp: Instant,
     data: [u8; MTU],
 }
 
 impl RxPacket {
     /// A copy of `packet` (which the framer has already limited to
     /// [`MTU`] bytes) stamped `stamp`.
-    fn new(packet: &[u8], stamp: Micros) -> Self {
+    fn new(packet: &[u8], stamp: Instant) -> Self {
         let mut data = [0; MTU];
         let len = packet.len().min(MTU);
         data[..len].copy_from_slice(&packet[..len]);
@@ -108,7 +108,7 @@ impl LinkShared {
 
     /// Hands a received packet to the runtime; waits while the queue is
     /// full.
-    async fn deliver(&self, packet: &[u8], stamp: Micros) {
+    async fn deliver(&self, packet: &[u8], stamp: Instant) {
         self.rx.send(RxPacket::new(packet, stamp)).await;
         wake_runtime();
     }
@@ -149,7 +149,7 @@ impl LinkShared {
             match framer.next(&mut rest, time) {
                 Next::Packet(packet, stamp) => {
                     self.frames.fetch_add(1, Ordering::Relaxed);
-                    self.deliver(packet, stamp).await
+                    self.deliver(packet, Instant::from_micros(stamp)).await
                 }
                 Next::Bad(_) => {
                     self.rx_errors.fetch_add(1, Ordering::Relaxed);
@@ -172,11 +172,11 @@ pub type Framer = RxFramer<FRAME_MAX>;
 
 /// Per-link wire timing the runtime asks a gateway about.
 pub trait WireTiming {
-    /// Time to put a packet of `len` bytes on the wire, µs.
-    fn transmit_time(&self, len: usize) -> Micros;
+    /// Time to put a packet of `len` bytes on the wire.
+    fn transmit_time(&self, len: usize) -> Duration;
     /// Time until a packet sent now starts onto the wire, given the bytes
-    /// already queued ahead of it, µs.
-    fn queue_delay(&self, queued: usize) -> Micros;
+    /// already queued ahead of it.
+    fn queue_delay(&self, queued: usize) -> Duration;
 }
 
 /// The runtime's side of a byte-stream link.
@@ -269,11 +269,11 @@ impl<W: WireTiming> LinkGateway for FramedGateway<W> {
         Ok(())
     }
 
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         self.wire.transmit_time(len)
     }
 
-    fn queue_delay(&self) -> Micros {
+    fn queue_delay(&self) -> Duration {
         self.wire.queue_delay(self.shared.tx_queued())
     }
 

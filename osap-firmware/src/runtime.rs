@@ -103,7 +103,7 @@ pub fn module_ports<H: ModuleHandle>(module: H) -> ModulePorts<H> {
 fn hot_start<R: RateFlash, const LINKS: usize>(
     runtime: &mut ModuleRuntime<LINKS>,
     rates: &mut RateKeeper<R>,
-    now: u64,
+    now: osap_core::Instant,
 ) {
     match rates.poll(now, runtime.clock_mut()) {
         Ok(None) => {}
@@ -175,7 +175,7 @@ pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize
     // Bad frames seen so far on each link, to log new ones.
     let mut rx_errors = [0u32; LINKS];
     loop {
-        let now = Instant::now().as_micros();
+        let now = crate::local_now();
         // Queued or running motion: the clock slews, never steps.
         let moving = ports.module().with(|m| !m.stepper.is_standing());
         runtime
@@ -221,7 +221,7 @@ pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize
         }
         match result.wake_at {
             Some(at) => {
-                select(WAKE.wait(), Timer::at(Instant::from_micros(at))).await;
+                select(WAKE.wait(), Timer::at(Instant::from_micros(at.as_micros()))).await;
             }
             None => WAKE.wait().await,
         }

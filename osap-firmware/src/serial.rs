@@ -6,7 +6,7 @@ use core::cell::Cell;
 
 use critical_section::Mutex;
 use osap_core::framing::max_frame_len;
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 
 use crate::framer::ChunkTime;
 use crate::link::WireTiming;
@@ -60,6 +60,11 @@ impl Serial {
         (bytes * self.byte_ns()).div_ceil(1000)
     }
 
+    /// Wire time of `bytes` bytes, rounded up to the µs.
+    pub const fn bytes_time(&self, bytes: u64) -> Duration {
+        Duration::from_micros(self.bytes_us(bytes))
+    }
+
     /// Where on the wire a chunk of `len` bytes was, read from the UART's
     /// receive buffer at local time `read_us`. A chunk shorter than the
     /// FIFO trigger level came with the receive timeout, that many idle bit
@@ -85,8 +90,8 @@ impl Serial {
 /// transmit task through [`SerialTiming::queue`]).
 pub struct SerialTiming {
     line: Serial,
-    /// Local µs.
-    wire_free_at: Mutex<Cell<Micros>>,
+    /// Local time.
+    wire_free_at: Mutex<Cell<Instant>>,
 }
 
 impl SerialTiming {
@@ -94,7 +99,7 @@ impl SerialTiming {
     pub const fn new(line: Serial) -> Self {
         SerialTiming {
             line,
-            wire_free_at: Mutex::new(Cell::new(0)),
+            wire_free_at: Mutex::new(Cell::new(Instant::ZERO)),
         }
     }
 
@@ -105,10 +110,10 @@ impl SerialTiming {
 
     /// Notes `bytes` handed to the transmitter at local time `now`; returns
     /// when they will all be out.
-    pub fn queue(&self, now: Micros, bytes: usize) -> Micros {
+    pub fn queue(&self, now: Instant, bytes: usize) -> Instant {
         critical_section::with(|cs| {
             let cell = self.wire_free_at.borrow(cs);
-            let end = cell.get().max(now) + self.line.bytes_us(bytes as u64);
+            let end = cell.get().max(now) + self.line.bytes_time(bytes as u64);
             cell.set(end);
             end
         })
@@ -116,19 +121,19 @@ impl SerialTiming {
 
     /// Time from `now` until a packet sent now starts onto the wire, with
     /// `queued` bytes waiting ahead of it besides what the transmitter has.
-    pub fn queue_delay_at(&self, now: Micros, queued: usize) -> Micros {
+    pub fn queue_delay_at(&self, now: Instant, queued: usize) -> Duration {
         let free_at = critical_section::with(|cs| self.wire_free_at.borrow(cs).get());
-        free_at.saturating_sub(now) + self.line.bytes_us(queued as u64)
+        (free_at - now) + self.line.bytes_time(queued as u64)
     }
 }
 
 impl WireTiming for SerialTiming {
-    fn transmit_time(&self, len: usize) -> Micros {
-        self.line.bytes_us(max_frame_len(len) as u64)
+    fn transmit_time(&self, len: usize) -> Duration {
+        self.line.bytes_time(max_frame_len(len) as u64)
     }
 
-    fn queue_delay(&self, queued: usize) -> Micros {
-        self.queue_delay_at(embassy_time::Instant::now().as_micros(), queued)
+    fn queue_delay(&self, queued: usize) -> Duration {
+        self.queue_delay_at(crate::local_now(), queued)
     }
 }
 
@@ -140,13 +145,13 @@ mod tests {
     fn the_transmitter_queue_drains_at_the_line_rate() {
         let t = SerialTiming::new(RP);
         // 10 bytes at 1 Mbaud: 100 µs; a second burst queues behind it.
-        assert_eq!(t.queue(1_000, 10), 1_100);
-        assert_eq!(t.queue(1_050, 5), 1_150);
-        assert_eq!(t.queue_delay_at(1_100, 0), 50);
-        assert_eq!(t.queue_delay_at(1_100, 3), 80);
+        assert_eq!(t.queue(Instant::from_micros(1_000), 10), Instant::from_micros(1_100));
+        assert_eq!(t.queue(Instant::from_micros(1_050), 5), Instant::from_micros(1_150));
+        assert_eq!(t.queue_delay_at(Instant::from_micros(1_100), 0), Duration::from_micros(50));
+        assert_eq!(t.queue_delay_at(Instant::from_micros(1_100), 3), Duration::from_micros(80));
         // Once it has drained, a new burst starts from its own time.
-        assert_eq!(t.queue_delay_at(2_000, 0), 0);
-        assert_eq!(t.queue(2_000, 1), 2_010);
+        assert_eq!(t.queue_delay_at(Instant::from_micros(2_000), 0), Duration::from_micros(0));
+        assert_eq!(t.queue(Instant::from_micros(2_000), 1), Instant::from_micros(2_010));
     }
 
     const RP: Serial = Serial {

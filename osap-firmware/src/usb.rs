@@ -7,7 +7,7 @@ use core::fmt::Write as _;
 
 use osap_core::framing::max_frame_len;
 use osap_core::usb::PRODUCT_PREFIX;
-use osap_core::Micros;
+use osap_core::Duration;
 
 use crate::link::WireTiming;
 
@@ -23,12 +23,12 @@ pub struct UsbTiming;
 pub static USB_TIMING: UsbTiming = UsbTiming;
 
 impl WireTiming for UsbTiming {
-    fn transmit_time(&self, len: usize) -> Micros {
-        (max_frame_len(len) as u64 * 2).div_ceil(3)
+    fn transmit_time(&self, len: usize) -> Duration {
+        Duration::from_micros((max_frame_len(len) as u64 * 2).div_ceil(3))
     }
 
-    fn queue_delay(&self, queued: usize) -> Micros {
-        (queued as u64 * 2).div_ceil(3)
+    fn queue_delay(&self, queued: usize) -> Duration {
+        Duration::from_micros((queued as u64 * 2).div_ceil(3))
     }
 }
 
@@ -81,7 +81,7 @@ mod tests {
     #[test]
     fn full_speed_timing() {
         // 64 bytes at 12 Mbit/s: at least 43 µs.
-        assert_eq!(USB_TIMING.queue_delay(64), 43);
-        assert!(USB_TIMING.transmit_time(100) >= 67);
+        assert_eq!(USB_TIMING.queue_delay(64), Duration::from_micros(43));
+        assert!(USB_TIMING.transmit_time(100) >= Duration::from_micros(67));
     }
 }
