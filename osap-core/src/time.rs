@@ -219,6 +219,12 @@ macro_rules! instant_type {
                 }
             }
 
+            /// The time between `self` and `other`, whichever is later.
+            #[inline]
+            pub const fn abs_diff(self, other: $name) -> Duration {
+                Duration { micros: self.micros.abs_diff(other.micros) }
+            }
+
             /// Signed µs from `other` to `self`: positive if `self` is later.
             /// Differences beyond ±2⁶³ µs wrap (that is 292 000 years).
             #[inline]
@@ -365,6 +371,8 @@ mod tests {
         let b = Instant::from_micros(250);
         assert_eq!(b.signed_micros_since(a), 150);
         assert_eq!(a.signed_micros_since(b), -150);
+        assert_eq!(a.abs_diff(b), Duration::from_micros(150));
+        assert_eq!(b.abs_diff(a), Duration::from_micros(150));
     }
 
     #[test]

@@ -1,4 +1,5 @@
-//! The host's local clock: microseconds on a monotonic clock since start.
+//! The host's local clock: a monotonic clock since start, read as the
+//! runtime's local [`osap_core::Instant`].
 //!
 //! The clock reads tokio's clock ([`tokio::time::Instant`]), which is the
 //! system's monotonic clock unless tokio's time is paused: then the host,
@@ -25,19 +26,21 @@ impl HostClock {
         HostClock { epoch: now() }
     }
 
-    /// Microseconds since the clock started.
-    pub fn now_us(&self) -> u64 {
-        now().saturating_duration_since(self.epoch).as_micros() as u64
+    /// The local time now (µs since the clock started).
+    pub fn now(&self) -> osap_core::Instant {
+        self.at(now())
     }
 
-    /// The clock's reading at `t` (0 before it started).
-    pub fn us_at(&self, t: Instant) -> u64 {
-        t.saturating_duration_since(self.epoch).as_micros() as u64
+    /// The clock's reading at `t` ([`osap_core::Instant::ZERO`] before it
+    /// started).
+    pub fn at(&self, t: Instant) -> osap_core::Instant {
+        let since = t.saturating_duration_since(self.epoch);
+        osap_core::Instant::from_micros(u64::try_from(since.as_micros()).unwrap_or(u64::MAX))
     }
 
-    /// The instant at which the clock reads `us`.
-    pub fn instant_at(&self, us: u64) -> Instant {
-        self.epoch + Duration::from_micros(us)
+    /// The instant at which the clock reads `local`.
+    pub fn instant_at(&self, local: osap_core::Instant) -> Instant {
+        self.epoch + Duration::from_micros(local.as_micros())
     }
 }
 

@@ -443,7 +443,7 @@ pub async fn scan_with_progress(
     runner.timeout = options.timeout;
     runner.retries = options.retries;
     // Ids of this scan start at a value unlikely to match a previous scan.
-    let base = (host.clock().now_us() as u32) | 1;
+    let base = (host.clock().now().as_micros() as u32) | 1;
     let mut next_id = base;
     // Every id sent, and the runtime it was sent to.
     let mut sent_to: HashMap<u32, usize> = HashMap::new();

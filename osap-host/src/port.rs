@@ -46,8 +46,8 @@ pub struct Datagram {
     pub route: Route,
     /// The sender's port.
     pub source_port: u16,
-    /// When it arrived, host clock µs.
-    pub arrival: u64,
+    /// When it arrived, on the host clock.
+    pub arrival: osap_core::Instant,
 }
 
 struct Outgoing {

@@ -14,7 +14,7 @@ use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::netresponder::BuildKey;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::runtime::RuntimeConfig;
-use osap_core::Micros;
+use osap_core::{Duration, Instant, SystemInstant};
 use std::sync::Arc;
 use tokio::sync::{mpsc, oneshot, Notify};
 
@@ -69,7 +69,7 @@ impl Default for HostConfig {
     }
 }
 
-type RuntimeFn = Box<dyn FnOnce(&mut HostRuntime, Micros) + Send>;
+type RuntimeFn = Box<dyn FnOnce(&mut HostRuntime, Instant) + Send>;
 
 enum Command {
     AttachLink(ChannelLink, oneshot::Sender<Result<u8, HostError>>),
@@ -151,7 +151,7 @@ impl Port for PortSlot {
         }
     }
 
-    fn wake_at(&self) -> Option<osap_core::Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         self.port().and_then(|p| p.wake_at())
     }
 }
@@ -303,7 +303,7 @@ impl Host {
     /// Runs `f` on the runtime inside its task and returns its result.
     pub async fn with_runtime<R: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut HostRuntime, Micros) -> R + Send + 'static,
+        f: impl FnOnce(&mut HostRuntime, Instant) -> R + Send + 'static,
     ) -> Result<R, HostError> {
         let (tx, rx) = oneshot::channel();
         self.send(Command::With(Box::new(move |rt, now| {
@@ -312,8 +312,8 @@ impl Host {
         rx.await.map_err(|_| HostError::Stopped)
     }
 
-    /// The host's synchronised system time now, µs.
-    pub async fn system_time(&self) -> Result<u64, HostError> {
+    /// The host's synchronised system time now.
+    pub async fn system_time(&self) -> Result<SystemInstant, HostError> {
         self.with_runtime(|rt, now| rt.system_time(now)).await
     }
 
@@ -406,7 +406,7 @@ impl crate::driver::Driven for RuntimeTask {
     }
 
     fn poll(&mut self) -> crate::driver::PollOutcome {
-        let now = self.clock.now_us();
+        let now = self.clock.now();
         let result = self.runtime.poll(now, &mut self.ports, &mut self.links);
         crate::driver::PollOutcome {
             more: result.more,
@@ -479,7 +479,7 @@ impl RuntimeTask {
                 let _ = reply.send(taken);
             }
             Command::With(f) => {
-                let now = self.clock.now_us();
+                let now = self.clock.now();
                 f(&mut self.runtime, now);
             }
         }
@@ -624,17 +624,17 @@ impl LinkGateway for LinkSlot {
         }
     }
 
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         match self {
             LinkSlot::Attached(l) => l.transmit_time(len),
-            LinkSlot::Vacant { .. } => 0,
+            LinkSlot::Vacant { .. } => Duration::ZERO,
         }
     }
 
-    fn queue_delay(&self) -> Micros {
+    fn queue_delay(&self) -> Duration {
         match self {
             LinkSlot::Attached(l) => l.queue_delay(),
-            LinkSlot::Vacant { .. } => 0,
+            LinkSlot::Vacant { .. } => Duration::ZERO,
         }
     }
 
@@ -645,7 +645,7 @@ impl LinkGateway for LinkSlot {
         }
     }
 
-    fn poll(&mut self, now: Micros) {
+    fn poll(&mut self, now: Instant) {
         if let LinkSlot::Attached(l) = self {
             l.poll(now);
         }

@@ -22,7 +22,7 @@ pub mod unix;
 
 use crate::clock::HostClock;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use tokio::sync::Notify;
@@ -86,7 +86,7 @@ pub struct LinkStats {
 
 #[derive(Debug)]
 struct Queues {
-    rx: VecDeque<(Vec<u8>, Micros)>,
+    rx: VecDeque<(Vec<u8>, Instant)>,
     tx: VecDeque<Vec<u8>>,
     open: bool,
     /// Stop reading the peer while the send queue is full (accepted
@@ -215,13 +215,13 @@ impl LinkIo {
     /// Hands a received packet to the runtime, stamped now. Returns false
     /// (and counts a drop) if the runtime's queue is full.
     pub fn deliver(&self, packet: Vec<u8>) -> bool {
-        let stamp = self.shared.clock.now_us();
+        let stamp = self.shared.clock.now();
         self.deliver_stamped(packet, stamp)
     }
 
     /// [`deliver`](Self::deliver) with an explicit receive stamp (host
-    /// clock µs, when the first byte arrived).
-    pub fn deliver_stamped(&self, packet: Vec<u8>, stamp: Micros) -> bool {
+    /// clock, when the first byte arrived).
+    pub fn deliver_stamped(&self, packet: Vec<u8>, stamp: Instant) -> bool {
         let mut q = self.shared.lock();
         if q.rx.len() >= self.shared.config.depth {
             q.stats.rx_dropped += 1;
@@ -371,7 +371,7 @@ impl LinkGateway for ChannelLink {
     fn send(&mut self, packet: &[u8]) -> Result<(), LinkSendError> {
         match &self.peer {
             Some(peer) => {
-                let stamp = peer.clock.now_us();
+                let stamp = peer.clock.now();
                 let mut q = peer.lock();
                 if !q.open || q.rx.len() >= peer.config.depth {
                     return Err(LinkSendError);
@@ -404,14 +404,14 @@ impl LinkGateway for ChannelLink {
         Ok(())
     }
 
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         let c = &self.shared.config;
         if c.bits_per_second == 0 {
-            return 0;
+            return Duration::ZERO;
         }
         // COBS + CRC + delimiter: about 4 bytes more than the packet.
         let bits = (len as u64 + 4) * u64::from(c.bits_per_byte);
-        (bits * 1_000_000).div_ceil(u64::from(c.bits_per_second))
+        Duration::from_micros((bits * 1_000_000).div_ceil(u64::from(c.bits_per_second)))
     }
 
     fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {

@@ -189,7 +189,7 @@ async fn read_frames<R: AsyncRead + Unpin>(
             Ok(n) => n,
             Err(e) => return StreamEnd::Error(e),
         };
-        let stamp = io.clock().now_us();
+        let stamp = io.clock().now();
         let mut input = buf.get(..n).unwrap_or_default();
         while let Some(result) = decoder.decode(&mut input) {
             match result {

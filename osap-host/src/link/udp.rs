@@ -91,7 +91,7 @@ pub async fn bind(
                                 continue;
                             }
                         };
-                        let stamp = io.clock().now_us();
+                        let stamp = io.clock().now();
                         if peer.is_none() {
                             if let Err(e) = socket.connect(from).await {
                                 tracing::warn!(link = %name, "udp: cannot answer {from}: {e}");

@@ -106,7 +106,7 @@ impl<C: PipesClass> Port for HostClassPort<C> {
         self.ctor.poll(tx);
     }
 
-    fn wake_at(&self) -> Option<osap_core::Micros> {
+    fn wake_at(&self) -> Option<osap_core::Instant> {
         // The constructor's own timers (a segmented reply in progress).
         self.ctor.wake_at()
     }
