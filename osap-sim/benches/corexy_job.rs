@@ -106,7 +106,8 @@ pub async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
             .await
             .expect("pipe");
     }
-    let start = host.system_time().await.expect("time");
+    // System time as µs: the job is paced in plain arithmetic.
+    let start = host.system_time().await.expect("time").as_micros();
     let corners = [[20.0, 0.0], [20.0, 20.0], [0.0, 20.0], [0.0, 0.0]];
     let end = start + (seconds * 1e6) as u64;
     // One 20 mm side at 60 mm/s takes a third of a second; keep about a
@@ -114,7 +115,7 @@ pub async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
     let side_us = 20.0 / 60.0 * 1e6;
     let mut k = 0u64;
     loop {
-        let now = host.system_time().await.expect("time");
+        let now = host.system_time().await.expect("time").as_micros();
         if now >= end {
             break;
         }
@@ -138,8 +139,10 @@ pub async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
     {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    let done = host.system_time().await.expect("time") + u64::from(LEAD) + 4 * u64::from(IV);
-    while host.system_time().await.expect("time") < done {
+    let done = host.system_time().await.expect("time").as_micros()
+        + u64::from(LEAD)
+        + 4 * u64::from(IV);
+    while host.system_time().await.expect("time").as_micros() < done {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     let mut faults = 0;

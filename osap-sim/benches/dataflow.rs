@@ -147,7 +147,8 @@ impl OneRuntime {
         let target = self.received() + n;
         let mut polls = 0;
         while self.received() < target {
-            self.rt.poll(self.now, &mut self.ports, &mut self.links);
+            let now = osap_core::Instant::from_micros(self.now);
+            self.rt.poll(now, &mut self.ports, &mut self.links);
             self.now += 1;
             polls += 1;
         }
@@ -188,9 +189,10 @@ impl TwoRuntimes {
         let target = self.received() + n;
         let mut polls = 0;
         while self.received() < target {
-            self.a.poll(self.now, &mut self.pa, &mut self.la);
+            let now = osap_core::Instant::from_micros(self.now);
+            self.a.poll(now, &mut self.pa, &mut self.la);
             transfer(&mut self.la[0], &mut self.lb[0], usize::MAX);
-            self.b.poll(self.now, &mut self.pb, &mut self.lb);
+            self.b.poll(now, &mut self.pb, &mut self.lb);
             transfer(&mut self.lb[0], &mut self.la[0], usize::MAX);
             self.now += 1;
             polls += 1;

@@ -18,7 +18,7 @@
 use crate::error::SimError;
 use crate::rng::Rng;
 use crate::Nanos;
-use osap_core::Micros;
+use osap_core::Instant;
 
 /// A scalar parameter that is either fixed or drawn from a seeded uniform
 /// distribution when the simulation is built.
@@ -206,14 +206,15 @@ impl ClockModel {
     }
 
     /// The local µs counter the runtime sees at true time `t` (floor).
-    pub fn local_us(&self, t: Nanos) -> Micros {
-        self.local_ns(t).div_euclid(1000).max(0) as Micros
+    pub fn local_us(&self, t: Nanos) -> Instant {
+        let us = self.local_ns(t).div_euclid(1000).clamp(0, i128::from(u64::MAX));
+        Instant::from_micros(us as u64)
     }
 
     /// The first true time at which the local µs counter reads at least
     /// `local`; 0 if it already did at true time 0.
-    pub fn true_time_at(&self, local: Micros) -> Nanos {
-        let target = i128::from(local) * 1000;
+    pub fn true_time_at(&self, local: Instant) -> Nanos {
+        let target = i128::from(local.as_micros()) * 1000;
         if self.local_ns(0) >= target {
             return 0;
         }
@@ -265,10 +266,10 @@ mod tests {
     fn inverse_is_the_first_instant() {
         let c = ClockModel::new(1234.5, -87.0).with_wander(1.0, 200.0, 1.0);
         for local in [1235u64, 2_000, 1_000_000, 600_000_000, 600_000_001] {
-            let t = c.true_time_at(local);
-            assert!(c.local_us(t) >= local);
-            assert!(t == 0 || c.local_us(t - 1) < local, "{local}");
+            let t = c.true_time_at(Instant::from_micros(local));
+            assert!(c.local_us(t) >= Instant::from_micros(local));
+            assert!(t == 0 || c.local_us(t - 1) < Instant::from_micros(local), "{local}");
         }
-        assert_eq!(c.true_time_at(5), 0);
+        assert_eq!(c.true_time_at(Instant::from_micros(5)), 0);
     }
 }

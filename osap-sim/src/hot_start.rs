@@ -20,7 +20,7 @@ use crate::error::SimError;
 use crate::metrics::Metrics;
 use crate::node::SimRuntime;
 use crate::scenario::Scenario;
-use osap_core::Micros;
+use osap_core::Instant;
 use osap_firmware::hot_start::{Preset, RateKeeper, SavePolicy};
 use osap_firmware::rate_store::{RamRateFlash, RateRecord};
 
@@ -31,7 +31,7 @@ use osap_firmware::rate_store::{RamRateFlash, RateRecord};
 /// `local · (1 + ppb·1e-9)`, so a node whose oscillator runs fast by `r`
 /// relative to the root needs `ppb ≈ −r`. Returns whether the runtime
 /// took it.
-pub fn apply_hot_start(runtime: &mut SimRuntime, local_now: Micros, ppb: i32) -> bool {
+pub fn apply_hot_start(runtime: &mut SimRuntime, local_now: Instant, ppb: i32) -> bool {
     runtime.clock_mut().set_rate_ppb(local_now, ppb);
     true
 }

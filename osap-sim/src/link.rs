@@ -19,7 +19,7 @@ use crate::rng::Rng;
 use crate::Nanos;
 use osap_core::framing::{encode_frame, max_frame_len, FrameCounters, FrameDecoder};
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 use std::collections::VecDeque;
 
 /// Decoder buffer size: the largest frame of the largest link MTU.
@@ -57,11 +57,11 @@ pub struct SimLink {
     tx: Transmitter,
     stamp_mode: StampMode,
     outgoing: Vec<Transit>,
-    inbox: VecDeque<(Vec<u8>, Option<Micros>)>,
+    inbox: VecDeque<(Vec<u8>, Option<Instant>)>,
     /// `None` on datagram links.
     decoder: Option<Box<FrameDecoder<DECODER_LEN>>>,
     /// Stamp of the first byte of the frame the decoder is in the middle of.
-    partial_stamp: Option<Option<Micros>>,
+    partial_stamp: Option<Option<Instant>>,
     scratch: Vec<u8>,
     stats: LinkStats,
 }
@@ -177,7 +177,7 @@ impl SimLink {
     /// Bytes (or a datagram) arrive from the far end. `stamp` is this end's
     /// local time stamp for the chunk's first byte, and `us_per_byte` the
     /// local µs per byte, used for frames that start inside the chunk.
-    pub fn deliver(&mut self, bytes: &[u8], stamp: Option<Micros>, us_per_byte: f64) {
+    pub fn deliver(&mut self, bytes: &[u8], stamp: Option<Instant>, us_per_byte: f64) {
         if !self.open {
             return;
         }
@@ -185,7 +185,8 @@ impl SimLink {
             push_packet(&mut self.inbox, &mut self.stats, bytes, stamp);
             return;
         };
-        let stamp_at = |i: usize| stamp.map(|s| s + (i as f64 * us_per_byte) as Micros);
+        let stamp_at =
+            |i: usize| stamp.map(|s| s + Duration::from_micros((i as f64 * us_per_byte) as u64));
         let mut i = 0;
         while i < bytes.len() {
             let end = bytes[i..].iter().position(|&b| b == 0).map(|p| i + p);
@@ -218,10 +219,10 @@ impl SimLink {
 }
 
 fn push_packet(
-    inbox: &mut VecDeque<(Vec<u8>, Option<Micros>)>,
+    inbox: &mut VecDeque<(Vec<u8>, Option<Instant>)>,
     stats: &mut LinkStats,
     packet: &[u8],
-    stamp: Option<Micros>,
+    stamp: Option<Instant>,
 ) {
     if inbox.len() >= RX_BUFFER_FRAMES {
         stats.rx_overflow += 1;
@@ -273,20 +274,20 @@ impl LinkGateway for SimLink {
         Ok(())
     }
 
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         let bytes = if self.decoder.is_some() {
             max_frame_len(len)
         } else {
             len
         };
-        self.tx.wire_ns(bytes).div_ceil(1000)
+        Duration::from_micros(self.tx.wire_ns(bytes).div_ceil(1000))
     }
 
-    fn queue_delay(&self) -> Micros {
+    fn queue_delay(&self) -> Duration {
         // True ns to local µs, rounded: the rate error (≤ 1e-4 of a wait of
         // at most a few ms) is below the counter's resolution, so it is
         // ignored.
-        (self.tx.queue_delay_ns(self.now) + 500) / 1000
+        Duration::from_micros((self.tx.queue_delay_ns(self.now) + 500) / 1000)
     }
 
     fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {

@@ -8,7 +8,7 @@ use crate::link::SimLink;
 use crate::rng::{Dist, Rng};
 use crate::Nanos;
 use osap_core::port::Port;
-use osap_core::Micros;
+use osap_core::Instant;
 use osap_core::Runtime;
 use std::any::Any;
 
@@ -215,7 +215,7 @@ impl Node {
     }
 
     /// Its local µs counter at true time `t`.
-    pub fn local_us(&self, t: Nanos) -> Micros {
+    pub fn local_us(&self, t: Nanos) -> Instant {
         self.clock.local_us(t)
     }
 

@@ -3,7 +3,7 @@
 
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::Route;
-use osap_core::Micros;
+use osap_core::Instant;
 use std::collections::VecDeque;
 
 /// A packet a [`ProbePort`] received.
@@ -17,9 +17,9 @@ pub struct ProbeDelivery {
     pub source_port: u16,
     /// Arrival time in the receiving runtime (the link's receive stamp when
     /// it gave one), local µs.
-    pub arrival: Micros,
+    pub arrival: Instant,
     /// Local time of the poll that delivered it, µs.
-    pub delivered_at: Micros,
+    pub delivered_at: Instant,
 }
 
 /// A send waiting for the probe's next poll.
@@ -43,7 +43,7 @@ pub struct ProbePort {
     /// Sends waiting for the next poll.
     pub outbox: VecDeque<ProbeSend>,
     /// Local times at which queued packets were handed to the runtime.
-    pub sent_at: Vec<Micros>,
+    pub sent_at: Vec<Instant>,
     /// Reply to every packet with its own payload.
     pub echo: bool,
     /// Sends the runtime refused.

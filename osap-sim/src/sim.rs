@@ -28,7 +28,7 @@ use crate::topology::{Gateway, Topology};
 use crate::Nanos;
 use osap_core::clock::TimeConfig;
 use osap_core::netresponder::BuildKey;
-use osap_core::Micros;
+use osap_core::Instant;
 use std::cmp::Ordering;
 use std::collections::{BinaryHeap, VecDeque};
 
@@ -92,7 +92,7 @@ pub struct FrameRecord {
     pub transit: Transit,
     /// The stamp the receiving gateway gave the frame (its local µs), if
     /// delivered and stamped.
-    pub rx_stamp: Option<Micros>,
+    pub rx_stamp: Option<Instant>,
 }
 
 enum Event {
@@ -524,7 +524,7 @@ impl Sim {
         self.tier_buf.clear();
         for node in &self.nodes {
             let local = node.clock.local_us(t);
-            self.system_buf.push(node.runtime.system_time(local));
+            self.system_buf.push(node.runtime.system_time(local).as_micros());
             self.tier_buf.push(node.runtime.clock().tier());
         }
         self.metrics

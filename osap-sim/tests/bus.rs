@@ -107,7 +107,7 @@ async fn run(mode: TimeMode) {
     // Motion to all eight over the bus.
     let mut m = Manager::new(&host).await.unwrap();
     m.refresh().await.unwrap();
-    let now = host.system_time().await.unwrap();
+    let now = host.system_time().await.unwrap().as_micros();
     let iv = 2048u64;
     let t0 = (now + 3_000_000).next_multiple_of(iv);
     for k in 1..=DROPS {
@@ -178,7 +178,7 @@ async fn run(mode: TimeMode) {
     assert!(hi <= 2.0 * lo + 2.0, "unfair: {means:?}");
     assert!(*worst < Duration::from_millis(100), "worst {worst:?}");
     let end = t0 + points.len() as u64 * iv + 200_000;
-    let wait = end.saturating_sub(host.system_time().await.unwrap());
+    let wait = end.saturating_sub(host.system_time().await.unwrap().as_micros());
     tokio::time::sleep(Duration::from_micros(wait)).await;
     for k in 1..=DROPS {
         let module = sim.module(&format!("d{k}")).unwrap().module().unwrap();

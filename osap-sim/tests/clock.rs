@@ -2,6 +2,7 @@
 //! local counters, and the inverse finds the first instant of a count.
 
 use osap_sim::clock::{ClockModel, ClockSpec, Param};
+use osap_core::time::{Duration, Instant};
 use osap_sim::rng::Rng;
 
 const S: u64 = 1_000_000_000;
@@ -9,15 +10,15 @@ const S: u64 = 1_000_000_000;
 #[test]
 fn offset_and_rate_error_give_the_expected_counter() {
     let fast = ClockModel::new(5_000_000.0, 100.0);
-    assert_eq!(fast.local_us(0), 5_000_000);
-    assert_eq!(fast.local_us(S), 5_000_000 + 1_000_100);
-    assert_eq!(fast.local_us(600 * S), 5_000_000 + 600_060_000);
+    assert_eq!(fast.local_us(0), Instant::from_micros(5_000_000));
+    assert_eq!(fast.local_us(S), Instant::from_micros(5_000_000 + 1_000_100));
+    assert_eq!(fast.local_us(600 * S), Instant::from_micros(5_000_000 + 600_060_000));
     let slow = ClockModel::new(0.0, -100.0);
-    assert_eq!(slow.local_us(S), 999_900);
+    assert_eq!(slow.local_us(S), Instant::from_micros(999_900));
     // The counter is the floor of the exact local time.
     let ideal = ClockModel::new(0.0, 0.0);
-    assert_eq!(ideal.local_us(999), 0);
-    assert_eq!(ideal.local_us(1_000), 1);
+    assert_eq!(ideal.local_us(999), Instant::from_micros(0));
+    assert_eq!(ideal.local_us(1_000), Instant::from_micros(1));
 }
 
 #[test]
@@ -51,7 +52,7 @@ fn true_time_at_is_the_first_instant_of_a_count() {
     let mut rng = Rng::new(5);
     for _ in 0..200 {
         let c = ClockSpec::MCU.draw(&mut rng);
-        let local = c.local_us(0) + (rng.unit() * 700e6) as u64;
+        let local = c.local_us(0) + Duration::from_micros((rng.unit() * 700e6) as u64);
         let t = c.true_time_at(local);
         assert!(c.local_us(t) >= local);
         assert!(t == 0 || c.local_us(t - 1) < local);
@@ -70,7 +71,7 @@ fn specs_draw_within_their_ranges() {
     for _ in 0..100 {
         let c = spec.draw(&mut rng);
         assert!((-5.0..=5.0).contains(&c.rate_ppm()));
-        assert!((10..=20).contains(&c.local_us(0)));
+        assert!((10..=20).contains(&c.local_us(0).as_micros()));
         assert_eq!(c.rate_ppm_at(S), c.rate_ppm());
     }
     let bad = ClockSpec {

@@ -1,6 +1,7 @@
 //! A simulated module tells its clock when motion is queued, so a time
 //! step is deferred (slewed) until the axis stands again.
 
+use osap_core::SystemInstant;
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{self, virtual_runtime, SimMachine, TimeMode};
 use std::path::PathBuf;
@@ -25,10 +26,12 @@ fn a_module_with_queued_motion_holds_its_clock_steps() {
             m.stepper.set_enable(true);
             let iv = u64::from(m.stepper.interval_us());
             // Points sit on the interval's grid.
-            let first = (now + 300_000).div_ceil(iv) * iv;
+            let first = (now.as_micros() + 300_000).div_ceil(iv) * iv;
             for k in 0..64u64 {
                 let t = first + k * iv;
-                m.stepper.add_point(t, k as f32 * 0.01).unwrap();
+                m.stepper
+                    .add_point(SystemInstant::from_micros(t), k as f32 * 0.01)
+                    .unwrap();
             }
         });
         // Queued, not yet running: the next poll tells the clock.
@@ -66,10 +69,10 @@ fn a_jump_of_the_source_under_motion_is_slewed_then_stepped_once_standing() {
             m.stepper.set_enable(true);
             m.stepper.set_interval(16_384).unwrap();
             let iv = u64::from(m.stepper.interval_us());
-            let first = (now + 100_000).div_ceil(iv) * iv;
+            let first = (now.as_micros() + 100_000).div_ceil(iv) * iv;
             for k in 0..64u64 {
                 m.stepper
-                    .add_point(first + k * iv, k as f32 * 0.01)
+                    .add_point(SystemInstant::from_micros(first + k * iv), k as f32 * 0.01)
                     .unwrap();
             }
         });

@@ -13,7 +13,7 @@
 //! the tick of the crossing step on the switch module's own clock.
 
 use osap_core::clock::TimeMap;
-use osap_core::Micros;
+use osap_core::Instant as LocalInstant;
 use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, OwnedValue};
 use osap_host::{Host, HostConfig};
@@ -154,8 +154,8 @@ fn crossings(switch: &SwitchSpec, steps: &[(Instant, &str, f64)]) -> Vec<(Instan
 /// edge count, each with the local time first seen.
 #[derive(Default)]
 struct Watched {
-    maps: Vec<(Micros, TimeMap)>,
-    edges: Vec<(Micros, u32)>,
+    maps: Vec<(LocalInstant, TimeMap)>,
+    edges: Vec<(LocalInstant, u32)>,
 }
 
 /// Watches a module until `stop`.
@@ -178,12 +178,12 @@ fn watch(module: SharedModule, stop: Arc<AtomicBool>) -> tokio::task::JoinHandle
 
 /// The synchronized times the maps in force from local `local` on (for
 /// 20 ms, so the one the edge was stamped on is among them) give it.
-fn stamps(maps: &[(Micros, TimeMap)], local: Micros) -> Vec<u64> {
+fn stamps(maps: &[(LocalInstant, TimeMap)], local: LocalInstant) -> Vec<u64> {
     let first = maps.partition_point(|s| s.0 <= local).saturating_sub(1);
-    let last = maps.partition_point(|s| s.0 <= local + 20_000);
+    let last = maps.partition_point(|s| s.0 <= local + osap_core::Duration::from_millis(20));
     maps[first..(last + 1).min(maps.len())]
         .iter()
-        .map(|s| s.1.system_time(local))
+        .map(|s| s.1.system_time(local).as_micros())
         .collect()
 }
 
@@ -207,7 +207,7 @@ async fn a_switch_over_two_motors_trips_in_real_time() {
 
 /// Runs the moves in `mode`; each edge must reach its module within
 /// `delivered_us` local µs of its stamp (as the watcher sees it).
-async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
+async fn two_motor_switches(mode: TimeMode, delivered_us: u64) {
     let topology = Topology::parse(TOPOLOGY).unwrap();
     let host = Host::start(HostConfig::named("h")).unwrap();
     let sim = SimMachine::start_with(&host, &topology, mode)
@@ -241,7 +241,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
         call(&m, name, "set_enable", &[OwnedValue::Bool(true)]).await;
         call(&m, name, "set_interval", &[OwnedValue::U32(IV as u32)]).await;
     }
-    let now = host.system_time().await.unwrap();
+    let now = host.system_time().await.unwrap().as_micros();
     let t0 = (now + 1_000_000).next_multiple_of(IV);
     let last = A.last().unwrap().0;
     for k in 0..=last {
@@ -252,12 +252,12 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
         }
     }
     assert!(
-        host.system_time().await.unwrap() < t0,
+        host.system_time().await.unwrap().as_micros() < t0,
         "the stream fell behind"
     );
 
     // Between the moves: the y move pressed y once; x (c) stayed released.
-    while host.system_time().await.unwrap() < t0 + MIDDLE * IV {
+    while host.system_time().await.unwrap().as_micros() < t0 + MIDDLE * IV {
         tokio::time::sleep(Duration::from_millis(5)).await;
     }
     let (_, level, n) = read_limit(&m, "a").await;
@@ -268,7 +268,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
         "a y move does not touch x"
     );
 
-    while host.system_time().await.unwrap() < t0 + (last + 4) * IV {
+    while host.system_time().await.unwrap().as_micros() < t0 + (last + 4) * IV {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     let y_read = read_limit(&m, "a").await;
@@ -280,7 +280,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
     }
 
     // Every step of a and b, at true time.
-    let mut steps: Vec<(Instant, &str, f64, Micros)> = Vec::new();
+    let mut steps: Vec<(Instant, &str, f64, LocalInstant)> = Vec::new();
     for (i, name) in ["a", "b"].into_iter().enumerate() {
         let clock = sim.module(name).unwrap().clock();
         let edges = modules[i].lock(|m| m.board().motor().edges().to_vec());
@@ -312,7 +312,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
         // stamped on its time map: exact but for 1 µs of converting
         // between the two clocks and 1 µs of the map's rounding.
         let module = sim.module(name).unwrap();
-        let local = module.clock().local_us_at(at);
+        let local = module.clock().local_at(at);
         let candidates = stamps(&watched[index].maps, local);
         let nearest = candidates.iter().map(|&s| s.abs_diff(hit)).min().unwrap();
         // At true time: the crossing step's host time, off by the switch
@@ -320,7 +320,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
         // 1 ms timer ticks, so sync is coarser than in real time: a few
         // hundred µs).
         let (_, stepper, _, step_local) = steps.iter().find(|s| s.0 == at).unwrap();
-        let truth = sim.module(stepper).unwrap().host_time_at(*step_local);
+        let truth = sim.module(stepper).unwrap().host_time_at(*step_local).as_micros();
         eprintln!(
             "switch on {name}: {} edges, last at {hit} (level {level}): {nearest} µs from the crossing step's tick on its clock, {:+} µs from its true time",
             n,
@@ -329,7 +329,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
         assert!(nearest <= 2, "{name}: {hit} vs {candidates:?}");
         // Each edge reached the module soon after its time.
         for (k, (t, _)) in edges.iter().enumerate() {
-            let local = module.clock().local_us_at(*t);
+            let local = module.clock().local_at(*t);
             let seen = watched[index]
                 .edges
                 .iter()
@@ -338,8 +338,9 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: Micros) {
                 .0;
             eprintln!(
                 "  edge {k} seen {} µs after its time",
-                seen as i64 - local as i64
+                seen.signed_micros_since(local)
             );
+            let (seen, local) = (seen.as_micros(), local.as_micros());
             assert!(
                 seen + 1_000 >= local && seen <= local + delivered_us,
                 "{name}: edge {k} at {local} seen at {seen}"

@@ -151,7 +151,7 @@ fn status(mode: u8, queued: u16, enabled: bool) -> Vec<OwnedValue> {
 /// A control-point time on the modules' default 2048 µs grid, `ahead` µs
 /// after the host's synchronized time now.
 async fn aligned(h: &Host, ahead: u64) -> u64 {
-    (h.system_time().await.unwrap() + ahead).next_multiple_of(2048)
+    (h.system_time().await.unwrap().as_micros() + ahead).next_multiple_of(2048)
 }
 
 async fn position(f: &FunctionHandle) -> (u64, f32) {

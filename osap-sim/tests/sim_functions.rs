@@ -685,7 +685,7 @@ async fn io_functions_read_and_drive_the_simulated_pins() {
     }
     let w = writes_on(3);
     assert_eq!((w[0].level, w[1].level), (true, false), "{w:?}");
-    let length = w[1].local - w[0].local;
+    let length = (w[1].local - w[0].local).as_micros();
     eprintln!("pulse of {PULSE_US} µs: high for {length} µs (module clock)");
     assert!(
         (PULSE_US..PULSE_US + 10_000).contains(&length),
@@ -728,7 +728,10 @@ async fn io_functions_read_and_drive_the_simulated_pins() {
     }
     let w = writes_on(1);
     let map = shared.lock(|m| m.time);
-    let (on, off) = (map.system_time(w[0].local), map.system_time(w[1].local));
+    let (on, off) = (
+        map.system_time(w[0].local).as_micros(),
+        map.system_time(w[1].local).as_micros(),
+    );
     eprintln!(
         "pulse at {start}: high at {on} ({:+} µs), low at {off} ({:+} µs)",
         on as i64 - start as i64,

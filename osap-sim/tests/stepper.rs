@@ -10,7 +10,7 @@
 //! and `get_steps` against the motor's own count.
 
 use osap_core::clock::TimeMap;
-use osap_core::Micros;
+use osap_core::Instant as LocalInstant;
 use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, OwnedValue};
 use osap_host::{Host, HostConfig};
@@ -37,16 +37,16 @@ const TICK_US: f64 = osap_module::STEP_TICK_US as f64;
 /// How long before a step tick its word may be filled, local µs: the step
 /// generator's lead (8 words and a timer tick, 2.28 ms) and a refill
 /// period, with room to spare.
-const FILLED_AHEAD_US: Micros = 4_000;
+const FILLED_AHEAD: osap_core::Duration = osap_core::Duration::from_millis(4);
 
 /// Watches a module's local-to-synchronized time map (which clock sync
 /// updates) from a thread, until told to stop: each map with the local time
 /// it was first seen, a few tens of µs after the module took it up.
-fn watch_maps(module: SharedModule) -> (Arc<AtomicBool>, JoinHandle<Vec<(Micros, TimeMap)>>) {
+fn watch_maps(module: SharedModule) -> (Arc<AtomicBool>, JoinHandle<Vec<(LocalInstant, TimeMap)>>) {
     let stop = Arc::new(AtomicBool::new(false));
     let stopped = stop.clone();
     let thread = std::thread::spawn(move || {
-        let mut seen: Vec<(Micros, TimeMap)> = Vec::new();
+        let mut seen: Vec<(LocalInstant, TimeMap)> = Vec::new();
         while !stopped.load(Ordering::Relaxed) {
             let (now, map) = module.lock(|m| (m.local_now(), m.time));
             if seen.last().is_none_or(|s| s.1 != map) {
@@ -61,7 +61,7 @@ fn watch_maps(module: SharedModule) -> (Arc<AtomicBool>, JoinHandle<Vec<(Micros,
 
 /// The maps that were in force at some local time in `from..=to` (and the
 /// one seen just after, as one taken up by then is seen a little late).
-fn maps_within(seen: &[(Micros, TimeMap)], from: Micros, to: Micros) -> Vec<TimeMap> {
+fn maps_within(seen: &[(LocalInstant, TimeMap)], from: LocalInstant, to: LocalInstant) -> Vec<TimeMap> {
     let first = seen.partition_point(|s| s.0 <= from).saturating_sub(1);
     let last = seen.partition_point(|s| s.0 <= to);
     seen[first..(last + 1).min(seen.len())]
@@ -73,10 +73,10 @@ fn maps_within(seen: &[(Micros, TimeMap)], from: Micros, to: Micros) -> Vec<Time
 /// The synchronized time the module gave a step at local `local`: on the
 /// map its word was filled on, one of those in force shortly before the
 /// tick (the one that puts it nearest `due`).
-fn step_time(maps: &[(Micros, TimeMap)], local: Micros, due: f64) -> f64 {
-    maps_within(maps, local.saturating_sub(FILLED_AHEAD_US), local)
+fn step_time(maps: &[(LocalInstant, TimeMap)], local: LocalInstant, due: f64) -> f64 {
+    maps_within(maps, local - FILLED_AHEAD, local)
         .iter()
-        .map(|map| map.system_time(local) as f64)
+        .map(|map| map.system_time(local).as_micros() as f64)
         .min_by(|a, b| (a - due).abs().total_cmp(&(b - due).abs()))
         .expect("a map")
 }
@@ -142,7 +142,7 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
 
     // From rest at 0: three repeats, 50 steps of -0.08 mm (39 mm/s, 15.6k
     // steps/s), four holds at -4: a clean start and a clean stop.
-    let now = host.system_time().await.unwrap();
+    let now = host.system_time().await.unwrap().as_micros();
     let t0 = (now + 300_000).next_multiple_of(IV);
     let mut points: Vec<f32> = vec![0.0; 3];
     points.extend((1..=50).map(|k| (k as f64 * -RAMP) as f32));
@@ -155,11 +155,11 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
             .unwrap_or_else(|e| panic!("point {k}: {e}"));
     }
     assert!(
-        host.system_time().await.unwrap() < t0,
+        host.system_time().await.unwrap().as_micros() < t0,
         "the stream fell behind real time"
     );
     let t_end = t0 + points.len() as u64 * IV;
-    while host.system_time().await.unwrap() < t_end + 20_000 {
+    while host.system_time().await.unwrap().as_micros() < t_end + 20_000 {
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     stop.store(true, Ordering::Relaxed);
@@ -196,7 +196,7 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
         let believed = step_time(&maps, e.local, due);
         worst_believed = worst_believed.max((believed - due).abs());
         // Against true time: plus the clock sync error.
-        let truth = z.host_time_at(e.local) as f64;
+        let truth = z.host_time_at(e.local).as_micros() as f64;
         worst_true = worst_true.max((truth - due).abs());
         worst_sync = worst_sync.max((truth - believed).abs());
     }
@@ -279,7 +279,7 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     // Where the stream crossed the middle of that step, and the switch.
     let due = crossing(at + 0.5);
     let switch = crossing(-2.0 * STEPS_PER_MM);
-    let truth = z.host_time_at(edge.local) as f64;
+    let truth = z.host_time_at(edge.local).as_micros() as f64;
     eprintln!(
         "switch closed by step {} at {hit}: {:+.1} µs from the stream crossing that step, {:+.1} µs from its crossing -2 mm, {:+.1} µs from the step's true time",
         closing + 1,
@@ -290,9 +290,10 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     // The edge's own time: stamped on the map in force when the module
     // was handed the edge (at its first poll after it), which is the step's
     // time unless sync corrected the clock in between.
-    let stamps: Vec<u64> = maps_within(&maps, edge.local, edge.local + 10_000)
+    let later = edge.local + osap_core::Duration::from_millis(10);
+    let stamps: Vec<u64> = maps_within(&maps, edge.local, later)
         .iter()
-        .map(|map| map.system_time(edge.local))
+        .map(|map| map.system_time(edge.local).as_micros())
         .collect();
     assert!(stamps.contains(&hit), "{hit}: not one of {stamps:?}");
     let stepped = step_time(&maps, edge.local, due);

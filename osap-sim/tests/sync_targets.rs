@@ -192,7 +192,10 @@ fn busy_modules_cause_no_spike_beyond_100_us() {
 /// System time of `node` minus that of `other`, at the current instant, µs.
 fn gap(sim: &osap_sim::Sim, node: usize, other: usize) -> i64 {
     let now = sim.now();
-    let t = |n: usize| sim.node(n).runtime().system_time(sim.node(n).local_us(now)) as i64;
+    let t = |n: usize| {
+        let local = sim.node(n).local_us(now);
+        sim.node(n).runtime().system_time(local).as_micros() as i64
+    };
     t(node) - t(other)
 }
 

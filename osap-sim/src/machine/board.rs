@@ -24,7 +24,7 @@ pub mod bootloader;
 use super::clock::DriftClock;
 use accel::{Accel, AccelSpec};
 use bootloader::BootHook;
-use osap_core::Micros;
+use osap_core::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
 use serde::{Deserialize, Serialize};
 
@@ -155,7 +155,7 @@ impl IoSpec {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct StepEdge {
     /// The step tick's time on the module's local clock, µs.
-    pub local: Micros,
+    pub local: Instant,
     /// Upward (`true`) or downward.
     pub up: bool,
     /// Where the step left the carriage, units.
@@ -211,7 +211,7 @@ pub struct Motor {
     edges: Vec<StepEdge>,
     /// Limit-switch edges not yet delivered to the module: (local time,
     /// new level).
-    pending_limit: Vec<(Micros, bool)>,
+    pending_limit: Vec<(Instant, bool)>,
     /// The switch input's level after the newest step.
     limit_level: bool,
 }
@@ -242,7 +242,7 @@ impl Motor {
     }
 
     /// Takes one step at local time `local` with the driver in `microsteps`.
-    fn step(&mut self, local: Micros, up: bool, microsteps: u16) {
+    fn step(&mut self, local: Instant, up: bool, microsteps: u16) {
         let size = FINEST / i64::from(microsteps.max(1));
         self.fine += if up { size } else { -size };
         self.steps += if up { 1 } else { -1 };
@@ -308,12 +308,12 @@ impl Motor {
     }
 
     /// The earliest limit edge not yet handed to the module, local µs.
-    pub(crate) fn next_limit_edge(&self) -> Option<Micros> {
+    pub(crate) fn next_limit_edge(&self) -> Option<Instant> {
         self.pending_limit.first().map(|e| e.0)
     }
 
     /// Takes the limit edges due by local time `now`, oldest first.
-    pub(crate) fn take_limit_edges(&mut self, now: Micros) -> Vec<(Micros, bool)> {
+    pub(crate) fn take_limit_edges(&mut self, now: Instant) -> Vec<(Instant, bool)> {
         let due = self.pending_limit.partition_point(|e| e.0 <= now);
         self.pending_limit.drain(..due).collect()
     }
@@ -323,7 +323,7 @@ impl Motor {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct PwmWrite {
     /// When, local µs.
-    pub local: Micros,
+    pub local: Instant,
     /// Which output.
     pub channel: u8,
     /// Duty, of 65 535.
@@ -334,7 +334,7 @@ pub struct PwmWrite {
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct DigitalWrite {
     /// When, local µs.
-    pub local: Micros,
+    pub local: Instant,
     /// Which pin.
     pub pin: u8,
     /// The level driven.
@@ -436,7 +436,7 @@ impl IoHw for Pins {
         if let Some(d) = self.digital.get_mut(usize::from(pin)) {
             *d = level;
             self.writes.push(DigitalWrite {
-                local: self.clock.now_us(),
+                local: self.clock.now(),
                 pin,
                 level,
             });
@@ -452,7 +452,7 @@ impl IoHw for Pins {
         if let Some(p) = self.pwm.get_mut(usize::from(channel)) {
             *p = duty;
             self.pwm_writes.push(PwmWrite {
-                local: self.clock.now_us(),
+                local: self.clock.now(),
                 channel,
                 duty,
             });
@@ -463,7 +463,7 @@ impl IoHw for Pins {
     }
     fn read_analog(&mut self, channel: u8) -> u16 {
         // A 12-bit converter's reading, shifted left by 4, as on the boards.
-        let now = self.clock.now_us();
+        let now = self.clock.now();
         let v = match &mut self.accel {
             Some(a) if a.spec().channel == channel => a.read(now),
             _ => self
@@ -539,7 +539,7 @@ impl SimBoard {
     }
 
     /// Takes one step of a step word, at local `local`.
-    pub(crate) fn step(&mut self, local: Micros, up: bool) {
+    pub(crate) fn step(&mut self, local: Instant, up: bool) {
         let microsteps = self.driver.microsteps;
         let before = self.motor.position();
         self.motor.step(local, up, microsteps);
@@ -556,8 +556,8 @@ impl Board for SimBoard {
     fn io(&mut self) -> Option<&mut dyn IoHw> {
         Some(&mut self.pins)
     }
-    fn now(&self) -> Micros {
-        self.clock.now_us()
+    fn now(&self) -> Instant {
+        self.clock.now()
     }
     fn has_bootloader(&self) -> bool {
         self.boot.is_some()

@@ -144,9 +144,7 @@ impl Station {
             self.stats
                 .bytes
                 .fetch_add(frame.len() as u64 + FRAMING_BYTES, Ordering::Relaxed);
-            let stamp_us = (self.epoch + Duration::from_nanos(start))
-                .saturating_duration_since(self.host_clock.instant_at(0))
-                .as_micros() as u64;
+            let stamp = self.host_clock.at(self.epoch + Duration::from_nanos(start));
             let stations = self.stations.clone();
             let pair = self.pair.clone();
             let me = self.me;
@@ -162,7 +160,7 @@ impl Station {
                     }
                     for (i, io) in stations.iter().enumerate() {
                         if i != me {
-                            io.deliver_stamped(frame.clone(), stamp_us);
+                            io.deliver_stamped(frame.clone(), stamp);
                         }
                     }
                 });

@@ -1,7 +1,7 @@
 //! A simulated module's drifting local clock, in real time.
 
 use crate::clock::ClockModel;
-use osap_core::Micros;
+use osap_core::Instant as LocalInstant;
 use std::time::{Duration, Instant};
 
 /// A module's free-running µs counter, running at its own rate against the
@@ -44,18 +44,18 @@ impl DriftClock {
     }
 
     /// The local counter at instant `t` (its boot value before boot).
-    pub fn local_us_at(&self, t: Instant) -> Micros {
+    pub fn local_at(&self, t: Instant) -> LocalInstant {
         let ns = t.saturating_duration_since(self.boot).as_nanos();
         self.model.local_us(ns.min(u128::from(u64::MAX)) as u64)
     }
 
     /// The local counter now.
-    pub fn now_us(&self) -> Micros {
-        self.local_us_at(osap_host::clock::now())
+    pub fn now(&self) -> LocalInstant {
+        self.local_at(osap_host::clock::now())
     }
 
     /// The first instant at which the local counter reads at least `local`.
-    pub fn instant_at(&self, local: Micros) -> Instant {
+    pub fn instant_at(&self, local: LocalInstant) -> Instant {
         let ns = self.model.true_time_at(local);
         self.boot
             .checked_add(Duration::from_nanos(ns))

@@ -270,7 +270,7 @@ use osap_core::link::LinkGateway;
 use osap_core::netresponder::BuildKey;
 use osap_core::route::Route;
 use osap_core::Instruction;
-use osap_core::Micros;
+use osap_core::Instant as LocalInstant;
 use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo, LinkStats};
 use osap_host::{Host, HostError};
 use osap_module::{Module, ModulePorts};
@@ -550,7 +550,7 @@ impl SimMachine {
                     // scheduled (hundreds of µs on a busy host): a firmware
                     // head's 500 µs would time drops out.
                     osap_core::bus::BusConfig {
-                        reply_timeout_us: 5_000,
+                        reply_timeout: osap_core::Duration::from_millis(5),
                         absent_every: 4,
                         ..osap_core::bus::BusConfig::head(bus.drops.len().min(254) as u8)
                     }
@@ -1015,16 +1015,16 @@ impl SimModule {
     /// time root) when this module's local clock read `local`, in its
     /// current boot. Comparing it with what the module believed
     /// (a step edge's local time, say) gives the sync error.
-    pub fn host_time_at(&self, local: Micros) -> u64 {
+    pub fn host_time_at(&self, local: LocalInstant) -> LocalInstant {
         self.inner
             .machine
             .host_clock
-            .us_at(self.clock().instant_at(local))
+            .at(self.clock().instant_at(local))
     }
 
-    /// Its local clock's reading now, µs.
-    pub fn local_us(&self) -> Micros {
-        self.clock().now_us()
+    /// Its local clock's reading now.
+    pub fn local_now(&self) -> LocalInstant {
+        self.clock().now()
     }
 
     /// Whether its task is running.
@@ -1036,7 +1036,7 @@ impl SimModule {
     /// time; `HostError::Stopped` if it is not running.
     pub async fn with_runtime<R: Send + 'static>(
         &self,
-        f: impl FnOnce(&mut ModuleRuntime, Micros) -> R + Send + 'static,
+        f: impl FnOnce(&mut ModuleRuntime, LocalInstant) -> R + Send + 'static,
     ) -> Result<R, HostError> {
         let (tx, rx) = oneshot::channel();
         let command = ModuleCommand::With(Box::new(move |rt, now| {
@@ -1241,7 +1241,7 @@ impl SimModule {
                 ),
                 None => (None, None),
             };
-            let steps = StepClock::new(module.clone(), clock.now_us(), publisher, input);
+            let steps = StepClock::new(module.clone(), clock.now(), publisher, input);
             let level = steps.initial_level();
             module.lock(|m| m.limit_initial(level));
             let module_ports = ModulePorts::new(module.clone())

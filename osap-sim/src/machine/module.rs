@@ -9,7 +9,7 @@ use super::switch::{self, Input, Publisher};
 use osap_core::clock::TimeMap;
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::port::Port;
-use osap_core::Micros;
+use osap_core::{Duration, Instant};
 use osap_host::clock::HostClock;
 use osap_host::driver::{self, Driven, PollOutcome};
 use osap_host::link::ChannelLink;
@@ -63,14 +63,14 @@ impl std::fmt::Debug for SharedModule {
     }
 }
 
-/// Local µs one step word covers.
-const WORD_US: Micros = (STEP_TICK_US * TICKS_PER_WORD) as Micros;
+/// Local time one step word covers.
+const WORD: Duration = Duration::from_micros((STEP_TICK_US * TICKS_PER_WORD) as u64);
 /// How far ahead of the local clock step words are filled: as the
 /// firmware's FIFO (8 words, 1.28 ms) plus a tokio timer's 1 ms
 /// granularity, so words are always ready before their ticks.
-const STEP_LEAD_US: Micros = 8 * WORD_US + 1_000;
-/// How often a moving axis's step generator is topped up, local µs.
-const STEP_REFILL_US: Micros = 1_000;
+const STEP_LEAD: Duration = Duration::from_micros(8 * WORD.as_micros() + 1_000);
+/// How often a moving axis's step generator is topped up, local time.
+const STEP_REFILL: Duration = Duration::from_millis(1);
 
 /// The firmware's step generator, simulated: it asks the module for each
 /// word of 16 ticks (the same `fill_step_word` the firmware's step
@@ -84,7 +84,7 @@ const STEP_REFILL_US: Micros = 1_000;
 pub(crate) struct StepClock {
     module: SharedModule,
     /// Local time of the next word's first tick.
-    next: Micros,
+    next: Instant,
     /// Publishes this motor's steps, if a switch watches it.
     publisher: Option<Publisher>,
     /// The limit input, if switches over motors drive it (else the motor's
@@ -95,14 +95,16 @@ pub(crate) struct StepClock {
 impl StepClock {
     pub(crate) fn new(
         module: SharedModule,
-        boot_local: Micros,
+        boot_local: Instant,
         publisher: Option<Publisher>,
         input: Option<Input>,
     ) -> Self {
         StepClock {
             module,
             // Word-aligned to the counter, as a step generator started at boot.
-            next: boot_local.div_ceil(WORD_US) * WORD_US,
+            next: Instant::from_micros(
+                boot_local.as_micros().div_ceil(WORD.as_micros()) * WORD.as_micros(),
+            ),
             publisher,
             input,
         }
@@ -111,10 +113,10 @@ impl StepClock {
     /// Clocks out every word of `m` up to local `until`, publishing the
     /// steps if a switch watches the motor.
     fn run(
-        next: &mut Micros,
+        next: &mut Instant,
         publisher: &mut Option<Publisher>,
         m: &mut Module<SimBoard>,
-        until: Micros,
+        until: Instant,
     ) {
         while *next <= until {
             let word = m.fill_step_word(*next);
@@ -122,7 +124,7 @@ impl StepClock {
             for k in 0..TICKS_PER_WORD {
                 let bits = (word >> (2 * k)) & 3;
                 if bits & 1 != 0 {
-                    let t = *next + Micros::from(k * STEP_TICK_US);
+                    let t = *next + Duration::from_micros(u64::from(k * STEP_TICK_US));
                     m.board_mut().step(t, bits & 2 != 0);
                     if let Some(p) = publisher {
                         let word_at = *start.get_or_insert_with(|| p.instant_at(*next));
@@ -131,13 +133,13 @@ impl StepClock {
                     }
                 }
             }
-            *next += WORD_US;
+            *next += WORD;
         }
     }
 
     /// Delivers the limit edges due by local `now`: the motor's own
     /// switch's, or the input's after merging what its motors published.
-    fn deliver(input: &mut Option<Input>, m: &mut Module<SimBoard>, now: Micros) {
+    fn deliver(input: &mut Option<Input>, m: &mut Module<SimBoard>, now: Instant) {
         match input {
             Some(input) => {
                 input.merge(now);
@@ -171,7 +173,7 @@ impl StepClock {
     /// Before a poll at local `now`: the words and limit edges up to now.
     /// Returns whether the axis has motion queued or running (its clock
     /// must not step then).
-    pub(crate) fn catch_up(&mut self, now: Micros) -> bool {
+    pub(crate) fn catch_up(&mut self, now: Instant) -> bool {
         let StepClock {
             module,
             next,
@@ -192,7 +194,7 @@ impl StepClock {
     /// hands the module the map, then fills words a lead ahead if the axis
     /// may move; returns when it next needs a turn (local µs). One lock for
     /// all of it: this runs after every poll.
-    pub(crate) fn fill_ahead(&mut self, now: Micros, map: TimeMap) -> Option<Micros> {
+    pub(crate) fn fill_ahead(&mut self, now: Instant, map: TimeMap) -> Option<Instant> {
         let StepClock {
             module,
             next,
@@ -203,17 +205,17 @@ impl StepClock {
             m.publish_time(map);
             let standing = m.stepper.is_standing();
             if !standing {
-                Self::run(next, publisher, m, now + STEP_LEAD_US);
+                Self::run(next, publisher, m, now + STEP_LEAD);
             }
             if let Some(p) = publisher {
                 p.publish(*next, Some(standing));
             }
             Self::deliver(input, m, now);
             let limit = match input {
-                Some(input) => input.next_turn(now, STEP_REFILL_US),
+                Some(input) => input.next_turn(now, STEP_REFILL),
                 None => m.board().motor().next_limit_edge(),
             };
-            let refill = (!standing).then_some(now + STEP_REFILL_US);
+            let refill = (!standing).then_some(now + STEP_REFILL);
             [limit, refill].into_iter().flatten().min()
         })
     }
@@ -293,7 +295,7 @@ impl LinkGateway for ModuleLink {
     fn received_from(&self) -> Option<u8> {
         self.bus.as_ref().and_then(|b| b.received_from())
     }
-    fn wake_at(&self) -> Option<Micros> {
+    fn wake_at(&self) -> Option<Instant> {
         self.bus.as_ref().and_then(|b| b.wake_at())
     }
     fn set_rx_room(&mut self, room: u8) {
@@ -301,13 +303,13 @@ impl LinkGateway for ModuleLink {
             bus.set_rx_room(room);
         }
     }
-    fn poll(&mut self, now: Micros) {
+    fn poll(&mut self, now: Instant) {
         self.inner.poll(now);
         if let Some(bus) = &mut self.bus {
             bus.poll(&mut self.inner, now);
         }
     }
-    fn transmit_time(&self, len: usize) -> Micros {
+    fn transmit_time(&self, len: usize) -> Duration {
         let extra = if self.bus.is_some() {
             osap_core::bus::HEADER_LEN
         } else {
@@ -315,7 +317,7 @@ impl LinkGateway for ModuleLink {
         };
         self.inner.transmit_time(len + extra)
     }
-    fn queue_delay(&self) -> Micros {
+    fn queue_delay(&self) -> Duration {
         self.inner.queue_delay()
     }
     fn counters(&self) -> Option<osap_core::counters::GatewayCounters> {
@@ -328,12 +330,12 @@ impl LinkGateway for ModuleLink {
         };
         rx.timestamp = rx
             .timestamp
-            .map(|host_us| self.clock.local_us_at(self.host_clock.instant_at(host_us)));
+            .map(|host| self.clock.local_at(self.host_clock.instant_at(host)));
         Some(rx)
     }
 }
 
-pub(crate) type ModuleFn = Box<dyn FnOnce(&mut ModuleRuntime, Micros) + Send>;
+pub(crate) type ModuleFn = Box<dyn FnOnce(&mut ModuleRuntime, Instant) + Send>;
 
 pub(crate) enum ModuleCommand {
     With(ModuleFn),
@@ -370,7 +372,7 @@ impl Driven for ModuleTask {
     fn handle(&mut self, command: ModuleCommand) -> std::ops::ControlFlow<()> {
         match command {
             ModuleCommand::With(f) => {
-                let now = self.clock.now_us();
+                let now = self.clock.now();
                 f(&mut self.runtime, now);
                 std::ops::ControlFlow::Continue(())
             }
@@ -382,7 +384,7 @@ impl Driven for ModuleTask {
         if let Some(steps) = &self.stepper {
             steps.begin_poll();
         }
-        let now = self.clock.now_us();
+        let now = self.clock.now();
         if let Some(steps) = &mut self.stepper {
             let moving = steps.catch_up(now);
             self.runtime.clock_mut().set_motion_active(moving);

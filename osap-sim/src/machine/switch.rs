@@ -40,7 +40,7 @@
 use super::bed::{BedContact, BedSurface};
 use super::topology::{SwitchSpec, Topology};
 use super::DriftClock;
-use osap_core::Micros;
+use osap_core::Instant as LocalInstant;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -182,7 +182,7 @@ impl Publisher {
             clock,
             samples: Vec::new(),
         };
-        let boot = clock.instant_at(clock.now_us());
+        let boot = clock.instant_at(clock.now());
         let mut t = lock(&p.board.tracks[module]);
         if t.position != position {
             t.position = position;
@@ -203,7 +203,7 @@ impl Publisher {
     }
 
     /// The instant of local time `local` on this module's clock.
-    pub(crate) fn instant_at(&self, local: Micros) -> Instant {
+    pub(crate) fn instant_at(&self, local: LocalInstant) -> Instant {
         self.clock.instant_at(local)
     }
 
@@ -215,7 +215,7 @@ impl Publisher {
     /// Publishes the steps so far, the words clocked up to local `next`,
     /// and (after a poll) whether the axis stands, which ends the poll.
     /// A motor that starts moving wakes the modules watching it.
-    pub(crate) fn publish(&mut self, next: Micros, standing: Option<bool>) {
+    pub(crate) fn publish(&mut self, next: LocalInstant, standing: Option<bool>) {
         let clocked = self.clock.instant_at(next);
         let mut t = lock(&self.board.tracks[self.module]);
         if let Some(&(_, p)) = self.samples.last() {
@@ -319,7 +319,7 @@ pub(crate) struct Input {
     /// How far the samples are merged.
     until: Instant,
     /// Edges not yet delivered: (local time, new level).
-    pending: VecDeque<(Micros, bool)>,
+    pending: VecDeque<(LocalInstant, bool)>,
     /// Whether a watched motor moved, or was not yet known up to now, at
     /// the last merge: the module then takes a turn every refill period.
     active: bool,
@@ -393,7 +393,7 @@ impl Input {
             positions,
             switches,
             level: true,
-            until: clock.instant_at(clock.now_us()),
+            until: clock.instant_at(clock.now()),
             pending: VecDeque::new(),
             active: false,
         };
@@ -412,7 +412,7 @@ impl Input {
 
     /// Merges what the watched motors published, as far as all of them
     /// are known, at local `now`; level changes become pending edges.
-    pub(crate) fn merge(&mut self, now: Micros) {
+    pub(crate) fn merge(&mut self, now: LocalInstant) {
         let now_at = self.clock.instant_at(now);
         let mut horizon: Option<Instant> = None;
         let mut moving = false;
@@ -450,7 +450,7 @@ impl Input {
                 // A step older than what is merged (none, by the horizon
                 // rule) would count from there.
                 let at = t.max(self.until);
-                self.pending.push_back((self.clock.local_us_at(at), level));
+                self.pending.push_back((self.clock.local_at(at), level));
             }
         }
         self.until = horizon;
@@ -458,14 +458,18 @@ impl Input {
     }
 
     /// Takes the edges due by local `now`, oldest first.
-    pub(crate) fn take_edges(&mut self, now: Micros) -> impl Iterator<Item = (Micros, bool)> + '_ {
+    pub(crate) fn take_edges(&mut self, now: LocalInstant) -> impl Iterator<Item = (LocalInstant, bool)> + '_ {
         let due = self.pending.iter().take_while(|e| e.0 <= now).count();
         self.pending.drain(..due)
     }
 
     /// When the input next needs a turn, after a merge at local `now`: its
     /// next pending edge, or a refill period on while a watched motor moves.
-    pub(crate) fn next_turn(&self, now: Micros, refill: Micros) -> Option<Micros> {
+    pub(crate) fn next_turn(
+        &self,
+        now: LocalInstant,
+        refill: osap_core::Duration,
+    ) -> Option<LocalInstant> {
         let edge = self.pending.front().map(|e| e.0);
         let refill = self.active.then_some(now + refill);
         [edge, refill].into_iter().flatten().min()

@@ -264,10 +264,7 @@ impl Carrier {
                 StampMode::Wire => transit.first_byte_ns,
                 StampMode::Software | StampMode::None => transit.visible_ns,
             };
-            let stamp_us = self
-                .instant(stamp_ns)
-                .saturating_duration_since(self.host_clock.instant_at(0))
-                .as_micros() as u64;
+            let stamp = self.host_clock.at(self.instant(stamp_ns));
             let (packets, frame_errors) = self.faults.pass(&mut self.fault_rng, bytes);
             let to = self.to.clone();
             let generation = self.generation.clone();
@@ -283,7 +280,7 @@ impl Carrier {
                         to.count_frame_errors(frame_errors);
                     }
                     for packet in packets {
-                        to.deliver_stamped(packet, stamp_us);
+                        to.deliver_stamped(packet, stamp);
                     }
                 }
             });

@@ -21,7 +21,7 @@
 //! a fraction of full scale as `0.5 + a / (2·range)` and clamped, so the
 //! module's own `analog_read` reads it through the 12-bit converter.
 
-use osap_core::Micros;
+use osap_core::Instant;
 use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::f64::consts::PI;
@@ -99,11 +99,11 @@ pub struct Accel {
     /// The tool's velocity, axis units/s (equal to `e'` between steps).
     v: f64,
     /// Local time the state is at, µs.
-    at: Micros,
+    at: Instant,
     /// Steps clocked out but not yet due: (local µs, axis units moved).
-    pending: VecDeque<(Micros, f64)>,
+    pending: VecDeque<(Instant, f64)>,
     /// The tool's velocity and the time at the previous reading.
-    last_read: Option<(Micros, f64)>,
+    last_read: Option<(Instant, f64)>,
 }
 
 impl Accel {
@@ -115,7 +115,7 @@ impl Accel {
             omega,
             e: 0.0,
             v: 0.0,
-            at: 0,
+            at: Instant::ZERO,
             pending: VecDeque::new(),
             last_read: None,
         }
@@ -128,7 +128,7 @@ impl Accel {
 
     /// The carriage moved by `delta` carriage units at local `local` (the
     /// step generator clocks steps out ahead of time; they act when due).
-    pub(crate) fn step(&mut self, local: Micros, delta: f64) {
+    pub(crate) fn step(&mut self, local: Instant, delta: f64) {
         self.pending.push_back((local, delta * self.spec.coef));
     }
 
@@ -156,30 +156,30 @@ impl Accel {
     }
 
     /// Advances the model to local `now`, applying the steps due.
-    fn advance(&mut self, now: Micros) {
+    fn advance(&mut self, now: Instant) {
         while let Some(&(t, d)) = self.pending.front() {
             if t > now {
                 break;
             }
             self.pending.pop_front();
             let t = t.max(self.at);
-            self.ring((t - self.at) as f64 * 1e-6);
+            self.ring((t - self.at).as_secs_f64());
             self.at = t;
             self.e -= d;
             self.v += 2.0 * self.spec.damping_ratio * self.omega * d;
         }
         if now > self.at {
-            self.ring((now - self.at) as f64 * 1e-6);
+            self.ring((now - self.at).as_secs_f64());
             self.at = now;
         }
     }
 
     /// The mean acceleration since the previous reading at local `now`,
     /// axis units/s² (0 for the first reading).
-    pub fn acceleration(&mut self, now: Micros) -> f64 {
+    pub fn acceleration(&mut self, now: Instant) -> f64 {
         self.advance(now);
         let a = match self.last_read {
-            Some((t, v)) if now > t => (self.v - v) / ((now - t) as f64 * 1e-6),
+            Some((t, v)) if now > t => (self.v - v) / (now - t).as_secs_f64(),
             _ => 0.0,
         };
         if self.last_read.is_none_or(|(t, _)| now > t) {
@@ -189,7 +189,7 @@ impl Accel {
     }
 
     /// A reading at local `now` as a fraction of full scale (`0..=1`).
-    pub fn read(&mut self, now: Micros) -> f64 {
+    pub fn read(&mut self, now: Instant) -> f64 {
         let a = self.acceleration(now);
         (0.5 + a / (2.0 * self.spec.range)).clamp(0.0, 1.0)
     }
@@ -229,10 +229,10 @@ mod tests {
                 while (want - pos).abs() >= q {
                     let d = q * (want - pos).signum();
                     pos += d;
-                    a.step(t, d);
+                    a.step(Instant::from_micros(t), d);
                 }
                 if t % 100 == 0 {
-                    let acc = a.acceleration(t);
+                    let acc = a.acceleration(Instant::from_micros(t));
                     if t > total_us / 2 {
                         peak = peak.max(acc.abs());
                     }
