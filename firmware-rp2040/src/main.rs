@@ -41,7 +41,6 @@ use embassy_rp::pwm::Pwm;
 use embassy_rp::uart::{self, BufferedUart};
 use embassy_rp::{bind_interrupts, usb};
 use embassy_time::Instant;
-use osap_core::Micros;
 use osap_firmware::hot_start::RateKeeper;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;
@@ -105,10 +104,6 @@ unsafe fn SWI_IRQ_0() {
 static USB_SHARED: LinkShared = LinkShared::new();
 static UART_SHARED: LinkShared = LinkShared::new();
 
-/// Local time, µs: the RP2040 timer through embassy-time (1 MHz tick).
-fn local_now() -> Micros {
-    Instant::now().as_micros()
-}
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
@@ -161,7 +156,7 @@ async fn main(spawner: Spawner) {
     MODULE.install(Parts {
         stepper,
         io: Some(io),
-        clock: local_now,
+        clock: osap_firmware::local_now,
         bootloader: Some(board::reboot_to_usb_boot),
     });
 

@@ -24,6 +24,9 @@ use embassy_rp::pio::{
 use embassy_time::{Instant, Timer};
 use fixed::types::U24F8;
 use osap_module::{STEP_TICK_US, TICKS_PER_WORD};
+// The module takes typed local instants; the step schedule here counts
+// embassy-time µs, the same counter.
+use osap_core::Instant as LocalInstant;
 
 /// Local µs covered by one FIFO word.
 const WORD_US: u64 = (STEP_TICK_US * TICKS_PER_WORD) as u64;
@@ -98,7 +101,7 @@ async fn start(sm: &mut StepSm) -> u64 {
     let anchor = Instant::now().as_micros() + START_LEAD_US;
     for k in 0..FIFO_WORDS {
         sm.tx()
-            .push(crate::MODULE.fill_step_word(anchor + k * WORD_US));
+            .push(crate::MODULE.fill_step_word(LocalInstant::from_micros(anchor + k * WORD_US)));
     }
     Timer::at(Instant::from_micros(anchor - START_SPIN_US)).await;
     // With interrupts off, so nothing lands between reaching the anchor
@@ -128,7 +131,8 @@ pub async fn step_task(mut sm: StepSm) {
         Timer::at(Instant::from_micros(refill_at)).await;
         // Only this task pushes, so a slot seen free stays free.
         while !sm.tx().full() {
-            sm.tx().push(crate::MODULE.fill_step_word(next));
+            sm.tx()
+                .push(crate::MODULE.fill_step_word(LocalInstant::from_micros(next)));
             next += WORD_US;
         }
         if sm.tx().stalled() {
@@ -151,7 +155,7 @@ pub async fn limit_task(mut pin: Input<'static>) {
         pin.wait_for_any_edge().await;
         // Stamped first thing: only the GPIO interrupt and the step task
         // run ahead of this.
-        let at = Instant::now().as_micros();
+        let at = osap_firmware::local_now();
         let now_level = pin.is_high();
         // A bounce that settled back before we looked is no change.
         if now_level != level {

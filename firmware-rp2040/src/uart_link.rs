@@ -88,10 +88,10 @@ pub async fn uart_tx_task(
         let mut n = shared.take_tx(&mut buf).await;
         driver_enable.set_high();
         cortex_m::asm::delay(DRIVER_ENABLE_CYCLES);
-        let mut done_at = 0;
+        let mut done_at = osap_core::Instant::ZERO;
         // Keep the driver on while more frames follow.
         while n > 0 {
-            done_at = timing.queue(Instant::now().as_micros(), n);
+            done_at = timing.queue(osap_firmware::local_now(), n);
             // BufferedUartTx only fails on a closed UART; nothing to do.
             let _ = tx.write_all(&buf[..n]).await;
             n = shared.try_take_tx(&mut buf);
@@ -100,7 +100,7 @@ pub async fn uart_tx_task(
         // register still hold up to 33 bytes. Sleep until they should be
         // out, then wait out the last stop bit exactly.
         let _ = tx.flush().await;
-        Timer::at(Instant::from_micros(done_at)).await;
+        Timer::at(Instant::from_micros(done_at.as_micros())).await;
         while tx.busy() {}
         driver_enable.set_low();
     }

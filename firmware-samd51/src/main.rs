@@ -56,7 +56,6 @@ use atsamd_hal::time::Hertz;
 use atsamd_hal::usb::UsbBus;
 use embassy_executor::{InterruptExecutor, Spawner};
 use embassy_time::Instant;
-use osap_core::Micros;
 use osap_firmware::hot_start::RateKeeper;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;
@@ -119,10 +118,6 @@ fn PDEC_OTHER() {
 static USB_SHARED: LinkShared = LinkShared::new();
 static UART_SHARED: LinkShared = LinkShared::new();
 
-/// Local time, µs: TC2+TC3 through embassy-time (1 MHz tick).
-fn local_now() -> Micros {
-    Instant::now().as_micros()
-}
 
 /// A pin as a push-pull output at `high`, for [`FastPin`] writes.
 fn output(mut pin: DynPin, high: bool) -> FastPin {
@@ -211,7 +206,7 @@ async fn main(spawner: Spawner) {
     MODULE.install(Parts {
         stepper,
         io: Some(io),
-        clock: local_now,
+        clock: osap_firmware::local_now,
         bootloader: Some(board::reboot_to_uf2),
     });
 

@@ -29,6 +29,9 @@ use atsamd_hal::clock::ClockId;
 use atsamd_hal::pac::{self, interrupt, Interrupt, NVIC};
 use embassy_time::{Instant, Timer};
 use osap_module::{STEP_TICK_US, TICKS_PER_WORD};
+// The module takes typed local instants; the step schedule here counts
+// embassy-time µs, the same counter.
+use osap_core::Instant as LocalInstant;
 
 use crate::board::FastPin;
 use crate::clocks;
@@ -175,7 +178,7 @@ async fn start() -> u64 {
     STALLED.store(false, Ordering::Release);
     let anchor = Instant::now().as_micros() + START_LEAD_US;
     for k in 0..u64::from(RING_WORDS) {
-        RING.push(crate::MODULE.fill_step_word(anchor + k * WORD_US));
+        RING.push(crate::MODULE.fill_step_word(LocalInstant::from_micros(anchor + k * WORD_US)));
     }
     // The first overflow comes one tick after the start and leads the
     // first STEP edge by DIR_LEAD_US.
@@ -199,7 +202,7 @@ pub async fn step_task() {
         Timer::at(Instant::from_micros(refill_at)).await;
         // Only this task pushes, so room seen stays.
         while RING.len() < RING_WORDS {
-            RING.push(crate::MODULE.fill_step_word(next));
+            RING.push(crate::MODULE.fill_step_word(LocalInstant::from_micros(next)));
             next += WORD_US;
         }
         if STALLED.load(Ordering::Acquire) {
@@ -297,7 +300,7 @@ pub fn start_limit(nvic: &mut NVIC, limit: Limit, irq: Interrupt) {
 /// line in `main`.
 pub fn on_limit_interrupt() {
     // Stamped first thing.
-    let at = Instant::now().as_micros();
+    let at = osap_firmware::local_now();
     let channel = LIMIT_CHANNEL.load(Ordering::Acquire);
     let pin = FastPin::unpack(LIMIT_PIN.load(Ordering::Acquire));
     // SAFETY: INTFLAG is write-one-to-clear; only this channel's bit.

@@ -210,7 +210,7 @@ pub async fn uart_tx_task(driver_enable: FastPin, shared: &'static LinkShared) {
         cortex_m::asm::delay(DRIVER_ENABLE_CYCLES);
         // Keep the driver on while more frames follow.
         while n > 0 {
-            UART_TIMING.queue(Instant::now().as_micros(), n);
+            UART_TIMING.queue(osap_firmware::local_now(), n);
             TX_DRAINED.reset();
             critical_section::with(|cs| {
                 let mut tx = TX.borrow_ref_mut(cs);

@@ -841,10 +841,12 @@ impl Machine {
                 })?;
         }
         // Arrival stamps: the host's local clock, moved onto the
-        // synchronized one.
+        // synchronized one through the host runtime's time map.
         let host = self.host().clone();
-        let sys = host.system_time().await.map_err(SomError::from)?;
-        let offset = i128::from(sys) - i128::from(host.clock().now_us());
+        let map = host
+            .with_runtime(|rt, _| rt.time_map())
+            .await
+            .map_err(SomError::from)?;
         let mut recorder = Recorder {
             machine: self.clone(),
             id,
@@ -858,7 +860,7 @@ impl Machine {
         let mut first_series = 0u16;
         for r in &resolved {
             let result = recorder
-                .wire(r, first_series, tx.clone(), offset, options.period_us)
+                .wire(r, first_series, tx.clone(), map, options.period_us)
                 .await;
             if let Err(e) = result {
                 recorder.unwire().await;
@@ -876,7 +878,7 @@ impl Recorder {
         r: &Resolved,
         first_series: u16,
         tx: SyncSender<Row>,
-        offset: i128,
+        map: osap_core::clock::TimeMap,
         period_us: u32,
     ) -> Result<(), CaptureError> {
         let name = format!("capture{}.{}.{}", self.id, r.spec.module, r.spec.function);
@@ -893,7 +895,7 @@ impl Recorder {
                 };
                 (*t, &ins[1..])
             } else {
-                let t = i128::from(clock.now_us()) + offset;
+                let t = i128::from(map.system_time(clock.now()).as_micros());
                 (u64::try_from(t.max(0)).unwrap_or(u64::MAX), ins)
             };
             if last.is_some_and(|l| time <= l) {

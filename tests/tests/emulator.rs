@@ -204,7 +204,7 @@ async fn host_minus_monotonic_ns(host: &Host) -> i128 {
     let mut best = (i128::MAX, 0);
     for _ in 0..200 {
         let before = monotonic_ns();
-        let system_us = host.system_time().await.unwrap();
+        let system_us = host.system_time().await.unwrap().as_micros();
         let after = monotonic_ns();
         if after - before < best.0 {
             best = (
@@ -258,7 +258,7 @@ async fn smooth_move(
         .control(json!({"cmd": "count", "step": STEP_PIN, "dir": DIR_PIN}))
         .await;
     assert_eq!(counting["ok"], json!(true), "{counting}");
-    let now = host.system_time().await.unwrap();
+    let now = host.system_time().await.unwrap().as_micros();
     let t0 = (now + 300_000) / iv * iv;
     let mut points = vec![from; 4];
     for k in 1..=n {
@@ -276,7 +276,7 @@ async fn smooth_move(
         .unwrap_or_else(|e| panic!("point {k}: {e}"));
     }
     let end = t0 + points.len() as u64 * iv + 200_000;
-    while host.system_time().await.unwrap() < end {
+    while host.system_time().await.unwrap().as_micros() < end {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
     // Then until the module itself has run the stream to its end: its own

@@ -14,9 +14,9 @@ use pipes_core::control::ControlError;
 use std::sync::OnceLock;
 use std::time::Instant;
 
-fn clock() -> u64 {
+fn clock() -> osap_core::Instant {
     static START: OnceLock<Instant> = OnceLock::new();
-    START.get_or_init(Instant::now).elapsed().as_micros() as u64
+    osap_core::Instant::from_micros(START.get_or_init(Instant::now).elapsed().as_micros() as u64)
 }
 
 struct Driver;
@@ -140,7 +140,7 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
     }
     let mut local = 0;
     while local < 40 * iv {
-        MODULE.fill_step_word(local);
+        MODULE.fill_step_word(osap_core::Instant::from_micros(local));
         local += 160;
     }
     let steps = f("get_steps").call(&[]).await.unwrap();

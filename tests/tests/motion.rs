@@ -149,7 +149,7 @@ impl Rig {
     }
 
     async fn sleep_until_system(&self, t: u64) {
-        while self.host.system_time().await.unwrap() < t {
+        while self.host.system_time().await.unwrap().as_micros() < t {
             tokio::time::sleep(Duration::from_millis(10)).await;
         }
     }
@@ -197,7 +197,7 @@ fn stepped(module: &SimModule, shared: &SharedModule) -> Stepped {
     });
     let path: Vec<(f64, f64)> = edges
         .iter()
-        .map(|e| (module.host_time_at(e.local) as f64, e.position))
+        .map(|e| (module.host_time_at(e.local).as_micros() as f64, e.position))
         .collect();
     let last = path.last().map_or(0.0, |p| p.1);
     assert_eq!(
@@ -322,7 +322,7 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
         [0.0, 0.0],
     ];
     let line = on_host(planner.member("line").unwrap());
-    let start = r.host.system_time().await.unwrap();
+    let start = r.host.system_time().await.unwrap().as_micros();
     for c in &corners[1..] {
         let f = |x: f64| OwnedValue::F64(x);
         r.call(&line, &[f(c[0]), f(c[1]), f(0.0), f(60.0)]).await;
@@ -331,7 +331,7 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
         planner.state().lock().unwrap().planner().is_idle()
     })
     .await;
-    let end = r.host.system_time().await.unwrap() + u64::from(LEAD);
+    let end = r.host.system_time().await.unwrap().as_micros() + u64::from(LEAD);
     r.sleep_until_system(end + 4 * u64::from(IV)).await;
 
     let a_steps = stepped(&a_mod, &a);
@@ -476,7 +476,7 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
             eprintln!(
                 "  local {} true {t} offset {} pos {p:.6} {}",
                 e.local,
-                t as i64 - e.local as i64,
+                t as i64 - e.local.as_micros() as i64,
                 if e.up { "up" } else { "down" }
             );
         }

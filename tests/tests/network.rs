@@ -297,8 +297,9 @@ fn clocks_synchronise_across_a_chain() {
         assert_eq!(status.tier, tier);
         assert_eq!(status.state, SyncState::Synced);
         assert!(status.stats.accepted > 10);
-        let err =
-            net.nodes[n].system_time(net.now) as i64 - net.nodes[root].system_time(net.now) as i64;
+        let err = net.nodes[n]
+            .system_time(net.now)
+            .signed_micros_since(net.nodes[root].system_time(net.now));
         // Every leg here takes exactly one step each way: symmetric, so the
         // only error left is rounding.
         assert!(err.abs() <= 2, "node {n}: {err} µs off the root");

@@ -15,7 +15,7 @@ use osap_core::netresponder::{key, BuildKey};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::Route;
 use osap_core::transport::Transport;
-use osap_core::{Micros, Runtime};
+use osap_core::{Duration, Instant, Runtime};
 
 type Rt = Runtime<16, 256, 8, 4>;
 type Link = QueueLink<8, 256>;
@@ -80,7 +80,7 @@ struct Demo {
     host_link: [Link; 1],
     console: [Console; 1],
     modules: Vec<Module>, // hub, x, y, z
-    now: Micros,
+    now: Instant,
 }
 
 impl Demo {
@@ -102,7 +102,7 @@ impl Demo {
                 module("stepper", "y-axis", 2),
                 module("stepper", "z-axis", 1),
             ],
-            now: 0,
+            now: Instant::ZERO,
         }
     }
 
@@ -131,7 +131,7 @@ impl Demo {
             transfer(a, b, usize::MAX);
             transfer(b, a, usize::MAX);
         }
-        self.now += 100;
+        self.now += Duration::from_micros(100);
     }
 
     /// Sends one packet from the console and steps until a reply arrives.

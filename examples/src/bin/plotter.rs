@@ -138,7 +138,7 @@ async fn run() -> Result<(), Box<dyn Error>> {
         .await?;
 
     // The shape: a square whose last corner is rounded.
-    let begin = host.system_time().await?;
+    let begin = host.system_time().await?.as_micros();
     {
         let mut p = planner
             .state()
@@ -162,8 +162,8 @@ async fn run() -> Result<(), Box<dyn Error>> {
             break;
         }
     }
-    let end = host.system_time().await? + u64::from(LEAD);
-    while host.system_time().await? < end + u64::from(4 * IV) {
+    let end = host.system_time().await?.as_micros() + u64::from(LEAD);
+    while host.system_time().await?.as_micros() < end + u64::from(4 * IV) {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
 
@@ -182,7 +182,7 @@ async fn run() -> Result<(), Box<dyn Error>> {
             .iter()
             .map(|e| {
                 p += if e.up { step } else { -step };
-                (sim.host_time_at(e.local) as f64, p)
+                (sim.host_time_at(e.local).as_micros() as f64, p)
             })
             .collect())
     };

@@ -439,7 +439,7 @@ fn check(m: &Machine, cfg: &MachineFile, player: &Player) -> Result<(), BoxError
                         .lock(|mm| mm.board().motor().edges().to_vec());
                     let timed: Vec<(u64, f64)> = edges
                         .iter()
-                        .map(|e| (sm.host_time_at(e.local), e.position))
+                        .map(|e| (sm.host_time_at(e.local).as_micros(), e.position))
                         .collect();
                     Ok::<_, BoxError>((name.clone(), timed))
                 })
@@ -476,11 +476,11 @@ fn check(m: &Machine, cfg: &MachineFile, player: &Player) -> Result<(), BoxError
                 .into());
             }
             for (s, (rise, fall)) in strikes.iter().zip(&rises) {
-                let struck = io.host_time_at(*rise);
+                let struck = io.host_time_at(*rise).as_micros();
                 let error = struck as i64 - s.at as i64;
                 // The pulse's end, against its scheduled end.
                 let end = s.at + u64::from(STRIKE_US);
-                let end_error = fall.map_or(i64::MAX, |f| io.host_time_at(f) as i64 - end as i64);
+                let end_error = fall.map_or(i64::MAX, |f| io.host_time_at(f).as_micros() as i64 - end as i64);
                 let over = at_time(struck);
                 let off = (over - bar(s.note)).abs();
                 rows.push((s.at, format!(

@@ -99,7 +99,7 @@ impl Poller {
             runtimes.push(clock);
         }
         let faults = self.faults().await;
-        let time_us = self.source.host.system_time().await.unwrap_or(0);
+        let time_us = self.source.host.system_time().await.map_or(0, |t| t.as_micros());
         let (axes, machine) = match &self.source.machine {
             Some(m) => {
                 let names = m.axes();

@@ -669,7 +669,7 @@ impl Machine {
 
     /// The synchronized system time, µs.
     pub async fn now_us(&self) -> Result<u64, MachineError> {
-        Ok(self.inner.host.system_time().await?)
+        Ok(self.inner.host.system_time().await?.as_micros())
     }
 
     fn check_running(&self) -> Result<(), MachineError> {
