@@ -40,7 +40,6 @@ use embassy_rp::pio::{self, Pio};
 use embassy_rp::pwm::Pwm;
 use embassy_rp::uart::{self, BufferedUart};
 use embassy_rp::{bind_interrupts, usb};
-use embassy_time::Instant;
 use osap_firmware::hot_start::RateKeeper;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;

@@ -55,7 +55,6 @@ use atsamd_hal::sercom::uart::{self, BaudMode, Oversampling};
 use atsamd_hal::time::Hertz;
 use atsamd_hal::usb::UsbBus;
 use embassy_executor::{InterruptExecutor, Spawner};
-use embassy_time::Instant;
 use osap_firmware::hot_start::RateKeeper;
 use osap_firmware::link::{FramedGateway, LinkShared};
 use osap_firmware::name_store::NameStore;

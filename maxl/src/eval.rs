@@ -786,8 +786,11 @@ mod tests {
         let end = t0 + (n_points - 3) * us as u64;
         while t < end {
             while next * (us as u64) + t0 <= t + 2 * us as u64 {
-                tr.push(SystemInstant::from_micros(t0 + next * us as u64), Fx::from_f64(sig(next)))
-                    .unwrap();
+                tr.push(
+                    SystemInstant::from_micros(t0 + next * us as u64),
+                    Fx::from_f64(sig(next)),
+                )
+                .unwrap();
                 next += 1;
             }
             let pos = match e.next() {

@@ -308,16 +308,29 @@ mod tests {
         };
         let mut tr: Track<Fx, 8> = Track::new(iv, lim);
         for k in 0..3u64 {
-            tr.push(SystemInstant::from_micros(k * 256), Fx(k as i32)).unwrap();
+            tr.push(SystemInstant::from_micros(k * 256), Fx(k as i32))
+                .unwrap();
         }
-        assert_eq!(tr.segment_at(SystemInstant::from_micros(256)), None, "fewer than 4 points");
+        assert_eq!(
+            tr.segment_at(SystemInstant::from_micros(256)),
+            None,
+            "fewer than 4 points"
+        );
         tr.push(SystemInstant::from_micros(768), Fx(3)).unwrap();
-        assert_eq!(tr.segment_at(SystemInstant::from_micros(255)), None, "needs P_-1");
+        assert_eq!(
+            tr.segment_at(SystemInstant::from_micros(255)),
+            None,
+            "needs P_-1"
+        );
         assert_eq!(
             tr.segment_at(SystemInstant::from_micros(256 + 17)),
             Some(([Fx(0), Fx(1), Fx(2), Fx(3)], 17))
         );
-        assert_eq!(tr.segment_at(SystemInstant::from_micros(512)), None, "needs the point at 1024");
+        assert_eq!(
+            tr.segment_at(SystemInstant::from_micros(512)),
+            None,
+            "needs the point at 1024"
+        );
         // Running dry latches the backstop; then there is no segment.
         assert!(tr.sample(SystemInstant::from_micros(600)).is_ok());
         assert_eq!(tr.segment_at(SystemInstant::from_micros(256)), None);

@@ -5,9 +5,9 @@
 mod common;
 
 use common::rng::XorShift;
-use osap_core::time::SystemInstant;
 use maxl::blocks::interp::{InterpError, Interpolator, InterpolatorBlock, Pushed};
 use maxl::{BackstopLimits, Interval, Track};
+use osap_core::time::SystemInstant;
 use pipes_core::class::PipesClass;
 use pipes_core::function::CallError;
 use pipes_core::Value;
@@ -71,7 +71,9 @@ fn matches_the_modules_f32_track() {
         x += (rng.unit() - 0.5) * 40.0;
         span = span.max(x.abs());
         let p = x as f32;
-        track.push(SystemInstant::from_micros(T0 + k * step), p).unwrap();
+        track
+            .push(SystemInstant::from_micros(T0 + k * step), p)
+            .unwrap();
         ip.push(T0 + k * step, [f64::from(p)]).unwrap();
         if k >= 4 {
             // Inside the known curve: the segment before the newest two.

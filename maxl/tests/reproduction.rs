@@ -64,7 +64,8 @@ fn every_evaluator_reproduces_cubics() {
                 let p = f.point(secs(t), dt);
                 points.push(p);
                 tf.push(SystemInstant::from_micros(t), p as f32).unwrap();
-                tx.push(SystemInstant::from_micros(t), Fx::from_f64(p)).unwrap();
+                tx.push(SystemInstant::from_micros(t), Fx::from_f64(p))
+                    .unwrap();
             }
             let scale = f.0.iter().map(|c| c.abs()).fold(1.0, f64::max);
             let end = t0 + (n - 3) * u64::from(us);

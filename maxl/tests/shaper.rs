@@ -8,8 +8,8 @@
 
 mod common;
 
-use std::f64::consts::PI;
 use osap_core::time::SystemInstant;
+use std::f64::consts::PI;
 
 use maxl::blocks::interp::Interpolator;
 use maxl::blocks::shaper::{

@@ -4,11 +4,11 @@
 mod common;
 
 use common::rng::XorShift;
-use osap_core::time::SystemInstant;
 use maxl::blocks::timer::{
     Timer, TimerBlock, TimerError, FAIL_BAD_INTERVAL, FAIL_LEAD_TOO_SHORT, FAIL_NO_TIME,
 };
 use maxl::Interval;
+use osap_core::time::SystemInstant;
 use pipes_core::class::PipesClass;
 use pipes_core::export::INPUT_DECODE_FAILED;
 use pipes_core::function::CallError;

@@ -1,8 +1,8 @@
 mod common;
 
 use common::rng::Lcg;
-use osap_core::time::SystemInstant;
 use maxl::*;
+use osap_core::time::SystemInstant;
 
 const LIM: BackstopLimits = BackstopLimits {
     max_acc: 20_000.0,
@@ -30,14 +30,32 @@ fn push_rules_and_gap_fill() {
     let mut tr: Track<f32, 8> = Track::new(iv(1024), LIM);
     let base = 1_000_000 * 1024u64;
     assert_eq!(tr.last_point(), None);
-    assert_eq!(tr.push(SystemInstant::from_micros(base + 1), 0.0), Err(PushError::Misaligned));
-    assert_eq!(tr.push(SystemInstant::from_micros(base), 0.0), Ok(PushOutcome::Appended));
-    assert_eq!(tr.push(SystemInstant::from_micros(base), 1.0), Err(PushError::Stale));
-    assert_eq!(tr.push(SystemInstant::from_micros(base + 1024), 1.0), Ok(PushOutcome::Appended));
+    assert_eq!(
+        tr.push(SystemInstant::from_micros(base + 1), 0.0),
+        Err(PushError::Misaligned)
+    );
+    assert_eq!(
+        tr.push(SystemInstant::from_micros(base), 0.0),
+        Ok(PushOutcome::Appended)
+    );
+    assert_eq!(
+        tr.push(SystemInstant::from_micros(base), 1.0),
+        Err(PushError::Stale)
+    );
+    assert_eq!(
+        tr.push(SystemInstant::from_micros(base + 1024), 1.0),
+        Ok(PushOutcome::Appended)
+    );
     // One missing: midpoint of 1.0 and 5.0.
-    assert_eq!(tr.push(SystemInstant::from_micros(base + 3 * 1024), 5.0), Ok(PushOutcome::FilledGap));
+    assert_eq!(
+        tr.push(SystemInstant::from_micros(base + 3 * 1024), 5.0),
+        Ok(PushOutcome::FilledGap)
+    );
     assert_eq!(tr.len(), 4);
-    assert_eq!(tr.last_time(), Some(SystemInstant::from_micros(base + 3 * 1024)));
+    assert_eq!(
+        tr.last_time(),
+        Some(SystemInstant::from_micros(base + 3 * 1024))
+    );
     assert_eq!(tr.last_point(), Some(5.0));
     // Two missing: refused, queue unchanged.
     assert_eq!(
@@ -51,15 +69,25 @@ fn push_rules_and_gap_fill() {
     assert!((s.kin.pos - (0.0 + 4.0 + 3.0) / 6.0).abs() < 1e-6);
     // Capacity: the oldest points drop, old times become TooEarly.
     for k in 4..20u64 {
-        tr.push(SystemInstant::from_micros(base + k * 1024), k as f32).unwrap();
+        tr.push(SystemInstant::from_micros(base + k * 1024), k as f32)
+            .unwrap();
     }
     assert_eq!(tr.len(), 8);
     assert_eq!(tr.last_point(), Some(19.0), "the newest, past the wrap");
-    assert_eq!(tr.sample(SystemInstant::from_micros(base + 1024)), Err(EvalError::TooEarly));
+    assert_eq!(
+        tr.sample(SystemInstant::from_micros(base + 1024)),
+        Err(EvalError::TooEarly)
+    );
     let mut fx: Track<Fx, 8> = Track::new(iv(256), LIM);
     fx.push(SystemInstant::from_micros(0), Fx(1)).unwrap();
-    assert_eq!(fx.push(SystemInstant::from_micros(512), Fx(4)), Ok(PushOutcome::FilledGap));
-    assert_eq!(fx.sample(SystemInstant::from_micros(0)), Err(EvalError::NotStarted));
+    assert_eq!(
+        fx.push(SystemInstant::from_micros(512), Fx(4)),
+        Ok(PushOutcome::FilledGap)
+    );
+    assert_eq!(
+        fx.sample(SystemInstant::from_micros(0)),
+        Err(EvalError::NotStarted)
+    );
 }
 
 #[test]
@@ -70,8 +98,13 @@ fn knot_value_and_physical_units() {
     let mut f: Track<f32, 16> = Track::new(i, LIM);
     let mut x: Track<Fx, 16> = Track::new(i, LIM);
     for k in 0..12u64 {
-        f.push(SystemInstant::from_micros(k * 512), 3.0 * k as f32).unwrap();
-        x.push(SystemInstant::from_micros(k * 512), Fx(3 * k as i32 * Fx::ONE)).unwrap();
+        f.push(SystemInstant::from_micros(k * 512), 3.0 * k as f32)
+            .unwrap();
+        x.push(
+            SystemInstant::from_micros(k * 512),
+            Fx(3 * k as i32 * Fx::ONE),
+        )
+        .unwrap();
     }
     let v = 3.0 / 512e-6;
     for t in (512..9 * 512).step_by(37) {
@@ -88,13 +121,27 @@ fn knot_value_and_physical_units() {
     // A single bump: knot value (P0 + 4P1 + P2)/6 and jerk in steps/s³.
     let mut g: Track<Fx, 8> = Track::new(i, LIM);
     for (k, p) in [0, 0, 6, 0, 0, 0].iter().enumerate() {
-        g.push(SystemInstant::from_micros(k as u64 * 512), Fx(p * Fx::ONE)).unwrap();
+        g.push(SystemInstant::from_micros(k as u64 * 512), Fx(p * Fx::ONE))
+            .unwrap();
     }
-    assert_eq!(g.sample(SystemInstant::from_micros(2 * 512)).unwrap().kin.pos, Fx(4 * Fx::ONE));
-    assert_eq!(g.sample(SystemInstant::from_micros(512)).unwrap().kin.pos, Fx(Fx::ONE));
+    assert_eq!(
+        g.sample(SystemInstant::from_micros(2 * 512))
+            .unwrap()
+            .kin
+            .pos,
+        Fx(4 * Fx::ONE)
+    );
+    assert_eq!(
+        g.sample(SystemInstant::from_micros(512)).unwrap().kin.pos,
+        Fx(Fx::ONE)
+    );
     let dt = 512e-6f64;
     // Segment 1 uses P0..P3 = 0, 0, 6, 0: c3 = -3·6 = -18, j = c3 / Δt³.
-    let j = g.sample(SystemInstant::from_micros(512 + 100)).unwrap().kin.jerk_f64();
+    let j = g
+        .sample(SystemInstant::from_micros(512 + 100))
+        .unwrap()
+        .kin
+        .jerk_f64();
     assert!((j / (-18.0 / dt.powi(3)) - 1.0).abs() < 1e-9, "{j}");
 }
 
@@ -118,8 +165,13 @@ fn run_stream(n: u64, us: u32, samples_per_point: u32) -> (f64, f64, f64) {
     let (mut e_start, mut e_end, mut e_f32) = (0.0f64, 0.0f64, 0.0f64);
     for k in 0..n {
         let p = signal(k, dt);
-        fx.push(SystemInstant::from_micros(t0 + k * us as u64), Fx::from_f64(p)).unwrap();
-        f.push(SystemInstant::from_micros(t0 + k * us as u64), p as f32).unwrap();
+        fx.push(
+            SystemInstant::from_micros(t0 + k * us as u64),
+            Fx::from_f64(p),
+        )
+        .unwrap();
+        f.push(SystemInstant::from_micros(t0 + k * us as u64), p as f32)
+            .unwrap();
         if k < 4 {
             continue;
         }
@@ -191,7 +243,11 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
     let mut next = 0u64;
     let push_until = |tr: &mut Track<P, 16>, next: &mut u64, t: u64| {
         while *next < n && *next * us as u64 <= t + 3 * us as u64 {
-            tr.push(SystemInstant::from_micros(*next * us as u64), to_p(pos(*next))).unwrap();
+            tr.push(
+                SystemInstant::from_micros(*next * us as u64),
+                to_p(pos(*next)),
+            )
+            .unwrap();
             *next += 1;
         }
     };
@@ -243,7 +299,10 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
     let (_, v, a, j) = prev.unwrap();
     assert_eq!((v, a, j), (0.0, 0.0, 0.0), "at rest");
     tr.clear();
-    assert_eq!(tr.push(SystemInstant::from_micros(0), to_p(0.0)), Ok(PushOutcome::Appended));
+    assert_eq!(
+        tr.push(SystemInstant::from_micros(0), to_p(0.0)),
+        Ok(PushOutcome::Appended)
+    );
 }
 
 #[test]

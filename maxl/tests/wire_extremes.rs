@@ -5,13 +5,13 @@
 //! each answers with outputs or a failure code.
 
 use maxl::blocks::bedlevel::{BedMeshBlock, BedPlaneBlock};
-use osap_core::time::SystemInstant;
 use maxl::blocks::chirp::ChirpBlock;
 use maxl::blocks::interp::InterpolatorBlock;
 use maxl::blocks::kinematics::{CoreXy, CoreXyBlock, FiveBarBlock, KaosBlock, ScaraBlock};
 use maxl::blocks::onedof::OneDofBlock;
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
+use osap_core::time::SystemInstant;
 
 const STAMPS: [u64; 7] = [0, 1, 1024, 2048 * 1000, 1 << 40, u64::MAX - 1, u64::MAX];
 const F32S: [f32; 9] = [

@@ -10,12 +10,12 @@
 //! divided by the segment count (criterion's throughput line, elements/s).
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use osap_core::time::Instant;
 use osap_core::route::Route;
 use osap_core::segment::{
     DefaultReassembler, Plan, SegmentHeader, SegmentSender, SegmentSource, DEFAULT_BYTES,
     HEADER_LEN,
 };
+use osap_core::time::Instant;
 use osap_core::Instruction;
 
 /// The segments of a `DEFAULT_BYTES` datagram sent over `route` at `mtu`.
@@ -62,7 +62,9 @@ fn reassembly(c: &mut Criterion) {
                 b.iter(|| {
                     let mut whole = 0;
                     for s in list {
-                        if let Ok(Some(d)) = r.on_segment(Instant::from_micros(0), &route, 1, black_box(s)) {
+                        if let Ok(Some(d)) =
+                            r.on_segment(Instant::from_micros(0), &route, 1, black_box(s))
+                        {
                             whole = d.len();
                         }
                     }

@@ -654,11 +654,11 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::time::Duration;
     use crate::link::queue::QueueLink;
     use crate::packet::Instruction;
     use crate::port::{Delivery, PortInfo, PortTx};
     use crate::route::Route;
+    use crate::time::Duration;
     use crate::transport::Transport;
     use crate::{time::Instant, Runtime};
 
@@ -729,7 +729,10 @@ mod tests {
     #[test]
     fn a_link_never_heard_is_open_without_a_neighbour() {
         let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
-        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(1_000)), LINK_UNHEARD);
+        assert_eq!(
+            open_byte(&mut rt, &mut links, Instant::from_micros(1_000)),
+            LINK_UNHEARD
+        );
         assert_eq!(rt.link_heard(1), None);
         // The link the question came in on was heard, by the question.
         assert_eq!(rt.link_heard(0), Some(Instant::from_micros(1_000)));
@@ -753,7 +756,11 @@ mod tests {
             LINK_HEARD
         );
         assert_eq!(
-            open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD + Duration::from_micros(1)),
+            open_byte(
+                &mut rt,
+                &mut links,
+                t + NEIGHBOUR_HEARD + Duration::from_micros(1)
+            ),
             LINK_UNHEARD
         );
     }
@@ -764,7 +771,10 @@ mod tests {
         assert!(links[1].inject(&[0xff; 12]));
         poll(&mut rt, &mut links, Instant::from_micros(1_000));
         assert_eq!(rt.counters().malformed, 1);
-        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(2_000)), LINK_HEARD);
+        assert_eq!(
+            open_byte(&mut rt, &mut links, Instant::from_micros(2_000)),
+            LINK_HEARD
+        );
     }
 
     #[test]
@@ -772,12 +782,21 @@ mod tests {
         let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
         assert!(links[1].inject(&packet(9, b"hi")));
         poll(&mut rt, &mut links, Instant::from_micros(1_000));
-        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(2_000)), LINK_HEARD);
+        assert_eq!(
+            open_byte(&mut rt, &mut links, Instant::from_micros(2_000)),
+            LINK_HEARD
+        );
         links[1].set_open(false);
-        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(3_000)), LINK_CLOSED);
+        assert_eq!(
+            open_byte(&mut rt, &mut links, Instant::from_micros(3_000)),
+            LINK_CLOSED
+        );
         // Reopened within the window: whoever is there now is not heard yet.
         links[1].set_open(true);
-        assert_eq!(open_byte(&mut rt, &mut links, Instant::from_micros(4_000)), LINK_UNHEARD);
+        assert_eq!(
+            open_byte(&mut rt, &mut links, Instant::from_micros(4_000)),
+            LINK_UNHEARD
+        );
     }
 
     /// Asks `SET_BUS` with `body` over link 0 and returns the reply's

@@ -25,8 +25,8 @@ use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError, H
 use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
 use crate::route::Route;
 use crate::stack::{ClaimError, Owner, PacketStack, PushError, SlotId, SlotMeta};
-use crate::transport::Transport;
 use crate::time::{Duration, Instant, SystemInstant};
+use crate::transport::Transport;
 
 /// Tunables of a runtime; the defaults suit a microcontroller.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -325,7 +325,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             .map_err(SendError::BadAddress)?;
         let stamp = now;
         let ttl = self.config.reply_ttl_us;
-        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| w.u64(stamp.as_micros()).ok())
+        self.push_system(now, &route, CODE_TIME_REQUEST, ttl, |w| {
+            w.u64(stamp.as_micros()).ok()
+        })
     }
 
     fn sender(&mut self, now: Instant) -> Sender<'_, SLOTS, MTU, PORTS, LINKS> {

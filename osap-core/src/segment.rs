@@ -816,14 +816,23 @@ mod tests {
         let data = [1u8; 40];
         let plan = Plan::new(40, 26).unwrap();
         let route = Route::local();
-        let mut r: Reassembler<1, 64> = Reassembler::new().with_timeout(Duration::from_micros(1000));
+        let mut r: Reassembler<1, 64> =
+            Reassembler::new().with_timeout(Duration::from_micros(1000));
         let s = seg(1, 0, plan, &data);
-        assert_eq!(r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(plan, 0)]), Ok(None));
+        assert_eq!(
+            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(plan, 0)]),
+            Ok(None)
+        );
         assert_eq!(r.next_deadline(), Some(Instant::from_micros(1000)));
         // Segment 1 never comes; the last one arrives too late.
         let s = seg(1, 1, plan, &data);
         assert_eq!(
-            r.on_segment(Instant::from_micros(1000), &route, 1, &s[..seg_len(plan, 1)]),
+            r.on_segment(
+                Instant::from_micros(1000),
+                &route,
+                1,
+                &s[..seg_len(plan, 1)]
+            ),
             Ok(None)
         );
         assert_eq!(r.stats().lost, 1);
@@ -845,7 +854,10 @@ mod tests {
         );
         let p = Plan::new(30, 26).unwrap();
         let s = seg(0, 0, p, &[0; 30]);
-        assert_eq!(r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]), Ok(None));
+        assert_eq!(
+            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]),
+            Ok(None)
+        );
         let s = seg(1, 0, p, &[0; 30]);
         assert_eq!(
             r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]),
@@ -859,7 +871,11 @@ mod tests {
             &[3, 0, 2, 2, 4, 0, 1, 2][..], // index 2 of 2
             &[3, 0, 0, 0, 4, 0][..],       // count 0
         ] {
-            assert!(r.on_segment(Instant::from_micros(0), &route, 1, bad).is_err(), "{bad:?}");
+            assert!(
+                r.on_segment(Instant::from_micros(0), &route, 1, bad)
+                    .is_err(),
+                "{bad:?}"
+            );
         }
         let st = r.stats();
         assert_eq!((st.too_large, st.no_slot, st.malformed), (1, 1, 6));

@@ -477,7 +477,10 @@ mod tests {
         );
         push(&mut s, Owner::Link(0), Instant::from_micros(1)).unwrap();
         push(&mut s, Owner::Link(1), Instant::from_micros(1)).unwrap();
-        assert_eq!(push(&mut s, Owner::Link(0), Instant::from_micros(1)), Err(ClaimError::StackFull));
+        assert_eq!(
+            push(&mut s, Owner::Link(0), Instant::from_micros(1)),
+            Err(ClaimError::StackFull)
+        );
         assert_eq!(
             push(&mut s, Owner::Port(9), Instant::from_micros(1)),
             Err(ClaimError::UnknownOwner)
@@ -491,7 +494,9 @@ mod tests {
     #[test]
     fn failed_writer_returns_the_slot() {
         let mut s = Stack::new();
-        let r = s.push_with(Owner::System, Instant::from_micros(0), |_| Err::<(usize, Instant), _>("nope"));
+        let r = s.push_with(Owner::System, Instant::from_micros(0), |_| {
+            Err::<(usize, Instant), _>("nope")
+        });
         assert_eq!(r, Err(PushError::Write("nope")));
         assert_eq!(s.free_slots(), 4);
         assert_eq!(s.held(Owner::System), Some(0));

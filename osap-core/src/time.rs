@@ -44,13 +44,17 @@ impl Duration {
     /// A span of `millis` milliseconds (saturating).
     #[inline]
     pub const fn from_millis(millis: u64) -> Duration {
-        Duration { micros: millis.saturating_mul(1_000) }
+        Duration {
+            micros: millis.saturating_mul(1_000),
+        }
     }
 
     /// A span of `secs` seconds (saturating).
     #[inline]
     pub const fn from_secs(secs: u64) -> Duration {
-        Duration { micros: secs.saturating_mul(1_000_000) }
+        Duration {
+            micros: secs.saturating_mul(1_000_000),
+        }
     }
 
     /// The span in whole microseconds.
@@ -92,13 +96,17 @@ impl Duration {
     /// `self + other`, held at [`Duration::MAX`].
     #[inline]
     pub const fn saturating_add(self, other: Duration) -> Duration {
-        Duration { micros: self.micros.saturating_add(other.micros) }
+        Duration {
+            micros: self.micros.saturating_add(other.micros),
+        }
     }
 
     /// `self - other`, held at [`Duration::ZERO`].
     #[inline]
     pub const fn saturating_sub(self, other: Duration) -> Duration {
-        Duration { micros: self.micros.saturating_sub(other.micros) }
+        Duration {
+            micros: self.micros.saturating_sub(other.micros),
+        }
     }
 }
 
@@ -111,7 +119,9 @@ impl From<Duration> for core::time::Duration {
 impl From<core::time::Duration> for Duration {
     /// Whole microseconds, rounded down and held at [`Duration::MAX`].
     fn from(d: core::time::Duration) -> Duration {
-        Duration { micros: u64::try_from(d.as_micros()).unwrap_or(u64::MAX) }
+        Duration {
+            micros: u64::try_from(d.as_micros()).unwrap_or(u64::MAX),
+        }
     }
 }
 
@@ -149,7 +159,9 @@ impl Mul<u64> for Duration {
     type Output = Duration;
     #[inline]
     fn mul(self, rhs: u64) -> Duration {
-        Duration { micros: self.micros.saturating_mul(rhs) }
+        Duration {
+            micros: self.micros.saturating_mul(rhs),
+        }
     }
 }
 
@@ -159,7 +171,9 @@ impl Div<u64> for Duration {
     /// than a panic.
     #[inline]
     fn div(self, rhs: u64) -> Duration {
-        Duration { micros: self.micros.checked_div(rhs).unwrap_or(u64::MAX) }
+        Duration {
+            micros: self.micros.checked_div(rhs).unwrap_or(u64::MAX),
+        }
     }
 }
 
@@ -348,7 +362,10 @@ mod tests {
         assert_eq!(Instant::MAX + Duration::from_micros(1), Instant::MAX);
         assert_eq!(t - Instant::from_micros(30), Duration::ZERO);
         assert_eq!(Instant::from_micros(30) - t, Duration::from_micros(20));
-        assert_eq!(Duration::from_micros(5) - Duration::from_micros(9), Duration::ZERO);
+        assert_eq!(
+            Duration::from_micros(5) - Duration::from_micros(9),
+            Duration::ZERO
+        );
         assert_eq!(Duration::MAX + Duration::from_micros(1), Duration::MAX);
         assert_eq!(Duration::from_micros(9) / 0, Duration::MAX);
         assert_eq!(Duration::from_micros(9) * 3, Duration::from_micros(27));
@@ -358,9 +375,18 @@ mod tests {
     fn checked_forms_report_overflow() {
         let t = SystemInstant::from_micros(10);
         assert_eq!(t.checked_sub(Duration::from_micros(11)), None);
-        assert_eq!(t.checked_add(Duration::from_micros(1)), Some(SystemInstant::from_micros(11)));
-        assert_eq!(SystemInstant::MAX.checked_add(Duration::from_micros(1)), None);
-        assert_eq!(t.checked_duration_since(SystemInstant::from_micros(11)), None);
+        assert_eq!(
+            t.checked_add(Duration::from_micros(1)),
+            Some(SystemInstant::from_micros(11))
+        );
+        assert_eq!(
+            SystemInstant::MAX.checked_add(Duration::from_micros(1)),
+            None
+        );
+        assert_eq!(
+            t.checked_duration_since(SystemInstant::from_micros(11)),
+            None
+        );
         assert_eq!(Duration::MAX.checked_add(Duration::from_micros(1)), None);
         assert_eq!(Duration::ZERO.checked_sub(Duration::from_micros(1)), None);
     }
@@ -382,7 +408,10 @@ mod tests {
         assert_eq!(Duration::from_secs(u64::MAX), Duration::MAX);
         let std: core::time::Duration = Duration::from_micros(1_500).into();
         assert_eq!(std, core::time::Duration::from_micros(1_500));
-        assert_eq!(Duration::from(core::time::Duration::from_nanos(2_999)), Duration::from_micros(2));
+        assert_eq!(
+            Duration::from(core::time::Duration::from_nanos(2_999)),
+            Duration::from_micros(2)
+        );
     }
 
     #[test]
@@ -390,7 +419,10 @@ mod tests {
         extern crate std;
         use std::format;
         assert_eq!(format!("{:?}", Instant::from_micros(7)), "Instant(7µs)");
-        assert_eq!(format!("{:?}", SystemInstant::from_micros(7)), "SystemInstant(7µs)");
+        assert_eq!(
+            format!("{:?}", SystemInstant::from_micros(7)),
+            "SystemInstant(7µs)"
+        );
         assert_eq!(format!("{}", Duration::from_micros(7)), "7 µs");
     }
 }

@@ -3,13 +3,13 @@
 //! gateway's own counts, read remotely.
 
 use osap_core::codec::Reader;
-use osap_core::time::Instant;
 use osap_core::counters::{GatewayCounters, LinkCounters};
 use osap_core::link::queue::QueueLink;
 use osap_core::netresponder::{key, Status};
 use osap_core::packet::Instruction;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::Route;
+use osap_core::time::Instant;
 use osap_core::transport::Transport;
 use osap_core::Runtime;
 

@@ -2,11 +2,11 @@
 //! stack against a simple model, and the runtime under arbitrary input.
 
 use osap_core::link::queue::QueueLink;
-use osap_core::time::Instant;
 use osap_core::packet::{ingest_rewrite, Instruction, Packet};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::{Route, MAX_ROUTE_LEN};
 use osap_core::stack::{ClaimError, Owner, PacketStack, PushError};
+use osap_core::time::Instant;
 use osap_core::Runtime;
 use proptest::prelude::*;
 

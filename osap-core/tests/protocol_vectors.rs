@@ -4,12 +4,12 @@
 //! `OSAP_PRINT_VECTORS=1` to print the vectors as the code produces them.
 
 use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig, TimeReply};
-use osap_core::time::{Instant, SystemInstant};
 use osap_core::codec::Writer;
 use osap_core::framing::{encode_frame, FrameDecoder};
 use osap_core::netresponder::key;
 use osap_core::packet::{ingest_rewrite, Instruction, Packet};
 use osap_core::route::Route;
+use osap_core::time::{Instant, SystemInstant};
 use osap_core::transport::Transport;
 use std::collections::BTreeMap;
 
@@ -383,7 +383,10 @@ fn segment_vectors_reassemble_to_the_reply() {
         "segment.reply.1_of_3",
     ] {
         let seg = doc.get(k).unwrap_or_else(|| panic!("missing {k}"));
-        if let Some(d) = r.on_segment(Instant::from_micros(0), &route, 1, seg).unwrap() {
+        if let Some(d) = r
+            .on_segment(Instant::from_micros(0), &route, 1, seg)
+            .unwrap()
+        {
             out = Some(d.to_vec());
         }
     }

@@ -4,10 +4,10 @@
 //! panics the reassembler.
 
 use osap_core::route::Route;
-use osap_core::time::{Duration, Instant};
 use osap_core::segment::{
     Plan, Reassembler, SegmentError, SegmentHeader, SegmentSource, HEADER_LEN,
 };
+use osap_core::time::{Duration, Instant};
 use proptest::prelude::*;
 
 /// Every segment of `data` cut for `room`, in order.

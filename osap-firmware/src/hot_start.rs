@@ -254,9 +254,9 @@ impl<F: RateFlash> RateKeeper<F> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use osap_core::SystemInstant;
     use crate::rate_store::RamRateFlash;
     use osap_core::clock::{TimeConfig, TimeReply};
+    use osap_core::SystemInstant;
 
     type Sector = RamRateFlash<256>;
 
@@ -301,12 +301,18 @@ mod tests {
                 let mid = self.sent as f64 + rtt as f64 / 2.0;
                 let reply = TimeReply {
                     request_time: Instant::from_micros(self.sent),
-                    responder_time: SystemInstant::from_micros((mid * (1.0 + self.ppm * 1e-6) + 1_000.0) as u64),
+                    responder_time: SystemInstant::from_micros(
+                        (mid * (1.0 + self.ppm * 1e-6) + 1_000.0) as u64,
+                    ),
                     responder_tier: 0,
                 };
                 let now = self.sent + rtt;
-                self.clock.on_reply(self.link, &reply, Instant::from_micros(now));
-                if let Some(e) = keeper.poll(Instant::from_micros(now), &mut self.clock).unwrap() {
+                self.clock
+                    .on_reply(self.link, &reply, Instant::from_micros(now));
+                if let Some(e) = keeper
+                    .poll(Instant::from_micros(now), &mut self.clock)
+                    .unwrap()
+                {
                     self.events.push((now, e));
                 }
                 self.sent += 50_000;
@@ -343,8 +349,14 @@ mod tests {
         let saves = b.saves();
         assert_eq!(saves.len(), 1, "{saves:?}");
         let (at, r) = saves[0];
-        assert!(at >= settled_at - 50_000 + POLICY.hold.as_micros(), "saved at {at}");
-        assert!(at <= settled_at + POLICY.hold.as_micros() + 100_000, "saved at {at}");
+        assert!(
+            at >= settled_at - 50_000 + POLICY.hold.as_micros(),
+            "saved at {at}"
+        );
+        assert!(
+            at <= settled_at + POLICY.hold.as_micros() + 100_000,
+            "saved at {at}"
+        );
         assert_eq!(r.source, RateSource { link: 0, tier: 1 });
         // The clock's rate makes a 20 ppm fast neighbour's time.
         assert!((r.rate_ppb - 20_000).abs() < 1_000, "{r:?}");
@@ -368,7 +380,10 @@ mod tests {
         let saves = b.saves();
         assert!((2..=3).contains(&saves.len()), "{saves:?}");
         for w in saves.windows(2) {
-            assert!(w[1].0 - w[0].0 >= POLICY.min_interval.as_micros(), "{saves:?}");
+            assert!(
+                w[1].0 - w[0].0 >= POLICY.min_interval.as_micros(),
+                "{saves:?}"
+            );
         }
         let last = saves.last().unwrap().1;
         assert!((last.rate_ppb - 22_000).abs() < 500, "{saves:?}");
@@ -447,7 +462,10 @@ mod tests {
             ..TimeConfig::default()
         });
         for t in 0..100u64 {
-            assert_eq!(keeper.poll(Instant::from_micros(t * 1_000_000), &mut clock), Ok(None));
+            assert_eq!(
+                keeper.poll(Instant::from_micros(t * 1_000_000), &mut clock),
+                Ok(None)
+            );
         }
         assert_eq!(keeper.preset(), Preset::Declined);
         assert_eq!(clock.rate_ppb(), 0);
@@ -467,11 +485,16 @@ mod tests {
         while sent < 20_000_000 {
             let reply = TimeReply {
                 request_time: Instant::from_micros(sent),
-                responder_time: SystemInstant::from_micros(((sent + 100) as f64 * (1.0 + 20e-6)) as u64),
+                responder_time: SystemInstant::from_micros(
+                    ((sent + 100) as f64 * (1.0 + 20e-6)) as u64,
+                ),
                 responder_tier: 0,
             };
             clock.on_reply(0, &reply, Instant::from_micros(sent + 200));
-            if keeper.poll(Instant::from_micros(sent + 200), &mut clock).is_err() {
+            if keeper
+                .poll(Instant::from_micros(sent + 200), &mut clock)
+                .is_err()
+            {
                 errors += 1;
                 attempts.push(sent + 200);
             }

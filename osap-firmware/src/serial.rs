@@ -145,13 +145,31 @@ mod tests {
     fn the_transmitter_queue_drains_at_the_line_rate() {
         let t = SerialTiming::new(RP);
         // 10 bytes at 1 Mbaud: 100 µs; a second burst queues behind it.
-        assert_eq!(t.queue(Instant::from_micros(1_000), 10), Instant::from_micros(1_100));
-        assert_eq!(t.queue(Instant::from_micros(1_050), 5), Instant::from_micros(1_150));
-        assert_eq!(t.queue_delay_at(Instant::from_micros(1_100), 0), Duration::from_micros(50));
-        assert_eq!(t.queue_delay_at(Instant::from_micros(1_100), 3), Duration::from_micros(80));
+        assert_eq!(
+            t.queue(Instant::from_micros(1_000), 10),
+            Instant::from_micros(1_100)
+        );
+        assert_eq!(
+            t.queue(Instant::from_micros(1_050), 5),
+            Instant::from_micros(1_150)
+        );
+        assert_eq!(
+            t.queue_delay_at(Instant::from_micros(1_100), 0),
+            Duration::from_micros(50)
+        );
+        assert_eq!(
+            t.queue_delay_at(Instant::from_micros(1_100), 3),
+            Duration::from_micros(80)
+        );
         // Once it has drained, a new burst starts from its own time.
-        assert_eq!(t.queue_delay_at(Instant::from_micros(2_000), 0), Duration::from_micros(0));
-        assert_eq!(t.queue(Instant::from_micros(2_000), 1), Instant::from_micros(2_010));
+        assert_eq!(
+            t.queue_delay_at(Instant::from_micros(2_000), 0),
+            Duration::from_micros(0)
+        );
+        assert_eq!(
+            t.queue(Instant::from_micros(2_000), 1),
+            Instant::from_micros(2_010)
+        );
     }
 
     const RP: Serial = Serial {

@@ -79,7 +79,10 @@ async fn a_host_follows_the_trusted_root_and_counts_the_other() {
         f.system_time().await.unwrap(),
         root.system_time().await.unwrap(),
     );
-    assert!(ours.abs_diff(theirs).as_micros() < 100, "{ours} vs {theirs}");
+    assert!(
+        ours.abs_diff(theirs).as_micros() < 100,
+        "{ours} vs {theirs}"
+    );
     // Trust moved to the other link: the clock now follows the rogue
     // (a step: no motion here), and no longer the first root.
     f.distrust_time_link(to_root).await.unwrap();
@@ -89,6 +92,9 @@ async fn a_host_follows_the_trusted_root_and_counts_the_other() {
         f.system_time().await.unwrap(),
         rogue.system_time().await.unwrap(),
     );
-    assert!(ours.abs_diff(theirs).as_micros() < 100, "{ours} vs {theirs}");
+    assert!(
+        ours.abs_diff(theirs).as_micros() < 100,
+        "{ours} vs {theirs}"
+    );
     assert_eq!(f.clock_status().await.unwrap().tier, 1);
 }

@@ -166,7 +166,12 @@ impl Fault {
 
     /// The `get_fault` outputs (the time as system µs, its wire form).
     pub fn outputs(&self) -> (u64, u8, u32, u32) {
-        (self.time.as_micros(), self.kind.code(), self.detail, self.count)
+        (
+            self.time.as_micros(),
+            self.kind.code(),
+            self.detail,
+            self.count,
+        )
     }
 }
 
@@ -186,7 +191,12 @@ mod tests {
     #[test]
     fn a_refusal_behind_a_backstop_keeps_its_cause() {
         let mut f = Fault::default();
-        f.record(SystemInstant::from_micros(10), FaultKind::Backstop, 5_000, true);
+        f.record(
+            SystemInstant::from_micros(10),
+            FaultKind::Backstop,
+            5_000,
+            true,
+        );
         f.record(SystemInstant::from_micros(20), FaultKind::Refused, 4, true);
         assert_eq!(f.outputs(), (10, 2, 5_000, 2));
         // Once the axis runs again, a refusal is the record.

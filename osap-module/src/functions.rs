@@ -151,7 +151,11 @@ impl<B: Board> Module<B> {
     /// The limit switch: when its level last changed (synchronized µs, 0:
     /// never), its level, and the edges seen since boot.
     pub fn read_limit(&mut self) -> Result<(u64, bool, u32), CallError> {
-        Ok((self.limit.time.as_micros(), self.limit.level, self.limit.edges))
+        Ok((
+            self.limit.time.as_micros(),
+            self.limit.level,
+            self.limit.edges,
+        ))
     }
 
     /// Stops stepping at once and drops the stream (an emergency stop); the

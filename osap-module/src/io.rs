@@ -198,7 +198,9 @@ impl Io {
                     *slot = None;
                     // Start late by as much as the loop was late, but keep
                     // the end where the schedule put it.
-                    let late = (system_now - s.start).as_micros().min(u64::from(s.duration_us));
+                    let late = (system_now - s.start)
+                        .as_micros()
+                        .min(u64::from(s.duration_us));
                     let left = s.duration_us - late as u32;
                     if let Some(end) = self.ends.get_mut(usize::from(s.pin)) {
                         *end = Some(now + Duration::from_micros(left.into()));

@@ -153,9 +153,16 @@ impl<B: Board> Module<B> {
     pub fn fill_step_word(&mut self, local: Instant) -> u32 {
         let t0 = match self.step_anchor {
             Some(a)
-                if a.map == self.time && local >= a.local && local - a.local < ANCHOR_SPAN =>
+                if a.map == self.time
+                    && local >= a.local
+                    && local.as_micros() - a.local.as_micros() < ANCHOR_SPAN.as_micros() =>
             {
-                a.system + (local - a.local)
+                // Plain arithmetic on the step interrupt's path (the
+                // saturating operators cost a Cortex-M0+ cycles per word):
+                // `local` is not before the anchor, and within its span
+                // nothing can overflow.
+                let since = local.as_micros() - a.local.as_micros();
+                SystemInstant::from_micros(a.system.as_micros() + since)
             }
             _ => {
                 let system = self.time.system_time(local);

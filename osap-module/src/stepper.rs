@@ -30,8 +30,15 @@ use osap_core::{Duration, SystemInstant};
 
 /// Step ticks per second: one tick every [`STEP_TICK_US`] µs (100 kHz).
 pub const STEP_TICK_US: u32 = 10;
-/// One step tick.
-const TICK: Duration = Duration::from_micros(STEP_TICK_US as u64);
+/// The time `ticks` step ticks after `t`. A plain add, not the saturating
+/// one of `SystemInstant + Duration`: this runs for every tick in the step
+/// interrupt (a saturating 64-bit add costs a Cortex-M0+ a few cycles more
+/// each time), and a tick time near the end of a 64-bit µs count is
+/// half a million years away.
+#[inline(always)]
+fn ticks_after(t: SystemInstant, ticks: u32) -> SystemInstant {
+    SystemInstant::from_micros(t.as_micros() + u64::from(ticks * STEP_TICK_US))
+}
 /// Ticks in one step-generator word (2 bits each, see
 /// [`maxl::PioPacker`]).
 pub const TICKS_PER_WORD: u32 = 16;
@@ -320,7 +327,11 @@ impl Stepper {
     /// change the point (or the midpoint the track fills a single gap
     /// with), `None` with no limits or for a point the track refuses
     /// anyway. The axis's own limiter is left as it is.
-    fn check_limits(&mut self, time: SystemInstant, p: Fx) -> Result<Option<Limiter<Fx>>, StepperError> {
+    fn check_limits(
+        &mut self,
+        time: SystemInstant,
+        p: Fx,
+    ) -> Result<Option<Limiter<Fx>>, StepperError> {
         let Some(mut next) = self.limiter else {
             return Ok(None);
         };
@@ -332,11 +343,13 @@ impl Stepper {
         match (self.track.last_time(), self.track.last_point()) {
             // A new stream: it starts at rest where the axis stands.
             (None, _) => next.reset(),
-            (Some(last), Some(prev)) if time > last => match (time - last).as_micros() >> iv.shift() {
-                1 => {}
-                2 => over = next.push(Fx::midpoint(prev, p)).clamped,
-                _ => return Ok(None),
-            },
+            (Some(last), Some(prev)) if time > last => {
+                match (time - last).as_micros() >> iv.shift() {
+                    1 => {}
+                    2 => over = next.push(Fx::midpoint(prev, p)).clamped,
+                    _ => return Ok(None),
+                }
+            }
             _ => return Ok(None),
         }
         let c = next.push(p).clamped;
@@ -381,14 +394,14 @@ impl Stepper {
         if let Some(tick) = self.tick.as_mut() {
             if self.tick_next == Some(t) {
                 if let Some(p) = tick.next() {
-                    self.tick_next = Some(t + TICK);
+                    self.tick_next = Some(ticks_after(t, 1));
                     return p;
                 }
             }
             if let Some((seg, du)) = self.track.segment_at(t) {
                 if tick.load(&seg, du).is_ok() {
                     if let Some(p) = tick.next() {
-                        self.tick_next = Some(t + TICK);
+                        self.tick_next = Some(ticks_after(t, 1));
                         self.mode = Mode::Tracking;
                         return p;
                     }
@@ -425,7 +438,7 @@ impl Stepper {
                     word = w;
                 }
             }
-            self.last_tick = t0 + TICK * u64::from(TICKS_PER_WORD - 1);
+            self.last_tick = ticks_after(t0, TICKS_PER_WORD - 1);
             // A stream whose stop has ended stays in its mode until the
             // next stream clears it.
             if self.enabled && !self.halted && self.track.is_empty() {
@@ -434,7 +447,7 @@ impl Stepper {
             return word;
         }
         for k in 0..TICKS_PER_WORD {
-            let t = t0 + TICK * u64::from(k);
+            let t = ticks_after(t0, k);
             let step = if self.enabled && !self.halted {
                 let p = self.position_at(t);
                 self.gen.tick(p)

@@ -4,10 +4,10 @@
 //! `BootError::Unsupported`, a moving axis with `BootError::Moving`.
 
 use osap_core::clock::TimeMap;
-use osap_core::time::Duration;
-use osap_core::time::Instant;
 use osap_core::link::LinkGateway;
 use osap_core::port::Port;
+use osap_core::time::Duration;
+use osap_core::time::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
 use osap_module::boot::{BootError, BOOTLOADER_DELAY};
 use osap_module::functions::{FnId, ModuleFn};
@@ -123,7 +123,11 @@ fn the_call_answers_then_the_loop_reboots_after_the_delay_once() {
         let timer = ports.ports().last().and_then(|p| p.wake_at());
         (result.wake_at, timer)
     };
-    assert_eq!(poll(Instant::from_micros(5_000)).1, None, "nothing armed, nothing to wake for");
+    assert_eq!(
+        poll(Instant::from_micros(5_000)).1,
+        None,
+        "nothing armed, nothing to wake for"
+    );
 
     // The call answers (no outputs) and the board has been told nothing.
     assert_eq!(call_enter(&module), Ok(0));

@@ -234,7 +234,10 @@ fn step_words_follow_a_new_time_map_at_once() {
         m.fill_step_word(local);
         m.get_position().unwrap().0
     };
-    assert_eq!(last_tick(&mut m, Instant::from_micros(1_000_000)), 1_000_150);
+    assert_eq!(
+        last_tick(&mut m, Instant::from_micros(1_000_000)),
+        1_000_150
+    );
     // A rate of +400 ppm since local 0: the next word, well within the
     // anchor's span, must use it, not the anchor taken under the old map.
     let mut clock: osap_core::clock::Clock<1> = osap_core::clock::Clock::new(Default::default());
@@ -245,7 +248,10 @@ fn step_words_follow_a_new_time_map_at_once() {
         last_tick(&mut m, Instant::from_micros(1_000_160)),
         (map.system_time(Instant::from_micros(1_000_160)) + Duration::from_micros(150)).as_micros()
     );
-    assert_eq!(map.system_time(Instant::from_micros(1_000_160)), SystemInstant::from_micros(1_000_560));
+    assert_eq!(
+        map.system_time(Instant::from_micros(1_000_160)),
+        SystemInstant::from_micros(1_000_560)
+    );
 }
 
 #[test]

@@ -1,7 +1,7 @@
 //! The I/O logic over a board made of memory.
 
-use osap_module::board::IoHw;
 use osap_core::time::{Instant, SystemInstant};
+use osap_module::board::IoHw;
 use osap_module::io::{Io, IoError, MAX_PULSE_US, SCHEDULED_PULSES};
 
 #[derive(Default)]
@@ -58,24 +58,49 @@ fn pins_pwm_and_analog_check_their_ranges() {
 #[test]
 fn a_pulse_ends_on_time_and_restarts() {
     let (mut io, mut hw) = (Io::new(), Pins::default());
-    assert_eq!(io.pulse(&mut hw, Instant::from_micros(1_000), 2, 500), Ok(()));
+    assert_eq!(
+        io.pulse(&mut hw, Instant::from_micros(1_000), 2, 500),
+        Ok(())
+    );
     assert!(hw.levels[2]);
-    assert_eq!(io.wake_at(Instant::from_micros(1_000), SystemInstant::from_micros(0)), Some(Instant::from_micros(1_500)));
-    io.poll(&mut hw, Instant::from_micros(1_499), SystemInstant::from_micros(0));
+    assert_eq!(
+        io.wake_at(Instant::from_micros(1_000), SystemInstant::from_micros(0)),
+        Some(Instant::from_micros(1_500))
+    );
+    io.poll(
+        &mut hw,
+        Instant::from_micros(1_499),
+        SystemInstant::from_micros(0),
+    );
     assert!(hw.levels[2], "still high a µs before its end");
-    io.poll(&mut hw, Instant::from_micros(1_500), SystemInstant::from_micros(0));
+    io.poll(
+        &mut hw,
+        Instant::from_micros(1_500),
+        SystemInstant::from_micros(0),
+    );
     assert!(!hw.levels[2]);
-    assert_eq!(io.wake_at(Instant::from_micros(1_500), SystemInstant::from_micros(0)), None);
+    assert_eq!(
+        io.wake_at(Instant::from_micros(1_500), SystemInstant::from_micros(0)),
+        None
+    );
     // A write ends a running pulse; the pin then stays as written.
-    io.pulse(&mut hw, Instant::from_micros(2_000), 4, 100).unwrap();
+    io.pulse(&mut hw, Instant::from_micros(2_000), 4, 100)
+        .unwrap();
     io.digital_write(&mut hw, 4, true).unwrap();
-    io.poll(&mut hw, Instant::from_micros(3_000), SystemInstant::from_micros(0));
+    io.poll(
+        &mut hw,
+        Instant::from_micros(3_000),
+        SystemInstant::from_micros(0),
+    );
     assert!(hw.levels[4]);
     assert_eq!(
         io.pulse(&mut hw, Instant::from_micros(0), 4, MAX_PULSE_US + 1),
         Err(IoError::BadValue)
     );
-    assert_eq!(io.pulse(&mut hw, Instant::from_micros(0), 9, 10), Err(IoError::NoSuchPin));
+    assert_eq!(
+        io.pulse(&mut hw, Instant::from_micros(0), 9, 10),
+        Err(IoError::NoSuchPin)
+    );
     assert_eq!(io.pulses(), 2);
 }
 
@@ -84,27 +109,76 @@ fn scheduled_pulses_start_at_their_synchronized_time() {
     let (mut io, mut hw) = (Io::new(), Pins::default());
     // Local and system clocks differ by 1 000 000 µs.
     let (local, system) = (5_000u64, 1_005_000u64);
-    io.pulse_at(&hw, SystemInstant::from_micros(system), SystemInstant::from_micros(1_006_000), 1, 300).unwrap();
-    assert_eq!(io.wake_at(Instant::from_micros(local), SystemInstant::from_micros(system)), Some(Instant::from_micros(6_000)));
-    io.poll(&mut hw, Instant::from_micros(5_999), SystemInstant::from_micros(1_005_999));
+    io.pulse_at(
+        &hw,
+        SystemInstant::from_micros(system),
+        SystemInstant::from_micros(1_006_000),
+        1,
+        300,
+    )
+    .unwrap();
+    assert_eq!(
+        io.wake_at(
+            Instant::from_micros(local),
+            SystemInstant::from_micros(system)
+        ),
+        Some(Instant::from_micros(6_000))
+    );
+    io.poll(
+        &mut hw,
+        Instant::from_micros(5_999),
+        SystemInstant::from_micros(1_005_999),
+    );
     assert!(!hw.levels[1]);
     // The loop woke 20 µs late: the pulse still ends where scheduled.
-    io.poll(&mut hw, Instant::from_micros(6_020), SystemInstant::from_micros(1_006_020));
+    io.poll(
+        &mut hw,
+        Instant::from_micros(6_020),
+        SystemInstant::from_micros(1_006_020),
+    );
     assert!(hw.levels[1]);
-    assert_eq!(io.wake_at(Instant::from_micros(6_020), SystemInstant::from_micros(1_006_020)), Some(Instant::from_micros(6_300)));
-    io.poll(&mut hw, Instant::from_micros(6_300), SystemInstant::from_micros(1_006_300));
+    assert_eq!(
+        io.wake_at(
+            Instant::from_micros(6_020),
+            SystemInstant::from_micros(1_006_020)
+        ),
+        Some(Instant::from_micros(6_300))
+    );
+    io.poll(
+        &mut hw,
+        Instant::from_micros(6_300),
+        SystemInstant::from_micros(1_006_300),
+    );
     assert!(!hw.levels[1]);
     // A schedule too far ahead, and a full schedule, are refused.
     assert_eq!(
-        io.pulse_at(&hw, SystemInstant::from_micros(system), SystemInstant::from_micros(system + 61_000_000), 1, 10),
+        io.pulse_at(
+            &hw,
+            SystemInstant::from_micros(system),
+            SystemInstant::from_micros(system + 61_000_000),
+            1,
+            10
+        ),
         Err(IoError::BadValue)
     );
     for k in 0..SCHEDULED_PULSES as u64 {
-        io.pulse_at(&hw, SystemInstant::from_micros(system), SystemInstant::from_micros(system + 10_000 + k), 1, 10)
-            .unwrap();
+        io.pulse_at(
+            &hw,
+            SystemInstant::from_micros(system),
+            SystemInstant::from_micros(system + 10_000 + k),
+            1,
+            10,
+        )
+        .unwrap();
     }
     assert_eq!(
-        io.pulse_at(&hw, SystemInstant::from_micros(system), SystemInstant::from_micros(system + 20_000), 1, 10),
+        io.pulse_at(
+            &hw,
+            SystemInstant::from_micros(system),
+            SystemInstant::from_micros(system + 20_000),
+            1,
+            10
+        ),
         Err(IoError::Full)
     );
 }

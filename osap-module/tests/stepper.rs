@@ -101,7 +101,10 @@ fn per_tick_positions_match_the_track() {
             s.add_point(SystemInstant::from_micros(stamp), *p).unwrap();
         }
         track
-            .push(SystemInstant::from_micros(stamp), Fx::from_f64(f64::from(*p) * 80.0))
+            .push(
+                SystemInstant::from_micros(stamp),
+                Fx::from_f64(f64::from(*p) * 80.0),
+            )
             .unwrap();
     }
     // Steps follow the exact track position at every tick: the step index
@@ -111,7 +114,9 @@ fn per_tick_positions_match_the_track() {
         let word = s.fill_word(SystemInstant::from_micros(t));
         let _ = word;
         let expect = track
-            .sample(SystemInstant::from_micros(t + WORD_US - STEP_TICK_US as u64))
+            .sample(SystemInstant::from_micros(
+                t + WORD_US - STEP_TICK_US as u64,
+            ))
             .unwrap()
             .kin
             .pos;
@@ -126,15 +131,36 @@ fn per_tick_positions_match_the_track() {
 #[test]
 fn refuses_bad_points_with_codes() {
     let mut s = Stepper::new();
-    assert_eq!(s.add_point(SystemInstant::from_micros(0), 0.0), Err(StepperError::Disabled));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(0), 0.0),
+        Err(StepperError::Disabled)
+    );
     s.set_enable(true);
-    assert_eq!(s.add_point(SystemInstant::from_micros(0), f32::NAN), Err(StepperError::OutOfRange));
-    assert_eq!(s.add_point(SystemInstant::from_micros(0), 1e6), Err(StepperError::OutOfRange));
-    assert_eq!(s.add_point(SystemInstant::from_micros(0), 5.0), Err(StepperError::Discontinuous));
-    assert_eq!(s.add_point(SystemInstant::from_micros(7), 0.0), Err(StepperError::Misaligned));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(0), f32::NAN),
+        Err(StepperError::OutOfRange)
+    );
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(0), 1e6),
+        Err(StepperError::OutOfRange)
+    );
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(0), 5.0),
+        Err(StepperError::Discontinuous)
+    );
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(7), 0.0),
+        Err(StepperError::Misaligned)
+    );
     assert_eq!(s.add_point(SystemInstant::from_micros(IV), 0.0), Ok(()));
-    assert_eq!(s.add_point(SystemInstant::from_micros(IV), 0.0), Err(StepperError::Stale));
-    assert_eq!(s.add_point(SystemInstant::from_micros(4 * IV), 0.0), Err(StepperError::Gap));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(IV), 0.0),
+        Err(StepperError::Stale)
+    );
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(4 * IV), 0.0),
+        Err(StepperError::Gap)
+    );
     assert_eq!(
         s.add_point(SystemInstant::from_micros(3 * IV), 0.0),
         Ok(()),
@@ -148,10 +174,17 @@ fn refuses_bad_points_with_codes() {
     assert_eq!(s.set_scale(100.0), Err(StepperError::Busy));
     // A stream too far ahead fills the queue and is refused, not dropped.
     for k in 4..=QUEUE as u64 {
-        assert_eq!(s.add_point(SystemInstant::from_micros(k * IV), 0.0), Ok(()), "{k}");
+        assert_eq!(
+            s.add_point(SystemInstant::from_micros(k * IV), 0.0),
+            Ok(()),
+            "{k}"
+        );
     }
     let next = (QUEUE as u64 + 1) * IV;
-    assert_eq!(s.add_point(SystemInstant::from_micros(next), 0.0), Err(StepperError::QueueFull));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(next), 0.0),
+        Err(StepperError::QueueFull)
+    );
     // Once the oldest points have run, the stream goes on.
     run(&mut s, 0, 10 * IV);
     assert_eq!(s.add_point(SystemInstant::from_micros(next), 0.0), Ok(()));
@@ -163,38 +196,53 @@ fn a_cut_stream_faults_and_a_halt_latches() {
     let mut pts: Vec<f32> = vec![0.0; 3];
     pts.extend((1..=10).map(|k| k as f32 * 0.5));
     for (k, p) in pts.iter().enumerate() {
-        s.add_point(SystemInstant::from_micros(k as u64 * IV), *p).unwrap();
+        s.add_point(SystemInstant::from_micros(k as u64 * IV), *p)
+            .unwrap();
     }
     run(&mut s, 0, 200 * IV);
     assert_eq!(s.counters().faults, 1);
     assert_eq!(s.mode(), Mode::Backstop);
     let (_, here) = s.position();
     assert!(here > 4.5, "braked beyond the last point it had: {here}");
-    assert_eq!(s.add_point(SystemInstant::from_micros(300 * IV), here), Err(StepperError::Faulted));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(300 * IV), here),
+        Err(StepperError::Faulted)
+    );
     // Cycling the motor clears the fault where the axis stands.
     s.set_enable(false);
     s.set_enable(true);
-    assert_eq!(s.add_point(SystemInstant::from_micros(300 * IV), here), Ok(()));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(300 * IV), here),
+        Ok(())
+    );
     // A halt stops stepping at once and latches until the motor cycles.
     s.halt();
     assert_eq!(s.mode(), Mode::Halted);
     let before = s.step_counts().0;
     assert_eq!(run(&mut s, 300 * IV, 310 * IV), 0);
     assert_eq!(s.step_counts().0, before);
-    assert_eq!(s.add_point(SystemInstant::from_micros(301 * IV), here), Err(StepperError::Faulted));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(301 * IV), here),
+        Err(StepperError::Faulted)
+    );
     s.set_enable(false);
     s.set_enable(true);
-    assert_eq!(s.add_point(SystemInstant::from_micros(320 * IV), here), Ok(()));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(320 * IV), here),
+        Ok(())
+    );
 }
 
 #[test]
 fn settings_change_while_idle_and_keep_the_place() {
     let mut s = enabled();
     for k in 0..4u64 {
-        s.add_point(SystemInstant::from_micros(k * IV), 0.0).unwrap();
+        s.add_point(SystemInstant::from_micros(k * IV), 0.0)
+            .unwrap();
     }
     for k in 4..12u64 {
-        s.add_point(SystemInstant::from_micros(k * IV), 1.0).unwrap();
+        s.add_point(SystemInstant::from_micros(k * IV), 1.0)
+            .unwrap();
     }
     run(&mut s, 0, 40 * IV);
     assert_eq!(s.step_counts().0, 80);
@@ -213,7 +261,10 @@ fn settings_change_while_idle_and_keep_the_place() {
     // A new stream starts where it stands, in the new units and interval.
     let t = 100 * 2048;
     assert_eq!(s.add_point(SystemInstant::from_micros(t), 1.0), Ok(()));
-    assert_eq!(s.add_point(SystemInstant::from_micros(t + 1024), 1.0), Ok(()));
+    assert_eq!(
+        s.add_point(SystemInstant::from_micros(t + 1024), 1.0),
+        Ok(())
+    );
 }
 
 #[test]
@@ -232,7 +283,8 @@ fn an_axis_stands_once_a_stream_has_stopped_at_rest() {
     let t0 = 100 * IV;
     let points = [0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0];
     for (k, p) in points.iter().enumerate() {
-        s.add_point(SystemInstant::from_micros(t0 + k as u64 * IV), *p).unwrap();
+        s.add_point(SystemInstant::from_micros(t0 + k as u64 * IV), *p)
+            .unwrap();
     }
     assert!(!s.is_standing(), "a stream is queued");
     let end = t0 + (points.len() as u64 + 4) * IV;

@@ -139,9 +139,8 @@ pub async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
     {
         tokio::time::sleep(Duration::from_millis(50)).await;
     }
-    let done = host.system_time().await.expect("time").as_micros()
-        + u64::from(LEAD)
-        + 4 * u64::from(IV);
+    let done =
+        host.system_time().await.expect("time").as_micros() + u64::from(LEAD) + 4 * u64::from(IV);
     while host.system_time().await.expect("time").as_micros() < done {
         tokio::time::sleep(Duration::from_millis(10)).await;
     }

@@ -43,7 +43,10 @@ fn main() -> ExitCode {
     let parent = args.get(4).and_then(|p| sim.node_index(p));
     let system = |sim: &Sim, n: usize| {
         let now = sim.now();
-        sim.node(n).runtime().system_time(sim.node(n).local_us(now)).as_micros() as i64
+        sim.node(n)
+            .runtime()
+            .system_time(sim.node(n).local_us(now))
+            .as_micros() as i64
     };
     let mut t = 0.0;
     while t < secs {

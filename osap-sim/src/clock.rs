@@ -207,7 +207,10 @@ impl ClockModel {
 
     /// The local µs counter the runtime sees at true time `t` (floor).
     pub fn local_us(&self, t: Nanos) -> Instant {
-        let us = self.local_ns(t).div_euclid(1000).clamp(0, i128::from(u64::MAX));
+        let us = self
+            .local_ns(t)
+            .div_euclid(1000)
+            .clamp(0, i128::from(u64::MAX));
         Instant::from_micros(us as u64)
     }
 
@@ -268,7 +271,10 @@ mod tests {
         for local in [1235u64, 2_000, 1_000_000, 600_000_000, 600_000_001] {
             let t = c.true_time_at(Instant::from_micros(local));
             assert!(c.local_us(t) >= Instant::from_micros(local));
-            assert!(t == 0 || c.local_us(t - 1) < Instant::from_micros(local), "{local}");
+            assert!(
+                t == 0 || c.local_us(t - 1) < Instant::from_micros(local),
+                "{local}"
+            );
         }
         assert_eq!(c.true_time_at(Instant::from_micros(5)), 0);
     }

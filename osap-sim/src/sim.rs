@@ -524,7 +524,8 @@ impl Sim {
         self.tier_buf.clear();
         for node in &self.nodes {
             let local = node.clock.local_us(t);
-            self.system_buf.push(node.runtime.system_time(local).as_micros());
+            self.system_buf
+                .push(node.runtime.system_time(local).as_micros());
             self.tier_buf.push(node.runtime.clock().tier());
         }
         self.metrics

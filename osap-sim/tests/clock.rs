@@ -1,8 +1,8 @@
 //! Simulated oscillators: rate error, offset and wander give the expected
 //! local counters, and the inverse finds the first instant of a count.
 
-use osap_sim::clock::{ClockModel, ClockSpec, Param};
 use osap_core::time::{Duration, Instant};
+use osap_sim::clock::{ClockModel, ClockSpec, Param};
 use osap_sim::rng::Rng;
 
 const S: u64 = 1_000_000_000;
@@ -11,8 +11,14 @@ const S: u64 = 1_000_000_000;
 fn offset_and_rate_error_give_the_expected_counter() {
     let fast = ClockModel::new(5_000_000.0, 100.0);
     assert_eq!(fast.local_us(0), Instant::from_micros(5_000_000));
-    assert_eq!(fast.local_us(S), Instant::from_micros(5_000_000 + 1_000_100));
-    assert_eq!(fast.local_us(600 * S), Instant::from_micros(5_000_000 + 600_060_000));
+    assert_eq!(
+        fast.local_us(S),
+        Instant::from_micros(5_000_000 + 1_000_100)
+    );
+    assert_eq!(
+        fast.local_us(600 * S),
+        Instant::from_micros(5_000_000 + 600_060_000)
+    );
     let slow = ClockModel::new(0.0, -100.0);
     assert_eq!(slow.local_us(S), Instant::from_micros(999_900));
     // The counter is the floor of the exact local time.

@@ -320,7 +320,11 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: u64) {
         // 1 ms timer ticks, so sync is coarser than in real time: a few
         // hundred µs).
         let (_, stepper, _, step_local) = steps.iter().find(|s| s.0 == at).unwrap();
-        let truth = sim.module(stepper).unwrap().host_time_at(*step_local).as_micros();
+        let truth = sim
+            .module(stepper)
+            .unwrap()
+            .host_time_at(*step_local)
+            .as_micros();
         eprintln!(
             "switch on {name}: {} edges, last at {hit} (level {level}): {nearest} µs from the crossing step's tick on its clock, {:+} µs from its true time",
             n,

@@ -61,7 +61,11 @@ fn watch_maps(module: SharedModule) -> (Arc<AtomicBool>, JoinHandle<Vec<(LocalIn
 
 /// The maps that were in force at some local time in `from..=to` (and the
 /// one seen just after, as one taken up by then is seen a little late).
-fn maps_within(seen: &[(LocalInstant, TimeMap)], from: LocalInstant, to: LocalInstant) -> Vec<TimeMap> {
+fn maps_within(
+    seen: &[(LocalInstant, TimeMap)],
+    from: LocalInstant,
+    to: LocalInstant,
+) -> Vec<TimeMap> {
     let first = seen.partition_point(|s| s.0 <= from).saturating_sub(1);
     let last = seen.partition_point(|s| s.0 <= to);
     seen[first..(last + 1).min(seen.len())]

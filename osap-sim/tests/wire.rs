@@ -4,8 +4,8 @@
 mod common;
 
 use common::{frames_from, pair, traced};
-use osap_core::time::Duration;
 use osap_core::route::Route;
+use osap_core::time::Duration;
 use osap_sim::busy::{BusyModel, BusyTrigger};
 use osap_sim::medium::{Side, Transmitter, UartParams, UsbParams};
 use osap_sim::probe::ProbePort;
@@ -239,7 +239,11 @@ fn busy_receivers_stamp_late_only_when_their_interrupts_are_preempted() {
             let exact = clock.local_us(f.transit.first_byte_ns);
             let stamp = f.rx_stamp.unwrap();
             assert!(stamp >= exact);
-            assert!(stamp - exact <= Duration::from_micros(2_000), "late by {} µs", stamp - exact);
+            assert!(
+                stamp - exact <= Duration::from_micros(2_000),
+                "late by {} µs",
+                stamp - exact
+            );
             late += usize::from(stamp > exact);
         }
         if late_stamps {

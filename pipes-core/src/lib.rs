@@ -36,10 +36,10 @@ pub mod value;
 
 pub use convert::{convert, ConvertError, ConvertReason, Converted, Rule};
 pub use message::{Args, ArgsWriter, Message, MessageError, MessageKey};
-pub use types::{ScalarType, Type};
-pub use value::{Array, Dims, Element, Elements, Tensor, Value, ValueError};
 /// osap-core's typed time, which PIPES classes and functions see.
 pub use osap_core::time;
+pub use types::{ScalarType, Type};
+pub use value::{Array, Dims, Element, Elements, Tensor, Value, ValueError};
 pub mod class;
 pub mod export;
 pub use export::{FromPipes, PipesOutputs, PipesType};

@@ -425,8 +425,7 @@ impl<const Q: usize, const B: usize> PipeState<Q, B> {
 
     /// When the datagram in flight should be sent again if no ack comes.
     pub fn ack_deadline(&self) -> Option<osap_core::Instant> {
-        self.in_flight
-            .map(|f| f.sent_at + self.ack_timeout)
+        self.in_flight.map(|f| f.sent_at + self.ack_timeout)
     }
 
     /// The sequence number of the datagram in flight, if any.

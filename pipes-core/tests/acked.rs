@@ -8,8 +8,8 @@ mod common;
 use std::ops::{Deref, DerefMut};
 
 use common::Net;
-use osap_core::Duration;
 use osap_core::route::Route;
+use osap_core::Duration;
 use pipes_core::control::{ControlError, Reply, ReplyBody, Request};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::{PipeConfig, PipeDelivery, DEFAULT_ACK_RETRIES, DEFAULT_ACK_TIMEOUT};
@@ -189,7 +189,9 @@ fn a_stalled_link_keeps_the_queue_in_order() {
 fn lost_acks_mean_retransmission_and_duplicates() {
     let mut w = World::new();
     w.sensor().set_pipe(0, acked_pipe(0)).unwrap();
-    w.sensor().set_ack_policy(0, Duration::from_millis(1), 3).unwrap();
+    w.sensor()
+        .set_ack_policy(0, Duration::from_millis(1), 3)
+        .unwrap();
     w.lose_to_a = true;
     w.call_sensor(1.0);
     w.steps(5);
@@ -219,7 +221,9 @@ fn lost_acks_mean_retransmission_and_duplicates() {
 fn unacknowledged_datagrams_fail_after_the_retries() {
     let mut w = World::new();
     w.sensor().set_pipe(0, acked_pipe(0)).unwrap();
-    w.sensor().set_ack_policy(0, Duration::from_millis(1), 2).unwrap();
+    w.sensor()
+        .set_ack_policy(0, Duration::from_millis(1), 2)
+        .unwrap();
     w.lose_to_b = true;
     w.call_sensor(1.0);
     w.call_sensor(2.0);

@@ -4,8 +4,8 @@
 
 mod common;
 
-use std::ops::{Deref, DerefMut};
 use osap_core::time::Instant;
+use std::ops::{Deref, DerefMut};
 
 use common::{args, err, ok, runtime, to_b, Net};
 use osap_core::codec::Writer;

@@ -310,10 +310,7 @@ pub struct TimerBlock {
 impl TimerBlock {
     /// A block over a timer built in Rust; the time is not known yet.
     pub fn from_timer(timer: Timer) -> TimerBlock {
-        TimerBlock {
-            timer,
-            now: None,
-        }
+        TimerBlock { timer, now: None }
     }
 
     /// The runtime's time as the loop hook last gave it.

@@ -99,7 +99,12 @@ impl Poller {
             runtimes.push(clock);
         }
         let faults = self.faults().await;
-        let time_us = self.source.host.system_time().await.map_or(0, |t| t.as_micros());
+        let time_us = self
+            .source
+            .host
+            .system_time()
+            .await
+            .map_or(0, |t| t.as_micros());
         let (axes, machine) = match &self.source.machine {
             Some(m) => {
                 let names = m.axes();

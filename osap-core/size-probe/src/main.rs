@@ -21,7 +21,7 @@ use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
 use osap_core::link::{LinkGateway, LinkInfo, LinkSendError, Received};
 use osap_core::netresponder::BuildKey;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
-use osap_core::{Micros, Runtime};
+use osap_core::{Instant, Runtime};
 use panic_halt as _;
 
 /// Packet slot size and link MTU.
@@ -138,14 +138,14 @@ struct Clock {
 }
 
 impl Clock {
-    fn now(&mut self) -> Micros {
+    fn now(&mut self) -> Instant {
         // SAFETY: a device register address (see `reg`).
         let t = unsafe { read_volatile(reg::TIMER_US) };
         if t < self.last {
             self.high += 1 << 32;
         }
         self.last = t;
-        self.high | u64::from(t)
+        Instant::from_micros(self.high | u64::from(t))
     }
 }
 

@@ -129,7 +129,11 @@ enum Turn {
     /// Head: the medium is granted to `drop` until `until`; `poll` if by a
     /// bare grant in address order (rather than with data). Drop: we hold
     /// it.
-    Granted { drop: u8, until: Instant, poll: bool },
+    Granted {
+        drop: u8,
+        until: Instant,
+        poll: bool,
+    },
 }
 
 /// The bus state machine of one station, sans-IO: frames go out and come

@@ -260,9 +260,8 @@ fn a_grant_waits_out_what_the_head_queued_before_it() {
     head.send_to(BROADCAST, &p).unwrap();
     head.send_to(BROADCAST, &p).unwrap();
     head.poll(Instant::ZERO);
-    let queued = Instant::ZERO
-        + head.transmit_time(p.len()) * 2
-        + head.lower.transmit_time(HEADER_LEN);
+    let queued =
+        Instant::ZERO + head.transmit_time(p.len()) * 2 + head.lower.transmit_time(HEADER_LEN);
     let until = head.wake_at().unwrap();
     assert!(
         until >= queued + BusConfig::head(1).reply_timeout,

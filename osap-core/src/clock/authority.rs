@@ -185,7 +185,11 @@ mod tests {
         c.set_trust(Trust::NONE.with_link(1));
         for i in 0..40u64 {
             let t = exchange(&mut c, 0, 0, 10_000 + i * 50_000, |l| l + 3.7e9);
-            assert_eq!(c.system_time(Instant::from_micros(t)), SystemInstant::from_micros(t), "moved by an untrusted root");
+            assert_eq!(
+                c.system_time(Instant::from_micros(t)),
+                SystemInstant::from_micros(t),
+                "moved by an untrusted root"
+            );
         }
         assert_eq!(c.tier(), TIER_UNSYNCED);
         assert_eq!(c.state(), SyncState::Unsynced);
@@ -197,7 +201,11 @@ mod tests {
             t = exchange(&mut c, 1, 0, 3_000_000 + i * 50_000, |l| l + 1_000.0);
         }
         assert_eq!(c.tier(), 1);
-        assert!((c.system_time(Instant::from_micros(t)).as_micros() as f64 - (t as f64 + 1_000.0)).abs() < 3.0);
+        assert!(
+            (c.system_time(Instant::from_micros(t)).as_micros() as f64 - (t as f64 + 1_000.0))
+                .abs()
+                < 3.0
+        );
         // Trust withdrawn: the neighbour is forgotten and no longer moves
         // the clock.
         c.set_trust(Trust::NONE);
@@ -205,7 +213,11 @@ mod tests {
         let t = exchange(&mut c, 1, 0, 6_000_000, |l| l + 9_000.0);
         assert_eq!(c.status().stats.untrusted, before.untrusted + 1);
         assert_eq!(c.status().stats.jumps, before.jumps);
-        assert!((c.system_time(Instant::from_micros(t)).as_micros() as f64 - (t as f64 + 1_000.0)).abs() < 10.0);
+        assert!(
+            (c.system_time(Instant::from_micros(t)).as_micros() as f64 - (t as f64 + 1_000.0))
+                .abs()
+                < 10.0
+        );
     }
 
     #[test]
@@ -253,14 +265,19 @@ mod tests {
             // plus at most the clamp, never by a step.
             for local in [t, sent + 25_000] {
                 let sys = c.system_time(Instant::from_micros(local));
-                let rate = (sys.as_micros() as f64 - last_sys as f64) / (local - last_local) as f64 - 1.0;
+                let rate =
+                    (sys.as_micros() as f64 - last_sys as f64) / (local - last_local) as f64 - 1.0;
                 assert!(
                     rate.abs() <= 20e-6 + max * 1.01 + 1e-5,
                     "rate {rate} at {local}"
                 );
                 (last_local, last_sys) = (local, sys.as_micros());
             }
-            if caught_up.is_none() && (c.system_time(Instant::from_micros(t)).as_micros() as f64 - after(t as f64)).abs() < 20.0 {
+            if caught_up.is_none()
+                && (c.system_time(Instant::from_micros(t)).as_micros() as f64 - after(t as f64))
+                    .abs()
+                    < 20.0
+            {
                 caught_up = Some(t);
             }
             sent += 50_000;
@@ -287,6 +304,9 @@ mod tests {
         let s = c.status();
         assert_eq!(s.stats.jumps, jumps + 1);
         assert_eq!(s.stats.deferred_steps, 0);
-        assert!((c.system_time(Instant::from_micros(t)).as_micros() as f64 - after(t as f64)).abs() < 20.0);
+        assert!(
+            (c.system_time(Instant::from_micros(t)).as_micros() as f64 - after(t as f64)).abs()
+                < 20.0
+        );
     }
 }

@@ -149,7 +149,12 @@ mod tests {
 
     #[test]
     fn local_time_inverts_system_time() {
-        for m in [TimeMap::IDENTITY, map(250, 0, 0), map(-480, 300, 2_000_000), map(9_000, -900, 10)] {
+        for m in [
+            TimeMap::IDENTITY,
+            map(250, 0, 0),
+            map(-480, 300, 2_000_000),
+            map(9_000, -900, 10),
+        ] {
             for l in [0u64, 1_000, 1_001, 77_777, 3_000_000, 86_400_000_000] {
                 let local = Instant::from_micros(l);
                 let system = m.system_time(local);

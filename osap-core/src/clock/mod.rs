@@ -50,15 +50,14 @@
 //! followed, only trusted links may write the clock, and no step is taken
 //! while the runtime reports motion queued.
 
-
 pub mod authority;
 mod map;
 pub mod neighbour;
 mod status;
 mod steer;
-pub mod wire;
 #[cfg(test)]
 mod tests;
+pub mod wire;
 
 pub use authority::{Trust, SETTLED_OFFSET_US};
 pub use map::TimeMap;
@@ -201,7 +200,11 @@ impl<const LINKS: usize> Clock<LINKS> {
             config,
             map: TimeMap::IDENTITY,
             learned_q32: 0,
-            phase: if config.root { Phase::Root } else { Phase::Free },
+            phase: if config.root {
+                Phase::Root
+            } else {
+                Phase::Free
+            },
             rate_var: cold_rate_var(&config),
             last_steer: None,
             offset_us: 0.0,
@@ -419,7 +422,10 @@ impl<const LINKS: usize> Clock<LINKS> {
                     } else {
                         self.dither()
                     };
-                    let at = now.as_micros().saturating_add(interval).saturating_add_signed(d);
+                    let at = now
+                        .as_micros()
+                        .saturating_add(interval)
+                        .saturating_add_signed(d);
                     Instant::from_micros(at)
                 }
             };
@@ -507,7 +513,6 @@ impl<const LINKS: usize> Clock<LINKS> {
         }
     }
 }
-
 
 /// The rate's variance before anything is known: uniform over the clamp.
 fn cold_rate_var(config: &TimeConfig) -> f32 {

@@ -416,7 +416,8 @@ impl Neighbour {
     fn add_to_envelope(&mut self, sent: Instant, received: Instant, their_time: u64) {
         let id = sent.as_micros() / ENVELOPE_BUCKET_US;
         let diff = |ours: Instant| {
-            (their_time as i128 - ours.as_micros() as i128).clamp(i64::MIN as i128, i64::MAX as i128) as i64
+            (their_time as i128 - ours.as_micros() as i128)
+                .clamp(i64::MIN as i128, i64::MAX as i128) as i64
         };
         let (ahead, behind) = (diff(sent), diff(received));
         let slot = &mut self.envelope[(id % ENVELOPE_BUCKETS as u64) as usize];
@@ -657,7 +658,14 @@ mod tests {
             let sent = 1_000_000 + i * 50_000;
             let mid = sent as f64 + rtt as f64 / 2.0;
             let theirs = mid + offset + mid * ppm * 1e-6;
-            n.add(Instant::from_micros(sent), Instant::from_micros(sent + rtt), SystemInstant::from_micros(theirs.round() as u64), 0, &cfg(), 0.0);
+            n.add(
+                Instant::from_micros(sent),
+                Instant::from_micros(sent + rtt),
+                SystemInstant::from_micros(theirs.round() as u64),
+                0,
+                &cfg(),
+                0.0,
+            );
         }
     }
 
@@ -667,7 +675,9 @@ mod tests {
         // Under two seconds of samples: a line, but its slope is not yet
         // trusted as the rate.
         feed(&mut n, 16, 50.0, 1234.0, 100);
-        let e = n.estimate(Instant::from_micros(1_000_000 + 16 * 50_000), &cfg(), 0.0).unwrap();
+        let e = n
+            .estimate(Instant::from_micros(1_000_000 + 16 * 50_000), &cfg(), 0.0)
+            .unwrap();
         assert_eq!(e.slope, None);
         let mut n = Neighbour::default();
         feed(&mut n, 48, 50.0, 1234.0, 100);
@@ -685,7 +695,14 @@ mod tests {
         let mut n = Neighbour::default();
         feed(&mut n, 8, 0.0, 0.0, 100);
         assert_eq!(
-            n.add(Instant::from_micros(2_000_000), Instant::from_micros(2_000_400), SystemInstant::from_micros(2_000_200), 0, &cfg(), 0.0),
+            n.add(
+                Instant::from_micros(2_000_000),
+                Instant::from_micros(2_000_400),
+                SystemInstant::from_micros(2_000_200),
+                0,
+                &cfg(),
+                0.0
+            ),
             Verdict::RejectedRtt
         );
     }
@@ -697,14 +714,28 @@ mod tests {
         // Same round trip, but their time is 40 µs late.
         let sent = 2_000_000;
         assert_eq!(
-            n.add(Instant::from_micros(sent), Instant::from_micros(sent + 100), SystemInstant::from_micros(sent + 50 + 500 + 40), 0, &cfg(), 0.0),
+            n.add(
+                Instant::from_micros(sent),
+                Instant::from_micros(sent + 100),
+                SystemInstant::from_micros(sent + 50 + 500 + 40),
+                0,
+                &cfg(),
+                0.0
+            ),
             Verdict::RejectedResidual
         );
         // A real jump persists: after a few rejections the fit starts over.
         let mut last = Verdict::Accepted;
         for i in 1..=RESET_AFTER_REJECTS as u64 {
             let sent = 2_000_000 + i * 50_000;
-            last = n.add(Instant::from_micros(sent), Instant::from_micros(sent + 100), SystemInstant::from_micros(sent + 50 + 5_000), 0, &cfg(), 0.0);
+            last = n.add(
+                Instant::from_micros(sent),
+                Instant::from_micros(sent + 100),
+                SystemInstant::from_micros(sent + 50 + 5_000),
+                0,
+                &cfg(),
+                0.0,
+            );
         }
         assert_eq!(last, Verdict::Accepted);
     }
@@ -712,7 +743,17 @@ mod tests {
     #[test]
     fn replies_from_the_future_are_bogus() {
         let mut n = Neighbour::default();
-        assert_eq!(n.add(Instant::from_micros(10), Instant::from_micros(5), SystemInstant::from_micros(0), 0, &cfg(), 0.0), Verdict::Bogus);
+        assert_eq!(
+            n.add(
+                Instant::from_micros(10),
+                Instant::from_micros(5),
+                SystemInstant::from_micros(0),
+                0,
+                &cfg(),
+                0.0
+            ),
+            Verdict::Bogus
+        );
     }
 
     /// A USB-like link: the way to the neighbour is prompt (20 µs plus a
@@ -741,7 +782,14 @@ mod tests {
             let received = (ready / 1000.0).ceil() * 1000.0 + 15.0;
             let their_time = theirs(sent as f64 + up + turnaround / 2.0);
             let received = received as u64;
-            n.add(Instant::from_micros(sent), Instant::from_micros(received), SystemInstant::from_micros(their_time as u64), 0, &cfg(), rate as f32);
+            n.add(
+                Instant::from_micros(sent),
+                Instant::from_micros(received),
+                SystemInstant::from_micros(their_time as u64),
+                0,
+                &cfg(),
+                rate as f32,
+            );
             let midpoint = (sent + received) as f64 / 2.0;
             let error = their_time - theirs(midpoint);
             biggest_midpoint_error = biggest_midpoint_error.max(error.abs());

@@ -182,8 +182,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             let stale = est.is_none_or(|e| now - e.newest > ENVELOPE_STALE);
             let (offset, jitter, phase_noise) = match (fit, envelope) {
                 (Some(f), Some(e))
-                    if bursting
-                        && (stale || !settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1)) =>
+                    if bursting && (stale || !settled || (f.0 - e.0).abs() > 3.0 * (f.1 + e.1)) =>
                 {
                     e
                 }
@@ -220,8 +219,7 @@ impl<const LINKS: usize> Clock<LINKS> {
         // Still settling (the fitted rate has never been trusted): this is
         // the first synchronisation, and a clear offset is stepped away
         // rather than slewed at the rate clamp for a second.
-        let settling =
-            !lock.settled && m.offset.abs() > (4.0 * m.noise).max(SETTLE_STEP_US);
+        let settling = !lock.settled && m.offset.abs() > (4.0 * m.noise).max(SETTLE_STEP_US);
         if m.slope.is_some() {
             self.set_lock(|l| l.settled = true);
         }

@@ -76,20 +76,39 @@ fn a_copied_map_reads_as_the_clock_does() {
     for t in [
         0, 999_999, 1_000_000, 1_100_000, 1_250_000, 1_250_001, 9_000_000,
     ] {
-        assert_eq!(map.system_time(Instant::from_micros(t)), c.system_time(Instant::from_micros(t)), "at {t}");
+        assert_eq!(
+            map.system_time(Instant::from_micros(t)),
+            c.system_time(Instant::from_micros(t)),
+            "at {t}"
+        );
     }
 }
 
 #[test]
 fn mapping_is_continuous_across_rate_changes() {
     let mut c: Clock<1> = Clock::new(TimeConfig::default());
-    assert_eq!(c.system_time(Instant::from_micros(1_000_000)), SystemInstant::from_micros(1_000_000));
+    assert_eq!(
+        c.system_time(Instant::from_micros(1_000_000)),
+        SystemInstant::from_micros(1_000_000)
+    );
     c.set_rate_ppb(Instant::from_micros(1_000_000), 100_000); // +100 ppm
-    assert_eq!(c.system_time(Instant::from_micros(1_000_000)), SystemInstant::from_micros(1_000_000));
-    assert_eq!(c.system_time(Instant::from_micros(2_000_000)), SystemInstant::from_micros(2_000_100));
+    assert_eq!(
+        c.system_time(Instant::from_micros(1_000_000)),
+        SystemInstant::from_micros(1_000_000)
+    );
+    assert_eq!(
+        c.system_time(Instant::from_micros(2_000_000)),
+        SystemInstant::from_micros(2_000_100)
+    );
     c.set_rate_ppb(Instant::from_micros(2_000_000), -50_000);
-    assert_eq!(c.system_time(Instant::from_micros(2_000_000)), SystemInstant::from_micros(2_000_100));
-    assert_eq!(c.system_time(Instant::from_micros(3_000_000)), SystemInstant::from_micros(3_000_050));
+    assert_eq!(
+        c.system_time(Instant::from_micros(2_000_000)),
+        SystemInstant::from_micros(2_000_100)
+    );
+    assert_eq!(
+        c.system_time(Instant::from_micros(3_000_000)),
+        SystemInstant::from_micros(3_000_050)
+    );
     assert!((c.rate_ppb() + 50_000).abs() < 5);
 }
 
@@ -153,7 +172,10 @@ fn a_sample_far_off_the_fit_brings_the_next_request_forward() {
     let now = 10_000 + 80 * 50_000;
     c.next_tick = Some(Instant::from_micros(now + 1_000_000));
     assert_eq!(c.due_requests(Instant::from_micros(now), 0b1), 0b1);
-    assert_eq!(c.neighbours[0].next_request, Some(Instant::from_micros(now + 50_000)));
+    assert_eq!(
+        c.neighbours[0].next_request,
+        Some(Instant::from_micros(now + 50_000))
+    );
     // Its time seems to have moved by 40 µs: refused, and asked again
     // within a burst spacing rather than an interval.
     let reply = TimeReply {
@@ -167,7 +189,10 @@ fn a_sample_far_off_the_fit_brings_the_next_request_forward() {
     assert_eq!(c.due_requests(Instant::from_micros(due), 0b1), 0b1);
     let next = c.neighbours[0].next_request.unwrap();
     let later = next - Instant::from_micros(due);
-    assert!(later <= Duration::from_micros(6_000), "next request {later} later");
+    assert!(
+        later <= Duration::from_micros(6_000),
+        "next request {later} later"
+    );
     // Accepted again: back to the interval.
     let reply = TimeReply {
         request_time: Instant::from_micros(due),
@@ -176,7 +201,10 @@ fn a_sample_far_off_the_fit_brings_the_next_request_forward() {
     };
     c.on_reply(0, &reply, Instant::from_micros(due + 200));
     assert_eq!(c.due_requests(next, 0b1), 0b1);
-    assert_eq!(c.neighbours[0].next_request, Some(Instant::from_micros(due + 50_000)));
+    assert_eq!(
+        c.neighbours[0].next_request,
+        Some(Instant::from_micros(due + 50_000))
+    );
 }
 
 #[test]

@@ -28,6 +28,7 @@
 use core::arch::asm;
 use core::hint::black_box;
 use osap_core::clock::{Clock, TimeMap};
+use osap_core::Instant;
 use osap_module::board::{NoIo, Parts, StepperHw};
 use osap_module::{Module, ModuleCell, ModuleHandle};
 
@@ -87,9 +88,9 @@ impl StepperHw for Driver {
 
 static NOW: u64 = 1_000_000;
 
-fn clock() -> u64 {
+fn clock() -> Instant {
     // SAFETY: a plain read of a static.
-    unsafe { core::ptr::read_volatile(&raw const NOW) }
+    Instant::from_micros(unsafe { core::ptr::read_volatile(&raw const NOW) })
 }
 
 /// The module, as a firmware keeps it: a trivial board in a `static` cell.
@@ -99,7 +100,7 @@ static MODULE: ModuleCell<Parts<Driver, NoIo>> = ModuleCell::new();
 #[no_mangle]
 #[inline(never)]
 pub extern "C" fn probe_fill(local: u64) -> u32 {
-    MODULE.fill_step_word(local)
+    MODULE.fill_step_word(Instant::from_micros(local))
 }
 
 /// A module function call, as the runtime makes it: on the cell, in its
@@ -115,7 +116,7 @@ fn call<R>(f: impl FnOnce(&mut Module<Parts<Driver, NoIo>>) -> R) -> R {
 /// synchronized start times (low 32 bits) in `r0`/`r1` at `OPEN`.
 #[inline(always)]
 fn word<const OPEN: u8, const CLOSE: u8>(map: &TimeMap, local: u64) -> u32 {
-    let sys = map.system_time(local);
+    let sys = map.system_time(Instant::from_micros(local)).as_micros();
     // SAFETY: a breakpoint; the harness reads r0/r1 and resumes.
     unsafe {
         asm!("bkpt #{n}", n = const OPEN, in("r0") local as u32, in("r1") sys as u32,
@@ -157,13 +158,13 @@ pub extern "C" fn _start() -> ! {
     });
     // A non-identity map: +400 ppm since local 0.
     let mut c: Clock<1> = Clock::new(Default::default());
-    c.set_rate_ppb(0, 400_000);
+    c.set_rate_ppb(Instant::ZERO, 400_000);
     let map: TimeMap = black_box(c.time_map());
     (&MODULE).publish_time(map);
     call(|m| m.set_enable(true)).unwrap();
 
     // 2/3: idle words.
-    let mut local = black_box(clock());
+    let mut local = black_box(clock()).as_micros();
     for _ in 0..IDLE_WORDS {
         word::<2, 3>(&map, local);
         local += WORD_US;
@@ -171,10 +172,10 @@ pub extern "C" fn _start() -> ! {
 
     // A stream: three points where the axis stands, then a ramp.
     call(|m| m.set_interval(IV as u32)).unwrap();
-    let first = (map.system_time(local) / IV + 2) * IV;
+    let first = (map.system_time(Instant::from_micros(local)).as_micros() / IV + 2) * IV;
     let mut k = 0u64;
     let mut top_up = |local: u64| {
-        let now = map.system_time(local);
+        let now = map.system_time(Instant::from_micros(local)).as_micros();
         while first + k * IV <= now + LEAD * IV {
             let pos = k.saturating_sub(2) as f32 * RAMP;
             call(|m| m.add_point(first + k * IV, pos)).unwrap();

@@ -458,7 +458,10 @@ impl Input {
     }
 
     /// Takes the edges due by local `now`, oldest first.
-    pub(crate) fn take_edges(&mut self, now: LocalInstant) -> impl Iterator<Item = (LocalInstant, bool)> + '_ {
+    pub(crate) fn take_edges(
+        &mut self,
+        now: LocalInstant,
+    ) -> impl Iterator<Item = (LocalInstant, bool)> + '_ {
         let due = self.pending.iter().take_while(|e| e.0 <= now).count();
         self.pending.drain(..due)
     }

@@ -7,8 +7,8 @@
 // Each test binary uses a different part of the harness.
 #![allow(dead_code)]
 
-use std::any::Any;
 use osap_core::time::Instant;
+use std::any::Any;
 
 use osap_core::codec::{Reader, Writer};
 use osap_core::link::queue::transfer;
@@ -159,8 +159,10 @@ impl Net {
 
     /// Polls both runtimes once, moves the link's packets, advances the clock.
     pub fn step(&mut self) {
-        self.a.poll(Instant::from_micros(self.now), &mut self.pa, &mut self.la);
-        self.b.poll(Instant::from_micros(self.now), &mut self.pb, &mut self.lb);
+        self.a
+            .poll(Instant::from_micros(self.now), &mut self.pa, &mut self.la);
+        self.b
+            .poll(Instant::from_micros(self.now), &mut self.pb, &mut self.lb);
         if self.lose_to_b {
             while self.la[0].take_sent().is_some() {}
         }
