@@ -37,7 +37,7 @@ fuzz_target!(|data: &[u8]| {
     let step = u64::from(first >> 1) * 37;
     let mut station: BusLink<QueueLink<4, 64>, 64> = BusLink::new(QueueLink::new(), config);
     let mut buf = [0u8; 64];
-    let mut now = 0u64;
+    let mut now = osap_core::Instant::ZERO;
     for frame in rest.split(|&b| b == 0).take(64) {
         match BusHeader::parse(frame) {
             Ok((h, packet)) => {
@@ -87,7 +87,7 @@ fuzz_target!(|data: &[u8]| {
             assert!(h.flags & GRANT != 0 && h.dst == config.drop && h.src == HEAD);
         }
         while station.lower.take_sent().is_some() {}
-        now += step;
+        now += osap_core::Duration::from_micros(step);
         station.poll(now);
         while station.lower.take_sent().is_some() {}
     }

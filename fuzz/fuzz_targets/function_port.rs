@@ -135,7 +135,7 @@ fuzz_target!(|data: &[u8]| {
     vec.set_output_mode(OutputMode::OnChange);
     let mut ports: [Fun; 2] = [mix, vec];
     let mut links = [QueueLink::<16, MTU>::new()];
-    let mut now = 0u64;
+    let mut now = osap_core::Instant::ZERO;
     let mut seq = 0u16;
     let mut rest = data;
     while let [flags, len, tail @ ..] = rest {
@@ -164,7 +164,7 @@ fuzz_target!(|data: &[u8]| {
         if let Some(n) = n {
             links[0].inject(&buf[..n]);
         }
-        now += u64::from(flags >> 3) * 50;
+        now += osap_core::Duration::from_micros(u64::from(flags >> 3) * 50);
         rt.poll(now, &mut ports, &mut links);
         assert!(rt.stack().len() <= rt.stack().capacity());
         while links[0].take_sent().is_some() {}
@@ -175,7 +175,7 @@ fuzz_target!(|data: &[u8]| {
     // Pipes and timers keep going, but the stack drains: every packet
     // either leaves on the link or expires.
     for _ in 0..20 {
-        now += 70_000;
+        now += osap_core::Duration::from_millis(70);
         rt.poll(now, &mut ports, &mut links);
         while links[0].take_sent().is_some() {}
         assert!(rt.stack().len() <= rt.stack().capacity());

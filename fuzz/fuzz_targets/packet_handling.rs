@@ -47,7 +47,7 @@ fuzz_target!(|data: &[u8]| {
     };
     let mut links = [QueueLink::<16, 128>::new(), QueueLink::<16, 128>::new()];
     let mut ports = [Echo];
-    let mut now = 0u64;
+    let mut now = osap_core::Instant::ZERO;
     let mut injected = 0u32;
     let mut rest = data;
     while let [flags, len, tail @ ..] = rest {
@@ -71,7 +71,7 @@ fuzz_target!(|data: &[u8]| {
         if links[usize::from(flags & 1)].inject(packet) {
             injected += 1;
         }
-        now += u64::from(flags >> 3) * 50;
+        now += osap_core::Duration::from_micros(u64::from(flags >> 3) * 50);
         rt.poll(now, &mut ports, &mut links);
         assert!(rt.stack().len() <= rt.stack().capacity());
         for link in &mut links {
@@ -81,7 +81,7 @@ fuzz_target!(|data: &[u8]| {
     // Everything still queued expires; every injected packet was taken in
     // (a link's inbox drains at its quota per poll, so allow enough polls).
     for _ in 0..10 {
-        now += 70_000;
+        now += osap_core::Duration::from_millis(70);
         rt.poll(now, &mut ports, &mut links);
         for link in &mut links {
             while link.take_sent().is_some() {}

@@ -21,11 +21,11 @@ use std::collections::HashMap;
 const BYTES: usize = 128;
 
 fuzz_target!(|data: &[u8]| {
-    let mut r: Reassembler<2, BYTES> = Reassembler::new().with_timeout(200);
+    let mut r: Reassembler<2, BYTES> = Reassembler::new().with_timeout(osap_core::Duration::from_micros(200));
     let routes = [Route::local(), Route::through_links(&[1]).unwrap()];
     // (sender, id, index) -> body, for the segments taken in.
     let mut held: HashMap<(u8, u8, u8), Vec<u8>> = HashMap::new();
-    let mut now = 0u64;
+    let mut now = osap_core::Instant::ZERO;
     let mut handed = 0u32;
     let mut rest = data;
     while let [sender, dt, len, tail @ ..] = rest {
@@ -35,7 +35,7 @@ fuzz_target!(|data: &[u8]| {
         if let Some(k) = seg.first_mut() {
             *k = KEY_SEGMENT;
         }
-        now += u64::from(*dt);
+        now += osap_core::Duration::from_micros(u64::from(*dt));
         let s = sender % 4;
         let (route, port) = (&routes[usize::from(s & 1)], u16::from(s >> 1));
         handed += 1;
