@@ -222,7 +222,9 @@ fn pipes_class() {
     };
     assert_eq!(
         ChirpBlock::construct(&args(0.0)).err(),
-        Some(CallError::Failed(FAIL_BAD_NUMBER))
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_NUMBER
+        )))
     );
     let mut c = ChirpBlock::construct(&args(1.0)).unwrap();
     let cfg = *c.0.config();
@@ -241,11 +243,15 @@ fn pipes_class() {
 
     assert_eq!(
         c.set_fade(0.6).map_err(CallError::from),
-        Err(CallError::Failed(FAIL_BAD_NUMBER))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_NUMBER
+        )))
     );
     assert_eq!(
         c.set_center(f32::INFINITY).map_err(CallError::from),
-        Err(CallError::Failed(FAIL_BAD_NUMBER))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_NUMBER
+        )))
     );
     c.set_center(2.5).unwrap();
     c.set_fade(0.1).unwrap();

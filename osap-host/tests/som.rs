@@ -180,7 +180,19 @@ async fn refresh_builds_the_model_and_it_round_trips_through_json() {
     assert!(json.contains("\"mode\": \"on_any_fresh\""), "{json}");
     assert!(json.contains("\"type\": \"f32\""), "{json}");
     let wrong = json.replacen("\"version\": 1", "\"version\": 99", 1);
-    assert!(Som::from_json(&wrong).unwrap_err().contains("version 99"));
+    let err = Som::from_json(&wrong).unwrap_err();
+    assert!(matches!(
+        err,
+        osap_host::error::JsonError::Version {
+            found: 99,
+            supported: 1,
+            ..
+        }
+    ));
+    assert_eq!(
+        err.to_string(),
+        "system object model version 99 is not supported (this build reads 1)"
+    );
 }
 
 #[tokio::test]

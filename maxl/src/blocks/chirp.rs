@@ -56,11 +56,11 @@ impl fmt::Display for ChirpError {
     }
 }
 
-impl std::error::Error for ChirpError {}
+impl core::error::Error for ChirpError {}
 
 impl From<ChirpError> for CallError {
     fn from(_: ChirpError) -> CallError {
-        CallError::Failed(FAIL_BAD_NUMBER)
+        CallError::Failed(pipes_core::FailureCode::from_code(FAIL_BAD_NUMBER))
     }
 }
 

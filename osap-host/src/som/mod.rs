@@ -92,6 +92,7 @@ fn refusal(error: &ControlError, failure: &Option<Box<failure::Failure>>) -> Str
 /// What can go wrong building or using the system object model. Every
 /// error about a function names it and its runtime.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SomError {
     /// The host runtime or its network failed (outside any one function).
     #[error(transparent)]

@@ -8,6 +8,7 @@
 //! pipes are listed both per function (as configured) and flattened, source
 //! → destination, at the top level.
 
+use crate::error::JsonError;
 use crate::map::{LinkEdge, NetworkMap, RuntimeRecord};
 use osap_core::packet::Instruction;
 use osap_core::route::Route;
@@ -339,13 +340,17 @@ impl Som {
     }
 
     /// From JSON, checking the layout version.
-    pub fn from_json(text: &str) -> Result<Som, String> {
-        let som: Som = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    ///
+    /// Errors: [`JsonError::Json`] for text that is not a model's JSON,
+    /// [`JsonError::Version`] for a model of another layout version.
+    pub fn from_json(text: &str) -> Result<Som, JsonError> {
+        let som: Som = serde_json::from_str(text)?;
         if som.version != SOM_VERSION {
-            return Err(format!(
-                "system object model version {} is not supported (this build reads {SOM_VERSION})",
-                som.version
-            ));
+            return Err(JsonError::Version {
+                what: "system object model",
+                found: som.version,
+                supported: SOM_VERSION,
+            });
         }
         Ok(som)
     }

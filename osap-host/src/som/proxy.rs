@@ -9,6 +9,7 @@ use std::fmt;
 
 /// Binding a proxy to a runtime failed: nothing was called.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum BindError {
     /// No runtime (or more than one) has the name.
     NoDevice {
@@ -98,7 +99,7 @@ impl fmt::Display for BindError {
     }
 }
 
-impl std::error::Error for BindError {}
+impl core::error::Error for BindError {}
 
 impl From<SomError> for BindError {
     fn from(e: SomError) -> Self {
@@ -108,6 +109,7 @@ impl From<SomError> for BindError {
 
 /// A proxy's call failed.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum CallError {
     /// The call itself failed (network, refusal, bad arguments).
     Som(SomError),
@@ -129,7 +131,7 @@ impl fmt::Display for CallError {
     }
 }
 
-impl std::error::Error for CallError {}
+impl core::error::Error for CallError {}
 
 impl From<SomError> for CallError {
     fn from(e: SomError) -> Self {
