@@ -165,9 +165,9 @@ impl core::hash::Hash for FailureCode {
 impl fmt::Display for FailureCode {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            FailureCode::InputDecodeFailed => f.write_str("input decode failed (code 255)"),
-            FailureCode::StateBusy => f.write_str("class state busy (code 254)"),
-            FailureCode::NoSuchMember => f.write_str("no such class member (code 253)"),
+            FailureCode::InputDecodeFailed => f.write_str("code 255 (input decode failed)"),
+            FailureCode::StateBusy => f.write_str("code 254 (class state busy)"),
+            FailureCode::NoSuchMember => f.write_str("code 253 (no such class member)"),
             FailureCode::Other(c) => write!(f, "code {c}"),
         }
     }
@@ -343,7 +343,7 @@ impl fmt::Display for ControlError {
             ControlError::BadArgmap(o) => {
                 write!(f, "argmap names output {o}, which does not exist")
             }
-            ControlError::CallFailed(c) => write!(f, "the function failed: {c}"),
+            ControlError::CallFailed(c) => write!(f, "the function failed with {c}"),
             ControlError::BadOutput(o) => write!(f, "the function produced a bad output {o}"),
             ControlError::TooLarge(i) => write!(f, "the value for input {i} is too large"),
         }
@@ -838,11 +838,11 @@ mod tests {
         assert_eq!(FailureCode::Other(9).to_string(), "code 9");
         assert_eq!(
             ControlError::CallFailed(FailureCode::StateBusy).to_string(),
-            "the function failed: class state busy (code 254)"
+            "the function failed with code 254 (class state busy)"
         );
         assert_eq!(
             crate::function::CallError::Failed(FailureCode::Other(3)).to_string(),
-            "the function failed: code 3"
+            "the function failed with code 3"
         );
     }
 

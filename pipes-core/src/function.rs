@@ -86,7 +86,7 @@ impl CallError {
 impl fmt::Display for CallError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            CallError::Failed(c) => write!(f, "the function failed: {c}"),
+            CallError::Failed(c) => write!(f, "the function failed with {c}"),
             CallError::NoSuchOutput(i) => write!(f, "no output {i}"),
             CallError::OutputType { index, error } => write!(f, "output {index}: {error}"),
             CallError::OutputTwice(i) => write!(f, "output {i} set twice"),
