@@ -43,7 +43,7 @@ pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{attach_function, HostBody, HostFunction, HOST_FN_PIPES, HOST_FN_STORE};
 pub use manager::{Disconnect, Manager, ManagerOptions, PipeOptions, RefreshReport};
-pub use model::{Som, SOM_VERSION};
+pub use model::{RuntimeLookupError, Som, SOM_VERSION};
 pub use pipes_core::pipe::PipeStats;
 pub use value::{LeElement, OwnedValue};
 

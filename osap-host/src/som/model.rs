@@ -21,6 +21,21 @@ use std::collections::VecDeque;
 /// Layout version of [`Som`].
 pub const SOM_VERSION: u32 = 1;
 
+/// Why [`Som::runtime_index`] found no one runtime by its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RuntimeLookupError {
+    /// No runtime has the name.
+    #[error("no runtime has this name")]
+    NotFound,
+    /// Several runtimes have the name.
+    #[error("{count} runtimes have this name")]
+    Ambiguous {
+        /// How many have it (at least 2).
+        count: usize,
+    },
+}
+
 /// The system object model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct Som {
@@ -355,9 +370,11 @@ impl Som {
         Ok(som)
     }
 
-    /// The index of the runtime named `name`: `Err(n)` with the number of
-    /// runtimes that have it when that is not exactly one.
-    pub fn runtime_index(&self, name: &str) -> Result<usize, usize> {
+    /// The index of the runtime named `name`.
+    ///
+    /// Errors: [`RuntimeLookupError::NotFound`] when no runtime has the
+    /// name, [`RuntimeLookupError::Ambiguous`] when several do.
+    pub fn runtime_index(&self, name: &str) -> Result<usize, RuntimeLookupError> {
         let mut found = self
             .runtimes
             .iter()
@@ -365,8 +382,10 @@ impl Som {
             .filter(|(_, r)| r.record.name == name);
         match (found.next(), found.next()) {
             (Some((i, _)), None) => Ok(i),
-            (None, _) => Err(0),
-            (Some(_), Some(_)) => Err(2 + found.count()),
+            (None, _) => Err(RuntimeLookupError::NotFound),
+            (Some(_), Some(_)) => Err(RuntimeLookupError::Ambiguous {
+                count: 2 + found.count(),
+            }),
         }
     }
 

@@ -143,7 +143,7 @@ impl From<SomError> for CallError {
 /// conversions of each SOM type.
 pub mod support {
     use super::{BindError, CallError, Difference};
-    use crate::som::{FnRef, FunctionHandle, Manager, OwnedValue, Som};
+    use crate::som::{FnRef, FunctionHandle, Manager, OwnedValue, RuntimeLookupError, Som};
 
     /// A function's signature as the proxy was generated from it:
     /// `(name, type)` of each input and output, by index.
@@ -219,12 +219,12 @@ pub mod support {
         };
         let r = match som.runtime_index(runtime) {
             Ok(i) => &som.runtimes[i],
-            Err(0) => {
+            Err(RuntimeLookupError::NotFound) => {
                 return Err(no_device(
                     "no runtime has this name (is the device missing?)".into(),
                 ))
             }
-            Err(n) => return Err(no_device(format!("{n} runtimes have this name"))),
+            Err(e) => return Err(no_device(e.to_string())),
         };
         if r.record.type_name != type_name {
             return Err(BindError::WrongType {
