@@ -190,7 +190,11 @@ fn start_at_the_next_stamp_and_bad_numbers() {
     ] {
         assert!(Chirp::new(bad).is_err(), "{bad:?}");
     }
-    assert!(matches!(c.set_fade(-0.1), Err(ChirpError(_))));
+    assert_eq!(c.set_fade(-0.1), Err(ChirpError::BadFade));
+    assert_eq!(
+        ChirpError::BadFade.to_string(),
+        "bad chirp parameter: fade must be >= 0 and at most half the duration"
+    );
     assert!(c.set_center(f64::INFINITY).is_err());
 }
 
