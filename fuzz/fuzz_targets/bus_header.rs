@@ -54,6 +54,7 @@ fuzz_target!(|data: &[u8]| {
                     && (frame[1] != HEAD || frame[0] == HEAD || frame[0] == BROADCAST);
                 assert!(flags & !(GRANT | END | TURN_MASK) != 0 || bad_grant);
             }
+            Err(e) => panic!("a refusal this target does not know: {e}"),
         }
         if frame.len() > 64 || !station.lower.inject(frame) {
             continue;

@@ -66,7 +66,7 @@ impl Implementation for Body {
         match inputs {
             [Value::F32(x), Value::U16(n), Value::Utf8(s)] => {
                 if x.is_nan() {
-                    return Err(CallError::Failed(7));
+                    return Err(CallError::Failed(pipes_core::FailureCode::Other(7)));
                 }
                 out.set(0, &Value::F64(f64::from(*x) * s.len() as f64))?;
                 match n % 4 {
@@ -87,7 +87,7 @@ impl Implementation for Body {
                 // A float that does not fit an i64 is refused by the table.
                 out.set(0, &Value::F64(*k + sum as f64))
             }
-            _ => Err(CallError::Failed(0xff)),
+            _ => Err(CallError::Failed(pipes_core::FailureCode::from_code(0xff))),
         }
     }
 }

@@ -291,6 +291,7 @@ pub const MAX_TICKS_PER_SEGMENT: u32 = 2048;
 
 /// Why a [`TickEval`] refused a configuration or a segment.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum TickEvalError {
     /// The tick period is 0, longer than the interval, or gives more than
     /// [`MAX_TICKS_PER_SEGMENT`] ticks per segment.
@@ -310,6 +311,8 @@ impl core::fmt::Display for TickEvalError {
         }
     }
 }
+
+impl core::error::Error for TickEvalError {}
 
 /// Fast fixed-point position evaluator for a fixed tick (e.g. 10 µs = 100 kHz).
 ///

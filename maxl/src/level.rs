@@ -10,6 +10,7 @@
 
 /// Why a push was refused. Nothing was stored.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum TimedPushError {
     /// The queue is full.
     Full,
@@ -34,6 +35,8 @@ impl core::fmt::Display for TimedPushError {
         }
     }
 }
+
+impl core::error::Error for TimedPushError {}
 
 /// A fixed-capacity ring of `(time, value)` in stamp order.
 #[derive(Clone, Debug)]

@@ -54,6 +54,7 @@ pub struct RawLimits {
 
 /// Why limits were refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum LimitError {
     /// A limit is not finite or not `> 0`.
     Invalid,
@@ -72,6 +73,8 @@ impl core::fmt::Display for LimitError {
         }
     }
 }
+
+impl core::error::Error for LimitError {}
 
 /// Which limits a point broke (and so which clamps applied).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

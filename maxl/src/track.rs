@@ -24,6 +24,18 @@ pub struct Interval {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct IntervalError(pub u32);
 
+impl core::fmt::Display for IntervalError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        write!(
+            f,
+            "interval {} µs is not a power of two from 256 to 16384 µs",
+            self.0
+        )
+    }
+}
+
+impl core::error::Error for IntervalError {}
+
 impl Interval {
     /// Validate an interval in µs.
     pub const fn from_micros(us: u32) -> Result<Self, IntervalError> {
@@ -51,16 +63,35 @@ impl Interval {
 
 /// Why a point was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum PushError {
     /// The stamp is not a multiple of the interval.
     Misaligned,
     /// The stamp is not after the newest point (duplicate or late).
     Stale,
     /// More than one point is missing before this stamp; the point is refused.
-    Gap { missing: u64 },
+    Gap {
+        /// How many points are missing.
+        missing: u64,
+    },
     /// The backstop has latched; call [`Track::clear`] to start a new stream.
     Backstopped,
 }
+
+impl core::fmt::Display for PushError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            PushError::Misaligned => f.write_str("point time is not a multiple of the interval"),
+            PushError::Stale => f.write_str("point is not after the newest point"),
+            PushError::Gap { missing } => {
+                write!(f, "{missing} points are missing before this one")
+            }
+            PushError::Backstopped => f.write_str("the backstop has latched"),
+        }
+    }
+}
+
+impl core::error::Error for PushError {}
 
 /// What an accepted point did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -81,12 +112,24 @@ pub enum TrackStatus {
 
 /// Why no sample could be produced.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum EvalError {
     /// `t` needs points before the oldest held (not started, or already dropped).
     TooEarly,
     /// Fewer than four points: there is no curve, and no state to stop from.
     NotStarted,
 }
+
+impl core::fmt::Display for EvalError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            EvalError::TooEarly => "the time is before the oldest point held",
+            EvalError::NotStarted => "fewer than four points: no curve yet",
+        })
+    }
+}
+
+impl core::error::Error for EvalError {}
 
 /// One evaluation.
 #[derive(Clone, Copy, Debug, PartialEq)]

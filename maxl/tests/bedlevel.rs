@@ -225,7 +225,7 @@ fn mesh_refuses_incomplete_bad_and_out_of_grid_input() {
 /// The failure code a wire member's error reports.
 fn code<T>(r: Result<T, BedError>) -> Result<T, u8> {
     r.map_err(|e| match CallError::from(e) {
-        CallError::Failed(c) => c,
+        CallError::Failed(c) => c.code(),
         other => panic!("not a failure code: {other:?}"),
     })
 }
@@ -349,7 +349,9 @@ fn wire_mesh_class() {
         ])
         .err()
     };
-    let bad = Some(CallError::Failed(FAIL_BAD_PARAMETER));
+    let bad = Some(CallError::Failed(pipes_core::FailureCode::from_code(
+        FAIL_BAD_PARAMETER,
+    )));
     assert_eq!(grid(-1.0, 2), bad);
     assert_eq!(grid(1.0, 1), bad);
     assert_eq!(grid(f32::NAN, 2), bad);

@@ -190,7 +190,11 @@ fn start_at_the_next_stamp_and_bad_numbers() {
     ] {
         assert!(Chirp::new(bad).is_err(), "{bad:?}");
     }
-    assert!(matches!(c.set_fade(-0.1), Err(ChirpError(_))));
+    assert_eq!(c.set_fade(-0.1), Err(ChirpError::BadFade));
+    assert_eq!(
+        ChirpError::BadFade.to_string(),
+        "bad chirp parameter: fade must be >= 0 and at most half the duration"
+    );
     assert!(c.set_center(f64::INFINITY).is_err());
 }
 
@@ -222,7 +226,9 @@ fn pipes_class() {
     };
     assert_eq!(
         ChirpBlock::construct(&args(0.0)).err(),
-        Some(CallError::Failed(FAIL_BAD_NUMBER))
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_NUMBER
+        )))
     );
     let mut c = ChirpBlock::construct(&args(1.0)).unwrap();
     let cfg = *c.0.config();
@@ -241,11 +247,15 @@ fn pipes_class() {
 
     assert_eq!(
         c.set_fade(0.6).map_err(CallError::from),
-        Err(CallError::Failed(FAIL_BAD_NUMBER))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_NUMBER
+        )))
     );
     assert_eq!(
         c.set_center(f32::INFINITY).map_err(CallError::from),
-        Err(CallError::Failed(FAIL_BAD_NUMBER))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_NUMBER
+        )))
     );
     c.set_center(2.5).unwrap();
     c.set_fade(0.1).unwrap();

@@ -180,7 +180,7 @@ fn pipes_class_wire_api() {
 
 #[test]
 fn pipes_class() {
-    let failed = |code| Some(CallError::Failed(code));
+    let failed = |code: u8| Some(CallError::Failed(code.into()));
     assert_eq!(
         InterpolatorBlock::construct(&[Value::U32(1000), Value::U32(100)]).err(),
         failed(2)

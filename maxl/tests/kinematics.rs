@@ -496,7 +496,7 @@ fn wire_constructor_and_members() {
     let (x, y, z) = block.forward(a, b, c).unwrap();
     assert!((x - 100.0).abs() < 1e-4 && (y - 100.0).abs() < 1e-4 && z == 2.5);
     fn failed<T>(code: u8) -> Result<T, CallError> {
-        Err(CallError::Failed(code))
+        Err(CallError::Failed(code.into()))
     }
     assert_eq!(
         code(block.inverse(1, 500.0, 0.0, 0.0)),
@@ -518,7 +518,9 @@ fn wire_constructor_and_members() {
     // decode failure.
     assert_eq!(
         ScaraBlock::construct(&[Value::F32(1.0)]).err(),
-        Some(CallError::Failed(INPUT_DECODE_FAILED))
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            INPUT_DECODE_FAILED
+        )))
     );
 
     // Invalid parameters: the constructor refuses them with code 5.
@@ -527,7 +529,9 @@ fn wire_constructor_and_members() {
         Err(KinError::BadParameter(_))
     ));
     let refused = |r: Result<(), CallError>| r.err();
-    let bad = Some(CallError::Failed(FAIL_BAD_PARAMETER));
+    let bad = Some(CallError::Failed(pipes_core::FailureCode::from_code(
+        FAIL_BAD_PARAMETER,
+    )));
     assert_eq!(
         refused(
             ScaraBlock::construct(&[

@@ -454,15 +454,17 @@ fn pipes_class() {
     };
     assert_eq!(
         OneDofBlock::construct(&args(-1.0, 1024)).err(),
-        Some(CallError::Failed(1))
+        Some(CallError::Failed(pipes_core::FailureCode::Other(1)))
     );
     assert_eq!(
         OneDofBlock::construct(&args(100.0, 1000)).err(),
-        Some(CallError::Failed(2))
+        Some(CallError::Failed(pipes_core::FailureCode::Other(2)))
     );
     assert_eq!(
         OneDofBlock::construct(&args(100.0, 1024)[..4]).err(),
-        Some(CallError::Failed(INPUT_DECODE_FAILED))
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            INPUT_DECODE_FAILED
+        )))
     );
     let mut a = OneDofBlock::construct(&args(100.0, 1024)).unwrap();
     let cfg = *a.0.config();
@@ -471,7 +473,10 @@ fn pipes_class() {
         (100.0, 1000.0, 80.0, 0.0)
     );
     assert_eq!(cfg.interval.micros(), IV);
-    assert_eq!(a.move_to(1.0).map_err(code), Err(CallError::Failed(3)));
+    assert_eq!(
+        a.move_to(1.0).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(3)))
+    );
     assert_eq!(a.sample(T0), Ok((T0, 0.0)));
     let eta = a.move_to(1.0).unwrap();
     assert_eq!(a.status(), (0.0, 0.0, true, false));
@@ -482,22 +487,40 @@ fn pipes_class() {
     }
     assert_eq!(a.sample(t), Ok((t, 80.0)));
     assert_eq!(a.status(), (1.0, 0.0, false, false));
-    assert_eq!(a.limit_hit(t).map_err(code), Err(CallError::Failed(5)));
-    assert_eq!(a.sample(t + 1).map_err(code), Err(CallError::Failed(7)));
-    assert_eq!(a.sample(t - 1024).map_err(code), Err(CallError::Failed(8)));
-    assert_eq!(a.velocity(101.0).map_err(code), Err(CallError::Failed(6)));
-    assert_eq!(a.home(0, 5.0).map_err(code), Err(CallError::Failed(1)));
+    assert_eq!(
+        a.limit_hit(t).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(5)))
+    );
+    assert_eq!(
+        a.sample(t + 1).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(7)))
+    );
+    assert_eq!(
+        a.sample(t - 1024).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(8)))
+    );
+    assert_eq!(
+        a.velocity(101.0).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(6)))
+    );
+    assert_eq!(
+        a.home(0, 5.0).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(1)))
+    );
     assert_eq!(
         a.set_home(f32::NAN).map_err(code),
-        Err(CallError::Failed(1))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(1)))
     );
     a.set_position(2.0).unwrap();
     assert_eq!(a.status(), (2.0, 0.0, false, false));
     a.home(1, 10.0).unwrap();
-    assert_eq!(a.move_to(0.0).map_err(code), Err(CallError::Failed(4)));
+    assert_eq!(
+        a.move_to(0.0).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(4)))
+    );
     assert_eq!(
         a.limit_hit(t - 1024).map_err(code),
-        Err(CallError::Failed(12))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(12)))
     );
     a.stop().unwrap();
     assert!(!a.0.is_homing());

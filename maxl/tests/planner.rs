@@ -476,14 +476,16 @@ fn pipes_class_wire_api() {
             }
             assert_eq!(
                 construct(v).err(),
-                Some(CallError::Failed(1)),
+                Some(CallError::Failed(pipes_core::FailureCode::Other(1))),
                 "case {i}, arg {k} = {bad}"
             );
         }
     }
     assert_eq!(
         <PlannerBlock as PipesClass>::construct(&good.map(Value::F64)[..7]).err(),
-        Some(CallError::Failed(INPUT_DECODE_FAILED))
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            INPUT_DECODE_FAILED
+        )))
     );
     let mut b = construct(good).unwrap();
     let l = b.planner().limits();
@@ -511,20 +513,20 @@ fn pipes_class_wire_api() {
     assert_eq!(queued, 1 + chords);
     assert_eq!(
         b.line(f64::NAN, 0.0, 0.0, 1.0).map_err(code),
-        Err(CallError::Failed(2))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(2)))
     );
     assert_eq!(
         b.line(1.0, 0.0, 0.0, 0.0).map_err(code),
-        Err(CallError::Failed(3))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(3)))
     );
     assert_eq!(
         b.arc(0.0, 20.0, 0.0, 0.0, 0.0, true, 100.0).map_err(code),
-        Err(CallError::Failed(4)),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(4))),
         "radius mismatch"
     );
     assert_eq!(
         b.set_position(0.0, 0.0, 0.0).map_err(code),
-        Err(CallError::Failed(7))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(7)))
     );
     assert_eq!(
         b.status(),
@@ -532,10 +534,13 @@ fn pipes_class_wire_api() {
         "refused calls queue nothing"
     );
     assert_eq!(b.sample(4096), Ok((4096, 0.0, 0.0, 0.0)));
-    assert_eq!(b.sample(0).map_err(code), Err(CallError::Failed(6)));
+    assert_eq!(
+        b.sample(0).map_err(code),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(6)))
+    );
     assert_eq!(
         b.start(8192).map_err(code),
-        Err(CallError::Failed(7)),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(7))),
         "start while running"
     );
     let mut t = 4096;
@@ -563,7 +568,7 @@ fn pipes_class_wire_api() {
     assert_eq!(small.line(1.0, 0.0, 0.0, 10.0), Ok(1));
     assert_eq!(
         small.line(2.0, 0.0, 0.0, 10.0).map_err(code),
-        Err(CallError::Failed(5))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(5)))
     );
     small.planner_mut().sample(0).unwrap();
     assert_eq!(small.status(), (1, 0, false));

@@ -568,7 +568,7 @@ fn wire_halt_and_feed_scale() {
     for k in [0.0, 11.0, f64::NAN] {
         assert_eq!(
             b.set_feed_scale(k).map_err(CallError::from),
-            Err(CallError::Failed(9))
+            Err(CallError::Failed(pipes_core::FailureCode::Other(9)))
         );
     }
 }

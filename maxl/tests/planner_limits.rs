@@ -708,7 +708,7 @@ fn wire_set_vector_limits() {
     ] {
         assert_eq!(
             b.set_vector_limits(bad.0, bad.1, bad.2).map_err(code),
-            Err(CallError::Failed(1))
+            Err(CallError::Failed(pipes_core::FailureCode::Other(1)))
         );
     }
     assert_eq!(*b.planner().vector_limits(), VectorLimits::NONE);

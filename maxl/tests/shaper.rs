@@ -555,7 +555,10 @@ fn bad_configurations_are_refused() {
     ];
     for (i, e) in codes.iter().enumerate() {
         assert_eq!(e.code() as usize, i + 1);
-        assert_eq!(CallError::from(*e), CallError::Failed(i as u8 + 1));
+        assert_eq!(
+            CallError::from(*e),
+            CallError::Failed(pipes_core::FailureCode::from_code(i as u8 + 1))
+        );
         assert!(!e.to_string().is_empty());
     }
 }
@@ -577,7 +580,7 @@ fn pipes_class_wire_api() {
 
 #[test]
 fn pipes_class() {
-    let failed = |code| Some(CallError::Failed(code));
+    let failed = |code: u8| Some(CallError::Failed(code.into()));
     let ctor = |k, f, z| ShaperBlock::construct(&[Value::U8(k), Value::F32(f), Value::F32(z)]);
     assert_eq!(ctor(1, 0.0, 0.1).err(), failed(1));
     assert_eq!(ctor(1, 40.0, 1.0).err(), failed(2));

@@ -127,13 +127,25 @@ fn pipes_class_wire_api() {
 #[test]
 fn pipes_class_constructor_and_tick() {
     let bad = TimerBlock::construct(&[Value::U32(1000), Value::U32(5000)]);
-    assert_eq!(bad.err(), Some(CallError::Failed(FAIL_BAD_INTERVAL)));
+    assert_eq!(
+        bad.err(),
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_BAD_INTERVAL
+        )))
+    );
     let short = TimerBlock::construct(&[Value::U32(1024), Value::U32(1024)]);
-    assert_eq!(short.err(), Some(CallError::Failed(FAIL_LEAD_TOO_SHORT)));
+    assert_eq!(
+        short.err(),
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            FAIL_LEAD_TOO_SHORT
+        )))
+    );
     let wrong_type = TimerBlock::construct(&[Value::U64(1024), Value::U32(3072)]);
     assert_eq!(
         wrong_type.err(),
-        Some(CallError::Failed(INPUT_DECODE_FAILED))
+        Some(CallError::Failed(pipes_core::FailureCode::from_code(
+            INPUT_DECODE_FAILED
+        )))
     );
     let mut t = TimerBlock::construct(&[Value::U32(1024), Value::U32(3072)]).unwrap();
     assert_eq!(t.timer.lead_us(), 3072);
@@ -142,7 +154,7 @@ fn pipes_class_constructor_and_tick() {
     assert_eq!(t.tick(), Err(TimerError::NoTime));
     assert_eq!(
         CallError::from(TimerError::NoTime),
-        CallError::Failed(FAIL_NO_TIME)
+        CallError::Failed(pipes_core::FailureCode::from_code(FAIL_NO_TIME))
     );
     assert_eq!(t.status(), (0, 0, 0, 0));
     t.loop_hook(SystemInstant::from_micros(1000));

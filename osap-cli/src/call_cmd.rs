@@ -94,8 +94,9 @@ fn refusal(runtime: &str, function: &str, e: &SomError) -> Option<String> {
     Some(match failure {
         Some(f) => format!("{runtime}.{function} refused: {f}"),
         None => format!(
-            "{runtime}.{function} refused with failure code {code} (not an osap-rs module's \
-             function: the device's own documentation names its codes)"
+            "{runtime}.{function} refused with failure code {} (not an osap-rs module's \
+             function: the device's own documentation names its codes)",
+            code.code()
         ),
     })
 }
@@ -130,7 +131,7 @@ mod tests {
         SomError::Remote {
             function: FnRef::new("a", function),
             request: "call",
-            error: ControlError::CallFailed(code),
+            error: ControlError::CallFailed(code.into()),
             failure: if named {
                 failure(function, code).map(Box::new)
             } else {

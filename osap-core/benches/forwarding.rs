@@ -220,7 +220,7 @@ fn run<
 /// Whether `packet`, as it leaves on `link`, is a time stamp request of the
 /// runtime's own clock.
 fn is_time_request(packet: &[u8], link: u8) -> bool {
-    let Ok(p) = Packet::new(packet) else {
+    let Ok(p) = Packet::new_checked(packet) else {
         return false;
     };
     p.instruction() == Ok(Instruction::LinkForward(link))

@@ -9,6 +9,7 @@ use core::fmt;
 
 /// The body being read or written was too short, or a string was not UTF-8.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum CodecError {
     /// A read ran past the end of the input.
     Truncated,
@@ -30,6 +31,8 @@ impl fmt::Display for CodecError {
         })
     }
 }
+
+impl core::error::Error for CodecError {}
 
 /// Reads fields from the front of a byte slice.
 #[derive(Debug, Clone)]

@@ -71,6 +71,7 @@ pub const fn max_frame_len(packet_len: usize) -> usize {
 
 /// Why a frame could not be encoded or decoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum FrameError {
     /// The frame is not valid COBS (a block runs past the end of the frame).
     Cobs,

@@ -36,6 +36,7 @@ const OP_PORT: u8 = 0b11;
 
 /// Everything that can be wrong with a packet or an instruction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum PacketError {
     /// The bytes end before the header, an instruction, or a field does.
     Truncated,
@@ -63,6 +64,8 @@ impl fmt::Display for PacketError {
         })
     }
 }
+
+impl core::error::Error for PacketError {}
 
 /// One route instruction.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -172,19 +175,44 @@ impl Instruction {
     }
 }
 
-/// A read-only view of a packet whose header has been checked.
+/// A view of a packet in a buffer, in the style of smoltcp's `wire` types.
 ///
-/// Construction checks that the header is present and `ptr` points at an
-/// instruction inside the packet; every accessor is then infallible except
-/// where it must decode further bytes.
-#[derive(Debug, Clone, Copy)]
-pub struct Packet<'a> {
-    bytes: &'a [u8],
+/// [`Packet::new_checked`] checks once that the header is present and that
+/// `ptr` points at an instruction inside the packet; the getters then read
+/// the header without checking it again, and only decode further bytes
+/// where they must ([`Packet::instruction`], [`Packet::after_instruction`]).
+/// Getters need `T: AsRef<[u8]>`; setters and the in-place ingest rewrite
+/// need `T: AsMut<[u8]>` too, and keep the header valid.
+///
+/// A view made with [`Packet::new_unchecked`] skips the check: its getters
+/// and setters panic on a buffer [`Packet::check_len`] would refuse.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Packet<T: AsRef<[u8]>> {
+    buffer: T,
 }
 
-impl<'a> Packet<'a> {
-    /// Checks the header of `bytes` and wraps them.
-    pub fn new(bytes: &'a [u8]) -> Result<Self, PacketError> {
+impl<T: AsRef<[u8]>> Packet<T> {
+    /// Wraps `buffer` without checking it (see [`Packet::check_len`]).
+    pub const fn new_unchecked(buffer: T) -> Self {
+        Packet { buffer }
+    }
+
+    /// Wraps `buffer` after [`Packet::check_len`]: the header is present
+    /// and `ptr` points inside the packet, past the header.
+    pub fn new_checked(buffer: T) -> Result<Self, PacketError> {
+        let packet = Self::new_unchecked(buffer);
+        packet.check_len()?;
+        Ok(packet)
+    }
+
+    /// Checks that the buffer holds a header and at least one byte, and
+    /// that `ptr` points past the header at a byte inside the buffer.
+    ///
+    /// Errors: [`PacketError::Truncated`] for a buffer shorter than
+    /// [`MIN_PACKET_LEN`], [`PacketError::BadPointer`] for a `ptr` into
+    /// the header or past the end.
+    pub fn check_len(&self) -> Result<(), PacketError> {
+        let bytes = self.buffer.as_ref();
         if bytes.len() < MIN_PACKET_LEN {
             return Err(PacketError::Truncated);
         }
@@ -192,92 +220,158 @@ impl<'a> Packet<'a> {
         if ptr < HEADER_LEN || ptr >= bytes.len() {
             return Err(PacketError::BadPointer);
         }
-        Ok(Packet { bytes })
+        Ok(())
+    }
+
+    /// The buffer, given back.
+    pub fn into_inner(self) -> T {
+        self.buffer
     }
 
     /// The whole packet.
-    pub fn as_bytes(&self) -> &'a [u8] {
-        self.bytes
+    pub fn as_bytes(&self) -> &[u8] {
+        self.buffer.as_ref()
     }
 
     /// Offset of the next instruction.
+    #[inline]
     pub fn ptr(&self) -> usize {
-        self.bytes[PTR_OFFSET] as usize
+        self.buffer.as_ref()[PTR_OFFSET] as usize
     }
 
     /// Microseconds left until the packet's deadline, as last written.
+    #[inline]
     pub fn ttl(&self) -> u16 {
-        u16::from_le_bytes([self.bytes[TTL_OFFSET], self.bytes[TTL_OFFSET + 1]])
+        let b = self.buffer.as_ref();
+        u16::from_le_bytes([b[TTL_OFFSET], b[TTL_OFFSET + 1]])
     }
 
     /// Smallest link MTU along the route, as written by the sender.
+    #[inline]
     pub fn mtu(&self) -> u16 {
-        u16::from_le_bytes([self.bytes[MTU_OFFSET], self.bytes[MTU_OFFSET + 1]])
+        let b = self.buffer.as_ref();
+        u16::from_le_bytes([b[MTU_OFFSET], b[MTU_OFFSET + 1]])
     }
 
     /// The instruction at `ptr`.
+    ///
+    /// Errors: [`PacketError::Truncated`] if the packet ends inside it.
+    #[inline]
     pub fn instruction(&self) -> Result<Instruction, PacketError> {
-        Instruction::decode(&self.bytes[self.ptr()..])
+        Instruction::decode(&self.buffer.as_ref()[self.ptr()..])
     }
+}
 
+impl<'a, T: AsRef<[u8]> + ?Sized> Packet<&'a T> {
     /// The instructions already walked: the way back, in walking order.
     pub fn walked(&self) -> &'a [u8] {
-        &self.bytes[HEADER_LEN..self.ptr()]
+        let bytes = self.buffer.as_ref();
+        &bytes[HEADER_LEN..bytes[PTR_OFFSET] as usize]
     }
 
     /// The bytes after the instruction at `ptr` (the payload, when that
     /// instruction is terminal).
+    ///
+    /// Errors: [`PacketError::Truncated`] if the packet ends inside that
+    /// instruction.
     pub fn after_instruction(&self) -> Result<&'a [u8], PacketError> {
+        let bytes = self.buffer.as_ref();
         let start = self.ptr() + self.instruction()?.encoded_len();
-        self.bytes.get(start..).ok_or(PacketError::Truncated)
+        bytes.get(start..).ok_or(PacketError::Truncated)
     }
 }
 
-/// Writes the `ttl` field of a packet buffer.
-pub fn set_ttl(packet: &mut [u8], ttl: u16) -> Result<(), PacketError> {
-    let dst = packet
-        .get_mut(TTL_OFFSET..TTL_OFFSET + 2)
-        .ok_or(PacketError::Truncated)?;
-    dst.copy_from_slice(&ttl.to_le_bytes());
-    Ok(())
-}
+impl<T: AsRef<[u8]> + AsMut<[u8]>> Packet<T> {
+    /// Writes the `ttl` field.
+    #[inline]
+    pub fn set_ttl(&mut self, ttl: u16) {
+        self.buffer.as_mut()[TTL_OFFSET..TTL_OFFSET + 2].copy_from_slice(&ttl.to_le_bytes());
+    }
 
-/// Applies the ingest rewrite to a packet that just arrived: the forwarding
-/// instruction at `ptr` is overwritten with `arrival`, the way back
-/// (`link_forward(i)` for our link `i`, or `bus_forward` with our bus index and
-/// the sender's drop), and `ptr` advances past it.
-///
-/// Returns the instruction that is now at `ptr`.
-pub fn ingest_rewrite(packet: &mut [u8], arrival: Instruction) -> Result<Instruction, PacketError> {
-    let view = Packet::new(packet)?;
-    let ptr = view.ptr();
-    let consumed = view.instruction()?;
-    let matches_kind = matches!(
-        (consumed, arrival),
-        (Instruction::LinkForward(_), Instruction::LinkForward(_))
-            | (
-                Instruction::BusForward { .. },
-                Instruction::BusForward { .. }
-            )
-    );
-    if !matches_kind {
-        return Err(PacketError::UnexpectedInstruction);
+    /// Writes the `mtu` field.
+    #[inline]
+    pub fn set_mtu(&mut self, mtu: u16) {
+        self.buffer.as_mut()[MTU_OFFSET..MTU_OFFSET + 2].copy_from_slice(&mtu.to_le_bytes());
     }
-    let len = arrival.encode(&mut packet[ptr..])?;
-    let next = ptr + len;
-    if next >= packet.len() {
-        return Err(PacketError::BadPointer);
+
+    /// Moves `ptr` to `ptr`, which must point past the header at a byte
+    /// inside the packet; the packet is left as it was otherwise.
+    ///
+    /// Errors: [`PacketError::BadPointer`] for a pointer into the header,
+    /// past the end, or beyond the one-byte field's range.
+    pub fn set_ptr(&mut self, ptr: usize) -> Result<(), PacketError> {
+        let len = self.buffer.as_ref().len();
+        if ptr < HEADER_LEN || ptr >= len {
+            return Err(PacketError::BadPointer);
+        }
+        self.buffer.as_mut()[PTR_OFFSET] =
+            u8::try_from(ptr).map_err(|_| PacketError::BadPointer)?;
+        Ok(())
     }
-    let next_instruction = Instruction::decode(&packet[next..])?;
-    // next < packet.len() <= u8 range is guaranteed by the buffer sizes we
-    // accept, but a huge host buffer must still not wrap the pointer.
-    packet[PTR_OFFSET] = u8::try_from(next).map_err(|_| PacketError::BadPointer)?;
-    Ok(next_instruction)
+
+    /// The whole packet, to write.
+    pub fn as_bytes_mut(&mut self) -> &mut [u8] {
+        self.buffer.as_mut()
+    }
+
+    /// Applies the ingest rewrite to a packet that just arrived: the
+    /// forwarding instruction at `ptr` is overwritten with `arrival`, the way
+    /// back (`link_forward(i)` for our link `i`, or `bus_forward` with our
+    /// bus index and the sender's drop), and `ptr` advances past it.
+    ///
+    /// Returns the instruction that is now at `ptr`. On an error the packet
+    /// is left unchanged.
+    ///
+    /// Errors: [`PacketError::UnexpectedInstruction`] if the instruction at
+    /// `ptr` is not a forward of the same kind as `arrival`;
+    /// [`PacketError::FieldOutOfRange`] for an `arrival` that cannot be
+    /// encoded; [`PacketError::BadPointer`] or [`PacketError::Truncated`]
+    /// if nothing whole follows the forward.
+    pub fn ingest(&mut self, arrival: Instruction) -> Result<Instruction, PacketError> {
+        let ptr = self.ptr();
+        let consumed = self.instruction()?;
+        let matches_kind = matches!(
+            (consumed, arrival),
+            (Instruction::LinkForward(_), Instruction::LinkForward(_))
+                | (
+                    Instruction::BusForward { .. },
+                    Instruction::BusForward { .. }
+                )
+        );
+        if !matches_kind || !arrival.is_valid() {
+            return Err(if matches_kind {
+                PacketError::FieldOutOfRange
+            } else {
+                PacketError::UnexpectedInstruction
+            });
+        }
+        // Same kind, so the same length: the hop fits where `consumed` was.
+        let next = ptr + arrival.encoded_len();
+        let bytes = self.buffer.as_ref();
+        if next >= bytes.len() {
+            return Err(PacketError::BadPointer);
+        }
+        let next_instruction = Instruction::decode(&bytes[next..])?;
+        // next < packet.len() <= u8 range is guaranteed by the buffer sizes
+        // we accept, but a huge host buffer must still not wrap the pointer.
+        let next_ptr = u8::try_from(next).map_err(|_| PacketError::BadPointer)?;
+        let bytes = self.buffer.as_mut();
+        arrival.encode(&mut bytes[ptr..])?;
+        bytes[PTR_OFFSET] = next_ptr;
+        Ok(next_instruction)
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use core::fmt::Write;
+
+    fn display(e: PacketError) -> heapless::String<64> {
+        let mut s = heapless::String::new();
+        write!(s, "{e}").unwrap();
+        s
+    }
 
     #[test]
     fn port_handle_layout_matches_spec() {
@@ -333,18 +427,18 @@ mod tests {
     #[test]
     fn header_checks() {
         assert_eq!(
-            Packet::new(&[5, 0, 0, 0]).unwrap_err(),
+            Packet::new_checked(&[5, 0, 0, 0][..]).unwrap_err(),
             PacketError::Truncated
         );
         assert_eq!(
-            Packet::new(&[4, 0, 0, 0, 0, 0]).unwrap_err(),
+            Packet::new_checked(&[4, 0, 0, 0, 0, 0][..]).unwrap_err(),
             PacketError::BadPointer
         );
         assert_eq!(
-            Packet::new(&[6, 0, 0, 0, 0, 0]).unwrap_err(),
+            Packet::new_checked(&[6, 0, 0, 0, 0, 0][..]).unwrap_err(),
             PacketError::BadPointer
         );
-        let p = Packet::new(&[5, 0xe8, 0x03, 0x00, 0x01, 0x40, 0xC0, 0, 1]).unwrap();
+        let p = Packet::new_checked(&[5, 0xe8, 0x03, 0x00, 0x01, 0x40, 0xC0, 0, 1][..]).unwrap();
         assert_eq!(p.ttl(), 1000);
         assert_eq!(p.mtu(), 256);
         assert_eq!(p.instruction(), Ok(Instruction::LinkForward(0)));
@@ -354,7 +448,8 @@ mod tests {
     fn ingest_rewrites_the_hop_and_advances() {
         // link_forward(3) then port_handle(1 -> 2); arrives on our link 7.
         let mut pkt = [5, 0, 0, 0, 1, 0x43, 0xC0, 0x08, 0x02, 0xAA];
-        let next = ingest_rewrite(&mut pkt, Instruction::LinkForward(7)).unwrap();
+        let mut p = Packet::new_checked(&mut pkt[..]).unwrap();
+        let next = p.ingest(Instruction::LinkForward(7)).unwrap();
         assert_eq!(next, Instruction::PortHandle { src: 1, dst: 2 });
         assert_eq!(pkt[0], 6);
         assert_eq!(pkt[5], 0x47);
@@ -363,15 +458,84 @@ mod tests {
     #[test]
     fn ingest_refuses_a_terminal_at_ptr() {
         let mut pkt = [5, 0, 0, 0, 1, 0xC0, 0x08, 0x02];
+        let mut p = Packet::new_checked(&mut pkt[..]).unwrap();
         assert_eq!(
-            ingest_rewrite(&mut pkt, Instruction::LinkForward(0)),
+            p.ingest(Instruction::LinkForward(0)),
             Err(PacketError::UnexpectedInstruction)
         );
         // A forward with nothing after it has no instruction to advance to.
         let mut pkt = [5, 0, 0, 0, 1, 0x41];
+        let mut p = Packet::new_checked(&mut pkt[..]).unwrap();
         assert_eq!(
-            ingest_rewrite(&mut pkt, Instruction::LinkForward(0)),
+            p.ingest(Instruction::LinkForward(0)),
             Err(PacketError::BadPointer)
+        );
+        // A refused ingest leaves the packet as it was.
+        assert_eq!(pkt, [5, 0, 0, 0, 1, 0x41]);
+    }
+
+    #[test]
+    fn ingest_refuses_an_arrival_that_cannot_be_encoded() {
+        let mut pkt = [5, 0, 0, 0, 1, 0x43, 0x01];
+        let mut p = Packet::new_checked(&mut pkt[..]).unwrap();
+        assert_eq!(
+            p.ingest(Instruction::LinkForward(MAX_LINKS)),
+            Err(PacketError::FieldOutOfRange)
+        );
+        assert_eq!(pkt, [5, 0, 0, 0, 1, 0x43, 0x01]);
+    }
+
+    #[test]
+    fn setters_round_trip() {
+        let mut p = Packet::new_checked([5u8, 0, 0, 0, 0, 0x41, 0x42, 0x01]).unwrap();
+        p.set_ttl(0xBEEF);
+        p.set_mtu(1500);
+        p.set_ptr(6).unwrap();
+        assert_eq!(p.ttl(), 0xBEEF);
+        assert_eq!(p.mtu(), 1500);
+        assert_eq!(p.ptr(), 6);
+        assert_eq!(p.instruction(), Ok(Instruction::LinkForward(2)));
+        // The wire layout: ptr, then little-endian ttl and mtu.
+        assert_eq!(p.as_bytes()[..HEADER_LEN], [6, 0xEF, 0xBE, 0xDC, 0x05]);
+        // A pointer into the header or past the end is refused and not set.
+        assert_eq!(p.set_ptr(4), Err(PacketError::BadPointer));
+        assert_eq!(p.set_ptr(8), Err(PacketError::BadPointer));
+        assert_eq!(p.ptr(), 6);
+        let bytes = p.into_inner();
+        assert_eq!(Packet::new_checked(&bytes[..]).unwrap().walked(), &[0x41]);
+    }
+
+    #[test]
+    fn checked_constructor_refuses_truncated_and_bad_pointers() {
+        for len in 0..MIN_PACKET_LEN {
+            let bytes = [5u8; MIN_PACKET_LEN];
+            assert_eq!(
+                Packet::new_checked(&bytes[..len]),
+                Err(PacketError::Truncated),
+                "{len} bytes"
+            );
+        }
+        for ptr in [0u8, 1, 4, 6, 255] {
+            let bytes = [ptr, 0, 0, 0, 0, 0];
+            assert_eq!(
+                Packet::new_checked(&bytes[..]),
+                Err(PacketError::BadPointer),
+                "ptr {ptr}"
+            );
+        }
+        // An unchecked view of the same bytes checks the same way later.
+        assert_eq!(
+            Packet::new_unchecked(&[9u8, 0, 0, 0, 0, 0][..]).check_len(),
+            Err(PacketError::BadPointer)
+        );
+    }
+
+    #[test]
+    fn errors_display() {
+        assert_eq!(display(PacketError::Truncated), "packet is truncated");
+        assert_eq!(
+            display(PacketError::BadPointer),
+            "instruction pointer is out of range"
         );
     }
 }

@@ -50,6 +50,7 @@ impl Delivery<'_> {
 
 /// Why a port could not send.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SendError {
     /// The port is at its quota or the stack is full: not clear to send.
     NotClear(ClaimError),
@@ -71,6 +72,8 @@ impl fmt::Display for SendError {
         }
     }
 }
+
+impl core::error::Error for SendError {}
 
 /// What a [`PortTx`] writes through; implemented by the runtime.
 pub(crate) trait PacketSink {

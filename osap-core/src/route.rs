@@ -323,7 +323,7 @@ mod tests {
             &buf[..n],
             &[5, 0xE8, 0x03, 0x00, 0x01, 0x41, 0xC0, 0x18, 0x00, 0xAA]
         );
-        let p = Packet::new(&buf[..n]).unwrap();
+        let p = Packet::new_checked(&buf[..n]).unwrap();
         assert_eq!(p.instruction(), Ok(Instruction::LinkForward(1)));
     }
 

@@ -21,7 +21,7 @@ use crate::codec::Writer;
 use crate::counters::{bump, Counters, LinkCounters};
 use crate::link::LinkGateway;
 use crate::netresponder::{self, BuildKey, Changes, Identity, Level, NameTooLong};
-use crate::packet::{ingest_rewrite, set_ttl, Instruction, Packet, PacketError, HEADER_LEN};
+use crate::packet::{Instruction, Packet, PacketError, HEADER_LEN};
 use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
 use crate::route::Route;
 use crate::stack::{ClaimError, Owner, PacketStack, PushError, SlotId, SlotMeta};
@@ -451,8 +451,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                         (true, Some(drop)) => Instruction::BusForward { bus: index, drop },
                         (true, None) => return Err(Rx::Malformed),
                     };
-                    ingest_rewrite(packet, back).map_err(|_| Rx::Malformed)?;
-                    let view = Packet::new(packet).map_err(|_| Rx::Malformed)?;
+                    let mut view = Packet::new_checked(packet).map_err(|_| Rx::Malformed)?;
+                    view.ingest(back).map_err(|_| Rx::Malformed)?;
                     if rx.len > usize::from(view.mtu()) {
                         return Err(Rx::Oversize);
                     }
@@ -579,7 +579,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             if now > meta.deadline {
                 // Counted against the link it was bound for, if any.
                 if let Ok(Instruction::LinkForward(j) | Instruction::BusForward { bus: j, .. }) =
-                    Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction())
+                    Packet::new_checked(self.stack.packet(slot)).and_then(|p| p.instruction())
                 {
                     self.count_link(usize::from(j), |t| &mut t.expired);
                     if let Some(bit) = 1u64.checked_shl(u32::from(j)) {
@@ -591,7 +591,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 result.dropped += 1;
                 continue;
             }
-            let instruction = Packet::new(self.stack.packet(slot)).and_then(|p| p.instruction());
+            let instruction =
+                Packet::new_checked(self.stack.packet(slot)).and_then(|p| p.instruction());
             let served = match instruction {
                 Err(_) => self.drop_slot(slot, Drop::Malformed),
                 Ok(Instruction::LinkForward(j)) => {
@@ -701,8 +702,11 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let packet = self.stack.packet_mut(slot);
         stamp_time_message(packet, on_wire, &self.clock);
         let ttl = (deadline - landing).as_micros().min(u64::from(u16::MAX)) as u16;
-        // Packet::new validated the header, so the TTL field exists.
-        let _ = set_ttl(packet, ttl);
+        // The header was checked when the slot's instruction was read, so
+        // this check passes and the TTL field exists.
+        if let Ok(mut view) = Packet::new_checked(&mut *packet) {
+            view.set_ttl(ttl);
+        }
         let len = packet.len();
         let sent = match drop {
             Some(d) => link.send_to(d, packet),
@@ -1019,7 +1023,7 @@ fn find_port<P: Port>(ports: &[P], index: u16) -> Option<(usize, u16, u16)> {
 /// back to its sender and the bytes after that instruction. `None` if what
 /// was walked is not a valid route (a sender can put anything before `ptr`).
 fn split_delivery(packet: &[u8]) -> Option<(Route, &[u8])> {
-    let view = Packet::new(packet).ok()?;
+    let view = Packet::new_checked(packet).ok()?;
     let route = Route::from_bytes(view.walked()).ok()?;
     let payload = view.after_instruction().ok()?;
     Some((route.reversed().with_mtu(view.mtu()), payload))

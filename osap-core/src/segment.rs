@@ -48,6 +48,7 @@ pub const RETRY: Duration = Duration::from_micros(200);
 
 /// Why a segment was refused, or a datagram could not be segmented.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SegmentError {
     /// The payload ends inside the segment header.
     Truncated,
@@ -91,6 +92,8 @@ impl fmt::Display for SegmentError {
         })
     }
 }
+
+impl core::error::Error for SegmentError {}
 
 /// How a datagram of `len` bytes is cut: `count` segments, each but the
 /// last `stride` bytes long.

@@ -40,6 +40,7 @@ pub enum Owner {
 
 /// Why a slot could not be claimed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ClaimError {
     /// Every slot is in use.
     StackFull,
@@ -59,8 +60,11 @@ impl fmt::Display for ClaimError {
     }
 }
 
+impl core::error::Error for ClaimError {}
+
 /// Why [`PacketStack::push_with`] did not store a packet.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum PushError<E> {
     /// No slot could be claimed.
     Claim(ClaimError),
@@ -70,6 +74,18 @@ pub enum PushError<E> {
     /// returned.
     Length,
 }
+
+impl<E: fmt::Display> fmt::Display for PushError<E> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            PushError::Claim(e) => write!(f, "no slot: {e}"),
+            PushError::Write(e) => write!(f, "the packet could not be written: {e}"),
+            PushError::Length => f.write_str("the written length is longer than the slot"),
+        }
+    }
+}
+
+impl<E: fmt::Debug + fmt::Display> core::error::Error for PushError<E> {}
 
 /// Identifies an occupied slot.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

@@ -38,6 +38,7 @@ pub enum Transport {
 
 /// A payload whose transport header could not be read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum TransportError {
     /// The payload is empty or ends inside the header.
     Truncated,
@@ -54,6 +55,8 @@ impl fmt::Display for TransportError {
         }
     }
 }
+
+impl core::error::Error for TransportError {}
 
 impl Transport {
     /// Splits a payload into its transport header and body.

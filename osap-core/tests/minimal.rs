@@ -56,7 +56,7 @@ fn query(body: &[u8]) -> Status {
     let reply = exchange(&buf[..n]);
     // [header 5][link_forward(0)][port_handle(0 -> 1)][payload]
     assert_eq!(
-        Packet::new(&reply).unwrap().instruction(),
+        Packet::new_checked(&reply[..]).unwrap().instruction(),
         Ok(Instruction::LinkForward(0))
     );
     assert_eq!(
@@ -98,7 +98,7 @@ fn time_stamp_requests_are_still_answered() {
         )
         .unwrap();
     let reply = exchange(&buf[..n]);
-    let p = Packet::new(&reply).unwrap();
+    let p = Packet::new_checked(&reply[..]).unwrap();
     assert_eq!(p.instruction(), Ok(Instruction::LinkForward(0)));
     let body = &reply[7..];
     let r = TimeReply::decode(body).unwrap();

@@ -2,7 +2,7 @@
 //! stack against a simple model, and the runtime under arbitrary input.
 
 use osap_core::link::queue::QueueLink;
-use osap_core::packet::{ingest_rewrite, Instruction, Packet};
+use osap_core::packet::{Instruction, Packet};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::{Route, MAX_ROUTE_LEN};
 use osap_core::stack::{ClaimError, Owner, PacketStack, PushError};
@@ -54,7 +54,7 @@ proptest! {
             prop_assert_eq!(&b[..n], &bytes[..n]);
         }
         let _ = Route::from_bytes(&bytes);
-        let _ = Packet::new(&bytes).map(|p| (p.instruction(), p.after_instruction(), p.walked()));
+        let _ = Packet::new_checked(&bytes[..]).map(|p| (p.instruction(), p.after_instruction(), p.walked()));
     }
 
     #[test]
@@ -81,11 +81,11 @@ proptest! {
         let n = route
             .write_packet(&mut buf, Instruction::PortHandle { src: 9, dst: 4 }, 1000, 128, &payload)
             .unwrap();
-        let pkt = &mut buf[..n];
+        let mut pkt = Packet::new_checked(&mut buf[..n]).unwrap();
         for &arrived_on in &arrival_links[..out_links.len()] {
-            ingest_rewrite(pkt, Instruction::LinkForward(arrived_on)).unwrap();
+            pkt.ingest(Instruction::LinkForward(arrived_on)).unwrap();
         }
-        let view = Packet::new(pkt).unwrap();
+        let view = Packet::new_checked(pkt.into_inner() as &[u8]).unwrap();
         prop_assert_eq!(view.instruction(), Ok(Instruction::PortHandle { src: 9, dst: 4 }));
         prop_assert_eq!(view.after_instruction(), Ok(&payload[..]));
         let back = Route::from_bytes(view.walked()).unwrap().reversed();

@@ -7,7 +7,7 @@ use osap_core::clock::{ClockStatus, SyncState, SyncStats, TimeConfig, TimeReply}
 use osap_core::codec::Writer;
 use osap_core::framing::{encode_frame, FrameDecoder};
 use osap_core::netresponder::key;
-use osap_core::packet::{ingest_rewrite, Instruction, Packet};
+use osap_core::packet::{Instruction, Packet};
 use osap_core::route::Route;
 use osap_core::time::{Instant, SystemInstant};
 use osap_core::transport::Transport;
@@ -112,7 +112,10 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     put("packet.type_name_request", ask.clone());
     // The neighbour took it in on its link 2.
     let mut arrived = ask.clone();
-    ingest_rewrite(&mut arrived, Instruction::LinkForward(2)).unwrap();
+    Packet::new_checked(&mut arrived[..])
+        .unwrap()
+        .ingest(Instruction::LinkForward(2))
+        .unwrap();
     put("packet.type_name_request.after_ingest", arrived);
     // Its reply goes back over its link 2 to port 3.
     let mut name_body = vec![key::TYPE_NAME, 0];
@@ -289,7 +292,7 @@ fn document_vectors_decode_to_their_meaning() {
     );
 
     let local = get("packet.local");
-    let p = Packet::new(&local).unwrap();
+    let p = Packet::new_checked(&local[..]).unwrap();
     assert_eq!((p.ptr(), p.ttl(), p.mtu()), (5, 1000, 256));
     assert_eq!(
         p.instruction(),
@@ -303,7 +306,7 @@ fn document_vectors_decode_to_their_meaning() {
     assert_eq!(dec.decode(&mut input), Some(Ok(&local[..])));
 
     let arrived = get("packet.type_name_request.after_ingest");
-    let p = Packet::new(&arrived).unwrap();
+    let p = Packet::new_checked(&arrived[..]).unwrap();
     assert_eq!(p.ptr(), 6);
     assert_eq!(p.walked(), &[0x42]);
     assert_eq!(
@@ -317,7 +320,7 @@ fn document_vectors_decode_to_their_meaning() {
     );
 
     let two = get("packet.two_hops");
-    let p = Packet::new(&two).unwrap();
+    let p = Packet::new_checked(&two[..]).unwrap();
     assert_eq!(Route::from_bytes(&two[5..7]), Route::through_links(&[1, 4]));
     assert_eq!(p.instruction(), Ok(Instruction::LinkForward(1)));
 

@@ -72,12 +72,24 @@ pub trait NameFlash {
 
 /// Why a name could not be stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum StoreError<E> {
     /// The name is empty or longer than [`NAME_MAX`] bytes.
     BadName,
     /// The flash driver failed.
     Flash(E),
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for StoreError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            StoreError::BadName => write!(f, "the name is empty or longer than {NAME_MAX} bytes"),
+            StoreError::Flash(e) => write!(f, "the flash driver failed: {e:?}"),
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for StoreError<E> {}
 
 /// Writes the record of `name` to the start of `out` and returns its
 /// length, or `None` if the name is empty or too long.

@@ -110,6 +110,7 @@ pub trait RateFlash {
 
 /// Why a rate could not be stored.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum RateStoreError<E> {
     /// The flash driver failed.
     Flash(E),
@@ -117,6 +118,19 @@ pub enum RateStoreError<E> {
     /// failing slot); the next save goes to the next slot.
     Verify,
 }
+
+impl<E: core::fmt::Debug> core::fmt::Display for RateStoreError<E> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            RateStoreError::Flash(e) => write!(f, "the flash driver failed: {e:?}"),
+            RateStoreError::Verify => {
+                f.write_str("the record read back differs from the one written")
+            }
+        }
+    }
+}
+
+impl<E: core::fmt::Debug> core::error::Error for RateStoreError<E> {}
 
 /// The rate log in one flash sector.
 pub struct RateStore<F> {

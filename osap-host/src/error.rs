@@ -6,6 +6,7 @@ use std::time::Duration;
 
 /// What can go wrong talking to the network from a host.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum HostError {
     /// The host's runtime task has stopped.
     #[error("the host runtime has stopped")]
@@ -64,4 +65,24 @@ pub struct NotSynchronised {
     pub waited: Duration,
     /// Its last clock status.
     pub last: osap_core::clock::ClockStatus,
+}
+
+/// Why a saved file ([`crate::map::NetworkMap::from_json`],
+/// [`crate::som::Som::from_json`]) could not be read.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum JsonError {
+    /// The text is not JSON of the file's layout.
+    #[error(transparent)]
+    Json(#[from] serde_json::Error),
+    /// The file's layout version is not the one this build reads.
+    #[error("{what} version {found} is not supported (this build reads {supported})")]
+    Version {
+        /// What the file holds (`network map`, `system object model`).
+        what: &'static str,
+        /// The file's version.
+        found: u32,
+        /// The version this build reads.
+        supported: u32,
+    },
 }

@@ -7,6 +7,7 @@
 //! these types (documented in `docs/network-map.md`); `version` changes when
 //! it does.
 
+use crate::error::JsonError;
 use osap_core::route::Route;
 use serde::{Deserialize, Serialize};
 
@@ -191,13 +192,17 @@ impl NetworkMap {
     }
 
     /// From JSON, checking the layout version.
-    pub fn from_json(text: &str) -> Result<NetworkMap, String> {
-        let map: NetworkMap = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    ///
+    /// Errors: [`JsonError::Json`] for text that is not a map's JSON,
+    /// [`JsonError::Version`] for a map of another layout version.
+    pub fn from_json(text: &str) -> Result<NetworkMap, JsonError> {
+        let map: NetworkMap = serde_json::from_str(text)?;
         if map.version != MAP_VERSION {
-            return Err(format!(
-                "network map version {} is not supported (this build reads {MAP_VERSION})",
-                map.version
-            ));
+            return Err(JsonError::Version {
+                what: "network map",
+                found: map.version,
+                supported: MAP_VERSION,
+            });
         }
         Ok(map)
     }

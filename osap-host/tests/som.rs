@@ -180,7 +180,44 @@ async fn refresh_builds_the_model_and_it_round_trips_through_json() {
     assert!(json.contains("\"mode\": \"on_any_fresh\""), "{json}");
     assert!(json.contains("\"type\": \"f32\""), "{json}");
     let wrong = json.replacen("\"version\": 1", "\"version\": 99", 1);
-    assert!(Som::from_json(&wrong).unwrap_err().contains("version 99"));
+    let err = Som::from_json(&wrong).unwrap_err();
+    assert!(matches!(
+        err,
+        osap_host::error::JsonError::Version {
+            found: 99,
+            supported: 1,
+            ..
+        }
+    ));
+    assert_eq!(
+        err.to_string(),
+        "system object model version 99 is not supported (this build reads 1)"
+    );
+    assert_eq!(
+        Som::from_json("{").unwrap_err().to_string(),
+        serde_json::from_str::<serde_json::Value>("{")
+            .unwrap_err()
+            .to_string()
+    );
+
+    // Runtimes by name: one, none, or several.
+    assert_eq!(
+        som.runtime_index(&som.runtimes[1].record.name.clone()),
+        Ok(1)
+    );
+    let missing = som.runtime_index("no such runtime").unwrap_err();
+    assert_eq!(missing, osap_host::som::RuntimeLookupError::NotFound);
+    assert_eq!(missing.to_string(), "no runtime has this name");
+    let mut twice = som.clone();
+    twice.runtimes[2].record.name = twice.runtimes[1].record.name.clone();
+    let both = twice
+        .runtime_index(&twice.runtimes[1].record.name)
+        .unwrap_err();
+    assert_eq!(
+        both,
+        osap_host::som::RuntimeLookupError::Ambiguous { count: 2 }
+    );
+    assert_eq!(both.to_string(), "2 runtimes have this name");
 }
 
 #[tokio::test]

@@ -20,6 +20,7 @@ pub const BOOTLOADER_DELAY: Duration = Duration::from_millis(100);
 /// Why `enter_bootloader` was refused: the failure code a caller sees.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
+#[non_exhaustive]
 pub enum BootError {
     /// This board has no bootloader the firmware can reboot into (its
     /// [`crate::board::Board`] does not offer one): put it into its
@@ -32,15 +33,41 @@ pub enum BootError {
 }
 
 impl BootError {
+    /// Every boot error, in code order.
+    pub const ALL: [BootError; 2] = [BootError::Unsupported, BootError::Moving];
+
     /// The failure code.
-    pub fn code(self) -> u8 {
+    pub const fn code(self) -> u8 {
         self as u8
+    }
+
+    /// The error with failure code `code`; `None` for a code that is not a
+    /// boot error (see [`crate::failure::Refusal`]).
+    pub fn from_code(code: u8) -> Option<BootError> {
+        Self::ALL.into_iter().find(|e| e.code() == code)
+    }
+}
+
+impl core::fmt::Display for BootError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            BootError::Unsupported => "this board cannot reboot into a bootloader",
+            BootError::Moving => "the axis has motion queued or running",
+        })
+    }
+}
+
+impl core::error::Error for BootError {}
+
+impl From<BootError> for pipes_core::FailureCode {
+    fn from(e: BootError) -> Self {
+        pipes_core::FailureCode::Other(e.code())
     }
 }
 
 impl From<BootError> for pipes_core::function::CallError {
     fn from(e: BootError) -> Self {
-        pipes_core::function::CallError::Failed(e.code())
+        pipes_core::function::CallError::Failed(e.into())
     }
 }
 

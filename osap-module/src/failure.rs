@@ -140,6 +140,96 @@ pub fn generic(code: u8) -> Option<Failure> {
     Some(Failure { code, name, reason })
 }
 
+/// A refusal of one of the module's functions, decoded from its failure
+/// code ([`pipes_core::FailureCode`]'s byte): by name where this version
+/// knows the code for the function's [`Family`], [`Refusal::Other`] for a
+/// code it does not know (a newer firmware's). Decoding never fails, and
+/// [`Refusal::code`] gives the wire byte back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum Refusal {
+    /// A stepper function's refusal.
+    Stepper(StepperError),
+    /// An I/O function's refusal.
+    Io(IoError),
+    /// `enter_bootloader`'s refusal.
+    Boot(BootError),
+    /// [`NOT_INSTALLED`]: the firmware never installed its board.
+    NotInstalled,
+    /// One of pipes-core's generated wrappers' codes
+    /// ([`pipes_core::FailureCode::InputDecodeFailed`],
+    /// [`pipes_core::FailureCode::StateBusy`],
+    /// [`pipes_core::FailureCode::NoSuchMember`]).
+    Wrapper(pipes_core::FailureCode),
+    /// A code this version does not know for the function's family.
+    Other(u8),
+}
+
+impl Refusal {
+    /// The refusal that failure code `code` of a function of `family`
+    /// means.
+    pub fn from_code(family: Family, code: u8) -> Refusal {
+        let own = match family {
+            Family::Stepper => StepperError::from_code(code).map(Refusal::Stepper),
+            Family::Io => IoError::from_code(code).map(Refusal::Io),
+            Family::Boot => BootError::from_code(code).map(Refusal::Boot),
+            Family::None => None,
+        };
+        own.unwrap_or(match pipes_core::FailureCode::from_code(code) {
+            pipes_core::FailureCode::Other(NOT_INSTALLED) => Refusal::NotInstalled,
+            pipes_core::FailureCode::Other(c) => Refusal::Other(c),
+            named => Refusal::Wrapper(named),
+        })
+    }
+
+    /// The refusal of the module function `id` with failure code `code`.
+    pub fn of(id: FnId, code: u8) -> Refusal {
+        Refusal::from_code(Family::of(id), code)
+    }
+
+    /// The wire byte.
+    pub fn code(self) -> u8 {
+        match self {
+            Refusal::Stepper(e) => e.code(),
+            Refusal::Io(e) => e.code(),
+            Refusal::Boot(e) => e.code(),
+            Refusal::NotInstalled => NOT_INSTALLED,
+            Refusal::Wrapper(c) => c.code(),
+            Refusal::Other(c) => c,
+        }
+    }
+
+    /// The refusal by name, with what it means; `None` for
+    /// [`Refusal::Other`].
+    pub fn failure(self) -> Option<Failure> {
+        match self {
+            Refusal::Stepper(e) => Some(stepper(e)),
+            Refusal::Io(e) => Some(io(e)),
+            Refusal::Boot(e) => Some(boot(e)),
+            Refusal::NotInstalled | Refusal::Wrapper(_) => generic(self.code()),
+            Refusal::Other(_) => None,
+        }
+    }
+}
+
+impl From<Refusal> for pipes_core::FailureCode {
+    fn from(r: Refusal) -> Self {
+        pipes_core::FailureCode::from_code(r.code())
+    }
+}
+
+impl core::fmt::Display for Refusal {
+    /// Like [`Failure`]'s; `unknown failure code 42` for [`Refusal::Other`].
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self.failure() {
+            Some(failure) => failure.fmt(f),
+            None => write!(f, "unknown failure code {}", self.code()),
+        }
+    }
+}
+
+impl core::error::Error for Refusal {}
+
 fn find(mut all: impl Iterator<Item = Failure>, code: u8) -> Option<Failure> {
     all.find(|f| f.code == code)
 }
@@ -246,6 +336,61 @@ mod tests {
             "QueueFull (code 8): the module's queue is full (stream too far ahead): \
              send points closer to their time"
         );
+    }
+
+    #[test]
+    fn refusals_decode_by_family_and_unknown_codes_are_other() {
+        for byte in 0..=u8::MAX {
+            for family in [Family::Stepper, Family::Io, Family::Boot, Family::None] {
+                assert_eq!(Refusal::from_code(family, byte).code(), byte);
+            }
+        }
+        assert_eq!(
+            Refusal::from_code(Family::Stepper, 11),
+            Refusal::Stepper(StepperError::OverLimit)
+        );
+        assert_eq!(
+            Refusal::from_code(Family::Io, 2),
+            Refusal::Io(IoError::BadValue)
+        );
+        assert_eq!(
+            Refusal::of(FnId::enter_bootloader, 2),
+            Refusal::Boot(BootError::Moving)
+        );
+        assert_eq!(
+            Refusal::from_code(Family::Stepper, 100),
+            Refusal::NotInstalled
+        );
+        assert_eq!(
+            Refusal::from_code(Family::None, 254),
+            Refusal::Wrapper(pipes_core::FailureCode::StateBusy)
+        );
+        // A code from a newer firmware, or of another family.
+        assert_eq!(Refusal::from_code(Family::Stepper, 42), Refusal::Other(42));
+        assert_eq!(Refusal::from_code(Family::Boot, 11), Refusal::Other(11));
+        assert_eq!(StepperError::from_code(0), None);
+        assert_eq!(StepperError::from_code(12), None);
+        assert_eq!(IoError::from_code(5), None);
+        assert_eq!(BootError::from_code(3), None);
+        assert_eq!(Refusal::Other(42).to_string(), "unknown failure code 42");
+        assert!(Refusal::Stepper(StepperError::QueueFull)
+            .to_string()
+            .starts_with("QueueFull (code 8): "));
+        assert_eq!(
+            StepperError::OverLimit.to_string(),
+            "the point is past the axis's limits"
+        );
+        assert_eq!(
+            IoError::Full.to_string(),
+            "every slot for scheduled pulses is taken"
+        );
+        assert_eq!(
+            BootError::Moving.to_string(),
+            "the axis has motion queued or running"
+        );
+        for e in StepperError::ALL {
+            assert_eq!(StepperError::from_code(e.code()), Some(e));
+        }
     }
 
     #[test]

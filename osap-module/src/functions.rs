@@ -90,7 +90,12 @@ impl<B: Board> Module<B> {
     /// filled.
     pub fn get_counters(&mut self) -> Result<(u32, u32, u8, u32), CallError> {
         let c = self.stepper.counters();
-        Ok((c.points, c.refused, c.last_refused, c.filled))
+        Ok((
+            c.points,
+            c.refused,
+            c.last_refused.map_or(0, StepperError::code),
+            c.filled,
+        ))
     }
 
     /// Where the steps put the motor, in microsteps (net steps; a scale or
@@ -239,7 +244,9 @@ fn next_input<'a, T: FromPipes<'a>>(
     inputs
         .next()
         .and_then(T::from_value)
-        .ok_or(CallError::Failed(pipes_core::export::INPUT_DECODE_FAILED))
+        .ok_or(CallError::Failed(pipes_core::FailureCode::from_code(
+            pipes_core::export::INPUT_DECODE_FAILED,
+        )))
 }
 
 macro_rules! module_functions {
@@ -292,7 +299,7 @@ macro_rules! module_functions {
                         $(let $in: $inty = next_input(&mut args)?;)*
                         let out = module
                             .with(|m| m.$f($($in),*))
-                            .ok_or(CallError::Failed(NOT_INSTALLED))??;
+                            .ok_or(CallError::Failed(pipes_core::FailureCode::Other(NOT_INSTALLED)))??;
                         out.write(outputs)
                     }
                 )*

@@ -24,6 +24,7 @@ pub const MAX_PULSE_LEAD: Duration = Duration::from_secs(60);
 /// Why an I/O call was refused: the failure code a caller sees.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
+#[non_exhaustive]
 pub enum IoError {
     /// No such pin, PWM output or analog input on this board.
     NoSuchPin = 1,
@@ -37,15 +38,48 @@ pub enum IoError {
 }
 
 impl IoError {
+    /// Every I/O error, in code order.
+    pub const ALL: [IoError; 4] = [
+        IoError::NoSuchPin,
+        IoError::BadValue,
+        IoError::Full,
+        IoError::NoHardware,
+    ];
+
     /// The failure code.
-    pub fn code(self) -> u8 {
+    pub const fn code(self) -> u8 {
         self as u8
+    }
+
+    /// The error with failure code `code`; `None` for a code that is not an
+    /// I/O error (see [`crate::failure::Refusal`]).
+    pub fn from_code(code: u8) -> Option<IoError> {
+        Self::ALL.into_iter().find(|e| e.code() == code)
+    }
+}
+
+impl core::fmt::Display for IoError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            IoError::NoSuchPin => "no such pin, PWM output or analog input on this board",
+            IoError::BadValue => "a value out of range",
+            IoError::Full => "every slot for scheduled pulses is taken",
+            IoError::NoHardware => "the I/O hardware was never installed",
+        })
+    }
+}
+
+impl core::error::Error for IoError {}
+
+impl From<IoError> for pipes_core::FailureCode {
+    fn from(e: IoError) -> Self {
+        pipes_core::FailureCode::Other(e.code())
     }
 }
 
 impl From<IoError> for pipes_core::function::CallError {
     fn from(e: IoError) -> Self {
-        pipes_core::function::CallError::Failed(e.code())
+        pipes_core::function::CallError::Failed(e.into())
     }
 }
 

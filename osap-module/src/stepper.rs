@@ -23,8 +23,8 @@
 //! afresh, at rest where the axis stands.
 
 use maxl::{
-    AxisLimits, BackstopLimits, Clamped, EvalError, Fx, Interval, Limiter, PioPacker, Point,
-    PushError, PushOutcome, Rounding, StepGen, TickEval, Track, TrackStatus,
+    AxisLimits, BackstopLimits, Clamped, Fx, Interval, Limiter, PioPacker, Point, PushError,
+    PushOutcome, Rounding, StepGen, TickEval, Track, TrackStatus,
 };
 use osap_core::{Duration, SystemInstant};
 
@@ -54,6 +54,7 @@ pub const MAX_STEPS: f64 = 32_767.0;
 /// (`CallError::Failed(code)`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[repr(u8)]
+#[non_exhaustive]
 pub enum StepperError {
     /// The time is not a multiple of the interval.
     Misaligned = 1,
@@ -87,15 +88,63 @@ pub enum StepperError {
 }
 
 impl StepperError {
+    /// Every stepper error, in code order.
+    pub const ALL: [StepperError; 11] = [
+        StepperError::Misaligned,
+        StepperError::Stale,
+        StepperError::Gap,
+        StepperError::Faulted,
+        StepperError::OutOfRange,
+        StepperError::Disabled,
+        StepperError::Discontinuous,
+        StepperError::QueueFull,
+        StepperError::Busy,
+        StepperError::BadValue,
+        StepperError::OverLimit,
+    ];
+
     /// The failure code.
-    pub fn code(self) -> u8 {
+    pub const fn code(self) -> u8 {
         self as u8
+    }
+
+    /// The error with failure code `code`; `None` for a code that is not a
+    /// stepper error (another family's, or a newer firmware's: see
+    /// [`crate::failure::Refusal`]).
+    pub fn from_code(code: u8) -> Option<StepperError> {
+        Self::ALL.into_iter().find(|e| e.code() == code)
+    }
+}
+
+impl core::fmt::Display for StepperError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.write_str(match self {
+            StepperError::Misaligned => "the time is not a multiple of the interval",
+            StepperError::Stale => "the time is not after the newest queued point",
+            StepperError::Gap => "two or more points are missing before this one",
+            StepperError::Faulted => "the axis is faulted or halted",
+            StepperError::OutOfRange => "the position is not finite or out of the track's range",
+            StepperError::Disabled => "the motor is disabled",
+            StepperError::Discontinuous => "a new stream must start where the axis stands",
+            StepperError::QueueFull => "the queue is full",
+            StepperError::Busy => "the setting can only change while no stream is queued",
+            StepperError::BadValue => "the value is not allowed",
+            StepperError::OverLimit => "the point is past the axis's limits",
+        })
+    }
+}
+
+impl core::error::Error for StepperError {}
+
+impl From<StepperError> for pipes_core::FailureCode {
+    fn from(e: StepperError) -> Self {
+        pipes_core::FailureCode::Other(e.code())
     }
 }
 
 impl From<StepperError> for pipes_core::function::CallError {
     fn from(e: StepperError) -> Self {
-        pipes_core::function::CallError::Failed(e.code())
+        pipes_core::function::CallError::Failed(e.into())
     }
 }
 
@@ -155,8 +204,9 @@ pub struct StepperCounters {
     pub filled: u32,
     /// Points refused.
     pub refused: u32,
-    /// The failure code of the latest refused point (0: none yet).
-    pub last_refused: u8,
+    /// Why the latest refused point was refused (`None`: none yet). On the
+    /// wire (`get_counters`) it is the failure code, 0 for none.
+    pub last_refused: Option<StepperError>,
     /// Times the backstop latched with the axis still moving.
     pub faults: u32,
     /// Words filled for the step generator.
@@ -264,7 +314,7 @@ impl Stepper {
             Ok(()) => self.counters.points = self.counters.points.wrapping_add(1),
             Err(e) => {
                 self.counters.refused = self.counters.refused.wrapping_add(1);
-                self.counters.last_refused = e.code();
+                self.counters.last_refused = Some(e);
             }
         }
         result
@@ -315,6 +365,8 @@ impl Stepper {
             Err(PushError::Stale) => Err(StepperError::Stale),
             Err(PushError::Gap { .. }) => Err(StepperError::Gap),
             Err(PushError::Backstopped) => Err(StepperError::Faulted),
+            // A refusal a newer track adds: the point is not allowed.
+            Err(_) => Err(StepperError::BadValue),
         };
         if outcome.is_ok() && limiter.is_some() {
             self.limiter = limiter;
@@ -419,7 +471,8 @@ impl Stepper {
                 }
                 s.kin.pos
             }
-            Err(EvalError::NotStarted | EvalError::TooEarly) => self.rest,
+            // Not started, too early, or a reason a newer track adds.
+            Err(_) => self.rest,
         }
     }
 

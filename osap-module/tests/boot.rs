@@ -166,7 +166,9 @@ fn a_board_without_a_bootloader_refuses_with_its_named_code() {
     ))))));
     assert_eq!(
         call_enter(&module),
-        Err(CallError::Failed(BootError::Unsupported.code()))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            BootError::Unsupported.code()
+        )))
     );
     assert_eq!(BootError::Unsupported.code(), 1);
     assert_eq!(
@@ -195,7 +197,9 @@ fn a_board_without_a_bootloader_refuses_with_its_named_code() {
     }))));
     assert_eq!(
         call_enter(&parts),
-        Err(CallError::Failed(BootError::Unsupported.code()))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            BootError::Unsupported.code()
+        )))
     );
 }
 
@@ -221,7 +225,9 @@ fn a_moving_axis_refuses() {
     });
     assert_eq!(
         call_enter(&module),
-        Err(CallError::Failed(BootError::Moving.code()))
+        Err(CallError::Failed(pipes_core::FailureCode::from_code(
+            BootError::Moving.code()
+        )))
     );
     let named = osap_module::failure::failure("enter_bootloader", 2).unwrap();
     assert_eq!(named.name, "Moving");

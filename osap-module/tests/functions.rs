@@ -170,12 +170,16 @@ fn functions_drive_the_module() {
         enabled,
         now,
     } = fresh(true);
-    assert_eq!(m.add_point(0, 0.0), Err(CallError::Failed(6)), "disabled");
+    assert_eq!(
+        m.add_point(0, 0.0),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(6))),
+        "disabled"
+    );
     m.set_enable(true).unwrap();
     assert!(enabled.get());
     assert_eq!(
         m.set_microsteps(32),
-        Err(CallError::Failed(10)),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(10))),
         "the driver cannot"
     );
     m.set_microsteps(2).unwrap();
@@ -210,10 +214,16 @@ fn functions_drive_the_module() {
     // I/O: a read carries the synchronized time of the read.
     m.digital_write(2, true).unwrap();
     assert_eq!(m.digital_read(2).unwrap(), (77_000, true));
-    assert_eq!(m.digital_read(9), Err(CallError::Failed(1)));
+    assert_eq!(
+        m.digital_read(9),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(1)))
+    );
     assert_eq!(m.analog_read(0).unwrap(), (77_000, 1.0));
     m.pulse(1, 100).unwrap();
-    assert_eq!(m.pwm_write(0, 2.0), Err(CallError::Failed(2)));
+    assert_eq!(
+        m.pwm_write(0, 2.0),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(2)))
+    );
     m.halt().unwrap();
     assert_eq!(m.get_status().unwrap().0, 4);
 }
@@ -221,8 +231,14 @@ fn functions_drive_the_module() {
 #[test]
 fn io_functions_fail_cleanly_without_io_hardware() {
     let mut m = fresh(false).module;
-    assert_eq!(m.digital_write(0, true), Err(CallError::Failed(4)));
-    assert_eq!(m.analog_read(0), Err(CallError::Failed(4)));
+    assert_eq!(
+        m.digital_write(0, true),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(4)))
+    );
+    assert_eq!(
+        m.analog_read(0),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(4)))
+    );
     assert!(m.get_status().is_ok());
 }
 
@@ -265,7 +281,7 @@ fn two_modules_in_one_process_are_independent() {
     // b is untouched: still disabled, so it refuses points.
     assert_eq!(
         call(&b, FnId::add_point, &[Value::U64(0), Value::F32(0.0)]),
-        Err(CallError::Failed(6))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(6)))
     );
     call(&a, FnId::add_point, &[Value::U64(0), Value::F32(0.0)]).unwrap();
     let status = |h: &Shared| call(h, FnId::get_status, &[]).unwrap();
@@ -298,7 +314,9 @@ fn zero() -> Instant {
 fn a_firmware_cell_refuses_until_installed() {
     use osap_module::board::{NoIo, Parts};
     static CELL: ModuleCell<Parts<Limp, NoIo>> = ModuleCell::new();
-    let refused = Err(CallError::Failed(osap_module::functions::NOT_INSTALLED));
+    let refused = Err(CallError::Failed(pipes_core::FailureCode::from_code(
+        osap_module::functions::NOT_INSTALLED,
+    )));
     assert_eq!(
         call(&&CELL, FnId::add_point, &[Value::U64(0), Value::F32(0.0)]).map(|_| ()),
         refused
@@ -324,12 +342,12 @@ fn a_firmware_cell_refuses_until_installed() {
             FnId::digital_write,
             &[Value::U8(0), Value::Bool(true)]
         ),
-        Err(CallError::Failed(4)),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(4))),
         "no I/O hardware"
     );
     assert_eq!(
         call(&&CELL, FnId::set_microsteps, &[Value::U16(2)]),
-        Err(CallError::Failed(10)),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(10))),
         "the driver has no mode pins"
     );
 }
@@ -344,7 +362,10 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     assert_eq!(m.get_fault().unwrap(), (0, 0, 0, 0), "none yet");
     // A refused point: disabled (code 6), at the module's time.
     now.set(Instant::from_micros(5_000));
-    assert_eq!(m.add_point(0, 0.0), Err(CallError::Failed(6)));
+    assert_eq!(
+        m.add_point(0, 0.0),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(6)))
+    );
     assert_eq!(
         m.get_fault().unwrap(),
         (5_000, FaultKind::Refused.code(), 6, 1)
@@ -372,7 +393,10 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
         "{time} {quiet}"
     );
     // The refusals behind it count but keep their cause.
-    assert_eq!(m.add_point(50 * iv, 0.0), Err(CallError::Failed(4)));
+    assert_eq!(
+        m.add_point(50 * iv, 0.0),
+        Err(CallError::Failed(pipes_core::FailureCode::Other(4)))
+    );
     assert_eq!(
         m.get_fault().unwrap(),
         (time, FaultKind::Backstop.code(), quiet, 3)

@@ -37,7 +37,9 @@ const AD: f64 = A as f64 * DT * DT;
 const JD: f64 = J as f64 * DT * DT * DT;
 /// Where the streams start: far ahead of the step ticks.
 const T0: u64 = 1_000 * IV;
-const OVER_LIMIT: CallError = CallError::Failed(StepperError::OverLimit as u8);
+const OVER_LIMIT: CallError = CallError::Failed(pipes_core::FailureCode::from_code(
+    StepperError::OverLimit as u8,
+));
 
 struct Driver;
 
@@ -358,8 +360,10 @@ fn limits_follow_the_scale_in_user_units() {
 
 #[test]
 fn settings_refuse_bad_values_and_a_queued_stream() {
-    let bad = CallError::Failed(StepperError::BadValue as u8);
-    let busy = CallError::Failed(StepperError::Busy as u8);
+    let bad = CallError::Failed(pipes_core::FailureCode::from_code(
+        StepperError::BadValue as u8,
+    ));
+    let busy = CallError::Failed(pipes_core::FailureCode::from_code(StepperError::Busy as u8));
     let (mut m, _) = module();
     for x in [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -1.0] {
         assert_eq!(m.set_limits(x, A, J), Err(bad));
@@ -419,7 +423,7 @@ fn set_limits_is_a_module_function() {
     let args = [Value::F32(V), Value::F32(-A), Value::F32(J)];
     assert_eq!(
         call_direct(&mut f, &args, &mut buf).map(|_| ()),
-        Err(CallError::Failed(10))
+        Err(CallError::Failed(pipes_core::FailureCode::Other(10)))
     );
     assert!(call_direct(&mut f, &[Value::F32(V)], &mut buf).is_err());
     let named = osap_module::failure::failure("set_limits", 9).unwrap();

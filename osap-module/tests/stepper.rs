@@ -168,7 +168,7 @@ fn refuses_bad_points_with_codes() {
     );
     assert_eq!(s.counters().filled, 1);
     assert_eq!(s.counters().refused, 7);
-    assert_eq!(s.counters().last_refused, StepperError::Gap.code());
+    assert_eq!(s.counters().last_refused, Some(StepperError::Gap));
     // Settings wait for an idle axis.
     assert_eq!(s.set_interval(1024), Err(StepperError::Busy));
     assert_eq!(s.set_scale(100.0), Err(StepperError::Busy));

@@ -73,7 +73,7 @@ impl Implementation for Body {
                 self.sum += u64::from(*n);
                 Ok(())
             }
-            _ => Err(CallError::Failed(1)),
+            _ => Err(CallError::Failed(pipes_core::FailureCode::Other(1))),
         }
     }
 }

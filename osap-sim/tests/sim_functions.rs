@@ -171,7 +171,7 @@ fn u64_at(outs: &[Value<'_>], i: usize) -> u64 {
 }
 
 fn failed(code: u8) -> Result<Vec<Value<'static>>, ControlError> {
-    Err(ControlError::CallFailed(code))
+    Err(ControlError::CallFailed(code.into()))
 }
 
 fn stepper_failed(e: StepperError) -> Result<Vec<Value<'static>>, ControlError> {

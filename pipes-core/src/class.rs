@@ -30,7 +30,7 @@ use core::fmt;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::{Instant, SystemInstant};
 
-use crate::export::{NO_SUCH_MEMBER, STATE_BUSY};
+use crate::control::FailureCode;
 use crate::function::{CallError, Implementation, Outputs, PipesFunction};
 use crate::signature::{Signature, SignatureError};
 use crate::value::Value;
@@ -130,9 +130,9 @@ impl<C: PipesClass> Implementation for Member<'_, C> {
         let mut s = self
             .state
             .try_borrow_mut()
-            .map_err(|_| CallError::Failed(STATE_BUSY))?;
+            .map_err(|_| CallError::Failed(FailureCode::StateBusy))?;
         if self.index >= C::MEMBERS.len() {
-            return Err(CallError::Failed(NO_SUCH_MEMBER));
+            return Err(CallError::Failed(FailureCode::NoSuchMember));
         }
         s.call_member(self.index, inputs, outputs)
     }
@@ -167,7 +167,7 @@ impl<C: PipesClass> Implementation for Constructor<'_, C> {
         let mut s = self
             .state
             .try_borrow_mut()
-            .map_err(|_| CallError::Failed(STATE_BUSY))?;
+            .map_err(|_| CallError::Failed(FailureCode::StateBusy))?;
         *s = new;
         Ok(())
     }

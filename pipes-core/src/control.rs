@@ -87,8 +87,95 @@ impl ControlKey {
 /// slot" (wipe pipe).
 pub const ANY_SLOT: u8 = 0xff;
 
+/// A function's failure code: the byte a [`ControlError::CallFailed`]
+/// reply carries (status 10), by name where pipes-core knows it.
+///
+/// The codes pipes-core's generated wrappers use are named; every other
+/// byte is [`FailureCode::Other`]: a code of the function's own (its
+/// meaning depends on the function; osap-module names its own codes), or one
+/// a newer firmware sends. [`FailureCode::from_code`] takes any byte, and
+/// [`FailureCode::code`] gives the same byte back, so the wire is unchanged.
+/// Equality and hashing go by the code: `Other(255)` equals
+/// [`FailureCode::InputDecodeFailed`].
+#[derive(Debug, Clone, Copy)]
+#[non_exhaustive]
+pub enum FailureCode {
+    /// Code 255 ([`crate::export::INPUT_DECODE_FAILED`]): an input was
+    /// missing or not of its declared type (a bug in the machinery).
+    InputDecodeFailed,
+    /// Code 254 ([`crate::export::STATE_BUSY`]): a class member ran while the
+    /// class's state was borrowed elsewhere.
+    StateBusy,
+    /// Code 253 ([`crate::export::NO_SUCH_MEMBER`]): a class was asked for a
+    /// member it does not have.
+    NoSuchMember,
+    /// Any other code: the function's own, or one from a newer firmware.
+    Other(u8),
+}
+
+impl FailureCode {
+    /// The failure named by wire byte `code` ([`FailureCode::Other`] for a
+    /// code pipes-core does not name).
+    pub const fn from_code(code: u8) -> FailureCode {
+        match code {
+            crate::export::INPUT_DECODE_FAILED => FailureCode::InputDecodeFailed,
+            crate::export::STATE_BUSY => FailureCode::StateBusy,
+            crate::export::NO_SUCH_MEMBER => FailureCode::NoSuchMember,
+            c => FailureCode::Other(c),
+        }
+    }
+
+    /// The wire byte.
+    pub const fn code(self) -> u8 {
+        match self {
+            FailureCode::InputDecodeFailed => crate::export::INPUT_DECODE_FAILED,
+            FailureCode::StateBusy => crate::export::STATE_BUSY,
+            FailureCode::NoSuchMember => crate::export::NO_SUCH_MEMBER,
+            FailureCode::Other(c) => c,
+        }
+    }
+}
+
+impl From<u8> for FailureCode {
+    fn from(code: u8) -> Self {
+        FailureCode::from_code(code)
+    }
+}
+
+impl From<FailureCode> for u8 {
+    fn from(code: FailureCode) -> Self {
+        code.code()
+    }
+}
+
+impl PartialEq for FailureCode {
+    fn eq(&self, other: &Self) -> bool {
+        self.code() == other.code()
+    }
+}
+
+impl Eq for FailureCode {}
+
+impl core::hash::Hash for FailureCode {
+    fn hash<H: core::hash::Hasher>(&self, state: &mut H) {
+        self.code().hash(state);
+    }
+}
+
+impl fmt::Display for FailureCode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            FailureCode::InputDecodeFailed => f.write_str("code 255 (input decode failed)"),
+            FailureCode::StateBusy => f.write_str("code 254 (class state busy)"),
+            FailureCode::NoSuchMember => f.write_str("code 253 (no such class member)"),
+            FailureCode::Other(c) => write!(f, "code {c}"),
+        }
+    }
+}
+
 /// An error a function reports on the wire (reply status ≠ 0).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ControlError {
     /// Status 1, body `[key]`: the message key is not defined.
     UnknownKey(u8),
@@ -123,7 +210,7 @@ pub enum ControlError {
     /// function does not have.
     BadArgmap(u8),
     /// Status 10, body `[code]`: the function itself failed, with its own code.
-    CallFailed(u8),
+    CallFailed(FailureCode),
     /// Status 11, body `[output]`: the function produced a missing, mistyped
     /// or oversized output.
     BadOutput(u8),
@@ -161,9 +248,9 @@ impl ControlError {
                 | ControlError::NoSuchInput(b)
                 | ControlError::NoSuchPipe(b)
                 | ControlError::BadArgmap(b)
-                | ControlError::CallFailed(b)
                 | ControlError::BadOutput(b)
                 | ControlError::TooLarge(b) => w.u8(b),
+                ControlError::CallFailed(code) => w.u8(code.code()),
                 ControlError::WrongArgCount { expected, got } => {
                     w.u8(expected)?;
                     w.u8(got)
@@ -232,7 +319,7 @@ impl ControlError {
             7 => ControlError::PipeTableFull,
             8 => ControlError::Unsupported,
             9 => ControlError::BadArgmap(r.u8()?),
-            10 => ControlError::CallFailed(r.u8()?),
+            10 => ControlError::CallFailed(FailureCode::from_code(r.u8()?)),
             11 => ControlError::BadOutput(r.u8()?),
             12 => ControlError::TooLarge(r.u8()?),
             s => return Err(DecodeError::UnknownStatus(s)),
@@ -256,18 +343,18 @@ impl fmt::Display for ControlError {
             ControlError::BadArgmap(o) => {
                 write!(f, "argmap names output {o}, which does not exist")
             }
-            ControlError::CallFailed(c) => write!(f, "the function failed with code {c}"),
+            ControlError::CallFailed(c) => write!(f, "the function failed with {c}"),
             ControlError::BadOutput(o) => write!(f, "the function produced a bad output {o}"),
             ControlError::TooLarge(i) => write!(f, "the value for input {i} is too large"),
         }
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for ControlError {}
+impl core::error::Error for ControlError {}
 
 /// Why a function-protocol message could not be read or written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum DecodeError {
     /// The message ended early.
     Truncated,
@@ -342,8 +429,7 @@ impl fmt::Display for DecodeError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for DecodeError {}
+impl core::error::Error for DecodeError {}
 
 /// When a function runs on dataflow.
 ///
@@ -723,6 +809,42 @@ mod tests {
     use crate::types::ScalarType;
     use crate::value::Value;
     use osap_core::route::Route;
+    use std::string::ToString;
+
+    #[test]
+    fn failure_codes_round_trip_and_unknown_codes_are_other() {
+        for byte in 0..=u8::MAX {
+            let code = FailureCode::from_code(byte);
+            assert_eq!(code.code(), byte);
+            assert_eq!(u8::from(FailureCode::from(byte)), byte);
+        }
+        assert_eq!(FailureCode::from_code(7), FailureCode::Other(7));
+        assert!(matches!(FailureCode::from_code(7), FailureCode::Other(7)));
+        assert!(matches!(
+            FailureCode::from_code(crate::export::STATE_BUSY),
+            FailureCode::StateBusy
+        ));
+        // Equality goes by the code, however the value was made.
+        assert_eq!(FailureCode::Other(255), FailureCode::InputDecodeFailed);
+        // The wire byte is the code, as before it had a name.
+        let (b, n) = enc(|w| ControlError::CallFailed(FailureCode::Other(42)).encode(w));
+        assert_eq!(&b[..n], &[10, 42]);
+        let (b, n) = enc(|w| ControlError::CallFailed(FailureCode::NoSuchMember).encode(w));
+        assert_eq!(&b[..n], &[10, 253]);
+    }
+
+    #[test]
+    fn failure_errors_display() {
+        assert_eq!(FailureCode::Other(9).to_string(), "code 9");
+        assert_eq!(
+            ControlError::CallFailed(FailureCode::StateBusy).to_string(),
+            "the function failed with code 254 (class state busy)"
+        );
+        assert_eq!(
+            crate::function::CallError::Failed(FailureCode::Other(3)).to_string(),
+            "the function failed with code 3"
+        );
+    }
 
     fn enc(f: impl FnOnce(&mut Writer<'_>) -> Result<(), DecodeError>) -> ([u8; 96], usize) {
         let mut b = [0u8; 96];
@@ -812,7 +934,8 @@ mod tests {
             ControlError::PipeTableFull,
             ControlError::Unsupported,
             ControlError::BadArgmap(3),
-            ControlError::CallFailed(42),
+            ControlError::CallFailed(FailureCode::Other(42)),
+            ControlError::CallFailed(FailureCode::StateBusy),
             ControlError::BadOutput(0),
             ControlError::TooLarge(2),
         ];

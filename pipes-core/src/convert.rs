@@ -84,8 +84,7 @@ impl fmt::Display for ConvertError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for ConvertError {}
+impl core::error::Error for ConvertError {}
 
 /// Which conversion applies between two types, from the types alone.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]

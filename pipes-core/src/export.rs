@@ -112,7 +112,9 @@ pub fn input<'a, T: FromPipes<'a>>(inputs: &[Value<'a>], index: usize) -> Result
     inputs
         .get(index)
         .and_then(T::from_value)
-        .ok_or(CallError::Failed(INPUT_DECODE_FAILED))
+        .ok_or(CallError::Failed(
+            crate::control::FailureCode::InputDecodeFailed,
+        ))
 }
 
 /// What a function returns: `()` for no outputs, a tuple for one or more.

@@ -29,8 +29,8 @@ use osap_core::transport::Transport;
 use osap_core::{Duration, Instant};
 
 use crate::control::{
-    encode_error, encode_signature_reply, ControlError, ControlKey, InputMode, OutputMode, Reply,
-    ReplyBody, Request, ANY_SLOT,
+    encode_error, encode_signature_reply, ControlError, ControlKey, FailureCode, InputMode,
+    OutputMode, Reply, ReplyBody, Request, ANY_SLOT,
 };
 use crate::convert::{convert, ConvertError};
 use crate::message::{Args, ArgsWriter, MessageKey};
@@ -47,9 +47,11 @@ pub const DEFAULT_REPLY_TTL: u16 = 20_000;
 
 /// Why a function's `call` failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum CallError {
-    /// The function's own failure, with its own code.
-    Failed(u8),
+    /// The function's own failure, with its code ([`FailureCode::Other`]
+    /// for a code of the function's own).
+    Failed(FailureCode),
     /// It set an output index it does not declare.
     NoSuchOutput(u8),
     /// It set an output to a value that does not convert to the declared type.
@@ -84,7 +86,7 @@ impl CallError {
 impl fmt::Display for CallError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
-            CallError::Failed(c) => write!(f, "the function failed with code {c}"),
+            CallError::Failed(c) => write!(f, "the function failed with {c}"),
             CallError::NoSuchOutput(i) => write!(f, "no output {i}"),
             CallError::OutputType { index, error } => write!(f, "output {index}: {error}"),
             CallError::OutputTwice(i) => write!(f, "output {i} set twice"),
@@ -94,8 +96,7 @@ impl fmt::Display for CallError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for CallError {}
+impl core::error::Error for CallError {}
 
 /// Where a function writes its outputs: an argument list keyed by output
 /// index, each value converted to its declared type.

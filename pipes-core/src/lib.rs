@@ -34,6 +34,7 @@ pub mod signature;
 pub mod types;
 pub mod value;
 
+pub use control::FailureCode;
 pub use convert::{convert, ConvertError, ConvertReason, Converted, Rule};
 pub use message::{Args, ArgsWriter, Message, MessageError, MessageKey};
 /// osap-core's typed time, which PIPES classes and functions see.

@@ -49,6 +49,7 @@ impl MessageKey {
 
 /// Why a message could not be read or written.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum MessageError {
     /// The message ended early (including inside a value).
     Truncated,
@@ -88,8 +89,7 @@ impl fmt::Display for MessageError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for MessageError {}
+impl core::error::Error for MessageError {}
 
 /// A set of input indices (0..=255).
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]

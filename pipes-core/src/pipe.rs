@@ -72,6 +72,7 @@ pub struct ArgPair {
 
 /// Why a pipe could not be built.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum PipeError {
     /// The argmap already holds [`MAX_ARGMAP`] pairs.
     ArgmapFull,
@@ -88,8 +89,7 @@ impl core::fmt::Display for PipeError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for PipeError {}
+impl core::error::Error for PipeError {}
 
 /// A pipe's configuration.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

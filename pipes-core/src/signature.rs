@@ -53,6 +53,7 @@ pub struct Signature {
 
 /// Why a signature could not be written or read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SignatureError {
     /// The bytes end early.
     Truncated,
@@ -98,8 +99,7 @@ impl fmt::Display for SignatureError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for SignatureError {}
+impl core::error::Error for SignatureError {}
 
 impl From<CodecError> for SignatureError {
     fn from(e: CodecError) -> Self {
@@ -108,6 +108,8 @@ impl From<CodecError> for SignatureError {
             CodecError::NoSpace => SignatureError::NoSpace,
             CodecError::BadUtf8 => SignatureError::BadUtf8,
             CodecError::StringTooLong => SignatureError::NameTooLong,
+            // A codec error a newer osap-core adds: the body could not be read.
+            _ => SignatureError::Truncated,
         }
     }
 }

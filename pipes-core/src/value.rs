@@ -23,6 +23,7 @@ use crate::types::{ScalarType, Type};
 
 /// Why a value could not be decoded or encoded.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ValueError {
     /// The input ended inside a value (or a length runs past the input).
     Truncated,
@@ -70,8 +71,7 @@ impl fmt::Display for ValueError {
     }
 }
 
-#[cfg(feature = "std")]
-impl std::error::Error for ValueError {}
+impl core::error::Error for ValueError {}
 
 impl From<CodecError> for ValueError {
     fn from(e: CodecError) -> Self {
@@ -80,6 +80,8 @@ impl From<CodecError> for ValueError {
             CodecError::NoSpace => ValueError::NoSpace,
             CodecError::BadUtf8 => ValueError::BadUtf8,
             CodecError::StringTooLong => ValueError::StringTooLong,
+            // A codec error a newer osap-core adds: the body could not be read.
+            _ => ValueError::Truncated,
         }
     }
 }

@@ -52,7 +52,7 @@ impl Implementation for Sink {
     }
     fn call(&mut self, inputs: &[Value<'_>], _: &mut Outputs<'_>) -> Result<(), CallError> {
         let Value::F32(v) = inputs[0] else {
-            return Err(CallError::Failed(1));
+            return Err(CallError::Failed(pipes_core::FailureCode::Other(1)));
         };
         self.0.push(v);
         Ok(())

@@ -60,7 +60,7 @@ impl Implementation for Acc {
     }
     fn call(&mut self, inputs: &[Value<'_>], out: &mut Outputs<'_>) -> Result<(), CallError> {
         let (Value::F64(a), Value::F64(b)) = (inputs[0], inputs[1]) else {
-            return Err(CallError::Failed(1));
+            return Err(CallError::Failed(pipes_core::FailureCode::Other(1)));
         };
         self.total += a + b;
         self.runs.push((a, b));

@@ -539,7 +539,9 @@ fn dataflow_from_a_function_into_a_class_member() {
 #[pipes_core::function(outputs = "root")]
 fn checked_sqrt(x: f32) -> Result<f32, pipes_core::function::CallError> {
     if x < 0.0 {
-        return Err(pipes_core::function::CallError::Failed(7));
+        return Err(pipes_core::function::CallError::Failed(
+            pipes_core::FailureCode::Other(7),
+        ));
     }
     Ok(x.sqrt())
 }
@@ -549,7 +551,7 @@ struct OutOfRange;
 
 impl From<OutOfRange> for pipes_core::function::CallError {
     fn from(_: OutOfRange) -> Self {
-        pipes_core::function::CallError::Failed(9)
+        pipes_core::function::CallError::Failed(pipes_core::FailureCode::Other(9))
     }
 }
 
@@ -597,12 +599,18 @@ fn failures_of_functions_members_and_constructors_reach_the_caller() {
     let body = net.call(Route::local(), 2, &[(0, Value::F32(6.25))]);
     assert_eq!(returned(&body), [Value::F32(2.5)]);
     let body = net.call(Route::local(), 2, &[(0, Value::F32(-1.0))]);
-    assert_eq!(failed(&body), Some(ControlError::CallFailed(7)));
+    assert_eq!(
+        failed(&body),
+        Some(ControlError::CallFailed(pipes_core::FailureCode::Other(7)))
+    );
 
     let body = net.call(to_b(), 2, &[(0, Value::U16(4))]);
     assert_eq!(returned(&body), [Value::U16(4), Value::F32(0.4)]);
     let body = net.call(to_b(), 2, &[(0, Value::U16(7))]);
-    assert_eq!(failed(&body), Some(ControlError::CallFailed(9)));
+    assert_eq!(
+        failed(&body),
+        Some(ControlError::CallFailed(pipes_core::FailureCode::Other(9)))
+    );
     assert_eq!(
         state.borrow().level,
         4,
@@ -611,7 +619,10 @@ fn failures_of_functions_members_and_constructors_reach_the_caller() {
 
     // A refused constructor keeps the old state.
     let body = net.call(to_b(), 1, &[(0, Value::U16(0))]);
-    assert_eq!(failed(&body), Some(ControlError::CallFailed(9)));
+    assert_eq!(
+        failed(&body),
+        Some(ControlError::CallFailed(pipes_core::FailureCode::Other(9)))
+    );
     assert_eq!(state.borrow().full, 10);
     let body = net.call(to_b(), 1, &[(0, Value::U16(20))]);
     assert!(returned(&body).is_empty());

@@ -57,7 +57,7 @@ fn call_failed(e: SomError) -> u8 {
         SomError::Remote {
             error: ControlError::CallFailed(code),
             ..
-        } => code,
+        } => code.code(),
         other => panic!("expected a failure code, got {other}"),
     }
 }

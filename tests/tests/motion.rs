@@ -243,7 +243,7 @@ fn counters(m: &SharedModule) -> StepperCounters {
 /// (after a later point), or a gap (ahead of two earlier points still on
 /// their way).
 fn only_late_points(name: &str, c: StepperCounters, max: u32) {
-    let late = [StepperError::Stale.code(), StepperError::Gap.code()];
+    let late = [Some(StepperError::Stale), Some(StepperError::Gap)];
     assert!(
         c.refused <= max && (c.refused == 0 || late.contains(&c.last_refused)),
         "{name}: {c:?}"

@@ -70,6 +70,7 @@ const COLLINEAR_RATIO: f64 = 1e-9;
 
 /// Why a bed-levelling operation failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum BedError {
     /// An input is NaN or infinite.
     NonFinite,
@@ -137,11 +138,11 @@ impl fmt::Display for BedError {
     }
 }
 
-impl std::error::Error for BedError {}
+impl core::error::Error for BedError {}
 
 impl From<BedError> for CallError {
     fn from(e: BedError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

@@ -46,21 +46,44 @@ pub const MAX_DURATION_S: f64 = 1e6;
 /// `Chirp` failure code: a bad number.
 pub const FAIL_BAD_NUMBER: u8 = 1;
 
-/// A chirp parameter is out of its domain (which one, in words).
+/// Which chirp parameter is out of its domain. Every one is failure code
+/// [`FAIL_BAD_NUMBER`] on the wire.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct ChirpError(pub &'static str);
+#[non_exhaustive]
+pub enum ChirpError {
+    /// A parameter is not finite.
+    NotFinite,
+    /// An exponential chirp has a frequency that is not positive.
+    ExponentialNeedsPositive,
+    /// A frequency is negative.
+    NegativeFrequency,
+    /// The duration is not positive or longer than 1e6 s.
+    BadDuration,
+    /// The amplitude is negative.
+    NegativeAmplitude,
+    /// The fade is negative or longer than half the duration.
+    BadFade,
+}
 
 impl fmt::Display for ChirpError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        write!(f, "bad chirp parameter: {}", self.0)
+        let what = match self {
+            ChirpError::NotFinite => "every parameter must be finite",
+            ChirpError::ExponentialNeedsPositive => "an exponential chirp needs f0 > 0 and f1 > 0",
+            ChirpError::NegativeFrequency => "frequencies must be >= 0",
+            ChirpError::BadDuration => "duration must be > 0 and at most 1e6 s",
+            ChirpError::NegativeAmplitude => "amplitude must be >= 0",
+            ChirpError::BadFade => "fade must be >= 0 and at most half the duration",
+        };
+        write!(f, "bad chirp parameter: {what}")
     }
 }
 
-impl std::error::Error for ChirpError {}
+impl core::error::Error for ChirpError {}
 
 impl From<ChirpError> for CallError {
     fn from(_: ChirpError) -> CallError {
-        CallError::Failed(FAIL_BAD_NUMBER)
+        CallError::Failed(pipes_core::FailureCode::from_code(FAIL_BAD_NUMBER))
     }
 }
 
@@ -96,24 +119,22 @@ impl ChirpConfig {
         .iter()
         .all(|x| x.is_finite());
         if !finite {
-            return Err(ChirpError("every parameter must be finite"));
+            return Err(ChirpError::NotFinite);
         }
         if self.exponential && (self.f0 <= 0.0 || self.f1 <= 0.0) {
-            return Err(ChirpError("an exponential chirp needs f0 > 0 and f1 > 0"));
+            return Err(ChirpError::ExponentialNeedsPositive);
         }
         if self.f0 < 0.0 || self.f1 < 0.0 {
-            return Err(ChirpError("frequencies must be >= 0"));
+            return Err(ChirpError::NegativeFrequency);
         }
         if self.duration_s <= 0.0 || self.duration_s > MAX_DURATION_S {
-            return Err(ChirpError("duration must be > 0 and at most 1e6 s"));
+            return Err(ChirpError::BadDuration);
         }
         if self.amplitude < 0.0 {
-            return Err(ChirpError("amplitude must be >= 0"));
+            return Err(ChirpError::NegativeAmplitude);
         }
         if self.fade_s < 0.0 || self.fade_s > self.duration_s / 2.0 {
-            return Err(ChirpError(
-                "fade must be >= 0 and at most half the duration",
-            ));
+            return Err(ChirpError::BadFade);
         }
         Ok(())
     }

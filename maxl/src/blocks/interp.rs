@@ -41,6 +41,7 @@ use crate::track::Interval;
 
 /// Why an interpolator call was refused.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum InterpError {
     /// A coordinate is not finite.
     BadNumber,
@@ -98,11 +99,11 @@ impl fmt::Display for InterpError {
     }
 }
 
-impl std::error::Error for InterpError {}
+impl core::error::Error for InterpError {}
 
 impl From<InterpError> for CallError {
     fn from(e: InterpError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

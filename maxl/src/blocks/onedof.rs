@@ -84,6 +84,7 @@ pub const DEFAULT_HISTORY_LEN: usize = 1024;
 /// Why a OneDof call was refused. Each maps to a PIPES failure code
 /// ([`OneDofError::code`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum OneDofError {
     /// A number is not finite or out of its domain (named).
     BadNumber(&'static str),
@@ -202,11 +203,11 @@ impl fmt::Display for OneDofError {
     }
 }
 
-impl std::error::Error for OneDofError {}
+impl core::error::Error for OneDofError {}
 
 impl From<OneDofError> for CallError {
     fn from(e: OneDofError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

@@ -84,6 +84,7 @@ pub struct OptimizerStats {
 
 /// Why the block refused a call.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum OptimizerError {
     /// A configuration value is out of range.
     InvalidConfig(&'static str),
@@ -123,12 +124,12 @@ impl OptimizerError {
 
 impl From<OptimizerError> for pipes_core::function::CallError {
     fn from(e: OptimizerError) -> Self {
-        pipes_core::function::CallError::Failed(e.code())
+        pipes_core::function::CallError::Failed(e.code().into())
     }
 }
 
-impl std::error::Error for OptimizerError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+impl core::error::Error for OptimizerError {
+    fn source(&self) -> Option<&(dyn core::error::Error + 'static)> {
         match self {
             OptimizerError::Spawn(e) => Some(e),
             _ => None,
@@ -351,7 +352,9 @@ impl OptimizerClass {
     /// The constructor `Optimizer()`: always refused with [`NOT_REMOTE`].
     #[constructor]
     pub fn remote_new() -> Result<OptimizerClass, pipes_core::function::CallError> {
-        Err(pipes_core::function::CallError::Failed(NOT_REMOTE))
+        Err(pipes_core::function::CallError::Failed(
+            pipes_core::FailureCode::from_code(NOT_REMOTE),
+        ))
     }
 
     /// `Optimizer.sample`: the stamp, the point for it (or the one held,

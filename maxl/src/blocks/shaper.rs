@@ -96,6 +96,7 @@ pub const EI_VIBRATION_TOLERANCE: f64 = 0.05;
 /// Why a shaper call was refused. Each maps to a PIPES failure code
 /// ([`ShaperError::code`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum ShaperError {
     /// A frequency that is not finite or outside
     /// [`MIN_FREQ_HZ`]..=[`MAX_FREQ_HZ`].
@@ -166,11 +167,11 @@ impl fmt::Display for ShaperError {
     }
 }
 
-impl std::error::Error for ShaperError {}
+impl core::error::Error for ShaperError {}
 
 impl From<ShaperError> for CallError {
     fn from(e: ShaperError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

@@ -62,6 +62,7 @@ pub const FAIL_NO_TIME: u8 = 3;
 
 /// Why a timer could not be made, or could not tick.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum TimerError {
     /// The interval is not a power of two in 256..=16384 µs.
     BadInterval(u32),
@@ -106,11 +107,11 @@ impl fmt::Display for TimerError {
     }
 }
 
-impl std::error::Error for TimerError {}
+impl core::error::Error for TimerError {}
 
 impl From<TimerError> for CallError {
     fn from(e: TimerError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

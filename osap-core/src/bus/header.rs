@@ -53,6 +53,7 @@ pub const fn turn_flags(turn: u8) -> u8 {
 
 /// Why a bus frame was refused.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum BusFrameError {
     /// Shorter than the header.
     Truncated,
@@ -72,6 +73,8 @@ impl core::fmt::Display for BusFrameError {
         })
     }
 }
+
+impl core::error::Error for BusFrameError {}
 
 impl BusHeader {
     /// Splits `frame` into its header and the packet after it.

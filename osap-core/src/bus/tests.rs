@@ -152,7 +152,7 @@ fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
     // Addressed to one drop, it lends that drop the medium.
     assert_eq!((h.dst, h.src, h.flags & !TURN_MASK), (1, HEAD, GRANT));
     // The reply's route is the hop back: bus 0 (our index) to drop 1.
-    let view = crate::packet::Packet::new(packet).unwrap();
+    let view = crate::packet::Packet::new_checked(packet).unwrap();
     assert_eq!(
         view.instruction(),
         Ok(Instruction::BusForward { bus: 0, drop: 1 })

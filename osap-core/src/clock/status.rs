@@ -66,6 +66,7 @@ pub const CLOCK_STATUS_LEN_V1: usize = 1 + 1 + 8 + 4 + 1 + 4 + 4 + 6 * 4;
 
 /// A clock status that cannot be read.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum ClockStatusError {
     /// The body is truncated or too long.
     Codec(CodecError),
@@ -81,6 +82,8 @@ impl core::fmt::Display for ClockStatusError {
         }
     }
 }
+
+impl core::error::Error for ClockStatusError {}
 
 impl From<CodecError> for ClockStatusError {
     fn from(e: CodecError) -> Self {

@@ -139,6 +139,7 @@ impl Default for TimeConfig {
 
 /// A [`TimeConfig`] that cannot be applied.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum TimeConfigError {
     /// The body is truncated or too long.
     Codec(CodecError),
@@ -159,6 +160,8 @@ impl core::fmt::Display for TimeConfigError {
         }
     }
 }
+
+impl core::error::Error for TimeConfigError {}
 
 fn finite_at_least(v: f32, min: f32) -> bool {
     v.is_finite() && v >= min

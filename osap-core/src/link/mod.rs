@@ -66,6 +66,8 @@ impl core::fmt::Display for LinkSendError {
     }
 }
 
+impl core::error::Error for LinkSendError {}
+
 /// An interface from a runtime to one network link.
 pub trait LinkGateway {
     /// The names of this link.

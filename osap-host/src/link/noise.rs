@@ -43,6 +43,31 @@ const PIPE: usize = 64 * 1024;
 /// How long a handshake may take, by default.
 pub const HANDSHAKE_TIMEOUT: Duration = Duration::from_secs(5);
 
+/// Why a key file's text is not a key ([`Key::parse`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum KeyError {
+    /// The text does not hold exactly one line that is not a comment.
+    #[error("a key file holds exactly one line of 64 hex digits")]
+    LineCount,
+    /// The key line is not 64 ASCII characters long; the number is its
+    /// length in characters.
+    #[error("the key is {0} characters long, not 64 hex digits")]
+    Length(usize),
+    /// Two characters of the key line are not a hex digit pair.
+    #[error(
+        "\"{}{}\" at position {position} is not a hex digit pair",
+        char::from(pair[0]),
+        char::from(pair[1])
+    )]
+    NotHex {
+        /// The two characters (ASCII).
+        pair: [u8; 2],
+        /// Their position in the line, in characters.
+        position: usize,
+    },
+}
+
 /// A link key: 32 secret bytes that both ends of a keyed link hold.
 #[derive(Clone, PartialEq, Eq)]
 pub struct Key([u8; 32]);
@@ -83,25 +108,24 @@ impl Key {
 
     /// Parses a key file's text: lines starting with `#` and blank lines
     /// are skipped, the one other line is 64 hex digits.
-    pub fn parse(text: &str) -> Result<Key, String> {
+    pub fn parse(text: &str) -> Result<Key, KeyError> {
         let mut lines = text
             .lines()
             .map(str::trim)
             .filter(|l| !l.is_empty() && !l.starts_with('#'));
         let (Some(line), None) = (lines.next(), lines.next()) else {
-            return Err("a key file holds exactly one line of 64 hex digits".into());
+            return Err(KeyError::LineCount);
         };
         if line.len() != 64 || !line.is_ascii() {
-            return Err(format!(
-                "the key is {} characters long, not 64 hex digits",
-                line.chars().count()
-            ));
+            return Err(KeyError::Length(line.chars().count()));
         }
         let mut bytes = [0u8; 32];
         for (i, b) in bytes.iter_mut().enumerate() {
             let pair = line.get(2 * i..2 * i + 2).unwrap_or("");
-            *b = u8::from_str_radix(pair, 16)
-                .map_err(|_| format!("{pair:?} at position {} is not a hex digit pair", 2 * i))?;
+            *b = u8::from_str_radix(pair, 16).map_err(|_| KeyError::NotHex {
+                pair: [pair.as_bytes()[0], pair.as_bytes()[1]],
+                position: 2 * i,
+            })?;
         }
         Ok(Key(bytes))
     }
@@ -136,7 +160,8 @@ impl Key {
             context: context(),
             source,
         })?;
-        Key::parse(&text).map_err(|e| link_error(context(), io::ErrorKind::InvalidData, e))
+        Key::parse(&text)
+            .map_err(|e| link_error(context(), io::ErrorKind::InvalidData, e.to_string()))
     }
 
     /// Makes a new key and writes it to `path`, readable by its owner only.
@@ -469,5 +494,25 @@ mod tests {
         assert!(Key::parse(&format!("{}\n{}", "00".repeat(32), "11".repeat(32))).is_err());
         assert!(Key::parse(&"é".repeat(32)).is_err());
         assert_eq!(format!("{key:?}"), "Key(..)");
+    }
+
+    #[test]
+    fn key_errors_are_named_and_display() {
+        assert!(matches!(Key::parse(""), Err(KeyError::LineCount)));
+        assert!(matches!(Key::parse("abcd"), Err(KeyError::Length(4))));
+        let err = Key::parse(&"zz".repeat(32)).unwrap_err();
+        assert!(matches!(err, KeyError::NotHex { position: 0, .. }));
+        assert_eq!(
+            err.to_string(),
+            "\"zz\" at position 0 is not a hex digit pair"
+        );
+        assert_eq!(
+            KeyError::LineCount.to_string(),
+            "a key file holds exactly one line of 64 hex digits"
+        );
+        assert_eq!(
+            KeyError::Length(4).to_string(),
+            "the key is 4 characters long, not 64 hex digits"
+        );
     }
 }

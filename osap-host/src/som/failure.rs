@@ -133,7 +133,7 @@ mod tests {
         let remote = |failure| SomError::Remote {
             function: FnRef::new("a", "add_point"),
             request: "call",
-            error: ControlError::CallFailed(8),
+            error: ControlError::CallFailed(pipes_core::FailureCode::Other(8)),
             failure,
         };
         let named = remote(osap_module::failure::failure("add_point", 8).map(Box::new)).to_string();

@@ -37,7 +37,7 @@ impl Target {
     fn failure(&self, error: &ControlError) -> Option<Box<super::failure::Failure>> {
         match error {
             ControlError::CallFailed(code) if self.module_codes => {
-                osap_module::failure::failure(&self.function.function, *code).map(Box::new)
+                osap_module::failure::failure(&self.function.function, code.code()).map(Box::new)
             }
             _ => None,
         }

@@ -55,7 +55,9 @@ impl<C: PipesClass> Implementation for HostMember<C> {
 
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
         if self.index >= C::MEMBERS.len() {
-            return Err(CallError::Failed(NO_SUCH_MEMBER));
+            return Err(CallError::Failed(pipes_core::FailureCode::from_code(
+                NO_SUCH_MEMBER,
+            )));
         }
         lock(&self.state).call_member(self.index, inputs, outputs)
     }

@@ -40,7 +40,7 @@ impl Implementation for HostImpl {
 
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
         let ins: Vec<OwnedValue> = inputs.iter().map(OwnedValue::from_value).collect();
-        let outs = (self.body)(&ins).map_err(CallError::Failed)?;
+        let outs = (self.body)(&ins).map_err(|code| CallError::Failed(code.into()))?;
         for (i, v) in outs.iter().enumerate() {
             let index = u8::try_from(i).map_err(|_| CallError::NoSuchOutput(u8::MAX))?;
             let value = v.as_value().map_err(|_| CallError::OutputTooLarge(index))?;

@@ -7,7 +7,7 @@ use super::host_fn::{attach_function, HostFunction};
 use super::model::{
     pipe_record, Som, SomArg, SomClass, SomFunction, SomInputMode, SomOutputMode, SomPipe,
 };
-use super::{FnRef, SomError, TypeMismatch};
+use super::{FnRef, RuntimeLookupError, SomError, TypeMismatch};
 use crate::map::PortRecord;
 use crate::netrunner::{self, ScanFailure, ScanOptions};
 use crate::Host;
@@ -368,12 +368,12 @@ impl Manager {
 
     /// Runtime index of `f`'s runtime in the model.
     fn runtime(&self, f: &FnRef) -> Result<usize, SomError> {
-        self.som.runtime_index(&f.runtime).map_err(|n| match n {
-            0 => SomError::NoSuchRuntime(f.runtime.clone()),
-            count => SomError::AmbiguousRuntime {
+        self.som.runtime_index(&f.runtime).map_err(|e| match e {
+            RuntimeLookupError::Ambiguous { count } => SomError::AmbiguousRuntime {
                 name: f.runtime.clone(),
                 count,
             },
+            _ => SomError::NoSuchRuntime(f.runtime.clone()),
         })
     }
 

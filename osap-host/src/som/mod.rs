@@ -43,7 +43,7 @@ pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{attach_function, HostBody, HostFunction, HOST_FN_PIPES, HOST_FN_STORE};
 pub use manager::{Disconnect, Manager, ManagerOptions, PipeOptions, RefreshReport};
-pub use model::{Som, SOM_VERSION};
+pub use model::{RuntimeLookupError, Som, SOM_VERSION};
 pub use pipes_core::pipe::PipeStats;
 pub use value::{LeElement, OwnedValue};
 
@@ -92,6 +92,7 @@ fn refusal(error: &ControlError, failure: &Option<Box<failure::Failure>>) -> Str
 /// What can go wrong building or using the system object model. Every
 /// error about a function names it and its runtime.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SomError {
     /// The host runtime or its network failed (outside any one function).
     #[error(transparent)]

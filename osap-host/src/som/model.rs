@@ -8,6 +8,7 @@
 //! pipes are listed both per function (as configured) and flattened, source
 //! → destination, at the top level.
 
+use crate::error::JsonError;
 use crate::map::{LinkEdge, NetworkMap, RuntimeRecord};
 use osap_core::packet::Instruction;
 use osap_core::route::Route;
@@ -19,6 +20,21 @@ use std::collections::VecDeque;
 
 /// Layout version of [`Som`].
 pub const SOM_VERSION: u32 = 1;
+
+/// Why [`Som::runtime_index`] found no one runtime by its name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum RuntimeLookupError {
+    /// No runtime has the name.
+    #[error("no runtime has this name")]
+    NotFound,
+    /// Several runtimes have the name.
+    #[error("{count} runtimes have this name")]
+    Ambiguous {
+        /// How many have it (at least 2).
+        count: usize,
+    },
+}
 
 /// The system object model.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -339,20 +355,26 @@ impl Som {
     }
 
     /// From JSON, checking the layout version.
-    pub fn from_json(text: &str) -> Result<Som, String> {
-        let som: Som = serde_json::from_str(text).map_err(|e| e.to_string())?;
+    ///
+    /// Errors: [`JsonError::Json`] for text that is not a model's JSON,
+    /// [`JsonError::Version`] for a model of another layout version.
+    pub fn from_json(text: &str) -> Result<Som, JsonError> {
+        let som: Som = serde_json::from_str(text)?;
         if som.version != SOM_VERSION {
-            return Err(format!(
-                "system object model version {} is not supported (this build reads {SOM_VERSION})",
-                som.version
-            ));
+            return Err(JsonError::Version {
+                what: "system object model",
+                found: som.version,
+                supported: SOM_VERSION,
+            });
         }
         Ok(som)
     }
 
-    /// The index of the runtime named `name`: `Err(n)` with the number of
-    /// runtimes that have it when that is not exactly one.
-    pub fn runtime_index(&self, name: &str) -> Result<usize, usize> {
+    /// The index of the runtime named `name`.
+    ///
+    /// Errors: [`RuntimeLookupError::NotFound`] when no runtime has the
+    /// name, [`RuntimeLookupError::Ambiguous`] when several do.
+    pub fn runtime_index(&self, name: &str) -> Result<usize, RuntimeLookupError> {
         let mut found = self
             .runtimes
             .iter()
@@ -360,8 +382,10 @@ impl Som {
             .filter(|(_, r)| r.record.name == name);
         match (found.next(), found.next()) {
             (Some((i, _)), None) => Ok(i),
-            (None, _) => Err(0),
-            (Some(_), Some(_)) => Err(2 + found.count()),
+            (None, _) => Err(RuntimeLookupError::NotFound),
+            (Some(_), Some(_)) => Err(RuntimeLookupError::Ambiguous {
+                count: 2 + found.count(),
+            }),
         }
     }
 

@@ -9,6 +9,7 @@ use std::fmt;
 
 /// Binding a proxy to a runtime failed: nothing was called.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum BindError {
     /// No runtime (or more than one) has the name.
     NoDevice {
@@ -98,7 +99,7 @@ impl fmt::Display for BindError {
     }
 }
 
-impl std::error::Error for BindError {}
+impl core::error::Error for BindError {}
 
 impl From<SomError> for BindError {
     fn from(e: SomError) -> Self {
@@ -108,6 +109,7 @@ impl From<SomError> for BindError {
 
 /// A proxy's call failed.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum CallError {
     /// The call itself failed (network, refusal, bad arguments).
     Som(SomError),
@@ -129,7 +131,7 @@ impl fmt::Display for CallError {
     }
 }
 
-impl std::error::Error for CallError {}
+impl core::error::Error for CallError {}
 
 impl From<SomError> for CallError {
     fn from(e: SomError) -> Self {
@@ -141,7 +143,7 @@ impl From<SomError> for CallError {
 /// conversions of each SOM type.
 pub mod support {
     use super::{BindError, CallError, Difference};
-    use crate::som::{FnRef, FunctionHandle, Manager, OwnedValue, Som};
+    use crate::som::{FnRef, FunctionHandle, Manager, OwnedValue, RuntimeLookupError, Som};
 
     /// A function's signature as the proxy was generated from it:
     /// `(name, type)` of each input and output, by index.
@@ -217,12 +219,12 @@ pub mod support {
         };
         let r = match som.runtime_index(runtime) {
             Ok(i) => &som.runtimes[i],
-            Err(0) => {
+            Err(RuntimeLookupError::NotFound) => {
                 return Err(no_device(
                     "no runtime has this name (is the device missing?)".into(),
                 ))
             }
-            Err(n) => return Err(no_device(format!("{n} runtimes have this name"))),
+            Err(e) => return Err(no_device(e.to_string())),
         };
         if r.record.type_name != type_name {
             return Err(BindError::WrongType {

@@ -155,7 +155,7 @@ fn som_refusal(module: &str, function: &str, e: SomError) -> MachineError {
         } => MachineError::ModuleRefused {
             module: module.into(),
             function: function.into(),
-            reason: error::module_reason(function, code),
+            reason: error::module_reason(function, code.code()),
         },
         other => MachineError::Network(other),
     }

@@ -714,7 +714,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
                 match index {
                     #(#arms)*
                     _ => ::core::result::Result::Err(::pipes_core::function::CallError::Failed(
-                        ::pipes_core::export::NO_SUCH_MEMBER,
+                        ::pipes_core::control::FailureCode::NoSuchMember,
                     )),
                 }
             }

@@ -79,6 +79,7 @@ pub const FAIL_OVERFLOW: u8 = 6;
 
 /// Why a kinematic transform refused its input.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum KinError {
     /// An input coordinate is NaN or infinite.
     NonFinite,
@@ -127,11 +128,11 @@ impl fmt::Display for KinError {
     }
 }
 
-impl std::error::Error for KinError {}
+impl core::error::Error for KinError {}
 
 impl From<KinError> for CallError {
     fn from(e: KinError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

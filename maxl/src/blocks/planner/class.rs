@@ -10,7 +10,7 @@ pub const WIRE_CHORD_TOLERANCE: f64 = 0.002;
 
 impl From<PlanError> for CallError {
     fn from(e: PlanError) -> CallError {
-        CallError::Failed(e.code())
+        CallError::Failed(e.code().into())
     }
 }
 

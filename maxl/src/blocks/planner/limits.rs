@@ -198,6 +198,7 @@ impl VectorLimits {
 
 /// Why the planner refused a call.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub enum PlanError {
     /// A limit is not finite, or not > 0 (≥ 0 for the junction deviation; the
     /// vector speed and acceleration may be infinite; the minimum cruise
@@ -297,4 +298,4 @@ impl fmt::Display for PlanError {
     }
 }
 
-impl std::error::Error for PlanError {}
+impl core::error::Error for PlanError {}
