@@ -9,7 +9,9 @@
 /// Limits for the backstop, in steps/s² and steps/s³ (both must be `> 0`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BackstopLimits {
+    /// Largest deceleration, steps/s².
     pub max_acc: f32,
+    /// Largest jerk, steps/s³.
     pub max_jerk: f32,
 }
 

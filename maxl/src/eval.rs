@@ -44,18 +44,26 @@ impl Fx {
 /// Kinematics from the `f32` evaluator: steps, steps/s, steps/s², steps/s³.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct KinF32 {
+    /// Position, steps.
     pub pos: f32,
+    /// Velocity, steps/s.
     pub vel: f32,
+    /// Acceleration, steps/s².
     pub acc: f32,
+    /// Jerk, steps/s³.
     pub jerk: f32,
 }
 
 /// Kinematics from the `f64` reference evaluator (same units as [`KinF32`]).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct KinF64 {
+    /// Position, steps.
     pub pos: f64,
+    /// Velocity, steps/s.
     pub vel: f64,
+    /// Acceleration, steps/s².
     pub acc: f64,
+    /// Jerk, steps/s³.
     pub jerk: f64,
 }
 
@@ -66,9 +74,13 @@ pub struct KinF64 {
 /// `i64::MIN..=i64::MAX` for physically absurd inputs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct KinFx {
+    /// Position, Q16.16 steps.
     pub pos: Fx,
+    /// Velocity, Q16.16 steps/s.
     pub vel: i64,
+    /// Acceleration, Q16.16 steps/s².
     pub acc: i64,
+    /// Jerk, Q16.16 steps/s³.
     pub jerk: i64,
 }
 
@@ -295,9 +307,15 @@ pub const MAX_TICKS_PER_SEGMENT: u32 = 2048;
 pub enum TickEvalError {
     /// The tick period is 0, longer than the interval, or gives more than
     /// [`MAX_TICKS_PER_SEGMENT`] ticks per segment.
-    TickPeriod { tick_us: u32 },
+    TickPeriod {
+        /// The tick period asked for, µs.
+        tick_us: u32,
+    },
     /// The first tick's offset is not inside the segment (`du0 >= Δt`).
-    Offset { du0: u32 },
+    Offset {
+        /// The offset asked for, µs.
+        du0: u32,
+    },
 }
 
 impl core::fmt::Display for TickEvalError {

@@ -15,12 +15,18 @@ pub enum TimedPushError {
     /// The queue is full.
     Full,
     /// The stamp is before a stamp already queued (`newest`).
-    OutOfOrder { newest: u64 },
+    OutOfOrder {
+        /// The newest stamp queued, µs.
+        newest: u64,
+    },
     /// Level tracks only: a change is already stamped at this exact time.
     Duplicate,
     /// The stamp is already in the past (before the latest `now` given to
     /// `advance`/`poll`, `now`), so it would take effect late.
-    Late { now: u64 },
+    Late {
+        /// The latest time given, µs.
+        now: u64,
+    },
 }
 
 impl core::fmt::Display for TimedPushError {

@@ -20,6 +20,8 @@
 //! See `docs/maxl.md` for the fixed-point format and its error bound.
 #![cfg_attr(not(feature = "std"), no_std)]
 #![forbid(unsafe_code)]
+// Lints as policy: documented, printable, and `pub` only where reachable.
+#![warn(missing_docs, missing_debug_implementations, unreachable_pub)]
 
 #[cfg(all(test, not(feature = "std")))]
 extern crate std;

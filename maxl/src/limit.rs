@@ -38,8 +38,11 @@ use crate::track::Interval;
 /// Limits in steps/s, steps/s², steps/s³ (all finite and `> 0`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct AxisLimits {
+    /// Largest velocity, steps/s.
     pub max_vel: f32,
+    /// Largest acceleration, steps/s².
     pub max_acc: f32,
+    /// Largest jerk, steps/s³.
     pub max_jerk: f32,
 }
 
@@ -47,8 +50,11 @@ pub struct AxisLimits {
 /// (`vel = V·Δt·65536`, `acc = A·Δt²·65536`, `jerk = J·Δt³·65536`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RawLimits {
+    /// Largest first difference per interval, raw `Fx`.
     pub vel: i64,
+    /// Largest second difference per interval, raw `Fx`.
     pub acc: i64,
+    /// Largest third difference per interval, raw `Fx`.
     pub jerk: i64,
 }
 
@@ -79,8 +85,11 @@ impl core::error::Error for LimitError {}
 /// Which limits a point broke (and so which clamps applied).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Clamped {
+    /// The jerk limit applied.
     pub jerk: bool,
+    /// The acceleration limit applied.
     pub acc: bool,
+    /// The velocity limit applied.
     pub vel: bool,
 }
 
@@ -94,7 +103,9 @@ impl Clamped {
 /// The point to use and what was clamped.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Limited<P> {
+    /// The point, clamped where a limit required.
     pub point: P,
+    /// Which limits applied.
     pub clamped: Clamped,
 }
 

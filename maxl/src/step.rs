@@ -176,6 +176,7 @@ pub struct QueueFull(pub StepEvent);
 /// through `split(&mut self)`, so a queue shared by a `static` between the
 /// main loop and an interrupt needs `unsafe` or a cell to get them; this one
 /// works through `&self` on a plain `static`, and the crate forbids `unsafe`.
+#[derive(Debug)]
 pub struct StepQueue<const N: usize> {
     ticks: [AtomicU32; N],
     ups: [AtomicBool; N],

@@ -96,6 +96,7 @@ impl core::error::Error for PushError {}
 /// What an accepted point did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum PushOutcome {
+    /// The point was added after the newest one.
     Appended,
     /// Exactly one point was missing; it was filled as the midpoint of its neighbours.
     FilledGap,
@@ -134,7 +135,9 @@ impl core::error::Error for EvalError {}
 /// One evaluation.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Sample<K> {
+    /// Whether the track was followed or the backstop took over.
     pub status: TrackStatus,
+    /// The kinematics at the sampled time.
     pub kin: K,
 }
 

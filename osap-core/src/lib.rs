@@ -23,6 +23,9 @@
 //! the project's `docs/protocol.md`.
 #![no_std]
 #![deny(missing_docs)]
+// Lints as policy: every public type can be printed, and `pub` means
+// reachable from outside the crate.
+#![warn(missing_debug_implementations, unreachable_pub)]
 #![forbid(unsafe_code)]
 
 #[cfg(feature = "std")]

@@ -97,6 +97,17 @@ pub struct PortTx<'a> {
     pub(crate) system: SystemInstant,
 }
 
+impl core::fmt::Debug for PortTx<'_> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("PortTx")
+            .field("base", &self.base)
+            .field("count", &self.count)
+            .field("now", &self.now)
+            .field("system", &self.system)
+            .finish_non_exhaustive()
+    }
+}
+
 impl PortTx<'_> {
     /// The runtime's current local time (its free-running counter), µs.
     pub fn now(&self) -> Instant {

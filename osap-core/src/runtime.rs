@@ -110,6 +110,20 @@ pub struct Runtime<
     scratch: [u8; MTU],
 }
 
+impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize> core::fmt::Debug
+    for Runtime<SLOTS, MTU, PORTS, LINKS>
+{
+    /// A summary: the stack's buffers and per-link tables are not printed.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Runtime")
+            .field("config", &self.config)
+            .field("stack", &self.stack)
+            .field("clock", &self.clock.status())
+            .field("counters", &self.counters)
+            .finish_non_exhaustive()
+    }
+}
+
 impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usize>
     Runtime<SLOTS, MTU, PORTS, LINKS>
 {

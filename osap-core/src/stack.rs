@@ -146,6 +146,19 @@ pub struct PacketStack<const N: usize, const MTU: usize, const P: usize, const L
     system: Hold,
 }
 
+impl<const N: usize, const MTU: usize, const P: usize, const L: usize> core::fmt::Debug
+    for PacketStack<N, MTU, P, L>
+{
+    /// A summary: the slot buffers are not printed.
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("PacketStack")
+            .field("slots", &N)
+            .field("mtu", &MTU)
+            .field("held", &self.len())
+            .finish_non_exhaustive()
+    }
+}
+
 impl<const N: usize, const MTU: usize, const P: usize, const L: usize> Default
     for PacketStack<N, MTU, P, L>
 {

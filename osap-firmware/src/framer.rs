@@ -44,6 +44,7 @@ pub enum Next<'a> {
 
 /// Splits a received byte stream into packets and stamps each. `N` is the
 /// longest frame accepted, delimiter included (`max_frame_len(MTU)`).
+#[derive(Debug)]
 pub struct RxFramer<const N: usize> {
     decoder: FrameDecoder<N>,
     /// Bytes of the current partial frame seen in earlier chunks.

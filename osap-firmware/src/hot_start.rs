@@ -203,6 +203,14 @@ pub struct RateKeeper<F> {
     policy: HotStart,
 }
 
+impl<F> core::fmt::Debug for RateKeeper<F> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("RateKeeper")
+            .field("preset", &self.policy.preset())
+            .finish_non_exhaustive()
+    }
+}
+
 impl<F: RateFlash> RateKeeper<F> {
     /// Opens the rate log in `flash` and arms its newest record.
     pub fn open(flash: F, policy: SavePolicy) -> Self {

@@ -19,6 +19,9 @@
 //! [`runtime::run`]; everything else is tested on the host.
 #![no_std]
 #![deny(missing_docs)]
+// Lints as policy: every public type can be printed, and `pub` means
+// reachable from outside the crate.
+#![warn(missing_debug_implementations, unreachable_pub)]
 #![forbid(unsafe_code)]
 
 pub mod framer;

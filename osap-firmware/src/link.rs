@@ -44,6 +44,15 @@ pub struct RxPacket {
     data: [u8; MTU],
 }
 
+impl core::fmt::Debug for RxPacket {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("RxPacket")
+            .field("len", &self.len)
+            .field("stamp", &self.stamp)
+            .finish_non_exhaustive()
+    }
+}
+
 impl RxPacket {
     /// A copy of `packet` (which the framer has already limited to
     /// [`MTU`] bytes) stamped `stamp`.
@@ -70,6 +79,15 @@ pub struct LinkShared {
     frames: AtomicU32,
     /// Times the link went down.
     disconnects: AtomicU32,
+}
+
+impl core::fmt::Debug for LinkShared {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("LinkShared")
+            .field("open", &self.is_open())
+            .field("tx_queued", &self.tx_queued())
+            .finish_non_exhaustive()
+    }
 }
 
 impl LinkShared {
@@ -185,6 +203,15 @@ pub struct FramedGateway<W: WireTiming + 'static> {
     info: LinkInfo<'static>,
     wire: &'static W,
     frame: [u8; FRAME_MAX],
+}
+
+impl<W: WireTiming> core::fmt::Debug for FramedGateway<W> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("FramedGateway")
+            .field("info", &self.info)
+            .field("shared", &self.shared)
+            .finish_non_exhaustive()
+    }
 }
 
 /// A link the runtime loop drives: a gateway, and the state it shares

@@ -169,6 +169,12 @@ pub struct NameStore<F> {
     flash: F,
 }
 
+impl<F> core::fmt::Debug for NameStore<F> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("NameStore").finish_non_exhaustive()
+    }
+}
+
 impl<F: NameFlash> NameStore<F> {
     /// A store over `flash`.
     pub fn new(flash: F) -> Self {

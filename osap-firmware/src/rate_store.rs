@@ -143,6 +143,15 @@ pub struct RateStore<F> {
     erases: u32,
 }
 
+impl<F> core::fmt::Debug for RateStore<F> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("RateStore")
+            .field("newest", &self.newest)
+            .field("erases", &self.erases)
+            .finish_non_exhaustive()
+    }
+}
+
 impl<F: RateFlash> RateStore<F> {
     /// Opens the log in `flash`: finds the newest valid record and the
     /// first slot after every written one. A failed read counts as a full

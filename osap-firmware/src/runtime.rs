@@ -68,6 +68,14 @@ pub struct ModuleParts<F: NameFlash + 'static, H: 'static, R: RateFlash + 'stati
     pub rates: RateKeeper<R>,
 }
 
+impl<F: NameFlash, H, R: RateFlash> core::fmt::Debug for ModuleParts<F, H, R> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ModuleParts")
+            .field("runtime", &self.runtime)
+            .finish_non_exhaustive()
+    }
+}
+
 /// A module's runtime: of type `module_type`, named `name`, reporting
 /// firmware `version` to scans.
 ///

@@ -94,6 +94,14 @@ pub struct SerialTiming {
     wire_free_at: Mutex<Cell<Instant>>,
 }
 
+impl core::fmt::Debug for SerialTiming {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("SerialTiming")
+            .field("line", &self.line)
+            .finish_non_exhaustive()
+    }
+}
+
 impl SerialTiming {
     /// An idle line.
     pub const fn new(line: Serial) -> Self {

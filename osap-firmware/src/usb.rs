@@ -17,6 +17,7 @@ pub const PACKET: usize = 64;
 /// USB full speed: 12 Mbit/s on the bus, so at least 2/3 µs per byte.
 /// The host decides when it polls the bulk IN endpoint, so these are lower
 /// bounds.
+#[derive(Debug)]
 pub struct UsbTiming;
 
 /// The USB link's timing.

@@ -130,6 +130,12 @@ pub struct Parts<S, I> {
     pub bootloader: Option<fn() -> !>,
 }
 
+impl<S, I> core::fmt::Debug for Parts<S, I> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Parts").finish_non_exhaustive()
+    }
+}
+
 impl<S: StepperHw, I: IoHw> Board for Parts<S, I> {
     fn stepper(&mut self) -> &mut dyn StepperHw {
         &mut self.stepper

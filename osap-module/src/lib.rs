@@ -28,6 +28,9 @@
 //! allocation.
 #![no_std]
 #![deny(missing_docs)]
+// Lints as policy: every public type can be printed, and `pub` means
+// reachable from outside the crate.
+#![warn(missing_debug_implementations, unreachable_pub)]
 #![forbid(unsafe_code)]
 
 #[cfg(test)]
@@ -309,6 +312,12 @@ pub trait ModuleHandle: Clone {
 /// runtime task and the step interrupt both use it.
 pub struct ModuleCell<B> {
     module: Mutex<RefCell<Option<Module<B>>>>,
+}
+
+impl<B> core::fmt::Debug for ModuleCell<B> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("ModuleCell").finish_non_exhaustive()
+    }
 }
 
 impl<B> ModuleCell<B> {

@@ -345,6 +345,7 @@ pub const NOT_REMOTE: u8 = 9;
 
 /// A three-axis [`OptimizerBlock`] as the PIPES class `Optimizer` (see the
 /// module docs).
+#[derive(Debug)]
 pub struct OptimizerClass(pub OptimizerBlock<[f64; 3]>);
 
 #[pipes_core::class(name = "Optimizer")]

@@ -330,6 +330,7 @@ fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
 }
 
 #[test]
+#[cfg(feature = "sync")] // only the controller sends time requests
 fn a_drop_keeps_one_time_request_waiting_at_the_plain_rate() {
     let mut rt: crate::Runtime<8, 64, 4, 2> = crate::Runtime::new("drop", "d").unwrap();
     let mut links = [Station::new(Lower::new(), BusConfig::drop(1))];

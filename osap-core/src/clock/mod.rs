@@ -326,9 +326,8 @@ impl<const LINKS: usize> Clock<LINKS> {
         let followed = self.followed();
         self.neighbours
             .iter()
-            .take(64)
             .enumerate()
-            .filter(|(_, n)| followed.is_some() && Some(n.tier) == followed)
+            .filter(|(i, n)| *i < 64 && followed.is_some() && Some(n.tier) == followed)
             .fold(0, |mask, (i, _)| mask | 1 << i)
     }
 

@@ -36,6 +36,7 @@ fn config_round_trip_and_validation() {
 }
 
 #[test]
+#[cfg(feature = "sync")] // only the controller sends time requests
 fn a_link_nobody_answers_is_asked_at_the_plain_rate() {
     let cfg = TimeConfig::default();
     let mut c: Clock<1> = Clock::new(cfg);
@@ -208,6 +209,7 @@ fn a_sample_far_off_the_fit_brings_the_next_request_forward() {
 }
 
 #[test]
+#[cfg(feature = "sync")]
 fn the_widest_configured_dither_cannot_overflow() {
     let cfg = TimeConfig {
         interval_us: u32::MAX,

@@ -26,7 +26,7 @@ impl Side {
 
 /// The side of the directed line `from → to` that `p` lies on (`Left` when
 /// exactly on it; callers reject such points as singular first).
-pub fn side_of(from: Vector2<f64>, to: Vector2<f64>, p: Vector2<f64>) -> Side {
+pub(crate) fn side_of(from: Vector2<f64>, to: Vector2<f64>, p: Vector2<f64>) -> Side {
     if (to - from).perp(&(p - from)) >= 0.0 {
         Side::Left
     } else {
@@ -41,7 +41,7 @@ pub fn side_of(from: Vector2<f64>, to: Vector2<f64>, p: Vector2<f64>) -> Side {
 /// Coincident centres give [`KinError::Singular`] (the answer is a whole
 /// circle or nothing); circles that miss each other give
 /// [`KinError::Unreachable`].
-pub fn circle_intersection(
+pub(crate) fn circle_intersection(
     c0: Vector2<f64>,
     r0: f64,
     c1: Vector2<f64>,

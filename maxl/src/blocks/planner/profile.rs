@@ -69,7 +69,7 @@ impl<const N: usize> Segment<N> {
     /// if it is too short to move.
     ///
     /// `Err(())` if the length overflows (finite coordinates far apart).
-    pub fn new(
+    pub(crate) fn new(
         id: u64,
         start: [f64; N],
         end: [f64; N],
@@ -119,14 +119,14 @@ impl<const N: usize> Segment<N> {
 
     /// Sets the speed and acceleration limits along the direction: the
     /// per-axis ones and the vector ones, the feed scaled by `scale`.
-    pub fn set_limits(&mut self, limits: &Limits<N>, vector: &VectorLimits, scale: f64) {
+    pub(crate) fn set_limits(&mut self, limits: &Limits<N>, vector: &VectorLimits, scale: f64) {
         self.v_axis = along(&limits.max_vel, &self.dir).min(vector.max_speed);
         self.acc = along(&limits.max_acc, &self.dir).min(vector.max_accel);
         self.scale_feed(scale);
     }
 
     /// The speed limit within the minimum cruise ratio's cap.
-    pub fn v_cap(&self) -> f64 {
+    pub(crate) fn v_cap(&self) -> f64 {
         if self.cruise2 < self.v_max * self.v_max {
             self.cruise2.sqrt()
         } else {
@@ -136,23 +136,23 @@ impl<const N: usize> Segment<N> {
 
     /// The change of v² (mm²/s²) over the segment at the smoothed pass's
     /// acceleration `acc · (1 − ratio)`.
-    pub fn mcr_delta(&self, ratio: f64) -> f64 {
+    pub(crate) fn mcr_delta(&self, ratio: f64) -> f64 {
         2.0 * self.acc * (1.0 - ratio) * self.len
     }
 
     /// Sets the speed limit to the feed scaled by `k`, within the axes'.
-    pub fn scale_feed(&mut self, k: f64) {
+    pub(crate) fn scale_feed(&mut self, k: f64) {
         self.v_max = (self.feed * k).min(self.v_axis);
     }
 
     /// The entry-speed bound of the backward pass: the junction's, raised
     /// to the floor a feed-scale change may leave.
-    pub fn bound(&self) -> f64 {
+    pub(crate) fn bound(&self) -> f64 {
         self.junction_max.max(self.floor)
     }
 
     /// The speed reachable at the far end of this segment from `v` at one end.
-    pub fn reach(&self, v: f64) -> f64 {
+    pub(crate) fn reach(&self, v: f64) -> f64 {
         (v * v + 2.0 * self.acc * self.len).sqrt()
     }
 }
