@@ -73,7 +73,7 @@ impl Implementation for Body {
                     // Missing output.
                     0 => Ok(()),
                     // Wrong type: a string for a u32.
-                    1 => out.set(1, &Value::Utf8(s)),
+                    1 => out.set(1, &Value::utf8(s.as_str())),
                     _ => out.set(1, &Value::U32(u32::from(*n))),
                 }
             }

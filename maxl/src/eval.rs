@@ -607,6 +607,7 @@ impl Iterator for TickEval {
 }
 
 #[cfg(test)]
+#[allow(unreachable_pub)] // the shared test generators below are `pub` for the integration tests
 mod tests {
     use super::*;
     use osap_core::time::SystemInstant;

@@ -553,7 +553,7 @@ fn wire_constructor_and_members() {
         bad
     );
     let cart = |sx: f32| {
-        let mut v = [Value::F32(1.0); 6];
+        let mut v = [const { Value::F32(1.0) }; 6];
         v[0] = Value::F32(sx);
         CartesianBlock::construct(&v)
     };

@@ -3,7 +3,7 @@
 //! name.
 
 use crate::{connect, Connect};
-use osap_host::som::{FnRef, Manager, OwnedValue, SomError};
+use osap_host::som::{parse_value, FnRef, Manager, SomError, Value};
 use pipes_core::control::ControlError;
 use std::process::ExitCode;
 
@@ -59,7 +59,7 @@ pub async fn call(args: CallArgs) -> Result<ExitCode, String> {
             )
         })?;
         values.push(
-            OwnedValue::parse(&ty, text)
+            parse_value(&ty, text)
                 .map_err(|e| format!("input {} ({}): {e}", input.name, input.type_name))?,
         );
     }
@@ -103,21 +103,21 @@ fn refusal(runtime: &str, function: &str, e: &SomError) -> Option<String> {
 
 /// A value as a person types it: numbers and bools bare (the value's own
 /// Display names scalar types, `U8(0)`), others as the value prints.
-fn plain(v: &OwnedValue) -> String {
+fn plain(v: &Value<'static>) -> String {
     match v {
-        OwnedValue::Bool(x) => x.to_string(),
-        OwnedValue::I8(x) => x.to_string(),
-        OwnedValue::I16(x) => x.to_string(),
-        OwnedValue::I32(x) => x.to_string(),
-        OwnedValue::I64(x) => x.to_string(),
-        OwnedValue::I128(x) => x.to_string(),
-        OwnedValue::U8(x) => x.to_string(),
-        OwnedValue::U16(x) => x.to_string(),
-        OwnedValue::U32(x) => x.to_string(),
-        OwnedValue::U64(x) => x.to_string(),
-        OwnedValue::U128(x) => x.to_string(),
-        OwnedValue::F32(x) => x.to_string(),
-        OwnedValue::F64(x) => x.to_string(),
+        Value::Bool(x) => x.to_string(),
+        Value::I8(x) => x.to_string(),
+        Value::I16(x) => x.to_string(),
+        Value::I32(x) => x.to_string(),
+        Value::I64(x) => x.to_string(),
+        Value::I128(x) => x.to_string(),
+        Value::U8(x) => x.to_string(),
+        Value::U16(x) => x.to_string(),
+        Value::U32(x) => x.to_string(),
+        Value::U64(x) => x.to_string(),
+        Value::U128(x) => x.to_string(),
+        Value::F32(x) => x.to_string(),
+        Value::F64(x) => x.to_string(),
         other => other.to_string(),
     }
 }

@@ -5,7 +5,7 @@
 
 use osap_core::route::Route;
 use osap_host::link::{ChannelLink, LinkConfig};
-use osap_host::som::{attach_function, HostFunction, Manager, OwnedValue};
+use osap_host::som::{attach_function, HostFunction, Manager, Value};
 use osap_host::{Host, HostConfig};
 use pipes_core::control::{ControlKey, Reply, ReplyBody, Request};
 use pipes_core::{ScalarType, Type};
@@ -54,7 +54,7 @@ async fn net() -> (Host, Host) {
             ("accepted", Type::Scalar(ScalarType::Bool)),
             ("limited_velocity", F32),
         ],
-        |_| Ok(vec![OwnedValue::Bool(true), OwnedValue::F32(1.0)]),
+        |_| Ok(vec![Value::Bool(true), Value::F32(1.0)]),
     )
     .unwrap();
     attach_function(&a, f).await.unwrap();

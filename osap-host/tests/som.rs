@@ -7,8 +7,8 @@ use osap_core::stack::Owner;
 use osap_host::link::memory;
 use osap_host::som::model::{SomArg, SomDelivery, SomInputMode, SomOutputMode};
 use osap_host::som::{
-    attach_class, attach_function, Disconnect, FnRef, HostFunction, Manager, OwnedValue,
-    PipeOptions, PipeStats, Som, SomError,
+    attach_class, attach_function, Disconnect, FnRef, HostFnError, HostFunction, Manager,
+    PipeOptions, PipeStats, Som, SomError, Value,
 };
 use osap_host::Host;
 use pipes_core::control::{ControlError, InputMode, OutputMode, Request, ANY_SLOT};
@@ -50,24 +50,24 @@ async fn net() -> Net {
     let seen = acc_seen.clone();
     let mut total = 0.0;
     let acc = HostFunction::new("acc", &[("a", F64)], &[("total", F64)], move |i| {
-        let OwnedValue::F64(x) = i[0] else {
-            return Err(1);
+        let Value::F64(x) = i[0] else {
+            return Err(HostFnError::new(1));
         };
         seen.lock().unwrap().push(x);
         total += x;
-        Ok(vec![OwnedValue::F64(total)])
+        Ok(vec![Value::F64(total)])
     })
     .unwrap();
     let acc_port = attach_function(&b, acc).await.unwrap();
     let text = HostFunction::new("text", &[("s", Type::Utf8)], &[("n", U32)], |i| {
-        let OwnedValue::Utf8(s) = &i[0] else {
-            return Err(1);
+        let Value::Utf8(s) = &i[0] else {
+            return Err(HostFnError::new(1));
         };
-        Ok(vec![OwnedValue::U32(s.len() as u32)])
+        Ok(vec![Value::U32(s.len() as u32)])
     })
     .unwrap();
     attach_function(&b, text).await.unwrap();
-    let fail = HostFunction::new("fail", &[], &[], |_| Err(7)).unwrap();
+    let fail = HostFunction::new("fail", &[], &[], |_| Err(HostFnError::new(7))).unwrap();
     attach_function(&b, fail).await.unwrap();
     memory::connect(&h, &a).await.unwrap(); // h link 0 – a link 0
     memory::connect(&a, &b).await.unwrap(); // a link 1 – b link 0
@@ -284,17 +284,17 @@ async fn connect_makes_data_flow_module_to_module_and_through_host_functions() {
     let out = m
         .function(&sensor)
         .unwrap()
-        .call(&[OwnedValue::F32(2.5)])
+        .call(&[Value::F32(2.5)])
         .await
         .unwrap();
-    assert_eq!(out, [OwnedValue::F32(2.5)]);
+    assert_eq!(out, [Value::F32(2.5)]);
     wait_for(&n.acc_seen, |v| v == [2.5]).await;
     wait_for(&sink_seen, |v| v == [2.5]).await;
 
     // Calling h.gen drives the whole chain: gen -> sensor -> acc -> sink.
     m.function(&gen)
         .unwrap()
-        .call(&[OwnedValue::F32(1.5)])
+        .call(&[Value::F32(1.5)])
         .await
         .unwrap();
     wait_for(&n.acc_seen, |v| v == [2.5, 1.5]).await;
@@ -388,7 +388,7 @@ async fn disconnect_and_modes_update_the_network_and_the_model() {
     // Data no longer flows.
     m.function(&sensor)
         .unwrap()
-        .call(&[OwnedValue::F32(1.0)])
+        .call(&[Value::F32(1.0)])
         .await
         .unwrap();
     tokio::time::sleep(Duration::from_millis(30)).await;
@@ -425,10 +425,10 @@ async fn calls_report_errors_naming_the_function_and_runtime() {
         e.to_string(),
         "function \"sensor\" on runtime \"a\": expected 1 argument (x: f32), got 0"
     );
-    let e = f.call(&[OwnedValue::from("hi")]).await.unwrap_err();
+    let e = f.call(&[Value::from("hi")]).await.unwrap_err();
     assert!(e.to_string().contains("cannot take a utf8"), "{e}");
     // Checked by the function itself: a lossy conversion.
-    let e = f.call(&[OwnedValue::F64(0.1)]).await.unwrap_err();
+    let e = f.call(&[Value::F64(0.1)]).await.unwrap_err();
     match &e {
         SomError::Remote {
             error: ControlError::Convert { index: 0, .. },
@@ -451,14 +451,14 @@ async fn calls_report_errors_naming_the_function_and_runtime() {
     let out = m
         .function(&text)
         .unwrap()
-        .call(&[OwnedValue::from("four")])
+        .call(&[Value::from("four")])
         .await
         .unwrap();
-    assert_eq!(out, [OwnedValue::U32(4)]);
+    assert_eq!(out, [Value::U32(4)]);
     // Dataflow pushes run the function like a pipe would.
     m.function(&FnRef::new("b", "acc"))
         .unwrap()
-        .push(&[(0, OwnedValue::F32(0.5))])
+        .push(&[(0, Value::F32(0.5))])
         .await
         .unwrap();
     wait_for(&n.acc_seen, |v| v == [0.5]).await;
@@ -606,18 +606,14 @@ async fn refresh_lists_classes_with_their_constructor_and_members() {
     let read = m.function(&FnRef::new("a", "Tally.read")).unwrap();
     assert_eq!(
         read.call(&[]).await.unwrap(),
-        [OwnedValue::F32(1.0), OwnedValue::U32(0)]
+        [Value::F32(1.0), Value::U32(0)]
     );
     let ctor = m.constructor("a", "Tally").unwrap();
-    assert!(ctor
-        .call(&[OwnedValue::F32(10.0)])
-        .await
-        .unwrap()
-        .is_empty());
+    assert!(ctor.call(&[Value::F32(10.0)]).await.unwrap().is_empty());
     assert_eq!(tally.state().lock().unwrap().total, 10.0);
     assert_eq!(
         read.call(&[]).await.unwrap(),
-        [OwnedValue::F32(10.0), OwnedValue::U32(0)]
+        [Value::F32(10.0), Value::U32(0)]
     );
     assert!(matches!(
         m.constructor("a", "Nope"),
@@ -648,17 +644,17 @@ async fn host_class_members_share_state_through_function_handles() {
         member("Tally.reset"),
     );
     assert_eq!(
-        add.call(&[OwnedValue::F32(2.0)]).await.unwrap(),
-        [OwnedValue::F32(2.0)]
+        add.call(&[Value::F32(2.0)]).await.unwrap(),
+        [Value::F32(2.0)]
     );
     assert_eq!(
-        add.call(&[OwnedValue::F32(3.0)]).await.unwrap(),
-        [OwnedValue::F32(5.0)]
+        add.call(&[Value::F32(3.0)]).await.unwrap(),
+        [Value::F32(5.0)]
     );
     // Another member reads what add wrote.
     assert_eq!(
         read.call(&[]).await.unwrap(),
-        [OwnedValue::F32(5.0), OwnedValue::U32(2)]
+        [Value::F32(5.0), Value::U32(2)]
     );
     // The script sees (and may change) the same state.
     {
@@ -669,12 +665,12 @@ async fn host_class_members_share_state_through_function_handles() {
     }
     assert_eq!(
         read.call(&[]).await.unwrap(),
-        [OwnedValue::F32(100.0), OwnedValue::U32(2)]
+        [Value::F32(100.0), Value::U32(2)]
     );
     assert!(reset.call(&[]).await.unwrap().is_empty());
     assert_eq!(
         read.call(&[]).await.unwrap(),
-        [OwnedValue::F32(0.0), OwnedValue::U32(0)]
+        [Value::F32(0.0), Value::U32(0)]
     );
     // Wrong arguments are refused naming the member.
     let err = add.call(&[]).await.unwrap_err().to_string();
@@ -714,7 +710,7 @@ async fn pipes_run_from_module_functions_into_class_members_and_back() {
 
     m.function(&sensor)
         .unwrap()
-        .call(&[OwnedValue::F32(2.5)])
+        .call(&[Value::F32(2.5)])
         .await
         .unwrap();
     wait_state(tally.state(), |s| s.adds == 1).await;
@@ -723,7 +719,7 @@ async fn pipes_run_from_module_functions_into_class_members_and_back() {
 
     m.function(&sensor)
         .unwrap()
-        .call(&[OwnedValue::F32(1.0)])
+        .call(&[Value::F32(1.0)])
         .await
         .unwrap();
     wait_state(tally.state(), |s| s.adds == 2).await;
@@ -736,7 +732,7 @@ async fn pipes_run_from_module_functions_into_class_members_and_back() {
             .call(&[])
             .await
             .unwrap(),
-        [OwnedValue::F32(3.5), OwnedValue::U32(2)]
+        [Value::F32(3.5), Value::U32(2)]
     );
     // Types are checked against members like any function: u32 -> f32
     // converts only some values, so a strict pipe refuses it.
@@ -776,7 +772,7 @@ async fn pipe_stats_show_overflows_over_the_network() {
     quota(0).await.unwrap().unwrap();
     let call = m.function(&sensor).unwrap();
     for x in 1..=6 {
-        call.call(&[OwnedValue::F32(x as f32)]).await.unwrap();
+        call.call(&[Value::F32(x as f32)]).await.unwrap();
     }
     let stats = m.pipe_stats(&sensor, 0).await.unwrap();
     assert_eq!((stats.sent, stats.overflows), (0, 2), "{stats:?}");
@@ -817,7 +813,7 @@ async fn acknowledged_pipes_deliver_end_to_end() {
     assert_eq!(p.delivery, SomDelivery::Acked);
     let call = m.function(&sensor).unwrap();
     for x in [1.0, 2.0, 3.0] {
-        call.call(&[OwnedValue::F32(x)]).await.unwrap();
+        call.call(&[Value::F32(x)]).await.unwrap();
     }
     wait_for(&n.acc_seen, |v| v == [1.0, 2.0, 3.0]).await;
     // Every datagram acknowledged, none sent twice.

@@ -37,7 +37,7 @@ use maxl::blocks::timer::TimerBlock;
 use osap_core::clock::SyncState;
 use osap_core::route::Route;
 use osap_host::netrunner::{self, Netrunner, ScanOptions, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
+use osap_host::som::{FnRef, Manager, PipeOptions, Value};
 use osap_host::{Host, HostConfig};
 use osap_machine::config::MachineFile;
 use osap_machine::job::{self, Program};
@@ -366,7 +366,7 @@ async fn set_up(cfg: &MachineFile, m: &mut Manager) -> (Duration, Duration) {
     let t = Instant::now();
     let mut at = Vec::new();
     for motor in &motors {
-        let call = |f: &str, args: Vec<OwnedValue>| {
+        let call = |f: &str, args: Vec<Value<'static>>| {
             let h = m
                 .function(&FnRef::new(motor.module.as_str(), f))
                 .expect("function");
@@ -374,14 +374,14 @@ async fn set_up(cfg: &MachineFile, m: &mut Manager) -> (Duration, Duration) {
         };
         call(
             "set_scale",
-            vec![OwnedValue::F32(motor.full_steps_per_unit as f32)],
+            vec![Value::F32(motor.full_steps_per_unit as f32)],
         )
         .await;
-        call("set_microsteps", vec![OwnedValue::U16(motor.microsteps)]).await;
-        call("set_interval", vec![OwnedValue::U32(INTERVAL_US)]).await;
-        call("set_enable", vec![OwnedValue::Bool(motor.enable)]).await;
+        call("set_microsteps", vec![Value::U16(motor.microsteps)]).await;
+        call("set_interval", vec![Value::U32(INTERVAL_US)]).await;
+        call("set_enable", vec![Value::Bool(motor.enable)]).await;
         let out = call("get_position", vec![]).await;
-        at.push(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0));
+        at.push(out.get(1).and_then(Value::as_f64).unwrap_or(0.0));
     }
     drv.rebase(&start, &at).expect("rebase");
     let calls = t.elapsed();

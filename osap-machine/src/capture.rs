@@ -64,7 +64,10 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use osap_host::som::model::SomFunction;
-use osap_host::som::{Disconnect, FnRef, HostFunction, Manager, OwnedValue, PipeOptions, SomError};
+use osap_host::som::{
+    parse_value, Disconnect, FnRef, HostFnError, HostFunction, Manager, PipeOptions, SomError,
+    Value,
+};
 use pipes_core::control::InputMode;
 use pipes_core::types::{ScalarType, Type};
 use thiserror::Error;
@@ -322,7 +325,7 @@ struct Resolved {
     /// Whether input 0 of the host function is the time stamp.
     stamped: bool,
     /// Argument values for the function's inputs.
-    args: Vec<(u8, OwnedValue)>,
+    args: Vec<(u8, Value<'static>)>,
     /// Series names, one per recorded output.
     series: Vec<String>,
 }
@@ -346,7 +349,7 @@ fn arg_value(
     name: &str,
     ty: &Type,
     text: &str,
-) -> Result<OwnedValue, CaptureError> {
+) -> Result<Value<'static>, CaptureError> {
     let bad = |what: String| CaptureError::BadSource {
         source_name: spec.text.clone(),
         reason: format!("argument {text:?} for input {name} ({ty}): {what}"),
@@ -354,27 +357,27 @@ fn arg_value(
     if !matches!(ty, Type::Scalar(_)) {
         return Err(bad("only numeric inputs can be given as arguments".into()));
     }
-    OwnedValue::parse(ty, text).map_err(bad)
+    parse_value(ty, text).map_err(|e| bad(e.to_string()))
 }
 
 /// The zero of a numeric input type (an input not given).
-fn zero(ty: &Type) -> Option<OwnedValue> {
+fn zero(ty: &Type) -> Option<Value<'static>> {
     let Type::Scalar(s) = ty else { return None };
     Some(match s {
-        ScalarType::Bool => OwnedValue::Bool(false),
-        ScalarType::I8 => OwnedValue::I8(0),
-        ScalarType::I16 => OwnedValue::I16(0),
-        ScalarType::I32 => OwnedValue::I32(0),
-        ScalarType::I64 => OwnedValue::I64(0),
-        ScalarType::I128 => OwnedValue::I128(0),
-        ScalarType::U8 => OwnedValue::U8(0),
-        ScalarType::U16 => OwnedValue::U16(0),
-        ScalarType::U32 => OwnedValue::U32(0),
-        ScalarType::U64 => OwnedValue::U64(0),
-        ScalarType::U128 => OwnedValue::U128(0),
-        ScalarType::F16 => OwnedValue::F16(0),
-        ScalarType::F32 => OwnedValue::F32(0.0),
-        ScalarType::F64 => OwnedValue::F64(0.0),
+        ScalarType::Bool => Value::Bool(false),
+        ScalarType::I8 => Value::I8(0),
+        ScalarType::I16 => Value::I16(0),
+        ScalarType::I32 => Value::I32(0),
+        ScalarType::I64 => Value::I64(0),
+        ScalarType::I128 => Value::I128(0),
+        ScalarType::U8 => Value::U8(0),
+        ScalarType::U16 => Value::U16(0),
+        ScalarType::U32 => Value::U32(0),
+        ScalarType::U64 => Value::U64(0),
+        ScalarType::U128 => Value::U128(0),
+        ScalarType::F16 => Value::F16(0),
+        ScalarType::F32 => Value::F32(0.0),
+        ScalarType::F64 => Value::F64(0.0),
     })
 }
 
@@ -888,10 +891,10 @@ impl Recorder {
         let shared = self.shared.clone();
         let clock = self.machine.host().clock();
         let mut last: Option<u64> = None;
-        let body = move |ins: &[OwnedValue]| {
+        let body = move |ins: &[Value<'static>]| {
             let (time, values) = if stamped {
-                let Some(OwnedValue::U64(t)) = ins.first() else {
-                    return Err(1);
+                let Some(Value::U64(t)) = ins.first() else {
+                    return Err(HostFnError::new(1));
                 };
                 (*t, &ins[1..])
             } else {
@@ -1070,13 +1073,13 @@ impl Drop for Recorder {
 }
 
 /// Integers an f64 cannot hold exactly, rounded; f16 widened.
-fn lossy_f64(v: &OwnedValue) -> Option<f64> {
+fn lossy_f64(v: &Value<'static>) -> Option<f64> {
     Some(match v {
-        OwnedValue::U64(x) => *x as f64,
-        OwnedValue::I64(x) => *x as f64,
-        OwnedValue::U128(x) => *x as f64,
-        OwnedValue::I128(x) => *x as f64,
-        OwnedValue::F16(bits) => pipes_core::f16::f16_to_f64(*bits),
+        Value::U64(x) => *x as f64,
+        Value::I64(x) => *x as f64,
+        Value::U128(x) => *x as f64,
+        Value::I128(x) => *x as f64,
+        Value::F16(bits) => pipes_core::f16::f16_to_f64(*bits),
         _ => return None,
     })
 }

@@ -60,7 +60,7 @@ use std::sync::{Arc, Mutex};
 
 use maxl::blocks::chirp::{Chirp, ChirpConfig};
 use maxl::blocks::shaper::{ShaperConfig, ShaperKind};
-use osap_host::som::{Disconnect, FnRef, HostFunction, OwnedValue, PipeOptions};
+use osap_host::som::{Disconnect, FnRef, HostFunction, PipeOptions, Value};
 use osap_sim::machine::board::accel::AccelSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::types::{ScalarType, Type};
@@ -455,8 +455,8 @@ pub async fn measure(
             ("value", Type::Scalar(ScalarType::F32)),
         ],
         &[],
-        move |ins: &[OwnedValue]| {
-            if let [OwnedValue::U64(t), OwnedValue::F32(v)] = ins {
+        move |ins: &[Value<'static>]| {
+            if let [Value::U64(t), Value::F32(v)] = ins {
                 sink.lock()
                     .unwrap_or_else(|e| e.into_inner())
                     .push((*t, *v));
@@ -477,7 +477,7 @@ pub async fn measure(
             .map_err(MachineError::from)?;
         m.function(&from)
             .map_err(MachineError::from)?
-            .push(&[(0, OwnedValue::U8(acc.channel))])
+            .push(&[(0, Value::U8(acc.channel))])
             .await
             .map_err(|e| {
                 ResonanceError::Refused(format!(

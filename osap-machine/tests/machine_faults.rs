@@ -3,7 +3,7 @@
 //! kind, the detail and the time, and every waiting call fails naming the
 //! module and the reason. In virtual time, on the simulated plotter.
 
-use osap_host::som::OwnedValue;
+use osap_host::som::Value;
 use osap_machine::config::{MachineFile, MotorLimits};
 use osap_machine::machine::events::FaultKind;
 use osap_machine::machine::SimOptions;
@@ -62,11 +62,7 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
         let now = m.now_us().await.unwrap();
         let late = now / 2048 * 2048 - 10 * 2048;
         let e = m
-            .call(
-                "b",
-                "add_point",
-                &[OwnedValue::U64(late), OwnedValue::F32(0.0)],
-            )
+            .call("b", "add_point", &[Value::U64(late), Value::F32(0.0)])
             .await
             .unwrap_err();
         assert!(
@@ -95,11 +91,7 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
         let t0 = m.now_us().await.unwrap();
         let next = t0 / 2048 * 2048 + 200 * 2048;
         let e = m
-            .call(
-                "b",
-                "add_point",
-                &[OwnedValue::U64(next), OwnedValue::F32(1.0e6)],
-            )
+            .call("b", "add_point", &[Value::U64(next), Value::F32(1.0e6)])
             .await
             .unwrap_err();
         assert!(

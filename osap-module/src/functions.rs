@@ -239,7 +239,7 @@ impl<B: Board> Module<B> {
 
 /// The next input of a call, as a `T`.
 fn next_input<'a, T: FromPipes<'a>>(
-    inputs: &mut core::slice::Iter<'_, Value<'a>>,
+    inputs: &mut core::slice::Iter<'a, Value<'_>>,
 ) -> Result<T, CallError> {
     inputs
         .next()

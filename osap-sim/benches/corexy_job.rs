@@ -7,7 +7,7 @@ use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::board::StepEdge;
 use osap_sim::machine::{self, SimMachine, TimeMode};
@@ -89,7 +89,7 @@ pub async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
     for axis in ["a", "b"] {
         m.function(&FnRef::new(axis, "set_enable"))
             .expect("set_enable")
-            .call(&[OwnedValue::Bool(true)])
+            .call(&[Value::Bool(true)])
             .await
             .expect("enable");
     }

@@ -3,7 +3,7 @@
 //! bus head's) time, and motion streamed to all eight runs on every one.
 
 use osap_host::netrunner::{scan, Netrunner, ScanOptions, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode, Topology};
 use std::sync::atomic::Ordering;
@@ -114,7 +114,7 @@ async fn run(mode: TimeMode) {
         let name = format!("d{k}");
         m.function(&FnRef::new(&name, "set_enable"))
             .unwrap()
-            .call(&[OwnedValue::Bool(true)])
+            .call(&[Value::Bool(true)])
             .await
             .unwrap();
     }
@@ -134,7 +134,7 @@ async fn run(mode: TimeMode) {
             let mut latencies = Vec::new();
             for (i, p) in points.iter().enumerate() {
                 let sent = tokio::time::Instant::now();
-                add.call(&[OwnedValue::U64(t0 + i as u64 * iv), OwnedValue::F32(*p)])
+                add.call(&[Value::U64(t0 + i as u64 * iv), Value::F32(*p)])
                     .await
                     .map_err(|e| format!("d{k} point {i}: {e}"))?;
                 latencies.push(sent.elapsed());

@@ -15,7 +15,7 @@
 use osap_core::clock::TimeMap;
 use osap_core::Instant as LocalInstant;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{self, SharedModule, SimMachine, SwitchSpec, TimeMode, Topology};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -120,12 +120,17 @@ fn profile(knots: &[(u64, f64)], k: u64) -> f64 {
 async fn read_limit(m: &Manager, module: &str) -> (u64, bool, u32) {
     let out = call(m, module, "read_limit", &[]).await;
     match out[..] {
-        [OwnedValue::U64(t), OwnedValue::Bool(level), OwnedValue::U32(n)] => (t, level, n),
+        [Value::U64(t), Value::Bool(level), Value::U32(n)] => (t, level, n),
         _ => panic!("read_limit returned {out:?}"),
     }
 }
 
-async fn call(m: &Manager, module: &str, function: &str, args: &[OwnedValue]) -> Vec<OwnedValue> {
+async fn call(
+    m: &Manager,
+    module: &str,
+    function: &str,
+    args: &[Value<'static>],
+) -> Vec<Value<'static>> {
     m.function(&FnRef::new(module, function))
         .unwrap()
         .call(args)
@@ -238,16 +243,16 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: u64) {
         .collect();
 
     for name in ["a", "b"] {
-        call(&m, name, "set_enable", &[OwnedValue::Bool(true)]).await;
-        call(&m, name, "set_interval", &[OwnedValue::U32(IV as u32)]).await;
+        call(&m, name, "set_enable", &[Value::Bool(true)]).await;
+        call(&m, name, "set_interval", &[Value::U32(IV as u32)]).await;
     }
     let now = host.system_time().await.unwrap().as_micros();
     let t0 = (now + 1_000_000).next_multiple_of(IV);
     let last = A.last().unwrap().0;
     for k in 0..=last {
-        let t = OwnedValue::U64(t0 + k * IV);
+        let t = Value::U64(t0 + k * IV);
         for (name, knots) in [("a", A), ("b", B)] {
-            let p = OwnedValue::F32(profile(knots, k) as f32);
+            let p = Value::F32(profile(knots, k) as f32);
             call(&m, name, "add_point", &[t.clone(), p]).await;
         }
     }

@@ -5,7 +5,7 @@
 //! fault with `get_fault`: kind `OverLimit`, its detail naming the jerk
 //! limit. The stream then goes on from its last accepted point.
 
-use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::fault::{FaultKind, OVER_JERK};
 use osap_module::stepper::StepperError;
@@ -28,13 +28,13 @@ async fn a_point_past_a_limit_is_refused_by_name_and_reported_as_a_fault() {
     let (get_position, get_fault, get_counters) =
         (f("get_position"), f("get_fault"), f("get_counters"));
 
-    set_enable.call(&[OwnedValue::Bool(true)]).await.unwrap();
+    set_enable.call(&[Value::Bool(true)]).await.unwrap();
     // A bad value is refused by name too.
     let e = set_limits
         .call(&[
-            OwnedValue::F32(100.0),
-            OwnedValue::F32(f32::NAN),
-            OwnedValue::F32(200_000.0),
+            Value::F32(100.0),
+            Value::F32(f32::NAN),
+            Value::F32(200_000.0),
         ])
         .await
         .unwrap_err()
@@ -44,9 +44,9 @@ async fn a_point_past_a_limit_is_refused_by_name_and_reported_as_a_fault() {
     // per interval³.
     set_limits
         .call(&[
-            OwnedValue::F32(100.0),
-            OwnedValue::F32(2_000.0),
-            OwnedValue::F32(200_000.0),
+            Value::F32(100.0),
+            Value::F32(2_000.0),
+            Value::F32(200_000.0),
         ])
         .await
         .unwrap();
@@ -54,11 +54,11 @@ async fn a_point_past_a_limit_is_refused_by_name_and_reported_as_a_fault() {
 
     // A stream far ahead of the module's clock, at rest where it stands.
     let here = get_position.call(&[]).await.unwrap();
-    let Some(OwnedValue::U64(now)) = here.first() else {
+    let Some(Value::U64(now)) = here.first() else {
         panic!("{here:?}")
     };
     let t0 = (now + 2_000_000).next_multiple_of(IV);
-    let point = |k: u64, p: f64| [OwnedValue::U64(t0 + k * IV), OwnedValue::F32(p as f32)];
+    let point = |k: u64, p: f64| [Value::U64(t0 + k * IV), Value::F32(p as f32)];
     for k in 0..3 {
         add_point.call(&point(k, 0.0)).await.unwrap();
     }
@@ -76,8 +76,7 @@ async fn a_point_past_a_limit_is_refused_by_name_and_reported_as_a_fault() {
     assert!(e.contains("velocity, acceleration or jerk limit"), "{e}");
     let fault = get_fault.call(&[]).await.unwrap();
     match fault.as_slice() {
-        [OwnedValue::U64(time), OwnedValue::U8(kind), OwnedValue::U32(detail), OwnedValue::U32(count)] =>
-        {
+        [Value::U64(time), Value::U8(kind), Value::U32(detail), Value::U32(count)] => {
             assert!(*time > 0);
             assert_eq!(FaultKind::from_code(*kind), Some(FaultKind::OverLimit));
             assert_eq!(*detail, OVER_JERK, "the jerk limit");
@@ -90,7 +89,7 @@ async fn a_point_past_a_limit_is_refused_by_name_and_reported_as_a_fault() {
     let counters = get_counters.call(&[]).await.unwrap();
     assert_eq!(
         counters[..3],
-        [OwnedValue::U32(4), OwnedValue::U32(1), OwnedValue::U8(code)]
+        [Value::U32(4), Value::U32(1), Value::U8(code)]
     );
     sim.stop().await.unwrap();
 }

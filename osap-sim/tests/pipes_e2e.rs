@@ -7,8 +7,8 @@
 
 use osap_host::link::memory;
 use osap_host::som::{
-    attach_function, FnRef, FunctionHandle, HostFunction, Manager, OwnedValue, PipeOptions,
-    SomError,
+    attach_function, FnRef, FunctionHandle, HostFnError, HostFunction, Manager, PipeOptions,
+    SomError, Value,
 };
 use osap_host::Host;
 use osap_sim::machine::{self, SimMachine};
@@ -59,7 +59,7 @@ async fn lab() -> Lab {
 }
 
 /// Values a host function saw, one row per run.
-type Seen = Arc<Mutex<Vec<Vec<OwnedValue>>>>;
+type Seen = Arc<Mutex<Vec<Vec<Value<'static>>>>>;
 
 /// A host function that records its inputs and returns no outputs.
 fn recorder(name: &str, inputs: &[(&str, Type)]) -> (HostFunction, Seen) {
@@ -89,8 +89,8 @@ async fn wait_until<T>(label: &str, mut what: impl FnMut() -> Option<T>) -> T {
 async fn wait_for_row(
     label: &str,
     seen: &Seen,
-    row: impl Fn(&[OwnedValue]) -> bool,
-) -> Vec<Vec<OwnedValue>> {
+    row: impl Fn(&[Value<'static>]) -> bool,
+) -> Vec<Vec<Value<'static>>> {
     wait_until(label, || {
         let v = seen.lock().unwrap();
         v.iter().any(|r| row(r)).then(|| v.clone())
@@ -113,9 +113,9 @@ async fn wait_until_async<T, F: Future<Output = Option<T>>>(
     }
 }
 
-fn u64_of(v: &OwnedValue) -> u64 {
+fn u64_of(v: &Value<'static>) -> u64 {
     match v {
-        OwnedValue::U64(x) => *x,
+        Value::U64(x) => *x,
         other => panic!("expected a u64, got {other:?}"),
     }
 }
@@ -126,7 +126,7 @@ async fn enable(m: &Manager, axis: &str, on: bool) {
     let out = m
         .function(&FnRef::new(axis, "set_enable"))
         .unwrap()
-        .call(&[OwnedValue::Bool(on)])
+        .call(&[Value::Bool(on)])
         .await
         .unwrap();
     assert!(out.is_empty());
@@ -139,12 +139,12 @@ async fn power(m: &Manager, axis: &str) {
 
 /// `get_status` as the firmware reports it: mode (0 disabled, 1 idle),
 /// points queued, powered, faults.
-fn status(mode: u8, queued: u16, enabled: bool) -> Vec<OwnedValue> {
+fn status(mode: u8, queued: u16, enabled: bool) -> Vec<Value<'static>> {
     vec![
-        OwnedValue::U8(mode),
-        OwnedValue::U16(queued),
-        OwnedValue::Bool(enabled),
-        OwnedValue::U32(0),
+        Value::U8(mode),
+        Value::U16(queued),
+        Value::Bool(enabled),
+        Value::U32(0),
     ]
 }
 
@@ -156,7 +156,7 @@ async fn aligned(h: &Host, ahead: u64) -> u64 {
 
 async fn position(f: &FunctionHandle) -> (u64, f32) {
     match f.call(&[]).await.unwrap().as_slice() {
-        [OwnedValue::U64(t), OwnedValue::F32(p)] => (*t, *p),
+        [Value::U64(t), Value::F32(p)] => (*t, *p),
         other => panic!("get_position returned {other:?}"),
     }
 }
@@ -195,14 +195,14 @@ async fn rpc_round_trips_every_scalar_type_and_module_functions() {
     assert_eq!(ints_fn, FnRef::new("h", "echo_ints"));
 
     let int_args = vec![
-        OwnedValue::I8(i8::MIN),
-        OwnedValue::I16(i16::MAX),
-        OwnedValue::I32(-123_456_789),
-        OwnedValue::I64(i64::MIN + 1),
-        OwnedValue::U8(u8::MAX),
-        OwnedValue::U16(65_000),
-        OwnedValue::U32(u32::MAX - 7),
-        OwnedValue::U64(u64::MAX),
+        Value::I8(i8::MIN),
+        Value::I16(i16::MAX),
+        Value::I32(-123_456_789),
+        Value::I64(i64::MIN + 1),
+        Value::U8(u8::MAX),
+        Value::U16(65_000),
+        Value::U32(u32::MAX - 7),
+        Value::U64(u64::MAX),
     ];
     let f = m.function(&ints_fn).unwrap();
     let types: Vec<_> = f.inputs().iter().map(|a| a.type_name.as_str()).collect();
@@ -213,27 +213,27 @@ async fn rpc_round_trips_every_scalar_type_and_module_functions() {
     assert_eq!(f.call(&int_args).await.unwrap(), int_args);
 
     let rest_args = vec![
-        OwnedValue::Bool(true),
-        OwnedValue::I128(-(1i128 << 100)),
-        OwnedValue::U128(u128::MAX),
-        OwnedValue::F16(0x3c00), // 1.0
-        OwnedValue::F32(-1.5e-7),
-        OwnedValue::F64(std::f64::consts::PI),
-        OwnedValue::Ascii("plain ascii".into()),
-        OwnedValue::Utf8("héllo ✓ 🦀".into()),
+        Value::Bool(true),
+        Value::I128(-(1i128 << 100)),
+        Value::U128(u128::MAX),
+        Value::F16(0x3c00), // 1.0
+        Value::F32(-1.5e-7),
+        Value::F64(std::f64::consts::PI),
+        Value::Ascii("plain ascii".into()),
+        Value::Utf8("héllo ✓ 🦀".into()),
     ];
     let f = m.function(&rest_fn).unwrap();
     assert_eq!(f.call(&rest_args).await.unwrap(), rest_args);
     // Values convert to the input's type when they fit exactly: an i8 for
     // the f32, an ascii string for the utf8 input, a u8 for the u128.
     let mut widened = rest_args.clone();
-    widened[2] = OwnedValue::U8(7);
-    widened[4] = OwnedValue::I8(-3);
-    widened[7] = OwnedValue::Ascii("abc".into());
+    widened[2] = Value::U8(7);
+    widened[4] = Value::I8(-3);
+    widened[7] = Value::Ascii("abc".into());
     let out = f.call(&widened).await.unwrap();
-    assert_eq!(out[2], OwnedValue::U128(7));
-    assert_eq!(out[4], OwnedValue::F32(-3.0));
-    assert_eq!(out[7], OwnedValue::Utf8("abc".into()));
+    assert_eq!(out[2], Value::U128(7));
+    assert_eq!(out[4], Value::F32(-3.0));
+    assert_eq!(out[7], Value::Utf8("abc".into()));
 
     // Module functions on the stepper x (over USB and a UART), with the
     // firmware's types: set_microsteps(u16), add_point(u64, f32),
@@ -245,13 +245,13 @@ async fn rpc_round_trips_every_scalar_type_and_module_functions() {
     assert_eq!(p0, 0.0, "the axis boots at 0");
     // A u8 converts to the u16 input.
     let micro = m.function(&FnRef::new("x", "set_microsteps")).unwrap();
-    assert!(micro.call(&[OwnedValue::U8(4)]).await.unwrap().is_empty());
+    assert!(micro.call(&[Value::U8(4)]).await.unwrap().is_empty());
     power(m, "x").await;
     let add = m.function(&FnRef::new("x", "add_point")).unwrap();
     // A stream that starts where the axis stands; a u32 time converts to
     // u64 (a time long past: the point is queued all the same).
     let out = add
-        .call(&[OwnedValue::U32(2048), OwnedValue::F32(0.0)])
+        .call(&[Value::U32(2048), Value::F32(0.0)])
         .await
         .unwrap();
     assert!(out.is_empty());
@@ -263,12 +263,7 @@ async fn rpc_round_trips_every_scalar_type_and_module_functions() {
         .unwrap();
     assert_eq!(
         counters,
-        [
-            OwnedValue::U32(1),
-            OwnedValue::U32(0),
-            OwnedValue::U8(0),
-            OwnedValue::U32(0)
-        ]
+        [Value::U32(1), Value::U32(0), Value::U8(0), Value::U32(0)]
     );
     let (t1, p1) = position(&get).await;
     assert_eq!(p1, 0.0);
@@ -281,12 +276,7 @@ async fn rpc_round_trips_every_scalar_type_and_module_functions() {
         .unwrap();
     assert_eq!(
         steps,
-        [
-            OwnedValue::I64(0),
-            OwnedValue::U64(0),
-            OwnedValue::U64(0),
-            OwnedValue::U64(0)
-        ]
+        [Value::I64(0), Value::U64(0), Value::U64(0), Value::U64(0)]
     );
     let x = lab.machine.module("x").unwrap().module().unwrap();
     assert_eq!(x.lock(|m| m.board().driver().microsteps()), 4);
@@ -306,14 +296,14 @@ async fn three_runtime_chain_weaves_arguments() {
         &[("t", U64), ("p", F32)],
         &[("t", U64), ("decoy", F32), ("decoy2", U64), ("p", F32)],
         |i| {
-            let (OwnedValue::U64(t), OwnedValue::F32(p)) = (&i[0], &i[1]) else {
-                return Err(1);
+            let (Value::U64(t), Value::F32(p)) = (&i[0], &i[1]) else {
+                return Err(HostFnError::new(1));
             };
             Ok(vec![
-                OwnedValue::U64(*t),
-                OwnedValue::F32(-p),
-                OwnedValue::U64(t + 1),
-                OwnedValue::F32(*p),
+                Value::U64(*t),
+                Value::F32(-p),
+                Value::U64(t + 1),
+                Value::F32(*p),
             ])
         },
     )
@@ -378,12 +368,12 @@ async fn three_runtime_chain_weaves_arguments() {
     let out = m
         .function(&src)
         .unwrap()
-        .call(&[OwnedValue::U64(t), OwnedValue::F32(p)])
+        .call(&[Value::U64(t), Value::F32(p)])
         .await
         .unwrap();
-    assert_eq!(out[1], OwnedValue::F32(-p));
+    assert_eq!(out[1], Value::F32(-p));
     let rows = wait_for_row("mid to run", &mid_seen, |_| true).await;
-    assert_eq!(rows, [vec![OwnedValue::U64(t), OwnedValue::F32(p)]]);
+    assert_eq!(rows, [vec![Value::U64(t), Value::F32(p)]]);
     // The point reached x and was queued.
     let x = machine.module("x").unwrap().module().unwrap();
     wait_until("x to queue the point", || {
@@ -437,29 +427,29 @@ async fn on_all_fresh_waits_for_both_sources() {
 
     // Only input 0 is fresh, twice: no run.
     let t1 = call(&gx).await;
-    wait_for_row("probe_x t1", &probe_x, |r| r[0] == OwnedValue::U64(t1)).await;
+    wait_for_row("probe_x t1", &probe_x, |r| r[0] == Value::U64(t1)).await;
     let t2 = call(&gx).await;
-    wait_for_row("probe_x t2", &probe_x, |r| r[0] == OwnedValue::U64(t2)).await;
+    wait_for_row("probe_x t2", &probe_x, |r| r[0] == Value::U64(t2)).await;
     assert!(sink_seen.lock().unwrap().is_empty());
     // Input 1 arrives: one run, with the latest input 0.
     let u1 = call(&gh).await;
     let rows = wait_for_row("the sink's first run", &sink_seen, |_| true).await;
-    assert_eq!(rows, [vec![OwnedValue::U64(t2), OwnedValue::U64(u1)]]);
+    assert_eq!(rows, [vec![Value::U64(t2), Value::U64(u1)]]);
     // Input 1 again alone: no run (input 0 is no longer fresh).
     let u2 = call(&gh).await;
-    wait_for_row("probe_y u2", &probe_y, |r| r[0] == OwnedValue::U64(u2)).await;
+    wait_for_row("probe_y u2", &probe_y, |r| r[0] == Value::U64(u2)).await;
     assert_eq!(sink_seen.lock().unwrap().len(), 1);
     // Both fresh again: the second run.
     let t3 = call(&gx).await;
     let rows = wait_for_row("the sink's second run", &sink_seen, |r| {
-        r[0] == OwnedValue::U64(t3)
+        r[0] == Value::U64(t3)
     })
     .await;
     assert_eq!(
         rows,
         [
-            vec![OwnedValue::U64(t2), OwnedValue::U64(u1)],
-            vec![OwnedValue::U64(t3), OwnedValue::U64(u2)],
+            vec![Value::U64(t2), Value::U64(u1)],
+            vec![Value::U64(t3), Value::U64(u2)],
         ]
     );
 }
@@ -569,14 +559,14 @@ async fn a_pipe_to_itself_feeds_back_and_stops() {
     let s = seen.clone();
     // count(n) -> n + 1, refusing (code 9) at LIMIT so the loop ends.
     let count = HostFunction::new("count", &[("n", U32)], &[("next", U32)], move |i| {
-        let OwnedValue::U32(n) = i[0] else {
-            return Err(1);
+        let Value::U32(n) = i[0] else {
+            return Err(HostFnError::new(1));
         };
         s.lock().unwrap().push(n);
         if n >= LIMIT {
-            return Err(9);
+            return Err(HostFnError::new(9));
         }
-        Ok(vec![OwnedValue::U32(n + 1)])
+        Ok(vec![Value::U32(n + 1)])
     })
     .unwrap();
     let count = m.define(count).await.unwrap();
@@ -590,10 +580,7 @@ async fn a_pipe_to_itself_feeds_back_and_stops() {
         Some("count")
     );
     let f = m.function(&count).unwrap();
-    assert_eq!(
-        f.call(&[OwnedValue::U32(0)]).await.unwrap(),
-        [OwnedValue::U32(1)]
-    );
+    assert_eq!(f.call(&[Value::U32(0)]).await.unwrap(), [Value::U32(1)]);
     let all = wait_until("the loop to reach its limit", || {
         let v = seen.lock().unwrap();
         (v.last() == Some(&LIMIT)).then(|| v.clone())
@@ -601,7 +588,7 @@ async fn a_pipe_to_itself_feeds_back_and_stops() {
     .await;
     assert_eq!(all, (0..=LIMIT).collect::<Vec<_>>());
     // The runtime is not stuck: the function and the machine still answer.
-    let e = f.call(&[OwnedValue::U32(LIMIT)]).await.unwrap_err();
+    let e = f.call(&[Value::U32(LIMIT)]).await.unwrap_err();
     assert!(e.to_string().contains("failed with code 9"), "{e}");
     position(&m.function(&FnRef::new("x", "get_position")).unwrap()).await;
     assert_eq!(seen.lock().unwrap().len(), all.len() + 1);
@@ -614,7 +601,7 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     let add = m.function(&FnRef::new("x", "add_point")).unwrap();
     // Refused before sending: a string for the f32 position.
     let e = add
-        .call(&[OwnedValue::U64(0), OwnedValue::from("far")])
+        .call(&[Value::U64(0), Value::from("far")])
         .await
         .unwrap_err();
     assert!(matches!(e, SomError::BadArguments { .. }), "{e:?}");
@@ -627,15 +614,13 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     ] {
         assert!(msg.contains(part), "{msg} lacks {part}");
     }
-    let e = add
-        .call(&[OwnedValue::Bool(true), OwnedValue::F32(1.0)])
-        .await;
+    let e = add.call(&[Value::Bool(true), Value::F32(1.0)]).await;
     let msg = e.unwrap_err().to_string();
     assert!(
         msg.contains("input 0 (time: u64) cannot take a bool"),
         "{msg}"
     );
-    let e = add.call(&[OwnedValue::U64(0)]).await.unwrap_err();
+    let e = add.call(&[Value::U64(0)]).await.unwrap_err();
     assert_eq!(
         e.to_string(),
         "function \"add_point\" on runtime \"x\": expected 2 arguments \
@@ -644,7 +629,7 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     // Refused by the module itself: f64 0.1 is lossy as an f32, and a
     // negative time is out of range for the u64.
     let e = add
-        .call(&[OwnedValue::U64(0), OwnedValue::F64(0.1)])
+        .call(&[Value::U64(0), Value::F64(0.1)])
         .await
         .unwrap_err();
     match &e {
@@ -661,7 +646,7 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
         "{e}"
     );
     let e = add
-        .call(&[OwnedValue::I32(-1), OwnedValue::F32(0.0)])
+        .call(&[Value::I32(-1), Value::F32(0.0)])
         .await
         .unwrap_err();
     assert!(
@@ -676,7 +661,7 @@ async fn wrong_argument_types_are_refused_naming_function_runtime_and_argument()
     );
     // The module's own refusal: the motor is not powered (code 6).
     let e = add
-        .call(&[OwnedValue::U64(0), OwnedValue::F32(1.0)])
+        .call(&[Value::U64(0), Value::F32(1.0)])
         .await
         .unwrap_err();
     assert!(e.to_string().contains("Disabled (code 6)"), "{e}");
@@ -726,7 +711,7 @@ async fn a_pipe_to_a_module_that_died_is_reported() {
     assert_eq!(gx.call(&[]).await.unwrap(), status(1, 0, true));
     wait_until_async("y to follow x", || {
         let y = y_status.clone();
-        async move { (y.call(&[]).await.unwrap()[2] == OwnedValue::Bool(true)).then_some(()) }
+        async move { (y.call(&[]).await.unwrap()[2] == Value::Bool(true)).then_some(()) }
     })
     .await;
 
@@ -801,8 +786,7 @@ async fn a_host_timer_runs_without_other_traffic() {
     })
     .unwrap();
     let sink = m.define(sink).await.unwrap();
-    let tick =
-        HostFunction::new("tick", &[], &[("t", U64)], |_| Ok(vec![OwnedValue::U64(1)])).unwrap();
+    let tick = HostFunction::new("tick", &[], &[("t", U64)], |_| Ok(vec![Value::U64(1)])).unwrap();
     let tick = m.define(tick).await.unwrap();
     m.connect(&tick, &sink, &[0], &[0], PipeOptions::default())
         .await

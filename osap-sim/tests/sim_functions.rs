@@ -56,18 +56,9 @@ fn request_body(req: &Request<'_>) -> Vec<u8> {
     buf
 }
 
-/// A scalar output, owned.
+/// An output, owned.
 fn owned(v: Value<'_>) -> Value<'static> {
-    match v {
-        Value::Bool(x) => Value::Bool(x),
-        Value::U8(x) => Value::U8(x),
-        Value::U16(x) => Value::U16(x),
-        Value::U32(x) => Value::U32(x),
-        Value::U64(x) => Value::U64(x),
-        Value::I64(x) => Value::I64(x),
-        Value::F32(x) => Value::F32(x),
-        other => panic!("unexpected output {other:?}"),
-    }
+    v.into_owned()
 }
 
 /// One function of one scanned runtime.
@@ -99,7 +90,7 @@ impl Fn {
         let indexed: Vec<(u8, Value<'_>)> = vals
             .iter()
             .enumerate()
-            .map(|(i, v)| (i as u8, *v))
+            .map(|(i, v)| (i as u8, v.reborrow()))
             .collect();
         self.call_indexed(host_port, &indexed).await
     }
@@ -510,7 +501,7 @@ async fn stepper_functions_refuse_with_the_firmware_codes() {
     assert_eq!(SIGNATURES[0].inputs[usize::from(index)].name, "time");
     assert_eq!(error.reason, ConvertReason::Impossible);
     let err = add
-        .call(p, &[Value::U64(t), Value::Utf8("far")])
+        .call(p, &[Value::U64(t), Value::utf8("far")])
         .await
         .unwrap_err();
     assert!(

@@ -12,7 +12,7 @@
 use osap_core::clock::TimeMap;
 use osap_core::Instant as LocalInstant;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue};
+use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::stepper::Mode;
 use osap_sim::machine::board::StepEdge;
@@ -95,7 +95,7 @@ async fn synced(host: &Host, machine: &SimMachine, names: &[&str]) {
 }
 
 /// Calls `function` on z.
-async fn call(m: &Manager, function: &str, args: &[OwnedValue]) -> Vec<OwnedValue> {
+async fn call(m: &Manager, function: &str, args: &[Value<'static>]) -> Vec<Value<'static>> {
     m.function(&FnRef::new("z", function))
         .unwrap()
         .call(args)
@@ -119,19 +119,17 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     );
 
     // The firmware starts at 80 full steps per unit; z is a lead screw.
-    assert!(
-        call(&m, "set_scale", &[OwnedValue::F32(STEPS_PER_MM as f32)])
-            .await
-            .is_empty()
-    );
-    call(&m, "set_enable", &[OwnedValue::Bool(true)]).await;
+    assert!(call(&m, "set_scale", &[Value::F32(STEPS_PER_MM as f32)])
+        .await
+        .is_empty());
+    call(&m, "set_enable", &[Value::Bool(true)]).await;
     assert_eq!(
         call(&m, "get_status", &[]).await,
         [
-            OwnedValue::U8(Mode::Idle as u8),
-            OwnedValue::U16(0),
-            OwnedValue::Bool(true),
-            OwnedValue::U32(0)
+            Value::U8(Mode::Idle as u8),
+            Value::U16(0),
+            Value::Bool(true),
+            Value::U32(0)
         ]
     );
     assert!(
@@ -154,7 +152,7 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     let add = m.function(&FnRef::new("z", "add_point")).unwrap();
     for (k, p) in points.iter().enumerate() {
         let t = t0 + k as u64 * IV;
-        add.call(&[OwnedValue::U64(t), OwnedValue::F32(*p)])
+        add.call(&[Value::U64(t), Value::F32(*p)])
             .await
             .unwrap_or_else(|e| panic!("point {k}: {e}"));
     }
@@ -234,22 +232,22 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     assert_eq!(
         steps,
         [
-            OwnedValue::I64(motor_steps),
-            OwnedValue::U64(0),
-            OwnedValue::U64(edges.len() as u64),
-            OwnedValue::U64(0)
+            Value::I64(motor_steps),
+            Value::U64(0),
+            Value::U64(edges.len() as u64),
+            Value::U64(0)
         ],
         "net, up, down, overruns"
     );
     let position = call(&m, "get_position", &[]).await;
-    assert_eq!(position[1], OwnedValue::F32(-4.0));
+    assert_eq!(position[1], Value::F32(-4.0));
     assert_eq!(
         call(&m, "get_counters", &[]).await,
         [
-            OwnedValue::U32(points.len() as u32),
-            OwnedValue::U32(0),
-            OwnedValue::U8(0),
-            OwnedValue::U32(0)
+            Value::U32(points.len() as u32),
+            Value::U32(0),
+            Value::U8(0),
+            Value::U32(0)
         ],
         "points, refused, last refused, filled"
     );
@@ -259,10 +257,10 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     assert_eq!(
         call(&m, "get_status", &[]).await,
         [
-            OwnedValue::U8(Mode::Backstop as u8),
-            OwnedValue::U16(points.len() as u16),
-            OwnedValue::Bool(true),
-            OwnedValue::U32(0)
+            Value::U8(Mode::Backstop as u8),
+            Value::U16(points.len() as u16),
+            Value::Bool(true),
+            Value::U32(0)
         ],
         "mode, queued, enabled, faults"
     );
@@ -270,7 +268,7 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
     // The limit switch below -2 mm closed once, on the first step that put
     // the carriage at or below -2 mm, stamped with that step's time.
     let out = call(&m, "read_limit", &[]).await;
-    let [OwnedValue::U64(hit), OwnedValue::Bool(level), OwnedValue::U32(count)] = out[..] else {
+    let [Value::U64(hit), Value::Bool(level), Value::U32(count)] = out[..] else {
         panic!("read_limit returned {out:?}");
     };
     assert_eq!((level, count), (false, 1), "pressed (pulled low), once");

@@ -34,7 +34,7 @@ use osap_core::codec::Writer;
 
 use crate::f16::{f16_to_f32, f32_to_f16_exact, f64_to_f16_exact, f64_to_f32_exact};
 use crate::types::{ScalarType, Type};
-use crate::value::{Dims, Element, Elements, Value, ValueError};
+use crate::value::{Dims, Element, Elements, Text, Value, ValueError};
 
 /// Why a conversion failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
@@ -357,7 +357,7 @@ impl<'a> ConvertedElements<'a> {
 }
 
 /// A value after conversion.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Converted<'a> {
     /// A value of the target type (scalars, strings, and arrays or tensors
     /// whose element type did not change).
@@ -427,7 +427,8 @@ fn check_elements(src: Elements<'_>, to: ScalarType) -> Result<(), (usize, Conve
 }
 
 /// Converts `value` to type `to` under the conversion table (module docs).
-pub fn convert<'a>(value: &Value<'a>, to: &Type) -> Result<Converted<'a>, ConvertError> {
+/// The result borrows `value`'s data.
+pub fn convert<'a>(value: &'a Value<'_>, to: &Type) -> Result<Converted<'a>, ConvertError> {
     let from = value.ty();
     let err = |reason, element| ConvertError {
         from,
@@ -437,7 +438,7 @@ pub fn convert<'a>(value: &Value<'a>, to: &Type) -> Result<Converted<'a>, Conver
     };
     let rule = rule(&from, to);
     match rule {
-        Rule::Identity => return Ok(Converted::Value(*value)),
+        Rule::Identity => return Ok(Converted::Value(value.reborrow())),
         Rule::Never(reason) => return Err(err(reason, None)),
         Rule::Always | Rule::IfExact => {}
     }
@@ -453,8 +454,10 @@ pub fn convert<'a>(value: &Value<'a>, to: &Type) -> Result<Converted<'a>, Conver
             dims: t.dims(),
             elements: checked(t.elements(), *s)?,
         }),
-        (Value::Ascii(s), Type::Utf8) => Ok(Converted::Value(Value::Utf8(s))),
-        (Value::Utf8(s), Type::Ascii) if s.is_ascii() => Ok(Converted::Value(Value::Ascii(s))),
+        (Value::Ascii(s), Type::Utf8) => Ok(Converted::Value(Value::Utf8(Text::new(s)))),
+        (Value::Utf8(s), Type::Ascii) if s.is_ascii() => {
+            Ok(Converted::Value(Value::Ascii(Text::new(s))))
+        }
         (Value::Utf8(_), Type::Ascii) => Err(err(ConvertReason::OutOfRange, None)),
         (_, Type::Scalar(s)) => convert_scalar(value, *s)
             .map(Converted::Value)
@@ -468,8 +471,8 @@ mod tests {
     use super::*;
     use ScalarType as S;
 
-    fn to(v: Value<'_>, s: ScalarType) -> Result<Value<'_>, ConvertReason> {
-        match convert(&v, &Type::Scalar(s)) {
+    fn to<'a>(v: &'a Value<'_>, s: ScalarType) -> Result<Value<'a>, ConvertReason> {
+        match convert(v, &Type::Scalar(s)) {
             Ok(Converted::Value(v)) => Ok(v),
             Ok(other) => panic!("unexpected {other:?}"),
             Err(e) => Err(e.reason),
@@ -478,21 +481,21 @@ mod tests {
 
     #[test]
     fn integers() {
-        assert_eq!(to(Value::U8(200), S::U16), Ok(Value::U16(200)));
-        assert_eq!(to(Value::U8(200), S::I16), Ok(Value::I16(200)));
-        assert_eq!(to(Value::I32(-7), S::I64), Ok(Value::I64(-7)));
+        assert_eq!(to(&Value::U8(200), S::U16), Ok(Value::U16(200)));
+        assert_eq!(to(&Value::U8(200), S::I16), Ok(Value::I16(200)));
+        assert_eq!(to(&Value::I32(-7), S::I64), Ok(Value::I64(-7)));
         assert_eq!(
-            to(Value::I64(1 << 40), S::I32),
+            to(&Value::I64(1 << 40), S::I32),
             Err(ConvertReason::OutOfRange)
         );
-        assert_eq!(to(Value::I64(-5), S::I32), Ok(Value::I32(-5)));
-        assert_eq!(to(Value::I8(-1), S::U64), Err(ConvertReason::OutOfRange));
+        assert_eq!(to(&Value::I64(-5), S::I32), Ok(Value::I32(-5)));
+        assert_eq!(to(&Value::I8(-1), S::U64), Err(ConvertReason::OutOfRange));
         assert_eq!(
-            to(Value::U128(u128::MAX), S::I128),
+            to(&Value::U128(u128::MAX), S::I128),
             Err(ConvertReason::OutOfRange)
         );
         assert_eq!(
-            to(Value::I128(i128::MIN), S::I128),
+            to(&Value::I128(i128::MIN), S::I128),
             Ok(Value::I128(i128::MIN))
         );
     }
@@ -500,63 +503,69 @@ mod tests {
     #[test]
     fn integers_to_floats() {
         assert_eq!(
-            to(Value::I32(i32::MIN), S::F64),
+            to(&Value::I32(i32::MIN), S::F64),
             Ok(Value::F64(-2147483648.0))
         );
-        assert_eq!(to(Value::I16(-300), S::F32), Ok(Value::F32(-300.0)));
-        assert_eq!(to(Value::U16(65535), S::F32), Ok(Value::F32(65535.0)));
+        assert_eq!(to(&Value::I16(-300), S::F32), Ok(Value::F32(-300.0)));
+        assert_eq!(to(&Value::U16(65535), S::F32), Ok(Value::F32(65535.0)));
         assert_eq!(
-            to(Value::I32(16_777_216), S::F32),
+            to(&Value::I32(16_777_216), S::F32),
             Ok(Value::F32(16_777_216.0))
         );
         assert_eq!(
-            to(Value::I32(16_777_217), S::F32),
+            to(&Value::I32(16_777_217), S::F32),
             Err(ConvertReason::Lossy)
         );
         assert_eq!(
-            to(Value::U128(1 << 100), S::F32),
+            to(&Value::U128(1 << 100), S::F32),
             Ok(Value::F32(2f32.powi(100)))
         );
         assert_eq!(
-            to(Value::U128(u128::MAX), S::F64),
+            to(&Value::U128(u128::MAX), S::F64),
             Err(ConvertReason::Lossy)
         );
-        assert_eq!(to(Value::U16(2048), S::F16), Ok(Value::F16(0x6800)));
-        assert_eq!(to(Value::U16(2049), S::F16), Err(ConvertReason::Lossy));
+        assert_eq!(to(&Value::U16(2048), S::F16), Ok(Value::F16(0x6800)));
+        assert_eq!(to(&Value::U16(2049), S::F16), Err(ConvertReason::Lossy));
         assert_eq!(
-            to(Value::U32(65536), S::F16),
+            to(&Value::U32(65536), S::F16),
             Err(ConvertReason::OutOfRange)
         );
     }
 
     #[test]
     fn floats() {
-        assert_eq!(to(Value::F32(0.1), S::F64), Ok(Value::F64(0.1f32 as f64)));
+        assert_eq!(to(&Value::F32(0.1), S::F64), Ok(Value::F64(0.1f32 as f64)));
         assert_eq!(
-            to(Value::F16(0x3555), S::F32),
+            to(&Value::F16(0x3555), S::F32),
             Ok(Value::F32(f16_to_f32(0x3555)))
         );
-        assert_eq!(to(Value::F64(0.5), S::F32), Ok(Value::F32(0.5)));
-        assert_eq!(to(Value::F64(0.1), S::F32), Err(ConvertReason::Lossy));
+        assert_eq!(to(&Value::F64(0.5), S::F32), Ok(Value::F32(0.5)));
+        assert_eq!(to(&Value::F64(0.1), S::F32), Err(ConvertReason::Lossy));
         assert_eq!(
-            to(Value::F64(1e300), S::F32),
+            to(&Value::F64(1e300), S::F32),
             Err(ConvertReason::OutOfRange)
         );
-        assert_eq!(to(Value::F64(1e5), S::F16), Err(ConvertReason::OutOfRange));
+        assert_eq!(to(&Value::F64(1e5), S::F16), Err(ConvertReason::OutOfRange));
         assert_eq!(
-            to(Value::F64(f64::INFINITY), S::F32),
+            to(&Value::F64(f64::INFINITY), S::F32),
             Ok(Value::F32(f32::INFINITY))
         );
-        assert_eq!(to(Value::F32(1.0), S::I32), Err(ConvertReason::Lossy));
-        assert_eq!(to(Value::F16(0), S::U8), Err(ConvertReason::Lossy));
+        assert_eq!(to(&Value::F32(1.0), S::I32), Err(ConvertReason::Lossy));
+        assert_eq!(to(&Value::F16(0), S::U8), Err(ConvertReason::Lossy));
     }
 
     #[test]
     fn impossible() {
-        assert_eq!(to(Value::Bool(true), S::U8), Err(ConvertReason::Impossible));
-        assert_eq!(to(Value::U8(1), S::Bool), Err(ConvertReason::Impossible));
-        assert_eq!(to(Value::Ascii("1"), S::U8), Err(ConvertReason::Impossible));
-        assert_eq!(to(Value::Null, S::U8), Err(ConvertReason::Impossible));
+        assert_eq!(
+            to(&Value::Bool(true), S::U8),
+            Err(ConvertReason::Impossible)
+        );
+        assert_eq!(to(&Value::U8(1), S::Bool), Err(ConvertReason::Impossible));
+        assert_eq!(
+            to(&Value::ascii("1"), S::U8),
+            Err(ConvertReason::Impossible)
+        );
+        assert_eq!(to(&Value::Null, S::U8), Err(ConvertReason::Impossible));
         assert_eq!(
             convert(&Value::U8(1), &Type::Null).unwrap_err().reason,
             ConvertReason::Impossible
@@ -566,15 +575,15 @@ mod tests {
     #[test]
     fn strings() {
         assert_eq!(
-            convert(&Value::Ascii("ab"), &Type::Utf8),
-            Ok(Converted::Value(Value::Utf8("ab")))
+            convert(&Value::ascii("ab"), &Type::Utf8),
+            Ok(Converted::Value(Value::utf8("ab")))
         );
         assert_eq!(
-            convert(&Value::Utf8("ab"), &Type::Ascii),
-            Ok(Converted::Value(Value::Ascii("ab")))
+            convert(&Value::utf8("ab"), &Type::Ascii),
+            Ok(Converted::Value(Value::ascii("ab")))
         );
         assert_eq!(
-            convert(&Value::Utf8("é"), &Type::Ascii).unwrap_err().reason,
+            convert(&Value::utf8("é"), &Type::Ascii).unwrap_err().reason,
             ConvertReason::OutOfRange
         );
     }
@@ -648,7 +657,7 @@ mod tests {
         }
         for a in ScalarType::ALL {
             for b in ScalarType::ALL {
-                let results = extremes(a).map(|v| to(v, b));
+                let results = extremes(a).map(|v| to(&v, b).map(|_| ()));
                 match rule(&Type::Scalar(a), &Type::Scalar(b)) {
                     Rule::Identity | Rule::Always => {
                         assert!(results.iter().all(Result::is_ok), "{a}->{b}")

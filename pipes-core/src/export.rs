@@ -18,7 +18,7 @@
 
 use crate::function::{CallError, Outputs};
 use crate::types::{ScalarType, Type};
-use crate::value::Value;
+use crate::value::{Text, Value};
 
 /// [`CallError::Failed`] code: an input was missing or not of its declared
 /// type (the machinery converts inputs before a call, so this means a bug).
@@ -51,8 +51,9 @@ pub trait PipesType {
     note = "PIPES functions take and return bool, i8..i128, u8..u128, f32, f64 and &str"
 )]
 pub trait FromPipes<'a>: PipesType + Sized {
-    /// The Rust value of `v`, if `v` is of type [`PipesType::TYPE`].
-    fn from_value(v: &Value<'a>) -> Option<Self>;
+    /// The Rust value of `v`, if `v` is of type [`PipesType::TYPE`]. It may
+    /// borrow from `v` (a `&str` does).
+    fn from_value(v: &'a Value<'_>) -> Option<Self>;
 }
 
 macro_rules! scalar {
@@ -94,12 +95,12 @@ scalar! {
 impl PipesType for &str {
     const TYPE: Type = Type::Utf8;
     fn to_value(&self) -> Value<'_> {
-        Value::Utf8(self)
+        Value::Utf8(Text::new(self))
     }
 }
 
 impl<'a> FromPipes<'a> for &'a str {
-    fn from_value(v: &Value<'a>) -> Option<Self> {
+    fn from_value(v: &'a Value<'_>) -> Option<Self> {
         match v {
             Value::Utf8(s) | Value::Ascii(s) => Some(s),
             _ => None,
@@ -108,7 +109,7 @@ impl<'a> FromPipes<'a> for &'a str {
 }
 
 /// Input `index` of `inputs` as a `T`; fails with [`INPUT_DECODE_FAILED`].
-pub fn input<'a, T: FromPipes<'a>>(inputs: &[Value<'a>], index: usize) -> Result<T, CallError> {
+pub fn input<'a, T: FromPipes<'a>>(inputs: &'a [Value<'_>], index: usize) -> Result<T, CallError> {
     inputs
         .get(index)
         .and_then(T::from_value)

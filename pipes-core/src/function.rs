@@ -564,7 +564,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             out_len,
             ..
         } = self;
-        let mut vals = [Value::Null; MAX_ARGS];
+        let mut vals = [const { Value::Null }; MAX_ARGS];
         for (i, v) in vals.iter_mut().enumerate().take(sig.inputs.len()) {
             let n = input_len.get(i).copied().unwrap_or(0);
             let bytes = inputs.get(i).and_then(|b| b.get(..n)).unwrap_or(&[]);

@@ -1,13 +1,15 @@
 //! # pipes-core
 //!
 //! PIPES for osap-rs: plain functions on any device as typed dataflow blocks.
-//! This crate is `no_std` and allocation-free; the `std` feature only adds
-//! `std::error::Error` impls.
+//! This crate is `no_std` and allocation-free by default. The `alloc`
+//! feature lets a [`Value`] own its data (`Value<'static>`, what host code
+//! keeps); the `std` feature implies it and adds `std::error::Error` impls.
 //!
 //! This first piece is the data layer every other part builds on:
 //! - [`types`]: the type keys of WIRE.md §6 ([`Type`], [`ScalarType`]) and
 //!   their names in the system object model (`f32`, `arry_f32`, `tnsr_u8`, ..).
-//! - [`value`]: the borrowed [`Value`] and its `[type key][value]` codec,
+//! - [`value`]: the [`Value`] (borrowed, or owned with `alloc`) and its
+//!   `[type key][value]` codec,
 //!   with [`Array`]s and [`Tensor`]s that read their elements in place.
 //! - [`convert`](mod@convert): the conversion table a receiver applies when a value's type
 //!   differs from its input's, which never changes a value silently.
@@ -21,6 +23,8 @@
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
 
+#[cfg(feature = "alloc")]
+extern crate alloc;
 #[cfg(any(feature = "std", test))]
 extern crate std;
 
@@ -40,7 +44,7 @@ pub use message::{Args, ArgsWriter, Message, MessageError, MessageKey};
 /// osap-core's typed time, which PIPES classes and functions see.
 pub use osap_core::time;
 pub use types::{ScalarType, Type};
-pub use value::{Array, Dims, Element, Elements, Tensor, Value, ValueError};
+pub use value::{Array, Dims, Element, Elements, Tensor, Text, Value, ValueError};
 pub mod class;
 pub mod export;
 pub use export::{FromPipes, PipesOutputs, PipesType};

@@ -385,7 +385,7 @@ mod tests {
         m.push(3, &Value::U8(9)).unwrap();
         assert_eq!(m.push(4, &Value::U64(1)), Err(MessageError::NoSpace));
         assert_eq!(
-            m.push(4, &Value::Ascii("é")),
+            m.push(4, &Value::ascii("é")),
             Err(MessageError::BadValue {
                 index: 4,
                 error: ValueError::NotAscii

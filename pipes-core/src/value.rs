@@ -1,4 +1,4 @@
-//! Borrowed, allocation-free PIPES values and their codec (WIRE.md §6).
+//! PIPES values and their codec (WIRE.md §6).
 //!
 //! A value on the wire is `[type key: u8][value]`:
 //!
@@ -14,8 +14,17 @@
 //! Decoding borrows strings and element bytes from the input, so nothing is
 //! copied or allocated. Every length is checked against the input before it
 //! is used; no input can make decoding panic.
+//!
+//! With the `alloc` feature a [`Value`] can also own its data: a
+//! `Value<'static>` built from `String`s and `Vec`s (or made with
+//! [`Value::into_owned`]) is what host code keeps. Owned or borrowed, a value
+//! encodes to the same bytes and compares equal to the other form.
 
 use core::fmt;
+use core::ops::Deref;
+
+#[cfg(feature = "alloc")]
+use alloc::{borrow::ToOwned, string::String, vec::Vec};
 
 use osap_core::codec::{CodecError, Reader, Writer};
 
@@ -86,11 +95,13 @@ impl From<CodecError> for ValueError {
     }
 }
 
-/// A PIPES value, borrowing its strings and element bytes.
+/// A PIPES value. Its strings and element bytes are borrowed (decoding
+/// copies nothing) or, with the `alloc` feature, owned: `Value<'static>` is
+/// the value host code keeps.
 ///
 /// Floats compare by IEEE rules (`NaN != NaN`); compare encodings to test
 /// bit-exact equality.
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, PartialEq)]
 pub enum Value<'a> {
     /// No value.
     Null,
@@ -123,9 +134,9 @@ pub enum Value<'a> {
     /// An IEEE binary64 float.
     F64(f64),
     /// An ASCII string. Encoding fails with [`ValueError::NotAscii`] if it is not.
-    Ascii(&'a str),
+    Ascii(Text<'a>),
     /// A UTF-8 string.
-    Utf8(&'a str),
+    Utf8(Text<'a>),
     /// An array of scalars.
     Array(Array<'a>),
     /// A tensor of scalars.
@@ -133,6 +144,17 @@ pub enum Value<'a> {
 }
 
 impl<'a> Value<'a> {
+    /// An ascii value borrowing (or, given a `String`, owning) `s`.
+    /// Encoding fails with [`ValueError::NotAscii`] if it is not ASCII.
+    pub fn ascii(s: impl Into<Text<'a>>) -> Value<'a> {
+        Value::Ascii(s.into())
+    }
+
+    /// A utf8 value borrowing (or, given a `String`, owning) `s`.
+    pub fn utf8(s: impl Into<Text<'a>>) -> Value<'a> {
+        Value::Utf8(s.into())
+    }
+
     /// The value's type.
     pub fn ty(&self) -> Type {
         match self {
@@ -175,11 +197,81 @@ impl<'a> Value<'a> {
     }
 
     /// The string, if this is an ascii or utf8 value.
-    pub fn as_str(&self) -> Option<&'a str> {
+    pub fn as_str(&self) -> Option<&str> {
         match self {
             Value::Ascii(s) | Value::Utf8(s) => Some(s),
             _ => None,
         }
+    }
+
+    /// The same value borrowing this one's data (nothing is copied): what
+    /// [`convert`](crate::convert()) and other views take from a value that
+    /// may own its data.
+    pub fn reborrow(&self) -> Value<'_> {
+        match self {
+            Value::Null => Value::Null,
+            Value::Bool(x) => Value::Bool(*x),
+            Value::I8(x) => Value::I8(*x),
+            Value::I16(x) => Value::I16(*x),
+            Value::I32(x) => Value::I32(*x),
+            Value::I64(x) => Value::I64(*x),
+            Value::I128(x) => Value::I128(*x),
+            Value::U8(x) => Value::U8(*x),
+            Value::U16(x) => Value::U16(*x),
+            Value::U32(x) => Value::U32(*x),
+            Value::U64(x) => Value::U64(*x),
+            Value::U128(x) => Value::U128(*x),
+            Value::F16(x) => Value::F16(*x),
+            Value::F32(x) => Value::F32(*x),
+            Value::F64(x) => Value::F64(*x),
+            Value::Ascii(s) => Value::Ascii(Text::new(s)),
+            Value::Utf8(s) => Value::Utf8(Text::new(s)),
+            Value::Array(a) => Value::Array(a.reborrow()),
+            Value::Tensor(t) => Value::Tensor(t.reborrow()),
+        }
+    }
+
+    /// The number, as an f64, for every integer and float that an f64 holds
+    /// exactly (and bools as 0 or 1); `None` otherwise.
+    pub fn as_f64(&self) -> Option<f64> {
+        match crate::convert(self, &Type::Scalar(ScalarType::F64)).ok()? {
+            crate::Converted::Value(Value::F64(x)) => Some(x),
+            _ => None,
+        }
+    }
+
+    /// The same value owning its data (strings, element bytes and dims are
+    /// copied if borrowed); it compares equal and encodes identically.
+    #[cfg(feature = "alloc")]
+    pub fn into_owned(self) -> Value<'static> {
+        match self {
+            Value::Null => Value::Null,
+            Value::Bool(x) => Value::Bool(x),
+            Value::I8(x) => Value::I8(x),
+            Value::I16(x) => Value::I16(x),
+            Value::I32(x) => Value::I32(x),
+            Value::I64(x) => Value::I64(x),
+            Value::I128(x) => Value::I128(x),
+            Value::U8(x) => Value::U8(x),
+            Value::U16(x) => Value::U16(x),
+            Value::U32(x) => Value::U32(x),
+            Value::U64(x) => Value::U64(x),
+            Value::U128(x) => Value::U128(x),
+            Value::F16(x) => Value::F16(x),
+            Value::F32(x) => Value::F32(x),
+            Value::F64(x) => Value::F64(x),
+            Value::Ascii(s) => Value::Ascii(s.into_owned()),
+            Value::Utf8(s) => Value::Utf8(s.into_owned()),
+            Value::Array(a) => Value::Array(a.into_owned()),
+            Value::Tensor(t) => Value::Tensor(t.into_owned()),
+        }
+    }
+
+    /// A copy of the value that owns its data (see
+    /// [`into_owned`](Value::into_owned)).
+    #[cfg(feature = "alloc")]
+    pub fn to_owned_value(&self) -> Value<'static> {
+        self.reborrow().into_owned()
     }
 
     /// Reads one `[type key][value]` from `r`. On error `r` is left where it
@@ -205,11 +297,15 @@ impl<'a> Value<'a> {
                 if !b.is_ascii() {
                     return Err(ValueError::NotAscii);
                 }
-                Value::Ascii(core::str::from_utf8(b).map_err(|_| ValueError::NotAscii)?)
+                Value::Ascii(Text::new(
+                    core::str::from_utf8(b).map_err(|_| ValueError::NotAscii)?,
+                ))
             }
             Type::Utf8 => {
                 let len = t.u16()? as usize;
-                Value::Utf8(core::str::from_utf8(t.bytes(len)?).map_err(|_| ValueError::BadUtf8)?)
+                Value::Utf8(Text::new(
+                    core::str::from_utf8(t.bytes(len)?).map_err(|_| ValueError::BadUtf8)?,
+                ))
             }
             Type::Array(s) => {
                 let count = t.u16()? as usize;
@@ -219,13 +315,16 @@ impl<'a> Value<'a> {
             Type::Tensor(s) => {
                 let rank = t.u8()? as usize;
                 let dims = t.bytes(rank * 2)?;
-                let dims = Dims(DimsRepr::Wire(dims));
-                let n = dims
+                let n = Dims(DimsRepr::Wire(dims))
                     .element_count()
                     .and_then(|c| c.checked_mul(s.width()))
                     .ok_or(ValueError::TooLarge)?;
                 let elems = Elements::new(s, t.bytes(n)?)?;
-                Value::Tensor(Tensor { dims, elems })
+                Value::Tensor(Tensor {
+                    dims: TensorDims::Wire(Bytes::new(dims)),
+                    elem: s,
+                    bytes: Bytes::new(elems.bytes),
+                })
             }
         };
         *r = t;
@@ -314,6 +413,84 @@ impl<'a> Value<'a> {
                 }
                 Ok(w.bytes(t.bytes())?)
             }
+        }
+    }
+}
+
+/// The elements' little-endian bytes, packed.
+#[cfg(feature = "alloc")]
+fn le_bytes<T: Element>(elements: &[T]) -> Vec<u8> {
+    let w = T::TYPE.width();
+    let mut bytes = alloc::vec![0u8; elements.len() * w];
+    for (chunk, e) in bytes.chunks_exact_mut(w).zip(elements) {
+        e.write_le(chunk);
+    }
+    bytes
+}
+
+#[cfg(feature = "alloc")]
+impl Value<'static> {
+    /// An array of native numbers (or bools) that owns its elements.
+    ///
+    /// Errors: [`ValueError::TooLarge`] for more than 65535 elements.
+    pub fn array<T: Element>(elements: &[T]) -> Result<Value<'static>, ValueError> {
+        Ok(Value::Array(Array::from_vec(T::TYPE, le_bytes(elements))?))
+    }
+
+    /// A row-major tensor of native numbers (or bools) that owns its dims
+    /// and elements.
+    ///
+    /// Errors as [`Tensor::new`].
+    pub fn tensor<T: Element>(dims: &[u16], elements: &[T]) -> Result<Value<'static>, ValueError> {
+        Ok(Value::Tensor(Tensor::from_vec(
+            T::TYPE,
+            dims,
+            le_bytes(elements),
+        )?))
+    }
+}
+
+macro_rules! value_from {
+    ($($t:ty => $s:ident),* $(,)?) => {$(
+        impl From<$t> for Value<'_> {
+            fn from(v: $t) -> Self {
+                Value::$s(v)
+            }
+        }
+    )*};
+}
+
+value_from!(
+    bool => Bool, i8 => I8, i16 => I16, i32 => I32, i64 => I64, i128 => I128,
+    u8 => U8, u16 => U16, u32 => U32, u64 => U64, u128 => U128,
+    f32 => F32, f64 => F64,
+);
+
+/// A utf8 value borrowing the string.
+impl<'a> From<&'a str> for Value<'a> {
+    fn from(s: &'a str) -> Self {
+        Value::Utf8(Text::new(s))
+    }
+}
+
+/// A utf8 value owning the string.
+#[cfg(feature = "alloc")]
+impl From<String> for Value<'_> {
+    fn from(s: String) -> Self {
+        Value::Utf8(Text::from(s))
+    }
+}
+
+/// A short human form: strings quoted, arrays as their type and byte count,
+/// tensors as their type and dims, scalars as their variant and number
+/// (`U8(5)`).
+impl fmt::Display for Value<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Value::Ascii(s) | Value::Utf8(s) => write!(f, "{:?}", s.as_str()),
+            Value::Array(a) => write!(f, "arry_{}[{} bytes]", a.elem(), a.bytes().len()),
+            Value::Tensor(t) => write!(f, "tnsr_{}{:?}", t.elem(), t.dims()),
+            other => write!(f, "{other:?}"),
         }
     }
 }
@@ -450,6 +627,11 @@ pub trait Element: Copy + 'static + sealed::Sealed {
     const TYPE: ScalarType;
     /// Reads one element from its little-endian bytes (exactly its width).
     fn from_le(bytes: &[u8]) -> Option<Self>;
+    /// Writes its little-endian bytes to the first `TYPE.width()` bytes of
+    /// `out` (which must be at least that long).
+    fn write_le(self, out: &mut [u8]);
+    /// The scalar value of exactly this type.
+    fn into_value(self) -> Value<'static>;
     /// The number held by a scalar value of exactly this type.
     fn from_value(v: Value<'_>) -> Option<Self>;
 }
@@ -461,6 +643,13 @@ macro_rules! element {
             const TYPE: ScalarType = ScalarType::$s;
             fn from_le(bytes: &[u8]) -> Option<Self> {
                 Some(<$t>::from_le_bytes(bytes.try_into().ok()?))
+            }
+            fn write_le(self, out: &mut [u8]) {
+                let b = self.to_le_bytes();
+                out[..b.len()].copy_from_slice(&b);
+            }
+            fn into_value(self) -> Value<'static> {
+                Value::$s(self)
             }
             fn from_value(v: Value<'_>) -> Option<Self> {
                 match v {
@@ -487,6 +676,12 @@ impl Element for bool {
             [1] => Some(true),
             _ => None,
         }
+    }
+    fn write_le(self, out: &mut [u8]) {
+        out[0] = self as u8;
+    }
+    fn into_value(self) -> Value<'static> {
+        Value::Bool(self)
     }
     fn from_value(v: Value<'_>) -> Option<Self> {
         match v {
@@ -515,10 +710,178 @@ impl<T: Element> Iterator for TypedIter<'_, T> {
 
 impl<T: Element> ExactSizeIterator for TypedIter<'_, T> {}
 
-/// A one-dimensional array of at most 65535 scalars.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// A string held by a [`Value`]: borrowed, or (with the `alloc` feature)
+/// owned. It dereferences to `str`; how it holds the string is private, so
+/// turning the feature on changes no user's code.
+#[derive(Clone)]
+pub struct Text<'a>(TextRepr<'a>);
+
+#[derive(Clone)]
+enum TextRepr<'a> {
+    Borrowed(&'a str),
+    #[cfg(feature = "alloc")]
+    Owned(String),
+}
+
+impl<'a> Text<'a> {
+    /// A borrowed string.
+    #[inline]
+    pub const fn new(s: &'a str) -> Self {
+        Text(TextRepr::Borrowed(s))
+    }
+
+    /// The string.
+    #[inline]
+    pub fn as_str(&self) -> &str {
+        self
+    }
+
+    /// The string for all of `'a`, if it is borrowed (`None` if owned).
+    #[inline]
+    pub fn as_borrowed(&self) -> Option<&'a str> {
+        match self.0 {
+            TextRepr::Borrowed(s) => Some(s),
+            #[cfg(feature = "alloc")]
+            TextRepr::Owned(_) => None,
+        }
+    }
+
+    /// The same string, owned.
+    #[cfg(feature = "alloc")]
+    pub fn into_owned(self) -> Text<'static> {
+        match self.0 {
+            TextRepr::Borrowed(s) => Text(TextRepr::Owned(s.to_owned())),
+            TextRepr::Owned(s) => Text(TextRepr::Owned(s)),
+        }
+    }
+}
+
+impl Deref for Text<'_> {
+    type Target = str;
+    #[inline]
+    fn deref(&self) -> &str {
+        match &self.0 {
+            TextRepr::Borrowed(s) => s,
+            #[cfg(feature = "alloc")]
+            TextRepr::Owned(s) => s,
+        }
+    }
+}
+
+impl AsRef<str> for Text<'_> {
+    fn as_ref(&self) -> &str {
+        self
+    }
+}
+
+impl<'a> From<&'a str> for Text<'a> {
+    fn from(s: &'a str) -> Self {
+        Text::new(s)
+    }
+}
+
+#[cfg(feature = "alloc")]
+impl From<String> for Text<'_> {
+    fn from(s: String) -> Self {
+        Text(TextRepr::Owned(s))
+    }
+}
+
+#[cfg(feature = "alloc")]
+impl From<Text<'_>> for String {
+    fn from(t: Text<'_>) -> String {
+        match t.0 {
+            TextRepr::Borrowed(s) => s.to_owned(),
+            TextRepr::Owned(s) => s,
+        }
+    }
+}
+
+impl PartialEq for Text<'_> {
+    fn eq(&self, other: &Self) -> bool {
+        **self == **other
+    }
+}
+
+impl Eq for Text<'_> {}
+
+impl PartialEq<str> for Text<'_> {
+    fn eq(&self, other: &str) -> bool {
+        **self == *other
+    }
+}
+
+impl PartialEq<&str> for Text<'_> {
+    fn eq(&self, other: &&str) -> bool {
+        **self == **other
+    }
+}
+
+impl core::hash::Hash for Text<'_> {
+    fn hash<H: core::hash::Hasher>(&self, state: &mut H) {
+        (**self).hash(state)
+    }
+}
+
+impl fmt::Debug for Text<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Debug::fmt(&**self, f)
+    }
+}
+
+impl fmt::Display for Text<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Display::fmt(&**self, f)
+    }
+}
+
+/// Bytes held by an [`Array`] or [`Tensor`]: borrowed, or (with the `alloc`
+/// feature) owned. Private like [`Text`]'s.
+#[derive(Clone)]
+struct Bytes<'a>(BytesRepr<'a>);
+
+#[derive(Clone)]
+enum BytesRepr<'a> {
+    Borrowed(&'a [u8]),
+    #[cfg(feature = "alloc")]
+    Owned(Vec<u8>),
+}
+
+impl<'a> Bytes<'a> {
+    #[inline]
+    const fn new(b: &'a [u8]) -> Self {
+        Bytes(BytesRepr::Borrowed(b))
+    }
+
+    #[inline]
+    fn get(&self) -> &[u8] {
+        match &self.0 {
+            BytesRepr::Borrowed(b) => b,
+            #[cfg(feature = "alloc")]
+            BytesRepr::Owned(b) => b,
+        }
+    }
+
+    #[inline]
+    fn reborrow(&self) -> Bytes<'_> {
+        Bytes::new(self.get())
+    }
+
+    #[cfg(feature = "alloc")]
+    fn into_owned(self) -> Bytes<'static> {
+        match self.0 {
+            BytesRepr::Borrowed(b) => Bytes(BytesRepr::Owned(b.to_vec())),
+            BytesRepr::Owned(b) => Bytes(BytesRepr::Owned(b)),
+        }
+    }
+}
+
+/// A one-dimensional array of at most 65535 scalars: its elements borrowed,
+/// or (with the `alloc` feature) owned.
+#[derive(Clone)]
 pub struct Array<'a> {
-    elems: Elements<'a>,
+    elem: ScalarType,
+    bytes: Bytes<'a>,
 }
 
 impl<'a> Array<'a> {
@@ -535,47 +898,98 @@ impl<'a> Array<'a> {
         if elems.len() > u16::MAX as usize {
             return Err(ValueError::TooLarge);
         }
-        Ok(Array { elems })
+        Ok(Array {
+            elem: elems.elem,
+            bytes: Bytes::new(elems.bytes),
+        })
     }
 
     /// The element type.
     pub fn elem(&self) -> ScalarType {
-        self.elems.elem
+        self.elem
     }
 
     /// The number of elements.
     pub fn len(&self) -> usize {
-        self.elems.len()
+        self.bytes.get().len() / self.elem.width()
     }
 
     /// Whether the array is empty.
     pub fn is_empty(&self) -> bool {
-        self.elems.is_empty()
+        self.bytes.get().is_empty()
     }
 
     /// The raw little-endian element bytes.
-    pub fn bytes(&self) -> &'a [u8] {
-        self.elems.bytes
+    pub fn bytes(&self) -> &[u8] {
+        self.bytes.get()
     }
 
     /// The elements.
-    pub fn elements(&self) -> Elements<'a> {
-        self.elems
+    pub fn elements(&self) -> Elements<'_> {
+        Elements {
+            elem: self.elem,
+            bytes: self.bytes.get(),
+        }
     }
 
     /// Element `i` as a scalar value.
     pub fn get(&self, i: usize) -> Option<Value<'static>> {
-        self.elems.get(i)
+        self.elements().get(i)
     }
 
     /// The elements as scalar values.
-    pub fn iter(&self) -> ElementIter<'a> {
-        self.elems.iter()
+    pub fn iter(&self) -> ElementIter<'_> {
+        self.elements().iter()
     }
 
     /// The elements as native numbers, if the element type is `T`'s.
-    pub fn typed<T: Element>(&self) -> Option<TypedIter<'a, T>> {
-        self.elems.typed()
+    pub fn typed<T: Element>(&self) -> Option<TypedIter<'_, T>> {
+        self.elements().typed()
+    }
+
+    /// The same array borrowing this one's bytes.
+    pub fn reborrow(&self) -> Array<'_> {
+        Array {
+            elem: self.elem,
+            bytes: self.bytes.reborrow(),
+        }
+    }
+
+    /// The same array owning its bytes.
+    #[cfg(feature = "alloc")]
+    pub fn into_owned(self) -> Array<'static> {
+        Array {
+            elem: self.elem,
+            bytes: self.bytes.into_owned(),
+        }
+    }
+
+    /// An array of `elem` owning its bare little-endian element bytes.
+    /// Errors as [`Array::new`].
+    #[cfg(feature = "alloc")]
+    pub fn from_vec(elem: ScalarType, bytes: Vec<u8>) -> Result<Array<'static>, ValueError> {
+        Array::new(elem, &bytes)?;
+        Ok(Array {
+            elem,
+            bytes: Bytes(BytesRepr::Owned(bytes)),
+        })
+    }
+}
+
+impl PartialEq for Array<'_> {
+    fn eq(&self, other: &Self) -> bool {
+        self.elem == other.elem && self.bytes() == other.bytes()
+    }
+}
+
+impl Eq for Array<'_> {}
+
+impl fmt::Debug for Array<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Array")
+            .field("elem", &self.elem)
+            .field("bytes", &self.bytes())
+            .finish()
     }
 }
 
@@ -657,11 +1071,21 @@ impl Iterator for DimsIter<'_> {
     }
 }
 
-/// A row-major tensor of scalars: up to 255 dims of up to 65535 each.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+/// How a [`Tensor`] holds its dims: as wire bytes (borrowed or owned) or as
+/// the sender's borrowed `u16`s.
+#[derive(Clone)]
+enum TensorDims<'a> {
+    Wire(Bytes<'a>),
+    Native(&'a [u16]),
+}
+
+/// A row-major tensor of scalars: up to 255 dims of up to 65535 each; its
+/// dims and elements borrowed, or (with the `alloc` feature) owned.
+#[derive(Clone)]
 pub struct Tensor<'a> {
-    dims: Dims<'a>,
-    elems: Elements<'a>,
+    dims: TensorDims<'a>,
+    elem: ScalarType,
+    bytes: Bytes<'a>,
 }
 
 impl<'a> Tensor<'a> {
@@ -675,53 +1099,77 @@ impl<'a> Tensor<'a> {
         if dims.len() > u8::MAX as usize {
             return Err(ValueError::TooLarge);
         }
-        let dims = Dims(DimsRepr::Native(dims));
-        let n = dims
+        let n = Dims(DimsRepr::Native(dims))
             .element_count()
             .and_then(|c| c.checked_mul(elem.width()))
             .ok_or(ValueError::TooLarge)?;
         if n != bytes.len() {
             return Err(ValueError::ShapeMismatch);
         }
+        Elements::new(elem, bytes)?;
         Ok(Tensor {
-            dims,
-            elems: Elements::new(elem, bytes)?,
+            dims: TensorDims::Native(dims),
+            elem,
+            bytes: Bytes::new(bytes),
+        })
+    }
+
+    /// A tensor owning its dims and its bare, row-major, little-endian
+    /// element bytes. Errors as [`Tensor::new`].
+    #[cfg(feature = "alloc")]
+    pub fn from_vec(
+        elem: ScalarType,
+        dims: &[u16],
+        bytes: Vec<u8>,
+    ) -> Result<Tensor<'static>, ValueError> {
+        Tensor::new(elem, dims, &bytes)?;
+        let wire = dims.iter().flat_map(|d| d.to_le_bytes()).collect();
+        Ok(Tensor {
+            dims: TensorDims::Wire(Bytes(BytesRepr::Owned(wire))),
+            elem,
+            bytes: Bytes(BytesRepr::Owned(bytes)),
         })
     }
 
     /// The element type.
     pub fn elem(&self) -> ScalarType {
-        self.elems.elem
+        self.elem
     }
 
     /// The dims, outermost first.
-    pub fn dims(&self) -> Dims<'a> {
-        self.dims
+    pub fn dims(&self) -> Dims<'_> {
+        match &self.dims {
+            TensorDims::Wire(b) => Dims(DimsRepr::Wire(b.get())),
+            TensorDims::Native(d) => Dims(DimsRepr::Native(d)),
+        }
     }
 
     /// The number of dims.
     pub fn rank(&self) -> usize {
-        self.dims.rank()
+        self.dims().rank()
     }
 
     /// The number of elements (the product of the dims).
     pub fn len(&self) -> usize {
-        self.elems.len()
+        self.bytes.get().len() / self.elem.width()
     }
 
     /// Whether the tensor has no elements (some dim is 0).
     pub fn is_empty(&self) -> bool {
-        self.elems.is_empty()
+        self.bytes.get().is_empty()
     }
 
     /// The raw little-endian element bytes, row-major.
-    pub fn bytes(&self) -> &'a [u8] {
-        self.elems.bytes
+    pub fn bytes(&self) -> &[u8] {
+        self.bytes.get()
     }
 
     /// The elements, row-major.
-    pub fn elements(&self) -> Elements<'a> {
-        self.elems
+    pub fn elements(&self) -> Elements<'_> {
+        Elements {
+            elem: self.elem,
+            bytes: self.bytes.get(),
+        }
     }
 
     /// The element at multi-index `index` (one entry per dim), if in range.
@@ -730,13 +1178,59 @@ impl<'a> Tensor<'a> {
             return None;
         }
         let mut flat = 0usize;
-        for (i, d) in index.iter().zip(self.dims.iter()) {
+        for (i, d) in index.iter().zip(self.dims().iter()) {
             if *i >= d {
                 return None;
             }
             flat = flat.checked_mul(d as usize)?.checked_add(*i as usize)?;
         }
-        self.elems.get(flat)
+        self.elements().get(flat)
+    }
+
+    /// The same tensor borrowing this one's dims and bytes.
+    pub fn reborrow(&self) -> Tensor<'_> {
+        Tensor {
+            dims: match &self.dims {
+                TensorDims::Wire(b) => TensorDims::Wire(b.reborrow()),
+                TensorDims::Native(d) => TensorDims::Native(d),
+            },
+            elem: self.elem,
+            bytes: self.bytes.reborrow(),
+        }
+    }
+
+    /// The same tensor owning its dims and bytes.
+    #[cfg(feature = "alloc")]
+    pub fn into_owned(self) -> Tensor<'static> {
+        let dims = match self.dims {
+            TensorDims::Wire(b) => b.into_owned(),
+            TensorDims::Native(d) => Bytes(BytesRepr::Owned(
+                d.iter().flat_map(|d| d.to_le_bytes()).collect(),
+            )),
+        };
+        Tensor {
+            dims: TensorDims::Wire(dims),
+            elem: self.elem,
+            bytes: self.bytes.into_owned(),
+        }
+    }
+}
+
+impl PartialEq for Tensor<'_> {
+    fn eq(&self, other: &Self) -> bool {
+        self.elem == other.elem && self.dims() == other.dims() && self.bytes() == other.bytes()
+    }
+}
+
+impl Eq for Tensor<'_> {}
+
+impl fmt::Debug for Tensor<'_> {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.debug_struct("Tensor")
+            .field("dims", &self.dims())
+            .field("elem", &self.elem)
+            .field("bytes", &self.bytes())
+            .finish()
     }
 }
 
@@ -763,8 +1257,8 @@ mod tests {
             Value::F16(0x3c00),
             Value::F32(1.5),
             Value::F64(-2.25),
-            Value::Ascii("hi"),
-            Value::Utf8("héllo"),
+            Value::ascii("hi"),
+            Value::utf8("héllo"),
         ] {
             let (b, n) = enc(&v);
             assert_eq!(n, v.encoded_len().unwrap());
@@ -830,7 +1324,7 @@ mod tests {
         assert!(a.typed::<f64>().is_none());
         assert_eq!(a.get(2), Some(Value::F32(3.0)));
         assert_eq!(a.get(6), None);
-        let (b, n) = enc(&Value::Array(a));
+        let (b, n) = enc(&Value::Array(a.clone()));
         assert_eq!(&b[..3], &[0x62, 6, 0]);
         assert_eq!(Value::from_bytes(&b[..n]), Ok(Value::Array(a)));
 
@@ -838,7 +1332,7 @@ mod tests {
         assert_eq!(t.get(&[1, 0]), Some(Value::F32(4.0)));
         assert_eq!(t.get(&[0, 3]), None);
         assert_eq!(t.get(&[0]), None);
-        let (b, n) = enc(&Value::Tensor(t));
+        let (b, n) = enc(&Value::Tensor(t.clone()));
         assert_eq!(&b[..6], &[0xa2, 2, 2, 0, 3, 0]);
         assert_eq!(Value::from_bytes(&b[..n]), Ok(Value::Tensor(t)));
         assert_eq!(
@@ -857,7 +1351,94 @@ mod tests {
         let mut w = Writer::new(&mut b);
         assert_eq!(Value::U32(1).encode(&mut w), Err(ValueError::NoSpace));
         assert_eq!(w.len(), 0);
-        assert_eq!(Value::Ascii("é").encode(&mut w), Err(ValueError::NotAscii));
+        assert_eq!(Value::ascii("é").encode(&mut w), Err(ValueError::NotAscii));
         assert_eq!(w.len(), 0);
+    }
+
+    #[test]
+    fn display() {
+        extern crate std;
+        use std::string::ToString;
+        assert_eq!(Value::utf8("a\"b").to_string(), "\"a\\\"b\"");
+        assert_eq!(Value::U8(5).to_string(), "U8(5)");
+        let bytes = [0u8; 8];
+        let a = Array::new(ScalarType::U16, &bytes).unwrap();
+        assert_eq!(Value::Array(a).to_string(), "arry_u16[8 bytes]");
+        let t = Tensor::new(ScalarType::U16, &[2, 2], &bytes).unwrap();
+        assert_eq!(Value::Tensor(t).to_string(), "tnsr_u16[2, 2]");
+    }
+
+    #[cfg(feature = "alloc")]
+    mod owned {
+        use super::*;
+        use alloc::string::String;
+
+        fn samples() -> [Value<'static>; 5] {
+            [
+                Value::ascii("hi"),
+                Value::utf8("héllo"),
+                Value::I64(-9),
+                Value::array(&[1.5f32, -2.0, 3.25]).unwrap(),
+                Value::tensor(&[2, 3], &[1u16, 2, 3, 4, 5, 6]).unwrap(),
+            ]
+        }
+
+        #[test]
+        fn owned_encodes_as_borrowed() {
+            for v in samples() {
+                let (b, n) = enc(&v);
+                let borrowed = Value::from_bytes(&b[..n]).unwrap();
+                let owned = borrowed.to_owned_value();
+                assert_eq!(owned, borrowed);
+                assert_eq!(owned, v);
+                let (b2, n2) = enc(&owned);
+                assert_eq!(&b[..n], &b2[..n2]);
+                assert_eq!(owned.encoded_len(), borrowed.encoded_len());
+                // Decoding the owned value's bytes gives it back.
+                assert_eq!(Value::from_bytes(&b2[..n2]).unwrap(), owned);
+            }
+        }
+
+        #[test]
+        fn into_owned_preserves_equality() {
+            let bytes = [1u8, 0, 2, 0, 3, 0, 4, 0];
+            let native = [2u16, 2];
+            let t = Value::Tensor(Tensor::new(ScalarType::U16, &native, &bytes).unwrap());
+            let a = Value::Array(Array::new(ScalarType::U16, &bytes).unwrap());
+            for v in [t, a, Value::utf8("x"), Value::Null, Value::F16(0x3c00)] {
+                let owned = v.clone().into_owned();
+                assert_eq!(owned, v);
+                assert_eq!(owned.ty(), v.ty());
+                assert_eq!(owned.reborrow(), v);
+                assert_eq!(std::format!("{owned}"), std::format!("{v}"));
+            }
+        }
+
+        #[test]
+        fn constructors() {
+            let v = Value::array(&[true, false]).unwrap();
+            assert_eq!(v.ty(), Type::Array(ScalarType::Bool));
+            assert_eq!(v.as_array().unwrap().bytes(), &[1, 0]);
+            let v = Value::tensor(&[2], &[7i32, -1]).unwrap();
+            let t = v.as_tensor().unwrap();
+            assert_eq!(t.get(&[1]), Some(Value::I32(-1)));
+            assert_eq!(t.dims().iter().collect::<alloc::vec::Vec<_>>(), [2]);
+            assert_eq!(
+                Value::tensor(&[3], &[1u8, 2]),
+                Err(ValueError::ShapeMismatch)
+            );
+            assert_eq!(Value::array(&[0u8; 65536]), Err(ValueError::TooLarge));
+            let s: Value<'static> = String::from("owned").into();
+            assert_eq!(s, Value::utf8("owned"));
+            assert_eq!(s.as_str(), Some("owned"));
+            assert_eq!(Value::from(2.5f64).as_f64(), Some(2.5));
+            assert_eq!(Value::from(7u8).as_f64(), Some(7.0));
+            assert_eq!(Value::from(u64::MAX).as_f64(), None);
+            let Value::Utf8(text) = s else { unreachable!() };
+            assert_eq!(text, "owned");
+            assert_eq!(text.as_borrowed(), None);
+            assert_eq!(Text::new("b").as_borrowed(), Some("b"));
+            assert_eq!(String::from(text), "owned");
+        }
     }
 }

@@ -59,9 +59,10 @@ impl Implementation for Acc {
         &ACC
     }
     fn call(&mut self, inputs: &[Value<'_>], out: &mut Outputs<'_>) -> Result<(), CallError> {
-        let (Value::F64(a), Value::F64(b)) = (inputs[0], inputs[1]) else {
+        let (Value::F64(a), Value::F64(b)) = (&inputs[0], &inputs[1]) else {
             return Err(CallError::Failed(pipes_core::FailureCode::Other(1)));
         };
+        let (a, b) = (*a, *b);
         self.total += a + b;
         self.runs.push((a, b));
         out.set(0, &Value::F64(self.total))
@@ -403,7 +404,7 @@ fn call_errors_name_the_argument() {
     assert_eq!(error.reason, pipes_core::ConvertReason::Lossy);
     assert_eq!((error.from, error.to), (F64, F32));
 
-    let text = args(&[(0, Value::Utf8("1.0"))]);
+    let text = args(&[(0, Value::utf8("1.0"))]);
     let a = pipes_core::Args::decode(&mut osap_core::codec::Reader::new(&text)).unwrap();
     let body = w.ask(Route::local(), SENSOR_PORT, &Request::Call(a));
     assert!(matches!(

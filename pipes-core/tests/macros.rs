@@ -444,10 +444,10 @@ fn rpc_calls_of_generated_functions() {
     assert!(returned(&body).is_empty());
     assert_eq!(LAST_LEVEL.load(Ordering::Relaxed), 700);
 
-    let body = w.call(Route::local(), STRLEN_PORT, &[(0, Value::Utf8("héllo"))]);
+    let body = w.call(Route::local(), STRLEN_PORT, &[(0, Value::utf8("héllo"))]);
     assert_eq!(returned(&body), [Value::U32(6)]);
     // ascii converts to utf8.
-    let body = w.call(Route::local(), STRLEN_PORT, &[(0, Value::Ascii("hey"))]);
+    let body = w.call(Route::local(), STRLEN_PORT, &[(0, Value::ascii("hey"))]);
     assert_eq!(returned(&body), [Value::U32(3)]);
 
     // A value that does not convert is refused before the function runs.

@@ -32,8 +32,8 @@ impl Owned {
                 let v = Value::from_bytes(&buf).unwrap();
                 scalar_static(v)
             }
-            Owned::Ascii(s) => Value::Ascii(s),
-            Owned::Utf8(s) => Value::Utf8(s),
+            Owned::Ascii(s) => Value::ascii(s.as_str()),
+            Owned::Utf8(s) => Value::utf8(s.as_str()),
             Owned::Array(s, b) => Value::Array(Array::new(*s, b).unwrap()),
             Owned::Tensor(s, d, b) => Value::Tensor(Tensor::new(*s, d, b).unwrap()),
         }
@@ -175,6 +175,23 @@ proptest! {
         prop_assert!(same(&back, &v));
     }
 
+    /// An owned value (alloc) encodes to the same bytes as the borrowed value
+    /// it was made from, compares equal to it, and decodes back equal.
+    #[cfg(feature = "alloc")]
+    #[test]
+    fn owned_values_encode_as_borrowed(o in owned()) {
+        let v = o.value();
+        let bytes = encode(&v);
+        let owned = v.to_owned_value();
+        prop_assert!(same(&owned, &v));
+        prop_assert_eq!(&encode(&owned), &bytes);
+        prop_assert_eq!(owned.encoded_len(), v.encoded_len());
+        let back = Value::from_bytes(&bytes).unwrap();
+        let back_owned = back.clone().into_owned();
+        prop_assert!(same(&back_owned, &back));
+        prop_assert_eq!(&encode(&back_owned), &bytes);
+    }
+
     #[test]
     fn decoding_arbitrary_bytes_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..64)) {
         let mut r = Reader::new(&bytes);
@@ -292,7 +309,8 @@ proptest! {
     #[test]
     fn integer_narrowing_is_range_checked(x in any::<i64>(), shift in 0u32..64) {
         let x = x >> shift;
-        let r = convert(&Value::I64(x), &Type::Scalar(ScalarType::I16));
+        let v = Value::I64(x);
+        let r = convert(&v, &Type::Scalar(ScalarType::I16));
         match i16::try_from(x) {
             Ok(y) => prop_assert_eq!(r, Ok(Converted::Value(Value::I16(y)))),
             Err(_) => prop_assert_eq!(r.unwrap_err().reason, ConvertReason::OutOfRange),

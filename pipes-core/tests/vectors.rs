@@ -70,9 +70,9 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     put("value.f16.1.0", value(Value::F16(0x3c00)));
     put("value.f32.1.5", value(Value::F32(1.5)));
     put("value.f64.-0.25", value(Value::F64(-0.25)));
-    put("value.ascii.hi", value(Value::Ascii("hi")));
-    put("value.utf8.é", value(Value::Utf8("é")));
-    put("value.utf8.empty", value(Value::Utf8("")));
+    put("value.ascii.hi", value(Value::ascii("hi")));
+    put("value.utf8.é", value(Value::utf8("é")));
+    put("value.utf8.empty", value(Value::utf8("")));
     put(
         "value.arry_f32.1.2.3",
         value(Value::Array(Array::new(ScalarType::F32, &f32s).unwrap())),
@@ -104,7 +104,7 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     put("message.pipe_datagram.empty", message(&[]));
     put(
         "message.pipe_datagram.mixed",
-        message(&[(3, Value::Utf8("ok")), (0, Value::Bool(true))]),
+        message(&[(3, Value::utf8("ok")), (0, Value::Bool(true))]),
     );
     // What a receiver holds after converting arry_i16 [1, -1] for an arry_f32 input.
     let src = le(&[1i16, -1], i16::to_le_bytes);
@@ -255,7 +255,7 @@ fn document_vectors_decode_to_their_meaning() {
     assert_eq!(Value::from_bytes(&get("value.i8.-5")), Ok(Value::I8(-5)));
     assert_eq!(
         Value::from_bytes(&get("value.utf8.é")),
-        Ok(Value::Utf8("é"))
+        Ok(Value::utf8("é"))
     );
     let a = get("value.arry_f32.1.2.3");
     let v = Value::from_bytes(&a).unwrap();
@@ -280,7 +280,7 @@ fn document_vectors_decode_to_their_meaning() {
         .eq([(0, Value::U64(1_000_000)), (1, Value::F32(2.5))]));
     let m = get("message.pipe_datagram.mixed");
     let m = Message::parse(&m).unwrap();
-    assert_eq!(m.args.get(3), Some(Value::Utf8("ok")));
+    assert_eq!(m.args.get(3), Some(Value::utf8("ok")));
     assert_eq!(m.args.get(0), Some(Value::Bool(true)));
     assert!(Message::parse(&get("message.pipe_datagram.empty"))
         .unwrap()

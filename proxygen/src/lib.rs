@@ -73,6 +73,7 @@ struct ArgCtx {
     param: String,
     owned: String,
     key: String,
+    fallible: bool,
 }
 
 #[derive(Debug, Serialize)]
@@ -136,6 +137,7 @@ fn args(list: &[SomArg], scope: &mut Scope) -> Vec<ArgCtx> {
                 param: t.param,
                 owned: t.owned,
                 key: t.key,
+                fallible: t.fallible,
             }
         })
         .collect()
@@ -233,8 +235,8 @@ fn devices(som: &Som, options: &Options) -> Vec<DeviceCtx> {
             "FnRef",
             "FunctionHandle",
             "Manager",
-            "OwnedValue",
             "Som",
+            "Value",
         ]);
         let mut methods = Scope::with_reserved(STRUCT_METHODS);
         let classes: Vec<_> = som.classes.iter().filter(|c| c.runtime == ri).collect();

@@ -7,11 +7,12 @@
 //! | `f16` | `u16` (IEEE binary16 bits) | `u16` |
 //! | `ascii`, `utf8` | `&str` | `String` |
 //! | `arry_<s>` (`s` a scalar above except `f16`, `null`) | `&[s]` | `Vec<s>` |
-//! | anything else (`arry_f16`, `tnsr_*`, unknown names) | `OwnedValue` | `OwnedValue` |
+//! | anything else (`arry_f16`, `tnsr_*`, unknown names) | `Value<'static>` | `Value<'static>` |
 //!
 //! Each mapping names a conversion pair in `osap_host::som::proxy::support`:
-//! `support::to_<key>` (argument → `OwnedValue`) and `support::from_<key>`
-//! (`OwnedValue` → output, `None` if the value has another type).
+//! `support::to_<key>` (argument → `Value<'static>`; for arrays a `Result`,
+//! as an array past 65535 elements cannot be sent) and `support::from_<key>`
+//! (`Value<'static>` → output, `None` if the value has another type).
 
 /// How one SOM type appears in generated code.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -22,6 +23,9 @@ pub struct RustType {
     pub owned: String,
     /// The suffix of the `support::to_*` / `support::from_*` pair.
     pub key: String,
+    /// Whether `support::to_<key>` returns a `Result` (arrays, which
+    /// cannot pass 65535 elements) rather than the value itself.
+    pub fallible: bool,
 }
 
 const SCALARS: &[&str] = &[
@@ -34,6 +38,7 @@ pub fn rust_type(name: &str) -> RustType {
         param: param.into(),
         owned: owned.into(),
         key: key.into(),
+        fallible: false,
     };
     if SCALARS.contains(&name) {
         return t(name, name, name);
@@ -47,10 +52,13 @@ pub fn rust_type(name: &str) -> RustType {
     }
     if let Some(elem) = name.strip_prefix("arry_") {
         if SCALARS.contains(&elem) {
-            return t(&format!("&[{elem}]"), &format!("Vec<{elem}>"), name);
+            return RustType {
+                fallible: true,
+                ..t(&format!("&[{elem}]"), &format!("Vec<{elem}>"), name)
+            };
         }
     }
-    t("OwnedValue", "OwnedValue", "raw")
+    t("Value<'static>", "Value<'static>", "raw")
 }
 
 #[cfg(test)]
@@ -65,7 +73,9 @@ mod tests {
         assert_eq!(rust_type("arry_f32").owned, "Vec<f32>");
         assert_eq!(rust_type("arry_f32").key, "arry_f32");
         assert_eq!(rust_type("arry_f16").key, "raw");
-        assert_eq!(rust_type("tnsr_u8").owned, "OwnedValue");
+        assert_eq!(rust_type("tnsr_u8").owned, "Value<'static>");
+        assert!(rust_type("arry_f32").fallible);
+        assert!(!rust_type("f32").fallible && !rust_type("tnsr_u8").fallible);
         assert_eq!(rust_type("f16").key, "f16");
     }
 }

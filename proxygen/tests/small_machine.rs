@@ -17,7 +17,7 @@ mod proxies;
 #[path = "golden/odd/mod.rs"]
 mod odd;
 
-use osap_host::som::{HostFunction, Manager, OwnedValue, PipeOptions, Som};
+use osap_host::som::{HostFunction, Manager, PipeOptions, Som, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::InputMode;
@@ -99,7 +99,7 @@ async fn proxies_drive_the_simulated_small_machine() {
     assert_eq!(x.analog_read(0).await.unwrap().value, 0.0);
 
     // Connect x.get_status's points queued to a host function and call it.
-    let seen: Arc<Mutex<Vec<Vec<OwnedValue>>>> = Arc::default();
+    let seen: Arc<Mutex<Vec<Vec<Value<'static>>>>> = Arc::default();
     let s = seen.clone();
     let u16t = Type::Scalar(ScalarType::U16);
     let sink = HostFunction::new("sink", &[("queued", u16t)], &[], move |i| {
@@ -119,7 +119,7 @@ async fn proxies_drive_the_simulated_small_machine() {
     .unwrap();
     x.get_status().await.unwrap();
     let deadline = Instant::now() + Duration::from_secs(5);
-    while !seen.lock().unwrap().contains(&vec![OwnedValue::U16(1)]) {
+    while !seen.lock().unwrap().contains(&vec![Value::U16(1)]) {
         assert!(Instant::now() < deadline, "the pipe never delivered");
         tokio::time::sleep(Duration::from_millis(2)).await;
     }

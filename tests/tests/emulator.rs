@@ -35,11 +35,11 @@ use osap_core::route::Route;
 use osap_host::link::stream::LinkHandle;
 use osap_host::link::tcp;
 use osap_host::netrunner::{Netrunner, ScanOptions, SyncGoal};
-use osap_host::som::{FnRef, Manager, ManagerOptions, OwnedValue};
+use osap_host::som::{FnRef, Manager, ManagerOptions, Value};
 use osap_host::{Host, HostConfig, HostError};
 use osap_module::functions::SIGNATURES;
 use osap_sim::machine::{self, SimMachine};
-use serde_json::{json, Value};
+use serde_json::{json, Value as Json};
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
 use std::time::{Duration, Instant};
@@ -125,7 +125,7 @@ impl Emulator {
         .await
         .expect("the bridge never said it was ready")
         .expect("the bridge's stdout");
-        let ready: Value = serde_json::from_str(&ready)
+        let ready: Json = serde_json::from_str(&ready)
             .unwrap_or_else(|e| panic!("the bridge did not start: {ready:?} ({e})"));
         let port = |k: &str| {
             ready[k]
@@ -141,7 +141,7 @@ impl Emulator {
     }
 
     /// One command on the control channel, its JSON answer.
-    async fn control(&self, cmd: Value) -> Value {
+    async fn control(&self, cmd: Json) -> Json {
         let mut s = TcpStream::connect(("127.0.0.1", self.control))
             .await
             .expect("control channel");
@@ -222,9 +222,7 @@ async fn host_minus_monotonic_ns(host: &Host) -> i128 {
 async fn read_limit(f: &osap_host::som::FunctionHandle) -> (u64, bool, u32) {
     let out = f.call(&[]).await.unwrap();
     match out.as_slice() {
-        [OwnedValue::U64(t), OwnedValue::Bool(level), OwnedValue::U32(edges)] => {
-            (*t, *level, *edges)
-        }
+        [Value::U64(t), Value::Bool(level), Value::U32(edges)] => (*t, *level, *edges),
         other => panic!("read_limit gave {other:?}"),
     }
 }
@@ -232,9 +230,9 @@ async fn read_limit(f: &osap_host::som::FunctionHandle) -> (u64, bool, u32) {
 /// What a streamed move did.
 struct Moved {
     /// The bridge's count of edges on the step and direction pins.
-    counts: Value,
+    counts: Json,
     /// The firmware's `get_steps`.
-    steps: Vec<OwnedValue>,
+    steps: Vec<Value<'static>>,
     /// Points the firmware refused.
     refused: u32,
     /// Emulated CPU cycles executed over cycles elapsed during the move.
@@ -268,12 +266,9 @@ async fn smooth_move(
     points.extend([to; 6]);
     let add = f("add_point");
     for (k, p) in points.iter().enumerate() {
-        add.call(&[
-            OwnedValue::U64(t0 + k as u64 * iv),
-            OwnedValue::F32(*p as f32),
-        ])
-        .await
-        .unwrap_or_else(|e| panic!("point {k}: {e}"));
+        add.call(&[Value::U64(t0 + k as u64 * iv), Value::F32(*p as f32)])
+            .await
+            .unwrap_or_else(|e| panic!("point {k}: {e}"));
     }
     let end = t0 + points.len() as u64 * iv + 200_000;
     while host.system_time().await.unwrap().as_micros() < end {
@@ -285,10 +280,10 @@ async fn smooth_move(
     let last_point = t0 + (points.len() as u64 - 1) * iv;
     let deadline = Instant::now() + Duration::from_secs(30);
     loop {
-        let OwnedValue::U64(module_now) = f("get_position").call(&[]).await.unwrap()[0] else {
+        let Value::U64(module_now) = f("get_position").call(&[]).await.unwrap()[0] else {
             panic!("get_position's first output is its time")
         };
-        let tracking = f("get_status").call(&[]).await.unwrap()[0] == OwnedValue::U8(2);
+        let tracking = f("get_status").call(&[]).await.unwrap()[0] == Value::U8(2);
         if module_now > last_point && !tracking {
             break;
         }
@@ -306,14 +301,14 @@ async fn smooth_move(
     let status = f("get_status").call(&[]).await.unwrap();
     let counters = f("get_counters").call(&[]).await.unwrap();
     println!("firmware status {status:?}, counters {counters:?}");
-    let cycles = |s: &Value, k: &str| s[k].as_f64().unwrap_or(f64::NAN);
+    let cycles = |s: &Json, k: &str| s[k].as_f64().unwrap_or(f64::NAN);
     let load = (cycles(&load_after, "cycles_executed") - cycles(&load_before, "cycles_executed"))
         / (cycles(&load_after, "cycles_total") - cycles(&load_before, "cycles_total"));
     println!(
         "CPU load while moving (emulated cycles executed / elapsed): {:.1} %",
         load * 100.0
     );
-    let OwnedValue::U32(refused) = counters[1] else {
+    let Value::U32(refused) = counters[1] else {
         panic!("{counters:?}")
     };
     Moved {
@@ -615,15 +610,12 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
 
     // 4. Motion: a smooth move of 2 units (160 full steps) stamped in
     // synchronized time, sent ahead; the step pins must show exactly it.
-    f("set_enable")
-        .call(&[OwnedValue::Bool(true)])
-        .await
-        .unwrap();
+    f("set_enable").call(&[Value::Bool(true)]).await.unwrap();
     let slow = smooth_move(&host, &emu, &f, 2048, 0.0, 2.0, 40).await;
     let expect = (2.0 * STEPS_PER_UNIT) as i64;
     assert_eq!(slow.counts["up"], json!(expect), "{}", slow.counts);
     assert_eq!(slow.counts["down"], json!(0), "{}", slow.counts);
-    assert_eq!(slow.steps[0], OwnedValue::I64(expect), "{:?}", slow.steps);
+    assert_eq!(slow.steps[0], Value::I64(expect), "{:?}", slow.steps);
     // Ticks that owed two steps (the steps still went out) are reported
     // above, not failed: a clock that jumped while the emulator caught up
     // makes some, which measures the emulator, not the firmware.
@@ -633,32 +625,26 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     // a peak of about 10 000 steps/s, with 16 ms between points. (The step
     // generator's ceiling is one step per two 10 µs ticks, 50 000/s; the
     // emulator's stalls make faster moves here catch up in bursts.)
-    f("set_interval")
-        .call(&[OwnedValue::U32(16_384)])
-        .await
-        .unwrap();
-    f("set_scale")
-        .call(&[OwnedValue::F32(2000.0)])
-        .await
-        .unwrap();
+    f("set_interval").call(&[Value::U32(16_384)]).await.unwrap();
+    f("set_scale").call(&[Value::F32(2000.0)]).await.unwrap();
     let fast = smooth_move(&host, &emu, &f, 16_384, 2.0, 0.0, 36).await;
     // Net 4 000 steps down on the pins, and the firmware counted every
     // edge the pins show. (A clock correction while the emulator catches
     // up moves the target back a little: a few steps up and down again.)
     assert_eq!(fast.counts["position"], json!(-4_000), "{}", fast.counts);
-    assert_eq!(fast.steps[0], OwnedValue::I64(0), "{:?}", fast.steps);
+    assert_eq!(fast.steps[0], Value::I64(0), "{:?}", fast.steps);
     assert_eq!(
         [fast.steps[1].clone(), fast.steps[2].clone()],
         [
-            OwnedValue::U64(fast.counts["up"].as_u64().unwrap_or(u64::MAX)),
-            OwnedValue::U64(fast.counts["down"].as_u64().unwrap_or(u64::MAX))
+            Value::U64(fast.counts["up"].as_u64().unwrap_or(u64::MAX)),
+            Value::U64(fast.counts["down"].as_u64().unwrap_or(u64::MAX))
         ],
         "firmware {:?} against pins {}",
         fast.steps,
         fast.counts
     );
     assert_eq!(fast.refused, 0);
-    let span_s = |c: &Value| {
+    let span_s = |c: &Json| {
         (c["last_edge_us"].as_f64().unwrap_or(0.0) - c["first_edge_us"].as_f64().unwrap_or(0.0))
             / 1e6
     };
@@ -836,7 +822,7 @@ async fn enter_bootloader_answers_then_calls_the_rom_usb_boot() {
     m.refresh().await.unwrap();
     let enter = m.function(&FnRef::new(&name, "enter_bootloader")).unwrap();
     let before = emu.control(json!({"cmd": "stats"})).await;
-    assert_eq!(before["halted"], Value::Null, "{before}");
+    assert_eq!(before["halted"], Json::Null, "{before}");
     assert_eq!(
         before["rom_calls"]["reset_to_usb_boot"],
         json!(0),

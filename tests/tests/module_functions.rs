@@ -4,7 +4,7 @@
 //! would call a module on a USB cable.
 
 use osap_host::link::memory;
-use osap_host::som::{FnRef, Manager, OwnedValue, SomError};
+use osap_host::som::{FnRef, Manager, SomError, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::board::Parts;
 use osap_module::board::{IoHw, StepperHw};
@@ -116,16 +116,13 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
     let f = |name: &str| m.function(&FnRef::new("stepper-0", name)).unwrap();
     // Refusals come back as their codes.
     let e = f("add_point")
-        .call(&[OwnedValue::U64(0), OwnedValue::F32(0.0)])
+        .call(&[Value::U64(0), Value::F32(0.0)])
         .await
         .unwrap_err();
     assert_eq!(call_failed(e), 6, "disabled");
-    f("set_enable")
-        .call(&[OwnedValue::Bool(true)])
-        .await
-        .unwrap();
+    f("set_enable").call(&[Value::Bool(true)]).await.unwrap();
     let e = f("set_microsteps")
-        .call(&[OwnedValue::U16(32)])
+        .call(&[Value::U16(32)])
         .await
         .unwrap_err();
     assert_eq!(call_failed(e), 10);
@@ -134,7 +131,7 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
     for k in 0..12u64 {
         let p = if k < 4 { 0.0 } else { 0.5 };
         f("add_point")
-            .call(&[OwnedValue::U64(k * iv), OwnedValue::F32(p)])
+            .call(&[Value::U64(k * iv), Value::F32(p)])
             .await
             .unwrap();
     }
@@ -144,24 +141,24 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
         local += 160;
     }
     let steps = f("get_steps").call(&[]).await.unwrap();
-    assert_eq!(steps[0], OwnedValue::I64(40));
+    assert_eq!(steps[0], Value::I64(40));
     let status = f("get_status").call(&[]).await.unwrap();
-    assert_eq!(status[1], OwnedValue::U16(12));
+    assert_eq!(status[1], Value::U16(12));
     // I/O, and a time-stamped read.
     f("digital_write")
-        .call(&[OwnedValue::U8(5), OwnedValue::Bool(true)])
+        .call(&[Value::U8(5), Value::Bool(true)])
         .await
         .unwrap();
-    let read = f("digital_read").call(&[OwnedValue::U8(5)]).await.unwrap();
-    assert_eq!(read[1], OwnedValue::Bool(true));
-    let analog = f("analog_read").call(&[OwnedValue::U8(2)]).await.unwrap();
-    assert_eq!(analog[1], OwnedValue::F32(2000.0 / 65535.0));
+    let read = f("digital_read").call(&[Value::U8(5)]).await.unwrap();
+    assert_eq!(read[1], Value::Bool(true));
+    let analog = f("analog_read").call(&[Value::U8(2)]).await.unwrap();
+    assert_eq!(analog[1], Value::F32(2000.0 / 65535.0));
     let e = f("pwm_write")
-        .call(&[OwnedValue::U8(7), OwnedValue::F32(0.5)])
+        .call(&[Value::U8(7), Value::F32(0.5)])
         .await
         .unwrap_err();
     assert_eq!(call_failed(e), 1, "no such output");
     f("halt").call(&[]).await.unwrap();
     let status = f("get_status").call(&[]).await.unwrap();
-    assert_eq!(status[0], OwnedValue::U8(4), "halted");
+    assert_eq!(status[0], Value::U8(4), "halted");
 }

@@ -17,7 +17,7 @@ use maxl::blocks::onedof::OneDofBlock;
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions, SharedState};
+use osap_host::som::{FnRef, Manager, PipeOptions, SharedState, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::stepper::{Mode, StepperCounters, StepperError};
 use osap_sim::machine::board::StepEdge;
@@ -87,7 +87,7 @@ fn on_host(member: &str) -> FnRef {
 }
 
 impl Rig {
-    async fn call(&self, f: &FnRef, args: &[OwnedValue]) -> Vec<OwnedValue> {
+    async fn call(&self, f: &FnRef, args: &[Value<'static>]) -> Vec<Value<'static>> {
         self.m
             .function(f)
             .unwrap()
@@ -137,7 +137,7 @@ impl Rig {
 
     /// Powers an axis's motor (it then takes points).
     async fn enable(&self, axis: &str) {
-        self.call(&FnRef::new(axis, "set_enable"), &[OwnedValue::Bool(true)])
+        self.call(&FnRef::new(axis, "set_enable"), &[Value::Bool(true)])
             .await;
     }
 
@@ -324,7 +324,7 @@ async fn a_corexy_graph_draws_a_square_that_matches_the_plan() {
     let line = on_host(planner.member("line").unwrap());
     let start = r.host.system_time().await.unwrap().as_micros();
     for c in &corners[1..] {
-        let f = |x: f64| OwnedValue::F64(x);
+        let f = |x: f64| Value::F64(x);
         r.call(&line, &[f(c[0]), f(c[1]), f(0.0), f(60.0)]).await;
     }
     until("the planner to finish", Duration::from_secs(10), || {
@@ -425,7 +425,7 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     let limit_hit = on_host(axis.member("limit_hit").unwrap());
     let read_limit = FnRef::new("z", "read_limit");
     // z is a lead screw: 400 full steps per mm (set while no stream runs).
-    r.call(&FnRef::new("z", "set_scale"), &[OwnedValue::F32(400.0)])
+    r.call(&FnRef::new("z", "set_scale"), &[Value::F32(400.0)])
         .await;
     r.enable("z").await;
     r.pipe(&tick, &sample, &[0], &[0]).await;
@@ -459,8 +459,7 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     // Down at 5 mm/s towards the switch at -2 mm.
     let speed = 5.0f32;
     let home = on_host(axis.member("home").unwrap());
-    r.call(&home, &[OwnedValue::I8(-1), OwnedValue::F32(speed)])
-        .await;
+    r.call(&home, &[Value::I8(-1), Value::F32(speed)]).await;
     let homed = until_or_timeout(Duration::from_secs(5), || {
         axis.state().lock().unwrap().0.is_homed()
     })
@@ -501,7 +500,7 @@ async fn homing_finds_the_switch_from_its_time_stamp() {
     let (hit, level, count) = {
         let out = r.call(&read_limit, &[]).await;
         match (&out[0], &out[1], &out[2]) {
-            (OwnedValue::U64(t), OwnedValue::Bool(l), OwnedValue::U32(n)) => (*t, *l, *n),
+            (Value::U64(t), Value::Bool(l), Value::U32(n)) => (*t, *l, *n),
             _ => panic!("{out:?}"),
         }
     };

@@ -26,7 +26,7 @@ use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
+use osap_host::som::{FnRef, Manager, PipeOptions, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{self, SimMachine};
 use pipes_core::control::{InputMode, OutputMode};
@@ -117,7 +117,7 @@ async fn run() -> Result<(), Box<dyn Error>> {
     // steps per mm, the belts' in the topology).
     for motor in ["a", "b"] {
         m.function(&FnRef::new(motor, "set_enable"))?
-            .call(&[OwnedValue::Bool(true)])
+            .call(&[Value::Bool(true)])
             .await?;
     }
     let o = PipeOptions::default();

@@ -41,7 +41,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use clap::Parser;
-use osap_host::som::OwnedValue;
+use osap_host::som::Value;
 use osap_machine::config::{MachineFile, Output};
 use osap_machine::machine::Link;
 use osap_machine::Machine;
@@ -257,11 +257,7 @@ impl Player {
             m.call(
                 &mallet.module,
                 "pulse_at",
-                &[
-                    OwnedValue::U64(at),
-                    OwnedValue::U8(mallet.pin),
-                    OwnedValue::U32(STRIKE_US),
-                ],
+                &[Value::U64(at), Value::U8(mallet.pin), Value::U32(STRIKE_US)],
             )
             .await?;
             mallet.busy_until = at + u64::from(STRIKE_US) + RECOIL_US;

@@ -14,7 +14,7 @@ use axum::middleware::{self, Next};
 use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
-use osap_host::som::{FnRef, OwnedValue};
+use osap_host::som::{self, parse_value, FnRef};
 use pipes_core::Type;
 use serde_json::{json, Value};
 use tokio::sync::broadcast;
@@ -212,7 +212,7 @@ async fn call_function(
         let ty = input
             .ty()
             .ok_or_else(|| format!("input {}: unknown type {}", input.name, input.type_name))?;
-        args.push(OwnedValue::parse(&ty, text).map_err(|e| format!("input {}: {e}", input.name))?);
+        args.push(parse_value(&ty, text).map_err(|e| format!("input {}: {e}", input.name))?);
     }
     let outputs = handle.outputs().to_vec();
     let values = tokio::time::timeout(CALL_TIMEOUT, handle.call(&args))
@@ -228,11 +228,11 @@ async fn call_function(
 
 /// A value as JSON: numbers, bools and strings as themselves, others as
 /// their text.
-fn to_json(v: &OwnedValue) -> Value {
+fn to_json(v: &som::Value<'static>) -> Value {
     match v {
-        OwnedValue::Bool(b) => json!(b),
-        OwnedValue::Utf8(s) | OwnedValue::Ascii(s) => json!(s),
-        OwnedValue::Null => Value::Null,
+        som::Value::Bool(b) => json!(b),
+        som::Value::Utf8(s) | som::Value::Ascii(s) => json!(s.as_str()),
+        som::Value::Null => Value::Null,
         other => match (other.ty(), other.as_f64()) {
             (Type::Scalar(_), Some(x)) if x.is_finite() => json!(x),
             _ => json!(other.to_string()),
@@ -317,8 +317,8 @@ mod tests {
 
     #[test]
     fn values_become_json() {
-        assert_eq!(to_json(&OwnedValue::U64(7)), json!(7.0));
-        assert_eq!(to_json(&OwnedValue::Bool(true)), json!(true));
-        assert_eq!(to_json(&OwnedValue::Utf8("a".into())), json!("a"));
+        assert_eq!(to_json(&som::Value::U64(7)), json!(7.0));
+        assert_eq!(to_json(&som::Value::Bool(true)), json!(true));
+        assert_eq!(to_json(&som::Value::Utf8("a".into())), json!("a"));
     }
 }

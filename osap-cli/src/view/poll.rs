@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use osap_core::route::Route;
 use osap_host::netrunner::Netrunner;
-use osap_host::som::{FnRef, OwnedValue};
+use osap_host::som::{self, FnRef};
 use osap_machine::MachineEvent;
 use serde_json::{json, Value};
 use tokio::sync::broadcast;
@@ -240,7 +240,7 @@ impl Poller {
             let Ok(v) = handle.call(&[]).await else {
                 continue;
             };
-            let num = |i: usize| v.get(i).and_then(OwnedValue::as_f64).unwrap_or(0.0);
+            let num = |i: usize| v.get(i).and_then(som::Value::as_f64).unwrap_or(0.0);
             let count = num(3) as u32;
             let seen = self.fault_counts.insert(id, count);
             if seen.is_some_and(|s| count > s) {

@@ -2,7 +2,7 @@
 //! manager uses, and [`FunctionHandle`] for RPC from async Rust.
 
 use super::model::SomArg;
-use super::{FnRef, OwnedValue, SomError};
+use super::{FnRef, SomError, Value};
 use crate::{HostError, PortHandle, HOST_MTU};
 use osap_core::codec::Writer;
 use osap_core::route::Route;
@@ -134,7 +134,7 @@ impl Control {
 fn encode_args(
     function: &FnRef,
     key: ControlKey,
-    args: &[(u8, &OwnedValue)],
+    args: &[(u8, &Value<'static>)],
 ) -> Result<Vec<u8>, SomError> {
     let bad = |detail: String| SomError::BadArguments {
         function: function.clone(),
@@ -146,10 +146,7 @@ fn encode_args(
         .map_err(|e| bad(format!("cannot write the request: {e}")))?;
     let mut aw = ArgsWriter::new(&mut w).map_err(|e| bad(e.to_string()))?;
     for (i, v) in args {
-        let value = v
-            .as_value()
-            .map_err(|e| bad(format!("argument {i}: {e}")))?;
-        aw.push(*i, &value).map_err(|e| {
+        aw.push(*i, v).map_err(|e| {
             bad(format!(
                 "argument {i}: {e} (the request must fit one packet)"
             ))
@@ -230,7 +227,7 @@ impl FunctionHandle {
         self
     }
 
-    fn check_arg(&self, index: u8, value: &OwnedValue) -> Result<(), SomError> {
+    fn check_arg(&self, index: u8, value: &Value<'static>) -> Result<(), SomError> {
         let bad = |detail: String| SomError::BadArguments {
             function: self.target.function.clone(),
             detail,
@@ -263,7 +260,7 @@ impl FunctionHandle {
     /// wrong argument count or types (checked here first), the function's
     /// own refusal ([`SomError::Remote`], e.g. a lossy conversion or the
     /// function failing), no reply, or a malformed reply.
-    pub async fn call(&self, args: &[OwnedValue]) -> Result<Vec<OwnedValue>, SomError> {
+    pub async fn call(&self, args: &[Value<'static>]) -> Result<Vec<Value<'static>>, SomError> {
         self.call_once_or_more(args, false).await
     }
 
@@ -272,15 +269,18 @@ impl FunctionHandle {
     /// reply lost on the way is retried on timeout, as the manager's own
     /// idempotent requests are. Never use it for a function that queues or
     /// counts what it is given.
-    pub async fn call_idempotent(&self, args: &[OwnedValue]) -> Result<Vec<OwnedValue>, SomError> {
+    pub async fn call_idempotent(
+        &self,
+        args: &[Value<'static>],
+    ) -> Result<Vec<Value<'static>>, SomError> {
         self.call_once_or_more(args, true).await
     }
 
     async fn call_once_or_more(
         &self,
-        args: &[OwnedValue],
+        args: &[Value<'static>],
         idempotent: bool,
-    ) -> Result<Vec<OwnedValue>, SomError> {
+    ) -> Result<Vec<Value<'static>>, SomError> {
         if args.len() != self.inputs.len() {
             return Err(SomError::BadArguments {
                 function: self.target.function.clone(),
@@ -293,7 +293,7 @@ impl FunctionHandle {
                 ),
             });
         }
-        let indexed: Vec<(u8, &OwnedValue)> =
+        let indexed: Vec<(u8, &Value<'static>)> =
             args.iter().enumerate().map(|(i, v)| (i as u8, v)).collect();
         for (i, v) in &indexed {
             self.check_arg(*i, v)?;
@@ -313,8 +313,8 @@ impl FunctionHandle {
     /// as a request so refusals come back): `(input index, value)` pairs.
     /// The function stores them as fresh and runs if its input mode says
     /// so, exactly as if they had come down a pipe.
-    pub async fn push(&self, args: &[(u8, OwnedValue)]) -> Result<(), SomError> {
-        let indexed: Vec<(u8, &OwnedValue)> = args.iter().map(|(i, v)| (*i, v)).collect();
+    pub async fn push(&self, args: &[(u8, Value<'static>)]) -> Result<(), SomError> {
+        let indexed: Vec<(u8, &Value<'static>)> = args.iter().map(|(i, v)| (*i, v)).collect();
         for (i, v) in &indexed {
             self.check_arg(*i, v)?;
         }
@@ -336,13 +336,13 @@ impl FunctionHandle {
         }
     }
 
-    fn outputs_of(&self, outs: &Args<'_>) -> Result<Vec<OwnedValue>, SomError> {
-        let mut values: Vec<Option<OwnedValue>> = vec![None; self.outputs.len()];
+    fn outputs_of(&self, outs: &Args<'_>) -> Result<Vec<Value<'static>>, SomError> {
+        let mut values: Vec<Option<Value<'static>>> = vec![None; self.outputs.len()];
         for (i, v) in outs.iter() {
             let slot = values
                 .get_mut(usize::from(i))
                 .ok_or_else(|| self.malformed("call", format!("returned unknown output {i}")))?;
-            *slot = Some(OwnedValue::from_value(&v));
+            *slot = Some(v.to_owned_value());
         }
         values
             .into_iter()

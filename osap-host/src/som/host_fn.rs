@@ -1,13 +1,13 @@
 //! PIPES functions defined by host code.
 //!
 //! A [`HostFunction`] is a signature and a Rust closure over
-//! [`OwnedValue`]s. Attached to a [`Host`] it runs as a real
+//! [`Value`]s that own their data (`Value<'static>`). Attached to a [`Host`] it runs as a real
 //! `pipes_core::function::PipesFunction` port in that host's runtime: it
 //! answers the whole function protocol, shows up in scans and in the system
 //! object model, and pipes can run to it from module functions and from it
 //! to module functions.
 
-use super::{OwnedValue, SomError};
+use super::SomError;
 use crate::Host;
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
@@ -23,10 +23,34 @@ pub(crate) const HOST_FN_QUEUE: usize = 4;
 /// set of outputs it sends.
 pub const HOST_FN_STORE: usize = 512;
 
+/// A host function's failure: its own failure code, which the caller sees
+/// as the call's error (`CallError::Failed(code)` on the wire). What each
+/// code means is the function's to say; 0 is as good a code as any other.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, thiserror::Error)]
+#[error("host function failed with code {code}")]
+pub struct HostFnError {
+    /// The function's failure code.
+    pub code: u8,
+}
+
+impl HostFnError {
+    /// A failure with code `code`.
+    pub const fn new(code: u8) -> HostFnError {
+        HostFnError { code }
+    }
+}
+
+impl From<u8> for HostFnError {
+    fn from(code: u8) -> HostFnError {
+        HostFnError { code }
+    }
+}
+
 /// The body of a host function: the inputs (each already of its declared
 /// type) in, the outputs (in output order, each converted to its declared
-/// type under the conversion table) out, or the function's own error code.
-pub type HostBody = Box<dyn FnMut(&[OwnedValue]) -> Result<Vec<OwnedValue>, u8> + Send>;
+/// type under the conversion table) out, or the function's own failure.
+pub type HostBody =
+    Box<dyn FnMut(&[Value<'static>]) -> Result<Vec<Value<'static>>, HostFnError> + Send>;
 
 struct HostImpl {
     sig: &'static Signature,
@@ -39,12 +63,11 @@ impl Implementation for HostImpl {
     }
 
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
-        let ins: Vec<OwnedValue> = inputs.iter().map(OwnedValue::from_value).collect();
-        let outs = (self.body)(&ins).map_err(|code| CallError::Failed(code.into()))?;
+        let ins: Vec<Value<'static>> = inputs.iter().map(Value::to_owned_value).collect();
+        let outs = (self.body)(&ins).map_err(|e| CallError::Failed(e.code.into()))?;
         for (i, v) in outs.iter().enumerate() {
             let index = u8::try_from(i).map_err(|_| CallError::NoSuchOutput(u8::MAX))?;
-            let value = v.as_value().map_err(|_| CallError::OutputTooLarge(index))?;
-            outputs.set(index, &value)?;
+            outputs.set(index, v)?;
         }
         Ok(())
     }
@@ -83,7 +106,7 @@ impl HostFunction {
         name: &str,
         inputs: &[(&str, Type)],
         outputs: &[(&str, Type)],
-        body: impl FnMut(&[OwnedValue]) -> Result<Vec<OwnedValue>, u8> + Send + 'static,
+        body: impl FnMut(&[Value<'static>]) -> Result<Vec<Value<'static>>, HostFnError> + Send + 'static,
     ) -> Result<HostFunction, SomError> {
         let args = |list: &[(&str, Type)]| -> &'static [Arg] {
             let v: Vec<Arg> = list.iter().map(|(n, t)| Arg::new(leak(n), *t)).collect();

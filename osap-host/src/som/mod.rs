@@ -8,7 +8,7 @@
 //! - [`Som`] (in [`model`]): runtimes, links, functions, pipes and classes,
 //!   as JSON (layout in `docs/som.md`).
 //! - [`FunctionHandle`]: calls a function over the network from async Rust
-//!   with [`OwnedValue`]s, before any proxy is generated.
+//!   with [`Value`]s, before any proxy is generated.
 //! - [`HostFunction`]: a function a script defines on the host runtime (or
 //!   any [`Host`](crate::Host)); it is a real PIPES function, so pipes run
 //!   from module functions to it and from it to module functions.
@@ -18,7 +18,7 @@
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::som::SomError> {
-//! use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions};
+//! use osap_host::som::{FnRef, Manager, PipeOptions, Value};
 //! use osap_host::{Host, HostConfig};
 //! let host = Host::start(HostConfig::default())?;
 //! let mut manager = Manager::new(&host).await?;
@@ -26,7 +26,7 @@
 //! println!("{}", manager.som().to_json());
 //! let (x, y) = (FnRef::new("x", "encoder"), FnRef::new("y", "stepper"));
 //! manager.connect(&x, &y, &[0], &[0], PipeOptions::default()).await?;
-//! let out = manager.function(&x)?.call(&[OwnedValue::F32(1.0)]).await?;
+//! let out = manager.function(&x)?.call(&[Value::F32(1.0)]).await?;
 //! # let _ = out; Ok(()) }
 //! ```
 
@@ -41,11 +41,15 @@ mod value;
 
 pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
-pub use host_fn::{attach_function, HostBody, HostFunction, HOST_FN_PIPES, HOST_FN_STORE};
+pub use host_fn::{
+    attach_function, HostBody, HostFnError, HostFunction, HOST_FN_PIPES, HOST_FN_STORE,
+};
 pub use manager::{Disconnect, Manager, ManagerOptions, PipeOptions, RefreshReport};
 pub use model::{RuntimeLookupError, Som, SOM_VERSION};
 pub use pipes_core::pipe::PipeStats;
-pub use value::{LeElement, OwnedValue};
+/// PIPES values, owning their data as `Value<'static>` (pipes-core's type).
+pub use pipes_core::{Element, Text, Value};
+pub use value::{parse_value, ParseValueError};
 
 use crate::HostError;
 use pipes_core::control::ControlError;

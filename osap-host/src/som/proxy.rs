@@ -113,6 +113,8 @@ impl From<SomError> for BindError {
 pub enum CallError {
     /// The call itself failed (network, refusal, bad arguments).
     Som(SomError),
+    /// An argument cannot be sent (an array of more than 65535 elements).
+    Argument(pipes_core::ValueError),
     /// An output did not come back with the type the proxy expects.
     Output {
         /// The function.
@@ -126,6 +128,7 @@ impl fmt::Display for CallError {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
             CallError::Som(e) => write!(f, "{e}"),
+            CallError::Argument(e) => write!(f, "an argument cannot be sent: {e}"),
             CallError::Output { function, detail } => write!(f, "{function}: {detail}"),
         }
     }
@@ -143,7 +146,7 @@ impl From<SomError> for CallError {
 /// conversions of each SOM type.
 pub mod support {
     use super::{BindError, CallError, Difference};
-    use crate::som::{FnRef, FunctionHandle, Manager, OwnedValue, RuntimeLookupError, Som};
+    use crate::som::{FnRef, FunctionHandle, Manager, RuntimeLookupError, Som, Value};
 
     /// A function's signature as the proxy was generated from it:
     /// `(name, type)` of each input and output, by index.
@@ -303,7 +306,7 @@ pub mod support {
     /// A call's outputs, taken in order.
     pub struct Outputs<'a> {
         handle: &'a FunctionHandle,
-        values: std::vec::IntoIter<OwnedValue>,
+        values: std::vec::IntoIter<Value<'static>>,
         index: usize,
     }
 
@@ -311,7 +314,7 @@ pub mod support {
         /// The outputs of a call to `handle`, which must be `count`.
         pub fn new(
             handle: &'a FunctionHandle,
-            values: Vec<OwnedValue>,
+            values: Vec<Value<'static>>,
             count: usize,
         ) -> Result<Self, CallError> {
             if values.len() != count {
@@ -331,10 +334,10 @@ pub mod support {
         }
 
         /// The next output, converted by `from`.
-        pub fn next<T>(&mut self, from: fn(OwnedValue) -> Option<T>) -> Result<T, CallError> {
+        pub fn next<T>(&mut self, from: fn(Value<'static>) -> Option<T>) -> Result<T, CallError> {
             let i = self.index;
             self.index += 1;
-            let v = self.values.next().unwrap_or(OwnedValue::Null);
+            let v = self.values.next().unwrap_or(Value::Null);
             let shown = v.to_string();
             from(v).ok_or_else(|| {
                 let expected = self
@@ -352,97 +355,84 @@ pub mod support {
     }
 
     /// `null`.
-    pub fn to_null(_: ()) -> OwnedValue {
-        OwnedValue::Null
+    pub fn to_null(_: ()) -> Value<'static> {
+        Value::Null
     }
 
     /// `null`.
-    pub fn from_null(v: OwnedValue) -> Option<()> {
-        matches!(v, OwnedValue::Null).then_some(())
+    pub fn from_null(v: Value<'static>) -> Option<()> {
+        matches!(v, Value::Null).then_some(())
     }
 
     /// Any value, passed as it is.
-    pub fn to_raw(v: OwnedValue) -> OwnedValue {
+    pub fn to_raw(v: Value<'static>) -> Value<'static> {
         v
     }
 
     /// Any value, returned as it is.
-    pub fn from_raw(v: OwnedValue) -> Option<OwnedValue> {
+    pub fn from_raw(v: Value<'static>) -> Option<Value<'static>> {
         Some(v)
     }
 
     /// `f16`, as its bits.
-    pub fn to_f16(bits: u16) -> OwnedValue {
-        OwnedValue::F16(bits)
+    pub fn to_f16(bits: u16) -> Value<'static> {
+        Value::F16(bits)
     }
 
     /// `f16`, as its bits.
-    pub fn from_f16(v: OwnedValue) -> Option<u16> {
+    pub fn from_f16(v: Value<'static>) -> Option<u16> {
         match v {
-            OwnedValue::F16(x) => Some(x),
+            Value::F16(x) => Some(x),
             _ => None,
         }
     }
 
     /// `ascii`.
-    pub fn to_ascii(s: &str) -> OwnedValue {
-        OwnedValue::Ascii(s.to_string())
+    pub fn to_ascii(s: &str) -> Value<'static> {
+        Value::ascii(s.to_string())
     }
 
     /// `ascii` (or `utf8`).
-    pub fn from_ascii(v: OwnedValue) -> Option<String> {
+    pub fn from_ascii(v: Value<'static>) -> Option<String> {
         match v {
-            OwnedValue::Ascii(s) | OwnedValue::Utf8(s) => Some(s),
+            Value::Ascii(s) | Value::Utf8(s) => Some(s.into()),
             _ => None,
         }
     }
 
     /// `utf8`.
-    pub fn to_utf8(s: &str) -> OwnedValue {
-        OwnedValue::Utf8(s.to_string())
+    pub fn to_utf8(s: &str) -> Value<'static> {
+        Value::utf8(s.to_string())
     }
 
     /// `utf8` (or `ascii`).
-    pub fn from_utf8(v: OwnedValue) -> Option<String> {
+    pub fn from_utf8(v: Value<'static>) -> Option<String> {
         from_ascii(v)
     }
 
     macro_rules! scalars {
         ($($t:ident $variant:ident $to:ident $from:ident $to_arr:ident $from_arr:ident),* $(,)?) => {$(
             #[doc = concat!("`", stringify!($t), "`.")]
-            pub fn $to(x: $t) -> OwnedValue {
-                OwnedValue::$variant(x)
+            pub fn $to(x: $t) -> Value<'static> {
+                Value::$variant(x)
             }
 
             #[doc = concat!("`", stringify!($t), "`.")]
-            pub fn $from(v: OwnedValue) -> Option<$t> {
+            pub fn $from(v: Value<'static>) -> Option<$t> {
                 match v {
-                    OwnedValue::$variant(x) => Some(x),
+                    Value::$variant(x) => Some(x),
                     _ => None,
                 }
             }
 
-            #[doc = concat!("`arry_", stringify!($t), "`.")]
-            pub fn $to_arr(x: &[$t]) -> OwnedValue {
-                OwnedValue::array(x)
+            #[doc = concat!("`arry_", stringify!($t), "`: refused past 65535 elements.")]
+            pub fn $to_arr(x: &[$t]) -> Result<Value<'static>, CallError> {
+                Value::array(x).map_err(CallError::Argument)
             }
 
             #[doc = concat!("`arry_", stringify!($t), "`.")]
-            pub fn $from_arr(v: OwnedValue) -> Option<Vec<$t>> {
-                const W: usize = std::mem::size_of::<$t>();
-                match v {
-                    OwnedValue::Array { elem, bytes } if elem == <$t as crate::som::LeElement>::TYPE => Some(
-                        bytes
-                            .chunks_exact(W)
-                            .map(|c| {
-                                let mut b = [0u8; W];
-                                b.copy_from_slice(c);
-                                $t::from_le_bytes(b)
-                            })
-                            .collect(),
-                    ),
-                    _ => None,
-                }
+            pub fn $from_arr(v: Value<'static>) -> Option<Vec<$t>> {
+                Some(v.as_array()?.typed::<$t>()?.collect())
             }
         )*};
     }
@@ -463,30 +453,25 @@ pub mod support {
     );
 
     /// `bool`.
-    pub fn to_bool(x: bool) -> OwnedValue {
-        OwnedValue::Bool(x)
+    pub fn to_bool(x: bool) -> Value<'static> {
+        Value::Bool(x)
     }
 
     /// `bool`.
-    pub fn from_bool(v: OwnedValue) -> Option<bool> {
+    pub fn from_bool(v: Value<'static>) -> Option<bool> {
         match v {
-            OwnedValue::Bool(x) => Some(x),
+            Value::Bool(x) => Some(x),
             _ => None,
         }
     }
 
-    /// `arry_bool`.
-    pub fn to_arry_bool(x: &[bool]) -> OwnedValue {
-        OwnedValue::array(x)
+    /// `arry_bool`: refused past 65535 elements.
+    pub fn to_arry_bool(x: &[bool]) -> Result<Value<'static>, CallError> {
+        Value::array(x).map_err(CallError::Argument)
     }
 
     /// `arry_bool`.
-    pub fn from_arry_bool(v: OwnedValue) -> Option<Vec<bool>> {
-        match v {
-            OwnedValue::Array { elem, bytes } if elem == <bool as crate::som::LeElement>::TYPE => {
-                Some(bytes.iter().map(|b| *b != 0).collect())
-            }
-            _ => None,
-        }
+    pub fn from_arry_bool(v: Value<'static>) -> Option<Vec<bool>> {
+        Some(v.as_array()?.typed::<bool>()?.collect())
     }
 }

@@ -34,7 +34,7 @@ use maxl::blocks::planner::Arc as PlanArc;
 use maxl::blocks::timer::TimerBlock;
 use osap_core::route::Route;
 use osap_host::netrunner::{Netrunner, SyncGoal};
-use osap_host::som::{FnRef, Manager, OwnedValue, PipeOptions, SomError};
+use osap_host::som::{FnRef, Manager, PipeOptions, SomError, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{SimMachine, TimeMode};
 use pipes_core::control::{ControlError, InputMode, OutputMode};
@@ -1069,18 +1069,14 @@ impl Machine {
         }
         let mut at = Vec::new();
         for motor in &motors {
-            self.call_idempotent(&motor.module, "set_enable", &[OwnedValue::Bool(false)])
+            self.call_idempotent(&motor.module, "set_enable", &[Value::Bool(false)])
                 .await?;
-            self.call_idempotent(
-                &motor.module,
-                "set_enable",
-                &[OwnedValue::Bool(motor.enable)],
-            )
-            .await?;
+            self.call_idempotent(&motor.module, "set_enable", &[Value::Bool(motor.enable)])
+                .await?;
             let out = self
                 .call_idempotent(&motor.module, "get_position", &[])
                 .await?;
-            at.push(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0));
+            at.push(out.get(1).and_then(Value::as_f64).unwrap_or(0.0));
         }
         let mut m = lock_motion(&self.inner.motion);
         let p = m.drive.machine_position(&at)?;
@@ -1108,8 +1104,8 @@ impl Machine {
         &self,
         key: &str,
         function: &str,
-        args: &[OwnedValue],
-    ) -> Result<Vec<OwnedValue>, MachineError> {
+        args: &[Value<'static>],
+    ) -> Result<Vec<Value<'static>>, MachineError> {
         self.call_as(key, function, args, false).await
     }
 
@@ -1120,8 +1116,8 @@ impl Machine {
         &self,
         key: &str,
         function: &str,
-        args: &[OwnedValue],
-    ) -> Result<Vec<OwnedValue>, MachineError> {
+        args: &[Value<'static>],
+    ) -> Result<Vec<Value<'static>>, MachineError> {
         self.call_as(key, function, args, true).await
     }
 
@@ -1129,9 +1125,9 @@ impl Machine {
         &self,
         key: &str,
         function: &str,
-        args: &[OwnedValue],
+        args: &[Value<'static>],
         idempotent: bool,
-    ) -> Result<Vec<OwnedValue>, MachineError> {
+    ) -> Result<Vec<Value<'static>>, MachineError> {
         let runtime = &self
             .inner
             .modules
@@ -1354,7 +1350,7 @@ async fn configure_motor(
     motor: &drive::DriveMotor,
     limits: Option<ModuleLimits>,
 ) -> Result<f64, MachineError> {
-    let call = |f: &'static str, args: Vec<OwnedValue>| {
+    let call = |f: &'static str, args: Vec<Value<'static>>| {
         let h = manager.function(&FnRef::new(runtime, f));
         let module = motor.module.clone();
         async move {
@@ -1367,11 +1363,11 @@ async fn configure_motor(
     };
     call(
         "set_scale",
-        vec![OwnedValue::F32(motor.full_steps_per_unit as f32)],
+        vec![Value::F32(motor.full_steps_per_unit as f32)],
     )
     .await?;
-    call("set_microsteps", vec![OwnedValue::U16(motor.microsteps)]).await?;
-    call("set_interval", vec![OwnedValue::U32(INTERVAL_US)]).await?;
+    call("set_microsteps", vec![Value::U16(motor.microsteps)]).await?;
+    call("set_interval", vec![Value::U32(INTERVAL_US)]).await?;
     // All three 0 turns a module's limiter off (a reconnect may follow a
     // machine file that had limits).
     let l = limits.unwrap_or(ModuleLimits {
@@ -1382,13 +1378,13 @@ async fn configure_motor(
     call(
         "set_limits",
         [l.velocity, l.acceleration, l.jerk]
-            .map(|x| OwnedValue::F32(x as f32))
+            .map(|x| Value::F32(x as f32))
             .to_vec(),
     )
     .await?;
-    call("set_enable", vec![OwnedValue::Bool(motor.enable)]).await?;
+    call("set_enable", vec![Value::Bool(motor.enable)]).await?;
     let out = call("get_position", vec![]).await?;
-    Ok(out.get(1).and_then(OwnedValue::as_f64).unwrap_or(0.0))
+    Ok(out.get(1).and_then(Value::as_f64).unwrap_or(0.0))
 }
 
 /// Reports a module whose status reports stop arriving.

@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
-use osap_host::som::{HostFunction, OwnedValue};
+use osap_host::som::{HostFnError, HostFunction, Value};
 use pipes_core::types::{ScalarType, Type};
 use tokio::sync::broadcast;
 
@@ -77,11 +77,10 @@ pub fn status(key: &str, reports: SharedReports) -> Result<HostFunction, String>
             ("faults", t(ScalarType::U32)),
         ],
         &[],
-        move |ins: &[OwnedValue]| {
-            let (Some(OwnedValue::U8(mode)), Some(OwnedValue::U32(faults))) =
-                (ins.first(), ins.get(3))
+        move |ins: &[Value<'static>]| {
+            let (Some(Value::U8(mode)), Some(Value::U32(faults))) = (ins.first(), ins.get(3))
             else {
-                return Err(1);
+                return Err(HostFnError::new(1));
             };
             let now = tokio::time::Instant::now();
             lock(&reports)
@@ -114,15 +113,15 @@ pub fn fault(
             ("count", t(ScalarType::U32)),
         ],
         &[],
-        move |ins: &[OwnedValue]| {
+        move |ins: &[Value<'static>]| {
             let (
-                Some(OwnedValue::U64(time)),
-                Some(OwnedValue::U8(code)),
-                Some(OwnedValue::U32(detail)),
-                Some(OwnedValue::U32(count)),
+                Some(Value::U64(time)),
+                Some(Value::U8(code)),
+                Some(Value::U32(detail)),
+                Some(Value::U32(count)),
             ) = (ins.first(), ins.get(1), ins.get(2), ins.get(3))
             else {
-                return Err(1);
+                return Err(HostFnError::new(1));
             };
             let before = lock(&reports).faults.insert(module.clone(), *count);
             // A count that moved either way is news (a module that restarted
@@ -131,7 +130,7 @@ pub fn fault(
                 return Ok(Vec::new());
             }
             let Some(kind) = FaultKind::from_code(*code) else {
-                return Err(2);
+                return Err(HostFnError::new(2));
             };
             if kind == FaultKind::None || (kind == FaultKind::LimitHit && limit_watched) {
                 return Ok(Vec::new());
@@ -166,11 +165,10 @@ pub fn counters(
             ("filled", t(ScalarType::U32)),
         ],
         &[],
-        move |ins: &[OwnedValue]| {
-            let (Some(OwnedValue::U32(refused)), Some(OwnedValue::U8(code))) =
-                (ins.get(1), ins.get(2))
+        move |ins: &[Value<'static>]| {
+            let (Some(Value::U32(refused)), Some(Value::U8(code))) = (ins.get(1), ins.get(2))
             else {
-                return Err(1);
+                return Err(HostFnError::new(1));
             };
             let mut r = lock(&reports);
             let first = *r.refused.entry(module.clone()).or_insert(*refused);
@@ -205,14 +203,11 @@ pub fn limit(
             ("edges", t(ScalarType::U32)),
         ],
         &[],
-        move |ins: &[OwnedValue]| {
-            let (
-                Some(OwnedValue::U64(time)),
-                Some(OwnedValue::Bool(level)),
-                Some(OwnedValue::U32(count)),
-            ) = (ins.first(), ins.get(1), ins.get(2))
+        move |ins: &[Value<'static>]| {
+            let (Some(Value::U64(time)), Some(Value::Bool(level)), Some(Value::U32(count))) =
+                (ins.first(), ins.get(1), ins.get(2))
             else {
-                return Err(1);
+                return Err(HostFnError::new(1));
             };
             let edge = LimitEdge {
                 time: *time,
@@ -241,10 +236,9 @@ pub fn position(motor: &str, index: usize, reports: SharedReports) -> Result<Hos
             ("position", t(ScalarType::F32)),
         ],
         &[],
-        move |ins: &[OwnedValue]| {
-            let (Some(OwnedValue::U64(time)), Some(OwnedValue::F32(p))) = (ins.first(), ins.get(1))
-            else {
-                return Err(1);
+        move |ins: &[Value<'static>]| {
+            let (Some(Value::U64(time)), Some(Value::F32(p))) = (ins.first(), ins.get(1)) else {
+                return Err(HostFnError::new(1));
             };
             if let Some(all) = &mut lock(&reports).positions {
                 if let Some(list) = all.get_mut(index) {

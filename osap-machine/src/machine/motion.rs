@@ -10,7 +10,7 @@ use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 
 use maxl::blocks::planner::Planner;
-use osap_host::som::{HostFunction, OwnedValue};
+use osap_host::som::{HostFnError, HostFunction, Value};
 use pipes_core::types::{ScalarType, Type};
 use tokio::sync::watch;
 
@@ -186,14 +186,14 @@ pub fn function(name: &str, motion: SharedMotion, motors: usize) -> Result<HostF
         name,
         &[("stamp", Type::Scalar(ScalarType::U64))],
         &outputs,
-        move |ins: &[OwnedValue]| {
-            let Some(OwnedValue::U64(stamp)) = ins.first() else {
-                return Err(BAD_STAMP);
+        move |ins: &[Value<'static>]| {
+            let Some(Value::U64(stamp)) = ins.first() else {
+                return Err(HostFnError::new(BAD_STAMP));
             };
             let m = lock(&motion).sample(*stamp)?;
             let mut out = Vec::with_capacity(1 + m.len());
-            out.push(OwnedValue::U64(*stamp));
-            out.extend(m.iter().map(|&v| OwnedValue::F32(v as f32)));
+            out.push(Value::U64(*stamp));
+            out.extend(m.iter().map(|&v| Value::F32(v as f32)));
             Ok(out)
         },
     )

@@ -2,7 +2,7 @@
 
 use std::time::Duration;
 
-use osap_host::som::OwnedValue;
+use osap_host::som::Value;
 
 use super::{Machine, MachineError};
 use crate::config::Output;
@@ -72,7 +72,7 @@ impl Tool {
                     .call(
                         &t.module,
                         "pwm_write",
-                        &[OwnedValue::U8(channel), OwnedValue::F32(duty as f32)],
+                        &[Value::U8(channel), Value::F32(duty as f32)],
                     )
                     .await?;
             }
@@ -81,7 +81,7 @@ impl Tool {
                     .call(
                         &t.module,
                         "digital_write",
-                        &[OwnedValue::U8(pin), OwnedValue::Bool(level > 0.0)],
+                        &[Value::U8(pin), Value::Bool(level > 0.0)],
                     )
                     .await?;
             }

@@ -5,7 +5,7 @@
 
 use super::support;
 use super::{BindError, CallError};
-use osap_host::som::{FnRef, FunctionHandle, Manager, OwnedValue, Som};
+use osap_host::som::{FnRef, FunctionHandle, Manager, Som, Value};
 
 /// A runtime of type `my-dev.v2` (proxy generated from firmware
 /// 3.1.4). All runtimes of the type share it: bind one per
@@ -253,7 +253,7 @@ impl MyDevV2 {
     /// - generated from: `my-dev.v2` firmware 3.1.4
     pub async fn _3d_scan(&self, points: &[f32], flags: &[bool]) -> Result<T3dScanOutputs, CallError> {
         let h = &self._3d_scan;
-        let values = h.call(&[support::to_arry_f32(points), support::to_arry_bool(flags)]).await?;
+        let values = h.call(&[support::to_arry_f32(points)?, support::to_arry_bool(flags)?]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
         Ok(T3dScanOutputs {
             image: out.next(support::from_raw)?,
@@ -279,7 +279,7 @@ impl MyDevV2 {
     /// - generated from: `my-dev.v2` firmware 3.1.4
     pub async fn bind_2(&self, values_2: &[i16]) -> Result<Vec<i16>, CallError> {
         let h = &self.bind_2;
-        let values = h.call(&[support::to_arry_i16(values_2)]).await?;
+        let values = h.call(&[support::to_arry_i16(values_2)?]).await?;
         let mut out = support::Outputs::new(h, values, 1)?;
         out.next(support::from_arry_i16)
     }
@@ -416,9 +416,9 @@ pub struct GetStatusOutputs {
 #[derive(Debug, Clone, PartialEq)]
 pub struct T3dScanOutputs {
     /// `image: tnsr_u8`.
-    pub image: OwnedValue,
+    pub image: Value<'static>,
     /// `half: arry_f16`.
-    pub half: OwnedValue,
+    pub half: Value<'static>,
 }
 
 /// Outputs of `Tally.read`.
