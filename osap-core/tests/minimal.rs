@@ -13,7 +13,7 @@ use osap_core::packet::{Instruction, Packet};
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::route::Route;
 use osap_core::transport::Transport;
-use osap_core::Runtime;
+use osap_core::{Instant, Runtime};
 
 struct NoPort;
 
@@ -33,7 +33,7 @@ fn exchange(packet: &[u8]) -> heapless::Vec<u8, 128> {
     let mut links = [QueueLink::<4, 128>::new()];
     let mut ports: [NoPort; 0] = [];
     assert!(links[0].inject(packet));
-    rt.poll(1_000, &mut ports, &mut links);
+    rt.poll(Instant::from_micros(1_000), &mut ports, &mut links);
     links[0].take_sent().expect("a reply")
 }
 
@@ -102,6 +102,6 @@ fn time_stamp_requests_are_still_answered() {
     assert_eq!(p.instruction(), Ok(Instruction::LinkForward(0)));
     let body = &reply[7..];
     let r = TimeReply::decode(body).unwrap();
-    assert_eq!(r.request_time, 123_456);
+    assert_eq!(r.request_time, Instant::from_micros(123_456));
     assert_eq!(r.responder_tier, 255);
 }

@@ -16,6 +16,9 @@
 //! time. This crate is a library only: the `osap` command line is
 //! `osap-cli`, simulated machines are `osap-sim`.
 #![deny(missing_docs)]
+// Lints as policy: every public type can be printed, and `pub` means
+// reachable from outside the crate.
+#![warn(missing_debug_implementations, unreachable_pub)]
 
 pub mod clock;
 pub mod driver;

@@ -128,6 +128,16 @@ pub struct Netrunner {
     pub retries: u8,
 }
 
+impl std::fmt::Debug for Netrunner {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Netrunner")
+            .field("port", &self.port)
+            .field("timeout", &self.timeout)
+            .field("retries", &self.retries)
+            .finish()
+    }
+}
+
 fn malformed(what: &str, e: impl std::fmt::Display) -> HostError {
     HostError::Malformed(format!("{what}: {e}"))
 }

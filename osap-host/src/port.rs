@@ -216,6 +216,15 @@ pub struct PortHandle {
     ttl: u16,
 }
 
+impl std::fmt::Debug for PortHandle {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PortHandle")
+            .field("index", &self.index)
+            .field("ttl", &self.ttl)
+            .finish_non_exhaustive()
+    }
+}
+
 impl Drop for PortHandle {
     fn drop(&mut self) {
         self.shared.closed.store(true, Ordering::Relaxed);

@@ -197,6 +197,15 @@ pub struct Host {
     clock: HostClock,
 }
 
+impl std::fmt::Debug for Host {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Host")
+            .field("clock", &self.clock)
+            .field("running", &!self.commands.is_closed())
+            .finish_non_exhaustive()
+    }
+}
+
 impl Host {
     /// Starts a host runtime on the current tokio runtime.
     pub fn start(config: HostConfig) -> Result<Host, HostError> {

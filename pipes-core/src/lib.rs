@@ -21,6 +21,9 @@
 //! data is an error value.
 #![no_std]
 #![deny(missing_docs)]
+// Lints as policy: every public type can be printed, and `pub` means
+// reachable from outside the crate.
+#![warn(missing_debug_implementations, unreachable_pub)]
 #![forbid(unsafe_code)]
 
 #[cfg(feature = "alloc")]

@@ -310,6 +310,15 @@ pub mod support {
         index: usize,
     }
 
+    impl std::fmt::Debug for Outputs<'_> {
+        fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+            f.debug_struct("Outputs")
+                .field("index", &self.index)
+                .field("left", &self.values.len())
+                .finish_non_exhaustive()
+        }
+    }
+
     impl<'a> Outputs<'a> {
         /// The outputs of a call to `handle`, which must be `count`.
         pub fn new(
