@@ -238,8 +238,11 @@ fn no_drive_appearing_times_out_and_says_what_to_do() {
             &fw.to_string_lossy(),
             "--sim",
             &topo.to_string_lossy(),
+            // Long enough that the module's reboot (100 ms after it
+            // answers) has happened when the command gives up, even with
+            // the other tests' simulations loading the machine.
             "--timeout",
-            "1",
+            "3",
         ],
         &elsewhere,
     );
@@ -250,7 +253,7 @@ fn no_drive_appearing_times_out_and_says_what_to_do() {
         "{stdout}"
     );
     for want in [
-        "no UF2 boot drive of RP2040 (0xe48bff56) (Board-ID: RPI-RP2) appeared within 1 s",
+        "no UF2 boot drive of RP2040 (0xe48bff56) (Board-ID: RPI-RP2) appeared within 3 s",
         "OSAP_UF2_MOUNTS=",
         "BOOTSEL",
         "double-tap reset",
