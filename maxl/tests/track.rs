@@ -79,15 +79,12 @@ fn push_rules_and_gap_fill() {
         Err(EvalError::TooEarly)
     );
     let mut fx: Track<Fx, 8> = Track::new(iv(256), LIM);
-    fx.push(SystemInstant::from_micros(0), Fx(1)).unwrap();
+    fx.push(SystemInstant::ZERO, Fx(1)).unwrap();
     assert_eq!(
         fx.push(SystemInstant::from_micros(512), Fx(4)),
         Ok(PushOutcome::FilledGap)
     );
-    assert_eq!(
-        fx.sample(SystemInstant::from_micros(0)),
-        Err(EvalError::NotStarted)
-    );
+    assert_eq!(fx.sample(SystemInstant::ZERO), Err(EvalError::NotStarted));
 }
 
 #[test]
@@ -300,7 +297,7 @@ fn backstop_run<P: Point>(to_p: impl Fn(f64) -> P, kin: impl Fn(&P::Kin) -> (f64
     assert_eq!((v, a, j), (0.0, 0.0, 0.0), "at rest");
     tr.clear();
     assert_eq!(
-        tr.push(SystemInstant::from_micros(0), to_p(0.0)),
+        tr.push(SystemInstant::ZERO, to_p(0.0)),
         Ok(PushOutcome::Appended)
     );
 }

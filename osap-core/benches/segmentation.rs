@@ -62,9 +62,7 @@ fn reassembly(c: &mut Criterion) {
                 b.iter(|| {
                     let mut whole = 0;
                     for s in list {
-                        if let Ok(Some(d)) =
-                            r.on_segment(Instant::from_micros(0), &route, 1, black_box(s))
-                        {
+                        if let Ok(Some(d)) = r.on_segment(Instant::ZERO, &route, 1, black_box(s)) {
                             whole = d.len();
                         }
                     }

@@ -197,6 +197,8 @@ impl core::fmt::Display for NameTooLong {
     }
 }
 
+impl core::error::Error for NameTooLong {}
+
 /// Makes a bounded name from a string.
 pub fn name(s: &str) -> Result<String<NAME_MAX>, NameTooLong> {
     String::try_from(s).map_err(|_| NameTooLong)

@@ -823,7 +823,7 @@ mod tests {
             Reassembler::new().with_timeout(Duration::from_micros(1000));
         let s = seg(1, 0, plan, &data);
         assert_eq!(
-            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(plan, 0)]),
+            r.on_segment(Instant::ZERO, &route, 1, &s[..seg_len(plan, 0)]),
             Ok(None)
         );
         assert_eq!(r.next_deadline(), Some(Instant::from_micros(1000)));
@@ -852,18 +852,18 @@ mod tests {
         let big = Plan::new(40, 26).unwrap();
         let s = seg(0, 0, big, &[0; 40]);
         assert_eq!(
-            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(big, 0)]),
+            r.on_segment(Instant::ZERO, &route, 1, &s[..seg_len(big, 0)]),
             Err(SegmentError::TooLarge)
         );
         let p = Plan::new(30, 26).unwrap();
         let s = seg(0, 0, p, &[0; 30]);
         assert_eq!(
-            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]),
+            r.on_segment(Instant::ZERO, &route, 1, &s[..seg_len(p, 0)]),
             Ok(None)
         );
         let s = seg(1, 0, p, &[0; 30]);
         assert_eq!(
-            r.on_segment(Instant::from_micros(0), &route, 1, &s[..seg_len(p, 0)]),
+            r.on_segment(Instant::ZERO, &route, 1, &s[..seg_len(p, 0)]),
             Err(SegmentError::NoSlot)
         );
         for bad in [
@@ -875,8 +875,7 @@ mod tests {
             &[3, 0, 0, 0, 4, 0][..],       // count 0
         ] {
             assert!(
-                r.on_segment(Instant::from_micros(0), &route, 1, bad)
-                    .is_err(),
+                r.on_segment(Instant::ZERO, &route, 1, bad).is_err(),
                 "{bad:?}"
             );
         }
@@ -889,7 +888,7 @@ mod tests {
         let route = Route::local();
         let mut r: Reassembler<1, 32> = Reassembler::new();
         assert_eq!(
-            r.on_segment(Instant::from_micros(0), &route, 1, &[3, 0, 0, 1, 1, 0, 3]),
+            r.on_segment(Instant::ZERO, &route, 1, &[3, 0, 0, 1, 1, 0, 3]),
             Err(SegmentError::Nested)
         );
         assert_eq!(r.stats().malformed, 1);

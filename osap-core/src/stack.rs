@@ -472,7 +472,7 @@ mod tests {
     type Stack = PacketStack<4, 16, 4, 2>;
 
     fn push(s: &mut Stack, owner: Owner, deadline: Instant) -> Result<SlotId, ClaimError> {
-        s.push_with(owner, Instant::from_micros(0), |buf| {
+        s.push_with(owner, Instant::ZERO, |buf| {
             buf[0] = deadline.as_micros() as u8;
             Ok::<_, ()>((1, deadline))
         })
@@ -523,7 +523,7 @@ mod tests {
     #[test]
     fn failed_writer_returns_the_slot() {
         let mut s = Stack::new();
-        let r = s.push_with(Owner::System, Instant::from_micros(0), |_| {
+        let r = s.push_with(Owner::System, Instant::ZERO, |_| {
             Err::<(usize, Instant), _>("nope")
         });
         assert_eq!(r, Err(PushError::Write("nope")));

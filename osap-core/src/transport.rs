@@ -262,14 +262,12 @@ mod tests {
     fn requester_matches_and_times_out() {
         let mut r: Requester<u8, 2> = Requester::new();
         let a = r
-            .issue(Instant::from_micros(0), Instant::from_micros(100), 1)
+            .issue(Instant::ZERO, Instant::from_micros(100), 1)
             .unwrap();
-        let b = r
-            .issue(Instant::from_micros(0), Instant::from_micros(50), 2)
-            .unwrap();
+        let b = r.issue(Instant::ZERO, Instant::from_micros(50), 2).unwrap();
         assert_ne!(a, b);
         assert!(r
-            .issue(Instant::from_micros(0), Instant::from_micros(10), 3)
+            .issue(Instant::ZERO, Instant::from_micros(10), 3)
             .is_none());
         assert_eq!(r.next_deadline(), Some(Instant::from_micros(50)));
         assert!(matches!(r.on_reply(a), ReplyMatch::Matched(p) if p.tag == 1));
@@ -287,14 +285,10 @@ mod tests {
     fn wrapped_sequence_numbers_skip_outstanding_ones() {
         let mut r: Requester<(), 2> = Requester::new();
         r.next_seq = u16::MAX;
-        let a = r
-            .issue(Instant::from_micros(0), Instant::from_micros(1), ())
-            .unwrap();
+        let a = r.issue(Instant::ZERO, Instant::from_micros(1), ()).unwrap();
         assert_eq!(a, u16::MAX);
         r.next_seq = u16::MAX; // force a collision
-        let b = r
-            .issue(Instant::from_micros(0), Instant::from_micros(1), ())
-            .unwrap();
+        let b = r.issue(Instant::ZERO, Instant::from_micros(1), ()).unwrap();
         assert_eq!(b, 0);
     }
 }

@@ -142,7 +142,7 @@ proptest! {
                         _ if model.len() >= N => Err(ClaimError::StackFull),
                         _ => Ok(()),
                     };
-                    let got = stack.push_with(owner, Instant::from_micros(0), |buf| {
+                    let got = stack.push_with(owner, Instant::ZERO, |buf| {
                         buf[..8].copy_from_slice(&(serial as u64).to_le_bytes());
                         Ok::<_, ()>((8, Instant::from_micros(deadline)))
                     });

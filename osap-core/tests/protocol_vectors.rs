@@ -386,10 +386,7 @@ fn segment_vectors_reassemble_to_the_reply() {
         "segment.reply.1_of_3",
     ] {
         let seg = doc.get(k).unwrap_or_else(|| panic!("missing {k}"));
-        if let Some(d) = r
-            .on_segment(Instant::from_micros(0), &route, 1, seg)
-            .unwrap()
-        {
+        if let Some(d) = r.on_segment(Instant::ZERO, &route, 1, seg).unwrap() {
             out = Some(d.to_vec());
         }
     }

@@ -144,12 +144,12 @@ proptest! {
         let mut got = Vec::new();
         for i in 0..sa.len().max(sb.len()) {
             if let Some(s) = sa.get(i) {
-                if let Some(d) = r.on_segment(Instant::from_micros(0), &ra, 3, s).unwrap() {
+                if let Some(d) = r.on_segment(Instant::ZERO, &ra, 3, s).unwrap() {
                     got.push(("a", d.to_vec()));
                 }
             }
             if let Some(s) = sb.get(i) {
-                if let Some(d) = r.on_segment(Instant::from_micros(0), &rb, 3, s).unwrap() {
+                if let Some(d) = r.on_segment(Instant::ZERO, &rb, 3, s).unwrap() {
                     got.push(("b", d.to_vec()));
                 }
             }

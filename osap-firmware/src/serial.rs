@@ -172,7 +172,7 @@ mod tests {
         // Once it has drained, a new burst starts from its own time.
         assert_eq!(
             t.queue_delay_at(Instant::from_micros(2_000), 0),
-            Duration::from_micros(0)
+            Duration::ZERO
         );
         assert_eq!(
             t.queue(Instant::from_micros(2_000), 1),

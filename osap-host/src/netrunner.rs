@@ -19,7 +19,7 @@
 //! neighbour waking), the request is retried as on any link; if the link
 //! carried packets before, its neighbour went silent: a failure.
 
-use crate::error::NotSynchronised;
+use crate::error::{NotSynchronised, ReplyProblem};
 use crate::map::{
     BusRecord, LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord, MAP_VERSION,
 };
@@ -138,8 +138,40 @@ impl std::fmt::Debug for Netrunner {
     }
 }
 
-fn malformed(what: &str, e: impl std::fmt::Display) -> HostError {
-    HostError::Malformed(format!("{what}: {e}"))
+fn malformed(route: &Route, what: &'static str, problem: impl Into<ReplyProblem>) -> HostError {
+    HostError::malformed(*route, what, problem)
+}
+
+/// The fields of a netresponder's reply to query `asked`, after its key
+/// and status bytes, or why there are none.
+fn reply_fields<'a>(route: &Route, asked: u8, reply: &'a [u8]) -> Result<&'a [u8], HostError> {
+    let [answered, status, fields @ ..] = reply else {
+        return Err(malformed(route, "reply", ReplyProblem::TooShort));
+    };
+    if *answered != asked {
+        let answered = *answered;
+        return Err(malformed(
+            route,
+            "reply",
+            ReplyProblem::WrongQuery { asked, answered },
+        ));
+    }
+    match Status::from_u8(*status) {
+        Some(Status::Ok) => Ok(fields),
+        Some(s) => Err(HostError::Remote {
+            route: route.to_string(),
+            status: s,
+        }),
+        None => Err(malformed(
+            route,
+            "reply",
+            ReplyProblem::UnknownStatus(*status),
+        )),
+    }
+}
+
+fn unwritable(what: &'static str) -> impl Fn(osap_core::codec::CodecError) -> HostError {
+    move |problem| HostError::Request { what, problem }
 }
 
 impl Netrunner {
@@ -174,22 +206,7 @@ impl Netrunner {
                 Err(e) => return Err(e),
             }
         };
-        let what = format!("reply to query 0x{:02x} over {route}", body[0]);
-        let (k, status) = match reply.body.as_slice() {
-            [k, s, ..] => (*k, *s),
-            _ => return Err(malformed(&what, "too short")),
-        };
-        if k != body[0] {
-            return Err(malformed(&what, format!("answers query 0x{k:02x}")));
-        }
-        match Status::from_u8(status) {
-            Some(Status::Ok) => Ok(reply.body[2..].to_vec()),
-            Some(s) => Err(HostError::Remote {
-                route: route.to_string(),
-                status: s,
-            }),
-            None => Err(malformed(&what, format!("unknown status {status}"))),
-        }
+        reply_fields(route, body[0], &reply.body).map(<[u8]>::to_vec)
     }
 
     /// Runtime information, sending `scan_id`.
@@ -212,7 +229,7 @@ impl Netrunner {
         body.extend_from_slice(&scan_id.to_le_bytes());
         let f = self.query_tries(route, &body, retries).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed("runtime information", e);
+        let m = |e| malformed(route, "runtime information", e);
         Ok(RuntimeInfo {
             previous_scan_id: r.u32().map_err(m)?,
             version: r.array().map_err(m)?,
@@ -231,7 +248,7 @@ impl Netrunner {
         Reader::new(&f)
             .str8()
             .map(str::to_string)
-            .map_err(|e| malformed("name", e))
+            .map_err(|e| malformed(route, "name", e))
     }
 
     /// The runtime's type name.
@@ -248,14 +265,14 @@ impl Netrunner {
     pub async fn set_name(&self, route: &Route, name: &str) -> Result<String, HostError> {
         let mut body = [0u8; 64];
         let mut w = Writer::new(&mut body);
-        w.u8(key::SET_NAME).map_err(|e| malformed("name", e))?;
-        w.str8(name).map_err(|e| malformed("name", e))?;
+        w.u8(key::SET_NAME).map_err(unwritable("name"))?;
+        w.str8(name).map_err(unwritable("name"))?;
         let n = w.len();
         let f = self.query(route, &body[..n]).await?;
         Reader::new(&f)
             .str8()
             .map(str::to_string)
-            .map_err(|e| malformed("name", e))
+            .map_err(|e| malformed(route, "name", e))
     }
 
     /// Sets link `index`'s bus role (module firmware keeps it in flash and
@@ -274,10 +291,13 @@ impl Netrunner {
             .query(route, &[key::SET_BUS, index, kind, param])
             .await?;
         match f.as_slice() {
-            [i, k, p] if *i == index => {
-                osap_core::bus::BusRole::from_bytes([*k, *p]).map_err(|e| malformed("bus role", e))
-            }
-            _ => Err(malformed("bus role", "unexpected reply")),
+            [i, k, p] if *i == index => osap_core::bus::BusRole::from_bytes([*k, *p])
+                .map_err(|e| malformed(route, "bus role", e)),
+            _ => Err(malformed(
+                route,
+                "bus role",
+                ReplyProblem::Unexpected(f.clone()),
+            )),
         }
     }
 
@@ -288,7 +308,7 @@ impl Netrunner {
     pub async fn link_info(&self, route: &Route, index: u8) -> Result<LinkRecord, HostError> {
         let f = self.query(route, &[key::LINK_INFO, index]).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed("link information", e);
+        let m = |e| malformed(route, "link information", e);
         let index = r.u8().map_err(m)?;
         let open = r.u8().map_err(m)?;
         let mut record = LinkRecord {
@@ -324,7 +344,7 @@ impl Netrunner {
         body.extend_from_slice(&index.to_le_bytes());
         let f = self.query(route, &body).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed("port information", e);
+        let m = |e| malformed(route, "port information", e);
         Ok(PortRecord {
             index: r.u16().map_err(m)?,
             type_name: r.str8().map_err(m)?.to_string(),
@@ -335,7 +355,7 @@ impl Netrunner {
     /// The time-controller configuration.
     pub async fn time_config(&self, route: &Route) -> Result<TimeConfig, HostError> {
         let f = self.query(route, &[key::GET_TIME_CONFIG]).await?;
-        TimeConfig::decode(&f).map_err(|e| malformed("time configuration", e))
+        TimeConfig::decode(&f).map_err(|e| malformed(route, "time configuration", e))
     }
 
     /// Sets the time-controller configuration; returns it as applied.
@@ -347,13 +367,13 @@ impl Netrunner {
         let mut body = [0u8; 128];
         let mut w = Writer::new(&mut body);
         w.u8(key::SET_TIME_CONFIG)
-            .map_err(|e| malformed("time configuration", e))?;
+            .map_err(unwritable("time configuration"))?;
         config
             .encode(&mut w)
-            .map_err(|e| malformed("time configuration", e))?;
+            .map_err(unwritable("time configuration"))?;
         let n = w.len();
         let f = self.query(route, &body[..n]).await?;
-        TimeConfig::decode(&f).map_err(|e| malformed("time configuration", e))
+        TimeConfig::decode(&f).map_err(|e| malformed(route, "time configuration", e))
     }
 
     /// Waits until the clock of the runtime at `route` follows its time
@@ -397,7 +417,7 @@ impl Netrunner {
     /// settled, without the untrusted and deferred-step counts).
     pub async fn clock_status(&self, route: &Route) -> Result<ClockStatus, HostError> {
         let f = self.query(route, &[key::TIME_STATUS]).await?;
-        ClockStatus::decode(&f).map_err(|e| malformed("clock status", e))
+        ClockStatus::decode(&f).map_err(|e| malformed(route, "clock status", e))
     }
 
     /// The counters of link `link` of the runtime at `route`: what that
@@ -406,12 +426,16 @@ impl Netrunner {
     pub async fn link_counters(&self, route: &Route, link: u8) -> Result<LinkCounters, HostError> {
         let f = self.query(route, &[key::LINK_COUNTERS, link]).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed("link counters", e);
+        let m = |e| malformed(route, "link counters", e);
         let index = r.u8().map_err(m)?;
         if index != link {
             return Err(malformed(
+                route,
                 "link counters",
-                format!("answers link {index}, not {link}"),
+                ReplyProblem::WrongIndex {
+                    asked: link.into(),
+                    answered: index.into(),
+                },
             ));
         }
         LinkCounters::decode(&mut r).map_err(m)
@@ -727,4 +751,68 @@ async fn describe(
 /// Renames the runtime at `route`; returns the name as stored.
 pub async fn rename(host: &Host, route: &Route, name: &str) -> Result<String, HostError> {
     Netrunner::new(host).await?.set_name(route, name).await
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::error::MalformedReply;
+
+    fn problem(e: HostError) -> ReplyProblem {
+        match e {
+            HostError::Malformed(m) => {
+                let MalformedReply { what, problem, .. } = *m;
+                assert_eq!(what, "reply");
+                problem
+            }
+            other => panic!("not a malformed reply: {other:?}"),
+        }
+    }
+
+    #[test]
+    fn a_reply_is_checked_before_its_fields_are_read() {
+        let route = Route::through_links(&[2]).unwrap();
+        let ok = [key::NAME, Status::Ok as u8, 4, b'a'];
+        assert_eq!(reply_fields(&route, key::NAME, &ok).unwrap(), &[4, b'a']);
+        let e = reply_fields(&route, key::NAME, &[key::NAME]).unwrap_err();
+        assert_eq!(problem(e), ReplyProblem::TooShort);
+        let e = reply_fields(&route, key::NAME, &[key::TYPE_NAME, 0]).unwrap_err();
+        assert!(e.to_string().contains("answers query"), "{e}");
+        assert_eq!(
+            problem(e),
+            ReplyProblem::WrongQuery {
+                asked: key::NAME,
+                answered: key::TYPE_NAME
+            }
+        );
+        let e = reply_fields(&route, key::NAME, &[key::NAME, 200]).unwrap_err();
+        assert_eq!(problem(e), ReplyProblem::UnknownStatus(200));
+        let refused = [key::NAME, Status::Malformed as u8];
+        let e = reply_fields(&route, key::NAME, &refused).unwrap_err();
+        assert!(
+            matches!(
+                e,
+                HostError::Remote {
+                    status: Status::Malformed,
+                    ..
+                }
+            ),
+            "{e:?}"
+        );
+    }
+
+    #[test]
+    fn a_malformed_reply_names_what_and_where() {
+        let route = Route::through_links(&[1, 3]).unwrap();
+        let e = malformed(
+            &route,
+            "clock status",
+            osap_core::codec::CodecError::Truncated,
+        );
+        let text = e.to_string();
+        assert!(text.starts_with("malformed clock status from "), "{text}");
+        assert!(text.contains(&route.to_string()), "{text}");
+        // Errors stay small: the report is boxed.
+        assert!(std::mem::size_of::<HostError>() <= 64);
+    }
 }

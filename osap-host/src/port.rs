@@ -319,7 +319,7 @@ impl PortHandle {
     /// Answers a request received on this port.
     pub async fn reply(&self, request: &Datagram, body: &[u8]) -> Result<(), HostError> {
         let Transport::Request(seq) = request.transport else {
-            return Err(HostError::Malformed("not a request".into()));
+            return Err(HostError::NotARequest);
         };
         let mut payload = vec![0u8; 3];
         Transport::Reply(seq).encode(&mut payload);

@@ -6,6 +6,7 @@
 //! periodic tick.
 
 use crate::clock::HostClock;
+use crate::error::ConfigError;
 use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
 use crate::port::{HostPort, PortHandle, PortShared};
 use crate::{HostError, HostRuntime};
@@ -165,14 +166,14 @@ fn build_runtime(config: HostConfig) -> Result<Box<HostRuntime>, HostError> {
     let build = move || -> Result<Box<HostRuntime>, HostError> {
         let mut runtime = Box::new(
             HostRuntime::new(&config.type_name, &config.name)
-                .map_err(|e| HostError::Malformed(e.to_string()))?
+                .map_err(ConfigError::from)?
                 .with_version(version(), BuildKey::RustHost)
                 .with_config(config.runtime),
         );
         runtime
             .clock_mut()
             .set_config(config.time)
-            .map_err(|e| HostError::Malformed(e.to_string()))?;
+            .map_err(ConfigError::from)?;
         runtime.clock_mut().set_trust(config.trust);
         Ok(runtime)
     };

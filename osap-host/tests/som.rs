@@ -11,7 +11,7 @@ use osap_host::som::{
     PipeOptions, PipeStats, Som, SomError, Value,
 };
 use osap_host::Host;
-use pipes_core::control::{ControlError, InputMode, OutputMode, Request, ANY_SLOT};
+use pipes_core::control::{ControlError, FailureCode, InputMode, OutputMode, Request, ANY_SLOT};
 use pipes_core::pipe::{PipeConfig, PipeDelivery};
 use pipes_core::{ScalarType, Type};
 use std::sync::{Arc, Mutex};
@@ -61,7 +61,7 @@ async fn net() -> Net {
     let acc_port = attach_function(&b, acc).await.unwrap();
     let text = HostFunction::new("text", &[("s", Type::Utf8)], &[("n", U32)], |i| {
         let Value::Utf8(s) = &i[0] else {
-            return Err(HostFnError::new(1));
+            return Err(HostFnError::bad_input());
         };
         Ok(vec![Value::U32(s.len() as u32)])
     })
@@ -448,6 +448,16 @@ async fn calls_report_errors_naming_the_function_and_runtime() {
         .await
         .unwrap_err();
     assert!(e.to_string().contains("failed with code 7"), "{e}");
+    assert!(
+        matches!(
+            e,
+            SomError::Remote {
+                error: ControlError::CallFailed(FailureCode::Other(7)),
+                ..
+            }
+        ),
+        "{e:?}"
+    );
     let out = m
         .function(&text)
         .unwrap()

@@ -894,7 +894,7 @@ impl Recorder {
         let body = move |ins: &[Value<'static>]| {
             let (time, values) = if stamped {
                 let Some(Value::U64(t)) = ins.first() else {
-                    return Err(HostFnError::new(1));
+                    return Err(HostFnError::bad_input());
                 };
                 (*t, &ins[1..])
             } else {

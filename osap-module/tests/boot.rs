@@ -67,7 +67,7 @@ impl Board for PlainBoard {
         None
     }
     fn now(&self) -> Instant {
-        Instant::from_micros(0)
+        Instant::ZERO
     }
 }
 
@@ -192,7 +192,7 @@ fn a_board_without_a_bootloader_refuses_with_its_named_code() {
     let parts = Shared(Rc::new(RefCell::new(Module::new(Parts::<Limp, NoIo> {
         stepper: Limp,
         io: None,
-        clock: || Instant::from_micros(0),
+        clock: || Instant::ZERO,
         bootloader: None,
     }))));
     assert_eq!(

@@ -257,7 +257,7 @@ fn step_words_follow_a_new_time_map_at_once() {
     // A rate of +400 ppm since local 0: the next word, well within the
     // anchor's span, must use it, not the anchor taken under the old map.
     let mut clock: osap_core::clock::Clock<1> = osap_core::clock::Clock::new(Default::default());
-    clock.set_rate_ppb(Instant::from_micros(0), 400_000);
+    clock.set_rate_ppb(Instant::ZERO, 400_000);
     let map = clock.time_map();
     m.publish_time(map);
     assert_eq!(
@@ -322,8 +322,8 @@ fn a_firmware_cell_refuses_until_installed() {
         refused
     );
     assert_eq!(call(&&CELL, FnId::read_limit, &[]).map(|_| ()), refused);
-    assert_eq!(CELL.fill_step_word(Instant::from_micros(0)), 0);
-    CELL.limit_changed(Instant::from_micros(0), true);
+    assert_eq!(CELL.fill_step_word(Instant::ZERO), 0);
+    CELL.limit_changed(Instant::ZERO, true);
     CELL.install(Parts {
         stepper: Limp,
         io: None,

@@ -64,41 +64,29 @@ fn a_pulse_ends_on_time_and_restarts() {
     );
     assert!(hw.levels[2]);
     assert_eq!(
-        io.wake_at(Instant::from_micros(1_000), SystemInstant::from_micros(0)),
+        io.wake_at(Instant::from_micros(1_000), SystemInstant::ZERO),
         Some(Instant::from_micros(1_500))
     );
-    io.poll(
-        &mut hw,
-        Instant::from_micros(1_499),
-        SystemInstant::from_micros(0),
-    );
+    io.poll(&mut hw, Instant::from_micros(1_499), SystemInstant::ZERO);
     assert!(hw.levels[2], "still high a µs before its end");
-    io.poll(
-        &mut hw,
-        Instant::from_micros(1_500),
-        SystemInstant::from_micros(0),
-    );
+    io.poll(&mut hw, Instant::from_micros(1_500), SystemInstant::ZERO);
     assert!(!hw.levels[2]);
     assert_eq!(
-        io.wake_at(Instant::from_micros(1_500), SystemInstant::from_micros(0)),
+        io.wake_at(Instant::from_micros(1_500), SystemInstant::ZERO),
         None
     );
     // A write ends a running pulse; the pin then stays as written.
     io.pulse(&mut hw, Instant::from_micros(2_000), 4, 100)
         .unwrap();
     io.digital_write(&mut hw, 4, true).unwrap();
-    io.poll(
-        &mut hw,
-        Instant::from_micros(3_000),
-        SystemInstant::from_micros(0),
-    );
+    io.poll(&mut hw, Instant::from_micros(3_000), SystemInstant::ZERO);
     assert!(hw.levels[4]);
     assert_eq!(
-        io.pulse(&mut hw, Instant::from_micros(0), 4, MAX_PULSE_US + 1),
+        io.pulse(&mut hw, Instant::ZERO, 4, MAX_PULSE_US + 1),
         Err(IoError::BadValue)
     );
     assert_eq!(
-        io.pulse(&mut hw, Instant::from_micros(0), 9, 10),
+        io.pulse(&mut hw, Instant::ZERO, 9, 10),
         Err(IoError::NoSuchPin)
     );
     assert_eq!(io.pulses(), 2);

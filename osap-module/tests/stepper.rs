@@ -132,20 +132,20 @@ fn per_tick_positions_match_the_track() {
 fn refuses_bad_points_with_codes() {
     let mut s = Stepper::new();
     assert_eq!(
-        s.add_point(SystemInstant::from_micros(0), 0.0),
+        s.add_point(SystemInstant::ZERO, 0.0),
         Err(StepperError::Disabled)
     );
     s.set_enable(true);
     assert_eq!(
-        s.add_point(SystemInstant::from_micros(0), f32::NAN),
+        s.add_point(SystemInstant::ZERO, f32::NAN),
         Err(StepperError::OutOfRange)
     );
     assert_eq!(
-        s.add_point(SystemInstant::from_micros(0), 1e6),
+        s.add_point(SystemInstant::ZERO, 1e6),
         Err(StepperError::OutOfRange)
     );
     assert_eq!(
-        s.add_point(SystemInstant::from_micros(0), 5.0),
+        s.add_point(SystemInstant::ZERO, 5.0),
         Err(StepperError::Discontinuous)
     );
     assert_eq!(

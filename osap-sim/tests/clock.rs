@@ -23,7 +23,7 @@ fn offset_and_rate_error_give_the_expected_counter() {
     assert_eq!(slow.local_us(S), Instant::from_micros(999_900));
     // The counter is the floor of the exact local time.
     let ideal = ClockModel::new(0.0, 0.0);
-    assert_eq!(ideal.local_us(999), Instant::from_micros(0));
+    assert_eq!(ideal.local_us(999), Instant::ZERO);
     assert_eq!(ideal.local_us(1_000), Instant::from_micros(1));
 }
 

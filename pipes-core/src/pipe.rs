@@ -591,10 +591,10 @@ mod tests {
                 Some(4)
             });
         }
-        assert_eq!(s.ack_step(Instant::from_micros(0)), AckStep::SendNew);
+        assert_eq!(s.ack_step(Instant::ZERO), AckStep::SendNew);
         let (seq, d) = s.front_as_new_request().unwrap();
         assert_eq!((seq, d), (0, &[1u8, 0, 0, 1][..]));
-        s.mark_sent(seq, Instant::from_micros(0));
+        s.mark_sent(seq, Instant::ZERO);
         assert_eq!(s.ack_step(Instant::from_micros(9)), AckStep::Wait);
         assert_eq!(s.ack_step(Instant::from_micros(10)), AckStep::Resend);
         s.mark_sent(seq, Instant::from_micros(10));

@@ -37,7 +37,7 @@ fn head_polls_each_drop_and_takes_the_medium_back() {
     let mut buf = [0u8; 64];
     // Drops are silent until granted.
     assert!(!d1.clear_to_send());
-    head.poll(Instant::from_micros(0));
+    head.poll(Instant::ZERO);
     assert_eq!(head.core.counters().grants, 1);
     carry(&mut [&mut head, &mut d1, &mut d2]);
     assert!(d1.receive(&mut buf).is_none()); // a bare grant
@@ -62,9 +62,9 @@ fn head_polls_each_drop_and_takes_the_medium_back() {
 #[test]
 fn a_silent_drop_times_out_and_is_polled_rarely() {
     let mut head = Station::new(Lower::new(), BusConfig::head(3));
-    head.poll(Instant::from_micros(0));
+    head.poll(Instant::ZERO);
     let until = head.wake_at().unwrap();
-    assert!(until > Instant::from_micros(0));
+    assert!(until > Instant::ZERO);
     head.poll(until);
     assert_eq!(head.core.counters().timeouts, 1);
     assert!(!head.bus().unwrap().is_present(1));
@@ -137,7 +137,7 @@ fn a_runtime_answers_across_the_bus_with_the_senders_drop() {
         .unwrap();
     let request = packet_to(&route, CODE_TIME_REQUEST, &42u64.to_le_bytes());
     // The head grants drop 1; drop 1 answers with its request and END.
-    rt.poll(Instant::from_micros(0), ports, &mut links);
+    rt.poll(Instant::ZERO, ports, &mut links);
     while links[0].lower.take_sent().is_some() {}
     let end = END | turn_flags(links[0].core.turn_no);
     let mut frame: heapless::Vec<u8, 64> = heapless::Vec::from_slice(&[HEAD, 1, end]).unwrap();
@@ -277,7 +277,7 @@ fn a_grant_waits_out_what_the_head_queued_before_it() {
 fn a_late_end_from_an_earlier_turn_does_not_end_the_current_one() {
     let mut head = Station::new(Lower::new(), BusConfig::head(2));
     let mut buf = [0u8; 64];
-    head.poll(Instant::from_micros(0));
+    head.poll(Instant::ZERO);
     let stale = END | turn_flags(head.core.turn_no);
     let until = head.wake_at().unwrap();
     head.poll(until); // drop 1 timed out
@@ -300,7 +300,7 @@ fn a_runtime_keeps_reading_a_bus_at_its_quota_so_turns_end() {
     let mut links = [Station::new(Lower::new(), BusConfig::head(2))];
     let ports: &mut [NoPorts] = &mut [];
     // The head polls drop 1.
-    rt.poll(Instant::from_micros(0), ports, &mut links);
+    rt.poll(Instant::ZERO, ports, &mut links);
     while links[0].lower.take_sent().is_some() {}
     let turn = turn_flags(links[0].core.turn_no);
     // Drop 1 sends five packets for drop 2 (they wait: the medium is drop

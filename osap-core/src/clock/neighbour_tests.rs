@@ -102,7 +102,7 @@ fn replies_from_the_future_are_bogus() {
         n.add(
             Instant::from_micros(10),
             Instant::from_micros(5),
-            SystemInstant::from_micros(0),
+            SystemInstant::ZERO,
             0,
             &cfg(),
             0.0

@@ -116,7 +116,7 @@ fn mapping_is_continuous_across_rate_changes() {
 #[test]
 fn rate_is_clamped() {
     let mut c: Clock<1> = Clock::new(TimeConfig::default());
-    c.set_rate_ppb(Instant::from_micros(0), 900_000_000);
+    c.set_rate_ppb(Instant::ZERO, 900_000_000);
     assert!((c.rate_ppb() - 500_000).abs() < 50);
 }
 

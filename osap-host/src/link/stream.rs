@@ -14,6 +14,7 @@
 
 use super::noise::{self, Key};
 use super::{LinkConfig, LinkIo, LinkStats};
+use crate::error::ReplyProblem;
 use crate::runtime::Host;
 use crate::{HostError, HOST_MTU};
 use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
@@ -446,16 +447,17 @@ impl LinkHandle {
         }
         let errors_before = self.stats().frame_errors;
         let port = host.open_port("link_probe").await?;
-        let route =
-            Route::through_links(&[self.index]).map_err(|e| HostError::Malformed(e.to_string()))?;
+        let route = Route::through_links(&[self.index]).map_err(HostError::Route)?;
         match port.request(&route, 0, &[key::NAME], timeout).await {
             Ok(reply) => match reply.body.as_slice() {
                 [k, 0, len, name @ ..] if *k == key::NAME && usize::from(*len) == name.len() => {
                     Ok(String::from_utf8_lossy(name).into_owned())
                 }
-                other => Err(HostError::Malformed(format!(
-                    "{what}: the name reply {other:02x?} does not parse"
-                ))),
+                other => Err(HostError::malformed(
+                    route,
+                    "name",
+                    ReplyProblem::Unexpected(other.to_vec()),
+                )),
             },
             Err(HostError::Timeout { .. }) => {
                 let garbled = self.stats().frame_errors.saturating_sub(errors_before);

@@ -9,7 +9,7 @@
 
 use super::SomError;
 use crate::Host;
-use pipes_core::control::{InputMode, OutputMode};
+use pipes_core::control::{FailureCode, InputMode, OutputMode};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::signature::{Arg, Signature};
 use pipes_core::{Type, Value};
@@ -23,25 +23,44 @@ pub(crate) const HOST_FN_QUEUE: usize = 4;
 /// set of outputs it sends.
 pub const HOST_FN_STORE: usize = 512;
 
-/// A host function's failure: its own failure code, which the caller sees
-/// as the call's error (`CallError::Failed(code)` on the wire). What each
-/// code means is the function's to say; 0 is as good a code as any other.
+/// A host function's failure, which the caller sees as the call's error
+/// (`CallError::Failed(code)` on the wire).
+///
+/// [`HostFnError::bad_input`] is the failure for inputs that are missing or
+/// not of their declared type; any other code is the function's own
+/// ([`FailureCode::Other`]), and what it means is the function's to say.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, thiserror::Error)]
-#[error("host function failed with code {code}")]
+#[error("host function failed with {code}")]
 pub struct HostFnError {
-    /// The function's failure code.
-    pub code: u8,
+    /// The failure code the caller receives.
+    pub code: FailureCode,
 }
 
 impl HostFnError {
-    /// A failure with code `code`.
+    /// A failure with the function's own code `code`. Codes pipes-core
+    /// names (253 to 255) read as those failures on the caller's side.
     pub const fn new(code: u8) -> HostFnError {
-        HostFnError { code }
+        HostFnError {
+            code: FailureCode::from_code(code),
+        }
+    }
+
+    /// An input was missing or not of its declared type.
+    pub const fn bad_input() -> HostFnError {
+        HostFnError {
+            code: FailureCode::InputDecodeFailed,
+        }
     }
 }
 
 impl From<u8> for HostFnError {
     fn from(code: u8) -> HostFnError {
+        HostFnError::new(code)
+    }
+}
+
+impl From<FailureCode> for HostFnError {
+    fn from(code: FailureCode) -> HostFnError {
         HostFnError { code }
     }
 }
@@ -64,7 +83,7 @@ impl Implementation for HostImpl {
 
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
         let ins: Vec<Value<'static>> = inputs.iter().map(Value::to_owned_value).collect();
-        let outs = (self.body)(&ins).map_err(|e| CallError::Failed(e.code.into()))?;
+        let outs = (self.body)(&ins).map_err(|e| CallError::Failed(e.code))?;
         for (i, v) in outs.iter().enumerate() {
             let index = u8::try_from(i).map_err(|_| CallError::NoSuchOutput(u8::MAX))?;
             outputs.set(index, v)?;

@@ -16,6 +16,10 @@ use tokio::sync::broadcast;
 use super::error::{fault_reason, stepper_reason};
 use super::events::{FaultKind, MachineEvent};
 
+/// Failure code of a fault monitor given a fault code this host does not
+/// know (a newer firmware's): the report is refused, not misread.
+pub const UNKNOWN_FAULT_KIND: u8 = 2;
+
 /// A limit switch edge, as its module stamped it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct LimitEdge {
@@ -80,7 +84,7 @@ pub fn status(key: &str, reports: SharedReports) -> Result<HostFunction, String>
         move |ins: &[Value<'static>]| {
             let (Some(Value::U8(mode)), Some(Value::U32(faults))) = (ins.first(), ins.get(3))
             else {
-                return Err(HostFnError::new(1));
+                return Err(HostFnError::bad_input());
             };
             let now = tokio::time::Instant::now();
             lock(&reports)
@@ -121,7 +125,7 @@ pub fn fault(
                 Some(Value::U32(count)),
             ) = (ins.first(), ins.get(1), ins.get(2), ins.get(3))
             else {
-                return Err(HostFnError::new(1));
+                return Err(HostFnError::bad_input());
             };
             let before = lock(&reports).faults.insert(module.clone(), *count);
             // A count that moved either way is news (a module that restarted
@@ -130,7 +134,7 @@ pub fn fault(
                 return Ok(Vec::new());
             }
             let Some(kind) = FaultKind::from_code(*code) else {
-                return Err(HostFnError::new(2));
+                return Err(HostFnError::new(UNKNOWN_FAULT_KIND));
             };
             if kind == FaultKind::None || (kind == FaultKind::LimitHit && limit_watched) {
                 return Ok(Vec::new());
@@ -168,7 +172,7 @@ pub fn counters(
         move |ins: &[Value<'static>]| {
             let (Some(Value::U32(refused)), Some(Value::U8(code))) = (ins.get(1), ins.get(2))
             else {
-                return Err(HostFnError::new(1));
+                return Err(HostFnError::bad_input());
             };
             let mut r = lock(&reports);
             let first = *r.refused.entry(module.clone()).or_insert(*refused);
@@ -207,7 +211,7 @@ pub fn limit(
             let (Some(Value::U64(time)), Some(Value::Bool(level)), Some(Value::U32(count))) =
                 (ins.first(), ins.get(1), ins.get(2))
             else {
-                return Err(HostFnError::new(1));
+                return Err(HostFnError::bad_input());
             };
             let edge = LimitEdge {
                 time: *time,
@@ -238,7 +242,7 @@ pub fn position(motor: &str, index: usize, reports: SharedReports) -> Result<Hos
         &[],
         move |ins: &[Value<'static>]| {
             let (Some(Value::U64(time)), Some(Value::F32(p))) = (ins.first(), ins.get(1)) else {
-                return Err(HostFnError::new(1));
+                return Err(HostFnError::bad_input());
             };
             if let Some(all) = &mut lock(&reports).positions {
                 if let Some(list) = all.get_mut(index) {

@@ -271,6 +271,7 @@ use osap_core::netresponder::BuildKey;
 use osap_core::route::Route;
 use osap_core::Instant as LocalInstant;
 use osap_core::Instruction;
+use osap_host::error::ConfigError;
 use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo, LinkStats};
 use osap_host::{Host, HostError};
 use osap_module::{Module, ModulePorts};
@@ -1200,10 +1201,10 @@ impl SimModule {
             ..TimeConfig::default()
         };
         let runtime = ModuleRuntime::new(&spec.type_name, &parked.name)
-            .map_err(|e| HostError::Malformed(format!("module {:?}: {e}", spec.name)))?
+            .map_err(ConfigError::from)?
             .with_version(version(), BuildKey::RustSimulated)
             .with_time_config(time)
-            .map_err(|e| HostError::Malformed(format!("module {:?}: {e}", spec.name)))?;
+            .map_err(ConfigError::from)?;
         let clock = DriftClock::new(osap_host::clock::now(), spec.clock_model());
         let links = parked
             .links
@@ -1244,8 +1245,7 @@ impl SimModule {
             let steps = StepClock::new(module.clone(), clock.now(), publisher, input);
             let level = steps.initial_level();
             module.lock(|m| m.limit_initial(level));
-            let module_ports = ModulePorts::new(module.clone())
-                .map_err(|e| HostError::Malformed(format!("module {:?}: {e:?}", spec.name)))?;
+            let module_ports = ModulePorts::new(module.clone()).map_err(ConfigError::from)?;
             // The functions, then the pulse timer (it takes no port index).
             for port in module_ports.into_ports() {
                 ports.push(Box::new(port));
