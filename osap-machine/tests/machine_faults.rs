@@ -13,20 +13,28 @@ use osap_sim::machine::{virtual_runtime, TimeMode};
 use std::time::Duration;
 use tokio::sync::broadcast;
 
-async fn plotter() -> Machine {
-    let cfg = MachineFile::load(concat!(
+fn plotter_file() -> MachineFile {
+    MachineFile::load(concat!(
         env!("CARGO_MANIFEST_DIR"),
         "/../examples/machines/plotter.toml"
     ))
-    .unwrap();
+    .unwrap()
+}
+
+/// The simulated plotter of `cfg`, in virtual time.
+async fn plotter_with(cfg: &MachineFile) -> Machine {
     Machine::simulate_with(
-        &cfg,
+        cfg,
         SimOptions {
             time: TimeMode::Virtual,
         },
     )
     .await
     .unwrap()
+}
+
+async fn plotter() -> Machine {
+    plotter_with(&plotter_file()).await
 }
 
 /// The fault events heard so far: (module, kind, detail, time).
@@ -183,24 +191,13 @@ fn a_motor_limit_below_the_plan_is_held_by_the_module_and_reported() {
         // Every other test here runs its moves under the limits derived
         // from the machine file. Here motor b's own limits sit below what
         // a 50 mm/s move asks of it: the module refuses the stream.
-        let mut cfg = MachineFile::load(concat!(
-            env!("CARGO_MANIFEST_DIR"),
-            "/../examples/machines/plotter.toml"
-        ))
-        .unwrap();
+        let mut cfg = plotter_file();
         cfg.motors.get_mut("b").unwrap().limits = Some(MotorLimits {
             velocity: 10.0,
             acceleration: 1.0e5,
             jerk: 0.0,
         });
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = plotter_with(&cfg).await;
         let mut events = m.events();
         m.set_position([20.0, 75.0]).unwrap();
         m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
