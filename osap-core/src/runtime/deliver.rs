@@ -42,11 +42,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let landing = now.saturating_add(link.transmit_time(self.stack.packet(slot).len()));
         // Whatever leaves for (or expires on) a bus ends the wait of our
         // time request there (it goes first, by its deadline, or is gone).
-        // Only bus links wait, so point-to-point sends leave the bits alone.
-        if drop.is_some() {
-            if let Some(bit) = 1u64.checked_shl(u32::from(index)) {
-                self.bus_time_waiting &= !bit;
-            }
+        if let Some(bit) = 1u64.checked_shl(u32::from(index)) {
+            self.bus_time_waiting &= !bit;
         }
         if landing > deadline {
             self.stack.release(slot);
