@@ -87,9 +87,9 @@ pub struct MalformedReply {
 
 impl HostError {
     /// A [`HostError::Malformed`] for the reply about `what` from `route`.
-    pub fn malformed(route: Route, what: &'static str, problem: impl Into<ReplyProblem>) -> Self {
+    pub fn malformed(route: &Route, what: &'static str, problem: impl Into<ReplyProblem>) -> Self {
         HostError::Malformed(Box::new(MalformedReply {
-            route,
+            route: *route,
             what,
             problem: problem.into(),
         }))

@@ -138,19 +138,15 @@ impl std::fmt::Debug for Netrunner {
     }
 }
 
-fn malformed(route: &Route, what: &'static str, problem: impl Into<ReplyProblem>) -> HostError {
-    HostError::malformed(*route, what, problem)
-}
-
 /// The fields of a netresponder's reply to query `asked`, after its key
 /// and status bytes, or why there are none.
 fn reply_fields<'a>(route: &Route, asked: u8, reply: &'a [u8]) -> Result<&'a [u8], HostError> {
     let [answered, status, fields @ ..] = reply else {
-        return Err(malformed(route, "reply", ReplyProblem::TooShort));
+        return Err(HostError::malformed(route, "reply", ReplyProblem::TooShort));
     };
     if *answered != asked {
         let answered = *answered;
-        return Err(malformed(
+        return Err(HostError::malformed(
             route,
             "reply",
             ReplyProblem::WrongQuery { asked, answered },
@@ -162,7 +158,7 @@ fn reply_fields<'a>(route: &Route, asked: u8, reply: &'a [u8]) -> Result<&'a [u8
             route: route.to_string(),
             status: s,
         }),
-        None => Err(malformed(
+        None => Err(HostError::malformed(
             route,
             "reply",
             ReplyProblem::UnknownStatus(*status),
@@ -229,7 +225,7 @@ impl Netrunner {
         body.extend_from_slice(&scan_id.to_le_bytes());
         let f = self.query_tries(route, &body, retries).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed(route, "runtime information", e);
+        let m = |e| HostError::malformed(route, "runtime information", e);
         Ok(RuntimeInfo {
             previous_scan_id: r.u32().map_err(m)?,
             version: r.array().map_err(m)?,
@@ -248,7 +244,7 @@ impl Netrunner {
         Reader::new(&f)
             .str8()
             .map(str::to_string)
-            .map_err(|e| malformed(route, "name", e))
+            .map_err(|e| HostError::malformed(route, "name", e))
     }
 
     /// The runtime's type name.
@@ -272,7 +268,7 @@ impl Netrunner {
         Reader::new(&f)
             .str8()
             .map(str::to_string)
-            .map_err(|e| malformed(route, "name", e))
+            .map_err(|e| HostError::malformed(route, "name", e))
     }
 
     /// Sets link `index`'s bus role (module firmware keeps it in flash and
@@ -292,8 +288,8 @@ impl Netrunner {
             .await?;
         match f.as_slice() {
             [i, k, p] if *i == index => osap_core::bus::BusRole::from_bytes([*k, *p])
-                .map_err(|e| malformed(route, "bus role", e)),
-            _ => Err(malformed(
+                .map_err(|e| HostError::malformed(route, "bus role", e)),
+            _ => Err(HostError::malformed(
                 route,
                 "bus role",
                 ReplyProblem::Unexpected(f.clone()),
@@ -308,7 +304,7 @@ impl Netrunner {
     pub async fn link_info(&self, route: &Route, index: u8) -> Result<LinkRecord, HostError> {
         let f = self.query(route, &[key::LINK_INFO, index]).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed(route, "link information", e);
+        let m = |e| HostError::malformed(route, "link information", e);
         let index = r.u8().map_err(m)?;
         let open = r.u8().map_err(m)?;
         let mut record = LinkRecord {
@@ -344,7 +340,7 @@ impl Netrunner {
         body.extend_from_slice(&index.to_le_bytes());
         let f = self.query(route, &body).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed(route, "port information", e);
+        let m = |e| HostError::malformed(route, "port information", e);
         Ok(PortRecord {
             index: r.u16().map_err(m)?,
             type_name: r.str8().map_err(m)?.to_string(),
@@ -355,7 +351,7 @@ impl Netrunner {
     /// The time-controller configuration.
     pub async fn time_config(&self, route: &Route) -> Result<TimeConfig, HostError> {
         let f = self.query(route, &[key::GET_TIME_CONFIG]).await?;
-        TimeConfig::decode(&f).map_err(|e| malformed(route, "time configuration", e))
+        TimeConfig::decode(&f).map_err(|e| HostError::malformed(route, "time configuration", e))
     }
 
     /// Sets the time-controller configuration; returns it as applied.
@@ -373,7 +369,7 @@ impl Netrunner {
             .map_err(unwritable("time configuration"))?;
         let n = w.len();
         let f = self.query(route, &body[..n]).await?;
-        TimeConfig::decode(&f).map_err(|e| malformed(route, "time configuration", e))
+        TimeConfig::decode(&f).map_err(|e| HostError::malformed(route, "time configuration", e))
     }
 
     /// Waits until the clock of the runtime at `route` follows its time
@@ -417,7 +413,7 @@ impl Netrunner {
     /// settled, without the untrusted and deferred-step counts).
     pub async fn clock_status(&self, route: &Route) -> Result<ClockStatus, HostError> {
         let f = self.query(route, &[key::TIME_STATUS]).await?;
-        ClockStatus::decode(&f).map_err(|e| malformed(route, "clock status", e))
+        ClockStatus::decode(&f).map_err(|e| HostError::malformed(route, "clock status", e))
     }
 
     /// The counters of link `link` of the runtime at `route`: what that
@@ -426,10 +422,10 @@ impl Netrunner {
     pub async fn link_counters(&self, route: &Route, link: u8) -> Result<LinkCounters, HostError> {
         let f = self.query(route, &[key::LINK_COUNTERS, link]).await?;
         let mut r = Reader::new(&f);
-        let m = |e| malformed(route, "link counters", e);
+        let m = |e| HostError::malformed(route, "link counters", e);
         let index = r.u8().map_err(m)?;
         if index != link {
-            return Err(malformed(
+            return Err(HostError::malformed(
                 route,
                 "link counters",
                 ReplyProblem::WrongIndex {
@@ -804,7 +800,7 @@ mod tests {
     #[test]
     fn a_malformed_reply_names_what_and_where() {
         let route = Route::through_links(&[1, 3]).unwrap();
-        let e = malformed(
+        let e = HostError::malformed(
             &route,
             "clock status",
             osap_core::codec::CodecError::Truncated,

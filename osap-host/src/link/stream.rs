@@ -454,7 +454,7 @@ impl LinkHandle {
                     Ok(String::from_utf8_lossy(name).into_owned())
                 }
                 other => Err(HostError::malformed(
-                    route,
+                    &route,
                     "name",
                     ReplyProblem::Unexpected(other.to_vec()),
                 )),
