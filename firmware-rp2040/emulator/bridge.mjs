@@ -16,7 +16,7 @@ import { PinInputs } from './pins.mjs';
 import { parseUniqueId, DEFAULT_UNIQUE_ID } from './ssi.mjs';
 
 const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uart0 <port>] [--control <port>]
-                      [--realtime] [--flash-image <file>] [--flash-size <bytes>] [--flash-id <16 hex>]
+                      [--realtime [--pace <x>]] [--flash-image <file>] [--flash-size <bytes>] [--flash-id <16 hex>]
                       [--uart-unpaced] [--lag-warn-ms <ms>] [--max-lag-ms <ms>] [--exit-on-halt] [--dtr-always]
                       [--reference-core] [-v|-vv]
 
@@ -25,6 +25,9 @@ const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uar
   --uart0 PORT    TCP listener for UART0 (0 = pick a free port)
   --control PORT  line-based JSON control channel (0 = pick a free port)
   --realtime      pace emulated time to wall time; lag is reported on stderr
+  --pace X        realtime: emulated seconds per wall second (default 1). Below 1 the emulated crystal
+                  runs steadily slow, so a machine too slow for real time keeps pace; a host talking to
+                  it runs its own clock at the same pace (osap-host's Pace)
   --flash-image   load flash from this file if it exists (the ELF is written over it) and save it back
                   after every flash write and at exit
   --flash-size    emulated flash size in bytes (default 2097152, a Pico's W25Q16JV; suffix k/M allowed)
@@ -60,6 +63,13 @@ function parsePort(name, text) {
   return n;
 }
 
+function parsePace(text, realtime) {
+  const pace = Number(text);
+  if (!(Number.isFinite(pace) && pace > 0 && pace <= 1)) fail(`--pace must be a number in (0, 1], not ${JSON.stringify(text)}\n${USAGE}`);
+  if (pace !== 1 && !realtime) fail(`--pace needs --realtime\n${USAGE}`);
+  return pace;
+}
+
 function parseCli(argv) {
   let parsed;
   try {
@@ -71,6 +81,7 @@ function parseCli(argv) {
         uart0: { type: 'string' },
         control: { type: 'string' },
         realtime: { type: 'boolean', default: false },
+        pace: { type: 'string', default: '1' },
         'flash-image': { type: 'string' },
         'flash-size': { type: 'string', default: '2097152' },
         'flash-id': { type: 'string', default: DEFAULT_UNIQUE_ID },
@@ -98,6 +109,7 @@ function parseCli(argv) {
     uart0: parsePort('uart0', parsed.uart0),
     control: parsePort('control', parsed.control),
     realtime: parsed.realtime,
+    pace: parsePace(parsed.pace, parsed.realtime),
     flashImage: parsed['flash-image'],
     flashSize: parseSize(parsed['flash-size']),
     uartPaced: !parsed['uart-unpaced'],
@@ -227,7 +239,7 @@ async function main() {
   };
 
   const hasOutput = () => !!(usbLink?.pending || uartLink?.pending);
-  runner = new Runner({ build, afterSlice, hasOutput, realtime: opts.realtime, lagWarnMs: opts.lagWarnMs, maxLagMs: opts.maxLagMs, log });
+  runner = new Runner({ build, afterSlice, hasOutput, realtime: opts.realtime, pace: opts.pace, lagWarnMs: opts.lagWarnMs, maxLagMs: opts.maxLagMs, log });
   if (opts.exitOnHalt) {
     const halt = runner.halt.bind(runner);
     runner.halt = (reason) => {
@@ -257,7 +269,9 @@ async function main() {
           forced: inputs.forced.has(Number(m.pin)),
           emulated_ns: runner.chip.nanos,
           monotonic_ns: process.hrtime.bigint().toString(),
-          behind_ms: runner.realtime ? runner.lagMs : null,
+          // Behind wall time at this instant: asleep between slices the
+          // emulated clock stands still while wall time runs on.
+          behind_ms: runner.realtime ? runner.behindNowMs() : null,
         };
       },
       'count-stop': () => {
@@ -318,7 +332,7 @@ async function main() {
     control?.close();
     fail(err.message);
   }
-  process.stdout.write(`${JSON.stringify({ ready: true, ...ports, realtime: opts.realtime, pid: process.pid })}\n`);
+  process.stdout.write(`${JSON.stringify({ ready: true, ...ports, realtime: opts.realtime, pace: opts.pace, pid: process.pid })}\n`);
   await runner.run();
 }
 

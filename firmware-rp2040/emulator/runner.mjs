@@ -1,7 +1,7 @@
 // Drives the core: executes instructions, advances the clock 8 ns per cycle,
 // runs PIO in step, and when the core sleeps (WFI/WFE) jumps the clock to the
 // next event. Free-running by default; with realtime, emulated time is paced
-// to wall time and any lag is reported.
+// to wall time (times `pace`, 1 by default) and any lag is reported.
 
 import { NS_PER_CYCLE } from './chip.mjs';
 
@@ -24,11 +24,12 @@ export class Runner {
    * afterSlice(): flush output, persist flash, feed links.
    * hasOutput(): device output is waiting to be sent (ends a slice early).
    */
-  constructor({ build, afterSlice, hasOutput, realtime = false, lagWarnMs = 20, maxLagMs = Infinity, log }) {
+  constructor({ build, afterSlice, hasOutput, realtime = false, pace = 1, lagWarnMs = 20, maxLagMs = Infinity, log }) {
     this.build = build;
     this.hasOutput = hasOutput ?? (() => false);
     this.afterSlice = afterSlice ?? (() => {});
     this.realtime = realtime;
+    this.pace = pace; // emulated seconds per wall second when realtime
     this.lagWarnMs = lagWarnMs;
     this.maxLagMs = maxLagMs; // beyond this, wall time is given up instead of caught up
     this.droppedMs = 0;
@@ -58,7 +59,12 @@ export class Runner {
   }
 
   targetNs(wall) {
-    return this.anchorNs + (wall - this.anchorWall) * 1e6;
+    return this.anchorNs + (wall - this.anchorWall) * 1e6 * this.pace;
+  }
+
+  /** How far emulated time is behind its wall-time target now, ms (≥ 0). */
+  behindNowMs() {
+    return Math.max(0, (this.targetNs(nowMs()) - this.chip.nanos) / 1e6);
   }
 
   halt(reason) {
@@ -136,7 +142,7 @@ export class Runner {
         // arrives. Timers have ~1 ms resolution; an event due sooner is run up
         // to 1 ms late rather than spun for (spinning would take a whole core
         // from the host under test on a 2-core CI machine).
-        const aheadMs = Number.isFinite(r.nextNs) ? (r.nextNs - this.targetNs(nowMs())) / 1e6 : 5;
+        const aheadMs = Number.isFinite(r.nextNs) ? (r.nextNs - this.targetNs(nowMs())) / 1e6 / this.pace : 5;
         await this.waitWake(Math.max(1, Math.min(aheadMs, 5) - 0.5));
       }
     }
@@ -251,6 +257,7 @@ export class Runner {
     const totalUs = (this.doneNs + this.chip.nanos) / 1000;
     return {
       realtime: this.realtime,
+      pace: this.realtime ? this.pace : null,
       emulated_us: emulatedUs,
       emulated_us_total: totalUs,
       wall_s: wallS,

@@ -94,26 +94,41 @@ pub fn configure(
 /// Fills the FIFO for a start a little ahead, starts the state machine at
 /// exactly that time and returns the local time of the next word's first
 /// tick.
+///
+/// If the start time has already passed when the task gets to it
+/// (interrupts were held off across it, as by a flash erase right after
+/// the previous stall), the queued words are for ticks that are gone: it
+/// tries again on a fresh anchor. Starting anyway would anchor the count
+/// in the past, so every later refill would be due at once and the task,
+/// above the runtime in priority, would spin on it for good.
 async fn start(sm: &mut StepSm) -> u64 {
-    sm.set_enable(false);
-    sm.clear_fifos();
-    sm.restart();
-    let anchor = Instant::now().as_micros() + START_LEAD_US;
-    for k in 0..FIFO_WORDS {
-        sm.tx()
-            .push(crate::MODULE.fill_step_word(LocalInstant::from_micros(anchor + k * WORD_US)));
+    loop {
+        sm.set_enable(false);
+        sm.clear_fifos();
+        sm.restart();
+        let anchor = Instant::now().as_micros() + START_LEAD_US;
+        for k in 0..FIFO_WORDS {
+            sm.tx()
+                .push(crate::MODULE.fill_step_word(LocalInstant::from_micros(anchor + k * WORD_US)));
+        }
+        Timer::at(Instant::from_micros(anchor - START_SPIN_US)).await;
+        // With interrupts off, so nothing lands between reaching the anchor
+        // and starting the machine.
+        let started = critical_section::with(|_| {
+            if Instant::now().as_micros() > anchor {
+                return false;
+            }
+            while Instant::now().as_micros() < anchor {}
+            sm.clkdiv_restart();
+            sm.set_enable(true);
+            true
+        });
+        if started {
+            // The FIFO just went empty-flagged before the start: clear the flag.
+            let _ = sm.tx().stalled();
+            return anchor + FIFO_WORDS * WORD_US;
+        }
     }
-    Timer::at(Instant::from_micros(anchor - START_SPIN_US)).await;
-    // With interrupts off, so nothing lands between reaching the anchor
-    // and starting the machine.
-    critical_section::with(|_| {
-        while Instant::now().as_micros() < anchor {}
-        sm.clkdiv_restart();
-        sm.set_enable(true);
-    });
-    // The FIFO just went empty-flagged before the start: clear the flag.
-    let _ = sm.tx().stalled();
-    anchor + FIFO_WORDS * WORD_US
 }
 
 /// Keeps the step state machine's FIFO topped up, forever.

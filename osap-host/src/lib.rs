@@ -30,7 +30,7 @@ pub mod port;
 pub mod runtime;
 pub mod som;
 
-pub use clock::HostClock;
+pub use clock::{HostClock, Pace};
 pub use error::HostError;
 pub use link::{LinkConfig, LinkIo};
 pub use port::{Datagram, PortHandle};

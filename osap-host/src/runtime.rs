@@ -5,7 +5,7 @@
 //! arrived, room to send), or the deadline the poll returned. There is no
 //! periodic tick.
 
-use crate::clock::HostClock;
+use crate::clock::{HostClock, Pace};
 use crate::error::ConfigError;
 use crate::link::{self, ChannelLink, LinkConfig, LinkIo};
 use crate::port::{HostPort, PortHandle, PortShared};
@@ -37,6 +37,10 @@ pub struct HostConfig {
     /// for that one link ([`Host::trust_time_link`]) and `time.root` to
     /// false; a root with no trusted link cannot be demoted remotely.
     pub trust: Trust,
+    /// How fast the host's clock runs: real time by default. Slower only
+    /// against emulated modules that keep a slower steady pace (see
+    /// [`Pace`]).
+    pub pace: Pace,
 }
 
 impl HostConfig {
@@ -66,6 +70,7 @@ impl Default for HostConfig {
                 ..TimeConfig::default()
             },
             trust: Trust::NONE,
+            pace: Pace::REAL_TIME,
         }
     }
 }
@@ -210,7 +215,7 @@ impl std::fmt::Debug for Host {
 impl Host {
     /// Starts a host runtime on the current tokio runtime.
     pub fn start(config: HostConfig) -> Result<Host, HostError> {
-        let clock = HostClock::new();
+        let clock = HostClock::paced(config.pace);
         let runtime = build_runtime(config.clone())?;
         let (commands, rx) = mpsc::unbounded_channel();
         let wake = Arc::new(Notify::new());
