@@ -875,12 +875,23 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     emu.wait_name_sector(None, BusRole::Drop(3)).await;
 
     // 7. A new name survives a reset (written to the emulated flash), and
-    //    so does the bus role beside it.
-    let renamed = nr.set_name(&route, "x-axis").await.unwrap();
-    assert_eq!(renamed, "x-axis");
-    // The firmware writes the record just after it answers the rename,
-    // through the boot ROM's flash routines: wait until it has.
+    //    so does the bus role beside it. Two renames back to back: the
+    //    firmware writes the record just after it answers, and the second
+    //    request arrives while the first write's erase holds interrupts off
+    //    (~45 ms), so the second write starts within a millisecond or two
+    //    of the step task restarting after that stall. (That once left the
+    //    step task spinning above the runtime, the sector erased and the
+    //    module silent.)
+    for name in ["y-axis", "x-axis"] {
+        let renamed = nr.set_name(&route, name).await.unwrap();
+        assert_eq!(renamed, name);
+    }
     emu.wait_name_sector(Some("x-axis"), BusRole::Drop(3)).await;
+    assert_eq!(
+        nr.name(&route).await.unwrap(),
+        "x-axis",
+        "the module answers after both writes"
+    );
     let reset = emu.control(json!({"cmd": "reset"})).await;
     assert_eq!(reset["ok"], json!(true), "{reset}");
     let deadline = Instant::now() + Duration::from_secs(30);
