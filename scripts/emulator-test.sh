@@ -10,6 +10,9 @@
 # one control-point sequence through it on the emulated module and on a
 # simulated stepper: the step counts must be equal.
 #
+# The emulator runs at half pace, and the test's host clock with it
+# (OSAP_EMULATOR_SLOWDOWN=1 for real time; see tests/tests/emulator.rs).
+#
 # Needs node (20 or later) and npm. Usage: scripts/emulator-test.sh
 set -euo pipefail
 

@@ -24,6 +24,10 @@
 //! it answers, then the firmware calls the boot ROM's `reset_to_usb_boot`
 //! (the emulator's fake ROM halts there; BOOTSEL mode is not emulated).
 //!
+//! The emulator runs at half of real time, and the host's clock at the
+//! same pace (see [`DEFAULT_SLOWDOWN`]), so a slow or busy machine still
+//! keeps pace; `OSAP_EMULATOR_SLOWDOWN=1` runs both in real time.
+//!
 //! They need the release firmware and node with the bridge's packages, so
 //! they are ignored by a plain `cargo test`; `scripts/emulator-test.sh`
 //! builds both and runs them, one emulator at a time (CI does).
