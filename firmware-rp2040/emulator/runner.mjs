@@ -230,7 +230,7 @@ export class Runner {
     const maxLag = wall - this.anchorWall < STARTUP_GRACE_MS ? 0 : this.maxLagMs;
     if (lag > maxLag) {
       // Saturated for good: let emulated time run slow rather than chase wall time.
-      this.droppedMs += lag - maxLag;
+      this.droppedMs += (lag - maxLag) / this.pace; // lag is emulated ms; this counts wall ms
       this.anchorNs -= (lag - maxLag) * 1e6;
       lag = maxLag;
     }

@@ -546,18 +546,29 @@ test('runner: an alarm due now fires; with no alarm a free-running core sleeps u
   await run;
 });
 
-test('runner: realtime paces emulated time to wall time', async () => {
-  const runner = new Runner({ build: sleepyChip, realtime: true, log: () => {} });
+/** Emulated and wall ms over `ms` of wall time on a realtime runner at `pace`. */
+async function pacedRun(pace, ms) {
+  const runner = new Runner({ build: sleepyChip, realtime: true, pace, log: () => {} });
   const run = runner.run();
   const t0 = performance.now();
   const e0 = runner.chip.nanos;
-  await new Promise((r) => setTimeout(r, 300));
+  await new Promise((r) => setTimeout(r, ms));
   const wallMs = performance.now() - t0;
   const emuMs = (runner.chip.nanos - e0) / 1e6;
   runner.stopping = true;
   runner.wake();
   await run;
+  return { emuMs, wallMs };
+}
+
+test('runner: realtime paces emulated time to wall time', async () => {
+  const { emuMs, wallMs } = await pacedRun(1, 300);
   assert.ok(Math.abs(emuMs - wallMs) < 50, `emulated ${emuMs.toFixed(1)} ms vs wall ${wallMs.toFixed(1)} ms`);
+});
+
+test('runner: at pace 0.5 emulated time runs at half wall time', async () => {
+  const { emuMs, wallMs } = await pacedRun(0.5, 400);
+  assert.ok(Math.abs(emuMs - wallMs / 2) < 40, `emulated ${emuMs.toFixed(1)} ms vs half of wall ${wallMs.toFixed(1)} ms`);
 });
 
 test('control: JSON lines, replies in order, errors as ok:false', async () => {
@@ -596,6 +607,13 @@ test('CLI: missing ELF and a port in use exit nonzero with a clear message', asy
   const noArgs = spawnSync(process.execPath, [bridge], { encoding: 'utf8' });
   assert.equal(noArgs.status, 2);
   assert.match(noArgs.stderr, /--elf is required/);
+
+  const fast = spawnSync(process.execPath, [bridge, '--elf', '/nonexistent.elf', '--realtime', '--pace', '2'], { encoding: 'utf8' });
+  assert.equal(fast.status, 2);
+  assert.match(fast.stderr, /--pace must be a number in \(0, 1\], not "2"/);
+  const unpaced = spawnSync(process.execPath, [bridge, '--elf', '/nonexistent.elf', '--pace', '0.5'], { encoding: 'utf8' });
+  assert.equal(unpaced.status, 2);
+  assert.match(unpaced.stderr, /--pace needs --realtime/);
 
   const dir = fs.mkdtempSync(path.join(os.tmpdir(), 'emu-selftest-'));
   const elfPath = path.join(dir, 'tiny.elf');

@@ -1,5 +1,6 @@
 //! Clock authority between host runtimes: a host follows only the links it
-//! trusts, and a root cannot be demoted over a link it does not trust.
+//! trusts, and a root cannot be demoted over a link it does not trust. And
+//! a host's configured pace is the pace of its system time.
 
 use osap_core::clock::{SyncState, TimeConfig};
 use osap_core::netresponder::{key, Status};
@@ -97,4 +98,27 @@ async fn a_host_follows_the_trusted_root_and_counts_the_other() {
         "{ours} vs {theirs}"
     );
     assert_eq!(f.clock_status().await.unwrap().tier, 1);
+}
+
+#[tokio::test(start_paused = true)]
+async fn a_paced_host_keeps_its_pace_in_system_time() {
+    let half = Host::start(HostConfig {
+        pace: osap_host::Pace::new(1, 2).unwrap(),
+        ..HostConfig::named("half")
+    })
+    .unwrap();
+    let real = host("real");
+    let (h0, r0) = (
+        half.system_time().await.unwrap(),
+        real.system_time().await.unwrap(),
+    );
+    tokio::time::advance(Duration::from_secs(4)).await;
+    let (h1, r1) = (
+        half.system_time().await.unwrap(),
+        real.system_time().await.unwrap(),
+    );
+    let span = |a: osap_core::SystemInstant, b: osap_core::SystemInstant| (b - a).as_micros();
+    assert_eq!(span(r0, r1), 4_000_000);
+    assert_eq!(span(h0, h1), 2_000_000);
+    assert_eq!(half.clock().pace(), osap_host::Pace::new(1, 2).unwrap());
 }
