@@ -42,8 +42,10 @@ pub struct ServeArgs {
     /// Read fault-injection commands from standard input, one a line:
     /// `cut LINK`, `restore LINK`, `corrupt LINK RATE`, `reset MODULE`,
     /// `freeze MODULE`, `thaw MODULE`, `links`, `stats LINK` (LINK: its
-    /// index or its ends, e.g. hub-a). Each is answered on standard output
-    /// with a line starting `ok` or `error`.
+    /// index or its ends, e.g. hub-a), `outputs MODULE` (what its PWM
+    /// outputs and digital pins drive now: `ok pwm0=0.050 pwm1=0.000 d0=0
+    /// ...`). Each is answered on standard output with a line starting
+    /// `ok` or `error`.
     #[arg(long)]
     pub control: bool,
 }
@@ -135,6 +137,10 @@ async fn control_command(injector: &FaultInjector, line: &str) -> String {
     let words: Vec<&str> = line.split_whitespace().collect();
     match words.as_slice() {
         ["links"] => format!("ok links: {}", injector.links().join(", ")),
+        ["outputs", module] => match injector.outputs(module) {
+            Ok(outputs) => format!("ok {outputs}"),
+            Err(e) => format!("error: {e}"),
+        },
         ["stats", link] => match (injector.corruption(link), injector.link_stats(link)) {
             (Ok(c), Ok([a, b])) => format!(
                 "ok stats {link}: corrupted {} rejected {} undetected {}; \
@@ -158,7 +164,7 @@ async fn control_command(injector: &FaultInjector, line: &str) -> String {
                 }
                 Err(e) => format!("error: {fault}: {e}"),
             },
-            Err(e) => format!("error: {e} (or: links, stats LINK)"),
+            Err(e) => format!("error: {e} (or: links, stats LINK, outputs MODULE)"),
         },
     }
 }

@@ -81,3 +81,57 @@ fn faults_injected_through_serve_show_in_scans_and_lift() {
     assert!(!stdout.contains("via uart link 2: b "), "{stdout}");
     assert_eq!(served.command("restore hub-b"), "ok restore hub-b");
 }
+
+fn call(addr: &str, args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_osap"))
+        .args(["call", "--tcp", addr])
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn called(addr: &str, args: &[&str]) {
+    let out = call(addr, args);
+    assert!(
+        out.status.success(),
+        "osap call {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+#[test]
+fn outputs_show_what_a_module_drives_and_that_a_halt_made_it_safe() {
+    let mut served = Controlled::start(&plotter());
+    // At boot every output is off.
+    assert_eq!(
+        served.command("outputs z"),
+        "ok pwm0=0.000 pwm1=0.000 d0=0 d1=0 d2=0 d3=0"
+    );
+    // The plotter's pen servo (module z, PWM 0) down, a relay on pin 1 on.
+    called(&served.addr, &["z", "pwm_write", "0", "0.1"]);
+    called(&served.addr, &["z", "digital_write", "1", "true"]);
+    assert_eq!(
+        served.command("outputs z"),
+        "ok pwm0=0.100 pwm1=0.000 d0=0 d1=1 d2=0 d3=0"
+    );
+    // Safe values change nothing until a stop; a halt applies them all.
+    called(&served.addr, &["z", "set_safe_pwm", "0", "0.05"]);
+    assert!(served.command("outputs z").starts_with("ok pwm0=0.100 "));
+    called(&served.addr, &["z", "halt"]);
+    assert_eq!(
+        served.command("outputs z"),
+        "ok pwm0=0.050 pwm1=0.000 d0=0 d1=0 d2=0 d3=0"
+    );
+    // Other modules are untouched; a hub has no outputs.
+    assert_eq!(
+        served.command("outputs a"),
+        "ok pwm0=0.000 pwm1=0.000 d0=0 d1=0 d2=0 d3=0"
+    );
+    let hub = served.command("outputs hub");
+    assert!(
+        hub.starts_with("error: module \"hub\" has no outputs"),
+        "{hub}"
+    );
+    let nobody = served.command("outputs nobody");
+    assert!(nobody.contains("no module \"nobody\""), "{nobody}");
+}

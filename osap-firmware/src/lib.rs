@@ -8,7 +8,9 @@
 //!   packets and time-stamps them, with a serial line's timing in
 //!   [`serial`] and USB's in [`usb`];
 //! - [`runtime`]: the runtime's loop;
-//! - [`name_store`]: the name record in flash;
+//! - [`name_store`]: the name record in flash, and [`flash_writes`]: a name
+//!   or bus role the network sets, held for the flash until the axis
+//!   stands;
 //! - [`rate_store`]: the learned clock rate, logged in its own flash
 //!   sector, and [`hot_start`]: when to preset the clock from it and when
 //!   to save it;
@@ -24,6 +26,7 @@
 #![warn(missing_debug_implementations, unreachable_pub)]
 #![forbid(unsafe_code)]
 
+pub mod flash_writes;
 pub mod framer;
 pub mod hot_start;
 pub mod link;

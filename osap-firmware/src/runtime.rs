@@ -5,10 +5,12 @@
 //! hub, and the runtime forwards between them) and the module's ports, then
 //! sleeps until a link has news ([`wake_runtime`]) or the earliest deadline
 //! the poll reported comes due. After every poll it hands the module the
-//! clock's time map, persists a name the network set, and runs the hot
-//! start policy ([`crate::hot_start`]): the clock starts from the rate
-//! saved in flash and its learned rate is saved, sparingly. A board wraps
-//! [`run`] in its own `#[embassy_executor::task]` (tasks cannot be generic).
+//! clock's time map, persists a name or bus role the network set once the
+//! axis stands ([`crate::flash_writes`]), and runs the hot start policy
+//! ([`crate::hot_start`]): the clock starts from the rate saved in flash
+//! and its learned rate is saved, sparingly, also only while the axis
+//! stands. A board wraps [`run`] in its own `#[embassy_executor::task]`
+//! (tasks cannot be generic).
 
 use embassy_futures::select::select;
 use embassy_futures::yield_now;
@@ -20,6 +22,7 @@ use osap_core::netresponder::Level;
 use osap_core::Runtime;
 use osap_module::{ModuleHandle, ModulePorts};
 
+use crate::flash_writes::{PendingWrites, Written};
 use crate::hot_start::{HotStartEvent, RateKeeper};
 use crate::link::{FirmwareLink, FramedGateway, MTU};
 use crate::name_store::{NameFlash, NameStore};
@@ -135,11 +138,12 @@ fn hot_start<R: RateFlash, const LINKS: usize>(
 }
 
 /// Puts link `index` in `role` (the network asked, netresponder key
-/// `SET_BUS`) and keeps the role in flash for the next boot.
-fn apply_bus_role<F: NameFlash, const LINKS: usize>(
+/// `SET_BUS`) at once, and keeps the role for the flash once the axis
+/// stands (see [`crate::flash_writes`]).
+fn apply_bus_role<const LINKS: usize>(
     runtime: &mut ModuleRuntime<LINKS>,
     links: &mut [&mut dyn FirmwareLink; LINKS],
-    names: &mut NameStore<F>,
+    pending: &mut PendingWrites,
     index: u8,
     role: BusRole,
 ) {
@@ -150,15 +154,28 @@ fn apply_bus_role<F: NameFlash, const LINKS: usize>(
         return;
     }
     let [kind, param] = role.to_bytes();
-    match names.save_bus(role) {
-        Ok(_) => runtime.log(
-            Level::Info,
-            format_args!("link {index}: bus role {kind}/{param}, saved to flash"),
-        ),
-        Err(_) => runtime.log(
+    runtime.log(
+        Level::Info,
+        format_args!("link {index}: bus role {kind}/{param}, saved to flash once the axis stands"),
+    );
+    pending.bus_changed(role);
+}
+
+/// Logs what [`PendingWrites::write_due`] wrote (readable over the
+/// network in the runtime's debug log).
+fn log_written<E, const LINKS: usize>(runtime: &mut ModuleRuntime<LINKS>, written: Written<E>) {
+    match written.name {
+        Some(Err(_)) => runtime.log(Level::Error, format_args!("name not saved to flash")),
+        Some(Ok(true)) => runtime.log(Level::Info, format_args!("name saved to flash")),
+        Some(Ok(false)) | None => {}
+    }
+    match written.bus {
+        Some(Err(_)) => runtime.log(
             Level::Error,
-            format_args!("link {index}: bus role {kind}/{param} in force, not saved to flash"),
+            format_args!("bus role in force, not saved to flash"),
         ),
+        Some(Ok(true)) => runtime.log(Level::Info, format_args!("bus role saved to flash")),
+        Some(Ok(false)) | None => {}
     }
 }
 
@@ -182,6 +199,8 @@ pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize
 ) -> ! {
     // Bad frames seen so far on each link, to log new ones.
     let mut rx_errors = [0u32; LINKS];
+    // A name or bus role set while the axis moves, for the flash.
+    let mut pending = PendingWrites::new();
     loop {
         let now = crate::local_now();
         // Queued or running motion: the clock slews, never steps.
@@ -194,16 +213,24 @@ pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize
             runtime.poll(now, ports.ports(), &mut gateways)
         };
         ports.module().publish_time(runtime.time_map());
+        // The poll may have queued motion: whether the axis stands now
+        // decides every flash write below.
+        let standing = ports
+            .module()
+            .with(|m| m.stepper.is_standing())
+            .unwrap_or(true);
+        runtime.clock_mut().set_motion_active(!standing);
         hot_start(runtime, rates, now);
 
         if runtime.take_changes().name {
-            let saved = names.save(runtime.identity().name.as_str());
-            if saved.is_err() {
-                runtime.log(Level::Error, format_args!("name not saved to flash"));
-            }
+            pending.name_changed(runtime.identity().name.as_str());
         }
         if let Some((index, role)) = runtime.take_bus_request() {
-            apply_bus_role(runtime, &mut links, names, index, role);
+            apply_bus_role(runtime, &mut links, &mut pending, index, role);
+        }
+        if !pending.is_empty() {
+            let written = pending.write_due(standing, names);
+            log_written(runtime, written);
         }
 
         for (seen, link) in rx_errors.iter_mut().zip(links.iter()) {

@@ -479,6 +479,48 @@ impl IoHw for Pins {
     }
 }
 
+/// What a module's outputs drive now, read back through its board's
+/// [`IoHw`] (`read_pwm`, `read_digital`): how a test, or `osap serve
+/// --control`'s `outputs`, sees that a tool went off.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Outputs {
+    /// Each PWM output's duty, a fraction of full scale.
+    pub pwm: Vec<f64>,
+    /// Each digital pin's level.
+    pub digital: Vec<bool>,
+}
+
+impl Outputs {
+    /// Reads every output of `io`.
+    pub fn read(io: &mut dyn IoHw) -> Outputs {
+        Outputs {
+            pwm: (0..io.pwm_outputs())
+                .map(|c| f64::from(io.read_pwm(c)) / 65_535.0)
+                .collect(),
+            digital: (0..io.digital_pins()).map(|p| io.read_digital(p)).collect(),
+        }
+    }
+}
+
+impl std::fmt::Display for Outputs {
+    /// `pwm0=0.050 pwm1=0.000 d0=0 d1=1 d2=0 d3=0`: duties to a thousandth
+    /// (a 16-bit duty rounded), levels as 0 or 1.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let pwm = self
+            .pwm
+            .iter()
+            .enumerate()
+            .map(|(i, d)| format!("pwm{i}={d:.3}"));
+        let digital = self
+            .digital
+            .iter()
+            .enumerate()
+            .map(|(i, l)| format!("d{i}={}", u8::from(*l)));
+        let all: Vec<String> = pwm.chain(digital).collect();
+        f.write_str(&all.join(" "))
+    }
+}
+
 /// A simulated module's board: driver, motor, pins, the module's
 /// drifting local clock, and a UF2 bootloader if it has one.
 #[derive(Debug, Clone)]

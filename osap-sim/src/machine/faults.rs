@@ -245,6 +245,9 @@ pub enum FaultError {
     NoWire(String),
     /// Stopping or booting the module failed.
     Module(osap_host::HostError),
+    /// The module has no outputs to read (a hub, or a module that is not
+    /// running).
+    NoOutputs(String),
 }
 
 impl fmt::Display for FaultError {
@@ -266,6 +269,10 @@ impl fmt::Display for FaultError {
                 "link {l:?} has no wire model (memory or zero-latency link): no bytes to corrupt"
             ),
             FaultError::Module(e) => write!(f, "module: {e}"),
+            FaultError::NoOutputs(m) => write!(
+                f,
+                "module {m:?} has no outputs now (a hub has none; a module that is reset or in its bootloader has none until it runs)"
+            ),
         }
     }
 }

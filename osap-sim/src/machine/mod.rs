@@ -862,6 +862,18 @@ impl FaultInjector {
             })
     }
 
+    /// What module `name`'s outputs drive now, read back through its
+    /// board ([`board::Outputs`]).
+    pub fn outputs(&self, name: &str) -> Result<board::Outputs, FaultError> {
+        let shared = self
+            .module(name)?
+            .module()
+            .ok_or_else(|| FaultError::NoOutputs(name.to_string()))?;
+        shared
+            .lock(|m| osap_module::board::Board::io(m.board_mut()).map(board::Outputs::read))
+            .ok_or_else(|| FaultError::NoOutputs(name.to_string()))
+    }
+
     /// What injected corruption has done on a link so far.
     pub fn corruption(&self, link: &str) -> Result<CorruptionStats, FaultError> {
         let index = self.link_index(link)?;
