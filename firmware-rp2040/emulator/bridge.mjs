@@ -169,6 +169,9 @@ async function main() {
   const logger = makeLogger({ verbose: opts.verbose });
   const initialFlash = loadFlash(opts);
   let flashDirty = false;
+  // The latest flash erases and programs, with the emulated time each
+  // started at (µs): a test holds them against the step pins' edges.
+  const flashWrites = [];
   if (opts.flashImage) {
     // Written at once, so a bad path fails now rather than at the first flash write.
     try {
@@ -209,7 +212,11 @@ async function main() {
       hooks: {
         onHalt: (reason) => runner.halt(reason),
         onResetRequest: (reason) => runner.requestReset(`firmware: ${reason}`),
-        onFlashWrite: () => (flashDirty = true),
+        onFlashWrite: (kind, offset, length) => {
+          flashDirty = true;
+          flashWrites.push({ kind, offset, length, us: runner.chip.nanos / 1000 });
+          if (flashWrites.length > 64) flashWrites.shift();
+        },
         warn: log,
       },
     });
@@ -289,6 +296,7 @@ async function main() {
         usb: usbLink && { state: runner.chip.usbHost.state, dtr: runner.chip.usbHost.sentDtr, ...usbLink.stats, queued_to_device: runner.chip.usbHost.pendingBytes },
         uart0: uartLink && { ...uartLink.stats, queued_to_device: runner.chip.uartFeeders[0].pending, baud: runner.chip.rp.uart[0].baudRate },
         rom_calls: runner.chip.rom.calls,
+        flash_writes: flashWrites,
         decoder: runner.chip.decoderStats,
         rp2040js_warnings: logger.warnings,
       }),

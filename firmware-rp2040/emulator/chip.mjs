@@ -43,7 +43,7 @@ export function makeLogger({ verbose = 0, write = (s) => process.stderr.write(s)
 export class Chip {
   /**
    * flash: bytes to put in flash (offset 0 = 0x10000000), flashSize bytes.
-   * hooks: onHalt(reason), onResetRequest(reason), onFlashWrite(), warn(msg).
+   * hooks: onHalt(reason), onResetRequest(reason), onFlashWrite(kind, offset, length), warn(msg).
    */
   constructor({ flash, flashSize, uniqueId, jedecId, logger, hooks, uartPaced = true, fastPath = true }) {
     this.hooks = hooks;
@@ -64,7 +64,7 @@ export class Chip {
       flashSize,
       hooks: {
         charge: (ns) => (this.extraNs += ns),
-        onFlashWrite: () => hooks.onFlashWrite?.(),
+        onFlashWrite: (kind, offset, length) => hooks.onFlashWrite?.(kind, offset, length),
         onHalt: (reason) => hooks.onHalt?.(reason),
         warn: (m) => hooks.warn?.(m),
       },
