@@ -14,7 +14,7 @@ const spans = {};
 let checks = null;
 runProbe(elfPath, jsDir, (code, core) => {
   const r = core.registers;
-  if (code === 6) { checks = { up: r[0], overruns: r[1], mode: r[2] }; return; }
+  if (code === 6) { checks = { up: r[0], late: r[1], mode: r[2] }; return; }
   if (code % 2 === 0) {
     open[code] = { at: core.cycles, r0: r[0] >>> 0, r1: r[1] >>> 0 };
   } else {
@@ -77,6 +77,6 @@ for (const [seg, anc, name] of [[false, false, 'plain words'], [true, false, 'wo
 }
 if (!checks) throw new Error('no checks marker');
 const modes = ['disabled', 'idle', 'tracking', 'backstop', 'halted'];
-console.log(`checks: ${checks.up} steps up in the stream, ${checks.overruns} overruns, ` +
+console.log(`checks: ${checks.up} steps up in the stream, ${checks.late} late steps, ` +
   `mode ${modes[checks.mode] ?? checks.mode} at the end`);
-if (checks.overruns !== 0 || checks.mode !== 2) throw new Error('the stream did not track cleanly');
+if (checks.late !== 0 || checks.mode !== 2) throw new Error('the stream did not track cleanly');

@@ -237,7 +237,7 @@ async fn a_stepper_follows_a_stream_on_synchronized_time() {
             Value::U64(edges.len() as u64),
             Value::U64(0)
         ],
-        "net, up, down, overruns"
+        "net, up, down, late"
     );
     let position = call(&m, "get_position", &[]).await;
     assert_eq!(position[1], Value::F32(-4.0));

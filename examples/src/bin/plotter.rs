@@ -240,7 +240,7 @@ async fn run() -> Result<(), Box<dyn Error>> {
                 m.stepper.step_counts(),
             )
         });
-        println!("motor {name}: {mode:?}, {c:?}, steps (net, up, down, overruns) {steps:?}");
+        println!("motor {name}: {mode:?}, {c:?}, steps (net, up, down, late) {steps:?}");
         if c.faults > 0 {
             faulted.push(name);
         }

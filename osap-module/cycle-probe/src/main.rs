@@ -12,7 +12,7 @@
 //! - 4/5: one word of an axis tracking a stream of control points
 //!   (1024 µs interval, 0.78 steps per 10 µs tick), 640 in a row: 100
 //!   segments;
-//! - 6: `r0` steps up, `r1` overruns, `r2` mode (checks, not spans).
+//! - 6: `r0` steps up, `r1` late steps, `r2` mode (checks, not spans).
 //!
 //! At each opening marker `r0` holds the word's local start time and `r1`
 //! its synchronized one (low 32 bits), so the harness can tell which words
@@ -199,11 +199,11 @@ pub extern "C" fn _start() -> ! {
     }
 
     // 6: checks.
-    let (_, up, _, overruns) = call(|m| m.get_steps()).unwrap();
+    let (_, up, _, late) = call(|m| m.get_steps()).unwrap();
     let mode = call(|m| m.get_status()).unwrap().0;
     // SAFETY: hands the checks to the harness at the marker.
     unsafe {
-        asm!("bkpt #6", in("r0") up as u32, in("r1") overruns as u32,
+        asm!("bkpt #6", in("r0") up as u32, in("r1") late as u32,
              in("r2") u32::from(mode), options(nomem, nostack))
     };
 
