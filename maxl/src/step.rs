@@ -164,6 +164,12 @@ impl StepGen {
         self.target as i64
     }
 
+    /// Steps sent late so far ([`StepStats::late`]), without copying the
+    /// counters.
+    pub fn late(&self) -> u64 {
+        self.stats.late
+    }
+
     /// Counters.
     pub fn stats(&self) -> StepStats {
         self.stats

@@ -196,23 +196,39 @@ impl<B: Board> Module<B> {
             }
         };
         let faults = self.stepper.counters().faults;
-        let late = self.stepper.step_counts().3;
+        let late = self.stepper.late_steps();
         let word = self.stepper.fill_word(t0);
         if self.stepper.counters().faults != faults {
-            let quiet = (t0 - self.last_point_at).as_micros();
-            let quiet = u32::try_from(quiet).unwrap_or(u32::MAX);
-            self.fault.record(t0, FaultKind::Backstop, quiet, true);
-            // The axis brakes to a stop on its own: its tools go off.
-            self.apply_safe_outputs();
+            self.on_backstop(t0);
         }
-        // Once per word that sent late steps, with the running count: a
-        // host compares it with its bound (see `fault`).
-        let now_late = self.stepper.step_counts().3;
+        let now_late = self.stepper.late_steps();
         if now_late != late {
-            let count = u32::try_from(now_late).unwrap_or(u32::MAX);
-            self.fault.record(t0, FaultKind::StepOverrun, count, false);
+            self.on_late_steps(t0, now_late);
         }
         word
+    }
+
+    /// The backstop latched with the axis moving, in the word starting at
+    /// `t0`: a fault, and the axis brakes to a stop on its own, so its
+    /// tools go off. Out of line: the step interrupt's common path stays
+    /// as short as it was.
+    #[cold]
+    #[inline(never)]
+    fn on_backstop(&mut self, t0: SystemInstant) {
+        let quiet = (t0 - self.last_point_at).as_micros();
+        let quiet = u32::try_from(quiet).unwrap_or(u32::MAX);
+        self.fault.record(t0, FaultKind::Backstop, quiet, true);
+        self.apply_safe_outputs();
+    }
+
+    /// The word starting at `t0` sent late steps, `late` of them since the
+    /// step generator started: recorded once per such word, with the
+    /// running count, which a host compares with its bound (see [`fault`]).
+    #[cold]
+    #[inline(never)]
+    fn on_late_steps(&mut self, t0: SystemInstant, late: u64) {
+        let count = u32::try_from(late).unwrap_or(u32::MAX);
+        self.fault.record(t0, FaultKind::StepOverrun, count, false);
     }
 
     /// Queues a control point (see [`Stepper::add_point`]), recording a

@@ -672,6 +672,12 @@ impl Stepper {
         (self.gen.position(), s.up, s.down, s.late)
     }
 
+    /// Late steps since the step generator last started (the fourth of
+    /// [`step_counts`](Self::step_counts)).
+    pub fn late_steps(&self) -> u64 {
+        self.gen.late()
+    }
+
     /// The step generator's own counters (ticks, overrun ticks, the
     /// largest backlog, ...) since it last started.
     pub fn step_stats(&self) -> maxl::StepStats {
