@@ -1,17 +1,41 @@
-//! The packet stack: fixed slots served in earliest-deadline order.
+//! The packet stack: fixed slots served earliest deadline first, in order
+//! per owner.
 //!
 //! Every packet a runtime holds lives in one of `N` slots of `MTU` bytes.
-//! Occupied slots are threaded on a doubly linked list sorted by deadline,
-//! so the runtime loop walks it front to back without ever re-sorting.
-//! A new packet is placed by walking back from the tail, which is one step in
-//! the common case (equal TTLs, arriving in order); taking a packet out is
-//! constant time and moves no memory.
-//!
 //! Each slot is charged to its *owner*: the port that wrote it, the link it
 //! arrived on, or the runtime itself. Owners have hold quotas (by default 2
 //! slots per port and 4 per link), so one busy producer cannot fill the stack
 //! and starve the rest; a producer over quota is simply not clear to send,
 //! which pushes back on it.
+//!
+//! # Serving order
+//!
+//! Occupied slots are threaded on a doubly linked list in serving order, so
+//! the runtime loop walks it front to back without ever re-sorting. The
+//! order is earliest deadline first, with one rule on top: **a packet never
+//! overtakes a queued packet of its own owner.** Each slot has a *serving
+//! key*: its deadline, or the key of its owner's newest queued packet if
+//! that is later. The list is sorted by key, first come, first served among
+//! equal keys. So packets of different owners go earliest deadline first,
+//! and the packets of one owner (one link, one port) leave in the order they
+//! came, whatever their deadlines.
+//!
+//! The rule matters because a deadline is rebuilt at every hop from the
+//! packet's own arrival (`arrival + ttl`, docs/protocol.md §1): two packets
+//! that a sender sent in order, the second after a scheduling delay, reach
+//! the next hop in one read with the second one's deadline earlier. Served
+//! by deadline alone, the second would overtake the first, and a stream of
+//! motion points would reach its module out of order.
+//!
+//! The key only places a slot in the list. The slot keeps its own deadline:
+//! it expires by it, and the TTL written when it is sent on counts from it.
+//! Since keys may be later than deadlines, the list's head is not always
+//! the earliest deadline: [`PacketStack::earliest_deadline`] looks at every
+//! slot.
+//!
+//! A new packet is placed by walking back from the tail, which is one step
+//! in the common case (equal TTLs, arriving in order); taking a packet out is
+//! constant time and moves no memory.
 
 use crate::time::Instant;
 use core::fmt;
@@ -126,13 +150,18 @@ struct Hold {
     max: u8,
 }
 
-/// Fixed-size packet storage ordered by deadline, with per-owner quotas.
+/// Fixed-size packet storage in serving order (earliest deadline first,
+/// never ahead of the same owner's queued packets; see the [module
+/// docs](self)), with per-owner quotas.
 ///
 /// `N` slots of `MTU` bytes; `P` ports and `L` links have quota entries.
 pub struct PacketStack<const N: usize, const MTU: usize, const P: usize, const L: usize> {
     bufs: [[u8; MTU]; N],
     meta: [SlotMeta; N],
-    // Deadline order: `next`/`prev` link occupied slots, head is earliest.
+    // Serving keys: a slot's deadline, or its owner's previous queued
+    // packet's key if later. The list below is sorted by them.
+    key: [Instant; N],
+    // Serving order: `next`/`prev` link occupied slots, head is served first.
     next: [u16; N],
     prev: [u16; N],
     queued: [bool; N],
@@ -187,6 +216,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         PacketStack {
             bufs: [[0; MTU]; N],
             meta: [SlotMeta::EMPTY; N],
+            key: [Instant::ZERO; N],
             next: [NIL; N],
             prev: [NIL; N],
             queued: [false; N],
@@ -220,7 +250,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         MTU
     }
 
-    /// Number of packets queued in deadline order.
+    /// Number of packets queued.
     pub fn len(&self) -> usize {
         usize::from(self.len)
     }
@@ -287,7 +317,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
     }
 
     /// Claims a slot for `owner`, lets `write` fill it, and queues it by
-    /// deadline.
+    /// deadline, behind every packet `owner` has queued.
     ///
     /// `write` gets the whole slot buffer and returns the packet length and
     /// its deadline. If it fails, or returns a length longer than the slot,
@@ -322,15 +352,38 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
             deadline,
             owner,
         };
-        self.link_by_deadline(slot, deadline);
+        let key = self.serving_key(owner, deadline);
+        self.key[slot as usize] = key;
+        self.link_by_key(slot, key);
         Ok(SlotId(slot))
     }
 
-    /// Threads `slot` into the list after every packet due at or before
-    /// `deadline`, so equal deadlines stay first come, first served.
-    fn link_by_deadline(&mut self, slot: u16, deadline: Instant) {
+    /// The serving key of a new packet of `owner` due at `deadline`: the
+    /// deadline, or the key of the owner's newest queued packet if that is
+    /// later. That packet is the owner's last in the list (its packets are
+    /// in the order they came), so a walk back from the tail finds it, or
+    /// stops at a key at or before `deadline`, before which every key is
+    /// at or before `deadline` too.
+    fn serving_key(&self, owner: Owner, deadline: Instant) -> Instant {
+        let mut at = self.tail;
+        while at != NIL {
+            let i = usize::from(at);
+            if self.key[i] <= deadline {
+                break;
+            }
+            if self.meta[i].owner == owner {
+                return self.key[i];
+            }
+            at = self.prev[i];
+        }
+        deadline
+    }
+
+    /// Threads `slot` into the list after every packet whose key is at or
+    /// before `key`, so equal keys stay first come, first served.
+    fn link_by_key(&mut self, slot: u16, key: Instant) {
         let mut after = self.tail;
-        while after != NIL && self.meta[usize::from(after)].deadline > deadline {
+        while after != NIL && self.key[usize::from(after)] > key {
             after = self.prev[usize::from(after)];
         }
         let before = if after == NIL {
@@ -365,12 +418,14 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         (slot != NIL).then_some(SlotId(slot))
     }
 
-    /// The packet with the earliest deadline.
+    /// The packet served first: the earliest deadline, unless a packet of
+    /// the same owner queued before it is due later (see the [module
+    /// docs](self)).
     pub fn first(&self) -> Option<SlotId> {
         self.id(self.head)
     }
 
-    /// The packet due after `slot`, in deadline order.
+    /// The packet served after `slot`.
     pub fn next(&self, slot: SlotId) -> Option<SlotId> {
         if !self.is_queued(slot) {
             return None;
@@ -383,20 +438,22 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         self.queued.get(slot.index()).copied().unwrap_or(false)
     }
 
-    /// The packets in deadline order, earliest first.
+    /// The packets in serving order, first served first.
     pub fn iter(&self) -> impl Iterator<Item = SlotId> + '_ {
         core::iter::successors(self.first(), move |&s| self.next(s))
     }
 
-    /// The slot at position `pos` in deadline order (0 is the earliest).
+    /// The slot at position `pos` in serving order (0 is served first).
     /// Walks the list: for inspection and tests, not for the hot path.
     pub fn at(&self, pos: usize) -> Option<SlotId> {
         self.iter().nth(pos)
     }
 
-    /// The earliest deadline of any queued packet.
+    /// The earliest deadline of any queued packet: when the first of them
+    /// expires. (It need not be the first served: a packet queued behind
+    /// one of its owner's may be due sooner.) Looks at every slot.
     pub fn earliest_deadline(&self) -> Option<Instant> {
-        self.first().map(|s| self.meta[s.index()].deadline)
+        self.iter().map(|s| self.meta[s.index()].deadline).min()
     }
 
     /// Metadata of an occupied slot.
@@ -451,7 +508,7 @@ impl<const N: usize, const MTU: usize, const P: usize, const L: usize> PacketSta
         Some(meta)
     }
 
-    /// Releases the packet at position `pos` in deadline order.
+    /// Releases the packet at position `pos` in serving order.
     pub fn release_at(&mut self, pos: usize) -> Option<SlotMeta> {
         let slot = self.at(pos)?;
         self.release(slot)
@@ -482,17 +539,77 @@ mod tests {
         })
     }
 
+    fn order(s: &Stack) -> heapless::Vec<SlotId, 4> {
+        s.iter().collect()
+    }
+
     #[test]
     fn serves_in_deadline_order_fifo_on_ties() {
+        // Four owners: earliest deadline first, first come first served
+        // among equal deadlines.
         let mut s = Stack::new();
-        s.set_quota(Owner::Port(0), 4).unwrap();
         let a = push(&mut s, Owner::Port(0), Instant::from_micros(30)).unwrap();
-        let b = push(&mut s, Owner::Port(0), Instant::from_micros(10)).unwrap();
-        let c = push(&mut s, Owner::Port(0), Instant::from_micros(30)).unwrap();
-        let d = push(&mut s, Owner::Port(0), Instant::from_micros(20)).unwrap();
-        let order: heapless::Vec<SlotId, 4> = (0..4).filter_map(|i| s.at(i)).collect();
-        assert_eq!(order.as_slice(), &[b, d, a, c]);
+        let b = push(&mut s, Owner::Port(1), Instant::from_micros(10)).unwrap();
+        let c = push(&mut s, Owner::Link(0), Instant::from_micros(30)).unwrap();
+        let d = push(&mut s, Owner::Link(1), Instant::from_micros(20)).unwrap();
+        assert_eq!(order(&s).as_slice(), &[b, d, a, c]);
         assert_eq!(s.earliest_deadline(), Some(Instant::from_micros(10)));
+    }
+
+    #[test]
+    fn a_burst_from_one_link_leaves_in_arrival_order() {
+        // Sent in order, the later ones after a scheduling delay, then read
+        // in one go: each rebuilt deadline is earlier than the one before.
+        let mut s = Stack::new();
+        let link = Owner::Link(0);
+        let burst: heapless::Vec<SlotId, 4> = [50, 40, 30, 20]
+            .into_iter()
+            .map(|d| push(&mut s, link, Instant::from_micros(d)).unwrap())
+            .collect();
+        assert_eq!(order(&s), burst);
+        // Each keeps its own deadline, and the earliest is found though it
+        // is served last.
+        assert_eq!(s.meta(burst[3]).deadline, Instant::from_micros(20));
+        assert_eq!(s.earliest_deadline(), Some(Instant::from_micros(20)));
+        // Served one by one, the rest stay in order.
+        s.release(burst[0]);
+        assert_eq!(order(&s).as_slice(), &burst[1..]);
+        assert_eq!(s.earliest_deadline(), Some(Instant::from_micros(20)));
+        // A port's packets too.
+        let mut s = Stack::new();
+        let a = push(&mut s, Owner::Port(2), Instant::from_micros(9)).unwrap();
+        let b = push(&mut s, Owner::Port(2), Instant::from_micros(3)).unwrap();
+        assert_eq!(order(&s).as_slice(), &[a, b]);
+    }
+
+    #[test]
+    fn other_owners_still_go_earliest_deadline_first() {
+        let mut s = Stack::new();
+        // Link 0: a, then b due sooner, held behind a (served at a's 50).
+        let a = push(&mut s, Owner::Link(0), Instant::from_micros(50)).unwrap();
+        let b = push(&mut s, Owner::Link(0), Instant::from_micros(20)).unwrap();
+        // Due at 30, another owner's c goes before both: b's place is a's.
+        let c = push(&mut s, Owner::Port(1), Instant::from_micros(30)).unwrap();
+        assert_eq!(order(&s).as_slice(), &[c, a, b]);
+        // Due at 50, d ties with a and b's place: after them.
+        let d = push(&mut s, Owner::Link(1), Instant::from_micros(50)).unwrap();
+        assert_eq!(order(&s).as_slice(), &[c, a, b, d]);
+        // The earliest to expire is b, served third.
+        assert_eq!(s.earliest_deadline(), Some(Instant::from_micros(20)));
+        assert_eq!(s.meta(b).deadline, Instant::from_micros(20));
+        // With a gone, b keeps its place (50): link 0's next packet, due
+        // at 10, still goes behind it, and behind d, which came first.
+        s.release(a);
+        s.release(c);
+        let e = push(&mut s, Owner::Link(0), Instant::from_micros(10)).unwrap();
+        assert_eq!(order(&s).as_slice(), &[b, d, e]);
+        s.release(b);
+        s.release(d);
+        s.release(e);
+        // With nothing of link 0's queued, its packets go by deadline again.
+        let f = push(&mut s, Owner::Link(1), Instant::from_micros(40)).unwrap();
+        let g = push(&mut s, Owner::Link(0), Instant::from_micros(10)).unwrap();
+        assert_eq!(order(&s).as_slice(), &[g, f]);
     }
 
     #[test]

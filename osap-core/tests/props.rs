@@ -117,15 +117,18 @@ fn op() -> impl Strategy<Value = Op> {
 }
 
 proptest! {
-    /// The stack always lists packets by deadline, first come first served
-    /// among equal deadlines, never lets an owner past its quota and never
-    /// loses a slot.
+    /// The stack always lists packets by serving key (a packet's deadline,
+    /// or its owner's newest queued packet's key if later), first come
+    /// first served among equal keys, so one owner's packets stay in the
+    /// order they came; it never lets an owner past its quota, never loses
+    /// a slot, and finds the earliest deadline wherever it is.
     #[test]
     fn stack_matches_model(ops in prop::collection::vec(op(), 1..200)) {
         const N: usize = 8;
         let mut stack: PacketStack<N, 8, 4, 2> = PacketStack::new();
-        // Model: (deadline, insertion number, owner), kept sorted.
-        let mut model: Vec<(u64, usize, Owner)> = Vec::new();
+        // Model: (key, insertion number, owner, deadline), kept sorted by
+        // key.
+        let mut model: Vec<(u64, usize, Owner, u64)> = Vec::new();
         let quota = |o: Owner| match o {
             Owner::Port(_) => 2,
             Owner::Link(_) => 4,
@@ -148,8 +151,13 @@ proptest! {
                     });
                     match (expect, got) {
                         (Ok(()), Ok(_)) => {
-                            let at = model.partition_point(|m| m.0 <= deadline);
-                            model.insert(at, (deadline, serial, owner));
+                            let key = model
+                                .iter()
+                                .filter(|m| m.2 == owner)
+                                .map(|m| m.0)
+                                .fold(deadline, u64::max);
+                            let at = model.partition_point(|m| m.0 <= key);
+                            model.insert(at, (key, serial, owner, deadline));
                         }
                         (Err(e), Err(PushError::Claim(g))) => prop_assert_eq!(e, g),
                         (e, g) => prop_assert!(false, "expected {:?}, got {:?}", e, g),
@@ -159,7 +167,7 @@ proptest! {
                     let got = stack.release_at(pos);
                     if pos < model.len() {
                         let m = model.remove(pos);
-                        prop_assert_eq!(got.map(|g| (g.deadline.as_micros(), g.owner)), Some((m.0, m.2)));
+                        prop_assert_eq!(got.map(|g| (g.deadline.as_micros(), g.owner)), Some((m.3, m.2)));
                     } else {
                         prop_assert!(got.is_none());
                     }
@@ -169,9 +177,19 @@ proptest! {
             prop_assert_eq!(stack.len() + stack.free_slots(), N);
             for (pos, m) in model.iter().enumerate() {
                 let slot = stack.at(pos).unwrap();
-                prop_assert_eq!(stack.meta(slot).deadline.as_micros(), m.0);
+                prop_assert_eq!(stack.meta(slot).deadline.as_micros(), m.3);
                 prop_assert_eq!(stack.packet(slot), &(m.1 as u64).to_le_bytes()[..]);
             }
+            // Each owner's packets in the order they came.
+            for o in model.iter().map(|m| m.2) {
+                let serials: Vec<usize> =
+                    model.iter().filter(|m| m.2 == o).map(|m| m.1).collect();
+                prop_assert!(serials.windows(2).all(|w| w[0] < w[1]));
+            }
+            prop_assert_eq!(
+                stack.earliest_deadline().map(|d| d.as_micros()),
+                model.iter().map(|m| m.3).min()
+            );
         }
     }
 }

@@ -95,6 +95,26 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
                     && time.abs_diff(now) < 100_000),
             "{heard:?}"
         );
+        // It stops the machine, as every refusal does: one stream's points
+        // reach the module in the order they were sent (docs/protocol.md
+        // §8), so a late one was not overtaken on the way, it is wrong.
+        let e = m.idle().await.unwrap_err();
+        let MachineError::Faulted(reason) = &e else {
+            panic!("{e}")
+        };
+        assert!(
+            reason.starts_with("module b refused a point:") && reason.contains("arrived late"),
+            "{reason}"
+        );
+        // Once the axes stand (what the stop itself reports is not this
+        // test's), recovered, on towards the far end again.
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        assert!(m.position()[0] < 179.0, "{:?}", m.position());
+        m.recover().await.unwrap();
+        faults(&mut events);
+        heard.clear();
+        m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
+        tokio::time::sleep(Duration::from_millis(300)).await;
         // A point the module cannot follow (beyond its track's range).
         let t0 = m.now_us().await.unwrap();
         let next = t0 / 2048 * 2048 + 200 * 2048;

@@ -7,7 +7,9 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 {
     /// Sends the packet in `slot` on link `index`: to drop `drop` if the
     /// hop was a `bus_forward` (which needs a bus link), point to point if
-    /// it was a `link_forward` (which needs a point-to-point link).
+    /// it was a `link_forward` (which needs a point-to-point link). A link
+    /// found busy in this walk (`busy`) is not asked again.
+    #[allow(clippy::too_many_arguments)]
     pub(super) fn forward<L: LinkGateway>(
         &mut self,
         slot: SlotId,
@@ -16,6 +18,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         now: Instant,
         deadline: Instant,
         links: &mut [L],
+        busy: &mut Busy<PORTS>,
     ) -> Served {
         let Some(link) = links
             .get_mut(usize::from(index))
@@ -31,7 +34,8 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             self.count_link(i, |t| &mut t.closed);
             return self.drop_slot(slot, Drop::LinkClosed);
         }
-        if !link.clear_to_send() {
+        if busy.link(index) || !link.clear_to_send() {
+            busy.set_link(index);
             return Served::Wait;
         }
         if self.stack.packet(slot).len() > usize::from(link.mtu()) {
@@ -98,12 +102,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         dst: u16,
         now: Instant,
         ports: &mut [P],
+        busy: &mut Busy<PORTS>,
     ) -> Served {
         let Some((object, offset, base)) = find_port(ports, dst) else {
             return self.drop_slot(slot, Drop::NoPort);
         };
         let port = &mut ports[object];
-        if !port.clear_to_receive(offset) {
+        if busy.port(dst) || !port.clear_to_receive(offset) {
+            busy.set_port(dst);
             return Served::Wait;
         }
         let (len, meta) = self.take_to_scratch(slot);

@@ -8,10 +8,15 @@
 //!
 //! `poll(now)` is the whole loop, sans-IO: it lets links and ports run, pulls
 //! received packets in while links have quota, then walks the stack in
-//! deadline order, dropping what has expired, forwarding what a clear link can
-//! take, delivering what a clear port can take, and answering system messages
-//! and port 0. A packet whose link or port is busy simply waits its turn;
-//! it never holds up the packets behind it.
+//! serving order (earliest deadline first, never ahead of a packet of the
+//! same owner: see [`crate::stack`]), dropping what has expired, forwarding
+//! what a clear link can take, delivering what a clear port can take, and
+//! answering system messages and port 0. A packet whose link or port is busy
+//! simply waits its turn; it never holds up the packets behind it that go
+//! elsewhere. A link or port found busy stays busy for the rest of the walk,
+//! even if it clears meanwhile (a host link's other half runs on another
+//! thread): the packets behind the waiting one, bound for the same place,
+//! wait too, so each link and port takes its packets in serving order.
 
 use crate::clock::{
     Clock, TimeConfig, TimeReply, CODE_TIME_REPLY, CODE_TIME_REQUEST, TIME_REPLY_LEN,
@@ -88,6 +93,50 @@ enum Served {
     Done,
     Dropped,
     Wait,
+}
+
+/// The links and ports one walk of the stack found busy: they stay busy
+/// until the walk ends, so no packet behind a waiting one reaches the same
+/// place first.
+struct Busy<const PORTS: usize> {
+    links: u64,
+    ports: [bool; PORTS],
+}
+
+impl<const PORTS: usize> Busy<PORTS> {
+    fn new() -> Self {
+        Busy {
+            links: 0,
+            ports: [false; PORTS],
+        }
+    }
+
+    /// Whether link `i` was found busy in this walk.
+    fn link(&self, i: u8) -> bool {
+        1u64.checked_shl(u32::from(i))
+            .is_some_and(|bit| self.links & bit != 0)
+    }
+
+    /// Marks link `i` busy for the rest of the walk.
+    fn set_link(&mut self, i: u8) {
+        if let Some(bit) = 1u64.checked_shl(u32::from(i)) {
+            self.links |= bit;
+        }
+    }
+
+    /// Whether port `index` was found busy in this walk. (A port index
+    /// beyond `PORTS` has no entry: it has no quota either, so it cannot
+    /// have sent what comes to it.)
+    fn port(&self, index: u16) -> bool {
+        self.ports.get(usize::from(index)).copied().unwrap_or(false)
+    }
+
+    /// Marks port `index` busy for the rest of the walk.
+    fn set_port(&mut self, index: u16) {
+        if let Some(p) = self.ports.get_mut(usize::from(index)) {
+            *p = true;
+        }
+    }
 }
 
 /// A runtime with `SLOTS` packet slots of `MTU` bytes, quota entries for
@@ -445,6 +494,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         ports: &mut [P],
         links: &mut [L],
     ) {
+        let mut busy = Busy::<PORTS>::new();
         let mut cursor = self.stack.first();
         while let Some(slot) = cursor {
             if result.handled >= budget {
@@ -475,16 +525,16 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
             let served = match instruction {
                 Err(_) => self.drop_slot(slot, Drop::Malformed),
                 Ok(Instruction::LinkForward(j)) => {
-                    self.forward(slot, j, None, now, meta.deadline, links)
+                    self.forward(slot, j, None, now, meta.deadline, links, &mut busy)
                 }
                 Ok(Instruction::BusForward { bus, drop }) => {
-                    self.forward(slot, bus, Some(drop), now, meta.deadline, links)
+                    self.forward(slot, bus, Some(drop), now, meta.deadline, links, &mut busy)
                 }
                 Ok(Instruction::PortHandle { src, dst: 0 }) => {
                     self.answer_netresponder(slot, src, now, ports, links)
                 }
                 Ok(Instruction::PortHandle { src, dst }) => {
-                    self.deliver(slot, src, dst, now, ports)
+                    self.deliver(slot, src, dst, now, ports, &mut busy)
                 }
                 Ok(Instruction::SystemMsg(code)) => self.system_message(slot, code, now),
             };

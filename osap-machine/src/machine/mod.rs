@@ -1315,24 +1315,14 @@ async fn source(
 }
 
 /// Whether a module's fault stops the machine: every kind but a step
-/// overrun (its steps went out late, none was lost) and a point out of
-/// order, and a refusal for a disabled motor only when the machine file
-/// enables a motor of that module.
+/// overrun (its steps went out late, none was lost), and a refusal for a
+/// disabled motor only when the machine file enables a motor of that module.
 fn stops_motion(inner: &Inner, module: &str, kind: events::FaultKind, detail: u32) -> bool {
     use events::FaultKind as K;
     use osap_module::stepper::StepperError as E;
     let code = |e: E| u32::from(e.code());
     match kind {
         K::None | K::StepOverrun => false,
-        // Points overtake each other on multi-hop links (each hop orders
-        // by a deadline rebuilt from its own arrival stamp, and transit
-        // jitter exceeds a burst's spacing). A point at or before one
-        // already queued (stale) changes nothing the module runs, and one
-        // that arrives two ahead (a gap) is dropped and filled from its
-        // neighbours once they come. Points truly lost leave the module
-        // refusing until its stream runs dry: its backstop then brakes the
-        // axis and that fault stops the machine.
-        K::Refused if detail == code(E::Stale) || detail == code(E::Gap) => false,
         K::Refused if detail == code(E::Disabled) => lock_motion(&inner.motion)
             .drive
             .motors()
