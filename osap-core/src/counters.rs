@@ -113,7 +113,8 @@ pub struct LinkCounters {
     /// it cannot tell (a socket). Filled in by the netresponder.
     pub capacity_bytes_per_s: u32,
     /// Packet slots of the runtime's stack held now by packets that
-    /// arrived on this link. Filled in by the netresponder.
+    /// arrived on this link, and by the netresponder's replies to them.
+    /// Filled in by the netresponder.
     pub held: u16,
     /// The runtime's packet slots in all. Filled in by the netresponder;
     /// 0 from a runtime of the first layout (without the load fields).

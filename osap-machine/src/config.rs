@@ -368,12 +368,43 @@ pub struct Homing {
     /// with `switch`).
     #[serde(default)]
     pub latch_speed: Option<f64>,
-    /// Distance to back off after the switch or stall, units.
+    /// Distance to back off after the switch or stall, units: it must
+    /// bring the axis from `endstop` back inside the travel.
     #[serde(default)]
     pub backoff: f64,
     /// Homing order: lower first; axes with the same order home together.
     #[serde(default)]
     pub order: u32,
+    /// Where the switch (or the stall) triggers, as an absolute axis
+    /// position, like Klipper's `position_endstop`: beyond the soft travel
+    /// or at its edge, on the homed side. Homing puts the trigger's edge
+    /// here. `None`: [`ENDSTOP_BEYOND`] beyond the homed end.
+    #[serde(default)]
+    pub endstop: Option<f64>,
+}
+
+/// How far beyond the homed end of the travel a switch triggers when the
+/// machine file gives no `endstop`, units (a real switch sits a little
+/// past the soft limit, so a job may touch the travel's edge).
+pub const ENDSTOP_BEYOND: f64 = 1.0;
+
+impl Homing {
+    /// Where the switch triggers on `axis` (the axis this homing belongs
+    /// to): `endstop`, or [`ENDSTOP_BEYOND`] past the homed end.
+    pub fn endstop(&self, axis: &Axis) -> f64 {
+        self.endstop.unwrap_or(match self.direction {
+            Direction::Min => axis.min - ENDSTOP_BEYOND,
+            Direction::Max => axis.max + ENDSTOP_BEYOND,
+        })
+    }
+
+    /// Where homing leaves `axis`: the endstop, backed off by `backoff`.
+    pub fn homed_position(&self, axis: &Axis) -> f64 {
+        match self.direction {
+            Direction::Min => self.endstop(axis) + self.backoff,
+            Direction::Max => self.endstop(axis) - self.backoff,
+        }
+    }
 }
 
 /// Limits on the toolhead's vector motion.
@@ -542,7 +573,8 @@ pub struct SwitchPlacement<'a> {
     pub module: &'a str,
     /// The end of travel the switch is at.
     pub direction: Direction,
-    /// The axis position at which the switch closes (the travel end).
+    /// The axis position at which the switch closes (the homing's
+    /// `endstop`: beyond the travel end, or at it).
     pub position: f64,
 }
 
@@ -636,7 +668,8 @@ impl MachineFile {
     }
 
     /// Where the homing switches sit, for placing simulated limit switches:
-    /// one per axis that homes on a switch, at the travel end it homes to.
+    /// one per axis that homes on a switch, at its endstop (beyond the
+    /// travel end it homes to, by default [`ENDSTOP_BEYOND`]).
     pub fn switch_placements(&self) -> Vec<SwitchPlacement<'_>> {
         let mut placements = Vec::new();
         for name in self.axis_names() {
@@ -653,10 +686,7 @@ impl MachineFile {
                 axis: name,
                 module,
                 direction: homing.direction,
-                position: match homing.direction {
-                    Direction::Min => axis.min,
-                    Direction::Max => axis.max,
-                },
+                position: homing.endstop(axis),
             });
         }
         placements
@@ -1001,13 +1031,40 @@ impl MachineFile {
                 ),
             ));
         }
-        if homing.backoff >= axis.max - axis.min {
+        self.validate_endstop(at, axis, homing)
+    }
+
+    /// The endstop lies beyond the soft travel (or at its edge) on the
+    /// homed side, and the backoff brings the axis from it back inside.
+    fn validate_endstop(&self, at: &str, axis: &Axis, homing: &Homing) -> Result<(), ConfigError> {
+        let endstop = homing.endstop(axis);
+        if let Some(given) = homing.endstop {
+            finite(&format!("{at}.endstop"), given)?;
+        }
+        let (end, side, past) = match homing.direction {
+            Direction::Min => (axis.min, "min", endstop > axis.min),
+            Direction::Max => (axis.max, "max", endstop < axis.max),
+        };
+        if past {
+            return Err(invalid(
+                format!("{at}.endstop"),
+                format!(
+                    "endstop {endstop} lies inside the travel [{}, {}]: a job would press the switch; put it at or beyond {side} = {end} (default {ENDSTOP_BEYOND} beyond)",
+                    axis.min, axis.max
+                ),
+            ));
+        }
+        let homed = homing.homed_position(axis);
+        if homed < axis.min || homed > axis.max {
+            let need = (endstop - end).abs();
             return Err(invalid(
                 format!("{at}.backoff"),
                 format!(
-                    "backoff {} is not shorter than the travel {}; shorten it",
+                    "backoff {} from the endstop {endstop} leaves the axis at {homed}, outside the travel [{}, {}]; give a backoff from {need} to {}",
                     homing.backoff,
-                    axis.max - axis.min
+                    axis.min,
+                    axis.max,
+                    need + (axis.max - axis.min)
                 ),
             ));
         }

@@ -257,12 +257,25 @@ pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Progr
             "the machine has no pen or laser tool: the drawing runs with no tool switching".into(),
         );
     }
+    // A point this close outside the travel is on its edge: the drawing's
+    // f32 rounding (a frame at the page's edge on a page the size of the
+    // travel), far below a motor step.
+    let onto = |v: f64, axis: &str| {
+        let a = &cfg.axes[axis];
+        if v < a.min && v >= a.min - drawing.precision_mm {
+            a.min
+        } else if v > a.max && v <= a.max + drawing.precision_mm {
+            a.max
+        } else {
+            v
+        }
+    };
     for (i, poly) in drawing.polylines.iter().enumerate() {
         let place = format!("path {}", i + 1);
         let mut pts = poly.iter().map(|p| {
             let mut v = rest.clone();
-            v[0] = p[0];
-            v[1] = p[1];
+            v[0] = onto(p[0], "x");
+            v[1] = onto(p[1], "y");
             v.truncate(n);
             v
         });
@@ -520,6 +533,40 @@ mod tests {
         let job = crate::gcode::read("G1 X10 Y10 Z-1 F600\n").unwrap();
         let e = from_gcode(&plotter, &job, &[0.0; 2]).unwrap_err();
         assert!(matches!(e, JobError::NoSuchAxis { .. }), "{e}");
+    }
+
+    #[test]
+    fn svg_framed_at_the_page_edge_fits_a_travel_of_the_page_size() {
+        // The plotter's travel is 200 × 150 mm; usvg's f32 puts the
+        // frame's top at 150.0000011.
+        let plotter = cfg("plotter");
+        let svg = r#"<svg xmlns="http://www.w3.org/2000/svg" width="200mm" height="150mm" viewBox="0 0 200 150"><path d="M0 0 H200 V150 H0 Z" stroke="black" fill="none"/></svg>"#;
+        let d = crate::svg::read(svg, &Default::default()).unwrap();
+        assert!(
+            d.precision_mm > 0.0 && d.precision_mm < 1e-3,
+            "{}",
+            d.precision_mm
+        );
+        let p = from_svg(&plotter, &d, 50.0).unwrap();
+        let mut corners: Vec<[f64; 2]> = p
+            .moves
+            .iter()
+            .filter_map(|(_, m)| match m {
+                Move::Rapid(v) | Move::Line(v, _) => Some([v[0], v[1]]),
+                _ => None,
+            })
+            .collect();
+        corners.sort_by(|a, b| a.partial_cmp(b).unwrap());
+        corners.dedup();
+        assert_eq!(
+            corners,
+            [[0.0, 0.0], [0.0, 150.0], [200.0, 0.0], [200.0, 150.0]]
+        );
+        // One micrometre out is out.
+        let bigger = svg.replace("H200", "H200.001");
+        let d = crate::svg::read(&bigger, &Default::default()).unwrap();
+        let e = from_svg(&plotter, &d, 50.0).unwrap_err();
+        assert!(matches!(e, JobError::OutOfTravel { .. }), "{e}");
     }
 
     #[test]

@@ -42,6 +42,12 @@ pub struct Drawing {
     pub polylines: Vec<Vec<[f64; 2]>>,
     /// The page's size, mm (before scaling).
     pub page_mm: [f64; 2],
+    /// How far a point may lie from where the document puts it, mm (after
+    /// scaling): usvg computes in f32, so every coordinate carries a few
+    /// f32 roundings of the drawing's largest magnitude (well under a
+    /// micrometre on a sheet of paper). A page-edge frame may thus land
+    /// this far outside the page.
+    pub precision_mm: f64,
     /// What was left out, and why.
     pub warnings: Vec<String>,
 }
@@ -100,8 +106,22 @@ pub fn read(text: &str, options: &SvgOptions) -> Result<Drawing, SvgError> {
         &place,
         tolerance_px.max(f32::MIN_POSITIVE),
     );
+    // The largest magnitude a coordinate had in page mm (the page's size
+    // included: the y flip subtracts from it).
+    let largest = drawing
+        .polylines
+        .iter()
+        .flatten()
+        .flat_map(|p| [0, 1].map(|i| ((p[i] - options.offset[i]) / options.scale).abs()))
+        .fold(page_mm[0].max(page_mm[1]), f64::max);
+    drawing.precision_mm = F32_ROUNDINGS * f64::from(f32::EPSILON) * largest * options.scale;
     Ok(drawing)
 }
+
+/// How many f32 roundings of its largest magnitude a coordinate may carry
+/// through usvg: parsing, the view box and transforms, and the curve
+/// evaluation here, each a few.
+const F32_ROUNDINGS: f64 = 8.0;
 
 fn walk(
     group: &usvg::Group,

@@ -92,7 +92,9 @@ fn plotter_example_loads() {
     assert_eq!(switches.len(), 2);
     assert_eq!(switches[0].module, "a");
     assert_eq!(switches[0].direction, Direction::Min);
-    assert_eq!(switches[0].position, 0.0);
+    // No endstop given: the switch sits 1 mm beyond the soft travel.
+    assert_eq!(switches[0].position, -1.0);
+    assert_eq!(switches[1].position, -1.0);
     assert_eq!(m.sim.as_ref().unwrap().axes["x"].resonance_hz, 45.0);
 }
 
@@ -350,6 +352,54 @@ fn homing_checks() {
     ))
     .unwrap();
     assert!(m.switch_placements().is_empty());
+}
+
+#[test]
+fn the_endstop_lies_beyond_the_travel_and_the_backoff_comes_back_inside() {
+    // Default: 1 mm beyond the homed end; homing leaves the axis at
+    // endstop + backoff.
+    let m = MachineFile::parse(BASE).unwrap();
+    let x = &m.axes["x"];
+    let homing = x.homing.as_ref().unwrap();
+    assert_eq!(homing.endstop(x), -1.0);
+    assert_eq!(homing.homed_position(x), 1.0);
+    // An explicit endstop, at the edge or beyond, is where the switch sits.
+    for endstop in ["0.0", "-1.5"] {
+        let m = MachineFile::parse(&edited(
+            "backoff = 2.0,",
+            &format!("backoff = 2.0, endstop = {endstop},"),
+        ))
+        .unwrap();
+        assert_eq!(
+            m.switch_placements()[0].position,
+            endstop.parse::<f64>().unwrap()
+        );
+    }
+    // Inside the travel: a job would press it.
+    let (key, msg) = invalid_key(&edited("backoff = 2.0,", "backoff = 2.0, endstop = 0.5,"));
+    assert_eq!(key, "axes.x.homing.endstop");
+    assert!(msg.contains("inside the travel [0, 200]"), "{msg}");
+    assert!(msg.contains("at or beyond min = 0"), "{msg}");
+    let (key, _) = invalid_key(&edited("backoff = 2.0,", "backoff = 2.0, endstop = nan,"));
+    assert_eq!(key, "axes.x.homing.endstop");
+    // Homing to max: the endstop must lie at or above max.
+    let (key, msg) = invalid_key(&edited(
+        "direction = \"min\", search_speed = 20.0, latch_speed = 2.0, backoff = 2.0,",
+        "direction = \"max\", search_speed = 20.0, latch_speed = 2.0, backoff = 2.0, endstop = 199.0,",
+    ));
+    assert_eq!(key, "axes.x.homing.endstop");
+    assert!(msg.contains("at or beyond max = 200"), "{msg}");
+    // A backoff that stays outside the travel (0.5 mm from a switch 1 mm
+    // out), or one that crosses it.
+    for backoff in ["0.5", "0.0", "201.5"] {
+        let (key, msg) = invalid_key(&edited("backoff = 2.0", &format!("backoff = {backoff}")));
+        assert_eq!(key, "axes.x.homing.backoff");
+        assert!(msg.contains("from 1 to 201"), "{msg}");
+    }
+    // Exactly back to the edge is inside.
+    let m = MachineFile::parse(&edited("backoff = 2.0", "backoff = 1.0")).unwrap();
+    let x = &m.axes["x"];
+    assert_eq!(x.homing.as_ref().unwrap().homed_position(x), 0.0);
 }
 
 #[test]

@@ -3,7 +3,8 @@
 //!
 //! The simulator samples `runtime.system_time(local_now)` of every node at
 //! a fixed period of true time and stores each node's error against the
-//! root's system time at that instant, and each node's clock tier. Nothing
+//! root's system time at that instant, each node's clock tier, and how far
+//! each node's rate correction is from the one its oscillator needs. Nothing
 //! here knows how the controller works: these are the numbers a perfect
 //! external observer would measure.
 //!
@@ -95,6 +96,10 @@ pub struct Metrics {
     pub error_us: Vec<Vec<f64>>,
     /// `tier[node][k]`: node's clock tier at sample `k`.
     pub tier: Vec<Vec<u8>>,
+    /// `rate_error_ppm[node][k]`: node's rate correction minus the one
+    /// its oscillator needs to run at the root's rate, at sample `k`, ppm
+    /// (the root's is 0). Empty for metrics pushed without rates.
+    pub rate_error_ppm: Vec<Vec<f64>>,
 }
 
 impl Metrics {
@@ -108,7 +113,36 @@ impl Metrics {
             times_s: Vec::new(),
             error_us: vec![Vec::new(); n],
             tier: vec![Vec::new(); n],
+            rate_error_ppm: vec![Vec::new(); n],
         }
+    }
+
+    /// Appends each node's rate error (ppm, see
+    /// [`rate_error_ppm`](Self::rate_error_ppm)) for the newest sample.
+    pub fn push_rate_errors(&mut self, errors_ppm: &[f64]) {
+        for (series, e) in self.rate_error_ppm.iter_mut().zip(errors_ppm) {
+            series.push(*e);
+        }
+    }
+
+    /// When every non-root node's rate correction was within `within_ppm`
+    /// of the rate its oscillator needs from then on up to `until_s`: its
+    /// clock knew its rate (from a hot start's preset, or learned) over
+    /// that window. `None` if a node was outside at `until_s` (or the
+    /// run's end, if sooner), or no rates were sampled.
+    pub fn rate_known_time(&self, within_ppm: f64, until_s: f64) -> Option<f64> {
+        let end = self.times_s.partition_point(|&t| t <= until_s);
+        self.followers()
+            .map(|i| {
+                let series = self.rate_error_ppm[i].get(..end)?;
+                let last_bad = series.iter().rposition(|e| e.abs() > within_ppm);
+                match last_bad {
+                    None => self.times_s.first().copied(),
+                    Some(k) if k + 1 < end => Some(self.times_s[k + 1]),
+                    Some(_) => None,
+                }
+            })
+            .try_fold(0.0, |worst: f64, t| Some(worst.max(t?)))
     }
 
     /// Appends one sample: each node's system time and tier at `time_s`.
@@ -283,6 +317,26 @@ mod tests {
             m.push(k as f64 / 10.0, &[r, h, m2], &[0, 1, 2]);
         }
         m
+    }
+
+    #[test]
+    fn rate_known_is_when_the_slowest_follower_stays_within() {
+        let mut m = synthetic();
+        assert_eq!(m.rate_known_time(1.0, 10.0), None, "no rates sampled");
+        for k in 0..100 {
+            // h learns by sample 12; m is within at 40 but strays once
+            // more at 70.
+            let h = if k < 12 { 30.0 } else { 0.5 };
+            let m2 = if k < 40 || k == 70 { -20.0 } else { 0.2 };
+            m.push_rate_errors(&[0.0, h, m2]);
+        }
+        assert_eq!(m.rate_known_time(1.0, 10.0), Some(7.1));
+        // Up to 6.5 s, m's stray at 7.0 s is outside the window.
+        assert_eq!(m.rate_known_time(1.0, 6.5), Some(4.0));
+        assert_eq!(m.rate_known_time(1.0, 3.0), None);
+        assert_eq!(m.rate_known_time(25.0, 10.0), Some(1.2));
+        assert_eq!(m.rate_known_time(35.0, 10.0), Some(0.0));
+        assert_eq!(m.rate_known_time(0.1, 10.0), None);
     }
 
     #[test]

@@ -530,6 +530,18 @@ impl Sim {
         }
         self.metrics
             .push(t as f64 / 1e9, &self.system_buf, &self.tier_buf);
+        // Each clock's rate correction against the one its oscillator
+        // needs to run at the root's rate now (as `apply_hot_start` sets).
+        let root_rate = self.nodes[self.metrics.root].clock.rate_ppm_at(t) * 1e-6;
+        let rates: Vec<f64> = self
+            .nodes
+            .iter()
+            .map(|node| {
+                let needed = (1.0 + root_rate) / (1.0 + node.clock.rate_ppm_at(t) * 1e-6) - 1.0;
+                f64::from(node.runtime.clock().rate_ppb()) * 1e-3 - needed * 1e6
+            })
+            .collect();
+        self.metrics.push_rate_errors(&rates);
     }
 }
 

@@ -14,9 +14,19 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         ports: &[P],
         links: &[L],
     ) -> Served {
-        // Answer only when the reply can be stored; until then the request
-        // waits like any packet for a busy port.
-        if self.stack.check_claim(Owner::Port(0)).is_err() {
+        // The reply is charged to the link the request came in on (the
+        // one it leaves by), as the request was: a peer that never reads
+        // its replies then holds only its own link's quota, never the
+        // netresponder's slots every other link's requests are answered
+        // from. Its request's slot is freed first, so there is room. A
+        // request from a local port is answered from the netresponder's
+        // own quota, and waits like any packet for a busy port until the
+        // reply can be stored.
+        let owner = match self.stack.meta(slot).owner {
+            link @ Owner::Link(_) => link,
+            _ => Owner::Port(0),
+        };
+        if owner == Owner::Port(0) && self.stack.check_claim(owner).is_err() {
             return Served::Wait;
         }
         let (len, _) = self.take_to_scratch(slot);
@@ -55,7 +65,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
         let answered = queue_packet(
             &mut self.stack,
             &mut self.counters,
-            Owner::Port(0),
+            owner,
             now,
             &route,
             Instruction::PortHandle { src: 0, dst: src },

@@ -48,7 +48,9 @@ pub enum MachineEvent {
         time: u64,
         /// Pressed (true) or released.
         pressed: bool,
-        /// Whether homing was expecting it (otherwise the machine halts).
+        /// Whether homing or probing was expecting it: a press on the
+        /// switch of the axis being homed, or on the probe being searched
+        /// with. Any other press halts the machine.
         expected: bool,
     },
     /// A module stopped answering.

@@ -4,13 +4,14 @@
 //! Per axis: if the switch is already pressed, move off it; seek toward it
 //! at the search speed until its module reports the pressed edge (with the
 //! module's own time stamp of the edge); stop within limits; re-define the
-//! axis so that where it was at the edge's time is its home end; back off;
+//! axis so that where it was at the edge's time is the switch's `endstop`
+//! (beyond the soft travel, or at its edge); back off into the travel;
 //! seek again at the latch speed for a precise edge; re-define; back off.
 //! The machine position at the edge's time comes from the samples the
 //! motors were sent, so the host's delay in hearing of the edge does not
 //! matter.
 
-use std::sync::atomic::Ordering;
+use std::sync::Mutex;
 
 use tokio::sync::broadcast;
 
@@ -21,12 +22,21 @@ use crate::config::Direction;
 /// How far past the travel a search may go, as a fraction of the travel.
 const SEARCH_MARGIN: f64 = 0.1;
 
-/// Clears the homing flag when homing ends, however it ends.
-struct HomingFlag<'a>(&'a std::sync::atomic::AtomicBool);
+/// Marks one module's switch press as expected (homing or probing on it),
+/// and no other's; clears the mark when the search ends, however it ends.
+pub(super) struct ExpectSwitch<'a>(&'a Mutex<Option<String>>);
 
-impl Drop for HomingFlag<'_> {
+impl<'a> ExpectSwitch<'a> {
+    /// Expects a press on `module`'s switch until dropped.
+    pub(super) fn new(slot: &'a Mutex<Option<String>>, module: &str) -> Self {
+        *slot.lock().unwrap_or_else(|e| e.into_inner()) = Some(module.to_string());
+        ExpectSwitch(slot)
+    }
+}
+
+impl Drop for ExpectSwitch<'_> {
     fn drop(&mut self) {
-        self.0.store(false, Ordering::SeqCst);
+        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = None;
     }
 }
 
@@ -97,12 +107,10 @@ impl Machine {
             .position(|n| n == axis)
             .ok_or_else(|| MachineError::UnknownAxis(axis.into()))?;
         self.idle().await?;
-        self.inner.homing.store(true, Ordering::SeqCst);
-        let _flag = HomingFlag(&self.inner.homing);
+        // Only this axis's switch may be pressed now: any other stops.
+        let _expect = ExpectSwitch::new(&self.inner.expecting, switch);
         self.inner.state.send_replace(super::MachineState::Homing);
-        let result = self
-            .home_axis_inner(axis, k, switch, homing, a.min, a.max)
-            .await;
+        let result = self.home_axis_inner(axis, k, switch, homing, a).await;
         // Read, then write: a watch borrow held across a send deadlocks.
         let homing = matches!(*self.inner.state.borrow(), super::MachineState::Homing);
         if homing {
@@ -117,18 +125,20 @@ impl Machine {
         k: usize,
         switch: &str,
         homing: &crate::config::Homing,
-        min: f64,
-        max: f64,
+        a: &crate::config::Axis,
     ) -> Result<(), MachineError> {
         let fail = |reason: String| MachineError::Homing {
             axis: axis.to_string(),
             reason,
         };
-        let (dir, home) = match homing.direction {
-            Direction::Min => (-1.0, min),
-            Direction::Max => (1.0, max),
+        let (dir, end) = match homing.direction {
+            Direction::Min => (-1.0, a.min),
+            Direction::Max => (1.0, a.max),
         };
-        let travel = max - min;
+        // Where the switch's edge is: the axis is re-defined so that its
+        // position at the edge's time reads this.
+        let home = homing.endstop(a);
+        let travel = a.max - a.min;
         let pressed = || {
             monitor::lock(&self.inner.reports)
                 .limit
@@ -145,7 +155,7 @@ impl Machine {
                 )));
             }
         }
-        let search = travel * (1.0 + SEARCH_MARGIN) + homing.backoff;
+        let search = travel * (1.0 + SEARCH_MARGIN) + (home - end).abs() + homing.backoff;
         let at = self
             .seek(k, switch, dir * search, homing.search_speed)
             .await
@@ -154,7 +164,8 @@ impl Machine {
                 other => other,
             })?;
         self.shift_axis(k, home - at)?;
-        let off = home - dir * homing.backoff;
+        // Inside the travel (the file's validation holds it there).
+        let off = homing.homed_position(a);
         self.absolute(k, off, homing.search_speed).await?;
         if let Some(latch) = homing.latch_speed {
             let at = self

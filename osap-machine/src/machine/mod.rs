@@ -129,7 +129,9 @@ struct Inner {
     limit_edges: broadcast::Sender<(String, LimitEdge)>,
     state: watch::Sender<MachineState>,
     homed: Mutex<Vec<bool>>,
-    homing: std::sync::atomic::AtomicBool,
+    /// The module whose switch homing or probing presses now: its press is
+    /// expected. A press on any other switch still stops the machine.
+    expecting: Mutex<Option<String>>,
     tools: Mutex<BTreeMap<String, tool::ToolState>>,
     sim: Mutex<Option<SimMachine>>,
     /// Modules that stopped answering since the last recovery: they may
@@ -474,7 +476,7 @@ impl Machine {
                 limit_edges,
                 state,
                 homed: Mutex::new(homed),
-                homing: Default::default(),
+                expecting: Mutex::default(),
                 tools: Mutex::new(tools),
                 sim: Mutex::new(sim),
                 lost: Mutex::default(),
@@ -519,14 +521,19 @@ impl Machine {
                                 continue;
                             }
                             let Some(inner) = weak.upgrade() else { return };
-                            let homing = inner.homing.load(std::sync::atomic::Ordering::SeqCst);
+                            let expected = inner
+                                .expecting
+                                .lock()
+                                .unwrap_or_else(|e| e.into_inner())
+                                .as_deref()
+                                == Some(module.as_str());
                             let _ = inner.events.send(MachineEvent::Limit {
                                 module: module.clone(),
                                 time: edge.time,
                                 pressed: edge.pressed,
-                                expected: homing,
+                                expected,
                             });
-                            if homing || !edge.pressed {
+                            if expected || !edge.pressed {
                                 continue;
                             }
                             (format!("limit switch on module {module} pressed outside homing: every motor stopped at once; home again"), true)

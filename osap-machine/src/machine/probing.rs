@@ -7,22 +7,11 @@
 //! samples the motors were sent, so the host's delay in hearing of the
 //! edge does not matter.
 
-use std::sync::atomic::Ordering;
-
 use maxl::blocks::bedlevel::BedMesh;
 use tokio::sync::broadcast;
 
+use super::homing::ExpectSwitch;
 use super::{lock_motion, monitor, Machine, MachineError, MAX_AXES};
-
-/// Clears the flag that lets a watched switch be pressed, however a search
-/// ends.
-struct Expecting<'a>(&'a std::sync::atomic::AtomicBool);
-
-impl Drop for Expecting<'_> {
-    fn drop(&mut self) {
-        self.0.store(false, Ordering::SeqCst);
-    }
-}
 
 impl Machine {
     /// Whether the switch on `module`'s limit input reads pressed (as last
@@ -62,9 +51,9 @@ impl Machine {
             .position(|a| a == "z")
             .ok_or_else(|| MachineError::UnknownAxis("z".into()))?;
         self.idle().await?;
-        // A probe press is expected now: not a crash.
-        self.inner.homing.store(true, Ordering::SeqCst);
-        let _expecting = Expecting(&self.inner.homing);
+        // A probe press is expected now, on this module alone: not a
+        // crash. A press on any other switch still stops the machine.
+        let _expect = ExpectSwitch::new(&self.inner.expecting, module);
         let mut edges = self.inner.limit_edges.subscribe();
         let since = self.now_us().await?;
         {
