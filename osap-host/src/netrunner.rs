@@ -466,7 +466,31 @@ pub async fn scan(host: &Host, options: &ScanOptions) -> Result<ScanReport, Host
 pub async fn scan_with_progress(
     host: &Host,
     options: &ScanOptions,
+    progress: impl FnMut(usize, usize),
+) -> Result<ScanReport, HostError> {
+    scan_as(host, options, true, progress, |_| {}).await
+}
+
+/// A scan that reads no runtime's ports (each record's `ports` is empty:
+/// a module's are most of a scan's requests), calling `found` with each
+/// runtime the moment it is described, nearest first. For a caller that
+/// looks for a few runtimes by name and must act on each at once (`osap
+/// halt`): the runtimes it finds early need not wait for the rest.
+pub async fn scan_runtimes(
+    host: &Host,
+    options: &ScanOptions,
+    found: impl FnMut(&RuntimeRecord),
+) -> Result<ScanReport, HostError> {
+    scan_as(host, options, false, |_, _| {}, found).await
+}
+
+/// The scan: with or without each runtime's ports.
+async fn scan_as(
+    host: &Host,
+    options: &ScanOptions,
+    read_ports: bool,
     mut progress: impl FnMut(usize, usize),
+    mut each: impl FnMut(&RuntimeRecord),
 ) -> Result<ScanReport, HostError> {
     let start = Instant::now();
     let mut runner = Netrunner::new(host).await?;
@@ -487,8 +511,18 @@ pub async fn scan_with_progress(
     let info = runner.runtime_info(&local, next_id).await?;
     sent_to.insert(next_id, 0);
     next_id = next_id.wrapping_add(1);
+    let record = describe(
+        &runner,
+        &local,
+        &info,
+        info.packet_size,
+        read_ports,
+        &mut failures,
+    )
+    .await;
+    each(&record);
     found.push(Found {
-        record: describe(&runner, &local, &info, info.packet_size, &mut failures).await,
+        record,
         route: local,
     });
     queue.push_back(0);
@@ -560,9 +594,11 @@ pub async fn scan_with_progress(
                         &route,
                         &info,
                         mtu.min(info.packet_size),
+                        read_ports,
                         &mut failures,
                     )
                     .await;
+                    each(&record);
                     found.push(Found { record, route });
                     queue.push_back(found.len() - 1);
                     progress(found.len(), queue.len());
@@ -685,13 +721,14 @@ fn route_drops(route: &Route) -> Vec<Option<u8>> {
     }
 }
 
-/// Asks a newly found runtime everything about itself; what it fails to
-/// answer is recorded and left empty.
+/// Asks a newly found runtime everything about itself (its ports only if
+/// `read_ports`); what it fails to answer is recorded and left empty.
 async fn describe(
     runner: &Netrunner,
     route: &Route,
     info: &RuntimeInfo,
     route_mtu: u16,
+    read_ports: bool,
     failures: &mut Vec<ScanFailure>,
 ) -> RuntimeRecord {
     let mut fail = |what: &str, e: HostError| {
@@ -722,7 +759,7 @@ async fn describe(
         }
     }
     let mut ports = Vec::new();
-    for index in 0..info.port_count {
+    for index in (0..info.port_count).filter(|_| read_ports) {
         match runner.port_info(route, index).await {
             Ok(p) => ports.push(p),
             Err(e) => fail(&format!("port {index}"), e),
