@@ -6,11 +6,14 @@
 //!
 //! Each module is reached as soon as it is found: a module the machine
 //! file names by route at once (its route from the entry point, no scan),
-//! a module named by name the moment a scan that reads no ports meets it.
-//! Then only the ports the halt needs are read (`halt`, and `pwm_write` or
-//! `digital_write` for its tools), each function's signature is checked
-//! against the module's own, and the calls go out, each retried on a lost
-//! reply (halting and writing an off value are safe to repeat).
+//! a module named by name the moment a scan for runtimes meets it (it
+//! reads no ports, and ends when every name is met). Then its first ports
+//! are read, which say where each function of its kind is; each function
+//! the halt needs (`halt`, and `pwm_write` or `digital_write` for its
+//! tools) is asked its signature there and checked against the kind's
+//! (every port is read if it is not there), and the calls go out, each
+//! retried on a lost reply (halting and writing an off value are safe to
+//! repeat).
 //!
 //! A module's `halt` stops its axis at once (no deceleration: an emergency
 //! stop) and puts its outputs in their safe states; writing each tool's
@@ -18,11 +21,10 @@
 //! module with no safe values armed too.
 
 use std::collections::BTreeMap;
-use std::future::Future;
-use std::pin::Pin;
 use std::sync::Arc;
-use std::task::Poll;
 use std::time::Duration;
+
+use futures_util::future::join_all;
 
 use osap_core::route::Route;
 use osap_host::map::RuntimeRecord;
@@ -40,6 +42,10 @@ use crate::network::{file_route, Entry};
 /// Port information requests in flight at once per module, while its
 /// ports are searched for the functions a halt needs.
 const PORT_WINDOW: u16 = 16;
+/// The ports read first (1 to this, exclusive): enough to see where a
+/// module's first two functions start, and so where each of its kind's
+/// functions is.
+const FIRST_PORTS: u16 = 1 + PORT_WINDOW;
 
 /// Why a module (or a tool) could not be confirmed halted (or off).
 #[derive(Debug, thiserror::Error)]
@@ -205,10 +211,14 @@ pub async fn halt(host: &Host, cfg: &MachineFile, entry: Entry) -> Result<HaltRe
     if !named.is_empty() {
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel::<RuntimeRecord>();
         let options = ScanOptions::default();
+        // A machine started only with each name on one runtime (see
+        // `find_modules`): the scan ends when every name is met.
+        let mut unmet: std::collections::BTreeSet<&String> = named.keys().collect();
         let scan = netrunner::scan_runtimes(host, &options, |r| {
-            if named.contains_key(&r.name) {
+            if unmet.remove(&r.name) {
                 let _ = tx.send(r.clone());
             }
+            !unmet.is_empty()
         });
         tokio::pin!(scan);
         let mut seen: BTreeMap<String, usize> = BTreeMap::new();
@@ -344,14 +354,19 @@ async fn halt_module(
             })
             .collect();
     };
-    // Its port count, and its name when found by route.
-    let id = ctx.start.elapsed().as_micros() as u32 | 1;
-    let (info, name) = match &out.runtime {
-        Some(n) => (ctx.runner.runtime_info(&route, id).await, Ok(n.clone())),
-        None => tokio::join!(ctx.runner.runtime_info(&route, id), ctx.runner.name(&route)),
+    // Its first ports (and its name, when found by route) at once.
+    let (first, name) = match &out.runtime {
+        Some(n) => (
+            read_ports(&ctx.runner, &route, 1..FIRST_PORTS).await,
+            Ok(n.clone()),
+        ),
+        None => tokio::join!(
+            read_ports(&ctx.runner, &route, 1..FIRST_PORTS),
+            ctx.runner.name(&route)
+        ),
     };
-    let info = match info {
-        Ok(i) => i,
+    let first = match first {
+        Ok(p) => p,
         Err(e) => {
             unreached(&mut out, e.into());
             return out;
@@ -359,34 +374,37 @@ async fn halt_module(
     };
     let runtime = name.unwrap_or_else(|_| format!("the runtime at route {:?}", out.route));
     out.runtime = Some(runtime.clone());
-    let mut wanted = vec![&signature::halt];
-    for (_, t) in &tools {
-        wanted.push(match t.output {
-            Output::Pwm(_) => &signature::pwm_write,
-            Output::Digital(_) => &signature::digital_write,
-        });
-    }
-    let ports = match find_ports(&ctx.runner, &route, info.port_count, &wanted).await {
-        Ok(p) => p,
-        Err(e) => {
-            unreached(&mut out, e.into());
-            return out;
-        }
-    };
+    let ports = Ports::new(first);
     let handle = |sig: &'static Signature| {
         let ctx = ctx.clone();
-        let port = ports.get(sig.name).copied();
         let runtime = runtime.clone();
+        let ports = &ports;
         async move {
-            let Some(port) = port else {
-                return Err(HaltFailure::NotAModule {
+            let at = |port: u16| {
+                let (ctx, runtime) = (ctx.clone(), runtime.clone());
+                async move {
+                    let h = ctx.manager.function_at(&runtime, route, port).await?;
+                    check(&h, sig)?;
+                    Ok::<FunctionHandle, HaltFailure>(h)
+                }
+            };
+            // Where the kind's layout puts it (its signature says whether
+            // it is there), else found by reading every port.
+            if let Some(port) = ports.listed(sig).or_else(|| ports.guess(sig)) {
+                match at(port).await {
+                    Ok(h) => return Ok(h),
+                    Err(HaltFailure::NotAModule { .. }) => {}
+                    Err(e) => return Err(e),
+                }
+            }
+            let all = read_ports(&ctx.runner, &route, 1..u16::MAX).await?;
+            match Ports::new(all).listed(sig) {
+                Some(port) => at(port).await,
+                None => Err(HaltFailure::NotAModule {
                     function: sig.name,
                     detail: "it has no function of that name".into(),
-                });
-            };
-            let h = ctx.manager.function_at(&runtime, route, port).await?;
-            check(&h, sig)?;
-            Ok::<FunctionHandle, HaltFailure>(h)
+                }),
+            }
         }
     };
     out.sent_after = Some(ctx.start.elapsed());
@@ -426,32 +444,68 @@ async fn halt_module(
     out
 }
 
-/// The ports of the functions `wanted` on the runtime at `route` (which
-/// has `count` ports), read a window of ports at a time until all are
-/// found or the ports end.
-async fn find_ports(
+/// The function ports a module lists, as far as read: `(port, name)`.
+struct Ports(Vec<(u16, String)>);
+
+impl Ports {
+    fn new(records: Vec<osap_host::map::PortRecord>) -> Ports {
+        Ports(
+            records
+                .into_iter()
+                .filter(|r| r.type_name == FUNCTION_PORT_TYPE)
+                .map(|r| (r.index, r.name))
+                .collect(),
+        )
+    }
+
+    /// The port of `sig`'s function, if read.
+    fn listed(&self, sig: &Signature) -> Option<u16> {
+        self.0.iter().find(|(_, n)| n == sig.name).map(|(p, _)| *p)
+    }
+
+    /// Where `sig`'s function is if the module presents the stepper set
+    /// with as many pipe slots per function as its first functions have:
+    /// the first functions read say where each function starts.
+    fn guess(&self, sig: &Signature) -> Option<u16> {
+        let set = &osap_module::functions::SIGNATURES;
+        let index = set.iter().position(|s| s.name == sig.name)?;
+        let [(p0, n0), (p1, n1), ..] = self.0.as_slice() else {
+            return None;
+        };
+        if n0 != set[0].name || n1 != set.get(1)?.name {
+            return None;
+        }
+        let stride = p1.checked_sub(*p0)?;
+        u16::try_from(index)
+            .ok()?
+            .checked_mul(stride)?
+            .checked_add(*p0)
+    }
+}
+
+/// The records of ports `range` of the runtime at `route`, a window at a
+/// time, until the range or the runtime's ports end (a port it refuses to
+/// describe).
+async fn read_ports(
     runner: &Netrunner,
     route: &Route,
-    count: u16,
-    wanted: &[&Signature],
-) -> Result<BTreeMap<&'static str, u16>, HostError> {
-    let mut found = BTreeMap::new();
-    let mut next = 1u16;
-    while next < count && wanted.iter().any(|s| !found.contains_key(s.name)) {
-        let end = next.saturating_add(PORT_WINDOW).min(count);
-        let records = join_all((next..end).map(|i| runner.port_info(route, i)).collect()).await;
-        for r in records {
-            let r = r?;
-            if r.type_name != FUNCTION_PORT_TYPE {
-                continue;
-            }
-            if let Some(s) = wanted.iter().find(|s| s.name == r.name) {
-                found.entry(s.name).or_insert(r.index);
+    range: std::ops::Range<u16>,
+) -> Result<Vec<osap_host::map::PortRecord>, HostError> {
+    let mut out = Vec::new();
+    let mut next = range.start;
+    while next < range.end {
+        let end = next.saturating_add(PORT_WINDOW).min(range.end);
+        let window = join_all((next..end).map(|i| runner.port_info(route, i))).await;
+        for r in window {
+            match r {
+                Ok(r) => out.push(r),
+                Err(HostError::Remote { .. }) => return Ok(out),
+                Err(e) => return Err(e),
             }
         }
         next = end;
     }
-    Ok(found)
+    Ok(out)
 }
 
 /// Checks the function at `h` is `expected`: name, inputs and outputs
@@ -480,28 +534,4 @@ fn check(h: &FunctionHandle, expected: &Signature) -> Result<(), HaltFailure> {
             osap_host::som::describe(h.outputs())
         ),
     })
-}
-
-/// Runs `futures` concurrently; their outputs in order.
-async fn join_all<F: Future>(futures: Vec<F>) -> Vec<F::Output> {
-    let mut futures: Vec<Pin<Box<F>>> = futures.into_iter().map(Box::pin).collect();
-    let mut outputs: Vec<Option<F::Output>> = futures.iter().map(|_| None).collect();
-    std::future::poll_fn(|cx| {
-        let mut pending = false;
-        for (f, o) in futures.iter_mut().zip(outputs.iter_mut()) {
-            if o.is_none() {
-                match f.as_mut().poll(cx) {
-                    Poll::Ready(v) => *o = Some(v),
-                    Poll::Pending => pending = true,
-                }
-            }
-        }
-        if pending {
-            Poll::Pending
-        } else {
-            Poll::Ready(())
-        }
-    })
-    .await;
-    outputs.into_iter().flatten().collect()
 }
