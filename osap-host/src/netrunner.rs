@@ -556,8 +556,13 @@ async fn scan_as(
             }
         }
         // A full scan asks across one link at a time; a scan for runtimes
-        // across every link of a runtime at once.
-        let batch = if read_ports { 1 } else { targets.len().max(1) };
+        // across the links of a runtime at once, as many as a
+        // microcontroller's link holds.
+        let batch = if read_ports {
+            1
+        } else {
+            usize::from(osap_core::stack::DEFAULT_LINK_QUOTA)
+        };
         for chunk in targets.chunks(batch) {
             if !more {
                 break;
@@ -811,11 +816,24 @@ async fn describe(
         }
         (name, type_name, links)
     } else {
-        tokio::join!(
+        // Name, type and the first two links at once, then the others as
+        // many at a time: no more than a microcontroller's link holds.
+        let at_once = usize::from(osap_core::stack::DEFAULT_LINK_QUOTA);
+        let indices: Vec<u8> = (0..info.link_count).collect();
+        let (name, type_name, mut links) = tokio::join!(
             runner.name(route),
             runner.type_name(route),
-            join_all((0..info.link_count).map(|index| runner.link_info(route, index)))
-        )
+            join_all(
+                indices
+                    .iter()
+                    .take(at_once - 2)
+                    .map(|&index| runner.link_info(route, index))
+            )
+        );
+        for chunk in indices[indices.len().min(at_once - 2)..].chunks(at_once) {
+            links.extend(join_all(chunk.iter().map(|&index| runner.link_info(route, index))).await);
+        }
+        (name, type_name, links)
     };
     let name = match name {
         Ok(n) => n,

@@ -40,11 +40,13 @@ use crate::config::{MachineFile, Output, Tool};
 use crate::network::{file_route, Entry};
 
 /// Port information requests in flight at once per module, while its
-/// ports are searched for the functions a halt needs.
-const PORT_WINDOW: u16 = 16;
+/// ports are searched for the functions a halt needs: what a
+/// microcontroller's link holds at once (osap-core's default link quota),
+/// so none waits behind the others long enough to expire.
+const PORT_WINDOW: u16 = osap_core::stack::DEFAULT_LINK_QUOTA as u16;
 /// The ports read first (1 to this, exclusive): enough to see where a
-/// module's first two functions start, and so where each of its kind's
-/// functions is.
+/// module's first two functions start (a function's control port, then
+/// its two pipe slots), and so where each of its kind's functions is.
 const FIRST_PORTS: u16 = 1 + PORT_WINDOW;
 
 /// Why a module (or a tool) could not be confirmed halted (or off).
@@ -215,6 +217,12 @@ pub async fn halt(host: &Host, cfg: &MachineFile, entry: Entry) -> Result<HaltRe
         // `find_modules`): the scan ends when every name is met.
         let mut unmet: std::collections::BTreeSet<&String> = named.keys().collect();
         let scan = netrunner::scan_runtimes(host, &options, |r| {
+            tracing::debug!(
+                "halt: met {:?} at route {:?} after {:.1} ms",
+                r.name,
+                r.route,
+                start.elapsed().as_secs_f64() * 1e3
+            );
             if unmet.remove(&r.name) {
                 let _ = tx.send(r.clone());
             }
@@ -354,27 +362,20 @@ async fn halt_module(
             })
             .collect();
     };
-    // Its first ports (and its name, when found by route) at once.
-    let (first, name) = match &out.runtime {
-        Some(n) => (
-            read_ports(&ctx.runner, &route, 1..FIRST_PORTS).await,
-            Ok(n.clone()),
-        ),
-        None => tokio::join!(
-            read_ports(&ctx.runner, &route, 1..FIRST_PORTS),
-            ctx.runner.name(&route)
-        ),
-    };
-    let first = match first {
-        Ok(p) => p,
+    // Its first ports say where its functions are.
+    let ports = match read_ports(&ctx.runner, &route, 1..FIRST_PORTS).await {
+        Ok(p) => Ports::new(p),
         Err(e) => {
             unreached(&mut out, e.into());
             return out;
         }
     };
-    let runtime = name.unwrap_or_else(|_| format!("the runtime at route {:?}", out.route));
-    out.runtime = Some(runtime.clone());
-    let ports = Ports::new(first);
+    // Named in messages only: the module found by route is asked its name
+    // beside the halt's first request.
+    let runtime = out
+        .runtime
+        .clone()
+        .unwrap_or_else(|| format!("modules.{key}"));
     let handle = |sig: &'static Signature| {
         let ctx = ctx.clone();
         let runtime = runtime.clone();
@@ -407,8 +408,15 @@ async fn halt_module(
             }
         }
     };
+    let halt = if out.runtime.is_some() {
+        handle(&signature::halt).await
+    } else {
+        let (h, name) = tokio::join!(handle(&signature::halt), ctx.runner.name(&route));
+        out.runtime = name.ok();
+        h
+    };
     out.sent_after = Some(ctx.start.elapsed());
-    out.halt = match handle(&signature::halt).await {
+    out.halt = match halt {
         Ok(h) => h.call_idempotent(&[]).await.map(|_| ()).map_err(Into::into),
         Err(e) => Err(e),
     };
