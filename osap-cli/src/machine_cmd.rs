@@ -2,7 +2,7 @@
 
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
@@ -70,44 +70,49 @@ impl Target {
             };
             Machine::simulate_with(cfg, SimOptions { time }).await
         } else {
-            let mut links: Vec<Link> = self
-                .ports
-                .iter()
-                .map(|p| Link::Serial {
-                    path: p.clone(),
-                    baud: self.baud,
-                })
-                .collect();
-            let key = match &self.key {
-                Some(file) => Some(
-                    osap_host::link::noise::Key::load(file)
-                        .map_err(|e| Failure::refused(e.to_string()))?,
-                ),
-                None => None,
-            };
-            links.extend(self.tcp.iter().map(|a| match &key {
-                Some(key) => Link::TcpKeyed {
-                    addr: a.clone(),
-                    key: key.clone(),
-                },
-                None => Link::Tcp(a.clone()),
-            }));
-            if links.is_empty() {
-                let found =
-                    serial::available_ports().map_err(|e| Failure::refused(e.to_string()))?;
-                links.extend(found.into_iter().map(|c| Link::Serial {
-                    path: c.path,
-                    baud: self.baud,
-                }));
-            }
-            if links.is_empty() {
-                return Err(Failure::refused(
-                    "no modules found: plug them in over USB, name them with --port PATH or --tcp ADDR, or add --sim to run on simulated modules",
-                ));
-            }
-            Machine::connect(cfg, &links).await
+            Machine::connect(cfg, &self.links()?).await
         };
         result.map_err(Failure::from_machine)
+    }
+
+    /// The links to the machine: --port and --tcp as given, else every
+    /// osap-rs USB device plugged in.
+    pub(crate) fn links(&self) -> Result<Vec<Link>, Failure> {
+        let mut links: Vec<Link> = self
+            .ports
+            .iter()
+            .map(|p| Link::Serial {
+                path: p.clone(),
+                baud: self.baud,
+            })
+            .collect();
+        let key = match &self.key {
+            Some(file) => Some(
+                osap_host::link::noise::Key::load(file)
+                    .map_err(|e| Failure::refused(e.to_string()))?,
+            ),
+            None => None,
+        };
+        links.extend(self.tcp.iter().map(|a| match &key {
+            Some(key) => Link::TcpKeyed {
+                addr: a.clone(),
+                key: key.clone(),
+            },
+            None => Link::Tcp(a.clone()),
+        }));
+        if links.is_empty() {
+            let found = serial::available_ports().map_err(|e| Failure::refused(e.to_string()))?;
+            links.extend(found.into_iter().map(|c| Link::Serial {
+                path: c.path,
+                baud: self.baud,
+            }));
+        }
+        if links.is_empty() {
+            return Err(Failure::refused(
+                "no modules found: plug them in over USB, name them with --port PATH or --tcp ADDR, or add --sim to run on simulated modules",
+            ));
+        }
+        Ok(links)
     }
 }
 
@@ -555,22 +560,6 @@ pub async fn move_to(
         .map_err(Failure::from_machine)?;
     println!("moved; position {}", show(&machine));
     machine.stop().await.map_err(Failure::from_machine)?;
-    Ok(ExitCode::SUCCESS)
-}
-
-/// `osap halt MACHINE`: every motor module stops at once.
-pub async fn halt(target: Target) -> Result<ExitCode, Failure> {
-    let cfg = target.load()?;
-    let machine = target.start(&cfg).await?;
-    machine
-        .emergency_stop()
-        .await
-        .map_err(Failure::from_machine)?;
-    println!(
-        "halted every motor of {} (power-cycle the motors or run `osap home` to move again)",
-        cfg.name
-    );
-    let _ = tokio::time::timeout(Duration::from_secs(1), machine.stop()).await;
     Ok(ExitCode::SUCCESS)
 }
 

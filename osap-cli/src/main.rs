@@ -19,6 +19,7 @@ use std::time::Duration;
 mod call_cmd;
 mod capture_cmd;
 mod flash_cmd;
+mod halt_cmd;
 mod level_cmd;
 mod machine_cmd;
 mod resonance_cmd;
@@ -207,7 +208,10 @@ enum Command {
         #[arg(long)]
         rate: Option<f64>,
     },
-    /// Stop every motor of a machine at once (each module's halt).
+    /// Halt every module of a machine at once and switch every tool off,
+    /// from the network alone: nothing is set up and no clock waited for,
+    /// so it stops a machine another process is running. Exit code 0 when
+    /// every module confirmed, 1 when one could not be reached.
     Halt {
         #[command(flatten)]
         target: machine_cmd::Target,
@@ -477,7 +481,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
             coords,
             rate,
         } => machine_result(machine_cmd::move_to(target, coords, rate).await),
-        Command::Halt { target } => machine_result(machine_cmd::halt(target).await),
+        Command::Halt { target } => machine_result(halt_cmd::halt(target, started).await),
         Command::Scan {
             connect: args,
             output,

@@ -44,8 +44,9 @@ pub struct ServeArgs {
     /// `freeze MODULE`, `thaw MODULE`, `links`, `stats LINK` (LINK: its
     /// index or its ends, e.g. hub-a), `outputs MODULE` (what its PWM
     /// outputs and digital pins drive now: `ok pwm0=0.050 pwm1=0.000 d0=0
-    /// ...`). Each is answered on standard output with a line starting
-    /// `ok` or `error`.
+    /// ...`) and `position MODULE` (where its motor's carriage is: units and
+    /// steps). Each is answered on standard output with a line starting `ok`
+    /// or `error`.
     #[arg(long)]
     pub control: bool,
 }
@@ -101,11 +102,10 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
         if keyed { " with a key" } else { "" }
     );
     if control {
-        let injector = machine.injector();
         tokio::select! {
             r = tokio::signal::ctrl_c() => r.map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?,
             // Standard input closed: keep serving until Ctrl-C.
-            () = control_loop(&injector) => tokio::signal::ctrl_c()
+            () = control_loop(&machine) => tokio::signal::ctrl_c()
                 .await
                 .map_err(|e| format!("cannot wait for Ctrl-C: {e}"))?,
         }
@@ -120,26 +120,46 @@ pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
 }
 
 /// Answers fault-injection commands from standard input until it closes.
-async fn control_loop(injector: &FaultInjector) {
+async fn control_loop(machine: &SimMachine) {
+    let injector = machine.injector();
     let mut lines = BufReader::new(tokio::io::stdin()).lines();
     while let Ok(Some(line)) = lines.next_line().await {
         let line = line.trim();
         if line.is_empty() {
             continue;
         }
-        let reply = control_command(injector, line).await;
+        let reply = control_command(machine, &injector, line).await;
         println!("{reply}");
     }
 }
 
 /// One control command's answer: a line starting `ok` or `error`.
-async fn control_command(injector: &FaultInjector, line: &str) -> String {
+async fn control_command(machine: &SimMachine, injector: &FaultInjector, line: &str) -> String {
     let words: Vec<&str> = line.split_whitespace().collect();
     match words.as_slice() {
         ["links"] => format!("ok links: {}", injector.links().join(", ")),
         ["outputs", module] => match injector.outputs(module) {
             Ok(outputs) => format!("ok {outputs}"),
             Err(e) => format!("error: {e}"),
+        },
+        ["position", name] => match machine.module(name).and_then(|m| m.module()) {
+            Some(m) => {
+                let (at, steps) = m.lock(|mm| {
+                    let motor = mm.board().motor();
+                    (motor.position(), motor.steps())
+                });
+                format!("ok position {name}: {at} units, {steps} steps")
+            }
+            None => format!(
+                "error: no module {name:?} with a motor (modules: {})",
+                machine
+                    .modules()
+                    .iter()
+                    .filter(|m| m.module().is_some())
+                    .map(|m| m.name())
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
         },
         ["stats", link] => match (injector.corruption(link), injector.link_stats(link)) {
             (Ok(c), Ok([a, b])) => format!(
@@ -164,7 +184,7 @@ async fn control_command(injector: &FaultInjector, line: &str) -> String {
                 }
                 Err(e) => format!("error: {fault}: {e}"),
             },
-            Err(e) => format!("error: {e} (or: links, stats LINK, outputs MODULE)"),
+            Err(e) => format!("error: {e} (or: links, stats LINK, outputs MODULE, position MODULE)"),
         },
     }
 }

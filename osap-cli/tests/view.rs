@@ -524,3 +524,163 @@ fn remote_access_needs_a_token() {
     // The page itself holds no data and needs none.
     assert_eq!(get_status(&addr, "/"), 200);
 }
+
+/// One HTTP/1.1 request with the headers given (`Host` among them); the
+/// status code and the body.
+fn request(
+    addr: &str,
+    method: &str,
+    path: &str,
+    headers: &[(&str, &str)],
+    body: &str,
+) -> (u16, String) {
+    let mut s = TcpStream::connect(addr).unwrap();
+    let mut text = format!("{method} {path} HTTP/1.1\r\n");
+    if !headers.iter().any(|(k, _)| *k == "Connection") {
+        text += "Connection: close\r\n";
+    }
+    for (k, v) in headers {
+        text += &format!("{k}: {v}\r\n");
+    }
+    if !body.is_empty() {
+        text += &format!(
+            "Content-Type: application/json\r\nContent-Length: {}\r\n",
+            body.len()
+        );
+    }
+    text += "\r\n";
+    text += body;
+    s.write_all(text.as_bytes()).unwrap();
+    let mut reply = String::new();
+    if headers.iter().any(|(k, _)| *k == "Upgrade") {
+        // An upgraded connection stays open: its status line is enough.
+        BufReader::new(s).read_line(&mut reply).unwrap();
+    } else {
+        s.read_to_string(&mut reply).unwrap();
+    }
+    let code = reply
+        .split_whitespace()
+        .nth(1)
+        .and_then(|c| c.parse().ok())
+        .unwrap_or(0);
+    let body = reply
+        .split_once("\r\n\r\n")
+        .map_or(String::new(), |(_, b)| b.to_string());
+    (code, body)
+}
+
+/// A page on another site in the same browser cannot drive the machine:
+/// a call whose Origin is not the view's page is refused and has no
+/// effect, and on loopback a request under any other Host name (a DNS
+/// rebinding page) is refused, page and API alike.
+#[test]
+fn requests_from_other_pages_are_refused() {
+    let _one = serial();
+    let topology = root().join("osap-sim/topologies/small-machine.toml");
+    let (_view, url, _lines) =
+        start_view(&["--sim", topology.to_str().unwrap(), "--http", "127.0.0.1:0"]);
+    let addr = addr_of(&url);
+    let port = addr.rsplit(':').next().unwrap().to_string();
+
+    // Host: the view's own names only.
+    for host in [
+        addr.clone(),
+        format!("localhost:{port}"),
+        format!("[::1]:{port}"),
+    ] {
+        let (code, _) = request(&addr, "GET", "/api/info", &[("Host", &host)], "");
+        assert_eq!(code, 200, "{host}");
+    }
+    for host in [
+        format!("evil.example:{port}"),
+        "localhost".into(),
+        String::new(),
+    ] {
+        for path in ["/api/info", "/", "/api/state"] {
+            let (code, body) = request(&addr, "GET", path, &[("Host", &host)], "");
+            assert_eq!(code, 403, "{host} {path}: {body}");
+            assert!(body.contains("DNS rebinding"), "{body}");
+        }
+    }
+
+    // Calls: x's set_enable, read back through get_status.
+    let own = format!("http://{addr}");
+    let call = |origin: Option<&str>, function: &str, args: &str| {
+        let mut headers = vec![("Host", addr.as_str())];
+        if let Some(o) = origin {
+            headers.push(("Origin", o));
+        }
+        let body = format!(r#"{{"runtime": "x", "function": "{function}", "args": [{args}]}}"#);
+        request(&addr, "POST", "/api/call", &headers, &body)
+    };
+    let enabled = |origin: Option<&str>| -> bool {
+        let (code, body) = call(origin, "get_status", "");
+        assert_eq!(code, 200, "{body}");
+        let v: Value = serde_json::from_str(&body).unwrap();
+        assert_eq!(v["ok"], true, "{v}");
+        v["outputs"][2]["value"].as_bool().unwrap()
+    };
+    let before = enabled(Some(&own));
+    let flip = if before { "\"false\"" } else { "\"true\"" };
+    for evil in [
+        "http://evil.example",
+        "null",
+        &format!("http://localhost:{port}"),
+    ] {
+        let (code, body) = call(Some(evil), "set_enable", flip);
+        assert_eq!(code, 403, "{evil}: {body}");
+        assert!(body.contains("its own page"), "{body}");
+    }
+    assert_eq!(enabled(None), before, "a refused call changed the module");
+    // The page itself, and a program (no Origin), may call.
+    let (code, body) = call(Some(&own), "set_enable", flip);
+    assert_eq!(code, 200, "{body}");
+    assert_eq!(enabled(None), !before);
+
+    // The state websocket: from the page only.
+    let upgrade = |origin: &str| {
+        request(
+            &addr,
+            "GET",
+            "/ws",
+            &[
+                ("Host", addr.as_str()),
+                ("Origin", origin),
+                ("Upgrade", "websocket"),
+                ("Connection", "Upgrade"),
+                ("Sec-WebSocket-Version", "13"),
+                ("Sec-WebSocket-Key", "dGhlIHNhbXBsZSBub25jZQ=="),
+            ],
+            "",
+        )
+        .0
+    };
+    assert_eq!(upgrade("http://evil.example"), 403);
+    assert_eq!(upgrade(&own), 101);
+}
+
+/// Off loopback the token guards the view, under whatever name the LAN
+/// gives the machine.
+#[test]
+fn off_loopback_any_host_name_with_the_token() {
+    let _one = serial();
+    let token = "0123456789abcdef0123";
+    let topology = root().join("osap-sim/topologies/small-machine.toml");
+    let (_view, url, _lines) = start_view(&[
+        "--sim",
+        topology.to_str().unwrap(),
+        "--http",
+        "0.0.0.0:0",
+        "--token",
+        token,
+    ]);
+    let port = addr_of(&url).rsplit(':').next().unwrap().to_string();
+    let addr = format!("127.0.0.1:{port}");
+    let lan = format!("plotter.lan:{port}");
+    let path = format!("/api/info?token={token}");
+    assert_eq!(request(&addr, "GET", &path, &[("Host", &lan)], "").0, 200);
+    assert_eq!(
+        request(&addr, "GET", "/api/info", &[("Host", &lan)], "").0,
+        401
+    );
+}

@@ -25,6 +25,7 @@ use crate::map::{
 };
 use crate::port::{Datagram, PortHandle};
 use crate::{Host, HostError};
+use futures_util::future::join_all;
 use osap_core::clock::{ClockStatus, SyncState, TimeConfig};
 use osap_core::codec::{Reader, Writer};
 use osap_core::counters::LinkCounters;
@@ -466,7 +467,34 @@ pub async fn scan(host: &Host, options: &ScanOptions) -> Result<ScanReport, Host
 pub async fn scan_with_progress(
     host: &Host,
     options: &ScanOptions,
+    progress: impl FnMut(usize, usize),
+) -> Result<ScanReport, HostError> {
+    scan_as(host, options, true, progress, |_| true).await
+}
+
+/// A scan for runtimes, not their functions: it reads no ports (each
+/// record's `ports` is empty; a module's are most of a full scan's
+/// requests), asks each runtime its name, type and links at once, and
+/// calls `found` with each runtime the moment it is described, nearest
+/// first. It stops as soon as `found` returns false. For a caller that
+/// looks for a few runtimes by name and must act on each at once (`osap
+/// halt`): those found early need not wait for the rest.
+pub async fn scan_runtimes(
+    host: &Host,
+    options: &ScanOptions,
+    found: impl FnMut(&RuntimeRecord) -> bool,
+) -> Result<ScanReport, HostError> {
+    scan_as(host, options, false, |_, _| {}, found).await
+}
+
+/// The scan: every runtime's ports read one by one (`read_ports`), or
+/// none and the rest of a runtime's records asked at once.
+async fn scan_as(
+    host: &Host,
+    options: &ScanOptions,
+    read_ports: bool,
     mut progress: impl FnMut(usize, usize),
+    mut each: impl FnMut(&RuntimeRecord) -> bool,
 ) -> Result<ScanReport, HostError> {
     let start = Instant::now();
     let mut runner = Netrunner::new(host).await?;
@@ -487,19 +515,23 @@ pub async fn scan_with_progress(
     let info = runner.runtime_info(&local, next_id).await?;
     sent_to.insert(next_id, 0);
     next_id = next_id.wrapping_add(1);
+    let (record, failed) = describe(&runner, &local, &info, info.packet_size, read_ports).await;
+    failures.extend(failed);
+    let mut more = each(&record);
     found.push(Found {
-        record: describe(&runner, &local, &info, info.packet_size, &mut failures).await,
+        record,
         route: local,
     });
     queue.push_back(0);
     progress(1, queue.len());
 
-    while let Some(i) = queue.pop_front() {
+    while let Some(i) = queue.pop_front().filter(|_| more) {
         let here = found[i].route;
         let link_list = found[i].record.links.clone();
         // A point-to-point link leads to one neighbour; a bus head's link
         // to each drop it knows, a drop's to its head.
-        let targets = link_list.iter().filter(|l| l.open).flat_map(|link| {
+        let mut targets = Vec::new();
+        for link in link_list.iter().filter(|l| l.open) {
             let hops: Vec<osap_core::Instruction> = match &link.bus {
                 None => vec![osap_core::Instruction::LinkForward(link.index)],
                 Some(bus) => bus
@@ -511,79 +543,151 @@ pub async fn scan_with_progress(
                     })
                     .collect(),
             };
-            hops.into_iter().map(move |hop| (link, hop))
-        });
-        for (link, hop) in targets {
-            let Ok(route) = here.with_hop(hop) else {
-                failures.push(ScanFailure {
-                    route: hops(&here),
-                    error: format!("route through link {} is too long", link.index),
+            for hop in hops {
+                let Ok(route) = here.with_hop(hop) else {
+                    failures.push(ScanFailure {
+                        route: hops_of(&here),
+                        error: format!("route through link {} is too long", link.index),
+                    });
+                    continue;
+                };
+                let mtu = here.mtu().min(link.mtu);
+                targets.push((link, route.with_mtu(mtu), mtu));
+            }
+        }
+        // A full scan asks across one link at a time; a scan for runtimes
+        // across the links of a runtime at once, as many as a
+        // microcontroller's link holds.
+        let batch = if read_ports {
+            1
+        } else {
+            usize::from(osap_core::stack::DEFAULT_LINK_QUOTA)
+        };
+        for chunk in targets.chunks(batch) {
+            if !more {
+                break;
+            }
+            let ids: Vec<u32> = chunk
+                .iter()
+                .map(|_| {
+                    let id = next_id;
+                    next_id = next_id.wrapping_add(1);
+                    id
+                })
+                .collect();
+            let replies = join_all(
+                chunk
+                    .iter()
+                    .zip(&ids)
+                    .map(|((link, route, _), id)| probe(&runner, &here, route, link, *id)),
+            )
+            .await;
+            let mut answered: Vec<Option<RuntimeInfo>> = Vec::new();
+            for ((link, route, _), reply) in chunk.iter().zip(replies) {
+                answered.push(match reply {
+                    Probe::Answered(info) => {
+                        // Whatever its runtime heard lately, a neighbour is there.
+                        set_heard(&mut found[i].record, link.index, true);
+                        Some(info)
+                    }
+                    Probe::NoNeighbour => {
+                        set_heard(&mut found[i].record, link.index, false);
+                        None
+                    }
+                    Probe::Failed(error) => {
+                        // Listed as a failure, so not as a link with no neighbour.
+                        set_heard(&mut found[i].record, link.index, true);
+                        failures.push(ScanFailure {
+                            route: hops_of(route),
+                            error,
+                        });
+                        None
+                    }
                 });
-                continue;
+            }
+            // Probes of one batch that reached the same runtime: each reply
+            // names the id that runtime held before, another of the batch's.
+            let first_of = |k: usize| -> usize {
+                let mut at = k;
+                for _ in 0..chunk.len() {
+                    let Some(info) = &answered[at] else { break };
+                    match ids.iter().position(|id| *id == info.previous_scan_id) {
+                        Some(j) if answered[j].is_some() && j != at => at = j,
+                        _ => break,
+                    }
+                }
+                at
             };
-            let mtu = found[i].route.mtu().min(link.mtu);
-            let route = route.with_mtu(mtu);
-            let id = next_id;
-            next_id = next_id.wrapping_add(1);
-            let info = match probe(&runner, &here, &route, link, id).await {
-                Probe::Answered(info) => info,
-                Probe::NoNeighbour => {
-                    set_heard(&mut found[i].record, link.index, false);
+            // The runtimes new to this scan, described (at once).
+            let mut new: Vec<usize> = Vec::new();
+            for (k, info) in answered.iter().enumerate() {
+                let Some(info) = info else { continue };
+                if first_of(k) != k || sent_to.contains_key(&info.previous_scan_id) {
                     continue;
                 }
-                Probe::Failed(error) => {
-                    // Listed as a failure, so not as a link with no neighbour.
-                    set_heard(&mut found[i].record, link.index, true);
+                if found.len() + new.len() >= options.max_runtimes {
                     failures.push(ScanFailure {
-                        route: hops(&route),
-                        error,
+                        route: hops_of(&chunk[k].1),
+                        error: format!("stopped at {} runtimes", options.max_runtimes),
                     });
                     continue;
                 }
-            };
-            // Answered: whatever its runtime heard lately, a neighbour is there.
-            set_heard(&mut found[i].record, link.index, true);
-            let far = match sent_to.get(&info.previous_scan_id) {
-                // Seen before in this scan: a loop, or the way back.
-                Some(&known) => known,
-                None => {
-                    if found.len() >= options.max_runtimes {
-                        failures.push(ScanFailure {
-                            route: hops(&route),
-                            error: format!("stopped at {} runtimes", options.max_runtimes),
-                        });
-                        continue;
-                    }
-                    let route = route.with_mtu(mtu.min(info.packet_size));
-                    let record = describe(
-                        &runner,
-                        &route,
-                        &info,
-                        mtu.min(info.packet_size),
-                        &mut failures,
-                    )
-                    .await;
-                    found.push(Found { record, route });
-                    queue.push_back(found.len() - 1);
-                    progress(found.len(), queue.len());
-                    found.len() - 1
+                new.push(k);
+            }
+            let runner = &runner;
+            let described = join_all(new.iter().filter_map(|&k| {
+                let info = answered[k].as_ref()?;
+                let (_, route, mtu) = &chunk[k];
+                let mtu = (*mtu).min(info.packet_size);
+                let route = route.with_mtu(mtu);
+                Some(async move {
+                    let (record, failed) = describe(runner, &route, info, mtu, read_ports).await;
+                    (k, route, record, failed)
+                })
+            }))
+            .await;
+            let mut far_of: HashMap<usize, usize> = HashMap::new();
+            for (k, route, record, failed) in described {
+                failures.extend(failed);
+                if more {
+                    more = each(&record);
                 }
-            };
-            sent_to.insert(id, far);
-            let a = LinkEnd {
-                runtime: i,
-                link: link.index,
-            };
-            let b = LinkEnd {
-                runtime: far,
-                link: info.arrival_link,
-            };
-            // Each link is met from both ends; keep it once.
-            if !links
-                .iter()
-                .any(|e| (e.a == b && e.b == a) || (e.a == a && e.b == b))
-            {
-                links.push(LinkEdge { a, b });
+                found.push(Found { record, route });
+                queue.push_back(found.len() - 1);
+                progress(found.len(), queue.len());
+                far_of.insert(k, found.len() - 1);
+            }
+            for (k, info) in answered.iter().enumerate() {
+                let Some(info) = info else { continue };
+                let first = first_of(k);
+                let far = match far_of.get(&first) {
+                    Some(&far) => far,
+                    // Seen before in this scan: a loop, or the way back.
+                    None => match answered[first]
+                        .as_ref()
+                        .and_then(|f| sent_to.get(&f.previous_scan_id))
+                    {
+                        Some(&known) => known,
+                        // Past the runtime limit.
+                        None => continue,
+                    },
+                };
+                sent_to.insert(ids[k], far);
+                let a = LinkEnd {
+                    runtime: i,
+                    link: chunk[k].0.index,
+                };
+                let b = LinkEnd {
+                    runtime: far,
+                    link: info.arrival_link,
+                };
+                // Each link is met from both ends; keep it once.
+                if !links
+                    .iter()
+                    .any(|e| (e.a == b && e.b == a) || (e.a == a && e.b == b))
+                {
+                    links.push(LinkEdge { a, b });
+                }
             }
         }
     }
@@ -657,7 +761,7 @@ fn set_heard(record: &mut RuntimeRecord, index: u8, heard: bool) {
     }
 }
 
-fn hops(route: &Route) -> Vec<u8> {
+fn hops_of(route: &Route) -> Vec<u8> {
     route
         .hops()
         .filter_map(|h| match h {
@@ -685,29 +789,60 @@ fn route_drops(route: &Route) -> Vec<Option<u8>> {
     }
 }
 
-/// Asks a newly found runtime everything about itself; what it fails to
-/// answer is recorded and left empty.
+/// Asks a newly found runtime everything about itself (its ports only if
+/// `read_ports`); what it fails to answer is recorded and left empty.
 async fn describe(
     runner: &Netrunner,
     route: &Route,
     info: &RuntimeInfo,
     route_mtu: u16,
-    failures: &mut Vec<ScanFailure>,
-) -> RuntimeRecord {
+    read_ports: bool,
+) -> (RuntimeRecord, Vec<ScanFailure>) {
+    let mut failures = Vec::new();
     let mut fail = |what: &str, e: HostError| {
         failures.push(ScanFailure {
-            route: hops(route),
+            route: hops_of(route),
             error: format!("{what}: {e}"),
         })
     };
-    let name = match runner.name(route).await {
+    // Asked one after another in a full scan (as it always was), all at
+    // once in a scan for runtimes.
+    let (name, type_name, link_infos) = if read_ports {
+        let name = runner.name(route).await;
+        let type_name = runner.type_name(route).await;
+        let mut links = Vec::new();
+        for index in 0..info.link_count {
+            links.push(runner.link_info(route, index).await);
+        }
+        (name, type_name, links)
+    } else {
+        // Name, type and the first two links at once, then the others as
+        // many at a time: no more than a microcontroller's link holds.
+        let at_once = usize::from(osap_core::stack::DEFAULT_LINK_QUOTA);
+        let indices: Vec<u8> = (0..info.link_count).collect();
+        let (name, type_name, mut links) = tokio::join!(
+            runner.name(route),
+            runner.type_name(route),
+            join_all(
+                indices
+                    .iter()
+                    .take(at_once - 2)
+                    .map(|&index| runner.link_info(route, index))
+            )
+        );
+        for chunk in indices[indices.len().min(at_once - 2)..].chunks(at_once) {
+            links.extend(join_all(chunk.iter().map(|&index| runner.link_info(route, index))).await);
+        }
+        (name, type_name, links)
+    };
+    let name = match name {
         Ok(n) => n,
         Err(e) => {
             fail("name", e);
             String::new()
         }
     };
-    let type_name = match runner.type_name(route).await {
+    let type_name = match type_name {
         Ok(n) => n,
         Err(e) => {
             fail("type name", e);
@@ -715,33 +850,34 @@ async fn describe(
         }
     };
     let mut links = Vec::new();
-    for index in 0..info.link_count {
-        match runner.link_info(route, index).await {
+    for (index, l) in link_infos.into_iter().enumerate() {
+        match l {
             Ok(l) => links.push(l),
             Err(e) => fail(&format!("link {index}"), e),
         }
     }
     let mut ports = Vec::new();
-    for index in 0..info.port_count {
+    for index in (0..info.port_count).filter(|_| read_ports) {
         match runner.port_info(route, index).await {
             Ok(p) => ports.push(p),
             Err(e) => fail(&format!("port {index}"), e),
         }
     }
     let [a, b, c] = info.version;
-    RuntimeRecord {
+    let record = RuntimeRecord {
         name,
         type_name,
         version: format!("{a}.{b}.{c}"),
         build: info.build,
         packet_size: info.packet_size,
         tier: info.tier,
-        route: hops(route),
+        route: hops_of(route),
         route_drops: route_drops(route),
         route_mtu,
         links,
         ports,
-    }
+    };
+    (record, failures)
 }
 
 /// Renames the runtime at `route`; returns the name as stored.

@@ -73,6 +73,58 @@ async fn a_loop_is_found_once() {
 }
 
 #[tokio::test]
+async fn a_scan_for_runtimes_maps_what_a_scan_maps_but_the_ports() {
+    // h - a, a = b twice (two links between them: both probes of a batch
+    // meet b), b - c - a (a ring).
+    let (h, a, b, c) = (host("h"), host("a"), host("b"), host("c"));
+    memory::connect(&h, &a).await.unwrap();
+    memory::connect(&a, &b).await.unwrap();
+    memory::connect(&a, &b).await.unwrap();
+    memory::connect(&b, &c).await.unwrap();
+    memory::connect(&c, &a).await.unwrap();
+    let full = netrunner::scan(&h, &ScanOptions::default()).await.unwrap();
+    let mut seen = Vec::new();
+    let quick = netrunner::scan_runtimes(&h, &ScanOptions::default(), |r| {
+        seen.push(r.name.clone());
+        true
+    })
+    .await
+    .unwrap();
+    assert!(quick.failures.is_empty(), "{:?}", quick.failures);
+    assert_eq!(seen, ["h", "a", "b", "c"]);
+    assert_eq!(full.map.runtimes.len(), 4);
+    let mut expected = full.map.clone();
+    for r in &mut expected.runtimes {
+        r.ports.clear();
+    }
+    let sorted = |mut m: NetworkMap| {
+        m.links
+            .sort_by_key(|e| (e.a.runtime, e.a.link, e.b.runtime, e.b.link));
+        m
+    };
+    assert_eq!(sorted(quick.map), sorted(expected));
+    assert!(full.map.runtimes.iter().all(|r| !r.ports.is_empty()));
+}
+
+#[tokio::test]
+async fn a_scan_for_runtimes_ends_when_told() {
+    let (h, a, b, c) = (host("h"), host("a"), host("b"), host("c"));
+    memory::connect(&h, &a).await.unwrap();
+    memory::connect(&a, &b).await.unwrap();
+    memory::connect(&b, &c).await.unwrap();
+    let report = netrunner::scan_runtimes(&h, &ScanOptions::default(), |r| r.name != "b")
+        .await
+        .unwrap();
+    let names: Vec<_> = report
+        .map
+        .runtimes
+        .iter()
+        .map(|r| r.name.as_str())
+        .collect();
+    assert_eq!(names, ["h", "a", "b"]);
+}
+
+#[tokio::test]
 async fn renames_survive_a_rescan() {
     let (h, a) = (host("h"), host("a"));
     memory::connect(&h, &a).await.unwrap();

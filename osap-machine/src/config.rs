@@ -165,7 +165,9 @@ pub struct ModuleRef {
     /// The module's name, as set by `osap rename`.
     #[serde(default)]
     pub name: Option<String>,
-    /// The module's route from the host: link indices, one per hop.
+    /// The module's route from the machine's entry point (this host, or
+    /// the process that serves the machine: see
+    /// [`crate::network::Entry`]): link indices, one per hop.
     #[serde(default)]
     pub route: Option<Vec<u16>>,
 }

@@ -25,16 +25,22 @@
 //!   [`job::Program`], and running it.
 //! - [`capture`]: any numeric function output recorded beside a job
 //!   ([`Machine::record`]) to Parquet or CSV, on the synchronized clock.
+//! - [`network`]: how a machine is reached (links, its entry point) and
+//!   its modules found and checked, without a [`Machine`];
+//! - [`halt`]: every module of a machine halted and every tool switched
+//!   off from the network alone (`osap halt`).
 #![deny(missing_docs)]
 
 pub mod capture;
 pub mod config;
 pub mod gcode;
+pub mod halt;
 pub mod job;
 pub mod level;
 pub mod machine;
 pub mod mesh;
 pub mod module_limits;
+pub mod network;
 pub mod record;
 pub mod resonance;
 pub mod sim;

@@ -5,6 +5,7 @@
 use osap_host::{Host, HostConfig};
 use osap_machine::config::MachineFile;
 use osap_machine::machine::Link;
+use osap_machine::network::FindError;
 use osap_machine::{Machine, MachineError};
 use osap_sim::machine::SimMachine;
 
@@ -111,7 +112,7 @@ async fn connect_without_links_or_modules_says_why() {
         .err()
         .unwrap();
     assert!(
-        matches!(&e, MachineError::ModuleNotFound { key, .. } if key == "x"),
+        matches!(&e, MachineError::Module(FindError::NotFound { key, .. }) if key == "x"),
         "{e}"
     );
     assert!(e.to_string().contains("mill-x"), "{e}");

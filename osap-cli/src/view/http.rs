@@ -2,6 +2,15 @@
 //! description, the state websocket, function calls and captures. With a
 //! token, every request but the page's own files must carry it
 //! (`?token=` or `Authorization: Bearer`).
+//!
+//! Against other pages in the same browser: a request that changes
+//! state (any but GET) or opens the state websocket is refused (403) when
+//! its `Origin` is not the view's own page. On a loopback address every
+//! request is refused whose `Host` is not the view's address
+//! (`127.0.0.1`, `localhost` or `[::1]` with its port): a page whose name
+//! was rebound to 127.0.0.1 (DNS rebinding) would otherwise be the view's
+//! own origin. Off loopback the token guards it, and the Host is whatever
+//! name the LAN gives the machine.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -41,6 +50,8 @@ pub(crate) struct App {
     pub latest: Arc<std::sync::Mutex<String>>,
     pub token: Option<String>,
     pub captures: Option<PathBuf>,
+    /// The address the view listens on.
+    pub listen: std::net::SocketAddr,
 }
 
 /// Serves until the task is aborted.
@@ -67,6 +78,7 @@ pub(crate) async fn serve(listener: tokio::net::TcpListener, app: App) {
             get(|| async { page(STYLE, "text/css; charset=utf-8") }),
         )
         .merge(api)
+        .layer(middleware::from_fn_with_state(app.clone(), same_page))
         .with_state(app);
     if let Err(e) = axum::serve(listener, router).await {
         eprintln!("osap view: the server stopped: {e}");
@@ -112,6 +124,80 @@ async fn require_token(
         }
     }
     next.run(request).await
+}
+
+/// Refuses (403) a request from another page: one that changes state
+/// or opens the websocket with an `Origin` that is not the view's own
+/// page, and on a loopback address any request whose `Host` is not the
+/// view's address.
+async fn same_page(
+    State(app): State<App>,
+    headers: HeaderMap,
+    request: Request,
+    next: Next,
+) -> Response {
+    let header = |name| headers.get(name).and_then(|v| v.to_str().ok());
+    let host = header(header::HOST);
+    if let Err(why) = check_host(app.listen, host) {
+        return (StatusCode::FORBIDDEN, why).into_response();
+    }
+    let changes =
+        request.method() != axum::http::Method::GET || headers.contains_key(header::UPGRADE);
+    if changes {
+        if let Err(why) = check_origin(header(header::ORIGIN), host) {
+            return (StatusCode::FORBIDDEN, why).into_response();
+        }
+    }
+    next.run(request).await
+}
+
+/// On a loopback address, `host` must name it: its own text, or
+/// `localhost`, `127.0.0.1` or `[::1]` with its port (the port may be left
+/// out when it is 80).
+fn check_host(listen: std::net::SocketAddr, host: Option<&str>) -> Result<(), String> {
+    if !listen.ip().is_loopback() {
+        return Ok(());
+    }
+    let port = listen.port();
+    let host = host.unwrap_or("").to_ascii_lowercase();
+    let mut names = vec![
+        listen.to_string(),
+        format!("localhost:{port}"),
+        format!("127.0.0.1:{port}"),
+        format!("[::1]:{port}"),
+    ];
+    if port == 80 {
+        names.extend([
+            listen.ip().to_string(),
+            "localhost".into(),
+            "127.0.0.1".into(),
+            "[::1]".into(),
+        ]);
+    }
+    if names.contains(&host) {
+        Ok(())
+    } else {
+        Err(format!(
+            "Host {host:?} is not this view's address: open http://{listen}/ (a page on another name that reaches this port may be a DNS rebinding attack)"
+        ))
+    }
+}
+
+/// A browser's `origin` must be the view's own page: `http://` and the
+/// request's `host`. No Origin at all is a program, not a page (browsers
+/// send one with every POST and websocket).
+fn check_origin(origin: Option<&str>, host: Option<&str>) -> Result<(), String> {
+    let Some(origin) = origin else {
+        return Ok(());
+    };
+    let own = host.map(|h| format!("http://{h}"));
+    if own.is_some_and(|own| own.eq_ignore_ascii_case(origin)) {
+        Ok(())
+    } else {
+        Err(format!(
+            "Origin {origin:?} is not this view's page: osap view takes calls only from its own page"
+        ))
+    }
 }
 
 async fn info(State(app): State<App>) -> Json<Value> {
@@ -313,6 +399,53 @@ mod tests {
         assert!(!token_matches("abcdefghijklmnop", "abcdefghijklmnoq"));
         assert!(!token_matches("abcdefghijklmnop", "abcdefghijklmno"));
         assert!(!token_matches("abcdefghijklmnop", ""));
+    }
+
+    #[test]
+    fn a_loopback_view_answers_only_to_its_own_names() {
+        let at: std::net::SocketAddr = "127.0.0.1:7078".parse().unwrap();
+        for ok in [
+            "127.0.0.1:7078",
+            "localhost:7078",
+            "LocalHost:7078",
+            "[::1]:7078",
+        ] {
+            assert_eq!(check_host(at, Some(ok)), Ok(()), "{ok}");
+        }
+        for bad in [
+            "evil.example:7078",
+            "localhost",
+            "127.0.0.1:7079",
+            "localhost.evil.example:7078",
+            "",
+        ] {
+            let e = check_host(at, Some(bad)).unwrap_err();
+            assert!(e.contains("DNS rebinding"), "{e}");
+        }
+        assert!(check_host(at, None).is_err());
+        // Port 80 may be left out.
+        let web: std::net::SocketAddr = "127.0.0.1:80".parse().unwrap();
+        assert_eq!(check_host(web, Some("localhost")), Ok(()));
+        // Off loopback, any name the LAN gives it (the token guards it).
+        let lan: std::net::SocketAddr = "0.0.0.0:7078".parse().unwrap();
+        assert_eq!(check_host(lan, Some("plotter.local:7078")), Ok(()));
+    }
+
+    #[test]
+    fn only_the_own_page_may_change_state() {
+        let host = Some("127.0.0.1:7078");
+        assert_eq!(check_origin(Some("http://127.0.0.1:7078"), host), Ok(()));
+        assert_eq!(check_origin(None, host), Ok(()));
+        for bad in [
+            "http://evil.example",
+            "http://127.0.0.1:7079",
+            "https://127.0.0.1:7078",
+            "null",
+        ] {
+            let e = check_origin(Some(bad), host).unwrap_err();
+            assert!(e.contains("its own page"), "{e}");
+        }
+        assert!(check_origin(Some("http://127.0.0.1:7078"), None).is_err());
     }
 
     #[test]

@@ -214,14 +214,6 @@ pub async fn view(args: ViewArgs) -> Result<ExitCode, Failure> {
     let latest = Arc::new(std::sync::Mutex::new(String::from("null")));
     let poll_task = tokio::spawn(poller.run(interval, state_tx.clone(), latest.clone()));
 
-    let app = http::App {
-        source: source.clone(),
-        info: Arc::new(info),
-        states: state_tx,
-        latest,
-        token: args.token.clone(),
-        captures: args.captures.clone(),
-    };
     let listener = tokio::net::TcpListener::bind(args.http).await.map_err(|e| {
         Failure::refused(format!(
             "--http {}: {e} (another osap view? choose another port, or 127.0.0.1:0 for any free one)",
@@ -231,6 +223,15 @@ pub async fn view(args: ViewArgs) -> Result<ExitCode, Failure> {
     let addr = listener
         .local_addr()
         .map_err(|e| Failure::refused(e.to_string()))?;
+    let app = http::App {
+        source: source.clone(),
+        info: Arc::new(info),
+        states: state_tx,
+        latest,
+        token: args.token.clone(),
+        captures: args.captures.clone(),
+        listen: addr,
+    };
     let url = match &args.token {
         Some(t) => format!("http://{addr}/?token={t}"),
         None => format!("http://{addr}/"),

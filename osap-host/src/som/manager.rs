@@ -235,12 +235,22 @@ impl Manager {
             // Mid-scan the function set is not known yet.
             module_codes: false,
         };
+        let (name, inputs, outputs) = self.ask_signature(&at).await?;
+        Ok((at, name, inputs, outputs))
+    }
+
+    /// Asks the control port `at` for its function's name, inputs and
+    /// outputs.
+    async fn ask_signature(
+        &self,
+        at: &Target,
+    ) -> Result<(String, Vec<SomArg>, Vec<SomArg>), SomError> {
         let sig = self
             .control
-            .ask(&at, "get signature", &Request::GetSignature, true)
+            .ask(at, "get signature", &Request::GetSignature, true)
             .await?;
         let (name, inputs, outputs) =
-            match sig.body(&at, "get signature", ControlKey::GetSignature)? {
+            match sig.body(at, "get signature", ControlKey::GetSignature)? {
                 ReplyBody::Signature(s) => {
                     let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
                         l.iter()
@@ -252,9 +262,9 @@ impl Manager {
                     };
                     (s.name().to_string(), args(s.inputs()), args(s.outputs()))
                 }
-                other => return Err(unexpected(&at, "get signature", &other)),
+                other => return Err(unexpected(at, "get signature", &other)),
             };
-        Ok((at, name, inputs, outputs))
+        Ok((name, inputs, outputs))
     }
 
     /// Reads the class whose port is `port` on runtime `ri` (its members
@@ -408,6 +418,36 @@ impl Manager {
         Ok(FunctionHandle::new(
             self.control.clone(),
             target,
+            inputs,
+            outputs,
+        ))
+    }
+
+    /// A handle for the function whose control port is `port` on the
+    /// runtime `runtime` at `route`, read from the function itself (one
+    /// request: its signature) instead of the model: for a caller that
+    /// knows where a function is and cannot wait for a
+    /// [`refresh`](Self::refresh) (`osap halt`). The handle names the
+    /// function as it answers; check it is the one you meant
+    /// ([`FunctionHandle::function`], its inputs and outputs) before
+    /// calling it.
+    pub async fn function_at(
+        &self,
+        runtime: &str,
+        route: Route,
+        port: u16,
+    ) -> Result<FunctionHandle, SomError> {
+        let mut at = Target {
+            function: FnRef::new(runtime, format!("port {port}")),
+            route,
+            port,
+            module_codes: false,
+        };
+        let (name, inputs, outputs) = self.ask_signature(&at).await?;
+        at.function = FnRef::new(runtime, name);
+        Ok(FunctionHandle::new(
+            self.control.clone(),
+            at,
             inputs,
             outputs,
         ))

@@ -34,6 +34,10 @@ pub enum MachineError {
         /// The runtimes that were found.
         found: String,
     },
+    /// A module of `[modules]` was not found, or is not a module the
+    /// machine knows.
+    #[error(transparent)]
+    Module(#[from] crate::network::FindError),
     /// A module's clock did not settle on the machine's clock.
     #[error("module {module}: its clock did not follow the machine's: {detail}")]
     NotSynchronised {

@@ -49,6 +49,9 @@ use monitor::{LimitEdge, SharedReports};
 use motion::{MotionStatus, SharedMotion};
 pub use tool::Tool;
 
+use crate::network::Entry;
+pub use crate::network::{Link, ModuleInfo};
+
 /// The control-point interval the machine streams at, µs.
 pub const INTERVAL_US: u32 = 2048;
 /// How far the timer leads the synchronized clock: 40 intervals (82 ms),
@@ -69,43 +72,12 @@ const FAST_PERIOD_US: u32 = 1_000;
 /// A module silent for this long is lost.
 const LINK_LOST_AFTER: Duration = Duration::from_millis(1_000);
 
-/// How to reach a machine's modules.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum Link {
-    /// A serial port (USB CDC or a UART adapter) at a baud rate.
-    Serial {
-        /// The port's path, e.g. `/dev/ttyACM0`.
-        path: String,
-        /// Baud rate (USB CDC ignores it).
-        baud: u32,
-    },
-    /// A TCP link to a network (for example `osap serve`).
-    Tcp(String),
-    /// A TCP link to a network that requires a key (`osap serve --key`):
-    /// the Noise handshake proves this end holds it (docs/security.md).
-    TcpKeyed {
-        /// `host:port`.
-        addr: String,
-        /// The key the server was given.
-        key: osap_host::link::noise::Key,
-    },
-}
-
 /// Options of [`Machine::simulate_with`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SimOptions {
     /// Real time, or virtual time (the caller runs on
     /// [`osap_sim::machine::virtual_runtime`]).
     pub time: TimeMode,
-}
-
-/// A module of the machine, found on the network.
-#[derive(Debug, Clone)]
-pub struct ModuleInfo {
-    /// Its runtime name on the network.
-    pub runtime: String,
-    /// Its route from the host.
-    pub route: Route,
 }
 
 /// A machine: its modules, its motion graph, its tools.
@@ -187,7 +159,7 @@ impl Machine {
             crate::sim::topology(cfg).map_err(|e| MachineError::Unsupported(e.to_string()))?;
         let host = Host::start(HostConfig::named(HOST_NAME))?;
         let sim = SimMachine::start_with(&host, &topology, options.time).await?;
-        Self::start(cfg, host, Vec::new(), Some(sim)).await
+        Self::start(cfg, host, Vec::new(), Entry::Host, Some(sim)).await
     }
 
     /// The machine on hardware, reached over `links`. Over TCP links only
@@ -203,30 +175,17 @@ impl Machine {
         // Over serial the modules are ours and this host is their clock
         // root; over TCP only, the machine is served and its host is the
         // root: follow it, and trust no other link.
-        let served = links
-            .iter()
-            .all(|l| matches!(l, Link::Tcp(_) | Link::TcpKeyed { .. }));
+        let served = crate::network::served(links);
         let mut config = HostConfig::named(HOST_NAME);
         config.time.root = !served;
         let host = Host::start(config)?;
-        let mut handles = Vec::new();
-        for link in links {
-            let l = match link {
-                Link::Serial { path, baud } => {
-                    let l = osap_host::link::serial::spawn_serial(&host, path, *baud).await?;
-                    l.probe(&host, Duration::from_millis(500)).await?;
-                    l
-                }
-                Link::Tcp(addr) => osap_host::link::tcp::connect(&host, addr).await?,
-                Link::TcpKeyed { addr, key } => {
-                    osap_host::link::tcp::connect_with_key(&host, addr, key).await?
-                }
-            };
-            if served {
+        let handles = crate::network::open_links(&host, links).await?;
+        if served {
+            for l in &handles {
                 host.trust_time_link(l.index()).await?;
             }
-            handles.push(l);
         }
+        let entry = Entry::of(links, &handles);
         if served {
             // Points are stamped in this host's time: it must follow the
             // served clock before the first one, and never step after.
@@ -242,13 +201,14 @@ impl Machine {
                 })?;
             host.set_motion_active(true).await?;
         }
-        Self::start(cfg, host, handles, None).await
+        Self::start(cfg, host, handles, entry, None).await
     }
 
     async fn start(
         cfg: &MachineFile,
         host: Host,
         links: Vec<osap_host::link::stream::LinkHandle>,
+        entry: Entry,
         sim: Option<SimMachine>,
     ) -> Result<Machine, MachineError> {
         let start = drive::start_position(cfg);
@@ -259,7 +219,7 @@ impl Machine {
         }
         let mut manager = Manager::new(&host).await?;
         manager.refresh().await?;
-        let modules = find_modules(cfg, &manager)?;
+        let modules = crate::network::find_modules(cfg, manager.som(), entry)?;
 
         // Motion is keyed by synchronized time: every module's clock must
         // follow the host's before a point is sent.
@@ -1470,63 +1430,4 @@ fn check_track_range(cfg: &MachineFile, drive: &Drive) -> Result<(), MachineErro
         }
     }
     Ok(())
-}
-
-/// Finds every module of `[modules]` in the manager's model.
-fn find_modules(
-    cfg: &MachineFile,
-    manager: &Manager,
-) -> Result<BTreeMap<String, ModuleInfo>, MachineError> {
-    let som = manager.som();
-    let names: Vec<String> = som.runtimes.iter().map(|r| r.record.name.clone()).collect();
-    let found = names.iter().skip(1).cloned().collect::<Vec<_>>().join(", ");
-    let mut out = BTreeMap::new();
-    for (key, m) in &cfg.modules {
-        let (index, wanted) = if let Some(name) = &m.name {
-            let hits: Vec<usize> = (0..names.len()).filter(|i| &names[*i] == name).collect();
-            if hits.len() > 1 {
-                return Err(MachineError::Unsupported(format!(
-                    "modules.{key}: {} modules are named {name:?}; rename them apart with `osap rename`",
-                    hits.len()
-                )));
-            }
-            (hits.first().copied(), format!("named {name:?}"))
-        } else {
-            let route: Vec<u8> = m
-                .route
-                .iter()
-                .flatten()
-                .map(|&h| u8::try_from(h).unwrap_or(u8::MAX))
-                .collect();
-            (som.walk(0, &route), format!("at route {route:?}"))
-        };
-        let Some(index) = index else {
-            return Err(MachineError::ModuleNotFound {
-                key: key.clone(),
-                wanted,
-                found,
-            });
-        };
-        let name = names[index].clone();
-        if names.iter().filter(|n| **n == name).count() > 1 {
-            return Err(MachineError::Unsupported(format!(
-                "modules.{key}: the module {wanted} is named {name:?} like another runtime; give it a name of its own with `osap rename`"
-            )));
-        }
-        let route = som.path(0, index).and_then(|p| p.route()).ok_or_else(|| {
-            MachineError::ModuleNotFound {
-                key: key.clone(),
-                wanted: wanted.clone(),
-                found: found.clone(),
-            }
-        })?;
-        out.insert(
-            key.clone(),
-            ModuleInfo {
-                runtime: name,
-                route,
-            },
-        );
-    }
-    Ok(out)
 }
