@@ -122,6 +122,14 @@ impl IoHw for IoPins {
         self.pwm.set_config(&self.pwm_config);
     }
 
+    fn read_pwm(&self, channel: u8) -> u16 {
+        match channel {
+            0 => self.pwm_config.compare_a,
+            1 => self.pwm_config.compare_b,
+            _ => 0,
+        }
+    }
+
     fn analog_inputs(&self) -> u8 {
         self.analog.len() as u8
     }

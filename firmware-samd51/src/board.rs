@@ -245,6 +245,15 @@ impl IoHw for IoPins {
             .write(|w| unsafe { w.ccbuf().bits(u32::from(duty)) });
     }
 
+    fn read_pwm(&self, channel: u8) -> u16 {
+        if channel > 1 {
+            return 0;
+        }
+        // The buffered value: what the output drives from its next period
+        // on (a 16-bit duty, as written).
+        tcc0().ccbuf(usize::from(channel)).read().ccbuf().bits() as u16
+    }
+
     fn analog_inputs(&self) -> u8 {
         self.analog.len() as u8
     }

@@ -20,6 +20,15 @@
 //! counted as an overrun; later ticks catch up, one step each, toward the
 //! current target. No step is lost; steps that cancel (the target came back
 //! before they were sent) are never sent.
+//!
+//! **Late steps.** A step is due at the first tick whose position is past
+//! its boundary (the position crossed it within the tick period before).
+//! One sent on a later tick, out of the backlog, went out more than one tick
+//! period after its boundary was crossed: it is counted in
+//! [`StepStats::late`]. A step is late exactly when the tick before left
+//! steps owed in the direction it goes (those were due earlier, and the
+//! generator sends the oldest first); a step the other way, after the
+//! target came back past the motor, is due at its own tick.
 
 use crate::eval::Fx;
 use core::sync::atomic::{AtomicBool, AtomicU32, AtomicUsize, Ordering};
@@ -67,6 +76,10 @@ pub struct StepStats {
     pub overruns: u64,
     /// Largest backlog seen after a tick, in steps.
     pub max_backlog: u64,
+    /// Steps sent on a later tick than the one they fell due at: more than
+    /// one tick period after their boundary was crossed (see the module
+    /// docs).
+    pub late: u64,
 }
 
 /// Turns one position per tick into at most one step per tick.
@@ -106,16 +119,25 @@ impl StepGen {
     /// Process one tick at position `p`: the step to send this tick, if any.
     #[inline]
     pub fn tick(&mut self, p: Fx) -> Option<Dir> {
+        // Steps owed from earlier ticks (signed): the next ones in their
+        // direction are late.
+        let owed = self.target - self.emitted;
         self.target = Self::count_with(p, self.half);
         self.stats.ticks += 1;
         let d = self.target - self.emitted;
         let out = if d > 0 {
             self.emitted += 1;
             self.stats.up += 1;
+            if owed > 0 {
+                self.stats.late += 1;
+            }
             Some(Dir::Up)
         } else if d < 0 {
             self.emitted -= 1;
             self.stats.down += 1;
+            if owed < 0 {
+                self.stats.late += 1;
+            }
             Some(Dir::Down)
         } else {
             None

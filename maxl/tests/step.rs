@@ -27,8 +27,24 @@ fn check_run(positions: impl Iterator<Item = Fx>, start: Fx, r: Rounding) -> Ste
     let mut overruns = 0u64;
     let mut abs_sum = 0u64;
     let mut ever_overrun = false;
-    for p in positions {
+    // An independent model of late steps: the steps owed, oldest first,
+    // each with its direction and the tick it fell due at.
+    let mut owed: std::collections::VecDeque<(i64, u64)> = Default::default();
+    let mut late = 0u64;
+    for (tick, p) in positions.enumerate() {
+        let tick = tick as u64;
         let want = reference(p, r);
+        // Boundaries crossed since the last tick: each either un-crosses
+        // the newest owed step the other way, or is a new step due now.
+        let dir = (want - prev_ref).signum();
+        for _ in 0..(want - prev_ref).abs() {
+            match owed.back() {
+                Some(&(d, _)) if d == -dir => {
+                    owed.pop_back();
+                }
+                _ => owed.push_back((dir, tick)),
+            }
+        }
         let before = g.position();
         let backlog_before = g.backlog();
         let s = g.tick(p);
@@ -47,6 +63,14 @@ fn check_run(positions: impl Iterator<Item = Fx>, start: Fx, r: Rounding) -> Ste
             None => 0,
         };
         assert_eq!(got, expect, "step direction at {p:?}");
+        if got != 0 {
+            let (d, due) = owed.pop_front().expect("a step sent was owed");
+            assert_eq!(d, got, "the oldest owed step goes first");
+            if due < tick {
+                late += 1;
+            }
+        }
+        assert_eq!(g.stats().late, late, "late steps at tick {tick}");
         if backlog_before == 0 && (want - prev_ref).abs() <= 1 {
             // No overrun: exactly the boundary crossing of this tick.
             assert_eq!(got, want - prev_ref);
@@ -117,6 +141,7 @@ fn overruns_catch_up_without_losing_steps() {
     let g = check_run(positions.into_iter(), Fx(0), Rounding::Nearest);
     let st = g.stats();
     assert!(st.overruns > 100, "{st:?}");
+    assert!(st.late > 100, "{st:?}");
     assert!(st.max_backlog > 1);
     assert_eq!(g.backlog(), 0);
     assert_eq!(g.position(), reference(last, Rounding::Nearest));
@@ -149,6 +174,7 @@ fn driven_by_the_tick_evaluator() {
     let g = check_run(positions.into_iter(), pts[0], Rounding::Nearest);
     assert!(n > 55_000);
     assert_eq!(g.stats().overruns, 0);
+    assert_eq!(g.stats().late, 0);
     assert!(g.stats().up > 2900 && g.stats().down > 2900);
 }
 

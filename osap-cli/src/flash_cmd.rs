@@ -375,7 +375,7 @@ fn function_set(rt: &SomRuntime) -> Option<u32> {
     Some(id.finish())
 }
 
-/// `0xe59fafca`, or `unknown`.
+/// `0xdde4505f`, or `unknown`.
 fn id_text(id: Option<u32>) -> String {
     id.map_or_else(
         || "unknown (a type this osap does not know)".into(),

@@ -40,6 +40,11 @@ pub trait IoHw {
     /// Sets PWM output `channel`'s duty cycle, `duty` of 65 535 (0: always
     /// low, 65 535: always high).
     fn write_pwm(&mut self, channel: u8, duty: u16);
+    /// The duty cycle PWM output `channel` drives now, of 65 535 (what
+    /// [`write_pwm`](Self::write_pwm) last set; 0 before any write and for
+    /// an output the board lacks): how tests and a simulator's control see
+    /// that a tool went off.
+    fn read_pwm(&self, channel: u8) -> u16;
 
     /// How many analog inputs there are.
     fn analog_inputs(&self) -> u8;
@@ -73,6 +78,9 @@ impl<T: IoHw + ?Sized> IoHw for &mut T {
     }
     fn write_pwm(&mut self, channel: u8, duty: u16) {
         (**self).write_pwm(channel, duty)
+    }
+    fn read_pwm(&self, channel: u8) -> u16 {
+        (**self).read_pwm(channel)
     }
     fn analog_inputs(&self) -> u8 {
         (**self).analog_inputs()
@@ -172,6 +180,9 @@ impl IoHw for NoIo {
         0
     }
     fn write_pwm(&mut self, _channel: u8, _duty: u16) {}
+    fn read_pwm(&self, _channel: u8) -> u16 {
+        0
+    }
     fn analog_inputs(&self) -> u8 {
         0
     }

@@ -73,7 +73,9 @@ impl Family {
             | F::pwm_write
             | F::pulse
             | F::pulse_at
-            | F::analog_read => Family::Io,
+            | F::analog_read
+            | F::set_safe_pwm
+            | F::set_safe_digital => Family::Io,
             F::get_position
             | F::get_status
             | F::get_counters
@@ -81,7 +83,8 @@ impl Family {
             | F::set_enable
             | F::read_limit
             | F::halt
-            | F::get_fault => Family::None,
+            | F::get_fault
+            | F::set_output_watchdog => Family::None,
             F::enter_bootloader => Family::Boot,
         }
     }

@@ -12,15 +12,27 @@
 //! | 0 | none yet | 0 |
 //! | 1 | [`FaultKind::Refused`]: a control point was refused | the refusal's [`StepperError`] code |
 //! | 2 | [`FaultKind::Backstop`]: the stream ran dry mid-motion and the backstop braked the axis | µs since the module last accepted a point (the upstream's quiet time) |
-//! | 3 | [`FaultKind::StepOverrun`]: a step tick owed more than one step | the steps owed at that tick |
+//! | 3 | [`FaultKind::StepOverrun`]: steps went out late | the late steps since the step generator last started (a running count) |
 //! | 4 | [`FaultKind::LimitHit`]: the limit switch was pressed | limit edges since boot |
 //! | 5 | [`FaultKind::Halted`]: `halt` stopped the axis | 0 |
 //! | 6 | [`FaultKind::OverLimit`]: a control point past the axis's limits (`set_limits`) was refused | which limits it went past, as bits: [`OVER_VELOCITY`] 1, [`OVER_ACCELERATION`] 2, [`OVER_JERK`] 4 |
+//! | 7 | [`FaultKind::OutputWatchdog`]: upstream was quiet past `set_output_watchdog`'s timeout, and the module put its outputs in their safe state | µs since a call or pipe datagram last reached the module (held at `u32::MAX`) |
 //!
 //! While the axis stands stopped by a backstop or a halt, the refusals that
 //! follow (code `Faulted`) are counted but keep the record of their cause.
-//! A step overrun is recorded once per run of the step generator (the
-//! steps still go out on later ticks; nothing is lost). A point refused
+//!
+//! **Late steps.** A step that went out on a later tick than the one it
+//! fell due at (more than one step tick, 10 µs, after the position crossed
+//! its boundary: [`maxl::StepStats::late`]) is late: the axis was asked to
+//! move faster than one step per tick, and the step generator caught up at
+//! one step per tick, a burst a real motor may not follow. No step is
+//! lost, but a late step is a fault: a [`FaultKind::StepOverrun`] is
+//! recorded after each step word (16 ticks) that sent late steps, its
+//! detail the running count of late steps since the step generator last
+//! started (at boot, `set_enable`, `halt`, a scale or microstep change:
+//! `get_steps`' `late` output), so a host compares the detail with its
+//! bound (`[limits] max_late_steps`) and stops as soon as the count passes
+//! it. A point refused
 //! for being past a limit (`OverLimit`) is an [`FaultKind::OverLimit`]
 //! fault, not a [`FaultKind::Refused`] one, so that its detail can say
 //! which limit.
@@ -73,8 +85,10 @@ pub enum FaultKind {
     /// The stream ran dry mid-motion and the backstop braked the axis; the
     /// detail is how long (µs) the module had gone without accepting a point.
     Backstop = 2,
-    /// A step tick owed more than one step (the axis was asked to move
-    /// faster than the step rate); the detail is the steps owed.
+    /// Steps went out late: on a later tick than the one they fell due at
+    /// (the axis was asked to move faster than the step rate); the detail is
+    /// the running count of late steps since the step generator last
+    /// started (`get_steps`' `late`).
     StepOverrun = 3,
     /// The limit switch was pressed; the detail is the edges seen since boot.
     LimitHit = 4,
@@ -84,11 +98,16 @@ pub enum FaultKind {
     /// (`set_limits`) was refused; the detail says which, as bits
     /// ([`OVER_VELOCITY`], [`OVER_ACCELERATION`], [`OVER_JERK`]).
     OverLimit = 6,
+    /// The output watchdog fired: no call or pipe datagram reached the
+    /// module for `set_output_watchdog`'s timeout, and it put its outputs in
+    /// their safe state (see [`crate::watchdog`]); the detail is how long
+    /// upstream had been quiet, µs.
+    OutputWatchdog = 7,
 }
 
 impl FaultKind {
     /// Every kind, in code order.
-    pub const ALL: [FaultKind; 7] = [
+    pub const ALL: [FaultKind; 8] = [
         FaultKind::None,
         FaultKind::Refused,
         FaultKind::Backstop,
@@ -96,6 +115,7 @@ impl FaultKind {
         FaultKind::LimitHit,
         FaultKind::Halted,
         FaultKind::OverLimit,
+        FaultKind::OutputWatchdog,
     ];
 
     /// The kind's code.
@@ -114,10 +134,11 @@ impl FaultKind {
             FaultKind::None => "none",
             FaultKind::Refused => "refused point",
             FaultKind::Backstop => "backstop",
-            FaultKind::StepOverrun => "step overrun",
+            FaultKind::StepOverrun => "late steps",
             FaultKind::LimitHit => "limit hit",
             FaultKind::Halted => "halted",
             FaultKind::OverLimit => "point over limit",
+            FaultKind::OutputWatchdog => "output watchdog",
         }
     }
 }
@@ -184,7 +205,7 @@ mod tests {
         for k in FaultKind::ALL {
             assert_eq!(FaultKind::from_code(k.code()), Some(k));
         }
-        assert_eq!(FaultKind::from_code(7), None);
+        assert_eq!(FaultKind::from_code(8), None);
         assert_eq!(FaultKind::from_code(255), None);
     }
 

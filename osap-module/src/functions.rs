@@ -14,7 +14,7 @@
 //! | `get_position` | — | `time: u64`, `position: f32` |
 //! | `get_status` | — | `mode: u8`, `queued: u16`, `enabled: bool`, `faults: u32` |
 //! | `get_counters` | — | `points: u32`, `refused: u32`, `last_refused: u8`, `filled: u32` |
-//! | `get_steps` | — | `steps: i64`, `up: u64`, `down: u64`, `overruns: u64` |
+//! | `get_steps` | — | `steps: i64`, `up: u64`, `down: u64`, `late: u64` |
 //! | `set_enable` | `on: bool` | — |
 //! | `set_scale` | `full_steps_per_unit: f32` | — |
 //! | `set_microsteps` | `microsteps: u16` | — |
@@ -29,6 +29,9 @@
 //! | `analog_read` | `channel: u8` | `time: u64`, `value: f32` |
 //! | `get_fault` | — | `time: u64`, `code: u8`, `detail: u32`, `count: u32` |
 //! | `enter_bootloader` | — | — |
+//! | `set_safe_pwm` | `channel: u8`, `duty: f32` | — |
+//! | `set_safe_digital` | `pin: u8`, `level: bool` | — |
+//! | `set_output_watchdog` | `timeout_ms: u32` | — |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -37,6 +40,13 @@
 //! [`crate::fault`]). `enter_bootloader` answers first and reboots the
 //! board into its UF2 bootloader 100 ms later, for a firmware update
 //! (`osap flash`; see [`crate::boot`]).
+//!
+//! Every output has a safe value (`set_safe_pwm`, `set_safe_digital`; 0
+//! duty and low until set) that it takes on every stop: `halt`, a backstop,
+//! and the output watchdog, which `set_output_watchdog` arms (off at boot):
+//! when no call or pipe datagram has reached any of the module's functions
+//! for its timeout, the module applies the safe values by itself and
+//! `get_fault` reports it (see [`crate::io`] and [`crate::watchdog`]).
 //!
 //! `set_limits` turns on the firmware's check of incoming points: with
 //! limits set, `add_point` refuses a point past the velocity, acceleration
@@ -100,8 +110,9 @@ impl<B: Board> Module<B> {
 
     /// Where the steps put the motor, in microsteps (net steps; a scale or
     /// microstep change re-expresses it), then the steps up, steps down and
-    /// ticks that owed more than one step (their steps went out on later
-    /// ticks) since the step generator last started: at boot, on
+    /// late steps (steps that went out on a later tick than the one they
+    /// fell due at, more than one step tick late; each is a fault, see
+    /// [`crate::fault`]) since the step generator last started: at boot, on
     /// `set_enable`, `halt`, and a scale or microstep change.
     pub fn get_steps(&mut self) -> Result<(i64, u64, u64, u64), CallError> {
         Ok(self.stepper.step_counts())
@@ -163,8 +174,10 @@ impl<B: Board> Module<B> {
         ))
     }
 
-    /// Stops stepping at once and drops the stream (an emergency stop); the
-    /// axis refuses points until the motor is disabled and enabled again.
+    /// Stops stepping at once and drops the stream (an emergency stop), and
+    /// drives every output to its safe value (`set_safe_pwm`,
+    /// `set_safe_digital`); the axis refuses points until the motor is
+    /// disabled and enabled again. Safe to repeat.
     pub fn halt(&mut self) -> Result<(), CallError> {
         self.halt_axis();
         Ok(())
@@ -233,6 +246,32 @@ impl<B: Board> Module<B> {
         }
         let now = self.board.now();
         self.boot.arm(now);
+        Ok(())
+    }
+
+    /// Sets the duty (a fraction, `0..=1`) PWM output `channel` takes on
+    /// every stop and when the output watchdog fires (0 until set). The
+    /// output keeps its duty until then.
+    pub fn set_safe_pwm(&mut self, channel: u8, duty: f32) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.io.set_safe_pwm(hw, channel, duty)?)
+    }
+
+    /// Sets the level digital pin `pin` takes on every stop and when the
+    /// output watchdog fires (low until set). The pin keeps its level until
+    /// then.
+    pub fn set_safe_digital(&mut self, pin: u8, level: bool) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.io.set_safe_digital(hw, pin, level)?)
+    }
+
+    /// Arms the output watchdog: when no call or pipe datagram reaches any
+    /// of the module's functions for `timeout_ms`, the module drives every
+    /// output to its safe value and `get_fault` reports it. 0 turns it off
+    /// (as at boot). See [`crate::watchdog`].
+    pub fn set_output_watchdog(&mut self, timeout_ms: u32) -> Result<(), CallError> {
+        let now = self.board.now();
+        self.watchdog.set(timeout_ms, now);
         Ok(())
     }
 }
@@ -314,7 +353,7 @@ module_functions! {
     get_position() -> (time: u64, position: f32);
     get_status() -> (mode: u8, queued: u16, enabled: bool, faults: u32);
     get_counters() -> (points: u32, refused: u32, last_refused: u8, filled: u32);
-    get_steps() -> (steps: i64, up: u64, down: u64, overruns: u64);
+    get_steps() -> (steps: i64, up: u64, down: u64, late: u64);
     set_enable(on: bool);
     set_scale(full_steps_per_unit: f32);
     set_microsteps(microsteps: u16);
@@ -329,6 +368,9 @@ module_functions! {
     analog_read(channel: u8) -> (time: u64, value: f32);
     get_fault() -> (time: u64, code: u8, detail: u32, count: u32);
     enter_bootloader();
+    set_safe_pwm(channel: u8, duty: f32);
+    set_safe_digital(pin: u8, level: bool);
+    set_output_watchdog(timeout_ms: u32);
 }
 
 /// One of the module's functions bound to one module: what a function

@@ -7,6 +7,16 @@
 //! latency (tens of µs on a module), not to the cycle; a pulse can also be
 //! scheduled ahead at a synchronized time so a script can play several
 //! modules together.
+//!
+//! **Safe values.** Each output has a safe value ([`Io::set_safe_pwm`],
+//! [`Io::set_safe_digital`]; 0 duty and low until set) that
+//! [`Io::apply_safe`] drives it to: the module does so on every stop
+//! (`halt`, a backstop) and when its output watchdog fires (see
+//! [`crate::watchdog`]). It applies them to the outputs the module has
+//! driven or been given a safe value for since boot (a pin never written
+//! may be an input, and stays one), ends every running pulse and drops
+//! every scheduled one. An output stays at its safe value until a call
+//! writes it again.
 
 use crate::board::IoHw;
 use osap_core::{Duration, Instant, SystemInstant};
@@ -20,6 +30,12 @@ pub const SCHEDULED_PULSES: usize = 16;
 pub const MAX_PULSE_US: u32 = 10_000_000;
 /// How far ahead a pulse may be scheduled (60 s).
 pub const MAX_PULSE_LEAD: Duration = Duration::from_secs(60);
+/// Digital pins that can have a safe level (boards with more leave the
+/// rest alone at a stop).
+pub const MAX_SAFE_PINS: usize = 32;
+/// PWM outputs that can have a safe duty (boards with more leave the rest
+/// alone at a stop).
+pub const MAX_SAFE_PWM: usize = 16;
 
 /// Why an I/O call was refused: the failure code a caller sees.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -98,6 +114,18 @@ pub struct Io {
     /// Pulses waiting for their synchronized start time.
     scheduled: [Option<Scheduled>; SCHEDULED_PULSES],
     pulses: u32,
+    /// Each PWM output's safe duty, of 65 535.
+    safe_pwm: [u16; MAX_SAFE_PWM],
+    /// Each digital pin's safe level, as bits.
+    safe_digital: u32,
+    /// The PWM outputs a stop drives to their safe duty, as bits: those
+    /// written or given a safe duty since boot.
+    pwm_outputs: u32,
+    /// The digital pins a stop drives to their safe level, as bits: those
+    /// driven (written, pulsed) or given a safe level since boot.
+    digital_outputs: u32,
+    /// Times the safe values were applied since boot.
+    safe_applied: u32,
 }
 
 impl Default for Io {
@@ -114,6 +142,27 @@ fn check_pin(hw: &dyn IoHw, pin: u8) -> Result<(), IoError> {
     }
 }
 
+/// `duty` (a fraction, `0..=1`) of 65 535, for PWM output `channel`.
+fn pwm_duty(hw: &dyn IoHw, channel: u8, duty: f32) -> Result<u16, IoError> {
+    if channel >= hw.pwm_outputs() {
+        return Err(IoError::NoSuchPin);
+    }
+    if !(0.0..=1.0).contains(&duty) {
+        return Err(IoError::BadValue);
+    }
+    Ok((duty * 65_535.0 + 0.5) as u16)
+}
+
+/// The bit of `index` in a mask of `max` outputs (`0` past it: such an
+/// output is never tracked).
+fn bit(index: u8, max: usize) -> u32 {
+    if usize::from(index) < max {
+        1 << index
+    } else {
+        0
+    }
+}
+
 impl Io {
     /// No pulses running or waiting.
     pub const fn new() -> Self {
@@ -121,6 +170,11 @@ impl Io {
             ends: [None; MAX_PULSE_PINS],
             scheduled: [None; SCHEDULED_PULSES],
             pulses: 0,
+            safe_pwm: [0; MAX_SAFE_PWM],
+            safe_digital: 0,
+            pwm_outputs: 0,
+            digital_outputs: 0,
+            safe_applied: 0,
         }
     }
 
@@ -135,6 +189,7 @@ impl Io {
         if let Some(end) = self.ends.get_mut(usize::from(pin)) {
             *end = None;
         }
+        self.digital_outputs |= bit(pin, MAX_SAFE_PINS);
         hw.write_digital(pin, level);
         Ok(())
     }
@@ -147,14 +202,82 @@ impl Io {
 
     /// Sets PWM output `channel` to `duty` (a fraction, `0..=1`).
     pub fn pwm_write(&mut self, hw: &mut dyn IoHw, channel: u8, duty: f32) -> Result<(), IoError> {
-        if channel >= hw.pwm_outputs() {
+        let raw = pwm_duty(hw, channel, duty)?;
+        self.pwm_outputs |= bit(channel, MAX_SAFE_PWM);
+        hw.write_pwm(channel, raw);
+        Ok(())
+    }
+
+    /// Sets the duty (a fraction, `0..=1`) PWM output `channel` takes on
+    /// every stop ([`apply_safe`](Self::apply_safe)); the output keeps its
+    /// duty until then. Refused as [`pwm_write`](Self::pwm_write) refuses,
+    /// and `NoSuchPin` past [`MAX_SAFE_PWM`].
+    pub fn set_safe_pwm(&mut self, hw: &dyn IoHw, channel: u8, duty: f32) -> Result<(), IoError> {
+        let raw = pwm_duty(hw, channel, duty)?;
+        let safe = self
+            .safe_pwm
+            .get_mut(usize::from(channel))
+            .ok_or(IoError::NoSuchPin)?;
+        *safe = raw;
+        self.pwm_outputs |= bit(channel, MAX_SAFE_PWM);
+        Ok(())
+    }
+
+    /// Sets the level digital pin `pin` takes on every stop
+    /// ([`apply_safe`](Self::apply_safe)); the pin keeps its level until
+    /// then. `NoSuchPin` for a pin the board lacks or past
+    /// [`MAX_SAFE_PINS`].
+    pub fn set_safe_digital(&mut self, hw: &dyn IoHw, pin: u8, level: bool) -> Result<(), IoError> {
+        check_pin(hw, pin)?;
+        let b = bit(pin, MAX_SAFE_PINS);
+        if b == 0 {
             return Err(IoError::NoSuchPin);
         }
-        if !(0.0..=1.0).contains(&duty) {
-            return Err(IoError::BadValue);
+        if level {
+            self.safe_digital |= b;
+        } else {
+            self.safe_digital &= !b;
         }
-        hw.write_pwm(channel, (duty * 65_535.0 + 0.5) as u16);
+        self.digital_outputs |= b;
         Ok(())
+    }
+
+    /// The safe duty of PWM output `channel`, of 65 535 (0 until set).
+    pub fn safe_pwm(&self, channel: u8) -> u16 {
+        self.safe_pwm
+            .get(usize::from(channel))
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// The safe level of digital pin `pin` (low until set).
+    pub fn safe_digital(&self, pin: u8) -> bool {
+        self.safe_digital & bit(pin, MAX_SAFE_PINS) != 0
+    }
+
+    /// Drives every output to its safe value: the PWM outputs and digital
+    /// pins written or given a safe value since boot (others are left
+    /// alone: a pin never driven may be an input). Running pulses end and
+    /// scheduled ones are dropped. Quick: a write per output.
+    pub fn apply_safe(&mut self, hw: &mut dyn IoHw) {
+        self.scheduled = [None; SCHEDULED_PULSES];
+        self.ends = [None; MAX_PULSE_PINS];
+        for channel in 0..hw.pwm_outputs() {
+            if self.pwm_outputs & bit(channel, MAX_SAFE_PWM) != 0 {
+                hw.write_pwm(channel, self.safe_pwm(channel));
+            }
+        }
+        for pin in 0..hw.digital_pins() {
+            if self.digital_outputs & bit(pin, MAX_SAFE_PINS) != 0 {
+                hw.write_digital(pin, self.safe_digital(pin));
+            }
+        }
+        self.safe_applied = self.safe_applied.wrapping_add(1);
+    }
+
+    /// Times the safe values were applied since boot.
+    pub fn safe_applied(&self) -> u32 {
+        self.safe_applied
     }
 
     /// Samples analog input `channel`, as a fraction of full scale.
@@ -183,6 +306,7 @@ impl Io {
             .get_mut(usize::from(pin))
             .ok_or(IoError::NoSuchPin)?;
         *end = Some(now + Duration::from_micros(duration_us.into()));
+        self.digital_outputs |= bit(pin, MAX_SAFE_PINS);
         hw.write_digital(pin, true);
         self.pulses = self.pulses.wrapping_add(1);
         Ok(())
@@ -220,6 +344,7 @@ impl Io {
             pin,
             duration_us,
         });
+        self.digital_outputs |= bit(pin, MAX_SAFE_PINS);
         Ok(())
     }
 

@@ -26,6 +26,19 @@
 //!
 //! Each call holds the lock only for its own short work. `no_std`, no
 //! allocation.
+//!
+//! ## Safe by itself
+//! Every output has a safe value (`set_safe_pwm`, `set_safe_digital`; see
+//! [`io`]), and the module applies them by itself:
+//! - on `halt` (every stop a host makes sends it), with the axis halted;
+//! - when its stream runs dry mid-motion and its backstop brakes the axis
+//!   (a carriage that stopped must not leave a laser burning in one place);
+//! - when its output watchdog fires: nothing reached it from upstream for
+//!   `set_output_watchdog`'s timeout ([`watchdog`]).
+//!
+//! A limit switch press does not: the module does not stop on it by itself
+//! (homing presses its switch on purpose), and the host's stop that follows
+//! a press outside homing is a `halt`, which does.
 #![no_std]
 #![deny(missing_docs)]
 // Lints as policy: every public type can be printed, and `pub` means
@@ -44,6 +57,7 @@ pub mod functions;
 pub mod io;
 pub mod ports;
 pub mod stepper;
+pub mod watchdog;
 
 pub use functions::FUNCTION_SET_ID;
 pub use ports::{ModulePort, ModulePorts, PORT_COUNT, PORT_INDICES};
@@ -58,6 +72,7 @@ use io::Io;
 use osap_core::clock::TimeMap;
 use osap_core::{Duration, Instant, SystemInstant};
 use stepper::Stepper;
+use watchdog::Watchdog;
 
 /// The limit switch's latest edge.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
@@ -84,6 +99,8 @@ pub struct Module<B> {
     pub fault: Fault,
     /// A reboot into the bootloader, armed by `enter_bootloader`.
     pub boot: BootRequest,
+    /// The output watchdog, armed by `set_output_watchdog`.
+    pub watchdog: Watchdog,
     /// When the latest control point was accepted.
     last_point_at: SystemInstant,
     board: B,
@@ -118,6 +135,7 @@ impl<B: Board> Module<B> {
             time: TimeMap::IDENTITY,
             fault: Fault::default(),
             boot: BootRequest::default(),
+            watchdog: Watchdog::new(),
             last_point_at: SystemInstant::ZERO,
             board,
             step_anchor: None,
@@ -178,18 +196,21 @@ impl<B: Board> Module<B> {
             }
         };
         let faults = self.stepper.counters().faults;
-        let overruns = self.stepper.step_counts().3;
+        let late = self.stepper.step_counts().3;
         let word = self.stepper.fill_word(t0);
         if self.stepper.counters().faults != faults {
             let quiet = (t0 - self.last_point_at).as_micros();
             let quiet = u32::try_from(quiet).unwrap_or(u32::MAX);
             self.fault.record(t0, FaultKind::Backstop, quiet, true);
+            // The axis brakes to a stop on its own: its tools go off.
+            self.apply_safe_outputs();
         }
-        // Once per run of the step generator: a fast move overruns on many
-        // ticks, and one report says it all.
-        if overruns == 0 && self.stepper.step_counts().3 > 0 {
-            let owed = u32::try_from(self.stepper.backlog()).unwrap_or(u32::MAX);
-            self.fault.record(t0, FaultKind::StepOverrun, owed, false);
+        // Once per word that sent late steps, with the running count: a
+        // host compares it with its bound (see `fault`).
+        let now_late = self.stepper.step_counts().3;
+        if now_late != late {
+            let count = u32::try_from(now_late).unwrap_or(u32::MAX);
+            self.fault.record(t0, FaultKind::StepOverrun, count, false);
         }
         word
     }
@@ -220,11 +241,45 @@ impl<B: Board> Module<B> {
         result
     }
 
-    /// Halts the axis (see [`Stepper::halt`]), recording it as a fault.
+    /// Halts the axis (see [`Stepper::halt`]) and puts every output in its
+    /// safe state ([`apply_safe_outputs`](Self::apply_safe_outputs)),
+    /// recording it as a fault.
     pub fn halt_axis(&mut self) {
         self.stepper.halt();
+        self.apply_safe_outputs();
         let now = self.system_now();
         self.fault.record(now, FaultKind::Halted, 0, true);
+    }
+
+    /// Drives every output to its safe value (see [`io`]); nothing on a
+    /// board without I/O.
+    pub fn apply_safe_outputs(&mut self) {
+        if let Some(hw) = self.board.io() {
+            self.io.apply_safe(hw);
+        }
+    }
+
+    /// Upstream reached one of the module's functions (a call or a pipe
+    /// datagram) at local time `now`: the output watchdog starts again.
+    /// The module's function ports call it ([`ModulePort`]).
+    pub fn feed_watchdog(&mut self, now: Instant) {
+        self.watchdog.feed(now);
+    }
+
+    /// Fires the output watchdog if upstream has been quiet past its
+    /// timeout at local time `now`: every output goes to its safe value,
+    /// and a [`FaultKind::OutputWatchdog`] fault is recorded (once, until
+    /// the next feed). The runtime's loop calls it through the pulse timer
+    /// port, at [`watchdog::Watchdog::deadline`].
+    pub fn poll_watchdog(&mut self, now: Instant) {
+        if let Some(quiet) = self.watchdog.poll(now) {
+            self.apply_safe_outputs();
+            let quiet = u32::try_from(quiet.as_micros()).unwrap_or(u32::MAX);
+            let stopped = self.stepper.is_stopped();
+            let at = self.time.system_time(now);
+            self.fault
+                .record(at, FaultKind::OutputWatchdog, quiet, stopped);
+        }
     }
 
     /// The limit switch's level as read at boot, before any edge: sets the

@@ -1,7 +1,12 @@
 //! The module's ports, for the firmware's runtime: one PIPES function port
 //! per module function, and a port with no index of its own that ends and
-//! starts timed pulses from the runtime's loop (and performs an armed
-//! reboot into the bootloader, see [`crate::boot`]).
+//! starts timed pulses from the runtime's loop, fires the output watchdog
+//! ([`crate::watchdog`]) and performs an armed reboot into the bootloader
+//! (see [`crate::boot`]).
+//!
+//! The function ports feed the output watchdog: a call or a pipe datagram
+//! that reaches a function (whether it runs, or fails) feeds it; a run the
+//! function's own timer makes does not.
 
 use crate::functions::{ModuleFn, ALL};
 use crate::ModuleHandle;
@@ -59,6 +64,7 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
         let (now, system) = (tx.now(), tx.system_time());
         self.last = (now, system);
         self.module.with(|m| {
+            m.poll_watchdog(now);
             m.poll_io(now, system);
             m.poll_boot(now);
         });
@@ -69,7 +75,10 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
         self.module
             .with(|m| {
                 let io = m.io_wake_at(now, system);
-                [io, m.boot.due_at()].into_iter().flatten().min()
+                [io, m.boot.due_at(), m.watchdog.deadline()]
+                    .into_iter()
+                    .flatten()
+                    .min()
             })
             .flatten()
     }
@@ -113,7 +122,21 @@ impl<H: ModuleHandle> Port for ModulePort<H> {
         delegate!(self, p => p.clear_to_receive(offset))
     }
     fn on_packet(&mut self, delivery: Delivery<'_>, tx: &mut PortTx<'_>) {
-        delegate!(self, p => p.on_packet(delivery, tx))
+        match self {
+            ModulePort::Function(f) => {
+                let heard = |f: &ModuleFunction<H>| {
+                    let s = f.stats();
+                    (s.calls, s.datagrams, s.run_errors)
+                };
+                let before = heard(f);
+                f.on_packet(delivery, tx);
+                if heard(f) != before {
+                    let now = tx.now();
+                    f.implementation().module().with(|m| m.feed_watchdog(now));
+                }
+            }
+            ModulePort::Timer(t) => t.on_packet(delivery, tx),
+        }
     }
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         delegate!(self, p => p.poll(tx))

@@ -663,12 +663,19 @@ impl Stepper {
     }
 
     /// Where the steps put the motor, in microsteps, then the steps up,
-    /// steps down and overrun ticks (ticks that owed more than one step;
-    /// the steps still went out later) since the step generator last
-    /// started (boot, enable, disable, halt, or a scale or microstep change).
+    /// steps down and late steps (sent on a later tick than the one they
+    /// fell due at: [`maxl::StepStats::late`]) since the step generator
+    /// last started (boot, enable, disable, halt, or a scale or microstep
+    /// change).
     pub fn step_counts(&self) -> (i64, u64, u64, u64) {
         let s = self.gen.stats();
-        (self.gen.position(), s.up, s.down, s.overruns)
+        (self.gen.position(), s.up, s.down, s.late)
+    }
+
+    /// The step generator's own counters (ticks, overrun ticks, the
+    /// largest backlog, ...) since it last started.
+    pub fn step_stats(&self) -> maxl::StepStats {
+        self.gen.stats()
     }
 
     /// Steps the step generator still owes (more than one at a tick is an

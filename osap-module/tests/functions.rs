@@ -41,6 +41,9 @@ impl IoHw for Pins {
         1
     }
     fn write_pwm(&mut self, _channel: u8, _duty: u16) {}
+    fn read_pwm(&self, _channel: u8) -> u16 {
+        0
+    }
     fn analog_inputs(&self) -> u8 {
         1
     }
@@ -416,8 +419,8 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
         m.get_fault().unwrap(),
         (200_000, FaultKind::Halted.code(), 0, 5)
     );
-    // A move faster than the step rate overruns, reported once per run of
-    // the step generator.
+    // A move faster than the step rate sends steps late: each word that
+    // sent some records the running count.
     m.set_enable(false).unwrap();
     m.set_enable(true).unwrap();
     m.set_microsteps(16).unwrap();
@@ -436,11 +439,29 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
         m.add_point(t0 + k * iv, here + 5.0).unwrap();
     }
     let mut local = t0;
-    while local < t0 + 30 * iv {
+    let mut late_words = 0;
+    while local < t0 + 40 * iv {
+        let late = m.get_steps().unwrap().3;
         m.fill_step_word(Instant::from_micros(local));
+        let now_late = m.get_steps().unwrap().3;
+        if now_late != late {
+            late_words += 1;
+            let (_, code, detail, _) = m.get_fault().unwrap();
+            assert_eq!(
+                (code, u64::from(detail)),
+                (FaultKind::StepOverrun.code(), now_late)
+            );
+        }
         local += 160;
     }
-    let (_, code, owed, count) = m.get_fault().unwrap();
-    assert_eq!((code, count), (FaultKind::StepOverrun.code(), 6));
-    assert!(owed > 1, "{owed}");
+    let (_, code, detail, count) = m.get_fault().unwrap();
+    let (_, up, down, late) = m.get_steps().unwrap();
+    assert_eq!((up, down), (6_400, 0), "no step lost");
+    // 6 400 steps over 5 intervals of 2 048 µs, 1 024 ticks: at most one
+    // step a tick went out on time.
+    assert!(late >= 6_400 - 1_024, "{late}");
+    assert_eq!(code, FaultKind::StepOverrun.code());
+    assert_eq!(u64::from(detail), late, "the running count");
+    assert_eq!(count, 5 + late_words);
+    assert!(late_words > 1);
 }

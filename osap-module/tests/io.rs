@@ -28,6 +28,9 @@ impl IoHw for Pins {
     fn write_pwm(&mut self, channel: u8, duty: u16) {
         self.pwm[usize::from(channel)] = duty;
     }
+    fn read_pwm(&self, channel: u8) -> u16 {
+        self.pwm[usize::from(channel)]
+    }
     fn analog_inputs(&self) -> u8 {
         1
     }

@@ -44,6 +44,9 @@ impl IoHw for Board {
         2
     }
     fn write_pwm(&mut self, _channel: u8, _duty: u16) {}
+    fn read_pwm(&self, _channel: u8) -> u16 {
+        0
+    }
     fn analog_inputs(&self) -> u8 {
         3
     }

@@ -250,9 +250,13 @@ pub fn fault_reason(kind: FaultKind, detail: u32) -> String {
             f64::from(detail) / 1e3
         ),
         FaultKind::StepOverrun => format!(
-            "was asked to step faster than its step rate ({detail} steps owed at one tick; the steps went out late): lower the axis's velocity or its microsteps"
+            "was asked to step faster than its step rate ({detail} steps went out late since its motor was enabled): lower the axis's velocity or its microsteps"
         ),
         FaultKind::LimitHit => "had its limit switch pressed".into(),
+        FaultKind::OutputWatchdog => format!(
+            "put its outputs in their safe state: nothing reached it for {:.0} ms, past its output watchdog (the host stopped or the link went quiet: check the link, or raise [modules.NAME] output_watchdog_ms)",
+            f64::from(detail) / 1e3
+        ),
         FaultKind::Halted => "was halted (its motor must be cycled: recover())".into(),
         FaultKind::OverLimit => {
             let which: Vec<&str> = osap_module::fault::over_limit_names(detail).collect();

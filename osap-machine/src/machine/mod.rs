@@ -1296,7 +1296,9 @@ fn stops_motion(inner: &Inner, module: &str, kind: events::FaultKind, detail: u3
             .motors()
             .iter()
             .any(|m| m.module == module && m.enable),
-        K::Refused | K::Backstop | K::LimitHit | K::Halted | K::OverLimit => true,
+        K::Refused | K::Backstop | K::LimitHit | K::Halted | K::OverLimit | K::OutputWatchdog => {
+            true
+        }
     }
 }
 

@@ -458,6 +458,9 @@ impl IoHw for Pins {
             });
         }
     }
+    fn read_pwm(&self, channel: u8) -> u16 {
+        self.pwm.get(usize::from(channel)).copied().unwrap_or(0)
+    }
     fn analog_inputs(&self) -> u8 {
         ANALOG_INPUTS
     }

@@ -33,6 +33,9 @@ pub struct Stepper {
     analog_read: FunctionHandle,
     get_fault: FunctionHandle,
     enter_bootloader: FunctionHandle,
+    set_safe_pwm: FunctionHandle,
+    set_safe_digital: FunctionHandle,
+    set_output_watchdog: FunctionHandle,
 }
 
 impl Stepper {
@@ -70,7 +73,7 @@ impl Stepper {
         support::Signature {
             function: "get_steps",
             inputs: &[],
-            outputs: &[("steps", "i64"), ("up", "u64"), ("down", "u64"), ("overruns", "u64")],
+            outputs: &[("steps", "i64"), ("up", "u64"), ("down", "u64"), ("late", "u64")],
         },
         support::Signature {
             function: "set_enable",
@@ -142,6 +145,21 @@ impl Stepper {
             inputs: &[],
             outputs: &[],
         },
+        support::Signature {
+            function: "set_safe_pwm",
+            inputs: &[("channel", "u8"), ("duty", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "set_safe_digital",
+            inputs: &[("pin", "u8"), ("level", "bool")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "set_output_watchdog",
+            inputs: &[("timeout_ms", "u32")],
+            outputs: &[],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -179,6 +197,9 @@ impl Stepper {
             analog_read: support::function(manager, runtime, "analog_read")?,
             get_fault: support::function(manager, runtime, "get_fault")?,
             enter_bootloader: support::function(manager, runtime, "enter_bootloader")?,
+            set_safe_pwm: support::function(manager, runtime, "set_safe_pwm")?,
+            set_safe_digital: support::function(manager, runtime, "set_safe_digital")?,
+            set_output_watchdog: support::function(manager, runtime, "set_output_watchdog")?,
         })
     }
 
@@ -318,7 +339,7 @@ impl Stepper {
     /// `get_steps`.
     ///
     /// - inputs: none
-    /// - outputs: `steps: i64`, `up: u64`, `down: u64`, `overruns: u64`
+    /// - outputs: `steps: i64`, `up: u64`, `down: u64`, `late: u64`
     /// - generated from: `stepper` firmware 0.1.0
     pub async fn get_steps(&self) -> Result<GetStepsOutputs, CallError> {
         let h = &self.get_steps;
@@ -328,7 +349,7 @@ impl Stepper {
             steps: out.next(support::from_i64)?,
             up: out.next(support::from_u64)?,
             down: out.next(support::from_u64)?,
-            overruns: out.next(support::from_u64)?,
+            late: out.next(support::from_u64)?,
         })
     }
 
@@ -679,6 +700,75 @@ impl Stepper {
     pub fn enter_bootloader_ref(&self) -> &FnRef {
         self.enter_bootloader.function()
     }
+
+    /// `set_safe_pwm`.
+    ///
+    /// - inputs: `channel: u8`, `duty: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn set_safe_pwm(&self, channel: u8, duty: f32) -> Result<(), CallError> {
+        let h = &self.set_safe_pwm;
+        let values = h.call(&[support::to_u8(channel), support::to_f32(duty)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `set_safe_pwm`, for `push` and raw calls.
+    pub fn set_safe_pwm_handle(&self) -> &FunctionHandle {
+        &self.set_safe_pwm
+    }
+
+    /// `set_safe_pwm` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn set_safe_pwm_ref(&self) -> &FnRef {
+        self.set_safe_pwm.function()
+    }
+
+    /// `set_safe_digital`.
+    ///
+    /// - inputs: `pin: u8`, `level: bool`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn set_safe_digital(&self, pin: u8, level: bool) -> Result<(), CallError> {
+        let h = &self.set_safe_digital;
+        let values = h.call(&[support::to_u8(pin), support::to_bool(level)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `set_safe_digital`, for `push` and raw calls.
+    pub fn set_safe_digital_handle(&self) -> &FunctionHandle {
+        &self.set_safe_digital
+    }
+
+    /// `set_safe_digital` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn set_safe_digital_ref(&self) -> &FnRef {
+        self.set_safe_digital.function()
+    }
+
+    /// `set_output_watchdog`.
+    ///
+    /// - inputs: `timeout_ms: u32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn set_output_watchdog(&self, timeout_ms: u32) -> Result<(), CallError> {
+        let h = &self.set_output_watchdog;
+        let values = h.call(&[support::to_u32(timeout_ms)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `set_output_watchdog`, for `push` and raw calls.
+    pub fn set_output_watchdog_handle(&self) -> &FunctionHandle {
+        &self.set_output_watchdog
+    }
+
+    /// `set_output_watchdog` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn set_output_watchdog_ref(&self) -> &FnRef {
+        self.set_output_watchdog.function()
+    }
 }
 
 /// Outputs of `get_position`.
@@ -725,8 +815,8 @@ pub struct GetStepsOutputs {
     pub up: u64,
     /// `down: u64`.
     pub down: u64,
-    /// `overruns: u64`.
-    pub overruns: u64,
+    /// `late: u64`.
+    pub late: u64,
 }
 
 /// Outputs of `read_limit`.
