@@ -153,12 +153,29 @@ fn a_lost_module_faults_the_machine_and_the_script_hears_why() {
         // Moves are refused until recovered.
         let e = m.goto_via_queue([20.0, 75.0], 50.0).await.unwrap_err();
         assert!(matches!(e, MachineError::Faulted(_)), "{e}");
+        // The fault's stop halts every module and switches the pen off; its
+        // report names the module it could not reach.
         let mut lost = false;
-        while let Ok(e) = events.try_recv() {
-            lost |= matches!(&e, MachineEvent::LinkLost { module } if module == "b");
-        }
+        let report = loop {
+            match events.recv().await.unwrap() {
+                MachineEvent::LinkLost { module } => lost |= module == "b",
+                MachineEvent::Stop(report) => break report,
+                _ => {}
+            }
+        };
         assert!(lost);
-        m.stop().await.unwrap();
+        assert!(report.reason.contains("module b"), "{report}");
+        assert_eq!(report.confirmed, ["a", "z"], "{report}");
+        let unreached: Vec<&str> = report.unreachable.iter().map(|u| u.module.as_str()).collect();
+        assert_eq!(unreached, ["b"], "{report}");
+        // So does stopping the machine, as an error.
+        let e = m.stop().await.unwrap_err();
+        let MachineError::StopIncomplete(report) = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(report.confirmed, ["a", "z"], "{report}");
+        assert_eq!(report.unreachable[0].module, "b", "{report}");
+        assert!(e.to_string().contains("NOT reached: b"), "{e}");
     });
 }
 

@@ -1058,9 +1058,13 @@ impl Machine {
                 }
             }
             drop(manager);
-            let mut homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
-            for (h, axis) in homed.iter_mut().zip(self.inner.cfg.axis_names()) {
-                *h = self.inner.cfg.axes[axis].homing.is_none();
+            // A motor's module that may have rebooted lost its step count;
+            // a tool's module lost no position.
+            if motors.iter().any(|m| lost.contains(&m.module)) {
+                let mut homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
+                for (h, axis) in homed.iter_mut().zip(self.inner.cfg.axis_names()) {
+                    *h = self.inner.cfg.axes[axis].homing.is_none();
+                }
             }
         }
         self.rearm_motors(true).await?;
