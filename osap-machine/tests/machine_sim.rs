@@ -190,11 +190,20 @@ fn a_limit_hit_outside_homing_halts_the_machine() {
         m.goto_via_queue([10.0, 75.0], 50.0).await.unwrap();
         let e = m.idle().await.unwrap_err();
         assert!(matches!(&e, MachineError::Faulted(r) if r.contains("limit switch")), "{e}");
+        // Every module halted at once, the pen's too, and every one said so.
         let mut hit = false;
-        while let Ok(e) = events.try_recv() {
-            hit |= matches!(&e, MachineEvent::Limit { module, pressed: true, expected: false, .. } if module == "a");
-        }
+        let report = loop {
+            match events.recv().await.unwrap() {
+                MachineEvent::Stop(report) => break report,
+                e => {
+                    hit |= matches!(&e, MachineEvent::Limit { module, pressed: true, expected: false, .. } if module == "a")
+                }
+            }
+        };
         assert!(hit);
+        assert!(report.reason.contains("limit switch on module a"), "{report}");
+        assert_eq!(report.confirmed, ["a", "b", "z"], "{report}");
+        assert!(report.is_complete(), "{report}");
         // Recovery: the machine is where its motors stopped, at once, at the
         // switch (50 mm travelled, not 140), and must home before moving.
         m.recover().await.unwrap();
