@@ -571,14 +571,23 @@ impl Machine {
             let _ = m.planner.halt();
             m.mark_busy();
         }
-        tracing::warn!("machine faulted: {reason}");
         if matches!(*self.inner.state.borrow(), MachineState::Faulted(_)) {
+            tracing::debug!("machine faulted again: {reason}");
             return false;
         }
+        tracing::warn!("machine faulted: {reason}");
         let state = MachineState::Faulted(reason);
         self.inner.state.send_replace(state.clone());
         let _ = self.inner.events.send(MachineEvent::State(state));
         true
+    }
+
+    /// Whether module `module`'s fault of `kind` with `detail` (a
+    /// [`MachineEvent::Fault`]) stops this machine: every fault does but
+    /// late steps within `[limits] max_late_steps` and a refusal for a
+    /// motor the machine file leaves disabled.
+    pub fn fault_stops(&self, module: &str, kind: events::FaultKind, detail: u32) -> bool {
+        stops_motion(&self.inner, module, kind, detail)
     }
 
     /// The machine file it was started from.

@@ -53,12 +53,17 @@ pub struct Reports {
     /// Per motor index: stepped positions (synchronized µs, motor units),
     /// while recording.
     pub positions: Option<Vec<Vec<(u64, f64)>>>,
-    /// Per module key: the synchronized time span (µs, both ends
-    /// included) of the machine's own latest `halt` of it. A `Halted`
-    /// fault stamped within it is the machine's own stop, which the stop's
-    /// [`StopReport`](super::error::StopReport) reports, not a fault.
-    pub own_halts: BTreeMap<String, (u64, u64)>,
+    /// Per module key: the synchronized time spans (µs, both ends
+    /// included) of the machine's own latest `halt`s of it, oldest first
+    /// (at most [`OWN_HALTS_KEPT`]). A `Halted` fault stamped within one is
+    /// the machine's own stop, which the stop's
+    /// [`StopReport`](super::error::StopReport) reports, not a fault; its
+    /// report may come after a later stop began.
+    pub own_halts: BTreeMap<String, Vec<(u64, u64)>>,
 }
+
+/// How many of the machine's own halts of a module are remembered.
+pub const OWN_HALTS_KEPT: usize = 4;
 
 impl Reports {
     /// Whether module `key`'s `Halted` fault stamped `time` is the
@@ -66,7 +71,28 @@ impl Reports {
     pub fn is_own_halt(&self, key: &str, time: u64) -> bool {
         self.own_halts
             .get(key)
-            .is_some_and(|(from, to)| (*from..=*to).contains(&time))
+            .is_some_and(|spans| spans.iter().any(|(from, to)| (*from..=*to).contains(&time)))
+    }
+
+    /// Notes the machine's own halt of module `key` from synchronized time
+    /// `from` (µs) on, until [`end_own_halt`](Self::end_own_halt).
+    pub fn begin_own_halt(&mut self, key: &str, from: u64) {
+        let spans = self.own_halts.entry(key.to_string()).or_default();
+        if spans.len() == OWN_HALTS_KEPT {
+            spans.remove(0);
+        }
+        spans.push((from, u64::MAX));
+    }
+
+    /// Ends module `key`'s own halt begun at `from`, at `to`.
+    pub fn end_own_halt(&mut self, key: &str, from: u64, to: u64) {
+        if let Some(span) = self
+            .own_halts
+            .get_mut(key)
+            .and_then(|spans| spans.iter_mut().rev().find(|s| s.0 == from))
+        {
+            span.1 = to;
+        }
     }
 
     /// Takes `refused`, module `key`'s refused-point count, as reported:
@@ -322,14 +348,25 @@ mod tests {
     }
 
     #[test]
-    fn only_a_halt_within_the_machines_own_span_is_its_own() {
+    fn only_a_halt_within_the_machines_own_spans_is_its_own() {
         let mut r = Reports::default();
         assert!(!r.is_own_halt("a", 1_000));
-        r.own_halts.insert("a".into(), (1_000, 2_000));
+        r.begin_own_halt("a", 1_000);
+        assert!(r.is_own_halt("a", 9_000_000), "open until it ends");
+        r.end_own_halt("a", 1_000, 2_000);
         assert!(r.is_own_halt("a", 1_000));
         assert!(r.is_own_halt("a", 2_000));
         assert!(!r.is_own_halt("a", 999));
         assert!(!r.is_own_halt("a", 2_001));
         assert!(!r.is_own_halt("b", 1_500));
+        // A later stop keeps the earlier span: its report may come late.
+        r.begin_own_halt("a", 5_000);
+        r.end_own_halt("a", 5_000, 6_000);
+        assert!(r.is_own_halt("a", 1_500) && r.is_own_halt("a", 5_500));
+        assert!(!r.is_own_halt("a", 3_000));
+        for k in 0..OWN_HALTS_KEPT as u64 {
+            r.begin_own_halt("a", 10_000 * (k + 1));
+        }
+        assert!(!r.is_own_halt("a", 1_500), "only the latest are kept");
     }
 }

@@ -65,6 +65,7 @@ impl Machine {
     pub(super) async fn emergency_stop_as(&self, reason: String) -> StopReport {
         self.fault(reason.clone());
         let (tools, halts) = tokio::join!(self.tools_off(), self.halt_modules());
+        self.pause_motion();
         self.report_stop(reason, [tools, halts])
     }
 
@@ -100,6 +101,7 @@ impl Machine {
         self.await_stops().await;
         let (tools, ()) = tokio::join!(self.tools_off(), self.come_to_rest());
         let halts = self.halt_modules().await;
+        self.pause_motion();
         let report = self.report_stop("the machine stops".into(), [tools, halts]);
         self.inner.state.send_replace(MachineState::Stopped);
         let sim = self
@@ -126,6 +128,7 @@ impl Machine {
         let task = tokio::spawn(async move {
             let (tools, ()) = tokio::join!(machine.tools_off(), machine.come_to_rest());
             let halts = machine.halt_modules().await;
+            machine.pause_motion();
             machine.report_stop(reason, [tools, halts]);
         });
         self.inner
@@ -133,6 +136,12 @@ impl Machine {
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .push(task);
+    }
+
+    /// Sends no more points: the modules stand halted, and would refuse
+    /// them until [`Machine::recover`] sets them up again (and resumes).
+    fn pause_motion(&self) {
+        lock_motion(&self.inner.motion).paused = true;
     }
 
     /// Waits for the stops that faults started to end.
@@ -161,6 +170,11 @@ impl Machine {
         {
             let mut m = lock_motion(&self.inner.motion);
             let _ = m.planner.halt();
+            if m.paused {
+                // No point is sent: the motors stand (a stop before this
+                // one halted them).
+                return;
+            }
             m.mark_busy();
         }
         let bound = self.stop_bound();
@@ -264,7 +278,7 @@ impl Machine {
                 let from = machine.now_us().await.ok();
                 let start = from.map(|t| t.saturating_sub(HALT_STAMP_MARGIN_US));
                 if let Some(start) = start {
-                    machine.own_halt(&key, (start, u64::MAX));
+                    monitor::lock(&machine.inner.reports).begin_own_halt(&key, start);
                 }
                 let r = h
                     .call_idempotent(&[])
@@ -273,7 +287,8 @@ impl Machine {
                     .map_err(|e| som_refusal(&key, "halt", e));
                 if let Some(start) = start {
                     let to = machine.now_us().await.unwrap_or(start);
-                    machine.own_halt(&key, (start, to.saturating_add(HALT_STAMP_MARGIN_US)));
+                    let to = to.saturating_add(HALT_STAMP_MARGIN_US);
+                    monitor::lock(&machine.inner.reports).end_own_halt(&key, start, to);
                 }
                 (key, r)
             });
@@ -285,12 +300,6 @@ impl Machine {
             }
         }
         out
-    }
-
-    fn own_halt(&self, key: &str, span: (u64, u64)) {
-        monitor::lock(&self.inner.reports)
-            .own_halts
-            .insert(key.to_string(), span);
     }
 
     /// The report of a stop from what its calls did; sent as
