@@ -372,3 +372,62 @@ fn late_steps_past_the_bound_stop_the_machine() {
         m.stop().await.unwrap();
     });
 }
+
+/// Module `name`'s link counts, all links: (packets in, bytes in,
+/// packets out, bytes out).
+async fn link_counts(module: &osap_sim::machine::SimModule) -> [u64; 4] {
+    module
+        .with_runtime(|rt, _| {
+            let mut sum = [0u64; 4];
+            for c in (0..8).filter_map(|i| rt.link_counters(i)) {
+                for (s, v) in sum.iter_mut().zip([c.received, c.rx_bytes, c.sent, c.tx_bytes]) {
+                    *s += u64::from(v);
+                }
+            }
+            sum
+        })
+        .await
+        .unwrap()
+}
+
+/// Module `module`'s traffic per second over `window` seconds from now.
+async fn traffic(module: &osap_sim::machine::SimModule, window: f64) -> [f64; 4] {
+    let before = link_counts(module).await;
+    tokio::time::sleep(Duration::from_secs_f64(window)).await;
+    let after = link_counts(module).await;
+    [0, 1, 2, 3].map(|i| (after[i] - before[i]) as f64 / window)
+}
+
+#[test]
+fn an_idle_machine_feeds_its_tool_module_at_a_small_cost() {
+    virtual_runtime().unwrap().block_on(async {
+        // The same network without a machine: clock sync alone.
+        let cfg = plotter_file();
+        let host = osap_host::Host::start(osap_host::HostConfig::named("bare")).unwrap();
+        let topology = osap_machine::sim::topology(&cfg).unwrap();
+        let sim = osap_sim::machine::SimMachine::start(&host, &topology)
+            .await
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let bare = traffic(sim.module("z").unwrap(), 10.0).await;
+        sim.stop().await.unwrap();
+        // The machine at rest: z is watched (status every 50 ms) and fed
+        // (get_status called every 125 ms).
+        let m = simulate(&cfg).await;
+        m.set_position([20.0, 75.0]).unwrap();
+        tokio::time::sleep(Duration::from_millis(500)).await;
+        let fed = traffic(&sim_module(&m, "z"), 10.0).await;
+        let added: Vec<f64> = (0..4).map(|i| fed[i] - bare[i]).collect();
+        eprintln!(
+            "module z at rest, per second: clock sync alone {:.1} packets ({:.0} B) in, {:.1} ({:.0} B) out; a machine adds {:.1} ({:.0} B) in, {:.1} ({:.0} B) out",
+            bare[0], bare[1], bare[2], bare[3], added[0], added[1], added[2], added[3]
+        );
+        // In: at least the feeding calls, 8 a second.
+        assert!(added[0] >= 8.0, "{added:?}");
+        // All the machine's traffic to a module at rest (the feeding, the
+        // status reports, the pipes' acknowledgements) stays under 2 % of
+        // the 2 Mbaud UART (200 000 B/s).
+        assert!(added[1] + added[3] < 0.02 * 200_000.0, "{added:?}");
+        m.stop().await.unwrap();
+    });
+}
