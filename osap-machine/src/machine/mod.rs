@@ -1357,22 +1357,7 @@ async fn configure_motor(
     .await?;
     call("set_enable", vec![Value::Bool(motor.enable)]).await?;
     let out = call("get_position", vec![]).await?;
-    stepped_position(&motor.module, &out)
-}
-
-/// The position of module `module`'s `get_position` outputs `(time: u64,
-/// position: f32)`; outputs of other types, or a position that is not a
-/// number, are an error (never a position of 0).
-fn stepped_position(module: &str, out: &[Value<'static>]) -> Result<f64, MachineError> {
-    match out {
-        [Value::U64(_), Value::F32(p)] if p.is_finite() => Ok(f64::from(*p)),
-        _ => Err(MachineError::BadOutput {
-            module: module.into(),
-            function: "get_position".into(),
-            expected: "(time: u64, position: f32), a finite position".into(),
-            got: format!("{out:?}"),
-        }),
-    }
+    stop::stepped_position(&motor.module, &out)
 }
 
 /// Room kept beyond a motor's span over the travel: stopping past a

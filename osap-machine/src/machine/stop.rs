@@ -359,7 +359,7 @@ impl Machine {
                     let out = machine
                         .call_idempotent(&module, "get_position", &[])
                         .await?;
-                    super::stepped_position(&module, &out)
+                    stepped_position(&module, &out)
                 }
                 .await;
                 (i, r)
@@ -397,5 +397,46 @@ impl Machine {
         m.last_motors = at;
         m.error = None;
         Ok(())
+    }
+}
+
+/// The position of module `module`'s `get_position` outputs `(time: u64,
+/// position: f32)`; outputs of other types, or a position that is not a
+/// number, are an error (never a position of 0).
+pub(super) fn stepped_position(module: &str, out: &[Value<'static>]) -> Result<f64, MachineError> {
+    match out {
+        [Value::U64(_), Value::F32(p)] if p.is_finite() => Ok(f64::from(*p)),
+        _ => Err(MachineError::BadOutput {
+            module: module.into(),
+            function: "get_position".into(),
+            expected: "(time: u64, position: f32), a finite position".into(),
+            got: format!("{out:?}"),
+        }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_missing_or_mistyped_position_is_an_error_not_zero() {
+        let good = [Value::U64(7), Value::F32(-12.5)];
+        assert_eq!(stepped_position("a", &good).unwrap(), -12.5);
+        for bad in [
+            vec![],
+            vec![Value::U64(7)],
+            vec![Value::U64(7), Value::F64(-12.5)],
+            vec![Value::U64(7), Value::I32(3)],
+            vec![Value::U64(7), Value::F32(f32::NAN)],
+            vec![Value::U64(7), Value::F32(1.0), Value::F32(2.0)],
+        ] {
+            let e = stepped_position("a", &bad).unwrap_err();
+            assert!(
+                matches!(&e, MachineError::BadOutput { module, function, .. } if module == "a" && function == "get_position"),
+                "{bad:?}: {e}"
+            );
+            assert!(e.to_string().contains("update its firmware"), "{e}");
+        }
     }
 }
