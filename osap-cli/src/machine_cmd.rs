@@ -9,10 +9,9 @@ use indicatif::{ProgressBar, ProgressStyle};
 use osap_host::link::serial;
 use osap_machine::config::MachineFile;
 use osap_machine::job::{self, Program};
-use osap_machine::machine::events::FaultKind;
 use osap_machine::machine::{Link, SimOptions};
 use osap_machine::svg::SvgOptions;
-use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
+use osap_machine::{Machine, MachineError, MachineState};
 use osap_sim::machine::TimeMode;
 
 /// Exit code of a job or argument refused before any motion.
@@ -20,9 +19,10 @@ pub const REFUSED: u8 = 2;
 /// Exit code of a failure during motion that is not the machine's own
 /// fault report: the host runtime, a link, or a lost clock.
 pub const FAULTED: u8 = 1;
-/// Exit code of a machine fault: a module reported a fault (a refused
-/// point, its backstop, a limit press, a halt) or stopped answering, and
-/// the machine stopped; the message names the module and why.
+/// Exit code of a machine fault: a module reported a fault that stops the
+/// machine (a refused point, its backstop, late steps, a limit press, a
+/// halt) or stopped answering, or a stop did not reach every module; the
+/// message names the module and why.
 pub const MACHINE_FAULT: u8 = 3;
 
 /// Where a machine command finds the machine.
@@ -134,7 +134,7 @@ impl Failure {
 
     pub(crate) fn from_machine(e: MachineError) -> Failure {
         let code = match e {
-            MachineError::Faulted(_) => MACHINE_FAULT,
+            MachineError::Faulted(_) | MachineError::StopIncomplete(_) => MACHINE_FAULT,
             MachineError::Homing { .. } | MachineError::Probe { .. } | MachineError::Stopped => {
                 FAULTED
             }
@@ -305,7 +305,15 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let start = osap_machine::machine::drive::start_position(&cfg);
 
     let machine = args.target.start(&cfg).await?;
-    let mut events = machine.events();
+    // Every event, taken as it comes: a long job must not outrun the
+    // stream.
+    let (events_done, done) = tokio::sync::oneshot::channel();
+    let judge = machine.clone();
+    let heard = tokio::spawn(crate::run_events::collect(
+        machine.events(),
+        Box::new(move |module, kind, detail| judge.fault_stops(module, kind, detail)),
+        done,
+    ));
     eprintln!(
         "machine {} ready ({} modules, {}) after {:.2} s",
         cfg.name,
@@ -367,46 +375,19 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
         .await
         .map_err(Failure::from_machine)?;
 
-    let mut faults = Vec::new();
-    let mut warnings = Vec::new();
-    let mut refusals: std::collections::BTreeMap<String, (u32, String)> = Default::default();
-    while let Ok(e) = events.try_recv() {
-        match e {
-            MachineEvent::Fault {
-                module,
-                kind: FaultKind::StepOverrun,
-                reason,
-                ..
-            } => warnings.push(format!("module {module} {reason}")),
-            MachineEvent::Fault { module, reason, .. } => {
-                faults.push(format!("module {module} {reason}"))
-            }
-            MachineEvent::LinkLost { module } => faults.push(format!("module {module}: link lost")),
-            MachineEvent::Refused {
-                module,
-                count,
-                reason,
-            } => {
-                // The newest count per module says it all.
-                refusals.insert(module, (count, reason));
-            }
-            MachineEvent::Limit {
-                module,
-                pressed: true,
-                expected: false,
-                ..
-            } => faults.push(format!("module {module}: limit switch hit")),
-            _ => {}
-        }
-    }
-    unique(&mut faults);
-    unique(&mut warnings);
-    // Whether a fault stopped the machine (some, like a stale point, are
-    // only reported): its first fault is the reason.
-    let stopped_by = match machine.state() {
+    // Whether a fault stopped the machine: its first fault is the reason.
+    let faulted = match machine.state() {
         MachineState::Faulted(reason) => Some(reason),
         _ => None,
     };
+    // The machine's stop at the end, heard with the rest.
+    let stopped = machine.clone().stop().await;
+    let _ = events_done.send(());
+    let heard = heard.await.map_err(|e| Failure {
+        code: FAULTED,
+        message: format!("collecting the machine's events: {e}"),
+    })?;
+    let stopped_by = faulted.or_else(|| heard.stopping.first().cloned());
 
     println!("job {}: {} moves", args.job.display(), program.moves.len());
     println!("planned duration   {:>9.3} s", planned_s);
@@ -418,22 +399,26 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     for (axis, err) in recording.following_error() {
         println!("largest following error {axis}: {:.4} mm", err);
     }
-    for (module, (count, reason)) in &refusals {
-        println!("warning: module {module} refused {count} points (the latest: {reason})");
+    for (module, (count, reason)) in &heard.refusals {
+        println!("module {module} refused {count} points (the latest: {reason})");
     }
-    for w in &warnings {
-        println!("warning: {w}");
+    for f in &heard.passed {
+        println!("note: {f} (within this machine file's bounds: not a stop)");
     }
-    if faults.is_empty() {
+    if heard.missed > 0 {
+        println!(
+            "error: {} machine events were missed (the event stream lagged): the faults below may be incomplete",
+            heard.missed
+        );
+    }
+    if !heard.stopped() && stopped_by.is_none() && heard.missed == 0 {
         println!("faults: none");
-    } else if stopped_by.is_none() {
-        for f in &faults {
-            println!("warning: {f} (reported; the machine went on)");
-        }
-    } else {
-        for f in &faults {
-            println!("fault: {f}");
-        }
+    }
+    for f in &heard.stopping {
+        println!("error: fault: {f}");
+    }
+    for s in heard.stops.iter().filter(|s| !s.is_complete()) {
+        println!("error: {s}");
     }
     let files = recording
         .write_csv(&out)
@@ -455,20 +440,24 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
             .collect::<Vec<_>>()
             .join(", ")
     );
-    let stopped = machine.stop().await;
     result.map_err(Failure::from_machine)?;
     stopped.map_err(Failure::from_machine)?;
     if let Some(reason) = stopped_by {
         eprintln!("error: machine fault: {reason}");
         return Ok(ExitCode::from(MACHINE_FAULT));
     }
+    if heard.stopped() {
+        eprintln!("error: machine fault: a stop did not reach every module");
+        return Ok(ExitCode::from(MACHINE_FAULT));
+    }
+    if heard.missed > 0 {
+        eprintln!(
+            "error: {} machine events were missed: whether the job ran clean is unknown",
+            heard.missed
+        );
+        return Ok(ExitCode::from(FAULTED));
+    }
     Ok(ExitCode::SUCCESS)
-}
-
-/// Keeps the first of each repeated line, in order.
-fn unique(lines: &mut Vec<String>) {
-    let mut seen = std::collections::BTreeSet::new();
-    lines.retain(|l| seen.insert(l.clone()));
 }
 
 /// `osap home MACHINE [AXIS ..]`.
@@ -586,10 +575,4 @@ mod tests {
         assert!(![0, FAULTED, REFUSED].contains(&MACHINE_FAULT));
     }
 
-    #[test]
-    fn repeated_reports_are_listed_once_in_order() {
-        let mut l: Vec<String> = ["b", "a", "b", "c", "a"].map(String::from).into();
-        unique(&mut l);
-        assert_eq!(l, ["b", "a", "c"]);
-    }
 }

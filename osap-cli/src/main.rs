@@ -23,6 +23,7 @@ mod halt_cmd;
 mod level_cmd;
 mod machine_cmd;
 mod resonance_cmd;
+mod run_events;
 mod serve_cmd;
 mod time_cmd;
 mod view;

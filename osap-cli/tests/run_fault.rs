@@ -46,3 +46,94 @@ fn a_fault_mid_job_names_the_module_and_exits_3() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A lead-screw axis (2 mm lead, 1.8° motor: 100 full steps/mm) at 32
+/// microsteps, allowed 40 mm/s: 128 000 microsteps/s, past the module's
+/// 100 000 step ticks/s, so a fast move sends steps late.
+const FAST_AXIS: &str = r#"
+name = "fast"
+[modules]
+x = { name = "x" }
+[motors.x]
+module = "x"
+full_steps_per_unit = 100.0
+microsteps = 32
+[axes.x]
+motor = "x"
+min = 0.0
+max = 9.0
+velocity = 40.0
+acceleration = 2000.0
+jerk = 100000.0
+[limits]
+velocity = 40.0
+acceleration = 2000.0
+junction_deviation = 0.02
+"#;
+
+/// Runs an 8.5 mm move at 40 mm/s on the fast axis with `limits_extra`
+/// added to its `[limits]`: the exit code and what was printed.
+fn run_fast_move(name: &str, limits_extra: &str) -> (Option<i32>, String) {
+    let dir = std::env::temp_dir().join(format!("osap-run-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let machine = FAST_AXIS.replace(
+        "junction_deviation = 0.02",
+        &format!("junction_deviation = 0.02\n{limits_extra}"),
+    );
+    let machine_path = dir.join("fast.toml");
+    std::fs::write(&machine_path, machine).unwrap();
+    let job = dir.join("job.gcode");
+    std::fs::write(&job, "G21\nG90\nG1 X8.5 F2400\n").unwrap();
+    let o = Command::new(env!("CARGO_BIN_EXE_osap"))
+        .args(["run", "--sim", "--fast", "--no-home", "--out"])
+        .arg(dir.join("out"))
+        .arg(&machine_path)
+        .arg(&job)
+        .current_dir(&dir)
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    (
+        o.status.code(),
+        format!(
+            "{}\n{}",
+            String::from_utf8_lossy(&o.stdout),
+            String::from_utf8_lossy(&o.stderr)
+        ),
+    )
+}
+
+#[test]
+fn late_steps_are_a_fault_that_exits_3_never_a_warning() {
+    let (code, text) = run_fast_move("late", "");
+    assert_eq!(code, Some(3), "{text}");
+    assert!(
+        text.contains("error: fault: module x was asked to step faster than its step rate"),
+        "{text}"
+    );
+    assert!(
+        text.contains("error: machine faulted: module x was asked to step faster"),
+        "{text}"
+    );
+    assert_eq!(
+        text.matches("error: fault:").count(),
+        1,
+        "the first late steps, once: {text}"
+    );
+    assert!(!text.contains("went on"), "{text}");
+    assert!(!text.contains("faults: none"), "{text}");
+}
+
+#[test]
+fn late_steps_within_the_files_bound_are_noted_and_the_job_passes() {
+    let (code, text) = run_fast_move("late-allowed", "max_late_steps = 1000000");
+    assert_eq!(code, Some(0), "{text}");
+    assert!(
+        text.contains("note: module x was asked to step faster than its step rate")
+            && text.contains("not a stop"),
+        "{text}"
+    );
+    assert!(!text.contains("error:"), "{text}");
+    assert_eq!(text.matches("note:").count(), 1, "{text}");
+}

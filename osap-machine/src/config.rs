@@ -170,6 +170,28 @@ pub struct ModuleRef {
     /// [`crate::network::Entry`]): link indices, one per hop.
     #[serde(default)]
     pub route: Option<Vec<u16>>,
+    /// How long the module's upstream may stay quiet (no call, no dataflow
+    /// message) before the module puts its outputs (tools) to their safe
+    /// values by itself, ms ([`DEFAULT_OUTPUT_WATCHDOG_MS`] if not given;
+    /// [`OUTPUT_WATCHDOG_MS`] is the range).
+    #[serde(default)]
+    pub output_watchdog_ms: Option<u32>,
+}
+
+/// A module's output watchdog when its `[modules.NAME]` entry gives none, ms.
+pub const DEFAULT_OUTPUT_WATCHDOG_MS: u32 = 500;
+
+/// The output watchdog times a machine file may give, ms: the host feeds
+/// every module four times per watchdog time, so a shorter one loads the
+/// bus, and a longer one leaves a tool on for longer after its host died.
+pub const OUTPUT_WATCHDOG_MS: std::ops::RangeInclusive<u32> = 100..=10_000;
+
+impl ModuleRef {
+    /// The module's output watchdog time, ms.
+    pub fn output_watchdog_ms(&self) -> u32 {
+        self.output_watchdog_ms
+            .unwrap_or(DEFAULT_OUTPUT_WATCHDOG_MS)
+    }
 }
 
 /// A stepper motor on a module.
@@ -428,6 +450,12 @@ pub struct Limits {
     /// limits sit (≥ 1; 0 turns the firmware limits off). Default 1.5.
     #[serde(default = "default_module_margin")]
     pub module_margin: f64,
+    /// How many steps a module may send late (more than one step period
+    /// behind their time, because the axis was asked to step faster than
+    /// the module's step rate) before the machine stops on it. Default 0:
+    /// any late step stops the machine.
+    #[serde(default)]
+    pub max_late_steps: u32,
 }
 
 fn default_module_margin() -> f64 {
@@ -781,6 +809,18 @@ impl MachineFile {
                             ),
                         ));
                     }
+                }
+            }
+            if let Some(ms) = module.output_watchdog_ms {
+                if !OUTPUT_WATCHDOG_MS.contains(&ms) {
+                    return Err(invalid(
+                        format!("{at}.output_watchdog_ms"),
+                        format!(
+                            "{ms} ms is outside {} to {} ms; give how long the module may go without hearing from the host before it switches its tools off (default {DEFAULT_OUTPUT_WATCHDOG_MS})",
+                            OUTPUT_WATCHDOG_MS.start(),
+                            OUTPUT_WATCHDOG_MS.end()
+                        ),
+                    ));
                 }
             }
         }

@@ -47,4 +47,4 @@ pub mod sim;
 pub mod svg;
 
 pub use machine::events::FaultKind;
-pub use machine::{Machine, MachineError, MachineEvent, MachineState};
+pub use machine::{Machine, MachineError, MachineEvent, MachineState, StopReport};

@@ -585,3 +585,40 @@ fn firmware_limits_are_validated_with_their_key() {
     let l = m.motors["b"].limits.unwrap();
     assert_eq!((l.velocity, l.acceleration, l.jerk), (400.0, 9000.0, 0.0));
 }
+
+#[test]
+fn stop_settings_are_validated_with_their_key() {
+    // The output watchdog: default 500 ms, within 100..=10 000 ms.
+    let m = MachineFile::parse(BASE).unwrap();
+    assert_eq!(m.modules["z"].output_watchdog_ms(), 500);
+    assert_eq!(m.limits.max_late_steps, 0);
+    let short = edited(
+        "z = { route = [0, 3] }",
+        "z = { route = [0, 3], output_watchdog_ms = 20 }",
+    );
+    let (key, msg) = invalid_key(&short);
+    assert_eq!(key, "modules.z.output_watchdog_ms");
+    assert!(msg.contains("20 ms is outside 100 to 10000 ms"), "{msg}");
+    let off = short.replace("output_watchdog_ms = 20", "output_watchdog_ms = 0");
+    assert_eq!(invalid_key(&off).0, "modules.z.output_watchdog_ms");
+    let good = short.replace("output_watchdog_ms = 20", "output_watchdog_ms = 250");
+    assert_eq!(
+        MachineFile::parse(&good).unwrap().modules["z"].output_watchdog_ms(),
+        250
+    );
+    // Late steps: a count, default 0; a negative one is not a count.
+    let late = edited(
+        "junction_deviation = 0.02",
+        "junction_deviation = 0.02\nmax_late_steps = 4",
+    );
+    assert_eq!(MachineFile::parse(&late).unwrap().limits.max_late_steps, 4);
+    let negative = late.replace("max_late_steps = 4", "max_late_steps = -1");
+    assert!(
+        matches!(
+            MachineFile::parse(&negative),
+            Err(ConfigError::Parse { .. })
+        ),
+        "{:?}",
+        MachineFile::parse(&negative)
+    );
+}

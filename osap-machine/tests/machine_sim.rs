@@ -145,12 +145,29 @@ fn a_lost_module_faults_the_machine_and_the_script_hears_why() {
         // Moves are refused until recovered.
         let e = m.goto_via_queue([20.0, 75.0], 50.0).await.unwrap_err();
         assert!(matches!(e, MachineError::Faulted(_)), "{e}");
+        // The fault's stop halts every module and switches the pen off; its
+        // report names the module it could not reach.
         let mut lost = false;
-        while let Ok(e) = events.try_recv() {
-            lost |= matches!(&e, MachineEvent::LinkLost { module } if module == "b");
-        }
+        let report = loop {
+            match events.recv().await.unwrap() {
+                MachineEvent::LinkLost { module } => lost |= module == "b",
+                MachineEvent::Stop(report) => break report,
+                _ => {}
+            }
+        };
         assert!(lost);
-        m.stop().await.unwrap();
+        assert!(report.reason.contains("module b"), "{report}");
+        assert_eq!(report.confirmed, ["a", "z"], "{report}");
+        let unreached: Vec<&str> = report.unreachable.iter().map(|u| u.module.as_str()).collect();
+        assert_eq!(unreached, ["b"], "{report}");
+        // So does stopping the machine, as an error.
+        let e = m.stop().await.unwrap_err();
+        let MachineError::StopIncomplete(report) = &e else {
+            panic!("{e}")
+        };
+        assert_eq!(report.confirmed, ["a", "z"], "{report}");
+        assert_eq!(report.unreachable[0].module, "b", "{report}");
+        assert!(e.to_string().contains("NOT reached: b"), "{e}");
     });
 }
 
@@ -165,11 +182,20 @@ fn a_limit_hit_outside_homing_halts_the_machine() {
         m.goto_via_queue([10.0, 75.0], 50.0).await.unwrap();
         let e = m.idle().await.unwrap_err();
         assert!(matches!(&e, MachineError::Faulted(r) if r.contains("limit switch")), "{e}");
+        // Every module halted at once, the pen's too, and every one said so.
         let mut hit = false;
-        while let Ok(e) = events.try_recv() {
-            hit |= matches!(&e, MachineEvent::Limit { module, pressed: true, expected: false, .. } if module == "a");
-        }
+        let report = loop {
+            match events.recv().await.unwrap() {
+                MachineEvent::Stop(report) => break report,
+                e => {
+                    hit |= matches!(&e, MachineEvent::Limit { module, pressed: true, expected: false, .. } if module == "a")
+                }
+            }
+        };
         assert!(hit);
+        assert!(report.reason.contains("limit switch on module a"), "{report}");
+        assert_eq!(report.confirmed, ["a", "b", "z"], "{report}");
+        assert!(report.is_complete(), "{report}");
         // Recovery: the machine is where its motors stopped, at once, at the
         // switch (101 mm travelled, not 140), and must home before moving.
         m.recover().await.unwrap();

@@ -240,17 +240,26 @@ impl Poller {
             let Ok(v) = handle.call(&[]).await else {
                 continue;
             };
-            let num = |i: usize| v.get(i).and_then(som::Value::as_f64).unwrap_or(0.0);
-            let count = num(3) as u32;
+            // (time: u64, code: u8, detail: u32, count: u32); anything else
+            // is shown as what it is, never read as zeros.
+            let [som::Value::U64(time), som::Value::U8(code), som::Value::U32(detail), som::Value::U32(count)] =
+                v.as_slice()
+            else {
+                out.push(json!({
+                    "module": r.name,
+                    "kind": format!("unreadable get_fault reply {v:?}: update the module's firmware"),
+                }));
+                continue;
+            };
+            let (code, count) = (*code, *count);
             let seen = self.fault_counts.insert(id, count);
             if seen.is_some_and(|s| count > s) {
-                let code = num(1) as u8;
                 out.push(json!({
-                    "time_us": num(0) as u64,
+                    "time_us": time,
                     "module": r.name,
                     "kind": osap_machine::FaultKind::from_code(code)
                         .map_or_else(|| format!("code {code}"), |k| format!("{k:?}")),
-                    "detail": num(2) as u32,
+                    "detail": detail,
                     "count": count,
                 }));
             }

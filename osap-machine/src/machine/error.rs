@@ -127,6 +127,102 @@ pub enum MachineError {
     /// The machine has stopped (its host or simulation is gone).
     #[error("the machine has stopped")]
     Stopped,
+    /// A stop did not reach every module: those it did not reach may
+    /// still move or keep a tool on.
+    #[error("{0}")]
+    StopIncomplete(StopReport),
+    /// A module's function returned outputs of other types or fewer than
+    /// this host expects: its firmware is not one this host knows.
+    #[error("module {module}: {function} returned {got}, not {expected}; update its firmware (`osap flash`) or this host")]
+    BadOutput {
+        /// The module's key.
+        module: String,
+        /// The function called.
+        function: String,
+        /// What the host expected, e.g. `(u64, f32)`.
+        expected: String,
+        /// What came back.
+        got: String,
+    },
+}
+
+/// What a stop reached: every module of the machine file is sent `halt`
+/// and every tool on it its off value, all at once, and this says which
+/// modules confirmed every call and which could not be reached.
+#[derive(Debug, Clone, Default)]
+pub struct StopReport {
+    /// Why the machine stopped (an emergency stop, a fault's reason, a
+    /// halt the script asked for).
+    pub reason: String,
+    /// The modules (keys of `[modules]`) that confirmed the halt and every
+    /// tool off, in key order.
+    pub confirmed: Vec<String>,
+    /// The modules that did not, with the first error of each, in key
+    /// order.
+    pub unreachable: Vec<Unreached>,
+}
+
+/// A module a stop did not reach, and why.
+#[derive(Debug, Clone)]
+pub struct Unreached {
+    /// The module's key.
+    pub module: String,
+    /// The call that failed first.
+    pub error: std::sync::Arc<MachineError>,
+}
+
+impl StopReport {
+    /// Whether every module confirmed.
+    pub fn is_complete(&self) -> bool {
+        self.unreachable.is_empty()
+    }
+
+    /// `Ok(self)` if every module confirmed, else
+    /// [`MachineError::StopIncomplete`].
+    pub fn complete(self) -> Result<StopReport, MachineError> {
+        if self.is_complete() {
+            Ok(self)
+        } else {
+            Err(MachineError::StopIncomplete(self))
+        }
+    }
+}
+
+impl PartialEq for StopReport {
+    fn eq(&self, other: &Self) -> bool {
+        self.reason == other.reason
+            && self.confirmed == other.confirmed
+            && self.unreachable.len() == other.unreachable.len()
+            && self
+                .unreachable
+                .iter()
+                .zip(&other.unreachable)
+                .all(|(a, b)| a.module == b.module && a.error.to_string() == b.error.to_string())
+    }
+}
+
+impl std::fmt::Display for StopReport {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "stop ({}): ", self.reason)?;
+        if self.confirmed.is_empty() {
+            f.write_str("no module confirmed")?;
+        } else {
+            write!(f, "confirmed by {}", self.confirmed.join(", "))?;
+        }
+        if !self.unreachable.is_empty() {
+            let which: Vec<String> = self
+                .unreachable
+                .iter()
+                .map(|u| format!("{} ({})", u.module, u.error))
+                .collect();
+            write!(
+                f,
+                "; NOT reached: {}; cut the power of the modules not reached: they may still move or keep a tool on",
+                which.join("; ")
+            )?;
+        }
+        Ok(())
+    }
 }
 
 /// A stepper failure code (`add_point`'s, say) by name and reason, from

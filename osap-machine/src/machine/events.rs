@@ -2,6 +2,8 @@
 
 pub use osap_module::fault::FaultKind;
 
+use super::error::StopReport;
+
 /// What the machine is doing.
 #[derive(Debug, Clone, PartialEq)]
 pub enum MachineState {
@@ -23,9 +25,11 @@ pub enum MachineState {
 #[derive(Debug, Clone, PartialEq)]
 pub enum MachineEvent {
     /// A module reported a fault through its `get_fault` source: a
-    /// refused point, its backstop, a step overrun, a limit press (on a
-    /// module whose switch homing does not watch) or a halt. Every kind but
-    /// a step overrun stops the machine.
+    /// refused point, its backstop, late steps, a limit press (on a
+    /// module whose switch homing does not watch) or a halt that the
+    /// machine did not send itself. Every kind stops the machine, but late
+    /// steps within `[limits] max_late_steps` and refusals for a motor the
+    /// machine file leaves disabled.
     Fault {
         /// The module's key.
         module: String,
@@ -74,4 +78,7 @@ pub enum MachineEvent {
     },
     /// The machine's state changed.
     State(MachineState),
+    /// A stop ended: which modules confirmed their halt and their tools
+    /// off, and which could not be reached.
+    Stop(StopReport),
 }

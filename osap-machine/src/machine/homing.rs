@@ -242,7 +242,7 @@ impl Machine {
                 }
             }
         };
-        self.halt().await?;
+        self.stop_motion().await?;
         let m = lock_motion(&self.inner.motion);
         let at = m.position_at(edge.time).ok_or_else(|| MachineError::Homing {
             axis: String::new(),

@@ -24,7 +24,10 @@ mod homing;
 pub mod monitor;
 pub mod motion;
 mod probing;
+mod safe;
+mod stop;
 mod tool;
+mod liveness;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -43,7 +46,7 @@ use tokio::sync::{broadcast, watch};
 use crate::config::MachineFile;
 use crate::module_limits::{module_limits, ModuleLimits};
 pub use drive::{Drive, MAX_AXES};
-pub use error::MachineError;
+pub use error::{MachineError, StopReport, Unreached};
 pub use events::{MachineEvent, MachineState};
 use monitor::{LimitEdge, SharedReports};
 use motion::{MotionStatus, SharedMotion};
@@ -111,13 +114,20 @@ struct Inner {
     lost: Mutex<std::collections::BTreeSet<String>>,
     /// Timers recorders ask of module functions ([`crate::capture`]).
     capture_holds: crate::capture::Holds,
+    /// The controlled stops faults started, until they end.
+    stops: Mutex<Vec<tokio::task::JoinHandle<()>>>,
     _links: Vec<osap_host::link::stream::LinkHandle>,
     watchdog: tokio::task::JoinHandle<()>,
+    /// The tasks that keep the modules' output watchdogs fed.
+    feeders: Vec<tokio::task::JoinHandle<()>>,
 }
 
 impl Drop for Inner {
     fn drop(&mut self) {
         self.watchdog.abort();
+        for f in &self.feeders {
+            f.abort();
+        }
     }
 }
 
@@ -233,6 +243,7 @@ impl Machine {
                     detail: e.to_string(),
                 })?;
         }
+        safe::arm_all(cfg, &manager, &modules).await?;
 
         // Motors: scale, microsteps, interval, power; then where they stand.
         let mut motor_at = Vec::new();
@@ -308,22 +319,10 @@ impl Machine {
         }
 
         // Reports from the modules.
+        liveness::status_reports(&mut manager, &modules, &reports).await?;
         for motor in &motors {
             let runtime = modules[&motor.module].runtime.clone();
             let key = motor.module.as_str();
-            let status_fn = manager
-                .define(monitor::status(key, reports.clone()).map_err(MachineError::Unsupported)?)
-                .await?;
-            source(
-                &mut manager,
-                &runtime,
-                "get_status",
-                Some(STATUS_PERIOD_US),
-                false,
-                &status_fn,
-                4,
-            )
-            .await?;
             let counters_fn = manager
                 .define(
                     monitor::counters(key, reports.clone(), events.clone())
@@ -418,11 +417,12 @@ impl Machine {
             .keys()
             .map(|k| (k.clone(), tool::ToolState::default()))
             .collect();
-        let watchdog = tokio::spawn(watch_modules(
-            motors.iter().map(|m| m.module.clone()).collect(),
+        let watchdog = tokio::spawn(liveness::watch_modules(
+            modules.keys().cloned().collect(),
             reports.clone(),
             events.clone(),
         ));
+        let feeders = safe::keep_fed(cfg, &manager, &modules)?;
         let machine = Machine {
             inner: Arc::new(Inner {
                 cfg: cfg.clone(),
@@ -441,8 +441,10 @@ impl Machine {
                 sim: Mutex::new(sim),
                 lost: Mutex::default(),
                 capture_holds: Default::default(),
+                stops: Mutex::default(),
                 _links: links,
                 watchdog,
+                feeders,
             }),
         };
         machine.spawn_fault_handler();
@@ -508,7 +510,8 @@ impl Machine {
                     // The points already sent run a lead ahead: only the
                     // modules can stop at once. Where the axes are is then
                     // known only to a step count, not to the switch: re-home.
-                    let _ = machine.emergency_stop_as(reason).await;
+                    // The report goes out as an event, and to the log.
+                    machine.emergency_stop_as(reason).await;
                     machine
                         .inner
                         .homed
@@ -518,29 +521,40 @@ impl Machine {
                         .zip(machine.homing_axes())
                         .for_each(|(h, homes)| *h = !homes);
                 } else {
-                    machine.fault(reason);
+                    machine.fault_and_stop(reason);
                 }
             }
         });
     }
 
-    /// Stops motion (a controlled stop) and marks the machine faulted. The
-    /// first fault is the one the machine reports until it recovers: what
-    /// follows (the halts of an emergency stop, refusals behind a stopped
-    /// axis) is its consequence.
-    fn fault(&self, reason: String) {
+    /// Stops motion (a controlled stop) and marks the machine faulted;
+    /// `true` if this is its first fault. The first fault is the one the
+    /// machine reports until it recovers: what follows (refusals behind a
+    /// stopped axis) is its consequence. [`Machine::fault_and_stop`] also
+    /// halts every module and switches every tool off.
+    fn fault(&self, reason: String) -> bool {
         {
             let mut m = lock_motion(&self.inner.motion);
             let _ = m.planner.halt();
             m.mark_busy();
         }
-        tracing::warn!("machine faulted: {reason}");
         if matches!(*self.inner.state.borrow(), MachineState::Faulted(_)) {
-            return;
+            tracing::debug!("machine faulted again: {reason}");
+            return false;
         }
+        tracing::warn!("machine faulted: {reason}");
         let state = MachineState::Faulted(reason);
         self.inner.state.send_replace(state.clone());
         let _ = self.inner.events.send(MachineEvent::State(state));
+        true
+    }
+
+    /// Whether module `module`'s fault of `kind` with `detail` (a
+    /// [`MachineEvent::Fault`]) stops this machine: every fault does but
+    /// late steps within `[limits] max_late_steps` and a refusal for a
+    /// motor the machine file leaves disabled.
+    pub fn fault_stops(&self, module: &str, kind: events::FaultKind, detail: u32) -> bool {
+        stops_motion(&self.inner, module, kind, detail)
     }
 
     /// The machine file it was started from.
@@ -808,9 +822,11 @@ impl Machine {
         self.check_running()
     }
 
-    /// A controlled stop: every axis decelerates within its limits along
-    /// the path and queued moves are dropped. Returns once stopped.
-    pub async fn halt(&self) -> Result<(), MachineError> {
+    /// Stops motion: every axis decelerates within its limits along the
+    /// path and queued moves are dropped. Returns once the motors stand
+    /// (homing and probing stop a seek this way; [`Machine::halt`] also
+    /// halts every module and switches every tool off).
+    pub(crate) async fn stop_motion(&self) -> Result<(), MachineError> {
         {
             let mut m = lock_motion(&self.inner.motion);
             m.planner.halt()?;
@@ -868,7 +884,7 @@ impl Machine {
                     module: key.clone(),
                 });
                 let reason = format!("module {key} stopped answering");
-                self.fault(reason.clone());
+                self.fault_and_stop(reason.clone());
                 return Err(MachineError::Faulted(reason));
             }
             // Reports come every status period; look again at half that.
@@ -936,22 +952,6 @@ impl Machine {
             .clone()
     }
 
-    /// Stops every motor at once (each module's `halt`: no deceleration, an
-    /// emergency stop) and marks the machine faulted; [`Machine::recover`]
-    /// powers the motors up again.
-    pub async fn emergency_stop(&self) -> Result<(), MachineError> {
-        self.emergency_stop_as("emergency stop".into()).await
-    }
-
-    async fn emergency_stop_as(&self, reason: String) -> Result<(), MachineError> {
-        self.fault(reason);
-        let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
-        for m in motors {
-            self.call(&m.module, "halt", &[]).await?;
-        }
-        Ok(())
-    }
-
     /// Declares where the machine is (axis order), without moving, and
     /// counts every axis as homed. Only at rest.
     pub fn set_position(&self, at: impl AsRef<[f64]>) -> Result<(), MachineError> {
@@ -988,12 +988,15 @@ impl Machine {
         Ok(())
     }
 
-    /// Clears a fault: powers every motor off and on (which a module needs
-    /// after its backstop), takes the machine to be where the motors stand,
+    /// Clears a fault: waits for the fault's stop to end, powers every
+    /// motor off and on (which a module needs after its backstop or a
+    /// halt), takes the machine to be where the motors' steps put them,
     /// and resumes. Homing is kept when the motors counted every step: a
-    /// module that stopped answering may have rebooted, so its set-up and
-    /// pipes are installed again and every homed axis must be homed again.
+    /// module that stopped answering may have rebooted, so its set-up
+    /// (outputs' safe values and watchdog too) and pipes are installed
+    /// again, and every homed axis must be homed again.
     pub async fn recover(&self) -> Result<(), MachineError> {
+        self.await_stops().await;
         lock_motion(&self.inner.motion).paused = true;
         let result = self.recover_paused().await;
         lock_motion(&self.inner.motion).paused = false;
@@ -1023,42 +1026,24 @@ impl Machine {
             for key in &lost {
                 let runtime = &self.inner.modules[key].runtime;
                 manager.reinstate(runtime).await?;
+                monitor::lock(&self.inner.reports).reset_baselines(key);
+                safe::arm_module(&self.inner.cfg, &manager, key, runtime).await?;
                 for motor in motors.iter().filter(|m| &m.module == key) {
                     let limits = module_limits(&self.inner.cfg, &motor.name, INTERVAL_S);
                     configure_motor(&manager, runtime, motor, limits).await?;
                 }
             }
             drop(manager);
-            let mut homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
-            for (h, axis) in homed.iter_mut().zip(self.inner.cfg.axis_names()) {
-                *h = self.inner.cfg.axes[axis].homing.is_none();
+            // A motor's module that may have rebooted lost its step count;
+            // a tool's module lost no position.
+            if motors.iter().any(|m| lost.contains(&m.module)) {
+                let mut homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
+                for (h, axis) in homed.iter_mut().zip(self.inner.cfg.axis_names()) {
+                    *h = self.inner.cfg.axes[axis].homing.is_none();
+                }
             }
         }
-        let mut at = Vec::new();
-        for motor in &motors {
-            self.call_idempotent(&motor.module, "set_enable", &[Value::Bool(false)])
-                .await?;
-            self.call_idempotent(&motor.module, "set_enable", &[Value::Bool(motor.enable)])
-                .await?;
-            let out = self
-                .call_idempotent(&motor.module, "get_position", &[])
-                .await?;
-            at.push(out.get(1).and_then(Value::as_f64).unwrap_or(0.0));
-        }
-        let mut m = lock_motion(&self.inner.motion);
-        let p = m.drive.machine_position(&at)?;
-        // Whatever was planned is void: a fresh planner, where the motors
-        // stand, with the same feed override.
-        let scale = m.planner.feed_scale();
-        let mut planner = crate::job::machine_planner(&self.inner.cfg)?;
-        planner.set_feed_scale(scale)?;
-        let mut p3 = [0.0; MAX_AXES];
-        p3[..p.len()].copy_from_slice(&p);
-        planner.set_position(p3)?;
-        m.planner = planner;
-        m.last_motors = at;
-        m.error = None;
-        drop(m);
+        self.rearm_motors(true).await?;
         let mut gone = self.inner.lost.lock().unwrap_or_else(|e| e.into_inner());
         for key in &lost {
             gone.remove(key);
@@ -1225,22 +1210,6 @@ impl Machine {
         })
     }
 
-    /// Stops the machine: a controlled stop, then the motors are left
-    /// powered where they stand; a simulated machine is shut down.
-    pub async fn stop(self) -> Result<(), MachineError> {
-        let _ = self.halt().await;
-        self.inner.state.send_replace(MachineState::Stopped);
-        let sim = self
-            .inner
-            .sim
-            .lock()
-            .unwrap_or_else(|e| e.into_inner())
-            .take();
-        if let Some(sim) = sim {
-            sim.stop().await?;
-        }
-        Ok(())
-    }
 }
 
 fn lock_motion(m: &SharedMotion) -> std::sync::MutexGuard<'_, motion::Motion> {
@@ -1281,15 +1250,17 @@ async fn source(
     Ok(())
 }
 
-/// Whether a module's fault stops the machine: every kind but a step
-/// overrun (its steps went out late, none was lost), and a refusal for a
-/// disabled motor only when the machine file enables a motor of that module.
+/// Whether a module's fault stops the machine: every kind but late steps
+/// within `[limits] max_late_steps`, and a refusal for a disabled motor
+/// only when the machine file enables a motor of that module.
 fn stops_motion(inner: &Inner, module: &str, kind: events::FaultKind, detail: u32) -> bool {
     use events::FaultKind as K;
     use osap_module::stepper::StepperError as E;
     let code = |e: E| u32::from(e.code());
     match kind {
-        K::None | K::StepOverrun => false,
+        K::None => false,
+        // Late steps stall a real motor: more than the file allows stop.
+        K::StepOverrun => detail > inner.cfg.limits.max_late_steps,
         K::Refused if detail == code(E::Disabled) => lock_motion(&inner.motion)
             .drive
             .motors()
@@ -1343,34 +1314,7 @@ async fn configure_motor(
     .await?;
     call("set_enable", vec![Value::Bool(motor.enable)]).await?;
     let out = call("get_position", vec![]).await?;
-    Ok(out.get(1).and_then(Value::as_f64).unwrap_or(0.0))
-}
-
-/// Reports a module whose status reports stop arriving.
-async fn watch_modules(
-    modules: Vec<String>,
-    reports: SharedReports,
-    events: broadcast::Sender<MachineEvent>,
-) {
-    let mut lost: Vec<String> = Vec::new();
-    let started = tokio::time::Instant::now();
-    loop {
-        tokio::time::sleep(LINK_LOST_AFTER / 4).await;
-        let now = tokio::time::Instant::now();
-        let r = monitor::lock(&reports);
-        for key in &modules {
-            let last = r.seen.get(key).map_or(started, |s| s.2);
-            let silent = now.duration_since(last) > LINK_LOST_AFTER;
-            if silent && !lost.contains(key) {
-                lost.push(key.clone());
-                let _ = events.send(MachineEvent::LinkLost {
-                    module: key.clone(),
-                });
-            } else if !silent {
-                lost.retain(|k| k != key);
-            }
-        }
-    }
+    stop::stepped_position(&motor.module, &out)
 }
 
 /// Room kept beyond a motor's span over the travel: stopping past a

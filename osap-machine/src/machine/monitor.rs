@@ -53,6 +53,68 @@ pub struct Reports {
     /// Per motor index: stepped positions (synchronized µs, motor units),
     /// while recording.
     pub positions: Option<Vec<Vec<(u64, f64)>>>,
+    /// Per module key: the synchronized time spans (µs, both ends
+    /// included) of the machine's own latest `halt`s of it, oldest first
+    /// (at most [`OWN_HALTS_KEPT`]). A `Halted` fault stamped within one is
+    /// the machine's own stop, which the stop's
+    /// [`StopReport`](super::error::StopReport) reports, not a fault; its
+    /// report may come after a later stop began.
+    pub own_halts: BTreeMap<String, Vec<(u64, u64)>>,
+}
+
+/// How many of the machine's own halts of a module are remembered.
+pub const OWN_HALTS_KEPT: usize = 4;
+
+impl Reports {
+    /// Whether module `key`'s `Halted` fault stamped `time` is the
+    /// machine's own halt.
+    pub fn is_own_halt(&self, key: &str, time: u64) -> bool {
+        self.own_halts
+            .get(key)
+            .is_some_and(|spans| spans.iter().any(|(from, to)| (*from..=*to).contains(&time)))
+    }
+
+    /// Notes the machine's own halt of module `key` from synchronized time
+    /// `from` (µs) on, until [`end_own_halt`](Self::end_own_halt).
+    pub fn begin_own_halt(&mut self, key: &str, from: u64) {
+        let spans = self.own_halts.entry(key.to_string()).or_default();
+        if spans.len() == OWN_HALTS_KEPT {
+            spans.remove(0);
+        }
+        spans.push((from, u64::MAX));
+    }
+
+    /// Ends module `key`'s own halt begun at `from`, at `to`.
+    pub fn end_own_halt(&mut self, key: &str, from: u64, to: u64) {
+        if let Some(span) = self
+            .own_halts
+            .get_mut(key)
+            .and_then(|spans| spans.iter_mut().rev().find(|s| s.0 == from))
+        {
+            span.1 = to;
+        }
+    }
+
+    /// Takes `refused`, module `key`'s refused-point count, as reported:
+    /// `true` if it counts refusals the machine has not heard of. The
+    /// first report is the baseline; a count below the baseline means the
+    /// module restarted (counting from 0 again), so every refusal it
+    /// counts is new.
+    pub fn take_refused(&mut self, key: &str, refused: u32) -> bool {
+        match self.refused.insert(key.to_string(), refused) {
+            None => false,
+            Some(before) if refused < before => refused > 0,
+            Some(before) => refused > before,
+        }
+    }
+
+    /// Forgets what module `key` counted (its refused points and faults):
+    /// the next reports are its new baselines. For a module that may have
+    /// rebooted, when the machine sets it up again.
+    pub fn reset_baselines(&mut self, key: &str) {
+        self.refused.remove(key);
+        self.faults.remove(key);
+    }
 }
 
 /// Shared [`Reports`].
@@ -136,7 +198,10 @@ pub fn fault(
             let Some(kind) = FaultKind::from_code(*code) else {
                 return Err(HostFnError::new(UNKNOWN_FAULT_KIND));
             };
-            if kind == FaultKind::None || (kind == FaultKind::LimitHit && limit_watched) {
+            if kind == FaultKind::None
+                || (kind == FaultKind::LimitHit && limit_watched)
+                || (kind == FaultKind::Halted && lock(&reports).is_own_halt(&module, *time))
+            {
                 return Ok(Vec::new());
             }
             let _ = events.send(MachineEvent::Fault {
@@ -174,10 +239,7 @@ pub fn counters(
             else {
                 return Err(HostFnError::bad_input());
             };
-            let mut r = lock(&reports);
-            let first = *r.refused.entry(module.clone()).or_insert(*refused);
-            if *refused > first {
-                r.refused.insert(module.clone(), *refused);
+            if lock(&reports).take_refused(&module, *refused) {
                 let _ = events.send(MachineEvent::Refused {
                     module: module.clone(),
                     count: *refused,
@@ -255,4 +317,56 @@ pub fn position(motor: &str, index: usize, reports: SharedReports) -> Result<Hos
         },
     )
     .map_err(|e| e.to_string())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_refusal_baseline_starts_again_when_a_module_restarts() {
+        let mut r = Reports::default();
+        // The first report is the baseline: 3 refusals from before.
+        assert!(!r.take_refused("b", 3));
+        assert!(!r.take_refused("b", 3));
+        assert!(r.take_refused("b", 4));
+        // Module b reboots and counts from 0: its first refusals are news,
+        // though fewer than the 4 counted before.
+        assert!(!r.take_refused("b", 0));
+        assert!(r.take_refused("b", 1));
+        assert!(r.take_refused("b", 2));
+        // A reboot seen only after it refused again: still news.
+        assert!(r.take_refused("b", 1));
+        // Set up again after a loss: the next report is the baseline.
+        r.reset_baselines("b");
+        assert!(!r.take_refused("b", 7));
+        assert!(r.take_refused("b", 8));
+        // Other modules keep theirs.
+        assert!(!r.take_refused("a", 5));
+        r.reset_baselines("b");
+        assert!(r.take_refused("a", 6));
+    }
+
+    #[test]
+    fn only_a_halt_within_the_machines_own_spans_is_its_own() {
+        let mut r = Reports::default();
+        assert!(!r.is_own_halt("a", 1_000));
+        r.begin_own_halt("a", 1_000);
+        assert!(r.is_own_halt("a", 9_000_000), "open until it ends");
+        r.end_own_halt("a", 1_000, 2_000);
+        assert!(r.is_own_halt("a", 1_000));
+        assert!(r.is_own_halt("a", 2_000));
+        assert!(!r.is_own_halt("a", 999));
+        assert!(!r.is_own_halt("a", 2_001));
+        assert!(!r.is_own_halt("b", 1_500));
+        // A later stop keeps the earlier span: its report may come late.
+        r.begin_own_halt("a", 5_000);
+        r.end_own_halt("a", 5_000, 6_000);
+        assert!(r.is_own_halt("a", 1_500) && r.is_own_halt("a", 5_500));
+        assert!(!r.is_own_halt("a", 3_000));
+        for k in 0..OWN_HALTS_KEPT as u64 {
+            r.begin_own_halt("a", 10_000 * (k + 1));
+        }
+        assert!(!r.is_own_halt("a", 1_500), "only the latest are kept");
+    }
 }

@@ -76,7 +76,7 @@ impl Machine {
                 }
             }
         };
-        self.halt().await?;
+        self.stop_motion().await?;
         let m = lock_motion(&self.inner.motion);
         let at = m
             .position_at(edge.time)

@@ -35,6 +35,14 @@ impl Machine {
         })
     }
 
+    /// Notes that a stop switched tool `name` off.
+    pub(super) fn tool_is_off(&self, name: &str) {
+        let mut tools = self.inner.tools.lock().unwrap_or_else(|e| e.into_inner());
+        let s = tools.entry(name.to_string()).or_default();
+        s.level = 0.0;
+        s.ready_at = None;
+    }
+
     /// The first tool of a kind (pen, spindle, laser), if any.
     pub fn tool_of_kind(&self, kind: crate::config::ToolKind) -> Option<Tool> {
         let name = self
