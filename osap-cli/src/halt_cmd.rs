@@ -42,12 +42,6 @@ pub async fn halt(target: Target, started: Instant) -> Result<ExitCode, Failure>
     for m in &report.modules {
         println!("{}", module_line(m, begun));
     }
-    let shared = report.shared_names();
-    for key in &shared {
-        eprintln!(
-            "warning: modules.{key}: several runtimes carry its name; each was halted. Rename them apart with `osap rename`"
-        );
-    }
     if report.all_confirmed() {
         println!(
             "halted every module of {} {:.0} ms after start ({:.0} ms for the halt); power-cycle the motors or run `osap home` to move again",

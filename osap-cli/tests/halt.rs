@@ -1,7 +1,7 @@
 //! The shipped plotter driven through `osap serve` over TCP (its machine
 //! file names module z by route, counted from the served machine's entry
 //! point), and `osap halt` from a third process stopping a job that
-//! `osap run` drives there.
+//! `osap run` drives there, pen up.
 
 mod common;
 
@@ -180,6 +180,12 @@ fn osap_halt_stops_a_served_job_from_a_third_process() {
     let still = carriage(&mut served, &cfg);
     let end = Instant::now() + Duration::from_secs(10);
     while carriage(&mut served, &cfg) == still {
+        if let Some(status) = run.0.try_wait().unwrap() {
+            panic!(
+                "the run ended before the halt ({status}): {:#?}",
+                rest(&stderr)
+            );
+        }
         assert!(Instant::now() < end, "the carriage never moved");
     }
 
@@ -214,6 +220,9 @@ fn osap_halt_stops_a_served_job_from_a_third_process() {
         assert!(sent - found < 100.0, "{line}");
     }
     assert!(stdout.contains("tool pen off (pwm 0 at 0.05)"), "{stdout}");
+    // The pen is up: z's PWM output 0 at the pen's off duty.
+    let outputs = served.command("outputs z");
+    assert!(outputs.starts_with("ok pwm0=0.050 "), "{outputs}");
     let done = stdout
         .lines()
         .find(|l| l.starts_with("halted every module of plotter "))

@@ -136,9 +136,7 @@ impl ModuleHalt {
 /// What [`halt`] did, module by module.
 #[derive(Debug)]
 pub struct HaltReport {
-    /// One entry per module of the machine file, in key order; a name
-    /// that several runtimes carry has one entry per runtime (each was
-    /// halted).
+    /// One entry per module of the machine file, in key order.
     pub modules: Vec<ModuleHalt>,
     /// How long the whole halt took.
     pub elapsed: Duration,
@@ -149,20 +147,6 @@ impl HaltReport {
     /// value.
     pub fn all_confirmed(&self) -> bool {
         self.modules.iter().all(ModuleHalt::confirmed)
-    }
-
-    /// Module names that more than one runtime carries: each was halted,
-    /// but the machine file does not say one module.
-    pub fn shared_names(&self) -> Vec<String> {
-        let mut count: BTreeMap<&str, usize> = BTreeMap::new();
-        for m in &self.modules {
-            *count.entry(&m.key).or_default() += 1;
-        }
-        count
-            .into_iter()
-            .filter(|(_, n)| *n > 1)
-            .map(|(k, _)| k.to_string())
-            .collect()
     }
 }
 
@@ -229,9 +213,9 @@ pub async fn halt(host: &Host, cfg: &MachineFile, entry: Entry) -> Result<HaltRe
             !unmet.is_empty()
         });
         tokio::pin!(scan);
-        let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+        let mut seen = std::collections::BTreeSet::new();
         let mut spawn = |r: RuntimeRecord, tasks: &mut tokio::task::JoinSet<ModuleHalt>| {
-            *seen.entry(r.name.clone()).or_default() += 1;
+            seen.insert(r.name.clone());
             for key in named.get(&r.name).into_iter().flatten() {
                 tasks.spawn(halt_module(
                     ctx.clone(),
@@ -266,7 +250,7 @@ pub async fn halt(host: &Host, cfg: &MachineFile, entry: Entry) -> Result<HaltRe
             Err(e) => format!("the scan failed: {e}"),
         };
         for (name, keys) in &named {
-            if !seen.contains_key(name) {
+            if !seen.contains(name) {
                 for key in keys {
                     failed.push(not_found(&ctx, key, format!("named {name:?}"), &found));
                 }
@@ -275,18 +259,17 @@ pub async fn halt(host: &Host, cfg: &MachineFile, entry: Entry) -> Result<HaltRe
     }
     let mut modules = failed;
     while let Some(done) = tasks.join_next().await {
-        // A task that panicked or was cancelled leaves its module out;
-        // the report then lacks it and is not all confirmed.
         if let Ok(m) = done {
             modules.push(m);
         }
     }
+    // A task that panicked or was cancelled: its module is not confirmed.
     for key in cfg.modules.keys() {
         if !modules.iter().any(|m| &m.key == key) {
             modules.push(not_found(&ctx, key, "(its halt did not finish)".into(), ""));
         }
     }
-    modules.sort_by(|a, b| a.key.cmp(&b.key).then(a.route.cmp(&b.route)));
+    modules.sort_by(|a, b| a.key.cmp(&b.key));
     Ok(HaltReport {
         modules,
         elapsed: start.elapsed(),

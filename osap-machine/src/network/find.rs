@@ -6,6 +6,7 @@ use std::collections::BTreeMap;
 
 use osap_core::route::Route;
 use osap_host::som::Som;
+use pipes_core::function::FUNCTION_PORT_TYPE;
 
 use super::kinds::{kind_of, Mismatch};
 use super::{file_route, Entry};
@@ -74,6 +75,21 @@ pub enum FindError {
         /// What it presents against the kind it comes closest to.
         mismatch: Box<Mismatch>,
     },
+    /// Some of the module's functions did not answer when the model was
+    /// read (a lossy or busy link): what it is cannot be told.
+    #[error("modules.{key}: {unread} of the {listed} functions of {runtime:?} (route {route}) did not answer when read; check its link (`osap scan -v` shows its counters) and try again")]
+    Unread {
+        /// The key in `[modules]`.
+        key: String,
+        /// The runtime found.
+        runtime: String,
+        /// Its route from the host.
+        route: String,
+        /// How many function ports it lists.
+        listed: usize,
+        /// How many of them could not be read.
+        unread: usize,
+    },
     /// Nothing answers behind the link the machine is served over.
     #[error("nothing answers behind this host's link {0}, where the served machine should be; is `osap serve` running there?")]
     NoEntry(u8),
@@ -126,16 +142,33 @@ pub fn find_modules(
         }
         let path = som.path(0, index).ok_or_else(not_found)?;
         let route = path.route().ok_or_else(not_found)?;
-        let kind = kind_of(&som.runtimes[index]).map_err(|mismatch| FindError::UnknownKind {
+        let route_text = path
+            .links
+            .iter()
+            .map(u8::to_string)
+            .collect::<Vec<_>>()
+            .join(",");
+        let rt = &som.runtimes[index];
+        let listed = rt
+            .record
+            .ports
+            .iter()
+            .filter(|p| p.type_name == FUNCTION_PORT_TYPE)
+            .count();
+        if listed > rt.functions.len() {
+            return Err(FindError::Unread {
+                key: key.clone(),
+                runtime: name,
+                route: route_text,
+                listed,
+                unread: listed - rt.functions.len(),
+            });
+        }
+        let kind = kind_of(rt).map_err(|mismatch| FindError::UnknownKind {
             key: key.clone(),
             runtime: name.clone(),
             wanted: wanted.clone(),
-            route: path
-                .links
-                .iter()
-                .map(u8::to_string)
-                .collect::<Vec<_>>()
-                .join(","),
+            route: route_text,
             mismatch,
         })?;
         out.insert(
@@ -291,6 +324,30 @@ mod tests {
             find_modules(&cfg, &som, Entry::Beyond(5)),
             Err(FindError::NoEntry(5))
         ));
+    }
+
+    #[test]
+    fn a_module_whose_functions_did_not_all_answer_is_not_judged() {
+        // z lists the stepper set's function ports, but one did not answer
+        // the model's read.
+        let mut som = served_plotter(stepper());
+        som.runtimes[5].record.ports = stepper()
+            .iter()
+            .map(|f| osap_host::map::PortRecord {
+                index: f.port,
+                type_name: FUNCTION_PORT_TYPE.into(),
+                name: f.name.clone(),
+            })
+            .collect();
+        som.runtimes[5]
+            .functions
+            .retain(|f| f.name != "get_counters");
+        let e = find_modules(&plotter(), &som, Entry::Beyond(0)).unwrap_err();
+        assert!(
+            matches!(&e, FindError::Unread { key, unread: 1, .. } if key == "z"),
+            "{e}"
+        );
+        assert!(e.to_string().contains("did not answer when read"), "{e}");
     }
 
     #[test]
