@@ -32,7 +32,10 @@
 //! started (at boot, `set_enable`, `halt`, a scale or microstep change:
 //! `get_steps`' `late` output), so a host compares the detail with its
 //! bound (`[limits] max_late_steps`) and stops as soon as the count passes
-//! it. A point refused
+//! it. A late-step record never replaces a record of another kind younger
+//! than [`FAULT_HOLD`] (100 ms): it waits, and carries the count at the
+//! first word after the hold, so a host's `get_fault` source, run every
+//! few ms, reports both. A point refused
 //! for being past a limit (`OverLimit`) is an [`FaultKind::OverLimit`]
 //! fault, not a [`FaultKind::Refused`] one, so that its detail can say
 //! which limit.
@@ -41,7 +44,15 @@
 
 use crate::stepper::StepperError;
 use maxl::Clamped;
-use osap_core::SystemInstant;
+use osap_core::{Duration, SystemInstant};
+
+/// How long a record of another kind holds off a late-step record: the
+/// late-step record, made after every step word that sent late steps,
+/// would otherwise replace a fault 160 µs after it, before a host's
+/// `get_fault` source (run every few ms) reported it. Held back, the
+/// late-step record is made at the first word after the hold, with the
+/// count then.
+pub const FAULT_HOLD: Duration = Duration::from_millis(100);
 
 /// [`FaultKind::OverLimit`]'s detail bit: past the velocity limit (the
 /// limiter's velocity window looks ahead: the axis could not have ramped its
@@ -174,15 +185,28 @@ impl Fault {
     /// `stopped`).
     pub fn record(&mut self, time: SystemInstant, kind: FaultKind, detail: u32, stopped: bool) {
         self.count = self.count.wrapping_add(1);
+        // Late steps drained while the axis stopped keep the stop as the
+        // record too.
         let consequence = stopped
             && kind == FaultKind::Refused
             && detail == u32::from(StepperError::Faulted.code())
-            && matches!(self.kind, FaultKind::Backstop | FaultKind::Halted);
+            && matches!(
+                self.kind,
+                FaultKind::Backstop | FaultKind::Halted | FaultKind::StepOverrun
+            );
         if !consequence {
             self.time = time;
             self.kind = kind;
             self.detail = detail;
         }
+    }
+
+    /// Whether a late-step record may replace the record at synchronized
+    /// `now`: it is none, a late-step record, or at least [`FAULT_HOLD`]
+    /// old.
+    pub fn takes_late_steps(&self, now: SystemInstant) -> bool {
+        matches!(self.kind, FaultKind::None | FaultKind::StepOverrun)
+            || now - self.time >= FAULT_HOLD
     }
 
     /// The `get_fault` outputs (the time as system µs, its wire form).
@@ -225,6 +249,24 @@ mod tests {
         assert_eq!(f.outputs(), (30, 1, 4, 3));
         f.record(SystemInstant::from_micros(40), FaultKind::Refused, 2, true);
         assert_eq!(f.outputs(), (40, 1, 2, 4));
+    }
+
+    #[test]
+    fn late_steps_wait_behind_a_younger_fault_of_another_kind() {
+        let at = SystemInstant::from_micros;
+        let mut f = Fault::default();
+        assert!(f.takes_late_steps(at(0)));
+        f.record(at(1_000), FaultKind::StepOverrun, 3, false);
+        assert!(f.takes_late_steps(at(1_160)), "updates its own kind");
+        f.record(at(2_000), FaultKind::LimitHit, 1, false);
+        assert!(!f.takes_late_steps(at(2_160)));
+        assert!(!f.takes_late_steps(at(101_999)));
+        assert!(f.takes_late_steps(at(102_000)));
+        // A refusal behind a stop that late steps followed keeps them.
+        f.record(at(200_000), FaultKind::Backstop, 5_000, true);
+        f.record(at(400_000), FaultKind::StepOverrun, 9, true);
+        f.record(at(400_100), FaultKind::Refused, 4, true);
+        assert_eq!(f.outputs(), (400_000, 3, 9, 5));
     }
 
     #[test]

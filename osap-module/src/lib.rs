@@ -103,6 +103,8 @@ pub struct Module<B> {
     pub watchdog: Watchdog,
     /// When the latest control point was accepted.
     last_point_at: SystemInstant,
+    /// The late-step count the latest `StepOverrun` record carried.
+    late_reported: u64,
     board: B,
     /// The step words' time anchor: a (local, system) pair read off `time`.
     step_anchor: Option<StepAnchor>,
@@ -137,6 +139,7 @@ impl<B: Board> Module<B> {
             boot: BootRequest::default(),
             watchdog: Watchdog::new(),
             last_point_at: SystemInstant::ZERO,
+            late_reported: 0,
             board,
             step_anchor: None,
         }
@@ -196,14 +199,12 @@ impl<B: Board> Module<B> {
             }
         };
         let faults = self.stepper.counters().faults;
-        let late = self.stepper.late_steps();
         let word = self.stepper.fill_word(t0);
         if self.stepper.counters().faults != faults {
             self.on_backstop(t0);
         }
-        let now_late = self.stepper.late_steps();
-        if now_late != late {
-            self.on_late_steps(t0, now_late);
+        if self.stepper.late_steps() != self.late_reported {
+            self.on_late_steps(t0);
         }
         word
     }
@@ -221,14 +222,26 @@ impl<B: Board> Module<B> {
         self.apply_safe_outputs();
     }
 
-    /// The word starting at `t0` sent late steps, `late` of them since the
-    /// step generator started: recorded once per such word, with the
-    /// running count, which a host compares with its bound (see [`fault`]).
+    /// The late-step count differs from the one last recorded, in the word
+    /// starting at `t0`: a `StepOverrun` record with the running count,
+    /// which a host compares with its bound (see [`fault`]), at most one a
+    /// word, and held back while a record of another kind is younger than
+    /// [`fault::FAULT_HOLD`] (then made at the first word after it). A
+    /// count that went down is a restarted step generator: nothing to
+    /// report.
     #[cold]
     #[inline(never)]
-    fn on_late_steps(&mut self, t0: SystemInstant, late: u64) {
-        let count = u32::try_from(late).unwrap_or(u32::MAX);
-        self.fault.record(t0, FaultKind::StepOverrun, count, false);
+    fn on_late_steps(&mut self, t0: SystemInstant) {
+        let late = self.stepper.late_steps();
+        if late < self.late_reported {
+            self.late_reported = late;
+        } else if self.fault.takes_late_steps(t0) {
+            self.late_reported = late;
+            let count = u32::try_from(late).unwrap_or(u32::MAX);
+            let stopped = self.stepper.is_stopped();
+            self.fault
+                .record(t0, FaultKind::StepOverrun, count, stopped);
+        }
     }
 
     /// Queues a control point (see [`Stepper::add_point`]), recording a

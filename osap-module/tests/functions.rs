@@ -465,3 +465,58 @@ fn get_fault_reports_refusals_backstops_overruns_limits_and_halts() {
     assert_eq!(count, 5 + late_words);
     assert!(late_words > 1);
 }
+
+#[test]
+fn late_steps_wait_behind_a_fresh_fault_then_report_the_whole_count() {
+    use osap_module::fault::{FaultKind, FAULT_HOLD};
+    let Fixture {
+        module: mut m, now, ..
+    } = fresh(false);
+    m.publish_time(TimeMap::IDENTITY);
+    m.set_enable(true).unwrap();
+    m.set_microsteps(16).unwrap();
+    let iv = 2048u64;
+    let t0 = 10 * iv;
+    now.set(Instant::from_micros(t0));
+    for k in 0..3 {
+        m.add_point(t0 + k * iv, 0.0).unwrap();
+    }
+    // 1 unit per interval: 1 280 microsteps in 2 048 µs, 6x the tick rate.
+    for k in 3..8 {
+        m.add_point(t0 + k * iv, (k - 2) as f32).unwrap();
+    }
+    for k in 8..12 {
+        m.add_point(t0 + k * iv, 5.0).unwrap();
+    }
+    // The limit switch is pressed as the move starts.
+    let pressed = t0 + 2 * iv + 500;
+    m.limit_changed(Instant::from_micros(pressed), false);
+    let hold_ends = pressed + FAULT_HOLD.as_micros();
+    let mut local = t0;
+    let mut first_report = None;
+    while local < t0 + 60 * iv {
+        m.fill_step_word(Instant::from_micros(local));
+        let (time, code, detail, _) = m.get_fault().unwrap();
+        if local < hold_ends {
+            assert_eq!(
+                (time, code),
+                (pressed, FaultKind::LimitHit.code()),
+                "the press is the record for {} µs",
+                FAULT_HOLD.as_micros()
+            );
+        } else {
+            assert_eq!(code, FaultKind::StepOverrun.code());
+            first_report.get_or_insert((time, detail));
+        }
+        local += 160;
+    }
+    let (_, up, _, late) = m.get_steps().unwrap();
+    assert_eq!(up, 6_400);
+    assert!(late >= 6_400 - 1_024, "{late}");
+    // Made at the first word after the hold, with every late step.
+    let (time, detail) = first_report.expect("the late steps were reported");
+    assert!((hold_ends..hold_ends + 160).contains(&time), "{time}");
+    assert_eq!(u64::from(detail), late);
+    // The press and one late-step record.
+    assert_eq!(m.get_fault().unwrap().3, 2);
+}
