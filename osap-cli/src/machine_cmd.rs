@@ -574,5 +574,4 @@ mod tests {
         );
         assert!(![0, FAULTED, REFUSED].contains(&MACHINE_FAULT));
     }
-
 }

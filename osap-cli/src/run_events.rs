@@ -157,12 +157,7 @@ mod tests {
         assert!(!h.stopped());
         h.take(&stops, late("a", 3));
         h.take(&stops, late("a", 7));
-        h.take(
-            &stops,
-            MachineEvent::LinkLost {
-                module: "z".into(),
-            },
-        );
+        h.take(&stops, MachineEvent::LinkLost { module: "z".into() });
         assert_eq!(
             h.stopping,
             ["module a sent 3 steps late", "module z stopped answering"],

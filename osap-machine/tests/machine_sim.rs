@@ -158,7 +158,11 @@ fn a_lost_module_faults_the_machine_and_the_script_hears_why() {
         assert!(lost);
         assert!(report.reason.contains("module b"), "{report}");
         assert_eq!(report.confirmed, ["a", "z"], "{report}");
-        let unreached: Vec<&str> = report.unreachable.iter().map(|u| u.module.as_str()).collect();
+        let unreached: Vec<&str> = report
+            .unreachable
+            .iter()
+            .map(|u| u.module.as_str())
+            .collect();
         assert_eq!(unreached, ["b"], "{report}");
         // So does stopping the machine, as an error.
         let e = m.stop().await.unwrap_err();

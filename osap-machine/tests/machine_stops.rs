@@ -42,10 +42,7 @@ fn duty(d: f64) -> u16 {
 /// Module `name`'s PWM output 0 on its simulated board, from a handle
 /// that outlives the machine.
 fn pwm0(module: &osap_sim::machine::SimModule) -> u16 {
-    module
-        .module()
-        .unwrap()
-        .lock(|m| m.board().pins().pwm()[0])
+    module.module().unwrap().lock(|m| m.board().pins().pwm()[0])
 }
 
 fn sim_module(m: &Machine, name: &str) -> osap_sim::machine::SimModule {
@@ -259,7 +256,10 @@ fn a_tool_module_that_vanishes_stops_the_machine_and_its_pen_goes_up_by_itself()
         assert_eq!(report.confirmed, ["a", "b"], "{report}");
         assert_eq!(unreached(&report), ["z"], "{report}");
         // Back on the network, z is set up again and the pen goes down.
-        faults.inject(&Fault::Restore("hub-z".into())).await.unwrap();
+        faults
+            .inject(&Fault::Restore("hub-z".into()))
+            .await
+            .unwrap();
         m.recover().await.unwrap();
         m.tool("pen").unwrap().on().await.unwrap();
         assert_eq!(pwm0(&z), duty(0.075));
@@ -380,7 +380,10 @@ async fn link_counts(module: &osap_sim::machine::SimModule) -> [u64; 4] {
         .with_runtime(|rt, _| {
             let mut sum = [0u64; 4];
             for c in (0..8).filter_map(|i| rt.link_counters(i)) {
-                for (s, v) in sum.iter_mut().zip([c.received, c.rx_bytes, c.sent, c.tx_bytes]) {
+                for (s, v) in sum
+                    .iter_mut()
+                    .zip([c.received, c.rx_bytes, c.sent, c.tx_bytes])
+                {
                     *s += u64::from(v);
                 }
             }

@@ -21,13 +21,13 @@ pub mod drive;
 pub mod error;
 pub mod events;
 mod homing;
+mod liveness;
 pub mod monitor;
 pub mod motion;
 mod probing;
 mod safe;
 mod stop;
 mod tool;
-mod liveness;
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
@@ -1209,7 +1209,6 @@ impl Machine {
             executed,
         })
     }
-
 }
 
 fn lock_motion(m: &SharedMotion) -> std::sync::MutexGuard<'_, motion::Motion> {
