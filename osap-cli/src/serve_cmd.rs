@@ -184,7 +184,9 @@ async fn control_command(machine: &SimMachine, injector: &FaultInjector, line: &
                 }
                 Err(e) => format!("error: {fault}: {e}"),
             },
-            Err(e) => format!("error: {e} (or: links, stats LINK, outputs MODULE, position MODULE)"),
+            Err(e) => {
+                format!("error: {e} (or: links, stats LINK, outputs MODULE, position MODULE)")
+            }
         },
     }
 }
