@@ -8,8 +8,8 @@
 //!   the carriage stands still inside the travel;
 //! - every injected fault reaches the script as an event and an error;
 //! - a square stopped by corruption names module a or b, whose link lost a
-//!   frame during that square, and such squares stay within
-//!   [`MAX_SQUARES_FAULTED`] of the squares drawn under corruption;
+//!   frame during that square, and such squares stay within what
+//!   [`most_faulted`] allows of the squares drawn under corruption;
 //! - after every stop and recovery, where the machine believes it is, the
 //!   carriage is (the host re-reads each motor's steps before the next
 //!   stream).
@@ -50,12 +50,31 @@ struct Tally {
     packets_received: u64,
 }
 
-/// The most squares corruption may stop, as a share of the squares drawn
-/// under it: each stop needs a point lost beyond the one a module fills
-/// (two frames in a row to one module). At 2·10⁻⁴ per byte a belt link
-/// loses about one frame in 150, which makes two in a row to one module
-/// within a square's 1 500 points a few percent likely per module.
-const MAX_SQUARES_FAULTED: f64 = 0.25;
+/// The share of squares corruption is expected to stop: each stop needs a
+/// point lost beyond the one a module fills (two frames in a row to one
+/// module). At 2·10⁻⁴ per byte a belt link loses a few frames in a
+/// thousand, which makes two in a row within a square's 1 500 points per
+/// motor a few percent likely per motor: 10 % per square, with room.
+/// (Measured: 2 of 24 squares over 8 rounds with stale and gap refusals
+/// excused, 1 of 3 in the CI round with them stopping.)
+const EXPECTED_FAULTED_SHARE: f64 = 0.1;
+
+/// The most of `n` squares corruption may stop: the smallest `k` that `n`
+/// squares stopping each with [`EXPECTED_FAULTED_SHARE`] exceed once in a
+/// thousand runs (the binomial tail), so a higher stop rate fails a long
+/// run: 2 of 3, 8 of 24, 66 of 450.
+fn most_faulted(n: usize) -> usize {
+    let p = EXPECTED_FAULTED_SHARE;
+    let mut pmf = (1.0 - p).powi(n as i32);
+    let mut cdf = pmf;
+    let mut k = 0;
+    while cdf < 0.999 && k < n {
+        pmf *= (n - k) as f64 / (k + 1) as f64 * p / (1.0 - p);
+        cdf += pmf;
+        k += 1;
+    }
+    k
+}
 
 const SQUARE: [[f64; 2]; 4] = [[150.0, 40.0], [150.0, 110.0], [50.0, 110.0], [50.0, 40.0]];
 
@@ -343,7 +362,7 @@ fn faults_injected_under_motion_are_counted_stopped_and_reported() {
     assert!(tally.frames_corrupted > 0, "{tally:?}");
     assert_eq!(tally.faults_heard, 3 * rounds);
     // Each stopped square was explained above; there are few of them.
-    let most = (MAX_SQUARES_FAULTED * tally.squares_corrupted as f64).ceil() as usize;
+    let most = most_faulted(tally.squares_corrupted);
     assert!(
         tally.squares_faulted <= most,
         "{} of {} squares under corruption stopped, more than {most}: {:?}",
@@ -351,4 +370,12 @@ fn faults_injected_under_motion_are_counted_stopped_and_reported() {
         tally.squares_corrupted,
         tally.stopped_by
     );
+}
+
+#[test]
+fn the_bound_on_stopped_squares_is_the_binomial_tail() {
+    assert_eq!(most_faulted(0), 0);
+    assert_eq!(most_faulted(3), 2);
+    assert_eq!(most_faulted(24), 8);
+    assert_eq!(most_faulted(450), 66);
 }
