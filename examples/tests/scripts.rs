@@ -68,7 +68,7 @@ fn mill_square_mills_its_square_in_virtual_time() {
     // Homed to the max ends, backed off; spindle at speed; the square cut;
     // retracted over its first corner.
     for line in [
-        "homed at [297.000, 197.000, -2.000]",
+        "homed at [298.000, 198.000, -1.000]",
         "spindle at 12000 rpm",
         "milled a 30 mm square, 1 mm deep, at 20 mm/s",
         "spindle off",

@@ -138,6 +138,9 @@ async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
                 E::Homed { .. } if !verbose => {}
                 E::Limit { expected: true, .. } | E::Limit { pressed: false, .. } | E::State(_)
                     if !verbose => {}
+                // A stop every module confirmed (the script's own at the
+                // end; a fault's cause is an event of its own).
+                E::Stop(r) if !verbose && r.is_complete() => {}
                 e => println!("event: {e:?}"),
             }
         }
