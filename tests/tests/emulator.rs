@@ -586,12 +586,16 @@ async fn rename_during_motion(
         panic!("get_position's first output is its time")
     };
     let t0 = (now + 1_000_000) / IV * IV;
+    // Up 1 unit and back (80 steps each way), ending where the next stage
+    // expects the axis: at 0.
+    let smooth = |k: usize| {
+        let x = k as f64 / 24.0;
+        x * x * (3.0 - 2.0 * x)
+    };
     let mut points = vec![0.0f64; 4];
-    for k in 1..=48 {
-        let x = k as f64 / 48.0;
-        points.push(2.0 * x * x * (3.0 - 2.0 * x));
-    }
-    points.extend([2.0; 6]);
+    points.extend((1..=24).map(smooth));
+    points.extend((1..=24).map(|k| 1.0 - smooth(k)));
+    points.extend([0.0; 6]);
     for (k, p) in points.iter().enumerate() {
         f("add_point")
             .call(&[Value::U64(t0 + k as u64 * IV), Value::F32(*p as f32)])
@@ -658,18 +662,18 @@ async fn rename_during_motion(
         "no flash write while the move runs"
     );
     assert_eq!(erases_while_moving, 0, "no erase while the move runs");
-    let expect = (2.0 * STEPS_PER_UNIT) as u64;
+    let expect = STEPS_PER_UNIT as u64;
     assert_eq!(
         (counts["up"].as_u64(), counts["down"].as_u64()),
-        (Some(expect), Some(0)),
+        (Some(expect), Some(expect)),
         "every step on the pins: {counts}"
     );
     assert_eq!(
         steps,
         [
-            Value::I64(expect as i64),
+            Value::I64(0),
             Value::U64(expect),
-            Value::U64(0),
+            Value::U64(expect),
             Value::U64(0)
         ],
         "the firmware's net, up, down and late steps"
@@ -956,9 +960,9 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     // 4b. A rename during motion: the module answers with its new name at
     //     once, but writes it to flash only once the axis stands (an erase
     //     stalls the RP2040 for ~45 ms, the step FIFO lasts 1.28 ms). The
-    //     move (2 units, 160 steps, at 80 steps per unit over 48 intervals
-    //     of 16 ms) loses no step and sends none late, and the erase
-    //     starts after its last step.
+    //     move (1 unit up and back, 80 steps each way at 80 steps per
+    //     unit, over 48 intervals of 16 ms) loses no step and sends none
+    //     late, and the erase starts after its last step.
     rename_during_motion(&emu, &nr, &route, &f).await;
 
     // 5. Proxies generated from a simulated scan drive the firmware
