@@ -554,6 +554,9 @@ async fn smooth_move(
     }
 }
 
+/// The name stage 4b gives the module in the middle of a move.
+const MID_MOVE_NAME: &str = "moving-axis";
+
 /// Stage 4b of [`the_firmware_runs_on_an_emulated_rp2040`]: renames the
 /// module while it runs a move, and checks the move and the flash.
 async fn rename_during_motion(
@@ -563,7 +566,6 @@ async fn rename_during_motion(
     f: &impl Fn(&str) -> osap_host::som::FunctionHandle,
 ) {
     const IV: u64 = 16_384;
-    const NEW_NAME: &str = "moving-axis";
     // A new step generator at 80 steps per unit, so the counts below are
     // this move's.
     f("set_interval")
@@ -622,7 +624,10 @@ async fn rename_during_motion(
         tracking(f("get_status").call(&[]).await.unwrap()),
         "the module is moving when it is renamed"
     );
-    assert_eq!(nr.set_name(route, NEW_NAME).await.unwrap(), NEW_NAME);
+    assert_eq!(
+        nr.set_name(route, MID_MOVE_NAME).await.unwrap(),
+        MID_MOVE_NAME
+    );
     let still_moving = tracking(f("get_status").call(&[]).await.unwrap());
     let sector_while_moving = emu.sector_name().await;
     let erases_while_moving = emu.erases_us().await.len() - erases_before;
@@ -641,7 +646,7 @@ async fn rename_during_motion(
     }
     // Then the name reaches the flash.
     let deadline = Instant::now() + Duration::from_secs(10);
-    while emu.sector_name().await.as_deref() != Some(NEW_NAME) {
+    while emu.sector_name().await.as_deref() != Some(MID_MOVE_NAME) {
         assert!(
             Instant::now() < deadline,
             "the new name never reached the flash (it holds {:?})",
@@ -1047,7 +1052,8 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
     );
     let uart = nr.link_info(&route, 1).await.unwrap();
     assert_eq!(uart.bus.as_ref().map(|b| b.drop), Some(3), "{uart:?}");
-    emu.wait_name_sector(None, BusRole::Drop(3)).await;
+    emu.wait_name_sector(Some(MID_MOVE_NAME), BusRole::Drop(3))
+        .await;
 
     // 7. A new name survives a reset (written to the emulated flash), and
     //    so does the bus role beside it. Two renames back to back: the
