@@ -202,6 +202,12 @@ fn points_reach_the_module_in_order_through_serve() {
         let mut moves = 0u64;
         let mut ran: Result<(), MachineError> = Ok(());
         'run: while started.elapsed() < Duration::from_secs(secs) {
+            // A few rectangles ahead of the motors, so the run ends about
+            // when asked (the queue would take thousands of moves).
+            if let Err(e) = m.wait_queued_at_most(2 * PATH.len()).await {
+                ran = Err(e);
+                break 'run;
+            }
             for (k, p) in PATH.iter().enumerate() {
                 // Two speeds, so the stream holds cruises and corners.
                 let rate = if k % 2 == 0 { 45.0 } else { 25.0 };

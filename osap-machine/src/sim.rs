@@ -513,11 +513,12 @@ mod tests {
         rates.sort_by(f64::total_cmp);
         rates.dedup();
         assert_eq!(rates.len(), t.modules.len(), "{rates:?}");
-        // x homes on a's input, y on b's, both at their min.
+        // x homes on a's input, y on b's, both 1 mm below their min (a
+        // switch sits past the travel, so the travel's edge is reachable).
         assert_eq!(t.switches.len(), 2);
         assert_eq!(t.switches[0].module, "a");
         assert_eq!(t.switches[1].module, "b");
-        assert!(t.switches.iter().all(|s| s.pressed_below && s.at == 0.0));
+        assert!(t.switches.iter().all(|s| s.pressed_below && s.at == -1.0));
     }
 
     #[test]
@@ -542,33 +543,35 @@ mod tests {
         );
         assert!(spec("mill-z").io.is_some(), "the spindle's module");
         assert!(spec("mill-x").io.is_none());
-        // Three switches at the max ends, each over its own motor; y's motor
-        // is inverted. Starts: the middles of the travels.
+        // Three switches 1 mm past the max ends, each over its own motor;
+        // y's motor is inverted. Starts: the middles of the travels.
         // And the bed probe on z's input (mill.toml's [probe], [sim.bed]).
         assert_eq!(t.switches.len(), 4);
         assert!(t.switches[3].bed.is_some());
         let x = &t.switches[0];
         assert_eq!(
             x,
-            &SwitchSpec::new("mill-x", &[("mill-x", 1.0)], 150.0, 300.0, false)
+            &SwitchSpec::new("mill-x", &[("mill-x", 1.0)], 150.0, 301.0, false)
         );
         let y = &t.switches[1];
         assert_eq!(
             y,
-            &SwitchSpec::new("mill-y", &[("mill-y", -1.0)], 100.0, 200.0, false)
+            &SwitchSpec::new("mill-y", &[("mill-y", -1.0)], 100.0, 201.0, false)
         );
         let z = &t.switches[2];
         assert_eq!(
             z,
-            &SwitchSpec::new("mill-z", &[("mill-z", 1.0)], -40.0, 0.0, false)
+            &SwitchSpec::new("mill-z", &[("mill-z", 1.0)], -40.0, 1.0, false)
         );
-        // z (believed at 0, physically at -40) presses when raised 40 mm:
-        // the machine sends z's motor +40.
-        assert!(!z.pressed(|_| 39.99));
-        assert!(z.pressed(|_| 40.0));
-        // y's motor is inverted: raising y by 100 sends it -100.
-        assert!(y.pressed(|_| -100.0));
-        assert!(!y.pressed(|_| 100.0));
+        // z (believed at 0, physically at -40) reaches its travel's top
+        // when raised 40 mm without a press, and presses 1 mm above it.
+        assert!(!z.pressed(|_| 40.0));
+        assert!(!z.pressed(|_| 40.99));
+        assert!(z.pressed(|_| 41.0));
+        // y's motor is inverted: raising y by 101 sends it -101.
+        assert!(!y.pressed(|_| -100.0));
+        assert!(y.pressed(|_| -101.0));
+        assert!(!y.pressed(|_| 101.0));
     }
 
     #[test]
@@ -578,7 +581,8 @@ mod tests {
         let (xs, ys) = (&t.switches[0], &t.switches[1]);
         // The machine believes it boots at (0, 0); it is at the middle,
         // (100, 75). So x reaches its min (0) when the machine believes
-        // x = -100, and y its min when it believes y = -75.
+        // x = -100, and y its min when it believes y = -75; each switch
+        // sits 1 mm past its min.
         let pressed = |s: &SwitchSpec, x: f64, y: f64| {
             let m = corexy_motors(&cfg, x, y);
             s.pressed(|name| m[name])
@@ -588,9 +592,10 @@ mod tests {
             xs.value(|name| m[name])
         };
         for y in [-70.0, -20.0, 0.0, 30.0, 70.0] {
-            assert!(!pressed(xs, -99.9, y), "x at 0.1, y {y}");
-            assert!(pressed(xs, -100.0, y), "x at 0, y {y}");
-            assert!(pressed(xs, -101.0, y), "x past 0, y {y}");
+            assert!(!pressed(xs, -100.0, y), "x at 0, y {y}");
+            assert!(!pressed(xs, -100.9, y), "x at -0.9, y {y}");
+            assert!(pressed(xs, -101.0, y), "x at -1, y {y}");
+            assert!(pressed(xs, -102.0, y), "x past -1, y {y}");
             assert!((x_at(-40.0, y) - 60.0).abs() < 1e-9, "physical x");
         }
         // y moving alone never presses x, wherever x stands off its switch;
@@ -601,7 +606,8 @@ mod tests {
                 assert!(!pressed(xs, x, y), "x {x}, y {y}");
                 assert!(!pressed(ys, x, y), "x {x}, y {y}");
             }
-            assert!(pressed(ys, x, -75.0), "y at its min, x {x}");
+            assert!(!pressed(ys, x, -75.0), "y at its min, x {x}");
+            assert!(pressed(ys, x, -76.0), "y 1 mm past its min, x {x}");
         }
         // b is inverted: its term's sign says so (x = 100 + (a − b)/2).
         assert_eq!(
@@ -625,9 +631,9 @@ mod tests {
         assert_eq!(start_position(&cfg, "x"), Some(10.0));
         let t = topology(&cfg).unwrap();
         assert_eq!(t.switches[0].offset, 10.0);
-        let m = corexy_motors(&cfg, -10.0, 50.0);
+        let m = corexy_motors(&cfg, -11.0, 50.0);
         assert!(t.switches[0].pressed(|name| m[name]));
-        let m = corexy_motors(&cfg, -9.9, 50.0);
+        let m = corexy_motors(&cfg, -10.9, 50.0);
         assert!(!t.switches[0].pressed(|name| m[name]));
     }
 

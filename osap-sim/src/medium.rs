@@ -298,6 +298,14 @@ impl LinkModel {
         }
     }
 
+    /// Whether the receiver pushes back on the sender: a USB device NAKs
+    /// while its receive queue is full, and a TCP receive window closes, so
+    /// nothing is lost to a slow reader. A UART, an RS-485 line and UDP have
+    /// no such hand-shake: a reader that falls behind loses frames.
+    pub fn is_flow_controlled(&self) -> bool {
+        matches!(self, LinkModel::UsbCdc(_) | LinkModel::Tcp(_))
+    }
+
     /// Whether packets travel as COBS/CRC frames on a byte stream (all but
     /// UDP, which carries bare packets).
     pub fn is_byte_stream(&self) -> bool {

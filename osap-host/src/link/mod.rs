@@ -253,6 +253,25 @@ impl LinkIo {
         }
     }
 
+    /// Waits until the runtime's receive queue has room for one more packet
+    /// beyond `in_flight` already on their way to it: how a flow-controlled
+    /// wire (USB, TCP) holds its sender back instead of losing packets.
+    pub async fn rx_room(&self, in_flight: &std::sync::atomic::AtomicUsize) {
+        use std::sync::atomic::Ordering;
+        loop {
+            let notified = self.shared.io.notified();
+            {
+                let q = self.shared.lock();
+                if !q.open
+                    || q.rx.len() + in_flight.load(Ordering::Acquire) < self.shared.config.depth
+                {
+                    return;
+                }
+            }
+            notified.await;
+        }
+    }
+
     /// Takes the next packet to transmit, waiting for one. Returns `None`
     /// when the link is closed (the I/O task should reconnect or stop).
     pub async fn next_tx(&self) -> Option<Vec<u8>> {

@@ -701,14 +701,27 @@ impl Machine {
 
     /// Waits until the planner has room for `n` more segments.
     async fn wait_for_room(&self, n: usize) -> Result<(), MachineError> {
+        let room = maxl::blocks::planner::DEFAULT_CAPACITY - 1;
+        self.wait_queued_at_most(room.saturating_sub(n)).await
+    }
+
+    /// Segments queued and not yet handed to the motors (a straight move
+    /// is one; an arc is one per chord).
+    pub fn queued_moves(&self) -> usize {
+        lock_motion(&self.inner.motion).planner.stats().pending
+    }
+
+    /// Waits until at most `n` segments are queued ahead of the motors.
+    /// The queue holds thousands of moves; a script that generates motion
+    /// without end (a soak, a jog, a sensor-driven path) waits here to stay
+    /// a few moves ahead rather than minutes ahead. Fails if the machine
+    /// stops meanwhile.
+    pub async fn wait_queued_at_most(&self, n: usize) -> Result<(), MachineError> {
         let mut status = self.inner.status.clone();
         loop {
             self.check_running()?;
-            {
-                let m = lock_motion(&self.inner.motion);
-                if m.planner.stats().pending + n < maxl::blocks::planner::DEFAULT_CAPACITY {
-                    return Ok(());
-                }
+            if self.queued_moves() <= n {
+                return Ok(());
             }
             status.changed().await.map_err(|_| MachineError::Stopped)?;
         }

@@ -962,6 +962,7 @@ impl Machine {
                 started,
                 faults: l.faults.clone(),
                 fault_rng: Rng::stream(self.topology.seed, "osap-sim-fault", stream),
+                flow_controlled: model.is_flow_controlled(),
             };
             l.carriers.push(tokio::spawn(carrier.run()));
         }

@@ -8,7 +8,11 @@
 //! model) when each would start onto the wire, reach the far end and become
 //! visible there, and schedules its delivery. The model's transmit buffer
 //! pushes back: the carrier takes the next packet only when the buffer has
-//! room, so the rest wait in the sender's runtime, in deadline order.
+//! room, so the rest wait in the sender's runtime, in deadline order. On a
+//! flow-controlled link (USB CDC, TCP) the receiver pushes back too: the
+//! carrier sends only while the far runtime's receive queue has room for
+//! what is already in flight, as a device NAKs a full endpoint. A UART has
+//! no such hand-shake, so a reader that falls behind loses frames there.
 //!
 //! Deliveries run on one [`Wire`] thread per machine rather than on tokio
 //! timers, whose 1 ms granularity would swamp a UART's tens of µs: the
@@ -23,7 +27,7 @@ use osap_host::clock::HostClock;
 use osap_host::link::LinkIo;
 use std::cmp::Ordering as CmpOrdering;
 use std::collections::BinaryHeap;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -225,6 +229,10 @@ pub(crate) struct Carrier {
     /// Injected corruption, applied through the real framing.
     pub(crate) faults: Arc<LinkFaults>,
     pub(crate) fault_rng: Rng,
+    /// Whether the receiver pushes back (USB, TCP): the carrier then sends
+    /// only while the far runtime's receive queue has room for what is
+    /// already on the wire plus one more, as a device NAKs a full endpoint.
+    pub(crate) flow_controlled: bool,
 }
 
 impl Carrier {
@@ -240,6 +248,7 @@ impl Carrier {
     /// aborted, when the link goes down).
     pub(crate) async fn run(mut self) {
         let room = Arc::new(Notify::new());
+        let in_flight = Arc::new(AtomicUsize::new(0));
         loop {
             let now = self.true_ns(osap_host::clock::now());
             if let Some(free) = self.transmitter.next_free(now) {
@@ -247,6 +256,9 @@ impl Carrier {
                 self.wire.at(self.instant(free), move || room2.notify_one());
                 room.notified().await;
                 continue;
+            }
+            if self.flow_controlled {
+                self.to.rx_room(&in_flight).await;
             }
             let Some(mut packet) = self.from.next_tx().await else {
                 return;
@@ -257,6 +269,9 @@ impl Carrier {
             let transit = self.transmitter.transmit(now, packet);
             if transit.lost {
                 continue;
+            }
+            if self.flow_controlled {
+                in_flight.fetch_add(1, Ordering::AcqRel);
             }
             let mut bytes = transit.bytes;
             bytes.truncate(len);
@@ -270,6 +285,7 @@ impl Carrier {
             let generation = self.generation.clone();
             let started = self.started;
             let faults = self.faults.clone();
+            let landing = self.flow_controlled.then(|| in_flight.clone());
             self.wire.at(self.instant(transit.visible_ns), move || {
                 let arrived = generation.load(Ordering::Acquire) == started;
                 if frame_errors > 0 {
@@ -282,6 +298,11 @@ impl Carrier {
                     for packet in packets {
                         to.deliver_stamped(packet, stamp);
                     }
+                }
+                // Off the wire only once in the queue: the sender never
+                // sees room that is not there.
+                if let Some(n) = landing {
+                    n.fetch_sub(1, Ordering::AcqRel);
                 }
             });
         }
