@@ -77,6 +77,10 @@ async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     )
     .await?;
     machine.home().await?;
+    // Homing's last move leaves the carriage ringing for a few time
+    // constants of its resonance (45 Hz, damping 0.08: 44 ms); a capture
+    // that starts on a still machine sees the job's first move, not that.
+    machine.dwell(0.3).await?;
 
     // The capture first (its sources are checked before anything is
     // wired), then the machine's own recording of planned and executed.
