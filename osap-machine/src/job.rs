@@ -4,7 +4,7 @@
 
 use std::time::Duration;
 
-use maxl::blocks::planner::{Arc as PlanArc, Limits, Planner, VectorLimits};
+use maxl::blocks::planner::{Arc as PlanArc, Planner};
 
 use crate::config::{MachineFile, ToolKind};
 use crate::gcode::{Action, GcodeError, Job};
@@ -419,27 +419,7 @@ fn tool_level(tool: &crate::config::Tool, level: Option<ToolLevel>) -> f64 {
     }
 }
 
-/// The planner a machine plans with: each axis's own velocity and
-/// acceleration, the toolhead's vector limits and minimum cruise ratio from
-/// `[limits]`, and its junction deviation (with the centripetal limit on
-/// chorded curves that maxl's planner always applies).
-pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineError> {
-    let mut vel = [1.0; MAX_AXES];
-    let mut acc = [1.0; MAX_AXES];
-    for (k, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
-        let a = &cfg.axes[*name];
-        vel[k] = a.velocity;
-        acc[k] = a.acceleration;
-    }
-    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?;
-    let vector = VectorLimits::new(cfg.limits.velocity, cfg.limits.acceleration)?
-        .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?;
-    Ok(Planner::with_vector_limits(
-        limits,
-        vector,
-        maxl::blocks::planner::DEFAULT_CAPACITY,
-    )?)
-}
+pub use crate::machine::motion::machine_planner;
 
 impl Machine {
     /// Runs `program`: queues its moves with lookahead, switches the tool

@@ -34,243 +34,10 @@
 use std::path::Path;
 
 use maxl::blocks::bedlevel::{BedMesh, MeshGrid, MeshStats, Plane, PlaneFit, Probe as PlaneProbe};
-use osap_sim::machine::bed::BedSurface;
-use serde::Deserialize;
 
-use crate::config::{ConfigError, MachineFile};
 use crate::machine::{Machine, MachineError};
 
-/// A bed probe, `[probe]` in the machine file: a switch (or a load cell's
-/// comparator) on a module's limit input, closing when its tip touches
-/// the bed.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Probe {
-    /// The module (a key of `[modules]`) whose limit input the probe is
-    /// wired to. It may share the input with a homing switch (wired in
-    /// parallel) when the two are never pressed together.
-    pub module: String,
-    /// The probe tip relative to the tool tip, `[x, y, z]` (default 0: the
-    /// tool itself touches).
-    #[serde(default)]
-    pub offset: [f64; 3],
-    /// Probe points along x and along y (each at least 2).
-    pub grid: [usize; 2],
-    /// How far inside the x-y travel the outer probe points lie (default 10).
-    #[serde(default = "default_margin")]
-    pub margin: f64,
-    /// The z every search starts from: above the bed everywhere.
-    pub start_z: f64,
-    /// How far below `start_z` a search goes before it gives up.
-    pub search_depth: f64,
-    /// z speed while searching (units/s).
-    pub search_speed: f64,
-    /// Speed of the moves between points (units/s).
-    pub travel_speed: f64,
-}
-
-fn default_margin() -> f64 {
-    10.0
-}
-
-/// The simulated bed, `[sim.bed]`: a plane tilted by `tilt_x` and `tilt_y`
-/// through `z` at the middle of the x-y travel, plus a dome `warp` high at
-/// the middle falling to 0 at the travel's edges (see
-/// [`BedSurface`]). The simulated probe touches it.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct SimBed {
-    /// Height at the middle of the x-y travel.
-    pub z: f64,
-    /// Slope along x (units of height per unit of x).
-    #[serde(default)]
-    pub tilt_x: f64,
-    /// Slope along y.
-    #[serde(default)]
-    pub tilt_y: f64,
-    /// The dome's height at the middle (negative: a dish).
-    #[serde(default)]
-    pub warp: f64,
-}
-
-/// Steepest bed slope accepted: a bed tilted more is a mistake in the file.
-const MAX_TILT: f64 = 0.05;
-
-fn invalid(key: &str, message: String) -> ConfigError {
-    ConfigError::Invalid {
-        file: None,
-        key: key.to_string(),
-        message,
-    }
-}
-
-/// Checks `[probe]` and `[sim.bed]`; the error names the key and the fix.
-pub(crate) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
-    if let Some(bed) = cfg.sim.as_ref().and_then(|s| s.bed.as_ref()) {
-        for (key, v) in [
-            ("z", bed.z),
-            ("tilt_x", bed.tilt_x),
-            ("tilt_y", bed.tilt_y),
-            ("warp", bed.warp),
-        ] {
-            if !v.is_finite() {
-                return Err(invalid(
-                    &format!("sim.bed.{key}"),
-                    format!("{v} is not a finite number; give a number"),
-                ));
-            }
-        }
-        for (key, v) in [("tilt_x", bed.tilt_x), ("tilt_y", bed.tilt_y)] {
-            if v.abs() > MAX_TILT {
-                return Err(invalid(
-                    &format!("sim.bed.{key}"),
-                    format!("slope {v} is steeper than {MAX_TILT} (units per unit); a bed tilt is a few tenths of a millimetre over the bed, e.g. 0.001"),
-                ));
-            }
-        }
-        if cfg.probe.is_none() {
-            return Err(invalid(
-                "sim.bed",
-                "a simulated bed needs a [probe] to touch it; add [probe] or remove [sim.bed]"
-                    .into(),
-            ));
-        }
-        for a in ["x", "y", "z"] {
-            if !cfg.axes.contains_key(a) {
-                return Err(invalid(
-                    "sim.bed",
-                    format!("a bed needs axes x, y and z; this machine has no axis {a}"),
-                ));
-            }
-        }
-    }
-    let Some(p) = &cfg.probe else {
-        return Ok(());
-    };
-    if !cfg.modules.contains_key(&p.module) {
-        return Err(invalid(
-            "probe.module",
-            format!(
-                "no module {:?} in [modules]; name the module whose limit input the probe is wired to",
-                p.module
-            ),
-        ));
-    }
-    let z = match (cfg.axes.get("x"), cfg.axes.get("y"), cfg.axes.get("z")) {
-        (Some(_), Some(_), Some(z)) => z,
-        _ => return Err(invalid("probe", "a bed probe needs axes x, y and z".into())),
-    };
-    for (k, v) in p.offset.iter().enumerate() {
-        if !v.is_finite() {
-            return Err(invalid(
-                &format!("probe.offset[{k}]"),
-                format!(
-                    "{v} is not a finite number; give the probe tip's offset from the tool tip"
-                ),
-            ));
-        }
-    }
-    for (k, n) in p.grid.iter().enumerate() {
-        if !(2..=64).contains(n) {
-            return Err(invalid(
-                &format!("probe.grid[{k}]"),
-                format!("{n} probe points: give 2 to 64 along each axis, e.g. grid = [5, 4]"),
-            ));
-        }
-    }
-    for (key, v) in [
-        ("search_depth", p.search_depth),
-        ("search_speed", p.search_speed),
-        ("travel_speed", p.travel_speed),
-    ] {
-        if !(v.is_finite() && v > 0.0) {
-            return Err(invalid(
-                &format!("probe.{key}"),
-                format!("{v} must be positive"),
-            ));
-        }
-    }
-    if !(p.margin.is_finite() && p.margin >= 0.0) {
-        return Err(invalid(
-            "probe.margin",
-            format!("{} must be 0 or more", p.margin),
-        ));
-    }
-    if p.search_speed > z.velocity {
-        return Err(invalid(
-            "probe.search_speed",
-            format!(
-                "{} is faster than z's velocity limit {}; search slower, e.g. 2",
-                p.search_speed, z.velocity
-            ),
-        ));
-    }
-    if !(z.min..=z.max).contains(&p.start_z) || p.start_z - p.search_depth < z.min {
-        return Err(invalid(
-            "probe.start_z",
-            format!(
-                "a search from z = {} down to {} leaves z's travel [{}, {}]; start lower or search less deep",
-                p.start_z,
-                p.start_z - p.search_depth,
-                z.min,
-                z.max
-            ),
-        ));
-    }
-    p.grid(cfg).map_err(|e| invalid("probe.grid", e))?;
-    Ok(())
-}
-
-impl Probe {
-    /// The probe points' grid (where the probe tip touches): the x-y travel
-    /// the tool can put the probe over, inside by `margin`.
-    pub fn grid(&self, cfg: &MachineFile) -> Result<MeshGrid, String> {
-        let (Some(x), Some(y)) = (cfg.axes.get("x"), cfg.axes.get("y")) else {
-            return Err("a bed probe needs axes x and y".into());
-        };
-        let [ox, oy, _] = self.offset;
-        let (x0, x1) = (x.min + ox + self.margin, x.max + ox - self.margin);
-        let (y0, y1) = (y.min + oy + self.margin, y.max + oy - self.margin);
-        if x1 <= x0 || y1 <= y0 {
-            return Err(format!(
-                "margin {} leaves no room to probe in the x-y travel; use a smaller margin",
-                self.margin
-            ));
-        }
-        let [nx, ny] = self.grid;
-        if nx < 2 || ny < 2 {
-            return Err(format!(
-                "grid [{nx}, {ny}]: give at least 2 probe points along each axis"
-            ));
-        }
-        MeshGrid::new(
-            x0,
-            y0,
-            (x1 - x0) / (nx - 1) as f64,
-            (y1 - y0) / (ny - 1) as f64,
-            nx,
-            ny,
-        )
-        .map_err(|e| e.to_string())
-    }
-}
-
-impl SimBed {
-    /// The bed as the simulator's surface: centred on the middle of the
-    /// x-y travel, the dome falling to 0 at its edges. `None` without axes
-    /// x and y.
-    pub fn surface(&self, cfg: &MachineFile) -> Option<BedSurface> {
-        let (x, y) = (cfg.axes.get("x")?, cfg.axes.get("y")?);
-        Some(BedSurface {
-            z: self.z,
-            tilt_x: self.tilt_x,
-            tilt_y: self.tilt_y,
-            warp: self.warp,
-            center: [(x.min + x.max) / 2.0, (y.min + y.max) / 2.0],
-            half: [(x.max - x.min) / 2.0, (y.max - y.min) / 2.0],
-        })
-    }
-}
+pub use crate::config::{Probe, SimBed};
 
 /// One probed point.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -455,7 +222,8 @@ pub fn save(levelled: &Levelled, path: &Path) -> Result<(), String> {
 }
 
 /// Plots the mesh as a heat map (SVG): the bilinear surface coloured by
-/// height, the probe points marked, and a colour scale.
+/// height, the probe points marked, and a colour scale (feature `plot`).
+#[cfg(feature = "plot")]
 pub fn plot(levelled: &Levelled, path: &Path) -> Result<(), String> {
     use plotters::prelude::*;
     let g = levelled.mesh.grid();
@@ -564,6 +332,7 @@ pub fn plot(levelled: &Levelled, path: &Path) -> Result<(), String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::config::MachineFile;
 
     fn mill() -> MachineFile {
         let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -31,6 +31,7 @@
 //!   off from the network alone (`osap halt`).
 #![deny(missing_docs)]
 
+#[cfg(feature = "capture")]
 pub mod capture;
 pub mod config;
 pub mod gcode;
@@ -42,7 +43,9 @@ pub mod mesh;
 pub mod module_limits;
 pub mod network;
 pub mod record;
+#[cfg(feature = "resonance")]
 pub mod resonance;
+#[cfg(feature = "sim")]
 pub mod sim;
 pub mod svg;
 

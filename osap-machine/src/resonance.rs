@@ -59,15 +59,13 @@ use std::path::{Path, PathBuf};
 use std::sync::{Arc, Mutex};
 
 use maxl::blocks::chirp::{Chirp, ChirpConfig};
-use maxl::blocks::shaper::{ShaperConfig, ShaperKind};
+use maxl::blocks::shaper::ShaperConfig;
 use osap_host::som::{Disconnect, FnRef, HostFunction, PipeOptions, Value};
-use osap_sim::machine::board::accel::AccelSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::types::{ScalarType, Type};
 use plotters::prelude::*;
-use serde::Deserialize;
 
-use crate::config::{ConfigError, MachineFile};
+use crate::config::MachineFile;
 use crate::machine::drive::MAX_AXES;
 use crate::machine::INTERVAL_US;
 use crate::{Machine, MachineError};
@@ -90,141 +88,7 @@ const LIMIT_SHARE: f64 = 0.9;
 /// The share of the module's step rate the chirp's velocity keeps under.
 const STEP_RATE_SHARE: f64 = 0.5;
 
-/// `[axes.NAME] accelerometer`: an analog input measuring the axis's
-/// acceleration (see the module docs).
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Accelerometer {
-    /// The module it is wired to (a key of `[modules]`).
-    pub module: String,
-    /// The module's analog input.
-    #[serde(default)]
-    pub channel: u8,
-    /// Acceleration at full scale, machine units/s².
-    pub range: f64,
-}
-
-/// `[axes.NAME] shaper`: the input shaper for the axis's mode.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AxisShaper {
-    /// `zv`, `mzv`, `ei`, `2hump_ei` or `zvd`.
-    pub kind: String,
-    /// The mode's frequency, Hz.
-    pub freq_hz: f64,
-    /// The mode's damping ratio.
-    pub damping: f64,
-}
-
-impl AxisShaper {
-    /// The shaper it names, checked.
-    pub fn config(&self) -> Result<ShaperConfig, String> {
-        let kind = ShaperKind::ALL
-            .into_iter()
-            .find(|k| k.name() == self.kind)
-            .ok_or_else(|| {
-                format!(
-                    "unknown shaper kind {:?}; use one of zv, mzv, ei, 2hump_ei, zvd",
-                    self.kind
-                )
-            })?;
-        ShaperConfig::new(kind, self.freq_hz, self.damping).map_err(|e| e.to_string())
-    }
-}
-
-fn invalid(key: String, message: String) -> ConfigError {
-    ConfigError::Invalid {
-        file: None,
-        key,
-        message,
-    }
-}
-
-/// Checks `[axes.NAME] accelerometer` and `shaper` of every axis.
-pub(crate) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
-    for (name, axis) in &cfg.axes {
-        if let Some(a) = &axis.accelerometer {
-            let at = format!("axes.{name}.accelerometer");
-            if !cfg.modules.contains_key(&a.module) {
-                return Err(invalid(
-                    format!("{at}.module"),
-                    format!(
-                        "module {:?} is not in [modules]; name the module the accelerometer is wired to",
-                        a.module
-                    ),
-                ));
-            }
-            if !(a.range.is_finite() && a.range > 0.0) {
-                return Err(invalid(
-                    format!("{at}.range"),
-                    format!(
-                        "range {} must be a positive acceleration at full scale (units/s²), e.g. 160000 for ±16 g in mm",
-                        a.range
-                    ),
-                ));
-            }
-        }
-        if let Some(s) = &axis.shaper {
-            s.config()
-                .map_err(|m| invalid(format!("axes.{name}.shaper"), m))?;
-        }
-    }
-    Ok(())
-}
-
-/// The simulated accelerometer on module `key` (a key of `[modules]`), if
-/// an axis's accelerometer is there: `Err((key, message))` when it cannot
-/// be simulated.
-pub(crate) fn sim_accel(
-    cfg: &MachineFile,
-    key: &str,
-) -> Result<Option<AccelSpec>, (String, String)> {
-    let on_key: Vec<(&String, &Accelerometer)> = cfg
-        .axes
-        .iter()
-        .filter_map(|(n, a)| Some((n, a.accelerometer.as_ref().filter(|a| a.module == key)?)))
-        .collect();
-    let Some(&(axis, acc)) = on_key.first() else {
-        return Ok(None);
-    };
-    if let Some((other, _)) = on_key.get(1) {
-        return Err((
-            format!("axes.{other}.accelerometer.module"),
-            format!(
-                "axes {axis} and {other} both have their accelerometer on module {key:?}; the simulator carries one per module: put them on different modules"
-            ),
-        ));
-    }
-    let at = format!("axes.{axis}.accelerometer.module");
-    let form = crate::sim::axis_form(cfg, axis).map_err(|e| (at.clone(), e.to_string()))?;
-    let name = crate::sim::module_name(cfg, key).unwrap_or(key);
-    let Some(&(_, c)) = form.terms.iter().find(|(m, _)| m == name) else {
-        return Err((
-            at,
-            format!(
-                "the simulated accelerometer sees its own module's carriage, and module {key:?} drives no motor of axis {axis}; put it on one that does"
-            ),
-        ));
-    };
-    // The axis moves by Δ while this carriage moves by Δ/(n·c) (cartesian
-    // n = 1; corexy n = 2, c = ±1/2).
-    let coef = c * form.terms.len() as f64;
-    let (resonance_hz, damping_ratio) = cfg
-        .sim
-        .as_ref()
-        .and_then(|s| s.axes.get(axis.as_str()))
-        .and_then(|a| a.resonance())
-        .unwrap_or((1000.0, 0.7));
-    let spec = AccelSpec {
-        channel: acc.channel,
-        resonance_hz,
-        damping_ratio,
-        range: acc.range,
-        coef,
-    };
-    spec.check().map_err(|m| (at, m))?;
-    Ok(Some(spec))
-}
+pub use crate::config::{Accelerometer, AxisShaper};
 
 /// Why a measurement failed.
 #[derive(Debug, thiserror::Error)]
@@ -904,7 +768,7 @@ mod tests {
             r#"accelerometer = { module = "a", channel = 1"#,
         ))
         .unwrap();
-        let (key, m) = sim_accel(&cfg, "a").unwrap_err();
+        let (key, m) = crate::sim::accel::sim_accel(&cfg, "a").unwrap_err();
         assert!(
             key.contains("accelerometer.module") && m.contains("one per module"),
             "{m}"

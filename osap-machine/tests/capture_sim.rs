@@ -5,7 +5,7 @@
 
 use osap_machine::capture::{CaptureError, Clock, RecordOptions};
 use osap_machine::config::MachineFile;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
 use osap_sim::machine::{virtual_runtime, TimeMode};
 use std::path::PathBuf;

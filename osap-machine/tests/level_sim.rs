@@ -6,7 +6,7 @@
 
 use osap_machine::config::MachineFile;
 use osap_machine::level;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError};
 use osap_sim::machine::{virtual_runtime, TimeMode};
 

@@ -5,7 +5,7 @@
 
 use osap_machine::config::MachineFile;
 use osap_machine::machine::events::FaultKind;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
 use osap_module::stepper::StepperError;
 use osap_sim::machine::{virtual_runtime, Fault, TimeMode};

@@ -3,7 +3,7 @@
 //! what the motors stepped matches what was planned.
 
 use osap_machine::config::MachineFile;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
 use osap_sim::machine::{virtual_runtime, TimeMode};
 

@@ -10,7 +10,7 @@ use std::time::Duration;
 
 use osap_machine::config::MachineFile;
 use osap_machine::machine::events::FaultKind;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
 use osap_sim::machine::{virtual_runtime, Fault, TimeMode};
 use tokio::sync::broadcast;

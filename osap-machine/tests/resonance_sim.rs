@@ -5,9 +5,9 @@
 //! comes out within 2 % of the model's.
 
 use osap_machine::config::MachineFile;
-use osap_machine::machine::SimOptions;
 use osap_machine::resonance::analysis::{model_peak_hz, Peak};
 use osap_machine::resonance::{self, measure};
+use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
 use osap_sim::machine::{virtual_runtime, TimeMode};
 

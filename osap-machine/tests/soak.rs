@@ -18,7 +18,7 @@
 //! docs/security.md gives a long run's figures.
 
 use osap_machine::config::MachineFile;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
 use osap_sim::machine::{virtual_runtime, Fault, FaultInjector, TimeMode};
 use std::time::Duration;

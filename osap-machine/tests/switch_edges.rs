@@ -6,7 +6,7 @@
 
 use osap_machine::config::MachineFile;
 use osap_machine::job::{from_gcode, from_svg};
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
 use osap_sim::machine::{virtual_runtime, TimeMode};
 use tokio::sync::broadcast;

@@ -25,7 +25,7 @@ use std::process::ExitCode;
 use clap::Parser;
 use osap_machine::capture::RecordOptions;
 use osap_machine::config::MachineFile;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::svg::SvgOptions;
 use osap_machine::{job, record, Machine};
 use osap_sim::machine::TimeMode;

@@ -20,7 +20,7 @@ use std::time::Duration;
 use clap::Parser;
 use osap_machine::config::MachineFile;
 use osap_machine::level;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
 use osap_sim::machine::TimeMode;
 

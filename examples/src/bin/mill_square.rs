@@ -17,7 +17,8 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use osap_machine::config::MachineFile;
-use osap_machine::machine::{Link, SimOptions};
+use osap_machine::machine::Link;
+use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
 use osap_sim::machine::{virtual_runtime, TimeMode};
 

@@ -17,7 +17,7 @@ use std::process::ExitCode;
 
 use clap::Parser;
 use osap_machine::config::MachineFile;
-use osap_machine::machine::SimOptions;
+use osap_machine::sim::SimOptions;
 use osap_machine::{resonance, Machine};
 use osap_sim::machine::TimeMode;
 

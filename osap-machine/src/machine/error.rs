@@ -102,7 +102,7 @@ pub enum MachineError {
         /// Why.
         reason: String,
     },
-    /// Probing the bed failed (`[probe]`, [`crate::level`]).
+    /// Probing the bed failed (`[probe]`, `osap level`).
     #[error("probing {point}: {reason}")]
     Probe {
         /// Which probe point, and where.

@@ -9,12 +9,14 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use maxl::blocks::planner::Planner;
+use maxl::blocks::planner::{Limits, Planner, VectorLimits};
 use osap_host::som::{HostFnError, HostFunction, Value};
 use pipes_core::types::{ScalarType, Type};
 use tokio::sync::watch;
 
 use super::drive::{Drive, MAX_AXES};
+use super::MachineError;
+use crate::config::MachineFile;
 
 /// Failure code of the motion function while the machine is paused (no
 /// points are sent, so the motors stand).
@@ -28,7 +30,7 @@ const RECENT: usize = 8192;
 
 /// A test signal added to the planned machine position at every stamp
 /// (synchronized µs → offset per axis slot), such as the chirp of
-/// [`crate::resonance`].
+/// `osap resonance`.
 pub type Excitation = Box<dyn FnMut(u64) -> [f64; MAX_AXES] + Send>;
 
 /// What the motion source reports after each sample.
@@ -198,4 +200,26 @@ pub fn function(name: &str, motion: SharedMotion, motors: usize) -> Result<HostF
         },
     )
     .map_err(|e| e.to_string())
+}
+
+/// The planner a machine plans with: each axis's own velocity and
+/// acceleration, the toolhead's vector limits and minimum cruise ratio from
+/// `[limits]`, and its junction deviation (with the centripetal limit on
+/// chorded curves that maxl's planner always applies).
+pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineError> {
+    let mut vel = [1.0; MAX_AXES];
+    let mut acc = [1.0; MAX_AXES];
+    for (k, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
+        let a = &cfg.axes[*name];
+        vel[k] = a.velocity;
+        acc[k] = a.acceleration;
+    }
+    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?;
+    let vector = VectorLimits::new(cfg.limits.velocity, cfg.limits.acceleration)?
+        .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?;
+    Ok(Planner::with_vector_limits(
+        limits,
+        vector,
+        maxl::blocks::planner::DEFAULT_CAPACITY,
+    )?)
 }

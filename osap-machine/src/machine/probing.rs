@@ -1,5 +1,5 @@
 //! Probing the bed: a z search on a probe input, and changing the bed mesh
-//! the machine follows. The flow that probes a grid is in [`crate::level`].
+//! the machine follows. The flow that probes a grid is in the `level` module.
 //!
 //! A probe is a switch on a module's limit input (`[probe] module`). Like a
 //! homing switch, its press reaches the host as an edge stamped with the

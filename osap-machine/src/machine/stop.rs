@@ -96,7 +96,7 @@ impl Machine {
 
     /// Stops the machine: a controlled stop and every module halted, every
     /// tool off, then the motors are left powered where they stand; a
-    /// simulated machine is shut down.
+    /// simulated machine (whatever runs underneath) is shut down.
     pub async fn stop(self) -> Result<StopReport, MachineError> {
         self.await_stops().await;
         let (tools, ()) = tokio::join!(self.tools_off(), self.come_to_rest());
@@ -104,14 +104,14 @@ impl Machine {
         self.pause_motion();
         let report = self.report_stop("the machine stops".into(), [tools, halts]);
         self.inner.state.send_replace(MachineState::Stopped);
-        let sim = self
+        let underneath = self
             .inner
-            .sim
+            .underneath
             .lock()
             .unwrap_or_else(|e| e.into_inner())
             .take();
-        if let Some(sim) = sim {
-            sim.stop().await?;
+        if let Some(u) = underneath {
+            u.stop().await?;
         }
         report.complete()
     }
@@ -388,7 +388,7 @@ impl Machine {
         // Whatever was planned is void: a fresh planner, where the motors
         // stand, with the same feed override.
         let scale = m.planner.feed_scale();
-        let mut planner = crate::job::machine_planner(&self.inner.cfg)?;
+        let mut planner = super::motion::machine_planner(&self.inner.cfg)?;
         planner.set_feed_scale(scale)?;
         let mut p3 = [0.0; MAX_AXES];
         p3[..p.len()].copy_from_slice(&p);

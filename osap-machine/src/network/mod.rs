@@ -1,10 +1,10 @@
-//! How a machine is reached, below [`Machine`](crate::Machine): the links
+//! How a machine is reached, below the `Machine` itself: the links
 //! to its modules, the machine's entry point (where the machine file's
 //! routes start), and finding each module of `[modules]` on the network
 //! and checking it is a kind of module the machine knows.
 //!
 //! Needs only the machine file model and osap-host, so a script (and
-//! [`crate::halt`]) can reach the modules without starting a machine.
+//! the `halt` module) can reach the modules without starting a machine.
 
 mod find;
 mod kinds;

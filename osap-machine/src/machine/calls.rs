@@ -1,0 +1,78 @@
+//! Any module function, called by the module's key in `[modules]`.
+
+use super::*;
+
+pub(super) fn som_refusal(module: &str, function: &str, e: SomError) -> MachineError {
+    match e {
+        SomError::Remote {
+            error: ControlError::CallFailed(code),
+            ..
+        } => MachineError::ModuleRefused {
+            module: module.into(),
+            function: function.into(),
+            reason: error::module_reason(function, code.code()),
+        },
+        other => MachineError::Network(other),
+    }
+}
+
+impl Machine {
+    /// Calls function `function` on module `key` (of `[modules]`).
+    pub async fn call(
+        &self,
+        key: &str,
+        function: &str,
+        args: &[Value<'static>],
+    ) -> Result<Vec<Value<'static>>, MachineError> {
+        self.call_as(key, function, args, false).await
+    }
+
+    /// [`call`](Self::call) for a function that sets or reads a value,
+    /// asked again if its reply is lost (a noisy link must not fail a
+    /// recovery).
+    pub(super) async fn call_idempotent(
+        &self,
+        key: &str,
+        function: &str,
+        args: &[Value<'static>],
+    ) -> Result<Vec<Value<'static>>, MachineError> {
+        self.call_as(key, function, args, true).await
+    }
+
+    pub(super) async fn call_as(
+        &self,
+        key: &str,
+        function: &str,
+        args: &[Value<'static>],
+        idempotent: bool,
+    ) -> Result<Vec<Value<'static>>, MachineError> {
+        let runtime = &self
+            .inner
+            .modules
+            .get(key)
+            .ok_or_else(|| MachineError::ModuleNotFound {
+                key: key.into(),
+                wanted: key.into(),
+                found: self
+                    .inner
+                    .modules
+                    .keys()
+                    .cloned()
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            })?
+            .runtime;
+        let h = self
+            .inner
+            .manager
+            .lock()
+            .await
+            .function(&FnRef::new(runtime.as_str(), function))?;
+        let result = if idempotent {
+            h.call_idempotent(args).await
+        } else {
+            h.call(args).await
+        };
+        result.map_err(|e| som_refusal(key, function, e))
+    }
+}

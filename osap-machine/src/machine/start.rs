@@ -1,0 +1,431 @@
+//! Starting a machine, in named phases: find the modules (discover),
+//! wait for their clocks (sync), set up the motors (configure), build the
+//! planner (plan), wire the graph (wire) and its reports (watch).
+
+use super::*;
+
+/// How closely a clock must follow its source before motion starts.
+pub(super) const SYNC_GOAL: SyncGoal = SyncGoal {
+    max_offset: Duration::from_micros(200),
+    quiet: Duration::from_millis(200),
+    timeout: Duration::from_secs(20),
+};
+
+impl Machine {
+    /// The machine on hardware, reached over `links`. Over TCP links only
+    /// (a machine another process serves) this host follows that
+    /// process's clock; with any serial link it is the machine's root.
+    pub async fn connect(cfg: &MachineFile, links: &[Link]) -> Result<Machine, MachineError> {
+        cfg.validate()?;
+        if links.is_empty() {
+            return Err(MachineError::Unsupported(
+                "no link given: name a serial port or a TCP address".into(),
+            ));
+        }
+        // Over serial the modules are ours and this host is their clock
+        // root; over TCP only, the machine is served and its host is the
+        // root: follow it, and trust no other link.
+        let served = crate::network::served(links);
+        let mut config = HostConfig::named(HOST_NAME);
+        config.time.root = !served;
+        let host = Host::start(config)?;
+        let handles = crate::network::open_links(&host, links).await?;
+        if served {
+            for l in &handles {
+                host.trust_time_link(l.index()).await?;
+            }
+        }
+        let entry = Entry::of(links, &handles);
+        if served {
+            // Points are stamped in this host's time: it must follow the
+            // served clock before the first one, and never step after.
+            let runner = Netrunner::new(&host).await?;
+            let here =
+                Route::through_links(&[]).map_err(|e| MachineError::Unsupported(e.to_string()))?;
+            runner
+                .wait_synchronised(&here, SYNC_GOAL)
+                .await
+                .map_err(|e| MachineError::NotSynchronised {
+                    module: HOST_NAME.into(),
+                    detail: e.to_string(),
+                })?;
+            host.set_motion_active(true).await?;
+        }
+        Self::start(cfg, host, handles, entry, None).await
+    }
+
+    pub(crate) async fn start(
+        cfg: &MachineFile,
+        host: Host,
+        links: Vec<osap_host::link::stream::LinkHandle>,
+        entry: Entry,
+        underneath: Option<Box<dyn Underneath>>,
+    ) -> Result<Machine, MachineError> {
+        let start = drive::start_position(cfg);
+        let drive = Drive::new(cfg, &start).map_err(MachineError::Unsupported)?;
+        check_track_range(cfg, &drive)?;
+        if let Some(path) = cfg.bed_mesh_path() {
+            crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+        }
+        let mut manager = Manager::new(&host).await?;
+        manager.refresh().await?;
+        let modules = crate::network::find_modules(cfg, manager.som(), entry)?;
+
+        // Motion is keyed by synchronized time: every module's clock must
+        // follow the host's before a point is sent.
+        let netrunner = Netrunner::new(&host).await?;
+        for (key, m) in &modules {
+            netrunner
+                .wait_synchronised(&m.route, SYNC_GOAL)
+                .await
+                .map_err(|e| MachineError::NotSynchronised {
+                    module: key.clone(),
+                    detail: e.to_string(),
+                })?;
+        }
+        safe::arm_all(cfg, &manager, &modules).await?;
+
+        // Motors: scale, microsteps, interval, power; then where they stand.
+        let mut motor_at = Vec::new();
+        for motor in drive.motors() {
+            let runtime = &modules[&motor.module].runtime;
+            let limits = module_limits(cfg, &motor.name, INTERVAL_S);
+            motor_at.push(configure_motor(&manager, runtime, motor, limits).await?);
+        }
+        let mut drive = drive;
+        drive.rebase(&start, &motor_at)?;
+        if let Some(path) = cfg.bed_mesh_path() {
+            let mesh = crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+            drive = drive
+                .with_mesh(mesh, &start, &motor_at)
+                .map_err(MachineError::Unsupported)?;
+        }
+
+        let planner = motion::machine_planner(cfg)?;
+        let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
+        let mut start3 = [0.0; MAX_AXES];
+        start3[..start.len()].copy_from_slice(&start);
+        motion.planner.set_position(start3)?;
+        let motion = Arc::new(Mutex::new(motion));
+
+        let (events, _) = broadcast::channel(1024);
+        let (limit_edges, _) = broadcast::channel(256);
+        let reports: SharedReports = Arc::default();
+
+        // The graph.
+        let host_name = manager
+            .som()
+            .runtimes
+            .first()
+            .map(|r| r.record.name.clone())
+            .unwrap_or_else(|| HOST_NAME.into());
+        let timer = manager
+            .define_class(
+                TimerBlock::new(INTERVAL_US, LEAD_US)
+                    .map_err(|e| MachineError::Unsupported(format!("timer: {e}")))?,
+            )
+            .await?;
+        let tick = FnRef::new(
+            host_name.as_str(),
+            timer.member("tick").unwrap_or("Timer.tick"),
+        );
+        manager
+            .set_input_mode(&tick, InputMode::OnTimer(INTERVAL_US / 4))
+            .await?;
+        manager.set_output_mode(&tick, OutputMode::OnChange).await?;
+        let n_motors = lock_motion(&motion).drive.motors().len();
+        let motion_fn = manager
+            .define(
+                motion::function("machine.motion", motion.clone(), n_motors)
+                    .map_err(MachineError::Unsupported)?,
+            )
+            .await?;
+        let o = PipeOptions::default();
+        manager.connect(&tick, &motion_fn, &[0], &[0], o).await?;
+        let motors: Vec<_> = lock_motion(&motion).drive.motors().to_vec();
+        for (i, motor) in motors.iter().enumerate() {
+            let runtime = &modules[&motor.module].runtime;
+            let out = u8::try_from(1 + i)
+                .map_err(|_| MachineError::Unsupported("more than 254 motors".into()))?;
+            manager
+                .connect(
+                    &motion_fn,
+                    &FnRef::new(runtime.as_str(), "add_point"),
+                    &[0, out],
+                    &[0, 1],
+                    o,
+                )
+                .await?;
+        }
+
+        // Reports from the modules.
+        liveness::status_reports(&mut manager, &modules, &reports).await?;
+        for motor in &motors {
+            let runtime = modules[&motor.module].runtime.clone();
+            let key = motor.module.as_str();
+            let counters_fn = manager
+                .define(
+                    monitor::counters(key, reports.clone(), events.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &runtime,
+                "get_counters",
+                Some(STATUS_PERIOD_US),
+                true,
+                &counters_fn,
+                4,
+            )
+            .await?;
+        }
+        for (i, motor) in motors.iter().enumerate() {
+            let runtime = modules[&motor.module].runtime.clone();
+            let f = manager
+                .define(
+                    monitor::position(&motor.name, i, reports.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            // Wired now, run only while recording (start_recording): at
+            // 1 kHz per motor it is most of a simulation's work otherwise.
+            source(&mut manager, &runtime, "get_position", None, true, &f, 2).await?;
+        }
+        let mut switch_modules: Vec<&str> = cfg
+            .axes
+            .values()
+            .filter_map(|a| a.homing.as_ref()?.switch.as_deref())
+            .chain(cfg.probe.as_ref().map(|p| p.module.as_str()))
+            .collect();
+        switch_modules.sort();
+        switch_modules.dedup();
+        // Every module's faults, pushed once each as they happen.
+        for (key, m) in &modules {
+            if manager
+                .function(&FnRef::new(m.runtime.as_str(), "get_fault"))
+                .is_err()
+            {
+                continue;
+            }
+            let watched = switch_modules.contains(&key.as_str());
+            let f = manager
+                .define(
+                    monitor::fault(key, watched, reports.clone(), events.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &m.runtime,
+                "get_fault",
+                Some(FAULT_PERIOD_US),
+                true,
+                &f,
+                4,
+            )
+            .await?;
+        }
+        for key in switch_modules {
+            let runtime = modules[key].runtime.clone();
+            let f = manager
+                .define(
+                    monitor::limit(key, reports.clone(), limit_edges.clone())
+                        .map_err(MachineError::Unsupported)?,
+                )
+                .await?;
+            source(
+                &mut manager,
+                &runtime,
+                "read_limit",
+                Some(FAST_PERIOD_US),
+                true,
+                &f,
+                3,
+            )
+            .await?;
+        }
+
+        let (state, _) = watch::channel(MachineState::Idle);
+        let homed = cfg
+            .axis_names()
+            .iter()
+            .map(|a| cfg.axes[*a].homing.is_none())
+            .collect();
+        let tools = cfg
+            .tools
+            .keys()
+            .map(|k| (k.clone(), tool::ToolState::default()))
+            .collect();
+        let watchdog = tokio::spawn(liveness::watch_modules(
+            modules.keys().cloned().collect(),
+            reports.clone(),
+            events.clone(),
+        ));
+        let feeders = safe::keep_fed(cfg, &manager, &modules)?;
+        let machine = Machine {
+            inner: Arc::new(Inner {
+                cfg: cfg.clone(),
+                host,
+                manager: tokio::sync::Mutex::new(manager),
+                modules,
+                motion,
+                status,
+                reports,
+                events,
+                limit_edges,
+                state,
+                homed: Mutex::new(homed),
+                expecting: Mutex::default(),
+                tools: Mutex::new(tools),
+                underneath: Mutex::new(underneath),
+                lost: Mutex::default(),
+                capture_holds: Default::default(),
+                stops: Mutex::default(),
+                _links: links,
+                watchdog,
+                feeders,
+            }),
+        };
+        machine.spawn_fault_handler();
+        Ok(machine)
+    }
+}
+
+/// Pipes module function `function` into host function `to`, outputs
+/// `0..n` to inputs `0..n`, and runs it as a source on the module's timer
+/// every `period_us` (`None`: not yet; a function without inputs idles in
+/// its default input mode).
+pub(super) async fn source(
+    manager: &mut Manager,
+    runtime: &str,
+    function: &str,
+    period_us: Option<u32>,
+    on_change: bool,
+    to: &FnRef,
+    n: u8,
+) -> Result<(), MachineError> {
+    let from = FnRef::new(runtime, function);
+    // Pipe first, then the modes: a run before the pipe exists would count
+    // as sent, and "on change" would hold back the first report.
+    let map: Vec<u8> = (0..n).collect();
+    manager
+        .connect(&from, to, &map, &map, PipeOptions::default())
+        .await?;
+    let mode = if on_change {
+        OutputMode::OnChange
+    } else {
+        OutputMode::Always
+    };
+    manager.set_output_mode(&from, mode).await?;
+    if let Some(period) = period_us {
+        manager
+            .set_input_mode(&from, InputMode::OnTimer(period))
+            .await?;
+    }
+    Ok(())
+}
+
+/// Sets a motor's module up (scale, microsteps, interval, the limits it
+/// holds points to, power) and reads where its steps put it.
+pub(super) async fn configure_motor(
+    manager: &Manager,
+    runtime: &str,
+    motor: &drive::DriveMotor,
+    limits: Option<ModuleLimits>,
+) -> Result<f64, MachineError> {
+    let call = |f: &'static str, args: Vec<Value<'static>>| {
+        let h = manager.function(&FnRef::new(runtime, f));
+        let module = motor.module.clone();
+        async move {
+            // Each sets a value or reads one: a lost reply is asked again.
+            h.map_err(MachineError::Network)?
+                .call_idempotent(&args)
+                .await
+                .map_err(|e| som_refusal(&module, f, e))
+        }
+    };
+    call(
+        "set_scale",
+        vec![Value::F32(motor.full_steps_per_unit as f32)],
+    )
+    .await?;
+    call("set_microsteps", vec![Value::U16(motor.microsteps)]).await?;
+    call("set_interval", vec![Value::U32(INTERVAL_US)]).await?;
+    // All three 0 turns a module's limiter off (a reconnect may follow a
+    // machine file that had limits).
+    let l = limits.unwrap_or(ModuleLimits {
+        velocity: 0.0,
+        acceleration: 0.0,
+        jerk: 0.0,
+    });
+    call(
+        "set_limits",
+        [l.velocity, l.acceleration, l.jerk]
+            .map(|x| Value::F32(x as f32))
+            .to_vec(),
+    )
+    .await?;
+    call("set_enable", vec![Value::Bool(motor.enable)]).await?;
+    let out = call("get_position", vec![]).await?;
+    stop::stepped_position(&motor.module, &out)
+}
+
+/// Room kept beyond a motor's span over the travel: stopping past a
+/// switch, backing off.
+pub(super) const RANGE_MARGIN: f64 = 1.05;
+
+/// A module's track holds ±32 767 microsteps: refuse a machine whose
+/// travel would not fit.
+pub(super) fn check_track_range(cfg: &MachineFile, drive: &Drive) -> Result<(), MachineError> {
+    // The motor's span over the whole travel box (a grid over it, for
+    // arms). A motor reads 0 where it booted, somewhere in that box, so
+    // it stays within ±span (plus a little for stopping past a switch).
+    let axes = drive.axes();
+    let n = axes.len();
+    let steps = 8usize;
+    let mut lo = vec![f64::INFINITY; drive.motors().len()];
+    let mut hi = vec![f64::NEG_INFINITY; drive.motors().len()];
+    let total = (steps + 1).pow(n as u32);
+    for idx in 0..total {
+        let mut k = idx;
+        let mut p = vec![0.0; n];
+        for (j, name) in axes.iter().enumerate() {
+            let a = &cfg.axes[name];
+            let f = (k % (steps + 1)) as f64 / steps as f64;
+            k /= steps + 1;
+            p[j] = a.min + f * (a.max - a.min);
+        }
+        if let Ok(m) = drive.motor_positions(&p) {
+            for (i, v) in m.iter().enumerate() {
+                lo[i] = lo[i].min(*v);
+                hi[i] = hi[i].max(*v);
+            }
+        }
+    }
+    for (i, motor) in drive.motors().iter().enumerate() {
+        let span = (hi[i] - lo[i]).max(0.0);
+        let per_unit = motor.full_steps_per_unit * f64::from(motor.microsteps);
+        let need = RANGE_MARGIN * span * per_unit;
+        let room = osap_module::stepper::MAX_STEPS;
+        if need > room {
+            let fit = (room / (RANGE_MARGIN * span * motor.full_steps_per_unit)).floor();
+            let fit = (0..9)
+                .map(|e| 1u32 << e)
+                .filter(|m| f64::from(*m) <= fit)
+                .max();
+            return Err(MachineError::Unsupported(format!(
+                "motors.{}: the travel spans {span:.1} units of this motor: {:.0} microsteps at {} full steps × {} microsteps per unit, and a module's track holds ±{room:.0} microsteps from where it booted. {}",
+                motor.name,
+                span * per_unit,
+                motor.full_steps_per_unit,
+                motor.microsteps,
+                match fit {
+                    Some(m) => format!("Set microsteps = {m} (or fewer)."),
+                    None => "Use a coarser drive (fewer full steps per unit).".into(),
+                }
+            )));
+        }
+    }
+    Ok(())
+}

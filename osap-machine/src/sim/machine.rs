@@ -1,0 +1,86 @@
+//! A [`Machine`] on simulated modules: the machine file's own simulated
+//! machine ([`super::topology`]) started under a host, and what only a
+//! simulated machine can answer (where its carriage really is).
+
+use std::any::Any;
+use std::future::Future;
+use std::pin::Pin;
+
+use osap_host::{Host, HostConfig};
+use osap_sim::machine::{SimMachine, TimeMode};
+
+use crate::config::MachineFile;
+use crate::machine::{Machine, MachineError, Underneath, HOST_NAME};
+use crate::network::Entry;
+
+/// Options of [`Machine::simulate_with`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct SimOptions {
+    /// Real time, or virtual time (the caller runs on
+    /// [`osap_sim::machine::virtual_runtime`]).
+    pub time: TimeMode,
+}
+
+/// The simulated machine kept under a [`Machine`], stopped with it.
+struct Simulated(SimMachine);
+
+impl Underneath for Simulated {
+    fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = Result<(), MachineError>> + Send>> {
+        Box::pin(async move { self.0.stop().await.map_err(MachineError::from) })
+    }
+
+    fn as_any(&self) -> &dyn Any {
+        self
+    }
+}
+
+impl Machine {
+    /// The machine on simulated modules, derived from the machine file
+    /// (its `[sim]` section), in real time.
+    pub async fn simulate(cfg: &MachineFile) -> Result<Machine, MachineError> {
+        Self::simulate_with(cfg, SimOptions::default()).await
+    }
+
+    /// [`Machine::simulate`] with options (virtual time).
+    pub async fn simulate_with(
+        cfg: &MachineFile,
+        options: SimOptions,
+    ) -> Result<Machine, MachineError> {
+        cfg.validate()?;
+        let topology =
+            super::topology(cfg).map_err(|e| MachineError::Unsupported(e.to_string()))?;
+        let host = Host::start(HostConfig::named(HOST_NAME))?;
+        let sim = SimMachine::start_with(&host, &topology, options.time).await?;
+        Self::start(
+            cfg,
+            host,
+            Vec::new(),
+            Entry::Host,
+            Some(Box::new(Simulated(sim))),
+        )
+        .await
+    }
+
+    /// The simulated machine underneath, when simulated: runs `f` on it.
+    pub fn with_sim<R>(&self, f: impl FnOnce(&SimMachine) -> R) -> Option<R> {
+        self.with_underneath(|u| u.as_any().downcast_ref::<Simulated>().map(|s| f(&s.0)))
+            .flatten()
+    }
+
+    /// Where the simulated machine's carriage really is on `axis`, axis
+    /// units, from its motors' steps (not from the plan): what a dial
+    /// gauge on the real machine would read. `None` when the machine is
+    /// not simulated, for an axis it does not have, or for scara and
+    /// fivebar x and y (not linear in the motors).
+    pub fn sim_axis_position(&self, axis: &str) -> Option<f64> {
+        let form = super::axis_form(self.config(), axis).ok()?;
+        self.with_sim(|s| {
+            form.value(|module| {
+                s.module(module)
+                    .and_then(|sm| sm.module())
+                    .map_or(f64::NAN, |sm| sm.lock(|mm| mm.board().motor().position()))
+            })
+        })
+        .filter(|v| v.is_finite())
+    }
+}
