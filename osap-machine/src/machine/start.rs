@@ -54,6 +54,10 @@ impl Machine {
         Self::start(cfg, host, handles, entry, None).await
     }
 
+    /// Starts the machine on `host`: its phases in order, then the
+    /// machine's own tasks (module watch, output feeding, fault handling).
+    /// Each phase is a function of its own, so a caller that wants two to
+    /// overlap (clock sync while the motors are configured) can join them.
     pub(crate) async fn start(
         cfg: &MachineFile,
         host: Host,
@@ -62,189 +66,21 @@ impl Machine {
         underneath: Option<Box<dyn Underneath>>,
     ) -> Result<Machine, MachineError> {
         let start = drive::start_position(cfg);
-        let drive = Drive::new(cfg, &start).map_err(MachineError::Unsupported)?;
-        check_track_range(cfg, &drive)?;
-        if let Some(path) = cfg.bed_mesh_path() {
-            crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
-        }
-        let mut manager = Manager::new(&host).await?;
-        manager.refresh().await?;
-        let modules = crate::network::find_modules(cfg, manager.som(), entry)?;
-
-        // Motion is keyed by synchronized time: every module's clock must
-        // follow the host's before a point is sent.
-        let netrunner = Netrunner::new(&host).await?;
-        for (key, m) in &modules {
-            netrunner
-                .wait_synchronised(&m.route, SYNC_GOAL)
-                .await
-                .map_err(|e| MachineError::NotSynchronised {
-                    module: key.clone(),
-                    detail: e.to_string(),
-                })?;
-        }
-        safe::arm_all(cfg, &manager, &modules).await?;
-
-        // Motors: scale, microsteps, interval, power; then where they stand.
-        let mut motor_at = Vec::new();
-        for motor in drive.motors() {
-            let runtime = &modules[&motor.module].runtime;
-            let limits = module_limits(cfg, &motor.name, INTERVAL_S);
-            motor_at.push(configure_motor(&manager, runtime, motor, limits).await?);
-        }
-        let mut drive = drive;
-        drive.rebase(&start, &motor_at)?;
-        if let Some(path) = cfg.bed_mesh_path() {
-            let mesh = crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
-            drive = drive
-                .with_mesh(mesh, &start, &motor_at)
-                .map_err(MachineError::Unsupported)?;
-        }
-
-        let planner = motion::machine_planner(cfg)?;
-        let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
-        let mut start3 = [0.0; MAX_AXES];
-        start3[..start.len()].copy_from_slice(&start);
-        motion.planner.set_position(start3)?;
-        let motion = Arc::new(Mutex::new(motion));
-
+        let drive = check(cfg, &start)?;
+        let (mut manager, modules) = discover(cfg, &host, entry).await?;
+        sync(&host, &modules).await?;
+        let motor_at = configure(cfg, &manager, &modules, &drive).await?;
+        let (motion, status) = plan(cfg, drive, &start, motor_at)?;
         let (events, _) = broadcast::channel(1024);
         let (limit_edges, _) = broadcast::channel(256);
         let reports: SharedReports = Arc::default();
-
-        // The graph.
-        let host_name = manager
-            .som()
-            .runtimes
-            .first()
-            .map(|r| r.record.name.clone())
-            .unwrap_or_else(|| HOST_NAME.into());
-        let timer = manager
-            .define_class(
-                TimerBlock::new(INTERVAL_US, LEAD_US)
-                    .map_err(|e| MachineError::Unsupported(format!("timer: {e}")))?,
-            )
-            .await?;
-        let tick = FnRef::new(
-            host_name.as_str(),
-            timer.member("tick").unwrap_or("Timer.tick"),
-        );
-        manager
-            .set_input_mode(&tick, InputMode::OnTimer(INTERVAL_US / 4))
-            .await?;
-        manager.set_output_mode(&tick, OutputMode::OnChange).await?;
-        let n_motors = lock_motion(&motion).drive.motors().len();
-        let motion_fn = manager
-            .define(
-                motion::function("machine.motion", motion.clone(), n_motors)
-                    .map_err(MachineError::Unsupported)?,
-            )
-            .await?;
-        let o = PipeOptions::default();
-        manager.connect(&tick, &motion_fn, &[0], &[0], o).await?;
-        let motors: Vec<_> = lock_motion(&motion).drive.motors().to_vec();
-        for (i, motor) in motors.iter().enumerate() {
-            let runtime = &modules[&motor.module].runtime;
-            let out = u8::try_from(1 + i)
-                .map_err(|_| MachineError::Unsupported("more than 254 motors".into()))?;
-            manager
-                .connect(
-                    &motion_fn,
-                    &FnRef::new(runtime.as_str(), "add_point"),
-                    &[0, out],
-                    &[0, 1],
-                    o,
-                )
-                .await?;
-        }
-
-        // Reports from the modules.
-        liveness::status_reports(&mut manager, &modules, &reports).await?;
-        for motor in &motors {
-            let runtime = modules[&motor.module].runtime.clone();
-            let key = motor.module.as_str();
-            let counters_fn = manager
-                .define(
-                    monitor::counters(key, reports.clone(), events.clone())
-                        .map_err(MachineError::Unsupported)?,
-                )
-                .await?;
-            source(
-                &mut manager,
-                &runtime,
-                "get_counters",
-                Some(STATUS_PERIOD_US),
-                true,
-                &counters_fn,
-                4,
-            )
-            .await?;
-        }
-        for (i, motor) in motors.iter().enumerate() {
-            let runtime = modules[&motor.module].runtime.clone();
-            let f = manager
-                .define(
-                    monitor::position(&motor.name, i, reports.clone())
-                        .map_err(MachineError::Unsupported)?,
-                )
-                .await?;
-            // Wired now, run only while recording (start_recording): at
-            // 1 kHz per motor it is most of a simulation's work otherwise.
-            source(&mut manager, &runtime, "get_position", None, true, &f, 2).await?;
-        }
-        let mut switch_modules: Vec<&str> = cfg
-            .axes
-            .values()
-            .filter_map(|a| a.homing.as_ref()?.switch.as_deref())
-            .chain(cfg.probe.as_ref().map(|p| p.module.as_str()))
-            .collect();
-        switch_modules.sort();
-        switch_modules.dedup();
-        // Every module's faults, pushed once each as they happen.
-        for (key, m) in &modules {
-            if manager
-                .function(&FnRef::new(m.runtime.as_str(), "get_fault"))
-                .is_err()
-            {
-                continue;
-            }
-            let watched = switch_modules.contains(&key.as_str());
-            let f = manager
-                .define(
-                    monitor::fault(key, watched, reports.clone(), events.clone())
-                        .map_err(MachineError::Unsupported)?,
-                )
-                .await?;
-            source(
-                &mut manager,
-                &m.runtime,
-                "get_fault",
-                Some(FAULT_PERIOD_US),
-                true,
-                &f,
-                4,
-            )
-            .await?;
-        }
-        for key in switch_modules {
-            let runtime = modules[key].runtime.clone();
-            let f = manager
-                .define(
-                    monitor::limit(key, reports.clone(), limit_edges.clone())
-                        .map_err(MachineError::Unsupported)?,
-                )
-                .await?;
-            source(
-                &mut manager,
-                &runtime,
-                "read_limit",
-                Some(FAST_PERIOD_US),
-                true,
-                &f,
-                3,
-            )
-            .await?;
-        }
+        wire(&mut manager, &modules, &motion).await?;
+        let monitors = Monitors {
+            reports: &reports,
+            events: &events,
+            limit_edges: &limit_edges,
+        };
+        watch(cfg, &mut manager, &modules, &motion, monitors).await?;
 
         let (state, _) = watch::channel(MachineState::Idle);
         let homed = cfg
@@ -290,6 +126,263 @@ impl Machine {
         machine.spawn_fault_handler();
         Ok(machine)
     }
+}
+
+/// Check: what the machine file asks of the motors fits them, before any
+/// module is touched. Returns the drive (kinematics and motors) at the
+/// start position.
+fn check(cfg: &MachineFile, start: &[f64]) -> Result<Drive, MachineError> {
+    let drive = Drive::new(cfg, start).map_err(MachineError::Unsupported)?;
+    check_track_range(cfg, &drive)?;
+    if let Some(path) = cfg.bed_mesh_path() {
+        crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+    }
+    Ok(drive)
+}
+
+/// Discover: the network's functions, and each module of `[modules]` on
+/// it, checked to be a kind the machine knows.
+async fn discover(
+    cfg: &MachineFile,
+    host: &Host,
+    entry: Entry,
+) -> Result<(Manager, BTreeMap<String, ModuleInfo>), MachineError> {
+    let mut manager = Manager::new(host).await?;
+    manager.refresh().await?;
+    let modules = crate::network::find_modules(cfg, manager.som(), entry)?;
+
+    Ok((manager, modules))
+}
+
+/// Sync: every module's clock follows the host's.
+async fn sync(host: &Host, modules: &BTreeMap<String, ModuleInfo>) -> Result<(), MachineError> {
+    // Motion is keyed by synchronized time: every module's clock must
+    // follow the host's before a point is sent.
+    let netrunner = Netrunner::new(host).await?;
+    for (key, m) in modules {
+        netrunner
+            .wait_synchronised(&m.route, SYNC_GOAL)
+            .await
+            .map_err(|e| MachineError::NotSynchronised {
+                module: key.clone(),
+                detail: e.to_string(),
+            })?;
+    }
+    Ok(())
+}
+
+/// Configure: every module's safe outputs armed, then every motor's
+/// scale, microsteps, interval, limits and power. Returns where each motor
+/// stands.
+async fn configure(
+    cfg: &MachineFile,
+    manager: &Manager,
+    modules: &BTreeMap<String, ModuleInfo>,
+    drive: &Drive,
+) -> Result<Vec<f64>, MachineError> {
+    safe::arm_all(cfg, manager, modules).await?;
+
+    // Motors: scale, microsteps, interval, power; then where they stand.
+    let mut motor_at = Vec::new();
+    for motor in drive.motors() {
+        let runtime = &modules[&motor.module].runtime;
+        let limits = module_limits(cfg, &motor.name, INTERVAL_S);
+        motor_at.push(configure_motor(manager, runtime, motor, limits).await?);
+    }
+    Ok(motor_at)
+}
+
+/// Plan: the drive re-based on where the motors stand (and on the bed
+/// mesh), under the lookahead planner at the start position.
+fn plan(
+    cfg: &MachineFile,
+    drive: Drive,
+    start: &[f64],
+    motor_at: Vec<f64>,
+) -> Result<(SharedMotion, watch::Receiver<MotionStatus>), MachineError> {
+    let mut drive = drive;
+    drive.rebase(start, &motor_at)?;
+    if let Some(path) = cfg.bed_mesh_path() {
+        let mesh = crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+        drive = drive
+            .with_mesh(mesh, start, &motor_at)
+            .map_err(MachineError::Unsupported)?;
+    }
+    let planner = motion::machine_planner(cfg)?;
+    let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
+    let mut start3 = [0.0; MAX_AXES];
+    start3[..start.len()].copy_from_slice(start);
+    motion.planner.set_position(start3)?;
+    Ok((Arc::new(Mutex::new(motion)), status))
+}
+
+/// Wire: the host's timer into the motion function, and the motion
+/// function's outputs into every motor's `add_point`.
+async fn wire(
+    manager: &mut Manager,
+    modules: &BTreeMap<String, ModuleInfo>,
+    motion: &SharedMotion,
+) -> Result<(), MachineError> {
+    // The graph.
+    let host_name = manager
+        .som()
+        .runtimes
+        .first()
+        .map(|r| r.record.name.clone())
+        .unwrap_or_else(|| HOST_NAME.into());
+    let timer = manager
+        .define_class(
+            TimerBlock::new(INTERVAL_US, LEAD_US)
+                .map_err(|e| MachineError::Unsupported(format!("timer: {e}")))?,
+        )
+        .await?;
+    let tick = FnRef::new(
+        host_name.as_str(),
+        timer.member("tick").unwrap_or("Timer.tick"),
+    );
+    manager
+        .set_input_mode(&tick, InputMode::OnTimer(INTERVAL_US / 4))
+        .await?;
+    manager.set_output_mode(&tick, OutputMode::OnChange).await?;
+    let n_motors = lock_motion(motion).drive.motors().len();
+    let motion_fn = manager
+        .define(
+            motion::function("machine.motion", motion.clone(), n_motors)
+                .map_err(MachineError::Unsupported)?,
+        )
+        .await?;
+    let o = PipeOptions::default();
+    manager.connect(&tick, &motion_fn, &[0], &[0], o).await?;
+    let motors: Vec<_> = lock_motion(motion).drive.motors().to_vec();
+    for (i, motor) in motors.iter().enumerate() {
+        let runtime = &modules[&motor.module].runtime;
+        let out = u8::try_from(1 + i)
+            .map_err(|_| MachineError::Unsupported("more than 254 motors".into()))?;
+        manager
+            .connect(
+                &motion_fn,
+                &FnRef::new(runtime.as_str(), "add_point"),
+                &[0, out],
+                &[0, 1],
+                o,
+            )
+            .await?;
+    }
+
+    Ok(())
+}
+
+/// Where the monitors report.
+struct Monitors<'a> {
+    reports: &'a SharedReports,
+    events: &'a broadcast::Sender<MachineEvent>,
+    limit_edges: &'a broadcast::Sender<(String, LimitEdge)>,
+}
+
+/// Watch: every module's status, counters, faults and switches, and the
+/// motors' stepped positions, piped into the machine's monitors.
+async fn watch(
+    cfg: &MachineFile,
+    manager: &mut Manager,
+    modules: &BTreeMap<String, ModuleInfo>,
+    motion: &SharedMotion,
+    m: Monitors<'_>,
+) -> Result<(), MachineError> {
+    let Monitors {
+        reports,
+        events,
+        limit_edges,
+    } = m;
+    let motors: Vec<_> = lock_motion(motion).drive.motors().to_vec();
+    // Reports from the modules.
+    liveness::status_reports(manager, modules, reports).await?;
+    for motor in &motors {
+        let runtime = modules[&motor.module].runtime.clone();
+        let key = motor.module.as_str();
+        let counters_fn = manager
+            .define(
+                monitor::counters(key, reports.clone(), events.clone())
+                    .map_err(MachineError::Unsupported)?,
+            )
+            .await?;
+        source(
+            manager,
+            &runtime,
+            "get_counters",
+            Some(STATUS_PERIOD_US),
+            true,
+            &counters_fn,
+            4,
+        )
+        .await?;
+    }
+    for (i, motor) in motors.iter().enumerate() {
+        let runtime = modules[&motor.module].runtime.clone();
+        let f = manager
+            .define(
+                monitor::position(&motor.name, i, reports.clone())
+                    .map_err(MachineError::Unsupported)?,
+            )
+            .await?;
+        // Wired now, run only while recording (start_recording): at
+        // 1 kHz per motor it is most of a simulation's work otherwise.
+        source(manager, &runtime, "get_position", None, true, &f, 2).await?;
+    }
+    let mut switch_modules: Vec<&str> = cfg
+        .axes
+        .values()
+        .filter_map(|a| a.homing.as_ref()?.switch.as_deref())
+        .chain(cfg.probe.as_ref().map(|p| p.module.as_str()))
+        .collect();
+    switch_modules.sort();
+    switch_modules.dedup();
+    // Every module's faults, pushed once each as they happen.
+    for (key, m) in modules {
+        if manager
+            .function(&FnRef::new(m.runtime.as_str(), "get_fault"))
+            .is_err()
+        {
+            continue;
+        }
+        let watched = switch_modules.contains(&key.as_str());
+        let f = manager
+            .define(
+                monitor::fault(key, watched, reports.clone(), events.clone())
+                    .map_err(MachineError::Unsupported)?,
+            )
+            .await?;
+        source(
+            manager,
+            &m.runtime,
+            "get_fault",
+            Some(FAULT_PERIOD_US),
+            true,
+            &f,
+            4,
+        )
+        .await?;
+    }
+    for key in switch_modules {
+        let runtime = modules[key].runtime.clone();
+        let f = manager
+            .define(
+                monitor::limit(key, reports.clone(), limit_edges.clone())
+                    .map_err(MachineError::Unsupported)?,
+            )
+            .await?;
+        source(
+            manager,
+            &runtime,
+            "read_limit",
+            Some(FAST_PERIOD_US),
+            true,
+            &f,
+            3,
+        )
+        .await?;
+    }
+
+    Ok(())
 }
 
 /// Pipes module function `function` into host function `to`, outputs
