@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! Bed levelling: plane recovery and residuals, mesh interpolation and edge
 //! clamping, bad input and not-ready errors, the PIPES wire API.
 

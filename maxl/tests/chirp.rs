@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! Chirps: the frequency law (from zero crossings), rest at the ends,
 //! amplitude bound and the PIPES class.
 

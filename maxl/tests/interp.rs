@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! The reference interpolator: linear motion, agreement with `Track<f32>`,
 //! the deviation helper and the PIPES class.
 

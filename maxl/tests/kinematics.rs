@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! Kinematics: round trips over random reachable points, known values,
 //! Kaos reducing to CoreXY, singular and unreachable points, non-finite
 //! inputs, the Jacobian helper and the PIPES wire API.

@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! One-axis moves, velocity mode, units and homing against a simulated switch.
 
 mod common;

@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! The optimizer interface: `sample` never waits for a slow solver, misses
 //! are counted, and a prompt solver's points come through for their stamps.
 

@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! The lookahead planner: limits at every stamp, junction speeds, endpoints,
 //! rest at the end, feeding while running, arcs, bad input.
 

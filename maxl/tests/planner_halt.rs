@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! The planner's controlled stop (`halt`) and feed override
 //! (`set_feed_scale`): stopping distance and deceleration, following the
 //! path through short chords, continuity at the halt stamp, moves after a

@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! The planner's vector limits, centripetal junction limit and minimum
 //! cruise ratio: planned speeds and accelerations within the limits on
 //! chorded circles, spirals, zigzags, diagonals and long straight moves;

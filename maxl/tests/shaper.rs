@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! Input shaping: the shapers' impulses, the streaming convolution, the
 //! residual vibration of a mass-spring axis after a move (tuned and 10 %
 //! off), the path deviation on a corner, and the PIPES class.

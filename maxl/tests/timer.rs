@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! The graph timer: lead, start, catch-up and its PIPES class.
 
 mod common;

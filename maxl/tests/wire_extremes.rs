@@ -1,4 +1,3 @@
-#![cfg(feature = "std")]
 //! Every block's wire members take whatever a pipe or a caller sends:
 //! extreme stamps, NaN, infinities, huge and negative numbers, in any
 //! order. None may panic (a panic in a member takes the host runtime down);
