@@ -42,7 +42,7 @@ fn failure(e: ResonanceError) -> Failure {
     match e {
         ResonanceError::Machine(e) => Failure::from_machine(e),
         ResonanceError::Refused(m) => Failure::refused(m),
-        e @ (ResonanceError::Analysis(_) | ResonanceError::Io { .. }) => Failure {
+        e => Failure {
             code: FAULTED,
             message: e.to_string(),
         },

@@ -112,6 +112,7 @@ impl std::fmt::Display for Warning {
 
 /// Why a program cannot be run.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum GcodeError {
     /// A block asks for something that cannot be carried out.
     #[error("line {line}: {message}")]

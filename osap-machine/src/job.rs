@@ -56,6 +56,7 @@ pub struct Program {
 
 /// Why a job cannot run on a machine.
 #[derive(Debug, thiserror::Error, PartialEq)]
+#[non_exhaustive]
 pub enum JobError {
     /// A move leaves the machine's travel (found before any motion).
     #[error("{place}: axis {axis} would go to {value:.3}, outside its travel [{min}, {max}]")]

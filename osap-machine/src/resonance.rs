@@ -92,6 +92,7 @@ pub use crate::config::{Accelerometer, AxisShaper};
 
 /// Why a measurement failed.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ResonanceError {
     /// The machine refused or failed.
     #[error(transparent)]

@@ -54,6 +54,7 @@ pub struct Drawing {
 
 /// Why a drawing cannot be read.
 #[derive(Debug, Clone, PartialEq, Error)]
+#[non_exhaustive]
 pub enum SvgError {
     /// The text is not an SVG usvg can read.
     #[error("not a readable SVG: {0}")]

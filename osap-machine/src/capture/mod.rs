@@ -88,6 +88,7 @@ pub const MIN_PERIOD_US: u32 = 100;
 /// Why a capture could not start, run or be read; each names the source,
 /// the option or the file, and how to fix it.
 #[derive(Debug, Error)]
+#[non_exhaustive]
 pub enum CaptureError {
     /// A source is not of the form `MODULE.FUNCTION[(ARGS)][.OUTPUT]`.
     #[error("source {source_name:?}: {reason}")]

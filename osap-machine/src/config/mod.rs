@@ -45,6 +45,7 @@ pub const DIGITAL_PINS: u8 = 4;
 
 /// An error reading or validating a machine file.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum ConfigError {
     /// The file could not be read.
     #[error("machine file {}: {source}", .path.display())]

@@ -10,6 +10,7 @@ use osap_module::fault::FaultKind;
 
 /// An error of the [`Machine`](super::Machine) API.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum MachineError {
     /// The machine file is not valid.
     #[error(transparent)]

@@ -66,6 +66,7 @@ pub struct Recording {
 /// Why a recording could not be written or read; every variant names the
 /// file.
 #[derive(Debug, Error)]
+#[non_exhaustive]
 pub enum RecordError {
     /// Creating, writing or reading a file or directory failed.
     #[error("{}: {source}", .path.display())]

@@ -44,6 +44,7 @@ const SHAPER_RESIDUAL: f64 = 0.10;
 
 /// Why a recording could not be analysed.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
 pub enum AnalysisError {
     /// Too few samples, or the two series differ in length.
     #[error("{0}")]

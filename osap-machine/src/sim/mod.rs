@@ -73,6 +73,7 @@ pub const RATE_SPREAD_PPM: f64 = 60.0;
 
 /// A machine file the simulation cannot build.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum SimError {
     /// The file describes something the simulation does not (yet) do.
     #[error("simulating the machine file: {key}: {message}")]
