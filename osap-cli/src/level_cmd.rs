@@ -67,9 +67,9 @@ pub async fn level(args: LevelArgs) -> Result<ExitCode, Failure> {
         .now_us()
         .await
         .map_or(f64::NAN, |t| t.saturating_sub(t0) as f64 / 1e6);
-    level::save(&levelled, &mesh_path).map_err(|message| Failure {
+    level::save(&levelled, &mesh_path).map_err(|e| Failure {
         code: FAULTED,
-        message,
+        message: e.to_string(),
     })?;
     level::plot(&levelled, &plot_path).map_err(|message| Failure {
         code: FAULTED,

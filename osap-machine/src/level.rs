@@ -205,7 +205,7 @@ pub fn fit(grid: &MeshGrid, points: &[ProbePoint]) -> Result<Levelled, String> {
 
 /// Saves the mesh to `path` (the format of [`crate::mesh`]), with a header
 /// saying what it is relative to.
-pub fn save(levelled: &Levelled, path: &Path) -> Result<(), String> {
+pub fn save(levelled: &Levelled, path: &Path) -> Result<(), crate::mesh::MeshError> {
     let header = format!(
         "Bed mesh probed by `osap level`: {} points. Heights are relative to\n\
          the bed's mean probed height, machine z = {:.4}: after levelling, z =\n\

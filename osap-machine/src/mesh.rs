@@ -17,7 +17,7 @@
 //! Between nodes the correction is bilinear; beyond the grid, the edge's
 //! (maxl's [`BedMesh`]).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use maxl::blocks::bedlevel::{BedMesh, MeshGrid};
 use serde::Deserialize;
@@ -32,15 +32,53 @@ struct MeshFile {
     z: Vec<Vec<f64>>,
 }
 
+/// Why a bed mesh could not be read or written.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum MeshError {
+    /// The text is not a bed mesh; the message says what is wrong.
+    #[error("{0}")]
+    Invalid(String),
+    /// A mesh file that is not a bed mesh.
+    #[error("bed mesh {}: {reason}", .path.display())]
+    InFile {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong in it.
+        reason: String,
+    },
+    /// Reading or writing the file failed.
+    #[error("{} bed mesh {}: {source}", .action, .path.display())]
+    Io {
+        /// `reading` or `writing`.
+        action: &'static str,
+        /// The file.
+        path: PathBuf,
+        /// What the system said.
+        #[source]
+        source: std::io::Error,
+    },
+}
+
 /// Reads a bed mesh file; the error names the file and what is wrong.
-pub fn load(path: &Path) -> Result<BedMesh, String> {
-    let text =
-        std::fs::read_to_string(path).map_err(|e| format!("bed mesh {}: {e}", path.display()))?;
-    parse(&text).map_err(|e| format!("bed mesh {}: {e}", path.display()))
+pub fn load(path: &Path) -> Result<BedMesh, MeshError> {
+    let text = std::fs::read_to_string(path).map_err(|source| MeshError::Io {
+        action: "reading",
+        path: path.to_path_buf(),
+        source,
+    })?;
+    parse(&text).map_err(|e| MeshError::InFile {
+        path: path.to_path_buf(),
+        reason: e.to_string(),
+    })
 }
 
 /// Reads a bed mesh from text.
-pub fn parse(text: &str) -> Result<BedMesh, String> {
+pub fn parse(text: &str) -> Result<BedMesh, MeshError> {
+    parse_text(text).map_err(MeshError::Invalid)
+}
+
+fn parse_text(text: &str) -> Result<BedMesh, String> {
     let f: MeshFile = toml::from_str(text).map_err(|e| e.message().to_string())?;
     let ny = f.z.len();
     let nx = f.z.first().map_or(0, Vec::len);
@@ -88,9 +126,12 @@ pub fn to_toml(mesh: &BedMesh, header: &str) -> String {
 }
 
 /// Writes the mesh to `path` ([`to_toml`]); the error names the file.
-pub fn save(path: &Path, mesh: &BedMesh, header: &str) -> Result<(), String> {
-    std::fs::write(path, to_toml(mesh, header))
-        .map_err(|e| format!("writing bed mesh {}: {e}", path.display()))
+pub fn save(path: &Path, mesh: &BedMesh, header: &str) -> Result<(), MeshError> {
+    std::fs::write(path, to_toml(mesh, header)).map_err(|source| MeshError::Io {
+        action: "writing",
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 #[cfg(test)]
@@ -108,15 +149,18 @@ mod tests {
     #[test]
     fn bad_meshes_say_why() {
         let e = parse("x0 = 0.0\ny0 = 0.0\ndx = 10.0\ndy = 10.0\nz = [[0.0, 1.0], [2.0]]\n")
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("row 1"), "{e}");
         let e = parse("x0 = 0.0\ny0 = 0.0\ndx = -1.0\ndy = 10.0\nz = [[0.0, 1.0], [2.0, 3.0]]\n")
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(e.contains("spacing"), "{e}");
         let e = parse("x0 = 0.0\ny0 = 0.0\ndx = 1.0\ndy = 10.0\nz = [[0.0, 1.0], [2.0, \"a\"]]\n")
-            .unwrap_err();
+            .unwrap_err()
+            .to_string();
         assert!(!e.is_empty());
-        let e = parse("x0 = 0.0\n").unwrap_err();
+        let e = parse("x0 = 0.0\n").unwrap_err().to_string();
         assert!(e.contains("missing"), "{e}");
     }
 }

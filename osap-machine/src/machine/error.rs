@@ -19,6 +19,9 @@ pub enum MachineError {
     /// drive; the message names the key and the fix.
     #[error("machine file: {0}")]
     Unsupported(String),
+    /// The bed mesh the machine file names could not be read.
+    #[error("machine file: {0}")]
+    Mesh(#[from] crate::mesh::MeshError),
     /// The host runtime or a link failed.
     #[error(transparent)]
     Host(#[from] HostError),

@@ -135,7 +135,7 @@ fn check(cfg: &MachineFile, start: &[f64]) -> Result<Drive, MachineError> {
     let drive = Drive::new(cfg, start).map_err(MachineError::Unsupported)?;
     check_track_range(cfg, &drive)?;
     if let Some(path) = cfg.bed_mesh_path() {
-        crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+        crate::mesh::load(&path)?;
     }
     Ok(drive)
 }
@@ -203,7 +203,7 @@ fn plan(
     let mut drive = drive;
     drive.rebase(start, &motor_at)?;
     if let Some(path) = cfg.bed_mesh_path() {
-        let mesh = crate::mesh::load(&path).map_err(MachineError::Unsupported)?;
+        let mesh = crate::mesh::load(&path)?;
         drive = drive
             .with_mesh(mesh, start, &motor_at)
             .map_err(MachineError::Unsupported)?;
