@@ -26,9 +26,9 @@ pub(crate) struct Target {
     pub(crate) function: FnRef,
     pub(crate) route: Route,
     pub(crate) port: u16,
-    /// Whether the runtime is an osap-rs module, so its failure codes
-    /// print by name ([`super::failure`]).
-    pub(crate) module_codes: bool,
+    /// The function's failure table, as it published it with its
+    /// signature ([`super::failure`]); `None`: it published none.
+    pub(crate) failures: Option<super::failure::FailureTable>,
 }
 
 impl Target {
@@ -36,8 +36,8 @@ impl Target {
     /// codes are known.
     fn failure(&self, error: &ControlError) -> Option<Box<super::failure::Failure>> {
         match error {
-            ControlError::CallFailed(code) if self.module_codes => {
-                osap_module::failure::failure(&self.function.function, code.code()).map(Box::new)
+            ControlError::CallFailed(code) => {
+                super::failure::lookup(self.failures.as_deref()?, code.code()).map(Box::new)
             }
             _ => None,
         }
@@ -48,6 +48,18 @@ impl Target {
 pub(crate) struct ReplyBytes(Vec<u8>);
 
 impl ReplyBytes {
+    /// Whether the reply refuses the request as malformed (status 2): what
+    /// a function from before the failure tables answers `[2][parts]`.
+    pub(crate) fn is_malformed_refusal(&self) -> bool {
+        matches!(
+            Reply::parse(&self.0),
+            Ok(Reply {
+                result: Err(ControlError::Malformed),
+                ..
+            })
+        )
+    }
+
     /// The reply's body, or the function's error.
     pub(crate) fn body(
         &self,

@@ -1,6 +1,7 @@
 //! The manager: builds the system object model from the network and edits
 //! the pipes and modes it describes.
 
+use super::failure::{Failure, FailureTable};
 use super::handle::{arg_type, describe, Control, FunctionHandle, Target};
 use super::host_class::{attach_class, ClassHandle};
 use super::host_fn::{attach_function, HostFunction};
@@ -15,11 +16,21 @@ use osap_core::route::Route;
 use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
 use pipes_core::convert::{rule, Rule};
+use pipes_core::failure::SignatureParts;
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
 use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
+
+/// A function's signature and failure table, as read from it.
+struct ScannedSignature {
+    name: String,
+    inputs: Vec<SomArg>,
+    outputs: Vec<SomArg>,
+    failures: Option<FailureTable>,
+}
 
 /// How a manager talks to the network.
 #[derive(Debug, Clone)]
@@ -102,6 +113,10 @@ pub struct Manager {
     control: Control,
     options: ManagerOptions,
     som: Som,
+    /// Each function's failure table, by runtime index and control port,
+    /// as read with its signature (functions that published none are
+    /// absent). Rebuilt with the model.
+    failures: HashMap<(usize, u16), FailureTable>,
 }
 
 impl std::fmt::Debug for Manager {
@@ -132,6 +147,7 @@ impl Manager {
             },
             options,
             som: Som::empty(),
+            failures: HashMap::new(),
         })
     }
 
@@ -153,6 +169,7 @@ impl Manager {
         let start = Instant::now();
         let scan = netrunner::scan(&self.host, &self.options.scan).await?;
         let mut som = Som::from_map(&scan.map);
+        let mut failures = HashMap::new();
         let mut report = RefreshReport {
             scan_failures: scan.failures,
             ..RefreshReport::default()
@@ -167,7 +184,12 @@ impl Manager {
                 .collect();
             for port in ports {
                 match self.read_function(&som, ri, port).await {
-                    Ok(f) => som.runtimes[ri].functions.push(f),
+                    Ok((f, table)) => {
+                        if let Some(table) = table {
+                            failures.insert((ri, port), table);
+                        }
+                        som.runtimes[ri].functions.push(f);
+                    }
                     Err(e) => report.function_failures.push(e.to_string()),
                 }
             }
@@ -188,23 +210,20 @@ impl Manager {
         group_members(&mut som);
         som.resolve_pipes();
         self.som = som;
+        self.failures = failures;
         report.elapsed = start.elapsed();
         // RUST_LOG=osap_host=debug: what a script's model holds.
         tracing::debug!(
-            "system object model read in {:.1} ms: {} runtimes ({} osap-rs modules), \
-             {} functions, {} classes, {} pipes; {} unreachable, {} functions unread",
+            "system object model read in {:.1} ms: {} runtimes, {} functions ({} with \
+             named failure codes), {} classes, {} pipes; {} unreachable, {} functions unread",
             report.elapsed.as_secs_f64() * 1e3,
             self.som.runtimes.len(),
             self.som
                 .runtimes
                 .iter()
-                .filter(|r| super::failure::is_osap_module(r))
-                .count(),
-            self.som
-                .runtimes
-                .iter()
                 .map(|r| r.functions.len())
                 .sum::<usize>(),
+            self.failures.len(),
             self.som.classes.len(),
             self.som.pipes.len(),
             report.scan_failures.len(),
@@ -214,13 +233,13 @@ impl Manager {
     }
 
     /// Asks the control port `port` of runtime `ri` for its signature:
-    /// where it is, its name, inputs and outputs.
+    /// where it is, its name, inputs and outputs, and its failure table.
     async fn read_signature(
         &self,
         som: &Som,
         ri: usize,
         port: u16,
-    ) -> Result<(Target, String, Vec<SomArg>, Vec<SomArg>), SomError> {
+    ) -> Result<(Target, ScannedSignature), SomError> {
         let r = &som.runtimes[ri];
         let listed = r
             .record
@@ -232,45 +251,65 @@ impl Manager {
             function: FnRef::new(r.record.name.clone(), listed),
             route: host_route(som, ri),
             port,
-            // Mid-scan the function set is not known yet.
-            module_codes: false,
+            failures: None,
         };
-        let (name, inputs, outputs) = self.ask_signature(&at).await?;
-        Ok((at, name, inputs, outputs))
+        let sig = self.ask_signature(&at).await?;
+        Ok((at, sig))
     }
 
-    /// Asks the control port `at` for its function's name, inputs and
-    /// outputs.
-    async fn ask_signature(
-        &self,
-        at: &Target,
-    ) -> Result<(String, Vec<SomArg>, Vec<SomArg>), SomError> {
-        let sig = self
+    /// Asks the control port `at` for its function's name, inputs, outputs
+    /// and failure table. A function from before the tables refuses the
+    /// request for one as malformed; it is then asked for its signature
+    /// alone, and its codes have no names.
+    async fn ask_signature(&self, at: &Target) -> Result<ScannedSignature, SomError> {
+        let described = Request::Describe(SignatureParts::FAILURES);
+        let sig = match self
             .control
-            .ask(at, "get signature", &Request::GetSignature, true)
-            .await?;
-        let (name, inputs, outputs) =
-            match sig.body(at, "get signature", ControlKey::GetSignature)? {
-                ReplyBody::Signature(s) => {
-                    let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
-                        l.iter()
-                            .map(|a| SomArg {
-                                name: a.name.to_string(),
-                                type_name: a.ty.name().to_string(),
-                            })
-                            .collect()
-                    };
-                    (s.name().to_string(), args(s.inputs()), args(s.outputs()))
-                }
-                other => return Err(unexpected(at, "get signature", &other)),
-            };
-        Ok((name, inputs, outputs))
+            .ask(at, "get signature", &described, true)
+            .await?
+        {
+            reply if reply.is_malformed_refusal() => {
+                self.control
+                    .ask(at, "get signature", &Request::GetSignature, true)
+                    .await?
+            }
+            reply => reply,
+        };
+        match sig.body(at, "get signature", ControlKey::GetSignature)? {
+            ReplyBody::Signature(s) => {
+                let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
+                    l.iter()
+                        .map(|a| SomArg {
+                            name: a.name.to_string(),
+                            type_name: a.ty.name().to_string(),
+                        })
+                        .collect()
+                };
+                Ok(ScannedSignature {
+                    name: s.name().to_string(),
+                    inputs: args(s.inputs()),
+                    outputs: args(s.outputs()),
+                    failures: s
+                        .failures()
+                        .map(|t| t.iter().map(Failure::from).collect::<Vec<_>>().into()),
+                })
+            }
+            other => Err(unexpected(at, "get signature", &other)),
+        }
     }
 
     /// Reads the class whose port is `port` on runtime `ri` (its members
     /// are grouped later, by [`group_members`]).
     async fn read_class(&self, som: &Som, ri: usize, port: u16) -> Result<SomClass, SomError> {
-        let (at, name, constructor, outputs) = self.read_signature(som, ri, port).await?;
+        let (
+            at,
+            ScannedSignature {
+                name,
+                inputs: constructor,
+                outputs,
+                ..
+            },
+        ) = self.read_signature(som, ri, port).await?;
         if !outputs.is_empty() {
             return Err(SomError::Malformed {
                 function: at.function,
@@ -290,17 +329,25 @@ impl Manager {
         })
     }
 
-    /// Reads the function whose control port is `port` on runtime `ri`.
+    /// Reads the function whose control port is `port` on runtime `ri`,
+    /// and the failure table it published.
     async fn read_function(
         &self,
         som: &Som,
         ri: usize,
         port: u16,
-    ) -> Result<SomFunction, SomError> {
+    ) -> Result<(SomFunction, Option<FailureTable>), SomError> {
         let r = &som.runtimes[ri];
-        let (at, name, inputs, outputs) = self.read_signature(som, ri, port).await?;
+        let (at, sig) = self.read_signature(som, ri, port).await?;
+        let ScannedSignature {
+            name,
+            inputs,
+            outputs,
+            failures,
+        } = sig;
         let at = Target {
             function: FnRef::new(r.record.name.clone(), name.clone()),
+            failures: failures.clone(),
             ..at
         };
         let input_mode = match self
@@ -363,17 +410,29 @@ impl Manager {
                     .any(|x| x.index == *p && x.type_name == PIPE_PORT_TYPE)
             })
             .collect();
-        Ok(SomFunction {
-            name,
-            port,
-            pipe_ports,
-            inputs,
-            outputs,
-            input_mode,
-            output_mode,
-            pipe_slots: slots,
-            pipes,
-        })
+        Ok((
+            SomFunction {
+                name,
+                port,
+                pipe_ports,
+                inputs,
+                outputs,
+                input_mode,
+                output_mode,
+                pipe_slots: slots,
+                pipes,
+            },
+            failures,
+        ))
+    }
+
+    /// Keeps (or forgets) the failure table of the function at `port` on
+    /// runtime `ri`.
+    fn keep_failures(&mut self, ri: usize, port: u16, table: Option<FailureTable>) {
+        match table {
+            Some(t) => self.failures.insert((ri, port), t),
+            None => self.failures.remove(&(ri, port)),
+        };
     }
 
     /// Runtime index of `f`'s runtime in the model.
@@ -405,7 +464,7 @@ impl Manager {
                 function: f.clone(),
                 route: host_route(&self.som, ri),
                 port: func.port,
-                module_codes: super::failure::is_osap_module(&self.som.runtimes[ri]),
+                failures: self.failures.get(&(ri, func.port)).cloned(),
             },
         ))
     }
@@ -441,15 +500,16 @@ impl Manager {
             function: FnRef::new(runtime, format!("port {port}")),
             route,
             port,
-            module_codes: false,
+            failures: None,
         };
-        let (name, inputs, outputs) = self.ask_signature(&at).await?;
-        at.function = FnRef::new(runtime, name);
+        let sig = self.ask_signature(&at).await?;
+        at.function = FnRef::new(runtime, sig.name);
+        at.failures = sig.failures;
         Ok(FunctionHandle::new(
             self.control.clone(),
             at,
-            inputs,
-            outputs,
+            sig.inputs,
+            sig.outputs,
         ))
     }
 
@@ -742,7 +802,8 @@ impl Manager {
             name: String::new(),
         }));
         ports.sort_by_key(|p| p.index);
-        let f = self.read_function(&self.som, 0, port).await?;
+        let (f, table) = self.read_function(&self.som, 0, port).await?;
+        self.keep_failures(0, port, table);
         let functions = &mut self.som.runtimes[0].functions;
         functions.retain(|x| x.port != port);
         functions.push(f);
@@ -791,7 +852,9 @@ impl Manager {
         let class = self.read_class(&self.som, 0, handle.port()).await?;
         let mut functions = Vec::with_capacity(handle.members().len());
         for &(_, port) in handle.members() {
-            functions.push(self.read_function(&self.som, 0, port).await?);
+            let (f, table) = self.read_function(&self.som, 0, port).await?;
+            self.keep_failures(0, port, table);
+            functions.push(f);
         }
         let own = |p: u16| p == handle.port() || handle.members().iter().any(|m| m.1 == p);
         let host_fns = &mut self.som.runtimes[0].functions;
@@ -823,8 +886,8 @@ impl Manager {
             function: fref,
             route: host_route(&self.som, ri),
             port: c.port,
-            // osap-rs modules have no classes.
-            module_codes: false,
+            // A class's constructor publishes no table of its own.
+            failures: None,
         };
         Ok(FunctionHandle::new(
             self.control.clone(),
