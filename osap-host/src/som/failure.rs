@@ -2,10 +2,13 @@
 //!
 //! A function's failure code (`ControlError::CallFailed(code)`) is a bare
 //! byte whose meaning is the function's own. A function that knows its
-//! codes publishes them with its signature (`pipes_core::failure`): the
-//! manager asks for the table when it reads the signature and keeps it
-//! with the function, and a refusal prints by the name the function itself
-//! gave (`QueueFull (code 8): ..`).
+//! codes publishes them with its signature (`pipes_core::failure`). When a
+//! function first refuses with a failure code, its handle asks it for its
+//! signature with the table (`[2][1]`), keeps the table until the next
+//! refresh, and the refusal prints by the name the function itself gave
+//! (`QueueFull (code 8): ..`). A scan reads signatures alone: a module's
+//! tables are about 25 KiB, which a slow bus (an RS-485 line shared by
+//! eight drops) would take tens of seconds to carry at every scan.
 //!
 //! The host knows no device's codes: a function that publishes no table
 //! (one from before the tables, or one that names none of its codes) gets

@@ -1,6 +1,7 @@
 //! Talking to a function's control port: the request/reply client the
 //! manager uses, and [`FunctionHandle`] for RPC from async Rust.
 
+use super::failure::{lookup, Failure, FailureTable};
 use super::model::SomArg;
 use super::{FnRef, SomError, Value};
 use crate::{HostError, PortHandle, HOST_MTU};
@@ -8,8 +9,10 @@ use osap_core::codec::Writer;
 use osap_core::route::Route;
 use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::convert::{rule, Rule};
+use pipes_core::failure::SignatureParts;
 use pipes_core::{Args, ArgsWriter, Type};
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Sends function-protocol requests through one host port.
@@ -18,6 +21,10 @@ pub(crate) struct Control {
     pub(crate) port: Arc<PortHandle>,
     pub(crate) timeout: Duration,
     pub(crate) retries: u8,
+    /// Failure tables read so far, by route and control port (`None`: the
+    /// function published none, or did not answer): each is read once,
+    /// when its function first refuses with a failure code.
+    pub(crate) tables: Arc<Mutex<HashMap<(Route, u16), Option<FailureTable>>>>,
 }
 
 /// Where a function's control port is, from the host.
@@ -26,40 +33,12 @@ pub(crate) struct Target {
     pub(crate) function: FnRef,
     pub(crate) route: Route,
     pub(crate) port: u16,
-    /// The function's failure table, as it published it with its
-    /// signature ([`super::failure`]); `None`: it published none.
-    pub(crate) failures: Option<super::failure::FailureTable>,
-}
-
-impl Target {
-    /// What failure code `error` means, if it is one and the runtime's
-    /// codes are known.
-    fn failure(&self, error: &ControlError) -> Option<Box<super::failure::Failure>> {
-        match error {
-            ControlError::CallFailed(code) => {
-                super::failure::lookup(self.failures.as_deref()?, code.code()).map(Box::new)
-            }
-            _ => None,
-        }
-    }
 }
 
 /// A successful reply's bytes (key and status included), parsed on demand.
 pub(crate) struct ReplyBytes(Vec<u8>);
 
 impl ReplyBytes {
-    /// Whether the reply refuses the request as malformed (status 2): what
-    /// a function from before the failure tables answers `[2][parts]`.
-    pub(crate) fn is_malformed_refusal(&self) -> bool {
-        matches!(
-            Reply::parse(&self.0),
-            Ok(Reply {
-                result: Err(ControlError::Malformed),
-                ..
-            })
-        )
-    }
-
     /// The reply's body, or the function's error.
     pub(crate) fn body(
         &self,
@@ -76,7 +55,9 @@ impl ReplyBytes {
             Err(error) => Err(SomError::Remote {
                 function: at.function.clone(),
                 request,
-                failure: at.failure(&error),
+                // Named by the caller that can ask the function
+                // ([`Control::name_refusal`]).
+                failure: None,
                 error,
             }),
             Ok(_) if reply.key != key.to_u8() => Err(SomError::Malformed {
@@ -109,6 +90,67 @@ impl Control {
         let n = w.len();
         buf.truncate(n);
         self.ask_raw(at, what, &buf, idempotent).await
+    }
+
+    /// The failure table the function at `at` publishes with its
+    /// signature (`[2][1]`, `pipes_core::failure`), read once and kept
+    /// until [`forget_tables`](Self::forget_tables). `None` if it publishes
+    /// none: a function from before the tables refuses the request as
+    /// malformed. A function that does not answer is asked once (no
+    /// retries: a refusal waits for it) and not again; its codes stay
+    /// numbers.
+    pub(crate) async fn failure_table(&self, at: &Target) -> Option<FailureTable> {
+        let key = (at.route.clone(), at.port);
+        if let Some(known) = self.tables().get(&key) {
+            return known.clone();
+        }
+        let request = Request::Describe(SignatureParts::FAILURES);
+        let table = match self.ask(at, "get failure table", &request, false).await {
+            Ok(reply) => match Reply::parse(&reply.0).map(|r| r.result) {
+                Ok(Ok(ReplyBody::Signature(s))) => s
+                    .failures()
+                    .map(|t| t.iter().map(Failure::from).collect::<Vec<_>>().into()),
+                _ => None,
+            },
+            Err(_) => None,
+        };
+        self.tables().insert(key, table.clone());
+        table
+    }
+
+    /// Forgets every failure table read (a new scan may find other
+    /// functions at the same ports).
+    pub(crate) fn forget_tables(&self) {
+        self.tables().clear();
+    }
+
+    fn tables(&self) -> std::sync::MutexGuard<'_, HashMap<(Route, u16), Option<FailureTable>>> {
+        // A poisoned map is still a cache: take it.
+        self.tables.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// `error` with its failure code named, if it is a function's own
+    /// refusal ([`ControlError::CallFailed`]) and the function's table
+    /// names the code.
+    pub(crate) async fn name_refusal(&self, at: &Target, error: SomError) -> SomError {
+        match error {
+            SomError::Remote {
+                function,
+                request,
+                error: ControlError::CallFailed(code),
+                failure: None,
+            } => SomError::Remote {
+                failure: self
+                    .failure_table(at)
+                    .await
+                    .and_then(|t| lookup(&t, code.code()))
+                    .map(Box::new),
+                function,
+                request,
+                error: ControlError::CallFailed(code),
+            },
+            other => other,
+        }
     }
 
     /// [`ask`](Self::ask) with the request already encoded.
@@ -315,9 +357,10 @@ impl FunctionHandle {
             .control
             .ask_raw(&self.target, "call", &body, idempotent)
             .await?;
-        match reply.body(&self.target, "call", ControlKey::Call)? {
-            ReplyBody::Returned(outs) => self.outputs_of(&outs),
-            other => Err(self.malformed("call", format!("unexpected reply {other:?}"))),
+        match reply.body(&self.target, "call", ControlKey::Call) {
+            Ok(ReplyBody::Returned(outs)) => self.outputs_of(&outs),
+            Ok(other) => Err(self.malformed("call", format!("unexpected reply {other:?}"))),
+            Err(e) => Err(self.control.name_refusal(&self.target, e).await),
         }
     }
 
@@ -335,9 +378,10 @@ impl FunctionHandle {
             .control
             .ask_raw(&self.target, "pipe datagram", &body, false)
             .await?;
-        reply
-            .body(&self.target, "pipe datagram", ControlKey::PipeDatagram)
-            .map(|_| ())
+        match reply.body(&self.target, "pipe datagram", ControlKey::PipeDatagram) {
+            Ok(_) => Ok(()),
+            Err(e) => Err(self.control.name_refusal(&self.target, e).await),
+        }
     }
 
     fn malformed(&self, request: &'static str, detail: String) -> SomError {

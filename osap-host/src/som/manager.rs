@@ -1,7 +1,6 @@
 //! The manager: builds the system object model from the network and edits
 //! the pipes and modes it describes.
 
-use super::failure::{Failure, FailureTable};
 use super::handle::{arg_type, describe, Control, FunctionHandle, Target};
 use super::host_class::{attach_class, ClassHandle};
 use super::host_fn::{attach_function, HostFunction};
@@ -16,20 +15,17 @@ use osap_core::route::Route;
 use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
 use pipes_core::convert::{rule, Rule};
-use pipes_core::failure::SignatureParts;
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
 use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
-use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
 
-/// A function's signature and failure table, as read from it.
+/// A function's signature, as read from it.
 struct ScannedSignature {
     name: String,
     inputs: Vec<SomArg>,
     outputs: Vec<SomArg>,
-    failures: Option<FailureTable>,
 }
 
 /// How a manager talks to the network.
@@ -113,10 +109,6 @@ pub struct Manager {
     control: Control,
     options: ManagerOptions,
     som: Som,
-    /// Each function's failure table, by runtime index and control port,
-    /// as read with its signature (functions that published none are
-    /// absent). Rebuilt with the model.
-    failures: HashMap<(usize, u16), FailureTable>,
 }
 
 impl std::fmt::Debug for Manager {
@@ -144,10 +136,10 @@ impl Manager {
                 port: Arc::new(port),
                 timeout: options.timeout,
                 retries: options.retries,
+                tables: Arc::default(),
             },
             options,
             som: Som::empty(),
-            failures: HashMap::new(),
         })
     }
 
@@ -169,7 +161,6 @@ impl Manager {
         let start = Instant::now();
         let scan = netrunner::scan(&self.host, &self.options.scan).await?;
         let mut som = Som::from_map(&scan.map);
-        let mut failures = HashMap::new();
         let mut report = RefreshReport {
             scan_failures: scan.failures,
             ..RefreshReport::default()
@@ -184,12 +175,7 @@ impl Manager {
                 .collect();
             for port in ports {
                 match self.read_function(&som, ri, port).await {
-                    Ok((f, table)) => {
-                        if let Some(table) = table {
-                            failures.insert((ri, port), table);
-                        }
-                        som.runtimes[ri].functions.push(f);
-                    }
+                    Ok(f) => som.runtimes[ri].functions.push(f),
                     Err(e) => report.function_failures.push(e.to_string()),
                 }
             }
@@ -210,12 +196,14 @@ impl Manager {
         group_members(&mut som);
         som.resolve_pipes();
         self.som = som;
-        self.failures = failures;
+        // Functions may have changed: their tables are read again when
+        // they next refuse.
+        self.control.forget_tables();
         report.elapsed = start.elapsed();
         // RUST_LOG=osap_host=debug: what a script's model holds.
         tracing::debug!(
-            "system object model read in {:.1} ms: {} runtimes, {} functions ({} with \
-             named failure codes), {} classes, {} pipes; {} unreachable, {} functions unread",
+            "system object model read in {:.1} ms: {} runtimes, {} functions, {} \
+             classes, {} pipes; {} unreachable, {} functions unread",
             report.elapsed.as_secs_f64() * 1e3,
             self.som.runtimes.len(),
             self.som
@@ -223,7 +211,6 @@ impl Manager {
                 .iter()
                 .map(|r| r.functions.len())
                 .sum::<usize>(),
-            self.failures.len(),
             self.som.classes.len(),
             self.som.pipes.len(),
             report.scan_failures.len(),
@@ -233,7 +220,7 @@ impl Manager {
     }
 
     /// Asks the control port `port` of runtime `ri` for its signature:
-    /// where it is, its name, inputs and outputs, and its failure table.
+    /// where it is, its name, inputs and outputs.
     async fn read_signature(
         &self,
         som: &Som,
@@ -251,30 +238,19 @@ impl Manager {
             function: FnRef::new(r.record.name.clone(), listed),
             route: host_route(som, ri),
             port,
-            failures: None,
         };
         let sig = self.ask_signature(&at).await?;
         Ok((at, sig))
     }
 
-    /// Asks the control port `at` for its function's name, inputs, outputs
-    /// and failure table. A function from before the tables refuses the
-    /// request for one as malformed; it is then asked for its signature
-    /// alone, and its codes have no names.
+    /// Asks the control port `at` for its function's name, inputs and
+    /// outputs (the signature alone: a function's failure table is read
+    /// when it first refuses, see [`Control::failure_table`]).
     async fn ask_signature(&self, at: &Target) -> Result<ScannedSignature, SomError> {
-        let described = Request::Describe(SignatureParts::FAILURES);
-        let sig = match self
+        let sig = self
             .control
-            .ask(at, "get signature", &described, true)
-            .await?
-        {
-            reply if reply.is_malformed_refusal() => {
-                self.control
-                    .ask(at, "get signature", &Request::GetSignature, true)
-                    .await?
-            }
-            reply => reply,
-        };
+            .ask(at, "get signature", &Request::GetSignature, true)
+            .await?;
         match sig.body(at, "get signature", ControlKey::GetSignature)? {
             ReplyBody::Signature(s) => {
                 let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
@@ -289,9 +265,6 @@ impl Manager {
                     name: s.name().to_string(),
                     inputs: args(s.inputs()),
                     outputs: args(s.outputs()),
-                    failures: s
-                        .failures()
-                        .map(|t| t.iter().map(Failure::from).collect::<Vec<_>>().into()),
                 })
             }
             other => Err(unexpected(at, "get signature", &other)),
@@ -329,25 +302,22 @@ impl Manager {
         })
     }
 
-    /// Reads the function whose control port is `port` on runtime `ri`,
-    /// and the failure table it published.
+    /// Reads the function whose control port is `port` on runtime `ri`.
     async fn read_function(
         &self,
         som: &Som,
         ri: usize,
         port: u16,
-    ) -> Result<(SomFunction, Option<FailureTable>), SomError> {
+    ) -> Result<SomFunction, SomError> {
         let r = &som.runtimes[ri];
         let (at, sig) = self.read_signature(som, ri, port).await?;
         let ScannedSignature {
             name,
             inputs,
             outputs,
-            failures,
         } = sig;
         let at = Target {
             function: FnRef::new(r.record.name.clone(), name.clone()),
-            failures: failures.clone(),
             ..at
         };
         let input_mode = match self
@@ -410,29 +380,17 @@ impl Manager {
                     .any(|x| x.index == *p && x.type_name == PIPE_PORT_TYPE)
             })
             .collect();
-        Ok((
-            SomFunction {
-                name,
-                port,
-                pipe_ports,
-                inputs,
-                outputs,
-                input_mode,
-                output_mode,
-                pipe_slots: slots,
-                pipes,
-            },
-            failures,
-        ))
-    }
-
-    /// Keeps (or forgets) the failure table of the function at `port` on
-    /// runtime `ri`.
-    fn keep_failures(&mut self, ri: usize, port: u16, table: Option<FailureTable>) {
-        match table {
-            Some(t) => self.failures.insert((ri, port), t),
-            None => self.failures.remove(&(ri, port)),
-        };
+        Ok(SomFunction {
+            name,
+            port,
+            pipe_ports,
+            inputs,
+            outputs,
+            input_mode,
+            output_mode,
+            pipe_slots: slots,
+            pipes,
+        })
     }
 
     /// Runtime index of `f`'s runtime in the model.
@@ -464,7 +422,6 @@ impl Manager {
                 function: f.clone(),
                 route: host_route(&self.som, ri),
                 port: func.port,
-                failures: self.failures.get(&(ri, func.port)).cloned(),
             },
         ))
     }
@@ -500,11 +457,9 @@ impl Manager {
             function: FnRef::new(runtime, format!("port {port}")),
             route,
             port,
-            failures: None,
         };
         let sig = self.ask_signature(&at).await?;
         at.function = FnRef::new(runtime, sig.name);
-        at.failures = sig.failures;
         Ok(FunctionHandle::new(
             self.control.clone(),
             at,
@@ -802,8 +757,7 @@ impl Manager {
             name: String::new(),
         }));
         ports.sort_by_key(|p| p.index);
-        let (f, table) = self.read_function(&self.som, 0, port).await?;
-        self.keep_failures(0, port, table);
+        let f = self.read_function(&self.som, 0, port).await?;
         let functions = &mut self.som.runtimes[0].functions;
         functions.retain(|x| x.port != port);
         functions.push(f);
@@ -852,9 +806,7 @@ impl Manager {
         let class = self.read_class(&self.som, 0, handle.port()).await?;
         let mut functions = Vec::with_capacity(handle.members().len());
         for &(_, port) in handle.members() {
-            let (f, table) = self.read_function(&self.som, 0, port).await?;
-            self.keep_failures(0, port, table);
-            functions.push(f);
+            functions.push(self.read_function(&self.som, 0, port).await?);
         }
         let own = |p: u16| p == handle.port() || handle.members().iter().any(|m| m.1 == p);
         let host_fns = &mut self.som.runtimes[0].functions;
@@ -886,8 +838,6 @@ impl Manager {
             function: fref,
             route: host_route(&self.som, ri),
             port: c.port,
-            // A class's constructor publishes no table of its own.
-            failures: None,
         };
         Ok(FunctionHandle::new(
             self.control.clone(),
