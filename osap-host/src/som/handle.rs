@@ -24,8 +24,11 @@ pub(crate) struct Control {
     /// Failure tables read so far, by route and control port (`None`: the
     /// function published none, or did not answer): each is read once,
     /// when its function first refuses with a failure code.
-    pub(crate) tables: Arc<Mutex<HashMap<(Route, u16), Option<FailureTable>>>>,
+    pub(crate) tables: Arc<Mutex<Tables>>,
 }
+
+/// Failure tables by route and control port.
+pub(crate) type Tables = HashMap<(Route, u16), Option<FailureTable>>;
 
 /// Where a function's control port is, from the host.
 #[derive(Debug, Clone)]
@@ -100,7 +103,7 @@ impl Control {
     /// retries: a refusal waits for it) and not again; its codes stay
     /// numbers.
     pub(crate) async fn failure_table(&self, at: &Target) -> Option<FailureTable> {
-        let key = (at.route.clone(), at.port);
+        let key = (at.route, at.port);
         if let Some(known) = self.tables().get(&key) {
             return known.clone();
         }
@@ -124,7 +127,7 @@ impl Control {
         self.tables().clear();
     }
 
-    fn tables(&self) -> std::sync::MutexGuard<'_, HashMap<(Route, u16), Option<FailureTable>>> {
+    fn tables(&self) -> std::sync::MutexGuard<'_, Tables> {
         // A poisoned map is still a cache: take it.
         self.tables.lock().unwrap_or_else(|e| e.into_inner())
     }
