@@ -133,7 +133,7 @@ mod tests {
             request: "call",
             error: ControlError::CallFailed(code.into()),
             failure: if named {
-                failure(function, code).map(Box::new)
+                failure(function, code).map(|f| Box::new(f.into()))
             } else {
                 None
             },

@@ -13,7 +13,9 @@
 //!   stands;
 //! - [`rate_store`]: the learned clock rate, logged in its own flash
 //!   sector, and [`hot_start`]: when to preset the clock from it and when
-//!   to save it;
+//!   to save it (osap-module's, re-exported: the logic is hardware-free and
+//!   the simulator runs it too; each board crate implements
+//!   [`rate_store::RateFlash`] over its flash);
 //! - [`timebase`]: a 64-bit time base on a 32-bit hardware counter, for
 //!   boards that bring their own embassy time driver.
 //!
@@ -28,14 +30,14 @@
 
 pub mod flash_writes;
 pub mod framer;
-pub mod hot_start;
 pub mod link;
 pub mod name_store;
-pub mod rate_store;
 pub mod runtime;
 pub mod serial;
 pub mod timebase;
 pub mod usb;
+
+pub use osap_module::{hot_start, rate_store};
 
 /// This device's local clock now: embassy-time's µs counter as the
 /// runtime's [`osap_core::Instant`].

@@ -28,8 +28,9 @@ pub use crate::framer::ChunkTime;
 use crate::framer::{Next, RxFramer};
 use crate::runtime::wake_runtime;
 
-/// Largest packet either link carries (the runtime's slot size).
-pub const MTU: usize = 256;
+/// Largest packet either link carries (the runtime's slot size,
+/// [`osap_module::sizes::MTU`]).
+pub const MTU: usize = osap_module::sizes::MTU;
 /// Largest frame of an MTU-sized packet, delimiter included.
 pub const FRAME_MAX: usize = max_frame_len(MTU);
 /// Received packets a link holds for the runtime.

@@ -42,11 +42,12 @@ pub fn uart_in_stored_role<F: NameFlash>(
 }
 use crate::usb::UsbTiming;
 
-/// Packet slots: enough for two links' quotas, the ports' and replies.
-pub const SLOTS: usize = 16;
-/// Port indices with quotas (port 0 included): every index the module's
-/// ports take, or the functions past the last would never reply.
-pub const PORTS: usize = osap_module::PORT_INDICES;
+/// Packet slots ([`osap_module::sizes::SLOTS`]).
+pub const SLOTS: usize = osap_module::sizes::SLOTS;
+/// Port indices with quotas ([`osap_module::sizes::PORTS`]).
+pub const PORTS: usize = osap_module::sizes::PORTS;
+/// Link gateways of a board ([`osap_module::sizes::LINKS`]).
+pub const LINKS: usize = osap_module::sizes::LINKS;
 
 /// A module's runtime with `LINKS` link gateways.
 pub type ModuleRuntime<const LINKS: usize> = Runtime<SLOTS, MTU, PORTS, LINKS>;

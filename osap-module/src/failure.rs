@@ -14,8 +14,13 @@
 //! here, and the list of variants a code is looked up in is made by the
 //! same macro from the same lines.
 //!
-//! Nothing here is called by a firmware, so the linker drops it from
-//! firmware images.
+//! Each function publishes its table with its signature
+//! ([`FnId::failures`]: its family's codes, then [`NOT_INSTALLED`] and
+//! [`INPUT_DECODE_FAILED`], the two generic codes a module function can
+//! return), so a host names a refusal from what the module sent, knowing
+//! nothing of osap-module ([`pipes_core::failure`]). The tables are in
+//! every firmware image for that reason; the lookups by name below are
+//! for hosts and the simulator.
 
 use crate::boot::BootError;
 use crate::functions::{FnId, ALL, NOT_INSTALLED, SIGNATURES};
@@ -23,24 +28,9 @@ use crate::io::IoError;
 use crate::stepper::StepperError;
 use pipes_core::export::{INPUT_DECODE_FAILED, NO_SUCH_MEMBER, STATE_BUSY};
 
-/// One failure code, by name.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Failure {
-    /// The code, as `CallError::Failed` carries it.
-    pub code: u8,
-    /// Its short name, the error enum's variant (`QueueFull`).
-    pub name: &'static str,
-    /// What it means and how to fix it, one sentence without a capital
-    /// or a full stop, to follow "refused: ".
-    pub reason: &'static str,
-}
-
-impl core::fmt::Display for Failure {
-    /// `QueueFull (code 8): the module's queue is full (..): ..`.
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        write!(f, "{} (code {}): {}", self.name, self.code, self.reason)
-    }
-}
+/// One failure code, by name: pipes-core's, the same type a function
+/// publishes with its signature (`QueueFull (code 8): ..` when printed).
+pub use pipes_core::failure::Failure;
 
 /// Which failure codes a function returns, besides the [`generic`] ones.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -89,6 +79,17 @@ impl Family {
         }
     }
 
+    /// The table a function of this family publishes: its own codes, then
+    /// [`NOT_INSTALLED`] and [`INPUT_DECODE_FAILED`].
+    pub const fn failures(self) -> &'static [Failure] {
+        match self {
+            Family::Stepper => &STEPPER_FAILURES,
+            Family::Io => &IO_FAILURES,
+            Family::Boot => &BOOT_FAILURES,
+            Family::None => &GENERIC_FAILURES,
+        }
+    }
+
     /// What `code` means for a function of this family (its own codes
     /// only; see [`failure`] for the generic ones too).
     pub fn failure(self, code: u8) -> Option<Failure> {
@@ -109,6 +110,34 @@ pub fn failure(function: &str, code: u8) -> Option<Failure> {
     Family::of(id).failure(code).or_else(|| generic(code))
 }
 
+impl FnId {
+    /// The failure table function `id` publishes with its signature
+    /// ([`Family::failures`] of its family).
+    pub const fn failures(self) -> &'static [Failure] {
+        Family::of(self).failures()
+    }
+}
+
+/// [`NOT_INSTALLED`] by name.
+const NOT_INSTALLED_FAILURE: Failure = Failure {
+    code: NOT_INSTALLED,
+    name: "NotInstalled",
+    reason: "the firmware never installed its board (a firmware bug): flash a released firmware",
+};
+
+/// [`INPUT_DECODE_FAILED`] by name.
+const INPUT_DECODE_FAILURE: Failure = Failure {
+    code: INPUT_DECODE_FAILED,
+    name: "InputDecodeFailed",
+    reason: "an input was missing or not of its declared type (inputs are converted before \
+             the call, so this is a bug): report it with the call that caused it",
+};
+
+/// What a function without codes of its own publishes: the generic codes
+/// a module function can return. (`StateBusy` and `NoSuchMember` are class
+/// members' codes; no module function returns them.)
+pub static GENERIC_FAILURES: [Failure; 2] = [NOT_INSTALLED_FAILURE, INPUT_DECODE_FAILURE];
+
 /// The module function named `function`.
 pub fn function_id(function: &str) -> Option<FnId> {
     ALL.iter()
@@ -121,15 +150,8 @@ pub fn function_id(function: &str) -> Option<FnId> {
 /// ([`pipes_core::export`]).
 pub fn generic(code: u8) -> Option<Failure> {
     let (name, reason) = match code {
-        NOT_INSTALLED => (
-            "NotInstalled",
-            "the firmware never installed its board (a firmware bug): flash a released firmware",
-        ),
-        INPUT_DECODE_FAILED => (
-            "InputDecodeFailed",
-            "an input was missing or not of its declared type (inputs are converted before \
-             the call, so this is a bug): report it with the call that caused it",
-        ),
+        NOT_INSTALLED => return Some(NOT_INSTALLED_FAILURE),
+        INPUT_DECODE_FAILED => return Some(INPUT_DECODE_FAILURE),
         STATE_BUSY => (
             "StateBusy",
             "a class member ran while the class's state was in use elsewhere: call it again",
@@ -238,11 +260,12 @@ fn find(mut all: impl Iterator<Item = Failure>, code: u8) -> Option<Failure> {
 }
 
 /// `fn $name(e) -> Failure`, an exhaustive match naming each variant of
-/// `$enum` with its reason, and `$all`, every variant, from the same lines.
+/// `$enum` with its reason, `$all`, every variant, and `$table`, the table
+/// the family's functions publish, all from the same lines.
 macro_rules! failures {
     (
         $(#[$doc:meta])*
-        $vis:vis fn $name:ident, $all:ident: $enum:ident {
+        $vis:vis fn $name:ident, $all:ident, $table:ident: $enum:ident {
             $($variant:ident => $reason:expr,)*
         }
     ) => {
@@ -259,12 +282,22 @@ macro_rules! failures {
 
         #[doc = concat!("Every [`", stringify!($enum), "`].")]
         pub const $all: &[$enum] = &[$($enum::$variant),*];
+
+        #[doc = concat!(
+            "The table a function refusing with [`", stringify!($enum),
+            "`] publishes: every variant, then the generic codes."
+        )]
+        pub static $table: [Failure; $all.len() + GENERIC_FAILURES.len()] = [
+            $($name($enum::$variant),)*
+            NOT_INSTALLED_FAILURE,
+            INPUT_DECODE_FAILURE,
+        ];
     };
 }
 
 failures! {
     /// A stepper function's refusal ([`StepperError`]), by name.
-    pub fn stepper, STEPPER: StepperError {
+    pub fn stepper, STEPPER, STEPPER_FAILURES: StepperError {
         Misaligned => "time not a multiple of the interval: stamp points on the interval's \
                        grid (set_interval sets it)",
         Stale => "point not after the newest queued one (arrived late): send points in time \
@@ -294,7 +327,7 @@ failures! {
 
 failures! {
     /// An I/O function's refusal ([`IoError`]), by name.
-    pub fn io, IO: IoError {
+    pub fn io, IO, IO_FAILURES: IoError {
         NoSuchPin => "no such pin, PWM output or analog input on this board: check the \
                       board's pin numbers",
         BadValue => "a value out of range: a duty cycle is within 0..=1, a pulse at most \
@@ -307,7 +340,7 @@ failures! {
 
 failures! {
     /// `enter_bootloader`'s refusal ([`BootError`]), by name.
-    pub fn boot, BOOT: BootError {
+    pub fn boot, BOOT, BOOT_FAILURES: BootError {
         Unsupported => "this board cannot reboot into a bootloader from its firmware: put it \
                         into its bootloader by hand (hold BOOTSEL while plugging a Pico in, \
                         double-tap reset on a SAMD51 board)",
@@ -438,6 +471,41 @@ mod tests {
         for code in [STATE_BUSY, NO_SUCH_MEMBER] {
             assert!(generic(code).is_some());
         }
+    }
+
+    #[test]
+    fn every_function_publishes_its_codes_by_the_same_names() {
+        use pipes_core::failure::{check_failures, tail_len, SignatureParts};
+        let mut total = 0;
+        for &id in &ALL {
+            let sig = SIGNATURES[id as usize];
+            let table = id.failures();
+            assert_eq!(check_failures(table), Ok(()), "{}", sig.name);
+            for f in table {
+                assert_eq!(failure(sig.name, f.code), Some(*f), "{}", sig.name);
+                assert!(f.reason.contains(": "), "{f}: name the fix");
+            }
+            // Every code the function can return is in its table.
+            for code in 0..=u8::MAX {
+                let own = Family::of(id).failure(code).is_some();
+                let reachable = own || code == NOT_INSTALLED || code == INPUT_DECODE_FAILED;
+                assert_eq!(
+                    table.iter().any(|f| f.code == code),
+                    reachable,
+                    "{} {code}",
+                    sig.name
+                );
+            }
+            let reply = 2 + sig.encoded_len() + tail_len(SignatureParts::FAILURES, table);
+            // A host reassembles replies of up to 8 KiB; a stepper function's
+            // is about 2.
+            assert!(reply < 4096, "{}: {reply} bytes", sig.name);
+            total += reply;
+        }
+        assert!(
+            total < 32 * 1024,
+            "a scan reads {total} bytes of signatures"
+        );
     }
 
     #[test]

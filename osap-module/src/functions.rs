@@ -406,6 +406,12 @@ impl<H: ModuleHandle> Implementation for ModuleFn<H> {
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
         dispatch(self.id, &self.module, inputs, outputs)
     }
+
+    /// The function's table from [`crate::failure`]: what the host names
+    /// its refusals by.
+    fn failures(&self) -> &'static [pipes_core::failure::Failure] {
+        self.id.failures()
+    }
 }
 
 /// FNV-1a, 32 bits: one step.

@@ -54,8 +54,11 @@ pub mod boot;
 pub mod failure;
 pub mod fault;
 pub mod functions;
+pub mod hot_start;
 pub mod io;
 pub mod ports;
+pub mod rate_store;
+pub mod sizes;
 pub mod stepper;
 pub mod watchdog;
 

@@ -10,7 +10,7 @@
 //! - [`apply_hot_start`] presets the rate the root needs at boot, exactly
 //!   (the simulator knows every oscillator): the best a hot start can do;
 //! - [`run_with_rate_flash`] runs the module firmware's own policy
-//!   (osap-firmware's [`RateKeeper`]) on every non-root node over a
+//!   (osap-module's [`RateKeeper`], which the firmware runs) on every non-root node over a
 //!   simulated rate sector that outlives the run: a first boot saves the
 //!   rate it learned, a second run from the same flash is the firmware's
 //!   hot start, preset from the saved record once the clock follows the
@@ -21,8 +21,8 @@ use crate::metrics::Metrics;
 use crate::node::SimRuntime;
 use crate::scenario::Scenario;
 use osap_core::Instant;
-use osap_firmware::hot_start::{Preset, RateKeeper, SavePolicy};
-use osap_firmware::rate_store::{RamRateFlash, RateRecord};
+use osap_module::hot_start::{Preset, RateKeeper, SavePolicy};
+use osap_module::rate_store::{RamRateFlash, RateRecord};
 
 /// HOT-START HOOK: presets `runtime`'s rate correction to `ppb` parts per
 /// billion at local time `local_now` (system time stays continuous there).

@@ -1,5 +1,5 @@
 //! The module firmware's hot start, simulated: every module runs
-//! osap-firmware's policy over a simulated rate sector. A first boot
+//! the firmware's policy (osap-module's) over a simulated rate sector. A first boot
 //! (cold, erased flash) saves the rate its clock learned; a reboot from
 //! that flash presets it, so it knows its rate strictly sooner than the
 //! cold boot of the same seed learns it, and its phase is never later.
@@ -7,7 +7,7 @@
 //! The figures in docs/clock-sync.md ("Hot start") come from
 //! `cargo test -p osap-sim --release --test firmware_hot_start -- --nocapture`.
 
-use osap_firmware::hot_start::{Preset, SavePolicy};
+use osap_module::hot_start::{Preset, SavePolicy};
 use osap_sim::hot_start::{run_with_rate_flash, SimRateFlash};
 use osap_sim::{Scenario, Topology};
 

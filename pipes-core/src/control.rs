@@ -19,6 +19,7 @@ use core::fmt;
 use osap_core::codec::{CodecError, Reader, Writer};
 
 use crate::convert::{ConvertError, ConvertReason};
+use crate::failure::{encode_tail, Failure, SignatureParts};
 use crate::message::{Args, ArgsWriter, MessageError, MessageKey};
 use crate::pipe::{PipeConfig, PipeStats};
 use crate::signature::{Signature, SignatureError, SignatureView};
@@ -510,8 +511,13 @@ impl OutputMode {
 pub enum Request<'a> {
     /// `[1][args]`: values for some inputs (as a request, it is answered).
     PipeDatagram(Args<'a>),
-    /// `[2]`.
+    /// `[2]`: the signature alone.
     GetSignature,
+    /// `[2][parts]`: the signature and the parts of its description
+    /// `parts` asks for, appended ([`crate::failure`]); `parts` 0 is sent
+    /// as `[2]`. A function from before the tail refuses `[2][parts]` as
+    /// [`ControlError::Malformed`].
+    Describe(SignatureParts),
     /// `[3][args]`: every input, once.
     Call(Args<'a>),
     /// `[4]`.
@@ -545,7 +551,7 @@ impl<'a> Request<'a> {
     pub fn key(&self) -> ControlKey {
         match self {
             Request::PipeDatagram(_) => ControlKey::PipeDatagram,
-            Request::GetSignature => ControlKey::GetSignature,
+            Request::GetSignature | Request::Describe(_) => ControlKey::GetSignature,
             Request::Call(_) => ControlKey::Call,
             Request::GetPipeCount => ControlKey::GetPipeCount,
             Request::GetPipe(_) => ControlKey::GetPipe,
@@ -566,7 +572,12 @@ impl<'a> Request<'a> {
         let key = ControlKey::from_u8(k).ok_or(DecodeError::UnknownKey(k))?;
         let req = match key {
             ControlKey::PipeDatagram => Request::PipeDatagram(args(&mut r)?),
-            ControlKey::GetSignature => Request::GetSignature,
+            ControlKey::GetSignature if r.is_empty() => Request::GetSignature,
+            // Parts 0 would ask for nothing: that request is `[2]`.
+            ControlKey::GetSignature => match r.u8()? {
+                0 => return Err(DecodeError::TrailingBytes),
+                p => Request::Describe(SignatureParts(p)),
+            },
             ControlKey::Call => Request::Call(args(&mut r)?),
             ControlKey::GetPipeCount => Request::GetPipeCount,
             ControlKey::GetPipe => Request::GetPipe(r.u8()?),
@@ -604,6 +615,9 @@ impl<'a> Request<'a> {
                 }
                 Request::SetInputMode(m) => m.encode(w)?,
                 Request::SetOutputMode(m) => w.u8(m.to_u8())?,
+                // Parts 0 is `[2]` (see `parse`).
+                Request::Describe(p) if p.0 != 0 => w.u8(p.0)?,
+                Request::Describe(_) => {}
                 Request::GetSignature
                 | Request::GetPipeCount
                 | Request::GetInputMode
@@ -701,7 +715,7 @@ impl<'a> Reply<'a> {
                 | ControlKey::SetInputMode
                 | ControlKey::SetOutputMode => ReplyBody::Done,
                 ControlKey::GetSignature => ReplyBody::Signature(
-                    SignatureView::decode(&mut r).map_err(DecodeError::Signature)?,
+                    SignatureView::decode_described(&mut r).map_err(DecodeError::Signature)?,
                 ),
                 ControlKey::Call => ReplyBody::Returned(args(&mut r)?),
                 ControlKey::GetPipeCount => ReplyBody::PipeCount {
@@ -745,7 +759,10 @@ impl<'a> Reply<'a> {
             w.u8(0)?;
             match body {
                 ReplyBody::Done => {}
-                ReplyBody::Signature(s) => w.bytes(s.as_bytes())?,
+                ReplyBody::Signature(s) => {
+                    w.bytes(s.as_bytes())?;
+                    w.bytes(s.tail_bytes())?;
+                }
                 ReplyBody::Returned(a) => copy_args(w, a)?,
                 ReplyBody::PipeCount { slots, used } => {
                     w.u8(*slots)?;
@@ -788,6 +805,23 @@ pub fn encode_signature_reply(w: &mut Writer<'_>, sig: &Signature) -> Result<(),
     w.u8(0)?;
     let start = w.len() - 2;
     sig.encode(w).map_err(|e| {
+        w.truncate(start);
+        DecodeError::Signature(e)
+    })
+}
+
+/// Writes the success reply to "get signature" with the parts `parts`
+/// asks for appended: `failures` is the function's table. On error nothing
+/// is written.
+pub fn encode_described_reply(
+    w: &mut Writer<'_>,
+    sig: &Signature,
+    parts: SignatureParts,
+    failures: &[Failure],
+) -> Result<(), DecodeError> {
+    let start = w.len();
+    encode_signature_reply(w, sig)?;
+    encode_tail(w, parts, failures).map_err(|e| {
         w.truncate(start);
         DecodeError::Signature(e)
     })
@@ -892,6 +926,14 @@ mod tests {
         assert_eq!(Request::parse(&[0]), Err(DecodeError::UnknownKey(0)));
         assert_eq!(Request::parse(&[12]), Err(DecodeError::UnknownKey(12)));
         assert_eq!(Request::parse(&[2, 0]), Err(DecodeError::TrailingBytes));
+        // Asking for the failure table; parts 0 asks for nothing and is `[2]`.
+        let describe = Request::Describe(SignatureParts::FAILURES);
+        let (b, n) = enc(|w| describe.encode(w));
+        assert_eq!(&b[..n], &[2, 1]);
+        assert_eq!(Request::parse(&b[..n]), Ok(describe));
+        assert_eq!(Request::parse(&[2, 1, 0]), Err(DecodeError::TrailingBytes));
+        let (b, n) = enc(|w| Request::Describe(SignatureParts::NONE).encode(w));
+        assert_eq!(Request::parse(&b[..n]), Ok(Request::GetSignature));
         assert_eq!(
             Request::parse(&[9, 2, 0, 0, 0, 0]),
             Err(DecodeError::BadMode(2))

@@ -29,10 +29,11 @@ use osap_core::transport::Transport;
 use osap_core::{Duration, Instant};
 
 use crate::control::{
-    encode_error, encode_signature_reply, ControlError, ControlKey, FailureCode, InputMode,
+    encode_described_reply, encode_error, ControlError, ControlKey, FailureCode, InputMode,
     OutputMode, Reply, ReplyBody, Request, ANY_SLOT,
 };
 use crate::convert::{convert, ConvertError};
+use crate::failure::{check_failures, tail_len, write_tail, Failure, SignatureParts};
 use crate::message::{Args, ArgsWriter, MessageKey};
 use crate::pipe::{AckStep, PipeConfig, PipeDelivery, PipeState};
 use crate::signature::{Arg, Signature, SignatureError, MAX_ARGS};
@@ -200,6 +201,13 @@ pub trait Implementation {
     /// Runs the function. `inputs[i]` is the value of input `i`, already of
     /// its declared type; every output must be [`set`](Outputs::set).
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError>;
+
+    /// The failure codes the function may refuse with, by name: sent with
+    /// its signature when a host asks ([`crate::failure`]), so the host
+    /// names a refusal from the function's own table. None by default.
+    fn failures(&self) -> &'static [Failure] {
+        &[]
+    }
 }
 
 /// An [`Implementation`] made of a signature and a closure or fn pointer.
@@ -264,7 +272,7 @@ pub struct FunctionStats {
 /// What a handled request answers with.
 enum Answer {
     Body(ReplyBody<'static>),
-    Signature,
+    Signature(SignatureParts),
     Outputs,
 }
 
@@ -291,18 +299,27 @@ pub struct PipesFunction<I, const PIPES: usize = 2, const Q: usize = 2, const B:
     seg: SegmentSender,
     /// The transport header of the signature reply `seg` is sending.
     seg_reply: Transport,
+    /// The parts of the description that reply carries.
+    seg_parts: SignatureParts,
+    /// The function's failure table (checked).
+    failures: &'static [Failure],
 }
 
-/// A signature reply, `[transport][2][0][signature]`, read a window at a
-/// time so that it can go out in segments without a buffer of its own.
+/// A signature reply, `[transport][2][0][signature][tail]`, read a window
+/// at a time so that it can go out in segments without a buffer of its own.
 struct SignatureReply {
     transport: Transport,
     sig: &'static Signature,
+    parts: SignatureParts,
+    failures: &'static [Failure],
 }
 
 impl SegmentSource for SignatureReply {
     fn len(&self) -> usize {
-        self.transport.encoded_len() + 2 + self.sig.encoded_len()
+        self.transport.encoded_len()
+            + 2
+            + self.sig.encoded_len()
+            + tail_len(self.parts, self.failures)
     }
 
     fn read_at(&self, offset: usize, out: &mut [u8]) -> usize {
@@ -312,6 +329,7 @@ impl SegmentSource for SignatureReply {
         w.put(&head[..n]);
         w.put(&[ControlKey::GetSignature.to_u8(), 0]);
         self.sig.write_pieces(&mut w);
+        write_tail(&mut w, self.parts, self.failures);
         w.written()
     }
 }
@@ -340,6 +358,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         }
         let sig = imp.signature();
         sig.check()?;
+        let failures = imp.failures();
+        check_failures(failures)?;
         Ok(PipesFunction {
             imp,
             sig,
@@ -359,6 +379,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             last_error: None,
             seg: SegmentSender::new(),
             seg_reply: Transport::Raw,
+            seg_parts: SignatureParts::NONE,
+            failures,
         })
     }
 
@@ -690,7 +712,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 self.on_datagram(&a)?;
                 R::Done
             }
-            Request::GetSignature => return Ok(Answer::Signature),
+            Request::GetSignature => return Ok(Answer::Signature(SignatureParts::NONE)),
+            Request::Describe(parts) => return Ok(Answer::Signature(parts)),
             Request::Call(a) => {
                 let expected = self.sig.inputs.len() as u8;
                 if a.len() != usize::from(expected) {
@@ -754,14 +777,16 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         key: u8,
         result: Result<Answer, ControlError>,
     ) {
-        let sig = self.sig;
+        let (sig, failures) = (self.sig, self.failures);
         let out = self.out.get(..self.out_len).unwrap_or(&[]);
         let r = tx.send_with(0, &d.reply_route, d.source_port, self.reply_ttl, |buf| {
             let h = transport.encode(buf)?;
             let mut w = Writer::new(buf.get_mut(h..)?);
             let ok = match &result {
                 Err(e) => encode_error(&mut w, key, e),
-                Ok(Answer::Signature) => encode_signature_reply(&mut w, sig),
+                Ok(Answer::Signature(parts)) => {
+                    encode_described_reply(&mut w, sig, *parts, failures)
+                }
                 Ok(Answer::Outputs) => (|| {
                     w.u8(key)?;
                     w.u8(0)?;
@@ -779,10 +804,11 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         });
         match (r, &result) {
             (Ok(()), _) => {}
-            (Err(SendError::TooLong), Ok(Answer::Signature)) => {
+            (Err(SendError::TooLong), Ok(Answer::Signature(parts))) => {
                 // Longer than the route allows: send it in segments.
                 self.stats.segmented_replies = self.stats.segmented_replies.wrapping_add(1);
                 self.seg_reply = transport;
+                self.seg_parts = *parts;
                 let len = self.signature_reply().len();
                 let ttl = self.reply_ttl;
                 self.seg
@@ -797,6 +823,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         SignatureReply {
             transport: self.seg_reply,
             sig: self.sig,
+            parts: self.seg_parts,
+            failures: self.failures,
         }
     }
 

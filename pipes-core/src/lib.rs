@@ -34,6 +34,7 @@ extern crate std;
 pub mod control;
 pub mod convert;
 pub mod f16;
+pub mod failure;
 pub mod function;
 pub mod message;
 pub mod pipe;

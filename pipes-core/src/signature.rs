@@ -9,13 +9,17 @@
 //!             [n_out: u8] n_out × ([name: str8][type key: u8])
 //! ```
 //!
-//! where `str8` is a `u8` byte length followed by UTF-8.
+//! where `str8` is a `u8` byte length followed by UTF-8. A reply to a
+//! request that asks for more (`[2][parts]`) appends sections after it,
+//! such as the function's failure table ([`crate::failure`]);
+//! [`SignatureView::decode_described`] reads them.
 
 use core::fmt;
 
 use osap_core::codec::{CodecError, Reader, Writer};
 use osap_core::segment::Window;
 
+use crate::failure::{decode_tail, FailureList, Tail};
 use crate::types::Type;
 use crate::value::ValueError;
 
@@ -76,6 +80,11 @@ pub enum SignatureError {
     },
     /// Bytes were left over after the signature.
     TrailingBytes,
+    /// A failure table has more than 255 codes, or more than a section's
+    /// 65 535 bytes ([`crate::failure`]).
+    TooManyFailures,
+    /// A failure table names this code twice.
+    DuplicateFailure(u8),
 }
 
 impl fmt::Display for SignatureError {
@@ -95,6 +104,12 @@ impl fmt::Display for SignatureError {
                 write!(f, "{side} {index}: {error}")
             }
             SignatureError::TrailingBytes => f.write_str("bytes left over after the signature"),
+            SignatureError::TooManyFailures => {
+                f.write_str("the failure table has more than 255 codes or 65 535 bytes")
+            }
+            SignatureError::DuplicateFailure(code) => {
+                write!(f, "the failure table names code {code} twice")
+            }
         }
     }
 }
@@ -296,6 +311,7 @@ pub struct SignatureView<'a> {
     inputs: ArgList<'a>,
     outputs: ArgList<'a>,
     bytes: &'a [u8],
+    tail: Tail<'a>,
 }
 
 impl<'a> SignatureView<'a> {
@@ -314,7 +330,20 @@ impl<'a> SignatureView<'a> {
             inputs,
             outputs,
             bytes: start.get(..used).unwrap_or(&[]),
+            tail: Tail::default(),
         })
+    }
+
+    /// Reads a signature and every section after it to the end of `r` (a
+    /// reply to `[2][parts]`; see [`crate::failure`]). A signature with
+    /// no tail (the old layout) reads as one without a failure table. On
+    /// error `r` is left where it was.
+    pub fn decode_described(r: &mut Reader<'a>) -> Result<SignatureView<'a>, SignatureError> {
+        let mut t = r.clone();
+        let mut v = SignatureView::decode(&mut t)?;
+        v.tail = decode_tail(&mut t)?;
+        *r = t;
+        Ok(v)
     }
 
     /// Reads a signature that must fill `bytes` exactly.
@@ -342,9 +371,20 @@ impl<'a> SignatureView<'a> {
         self.outputs
     }
 
-    /// The signature's bytes, as read.
+    /// The signature's bytes, as read (without the tail).
     pub fn as_bytes(&self) -> &'a [u8] {
         self.bytes
+    }
+
+    /// The function's failure table, if the reply had one: `None` for a
+    /// reply in the old layout, or to a request that did not ask for it.
+    pub fn failures(&self) -> Option<FailureList<'a>> {
+        self.tail.failures
+    }
+
+    /// The tail's bytes, as read (empty in the old layout).
+    pub fn tail_bytes(&self) -> &'a [u8] {
+        self.tail.bytes
     }
 }
 

@@ -8,9 +8,10 @@ use std::collections::BTreeMap;
 use osap_core::codec::{Reader, Writer};
 use osap_core::route::Route;
 use pipes_core::control::{
-    encode_error, encode_signature_reply, ControlError, ControlKey, InputMode, Reply, ReplyBody,
-    Request, ANY_SLOT,
+    encode_described_reply, encode_error, encode_signature_reply, ControlError, ControlKey,
+    InputMode, Reply, ReplyBody, Request, ANY_SLOT,
 };
+use pipes_core::failure::{Failure, SignatureParts};
 use pipes_core::pipe::{PipeConfig, PipeStats};
 use pipes_core::signature::{Arg, Signature, SignatureView};
 use pipes_core::{Args, ArgsWriter, ConvertError, ConvertReason, ScalarType, Type, Value};
@@ -23,6 +24,13 @@ static ADD: Signature = Signature {
     inputs: &[Arg::new("a", F32), Arg::new("b", F32)],
     outputs: &[Arg::new("sum", F32)],
 };
+
+/// `add`'s failure table: what a reply to `[2][1]` appends.
+static ADD_FAILURES: [Failure; 1] = [Failure {
+    code: 1,
+    name: "Overflow",
+    reason: "the sum is not finite: add smaller numbers",
+}];
 
 #[path = "../../osap-core/tests/support/doc_vectors.rs"]
 mod doc_vectors;
@@ -72,6 +80,18 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     put(
         "fn.reply.get_signature.add",
         enc(|w| encode_signature_reply(w, &ADD).unwrap()),
+    );
+    put(
+        "fn.request.get_signature.failures",
+        enc(|w| {
+            Request::Describe(SignatureParts::FAILURES)
+                .encode(w)
+                .unwrap()
+        }),
+    );
+    put(
+        "fn.reply.get_signature.add.failures",
+        enc(|w| encode_described_reply(w, &ADD, SignatureParts::FAILURES, &ADD_FAILURES).unwrap()),
     );
     put(
         "fn.request.call.add",

@@ -15,6 +15,7 @@ use osap_tests::{TestLink, TestRuntime};
 use pipes_core::control::{
     ControlError, ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT,
 };
+use pipes_core::failure::{Failure, SignatureParts};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::{PipeConfig, PipeDelivery};
 use pipes_core::signature::{Arg, Signature};
@@ -67,7 +68,17 @@ impl Implementation for Acc {
         self.runs.push((a, b));
         out.set(0, &Value::F64(self.total))
     }
+    fn failures(&self) -> &'static [Failure] {
+        &ACC_FAILURES
+    }
 }
+
+/// The accumulator's own failure code, published with its signature.
+static ACC_FAILURES: [Failure; 1] = [Failure {
+    code: 1,
+    name: "NotF64",
+    reason: "an input was not an f64: a bug in the conversions",
+}];
 
 type SensorFn = PipesFunction<Sensor, 2, 2, 64>;
 type AccFn = PipesFunction<Acc, 2, 2, 64>;
@@ -140,6 +151,41 @@ fn signature_over_the_network() {
     };
     assert!(ACC.matches(&s));
     assert_eq!(s.inputs().get(1).unwrap().name, "b");
+}
+
+#[test]
+fn failure_table_over_the_network_only_when_asked() {
+    let mut w = World::new();
+    let body = w.ask(to_b(), ACC_PORT, &Request::GetSignature);
+    let ReplyBody::Signature(s) = ok(&body) else {
+        panic!()
+    };
+    assert_eq!(s.failures(), None, "`[2]` gets the old layout");
+    let body = w.ask(
+        to_b(),
+        ACC_PORT,
+        &Request::Describe(SignatureParts::FAILURES),
+    );
+    let ReplyBody::Signature(s) = ok(&body) else {
+        panic!()
+    };
+    assert!(ACC.matches(&s));
+    let table = s.failures().expect("a table when asked");
+    assert_eq!(table.len(), 1);
+    assert_eq!(
+        table.get(1).unwrap().to_string(),
+        "NotF64 (code 1): an input was not an f64: a bug in the conversions"
+    );
+    // A function with no table of its own answers an empty one.
+    let body = w.ask(
+        Route::local(),
+        SENSOR_PORT,
+        &Request::Describe(SignatureParts::FAILURES),
+    );
+    let ReplyBody::Signature(s) = ok(&body) else {
+        panic!()
+    };
+    assert!(s.failures().unwrap().is_empty());
 }
 
 #[test]

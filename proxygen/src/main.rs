@@ -2,14 +2,12 @@
 //!
 //! ```text
 //! proxygen --som som.json -o src/proxies          # from a saved scan
-//! proxygen --sim machine.toml -o src/proxies      # scan a simulated machine
+//! proxygen --sim machine.toml -o src/proxies      # scan a simulated machine (feature `sim`)
 //! proxygen --som som.json --starter my-script     # a starter binary crate
 //! ```
 
 use clap::Parser;
-use osap_host::som::{Manager, Som};
-use osap_host::{Host, HostConfig};
-use osap_sim::machine::{self, SimMachine};
+use osap_host::som::Som;
 use proxygen::{Options, StarterOptions};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -23,7 +21,8 @@ struct Args {
     /// The system object model, as JSON (e.g. from `osap scan --som -o som.json`).
     #[arg(long, conflicts_with = "sim")]
     som: Option<PathBuf>,
-    /// Scan a simulated machine (a topology file) instead.
+    /// Scan a simulated machine (a topology file) instead (needs the
+    /// `sim` feature, on by default).
     #[arg(long)]
     sim: Option<PathBuf>,
     /// Where to write the proxies (`mod.rs` and one file per runtime type).
@@ -51,7 +50,11 @@ struct Args {
     include_host: bool,
 }
 
+#[cfg(feature = "sim")]
 async fn live_som(path: &Path) -> Result<Som, String> {
+    use osap_host::som::Manager;
+    use osap_host::{Host, HostConfig};
+    use osap_sim::machine::{self, SimMachine};
     let host = Host::start(HostConfig::default()).map_err(|e| e.to_string())?;
     let topology = machine::load(path).map_err(|e| e.to_string())?;
     let _machine = SimMachine::start(&host, &topology)
@@ -60,6 +63,15 @@ async fn live_som(path: &Path) -> Result<Som, String> {
     let mut manager = Manager::new(&host).await.map_err(|e| e.to_string())?;
     manager.refresh().await.map_err(|e| e.to_string())?;
     Ok(manager.som().clone())
+}
+
+#[cfg(not(feature = "sim"))]
+async fn live_som(path: &Path) -> Result<Som, String> {
+    Err(format!(
+        "cannot scan {}: this proxygen was built without the `sim` feature; rebuild it \
+         with `--features sim`, or give --som FILE (a model saved by `osap scan --som`)",
+        path.display()
+    ))
 }
 
 async fn run(args: Args) -> Result<(), String> {

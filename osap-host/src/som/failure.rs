@@ -1,142 +1,156 @@
-//! Remote refusals by name: which devices' failure codes the host knows.
+//! Remote refusals by name, from the function's own table.
 //!
 //! A function's failure code (`ControlError::CallFailed(code)`) is a bare
-//! byte whose meaning is the function's own. The host names it only for a
-//! runtime that presents osap-module's function set exactly (every
-//! function's name, inputs and outputs, with their types, in port order:
-//! what `osap_module::FUNCTION_SET_ID` identifies). Then its functions are
-//! osap-module's and their codes are those of [`osap_module::failure`].
+//! byte whose meaning is the function's own. A function that knows its
+//! codes publishes them with its signature (`pipes_core::failure`). When a
+//! function first refuses with a failure code, its handle asks it for its
+//! signature with the table (`[2][1]`), keeps the table until the next
+//! refresh, and the refusal prints by the name the function itself gave
+//! (`QueueFull (code 8): ..`). A scan reads signatures alone: a module's
+//! tables are about 25 KiB, which a slow bus (an RS-485 line shared by
+//! eight drops) would take tens of seconds to carry at every scan.
 //!
-//! Neither a function's name nor the runtime's type name is enough: another
-//! device may have an `add_point` with codes of its own, and a type name is
-//! whatever the firmware says. A runtime with a different or larger set (an
-//! osap-rs firmware older or newer than this build, or with functions of
-//! its own) gets its codes printed as numbers, never a wrong name.
+//! The host knows no device's codes: a function that publishes no table
+//! (one from before the tables, or one that names none of its codes) gets
+//! its codes printed as numbers, never a wrong name.
 
-use super::model::SomRuntime;
-pub use osap_module::failure::Failure;
-use osap_module::functions::SIGNATURES;
-use pipes_core::signature::Arg;
+use pipes_core::failure::FailureView;
+use std::fmt;
+use std::sync::Arc;
 
-/// Whether `rt`'s functions are exactly osap-module's (see the module
-/// docs): its failure codes are then named by [`failure`].
-pub fn is_osap_module(rt: &SomRuntime) -> bool {
-    let same_args = |found: &[super::model::SomArg], wanted: &[Arg]| {
-        found.len() == wanted.len()
-            && found
-                .iter()
-                .zip(wanted)
-                .all(|(f, w)| f.name == w.name && f.type_name == w.ty.name())
-    };
-    rt.functions.len() == SIGNATURES.len()
-        && rt.functions.iter().zip(SIGNATURES).all(|(f, s)| {
-            f.name == s.name && same_args(&f.inputs, s.inputs) && same_args(&f.outputs, s.outputs)
-        })
+/// One failure code by name, as the function published it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Failure {
+    /// The code, as `CallError::Failed` carries it.
+    pub code: u8,
+    /// Its short name (`QueueFull`).
+    pub name: String,
+    /// What it means and how to fix it (may be empty).
+    pub reason: String,
 }
 
-/// What failure `code` of function `function` on runtime `rt` means, if
-/// the host knows: `rt` is an osap-rs module ([`is_osap_module`]) and
-/// `code` is one its function returns.
-pub fn failure(rt: &SomRuntime, function: &str, code: u8) -> Option<Failure> {
-    if is_osap_module(rt) {
-        osap_module::failure::failure(function, code)
-    } else {
-        None
+impl fmt::Display for Failure {
+    /// `QueueFull (code 8): the module's queue is full (..): ..`, as the
+    /// device's own table prints.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        FailureView {
+            code: self.code,
+            name: &self.name,
+            reason: &self.reason,
+        }
+        .fmt(f)
     }
+}
+
+impl From<FailureView<'_>> for Failure {
+    fn from(f: FailureView<'_>) -> Self {
+        Failure {
+            code: f.code,
+            name: f.name.to_owned(),
+            reason: f.reason.to_owned(),
+        }
+    }
+}
+
+impl From<pipes_core::failure::Failure> for Failure {
+    /// A table compiled into this process (a device's crate, in a test).
+    fn from(f: pipes_core::failure::Failure) -> Self {
+        Failure {
+            code: f.code,
+            name: f.name.to_owned(),
+            reason: f.reason.to_owned(),
+        }
+    }
+}
+
+/// A function's published failure table, as read with its signature.
+pub type FailureTable = Arc<[Failure]>;
+
+/// What failure `code` means in `table`, if the table names it.
+pub fn lookup(table: &[Failure], code: u8) -> Option<Failure> {
+    table.iter().find(|f| f.code == code).cloned()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::map::RuntimeRecord;
-    use crate::som::model::{SomArg, SomFunction, SomInputMode, SomOutputMode};
+    use crate::som::{FnRef, SomError};
+    use osap_core::codec::Writer;
+    use pipes_core::control::{
+        encode_described_reply, encode_signature_reply, ControlError, Reply, ReplyBody,
+    };
+    use pipes_core::failure::SignatureParts;
+    use pipes_core::signature::Signature;
 
-    fn function(name: &str, port: u16) -> SomFunction {
-        SomFunction {
-            name: name.into(),
-            port,
-            pipe_ports: Vec::new(),
-            inputs: Vec::new(),
-            outputs: Vec::new(),
-            input_mode: SomInputMode::OnAnyFresh,
-            output_mode: SomOutputMode::Always,
-            pipe_slots: 0,
-            pipes: Vec::new(),
-        }
+    static ADD_POINT: Signature = Signature {
+        name: "add_point",
+        inputs: &[],
+        outputs: &[],
+    };
+
+    static TABLE: [pipes_core::failure::Failure; 2] = [
+        pipes_core::failure::Failure {
+            code: 3,
+            name: "Gap",
+            reason: "two or more points missing before this one: send every interval's point",
+        },
+        pipes_core::failure::Failure {
+            code: 8,
+            name: "QueueFull",
+            reason: "the module's queue is full (stream too far ahead): send points closer \
+                     to their time",
+        },
+    ];
+
+    /// The table a scan reads from a reply's bytes.
+    fn scanned(reply: &[u8]) -> Option<FailureTable> {
+        let Ok(ReplyBody::Signature(s)) = Reply::parse(reply).unwrap().result else {
+            panic!("not a signature reply")
+        };
+        s.failures()
+            .map(|t| t.iter().map(Failure::from).collect::<Vec<_>>().into())
     }
 
-    fn module_runtime() -> SomRuntime {
-        let args = |a: &[Arg]| {
-            a.iter()
-                .map(|a| SomArg {
-                    name: a.name.into(),
-                    type_name: a.ty.name().into(),
-                })
-                .collect::<Vec<_>>()
-        };
-        let functions = SIGNATURES
-            .iter()
-            .enumerate()
-            .map(|(i, s)| {
-                let mut f = function(s.name, i as u16 + 1);
-                f.inputs = args(s.inputs);
-                f.outputs = args(s.outputs);
-                f
-            })
-            .collect();
-        SomRuntime {
-            record: RuntimeRecord {
-                name: "a".into(),
-                type_name: "stepper".into(),
-                version: "0.1.0".into(),
-                build: 3,
-                packet_size: 256,
-                tier: 1,
-                route: vec![0],
-                route_drops: Vec::new(),
-                route_mtu: 256,
-                links: Vec::new(),
-                ports: Vec::new(),
-            },
-            functions,
+    fn reply(described: bool) -> Vec<u8> {
+        let mut buf = vec![0u8; 1024];
+        let mut w = Writer::new(&mut buf);
+        if described {
+            encode_described_reply(&mut w, &ADD_POINT, SignatureParts::FAILURES, &TABLE)
+        } else {
+            encode_signature_reply(&mut w, &ADD_POINT)
         }
+        .unwrap();
+        let n = w.len();
+        buf.truncate(n);
+        buf
     }
 
     #[test]
-    fn only_the_whole_module_function_set_gets_names() {
-        let rt = module_runtime();
-        assert!(is_osap_module(&rt));
-        assert_eq!(failure(&rt, "add_point", 8).unwrap().name, "QueueFull");
-        assert_eq!(failure(&rt, "add_point", 42), None);
-
-        // One function of the same name on another device: its own codes.
-        let mut other = rt.clone();
-        other.functions.retain(|f| f.name == "add_point");
-        assert!(!is_osap_module(&other));
-        assert_eq!(failure(&other, "add_point", 8), None);
-
-        // The same names with another type.
-        let mut retyped = rt.clone();
-        retyped.functions[0].inputs[1].type_name = "f64".into();
-        assert!(!is_osap_module(&retyped));
-
-        // More functions than the module has.
-        let mut larger = rt.clone();
-        larger.functions.push(function("extra", 99));
-        assert!(!is_osap_module(&larger));
+    fn a_scanned_signature_names_its_refusals() {
+        let table = scanned(&reply(true)).expect("a table");
+        assert_eq!(lookup(&table, 8).unwrap().name, "QueueFull");
+        assert_eq!(
+            lookup(&table, 3).unwrap().to_string(),
+            "Gap (code 3): two or more points missing before this one: send every \
+             interval's point"
+        );
+        // Printed exactly as the device's own table prints.
+        assert_eq!(lookup(&table, 8).unwrap().to_string(), TABLE[1].to_string());
+        assert_eq!(lookup(&table, 42), None);
+        // The old layout: no table, no names.
+        assert_eq!(scanned(&reply(false)), None);
     }
 
     #[test]
     fn a_remote_refusal_prints_by_name_only_when_known() {
-        use crate::som::{FnRef, SomError};
-        use pipes_core::control::ControlError;
         let remote = |failure| SomError::Remote {
             function: FnRef::new("a", "add_point"),
             request: "call",
             error: ControlError::CallFailed(pipes_core::FailureCode::Other(8)),
             failure,
         };
-        let named = remote(osap_module::failure::failure("add_point", 8).map(Box::new)).to_string();
+        let table = scanned(&reply(true)).unwrap();
+        let named = remote(lookup(&table, 8).map(Box::new)).to_string();
         assert!(
             named.ends_with(
                 "call refused: QueueFull (code 8): the module's queue is full \
@@ -149,5 +163,11 @@ mod tests {
             bare.ends_with("call refused: the function failed with code 8"),
             "{bare}"
         );
+        let no_reason = Failure {
+            code: 7,
+            name: "Jammed".into(),
+            reason: String::new(),
+        };
+        assert_eq!(no_reason.to_string(), "Jammed (code 7)");
     }
 }

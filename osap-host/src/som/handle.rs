@@ -1,6 +1,7 @@
 //! Talking to a function's control port: the request/reply client the
 //! manager uses, and [`FunctionHandle`] for RPC from async Rust.
 
+use super::failure::{lookup, Failure, FailureTable};
 use super::model::SomArg;
 use super::{FnRef, SomError, Value};
 use crate::{HostError, PortHandle, HOST_MTU};
@@ -8,8 +9,10 @@ use osap_core::codec::Writer;
 use osap_core::route::Route;
 use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::convert::{rule, Rule};
+use pipes_core::failure::SignatureParts;
 use pipes_core::{Args, ArgsWriter, Type};
-use std::sync::Arc;
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 /// Sends function-protocol requests through one host port.
@@ -18,7 +21,14 @@ pub(crate) struct Control {
     pub(crate) port: Arc<PortHandle>,
     pub(crate) timeout: Duration,
     pub(crate) retries: u8,
+    /// Failure tables read so far, by route and control port (`None`: the
+    /// function published none, or did not answer): each is read once,
+    /// when its function first refuses with a failure code.
+    pub(crate) tables: Arc<Mutex<Tables>>,
 }
+
+/// Failure tables by route and control port.
+pub(crate) type Tables = HashMap<(Route, u16), Option<FailureTable>>;
 
 /// Where a function's control port is, from the host.
 #[derive(Debug, Clone)]
@@ -26,22 +36,6 @@ pub(crate) struct Target {
     pub(crate) function: FnRef,
     pub(crate) route: Route,
     pub(crate) port: u16,
-    /// Whether the runtime is an osap-rs module, so its failure codes
-    /// print by name ([`super::failure`]).
-    pub(crate) module_codes: bool,
-}
-
-impl Target {
-    /// What failure code `error` means, if it is one and the runtime's
-    /// codes are known.
-    fn failure(&self, error: &ControlError) -> Option<Box<super::failure::Failure>> {
-        match error {
-            ControlError::CallFailed(code) if self.module_codes => {
-                osap_module::failure::failure(&self.function.function, code.code()).map(Box::new)
-            }
-            _ => None,
-        }
-    }
 }
 
 /// A successful reply's bytes (key and status included), parsed on demand.
@@ -64,7 +58,9 @@ impl ReplyBytes {
             Err(error) => Err(SomError::Remote {
                 function: at.function.clone(),
                 request,
-                failure: at.failure(&error),
+                // Named by the caller that can ask the function
+                // ([`Control::name_refusal`]).
+                failure: None,
                 error,
             }),
             Ok(_) if reply.key != key.to_u8() => Err(SomError::Malformed {
@@ -97,6 +93,67 @@ impl Control {
         let n = w.len();
         buf.truncate(n);
         self.ask_raw(at, what, &buf, idempotent).await
+    }
+
+    /// The failure table the function at `at` publishes with its
+    /// signature (`[2][1]`, `pipes_core::failure`), read once and kept
+    /// until [`forget_tables`](Self::forget_tables). `None` if it publishes
+    /// none: a function from before the tables refuses the request as
+    /// malformed. A function that does not answer is asked once (no
+    /// retries: a refusal waits for it) and not again; its codes stay
+    /// numbers.
+    pub(crate) async fn failure_table(&self, at: &Target) -> Option<FailureTable> {
+        let key = (at.route, at.port);
+        if let Some(known) = self.tables().get(&key) {
+            return known.clone();
+        }
+        let request = Request::Describe(SignatureParts::FAILURES);
+        let table = match self.ask(at, "get failure table", &request, false).await {
+            Ok(reply) => match Reply::parse(&reply.0).map(|r| r.result) {
+                Ok(Ok(ReplyBody::Signature(s))) => s
+                    .failures()
+                    .map(|t| t.iter().map(Failure::from).collect::<Vec<_>>().into()),
+                _ => None,
+            },
+            Err(_) => None,
+        };
+        self.tables().insert(key, table.clone());
+        table
+    }
+
+    /// Forgets every failure table read (a new scan may find other
+    /// functions at the same ports).
+    pub(crate) fn forget_tables(&self) {
+        self.tables().clear();
+    }
+
+    fn tables(&self) -> std::sync::MutexGuard<'_, Tables> {
+        // A poisoned map is still a cache: take it.
+        self.tables.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// `error` with its failure code named, if it is a function's own
+    /// refusal ([`ControlError::CallFailed`]) and the function's table
+    /// names the code.
+    pub(crate) async fn name_refusal(&self, at: &Target, error: SomError) -> SomError {
+        match error {
+            SomError::Remote {
+                function,
+                request,
+                error: ControlError::CallFailed(code),
+                failure: None,
+            } => SomError::Remote {
+                failure: self
+                    .failure_table(at)
+                    .await
+                    .and_then(|t| lookup(&t, code.code()))
+                    .map(Box::new),
+                function,
+                request,
+                error: ControlError::CallFailed(code),
+            },
+            other => other,
+        }
     }
 
     /// [`ask`](Self::ask) with the request already encoded.
@@ -303,9 +360,10 @@ impl FunctionHandle {
             .control
             .ask_raw(&self.target, "call", &body, idempotent)
             .await?;
-        match reply.body(&self.target, "call", ControlKey::Call)? {
-            ReplyBody::Returned(outs) => self.outputs_of(&outs),
-            other => Err(self.malformed("call", format!("unexpected reply {other:?}"))),
+        match reply.body(&self.target, "call", ControlKey::Call) {
+            Ok(ReplyBody::Returned(outs)) => self.outputs_of(&outs),
+            Ok(other) => Err(self.malformed("call", format!("unexpected reply {other:?}"))),
+            Err(e) => Err(self.control.name_refusal(&self.target, e).await),
         }
     }
 
@@ -323,9 +381,10 @@ impl FunctionHandle {
             .control
             .ask_raw(&self.target, "pipe datagram", &body, false)
             .await?;
-        reply
-            .body(&self.target, "pipe datagram", ControlKey::PipeDatagram)
-            .map(|_| ())
+        match reply.body(&self.target, "pipe datagram", ControlKey::PipeDatagram) {
+            Ok(_) => Ok(()),
+            Err(e) => Err(self.control.name_refusal(&self.target, e).await),
+        }
     }
 
     fn malformed(&self, request: &'static str, detail: String) -> SomError {

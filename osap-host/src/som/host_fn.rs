@@ -10,6 +10,7 @@
 use super::SomError;
 use crate::Host;
 use pipes_core::control::{FailureCode, InputMode, OutputMode};
+use pipes_core::failure::{check_failures, Failure};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::signature::{Arg, Signature};
 use pipes_core::{Type, Value};
@@ -74,11 +75,16 @@ pub type HostBody =
 struct HostImpl {
     sig: &'static Signature,
     body: HostBody,
+    failures: &'static [Failure],
 }
 
 impl Implementation for HostImpl {
     fn signature(&self) -> &'static Signature {
         self.sig
+    }
+
+    fn failures(&self) -> &'static [Failure] {
+        self.failures
     }
 
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
@@ -96,6 +102,7 @@ impl Implementation for HostImpl {
 pub struct HostFunction {
     sig: &'static Signature,
     body: HostBody,
+    failures: &'static [Failure],
     input_mode: InputMode,
     output_mode: OutputMode,
 }
@@ -143,6 +150,7 @@ impl HostFunction {
         Ok(HostFunction {
             sig: Box::leak(Box::new(sig)),
             body: Box::new(body),
+            failures: &[],
             input_mode: InputMode::default(),
             output_mode: OutputMode::default(),
         })
@@ -154,6 +162,18 @@ impl HostFunction {
     pub fn with_input_mode(mut self, mode: InputMode) -> HostFunction {
         self.input_mode = mode;
         self
+    }
+
+    /// The same function publishing `failures` with its signature, so a
+    /// host names its refusals ([`HostFnError`]'s codes) by them. Refused:
+    /// a table beyond `pipes_core::failure::check_failures`'s limits.
+    pub fn with_failures(mut self, failures: &'static [Failure]) -> Result<HostFunction, SomError> {
+        check_failures(failures).map_err(|e| SomError::BadDefinition {
+            name: self.sig.name.to_string(),
+            detail: e.to_string(),
+        })?;
+        self.failures = failures;
+        Ok(self)
     }
 
     /// The same function starting in output mode `mode`.
@@ -180,6 +200,7 @@ impl HostFunction {
             PipesFunction::new(HostImpl {
                 sig: self.sig,
                 body: self.body,
+                failures: self.failures,
             })
             .map_err(|e| SomError::BadDefinition {
                 name: name.to_string(),

@@ -21,6 +21,13 @@ use std::sync::Arc;
 use std::time::Duration;
 use tokio::time::Instant;
 
+/// A function's signature, as read from it.
+struct ScannedSignature {
+    name: String,
+    inputs: Vec<SomArg>,
+    outputs: Vec<SomArg>,
+}
+
 /// How a manager talks to the network.
 #[derive(Debug, Clone)]
 pub struct ManagerOptions {
@@ -129,6 +136,7 @@ impl Manager {
                 port: Arc::new(port),
                 timeout: options.timeout,
                 retries: options.retries,
+                tables: Arc::default(),
             },
             options,
             som: Som::empty(),
@@ -188,18 +196,16 @@ impl Manager {
         group_members(&mut som);
         som.resolve_pipes();
         self.som = som;
+        // Functions may have changed: their tables are read again when
+        // they next refuse.
+        self.control.forget_tables();
         report.elapsed = start.elapsed();
         // RUST_LOG=osap_host=debug: what a script's model holds.
         tracing::debug!(
-            "system object model read in {:.1} ms: {} runtimes ({} osap-rs modules), \
-             {} functions, {} classes, {} pipes; {} unreachable, {} functions unread",
+            "system object model read in {:.1} ms: {} runtimes, {} functions, {} \
+             classes, {} pipes; {} unreachable, {} functions unread",
             report.elapsed.as_secs_f64() * 1e3,
             self.som.runtimes.len(),
-            self.som
-                .runtimes
-                .iter()
-                .filter(|r| super::failure::is_osap_module(r))
-                .count(),
             self.som
                 .runtimes
                 .iter()
@@ -220,7 +226,7 @@ impl Manager {
         som: &Som,
         ri: usize,
         port: u16,
-    ) -> Result<(Target, String, Vec<SomArg>, Vec<SomArg>), SomError> {
+    ) -> Result<(Target, ScannedSignature), SomError> {
         let r = &som.runtimes[ri];
         let listed = r
             .record
@@ -232,45 +238,51 @@ impl Manager {
             function: FnRef::new(r.record.name.clone(), listed),
             route: host_route(som, ri),
             port,
-            // Mid-scan the function set is not known yet.
-            module_codes: false,
         };
-        let (name, inputs, outputs) = self.ask_signature(&at).await?;
-        Ok((at, name, inputs, outputs))
+        let sig = self.ask_signature(&at).await?;
+        Ok((at, sig))
     }
 
     /// Asks the control port `at` for its function's name, inputs and
-    /// outputs.
-    async fn ask_signature(
-        &self,
-        at: &Target,
-    ) -> Result<(String, Vec<SomArg>, Vec<SomArg>), SomError> {
+    /// outputs (the signature alone: a function's failure table is read
+    /// when it first refuses, see [`Control::failure_table`]).
+    async fn ask_signature(&self, at: &Target) -> Result<ScannedSignature, SomError> {
         let sig = self
             .control
             .ask(at, "get signature", &Request::GetSignature, true)
             .await?;
-        let (name, inputs, outputs) =
-            match sig.body(at, "get signature", ControlKey::GetSignature)? {
-                ReplyBody::Signature(s) => {
-                    let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
-                        l.iter()
-                            .map(|a| SomArg {
-                                name: a.name.to_string(),
-                                type_name: a.ty.name().to_string(),
-                            })
-                            .collect()
-                    };
-                    (s.name().to_string(), args(s.inputs()), args(s.outputs()))
-                }
-                other => return Err(unexpected(at, "get signature", &other)),
-            };
-        Ok((name, inputs, outputs))
+        match sig.body(at, "get signature", ControlKey::GetSignature)? {
+            ReplyBody::Signature(s) => {
+                let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
+                    l.iter()
+                        .map(|a| SomArg {
+                            name: a.name.to_string(),
+                            type_name: a.ty.name().to_string(),
+                        })
+                        .collect()
+                };
+                Ok(ScannedSignature {
+                    name: s.name().to_string(),
+                    inputs: args(s.inputs()),
+                    outputs: args(s.outputs()),
+                })
+            }
+            other => Err(unexpected(at, "get signature", &other)),
+        }
     }
 
     /// Reads the class whose port is `port` on runtime `ri` (its members
     /// are grouped later, by [`group_members`]).
     async fn read_class(&self, som: &Som, ri: usize, port: u16) -> Result<SomClass, SomError> {
-        let (at, name, constructor, outputs) = self.read_signature(som, ri, port).await?;
+        let (
+            at,
+            ScannedSignature {
+                name,
+                inputs: constructor,
+                outputs,
+                ..
+            },
+        ) = self.read_signature(som, ri, port).await?;
         if !outputs.is_empty() {
             return Err(SomError::Malformed {
                 function: at.function,
@@ -298,7 +310,12 @@ impl Manager {
         port: u16,
     ) -> Result<SomFunction, SomError> {
         let r = &som.runtimes[ri];
-        let (at, name, inputs, outputs) = self.read_signature(som, ri, port).await?;
+        let (at, sig) = self.read_signature(som, ri, port).await?;
+        let ScannedSignature {
+            name,
+            inputs,
+            outputs,
+        } = sig;
         let at = Target {
             function: FnRef::new(r.record.name.clone(), name.clone()),
             ..at
@@ -405,7 +422,6 @@ impl Manager {
                 function: f.clone(),
                 route: host_route(&self.som, ri),
                 port: func.port,
-                module_codes: super::failure::is_osap_module(&self.som.runtimes[ri]),
             },
         ))
     }
@@ -441,15 +457,14 @@ impl Manager {
             function: FnRef::new(runtime, format!("port {port}")),
             route,
             port,
-            module_codes: false,
         };
-        let (name, inputs, outputs) = self.ask_signature(&at).await?;
-        at.function = FnRef::new(runtime, name);
+        let sig = self.ask_signature(&at).await?;
+        at.function = FnRef::new(runtime, sig.name);
         Ok(FunctionHandle::new(
             self.control.clone(),
             at,
-            inputs,
-            outputs,
+            sig.inputs,
+            sig.outputs,
         ))
     }
 
@@ -823,8 +838,6 @@ impl Manager {
             function: fref,
             route: host_route(&self.som, ri),
             port: c.port,
-            // osap-rs modules have no classes.
-            module_codes: false,
         };
         Ok(FunctionHandle::new(
             self.control.clone(),

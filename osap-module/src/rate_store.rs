@@ -3,7 +3,7 @@
 //! A module's clock learns a rate correction against its oscillator (see
 //! osap-core's clock). Saved, it lets the next boot start from it (a hot
 //! start, [`crate::hot_start`]). The rate lives in a sector of its own, not
-//! beside the name ([`crate::name_store`]): a reset while a rate is being
+//! beside the name (osap-firmware's `name_store`): a reset while a rate is being
 //! written can then never cost the module its name.
 //!
 //! The sector is a log of fixed 16-byte records, appended one after the
@@ -27,8 +27,10 @@
 //! the SAMD51's smallest ECC-protected write.
 //!
 //! The flash itself is behind [`RateFlash`], so this logic runs and is
-//! tested on the host; the firmware implements it over its HAL's blocking
-//! flash driver.
+//! tested on the host, and the simulator runs it over [`RamRateFlash`];
+//! each board crate implements it over its HAL's blocking flash driver.
+//! Hardware-free, `no_std` and without allocation, it lives here, below
+//! both the firmware and the simulator.
 use osap_core::framing::crc16;
 
 /// Magic word at the start of a valid record ("OSRT" in memory).
