@@ -1,0 +1,208 @@
+//! The netresponder's answers, request by request.
+
+use super::*;
+use crate::link::queue::QueueLink;
+use crate::packet::Instruction;
+use crate::port::{Delivery, PortInfo, PortTx};
+use crate::route::Route;
+use crate::time::Duration;
+use crate::transport::Transport;
+use crate::{time::Instant, Runtime};
+
+struct NoPort;
+
+impl Port for NoPort {
+    fn info(&self, _: u16) -> PortInfo<'_> {
+        PortInfo {
+            type_name: "none",
+            name: "",
+        }
+    }
+    fn on_packet(&mut self, _: Delivery<'_>, _: &mut PortTx<'_>) {}
+}
+
+type Rt = Runtime<8, 128, 2, 2>;
+type Link = QueueLink<8, 128>;
+
+fn runtime() -> Rt {
+    let rt = Rt::new("test", "t").unwrap();
+    // No time requests of its own: link 0's outbox holds only replies.
+    #[cfg(feature = "sync")]
+    let rt = rt
+        .with_time_config(crate::clock::TimeConfig {
+            enabled: false,
+            ..Default::default()
+        })
+        .unwrap();
+    rt
+}
+
+/// A packet that arrives on a link, for port `dst` of the runtime.
+fn packet(dst: u16, payload: &[u8]) -> heapless::Vec<u8, 128> {
+    let route = Route::through_links(&[0]).unwrap();
+    let mut buf = [0u8; 128];
+    let n = route
+        .write_packet(
+            &mut buf,
+            Instruction::PortHandle { src: 1, dst },
+            10_000,
+            128,
+            payload,
+        )
+        .unwrap();
+    heapless::Vec::from_slice(&buf[..n]).unwrap()
+}
+
+fn poll(rt: &mut Rt, links: &mut [Link; 2], now: Instant) {
+    let mut ports: [NoPort; 0] = [];
+    rt.poll(now, &mut ports, links);
+}
+
+/// The `open` byte link information gives for link 1, asked over
+/// link 0 at `now`.
+fn open_byte(rt: &mut Rt, links: &mut [Link; 2], now: Instant) -> u8 {
+    let mut payload = [0u8; 5];
+    let n = Transport::Request(7).encode(&mut payload).unwrap();
+    payload[n..n + 2].copy_from_slice(&[key::LINK_INFO, 1]);
+    assert!(links[0].inject(&packet(0, &payload[..n + 2])));
+    poll(rt, links, now);
+    let reply = links[0].take_sent().expect("a reply");
+    // [header 5][link_forward(0)][port_handle(0 -> 1)][reply 3]
+    // [key][status][index][open]...
+    assert_eq!(&reply[12..15], &[key::LINK_INFO, Status::Ok as u8, 1]);
+    reply[15]
+}
+
+#[test]
+fn a_link_never_heard_is_open_without_a_neighbour() {
+    let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+    assert_eq!(
+        open_byte(&mut rt, &mut links, Instant::from_micros(1_000)),
+        LINK_UNHEARD
+    );
+    assert_eq!(rt.link_heard(1), None);
+    // The link the question came in on was heard, by the question.
+    assert_eq!(rt.link_heard(0), Some(Instant::from_micros(1_000)));
+}
+
+#[test]
+fn a_packet_in_makes_a_neighbour_heard_for_the_window_only() {
+    let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+    let t = 5_000_000;
+    // A packet for a port the runtime lacks: dropped, but heard.
+    assert!(links[1].inject(&packet(9, b"hi")));
+    let t = Instant::from_micros(t);
+    poll(&mut rt, &mut links, t);
+    assert_eq!(rt.link_heard(1), Some(t));
+    assert_eq!(
+        open_byte(&mut rt, &mut links, t + Duration::from_micros(10)),
+        LINK_HEARD
+    );
+    assert_eq!(
+        open_byte(&mut rt, &mut links, t + NEIGHBOUR_HEARD),
+        LINK_HEARD
+    );
+    assert_eq!(
+        open_byte(
+            &mut rt,
+            &mut links,
+            t + NEIGHBOUR_HEARD + Duration::from_micros(1)
+        ),
+        LINK_UNHEARD
+    );
+}
+
+#[test]
+fn a_malformed_packet_is_heard_too() {
+    let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+    assert!(links[1].inject(&[0xff; 12]));
+    poll(&mut rt, &mut links, Instant::from_micros(1_000));
+    assert_eq!(rt.counters().malformed, 1);
+    assert_eq!(
+        open_byte(&mut rt, &mut links, Instant::from_micros(2_000)),
+        LINK_HEARD
+    );
+}
+
+#[test]
+fn a_closed_link_reports_closed_and_forgets_its_neighbour() {
+    let (mut rt, mut links) = (runtime(), [Link::new(), Link::new()]);
+    assert!(links[1].inject(&packet(9, b"hi")));
+    poll(&mut rt, &mut links, Instant::from_micros(1_000));
+    assert_eq!(
+        open_byte(&mut rt, &mut links, Instant::from_micros(2_000)),
+        LINK_HEARD
+    );
+    links[1].set_open(false);
+    assert_eq!(
+        open_byte(&mut rt, &mut links, Instant::from_micros(3_000)),
+        LINK_CLOSED
+    );
+    // Reopened within the window: whoever is there now is not heard yet.
+    links[1].set_open(true);
+    assert_eq!(
+        open_byte(&mut rt, &mut links, Instant::from_micros(4_000)),
+        LINK_UNHEARD
+    );
+}
+
+/// Asks `SET_BUS` with `body` over link 0 and returns the reply's
+/// `[key][status][fields]`.
+fn set_bus<L: LinkGateway>(
+    rt: &mut Rt,
+    links: &mut [L; 2],
+    inject: impl Fn(&mut L, &[u8]) -> bool,
+    take: impl Fn(&mut L) -> Option<heapless::Vec<u8, 128>>,
+    body: &[u8],
+) -> heapless::Vec<u8, 16> {
+    let mut payload = [0u8; 16];
+    let n = Transport::Request(3).encode(&mut payload).unwrap();
+    payload[n] = key::SET_BUS;
+    payload[n + 1..n + 1 + body.len()].copy_from_slice(body);
+    assert!(inject(
+        &mut links[0],
+        &packet(0, &payload[..n + 1 + body.len()])
+    ));
+    let mut ports: [NoPort; 0] = [];
+    rt.poll(Instant::from_micros(1_000), &mut ports, links);
+    let reply = take(&mut links[0]).expect("a reply");
+    heapless::Vec::from_slice(&reply[12..]).unwrap()
+}
+
+#[test]
+fn set_bus_takes_a_role_on_a_switchable_link_only() {
+    use crate::bus::{BusRole, Switchable};
+    type Sw = Switchable<Link, 128>;
+    let inject = |l: &mut Sw, p: &[u8]| l.lower.inject(p);
+    let take = |l: &mut Sw| l.lower.take_sent();
+    let mut rt = runtime();
+    let mut links = [
+        Sw::new(Link::new(), BusRole::Off),
+        Sw::new(Link::new(), BusRole::Off),
+    ];
+    let ok = set_bus(&mut rt, &mut links, inject, take, &[1, 2, 5]);
+    assert_eq!(&ok[..], &[key::SET_BUS, Status::Ok as u8, 1, 2, 5]);
+    assert!(rt.take_changes().bus);
+    assert_eq!(rt.take_bus_request(), Some((1, BusRole::Drop(5))));
+    assert_eq!(rt.take_bus_request(), None);
+    // A drop address out of range, an unknown link, a short body.
+    let bad = set_bus(&mut rt, &mut links, inject, take, &[1, 2, 255]);
+    assert_eq!(&bad[..], &[key::SET_BUS, Status::InvalidValue as u8]);
+    let none = set_bus(&mut rt, &mut links, inject, take, &[7, 0, 0]);
+    assert_eq!(&none[..], &[key::SET_BUS, Status::NoSuchIndex as u8]);
+    let short = set_bus(&mut rt, &mut links, inject, take, &[1, 2]);
+    assert_eq!(&short[..], &[key::SET_BUS, Status::Malformed as u8]);
+    assert_eq!(rt.take_bus_request(), None);
+
+    // A link that cannot change roles refuses.
+    let mut plain = [Link::new(), Link::new()];
+    let refused = set_bus(
+        &mut rt,
+        &mut plain,
+        |l, p| l.inject(p),
+        |l| l.take_sent(),
+        &[1, 1, 8],
+    );
+    assert_eq!(&refused[..], &[key::SET_BUS, Status::Refused as u8]);
+    assert_eq!(rt.take_bus_request(), None);
+}
