@@ -34,6 +34,12 @@ pub struct StepperPins {
     pub ms: [Output<'static>; 3],
 }
 
+impl core::fmt::Debug for StepperPins {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("StepperPins").finish_non_exhaustive()
+    }
+}
+
 /// MS1..MS3 levels for each microstep setting of an A4988 (the common
 /// Pico carrier boards' driver). A DRV8825 or TMC2209 board has another
 /// table; change this one for it.
@@ -75,9 +81,15 @@ pub struct IoPins {
     pub pwm_config: pwm::Config,
 }
 
+impl core::fmt::Debug for IoPins {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("IoPins").finish_non_exhaustive()
+    }
+}
+
 /// PWM counter top: a 16-bit duty maps 1:1 to the compare value, and 65 535
 /// (compare above top) is always high. 125 MHz / 65 535 ≈ 1.9 kHz.
-pub const PWM_TOP: u16 = 65_534;
+pub(crate) const PWM_TOP: u16 = 65_534;
 
 impl IoPins {
     /// The PWM configuration at start: both outputs low.
@@ -147,7 +159,7 @@ impl IoHw for IoPins {
 /// `RPI-RP2` drive, as a power-up with BOOTSEL held gives) for a firmware
 /// update. The ROM resets the chip through the watchdog, which returns
 /// every pin to an input, so the driver's EN pull-up lets the motor go limp.
-pub fn reboot_to_usb_boot() -> ! {
+pub(crate) fn reboot_to_usb_boot() -> ! {
     // No activity LED pin (the Pico's LED, GP25, is not ours to drive);
     // both the mass-storage and the PICOBOOT interfaces, as on a cold boot.
     embassy_rp::rom_data::reset_to_usb_boot(0, 0);
@@ -159,7 +171,7 @@ pub fn reboot_to_usb_boot() -> ! {
 
 /// Digital I/O pins start as inputs with pull-downs, so nothing connected
 /// is driven until a script writes it.
-pub fn digital_input(mut pin: Flex<'static>) -> Flex<'static> {
+pub(crate) fn digital_input(mut pin: Flex<'static>) -> Flex<'static> {
     pin.set_pull(Pull::Down);
     pin.set_as_input();
     pin

@@ -79,7 +79,10 @@ pub static MODULE: ModuleCell<ModuleBoard> = ModuleCell::new();
 /// How the module's ports reach it.
 pub type Module = &'static ModuleCell<ModuleBoard>;
 
-bind_interrupts!(pub struct Irqs {
+// The interrupt bindings embassy-rp checks at compile time.
+bind_interrupts!(
+    /// The interrupts the links and the step output take.
+    pub struct Irqs {
     USBCTRL_IRQ => usb::InterruptHandler<USB>;
     UART0_IRQ => uart::BufferedInterruptHandler<UART0>;
     PIO0_IRQ_0 => pio::InterruptHandler<PIO0>;

@@ -13,16 +13,16 @@ use embassy_rp::peripherals::FLASH;
 use osap_firmware::name_store::NameFlash;
 
 /// Size of the Pico's flash (W25Q16JV, 2 MiB).
-pub const FLASH_SIZE: usize = 2 * 1024 * 1024;
+pub(crate) const FLASH_SIZE: usize = 2 * 1024 * 1024;
 /// Offset of the name sector: the last one, which memory.x keeps out of
 /// the program's region.
-pub const NAME_SECTOR: u32 = (FLASH_SIZE - ERASE_SIZE) as u32;
+pub(crate) const NAME_SECTOR: u32 = (FLASH_SIZE - ERASE_SIZE) as u32;
 
 /// The flash driver.
-pub type PicoFlash = Flash<'static, FLASH, Blocking, FLASH_SIZE>;
+pub(crate) type PicoFlash = Flash<'static, FLASH, Blocking, FLASH_SIZE>;
 
 /// The name sector of the Pico's flash.
-pub struct NameSector(pub PicoFlash);
+pub(crate) struct NameSector(pub PicoFlash);
 
 impl NameFlash for NameSector {
     type Error = embassy_rp::flash::Error;

@@ -17,10 +17,10 @@ use crate::name_store::{PicoFlash, FLASH_SIZE};
 
 /// Offset of the rate sector: the one below the name sector, which
 /// memory.x keeps out of the program's region too.
-pub const RATE_SECTOR: u32 = (FLASH_SIZE - 2 * ERASE_SIZE) as u32;
+pub(crate) const RATE_SECTOR: u32 = (FLASH_SIZE - 2 * ERASE_SIZE) as u32;
 
 /// The rate sector of the Pico's flash.
-pub struct RateSector(PicoFlash);
+pub(crate) struct RateSector(PicoFlash);
 
 impl RateSector {
     /// A second driver of the flash for the rate sector.
@@ -30,7 +30,7 @@ impl RateSector {
     /// same time: both live in the runtime task, which uses one at a time.
     /// A blocking driver keeps no state of its own (no DMA channel), so two
     /// of them in turn behave as one.
-    pub unsafe fn steal() -> Self {
+    pub(crate) unsafe fn steal() -> Self {
         // SAFETY: see above; the caller keeps the two drivers apart.
         let flash: Flash<'static, FLASH, Blocking, FLASH_SIZE> =
             Flash::new_blocking(unsafe { FLASH::steal() });

@@ -45,11 +45,11 @@ const REFILL_MARGIN_WORDS: u64 = 4;
 const PIO_HZ: u32 = 1_000_000;
 
 /// The step state machine: PIO0, state machine 0.
-pub type StepSm = StateMachine<'static, PIO0, 0>;
+pub(crate) type StepSm = StateMachine<'static, PIO0, 0>;
 
 /// Loads the step program into PIO0 and configures state machine 0 to run
 /// it on `step` (set pin) and `dir` (out pin). The machine is left stopped.
-pub fn configure(
+pub(crate) fn configure(
     common: &mut Common<'static, PIO0>,
     sm: &mut StepSm,
     step: Pin<'static, PIO0>,

@@ -23,7 +23,7 @@ use osap_firmware::serial::{RxTrigger, Serial, SerialTiming};
 /// the RP2040's UART and common transceivers (e.g. THVD1450, MAX3485 at
 /// 10 Mbit/s) manage up to 3 Mbaud on short runs. Change it here: the
 /// other end must match.
-pub const BAUD: u32 = 1_000_000;
+pub(crate) const BAUD: u32 = 1_000_000;
 
 /// The line's timing at [`BAUD`].
 const LINE: Serial = Serial {
@@ -42,7 +42,7 @@ const RX_CHUNK: usize = 256;
 const TX_CHUNK: usize = 128;
 
 /// The UART link's timing, shared by its gateway and its transmit task.
-pub static UART_TIMING: SerialTiming = SerialTiming::new(LINE);
+pub(crate) static UART_TIMING: SerialTiming = SerialTiming::new(LINE);
 
 /// Receives frames from UART0 and hands their packets to the runtime.
 #[embassy_executor::task]

@@ -25,7 +25,7 @@ use static_cell::StaticCell;
 use crate::{unwrap, Irqs};
 
 /// The strings the device reports.
-pub struct UsbStrings {
+pub(crate) struct UsbStrings {
     /// "osap-rs " and the module type.
     pub product: &'static str,
     /// The board's unique flash id in hex.
@@ -35,7 +35,7 @@ pub struct UsbStrings {
 impl UsbStrings {
     /// The strings of a module of type `module_type` on the board with
     /// flash id `unique_id`.
-    pub fn new(module_type: &str, unique_id: &[u8; 8]) -> Self {
+    pub(crate) fn new(module_type: &str, unique_id: &[u8; 8]) -> Self {
         static PRODUCT: StaticCell<ProductString> = StaticCell::new();
         static SERIAL: StaticCell<SerialString> = StaticCell::new();
         UsbStrings {

@@ -100,6 +100,12 @@ pub struct StepperPins {
     pub enable_n: FastPin,
 }
 
+impl core::fmt::Debug for StepperPins {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("StepperPins").finish_non_exhaustive()
+    }
+}
+
 impl StepperHw for StepperPins {
     fn set_enable(&mut self, on: bool) {
         self.enable_n.set(!on);
@@ -119,9 +125,15 @@ pub struct IoPins {
     pub analog: [u8; 3],
 }
 
+impl core::fmt::Debug for IoPins {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("IoPins").finish_non_exhaustive()
+    }
+}
+
 /// TCC0's period: a 16-bit duty maps 1:1 to the compare value, and 65 535
 /// (compare above the period) is always high. 120 MHz / 65 535 ≈ 1.8 kHz.
-pub const PWM_TOP: u32 = 65_534;
+pub(crate) const PWM_TOP: u32 = 65_534;
 
 /// TCC0's registers.
 fn tcc0() -> &'static pac::tcc0::RegisterBlock {
@@ -131,7 +143,7 @@ fn tcc0() -> &'static pac::tcc0::RegisterBlock {
 
 /// Starts TCC0 in normal PWM with both outputs low. The pins must be on
 /// their TCC0 function already (peripheral function G).
-pub fn start_pwm(mclk: &mut pac::Mclk) {
+pub(crate) fn start_pwm(mclk: &mut pac::Mclk) {
     mclk.apbbmask().modify(|_, w| w.tcc0_().set_bit());
     let t = tcc0();
     t.ctrla().write(|w| w.swrst().set_bit());
@@ -159,7 +171,7 @@ fn adc_sync() {
 /// Starts ADC0: 12 bits, single-ended against ground, VDDANA (3.3 V) as
 /// reference, factory calibration loaded. Its generic clock (at most
 /// 16 MHz) must be routed already; the prescaler halves it.
-pub fn start_adc(mclk: &mut pac::Mclk) {
+pub(crate) fn start_adc(mclk: &mut pac::Mclk) {
     mclk.apbdmask().modify(|_, w| w.adc0_().set_bit());
     let a = adc0();
     a.ctrla().write(|w| w.swrst().set_bit());
@@ -201,7 +213,7 @@ const DOUBLE_TAP_MAGIC: u32 = 0xF016_69EF;
 /// update): the double-tap magic in its word, then a system reset. The
 /// reset returns every pin to an input, so the driver's EN pull-up lets the
 /// motor go limp.
-pub fn reboot_to_uf2() -> ! {
+pub(crate) fn reboot_to_uf2() -> ! {
     // SAFETY: a word outside the program's RAM (memory.x), aligned, that
     // the bootloader reads after the reset; SRAM keeps it through one.
     unsafe { core::ptr::write_volatile(DOUBLE_TAP_WORD, DOUBLE_TAP_MAGIC) };
@@ -276,7 +288,7 @@ impl IoHw for IoPins {
 }
 
 /// The board's pins, sorted by use.
-pub struct BoardPins {
+pub(crate) struct BoardPins {
     /// STEP.
     pub step: DynPin,
     /// DIR.
@@ -313,21 +325,21 @@ mod map {
     use atsamd_hal::sercom::uart;
 
     /// The UART's SERCOM.
-    pub type UartSercom = pac::Sercom3;
+    pub(crate) type UartSercom = pac::Sercom3;
     /// Its pads: RX on PAD1, TX on PAD0.
-    pub type UartPads = uart::PadsFromIds<UartSercom, PA23, PA22>;
+    pub(crate) type UartPads = uart::PadsFromIds<UartSercom, PA23, PA22>;
     /// Its four interrupt lines.
-    pub const UART_IRQS: [Interrupt; 4] = [
+    pub(crate) const UART_IRQS: [Interrupt; 4] = [
         Interrupt::SERCOM3_0,
         Interrupt::SERCOM3_1,
         Interrupt::SERCOM3_2,
         Interrupt::SERCOM3_OTHER,
     ];
     /// The limit switch's EXTINT line.
-    pub const LIMIT_IRQ: Interrupt = Interrupt::EIC_EXTINT_14;
+    pub(crate) const LIMIT_IRQ: Interrupt = Interrupt::EIC_EXTINT_14;
 
     /// The Metro M4's pins by use.
-    pub fn take(p: Pins) -> super::BoardPins {
+    pub(crate) fn take(p: Pins) -> super::BoardPins {
         super::BoardPins {
             step: p.pb17.into(),
             dir: p.pb16.into(),
@@ -373,21 +385,21 @@ mod map {
     use atsamd_hal::sercom::uart;
 
     /// The UART's SERCOM.
-    pub type UartSercom = pac::Sercom5;
+    pub(crate) type UartSercom = pac::Sercom5;
     /// Its pads: RX on PAD1, TX on PAD0.
-    pub type UartPads = uart::PadsFromIds<UartSercom, PB17, PB16>;
+    pub(crate) type UartPads = uart::PadsFromIds<UartSercom, PB17, PB16>;
     /// Its four interrupt lines.
-    pub const UART_IRQS: [Interrupt; 4] = [
+    pub(crate) const UART_IRQS: [Interrupt; 4] = [
         Interrupt::SERCOM5_0,
         Interrupt::SERCOM5_1,
         Interrupt::SERCOM5_2,
         Interrupt::SERCOM5_OTHER,
     ];
     /// The limit switch's EXTINT line.
-    pub const LIMIT_IRQ: Interrupt = Interrupt::EIC_EXTINT_3;
+    pub(crate) const LIMIT_IRQ: Interrupt = Interrupt::EIC_EXTINT_3;
 
     /// The Feather M4's pins by use.
-    pub fn take(p: Pins) -> super::BoardPins {
+    pub(crate) fn take(p: Pins) -> super::BoardPins {
         super::BoardPins {
             step: p.pa14.into(),
             dir: p.pa16.into(),
@@ -426,10 +438,10 @@ mod map {
     }
 }
 
-pub use map::{take, UartPads, UartSercom, LIMIT_IRQ, UART_IRQS};
+pub(crate) use map::{take, UartPads, UartSercom, LIMIT_IRQ, UART_IRQS};
 
 /// The UART, configured.
-pub type BoardUart = atsamd_hal::sercom::uart::Uart<
+pub(crate) type BoardUart = atsamd_hal::sercom::uart::Uart<
     atsamd_hal::sercom::uart::Config<UartPads>,
     atsamd_hal::sercom::uart::Duplex,
 >;

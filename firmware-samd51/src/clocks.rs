@@ -15,9 +15,9 @@ use atsamd_hal::clock::{ClockId, GenericClockController};
 use atsamd_hal::pac;
 
 /// The generator that feeds the time base and the step timer.
-pub const TIMEBASE_GCLK: u8 = 3;
+pub(crate) const TIMEBASE_GCLK: u8 = 3;
 /// Its frequency.
-pub const TIMEBASE_HZ: u32 = 16_000_000;
+pub(crate) const TIMEBASE_HZ: u32 = 16_000_000;
 /// DPLL1's output: 96 MHz, the lowest the DPLL allows.
 const DPLL1_HZ: u32 = 96_000_000;
 /// The crystal.
@@ -31,7 +31,7 @@ const _: () = assert!(
 
 /// Sets up the clock tree; returns the HAL's controller for the
 /// peripherals it clocks (USB, SERCOM, EIC, ADC, TCC).
-pub fn init(
+pub(crate) fn init(
     gclk: pac::Gclk,
     mclk: &mut pac::Mclk,
     osc32kctrl: &mut pac::Osc32kctrl,
@@ -69,7 +69,7 @@ pub fn init(
 }
 
 /// Connects peripheral channel `id` to the time-base generator.
-pub fn route_timebase(id: ClockId) {
+pub(crate) fn route_timebase(id: ClockId) {
     // SAFETY: one PCHCTRL register, owned by the peripheral `id` names.
     let gclk = unsafe { pac::Gclk::steal() };
     let ch = gclk.pchctrl(id as usize);

@@ -14,7 +14,7 @@ use cortex_m::register::{basepri, basepri_max, primask};
 
 /// BASEPRI inside a critical section: masks priorities 0x20 and lower
 /// (the SAMD51 has 3 priority bits, the top three of the byte).
-pub const CS_PRIORITY: u8 = 0x20;
+pub(crate) const CS_PRIORITY: u8 = 0x20;
 
 struct BasepriCriticalSection;
 critical_section::set_impl!(BasepriCriticalSection);

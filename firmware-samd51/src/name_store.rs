@@ -17,12 +17,12 @@ use atsamd_hal::nvm::{Nvm, WriteGranularity};
 use osap_firmware::name_store::{NameFlash, RECORD_MAX};
 
 /// Address of the name block.
-pub const NAME_BLOCK: u32 = 0x0007_E000;
+pub(crate) const NAME_BLOCK: u32 = 0x0007_E000;
 /// Words written: the record, padded to whole quad-words.
 const WORDS: usize = RECORD_MAX.div_ceil(16) * 4;
 
 /// The name block of the SAMD51's flash.
-pub struct NameBlock(pub Nvm);
+pub(crate) struct NameBlock(pub Nvm);
 
 impl NameFlash for NameBlock {
     type Error = atsamd_hal::nvm::Error;

@@ -14,10 +14,10 @@ use atsamd_hal::pac::Nvmctrl;
 use osap_firmware::rate_store::{RateFlash, RECORD_LEN};
 
 /// Address of the rate block.
-pub const RATE_BLOCK: u32 = 0x0007_C000;
+pub(crate) const RATE_BLOCK: u32 = 0x0007_C000;
 
 /// The rate block of the SAMD51's flash.
-pub struct RateBlock(Nvm);
+pub(crate) struct RateBlock(Nvm);
 
 impl RateBlock {
     /// A second NVMCTRL driver for the rate block.
@@ -27,7 +27,7 @@ impl RateBlock {
     /// same time: both live in the runtime task, which uses one at a time.
     /// The HAL's `Nvm` keeps no state beyond the register block, so two of
     /// them in turn behave as one.
-    pub unsafe fn steal() -> Self {
+    pub(crate) unsafe fn steal() -> Self {
         // SAFETY: see above; the caller keeps the two drivers apart.
         RateBlock(Nvm::new(unsafe { Nvmctrl::steal() }))
     }

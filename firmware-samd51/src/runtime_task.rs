@@ -8,7 +8,7 @@ use crate::name_store::NameBlock;
 use crate::rate_store::RateBlock;
 
 /// The module's runtime: the module's links (USB and UART).
-pub type ModuleRuntime = osap_firmware::runtime::ModuleRuntime<{ osap_module::sizes::LINKS }>;
+pub(crate) type ModuleRuntime = osap_firmware::runtime::ModuleRuntime<{ osap_module::sizes::LINKS }>;
 
 /// Runs the runtime forever.
 #[embassy_executor::task]

@@ -52,7 +52,7 @@ const TIMER_TICKS: u32 = clocks::TIMEBASE_HZ / 1_000_000 * STEP_TICK_US;
 /// STEP edge, µs.
 const DIR_LEAD_US: u32 = 3;
 /// NVIC priority of the tick interrupt: the top one.
-pub const TICK_PRIORITY: u8 = 0x00;
+pub(crate) const TICK_PRIORITY: u8 = 0x00;
 
 /// A single-producer (step task), single-consumer (tick interrupt) ring
 /// of step words.
@@ -121,7 +121,7 @@ fn tc() -> &'static pac::tc0::Count16 {
 
 /// Sets up TC0 as the tick timer on `step` and `dir` (outputs, low), its
 /// interrupt at the top priority; the timer is left stopped.
-pub fn configure(mclk: &mut pac::Mclk, nvic: &mut NVIC, step: FastPin, dir: FastPin) {
+pub(crate) fn configure(mclk: &mut pac::Mclk, nvic: &mut NVIC, step: FastPin, dir: FastPin) {
     step.set(false);
     dir.set(false);
     STEP_PIN.store(step.pack(), Ordering::Release);
@@ -262,7 +262,7 @@ fn TC0() {
 }
 
 /// The limit switch's EIC channel and pin.
-pub struct Limit {
+pub(crate) struct Limit {
     /// EXTINT channel.
     pub channel: u8,
     /// The pin, for its level.
@@ -276,14 +276,14 @@ static LIMIT_PIN: AtomicU32 = AtomicU32::new(FastPin::NONE);
 static LIMIT_LEVEL: AtomicBool = AtomicBool::new(false);
 
 /// NVIC priority of the limit switch's interrupt.
-pub const LIMIT_PRIORITY: u8 = 0x20;
+pub(crate) const LIMIT_PRIORITY: u8 = 0x20;
 
 /// Starts reporting the limit switch: both edges on its EIC channel, the
 /// level at start reported at once.
 ///
 /// The pin must already be an EIC input with its pull-up, and the EIC
 /// clocked and enabled with both-edge sensing on `limit.channel`.
-pub fn start_limit(nvic: &mut NVIC, limit: Limit, irq: Interrupt) {
+pub(crate) fn start_limit(nvic: &mut NVIC, limit: Limit, irq: Interrupt) {
     let level = limit.pin.read();
     LIMIT_LEVEL.store(level, Ordering::Relaxed);
     crate::MODULE.limit_initial(level);
@@ -298,7 +298,7 @@ pub fn start_limit(nvic: &mut NVIC, limit: Limit, irq: Interrupt) {
 
 /// The limit switch's edge interrupt (both edges), bound to its EXTINT
 /// line in `main`.
-pub fn on_limit_interrupt() {
+pub(crate) fn on_limit_interrupt() {
     // Stamped first thing.
     let at = osap_firmware::local_now();
     let channel = LIMIT_CHANNEL.load(Ordering::Acquire);

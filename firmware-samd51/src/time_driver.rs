@@ -32,7 +32,7 @@ use osap_firmware::timebase::{self, AlarmAction};
 use crate::clocks;
 
 /// NVIC priority of the TC2 interrupt (0x20: below only the step tick).
-pub const PRIORITY: u8 = 0x20;
+pub(crate) const PRIORITY: u8 = 0x20;
 
 /// The driver's state.
 struct TcDriver {
@@ -59,7 +59,7 @@ fn tc() -> &'static pac::tc0::Count32 {
 
 /// Starts the counter and its interrupt. Call once, before anything reads
 /// the time.
-pub fn init(mclk: &mut pac::Mclk, nvic: &mut NVIC) {
+pub(crate) fn init(mclk: &mut pac::Mclk, nvic: &mut NVIC) {
     mclk.apbbmask()
         .modify(|_, w| w.tc2_().set_bit().tc3_().set_bit());
     clocks::route_timebase(ClockId::TC2_TC3);

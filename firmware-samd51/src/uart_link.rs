@@ -29,7 +29,7 @@ use crate::board::{FastPin, UartSercom, UART_IRQS};
 /// the SERCOM (120 MHz core clock, 16× oversampling) and common
 /// transceivers (e.g. THVD1450, MAX3485 at 10 Mbit/s) manage up to
 /// 3 Mbaud on short runs. Change it here: the other end must match.
-pub const BAUD: u32 = 1_000_000;
+pub(crate) const BAUD: u32 = 1_000_000;
 
 /// The line's timing at [`BAUD`].
 const LINE: Serial = Serial {
@@ -41,7 +41,7 @@ const LINE: Serial = Serial {
 /// start bit: 2 µs at 120 MHz.
 const DRIVER_ENABLE_CYCLES: u32 = 240;
 /// NVIC priority of the SERCOM interrupts.
-pub const PRIORITY: u8 = 0x40;
+pub(crate) const PRIORITY: u8 = 0x40;
 /// Bytes stored between the interrupt and the receive task: 2.5 ms at
 /// 1 Mbaud.
 const RX_BYTES: usize = 256;
@@ -90,11 +90,11 @@ fn usart() -> &'static pac::sercom0::UsartInt {
 }
 
 /// The UART link's timing, shared by its gateway and its transmit task.
-pub static UART_TIMING: SerialTiming = SerialTiming::new(LINE);
+pub(crate) static UART_TIMING: SerialTiming = SerialTiming::new(LINE);
 
 /// Enables the receive and error interrupts of the (HAL-configured and
 /// enabled) USART and unmasks its four interrupt lines.
-pub fn init(nvic: &mut NVIC) {
+pub(crate) fn init(nvic: &mut NVIC) {
     let u = usart();
     u.intenset().write(|w| w.rxc().set_bit().error().set_bit());
     for irq in UART_IRQS {
@@ -107,7 +107,7 @@ pub fn init(nvic: &mut NVIC) {
 }
 
 /// The SERCOM's interrupt, from all four of its lines.
-pub fn on_interrupt() {
+pub(crate) fn on_interrupt() {
     let u = usart();
     let flags = u.intflag().read();
     let enabled = u.intenset().read();

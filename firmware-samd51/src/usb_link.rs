@@ -38,7 +38,7 @@ use usbd_serial::CdcAcmClass;
 use crate::board::FastPin;
 
 /// NVIC priority of the USB interrupts.
-pub const PRIORITY: u8 = 0x40;
+pub(crate) const PRIORITY: u8 = 0x40;
 /// Received packets stored for the receive task.
 const RX_SLOTS: usize = 4;
 /// The USB interrupt lines; each runs [`poll`].
@@ -86,7 +86,7 @@ static LED: AtomicU32 = AtomicU32::new(FastPin::NONE);
 static SHARED: Mutex<RefCell<Option<&'static LinkShared>>> = Mutex::new(RefCell::new(None));
 
 /// The strings the device reports.
-pub struct UsbStrings {
+pub(crate) struct UsbStrings {
     /// "osap-rs " and the module type.
     pub product: &'static str,
     /// The chip's 128-bit serial number in hex.
@@ -94,7 +94,7 @@ pub struct UsbStrings {
 }
 
 /// Builds the device on `bus` and starts its interrupts.
-pub fn init(
+pub(crate) fn init(
     bus: &'static UsbBusAllocator<UsbBus>,
     strings: UsbStrings,
     shared: &'static LinkShared,

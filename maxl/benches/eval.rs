@@ -4,6 +4,9 @@
 //!
 //! Run: `cargo bench -p maxl --bench eval`.
 
+// criterion_main! writes an undocumented `main`.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, Criterion, Throughput};
 use maxl::eval::{Fx, Point, TickEval};
 use maxl::Interval;

@@ -5,6 +5,9 @@
 //!
 //! `cargo bench -p maxl --features std --bench planner`
 
+// criterion_main! writes an undocumented `main`.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use maxl::blocks::planner::{Limits, Planner, VectorLimits, KLIPPER_MIN_CRUISE_RATIO};
 

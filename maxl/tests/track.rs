@@ -1,3 +1,5 @@
+//! Tracks: queueing, gap fill and evaluation against a reference.
+
 mod common;
 
 use common::rng::Lcg;

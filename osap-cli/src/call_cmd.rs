@@ -9,11 +9,11 @@ use std::process::ExitCode;
 
 /// Exit code of a call the function refused with a failure code of its
 /// own (anything else that fails exits with 1).
-pub const REFUSED: u8 = 3;
+pub(crate) const REFUSED: u8 = 3;
 
 /// `osap call`'s arguments.
 #[derive(clap::Args)]
-pub struct CallArgs {
+pub(crate) struct CallArgs {
     #[command(flatten)]
     connect: Connect,
     /// The runtime's name (`osap scan` lists them).
@@ -27,7 +27,7 @@ pub struct CallArgs {
 
 /// Calls the function once (never retried: a call may have effects) and
 /// prints `name = value` per output.
-pub async fn call(args: CallArgs) -> Result<ExitCode, String> {
+pub(crate) async fn call(args: CallArgs) -> Result<ExitCode, String> {
     let c = connect(&args.connect).await?;
     let mut manager = Manager::new(&c.host).await.map_err(|e| e.to_string())?;
     let refresh = manager.refresh().await.map_err(|e| e.to_string())?;

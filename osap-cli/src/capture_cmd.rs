@@ -14,7 +14,7 @@ use crate::machine_cmd::{Failure, Target, FAULTED};
 
 /// `osap capture` options.
 #[derive(Args, Debug)]
-pub struct CaptureArgs {
+pub(crate) struct CaptureArgs {
     /// Where to find the machine.
     #[command(flatten)]
     pub target: Target,
@@ -43,7 +43,7 @@ fn refused(e: CaptureError) -> Failure {
 }
 
 /// Runs `osap capture`.
-pub async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
+pub(crate) async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
     if !(args.seconds.is_finite() && args.seconds > 0.0 && args.seconds <= 1e6) {
         return Err(Failure::refused(format!(
             "--seconds {}: give a duration above 0 (at most 1e6 s)",

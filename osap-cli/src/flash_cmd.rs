@@ -34,11 +34,11 @@ use uf2_link::uf2::{self, Uf2Info, RP2040_FAMILY_ID, SAMD51_FAMILY_ID};
 
 /// Exit code when the module was flashed and came back, but presents a
 /// function set other than this build's.
-pub const FUNCTION_SET_DIFFERS: u8 = 4;
+pub(crate) const FUNCTION_SET_DIFFERS: u8 = 4;
 
 /// `osap flash`'s arguments.
 #[derive(clap::Args)]
-pub struct FlashArgs {
+pub(crate) struct FlashArgs {
     #[command(flatten)]
     connect: Connect,
     /// The firmware: a UF2 file, or a firmware ELF with `<elf>.uf2` next to
@@ -78,7 +78,7 @@ struct Seen {
 }
 
 /// Flashes the module; see the module docs for the steps.
-pub async fn flash(args: FlashArgs) -> Result<ExitCode, String> {
+pub(crate) async fn flash(args: FlashArgs) -> Result<ExitCode, String> {
     if !(args.timeout_s.is_finite() && args.timeout_s > 0.0) {
         return Err(format!(
             "--timeout {} must be a positive number of seconds",

@@ -20,7 +20,7 @@ const HOST_NAME: &str = "osap-halt";
 /// and every tool its off value, 1 when one could not be reached or
 /// refused (the lines above say which), 2 when nothing was tried (the
 /// machine file, the arguments, no link).
-pub async fn halt(target: Target, started: Instant) -> Result<ExitCode, Failure> {
+pub(crate) async fn halt(target: Target, started: Instant) -> Result<ExitCode, Failure> {
     let cfg = target.load()?;
     if target.sim {
         return Err(Failure::refused(

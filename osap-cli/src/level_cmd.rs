@@ -12,7 +12,7 @@ use crate::machine_cmd::{Failure, Target, FAULTED};
 
 /// `osap level` options.
 #[derive(Args, Debug)]
-pub struct LevelArgs {
+pub(crate) struct LevelArgs {
     /// Where to find the machine.
     #[command(flatten)]
     pub target: Target,
@@ -26,7 +26,7 @@ pub struct LevelArgs {
 }
 
 /// Runs `osap level`.
-pub async fn level(args: LevelArgs) -> Result<ExitCode, Failure> {
+pub(crate) async fn level(args: LevelArgs) -> Result<ExitCode, Failure> {
     let mut cfg = args.target.load()?;
     if cfg.probe.is_none() {
         return Err(Failure::refused(format!(

@@ -16,19 +16,19 @@ use osap_machine::{Machine, MachineError, MachineState};
 use osap_sim::machine::TimeMode;
 
 /// Exit code of a job or argument refused before any motion.
-pub const REFUSED: u8 = 2;
+pub(crate) const REFUSED: u8 = 2;
 /// Exit code of a failure during motion that is not the machine's own
 /// fault report: the host runtime, a link, or a lost clock.
-pub const FAULTED: u8 = 1;
+pub(crate) const FAULTED: u8 = 1;
 /// Exit code of a machine fault: a module reported a fault that stops the
 /// machine (a refused point, its backstop, late steps, a limit press, a
 /// halt) or stopped answering, or a stop did not reach every module; the
 /// message names the module and why.
-pub const MACHINE_FAULT: u8 = 3;
+pub(crate) const MACHINE_FAULT: u8 = 3;
 
 /// Where a machine command finds the machine.
 #[derive(Args, Clone, Debug)]
-pub struct Target {
+pub(crate) struct Target {
     /// The machine file (TOML), e.g. examples/machines/plotter.toml.
     pub machine: PathBuf,
     /// Run on simulated modules derived from the machine file.
@@ -54,7 +54,7 @@ pub struct Target {
 
 impl Target {
     /// Whether the command must run on a virtual-time runtime.
-    pub fn virtual_time(&self) -> bool {
+    pub(crate) fn virtual_time(&self) -> bool {
         self.sim && self.fast
     }
 
@@ -118,7 +118,7 @@ impl Target {
 }
 
 /// Why a command failed, and its exit code.
-pub struct Failure {
+pub(crate) struct Failure {
     /// The exit code.
     pub code: u8,
     /// The message.
@@ -153,7 +153,7 @@ impl Failure {
 
 /// `osap run` options.
 #[derive(Args, Clone, Debug)]
-pub struct RunArgs {
+pub(crate) struct RunArgs {
     #[command(flatten)]
     pub target: Target,
     /// The job: G-code (.gcode, .nc, .ngc, .g) or a drawing (.svg).
@@ -295,7 +295,7 @@ pub(crate) fn check_out(dir: &Path) -> Result<(), Failure> {
 }
 
 /// `osap run`.
-pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
+pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
     let cfg = args.target.load()?;
     let program = read_job(&cfg, &args)?;
     for w in &program.warnings {
@@ -462,7 +462,7 @@ pub async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
 }
 
 /// `osap home MACHINE [AXIS ..]`.
-pub async fn home(target: Target, axes: Vec<String>) -> Result<ExitCode, Failure> {
+pub(crate) async fn home(target: Target, axes: Vec<String>) -> Result<ExitCode, Failure> {
     let cfg = target.load()?;
     let machine = target.start(&cfg).await?;
     let names: Vec<&str> = axes.iter().map(String::as_str).collect();
@@ -488,7 +488,7 @@ fn show(machine: &Machine) -> String {
 }
 
 /// `osap jog MACHINE AXIS DISTANCE`.
-pub async fn jog(
+pub(crate) async fn jog(
     target: Target,
     axis: String,
     distance: f64,
@@ -514,7 +514,7 @@ pub async fn jog(
 }
 
 /// `osap move MACHINE AXIS=VALUE ..`: homes, then moves there.
-pub async fn move_to(
+pub(crate) async fn move_to(
     target: Target,
     coords: Vec<String>,
     rate: Option<f64>,

@@ -13,7 +13,7 @@ use crate::machine_cmd::{check_out, Failure, Target, FAULTED};
 
 /// `osap resonance` options.
 #[derive(Args, Debug)]
-pub struct ResonanceArgs {
+pub(crate) struct ResonanceArgs {
     /// Where to find the machine.
     #[command(flatten)]
     pub target: Target,
@@ -50,7 +50,7 @@ fn failure(e: ResonanceError) -> Failure {
 }
 
 /// Runs `osap resonance`.
-pub async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> {
+pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> {
     let cfg = args.target.load()?;
     // Refuse a bad axis or a missing accelerometer before anything starts.
     let plan = resonance::Plan::for_axis(&cfg, &args.axis, args.seconds).map_err(failure)?;

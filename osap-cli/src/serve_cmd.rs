@@ -14,7 +14,7 @@ use tokio::io::{AsyncBufReadExt, BufReader};
 
 /// The arguments of `osap serve`.
 #[derive(Args, Clone)]
-pub struct ServeArgs {
+pub(crate) struct ServeArgs {
     /// The machine: a topology file, or a machine file (its simulated
     /// network is derived from it).
     #[arg(long, value_name = "FILE")]
@@ -52,7 +52,7 @@ pub struct ServeArgs {
 }
 
 /// Runs `osap serve` until Ctrl-C.
-pub async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
+pub(crate) async fn serve(args: ServeArgs) -> Result<ExitCode, String> {
     // A server's log is its connections: who came, who was refused or
     // closed, and why (main logs at info for `serve`).
     let ServeArgs {

@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 /// The arguments of `osap time`.
 #[derive(Args, Clone)]
-pub struct TimeArgs {
+pub(crate) struct TimeArgs {
     #[command(flatten)]
     pub connect: Connect,
     /// Reprint every interval until Ctrl-C.
@@ -34,7 +34,7 @@ struct Sample {
 
 /// Runs `osap time`. Exits 1 when a runtime could not be read (in the
 /// last round, with `--watch`).
-pub async fn time(args: TimeArgs) -> Result<ExitCode, String> {
+pub(crate) async fn time(args: TimeArgs) -> Result<ExitCode, String> {
     let c = connect(&args.connect).await?;
     let report = scan(&c, 2).await?;
     for f in &report.failures {

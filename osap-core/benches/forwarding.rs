@@ -29,6 +29,9 @@
 //! its schedule. `cargo bench -p osap-core --no-default-features --bench
 //! forwarding` measures the runtime without the clock controller.
 
+// criterion_main! writes an undocumented `main`.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use osap_core::clock::CODE_TIME_REQUEST;
 use osap_core::link::queue::QueueLink;

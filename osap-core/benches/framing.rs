@@ -2,6 +2,9 @@
 //!
 //! Run: `cargo bench -p osap-core --bench framing`
 
+// criterion_main! writes an undocumented `main`.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use osap_core::framing::{encode_frame, max_frame_len, FrameDecoder};
 

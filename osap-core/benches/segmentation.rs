@@ -9,6 +9,9 @@
 //! and takes the datagram out, so time per segment is the iteration time
 //! divided by the segment count (criterion's throughput line, elements/s).
 
+// criterion_main! writes an undocumented `main`.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use osap_core::route::Route;
 use osap_core::segment::{

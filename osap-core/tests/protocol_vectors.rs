@@ -14,7 +14,7 @@ use osap_core::transport::Transport;
 use std::collections::BTreeMap;
 
 mod support {
-    pub mod doc_vectors;
+    pub(crate) mod doc_vectors;
 }
 use support::doc_vectors::hex;
 

@@ -11,6 +11,9 @@
 //! - `spiral`: an elliptical spiral inward, 1 mm pitch (every junction a
 //!   small turn, the turn growing toward the centre).
 
+// criterion_main! writes an undocumented `main`.
+#![allow(missing_docs)]
+
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
 use maxl::blocks::planner::{Limits, Planner};
 

@@ -50,8 +50,7 @@ async fn a_runtime_posing_as_a_module_is_refused_by_name() {
 
     let e = Machine::connect(&cfg, &[Link::Tcp(addr)])
         .await
-        .err()
-        .expect("the impostor is refused");
+        .expect_err("the impostor is refused");
     let text = e.to_string();
     let MachineError::Module(FindError::UnknownKind {
         key,

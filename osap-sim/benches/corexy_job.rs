@@ -3,6 +3,10 @@
 //! shipped `corexy-plotter.toml`, squares drawn for a given time, and every
 //! step edge the two belt motors took.
 
+// Each includer uses part of it (and cargo also builds it as a bench of
+// its own, where nothing does).
+#![allow(dead_code)]
+
 use maxl::blocks::kinematics::{CoreXy, CoreXyBlock};
 use maxl::blocks::planner::PlannerBlock;
 use maxl::blocks::timer::TimerBlock;
@@ -21,7 +25,7 @@ const IV: u32 = 2048;
 const LEAD: u32 = 32 * IV;
 
 /// What a job did.
-pub struct JobRun {
+pub(crate) struct JobRun {
     /// Step edges of motors a and b, in order.
     pub edges: [Vec<StepEdge>; 2],
     /// Faults and refused points on a and b.
@@ -34,7 +38,7 @@ pub struct JobRun {
 
 /// Runs squares for `seconds` of motion on the CoreXY plotter with link
 /// latencies seeded by `seed`, in `mode`.
-pub async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
+pub(crate) async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("topologies/corexy-plotter.toml");
     let mut topology = machine::load(path).expect("the shipped topology loads");
     topology.seed = seed;

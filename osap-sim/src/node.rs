@@ -166,6 +166,13 @@ pub struct Node {
     pub(crate) polls: u64,
 }
 
+impl std::fmt::Debug for Node {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Node").finish_non_exhaustive()
+    }
+}
+
 impl Node {
     pub(crate) fn new(
         spec: NodeSpec,

@@ -48,6 +48,13 @@ pub struct Outcome {
     pub wall: Duration,
 }
 
+impl std::fmt::Debug for Outcome {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Outcome").finish_non_exhaustive()
+    }
+}
+
 impl Outcome {
     /// Simulated seconds per wall-clock second.
     pub fn speed(&self) -> f64 {

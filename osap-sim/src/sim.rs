@@ -151,6 +151,13 @@ pub struct Sim {
     tier_buf: Vec<u8>,
 }
 
+impl std::fmt::Debug for Sim {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Sim").finish_non_exhaustive()
+    }
+}
+
 impl Sim {
     /// Builds the network of `topology`: a runtime per node (the root
     /// configured as tier 0), a gateway per link end and per unconnected

@@ -111,6 +111,13 @@ pub struct Node {
     pub ports: Vec<TestPort>,
 }
 
+impl std::fmt::Debug for Node {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Node").finish_non_exhaustive()
+    }
+}
+
 impl Node {
     /// This node's local clock at network time `now` (µs of the fake
     /// clock that drives the whole network).
@@ -147,6 +154,13 @@ pub struct Net {
     /// Current time of the fake clock, µs: the reference every node's
     /// local clock is derived from.
     pub now: u64,
+}
+
+impl std::fmt::Debug for Net {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Net").finish_non_exhaustive()
+    }
 }
 
 impl Net {

@@ -2,7 +2,7 @@
 //! `mod common;` and takes what it needs, so items that some test files do
 //! not use carry `#[allow(dead_code)]`.
 
-pub mod rng;
+pub(crate) mod rng;
 
 #[cfg(feature = "std")]
 use pipes_core::class::PipesClass;
@@ -12,7 +12,7 @@ use pipes_core::signature::{Arg, Signature};
 /// A signature as text, `name(input: type, ..) -> (output: type, ..)`.
 #[cfg(feature = "std")]
 #[allow(dead_code)]
-pub fn render(s: &Signature) -> String {
+pub(crate) fn render(s: &Signature) -> String {
     let args = |a: &[Arg]| {
         a.iter()
             .map(|a| format!("{}: {}", a.name, a.ty))
@@ -26,7 +26,7 @@ pub fn render(s: &Signature) -> String {
 /// that every one of those signatures is valid.
 #[cfg(feature = "std")]
 #[allow(dead_code)]
-pub fn wire_api<C: PipesClass>() -> (&'static str, String, Vec<String>) {
+pub(crate) fn wire_api<C: PipesClass>() -> (&'static str, String, Vec<String>) {
     let members = C::MEMBERS.iter().map(|s| render(s)).collect();
     for s in C::MEMBERS.iter().chain([&C::CONSTRUCTOR]) {
         s.check().unwrap();
@@ -39,7 +39,7 @@ pub fn wire_api<C: PipesClass>() -> (&'static str, String, Vec<String>) {
 /// signature is valid.
 #[cfg(feature = "std")]
 #[allow(dead_code)]
-pub fn assert_wire_api<C: PipesClass>(name: &str, ctor: &str, members: &[&str]) {
+pub(crate) fn assert_wire_api<C: PipesClass>(name: &str, ctor: &str, members: &[&str]) {
     let (n, c, m) = wire_api::<C>();
     assert_eq!(n, name);
     assert_eq!(c, ctor);

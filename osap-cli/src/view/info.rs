@@ -26,7 +26,7 @@ pub(crate) struct Info {
 
 impl Info {
     /// Runtimes on the map.
-    pub fn runtimes_len(&self) -> usize {
+    pub(super) fn runtimes_len(&self) -> usize {
         self.runtimes.len()
     }
 }

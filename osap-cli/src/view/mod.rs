@@ -32,7 +32,7 @@ use crate::machine_cmd::{Failure, Target};
 
 /// `osap view` options.
 #[derive(Args, Debug)]
-pub struct ViewArgs {
+pub(crate) struct ViewArgs {
     /// The machine file (TOML). Without it, give --sim TOPOLOGY, --port or
     /// --tcp to view a plain network.
     pub machine: Option<PathBuf>,
@@ -87,7 +87,7 @@ pub(crate) struct Source {
 
 impl Source {
     /// The model of the network: the machine's, or the plain network's.
-    pub fn manager(&self) -> Option<&Mutex<Manager>> {
+    pub(crate) fn manager(&self) -> Option<&Mutex<Manager>> {
         match &self.machine {
             Some(m) => Some(m.manager()),
             None => self.network.as_ref(),
@@ -202,7 +202,7 @@ impl ViewArgs {
 }
 
 /// Runs `osap view`.
-pub async fn view(args: ViewArgs) -> Result<ExitCode, Failure> {
+pub(crate) async fn view(args: ViewArgs) -> Result<ExitCode, Failure> {
     args.check()?;
     let source = Arc::new(args.source().await?);
     let info = info::build(&source).await;

@@ -38,7 +38,7 @@ pub(crate) struct Poller {
 }
 
 impl Poller {
-    pub async fn new(source: &Arc<Source>, info: &Info) -> Result<Poller, String> {
+    pub(super) async fn new(source: &Arc<Source>, info: &Info) -> Result<Poller, String> {
         let runner = Netrunner::new(&source.host)
             .await
             .map_err(|e| e.to_string())?;
@@ -60,7 +60,7 @@ impl Poller {
     /// Publishes a state every `interval` until the task is aborted. A
     /// reading that takes longer than the interval delays the next; the
     /// rates are per real elapsed time, so they stay right.
-    pub async fn run(
+    pub(super) async fn run(
         mut self,
         interval: Duration,
         tx: broadcast::Sender<String>,

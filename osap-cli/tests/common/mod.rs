@@ -5,7 +5,7 @@ use std::path::Path;
 use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 /// Kills the child when dropped, so a failed test leaves no server behind.
-pub struct Killed(pub Child);
+pub(crate) struct Killed(pub Child);
 
 impl Drop for Killed {
     fn drop(&mut self) {
@@ -17,14 +17,14 @@ impl Drop for Killed {
 /// Starts `osap serve --sim FILE` on a free loopback port; the server and
 /// the address it printed.
 #[allow(dead_code)] // not every test binary uses it
-pub fn serve(file: &Path) -> (Killed, String) {
+pub(crate) fn serve(file: &Path) -> (Killed, String) {
     let (server, addr, _) = spawn(file, &[]);
     (server, addr)
 }
 
 /// A served machine taking fault-injection commands (`--control`).
 #[allow(dead_code)] // not every test binary injects faults
-pub struct Controlled {
+pub(crate) struct Controlled {
     pub server: Killed,
     pub addr: String,
     stdin: ChildStdin,
@@ -34,7 +34,7 @@ pub struct Controlled {
 #[allow(dead_code)]
 impl Controlled {
     /// Starts `osap serve --control --sim FILE`.
-    pub fn start(file: &Path) -> Controlled {
+    pub(crate) fn start(file: &Path) -> Controlled {
         let (mut server, addr, stdout) = spawn(file, &["--control"]);
         let stdin = server.0.stdin.take().unwrap();
         Controlled {
@@ -46,7 +46,7 @@ impl Controlled {
     }
 
     /// Sends one control command and returns the server's answer line.
-    pub fn command(&mut self, line: &str) -> String {
+    pub(crate) fn command(&mut self, line: &str) -> String {
         writeln!(self.stdin, "{line}").unwrap();
         self.stdin.flush().unwrap();
         let mut answer = String::new();
@@ -82,7 +82,7 @@ fn spawn(file: &Path, extra: &[&str]) -> (Killed, String, BufReader<ChildStdout>
 
 /// The first number after `word` in `line`.
 #[allow(dead_code)] // not every test binary reads numbers from output
-pub fn number_after(line: &str, word: &str) -> Option<u64> {
+pub(crate) fn number_after(line: &str, word: &str) -> Option<u64> {
     let rest = &line[line.find(word)? + word.len()..];
     rest.split(|c: char| !c.is_ascii_digit())
         .find(|s| !s.is_empty())?

@@ -7,7 +7,7 @@
 use std::collections::BTreeMap;
 
 /// Bytes as space-separated lower-case hex.
-pub fn hex(bytes: &[u8]) -> String {
+pub(crate) fn hex(bytes: &[u8]) -> String {
     bytes
         .iter()
         .map(|b| format!("{b:02x}"))
@@ -16,7 +16,7 @@ pub fn hex(bytes: &[u8]) -> String {
 }
 
 /// Space-separated hex back to bytes; panics on anything else.
-pub fn unhex(s: &str) -> Vec<u8> {
+pub(crate) fn unhex(s: &str) -> Vec<u8> {
     s.split_whitespace()
         .map(|t| u8::from_str_radix(t, 16).unwrap_or_else(|_| panic!("bad hex {t:?}")))
         .collect()
@@ -24,7 +24,7 @@ pub fn unhex(s: &str) -> Vec<u8> {
 
 /// Every block of `doc` fenced with "```<tag> <name>", by name. A name
 /// that appears twice fails the test.
-pub fn document_vectors(doc: &str, tag: &str) -> BTreeMap<String, Vec<u8>> {
+pub(crate) fn document_vectors(doc: &str, tag: &str) -> BTreeMap<String, Vec<u8>> {
     let opener = format!("```{tag} ");
     let mut out = BTreeMap::new();
     let mut lines = doc.lines();

@@ -6,12 +6,12 @@ use osap_host::som::Manager;
 use osap_host::{Host, HostConfig};
 
 /// A host runtime named `name`, with the default configuration.
-pub fn host(name: &str) -> Host {
+pub(crate) fn host(name: &str) -> Host {
     Host::start(HostConfig::named(name)).unwrap()
 }
 
 /// Refreshes the model and checks that every runtime and function was read.
-pub async fn refresh(m: &mut Manager) {
+pub(crate) async fn refresh(m: &mut Manager) {
     let report = m.refresh().await.unwrap();
     assert!(
         report.scan_failures.is_empty(),

@@ -307,6 +307,13 @@ pub struct Recorder {
     done: Option<tokio::sync::oneshot::Receiver<Result<Vec<writer::SeriesStats>, CaptureError>>>,
 }
 
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Recorder").finish_non_exhaustive()
+    }
+}
+
 static NEXT_ID: AtomicU32 = AtomicU32::new(1);
 
 /// The writer thread: rows from the queue to the file, until told to stop

@@ -166,6 +166,13 @@ pub struct SampleWriter {
     text: String,
 }
 
+impl std::fmt::Debug for SampleWriter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("SampleWriter").finish_non_exhaustive()
+    }
+}
+
 fn io_error(path: &Path) -> impl Fn(std::io::Error) -> CaptureError + '_ {
     move |source| CaptureError::Io {
         path: path.to_path_buf(),

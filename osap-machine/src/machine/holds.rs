@@ -11,7 +11,7 @@ use pipes_core::control::InputMode;
 /// machine's own reports and any number of recorders share one input
 /// mode per function, the fastest timer.
 #[derive(Debug, Default)]
-pub struct Holds {
+pub(crate) struct Holds {
     by_function: Mutex<BTreeMap<(String, String), HoldSet>>,
 }
 
@@ -76,7 +76,7 @@ impl Holds {
 
     /// The machine wants `f` in `mode`: the mode to set, faster if a
     /// recorder holds it.
-    pub fn machine_sets(&self, f: &FnRef, mode: InputMode) -> InputMode {
+    pub(crate) fn machine_sets(&self, f: &FnRef, mode: InputMode) -> InputMode {
         match self.lock().get_mut(&key(f)) {
             Some(set) => {
                 set.base = mode;

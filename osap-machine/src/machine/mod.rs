@@ -96,6 +96,13 @@ pub struct Machine {
     inner: Arc<Inner>,
 }
 
+impl std::fmt::Debug for Machine {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Machine").finish_non_exhaustive()
+    }
+}
+
 struct Inner {
     cfg: MachineFile,
     host: Host,

@@ -62,6 +62,13 @@ pub struct Reports {
     pub own_halts: BTreeMap<String, Vec<(u64, u64)>>,
 }
 
+impl std::fmt::Debug for Reports {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Reports").finish_non_exhaustive()
+    }
+}
+
 /// How many of the machine's own halts of a module are remembered.
 pub const OWN_HALTS_KEPT: usize = 4;
 

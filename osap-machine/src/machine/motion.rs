@@ -67,6 +67,13 @@ pub struct Motion {
     notify: watch::Sender<MotionStatus>,
 }
 
+impl std::fmt::Debug for Motion {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Motion").finish_non_exhaustive()
+    }
+}
+
 /// A shared [`Motion`].
 pub type SharedMotion = Arc<Mutex<Motion>>;
 

@@ -22,7 +22,7 @@ use super::{som_refusal, MachineError, ModuleInfo};
 use crate::config::{MachineFile, Output};
 
 /// How many times per output watchdog time the host calls each module.
-pub const FEEDS_PER_WATCHDOG: u32 = 4;
+pub(super) const FEEDS_PER_WATCHDOG: u32 = 4;
 
 /// A module function for setting outputs up, or an error naming what the
 /// module lacks.

@@ -23,6 +23,13 @@ pub struct Tool {
     name: String,
 }
 
+impl std::fmt::Debug for Tool {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Its parts are tasks, locks and buffers: the name says enough.
+        f.debug_struct("Tool").finish_non_exhaustive()
+    }
+}
+
 impl Machine {
     /// The tool `name` of `[tools]`.
     pub fn tool(&self, name: &str) -> Result<Tool, MachineError> {

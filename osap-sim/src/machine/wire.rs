@@ -35,7 +35,7 @@ use tokio::sync::Notify;
 
 /// The last stretch before a delivery that the wire thread spins through
 /// instead of sleeping (OS timers overshoot by tens of µs).
-pub const SPIN: Duration = Duration::from_micros(80);
+pub(super) const SPIN: Duration = Duration::from_micros(80);
 
 /// Bytes framing adds to a packet on a byte stream (COBS, CRC, delimiter).
 const FRAMING_BYTES: usize = 4;

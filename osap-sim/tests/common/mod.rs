@@ -13,7 +13,7 @@ use std::path::PathBuf;
 
 /// Two nodes joined by one link: `host` (root, a perfect clock) on end A
 /// and `m1` (booted 5 s earlier, 50 ppm fast) on end B.
-pub fn pair(model: LinkModel) -> Topology {
+pub(crate) fn pair(model: LinkModel) -> Topology {
     Topology::new("pair")
         .with_node(NodeSpec::host("host").with_clock(ClockSpec::fixed(0.0, 0.0)))
         .with_node(NodeSpec::mcu("m1").with_clock(ClockSpec::fixed(5_000_000.0, 50.0)))
@@ -21,7 +21,7 @@ pub fn pair(model: LinkModel) -> Topology {
 }
 
 /// A simulation that records every frame.
-pub fn traced(topology: &Topology, seed: u64) -> Sim {
+pub(crate) fn traced(topology: &Topology, seed: u64) -> Sim {
     let config = SimConfig {
         trace_frames: true,
         ..SimConfig::seeded(seed)
@@ -30,7 +30,7 @@ pub fn traced(topology: &Topology, seed: u64) -> Sim {
 }
 
 /// The delivered frames sent from end `side` of link 0, in send order.
-pub fn frames_from(sim: &Sim, side: Side) -> Vec<FrameRecord> {
+pub(crate) fn frames_from(sim: &Sim, side: Side) -> Vec<FrameRecord> {
     let from = sim.links()[0].ends[side.index()].0;
     let mut v: Vec<FrameRecord> = sim
         .frames()
@@ -43,19 +43,19 @@ pub fn frames_from(sim: &Sim, side: Side) -> Vec<FrameRecord> {
 }
 
 /// A host runtime named `name`, with the default configuration.
-pub fn host(name: &str) -> Host {
+pub(crate) fn host(name: &str) -> Host {
     Host::start(HostConfig::named(name)).unwrap()
 }
 
 /// The path of a topology shipped in `osap-sim/topologies/`.
-pub fn shipped(name: &str) -> PathBuf {
+pub(crate) fn shipped(name: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join(name)
 }
 
 /// Refreshes the model and checks that every runtime and function was read.
-pub async fn refresh(m: &mut Manager) {
+pub(crate) async fn refresh(m: &mut Manager) {
     let report = m.refresh().await.unwrap();
     assert!(
         report.scan_failures.is_empty(),

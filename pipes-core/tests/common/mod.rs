@@ -20,10 +20,10 @@ use pipes_core::control::{ControlError, Reply, ReplyBody, Request};
 use pipes_core::{Args, ArgsWriter, Value};
 
 /// Microseconds of runtime clock per [`Net::step`].
-pub const STEP_US: u64 = 100;
+pub(crate) const STEP_US: u64 = 100;
 
 /// A port the harness can hand back to a test by its concrete type.
-pub trait TestFn: Port + Any {
+pub(crate) trait TestFn: Port + Any {
     /// The port as `Any`, for the downcast.
     fn as_any_mut(&mut self) -> &mut dyn Any;
 }
@@ -35,7 +35,7 @@ impl<T: Port + Any> TestFn for T {
 }
 
 /// One port of a runtime: the host port, or a function (or class) port.
-pub enum Slot {
+pub(crate) enum Slot {
     /// The test's own port, from which it sends requests.
     Host(TestPort),
     /// Anything under test.
@@ -76,7 +76,7 @@ impl Port for Slot {
 }
 
 /// Runtimes A and B, their ports and the link between them.
-pub struct Net {
+pub(crate) struct Net {
     /// Runtime A (host port first).
     pub a: TestRuntime,
     /// Runtime B.
@@ -95,7 +95,7 @@ pub struct Net {
 }
 
 /// A test runtime with clock sync off, so only the test's traffic flows.
-pub fn runtime(name: &str) -> TestRuntime {
+pub(crate) fn runtime(name: &str) -> TestRuntime {
     let mut r = TestRuntime::new("pipes_test", name).unwrap();
     let quiet = osap_core::clock::TimeConfig {
         enabled: false,
@@ -106,7 +106,7 @@ pub fn runtime(name: &str) -> TestRuntime {
 }
 
 /// The route from A to B.
-pub fn to_b() -> Route {
+pub(crate) fn to_b() -> Route {
     Route::through_links(&[0]).unwrap()
 }
 
@@ -122,7 +122,7 @@ fn downcast<T: 'static>(slot: &mut Slot) -> &mut T {
 
 impl Net {
     /// A with the host port and then `on_a`, B with `on_b`.
-    pub fn new(on_a: Vec<Box<dyn TestFn>>, on_b: Vec<Box<dyn TestFn>>) -> Net {
+    pub(crate) fn new(on_a: Vec<Box<dyn TestFn>>, on_b: Vec<Box<dyn TestFn>>) -> Net {
         let mut pa = vec![Slot::Host(TestPort::default())];
         pa.extend(on_a.into_iter().map(Slot::Fn));
         Net {
@@ -140,7 +140,7 @@ impl Net {
     }
 
     /// The host port.
-    pub fn host(&mut self) -> &mut TestPort {
+    pub(crate) fn host(&mut self) -> &mut TestPort {
         match &mut self.pa[0] {
             Slot::Host(h) => h,
             Slot::Fn(_) => unreachable!("A's first port is the host"),
@@ -148,17 +148,17 @@ impl Net {
     }
 
     /// The `i`th of `on_a`, as its concrete type.
-    pub fn on_a<T: 'static>(&mut self, i: usize) -> &mut T {
+    pub(crate) fn on_a<T: 'static>(&mut self, i: usize) -> &mut T {
         downcast(&mut self.pa[1 + i])
     }
 
     /// The `i`th of `on_b`, as its concrete type.
-    pub fn on_b<T: 'static>(&mut self, i: usize) -> &mut T {
+    pub(crate) fn on_b<T: 'static>(&mut self, i: usize) -> &mut T {
         downcast(&mut self.pb[i])
     }
 
     /// Polls both runtimes once, moves the link's packets, advances the clock.
-    pub fn step(&mut self) {
+    pub(crate) fn step(&mut self) {
         self.a
             .poll(Instant::from_micros(self.now), &mut self.pa, &mut self.la);
         self.b
@@ -175,20 +175,20 @@ impl Net {
     }
 
     /// `n` steps.
-    pub fn steps(&mut self, n: usize) {
+    pub(crate) fn steps(&mut self, n: usize) {
         for _ in 0..n {
             self.step();
         }
     }
 
     /// A fresh request sequence number.
-    pub fn next_seq(&mut self) -> u16 {
+    pub(crate) fn next_seq(&mut self) -> u16 {
         self.seq = self.seq.wrapping_add(1);
         self.seq
     }
 
     /// Sends a request from the host and returns the reply body.
-    pub fn ask(&mut self, route: Route, dst: u16, req: &Request<'_>) -> Vec<u8> {
+    pub(crate) fn ask(&mut self, route: Route, dst: u16, req: &Request<'_>) -> Vec<u8> {
         let seq = self.next_seq();
         let mut buf = [0u8; 200];
         Transport::Request(seq).encode(&mut buf).unwrap();
@@ -210,7 +210,7 @@ impl Net {
     }
 
     /// Calls the function at `dst` with `vals` and returns the reply body.
-    pub fn call(&mut self, route: Route, dst: u16, vals: &[(u8, Value<'_>)]) -> Vec<u8> {
+    pub(crate) fn call(&mut self, route: Route, dst: u16, vals: &[(u8, Value<'_>)]) -> Vec<u8> {
         let args = args(vals);
         let a = Args::decode(&mut Reader::new(&args)).unwrap();
         self.ask(route, dst, &Request::Call(a))
@@ -218,7 +218,7 @@ impl Net {
 }
 
 /// `vals` encoded as a call's argument list.
-pub fn args(vals: &[(u8, Value<'_>)]) -> Vec<u8> {
+pub(crate) fn args(vals: &[(u8, Value<'_>)]) -> Vec<u8> {
     let mut buf = vec![0u8; 100];
     let mut w = Writer::new(&mut buf);
     let mut a = ArgsWriter::new(&mut w).unwrap();
@@ -232,18 +232,18 @@ pub fn args(vals: &[(u8, Value<'_>)]) -> Vec<u8> {
 }
 
 /// The body of a successful reply; panics on an error reply.
-pub fn ok(body: &[u8]) -> ReplyBody<'_> {
+pub(crate) fn ok(body: &[u8]) -> ReplyBody<'_> {
     let r = Reply::parse(body).unwrap();
     r.result.unwrap_or_else(|e| panic!("error reply {e}"))
 }
 
 /// The error of an error reply; panics on success.
-pub fn err(body: &[u8]) -> ControlError {
+pub(crate) fn err(body: &[u8]) -> ControlError {
     Reply::parse(body).unwrap().result.unwrap_err()
 }
 
 /// A call reply's outputs, checked to be in index order.
-pub fn returned(body: &[u8]) -> Vec<Value<'_>> {
+pub(crate) fn returned(body: &[u8]) -> Vec<Value<'_>> {
     let ReplyBody::Returned(out) = ok(body) else {
         panic!("not a call reply")
     };

@@ -4,21 +4,21 @@ use proxygen::GeneratedFile;
 use std::path::{Path, PathBuf};
 
 /// `proxygen/tests/<rel>`.
-pub fn tests_dir(rel: &str) -> PathBuf {
+pub(crate) fn tests_dir(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("tests")
         .join(rel)
 }
 
 /// Whether `PROXYGEN_BLESS=1`: rewrite expected output instead of comparing.
-pub fn bless() -> bool {
+pub(crate) fn bless() -> bool {
     std::env::var("PROXYGEN_BLESS").is_ok_and(|v| v == "1")
 }
 
 /// Compares `files` with the files under `dir`, byte for byte (every
 /// expected file must be generated and no other); with `PROXYGEN_BLESS=1`
 /// rewrites `dir` instead.
-pub fn golden(dir: &Path, files: &[GeneratedFile]) {
+pub(crate) fn golden(dir: &Path, files: &[GeneratedFile]) {
     if bless() {
         let _ = std::fs::remove_dir_all(dir);
         proxygen::write(dir, files).unwrap();

@@ -14,14 +14,14 @@
 #![allow(dead_code, unused_imports)]
 
 #[rustfmt::skip]
-pub mod stepper;
+pub(crate) mod stepper;
 
-pub use stepper::Stepper;
+pub(crate) use stepper::Stepper;
 
 /// Every runtime type the proxies were generated for, with its firmware
 /// version and the names of the runtimes found in the scan.
-pub const DEVICES: &[(&str, &str, &[&str])] = &[
+pub(crate) const DEVICES: &[(&str, &str, &[&str])] = &[
     ("stepper", "0.1.0", &["x", "y", "z", "tool"]),
 ];
 
-pub use osap_host::som::proxy::{support, BindError, CallError, Difference};
+pub(crate) use osap_host::som::proxy::{support, BindError, CallError, Difference};
