@@ -8,12 +8,15 @@
 
 mod common;
 
+// Generated for a user's crate, where its items are public API.
 #[rustfmt::skip]
+#[allow(unreachable_pub)]
 #[path = "generated_small_machine/mod.rs"]
 mod proxies;
 
 // Compile-only: the odd names and types of `data/odd.som.json` make valid Rust.
 #[rustfmt::skip]
+#[allow(unreachable_pub)]
 #[path = "golden/odd/mod.rs"]
 mod odd;
 

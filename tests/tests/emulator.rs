@@ -58,6 +58,7 @@ use tokio::process::{Child, Command};
 // proxygen's output for a live simulated machine by proxygen's
 // small_machine.rs test).
 #[rustfmt::skip]
+#[allow(unreachable_pub)]
 #[path = "../../proxygen/tests/generated_small_machine/mod.rs"]
 mod stepper_proxy;
 

@@ -14,14 +14,14 @@
 #![allow(dead_code, unused_imports)]
 
 #[rustfmt::skip]
-pub(crate) mod stepper;
+pub mod stepper;
 
-pub(crate) use stepper::Stepper;
+pub use stepper::Stepper;
 
 /// Every runtime type the proxies were generated for, with its firmware
 /// version and the names of the runtimes found in the scan.
-pub(crate) const DEVICES: &[(&str, &str, &[&str])] = &[
+pub const DEVICES: &[(&str, &str, &[&str])] = &[
     ("stepper", "0.1.0", &["x", "y", "z", "tool"]),
 ];
 
-pub(crate) use osap_host::som::proxy::{support, BindError, CallError, Difference};
+pub use osap_host::som::proxy::{support, BindError, CallError, Difference};

@@ -11,7 +11,7 @@ use osap_host::som::{FnRef, FunctionHandle, Manager, Som};
 /// 0.1.0). All runtimes of the type share it: bind one per
 /// runtime name with [`Stepper::bind`].
 #[derive(Debug, Clone)]
-pub(crate) struct Stepper {
+pub struct Stepper {
     runtime: String,
     add_point: FunctionHandle,
     set_interval: FunctionHandle,
@@ -40,11 +40,11 @@ pub(crate) struct Stepper {
 
 impl Stepper {
     /// The runtime type this proxy is for.
-    pub(crate) const TYPE_NAME: &'static str = "stepper";
+    pub const TYPE_NAME: &'static str = "stepper";
     /// The firmware version it was generated from.
-    pub(crate) const FIRMWARE_VERSION: &'static str = "0.1.0";
+    pub const FIRMWARE_VERSION: &'static str = "0.1.0";
     /// The signatures it was generated from (class members included).
-    pub(crate) const SIGNATURES: &'static [support::Signature] = &[
+    pub const SIGNATURES: &'static [support::Signature] = &[
         support::Signature {
             function: "add_point",
             inputs: &[("time", "u64"), ("position", "f32")],
@@ -162,18 +162,18 @@ impl Stepper {
         },
     ];
     /// The classes it was generated from.
-    pub(crate) const CLASSES: &'static [support::Class] = &[
+    pub const CLASSES: &'static [support::Class] = &[
     ];
 
     /// Checks runtime `runtime` of `som` against this proxy: every
     /// function's (and class constructor's) signature, by name and type.
-    pub(crate) fn check(som: &Som, runtime: &str) -> Result<(), BindError> {
+    pub fn check(som: &Som, runtime: &str) -> Result<(), BindError> {
         support::check(som, runtime, Self::TYPE_NAME, Self::FIRMWARE_VERSION, Self::SIGNATURES, Self::CLASSES)
     }
 
     /// Binds the proxy to runtime `runtime` of the manager's current model,
     /// after [`check`](Self::check)ing it.
-    pub(crate) fn bind(manager: &Manager, runtime: &str) -> Result<Self, BindError> {
+    pub fn bind(manager: &Manager, runtime: &str) -> Result<Self, BindError> {
         Self::check(manager.som(), runtime)?;
         Ok(Stepper {
             runtime: runtime.to_string(),
@@ -204,7 +204,7 @@ impl Stepper {
     }
 
     /// The runtime's name.
-    pub(crate) fn runtime(&self) -> &str {
+    pub fn runtime(&self) -> &str {
         &self.runtime
     }
 
@@ -213,7 +213,7 @@ impl Stepper {
     /// - inputs: `time: u64`, `position: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn add_point(&self, time: u64, position: f32) -> Result<(), CallError> {
+    pub async fn add_point(&self, time: u64, position: f32) -> Result<(), CallError> {
         let h = &self.add_point;
         let values = h.call(&[support::to_u64(time), support::to_f32(position)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -221,13 +221,13 @@ impl Stepper {
     }
 
     /// The handle of `add_point`, for `push` and raw calls.
-    pub(crate) fn add_point_handle(&self) -> &FunctionHandle {
+    pub fn add_point_handle(&self) -> &FunctionHandle {
         &self.add_point
     }
 
     /// `add_point` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn add_point_ref(&self) -> &FnRef {
+    pub fn add_point_ref(&self) -> &FnRef {
         self.add_point.function()
     }
 
@@ -236,7 +236,7 @@ impl Stepper {
     /// - inputs: `interval_us: u32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_interval(&self, interval_us: u32) -> Result<(), CallError> {
+    pub async fn set_interval(&self, interval_us: u32) -> Result<(), CallError> {
         let h = &self.set_interval;
         let values = h.call(&[support::to_u32(interval_us)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -244,13 +244,13 @@ impl Stepper {
     }
 
     /// The handle of `set_interval`, for `push` and raw calls.
-    pub(crate) fn set_interval_handle(&self) -> &FunctionHandle {
+    pub fn set_interval_handle(&self) -> &FunctionHandle {
         &self.set_interval
     }
 
     /// `set_interval` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_interval_ref(&self) -> &FnRef {
+    pub fn set_interval_ref(&self) -> &FnRef {
         self.set_interval.function()
     }
 
@@ -259,7 +259,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: `time: u64`, `position: f32`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn get_position(&self) -> Result<GetPositionOutputs, CallError> {
+    pub async fn get_position(&self) -> Result<GetPositionOutputs, CallError> {
         let h = &self.get_position;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -270,13 +270,13 @@ impl Stepper {
     }
 
     /// The handle of `get_position`, for `push` and raw calls.
-    pub(crate) fn get_position_handle(&self) -> &FunctionHandle {
+    pub fn get_position_handle(&self) -> &FunctionHandle {
         &self.get_position
     }
 
     /// `get_position` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_position_ref(&self) -> &FnRef {
+    pub fn get_position_ref(&self) -> &FnRef {
         self.get_position.function()
     }
 
@@ -285,7 +285,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: `mode: u8`, `queued: u16`, `enabled: bool`, `faults: u32`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn get_status(&self) -> Result<GetStatusOutputs, CallError> {
+    pub async fn get_status(&self) -> Result<GetStatusOutputs, CallError> {
         let h = &self.get_status;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 4)?;
@@ -298,13 +298,13 @@ impl Stepper {
     }
 
     /// The handle of `get_status`, for `push` and raw calls.
-    pub(crate) fn get_status_handle(&self) -> &FunctionHandle {
+    pub fn get_status_handle(&self) -> &FunctionHandle {
         &self.get_status
     }
 
     /// `get_status` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_status_ref(&self) -> &FnRef {
+    pub fn get_status_ref(&self) -> &FnRef {
         self.get_status.function()
     }
 
@@ -313,7 +313,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: `points: u32`, `refused: u32`, `last_refused: u8`, `filled: u32`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn get_counters(&self) -> Result<GetCountersOutputs, CallError> {
+    pub async fn get_counters(&self) -> Result<GetCountersOutputs, CallError> {
         let h = &self.get_counters;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 4)?;
@@ -326,13 +326,13 @@ impl Stepper {
     }
 
     /// The handle of `get_counters`, for `push` and raw calls.
-    pub(crate) fn get_counters_handle(&self) -> &FunctionHandle {
+    pub fn get_counters_handle(&self) -> &FunctionHandle {
         &self.get_counters
     }
 
     /// `get_counters` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_counters_ref(&self) -> &FnRef {
+    pub fn get_counters_ref(&self) -> &FnRef {
         self.get_counters.function()
     }
 
@@ -341,7 +341,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: `steps: i64`, `up: u64`, `down: u64`, `late: u64`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn get_steps(&self) -> Result<GetStepsOutputs, CallError> {
+    pub async fn get_steps(&self) -> Result<GetStepsOutputs, CallError> {
         let h = &self.get_steps;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 4)?;
@@ -354,13 +354,13 @@ impl Stepper {
     }
 
     /// The handle of `get_steps`, for `push` and raw calls.
-    pub(crate) fn get_steps_handle(&self) -> &FunctionHandle {
+    pub fn get_steps_handle(&self) -> &FunctionHandle {
         &self.get_steps
     }
 
     /// `get_steps` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_steps_ref(&self) -> &FnRef {
+    pub fn get_steps_ref(&self) -> &FnRef {
         self.get_steps.function()
     }
 
@@ -369,7 +369,7 @@ impl Stepper {
     /// - inputs: `on: bool`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_enable(&self, on: bool) -> Result<(), CallError> {
+    pub async fn set_enable(&self, on: bool) -> Result<(), CallError> {
         let h = &self.set_enable;
         let values = h.call(&[support::to_bool(on)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -377,13 +377,13 @@ impl Stepper {
     }
 
     /// The handle of `set_enable`, for `push` and raw calls.
-    pub(crate) fn set_enable_handle(&self) -> &FunctionHandle {
+    pub fn set_enable_handle(&self) -> &FunctionHandle {
         &self.set_enable
     }
 
     /// `set_enable` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_enable_ref(&self) -> &FnRef {
+    pub fn set_enable_ref(&self) -> &FnRef {
         self.set_enable.function()
     }
 
@@ -392,7 +392,7 @@ impl Stepper {
     /// - inputs: `full_steps_per_unit: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_scale(&self, full_steps_per_unit: f32) -> Result<(), CallError> {
+    pub async fn set_scale(&self, full_steps_per_unit: f32) -> Result<(), CallError> {
         let h = &self.set_scale;
         let values = h.call(&[support::to_f32(full_steps_per_unit)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -400,13 +400,13 @@ impl Stepper {
     }
 
     /// The handle of `set_scale`, for `push` and raw calls.
-    pub(crate) fn set_scale_handle(&self) -> &FunctionHandle {
+    pub fn set_scale_handle(&self) -> &FunctionHandle {
         &self.set_scale
     }
 
     /// `set_scale` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_scale_ref(&self) -> &FnRef {
+    pub fn set_scale_ref(&self) -> &FnRef {
         self.set_scale.function()
     }
 
@@ -415,7 +415,7 @@ impl Stepper {
     /// - inputs: `microsteps: u16`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_microsteps(&self, microsteps: u16) -> Result<(), CallError> {
+    pub async fn set_microsteps(&self, microsteps: u16) -> Result<(), CallError> {
         let h = &self.set_microsteps;
         let values = h.call(&[support::to_u16(microsteps)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -423,13 +423,13 @@ impl Stepper {
     }
 
     /// The handle of `set_microsteps`, for `push` and raw calls.
-    pub(crate) fn set_microsteps_handle(&self) -> &FunctionHandle {
+    pub fn set_microsteps_handle(&self) -> &FunctionHandle {
         &self.set_microsteps
     }
 
     /// `set_microsteps` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_microsteps_ref(&self) -> &FnRef {
+    pub fn set_microsteps_ref(&self) -> &FnRef {
         self.set_microsteps.function()
     }
 
@@ -438,7 +438,7 @@ impl Stepper {
     /// - inputs: `max_vel: f32`, `max_acc: f32`, `max_jerk: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_limits(&self, max_vel: f32, max_acc: f32, max_jerk: f32) -> Result<(), CallError> {
+    pub async fn set_limits(&self, max_vel: f32, max_acc: f32, max_jerk: f32) -> Result<(), CallError> {
         let h = &self.set_limits;
         let values = h.call(&[support::to_f32(max_vel), support::to_f32(max_acc), support::to_f32(max_jerk)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -446,13 +446,13 @@ impl Stepper {
     }
 
     /// The handle of `set_limits`, for `push` and raw calls.
-    pub(crate) fn set_limits_handle(&self) -> &FunctionHandle {
+    pub fn set_limits_handle(&self) -> &FunctionHandle {
         &self.set_limits
     }
 
     /// `set_limits` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_limits_ref(&self) -> &FnRef {
+    pub fn set_limits_ref(&self) -> &FnRef {
         self.set_limits.function()
     }
 
@@ -461,7 +461,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: `time: u64`, `level: bool`, `edges: u32`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn read_limit(&self) -> Result<ReadLimitOutputs, CallError> {
+    pub async fn read_limit(&self) -> Result<ReadLimitOutputs, CallError> {
         let h = &self.read_limit;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 3)?;
@@ -473,13 +473,13 @@ impl Stepper {
     }
 
     /// The handle of `read_limit`, for `push` and raw calls.
-    pub(crate) fn read_limit_handle(&self) -> &FunctionHandle {
+    pub fn read_limit_handle(&self) -> &FunctionHandle {
         &self.read_limit
     }
 
     /// `read_limit` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn read_limit_ref(&self) -> &FnRef {
+    pub fn read_limit_ref(&self) -> &FnRef {
         self.read_limit.function()
     }
 
@@ -488,7 +488,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn halt(&self) -> Result<(), CallError> {
+    pub async fn halt(&self) -> Result<(), CallError> {
         let h = &self.halt;
         let values = h.call(&[]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -496,13 +496,13 @@ impl Stepper {
     }
 
     /// The handle of `halt`, for `push` and raw calls.
-    pub(crate) fn halt_handle(&self) -> &FunctionHandle {
+    pub fn halt_handle(&self) -> &FunctionHandle {
         &self.halt
     }
 
     /// `halt` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn halt_ref(&self) -> &FnRef {
+    pub fn halt_ref(&self) -> &FnRef {
         self.halt.function()
     }
 
@@ -511,7 +511,7 @@ impl Stepper {
     /// - inputs: `pin: u8`, `level: bool`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn digital_write(&self, pin: u8, level: bool) -> Result<(), CallError> {
+    pub async fn digital_write(&self, pin: u8, level: bool) -> Result<(), CallError> {
         let h = &self.digital_write;
         let values = h.call(&[support::to_u8(pin), support::to_bool(level)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -519,13 +519,13 @@ impl Stepper {
     }
 
     /// The handle of `digital_write`, for `push` and raw calls.
-    pub(crate) fn digital_write_handle(&self) -> &FunctionHandle {
+    pub fn digital_write_handle(&self) -> &FunctionHandle {
         &self.digital_write
     }
 
     /// `digital_write` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn digital_write_ref(&self) -> &FnRef {
+    pub fn digital_write_ref(&self) -> &FnRef {
         self.digital_write.function()
     }
 
@@ -534,7 +534,7 @@ impl Stepper {
     /// - inputs: `pin: u8`
     /// - outputs: `time: u64`, `level: bool`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn digital_read(&self, pin: u8) -> Result<DigitalReadOutputs, CallError> {
+    pub async fn digital_read(&self, pin: u8) -> Result<DigitalReadOutputs, CallError> {
         let h = &self.digital_read;
         let values = h.call(&[support::to_u8(pin)]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -545,13 +545,13 @@ impl Stepper {
     }
 
     /// The handle of `digital_read`, for `push` and raw calls.
-    pub(crate) fn digital_read_handle(&self) -> &FunctionHandle {
+    pub fn digital_read_handle(&self) -> &FunctionHandle {
         &self.digital_read
     }
 
     /// `digital_read` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn digital_read_ref(&self) -> &FnRef {
+    pub fn digital_read_ref(&self) -> &FnRef {
         self.digital_read.function()
     }
 
@@ -560,7 +560,7 @@ impl Stepper {
     /// - inputs: `channel: u8`, `duty: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn pwm_write(&self, channel: u8, duty: f32) -> Result<(), CallError> {
+    pub async fn pwm_write(&self, channel: u8, duty: f32) -> Result<(), CallError> {
         let h = &self.pwm_write;
         let values = h.call(&[support::to_u8(channel), support::to_f32(duty)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -568,13 +568,13 @@ impl Stepper {
     }
 
     /// The handle of `pwm_write`, for `push` and raw calls.
-    pub(crate) fn pwm_write_handle(&self) -> &FunctionHandle {
+    pub fn pwm_write_handle(&self) -> &FunctionHandle {
         &self.pwm_write
     }
 
     /// `pwm_write` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn pwm_write_ref(&self) -> &FnRef {
+    pub fn pwm_write_ref(&self) -> &FnRef {
         self.pwm_write.function()
     }
 
@@ -583,7 +583,7 @@ impl Stepper {
     /// - inputs: `pin: u8`, `duration_us: u32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn pulse(&self, pin: u8, duration_us: u32) -> Result<(), CallError> {
+    pub async fn pulse(&self, pin: u8, duration_us: u32) -> Result<(), CallError> {
         let h = &self.pulse;
         let values = h.call(&[support::to_u8(pin), support::to_u32(duration_us)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -591,13 +591,13 @@ impl Stepper {
     }
 
     /// The handle of `pulse`, for `push` and raw calls.
-    pub(crate) fn pulse_handle(&self) -> &FunctionHandle {
+    pub fn pulse_handle(&self) -> &FunctionHandle {
         &self.pulse
     }
 
     /// `pulse` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn pulse_ref(&self) -> &FnRef {
+    pub fn pulse_ref(&self) -> &FnRef {
         self.pulse.function()
     }
 
@@ -606,7 +606,7 @@ impl Stepper {
     /// - inputs: `time: u64`, `pin: u8`, `duration_us: u32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn pulse_at(&self, time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
+    pub async fn pulse_at(&self, time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
         let h = &self.pulse_at;
         let values = h.call(&[support::to_u64(time), support::to_u8(pin), support::to_u32(duration_us)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -614,13 +614,13 @@ impl Stepper {
     }
 
     /// The handle of `pulse_at`, for `push` and raw calls.
-    pub(crate) fn pulse_at_handle(&self) -> &FunctionHandle {
+    pub fn pulse_at_handle(&self) -> &FunctionHandle {
         &self.pulse_at
     }
 
     /// `pulse_at` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn pulse_at_ref(&self) -> &FnRef {
+    pub fn pulse_at_ref(&self) -> &FnRef {
         self.pulse_at.function()
     }
 
@@ -629,7 +629,7 @@ impl Stepper {
     /// - inputs: `channel: u8`
     /// - outputs: `time: u64`, `value: f32`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn analog_read(&self, channel: u8) -> Result<AnalogReadOutputs, CallError> {
+    pub async fn analog_read(&self, channel: u8) -> Result<AnalogReadOutputs, CallError> {
         let h = &self.analog_read;
         let values = h.call(&[support::to_u8(channel)]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -640,13 +640,13 @@ impl Stepper {
     }
 
     /// The handle of `analog_read`, for `push` and raw calls.
-    pub(crate) fn analog_read_handle(&self) -> &FunctionHandle {
+    pub fn analog_read_handle(&self) -> &FunctionHandle {
         &self.analog_read
     }
 
     /// `analog_read` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn analog_read_ref(&self) -> &FnRef {
+    pub fn analog_read_ref(&self) -> &FnRef {
         self.analog_read.function()
     }
 
@@ -655,7 +655,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: `time: u64`, `code: u8`, `detail: u32`, `count: u32`
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn get_fault(&self) -> Result<GetFaultOutputs, CallError> {
+    pub async fn get_fault(&self) -> Result<GetFaultOutputs, CallError> {
         let h = &self.get_fault;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 4)?;
@@ -668,13 +668,13 @@ impl Stepper {
     }
 
     /// The handle of `get_fault`, for `push` and raw calls.
-    pub(crate) fn get_fault_handle(&self) -> &FunctionHandle {
+    pub fn get_fault_handle(&self) -> &FunctionHandle {
         &self.get_fault
     }
 
     /// `get_fault` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_fault_ref(&self) -> &FnRef {
+    pub fn get_fault_ref(&self) -> &FnRef {
         self.get_fault.function()
     }
 
@@ -683,7 +683,7 @@ impl Stepper {
     /// - inputs: none
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn enter_bootloader(&self) -> Result<(), CallError> {
+    pub async fn enter_bootloader(&self) -> Result<(), CallError> {
         let h = &self.enter_bootloader;
         let values = h.call(&[]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -691,13 +691,13 @@ impl Stepper {
     }
 
     /// The handle of `enter_bootloader`, for `push` and raw calls.
-    pub(crate) fn enter_bootloader_handle(&self) -> &FunctionHandle {
+    pub fn enter_bootloader_handle(&self) -> &FunctionHandle {
         &self.enter_bootloader
     }
 
     /// `enter_bootloader` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn enter_bootloader_ref(&self) -> &FnRef {
+    pub fn enter_bootloader_ref(&self) -> &FnRef {
         self.enter_bootloader.function()
     }
 
@@ -706,7 +706,7 @@ impl Stepper {
     /// - inputs: `channel: u8`, `duty: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_safe_pwm(&self, channel: u8, duty: f32) -> Result<(), CallError> {
+    pub async fn set_safe_pwm(&self, channel: u8, duty: f32) -> Result<(), CallError> {
         let h = &self.set_safe_pwm;
         let values = h.call(&[support::to_u8(channel), support::to_f32(duty)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -714,13 +714,13 @@ impl Stepper {
     }
 
     /// The handle of `set_safe_pwm`, for `push` and raw calls.
-    pub(crate) fn set_safe_pwm_handle(&self) -> &FunctionHandle {
+    pub fn set_safe_pwm_handle(&self) -> &FunctionHandle {
         &self.set_safe_pwm
     }
 
     /// `set_safe_pwm` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_safe_pwm_ref(&self) -> &FnRef {
+    pub fn set_safe_pwm_ref(&self) -> &FnRef {
         self.set_safe_pwm.function()
     }
 
@@ -729,7 +729,7 @@ impl Stepper {
     /// - inputs: `pin: u8`, `level: bool`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_safe_digital(&self, pin: u8, level: bool) -> Result<(), CallError> {
+    pub async fn set_safe_digital(&self, pin: u8, level: bool) -> Result<(), CallError> {
         let h = &self.set_safe_digital;
         let values = h.call(&[support::to_u8(pin), support::to_bool(level)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -737,13 +737,13 @@ impl Stepper {
     }
 
     /// The handle of `set_safe_digital`, for `push` and raw calls.
-    pub(crate) fn set_safe_digital_handle(&self) -> &FunctionHandle {
+    pub fn set_safe_digital_handle(&self) -> &FunctionHandle {
         &self.set_safe_digital
     }
 
     /// `set_safe_digital` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_safe_digital_ref(&self) -> &FnRef {
+    pub fn set_safe_digital_ref(&self) -> &FnRef {
         self.set_safe_digital.function()
     }
 
@@ -752,7 +752,7 @@ impl Stepper {
     /// - inputs: `timeout_ms: u32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub(crate) async fn set_output_watchdog(&self, timeout_ms: u32) -> Result<(), CallError> {
+    pub async fn set_output_watchdog(&self, timeout_ms: u32) -> Result<(), CallError> {
         let h = &self.set_output_watchdog;
         let values = h.call(&[support::to_u32(timeout_ms)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -760,20 +760,20 @@ impl Stepper {
     }
 
     /// The handle of `set_output_watchdog`, for `push` and raw calls.
-    pub(crate) fn set_output_watchdog_handle(&self) -> &FunctionHandle {
+    pub fn set_output_watchdog_handle(&self) -> &FunctionHandle {
         &self.set_output_watchdog
     }
 
     /// `set_output_watchdog` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn set_output_watchdog_ref(&self) -> &FnRef {
+    pub fn set_output_watchdog_ref(&self) -> &FnRef {
         self.set_output_watchdog.function()
     }
 }
 
 /// Outputs of `get_position`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct GetPositionOutputs {
+pub struct GetPositionOutputs {
     /// `time: u64`.
     pub time: u64,
     /// `position: f32`.
@@ -782,7 +782,7 @@ pub(crate) struct GetPositionOutputs {
 
 /// Outputs of `get_status`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct GetStatusOutputs {
+pub struct GetStatusOutputs {
     /// `mode: u8`.
     pub mode: u8,
     /// `queued: u16`.
@@ -795,7 +795,7 @@ pub(crate) struct GetStatusOutputs {
 
 /// Outputs of `get_counters`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct GetCountersOutputs {
+pub struct GetCountersOutputs {
     /// `points: u32`.
     pub points: u32,
     /// `refused: u32`.
@@ -808,7 +808,7 @@ pub(crate) struct GetCountersOutputs {
 
 /// Outputs of `get_steps`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct GetStepsOutputs {
+pub struct GetStepsOutputs {
     /// `steps: i64`.
     pub steps: i64,
     /// `up: u64`.
@@ -821,7 +821,7 @@ pub(crate) struct GetStepsOutputs {
 
 /// Outputs of `read_limit`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct ReadLimitOutputs {
+pub struct ReadLimitOutputs {
     /// `time: u64`.
     pub time: u64,
     /// `level: bool`.
@@ -832,7 +832,7 @@ pub(crate) struct ReadLimitOutputs {
 
 /// Outputs of `digital_read`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct DigitalReadOutputs {
+pub struct DigitalReadOutputs {
     /// `time: u64`.
     pub time: u64,
     /// `level: bool`.
@@ -841,7 +841,7 @@ pub(crate) struct DigitalReadOutputs {
 
 /// Outputs of `analog_read`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct AnalogReadOutputs {
+pub struct AnalogReadOutputs {
     /// `time: u64`.
     pub time: u64,
     /// `value: f32`.
@@ -850,7 +850,7 @@ pub(crate) struct AnalogReadOutputs {
 
 /// Outputs of `get_fault`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct GetFaultOutputs {
+pub struct GetFaultOutputs {
     /// `time: u64`.
     pub time: u64,
     /// `code: u8`.

@@ -11,18 +11,18 @@ use osap_host::som::{FnRef, FunctionHandle, Manager, Som};
 /// 0.1.0). All runtimes of the type share it: bind one per
 /// runtime name with [`Hub::bind`].
 #[derive(Debug, Clone)]
-pub(crate) struct Hub {
+pub struct Hub {
     runtime: String,
     get_uptime: FunctionHandle,
 }
 
 impl Hub {
     /// The runtime type this proxy is for.
-    pub(crate) const TYPE_NAME: &'static str = "hub";
+    pub const TYPE_NAME: &'static str = "hub";
     /// The firmware version it was generated from.
-    pub(crate) const FIRMWARE_VERSION: &'static str = "0.1.0";
+    pub const FIRMWARE_VERSION: &'static str = "0.1.0";
     /// The signatures it was generated from (class members included).
-    pub(crate) const SIGNATURES: &'static [support::Signature] = &[
+    pub const SIGNATURES: &'static [support::Signature] = &[
         support::Signature {
             function: "get_uptime",
             inputs: &[],
@@ -30,18 +30,18 @@ impl Hub {
         },
     ];
     /// The classes it was generated from.
-    pub(crate) const CLASSES: &'static [support::Class] = &[
+    pub const CLASSES: &'static [support::Class] = &[
     ];
 
     /// Checks runtime `runtime` of `som` against this proxy: every
     /// function's (and class constructor's) signature, by name and type.
-    pub(crate) fn check(som: &Som, runtime: &str) -> Result<(), BindError> {
+    pub fn check(som: &Som, runtime: &str) -> Result<(), BindError> {
         support::check(som, runtime, Self::TYPE_NAME, Self::FIRMWARE_VERSION, Self::SIGNATURES, Self::CLASSES)
     }
 
     /// Binds the proxy to runtime `runtime` of the manager's current model,
     /// after [`check`](Self::check)ing it.
-    pub(crate) fn bind(manager: &Manager, runtime: &str) -> Result<Self, BindError> {
+    pub fn bind(manager: &Manager, runtime: &str) -> Result<Self, BindError> {
         Self::check(manager.som(), runtime)?;
         Ok(Hub {
             runtime: runtime.to_string(),
@@ -50,7 +50,7 @@ impl Hub {
     }
 
     /// The runtime's name.
-    pub(crate) fn runtime(&self) -> &str {
+    pub fn runtime(&self) -> &str {
         &self.runtime
     }
 
@@ -59,7 +59,7 @@ impl Hub {
     /// - inputs: none
     /// - outputs: `uptime_us: u64`
     /// - generated from: `hub` firmware 0.1.0
-    pub(crate) async fn get_uptime(&self) -> Result<u64, CallError> {
+    pub async fn get_uptime(&self) -> Result<u64, CallError> {
         let h = &self.get_uptime;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 1)?;
@@ -67,13 +67,13 @@ impl Hub {
     }
 
     /// The handle of `get_uptime`, for `push` and raw calls.
-    pub(crate) fn get_uptime_handle(&self) -> &FunctionHandle {
+    pub fn get_uptime_handle(&self) -> &FunctionHandle {
         &self.get_uptime
     }
 
     /// `get_uptime` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_uptime_ref(&self) -> &FnRef {
+    pub fn get_uptime_ref(&self) -> &FnRef {
         self.get_uptime.function()
     }
 }

@@ -15,18 +15,18 @@
 #![allow(dead_code, unused_imports)]
 
 #[rustfmt::skip]
-pub(crate) mod hub;
+pub mod hub;
 #[rustfmt::skip]
-pub(crate) mod my_dev_v2;
+pub mod my_dev_v2;
 
-pub(crate) use hub::Hub;
-pub(crate) use my_dev_v2::MyDevV2;
+pub use hub::Hub;
+pub use my_dev_v2::MyDevV2;
 
 /// Every runtime type the proxies were generated for, with its firmware
 /// version and the names of the runtimes found in the scan.
-pub(crate) const DEVICES: &[(&str, &str, &[&str])] = &[
+pub const DEVICES: &[(&str, &str, &[&str])] = &[
     ("hub", "0.1.0", &["hub"]),
     ("my-dev.v2", "3.1.4", &["odd-1", "odd 2"]),
 ];
 
-pub(crate) use osap_host::som::proxy::{support, BindError, CallError, Difference};
+pub use osap_host::som::proxy::{support, BindError, CallError, Difference};

@@ -11,7 +11,7 @@ use osap_host::som::{FnRef, FunctionHandle, Manager, Som, Value};
 /// 3.1.4). All runtimes of the type share it: bind one per
 /// runtime name with [`MyDevV2::bind`].
 #[derive(Debug, Clone)]
-pub(crate) struct MyDevV2 {
+pub struct MyDevV2 {
     runtime: String,
     type_: FunctionHandle,
     get_status: FunctionHandle,
@@ -26,11 +26,11 @@ pub(crate) struct MyDevV2 {
 
 impl MyDevV2 {
     /// The runtime type this proxy is for.
-    pub(crate) const TYPE_NAME: &'static str = "my-dev.v2";
+    pub const TYPE_NAME: &'static str = "my-dev.v2";
     /// The firmware version it was generated from.
-    pub(crate) const FIRMWARE_VERSION: &'static str = "3.1.4";
+    pub const FIRMWARE_VERSION: &'static str = "3.1.4";
     /// The signatures it was generated from (class members included).
-    pub(crate) const SIGNATURES: &'static [support::Signature] = &[
+    pub const SIGNATURES: &'static [support::Signature] = &[
         support::Signature {
             function: "type",
             inputs: &[("self", "utf8"), ("h", "u8"), ("out", "ascii")],
@@ -83,7 +83,7 @@ impl MyDevV2 {
         },
     ];
     /// The classes it was generated from.
-    pub(crate) const CLASSES: &'static [support::Class] = &[
+    pub const CLASSES: &'static [support::Class] = &[
         support::Class {
             name: "Tally",
             constructor: &[("start", "f32")],
@@ -92,13 +92,13 @@ impl MyDevV2 {
 
     /// Checks runtime `runtime` of `som` against this proxy: every
     /// function's (and class constructor's) signature, by name and type.
-    pub(crate) fn check(som: &Som, runtime: &str) -> Result<(), BindError> {
+    pub fn check(som: &Som, runtime: &str) -> Result<(), BindError> {
         support::check(som, runtime, Self::TYPE_NAME, Self::FIRMWARE_VERSION, Self::SIGNATURES, Self::CLASSES)
     }
 
     /// Binds the proxy to runtime `runtime` of the manager's current model,
     /// after [`check`](Self::check)ing it.
-    pub(crate) fn bind(manager: &Manager, runtime: &str) -> Result<Self, BindError> {
+    pub fn bind(manager: &Manager, runtime: &str) -> Result<Self, BindError> {
         Self::check(manager.som(), runtime)?;
         Ok(MyDevV2 {
             runtime: runtime.to_string(),
@@ -119,12 +119,12 @@ impl MyDevV2 {
     }
 
     /// The runtime's name.
-    pub(crate) fn runtime(&self) -> &str {
+    pub fn runtime(&self) -> &str {
         &self.runtime
     }
 
     /// Class `Tally` on this runtime.
-    pub(crate) fn tally(&self) -> &MyDevV2Tally {
+    pub fn tally(&self) -> &MyDevV2Tally {
         &self.tally
     }
 
@@ -133,7 +133,7 @@ impl MyDevV2 {
     /// - inputs: `self: utf8`, `h: u8`, `out: ascii`
     /// - outputs: `: f32`, `: f32`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn type_(&self, self_: &str, h_2: u8, out_2: &str) -> Result<(f32, f32), CallError> {
+    pub async fn type_(&self, self_: &str, h_2: u8, out_2: &str) -> Result<(f32, f32), CallError> {
         let h = &self.type_;
         let values = h.call(&[support::to_utf8(self_), support::to_u8(h_2), support::to_ascii(out_2)]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -141,13 +141,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `type`, for `push` and raw calls.
-    pub(crate) fn type_handle(&self) -> &FunctionHandle {
+    pub fn type_handle(&self) -> &FunctionHandle {
         &self.type_
     }
 
     /// `type` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn type_ref(&self) -> &FnRef {
+    pub fn type_ref(&self) -> &FnRef {
         self.type_.function()
     }
 
@@ -156,7 +156,7 @@ impl MyDevV2 {
     /// - inputs: none
     /// - outputs: `enabled: bool`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn get_status(&self) -> Result<bool, CallError> {
+    pub async fn get_status(&self) -> Result<bool, CallError> {
         let h = &self.get_status;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 1)?;
@@ -164,13 +164,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `getStatus`, for `push` and raw calls.
-    pub(crate) fn get_status_handle(&self) -> &FunctionHandle {
+    pub fn get_status_handle(&self) -> &FunctionHandle {
         &self.get_status
     }
 
     /// `getStatus` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_status_ref(&self) -> &FnRef {
+    pub fn get_status_ref(&self) -> &FnRef {
         self.get_status.function()
     }
 
@@ -179,7 +179,7 @@ impl MyDevV2 {
     /// - inputs: `Match: i128`
     /// - outputs: `a-b: u128`, `a.b: f16`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn get_status_2(&self, match_: i128) -> Result<GetStatusOutputs, CallError> {
+    pub async fn get_status_2(&self, match_: i128) -> Result<GetStatusOutputs, CallError> {
         let h = &self.get_status_2;
         let values = h.call(&[support::to_i128(match_)]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -190,13 +190,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `get_status`, for `push` and raw calls.
-    pub(crate) fn get_status_2_handle(&self) -> &FunctionHandle {
+    pub fn get_status_2_handle(&self) -> &FunctionHandle {
         &self.get_status_2
     }
 
     /// `get_status` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn get_status_2_ref(&self) -> &FnRef {
+    pub fn get_status_2_ref(&self) -> &FnRef {
         self.get_status_2.function()
     }
 
@@ -205,7 +205,7 @@ impl MyDevV2 {
     /// - inputs: none
     /// - outputs: none
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn read(&self) -> Result<(), CallError> {
+    pub async fn read(&self) -> Result<(), CallError> {
         let h = &self.read;
         let values = h.call(&[]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -213,13 +213,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `read`, for `push` and raw calls.
-    pub(crate) fn read_handle(&self) -> &FunctionHandle {
+    pub fn read_handle(&self) -> &FunctionHandle {
         &self.read
     }
 
     /// `read` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn read_ref(&self) -> &FnRef {
+    pub fn read_ref(&self) -> &FnRef {
         self.read.function()
     }
 
@@ -228,7 +228,7 @@ impl MyDevV2 {
     /// - inputs: `x: null`
     /// - outputs: `y: null`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn read_ref_2(&self, x: ()) -> Result<(), CallError> {
+    pub async fn read_ref_2(&self, x: ()) -> Result<(), CallError> {
         let h = &self.read_ref_2;
         let values = h.call(&[support::to_null(x)]).await?;
         let mut out = support::Outputs::new(h, values, 1)?;
@@ -236,13 +236,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `read_ref`, for `push` and raw calls.
-    pub(crate) fn read_ref_2_handle(&self) -> &FunctionHandle {
+    pub fn read_ref_2_handle(&self) -> &FunctionHandle {
         &self.read_ref_2
     }
 
     /// `read_ref` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn read_ref_2_ref(&self) -> &FnRef {
+    pub fn read_ref_2_ref(&self) -> &FnRef {
         self.read_ref_2.function()
     }
 
@@ -251,7 +251,7 @@ impl MyDevV2 {
     /// - inputs: `points: arry_f32`, `flags: arry_bool`
     /// - outputs: `image: tnsr_u8`, `half: arry_f16`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn _3d_scan(&self, points: &[f32], flags: &[bool]) -> Result<T3dScanOutputs, CallError> {
+    pub async fn _3d_scan(&self, points: &[f32], flags: &[bool]) -> Result<T3dScanOutputs, CallError> {
         let h = &self._3d_scan;
         let values = h.call(&[support::to_arry_f32(points)?, support::to_arry_bool(flags)?]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -262,13 +262,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `3d-scan`, for `push` and raw calls.
-    pub(crate) fn _3d_scan_handle(&self) -> &FunctionHandle {
+    pub fn _3d_scan_handle(&self) -> &FunctionHandle {
         &self._3d_scan
     }
 
     /// `3d-scan` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn _3d_scan_ref(&self) -> &FnRef {
+    pub fn _3d_scan_ref(&self) -> &FnRef {
         self._3d_scan.function()
     }
 
@@ -277,7 +277,7 @@ impl MyDevV2 {
     /// - inputs: `values: arry_i16`
     /// - outputs: `values: arry_i16`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn bind_2(&self, values_2: &[i16]) -> Result<Vec<i16>, CallError> {
+    pub async fn bind_2(&self, values_2: &[i16]) -> Result<Vec<i16>, CallError> {
         let h = &self.bind_2;
         let values = h.call(&[support::to_arry_i16(values_2)?]).await?;
         let mut out = support::Outputs::new(h, values, 1)?;
@@ -285,13 +285,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `bind`, for `push` and raw calls.
-    pub(crate) fn bind_2_handle(&self) -> &FunctionHandle {
+    pub fn bind_2_handle(&self) -> &FunctionHandle {
         &self.bind_2
     }
 
     /// `bind` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn bind_2_ref(&self) -> &FnRef {
+    pub fn bind_2_ref(&self) -> &FnRef {
         self.bind_2.function()
     }
 
@@ -300,7 +300,7 @@ impl MyDevV2 {
     /// - inputs: none
     /// - outputs: none
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn tally_2(&self) -> Result<(), CallError> {
+    pub async fn tally_2(&self) -> Result<(), CallError> {
         let h = &self.tally_2;
         let values = h.call(&[]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -308,13 +308,13 @@ impl MyDevV2 {
     }
 
     /// The handle of `Tally`, for `push` and raw calls.
-    pub(crate) fn tally_2_handle(&self) -> &FunctionHandle {
+    pub fn tally_2_handle(&self) -> &FunctionHandle {
         &self.tally_2
     }
 
     /// `Tally` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn tally_2_ref(&self) -> &FnRef {
+    pub fn tally_2_ref(&self) -> &FnRef {
         self.tally_2.function()
     }
 }
@@ -322,7 +322,7 @@ impl MyDevV2 {
 /// Class `Tally` on a `my-dev.v2` runtime: its constructor and
 /// members.
 #[derive(Debug, Clone)]
-pub(crate) struct MyDevV2Tally {
+pub struct MyDevV2Tally {
     construct: FunctionHandle,
     add: FunctionHandle,
     read: FunctionHandle,
@@ -335,7 +335,7 @@ impl MyDevV2Tally {
     /// - inputs: `start: f32`
     /// - outputs: none
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn construct(&self, start: f32) -> Result<(), CallError> {
+    pub async fn construct(&self, start: f32) -> Result<(), CallError> {
         let h = &self.construct;
         let values = h.call(&[support::to_f32(start)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
@@ -343,13 +343,13 @@ impl MyDevV2Tally {
     }
 
     /// The handle of `Tally`, for `push` and raw calls.
-    pub(crate) fn construct_handle(&self) -> &FunctionHandle {
+    pub fn construct_handle(&self) -> &FunctionHandle {
         &self.construct
     }
 
     /// `Tally` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn construct_ref(&self) -> &FnRef {
+    pub fn construct_ref(&self) -> &FnRef {
         self.construct.function()
     }
 
@@ -358,7 +358,7 @@ impl MyDevV2Tally {
     /// - inputs: `amount: f64`
     /// - outputs: `total: f64`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn add(&self, amount: f64) -> Result<f64, CallError> {
+    pub async fn add(&self, amount: f64) -> Result<f64, CallError> {
         let h = &self.add;
         let values = h.call(&[support::to_f64(amount)]).await?;
         let mut out = support::Outputs::new(h, values, 1)?;
@@ -366,13 +366,13 @@ impl MyDevV2Tally {
     }
 
     /// The handle of `Tally.add`, for `push` and raw calls.
-    pub(crate) fn add_handle(&self) -> &FunctionHandle {
+    pub fn add_handle(&self) -> &FunctionHandle {
         &self.add
     }
 
     /// `Tally.add` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn add_ref(&self) -> &FnRef {
+    pub fn add_ref(&self) -> &FnRef {
         self.add.function()
     }
 
@@ -381,7 +381,7 @@ impl MyDevV2Tally {
     /// - inputs: none
     /// - outputs: `total: f64`, `count: u32`
     /// - generated from: `my-dev.v2` firmware 3.1.4
-    pub(crate) async fn read(&self) -> Result<TallyReadOutputs, CallError> {
+    pub async fn read(&self) -> Result<TallyReadOutputs, CallError> {
         let h = &self.read;
         let values = h.call(&[]).await?;
         let mut out = support::Outputs::new(h, values, 2)?;
@@ -392,20 +392,20 @@ impl MyDevV2Tally {
     }
 
     /// The handle of `Tally.read`, for `push` and raw calls.
-    pub(crate) fn read_handle(&self) -> &FunctionHandle {
+    pub fn read_handle(&self) -> &FunctionHandle {
         &self.read
     }
 
     /// `Tally.read` as the manager names it, for `connect`, `disconnect`,
     /// `set_input_mode` and `set_output_mode`.
-    pub(crate) fn read_ref(&self) -> &FnRef {
+    pub fn read_ref(&self) -> &FnRef {
         self.read.function()
     }
 }
 
 /// Outputs of `get_status`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct GetStatusOutputs {
+pub struct GetStatusOutputs {
     /// `a-b: u128`.
     pub a_b: u128,
     /// `a.b: f16`.
@@ -414,7 +414,7 @@ pub(crate) struct GetStatusOutputs {
 
 /// Outputs of `3d-scan`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct T3dScanOutputs {
+pub struct T3dScanOutputs {
     /// `image: tnsr_u8`.
     pub image: Value<'static>,
     /// `half: arry_f16`.
@@ -423,7 +423,7 @@ pub(crate) struct T3dScanOutputs {
 
 /// Outputs of `Tally.read`.
 #[derive(Debug, Clone, PartialEq)]
-pub(crate) struct TallyReadOutputs {
+pub struct TallyReadOutputs {
     /// `total: f64`.
     pub total: f64,
     /// `count: u32`.
