@@ -5,6 +5,7 @@ use std::fmt;
 
 /// Why a simulation could not be built or a description not read.
 #[derive(Debug, Clone, PartialEq, Eq)]
+#[non_exhaustive]
 pub enum SimError {
     /// A parameter, node or link description is invalid (or a topology
     /// file could not be read).

@@ -50,6 +50,7 @@ pub struct GeneratedFile {
 
 /// Why generation failed.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum Error {
     /// A template failed to render (a bug in a template).
     #[error("template {name}: {source}")]

@@ -79,6 +79,7 @@ pub fn parse_args(args: &[OsString]) -> Result<FlashArgs, String> {
 /// Why flashing did not happen. The `Display` text is the whole message,
 /// with the fix.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum FlashError {
     /// Bad arguments, a missing, malformed, stale or wrong-family UF2, a
     /// bad `OSAP_UF2_WAIT`, an unreadable `INFO_UF2.TXT` or a failed copy.

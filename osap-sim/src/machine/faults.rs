@@ -223,6 +223,7 @@ impl LinkFaults {
 
 /// Why a fault could not be injected.
 #[derive(Debug)]
+#[non_exhaustive]
 pub enum FaultError {
     /// No link has this index, name or pair of ends.
     UnknownLink {
