@@ -107,6 +107,31 @@ fn halt_stops_within_limits_and_moves_resume() {
 }
 
 #[test]
+fn a_script_waits_until_only_a_few_moves_are_queued() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start("plotter").await;
+        m.set_position([20.0, 20.0]).unwrap();
+        // 40 moves of 20 mm at 50 mm/s: about 16 s of motion queued at once.
+        for k in 0..40 {
+            let x = if k % 2 == 0 { 40.0 } else { 20.0 };
+            m.goto_via_queue([x, 20.0], 50.0).await.unwrap();
+        }
+        assert!(m.queued_moves() >= 30, "{}", m.queued_moves());
+        let t = tokio::time::Instant::now();
+        m.wait_queued_at_most(4).await.unwrap();
+        let waited = t.elapsed().as_secs_f64();
+        // It returned as the 36th move finished, not at once and not at
+        // the end: the last few are still queued.
+        assert!(m.queued_moves() <= 4, "{}", m.queued_moves());
+        assert!(m.queued_moves() >= 1, "{}", m.queued_moves());
+        assert!((12.0..16.0).contains(&waited), "waited {waited:.2} s");
+        m.idle().await.unwrap();
+        assert_eq!(m.queued_moves(), 0);
+        m.stop().await.unwrap();
+    });
+}
+
+#[test]
 fn feed_override_scales_moves_not_yet_started() {
     virtual_runtime().unwrap().block_on(async {
         let m = start("plotter").await;

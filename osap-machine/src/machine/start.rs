@@ -2,6 +2,8 @@
 //! wait for their clocks (sync), set up the motors (configure), build the
 //! planner (plan), wire the graph (wire) and its reports (watch).
 
+use maxl::blocks::bedlevel::BedMesh;
+
 use super::*;
 
 /// How closely a clock must follow its source before motion starts.
@@ -66,11 +68,11 @@ impl Machine {
         underneath: Option<Box<dyn Underneath>>,
     ) -> Result<Machine, MachineError> {
         let start = drive::start_position(cfg);
-        let drive = check(cfg, &start)?;
+        let (drive, mesh) = check(cfg, &start)?;
         let (mut manager, modules) = discover(cfg, &host, entry).await?;
         sync(&host, &modules).await?;
         let motor_at = configure(cfg, &manager, &modules, &drive).await?;
-        let (motion, status) = plan(cfg, drive, &start, motor_at)?;
+        let (motion, status) = plan(cfg, drive, mesh, &start, motor_at)?;
         let (events, _) = broadcast::channel(1024);
         let (limit_edges, _) = broadcast::channel(256);
         let reports: SharedReports = Arc::default();
@@ -128,16 +130,17 @@ impl Machine {
     }
 }
 
-/// Check: what the machine file asks of the motors fits them, before any
-/// module is touched. Returns the drive (kinematics and motors) at the
-/// start position.
-fn check(cfg: &MachineFile, start: &[f64]) -> Result<Drive, MachineError> {
+/// Check: what the machine file asks of the motors fits them, and its bed
+/// mesh reads, before any module is touched. Returns the drive
+/// (kinematics and motors) at the start position, and the mesh.
+fn check(cfg: &MachineFile, start: &[f64]) -> Result<(Drive, Option<BedMesh>), MachineError> {
     let drive = Drive::new(cfg, start).map_err(MachineError::Unsupported)?;
     check_track_range(cfg, &drive)?;
-    if let Some(path) = cfg.bed_mesh_path() {
-        crate::mesh::load(&path)?;
-    }
-    Ok(drive)
+    let mesh = cfg
+        .bed_mesh_path()
+        .map(|path| crate::mesh::load(&path))
+        .transpose()?;
+    Ok((drive, mesh))
 }
 
 /// Discover: the network's functions, and each module of `[modules]` on
@@ -197,13 +200,13 @@ async fn configure(
 fn plan(
     cfg: &MachineFile,
     drive: Drive,
+    mesh: Option<BedMesh>,
     start: &[f64],
     motor_at: Vec<f64>,
 ) -> Result<(SharedMotion, watch::Receiver<MotionStatus>), MachineError> {
     let mut drive = drive;
     drive.rebase(start, &motor_at)?;
-    if let Some(path) = cfg.bed_mesh_path() {
-        let mesh = crate::mesh::load(&path)?;
+    if let Some(mesh) = mesh {
         drive = drive
             .with_mesh(mesh, start, &motor_at)
             .map_err(MachineError::Unsupported)?;
