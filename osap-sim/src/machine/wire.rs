@@ -308,3 +308,88 @@ impl Carrier {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::medium::{LinkModel, Side};
+    use osap_core::link::LinkGateway;
+    use osap_host::link::{channel, LinkConfig};
+
+    /// 20 packets sent over one carrier to a runtime that reads nothing for
+    /// 50 ms, then everything. Returns (packets waiting at 50 ms, dropped at
+    /// the receiver, packets read in the end).
+    fn slow_reader(model: LinkModel) -> (usize, u64, usize) {
+        crate::machine::virtual_runtime()
+            .unwrap()
+            .block_on(async move {
+                let clock = HostClock::new();
+                let cfg = LinkConfig {
+                    depth: 4,
+                    ..LinkConfig::new(model.type_name(), "t")
+                };
+                let (mut tx, tx_io) = channel(cfg.clone(), Arc::new(Notify::new()), clock);
+                let (mut rx, rx_io) = channel(cfg, Arc::new(Notify::new()), clock);
+                tx_io.set_open(true);
+                rx_io.set_open(true);
+                let carrier = Carrier {
+                    from: tx_io,
+                    to: rx_io.clone(),
+                    transmitter: Transmitter::new(model, Side::A, Rng::new(1)),
+                    stamp: model.stamp_mode(Side::B),
+                    wire: WireHandle::Virtual,
+                    epoch: osap_host::clock::now(),
+                    host_clock: clock,
+                    generation: Arc::new(AtomicU64::new(0)),
+                    started: 0,
+                    faults: Arc::default(),
+                    fault_rng: Rng::new(2),
+                    flow_controlled: model.is_flow_controlled(),
+                };
+                tokio::spawn(carrier.run());
+                tokio::spawn(async move {
+                    for k in 0..20u8 {
+                        while !tx.clear_to_send() {
+                            tokio::time::sleep(Duration::from_micros(100)).await;
+                        }
+                        tx.send(&[k; 40]).unwrap();
+                    }
+                });
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                let mut buf = [0u8; 64];
+                let mut waiting = 0;
+                while rx.receive(&mut buf).is_some() {
+                    waiting += 1;
+                }
+                let mut read = waiting;
+                for _ in 0..200 {
+                    tokio::time::sleep(Duration::from_millis(1)).await;
+                    while rx.receive(&mut buf).is_some() {
+                        read += 1;
+                    }
+                }
+                (waiting, rx_io.stats().rx_dropped, read)
+            })
+    }
+
+    #[test]
+    fn usb_and_tcp_hold_the_sender_back_while_the_reader_is_full() {
+        for model in [LinkModel::usb_cdc(), LinkModel::tcp()] {
+            let (waiting, dropped, read) = slow_reader(model);
+            assert_eq!(
+                (waiting, dropped, read),
+                (4, 0, 20),
+                "{}",
+                model.type_name()
+            );
+        }
+    }
+
+    #[test]
+    fn a_uart_loses_what_a_full_reader_cannot_take() {
+        let (waiting, dropped, read) = slow_reader(LinkModel::uart(2_000_000));
+        assert_eq!(waiting, 4);
+        assert_eq!(dropped, 16);
+        assert_eq!(read, 4);
+    }
+}
