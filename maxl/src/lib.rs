@@ -27,6 +27,7 @@
 extern crate std;
 
 pub mod backstop;
+pub mod bed;
 pub mod eval;
 pub mod level;
 pub mod limit;

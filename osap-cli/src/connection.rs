@@ -181,7 +181,7 @@ pub(crate) fn lookup(map: &NetworkMap, name: &str) -> Result<Route, String> {
 
 /// The simulated machine of `path`: a topology file, or a machine file
 /// (with `[motors]` or `[axes]`), whose simulated network is derived from it.
-pub(crate) fn load_sim(path: &std::path::Path) -> Result<machine::Topology, String> {
+pub(crate) fn load_sim(path: &std::path::Path) -> Result<osap_sim::SimSpec, String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let is_machine_file = text.lines().any(|l| {
         let l = l.trim_start();
@@ -190,8 +190,8 @@ pub(crate) fn load_sim(path: &std::path::Path) -> Result<machine::Topology, Stri
     if is_machine_file {
         let cfg = osap_machine::config::MachineFile::load(path).map_err(|e| e.to_string())?;
         cfg.validate().map_err(|e| e.to_string())?;
-        osap_machine::sim::topology(&cfg).map_err(|e| e.to_string())
+        osap_machine::sim::spec(&cfg).map_err(|e| e.to_string())
     } else {
-        machine::load(path).map_err(|e| e.to_string())
+        osap_sim::SimSpec::load(path).map_err(|e| e.to_string())
     }
 }

@@ -324,7 +324,7 @@ async fn mean<F: std::future::Future<Output = ()>>(n: u32, mut f: impl FnMut() -
 }
 
 async fn sim_up(cfg: &MachineFile) -> (Host, SimMachine, Duration, Duration, Instant) {
-    let topology = osap_machine::sim::topology(cfg).expect("topology");
+    let topology = osap_machine::sim::spec(cfg).expect("topology");
     let t = Instant::now();
     let host = Host::start(HostConfig::named(HOST_NAME)).expect("host");
     let host_t = t.elapsed();

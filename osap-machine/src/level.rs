@@ -3,7 +3,7 @@
 //! (`bed_mesh`), and plot it.
 //!
 //! The machine file describes the probe (`[probe]`, [`Probe`]) and, for
-//! simulation, the bed it touches (`[sim.bed]`, [`SimBed`]):
+//! simulation, the bed it touches (`[sim.bed]`, a [`BedSurface`]):
 //!
 //! ```toml
 //! [probe]
@@ -21,6 +21,8 @@
 //! tilt_x = 0.001             # slope along x (units per unit)
 //! tilt_y = -0.0015           # slope along y
 //! warp = 0.15                # dome height at the middle (negative: a dish)
+//! # center = [150.0, 100.0]  # where the bed's middle is (default: the
+//! # half = [150.0, 100.0]    # travel's middle, half the travel's size)
 //! ```
 //!
 //! Each point: lift to `start_z`, move over the point, search down at
@@ -37,7 +39,8 @@ use maxl::blocks::bedlevel::{BedMesh, MeshGrid, MeshStats, Plane, PlaneFit, Prob
 
 use crate::machine::{Machine, MachineError};
 
-pub use crate::config::{Probe, SimBed};
+pub use crate::config::Probe;
+pub use maxl::bed::BedSurface;
 
 /// One probed point.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -31,7 +31,7 @@ async fn served(
     Entry,
 ) {
     let server = Host::start(HostConfig::named("server")).unwrap();
-    let sim = SimMachine::start(&server, &osap_machine::sim::topology(cfg).unwrap())
+    let sim = SimMachine::start(&server, &osap_machine::sim::spec(cfg).unwrap())
         .await
         .unwrap();
     let listener = osap_host::link::tcp::listen(&server, "127.0.0.1:0".parse().unwrap(), false)

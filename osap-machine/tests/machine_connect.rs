@@ -51,7 +51,7 @@ async fn the_same_script_runs_on_connect() {
         ..HostConfig::default()
     })
     .unwrap();
-    let topology = osap_machine::sim::topology(&cfg).unwrap();
+    let topology = osap_machine::sim::spec(&cfg).unwrap();
     let sim = SimMachine::start(&server, &topology).await.unwrap();
     let listener = osap_host::link::tcp::listen(&server, "127.0.0.1:0".parse().unwrap(), false)
         .await
@@ -125,7 +125,7 @@ async fn a_keyed_server_takes_only_clients_with_its_key() {
     use osap_host::link::stream::ListenOptions;
     let cfg = mill();
     let server = Host::start(HostConfig::named("server")).unwrap();
-    let topology = osap_machine::sim::topology(&cfg).unwrap();
+    let topology = osap_machine::sim::spec(&cfg).unwrap();
     let _sim = SimMachine::start(&server, &topology).await.unwrap();
     let key = Key::from_bytes([7; 32]);
     let listener = osap_host::link::tcp::listen_with(

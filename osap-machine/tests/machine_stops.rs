@@ -407,7 +407,7 @@ fn an_idle_machine_feeds_its_tool_module_at_a_small_cost() {
         // The same network without a machine: clock sync alone.
         let cfg = plotter_file();
         let host = osap_host::Host::start(osap_host::HostConfig::named("bare")).unwrap();
-        let topology = osap_machine::sim::topology(&cfg).unwrap();
+        let topology = osap_machine::sim::spec(&cfg).unwrap();
         let sim = osap_sim::machine::SimMachine::start(&host, &topology)
             .await
             .unwrap();

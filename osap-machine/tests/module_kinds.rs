@@ -23,7 +23,7 @@ async fn a_runtime_posing_as_a_module_is_refused_by_name() {
     // "impostor" with a `halt` and an `add_point` of its own, which the
     // machine file names as module z.
     let server = Host::start(HostConfig::named("server")).unwrap();
-    let topology = osap_machine::sim::topology(&cfg).unwrap();
+    let topology = osap_machine::sim::spec(&cfg).unwrap();
     let sim = SimMachine::start(&server, &topology).await.unwrap();
     cfg.modules.get_mut("z").unwrap().name = Some("impostor".into());
     let impostor = Host::start(HostConfig::named("impostor")).unwrap();

@@ -14,7 +14,8 @@ use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::board::StepEdge;
-use osap_sim::machine::{self, SimMachine, TimeMode};
+use osap_sim::machine::{SimMachine, TimeMode};
+use osap_sim::spec::SimSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use std::path::PathBuf;
 use std::time::Duration;
@@ -40,7 +41,7 @@ pub(crate) struct JobRun {
 /// latencies seeded by `seed`, in `mode`.
 pub(crate) async fn run(seconds: f64, seed: u64, mode: TimeMode) -> JobRun {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("topologies/corexy-plotter.toml");
-    let mut topology = machine::load(path).expect("the shipped topology loads");
+    let mut topology = SimSpec::load(path).expect("the shipped topology loads");
     topology.seed = seed;
     let host = Host::start(HostConfig::named("h")).expect("host");
     let sim = SimMachine::start_with(&host, &topology, mode)

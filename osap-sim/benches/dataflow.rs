@@ -27,7 +27,8 @@ use osap_core::link::queue::{transfer, QueueLink};
 use osap_core::route::Route;
 use osap_host::netrunner::{self, ScanOptions};
 use osap_host::{Host, HostConfig, PortHandle};
-use osap_sim::machine::{self, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::SimSpec;
 use pipes_core::control::{ControlKey, InputMode, OutputMode, Reply, ReplyBody};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::PipeConfig;
@@ -279,7 +280,7 @@ async fn rpc_setup() -> Rpc {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join("single-usb.toml");
-    let topology = machine::load(path)
+    let topology = SimSpec::load(path)
         .expect("shipped topology")
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.expect("machine");

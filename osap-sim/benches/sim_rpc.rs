@@ -30,7 +30,8 @@ use osap_core::route::Route;
 use osap_host::link::{stream, tcp};
 use osap_host::netrunner::{self, ScanOptions};
 use osap_host::{Host, HostConfig, PortHandle};
-use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -41,11 +42,11 @@ fn host(name: &str) -> Host {
     Host::start(HostConfig::named(name)).expect("host starts")
 }
 
-fn shipped(name: &str) -> Topology {
+fn shipped(name: &str) -> SimSpec {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join(name);
-    machine::load(path).expect("shipped topology loads")
+    SimSpec::load(path).expect("shipped topology loads")
 }
 
 /// A request path: a port, and a route from it to a module.
@@ -133,11 +134,11 @@ async fn loopback_tcp() -> Path {
 /// children each (8 links), as few levels as fit, the top hub on the host's
 /// USB. Returns the topology and how many runtimes a scan finds: the host,
 /// the hubs and the modules.
-fn tree(n: usize, sync: bool) -> (Topology, usize) {
+fn tree(n: usize, sync: bool) -> (SimSpec, usize) {
     const CHILDREN: usize = 7;
-    let mut t = Topology {
+    let mut t = SimSpec {
         sync,
-        ..Topology::new(&format!("tree{n}"))
+        ..SimSpec::new(&format!("tree{n}"))
     }
     .with_zero_latency(true);
     let mut level: Vec<String> = (0..n).map(|i| format!("m{i}")).collect();
@@ -159,7 +160,7 @@ fn tree(n: usize, sync: bool) -> (Topology, usize) {
             t = t.with_link(LinkSpec::new(&parents[i / CHILDREN], child, LinkKind::Uart));
         }
         if let [top] = parents.as_slice() {
-            t = t.with_link(LinkSpec::new(machine::HOST, top, LinkKind::Usb));
+            t = t.with_link(LinkSpec::new(HOST, top, LinkKind::Usb));
             break;
         }
         level = parents;

@@ -3,8 +3,8 @@
 //!
 //! `cargo run --release -p osap-sim --example trace -- TOPOLOGY NODE [SECONDS] [PARENT]`
 //! e.g. `-- star8 m1 12 hub`.
+use osap_sim::network::Network;
 use osap_sim::sim::{Sim, SimConfig};
-use osap_sim::topology::Topology;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
@@ -14,7 +14,7 @@ fn main() -> ExitCode {
         eprintln!("{usage}");
         return ExitCode::FAILURE;
     };
-    let topology = match Topology::named(topo) {
+    let topology = match Network::named(topo) {
         Ok(t) => t,
         Err(e) => {
             eprintln!("{e}");

@@ -16,9 +16,11 @@
 //! - [`link`]: the simulated [`LinkGateway`](osap_core::link::LinkGateway);
 //! - [`busy`]: busy spells of a node;
 //! - [`node`]: a node (runtime, links, ports, clock, main-loop model);
-//! - [`topology`]: network descriptions, built in or read from the TOML
-//!   topology files the simulated machines also read ([`from_machine`]:
-//!   `osap-sim/topologies/*.toml`);
+//! - [`spec`]: the one description both simulators read ([`SimSpec`]:
+//!   modules, links, boards, switches, bed; `osap-sim/topologies/*.toml`
+//!   are specs in TOML, and osap-machine derives one from a machine file);
+//! - [`network`]: the discrete-event simulator's network, lowered from a
+//!   spec ([`network::from_spec`]) or built directly with any link model;
 //! - [`sim`]: the event loop;
 //! - [`metrics`]: errors of every node's synchronised time against the
 //!   root's, and their statistics;
@@ -31,21 +33,21 @@
 //! time or in virtual time (deterministic per seed, many times faster than
 //! real time). Their `stepper` modules are the module firmware's own logic
 //! (osap-module instances on simulated boards), so what a script does
-//! against them it does against hardware. Both simulators read the same
-//! TOML topology files (`osap-sim/topologies/`, [`Topology::load`]).
+//! against them it does against hardware. Both simulators take the same
+//! [`SimSpec`]; neither imports the other.
 //!
 //! Run a topology in one call and look at the result:
 //!
 //! ```
-//! use osap_sim::{Scenario, Topology};
-//! let outcome = Scenario::new(Topology::chain4()).seed(7).seconds(0.5).run().unwrap();
+//! use osap_sim::{Scenario, Network};
+//! let outcome = Scenario::new(Network::chain4()).seed(7).seconds(0.5).run().unwrap();
 //! let m = &outcome.metrics;
 //! assert_eq!(m.node_count(), 4);
 //! let _worst_now = m.worst_abs().last().copied();
 //! let _settled = m.worst_convergence_time(10.0);
 //! ```
 //!
-//! or just `osap_sim::run(&Topology::star8(), seed, seconds)?` for the
+//! or just `osap_sim::run(&Network::star8(), seed, seconds)?` for the
 //! [`Metrics`], and `.summary()` on them for the benchmark's figures
 //! ([`SyncSummary`]: convergence to 50 and 10 µs, steady-state |error|
 //! p50/p99/max, per UART and per USB hop). For finer control build a [`Sim`], attach ports
@@ -89,12 +91,12 @@
 pub mod busy;
 pub mod clock;
 pub mod error;
-pub mod from_machine;
 pub mod hot_start;
 pub mod link;
 pub mod machine;
 pub mod medium;
 pub mod metrics;
+pub mod network;
 pub mod node;
 #[cfg(feature = "plot")]
 pub mod plot;
@@ -102,15 +104,16 @@ pub mod probe;
 pub mod rng;
 pub mod scenario;
 pub mod sim;
-pub mod topology;
+pub mod spec;
 
 pub use error::SimError;
 pub use medium::LinkModel;
 pub use metrics::{Metrics, Stats, SyncSummary};
+pub use network::Network;
 pub use node::{NodeKind, NodeSpec, SimRuntime};
 pub use scenario::{run, Outcome, Scenario};
 pub use sim::{Sim, SimConfig};
-pub use topology::Topology;
+pub use spec::{SimSpec, SpecError};
 
 /// True time in nanoseconds.
 pub type Nanos = u64;

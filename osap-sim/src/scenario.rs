@@ -1,21 +1,21 @@
 //! One-call runs: a topology, a seed, a duration, and options.
 //!
 //! ```
-//! use osap_sim::{run, Topology};
-//! let metrics = run(&Topology::star8(), 1, 0.2).unwrap();
+//! use osap_sim::{run, Network};
+//! let metrics = run(&Network::star8(), 1, 0.2).unwrap();
 //! assert_eq!(metrics.node_count(), 10);
 //! ```
 
 use crate::busy::BusyModel;
 use crate::error::SimError;
 use crate::metrics::Metrics;
+use crate::network::Network;
 use crate::sim::{Sim, SimConfig};
-use crate::topology::Topology;
 use std::time::{Duration, Instant};
 
 /// Runs `topology` with `seed` for `seconds` of simulated time and returns
 /// the sampled metrics (every 10 ms).
-pub fn run(topology: &Topology, seed: u64, seconds: f64) -> Result<Metrics, SimError> {
+pub fn run(topology: &Network, seed: u64, seconds: f64) -> Result<Metrics, SimError> {
     Ok(Scenario::new(topology.clone())
         .seed(seed)
         .seconds(seconds)
@@ -27,7 +27,7 @@ pub fn run(topology: &Topology, seed: u64, seconds: f64) -> Result<Metrics, SimE
 #[derive(Debug, Clone)]
 pub struct Scenario {
     /// The network.
-    pub topology: Topology,
+    pub topology: Network,
     /// Simulation settings (seed, sampling).
     pub config: SimConfig,
     /// Simulated duration, s.
@@ -64,7 +64,7 @@ impl Outcome {
 
 impl Scenario {
     /// A scenario of `topology` with the default settings, 10 s long.
-    pub fn new(topology: Topology) -> Self {
+    pub fn new(topology: Network) -> Self {
         Scenario {
             topology,
             config: SimConfig::default(),

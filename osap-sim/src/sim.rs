@@ -22,9 +22,9 @@ use crate::hot_start;
 use crate::link::SimLink;
 use crate::medium::{Side, StampMode, Transit};
 use crate::metrics::{Metrics, Parent};
+use crate::network::{Gateway, Network};
 use crate::node::{Node, NodeKind, NodeSpec, SimRuntime};
 use crate::rng::Rng;
-use crate::topology::{Gateway, Topology};
 use crate::Nanos;
 use osap_core::clock::TimeConfig;
 use osap_core::netresponder::BuildKey;
@@ -161,9 +161,9 @@ impl std::fmt::Debug for Sim {
 impl Sim {
     /// Builds the network of `topology`: a runtime per node (the root
     /// configured as tier 0), a gateway per link end and per unconnected
-    /// gateway, at the link indices [`Topology::gateways`] gives them,
+    /// gateway, at the link indices [`Network::gateways`] gives them,
     /// oscillators and randomness drawn from `config.seed`.
-    pub fn new(topology: &Topology, config: SimConfig) -> Result<Sim, SimError> {
+    pub fn new(topology: &Network, config: SimConfig) -> Result<Sim, SimError> {
         topology.validate()?;
         if !(config.boot_window_us.is_finite() && config.boot_window_us >= 0.0) {
             return Err(SimError::config("boot_window_us must be finite and >= 0"));

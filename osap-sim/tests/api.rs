@@ -1,10 +1,10 @@
 //! The one-call API and the metrics it returns.
 
-use osap_sim::{run, Scenario, Topology};
+use osap_sim::{run, Network, Scenario};
 
 #[test]
 fn one_call_run_samples_every_node() {
-    let m = run(&Topology::chain4(), 1, 1.0).unwrap();
+    let m = run(&Network::chain4(), 1, 1.0).unwrap();
     // Samples at 0, 10 ms, ..., 1 s.
     assert_eq!(m.sample_count(), 101);
     assert_eq!(m.node_count(), 4);
@@ -30,7 +30,7 @@ fn one_call_run_samples_every_node() {
 
 #[test]
 fn scenario_options_apply() {
-    let outcome = Scenario::new(Topology::loop3())
+    let outcome = Scenario::new(Network::loop3())
         .seed(3)
         .seconds(0.5)
         .sample_period_us(50_000)
@@ -40,7 +40,7 @@ fn scenario_options_apply() {
     assert_eq!(outcome.metrics.sample_count(), 11);
     assert!(outcome.hot_start_applied);
     assert!(outcome.sim.events() > 0);
-    assert!(Scenario::new(Topology::loop3())
+    assert!(Scenario::new(Network::loop3())
         .seconds(f64::NAN)
         .run()
         .is_err());
@@ -50,7 +50,7 @@ fn scenario_options_apply() {
 fn hot_start_presets_each_clock_to_the_root_rate() {
     use osap_sim::clock::ClockSpec;
     use osap_sim::{LinkModel, NodeSpec};
-    let topology = Topology::new("pair")
+    let topology = Network::new("pair")
         .with_node(NodeSpec::host("host").with_clock(ClockSpec::fixed(0.0, -20.0)))
         .with_node(NodeSpec::mcu("m1").with_clock(ClockSpec::fixed(3e6, 80.0)))
         .with_link("host", "m1", LinkModel::uart(2_000_000));
@@ -78,6 +78,6 @@ fn hot_start_presets_each_clock_to_the_root_rate() {
 fn a_simulation_can_move_to_another_thread() {
     fn assert_send<T: Send>() {}
     assert_send::<osap_sim::Sim>();
-    let handle = std::thread::spawn(|| run(&Topology::star(2), 1, 0.1).map(|m| m.sample_count()));
+    let handle = std::thread::spawn(|| run(&Network::star(2), 1, 0.1).map(|m| m.sample_count()));
     assert_eq!(handle.join().unwrap(), Ok(11));
 }

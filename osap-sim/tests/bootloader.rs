@@ -10,8 +10,10 @@ use osap_host::netrunner::Netrunner;
 use osap_host::som::{FnRef, Manager};
 use osap_host::{Host, HostConfig};
 use osap_module::boot::BootError;
-use osap_sim::machine::board::bootloader::{BootloaderSpec, Chip, INFO_FILE};
-use osap_sim::machine::{LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology, HOST};
+use osap_sim::machine::board::bootloader::INFO_FILE;
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::{BootloaderSpec, Chip};
+use osap_sim::spec::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 use uf2_link::uf2::{self, RP2040_FAMILY_ID, SAMD51_FAMILY_ID};
@@ -37,12 +39,12 @@ async fn until(what: &str, timeout: Duration, mut f: impl FnMut() -> bool) {
     }
 }
 
-fn topology(drive: Option<&Path>) -> Topology {
+fn topology(drive: Option<&Path>) -> SimSpec {
     let mut motor = ModuleSpec::new("motor", "stepper");
     if let Some(d) = drive {
         motor = motor.with_bootloader(BootloaderSpec::new(d, Chip::Rp2040));
     }
-    Topology::new("boot")
+    SimSpec::new("boot")
         .with_module(motor)
         .with_link(LinkSpec::new(HOST, "motor", LinkKind::Usb))
 }
@@ -144,14 +146,14 @@ fn a_bootloader_is_for_steppers_with_their_own_drive() {
              [[link]]\na = \"host\"\nb = \"a\"\nkind = \"usb\"\n[[link]]\na = \"a\"\nb = \"b\"\nkind = \"uart\"\n"
         )
     };
-    let t = Topology::parse(&text("")).unwrap();
+    let t = SimSpec::parse(&text("")).unwrap();
     let boot = t.modules[0].bootloader.as_ref().unwrap();
     assert_eq!((boot.chip, boot.reboot_ms), (Chip::Rp2040, 300));
-    let e = Topology::parse(&text("[module.bootloader]\ndrive = \"/tmp/d\""))
+    let e = SimSpec::parse(&text("[module.bootloader]\ndrive = \"/tmp/d\""))
         .unwrap_err()
         .to_string();
     assert!(e.contains("give each module its own drive"), "{e}");
-    let e = Topology::parse(&text(
+    let e = SimSpec::parse(&text(
         "[module.bootloader]\ndrive = \"/tmp/e\"\nchip = \"esp32\"",
     ))
     .unwrap_err()

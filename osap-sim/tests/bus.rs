@@ -5,13 +5,14 @@
 use osap_host::netrunner::{scan, Netrunner, ScanOptions, SyncGoal};
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode, Topology};
+use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
+use osap_sim::spec::SimSpec;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 const DROPS: usize = 8;
 
-fn topology() -> Topology {
+fn topology() -> SimSpec {
     let mut text = String::from(
         "name = \"bus8\"\n[[module]]\nname = \"hub\"\ntype = \"hub\"\n\
          [[link]]\na = \"host\"\nb = \"hub\"\nkind = \"usb\"\n",
@@ -27,7 +28,7 @@ fn topology() -> Topology {
         "[[bus]]\nname = \"rs485\"\nhead = \"hub\"\ndrops = [{}]\nbaud = 1000000\n",
         drops.join(", ")
     ));
-    Topology::parse(&text).unwrap()
+    SimSpec::parse(&text).unwrap()
 }
 
 /// A module's runtime counters and its bus link's, for failure messages.

@@ -3,7 +3,8 @@
 
 use osap_core::SystemInstant;
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{self, virtual_runtime, SimMachine, TimeMode};
+use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
+use osap_sim::spec::SimSpec;
 use std::path::PathBuf;
 use std::time::Duration;
 
@@ -12,7 +13,7 @@ fn a_module_with_queued_motion_holds_its_clock_steps() {
     virtual_runtime().unwrap().block_on(async {
         let host = Host::start(HostConfig::named("h")).unwrap();
         let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("topologies/small-machine.toml");
-        let topology = machine::load(path).unwrap();
+        let topology = SimSpec::load(path).unwrap();
         let sim = SimMachine::start_with(&host, &topology, TimeMode::Virtual)
             .await
             .unwrap();
@@ -54,7 +55,7 @@ fn a_jump_of_the_source_under_motion_is_slewed_then_stepped_once_standing() {
     virtual_runtime().unwrap().block_on(async {
         let host = Host::start(HostConfig::named("h")).unwrap();
         let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("topologies/small-machine.toml");
-        let topology = machine::load(path).unwrap();
+        let topology = SimSpec::load(path).unwrap();
         let sim = SimMachine::start_with(&host, &topology, TimeMode::Virtual)
             .await
             .unwrap();

@@ -17,7 +17,8 @@ use osap_core::Instant as LocalInstant;
 use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{self, SharedModule, SimMachine, SwitchSpec, TimeMode, Topology};
+use osap_sim::machine::{self, SharedModule, SimMachine, TimeMode};
+use osap_sim::spec::{SimSpec, SwitchSpec};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -213,7 +214,7 @@ async fn a_switch_over_two_motors_trips_in_real_time() {
 /// Runs the moves in `mode`; each edge must reach its module within
 /// `delivered_us` local µs of its stamp (as the watcher sees it).
 async fn two_motor_switches(mode: TimeMode, delivered_us: u64) {
-    let topology = Topology::parse(TOPOLOGY).unwrap();
+    let topology = SimSpec::parse(TOPOLOGY).unwrap();
     let host = Host::start(HostConfig::named("h")).unwrap();
     let sim = SimMachine::start_with(&host, &topology, mode)
         .await
@@ -362,7 +363,7 @@ async fn two_motor_switches(mode: TimeMode, delivered_us: u64) {
 
 #[test]
 fn switches_are_read_from_toml_and_checked() {
-    let t = Topology::parse(TOPOLOGY).unwrap();
+    let t = SimSpec::parse(TOPOLOGY).unwrap();
     assert_eq!(t.switches.len(), 2);
     assert_eq!(
         t.switches[1],
@@ -370,10 +371,10 @@ fn switches_are_read_from_toml_and_checked() {
     );
     // Serialised and read back, the same.
     let text = toml::to_string(&t).unwrap();
-    assert_eq!(Topology::parse(&text).unwrap(), t);
+    assert_eq!(SimSpec::parse(&text).unwrap(), t);
 
     let err = |extra: &str| {
-        Topology::parse(&format!("{TOPOLOGY}\n{extra}"))
+        SimSpec::parse(&format!("{TOPOLOGY}\n{extra}"))
             .unwrap_err()
             .to_string()
     };
@@ -413,7 +414,7 @@ fn switches_are_read_from_toml_and_checked() {
         "name = \"c\"\ntype = \"stepper\"\nrate_ppm = 25.0\n",
         "name = \"c\"\ntype = \"stepper\"\nrate_ppm = 25.0\n[module.motor]\nlimit_min = -1.0\n",
     );
-    let e = Topology::parse(&own).unwrap_err().to_string();
+    let e = SimSpec::parse(&own).unwrap_err().to_string();
     assert!(
         e.contains("switch 2 (on \"c\")") && e.contains("limit_min"),
         "{e}"

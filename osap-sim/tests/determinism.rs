@@ -2,10 +2,10 @@
 
 mod common;
 
-use osap_sim::{Sim, Topology};
+use osap_sim::{Network, Sim};
 
 fn fingerprint(seed: u64) -> (Sim, Vec<u32>) {
-    let mut sim = common::traced(&Topology::star8(), seed);
+    let mut sim = common::traced(&Network::star8(), seed);
     sim.run_secs(3.0);
     let counters = sim
         .nodes()

@@ -9,7 +9,8 @@ use osap_host::som::Manager;
 use osap_host::{Host, HostConfig};
 use osap_module::functions::{function_set_id, SIGNATURES};
 use osap_module::FUNCTION_SET_ID;
-use osap_sim::machine::{self, ModuleKind, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::{ModuleKind, SimSpec};
 use pipes_core::signature::{Arg, Signature};
 use pipes_core::Type;
 use std::path::PathBuf;
@@ -45,7 +46,7 @@ async fn every_simulated_stepper_presents_the_firmware_function_set() {
     assert!(files.len() >= 4, "{files:?}");
     let mut steppers = 0;
     for file in files {
-        let topology = machine::load(&file)
+        let topology = SimSpec::load(&file)
             .unwrap_or_else(|e| panic!("{}: {e}", file.display()))
             .with_zero_latency(true);
         let host = Host::start(HostConfig::named("h")).unwrap();
@@ -130,7 +131,7 @@ fn bad_topologies_are_refused_with_file_line_and_fix() {
     for (i, (text, line, fix)) in cases.iter().enumerate() {
         let path = dir.join(format!("bad-{i}.toml"));
         std::fs::write(&path, text).unwrap();
-        let e = machine::load(&path).unwrap_err().to_string();
+        let e = SimSpec::load(&path).unwrap_err().to_string();
         assert!(e.contains(&*path.to_string_lossy()), "case {i}: {e}");
         assert!(e.contains(line), "case {i}: {e}");
         assert!(e.contains(fix), "case {i}: {e}");

@@ -9,14 +9,14 @@
 
 use osap_module::hot_start::{Preset, SavePolicy};
 use osap_sim::hot_start::{run_with_rate_flash, SimRateFlash};
-use osap_sim::{Scenario, Topology};
+use osap_sim::{Network, Scenario};
 
 /// A topology shipped in `osap-sim/topologies/`.
-fn shipped(file: &str) -> Topology {
+fn shipped(file: &str) -> Network {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join(file);
-    Topology::load(path).expect("valid topology")
+    Network::load(path).expect("valid topology")
 }
 
 /// The firmware's poll period is its runtime loop's (tens of µs to a few
@@ -50,7 +50,7 @@ struct Starts {
     firmware_rate: f64,
 }
 
-fn starts(topology: Topology, seed: u64) -> Starts {
+fn starts(topology: Network, seed: u64) -> Starts {
     let name = topology.name.clone();
     let nodes = topology.nodes.len();
     let mut flash = vec![SimRateFlash::erased(); nodes];

@@ -9,7 +9,8 @@ use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::fault::{FaultKind, OVER_JERK};
 use osap_module::stepper::StepperError;
-use osap_sim::machine::{LinkKind, LinkSpec, ModuleSpec, SimMachine, Topology, HOST};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
 
 /// The module's default interval, µs.
 const IV: u64 = 2048;
@@ -17,7 +18,7 @@ const IV: u64 = 2048;
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_point_past_a_limit_is_refused_by_name_and_reported_as_a_fault() {
     let host = Host::start(HostConfig::named("h")).unwrap();
-    let topology = Topology::new("limits")
+    let topology = SimSpec::new("limits")
         .with_module(ModuleSpec::new("motor", "stepper"))
         .with_link(LinkSpec::new(HOST, "motor", LinkKind::Usb));
     let sim = SimMachine::start(&host, &topology).await.unwrap();

@@ -7,7 +7,8 @@
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::fault::FaultKind;
-use osap_sim::machine::{self, virtual_runtime, SimMachine, TimeMode};
+use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
+use osap_sim::spec::SimSpec;
 use pipes_core::control::InputMode;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -20,7 +21,7 @@ const TIMEOUT_MS: u32 = 500;
 
 async fn run() {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("topologies/single-usb.toml");
-    let topology = machine::load(path).expect("the shipped topology loads");
+    let topology = SimSpec::load(path).expect("the shipped topology loads");
     let host = Host::start(HostConfig::named("h")).expect("host");
     let sim = SimMachine::start_with(&host, &topology, TimeMode::Virtual)
         .await

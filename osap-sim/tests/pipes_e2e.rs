@@ -11,7 +11,8 @@ use osap_host::som::{
     SomError, Value,
 };
 use osap_host::Host;
-use osap_sim::machine::{self, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::SimSpec;
 use pipes_core::control::{ControlError, InputMode, OutputMode};
 use pipes_core::{ScalarType, Type};
 use std::future::Future;
@@ -51,7 +52,7 @@ struct Lab {
 
 async fn lab() -> Lab {
     let h = host("h");
-    let topology = machine::load(shipped("small-machine.toml")).unwrap();
+    let topology = SimSpec::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&h, &topology).await.unwrap();
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;
@@ -323,7 +324,7 @@ async fn three_runtime_chain_weaves_arguments() {
     )
     .unwrap();
     attach_function(&b, mid).await.unwrap();
-    let topology = machine::load(shipped("small-machine.toml")).unwrap();
+    let topology = SimSpec::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&h, &topology).await.unwrap();
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;

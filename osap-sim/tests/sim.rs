@@ -8,7 +8,8 @@ use osap_core::route::Route;
 use osap_core::transport::Transport;
 use osap_host::netrunner::{self, Netrunner, ScanOptions};
 use osap_host::{Host, HostConfig, HostError, PortHandle};
-use osap_sim::machine::{self, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimMachine, Topology};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::{LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, HOST};
 use std::time::{Duration, Instant};
 
 mod common;
@@ -35,12 +36,12 @@ const ANSWER: Duration = Duration::from_secs(1);
 
 #[test]
 fn shipped_topologies_load() {
-    let single = machine::load(shipped("single-usb.toml")).unwrap();
+    let single = SimSpec::load(shipped("single-usb.toml")).unwrap();
     assert_eq!(single.modules.len(), 1);
     assert_eq!(single.links.len(), 1);
     assert_eq!(single.links[0].kind, LinkKind::Usb);
 
-    let small = machine::load(shipped("small-machine.toml")).unwrap();
+    let small = SimSpec::load(shipped("small-machine.toml")).unwrap();
     assert_eq!(small.name, "small-machine");
     assert_eq!(small.modules.len(), 5);
     assert_eq!(small.links_of("hub"), vec![0, 1, 2, 3, 4]);
@@ -48,7 +49,7 @@ fn shipped_topologies_load() {
     assert_eq!(uarts.count(), 4);
     assert_eq!(small.modules[1].rate_ppm, 40.0);
 
-    let looped = machine::load(shipped("loop.toml")).unwrap();
+    let looped = SimSpec::load(shipped("loop.toml")).unwrap();
     assert_eq!(looped.modules.len(), 4);
     // c's links in file order: b–c, c–a, c–m1.
     assert_eq!(looped.links_of("c"), vec![2, 3, 4]);
@@ -58,7 +59,7 @@ fn shipped_topologies_load() {
 #[tokio::test]
 async fn single_module_on_usb_answers() {
     let host = host();
-    let topology = machine::load(shipped("single-usb.toml")).unwrap();
+    let topology = SimSpec::load(shipped("single-usb.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     assert_eq!(machine.host_links(), &[0]);
     let motor = machine.route_to("motor").unwrap();
@@ -90,7 +91,7 @@ async fn single_module_on_usb_answers() {
 #[tokio::test]
 async fn small_machine_modules_answer_over_the_routes_in_the_file() {
     let host = host();
-    let topology = machine::load(shipped("small-machine.toml")).unwrap();
+    let topology = SimSpec::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let h = machine.host_links()[0];
     // From the file: the hub's link 0 is the USB to the host, then one UART
@@ -131,7 +132,7 @@ async fn small_machine_modules_answer_over_the_routes_in_the_file() {
 #[tokio::test]
 async fn loop_modules_answer_both_ways_round_the_loop() {
     let host = host();
-    let topology = machine::load(shipped("loop.toml")).unwrap();
+    let topology = SimSpec::load(shipped("loop.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let h = machine.host_links()[0];
     let port = host.open_port("test").await.unwrap();
@@ -177,7 +178,7 @@ async fn a_scan_maps_the_single_usb_module_as_the_file_describes_it() {
 
 async fn scan_matches_the_file(file: &str, zero_latency: bool) {
     let host = host();
-    let topology = machine::load(shipped(file))
+    let topology = SimSpec::load(shipped(file))
         .unwrap()
         .with_zero_latency(zero_latency);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -195,7 +196,7 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
             let runtime = map
                 .runtimes
                 .iter()
-                .position(|r| r.name == if name == machine::HOST { "host" } else { name })
+                .position(|r| r.name == if name == HOST { "host" } else { name })
                 .unwrap();
             // The link's index at this end: a stepper's follows the
             // firmware (USB is link 0, a UART link 1), others' their
@@ -212,7 +213,7 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
                 .modules
                 .iter()
                 .any(|m| m.name == name && m.kind() == Some(ModuleKind::Stepper));
-            let index = if name == machine::HOST {
+            let index = if name == HOST {
                 machine.host_links()[position]
             } else if stepper {
                 match topology.links[topology.links_of(name)[position]].kind {
@@ -243,7 +244,7 @@ async fn scan_matches_the_file(file: &str, zero_latency: bool) {
 #[tokio::test]
 async fn module_clocks_drift_as_configured() {
     let host = host();
-    let topology = machine::load(shipped("small-machine.toml")).unwrap();
+    let topology = SimSpec::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     for (m, spec) in machine.modules().iter().zip(&topology.modules) {
         let clock = m.clock();
@@ -281,7 +282,7 @@ async fn module_clocks_drift_as_configured() {
 #[tokio::test]
 async fn a_drifting_module_synchronises_to_the_host() {
     let host = host();
-    let topology = Topology::new("drift")
+    let topology = SimSpec::new("drift")
         .with_module(ModuleSpec::new("fast", "stepper").with_rate_ppm(150.0))
         .with_link(LinkSpec::new("host", "fast", LinkKind::Uart));
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -319,7 +320,7 @@ async fn a_drifting_module_synchronises_to_the_host() {
 #[tokio::test]
 async fn a_killed_module_stops_answering_and_the_others_go_on() {
     let host = host();
-    let topology = machine::load(shipped("small-machine.toml")).unwrap();
+    let topology = SimSpec::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let port = host.open_port("test").await.unwrap();
     let x = machine.module("x").unwrap();
@@ -354,7 +355,7 @@ async fn a_killed_module_stops_answering_and_the_others_go_on() {
 #[tokio::test]
 async fn killing_the_hub_cuts_off_everything_behind_it() {
     let host = host();
-    let topology = machine::load(shipped("small-machine.toml"))
+    let topology = SimSpec::load(shipped("small-machine.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -384,7 +385,7 @@ async fn killing_the_hub_cuts_off_everything_behind_it() {
 #[tokio::test]
 async fn a_restarted_module_keeps_the_name_the_network_gave_it() {
     let host = host();
-    let topology = machine::load(shipped("single-usb.toml"))
+    let topology = SimSpec::load(shipped("single-usb.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -401,14 +402,14 @@ async fn a_restarted_module_keeps_the_name_the_network_gave_it() {
 }
 
 /// host –memory– hub –UART at `baud`– m.
-fn uart_pair(baud: u32, zero: bool) -> Topology {
+fn uart_pair(baud: u32, zero: bool) -> SimSpec {
     let uart = LinkSpec {
         baud: Some(baud),
         ..LinkSpec::new("hub", "m", LinkKind::Uart)
     };
-    Topology {
+    SimSpec {
         sync: false,
-        ..Topology::new("uart-pair")
+        ..SimSpec::new("uart-pair")
     }
     .with_module(ModuleSpec::new("hub", "hub"))
     .with_module(ModuleSpec::new("m", "stepper"))
@@ -464,7 +465,7 @@ async fn uart_latency_adds_the_wire_time_of_request_and_reply() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn usb_round_trips_wait_for_the_bus_frame() {
     let host = host();
-    let topology = machine::load(shipped("single-usb.toml")).unwrap();
+    let topology = SimSpec::load(shipped("single-usb.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let r = machine.route_to("motor").unwrap();
     let median = median_round_trip(&host, &r, 21).await;
@@ -477,7 +478,7 @@ async fn usb_round_trips_wait_for_the_bus_frame() {
 }
 
 fn parse_error(text: &str) -> String {
-    match Topology::parse(text) {
+    match SimSpec::parse(text) {
         Ok(t) => panic!("accepted: {t:?}"),
         Err(e) => e.to_string(),
     }
@@ -610,7 +611,7 @@ fn bad_topologies_are_refused_with_reasons() {
     );
     let path = std::env::temp_dir().join(format!("osap-sim-bad-{}.toml", std::process::id()));
     std::fs::write(&path, format!("{HUB}{HOST_HUB}{STEPPER}{HUB_S}{HUB_S}")).unwrap();
-    let error = machine::load(&path).unwrap_err().to_string();
+    let error = SimSpec::load(&path).unwrap_err().to_string();
     let _ = std::fs::remove_file(&path);
     assert!(
         error.starts_with(&format!(
@@ -620,7 +621,7 @@ fn bad_topologies_are_refused_with_reasons() {
         "{error}"
     );
     // A missing file names itself.
-    let error = machine::load("no/such/topology.toml")
+    let error = SimSpec::load("no/such/topology.toml")
         .unwrap_err()
         .to_string();
     assert!(error.contains("no/such/topology.toml"), "{error}");
@@ -643,7 +644,7 @@ kind = "usb"
 #[tokio::test]
 async fn a_lone_module_with_an_unwired_uart_scans_whole() {
     let host = host();
-    let topology = Topology::parse(LONE).unwrap();
+    let topology = SimSpec::parse(LONE).unwrap();
     assert!(topology.modules[0].dangling_uart);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let motor = machine.route_to("motor").unwrap();
@@ -672,7 +673,7 @@ async fn a_lone_module_with_an_unwired_uart_scans_whole() {
 #[tokio::test]
 async fn a_heard_module_that_stops_answering_is_a_failure() {
     let host = host();
-    let topology = machine::load(shipped("small-machine.toml"))
+    let topology = SimSpec::load(shipped("small-machine.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
@@ -709,7 +710,7 @@ async fn a_heard_module_that_stops_answering_is_a_failure() {
 #[tokio::test]
 async fn a_scan_without_a_dead_module_shows_its_link_down() {
     let host = host();
-    let topology = machine::load(shipped("small-machine.toml"))
+    let topology = SimSpec::load(shipped("small-machine.toml"))
         .unwrap()
         .with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();

@@ -17,8 +17,9 @@ use osap_host::{Host, HostConfig, PortHandle};
 use osap_module::functions::SIGNATURES;
 use osap_module::io::IoError;
 use osap_module::stepper::{Mode, StepperError};
-use osap_sim::machine::board::{DigitalWrite, DRIVER_MICROSTEPS};
-use osap_sim::machine::{self, SharedModule, SimMachine, Topology};
+use osap_sim::machine::board::DigitalWrite;
+use osap_sim::machine::{SharedModule, SimMachine};
+use osap_sim::spec::{SimSpec, DRIVER_MICROSTEPS};
 use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::function::FUNCTION_PORT_TYPE;
 use pipes_core::signature::Signature;
@@ -208,7 +209,7 @@ async fn scanned(host: &Host, name: &str) -> Functions {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn every_stepper_presents_the_firmware_functions_through_the_hub() {
     let host = Host::start(HostConfig::default()).unwrap();
-    let topology = machine::load(shipped("small-machine.toml")).unwrap();
+    let topology = SimSpec::load(shipped("small-machine.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let report = netrunner::scan(&host, &ScanOptions::default())
         .await
@@ -299,7 +300,7 @@ fn adc(v: f64) -> f32 {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stepper_functions_refuse_with_the_firmware_codes() {
     let host = Host::start(HostConfig::default()).unwrap();
-    let topology = Topology::parse(IO_MACHINE).unwrap();
+    let topology = SimSpec::parse(IO_MACHINE).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let f = scanned(&host, "m").await;
     let shared = machine.module("m").unwrap().module().unwrap();
@@ -541,7 +542,7 @@ async fn stepper_functions_refuse_with_the_firmware_codes() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn io_functions_read_and_drive_the_simulated_pins() {
     let host = Host::start(HostConfig::default()).unwrap();
-    let topology = Topology::parse(IO_MACHINE).unwrap();
+    let topology = SimSpec::parse(IO_MACHINE).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let m = machine.module("m").unwrap();
     let shared = m.module().unwrap();
@@ -765,7 +766,7 @@ async fn io_functions_read_and_drive_the_simulated_pins() {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_restart_boots_the_firmware_afresh() {
     let host = Host::start(HostConfig::default()).unwrap();
-    let topology = Topology::parse(IO_MACHINE).unwrap().with_zero_latency(true);
+    let topology = SimSpec::parse(IO_MACHINE).unwrap().with_zero_latency(true);
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let f = scanned(&host, "m").await;
     let port = host.open_port("test").await.unwrap();

@@ -16,7 +16,8 @@ use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::stepper::Mode;
 use osap_sim::machine::board::StepEdge;
-use osap_sim::machine::{self, SharedModule, SimMachine};
+use osap_sim::machine::{SharedModule, SimMachine};
+use osap_sim::spec::SimSpec;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
@@ -106,7 +107,7 @@ async fn call(m: &Manager, function: &str, args: &[Value<'static>]) -> Vec<Value
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_stepper_follows_a_stream_on_synchronized_time() {
     let host = Host::start(HostConfig::named("h")).unwrap();
-    let topology = machine::load(shipped("corexy-plotter.toml")).unwrap();
+    let topology = SimSpec::load(shipped("corexy-plotter.toml")).unwrap();
     let machine = SimMachine::start(&host, &topology).await.unwrap();
     let mut m = Manager::new(&host).await.unwrap();
     m.refresh().await.unwrap();

@@ -4,24 +4,24 @@
 //! are what every run of it meets, with a margin for the shorter runs.
 
 use osap_sim::busy::BusyModel;
-use osap_sim::{Scenario, Topology};
+use osap_sim::{Network, Scenario};
 
 /// A topology shipped in `osap-sim/topologies/`, for the discrete-event
 /// simulator.
-fn shipped(file: &str) -> Topology {
+fn shipped(file: &str) -> Network {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("topologies")
         .join(file);
-    Topology::load(path).expect("valid topology")
+    Network::load(path).expect("valid topology")
 }
 
 /// Host (root) and two modules in a chain over 2 Mbaud UARTs.
-fn uart_chain() -> Topology {
+fn uart_chain() -> Network {
     shipped("uart-chain.toml")
 }
 
 /// chain4 with the USB hub module as the root; the host follows over USB.
-fn chain4_hub_root() -> Topology {
+fn chain4_hub_root() -> Network {
     shipped("chain4-hub-root.toml")
 }
 
@@ -63,7 +63,7 @@ fn uart_hops_converge_in_seconds_and_hold_microseconds() {
 
 #[test]
 fn usb_topologies_hold_the_usb_target() {
-    for topology in [Topology::chain4(), Topology::star8(), Topology::loop3()] {
+    for topology in [Network::chain4(), Network::star8(), Network::loop3()] {
         let name = topology.name.clone();
         let m = Scenario::new(topology)
             .seed(1)
@@ -99,7 +99,7 @@ enum Start {
 fn usb_starts(start: Start, seconds: f64, worst: f64) -> Vec<f64> {
     let mut times = Vec::new();
     for seed in 1..=4 {
-        for topology in [Topology::chain4(), Topology::star8(), Topology::loop3()] {
+        for topology in [Network::chain4(), Network::star8(), Network::loop3()] {
             let name = topology.name.clone();
             let mut scenario = Scenario::new(topology).seed(seed).seconds(seconds);
             match start {
@@ -169,7 +169,7 @@ fn a_module_root_keeps_every_uart_hop_within_microseconds() {
 
 #[test]
 fn busy_modules_cause_no_spike_beyond_100_us() {
-    for topology in [uart_chain(), Topology::star8()] {
+    for topology in [uart_chain(), Network::star8()] {
         let name = topology.name.clone();
         let m = Scenario::new(topology)
             .seed(5)

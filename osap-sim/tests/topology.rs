@@ -1,32 +1,32 @@
-//! Topology builders, the TOML form, link indices, and configuration
+//! Network builders, the TOML form, link indices, and configuration
 //! errors.
 
 use osap_core::link::LinkGateway;
 use osap_sim::clock::{ClockSpec, Param};
 use osap_sim::medium::{Side, UartParams};
+use osap_sim::network::{Gateway, NetLink};
 use osap_sim::rng::Dist;
-use osap_sim::topology::{Gateway, LinkSpec};
-use osap_sim::{LinkModel, NodeKind, NodeSpec, Sim, SimConfig, SimError, Topology};
+use osap_sim::{LinkModel, Network, NodeKind, NodeSpec, Sim, SimConfig, SimError};
 
-fn link_types(t: &Topology) -> Vec<&'static str> {
+fn link_types(t: &Network) -> Vec<&'static str> {
     t.links.iter().map(|l| l.model.type_name()).collect()
 }
 
 #[test]
 fn built_in_shapes() {
-    let chain = Topology::chain4();
+    let chain = Network::chain4();
     let names: Vec<&str> = chain.nodes.iter().map(|n| n.name.as_str()).collect();
     assert_eq!(names, ["host", "hub1", "hub2", "m1"]);
     assert_eq!(link_types(&chain), ["usb_cdc", "uart", "uart"]);
     assert_eq!(chain.root(), Some(0));
 
-    let star = Topology::star8();
+    let star = Network::star8();
     let ends = star.endpoints();
     let hub = star.node_index("hub").unwrap();
     let hub_links = ends.iter().flatten().filter(|(n, _)| *n == hub).count();
     assert_eq!(hub_links, 9);
 
-    let ring = Topology::loop3();
+    let ring = Network::loop3();
     assert_eq!(ring.name, "loop");
     assert_eq!(
         link_types(&ring),
@@ -37,13 +37,13 @@ fn built_in_shapes() {
     let a = ring.node_index("a").unwrap();
     assert_eq!(ring.endpoints()[3][1], (a, 2));
 
-    let tree = Topology::tree(2, 3);
+    let tree = Network::tree(2, 3);
     assert_eq!(tree.nodes.len(), 2 + 3 + 9);
     for name in ["chain4", "star8", "loop", "tree2x3", "chain2"] {
-        Topology::named(name).unwrap().validate().unwrap();
+        Network::named(name).unwrap().validate().unwrap();
     }
-    assert!(Topology::named("star40").is_err());
-    assert!(Topology::named("mesh").is_err());
+    assert!(Network::named("star40").is_err());
+    assert!(Network::named("mesh").is_err());
 }
 
 #[test]
@@ -81,10 +81,10 @@ fn toml_form_matches_the_builder() {
         b = "m1"
         kind = "uart"
     "#;
-    let parsed = Topology::from_toml(text).unwrap();
-    assert_eq!(parsed, Topology::chain4());
+    let parsed = Network::from_toml(text).unwrap();
+    assert_eq!(parsed, Network::chain4());
 
-    let custom = Topology::from_toml(
+    let custom = Network::from_toml(
         r#"
         [host]
         kind = "mcu"
@@ -161,7 +161,7 @@ fn toml_form_matches_the_builder() {
 #[test]
 fn a_stepper_has_the_firmware_links_in_both_simulators() {
     // s's UART is listed before its USB; t is reached only over a UART.
-    let t = Topology::from_toml(
+    let t = Network::from_toml(
         r#"
         [[module]]
         name = "hub"
@@ -224,24 +224,24 @@ fn a_stepper_has_the_firmware_links_in_both_simulators() {
 #[test]
 fn link_indices_asked_for_are_checked() {
     let two = || {
-        Topology::new("x")
+        Network::new("x")
             .with_node(NodeSpec::host("h"))
             .with_node(NodeSpec::mcu("m"))
     };
     // An index asked for is kept; the others fill the lowest free ones.
     let mut t = two();
-    t.add_link_spec(LinkSpec::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 1));
+    t.add_link_spec(NetLink::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 1));
     t.add_link("h", "m", LinkModel::uart(2_000_000));
     assert_eq!(t.endpoints(), [[(0, 0), (1, 1)], [(0, 1), (1, 0)]]);
     t.validate().unwrap();
 
-    let err = |t: Topology| t.validate().unwrap_err().to_string();
+    let err = |t: Network| t.validate().unwrap_err().to_string();
     let mut gap = two();
-    gap.add_link_spec(LinkSpec::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 2));
+    gap.add_link_spec(NetLink::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 2));
     let e = err(gap);
     assert!(e.contains("node m") && e.contains("link index 0"), "{e}");
     let mut twice = two();
-    twice.add_link_spec(LinkSpec::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 0));
+    twice.add_link_spec(NetLink::new("h", "m", LinkModel::usb_cdc()).at(Side::B, 0));
     twice.add_unconnected("m", 0, LinkModel::usb_cdc());
     let e = err(twice);
     assert!(e.contains("link index 0 is asked for twice"), "{e}");
@@ -255,7 +255,7 @@ fn link_indices_asked_for_are_checked() {
 
 #[test]
 fn bad_descriptions_get_clear_errors() {
-    let toml_err = |text: &str| Topology::from_toml(text).unwrap_err().to_string();
+    let toml_err = |text: &str| Network::from_toml(text).unwrap_err().to_string();
     const HUB: &str = "[[module]]\nname = \"m\"\ntype = \"hub\"\n";
     let link = |kind: &str, extra: &str| {
         format!("{HUB}[[link]]\na = \"host\"\nb = \"m\"\nkind = \"{kind}\"\n{extra}")
@@ -297,12 +297,12 @@ fn bad_descriptions_get_clear_errors() {
     assert!(e.contains("whitespace"), "{e}");
 
     // Too many links at one node, and a bad parameter, via the builder.
-    let crowded = Topology::star(16);
+    let crowded = Network::star(16);
     assert!(matches!(
         Sim::new(&crowded, SimConfig::default()),
         Err(SimError::Config(m)) if m.contains("more than 16 links")
     ));
-    let lossy = Topology::new("x")
+    let lossy = Network::new("x")
         .with_node(NodeSpec::host("h"))
         .with_node(NodeSpec::mcu("m"))
         .with_link(

@@ -8,9 +8,10 @@ use osap_core::netresponder::key;
 use osap_core::route::Route;
 use osap_host::netrunner::Netrunner;
 use osap_host::{HostError, PortHandle};
-use osap_sim::machine::{self, SimMachine, HOST};
-use osap_sim::topology::Gateway;
-use osap_sim::{Scenario, Sim, SimConfig, Topology};
+use osap_sim::machine::SimMachine;
+use osap_sim::network::Gateway;
+use osap_sim::spec::{SimSpec, HOST};
+use osap_sim::{Network, Scenario, Sim, SimConfig};
 use std::collections::VecDeque;
 use std::path::PathBuf;
 use std::time::Duration;
@@ -48,10 +49,10 @@ fn no_text_topologies_are_left() {
 fn every_shipped_topology_runs_in_the_discrete_event_simulator() {
     for path in shipped_files() {
         let file = path.display();
-        let m = machine::load(&path).unwrap_or_else(|e| panic!("{file}: {e}"));
+        let m = SimSpec::load(&path).unwrap_or_else(|e| panic!("{file}: {e}"));
         m.validate().unwrap();
-        let t = Topology::load(&path).unwrap_or_else(|e| panic!("{file}: {e}"));
-        assert_eq!(Topology::try_from(&m).unwrap(), t, "{file}");
+        let t = Network::load(&path).unwrap_or_else(|e| panic!("{file}: {e}"));
+        assert_eq!(Network::try_from(&m).unwrap(), t, "{file}");
         // Node 0 is the host, then the modules in file order.
         let names: Vec<&str> = t.nodes.iter().map(|n| n.name.as_str()).collect();
         let expected: Vec<&str> = std::iter::once(HOST)
@@ -61,7 +62,7 @@ fn every_shipped_topology_runs_in_the_discrete_event_simulator() {
         assert_eq!(t.links.len(), m.links.len(), "{file}");
         assert_eq!(t.name, m.name, "{file}");
 
-        let outcome = Scenario::from_machine(&m)
+        let outcome = Scenario::from_spec(&m)
             .unwrap()
             .seconds(5.0)
             .run()
@@ -103,8 +104,8 @@ async fn name_at(port: &PortHandle, route: &Route) -> Result<String, HostError> 
 /// same type, name, MTU and state, and the same number of gateways.
 async fn same_links_as_the_machine(path: PathBuf) {
     let file = path.display().to_string();
-    let m = machine::load(&path).unwrap();
-    let t = Topology::load(&path).unwrap();
+    let m = SimSpec::load(&path).unwrap();
+    let t = Network::load(&path).unwrap();
     let sim = Sim::new(&t, SimConfig::default()).unwrap();
     let gateways = t.gateways().unwrap();
     let ends = t.endpoints();
@@ -199,7 +200,7 @@ async fn same_links_as_the_machine(path: PathBuf) {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn corexy_plotter_has_the_machines_nodes_links_and_link_indices() {
     let path = shipped("corexy-plotter.toml");
-    let t = Topology::load(&path).unwrap();
+    let t = Network::load(&path).unwrap();
     let names: Vec<&str> = t.nodes.iter().map(|n| n.name.as_str()).collect();
     assert_eq!(names, ["host", "hub", "a", "b", "z"]);
     let types: Vec<&str> = t.links.iter().map(|l| l.model.type_name()).collect();

@@ -8,6 +8,7 @@
 
 use clap::Parser;
 use osap_host::som::Som;
+use osap_sim::spec::SimSpec;
 use proxygen::{Options, StarterOptions};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -54,9 +55,9 @@ struct Args {
 async fn live_som(path: &Path) -> Result<Som, String> {
     use osap_host::som::Manager;
     use osap_host::{Host, HostConfig};
-    use osap_sim::machine::{self, SimMachine};
+    use osap_sim::machine::SimMachine;
     let host = Host::start(HostConfig::default()).map_err(|e| e.to_string())?;
-    let topology = machine::load(path).map_err(|e| e.to_string())?;
+    let topology = SimSpec::load(path).map_err(|e| e.to_string())?;
     let _machine = SimMachine::start(&host, &topology)
         .await
         .map_err(|e| format!("cannot start {}: {e}", path.display()))?;

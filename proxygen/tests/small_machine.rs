@@ -22,7 +22,8 @@ mod odd;
 
 use osap_host::som::{HostFunction, Manager, PipeOptions, Som, Value};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{self, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::SimSpec;
 use pipes_core::control::InputMode;
 use pipes_core::{ScalarType, Type};
 use proxies::{BindError, Stepper, DEVICES};
@@ -33,7 +34,7 @@ use std::time::{Duration, Instant};
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn proxies_drive_the_simulated_small_machine() {
     let h = Host::start(HostConfig::named("h")).unwrap();
-    let topology = machine::load(
+    let topology = SimSpec::load(
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../osap-sim/topologies/small-machine.toml"),
     )
     .unwrap();

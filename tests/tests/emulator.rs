@@ -45,7 +45,8 @@ use osap_host::netrunner::{Netrunner, ScanOptions, SyncGoal};
 use osap_host::som::{FnRef, Manager, ManagerOptions, Value};
 use osap_host::{Host, HostConfig, HostError, Pace};
 use osap_module::functions::SIGNATURES;
-use osap_sim::machine::{self, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::SimSpec;
 use serde_json::{json, Value as Json};
 use std::path::{Path, PathBuf};
 use std::process::Stdio;
@@ -984,7 +985,7 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         panic!("the simulated scan's proxy does not bind to the firmware: {e}")
     });
     let emu_run = proxy_sequence(&emulated).await;
-    let topology = machine::load(repo().join("osap-sim/topologies/single-usb.toml"))
+    let topology = SimSpec::load(repo().join("osap-sim/topologies/single-usb.toml"))
         .unwrap()
         .with_zero_latency(true);
     let sim_host = Host::start(HostConfig::named("sim-script")).unwrap();

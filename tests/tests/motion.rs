@@ -21,7 +21,8 @@ use osap_host::som::{FnRef, Manager, PipeOptions, SharedState, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::stepper::{Mode, StepperCounters};
 use osap_sim::machine::board::StepEdge;
-use osap_sim::machine::{self, SharedModule, SimMachine, SimModule};
+use osap_sim::machine::{SharedModule, SimMachine, SimModule};
+use osap_sim::spec::SimSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::pipe::PipeDelivery;
 use std::path::PathBuf;
@@ -55,7 +56,7 @@ async fn rig() -> Rig {
     let host = Host::start(HostConfig::named(HOST)).unwrap();
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
         .join("../osap-sim/topologies/corexy-plotter.toml");
-    let machine = SimMachine::start(&host, &machine::load(path).unwrap())
+    let machine = SimMachine::start(&host, &SimSpec::load(path).unwrap())
         .await
         .unwrap();
     let mut m = Manager::new(&host).await.unwrap();

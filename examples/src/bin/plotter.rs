@@ -28,7 +28,8 @@ use maxl::blocks::timer::TimerBlock;
 use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, PipeOptions, Value};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{self, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::SimSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use plotters::prelude::*;
 
@@ -73,7 +74,7 @@ async fn run() -> Result<(), Box<dyn Error>> {
         env!("CARGO_MANIFEST_DIR"),
         "/../osap-sim/topologies/corexy-plotter.toml"
     );
-    let machine = SimMachine::start(&host, &machine::load(topology)?).await?;
+    let machine = SimMachine::start(&host, &SimSpec::load(topology)?).await?;
     let mut m = Manager::new(&host).await?;
     m.refresh().await?;
 

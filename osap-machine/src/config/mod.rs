@@ -20,6 +20,7 @@ use std::collections::BTreeMap;
 use std::fmt;
 use std::path::{Path, PathBuf};
 
+use maxl::bed::BedSurface;
 use serde::Deserialize;
 
 mod accel;
@@ -27,7 +28,7 @@ mod probe;
 mod validate;
 
 pub use accel::{Accelerometer, AxisShaper};
-pub use probe::{Probe, SimBed};
+pub use probe::Probe;
 use validate::is_mechanism_axis;
 
 /// The axis names a machine file may use, in the order
@@ -523,15 +524,66 @@ fn default_on_duty() -> f64 {
 
 /// Simulation settings.
 #[derive(Debug, Clone, PartialEq, Deserialize, Default)]
-#[serde(deny_unknown_fields)]
+#[serde(from = "SimKeys")]
 pub struct Sim {
     /// Per-axis simulation settings, by axis name.
-    #[serde(default)]
     pub axes: BTreeMap<String, SimAxis>,
     /// A tilted, warped bed that the simulated probe touches
-    /// ([`SimBed`]).
+    /// (`[sim.bed]`: `z`, `tilt_x`, `tilt_y`, `warp`, and optionally
+    /// `center` and `half`, which default to the middle and half the size
+    /// of the x-y travel; see [`Sim::with_bed`]).
+    pub bed: Option<BedSurface>,
+    /// Which of the bed's `center` and `half` the file gave; the others
+    /// are taken from the travel when the file is parsed.
+    bed_placed: [bool; 2],
+}
+
+/// `[sim]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SimKeys {
     #[serde(default)]
-    pub bed: Option<SimBed>,
+    axes: BTreeMap<String, SimAxis>,
+    #[serde(default)]
+    bed: Option<probe::BedKeys>,
+}
+
+impl From<SimKeys> for Sim {
+    fn from(k: SimKeys) -> Self {
+        let (bed, bed_placed) = match k.bed.map(probe::BedKeys::surface) {
+            Some((bed, placed)) => (Some(bed), placed),
+            None => (None, [true; 2]),
+        };
+        Sim {
+            axes: k.axes,
+            bed,
+            bed_placed,
+        }
+    }
+}
+
+impl Sim {
+    /// The same settings with `bed` as the simulated bed, placed as given.
+    pub fn with_bed(mut self, bed: BedSurface) -> Self {
+        self.bed = Some(bed);
+        self.bed_placed = [true; 2];
+        self
+    }
+
+    /// Centres the bed on the middle of the x-y travel and sizes it to the
+    /// travel where the file left that out.
+    fn place_bed(&mut self, axes: &BTreeMap<String, Axis>) {
+        let (Some(bed), Some(x), Some(y)) = (&mut self.bed, axes.get("x"), axes.get("y")) else {
+            return;
+        };
+        if !self.bed_placed[0] {
+            bed.center = [(x.min + x.max) / 2.0, (y.min + y.max) / 2.0];
+        }
+        if !self.bed_placed[1] {
+            bed.half = [(x.max - x.min) / 2.0, (y.max - y.min) / 2.0];
+        }
+        self.bed_placed = [true; 2];
+    }
 }
 
 /// An axis in simulation (`[sim.axes.NAME]`): where its carriage stands at
@@ -620,7 +672,7 @@ pub struct SwitchPlacement<'a> {
 impl MachineFile {
     /// Parses and validates a machine file's text.
     pub fn parse(text: &str) -> Result<MachineFile, ConfigError> {
-        let file: MachineFile = toml::from_str(text).map_err(|e| {
+        let mut file: MachineFile = toml::from_str(text).map_err(|e| {
             let line = e
                 .span()
                 .map(|span| line_of(text, span.start))
@@ -635,6 +687,9 @@ impl MachineFile {
                 message,
             }
         })?;
+        if let Some(sim) = &mut file.sim {
+            sim.place_bed(&file.axes);
+        }
         file.validate()?;
         Ok(file)
     }

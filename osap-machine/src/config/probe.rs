@@ -1,6 +1,8 @@
 //! `[probe]`, the bed probe, and `[sim.bed]`, the simulated bed it
-//! touches: their keys and checks. Probing itself is the `level` module's.
+//! touches (a [`BedSurface`], the one bed model the simulator shares):
+//! their keys and checks. Probing itself is the `level` module's.
 
+use maxl::bed::BedSurface;
 use maxl::blocks::bedlevel::MeshGrid;
 use serde::Deserialize;
 
@@ -39,24 +41,39 @@ fn default_margin() -> f64 {
     10.0
 }
 
-/// The simulated bed, `[sim.bed]`: a plane tilted by `tilt_x` and `tilt_y`
-/// through `z` at the middle of the x-y travel, plus a dome `warp` high at
-/// the middle falling to 0 at the travel's edges (see
-/// the simulator's bed surface). The simulated probe touches it.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
+/// `[sim.bed]` as written: the bed's shape, and optionally where it lies
+/// (by default centred on the middle of the x-y travel, the dome falling
+/// to 0 at the travel's edges).
+#[derive(Deserialize)]
 #[serde(deny_unknown_fields)]
-pub struct SimBed {
-    /// Height at the middle of the x-y travel.
-    pub z: f64,
-    /// Slope along x (units of height per unit of x).
+pub(super) struct BedKeys {
+    z: f64,
     #[serde(default)]
-    pub tilt_x: f64,
-    /// Slope along y.
+    tilt_x: f64,
     #[serde(default)]
-    pub tilt_y: f64,
-    /// The dome's height at the middle (negative: a dish).
+    tilt_y: f64,
     #[serde(default)]
-    pub warp: f64,
+    warp: f64,
+    #[serde(default)]
+    center: Option<[f64; 2]>,
+    #[serde(default)]
+    half: Option<[f64; 2]>,
+}
+
+impl BedKeys {
+    /// The bed, and whether its placement (`center`, `half`) was given.
+    pub(super) fn surface(self) -> (BedSurface, [bool; 2]) {
+        let given = [self.center.is_some(), self.half.is_some()];
+        let surface = BedSurface {
+            z: self.z,
+            tilt_x: self.tilt_x,
+            tilt_y: self.tilt_y,
+            warp: self.warp,
+            center: self.center.unwrap_or([0.0; 2]),
+            half: self.half.unwrap_or([1.0; 2]),
+        };
+        (surface, given)
+    }
 }
 
 /// Steepest bed slope accepted: a bed tilted more is a mistake in the file.
@@ -93,6 +110,9 @@ pub(super) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
                     format!("slope {v} is steeper than {MAX_TILT} (units per unit); a bed tilt is a few tenths of a millimetre over the bed, e.g. 0.001"),
                 ));
             }
+        }
+        if let Err(e) = bed.check() {
+            return Err(invalid(&format!("sim.bed.{}", e.key()), e.to_string()));
         }
         if cfg.probe.is_none() {
             return Err(invalid(

@@ -1,5 +1,5 @@
 //! A [`Machine`] on simulated modules: the machine file's own simulated
-//! machine ([`super::topology`]) started under a host, and what only a
+//! machine ([`super::spec`]) started under a host, and what only a
 //! simulated machine can answer (where its carriage really is).
 
 use std::any::Any;
@@ -47,10 +47,9 @@ impl Machine {
         options: SimOptions,
     ) -> Result<Machine, MachineError> {
         cfg.validate()?;
-        let topology =
-            super::topology(cfg).map_err(|e| MachineError::Unsupported(e.to_string()))?;
+        let spec = super::spec(cfg).map_err(|e| MachineError::Unsupported(e.to_string()))?;
         let host = Host::start(HostConfig::named(HOST_NAME))?;
-        let sim = SimMachine::start_with(&host, &topology, options.time).await?;
+        let sim = SimMachine::start_with(&host, &spec, options.time).await?;
         Self::start(
             cfg,
             host,

@@ -1,6 +1,6 @@
 //! The simulated machine a machine file describes: the
-//! [`osap_sim::machine::Topology`] `Machine::simulate` starts, derived from
-//! the file alone ([`topology`]), so no second file is needed.
+//! [`SimSpec`] `Machine::simulate` starts, derived from
+//! the file alone ([`spec`]), so no second file is needed.
 //!
 //! # Conventions
 //!
@@ -46,15 +46,15 @@
 use std::collections::BTreeMap;
 
 use osap_core::netresponder::NAME_MAX;
-use osap_host::HostError;
-use osap_sim::machine::bed::BedContact;
-use osap_sim::machine::board::{IoSpec, MotorSpec, DRIVER_MICROSTEPS};
-use osap_sim::machine::{LinkKind, LinkSpec, ModuleSpec, SwitchSpec, Topology, HOST, MODULE_LINKS};
+use osap_sim::machine::MODULE_LINKS;
+use osap_sim::spec::{
+    BedContact, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, SimSpec, SpecError, SwitchSpec,
+    DRIVER_MICROSTEPS, HOST,
+};
 
 use crate::config::{Direction, Kinematics, MachineFile};
 
 pub(crate) mod accel;
-mod bed;
 mod machine;
 
 pub use machine::SimOptions;
@@ -83,10 +83,10 @@ pub enum SimError {
         /// What is wrong and how to fix it.
         message: String,
     },
-    /// The derived topology failed the simulator's own check (a bug here,
-    /// or a limit this module does not check first).
-    #[error("simulating the machine file: the derived topology is invalid: {0}")]
-    Topology(#[source] HostError),
+    /// The derived spec failed the simulator's own check (a bug here, or
+    /// a limit this module does not check first).
+    #[error("simulating the machine file: the derived spec is invalid: {0}")]
+    Spec(#[source] SpecError),
 }
 
 impl SimError {
@@ -94,7 +94,7 @@ impl SimError {
     pub fn key(&self) -> Option<&str> {
         match self {
             SimError::Unsupported { key, .. } => Some(key),
-            SimError::Topology(_) => None,
+            SimError::Spec(_) => None,
         }
     }
 }
@@ -198,7 +198,7 @@ pub fn axis_form(cfg: &MachineFile, axis: &str) -> Result<AxisForm, SimError> {
 /// conventions): a hub on the host's USB, every module of `[modules]` on a
 /// hub UART, motors, I/O and one switch over motors per axis homed on a
 /// switch. Validated; errors name the key and the fix.
-pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
+pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
     // Names.
     let mut names: BTreeMap<&str, String> = BTreeMap::new();
     for key in cfg.modules.keys() {
@@ -317,7 +317,7 @@ pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
             -RATE_SPREAD_PPM + 2.0 * RATE_SPREAD_PPM * i as f64 / (count - 1) as f64
         }
     };
-    let mut t = Topology::new(&cfg.name)
+    let mut t = SimSpec::new(&cfg.name)
         .with_module(ModuleSpec::new(HUB, "hub").with_rate_ppm(rate(0)))
         .with_link(LinkSpec::new(HOST, HUB, LinkKind::Usb));
     for (k, slot) in slots.iter().enumerate().take(used + 1).skip(1) {
@@ -387,11 +387,10 @@ pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
     // The bed probe: pressed while its tip is at or below the bed.
     let bed = cfg.sim.as_ref().and_then(|s| s.bed.as_ref());
     if let (Some(probe), Some(bed)) = (&cfg.probe, bed) {
-        let (Some(surface), Some(module)) = (bed.surface(cfg), module_name(cfg, &probe.module))
-        else {
+        let (surface, Some(module)) = (*bed, module_name(cfg, &probe.module)) else {
             return Err(unsupported(
                 "probe",
-                "a simulated probe needs axes x and y and its module in [modules]",
+                "a simulated probe needs its module in [modules]",
             ));
         };
         let [ox, oy, oz] = probe.offset;
@@ -416,7 +415,7 @@ pub fn topology(cfg: &MachineFile) -> Result<Topology, SimError> {
         });
     }
 
-    t.validate().map_err(SimError::Topology)?;
+    t.validate().map_err(SimError::Spec)?;
     Ok(t)
 }
 

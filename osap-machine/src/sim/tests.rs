@@ -18,12 +18,12 @@ fn parse(text: &str) -> MachineFile {
 }
 
 fn err(cfg: &MachineFile) -> (String, String) {
-    let e = topology(cfg).unwrap_err();
+    let e = spec(cfg).unwrap_err();
     (e.key().unwrap_or("").to_string(), e.to_string())
 }
 
 /// The module on hub link `k`.
-fn on_hub_link(t: &Topology, k: usize) -> &str {
+fn on_hub_link(t: &SimSpec, k: usize) -> &str {
     let l = &t.links[t.links_of(HUB)[k]];
     if l.a == HUB {
         &l.b
@@ -68,7 +68,7 @@ fn corexy_motors(cfg: &MachineFile, x: f64, y: f64) -> BTreeMap<String, f64> {
 #[test]
 fn the_plotter_derives() {
     let cfg = example("plotter.toml");
-    let t = topology(&cfg).unwrap();
+    let t = spec(&cfg).unwrap();
     assert_eq!(t.name, "plotter");
     let names: Vec<&str> = t.modules.iter().map(|m| m.name.as_str()).collect();
     assert_eq!(names, ["hub", "a", "b", "z"]);
@@ -109,7 +109,7 @@ fn the_plotter_derives() {
 #[test]
 fn the_mill_derives() {
     let cfg = example("mill.toml");
-    let t = topology(&cfg).unwrap();
+    let t = spec(&cfg).unwrap();
     let names: Vec<&str> = t.modules.iter().map(|m| m.name.as_str()).collect();
     // By name, in key order x, y, z: hub links 1, 2, 3.
     assert_eq!(names, ["hub", "mill-x", "mill-y", "mill-z"]);
@@ -162,7 +162,7 @@ fn the_mill_derives() {
 #[test]
 fn the_corexy_switches_follow_x_and_y() {
     let cfg = example("plotter.toml");
-    let t = topology(&cfg).unwrap();
+    let t = spec(&cfg).unwrap();
     let (xs, ys) = (&t.switches[0], &t.switches[1]);
     // The machine believes it boots at (0, 0); it is at the middle,
     // (100, 75). So x reaches its min (0) when the machine believes
@@ -214,7 +214,7 @@ fn the_corexy_switches_follow_x_and_y() {
     );
     let cfg = parse(&text);
     assert_eq!(start_position(&cfg, "x"), Some(10.0));
-    let t = topology(&cfg).unwrap();
+    let t = spec(&cfg).unwrap();
     assert_eq!(t.switches[0].offset, 10.0);
     let m = corexy_motors(&cfg, -11.0, 50.0);
     assert!(t.switches[0].pressed(|name| m[name]));
@@ -245,7 +245,7 @@ fn routes_place_modules_on_hub_links() {
     let cfg = parse(&format!(
         "{BASE}\n[modules]\nx = {{ route = [0, 2] }}\np = {{ name = \"p\" }}\nq = {{ name = \"q\" }}\nr = {{ route = [0, 5] }}\n"
     ));
-    let t = topology(&cfg).unwrap();
+    let t = spec(&cfg).unwrap();
     // p and q by name take the free links 1 and 3; 4 is held by a
     // placeholder so that r sits on 5.
     assert_eq!(
@@ -336,7 +336,7 @@ jerk = 10000.0
         "{message}"
     );
     // Without switch homing a scara arm simulates.
-    let t = topology(&parse(&scara.replace(
+    let t = spec(&parse(&scara.replace(
         "homing = { switch = \"s\", direction = \"min\", search_speed = 10.0, latch_speed = 1.0, backoff = 2.0 }\n",
         "",
     )))
@@ -381,7 +381,7 @@ fn sim_axes_take_a_start_and_an_optional_resonance() {
 #[test]
 fn the_plotter_starts_and_a_scan_finds_every_module() {
     let cfg = example("plotter.toml");
-    let t = topology(&cfg).unwrap();
+    let t = spec(&cfg).unwrap();
     virtual_runtime().unwrap().block_on(async {
         let host = Host::start(HostConfig::named("machine")).unwrap();
         let sim = SimMachine::start_with(&host, &t, TimeMode::Virtual)
@@ -412,4 +412,34 @@ fn the_plotter_starts_and_a_scan_finds_every_module() {
         }
         sim.stop().await.unwrap();
     });
+}
+
+/// One spec, two simulators: the spec a machine file derives, which the
+/// real-time machines run above, also runs in the discrete-event
+/// simulator, node for node and link for link, and its clocks converge
+/// there as on the machines.
+#[test]
+fn a_machine_files_spec_runs_in_the_discrete_event_simulator() {
+    let cfg = example("mill.toml");
+    let spec = spec(&cfg).unwrap();
+    let network = osap_sim::Network::from_spec(&spec).unwrap();
+    let names: Vec<&str> = network.nodes.iter().map(|n| n.name.as_str()).collect();
+    let expected: Vec<&str> = std::iter::once(HOST)
+        .chain(spec.modules.iter().map(|m| m.name.as_str()))
+        .collect();
+    assert_eq!(names, expected);
+    assert_eq!(network.links.len(), spec.links.len());
+    let outcome = osap_sim::Scenario::from_spec(&spec)
+        .unwrap()
+        .seconds(5.0)
+        .run()
+        .unwrap();
+    let metrics = &outcome.metrics;
+    assert_eq!(metrics.node_count(), spec.modules.len() + 1);
+    assert!(metrics.all_tiered_time(255).is_some(), "not tiered");
+    let converged = metrics.worst_convergence_time(50.0);
+    assert!(
+        converged.is_some_and(|s| s < 4.0),
+        "within 50 µs after {converged:?} s"
+    );
 }

@@ -11,14 +11,14 @@
 //! A topology is a built-in name (`chain<N>`, `star<N>`, `tree<D>x<F>`,
 //! `loop`) or the path of a TOML topology file, the format the simulated
 //! machines read (`osap-sim/topologies/*.toml`; see
-//! `osap_sim::from_machine`), e.g. `--topologies
+//! `osap_sim::from_spec`), e.g. `--topologies
 //! chain4,osap-sim/topologies/uart-chain.toml`. Runs use `--seed`, not a
 //! file's `seed`.
 
 use osap_sim::busy::BusyModel;
 use osap_sim::metrics::Stats;
 use osap_sim::plot::plot_errors;
-use osap_sim::{Scenario, SimError, Topology};
+use osap_sim::{Network, Scenario, SimError};
 use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -142,18 +142,18 @@ struct Row {
 }
 
 /// A built-in topology by name, or one described in a TOML topology file.
-fn load(name: &str) -> Result<Topology, SimError> {
+fn load(name: &str) -> Result<Network, SimError> {
     let path = std::path::Path::new(name);
     if path.extension().is_some_and(|e| e == "topo") {
         return Err(SimError::config(format!(
             "{name}: the text topology format is gone; topologies are TOML files \
-             (osap-sim/topologies/*.toml, see osap_sim::from_machine)"
+             (osap-sim/topologies/*.toml, see osap_sim::from_spec)"
         )));
     }
     if path.is_file() {
-        return Topology::load(path);
+        return Network::load(path);
     }
-    Topology::named(name)
+    Network::named(name)
 }
 
 fn run_one(args: &Args, topology: &str, variant: Variant) -> Result<Row, SimError> {

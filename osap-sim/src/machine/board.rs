@@ -22,134 +22,11 @@ pub mod accel;
 pub mod bootloader;
 
 use super::clock::DriftClock;
-use accel::{Accel, AccelSpec};
+use crate::spec::{IoSpec, MotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS};
+use accel::Accel;
 use bootloader::BootHook;
 use osap_core::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
-use serde::{Deserialize, Serialize};
-
-/// Digital pins of a simulated module (as on the RP2040 board).
-pub const DIGITAL_PINS: u8 = 4;
-/// PWM outputs of a simulated module.
-pub const PWM_OUTPUTS: u8 = 2;
-/// Analog inputs of a simulated module.
-pub const ANALOG_INPUTS: u8 = 3;
-/// The microstep modes the simulated driver's mode pins can set (an A4988
-/// or DRV8825 with three mode pins).
-pub const DRIVER_MICROSTEPS: [u16; 6] = [1, 2, 4, 8, 16, 32];
-
-fn default_full_steps_per_unit() -> f64 {
-    80.0
-}
-
-/// What the motor of a simulated module drives, `[module.motor]` in a
-/// topology file.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct MotorSpec {
-    /// Full motor steps per unit of carriage travel (80: a 1.8° motor on a
-    /// GT2 belt and 20-tooth pulley, in mm). What the module's `set_scale`
-    /// should be told for its positions to be carriage units.
-    #[serde(default = "default_full_steps_per_unit")]
-    pub full_steps_per_unit: f64,
-    /// A limit switch at this carriage position (units), pressed below it
-    /// (a minimum endstop); absent: no switch (its input reads released,
-    /// unless a [`SwitchSpec`](super::SwitchSpec) over several motors
-    /// drives it).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub limit_min: Option<f64>,
-    /// A limit switch pressed above this carriage position (a maximum
-    /// endstop). At most one of `limit_min` and `limit_max`: the module has
-    /// one limit input.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub limit_max: Option<f64>,
-    /// Keep every step edge (time and direction) for [`Motor::edges`]. On
-    /// by default; a very long run may turn it off and read only the counts.
-    #[serde(default = "yes")]
-    pub record: bool,
-}
-
-fn yes() -> bool {
-    true
-}
-
-impl Default for MotorSpec {
-    fn default() -> Self {
-        MotorSpec {
-            full_steps_per_unit: default_full_steps_per_unit(),
-            limit_min: None,
-            limit_max: None,
-            record: true,
-        }
-    }
-}
-
-impl MotorSpec {
-    /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
-        if !(self.full_steps_per_unit.is_finite() && self.full_steps_per_unit > 0.0) {
-            return Err(format!(
-                "[module.motor] full_steps_per_unit {} must be finite and positive",
-                self.full_steps_per_unit
-            ));
-        }
-        if self.limit_min.is_some() && self.limit_max.is_some() {
-            return Err(
-                "[module.motor] has both limit_min and limit_max: a module has one limit input"
-                    .into(),
-            );
-        }
-        for x in [self.limit_min, self.limit_max].into_iter().flatten() {
-            if !x.is_finite() {
-                return Err(format!("[module.motor] limit position {x} must be finite"));
-            }
-        }
-        Ok(())
-    }
-}
-
-/// What the I/O pins of a simulated module read at boot, `[module.io]`.
-#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct IoSpec {
-    /// Levels of the digital pins while nothing drives them (at most 4).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub digital: Vec<bool>,
-    /// Analog inputs, fractions of full scale `0..=1` (at most 3).
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub analog: Vec<f64>,
-    /// An accelerometer on one analog input, seeing this module's carriage
-    /// (`[module.io.accel]`).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub accel: Option<AccelSpec>,
-}
-
-impl IoSpec {
-    /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
-        if self.digital.len() > usize::from(DIGITAL_PINS) {
-            return Err(format!(
-                "[module.io] digital lists {} pins; a module has {DIGITAL_PINS}",
-                self.digital.len()
-            ));
-        }
-        if self.analog.len() > usize::from(ANALOG_INPUTS) {
-            return Err(format!(
-                "[module.io] analog lists {} inputs; a module has {ANALOG_INPUTS}",
-                self.analog.len()
-            ));
-        }
-        if let Some(v) = self.analog.iter().find(|v| !(0.0..=1.0).contains(*v)) {
-            return Err(format!(
-                "[module.io] analog value {v} must be a fraction of full scale, 0 to 1"
-            ));
-        }
-        if let Some(a) = &self.accel {
-            a.check()?;
-        }
-        Ok(())
-    }
-}
 
 /// One step the motor took.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -302,7 +179,7 @@ impl Motor {
 
     /// The motor's own switch's level after the newest step (`true`:
     /// released; always `true` without `limit_min`/`limit_max`, also when
-    /// a [`SwitchSpec`](super::SwitchSpec) drives the module's input).
+    /// a [`SwitchSpec`](crate::spec::SwitchSpec) drives the module's input).
     pub fn limit_level(&self) -> bool {
         self.limit_level
     }

@@ -1,7 +1,7 @@
 //! Simulated modules: whole machines on the host, without hardware.
 //!
-//! A simulated module runs a real osap-core runtime ([`ModuleRuntime`]: 32
-//! slots of 256 bytes, the firmware's port indices, up to 8 links; build key
+//! A simulated module runs a real osap-core runtime ([`ModuleRuntime`]: the
+//! firmware's 16 slots of 256 bytes, the firmware's port indices, up to 8 links; build key
 //! `RustSimulated`), in its own tokio task, behind simulated links, on a
 //! drifting clock ([`DriftClock`]). Unlike this crate's discrete-event
 //! simulator ([`crate::Sim`]) a real [`Host`] (and the CLI, and any script)
@@ -26,23 +26,24 @@
 //!
 //! No module logic lives here: what a `stepper` does is osap-module's.
 //!
-//! A machine is described by a [`Topology`], usually read from a TOML file
-//! ([`load`]), and started against a host with [`SimMachine::start`]. The
+//! A machine is described by a [`SimSpec`], usually
+//! read from a TOML file ([`SimSpec::load`](crate::spec::SimSpec::load)), and started against a host with [`SimMachine::start`]. The
 //! repository ships six in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
 //! UARTs), `loop.toml` (a network with a loop), `corexy-plotter.toml`
 //! (a hub with three steppers, one with a limit switch), and, written for
 //! the clock-sync report, `uart-chain.toml` and `chain4-hub-root.toml`.
-//! The discrete-event simulator reads the same files
-//! ([`crate::Topology::load`], [`crate::from_machine`]).
+//! The discrete-event simulator runs the same specs
+//! ([`crate::network::from_spec`]).
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::HostError> {
 //! use osap_host::{Host, HostConfig};
-//! use osap_sim::machine::{self, SimMachine};
+//! use osap_sim::machine::SimMachine;
+//! use osap_sim::SimSpec;
 //! let host = Host::start(HostConfig::default())?;
-//! let topology = machine::load("osap-sim/topologies/small-machine.toml")?;
-//! let machine = SimMachine::start(&host, &topology).await?;
+//! let spec = SimSpec::load("osap-sim/topologies/small-machine.toml")?;
+//! let machine = SimMachine::start(&host, &spec).await?;
 //! let route = machine.route_to("x").unwrap(); // host → hub → x
 //! let port = host.open_port("script").await?;
 //! let name = port
@@ -51,7 +52,7 @@
 //! # let _ = name; Ok(()) }
 //! ```
 //!
-//! # Topology files
+//! # Topology files (a spec in TOML)
 //!
 //! ```toml
 //! name = "small-machine"     # optional
@@ -144,7 +145,7 @@
 //!
 //! # Switches over several motors
 //!
-//! A `[[switch]]` ([`SwitchSpec`]) is pressed by a linear form of several
+//! A `[[switch]]` ([`SwitchSpec`](crate::spec::SwitchSpec)) is pressed by a linear form of several
 //! motors' carriage positions: a CoreXY machine's x endstop, wired to
 //! module a's limit input, closes when x = (a + b) / 2 reaches it, however
 //! a and b got there. Each watched motor publishes its steps with their
@@ -160,15 +161,15 @@
 //! pressed). Only the simulated machines run them: the discrete-event
 //! simulator has no motors and ignores them.
 //!
-//! A switch with a `bed` ([`bed::BedContact`]) is a bed levelling probe:
+//! A switch with a `bed` ([`BedContact`](crate::spec::BedContact)) is a bed levelling probe:
 //! it closes at `at` plus the height of a tilted, warped bed
-//! ([`bed::BedSurface`]) under the probe tip, whose x and y are two more
+//! ([`BedSurface`](crate::spec::BedSurface)) under the probe tip, whose x and y are two more
 //! forms of carriage positions.
 //!
 //! # Keys for the discrete-event simulator
 //!
 //! The same files describe networks for the discrete-event simulator
-//! ([`crate::Topology::load`]; how each key maps: [`crate::from_machine`]),
+//! ([`crate::Network::load`]; how each key maps: [`crate::network::from_spec`]),
 //! which needs a few things a machine does not: the `[host]` table (the
 //! host as a PC process or a microcontroller, its clock, busy spells), a
 //! module's `root`, `busy` and `clock`, and a link's `loss`, `jitter_us`
@@ -201,7 +202,7 @@
 //!
 //! Delays are kept by a per-machine wire thread with µs precision (see
 //! `wire.rs`), not tokio's 1 ms timers. With `zero_latency = true` (or
-//! [`Topology::with_zero_latency`]) the two ends are joined directly, as
+//! [`SimSpec::with_zero_latency`](crate::spec::SimSpec::with_zero_latency)) the two ends are joined directly, as
 //! [`osap_host::link::memory`] joins two hosts: no timers, no
 //! tasks in between.
 //!
@@ -214,14 +215,12 @@
 //! [`SimModule::restart`] boots it again: a fresh runtime, its clock
 //! restarting from its boot value, the name it last had, its links back up.
 
-pub mod bed;
 pub mod board;
 mod bus;
 mod clock;
 pub mod faults;
 mod module;
 mod switch;
-mod topology;
 mod wire;
 
 pub use bus::BusStats;
@@ -230,10 +229,6 @@ pub use faults::{CorruptionStats, Fault, FaultError, FaultParseError};
 pub use module::{
     ModuleRuntime, SharedModule, FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU, MODULE_PORTS,
     MODULE_SLOTS,
-};
-pub use topology::{
-    load, BusSpec, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SwitchSpec, Topology, DEFAULT_BAUD,
-    HOST, MAX_HOST_LINKS,
 };
 
 /// How a simulated machine keeps time.
@@ -262,6 +257,8 @@ pub fn virtual_runtime() -> std::io::Result<tokio::runtime::Runtime> {
 
 use crate::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
 use crate::rng::Rng;
+use crate::spec::graph::{firmware_link, Node};
+use crate::spec::{LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, HOST};
 use board::bootloader::{Arrival, BootHook, BootStats, Drive};
 use board::SimBoard;
 use module::{ModuleCommand, ModuleLink, ModuleTask, Parked, StepClock};
@@ -281,7 +278,6 @@ use std::time::Instant;
 use switch::{Input, Positions, Publisher};
 use tokio::sync::{mpsc, oneshot, Notify};
 use tokio::task::JoinHandle;
-use topology::Node;
 use wire::{Carrier, Wire, WireHandle};
 
 /// Packets each link end buffers each way.
@@ -302,7 +298,7 @@ pub struct SimModule {
 }
 
 struct Machine {
-    topology: Topology,
+    topology: SimSpec,
     /// True time zero of the link models.
     epoch: Instant,
     host_clock: osap_host::HostClock,
@@ -424,14 +420,14 @@ impl SimMachine {
     /// Starts the machine `topology` describes, attached to `host`: one task
     /// per module, its links attached to the host in file order, every
     /// link up. The topology is validated first.
-    pub async fn start(host: &Host, topology: &Topology) -> Result<SimMachine, HostError> {
+    pub async fn start(host: &Host, topology: &SimSpec) -> Result<SimMachine, HostError> {
         Self::start_with(host, topology, TimeMode::RealTime).await
     }
 
     /// [`start`](Self::start) in the given [`TimeMode`].
     pub async fn start_with(
         host: &Host,
-        topology: &Topology,
+        topology: &SimSpec,
         mode: TimeMode,
     ) -> Result<SimMachine, HostError> {
         topology.validate()?;
@@ -495,7 +491,7 @@ impl SimMachine {
                         let slots = &mut module_links[m];
                         let at = match topology.modules[m].kind() {
                             Some(ModuleKind::Stepper) => {
-                                topology::firmware_link(spec.kind).unwrap_or(slots.len())
+                                firmware_link(spec.kind).unwrap_or(slots.len())
                             }
                             _ => slots.len(),
                         };
@@ -538,7 +534,7 @@ impl SimMachine {
                 let slots = &mut module_links[m];
                 let at = match topology.modules[m].kind() {
                     Some(ModuleKind::Stepper) => {
-                        topology::firmware_link(LinkKind::Rs485).unwrap_or(slots.len())
+                        firmware_link(LinkKind::Rs485).unwrap_or(slots.len())
                     }
                     _ => slots.len(),
                 };
@@ -689,7 +685,7 @@ impl SimMachine {
     }
 
     /// The topology it was started from.
-    pub fn topology(&self) -> &Topology {
+    pub fn topology(&self) -> &SimSpec {
         &self.machine.topology
     }
 

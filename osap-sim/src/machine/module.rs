@@ -18,22 +18,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::{mpsc, Notify};
 
-/// Packet slots of a simulated module's runtime: the firmware's
-/// ([`osap_module::sizes::SLOTS`]).
-pub const MODULE_SLOTS: usize = osap_module::sizes::SLOTS;
-/// Packet size of a simulated module: the firmware's
-/// ([`osap_module::sizes::MTU`]).
-pub const MODULE_MTU: usize = osap_module::sizes::MTU;
-/// Port indices of a simulated module (port 0 included): every index the
-/// module firmware's ports take ([`osap_module::sizes::PORTS`]).
-pub const MODULE_PORTS: usize = osap_module::sizes::PORTS;
-/// Link gateways of a simulated module: room for a simulated hub's; a
-/// `stepper` uses the firmware's [`FIRMWARE_LINKS`]. (Quotas are per link
-/// and per port, not per gateway, so the unused room changes nothing.)
-pub const MODULE_LINKS: usize = 8;
-/// Link gateways of the module firmware: USB CDC (link 0) and a UART
-/// (link 1) ([`osap_module::sizes::LINKS`]).
-pub const FIRMWARE_LINKS: usize = osap_module::sizes::LINKS;
+pub use crate::spec::{FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU, MODULE_PORTS, MODULE_SLOTS};
 
 /// A simulated module's osap-module instance, shared by its function ports,
 /// its step generator and the [`SimModule`](super::SimModule) handle.

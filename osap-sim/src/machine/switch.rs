@@ -37,9 +37,8 @@
 //! moving from the clock reading it took). A motor that stops running is
 //! standing.
 
-use super::bed::{BedContact, BedSurface};
-use super::topology::{SwitchSpec, Topology};
 use super::DriftClock;
+use crate::spec::{BedContact, BedSurface, SimSpec, SwitchSpec};
 use osap_core::Instant as LocalInstant;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -84,7 +83,7 @@ impl Positions {
     /// The board for `topology`'s switches (`None` without any), waking
     /// module `i`'s task through `wakes[i]`.
     pub(crate) fn new(
-        topology: &Topology,
+        topology: &SimSpec,
         wakes: &[Arc<Notify>],
         epoch: Instant,
     ) -> Option<Arc<Positions>> {
@@ -135,7 +134,7 @@ impl Positions {
 
 /// The modules whose motors the switches on module `input` watch, each
 /// once, in the order they are first named.
-fn watched(topology: &Topology, input: usize) -> Vec<usize> {
+fn watched(topology: &SimSpec, input: usize) -> Vec<usize> {
     let name = &topology.modules[input].name;
     let mut terms = Vec::new();
     for s in topology.switches.iter().filter(|s| &s.module == name) {
@@ -330,7 +329,7 @@ impl Input {
     /// `clock`, its level from where the carriages are.
     pub(crate) fn new(
         board: &Arc<Positions>,
-        topology: &Topology,
+        topology: &SimSpec,
         module: usize,
         clock: DriftClock,
     ) -> Option<Input> {
@@ -369,7 +368,7 @@ impl Input {
                     x_offset: b.x_offset,
                     y: slots(&b.y_terms),
                     y_offset: b.y_offset,
-                    surface: b.surface.clone(),
+                    surface: b.surface,
                 }),
             })
             .collect();

@@ -8,20 +8,20 @@ use osap_host::{Host, HostConfig};
 use osap_sim::clock::ClockSpec;
 use osap_sim::medium::Side;
 use osap_sim::sim::FrameRecord;
-use osap_sim::{LinkModel, NodeSpec, Sim, SimConfig, Topology};
+use osap_sim::{LinkModel, Network, NodeSpec, Sim, SimConfig};
 use std::path::PathBuf;
 
 /// Two nodes joined by one link: `host` (root, a perfect clock) on end A
 /// and `m1` (booted 5 s earlier, 50 ppm fast) on end B.
-pub(crate) fn pair(model: LinkModel) -> Topology {
-    Topology::new("pair")
+pub(crate) fn pair(model: LinkModel) -> Network {
+    Network::new("pair")
         .with_node(NodeSpec::host("host").with_clock(ClockSpec::fixed(0.0, 0.0)))
         .with_node(NodeSpec::mcu("m1").with_clock(ClockSpec::fixed(5_000_000.0, 50.0)))
         .with_link("host", "m1", model)
 }
 
 /// A simulation that records every frame.
-pub(crate) fn traced(topology: &Topology, seed: u64) -> Sim {
+pub(crate) fn traced(topology: &Network, seed: u64) -> Sim {
     let config = SimConfig {
         trace_frames: true,
         ..SimConfig::seeded(seed)

@@ -21,73 +21,10 @@
 //! a fraction of full scale as `0.5 + a / (2·range)` and clamped, so the
 //! module's own `analog_read` reads it through the 12-bit converter.
 
+use crate::spec::AccelSpec;
 use osap_core::Instant;
-use serde::{Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::f64::consts::PI;
-
-/// An accelerometer on a module's analog input (`[module.io.accel]` in a
-/// topology file).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct AccelSpec {
-    /// The analog input it is wired to (0..=2).
-    pub channel: u8,
-    /// The mode's natural frequency, Hz (> 0).
-    pub resonance_hz: f64,
-    /// The mode's damping ratio (≥ 0).
-    pub damping_ratio: f64,
-    /// Acceleration at full scale, carriage units/s² (> 0): a reading of
-    /// 0 is `−range`, 1 is `+range`, 0.5 is at rest.
-    pub range: f64,
-    /// Axis units per carriage unit (±1 for an axis on this motor alone; a
-    /// CoreXY belt motor moves with x and y alike). The sensor measures
-    /// along the axis, so its reading is the carriage's times this.
-    #[serde(default = "one")]
-    pub coef: f64,
-}
-
-fn one() -> f64 {
-    1.0
-}
-
-impl AccelSpec {
-    /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
-        if self.channel >= super::ANALOG_INPUTS {
-            return Err(format!(
-                "[module.io.accel] channel {} does not exist: a module has analog inputs 0 to {}",
-                self.channel,
-                super::ANALOG_INPUTS - 1
-            ));
-        }
-        if !(self.resonance_hz.is_finite() && self.resonance_hz > 0.0) {
-            return Err(format!(
-                "[module.io.accel] resonance_hz {} must be finite and positive",
-                self.resonance_hz
-            ));
-        }
-        if !(self.damping_ratio.is_finite() && self.damping_ratio >= 0.0) {
-            return Err(format!(
-                "[module.io.accel] damping_ratio {} must be finite and 0 or more",
-                self.damping_ratio
-            ));
-        }
-        if !(self.range.is_finite() && self.range > 0.0) {
-            return Err(format!(
-                "[module.io.accel] range {} must be finite and positive (units/s² at full scale)",
-                self.range
-            ));
-        }
-        if !(self.coef.is_finite() && self.coef != 0.0) {
-            return Err(format!(
-                "[module.io.accel] coef {} must be finite and not 0",
-                self.coef
-            ));
-        }
-        Ok(())
-    }
-}
 
 /// The running model.
 #[derive(Debug, Clone)]

@@ -19,12 +19,12 @@
 //! None of this is module logic: osap-module only arms the request and,
 //! once due, calls the board, exactly as on hardware.
 
-use serde::{Deserialize, Serialize};
+use crate::spec::{BootloaderSpec, Chip};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
-use uf2_link::uf2::{self, Uf2Info, RP2040_FAMILY_ID, SAMD51_FAMILY_ID};
+use uf2_link::uf2::{self, Uf2Info};
 
 /// The file that marks a UF2 bootloader's drive.
 pub const INFO_FILE: &str = "INFO_UF2.TXT";
@@ -32,97 +32,6 @@ pub const INFO_FILE: &str = "INFO_UF2.TXT";
 /// How long an incomplete `.uf2` file may stay unchanged before it is
 /// refused (a copy that stopped half way).
 pub const STALLED_COPY: Duration = Duration::from_secs(5);
-
-fn default_reboot_ms() -> u64 {
-    300
-}
-
-/// Which chip a simulated board stands for, and so which UF2 bootloader.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum Chip {
-    /// A Raspberry Pi Pico: the RP2040 boot ROM's USB drive.
-    #[default]
-    Rp2040,
-    /// An Adafruit Metro M4 (SAMD51J19): Adafruit's UF2 bootloader.
-    Samd51,
-}
-
-impl Chip {
-    /// The UF2 family id the chip's bootloader takes.
-    pub fn family_id(self) -> u32 {
-        match self {
-            Chip::Rp2040 => RP2040_FAMILY_ID,
-            Chip::Samd51 => SAMD51_FAMILY_ID,
-        }
-    }
-
-    /// The chip's name, as the topology spells it.
-    pub fn name(self) -> &'static str {
-        match self {
-            Chip::Rp2040 => "rp2040",
-            Chip::Samd51 => "samd51",
-        }
-    }
-
-    /// What its bootloader's `INFO_UF2.TXT` says.
-    pub fn info_text(self) -> &'static str {
-        match self {
-            Chip::Rp2040 => "UF2 Bootloader v3.0\r\nModel: Raspberry Pi RP2\r\nBoard-ID: RPI-RP2\r\n",
-            Chip::Samd51 => {
-                "UF2 Bootloader v3.14.0 SFHWRO\r\nModel: Metro M4 Express\r\nBoard-ID: SAMD51J19A-Metro-v0\r\n"
-            }
-        }
-    }
-}
-
-/// A simulated module's UF2 bootloader, `[module.bootloader]`.
-#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BootloaderSpec {
-    /// The directory its drive appears in (created if missing). Point
-    /// `OSAP_UF2_MOUNTS` at it (or at its parent) for `osap flash` to find
-    /// it.
-    pub drive: PathBuf,
-    /// Which chip, and so which bootloader and UF2 family (default
-    /// `rp2040`).
-    #[serde(default)]
-    pub chip: Chip,
-    /// How long the board takes to reboot into the new firmware once a UF2
-    /// has landed, ms (default 300).
-    #[serde(default = "default_reboot_ms")]
-    pub reboot_ms: u64,
-}
-
-impl BootloaderSpec {
-    /// A bootloader of `chip` whose drive is `drive`.
-    pub fn new(drive: impl Into<PathBuf>, chip: Chip) -> Self {
-        BootloaderSpec {
-            drive: drive.into(),
-            chip,
-            reboot_ms: default_reboot_ms(),
-        }
-    }
-
-    /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
-        if self.drive.as_os_str().is_empty() {
-            return Err(
-                "[module.bootloader] drive is empty: give the directory its \
-                 simulated USB drive appears in"
-                    .into(),
-            );
-        }
-        if self.reboot_ms > 60_000 {
-            return Err(format!(
-                "[module.bootloader] reboot_ms {} is over a minute: a board reboots in well \
-                 under a second",
-                self.reboot_ms
-            ));
-        }
-        Ok(())
-    }
-}
 
 /// What a simulated bootloader has done since its machine started.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -314,6 +223,7 @@ fn expected_len(bytes: &[u8]) -> Option<Result<usize, String>> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use uf2_link::uf2::{RP2040_FAMILY_ID, SAMD51_FAMILY_ID};
 
     fn image(family: u32, blocks: u32) -> Vec<u8> {
         let payload = [0xA5u8; uf2::PAYLOAD];

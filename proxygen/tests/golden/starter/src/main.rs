@@ -14,7 +14,8 @@ use osap_host::link::stream::LinkHandle;
 use osap_host::link::{serial, tcp, udp};
 use osap_host::som::Manager;
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{self, SimMachine};
+use osap_sim::machine::SimMachine;
+use osap_sim::spec::SimSpec;
 use std::error::Error;
 use std::net::SocketAddr;
 use std::path::PathBuf;
@@ -88,7 +89,7 @@ async fn run(args: Args) -> Result<(), Box<dyn Error>> {
     let mut _sim: Option<SimMachine> = None;
     let mut links: Vec<LinkHandle> = Vec::new();
     if let Some(file) = &args.sim {
-        _sim = Some(SimMachine::start(&host, &machine::load(file)?).await?);
+        _sim = Some(SimMachine::start(&host, &SimSpec::load(file)?).await?);
     }
     for path in &args.ports {
         links.push(serial::spawn_serial(&host, path, args.baud).await?);

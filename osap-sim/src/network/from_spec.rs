@@ -1,11 +1,10 @@
-//! One topology format: the discrete-event simulator ([`crate::Sim`]) runs
-//! the TOML topology files the simulated machines ([`crate::machine`]) read.
+//! The discrete-event simulator ([`crate::Sim`]) runs the [`SimSpec`] the
+//! simulated machines ([`crate::machine`]) run, lowered into its network.
 //!
-//! [`Topology::load`] reads a file (`osap-sim/topologies/*.toml`),
-//! [`Topology::from_toml`] a string, and [`Topology::from_machine`] (or
-//! `Topology::try_from(&machine_topology)`) converts a
-//! [`machine::Topology`]; [`Scenario::from_machine`] also takes the file's
-//! `seed`. The file is validated as the machines validate it, then:
+//! [`Network::from_spec`] (or `Network::try_from(&spec)`) lowers a spec,
+//! [`Network::load`] a topology file (`osap-sim/topologies/*.toml`) and
+//! [`Network::from_toml`] a string; [`Scenario::from_spec`] also takes the
+//! spec's `seed`. The spec is checked as the machines check it, then:
 //!
 //! | TOML | discrete-event simulator |
 //! |---|---|
@@ -22,7 +21,7 @@
 //! | `jitter_us` | a UART's extra latency per frame, uniform in `[0, jitter_us]` µs |
 //! | `corrupt_per_byte` | a UART's byte corruption |
 //! | `zero_latency = true` | every link becomes the `memory` model above (and `loss`, `jitter_us`, `corrupt_per_byte` are refused) |
-//! | `seed` | not part of a [`Topology`]: [`Scenario::from_machine`] runs with it (the `clock_sync_report` binary takes `--seed` instead) |
+//! | `seed` | not part of a [`Network`]: [`Scenario::from_spec`] runs with it (the `clock_sync_report` binary takes `--seed` instead) |
 //! | `sync = false` | refused: every simulated node runs clock sync, which is what the simulator measures |
 //!
 //! The keys `root`, `busy`, `clock`, `loss`, `jitter_us`, `corrupt_per_byte`
@@ -36,102 +35,26 @@
 //! `stepper` has the module firmware's two links, its `usb` link at index 0
 //! and its `uart`/`rs485` link at index 1, whatever their order in the file,
 //! and the one the file leaves out is there and never opens (an
-//! [`Unconnected`](crate::topology::Unconnected) gateway: a closed
+//! [`Unconnected`](super::Unconnected) gateway: a closed
 //! `usb_cdc` at 0 or `uart` at 1), so a stepper reached over its UART has
 //! that UART at index 1 in both simulators. The host's indices are its own
 //! in the simulator; on a machine they are the [`osap_host::Host`]'s, in
 //! the same order after any links it already had
 //! ([`SimMachine::host_links`](crate::machine::SimMachine::host_links)).
 
+use super::{NetLink, Network};
 use crate::busy::BusyModel;
 use crate::clock::{ClockSpec, Param};
 use crate::error::SimError;
-use crate::machine::{self, LinkKind, ModuleKind, FIRMWARE_LINKS, HOST};
 use crate::medium::{IpParams, LinkModel, Side, UartParams, UsbParams};
 use crate::node::{NodeKind, NodeSpec};
 use crate::rng::Dist;
 use crate::scenario::Scenario;
-use crate::topology::{LinkSpec, Topology};
-use serde::{Deserialize, Serialize};
+use crate::spec::graph::firmware_link;
+use crate::spec::{
+    ClockSource, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, FIRMWARE_LINKS, HOST,
+};
 use std::path::Path;
-
-/// Where a node's oscillator comes from in the discrete-event simulator
-/// (`clock` of a `[[module]]` or of `[host]`). DES only: the simulated
-/// machines always use a module's `rate_ppm`, `offset_us` and wander, and
-/// the host's own clock.
-#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ClockSource {
-    /// `"fixed"` (the default): a module's `rate_ppm`, `offset_us`,
-    /// `wander_ppm` and `wander_period_s`; for the host an ideal clock (the
-    /// reference the simulated machines' module clocks are relative to).
-    #[default]
-    Fixed,
-    /// `"drawn"`: drawn from the run's seed as a crystal of the node's kind
-    /// ([`ClockSpec::MCU`]: booted up to 10 s before true time 0, ±100 ppm,
-    /// wandering by U[0.5, 1.5] ppm over U[120, 600] s; a host of kind
-    /// `"host"` [`ClockSpec::HOST`]: ±50 ppm), so each seed gives other
-    /// clocks.
-    Drawn,
-}
-
-/// How the discrete-event simulator runs the host: the `[host]` table of a
-/// topology file. DES only: the simulated machines attach to a real
-/// [`osap_host::Host`] and ignore it.
-///
-/// ```toml
-/// [host]
-/// kind = "host"      # "host" (a PC process) or "mcu" (a microcontroller)
-/// clock = "fixed"    # "fixed": an ideal clock; "drawn": from the seed
-/// busy = false       # busy spells (BusyModel::MOTOR)
-/// ```
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct HostSpec {
-    /// A PC process ([`NodeKind::Host`], the default: main-loop latency
-    /// 10 µs + Exp(40 µs)) or a microcontroller ([`NodeKind::Mcu`]: U[2, 20]
-    /// µs), to measure links without a PC's latency.
-    #[serde(default = "host_kind", skip_serializing_if = "is_host_kind")]
-    pub kind: NodeKind,
-    /// Its oscillator (default `"fixed"`: an ideal clock).
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub clock: ClockSource,
-    /// Busy spells ([`BusyModel::MOTOR`]).
-    #[serde(default, skip_serializing_if = "is_default")]
-    pub busy: bool,
-}
-
-fn host_kind() -> NodeKind {
-    NodeKind::Host
-}
-
-fn is_host_kind(kind: &NodeKind) -> bool {
-    *kind == NodeKind::Host
-}
-
-fn is_default<T: Default + PartialEq>(v: &T) -> bool {
-    *v == T::default()
-}
-
-impl Default for HostSpec {
-    fn default() -> Self {
-        HostSpec {
-            kind: NodeKind::Host,
-            clock: ClockSource::Fixed,
-            busy: false,
-        }
-    }
-}
-
-/// Which firmware link a link of `kind` is on a `stepper`, as the machines
-/// place it ([`ModuleKind::Stepper`]).
-fn firmware_link(kind: LinkKind) -> Option<usize> {
-    match kind {
-        LinkKind::Usb => Some(0),
-        LinkKind::Uart | LinkKind::Rs485 => Some(1),
-        LinkKind::Memory => None,
-    }
-}
 
 /// The stand-in for a `memory` link: UDP with no latency at 10 Gbit/s.
 fn memory(mtu: u16) -> LinkModel {
@@ -142,7 +65,7 @@ fn memory(mtu: u16) -> LinkModel {
     })
 }
 
-fn link_model(zero_latency: bool, l: &machine::LinkSpec) -> Result<LinkModel, SimError> {
+fn link_model(zero_latency: bool, l: &LinkSpec) -> Result<LinkModel, SimError> {
     let mtu = l.mtu();
     if zero_latency {
         if l.loss.is_some() || l.jitter_us.is_some() || l.corrupt_per_byte.is_some() {
@@ -174,7 +97,7 @@ fn link_model(zero_latency: bool, l: &machine::LinkSpec) -> Result<LinkModel, Si
     })
 }
 
-fn module_clock(m: &machine::ModuleSpec) -> ClockSpec {
+fn module_clock(m: &ModuleSpec) -> ClockSpec {
     match m.clock {
         ClockSource::Fixed => ClockSpec {
             offset_us: Param::Fixed(m.offset_us),
@@ -190,13 +113,13 @@ fn busy(on: bool) -> Option<BusyModel> {
     on.then_some(BusyModel::MOTOR)
 }
 
-impl Topology {
+impl Network {
     /// The discrete-event network a machine topology describes (see the
     /// [module docs](self) for how each key maps). Fails if the machine
     /// topology is invalid, sets `sync = false`, or asks for something the
     /// simulator refuses (a node name with whitespace, more than 16 links
     /// on the host).
-    pub fn from_machine(m: &machine::Topology) -> Result<Topology, SimError> {
+    pub fn from_spec(m: &SimSpec) -> Result<Network, SimError> {
         m.validate().map_err(|e| SimError::config(e.to_string()))?;
         if !m.sync {
             return Err(SimError::config(format!(
@@ -204,7 +127,7 @@ impl Topology {
                 m.name
             )));
         }
-        let mut t = Topology::new(if m.name.is_empty() { "custom" } else { &m.name });
+        let mut t = Network::new(if m.name.is_empty() { "custom" } else { &m.name });
         let mut host = match m.host.kind {
             NodeKind::Host => NodeSpec::host(HOST),
             NodeKind::Mcu => NodeSpec::mcu(HOST),
@@ -233,7 +156,7 @@ impl Topology {
             } else {
                 (&l.a, &l.b)
             };
-            let mut link = LinkSpec::new(a, b, link_model(m.zero_latency, l)?).named(&l.name);
+            let mut link = NetLink::new(a, b, link_model(m.zero_latency, l)?).named(&l.name);
             for (side, end) in [(Side::A, a), (Side::B, b)] {
                 if let Some(index) = firmware_link(l.kind).filter(|_| is_stepper(end)) {
                     link = link.at(side, index);
@@ -262,13 +185,13 @@ impl Topology {
         Ok(t)
     }
 
-    /// Reads a TOML topology file ([`machine::load`]) and converts it
-    /// ([`from_machine`](Self::from_machine)); an unnamed one is named after
+    /// Reads a TOML topology file ([`SimSpec::load`]) and converts it
+    /// ([`from_spec`](Self::from_spec)); an unnamed one is named after
     /// the file.
-    pub fn load(path: impl AsRef<Path>) -> Result<Topology, SimError> {
+    pub fn load(path: impl AsRef<Path>) -> Result<Network, SimError> {
         let path = path.as_ref();
-        let m = machine::load(path).map_err(|e| SimError::config(e.to_string()))?;
-        let mut t = Topology::from_machine(&m)
+        let m = SimSpec::load(path).map_err(|e| SimError::config(e.to_string()))?;
+        let mut t = Network::from_spec(&m)
             .map_err(|e| SimError::config(format!("{}: {}", path.display(), message(e))))?;
         if m.name.is_empty() {
             if let Some(stem) = path.file_stem() {
@@ -278,11 +201,11 @@ impl Topology {
         Ok(t)
     }
 
-    /// Parses a TOML topology ([`machine::Topology::parse`]) and converts it
-    /// ([`from_machine`](Self::from_machine)).
-    pub fn from_toml(text: &str) -> Result<Topology, SimError> {
-        let m = machine::Topology::parse(text).map_err(|e| SimError::config(e.to_string()))?;
-        Topology::from_machine(&m)
+    /// Parses a TOML topology ([`SimSpec::parse`]) and converts it
+    /// ([`from_spec`](Self::from_spec)).
+    pub fn from_toml(text: &str) -> Result<Network, SimError> {
+        let m = SimSpec::parse(text).map_err(|e| SimError::config(e.to_string()))?;
+        Network::from_spec(&m)
     }
 }
 
@@ -292,18 +215,18 @@ fn message(e: SimError) -> String {
     }
 }
 
-impl TryFrom<&machine::Topology> for Topology {
+impl TryFrom<&SimSpec> for Network {
     type Error = SimError;
 
-    fn try_from(m: &machine::Topology) -> Result<Topology, SimError> {
-        Topology::from_machine(m)
+    fn try_from(m: &SimSpec) -> Result<Network, SimError> {
+        Network::from_spec(m)
     }
 }
 
 impl Scenario {
     /// A scenario of the discrete-event network `m` describes
-    /// ([`Topology::from_machine`]), seeded with its `seed`.
-    pub fn from_machine(m: &machine::Topology) -> Result<Scenario, SimError> {
-        Ok(Scenario::new(Topology::from_machine(m)?).seed(m.seed))
+    /// ([`Network::from_spec`]), seeded with its `seed`.
+    pub fn from_spec(m: &SimSpec) -> Result<Scenario, SimError> {
+        Ok(Scenario::new(Network::from_spec(m)?).seed(m.seed))
     }
 }

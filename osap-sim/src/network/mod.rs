@@ -1,36 +1,41 @@
-//! Network descriptions: which nodes, joined by which links.
+//! The discrete-event simulator's network: which nodes, joined by which
+//! links with which link models. It is what a [`SimSpec`](crate::SimSpec)
+//! lowers into ([`Network::from_spec`]), and what experiments on link
+//! models build directly (every [`LinkModel`] and its parameters).
 //!
-//! A [`Topology`] is plain data: node specs and link specs that name their
+//! A [`Network`] is plain data: node specs and link specs that name their
 //! two ends. A node's link gateways are numbered from 0 in the order the
 //! links naming it were added, which is the order a runtime's
 //! `link_forward` indices refer to, unless a link end asks for an index of
-//! its own ([`LinkSpec::at`]); a gateway that joins nothing
+//! its own ([`NetLink::at`]); a gateway that joins nothing
 //! ([`Unconnected`]) can hold an index no link takes, as the module
 //! firmware's USB link does on a module that is reached over its UART.
 //!
-//! Topologies are written as the TOML files the simulated machines read
-//! ([`crate::machine::Topology`], `osap-sim/topologies/*.toml`):
-//! [`Topology::load`] reads one and [`Topology::from_machine`] converts
-//! one (see [`crate::from_machine`] for how each key maps).
+//! Specs are written as the TOML files the simulated machines read
+//! (`osap-sim/topologies/*.toml`): [`Network::load`] reads one and
+//! [`Network::from_spec`] lowers one (see [`from_spec`] for how each key
+//! maps).
 //!
 //! Built-in shapes (hosts are clock roots; hubs and modules are MCUs; every
 //! host–hub link is USB CDC and every other link a 2 Mbaud UART):
 //!
-//! - [`Topology::chain`]`(n)`: `n` runtimes in a line, `n - 1` link hops:
-//!   `host –USB– hub1 –UART– hub2 … –UART– m1`. [`Topology::chain4`] is
+//! - [`Network::chain`]`(n)`: `n` runtimes in a line, `n - 1` link hops:
+//!   `host –USB– hub1 –UART– hub2 … –UART– m1`. [`Network::chain4`] is
 //!   host → USB → hub1 → UART → hub2 → UART → m1: four runtimes, three hops
 //!   (four hops if the module's own port is counted as the last).
-//! - [`Topology::star`]`(n)`: `host –USB– hub`, and `n` modules each on its
-//!   own UART to the hub ([`Topology::star8`]: the hub has 9 links).
-//! - [`Topology::tree`]`(depth, fanout)`: `host –USB– t0`, each hub with
+//! - [`Network::star`]`(n)`: `host –USB– hub`, and `n` modules each on its
+//!   own UART to the hub ([`Network::star8`]: the hub has 9 links).
+//! - [`Network::tree`]`(depth, fanout)`: `host –USB– t0`, each hub with
 //!   `fanout` children over UART, `depth` levels below `t0`.
-//! - [`Topology::loop3`] (`loop`): `host –USB– a`, a UART cycle `a – b – c
+//! - [`Network::loop3`] (`loop`): `host –USB– a`, a UART cycle `a – b – c
 //!   – a`, and a module `m1` off `c`.
 //!
 //! Link kinds and parameters the TOML format has no keys for (TCP and UDP
 //! links, USB latencies, UART bits per byte, propagation delay, asymmetry,
-//! transmit buffers) are set with the builders: [`Topology::with_link`],
-//! [`Topology::map_links`].
+//! transmit buffers) are set with the builders: [`Network::with_link`],
+//! [`Network::map_links`].
+
+pub mod from_spec;
 
 use crate::busy::BusyModel;
 use crate::error::SimError;
@@ -40,7 +45,7 @@ use std::collections::HashSet;
 
 /// One link: its two ends (node names) and its kind.
 #[derive(Debug, Clone, PartialEq)]
-pub struct LinkSpec {
+pub struct NetLink {
     /// End A (on a USB link, the host).
     pub a: String,
     /// End B (on a USB link, the device).
@@ -55,11 +60,11 @@ pub struct LinkSpec {
     pub at: [Option<usize>; 2],
 }
 
-impl LinkSpec {
+impl NetLink {
     /// A link of `model` between `a` and `b` (on USB, `a` is the host),
     /// unnamed, at the next free link index of each end.
     pub fn new(a: &str, b: &str, model: LinkModel) -> Self {
-        LinkSpec {
+        NetLink {
             a: a.to_string(),
             b: b.to_string(),
             name: String::new(),
@@ -99,24 +104,24 @@ pub struct Unconnected {
 pub enum Gateway {
     /// End `side` of `links[link]`.
     Link {
-        /// The link's position in [`Topology::links`].
+        /// The link's position in [`Network::links`].
         link: usize,
         /// Which end.
         side: Side,
     },
-    /// [`Topology::unconnected`]`[k]`.
+    /// [`Network::unconnected`]`[k]`.
     Unconnected(usize),
 }
 
 /// A network description.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Topology {
+pub struct Network {
     /// Its name (used in reports and file names).
     pub name: String,
     /// The nodes.
     pub nodes: Vec<NodeSpec>,
     /// The links, in the order they were added.
-    pub links: Vec<LinkSpec>,
+    pub links: Vec<NetLink>,
     /// Gateways that join nothing.
     pub unconnected: Vec<Unconnected>,
 }
@@ -126,10 +131,10 @@ fn uart() -> LinkModel {
     LinkModel::uart(2_000_000)
 }
 
-impl Topology {
+impl Network {
     /// An empty topology.
     pub fn new(name: &str) -> Self {
-        Topology {
+        Network {
             name: name.to_string(),
             nodes: Vec::new(),
             links: Vec::new(),
@@ -145,12 +150,12 @@ impl Topology {
 
     /// Adds a link between nodes `a` and `b` (on USB, `a` is the host).
     pub fn add_link(&mut self, a: &str, b: &str, model: LinkModel) -> &mut Self {
-        self.links.push(LinkSpec::new(a, b, model));
+        self.links.push(NetLink::new(a, b, model));
         self
     }
 
     /// Adds a link described in full (a name, link indices of its own).
-    pub fn add_link_spec(&mut self, link: LinkSpec) -> &mut Self {
+    pub fn add_link_spec(&mut self, link: NetLink) -> &mut Self {
         self.links.push(link);
         self
     }
@@ -185,7 +190,7 @@ impl Topology {
     }
 
     /// Changes every link with `f`.
-    pub fn map_links(mut self, f: impl FnMut(&mut LinkSpec)) -> Self {
+    pub fn map_links(mut self, f: impl FnMut(&mut NetLink)) -> Self {
         self.links.iter_mut().for_each(f);
         self
     }
@@ -211,7 +216,7 @@ impl Topology {
 
     /// `n` runtimes in a line: host, `n - 2` hubs, one module (`n >= 2`).
     pub fn chain(n: usize) -> Self {
-        let mut t = Topology::new(&format!("chain{n}"));
+        let mut t = Network::new(&format!("chain{n}"));
         t.add_node(NodeSpec::host("host"));
         let mut prev = "host".to_string();
         for i in 1..n.max(2) {
@@ -230,12 +235,12 @@ impl Topology {
 
     /// host –USB– hub1 –UART– hub2 –UART– m1.
     pub fn chain4() -> Self {
-        Topology::chain(4)
+        Network::chain(4)
     }
 
     /// host –USB– hub, and `n` modules on their own UARTs to the hub.
     pub fn star(n: usize) -> Self {
-        let mut t = Topology::new(&format!("star{n}"));
+        let mut t = Network::new(&format!("star{n}"));
         t.add_node(NodeSpec::host("host"));
         t.add_node(NodeSpec::mcu("hub"));
         t.add_link("host", "hub", LinkModel::usb_cdc());
@@ -249,13 +254,13 @@ impl Topology {
 
     /// A star of 8 modules.
     pub fn star8() -> Self {
-        Topology::star(8)
+        Network::star(8)
     }
 
     /// host –USB– t0, then `depth` levels of `fanout` children per hub over
     /// UART. Nodes are named `t<level>_<index>` (`t0` for the top hub).
     pub fn tree(depth: usize, fanout: usize) -> Self {
-        let mut t = Topology::new(&format!("tree{depth}x{fanout}"));
+        let mut t = Network::new(&format!("tree{depth}x{fanout}"));
         t.add_node(NodeSpec::host("host"));
         t.add_node(NodeSpec::mcu("t0"));
         t.add_link("host", "t0", LinkModel::usb_cdc());
@@ -277,7 +282,7 @@ impl Topology {
 
     /// host –USB– a; a UART cycle a – b – c – a; module m1 off c.
     pub fn loop3() -> Self {
-        let mut t = Topology::new("loop");
+        let mut t = Network::new("loop");
         t.add_node(NodeSpec::host("host"));
         for n in ["a", "b", "c", "m1"] {
             t.add_node(NodeSpec::mcu(n));
@@ -295,22 +300,22 @@ impl Topology {
     pub fn named(name: &str) -> Result<Self, SimError> {
         let num = |s: &str| s.parse::<usize>().ok().filter(|&n| (1..=64).contains(&n));
         if name == "loop" {
-            return Ok(Topology::loop3());
+            return Ok(Network::loop3());
         }
         if let Some(n) = name.strip_prefix("chain").and_then(num) {
             if n >= 2 {
-                return Ok(Topology::chain(n));
+                return Ok(Network::chain(n));
             }
         }
         if let Some(n) = name.strip_prefix("star").and_then(num) {
             if n < MAX_LINKS {
-                return Ok(Topology::star(n));
+                return Ok(Network::star(n));
             }
         }
         if let Some((d, f)) = name.strip_prefix("tree").and_then(|s| s.split_once('x')) {
             if let (Some(d), Some(f)) = (num(d), num(f)) {
                 if f < MAX_LINKS && f.pow(d as u32) <= 256 {
-                    return Ok(Topology::tree(d, f));
+                    return Ok(Network::tree(d, f));
                 }
             }
         }
@@ -376,7 +381,7 @@ impl Topology {
     }
 
     /// Each node's link gateways in link-index order: indices asked for
-    /// ([`LinkSpec::at`], [`Unconnected::index`]) first, then every other
+    /// ([`NetLink::at`], [`Unconnected::index`]) first, then every other
     /// link end, in link order, at the lowest index its node has free.
     /// Fails if two ask for one index, an index is left without a gateway,
     /// or a node has more than [`MAX_LINKS`].

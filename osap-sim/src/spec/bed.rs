@@ -14,72 +14,11 @@
 //!
 //! with `x` and `y` the contact's forms. The edge is stamped with the tick
 //! of the z step that made the tip reach the bed, exactly as an endstop's.
+//! The bed itself is [`maxl::bed::BedSurface`], the one bed model the
+//! machine file, the simulator and levelling share.
 
+pub use maxl::bed::BedSurface;
 use serde::{Deserialize, Serialize};
-
-/// A bed that is tilted and warped: its height at `(x, y)` is
-///
-/// ```text
-/// z + tilt_x·(x − cx) + tilt_y·(y − cy) + warp·(1 − u²)·(1 − v²)
-/// u = (x − cx) / half_x,  v = (y − cy) / half_y
-/// ```
-///
-/// a plane through `z` at the centre `(cx, cy)` plus a dome `warp` high at
-/// the centre that falls to 0 on the edges `cx ± half_x`, `cy ± half_y`
-/// (a negative `warp` is a dish).
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct BedSurface {
-    /// Height at the centre (units).
-    pub z: f64,
-    /// Slope along x (units of height per unit of x).
-    #[serde(default)]
-    pub tilt_x: f64,
-    /// Slope along y.
-    #[serde(default)]
-    pub tilt_y: f64,
-    /// The dome's height at the centre (units; negative: a dish).
-    #[serde(default)]
-    pub warp: f64,
-    /// The centre, `[cx, cy]`.
-    pub center: [f64; 2],
-    /// Half the bed's size, `[half_x, half_y]` (positive): where the dome
-    /// reaches 0.
-    pub half: [f64; 2],
-}
-
-impl BedSurface {
-    /// The bed's height at `(x, y)`.
-    pub fn height(&self, x: f64, y: f64) -> f64 {
-        let (dx, dy) = (x - self.center[0], y - self.center[1]);
-        let (u, v) = (dx / self.half[0], dy / self.half[1]);
-        self.z + self.tilt_x * dx + self.tilt_y * dy + self.warp * (1.0 - u * u) * (1.0 - v * v)
-    }
-
-    /// Checks the values; the message names the key and the fix.
-    pub fn check(&self) -> Result<(), String> {
-        for (key, v) in [
-            ("z", self.z),
-            ("tilt_x", self.tilt_x),
-            ("tilt_y", self.tilt_y),
-            ("warp", self.warp),
-            ("center[0]", self.center[0]),
-            ("center[1]", self.center[1]),
-        ] {
-            if !v.is_finite() {
-                return Err(format!("bed {key} = {v} must be a finite number"));
-            }
-        }
-        for (key, v) in [("half[0]", self.half[0]), ("half[1]", self.half[1])] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(format!(
-                    "bed {key} = {v} must be positive: half the bed's size"
-                ));
-            }
-        }
-        Ok(())
-    }
-}
 
 /// Where a probe touches a bed: the x and y of its tip as linear forms of
 /// carriage positions (`Σ coef·position + offset`, as a switch's own form),
@@ -128,8 +67,8 @@ impl BedContact {
     }
 
     /// Checks the values; the message names the key and the fix.
-    pub fn check(&self) -> Result<(), String> {
-        self.surface.check()?;
+    pub(crate) fn check(&self) -> Result<(), String> {
+        self.surface.check().map_err(|e| e.to_string())?;
         for (key, v) in [("x_offset", self.x_offset), ("y_offset", self.y_offset)] {
             if !v.is_finite() {
                 return Err(format!("bed contact {key} = {v} must be finite"));
@@ -159,26 +98,6 @@ mod tests {
             center: [150.0, 100.0],
             half: [150.0, 100.0],
         }
-    }
-
-    #[test]
-    fn a_tilted_warped_bed() {
-        let b = bed();
-        assert!((b.height(150.0, 100.0) - (-69.8)).abs() < 1e-12);
-        // On an edge the dome is 0: only the tilt.
-        assert!((b.height(300.0, 100.0) - (-70.0 + 0.15)).abs() < 1e-12);
-        assert!((b.height(150.0, 0.0) - (-70.0 + 0.2)).abs() < 1e-12);
-        assert!(b.check().is_ok());
-    }
-
-    #[test]
-    fn bad_beds_say_why() {
-        let mut b = bed();
-        b.half[1] = 0.0;
-        assert!(b.check().unwrap_err().contains("half[1]"));
-        let mut b = bed();
-        b.warp = f64::NAN;
-        assert!(b.check().unwrap_err().contains("warp"));
     }
 
     #[test]

@@ -1,0 +1,284 @@
+//! What a simulated module's board carries, as a [`SimSpec`](super::SimSpec)
+//! describes it: its motor and limit switch, its I/O pins and an
+//! accelerometer on one, and its UF2 bootloader.
+
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use uf2_link::uf2::{RP2040_FAMILY_ID, SAMD51_FAMILY_ID};
+
+/// Digital pins of a simulated module (as on the RP2040 board).
+pub const DIGITAL_PINS: u8 = 4;
+/// PWM outputs of a simulated module.
+pub const PWM_OUTPUTS: u8 = 2;
+/// Analog inputs of a simulated module.
+pub const ANALOG_INPUTS: u8 = 3;
+/// The microstep modes the simulated driver's mode pins can set (an A4988
+/// or DRV8825 with three mode pins).
+pub const DRIVER_MICROSTEPS: [u16; 6] = [1, 2, 4, 8, 16, 32];
+
+fn default_full_steps_per_unit() -> f64 {
+    80.0
+}
+
+/// What the motor of a simulated module drives, `[module.motor]` in a
+/// topology file.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MotorSpec {
+    /// Full motor steps per unit of carriage travel (80: a 1.8° motor on a
+    /// GT2 belt and 20-tooth pulley, in mm). What the module's `set_scale`
+    /// should be told for its positions to be carriage units.
+    #[serde(default = "default_full_steps_per_unit")]
+    pub full_steps_per_unit: f64,
+    /// A limit switch at this carriage position (units), pressed below it
+    /// (a minimum endstop); absent: no switch (its input reads released,
+    /// unless a [`SwitchSpec`](super::SwitchSpec) over several motors
+    /// drives it).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limit_min: Option<f64>,
+    /// A limit switch pressed above this carriage position (a maximum
+    /// endstop). At most one of `limit_min` and `limit_max`: the module has
+    /// one limit input.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub limit_max: Option<f64>,
+    /// Keep every step edge (time and direction) for [`Motor::edges`](crate::machine::board::Motor::edges). On
+    /// by default; a very long run may turn it off and read only the counts.
+    #[serde(default = "yes")]
+    pub record: bool,
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl Default for MotorSpec {
+    fn default() -> Self {
+        MotorSpec {
+            full_steps_per_unit: default_full_steps_per_unit(),
+            limit_min: None,
+            limit_max: None,
+            record: true,
+        }
+    }
+}
+
+impl MotorSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if !(self.full_steps_per_unit.is_finite() && self.full_steps_per_unit > 0.0) {
+            return Err(format!(
+                "[module.motor] full_steps_per_unit {} must be finite and positive",
+                self.full_steps_per_unit
+            ));
+        }
+        if self.limit_min.is_some() && self.limit_max.is_some() {
+            return Err(
+                "[module.motor] has both limit_min and limit_max: a module has one limit input"
+                    .into(),
+            );
+        }
+        for x in [self.limit_min, self.limit_max].into_iter().flatten() {
+            if !x.is_finite() {
+                return Err(format!("[module.motor] limit position {x} must be finite"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// What the I/O pins of a simulated module read at boot, `[module.io]`.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct IoSpec {
+    /// Levels of the digital pins while nothing drives them (at most 4).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub digital: Vec<bool>,
+    /// Analog inputs, fractions of full scale `0..=1` (at most 3).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub analog: Vec<f64>,
+    /// An accelerometer on one analog input, seeing this module's carriage
+    /// (`[module.io.accel]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub accel: Option<AccelSpec>,
+}
+
+impl IoSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if self.digital.len() > usize::from(DIGITAL_PINS) {
+            return Err(format!(
+                "[module.io] digital lists {} pins; a module has {DIGITAL_PINS}",
+                self.digital.len()
+            ));
+        }
+        if self.analog.len() > usize::from(ANALOG_INPUTS) {
+            return Err(format!(
+                "[module.io] analog lists {} inputs; a module has {ANALOG_INPUTS}",
+                self.analog.len()
+            ));
+        }
+        if let Some(v) = self.analog.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+            return Err(format!(
+                "[module.io] analog value {v} must be a fraction of full scale, 0 to 1"
+            ));
+        }
+        if let Some(a) = &self.accel {
+            a.check()?;
+        }
+        Ok(())
+    }
+}
+
+/// An accelerometer on a module's analog input (`[module.io.accel]` in a
+/// topology file).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AccelSpec {
+    /// The analog input it is wired to (0..=2).
+    pub channel: u8,
+    /// The mode's natural frequency, Hz (> 0).
+    pub resonance_hz: f64,
+    /// The mode's damping ratio (≥ 0).
+    pub damping_ratio: f64,
+    /// Acceleration at full scale, carriage units/s² (> 0): a reading of
+    /// 0 is `−range`, 1 is `+range`, 0.5 is at rest.
+    pub range: f64,
+    /// Axis units per carriage unit (±1 for an axis on this motor alone; a
+    /// CoreXY belt motor moves with x and y alike). The sensor measures
+    /// along the axis, so its reading is the carriage's times this.
+    #[serde(default = "one")]
+    pub coef: f64,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl AccelSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if self.channel >= ANALOG_INPUTS {
+            return Err(format!(
+                "[module.io.accel] channel {} does not exist: a module has analog inputs 0 to {}",
+                self.channel,
+                ANALOG_INPUTS - 1
+            ));
+        }
+        if !(self.resonance_hz.is_finite() && self.resonance_hz > 0.0) {
+            return Err(format!(
+                "[module.io.accel] resonance_hz {} must be finite and positive",
+                self.resonance_hz
+            ));
+        }
+        if !(self.damping_ratio.is_finite() && self.damping_ratio >= 0.0) {
+            return Err(format!(
+                "[module.io.accel] damping_ratio {} must be finite and 0 or more",
+                self.damping_ratio
+            ));
+        }
+        if !(self.range.is_finite() && self.range > 0.0) {
+            return Err(format!(
+                "[module.io.accel] range {} must be finite and positive (units/s² at full scale)",
+                self.range
+            ));
+        }
+        if !(self.coef.is_finite() && self.coef != 0.0) {
+            return Err(format!(
+                "[module.io.accel] coef {} must be finite and not 0",
+                self.coef
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn default_reboot_ms() -> u64 {
+    300
+}
+
+/// Which chip a simulated board stands for, and so which UF2 bootloader.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Chip {
+    /// A Raspberry Pi Pico: the RP2040 boot ROM's USB drive.
+    #[default]
+    Rp2040,
+    /// An Adafruit Metro M4 (SAMD51J19): Adafruit's UF2 bootloader.
+    Samd51,
+}
+
+impl Chip {
+    /// The UF2 family id the chip's bootloader takes.
+    pub fn family_id(self) -> u32 {
+        match self {
+            Chip::Rp2040 => RP2040_FAMILY_ID,
+            Chip::Samd51 => SAMD51_FAMILY_ID,
+        }
+    }
+
+    /// The chip's name, as the topology spells it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Chip::Rp2040 => "rp2040",
+            Chip::Samd51 => "samd51",
+        }
+    }
+
+    /// What its bootloader's `INFO_UF2.TXT` says.
+    pub fn info_text(self) -> &'static str {
+        match self {
+            Chip::Rp2040 => "UF2 Bootloader v3.0\r\nModel: Raspberry Pi RP2\r\nBoard-ID: RPI-RP2\r\n",
+            Chip::Samd51 => {
+                "UF2 Bootloader v3.14.0 SFHWRO\r\nModel: Metro M4 Express\r\nBoard-ID: SAMD51J19A-Metro-v0\r\n"
+            }
+        }
+    }
+}
+
+/// A simulated module's UF2 bootloader, `[module.bootloader]`.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BootloaderSpec {
+    /// The directory its drive appears in (created if missing). Point
+    /// `OSAP_UF2_MOUNTS` at it (or at its parent) for `osap flash` to find
+    /// it.
+    pub drive: PathBuf,
+    /// Which chip, and so which bootloader and UF2 family (default
+    /// `rp2040`).
+    #[serde(default)]
+    pub chip: Chip,
+    /// How long the board takes to reboot into the new firmware once a UF2
+    /// has landed, ms (default 300).
+    #[serde(default = "default_reboot_ms")]
+    pub reboot_ms: u64,
+}
+
+impl BootloaderSpec {
+    /// A bootloader of `chip` whose drive is `drive`.
+    pub fn new(drive: impl Into<PathBuf>, chip: Chip) -> Self {
+        BootloaderSpec {
+            drive: drive.into(),
+            chip,
+            reboot_ms: default_reboot_ms(),
+        }
+    }
+
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), String> {
+        if self.drive.as_os_str().is_empty() {
+            return Err(
+                "[module.bootloader] drive is empty: give the directory its \
+                 simulated USB drive appears in"
+                    .into(),
+            );
+        }
+        if self.reboot_ms > 60_000 {
+            return Err(format!(
+                "[module.bootloader] reboot_ms {} is over a minute: a board reboots in well \
+                 under a second",
+                self.reboot_ms
+            ));
+        }
+        Ok(())
+    }
+}
