@@ -380,6 +380,32 @@ mod tests {
         assert!(e.contains("sim.bed.tilt_x"), "{e}");
         let e = bad("margin = 20.0", "margin = 150.0");
         assert!(e.contains("margin"), "{e}");
+        let e = bad("tilt_x = 0.001", "tilt_x = 0.001\nhalf = [0.0, 100.0]");
+        assert!(e.contains("sim.bed.half[0]"), "{e}");
+    }
+
+    #[test]
+    fn the_bed_lies_under_the_travel_unless_placed() {
+        let text = std::fs::read_to_string(
+            std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("../examples/machines/mill.toml"),
+        )
+        .unwrap();
+        let bed = |text: &str| MachineFile::parse(text).unwrap().sim.unwrap().bed.unwrap();
+        let cfg = MachineFile::parse(&text).unwrap();
+        let (x, y) = (&cfg.axes["x"], &cfg.axes["y"]);
+        let placed = bed(&text);
+        assert_eq!(
+            placed.center,
+            [(x.min + x.max) / 2.0, (y.min + y.max) / 2.0]
+        );
+        assert_eq!(placed.half, [(x.max - x.min) / 2.0, (y.max - y.min) / 2.0]);
+        // A bed placed by the file keeps its place; the rest still comes
+        // from the travel.
+        let own = bed(&text.replacen("tilt_x = 0.001", "tilt_x = 0.001\ncenter = [40.0, 30.0]", 1));
+        assert_eq!(own.center, [40.0, 30.0]);
+        assert_eq!(own.half, placed.half);
+        assert!((own.height(40.0, 30.0) - (own.z + own.warp)).abs() < 1e-12);
     }
 
     #[test]

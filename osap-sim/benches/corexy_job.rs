@@ -15,7 +15,7 @@ use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::board::StepEdge;
 use osap_sim::machine::{SimMachine, TimeMode};
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use std::path::PathBuf;
 use std::time::Duration;

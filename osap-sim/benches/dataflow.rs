@@ -28,7 +28,7 @@ use osap_core::route::Route;
 use osap_host::netrunner::{self, ScanOptions};
 use osap_host::{Host, HostConfig, PortHandle};
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::{ControlKey, InputMode, OutputMode, Reply, ReplyBody};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::pipe::PipeConfig;

@@ -31,7 +31,7 @@ use osap_host::link::{stream, tcp};
 use osap_host::netrunner::{self, ScanOptions};
 use osap_host::{Host, HostConfig, PortHandle};
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
+use osap_sim::topology::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
 use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};

@@ -16,7 +16,7 @@
 //! - [`link`]: the simulated [`LinkGateway`](osap_core::link::LinkGateway);
 //! - [`busy`]: busy spells of a node;
 //! - [`node`]: a node (runtime, links, ports, clock, main-loop model);
-//! - [`spec`]: the one description both simulators read ([`SimSpec`]:
+//! - [`topology`]: the one description both simulators read ([`SimSpec`]:
 //!   modules, links, boards, switches, bed; `osap-sim/topologies/*.toml`
 //!   are specs in TOML, and osap-machine derives one from a machine file);
 //! - [`network`]: the discrete-event simulator's network, lowered from a
@@ -104,7 +104,7 @@ pub mod probe;
 pub mod rng;
 pub mod scenario;
 pub mod sim;
-pub mod spec;
+pub mod topology;
 
 pub use error::SimError;
 pub use medium::LinkModel;
@@ -113,7 +113,7 @@ pub use network::Network;
 pub use node::{NodeKind, NodeSpec, SimRuntime};
 pub use scenario::{run, Outcome, Scenario};
 pub use sim::{Sim, SimConfig};
-pub use spec::{SimSpec, SpecError};
+pub use topology::{SimSpec, SpecError};
 
 /// True time in nanoseconds.
 pub type Nanos = u64;

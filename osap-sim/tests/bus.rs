@@ -6,7 +6,7 @@ use osap_host::netrunner::{scan, Netrunner, ScanOptions, SyncGoal};
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 

@@ -4,7 +4,7 @@
 use osap_core::SystemInstant;
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use std::path::PathBuf;
 use std::time::Duration;
 

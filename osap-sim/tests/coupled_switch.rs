@@ -18,7 +18,7 @@ use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::{self, SharedModule, SimMachine, TimeMode};
-use osap_sim::spec::{SimSpec, SwitchSpec};
+use osap_sim::topology::{SimSpec, SwitchSpec};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};

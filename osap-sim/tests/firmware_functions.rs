@@ -10,7 +10,7 @@ use osap_host::{Host, HostConfig};
 use osap_module::functions::{function_set_id, SIGNATURES};
 use osap_module::FUNCTION_SET_ID;
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::{ModuleKind, SimSpec};
+use osap_sim::topology::{ModuleKind, SimSpec};
 use pipes_core::signature::{Arg, Signature};
 use pipes_core::Type;
 use std::path::PathBuf;

@@ -10,7 +10,7 @@ use osap_host::{Host, HostConfig};
 use osap_module::fault::{FaultKind, OVER_JERK};
 use osap_module::stepper::StepperError;
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
+use osap_sim::topology::{LinkKind, LinkSpec, ModuleSpec, SimSpec, HOST};
 
 /// The module's default interval, µs.
 const IV: u64 = 2048;

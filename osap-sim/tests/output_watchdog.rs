@@ -8,7 +8,7 @@ use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
 use osap_module::fault::FaultKind;
 use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::InputMode;
 use std::path::PathBuf;
 use std::time::Duration;

@@ -12,7 +12,7 @@ use osap_host::som::{
 };
 use osap_host::Host;
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::{ControlError, InputMode, OutputMode};
 use pipes_core::{ScalarType, Type};
 use std::future::Future;

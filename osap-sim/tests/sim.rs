@@ -9,7 +9,7 @@ use osap_core::transport::Transport;
 use osap_host::netrunner::{self, Netrunner, ScanOptions};
 use osap_host::{Host, HostConfig, HostError, PortHandle};
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::{LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, HOST};
+use osap_sim::topology::{LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, HOST};
 use std::time::{Duration, Instant};
 
 mod common;

@@ -19,7 +19,7 @@ use osap_module::io::IoError;
 use osap_module::stepper::{Mode, StepperError};
 use osap_sim::machine::board::DigitalWrite;
 use osap_sim::machine::{SharedModule, SimMachine};
-use osap_sim::spec::{SimSpec, DRIVER_MICROSTEPS};
+use osap_sim::topology::{SimSpec, DRIVER_MICROSTEPS};
 use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::function::FUNCTION_PORT_TYPE;
 use pipes_core::signature::Signature;

@@ -17,7 +17,7 @@ use osap_host::{Host, HostConfig};
 use osap_module::stepper::Mode;
 use osap_sim::machine::board::StepEdge;
 use osap_sim::machine::{SharedModule, SimMachine};
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;

@@ -10,7 +10,7 @@ use osap_host::netrunner::Netrunner;
 use osap_host::{HostError, PortHandle};
 use osap_sim::machine::SimMachine;
 use osap_sim::network::Gateway;
-use osap_sim::spec::{SimSpec, HOST};
+use osap_sim::topology::{SimSpec, HOST};
 use osap_sim::{Network, Scenario, Sim, SimConfig};
 use std::collections::VecDeque;
 use std::path::PathBuf;

@@ -8,7 +8,7 @@
 
 use clap::Parser;
 use osap_host::som::Som;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use proxygen::{Options, StarterOptions};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;

@@ -23,7 +23,7 @@ mod odd;
 use osap_host::som::{HostFunction, Manager, PipeOptions, Som, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::InputMode;
 use pipes_core::{ScalarType, Type};
 use proxies::{BindError, Stepper, DEVICES};

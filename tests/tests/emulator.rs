@@ -46,7 +46,7 @@ use osap_host::som::{FnRef, Manager, ManagerOptions, Value};
 use osap_host::{Host, HostConfig, HostError, Pace};
 use osap_module::functions::SIGNATURES;
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use serde_json::{json, Value as Json};
 use std::path::{Path, PathBuf};
 use std::process::Stdio;

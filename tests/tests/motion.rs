@@ -22,7 +22,7 @@ use osap_host::{Host, HostConfig};
 use osap_module::stepper::{Mode, StepperCounters};
 use osap_sim::machine::board::StepEdge;
 use osap_sim::machine::{SharedModule, SimMachine, SimModule};
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use pipes_core::pipe::PipeDelivery;
 use std::path::PathBuf;

@@ -73,11 +73,7 @@ async fn level_and_run(
     args: &Args,
 ) -> Result<(), Box<dyn std::error::Error>> {
     // On the simulator: the bed the probe touches.
-    let surface = cfg
-        .sim
-        .as_ref()
-        .and_then(|s| s.bed.as_ref())
-        .and_then(|bed| bed.surface(cfg));
+    let surface = cfg.sim.as_ref().and_then(|s| s.bed);
     machine.home().await?;
     let levelled = level::level(machine, |p, total| {
         println!(

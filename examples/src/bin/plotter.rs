@@ -29,7 +29,7 @@ use osap_host::netrunner::{Netrunner, SyncGoal};
 use osap_host::som::{FnRef, Manager, PipeOptions, Value};
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use pipes_core::control::{InputMode, OutputMode};
 use plotters::prelude::*;
 

@@ -1,7 +1,7 @@
 //! The simulated accelerometer an axis's `accelerometer` key puts on its
 //! module.
 
-use osap_sim::spec::AccelSpec;
+use osap_sim::topology::AccelSpec;
 
 use crate::config::{Accelerometer, MachineFile};
 

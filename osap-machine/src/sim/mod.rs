@@ -47,7 +47,7 @@ use std::collections::BTreeMap;
 
 use osap_core::netresponder::NAME_MAX;
 use osap_sim::machine::MODULE_LINKS;
-use osap_sim::spec::{
+use osap_sim::topology::{
     BedContact, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, SimSpec, SpecError, SwitchSpec,
     DRIVER_MICROSTEPS, HOST,
 };

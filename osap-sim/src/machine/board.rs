@@ -22,7 +22,9 @@ pub mod accel;
 pub mod bootloader;
 
 use super::clock::DriftClock;
-use crate::spec::{IoSpec, MotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS};
+use crate::topology::{
+    IoSpec, MotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
+};
 use accel::Accel;
 use bootloader::BootHook;
 use osap_core::Instant;
@@ -179,7 +181,7 @@ impl Motor {
 
     /// The motor's own switch's level after the newest step (`true`:
     /// released; always `true` without `limit_min`/`limit_max`, also when
-    /// a [`SwitchSpec`](crate::spec::SwitchSpec) drives the module's input).
+    /// a [`SwitchSpec`](crate::topology::SwitchSpec) drives the module's input).
     pub fn limit_level(&self) -> bool {
         self.limit_level
     }

@@ -27,7 +27,7 @@
 //! No module logic lives here: what a `stepper` does is osap-module's.
 //!
 //! A machine is described by a [`SimSpec`], usually
-//! read from a TOML file ([`SimSpec::load`](crate::spec::SimSpec::load)), and started against a host with [`SimMachine::start`]. The
+//! read from a TOML file ([`SimSpec::load`](crate::topology::SimSpec::load)), and started against a host with [`SimMachine::start`]. The
 //! repository ships six in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
 //! UARTs), `loop.toml` (a network with a loop), `corexy-plotter.toml`
@@ -145,7 +145,7 @@
 //!
 //! # Switches over several motors
 //!
-//! A `[[switch]]` ([`SwitchSpec`](crate::spec::SwitchSpec)) is pressed by a linear form of several
+//! A `[[switch]]` ([`SwitchSpec`](crate::topology::SwitchSpec)) is pressed by a linear form of several
 //! motors' carriage positions: a CoreXY machine's x endstop, wired to
 //! module a's limit input, closes when x = (a + b) / 2 reaches it, however
 //! a and b got there. Each watched motor publishes its steps with their
@@ -161,9 +161,9 @@
 //! pressed). Only the simulated machines run them: the discrete-event
 //! simulator has no motors and ignores them.
 //!
-//! A switch with a `bed` ([`BedContact`](crate::spec::BedContact)) is a bed levelling probe:
+//! A switch with a `bed` ([`BedContact`](crate::topology::BedContact)) is a bed levelling probe:
 //! it closes at `at` plus the height of a tilted, warped bed
-//! ([`BedSurface`](crate::spec::BedSurface)) under the probe tip, whose x and y are two more
+//! ([`BedSurface`](crate::topology::BedSurface)) under the probe tip, whose x and y are two more
 //! forms of carriage positions.
 //!
 //! # Keys for the discrete-event simulator
@@ -202,7 +202,7 @@
 //!
 //! Delays are kept by a per-machine wire thread with µs precision (see
 //! `wire.rs`), not tokio's 1 ms timers. With `zero_latency = true` (or
-//! [`SimSpec::with_zero_latency`](crate::spec::SimSpec::with_zero_latency)) the two ends are joined directly, as
+//! [`SimSpec::with_zero_latency`](crate::topology::SimSpec::with_zero_latency)) the two ends are joined directly, as
 //! [`osap_host::link::memory`] joins two hosts: no timers, no
 //! tasks in between.
 //!
@@ -257,8 +257,8 @@ pub fn virtual_runtime() -> std::io::Result<tokio::runtime::Runtime> {
 
 use crate::medium::{LinkModel, Side, Transmitter, UartParams, UsbParams};
 use crate::rng::Rng;
-use crate::spec::graph::{firmware_link, Node};
-use crate::spec::{LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, HOST};
+use crate::topology::graph::{firmware_link, Node};
+use crate::topology::{LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, HOST};
 use board::bootloader::{Arrival, BootHook, BootStats, Drive};
 use board::SimBoard;
 use module::{ModuleCommand, ModuleLink, ModuleTask, Parked, StepClock};

@@ -18,7 +18,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use tokio::sync::{mpsc, Notify};
 
-pub use crate::spec::{FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU, MODULE_PORTS, MODULE_SLOTS};
+pub use crate::topology::{FIRMWARE_LINKS, MODULE_LINKS, MODULE_MTU, MODULE_PORTS, MODULE_SLOTS};
 
 /// A simulated module's osap-module instance, shared by its function ports,
 /// its step generator and the [`SimModule`](super::SimModule) handle.

@@ -38,7 +38,7 @@
 //! standing.
 
 use super::DriftClock;
-use crate::spec::{BedContact, BedSurface, SimSpec, SwitchSpec};
+use crate::topology::{BedContact, BedSurface, SimSpec, SwitchSpec};
 use osap_core::Instant as LocalInstant;
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};

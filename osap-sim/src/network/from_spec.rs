@@ -50,8 +50,8 @@ use crate::medium::{IpParams, LinkModel, Side, UartParams, UsbParams};
 use crate::node::{NodeKind, NodeSpec};
 use crate::rng::Dist;
 use crate::scenario::Scenario;
-use crate::spec::graph::firmware_link;
-use crate::spec::{
+use crate::topology::graph::firmware_link;
+use crate::topology::{
     ClockSource, LinkKind, LinkSpec, ModuleKind, ModuleSpec, SimSpec, FIRMWARE_LINKS, HOST,
 };
 use std::path::Path;

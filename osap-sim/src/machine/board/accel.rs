@@ -21,7 +21,7 @@
 //! a fraction of full scale as `0.5 + a / (2·range)` and clamped, so the
 //! module's own `analog_read` reads it through the 12-bit converter.
 
-use crate::spec::AccelSpec;
+use crate::topology::AccelSpec;
 use osap_core::Instant;
 use std::collections::VecDeque;
 use std::f64::consts::PI;

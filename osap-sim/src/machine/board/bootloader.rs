@@ -19,7 +19,7 @@
 //! None of this is module logic: osap-module only arms the request and,
 //! once due, calls the board, exactly as on hardware.
 
-use crate::spec::{BootloaderSpec, Chip};
+use crate::topology::{BootloaderSpec, Chip};
 use std::io;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;

@@ -15,7 +15,7 @@ use osap_host::link::{serial, tcp, udp};
 use osap_host::som::Manager;
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::SimMachine;
-use osap_sim::spec::SimSpec;
+use osap_sim::topology::SimSpec;
 use std::error::Error;
 use std::net::SocketAddr;
 use std::path::PathBuf;
