@@ -40,7 +40,7 @@ pub struct BedSurface {
 /// Why a [`BedSurface`] was refused: the key and what it must be.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[non_exhaustive]
-pub enum BedError {
+pub enum SurfaceError {
     /// A value that must be a finite number is not.
     NotFinite {
         /// The key (`z`, `tilt_x`, `center[0]`, …).
@@ -57,22 +57,22 @@ pub enum BedError {
     },
 }
 
-impl BedError {
+impl SurfaceError {
     /// The key the error is about.
     pub fn key(&self) -> &'static str {
         match self {
-            BedError::NotFinite { key, .. } | BedError::NotPositive { key, .. } => key,
+            SurfaceError::NotFinite { key, .. } | SurfaceError::NotPositive { key, .. } => key,
         }
     }
 }
 
-impl core::fmt::Display for BedError {
+impl core::fmt::Display for SurfaceError {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         match self {
-            BedError::NotFinite { key, value } => {
+            SurfaceError::NotFinite { key, value } => {
                 write!(f, "bed {key} = {value} must be a finite number")
             }
-            BedError::NotPositive { key, value } => {
+            SurfaceError::NotPositive { key, value } => {
                 write!(
                     f,
                     "bed {key} = {value} must be positive: half the bed's size"
@@ -83,7 +83,7 @@ impl core::fmt::Display for BedError {
 }
 
 #[cfg(feature = "std")]
-impl std::error::Error for BedError {}
+impl std::error::Error for SurfaceError {}
 
 impl BedSurface {
     /// The bed's height at `(x, y)`.
@@ -94,7 +94,7 @@ impl BedSurface {
     }
 
     /// Checks the values: all finite, half sizes positive.
-    pub fn check(&self) -> Result<(), BedError> {
+    pub fn check(&self) -> Result<(), SurfaceError> {
         for (key, value) in [
             ("z", self.z),
             ("tilt_x", self.tilt_x),
@@ -104,12 +104,12 @@ impl BedSurface {
             ("center[1]", self.center[1]),
         ] {
             if !value.is_finite() {
-                return Err(BedError::NotFinite { key, value });
+                return Err(SurfaceError::NotFinite { key, value });
             }
         }
         for (key, value) in [("half[0]", self.half[0]), ("half[1]", self.half[1])] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(BedError::NotPositive { key, value });
+                return Err(SurfaceError::NotPositive { key, value });
             }
         }
         Ok(())
@@ -147,7 +147,7 @@ mod tests {
         b.half[1] = 0.0;
         assert_eq!(
             b.check(),
-            Err(BedError::NotPositive {
+            Err(SurfaceError::NotPositive {
                 key: "half[1]",
                 value: 0.0
             })

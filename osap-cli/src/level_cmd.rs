@@ -71,9 +71,9 @@ pub(crate) async fn level(args: LevelArgs) -> Result<ExitCode, Failure> {
         code: FAULTED,
         message: e.to_string(),
     })?;
-    level::plot(&levelled, &plot_path).map_err(|message| Failure {
+    level::plot(&levelled, &plot_path).map_err(|e| Failure {
         code: FAULTED,
-        message,
+        message: e.to_string(),
     })?;
     let s = &levelled.stats;
     let plane = &levelled.plane;

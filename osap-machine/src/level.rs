@@ -35,7 +35,9 @@
 
 use std::path::Path;
 
-use maxl::blocks::bedlevel::{BedMesh, MeshGrid, MeshStats, Plane, PlaneFit, Probe as PlaneProbe};
+use maxl::blocks::bedlevel::{
+    BedError, BedMesh, MeshGrid, MeshStats, Plane, PlaneFit, Probe as PlaneProbe,
+};
 
 use crate::machine::{Machine, MachineError};
 
@@ -90,7 +92,9 @@ pub async fn level(
             "no [probe] section: describe the probe (module, grid, start_z, search_depth, speeds) to level the bed".into(),
         )
     })?;
-    let grid = probe.grid(&cfg).map_err(MachineError::Unsupported)?;
+    let grid = probe
+        .grid(&cfg)
+        .map_err(|e| MachineError::Unsupported(e.to_string()))?;
     let axes = machine.axes();
     if let Some((a, _)) = axes.iter().zip(machine.homed()).find(|(_, homed)| !homed) {
         return Err(MachineError::NotHomed(a.clone()));
@@ -176,27 +180,64 @@ async fn probe_grid(
     machine
         .goto_now([here[0], here[1], probe.start_z], probe.travel_speed)
         .await?;
-    fit(grid, &points).map_err(MachineError::Unsupported)
+    fit(grid, &points).map_err(|e| MachineError::Unsupported(e.to_string()))
+}
+
+/// Why levelling could not fit or plot its mesh.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum LevelError {
+    /// No points were probed.
+    #[error("no probe points")]
+    NoPoints,
+    /// A point the mesh refused (off the grid, or not finite).
+    #[error("point ({ix}, {iy}): {cause}")]
+    Point {
+        /// Its column.
+        ix: usize,
+        /// Its row.
+        iy: usize,
+        /// Why.
+        cause: BedError,
+    },
+    /// The mesh's statistics (a node left unprobed).
+    #[error("the mesh: {0}")]
+    Mesh(BedError),
+    /// The plane through the points (too few, or all in a line).
+    #[error("the plane through the points: {0}")]
+    Plane(BedError),
+    /// Drawing the plot failed.
+    #[error("plotting {path}: {message}")]
+    Plot {
+        /// The plot's path.
+        path: String,
+        /// The plotting library's message.
+        message: String,
+    },
 }
 
 /// Fits the mesh to probed points on `grid` (one per node): heights
 /// relative to their mean, and the plane through them.
-pub fn fit(grid: &MeshGrid, points: &[ProbePoint]) -> Result<Levelled, String> {
+pub fn fit(grid: &MeshGrid, points: &[ProbePoint]) -> Result<Levelled, LevelError> {
     if points.is_empty() {
-        return Err("no probe points".into());
+        return Err(LevelError::NoPoints);
     }
     let reference = points.iter().map(|p| p.z).sum::<f64>() / points.len() as f64;
     let mut mesh = BedMesh::new(*grid);
     for p in points {
         mesh.set_probe(p.ix, p.iy, p.z - reference)
-            .map_err(|e| format!("point ({}, {}): {e}", p.ix, p.iy))?;
+            .map_err(|cause| LevelError::Point {
+                ix: p.ix,
+                iy: p.iy,
+                cause,
+            })?;
     }
-    let stats = mesh.stats().map_err(|e| format!("the mesh: {e}"))?;
+    let stats = mesh.stats().map_err(LevelError::Mesh)?;
     let probes: Vec<PlaneProbe> = points
         .iter()
         .map(|p| PlaneProbe::new(p.x, p.y, p.z))
         .collect();
-    let plane = Plane::fit(&probes).map_err(|e| format!("the plane through the points: {e}"))?;
+    let plane = Plane::fit(&probes).map_err(LevelError::Plane)?;
     Ok(Levelled {
         points: points.to_vec(),
         reference,
@@ -227,7 +268,7 @@ pub fn save(levelled: &Levelled, path: &Path) -> Result<(), crate::mesh::MeshErr
 /// Plots the mesh as a heat map (SVG): the bilinear surface coloured by
 /// height, the probe points marked, and a colour scale (feature `plot`).
 #[cfg(feature = "plot")]
-pub fn plot(levelled: &Levelled, path: &Path) -> Result<(), String> {
+pub fn plot(levelled: &Levelled, path: &Path) -> Result<(), LevelError> {
     use plotters::prelude::*;
     let g = levelled.mesh.grid();
     let (x0, y0) = g.node(0, 0);
@@ -246,7 +287,10 @@ pub fn plot(levelled: &Levelled, path: &Path) -> Result<(), String> {
         };
         RGBColor((r * 255.0) as u8, (g * 255.0) as u8, (b * 255.0) as u8)
     };
-    let err = |e: &dyn std::fmt::Display| format!("plotting {}: {e}", path.display());
+    let err = |e: &dyn std::fmt::Display| LevelError::Plot {
+        path: path.display().to_string(),
+        message: e.to_string(),
+    };
     let root = SVGBackend::new(path, (900, 620)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| err(&e))?;
     let (main, bar) = root.split_horizontally(780);

@@ -83,7 +83,7 @@ pub fn expected_board_id(family: u32) -> &'static str {
 
 /// Parses an `INFO_UF2.TXT`: returns `(model, board_id)`. `Board-ID` is
 /// required (it is how the family is told); `Model` may be missing.
-pub fn parse_info(text: &str) -> Result<(String, String), String> {
+pub(crate) fn parse_info(text: &str) -> Result<(String, String), String> {
     let mut model = None;
     let mut board = None;
     for line in text.lines() {

@@ -35,7 +35,7 @@ pub struct FlashArgs {
 }
 
 /// Parses the arguments after `flash`: `--family rp2040|samd51 -- <ELF>`.
-pub fn parse_args(args: &[OsString]) -> Result<FlashArgs, String> {
+pub(crate) fn parse_args(args: &[OsString]) -> Result<FlashArgs, String> {
     const USAGE: &str = "usage: uf2-link flash --family rp2040|samd51 -- <ELF>";
     let mut family = None;
     let mut i = 0;
@@ -157,7 +157,7 @@ pub fn run(args: &[OsString]) -> Result<Flashed, FlashError> {
 }
 
 /// `OSAP_UF2_WAIT`'s value as a duration (none when unset or empty).
-pub fn wait_from_env(value: Option<OsString>) -> Result<Option<Duration>, String> {
+pub(crate) fn wait_from_env(value: Option<OsString>) -> Result<Option<Duration>, String> {
     let Some(value) = value.filter(|v| !v.is_empty()) else {
         return Ok(None);
     };
@@ -176,7 +176,11 @@ pub fn wait_from_env(value: Option<OsString>) -> Result<Option<Duration>, String
 
 /// Reads and checks the UF2 beside `elf`: well formed, of `family`, and
 /// made from `elf` (the bytes the ELF loads, nothing else).
-pub fn load_uf2(elf: &Path, uf2_path: &Path, family: u32) -> Result<(Vec<u8>, Uf2Info), String> {
+pub(crate) fn load_uf2(
+    elf: &Path,
+    uf2_path: &Path,
+    family: u32,
+) -> Result<(Vec<u8>, Uf2Info), String> {
     let rebuild = "rebuild it with `cargo build --release` in the firmware crate";
     let bytes = std::fs::read(uf2_path).map_err(|e| {
         format!(

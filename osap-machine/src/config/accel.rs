@@ -1,7 +1,7 @@
 //! `[axes.NAME] accelerometer` and `shaper`: the sensor `osap resonance`
 //! measures an axis with, and the input shaper fitted from it.
 
-use maxl::blocks::shaper::{ShaperConfig, ShaperKind};
+use maxl::blocks::shaper::{ShaperConfig, ShaperError, ShaperKind};
 use serde::Deserialize;
 
 use super::{ConfigError, MachineFile};
@@ -32,19 +32,26 @@ pub struct AxisShaper {
     pub damping: f64,
 }
 
+/// Why an [`AxisShaper`] names no shaper.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum AxisShaperError {
+    /// `kind` is none of the shapers.
+    #[error("unknown shaper kind {0:?}; use one of zv, mzv, ei, 2hump_ei, zvd")]
+    UnknownKind(String),
+    /// The frequency or damping is out of range.
+    #[error("{0}")]
+    Shaper(#[from] ShaperError),
+}
+
 impl AxisShaper {
     /// The shaper it names, checked.
-    pub fn config(&self) -> Result<ShaperConfig, String> {
+    pub fn config(&self) -> Result<ShaperConfig, AxisShaperError> {
         let kind = ShaperKind::ALL
             .into_iter()
             .find(|k| k.name() == self.kind)
-            .ok_or_else(|| {
-                format!(
-                    "unknown shaper kind {:?}; use one of zv, mzv, ei, 2hump_ei, zvd",
-                    self.kind
-                )
-            })?;
-        ShaperConfig::new(kind, self.freq_hz, self.damping).map_err(|e| e.to_string())
+            .ok_or_else(|| AxisShaperError::UnknownKind(self.kind.clone()))?;
+        Ok(ShaperConfig::new(kind, self.freq_hz, self.damping)?)
     }
 }
 
@@ -82,7 +89,7 @@ pub(super) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
         }
         if let Some(s) = &axis.shaper {
             s.config()
-                .map_err(|m| invalid(format!("axes.{name}.shaper"), m))?;
+                .map_err(|e| invalid(format!("axes.{name}.shaper"), e.to_string()))?;
         }
     }
     Ok(())

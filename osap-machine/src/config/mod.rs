@@ -27,8 +27,8 @@ mod accel;
 mod probe;
 mod validate;
 
-pub use accel::{Accelerometer, AxisShaper};
-pub use probe::Probe;
+pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
+pub use probe::{Probe, ProbeGridError};
 use validate::is_mechanism_axis;
 
 /// The axis names a machine file may use, in the order

@@ -203,31 +203,45 @@ pub(super) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
             ),
         ));
     }
-    p.grid(cfg).map_err(|e| invalid("probe.grid", e))?;
+    p.grid(cfg)
+        .map_err(|e| invalid("probe.grid", e.to_string()))?;
     Ok(())
+}
+
+/// Why a [`Probe`] has no grid of points.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum ProbeGridError {
+    /// The machine has no axis x or y.
+    #[error("a bed probe needs axes x and y")]
+    NoXy,
+    /// The margin leaves no room inside the travel.
+    #[error("margin {0} leaves no room to probe in the x-y travel; use a smaller margin")]
+    NoRoom(f64),
+    /// Fewer than 2 points along an axis.
+    #[error("grid [{0}, {1}]: give at least 2 probe points along each axis")]
+    TooFewPoints(usize, usize),
+    /// The mesh refused the grid.
+    #[error("{0}")]
+    Mesh(#[from] maxl::blocks::bedlevel::BedError),
 }
 
 impl Probe {
     /// The probe points' grid (where the probe tip touches): the x-y travel
     /// the tool can put the probe over, inside by `margin`.
-    pub fn grid(&self, cfg: &MachineFile) -> Result<MeshGrid, String> {
+    pub fn grid(&self, cfg: &MachineFile) -> Result<MeshGrid, ProbeGridError> {
         let (Some(x), Some(y)) = (cfg.axes.get("x"), cfg.axes.get("y")) else {
-            return Err("a bed probe needs axes x and y".into());
+            return Err(ProbeGridError::NoXy);
         };
         let [ox, oy, _] = self.offset;
         let (x0, x1) = (x.min + ox + self.margin, x.max + ox - self.margin);
         let (y0, y1) = (y.min + oy + self.margin, y.max + oy - self.margin);
         if x1 <= x0 || y1 <= y0 {
-            return Err(format!(
-                "margin {} leaves no room to probe in the x-y travel; use a smaller margin",
-                self.margin
-            ));
+            return Err(ProbeGridError::NoRoom(self.margin));
         }
         let [nx, ny] = self.grid;
         if nx < 2 || ny < 2 {
-            return Err(format!(
-                "grid [{nx}, {ny}]: give at least 2 probe points along each axis"
-            ));
+            return Err(ProbeGridError::TooFewPoints(nx, ny));
         }
         MeshGrid::new(
             x0,
@@ -237,6 +251,6 @@ impl Probe {
             nx,
             ny,
         )
-        .map_err(|e| e.to_string())
+        .map_err(ProbeGridError::from)
     }
 }

@@ -129,25 +129,50 @@ pub fn mechanism(cfg: &MachineFile) -> Result<Option<Box<dyn Planar + Send + Syn
     })
 }
 
+/// Why a drive could not be built: the file key and the fix.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[non_exhaustive]
+pub enum DriveError {
+    /// More axes than the planner plans together.
+    #[error("axes: {} axes ({}); a machine plans at most {MAX_AXES} together", .0.len(), .0.join(", "))]
+    TooManyAxes(Vec<String>),
+    /// The kinematics could not be built.
+    #[error("kinematics: {0}")]
+    Kinematics(KinError),
+    /// A motor the axes or kinematics name is not in `[motors]`.
+    #[error("motors.{0}: no such motor")]
+    NoMotor(String),
+    /// The start position is outside what the kinematics reach.
+    #[error("the start position {at:?} is outside the kinematics: {cause}")]
+    StartOutside {
+        /// The start position, axis order.
+        at: Vec<f64>,
+        /// Why the kinematics refused it.
+        cause: KinError,
+    },
+    /// A bed mesh on a machine without axes x, y and z (in that order).
+    #[error("bed_mesh: a bed mesh needs axes x, y and z; this machine has {}", .0.join(", "))]
+    MeshNeedsXyz(Vec<String>),
+    /// The position with the mesh applied is outside the kinematics.
+    #[error("bed_mesh: {0}")]
+    MeshOutside(KinError),
+}
+
 impl Drive {
     /// The drive of a validated machine file, with every motor at 0 while
     /// the machine stands at `at` (axis order).
-    pub fn new(cfg: &MachineFile, at: &[f64]) -> Result<Drive, String> {
+    pub fn new(cfg: &MachineFile, at: &[f64]) -> Result<Drive, DriveError> {
         let axes: Vec<String> = cfg.axis_names().iter().map(|s| s.to_string()).collect();
         if axes.len() > MAX_AXES {
-            return Err(format!(
-                "axes: {} axes ({}); a machine plans at most {MAX_AXES} together",
-                axes.len(),
-                axes.join(", ")
-            ));
+            return Err(DriveError::TooManyAxes(axes));
         }
-        let planar = mechanism(cfg).map_err(|e| format!("kinematics: {e}"))?;
+        let planar = mechanism(cfg).map_err(DriveError::Kinematics)?;
         let mut motors = Vec::new();
-        let mut add = |name: &str, source: Source| -> Result<(), String> {
+        let mut add = |name: &str, source: Source| -> Result<(), DriveError> {
             let m = cfg
                 .motors
                 .get(name)
-                .ok_or_else(|| format!("motors.{name}: no such motor"))?;
+                .ok_or_else(|| DriveError::NoMotor(name.to_string()))?;
             motors.push(DriveMotor {
                 name: name.to_string(),
                 module: m.module.clone(),
@@ -179,22 +204,22 @@ impl Drive {
         let zeros = vec![0.0; drive.motors.len()];
         drive
             .rebase(at, &zeros)
-            .map_err(|e| format!("the start position {at:?} is outside the kinematics: {e}"))?;
+            .map_err(|cause| DriveError::StartOutside {
+                at: at.to_vec(),
+                cause,
+            })?;
         Ok(drive)
     }
 
     /// The same drive following a bed mesh: z (the axis named z, which
     /// must come after x and y) is raised by the mesh's height under x, y.
     /// The motors keep their positions at `at` (motor positions `m`).
-    pub fn with_mesh(mut self, mesh: BedMesh, at: &[f64], m: &[f64]) -> Result<Drive, String> {
+    pub fn with_mesh(mut self, mesh: BedMesh, at: &[f64], m: &[f64]) -> Result<Drive, DriveError> {
         if self.axes.len() != 3 || self.axes[..] != ["x", "y", "z"] {
-            return Err(format!(
-                "bed_mesh: a bed mesh needs axes x, y and z; this machine has {}",
-                self.axes.join(", ")
-            ));
+            return Err(DriveError::MeshNeedsXyz(self.axes));
         }
         self.mesh = Some(mesh);
-        self.rebase(at, m).map_err(|e| format!("bed_mesh: {e}"))?;
+        self.rebase(at, m).map_err(DriveError::MeshOutside)?;
         Ok(self)
     }
 

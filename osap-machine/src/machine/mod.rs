@@ -47,7 +47,7 @@ use tokio::sync::{broadcast, watch};
 
 use crate::config::MachineFile;
 use crate::module_limits::{module_limits, ModuleLimits};
-pub use drive::{Drive, MAX_AXES};
+pub use drive::{Drive, DriveError, MAX_AXES};
 pub use error::{MachineError, StopReport, Unreached};
 pub use events::{MachineEvent, MachineState};
 use monitor::{LimitEdge, SharedReports};

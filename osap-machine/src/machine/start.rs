@@ -134,7 +134,7 @@ impl Machine {
 /// mesh reads, before any module is touched. Returns the drive
 /// (kinematics and motors) at the start position, and the mesh.
 fn check(cfg: &MachineFile, start: &[f64]) -> Result<(Drive, Option<BedMesh>), MachineError> {
-    let drive = Drive::new(cfg, start).map_err(MachineError::Unsupported)?;
+    let drive = Drive::new(cfg, start).map_err(|e| MachineError::Unsupported(e.to_string()))?;
     check_track_range(cfg, &drive)?;
     let mesh = cfg
         .bed_mesh_path()
@@ -209,7 +209,7 @@ fn plan(
     if let Some(mesh) = mesh {
         drive = drive
             .with_mesh(mesh, start, &motor_at)
-            .map_err(MachineError::Unsupported)?;
+            .map_err(|e| MachineError::Unsupported(e.to_string()))?;
     }
     let planner = motion::machine_planner(cfg)?;
     let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);

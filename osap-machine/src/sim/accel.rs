@@ -55,6 +55,6 @@ pub(crate) fn sim_accel(
         range: acc.range,
         coef,
     };
-    spec.check().map_err(|m| (at, m))?;
+    spec.check().map_err(|e| (at, e.to_string()))?;
     Ok(Some(spec))
 }

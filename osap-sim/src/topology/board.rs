@@ -3,6 +3,17 @@
 //! accelerometer on one, and its UF2 bootloader.
 
 use serde::{Deserialize, Serialize};
+
+/// A board setting out of range; the message names the key and why.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("{0}")]
+pub struct BoardError(String);
+
+impl BoardError {
+    fn new(message: impl Into<String>) -> Self {
+        BoardError(message.into())
+    }
+}
 use std::path::PathBuf;
 use uf2_link::uf2::{RP2040_FAMILY_ID, SAMD51_FAMILY_ID};
 
@@ -64,22 +75,23 @@ impl Default for MotorSpec {
 
 impl MotorSpec {
     /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), BoardError> {
         if !(self.full_steps_per_unit.is_finite() && self.full_steps_per_unit > 0.0) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.motor] full_steps_per_unit {} must be finite and positive",
                 self.full_steps_per_unit
-            ));
+            )));
         }
         if self.limit_min.is_some() && self.limit_max.is_some() {
-            return Err(
-                "[module.motor] has both limit_min and limit_max: a module has one limit input"
-                    .into(),
-            );
+            return Err(BoardError::new(
+                "[module.motor] has both limit_min and limit_max: a module has one limit input",
+            ));
         }
         for x in [self.limit_min, self.limit_max].into_iter().flatten() {
             if !x.is_finite() {
-                return Err(format!("[module.motor] limit position {x} must be finite"));
+                return Err(BoardError::new(format!(
+                    "[module.motor] limit position {x} must be finite"
+                )));
             }
         }
         Ok(())
@@ -104,23 +116,23 @@ pub struct IoSpec {
 
 impl IoSpec {
     /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), BoardError> {
         if self.digital.len() > usize::from(DIGITAL_PINS) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io] digital lists {} pins; a module has {DIGITAL_PINS}",
                 self.digital.len()
-            ));
+            )));
         }
         if self.analog.len() > usize::from(ANALOG_INPUTS) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io] analog lists {} inputs; a module has {ANALOG_INPUTS}",
                 self.analog.len()
-            ));
+            )));
         }
         if let Some(v) = self.analog.iter().find(|v| !(0.0..=1.0).contains(*v)) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io] analog value {v} must be a fraction of full scale, 0 to 1"
-            ));
+            )));
         }
         if let Some(a) = &self.accel {
             a.check()?;
@@ -156,37 +168,37 @@ fn one() -> f64 {
 
 impl AccelSpec {
     /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), BoardError> {
         if self.channel >= ANALOG_INPUTS {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io.accel] channel {} does not exist: a module has analog inputs 0 to {}",
                 self.channel,
                 ANALOG_INPUTS - 1
-            ));
+            )));
         }
         if !(self.resonance_hz.is_finite() && self.resonance_hz > 0.0) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io.accel] resonance_hz {} must be finite and positive",
                 self.resonance_hz
-            ));
+            )));
         }
         if !(self.damping_ratio.is_finite() && self.damping_ratio >= 0.0) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io.accel] damping_ratio {} must be finite and 0 or more",
                 self.damping_ratio
-            ));
+            )));
         }
         if !(self.range.is_finite() && self.range > 0.0) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io.accel] range {} must be finite and positive (units/s² at full scale)",
                 self.range
-            ));
+            )));
         }
         if !(self.coef.is_finite() && self.coef != 0.0) {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.io.accel] coef {} must be finite and not 0",
                 self.coef
-            ));
+            )));
         }
         Ok(())
     }
@@ -264,20 +276,19 @@ impl BootloaderSpec {
     }
 
     /// Checks the values; the message says which and why.
-    pub fn check(&self) -> Result<(), String> {
+    pub fn check(&self) -> Result<(), BoardError> {
         if self.drive.as_os_str().is_empty() {
-            return Err(
+            return Err(BoardError::new(
                 "[module.bootloader] drive is empty: give the directory its \
-                 simulated USB drive appears in"
-                    .into(),
-            );
+                 simulated USB drive appears in",
+            ));
         }
         if self.reboot_ms > 60_000 {
-            return Err(format!(
+            return Err(BoardError::new(format!(
                 "[module.bootloader] reboot_ms {} is over a minute: a board reboots in well \
                  under a second",
                 self.reboot_ms
-            ));
+            )));
         }
         Ok(())
     }

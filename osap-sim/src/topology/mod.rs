@@ -22,7 +22,7 @@ mod host;
 
 pub use bed::{BedContact, BedSurface};
 pub use board::{
-    AccelSpec, BootloaderSpec, Chip, IoSpec, MotorSpec, ANALOG_INPUTS, DIGITAL_PINS,
+    AccelSpec, BoardError, BootloaderSpec, Chip, IoSpec, MotorSpec, ANALOG_INPUTS, DIGITAL_PINS,
     DRIVER_MICROSTEPS, PWM_OUTPUTS,
 };
 pub use error::SpecError;

@@ -193,10 +193,14 @@ mod tests {
     fn bad_specs_are_named() {
         let mut s = spec(40.0, 0.1);
         s.channel = 3;
-        assert!(s.check().unwrap_err().contains("channel"));
+        assert!(s.check().unwrap_err().to_string().contains("channel"));
         let mut s = spec(40.0, 0.1);
         s.range = 0.0;
-        assert!(s.check().unwrap_err().contains("range"));
-        assert!(spec(0.0, 0.1).check().unwrap_err().contains("resonance_hz"));
+        assert!(s.check().unwrap_err().to_string().contains("range"));
+        assert!(spec(0.0, 0.1)
+            .check()
+            .unwrap_err()
+            .to_string()
+            .contains("resonance_hz"));
     }
 }
