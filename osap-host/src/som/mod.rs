@@ -2,7 +2,8 @@
 //!
 //! - [`Manager`]: scans the network, asks every PIPES function for its
 //!   signature, modes and pipes, and keeps the result as a [`Som`]. It
-//!   connects functions with pipes ([`Manager::connect`]) over the shortest
+//!   connects functions with pipes ([`Manager::connect_named`] by argument
+//!   name, [`Manager::connect`] by index) over the shortest
 //!   route between their runtimes, checked against the conversion table, and
 //!   disconnects them and sets their modes, keeping the model up to date.
 //! - [`Som`] (in [`model`]): runtimes, links, functions, pipes and classes,
@@ -36,6 +37,7 @@ mod host_class;
 mod host_fn;
 mod manager;
 pub mod model;
+mod named;
 pub mod proxy;
 mod value;
 
@@ -171,6 +173,22 @@ pub enum SomError {
         /// The destination function.
         dest_fn: FnRef,
         /// What is wrong.
+        detail: String,
+    },
+    /// A pipe named by its arguments ([`Manager::connect_named`]) names an
+    /// output or an input its function does not have: both ends, and what
+    /// is missing.
+    #[error("pipe from {source_fn} output {output:?} to {dest_fn} input {input:?}: {detail}")]
+    NoSuchArgument {
+        /// The source function.
+        source_fn: FnRef,
+        /// The output's name.
+        output: String,
+        /// The destination function.
+        dest_fn: FnRef,
+        /// The input's name.
+        input: String,
+        /// Which is missing, and what the function has instead.
         detail: String,
     },
     /// No route joins the two runtimes over the links the model knows.
