@@ -177,20 +177,9 @@ pub enum SomError {
     },
     /// A pipe named by its arguments ([`Manager::connect_named`]) names an
     /// output or an input its function does not have: both ends, and what
-    /// is missing.
-    #[error("pipe from {source_fn} output {output:?} to {dest_fn} input {input:?}: {detail}")]
-    NoSuchArgument {
-        /// The source function.
-        source_fn: FnRef,
-        /// The output's name.
-        output: String,
-        /// The destination function.
-        dest_fn: FnRef,
-        /// The input's name.
-        input: String,
-        /// Which is missing, and what the function has instead.
-        detail: String,
-    },
+    /// is missing. Boxed: errors stay small.
+    #[error("{0}")]
+    NoSuchArgument(Box<NoSuchArgument>),
     /// No route joins the two runtimes over the links the model knows.
     #[error("no route from runtime {from:?} to runtime {to:?} over the known links")]
     NoRoute {
@@ -215,6 +204,23 @@ pub enum SomError {
         /// What is wrong.
         detail: String,
     },
+}
+
+/// A pipe's pair of argument names of which one is not its function's
+/// ([`SomError::NoSuchArgument`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("pipe from {source_fn} output {output:?} to {dest_fn} input {input:?}: {detail}")]
+pub struct NoSuchArgument {
+    /// The source function.
+    pub source_fn: FnRef,
+    /// The output's name.
+    pub output: String,
+    /// The destination function.
+    pub dest_fn: FnRef,
+    /// The input's name.
+    pub input: String,
+    /// Which is missing, and what the function has instead.
+    pub detail: String,
 }
 
 /// A pair of a pipe's argmap whose types do not convert

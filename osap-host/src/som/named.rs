@@ -5,7 +5,7 @@
 use super::handle::describe;
 use super::manager::{Manager, PipeOptions};
 use super::model::{SomArg, SomPipe};
-use super::{FnRef, SomError};
+use super::{FnRef, NoSuchArgument, SomError};
 
 impl Manager {
     /// Pipes `source`'s outputs to `dest`'s inputs, by name: each pair is
@@ -37,12 +37,14 @@ impl Manager {
     ) -> Result<(Vec<u8>, Vec<u8>), SomError> {
         let (_, sf) = self.locate(source)?;
         let (_, df) = self.locate(dest)?;
-        let missing = |output: &str, input: &str, detail: String| SomError::NoSuchArgument {
-            source_fn: source.clone(),
-            output: output.to_string(),
-            dest_fn: dest.clone(),
-            input: input.to_string(),
-            detail,
+        let missing = |output: &str, input: &str, detail: String| {
+            SomError::NoSuchArgument(Box::new(NoSuchArgument {
+                source_fn: source.clone(),
+                output: output.to_string(),
+                dest_fn: dest.clone(),
+                input: input.to_string(),
+                detail,
+            }))
         };
         let mut outputs = Vec::with_capacity(pairs.len());
         let mut inputs = Vec::with_capacity(pairs.len());
