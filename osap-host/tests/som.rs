@@ -362,6 +362,91 @@ async fn type_mismatches_and_bad_argmaps_are_refused_naming_the_pair() {
     assert!(m.som().pipes.is_empty());
 }
 
+/// A total, as a typed host function takes it.
+#[derive(pipes_core::PipesArgs)]
+struct Total {
+    total: f64,
+}
+
+#[tokio::test]
+async fn pipes_connect_by_argument_name_and_a_missing_name_names_both_ends() {
+    let n = net().await;
+    let mut m = Manager::new(&n.h).await.unwrap();
+    m.refresh().await.unwrap();
+    let (sensor, acc, _) = refs();
+    let seen: Seen = Arc::default();
+    let s = seen.clone();
+    let sink = m
+        .define(
+            HostFunction::typed("sink", move |t: Total| {
+                s.lock().unwrap().push(t.total);
+                Ok::<(), HostFnError>(())
+            })
+            .unwrap(),
+        )
+        .await
+        .unwrap();
+    let inputs = &m.som().function(0, "sink").unwrap().inputs;
+    assert_eq!(
+        inputs,
+        &[SomArg {
+            name: "total".into(),
+            type_name: "f64".into()
+        }]
+    );
+
+    // By name: a.sensor's y -> b.acc's a -> h.sink's total.
+    let p = m
+        .connect_named(&sensor, &acc, &[("y", "a")], PipeOptions::default())
+        .await
+        .unwrap();
+    assert_eq!(p.route, [1]);
+    m.connect_named(&acc, &sink, &[("total", "total")], PipeOptions::default())
+        .await
+        .unwrap();
+    m.function(&sensor)
+        .unwrap()
+        .call(&[Value::F32(2.0)])
+        .await
+        .unwrap();
+    wait_for(&seen, |v| v == [2.0]).await;
+
+    // A renamed input: refused before anything is set, naming both
+    // functions, both arguments, and what the function has instead.
+    let before = m.som().pipes.len();
+    let e = m
+        .connect_named(&sensor, &acc, &[("y", "amount")], PipeOptions::default())
+        .await
+        .unwrap_err();
+    assert!(matches!(e, SomError::NoSuchArgument(_)), "{e:?}");
+    let msg = e.to_string();
+    for part in [
+        "\"sensor\"",
+        "\"a\"",
+        "output \"y\"",
+        "\"acc\"",
+        "\"b\"",
+        "input \"amount\"",
+        "has no input \"amount\" (inputs: a: f64)",
+    ] {
+        assert!(msg.contains(part), "{msg} lacks {part}");
+    }
+    // A missing output, likewise.
+    let e = m
+        .connect_named(&sensor, &acc, &[("x", "a")], PipeOptions::default())
+        .await
+        .unwrap_err();
+    let msg = e.to_string();
+    for part in [
+        "output \"x\"",
+        "input \"a\"",
+        "has no output \"x\" (outputs: y: f32)",
+    ] {
+        assert!(msg.contains(part), "{msg} lacks {part}");
+    }
+    assert_eq!(m.som().pipes.len(), before);
+}
+
 #[tokio::test]
 async fn disconnect_and_modes_update_the_network_and_the_model() {
     let n = net().await;

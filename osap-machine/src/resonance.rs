@@ -60,14 +60,14 @@ use std::sync::{Arc, Mutex};
 
 use maxl::blocks::chirp::{Chirp, ChirpConfig};
 use maxl::blocks::shaper::ShaperConfig;
-use osap_host::som::{Disconnect, FnRef, HostFunction, PipeOptions, Value};
+use osap_host::som::{Disconnect, FnRef, HostFnError, HostFunction, PipeOptions, Value};
 use pipes_core::control::{InputMode, OutputMode};
-use pipes_core::types::{ScalarType, Type};
 use plotters::prelude::*;
 
 use crate::config::MachineFile;
 use crate::machine::drive::MAX_AXES;
 use crate::machine::INTERVAL_US;
+use crate::network::modfn::{analog_read, same_names, ModuleCall};
 use crate::{Machine, MachineError};
 use analysis::{Analysis, AnalysisError, Peak};
 
@@ -313,36 +313,36 @@ pub async fn measure(
     let samples: Arc<Mutex<Vec<(u64, f32)>>> = Arc::default();
     let sink = samples.clone();
     let id = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let f = HostFunction::new(
+    // Its inputs are `analog_read`'s outputs, piped in by name.
+    let f = HostFunction::typed(
         &format!("resonance.accel{id}"),
-        &[
-            ("time", Type::Scalar(ScalarType::U64)),
-            ("value", Type::Scalar(ScalarType::F32)),
-        ],
-        &[],
-        move |ins: &[Value<'static>]| {
-            if let [Value::U64(t), Value::F32(v)] = ins {
-                sink.lock()
-                    .unwrap_or_else(|e| e.into_inner())
-                    .push((*t, *v));
-            }
-            Ok(Vec::new())
+        move |r: analog_read::Outputs| {
+            sink.lock()
+                .unwrap_or_else(|e| e.into_inner())
+                .push((r.time, r.value));
+            Ok::<(), HostFnError>(())
         },
     )
     .map_err(MachineError::from)?;
-    let from = FnRef::new(runtime.as_str(), "analog_read");
+    let from = analog_read::on(&runtime);
     let to = {
         let mut m = machine.manager().lock().await;
         let to = m.define(f).await.map_err(MachineError::from)?;
-        m.connect(&from, &to, &[0, 1], &[0, 1], PipeOptions::default())
+        let pairs = same_names::<analog_read::Outputs>();
+        m.connect_named(&from, &to, &pairs, PipeOptions::default())
             .await
             .map_err(MachineError::from)?;
         m.set_output_mode(&from, OutputMode::Always)
             .await
             .map_err(MachineError::from)?;
+        // Stored in its inputs: its timer samples the channel.
+        let channel = analog_read::Inputs {
+            channel: acc.channel,
+        };
+        let stored: Vec<(u8, Value<'static>)> = (0u8..).zip(channel.values()).collect();
         m.function(&from)
             .map_err(MachineError::from)?
-            .push(&[(0, Value::U8(acc.channel))])
+            .push(&stored)
             .await
             .map_err(|e| {
                 ResonanceError::Refused(format!(

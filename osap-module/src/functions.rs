@@ -347,31 +347,53 @@ macro_rules! module_functions {
     };
 }
 
-module_functions! {
-    add_point(time: u64, position: f32);
-    set_interval(interval_us: u32);
-    get_position() -> (time: u64, position: f32);
-    get_status() -> (mode: u8, queued: u16, enabled: bool, faults: u32);
-    get_counters() -> (points: u32, refused: u32, last_refused: u8, filled: u32);
-    get_steps() -> (steps: i64, up: u64, down: u64, late: u64);
-    set_enable(on: bool);
-    set_scale(full_steps_per_unit: f32);
-    set_microsteps(microsteps: u16);
-    set_limits(max_vel: f32, max_acc: f32, max_jerk: f32);
-    read_limit() -> (time: u64, level: bool, edges: u32);
-    halt();
-    digital_write(pin: u8, level: bool);
-    digital_read(pin: u8) -> (time: u64, level: bool);
-    pwm_write(channel: u8, duty: f32);
-    pulse(pin: u8, duration_us: u32);
-    pulse_at(time: u64, pin: u8, duration_us: u32);
-    analog_read(channel: u8) -> (time: u64, value: f32);
-    get_fault() -> (time: u64, code: u8, detail: u32, count: u32);
-    enter_bootloader();
-    set_safe_pwm(channel: u8, duty: f32);
-    set_safe_digital(pin: u8, level: bool);
-    set_output_watchdog(timeout_ms: u32);
+/// Hands the module's function table to macro `$m`: one line per
+/// function, in port order, `name(input: type, ..) -> (output: type, ..);`
+/// (no `->` for a function without outputs). This module builds its
+/// function set from it, and a host builds typed handles from it (see
+/// osap-machine's `network::modfn`), so both read one table and cannot
+/// disagree.
+///
+/// ```
+/// macro_rules! count {
+///     ($($f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;)*) => {
+///         [$(stringify!($f)),*].len()
+///     };
+/// }
+/// assert_eq!(osap_module::module_function_table!(count), osap_module::functions::ALL.len());
+/// ```
+#[macro_export]
+macro_rules! module_function_table {
+    ($m:ident) => {
+        $m! {
+            add_point(time: u64, position: f32);
+            set_interval(interval_us: u32);
+            get_position() -> (time: u64, position: f32);
+            get_status() -> (mode: u8, queued: u16, enabled: bool, faults: u32);
+            get_counters() -> (points: u32, refused: u32, last_refused: u8, filled: u32);
+            get_steps() -> (steps: i64, up: u64, down: u64, late: u64);
+            set_enable(on: bool);
+            set_scale(full_steps_per_unit: f32);
+            set_microsteps(microsteps: u16);
+            set_limits(max_vel: f32, max_acc: f32, max_jerk: f32);
+            read_limit() -> (time: u64, level: bool, edges: u32);
+            halt();
+            digital_write(pin: u8, level: bool);
+            digital_read(pin: u8) -> (time: u64, level: bool);
+            pwm_write(channel: u8, duty: f32);
+            pulse(pin: u8, duration_us: u32);
+            pulse_at(time: u64, pin: u8, duration_us: u32);
+            analog_read(channel: u8) -> (time: u64, value: f32);
+            get_fault() -> (time: u64, code: u8, detail: u32, count: u32);
+            enter_bootloader();
+            set_safe_pwm(channel: u8, duty: f32);
+            set_safe_digital(pin: u8, level: bool);
+            set_output_watchdog(timeout_ms: u32);
+        }
+    };
 }
+
+module_function_table!(module_functions);
 
 /// One of the module's functions bound to one module: what a function
 /// port runs.

@@ -8,6 +8,11 @@
 //! - [`PipesOutputs`]: what a function returns, written to its
 //!   [`Outputs`]: `()` (no outputs) and tuples of up to
 //!   [`MAX_ARGS`](crate::signature::MAX_ARGS) [`PipesType`]s.
+//! - [`PipesArgs`]: a struct whose named fields are a function's inputs
+//!   (or outputs), in order: `#[derive(pipes_core::PipesArgs)]` takes the
+//!   argument names from the field names and the types from the field
+//!   types, so a function defined at run time (a host function that
+//!   captures state) still has its signature written once, in Rust.
 //!
 //! A type with none of these fails to compile with "`T` has no PIPES
 //! encoding". Everything here is `no_std` and allocation-free.
@@ -17,6 +22,7 @@
 //! its declared type, or if a class's state is already borrowed.
 
 use crate::function::{CallError, Outputs};
+use crate::signature::Arg;
 use crate::types::{ScalarType, Type};
 use crate::value::{Text, Value};
 
@@ -158,3 +164,55 @@ tuple!(5; A 0, B 1, C 2, D 3, E 4);
 tuple!(6; A 0, B 1, C 2, D 3, E 4, F 5);
 tuple!(7; A 0, B 1, C 2, D 3, E 4, F 5, G 6);
 tuple!(8; A 0, B 1, C 2, D 3, E 4, F 5, G 6, H 7);
+
+/// A list of PIPES arguments as a Rust struct: its named fields, in order,
+/// are a function's inputs (or its outputs).
+///
+/// `#[derive(pipes_core::PipesArgs)]` implements it for a struct with
+/// named fields of [`PipesType`]s (at most
+/// [`MAX_ARGS`](crate::signature::MAX_ARGS), no generics, so no `&str`):
+///
+/// ```
+/// use pipes_core::export::PipesArgs;
+/// use pipes_core::Value;
+///
+/// #[derive(pipes_core::PipesArgs)]
+/// struct Reading {
+///     time: u64,
+///     value: f32,
+/// }
+///
+/// assert_eq!(Reading::ARGS[1].name, "value");
+/// let r = Reading::from_values(&[Value::U64(7), Value::F32(0.5)]).unwrap();
+/// assert_eq!((r.time, r.value), (7, 0.5));
+/// assert_eq!(r.value(0), Some(Value::U64(7)));
+/// ```
+///
+/// `()` is the empty list.
+#[diagnostic::on_unimplemented(
+    message = "`{Self}` is not a list of PIPES arguments",
+    note = "derive it: `#[derive(pipes_core::PipesArgs)]` on a struct with named fields of PIPES types"
+)]
+pub trait PipesArgs: Sized {
+    /// The arguments: each field's name and PIPES type, in field order.
+    const ARGS: &'static [Arg];
+
+    /// The struct from values in argument order; fails with
+    /// [`INPUT_DECODE_FAILED`] when one is missing or not of its type.
+    fn from_values(values: &[Value<'_>]) -> Result<Self, CallError>;
+
+    /// Argument `index`'s value (`None` past the last).
+    fn value(&self, index: usize) -> Option<Value<'_>>;
+}
+
+impl PipesArgs for () {
+    const ARGS: &'static [Arg] = &[];
+
+    fn from_values(_values: &[Value<'_>]) -> Result<Self, CallError> {
+        Ok(())
+    }
+
+    fn value(&self, _index: usize) -> Option<Value<'_>> {
+        None
+    }
+}

@@ -51,10 +51,14 @@ pub use types::{ScalarType, Type};
 pub use value::{Array, Dims, Element, Elements, Tensor, Text, Value, ValueError};
 pub mod class;
 pub mod export;
-pub use export::{FromPipes, PipesOutputs, PipesType};
+pub use export::{FromPipes, PipesArgs, PipesOutputs, PipesType};
 /// `#[pipes_core::class]` on an inherent `impl` block: see
 /// [`pipes_macros::class`](macro@pipes_macros::class) and [`class`](mod@class).
 pub use pipes_macros::class;
 /// `#[pipes_core::function(outputs = "a, b")]` on a plain `fn`: see
 /// [`pipes_macros::function`](macro@pipes_macros::function).
 pub use pipes_macros::function;
+/// `#[derive(pipes_core::PipesArgs)]` on a struct with named fields: see
+/// [`pipes_macros::PipesArgs`](derive@pipes_macros::PipesArgs) and
+/// [`export::PipesArgs`].
+pub use pipes_macros::PipesArgs;

@@ -628,3 +628,65 @@ fn failures_of_functions_members_and_constructors_reach_the_caller() {
     assert!(returned(&body).is_empty());
     assert_eq!((state.borrow().full, state.borrow().level), (20, 0));
 }
+
+/// A status report as a list of arguments: the names and types come from
+/// the fields.
+#[derive(Debug, PartialEq, pipes_core::PipesArgs)]
+struct Status {
+    mode: u8,
+    queued: u16,
+    enabled: bool,
+    r#faults: u32,
+}
+
+#[derive(Debug, PartialEq, pipes_core::PipesArgs)]
+struct NoArgs {}
+
+#[test]
+fn derived_args_name_and_type_each_field_in_order() {
+    use pipes_core::export::PipesArgs;
+    let t = |s| Type::Scalar(s);
+    assert_eq!(
+        Status::ARGS,
+        [
+            Arg::new("mode", t(ScalarType::U8)),
+            Arg::new("queued", t(ScalarType::U16)),
+            Arg::new("enabled", t(ScalarType::Bool)),
+            Arg::new("faults", t(ScalarType::U32)),
+        ]
+    );
+    let values = [
+        Value::U8(2),
+        Value::U16(5),
+        Value::Bool(true),
+        Value::U32(9),
+    ];
+    let s = Status::from_values(&values).unwrap();
+    assert_eq!(
+        s,
+        Status {
+            mode: 2,
+            queued: 5,
+            enabled: true,
+            faults: 9
+        }
+    );
+    let back: Vec<Value<'_>> = (0..4).map_while(|i| s.value(i)).collect();
+    assert_eq!(back, values);
+    assert_eq!(s.value(4), None);
+    // A missing or mistyped value is the decode failure.
+    let decode = pipes_core::function::CallError::Failed(pipes_core::FailureCode::from_code(
+        pipes_core::export::INPUT_DECODE_FAILED,
+    ));
+    assert_eq!(Status::from_values(&values[..3]), Err(decode));
+    let wrong = [
+        Value::U16(2),
+        Value::U16(5),
+        Value::Bool(true),
+        Value::U32(9),
+    ];
+    assert_eq!(Status::from_values(&wrong), Err(decode));
+    assert!(NoArgs::ARGS.is_empty());
+    assert_eq!(NoArgs::from_values(&[]), Ok(NoArgs {}));
+    assert!(<() as PipesArgs>::ARGS.is_empty());
+}

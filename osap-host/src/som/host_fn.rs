@@ -1,7 +1,12 @@
 //! PIPES functions defined by host code.
 //!
-//! A [`HostFunction`] is a signature and a Rust closure over
-//! [`Value`]s that own their data (`Value<'static>`). Attached to a [`Host`] it runs as a real
+//! A [`HostFunction`] is a signature and a Rust closure. Its signature
+//! comes from Rust types ([`HostFunction::typed`]: the closure takes and
+//! returns `#[derive(pipes_core::PipesArgs)]` structs, whose fields name
+//! and type the arguments), or, for a list only known at run time (a
+//! capture's chosen outputs), from a list ([`HostFunction::new`]: the
+//! closure takes and returns [`Value`]s that own their data,
+//! `Value<'static>`). Attached to a [`Host`] it runs as a real
 //! `pipes_core::function::PipesFunction` port in that host's runtime: it
 //! answers the whole function protocol, shows up in scans and in the system
 //! object model, and pipes can run to it from module functions and from it
@@ -10,6 +15,7 @@
 use super::SomError;
 use crate::Host;
 use pipes_core::control::{FailureCode, InputMode, OutputMode};
+use pipes_core::export::PipesArgs;
 use pipes_core::failure::{check_failures, Failure};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
 use pipes_core::signature::{Arg, Signature};
@@ -122,7 +128,10 @@ fn leak(s: &str) -> &'static str {
 }
 
 impl HostFunction {
-    /// A function `name(inputs) -> outputs` running `body`.
+    /// A function `name(inputs) -> outputs` running `body`, its signature
+    /// given as lists: for arguments known only at run time. A signature
+    /// known when the code is written comes from Rust types instead
+    /// ([`typed`](Self::typed)).
     ///
     /// Signatures of PIPES functions are static (firmware declares them in
     /// flash), so the signature is leaked: a few bytes per function defined,
@@ -138,10 +147,64 @@ impl HostFunction {
             let v: Vec<Arg> = list.iter().map(|(n, t)| Arg::new(leak(n), *t)).collect();
             Box::leak(v.into_boxed_slice())
         };
+        HostFunction::with_signature(name, args(inputs), args(outputs), Box::new(body))
+    }
+
+    /// A function `name(I) -> O` running `body`: its inputs are `I`'s
+    /// fields and its outputs `O`'s (names and types, in field order; `()`
+    /// for none), each a `#[derive(pipes_core::PipesArgs)]` struct. The
+    /// name may be made at run time (`machine.status.<module>`), and `body`
+    /// may hold state.
+    ///
+    /// ```
+    /// use osap_host::som::{HostFnError, HostFunction};
+    ///
+    /// #[derive(pipes_core::PipesArgs)]
+    /// struct Reading {
+    ///     time: u64,
+    ///     value: f32,
+    /// }
+    ///
+    /// let mut sum = 0.0;
+    /// let f = HostFunction::typed("sum.x", move |r: Reading| {
+    ///     sum += r.value;
+    ///     Ok::<(), HostFnError>(())
+    /// })?;
+    /// assert_eq!(f.signature().inputs[1].name, "value");
+    /// # Ok::<(), osap_host::som::SomError>(())
+    /// ```
+    ///
+    /// Inputs that do not decode as `I` fail the call with
+    /// [`HostFnError::bad_input`] before `body` runs. The name is leaked
+    /// as with [`new`](Self::new); refused: a name longer than 255 bytes.
+    pub fn typed<I, O>(
+        name: &str,
+        mut body: impl FnMut(I) -> Result<O, HostFnError> + Send + 'static,
+    ) -> Result<HostFunction, SomError>
+    where
+        I: PipesArgs,
+        O: PipesArgs,
+    {
+        let body = move |ins: &[Value<'static>]| {
+            let inputs = I::from_values(ins).map_err(|_| HostFnError::bad_input())?;
+            let out = body(inputs)?;
+            Ok((0..O::ARGS.len())
+                .map_while(|k| out.value(k).map(|v| v.to_owned_value()))
+                .collect())
+        };
+        HostFunction::with_signature(name, I::ARGS, O::ARGS, Box::new(body))
+    }
+
+    fn with_signature(
+        name: &str,
+        inputs: &'static [Arg],
+        outputs: &'static [Arg],
+        body: HostBody,
+    ) -> Result<HostFunction, SomError> {
         let sig = Signature {
             name: leak(name),
-            inputs: args(inputs),
-            outputs: args(outputs),
+            inputs,
+            outputs,
         };
         sig.check().map_err(|e| SomError::BadDefinition {
             name: name.to_string(),
@@ -149,7 +212,7 @@ impl HostFunction {
         })?;
         Ok(HostFunction {
             sig: Box::leak(Box::new(sig)),
-            body: Box::new(body),
+            body,
             failures: &[],
             input_mode: InputMode::default(),
             output_mode: OutputMode::default(),

@@ -405,7 +405,7 @@ impl Manager {
     }
 
     /// Runtime index and function of `f` in the model.
-    fn locate(&self, f: &FnRef) -> Result<(usize, &SomFunction), SomError> {
+    pub(super) fn locate(&self, f: &FnRef) -> Result<(usize, &SomFunction), SomError> {
         let ri = self.runtime(f)?;
         let func = self
             .som

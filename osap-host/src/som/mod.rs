@@ -2,7 +2,8 @@
 //!
 //! - [`Manager`]: scans the network, asks every PIPES function for its
 //!   signature, modes and pipes, and keeps the result as a [`Som`]. It
-//!   connects functions with pipes ([`Manager::connect`]) over the shortest
+//!   connects functions with pipes ([`Manager::connect_named`] by argument
+//!   name, [`Manager::connect`] by index) over the shortest
 //!   route between their runtimes, checked against the conversion table, and
 //!   disconnects them and sets their modes, keeping the model up to date.
 //! - [`Som`] (in [`model`]): runtimes, links, functions, pipes and classes,
@@ -36,6 +37,7 @@ mod host_class;
 mod host_fn;
 mod manager;
 pub mod model;
+mod named;
 pub mod proxy;
 mod value;
 
@@ -173,6 +175,11 @@ pub enum SomError {
         /// What is wrong.
         detail: String,
     },
+    /// A pipe named by its arguments ([`Manager::connect_named`]) names an
+    /// output or an input its function does not have: both ends, and what
+    /// is missing. Boxed: errors stay small.
+    #[error("{0}")]
+    NoSuchArgument(Box<NoSuchArgument>),
     /// No route joins the two runtimes over the links the model knows.
     #[error("no route from runtime {from:?} to runtime {to:?} over the known links")]
     NoRoute {
@@ -197,6 +204,23 @@ pub enum SomError {
         /// What is wrong.
         detail: String,
     },
+}
+
+/// A pipe's pair of argument names of which one is not its function's
+/// ([`SomError::NoSuchArgument`]).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+#[error("pipe from {source_fn} output {output:?} to {dest_fn} input {input:?}: {detail}")]
+pub struct NoSuchArgument {
+    /// The source function.
+    pub source_fn: FnRef,
+    /// The output's name.
+    pub output: String,
+    /// The destination function.
+    pub dest_fn: FnRef,
+    /// The input's name.
+    pub input: String,
+    /// Which is missing, and what the function has instead.
+    pub detail: String,
 }
 
 /// A pair of a pipe's argmap whose types do not convert

@@ -1,6 +1,7 @@
 //! Any module function, called by the module's key in `[modules]`.
 
 use super::*;
+use crate::network::modfn::ModuleCall;
 
 pub(super) fn som_refusal(module: &str, function: &str, e: SomError) -> MachineError {
     match e {
@@ -27,16 +28,25 @@ impl Machine {
         self.call_as(key, function, args, false).await
     }
 
-    /// [`call`](Self::call) for a function that sets or reads a value,
-    /// asked again if its reply is lost (a noisy link must not fail a
-    /// recovery).
-    pub(super) async fn call_idempotent(
+    /// Calls module function `C` on module `key` with `inputs` (typed:
+    /// its name and arguments come from the module's own table).
+    pub(super) async fn call_module<C: ModuleCall>(
         &self,
         key: &str,
-        function: &str,
-        args: &[Value<'static>],
+        inputs: C,
     ) -> Result<Vec<Value<'static>>, MachineError> {
-        self.call_as(key, function, args, true).await
+        self.call_as(key, C::NAME, &inputs.values(), false).await
+    }
+
+    /// [`call_module`](Self::call_module) for a function that sets or
+    /// reads a value, asked again if its reply is lost (a noisy link must
+    /// not fail a recovery).
+    pub(super) async fn call_idempotent<C: ModuleCall>(
+        &self,
+        key: &str,
+        inputs: C,
+    ) -> Result<Vec<Value<'static>>, MachineError> {
+        self.call_as(key, C::NAME, &inputs.values(), true).await
     }
 
     pub(super) async fn call_as(

@@ -5,12 +5,13 @@
 
 use std::collections::BTreeMap;
 
-use osap_host::som::{FnRef, Manager};
+use osap_host::som::Manager;
 use tokio::sync::broadcast;
 
 use super::events::MachineEvent;
 use super::monitor::{self, SharedReports};
 use super::{source, MachineError, ModuleInfo, LINK_LOST_AFTER, STATUS_PERIOD_US};
+use crate::network::modfn::get_status;
 
 /// Pipes every module's `get_status` to its status monitor, every
 /// status period; a module without `get_status` cannot be watched and is
@@ -21,25 +22,20 @@ pub(super) async fn status_reports(
     reports: &SharedReports,
 ) -> Result<(), MachineError> {
     for (key, m) in modules {
-        if manager
-            .function(&FnRef::new(m.runtime.as_str(), "get_status"))
-            .is_err()
-        {
+        if manager.function(&get_status::on(&m.runtime)).is_err() {
             return Err(MachineError::Unsupported(format!(
                 "modules.{key}: the module has no get_status, so the machine could not tell if it stopped answering; update its firmware (`osap flash`)"
             )));
         }
         let status_fn = manager
-            .define(monitor::status(key, reports.clone()).map_err(MachineError::Unsupported)?)
+            .define(monitor::status(key, reports.clone())?)
             .await?;
-        source(
+        source::<get_status::Inputs>(
             manager,
             &m.runtime,
-            "get_status",
             Some(STATUS_PERIOD_US),
             false,
             &status_fn,
-            4,
         )
         .await?;
     }

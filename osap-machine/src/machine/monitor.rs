@@ -4,17 +4,21 @@
 //! and stepped positions (what the machine executed).
 //!
 //! Every report is pushed by the module (a pipe from its function, run on
-//! the module's own timer), so nothing here polls the network.
+//! the module's own timer), so nothing here polls the network. Each
+//! monitor takes its module function's outputs as they are declared
+//! ([`crate::network::modfn`]): its inputs are named and typed as they
+//! are, and the pipe into it connects them by name.
 
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
-use osap_host::som::{HostFnError, HostFunction, Value};
-use pipes_core::types::{ScalarType, Type};
+use osap_host::som::{HostFnError, HostFunction};
 use tokio::sync::broadcast;
 
 use super::error::{fault_reason, stepper_reason};
 use super::events::{FaultKind, MachineEvent};
+use super::MachineError;
+use crate::network::modfn::{get_counters, get_fault, get_position, get_status, read_limit};
 
 /// Failure code of a fault monitor given a fault code this host does not
 /// know (a newer firmware's): the report is refused, not misread.
@@ -132,37 +136,22 @@ pub fn lock(r: &SharedReports) -> std::sync::MutexGuard<'_, Reports> {
     r.lock().unwrap_or_else(|e| e.into_inner())
 }
 
-fn t(s: ScalarType) -> Type {
-    Type::Scalar(s)
-}
-
 /// `machine.status.<key>(mode, queued, enabled, faults)`, fed by the
-/// module's `get_status`: each report says the module still answers (the
-/// watchdog's link-loss check). Faults come through [`fault`].
-pub fn status(key: &str, reports: SharedReports) -> Result<HostFunction, String> {
+/// module's `get_status` (its inputs are `get_status`'s outputs): each
+/// report says the module still answers (the watchdog's link-loss check).
+/// Faults come through [`fault`].
+pub fn status(key: &str, reports: SharedReports) -> Result<HostFunction, MachineError> {
     let module = key.to_string();
-    HostFunction::new(
+    Ok(HostFunction::typed(
         &format!("machine.status.{key}"),
-        &[
-            ("mode", t(ScalarType::U8)),
-            ("queued", t(ScalarType::U16)),
-            ("enabled", t(ScalarType::Bool)),
-            ("faults", t(ScalarType::U32)),
-        ],
-        &[],
-        move |ins: &[Value<'static>]| {
-            let (Some(Value::U8(mode)), Some(Value::U32(faults))) = (ins.first(), ins.get(3))
-            else {
-                return Err(HostFnError::bad_input());
-            };
+        move |s: get_status::Outputs| {
             let now = tokio::time::Instant::now();
             lock(&reports)
                 .seen
-                .insert(module.clone(), (*mode, *faults, now));
-            Ok(Vec::new())
+                .insert(module.clone(), (s.mode, s.faults, now));
+            Ok::<(), HostFnError>(())
         },
-    )
-    .map_err(|e| e.to_string())
+    )?)
 }
 
 /// `machine.fault.<key>(time, code, detail, count)`, fed by the module's
@@ -175,53 +164,36 @@ pub fn fault(
     limit_watched: bool,
     reports: SharedReports,
     events: broadcast::Sender<MachineEvent>,
-) -> Result<HostFunction, String> {
+) -> Result<HostFunction, MachineError> {
     let module = key.to_string();
-    HostFunction::new(
+    Ok(HostFunction::typed(
         &format!("machine.fault.{key}"),
-        &[
-            ("time", t(ScalarType::U64)),
-            ("code", t(ScalarType::U8)),
-            ("detail", t(ScalarType::U32)),
-            ("count", t(ScalarType::U32)),
-        ],
-        &[],
-        move |ins: &[Value<'static>]| {
-            let (
-                Some(Value::U64(time)),
-                Some(Value::U8(code)),
-                Some(Value::U32(detail)),
-                Some(Value::U32(count)),
-            ) = (ins.first(), ins.get(1), ins.get(2), ins.get(3))
-            else {
-                return Err(HostFnError::bad_input());
-            };
-            let before = lock(&reports).faults.insert(module.clone(), *count);
+        move |f: get_fault::Outputs| {
+            let before = lock(&reports).faults.insert(module.clone(), f.count);
             // A count that moved either way is news (a module that restarted
             // counts from 0 again).
-            if before.is_none_or(|b| b == *count) {
-                return Ok(Vec::new());
+            if before.is_none_or(|b| b == f.count) {
+                return Ok(());
             }
-            let Some(kind) = FaultKind::from_code(*code) else {
+            let Some(kind) = FaultKind::from_code(f.code) else {
                 return Err(HostFnError::new(UNKNOWN_FAULT_KIND));
             };
             if kind == FaultKind::None
                 || (kind == FaultKind::LimitHit && limit_watched)
-                || (kind == FaultKind::Halted && lock(&reports).is_own_halt(&module, *time))
+                || (kind == FaultKind::Halted && lock(&reports).is_own_halt(&module, f.time))
             {
-                return Ok(Vec::new());
+                return Ok(());
             }
             let _ = events.send(MachineEvent::Fault {
                 module: module.clone(),
                 kind,
-                detail: *detail,
-                time: *time,
-                reason: fault_reason(kind, *detail),
+                detail: f.detail,
+                time: f.time,
+                reason: fault_reason(kind, f.detail),
             });
-            Ok(Vec::new())
+            Ok(())
         },
-    )
-    .map_err(|e| e.to_string())
+    )?)
 }
 
 /// `machine.counters.<key>(points, refused, last_refused, filled)`, fed by
@@ -230,33 +202,21 @@ pub fn counters(
     key: &str,
     reports: SharedReports,
     events: broadcast::Sender<MachineEvent>,
-) -> Result<HostFunction, String> {
+) -> Result<HostFunction, MachineError> {
     let module = key.to_string();
-    HostFunction::new(
+    Ok(HostFunction::typed(
         &format!("machine.counters.{key}"),
-        &[
-            ("points", t(ScalarType::U32)),
-            ("refused", t(ScalarType::U32)),
-            ("last_refused", t(ScalarType::U8)),
-            ("filled", t(ScalarType::U32)),
-        ],
-        &[],
-        move |ins: &[Value<'static>]| {
-            let (Some(Value::U32(refused)), Some(Value::U8(code))) = (ins.get(1), ins.get(2))
-            else {
-                return Err(HostFnError::bad_input());
-            };
-            if lock(&reports).take_refused(&module, *refused) {
+        move |c: get_counters::Outputs| {
+            if lock(&reports).take_refused(&module, c.refused) {
                 let _ = events.send(MachineEvent::Refused {
                     module: module.clone(),
-                    count: *refused,
-                    reason: stepper_reason(*code),
+                    count: c.refused,
+                    reason: stepper_reason(c.last_refused),
                 });
             }
-            Ok(Vec::new())
+            Ok::<(), HostFnError>(())
         },
-    )
-    .map_err(|e| e.to_string())
+    )?)
 }
 
 /// `machine.limit.<key>(time, level, edges)`, fed by the module's
@@ -266,26 +226,15 @@ pub fn limit(
     key: &str,
     reports: SharedReports,
     edges: broadcast::Sender<(String, LimitEdge)>,
-) -> Result<HostFunction, String> {
+) -> Result<HostFunction, MachineError> {
     let module = key.to_string();
-    HostFunction::new(
+    Ok(HostFunction::typed(
         &format!("machine.limit.{key}"),
-        &[
-            ("time", t(ScalarType::U64)),
-            ("level", t(ScalarType::Bool)),
-            ("edges", t(ScalarType::U32)),
-        ],
-        &[],
-        move |ins: &[Value<'static>]| {
-            let (Some(Value::U64(time)), Some(Value::Bool(level)), Some(Value::U32(count))) =
-                (ins.first(), ins.get(1), ins.get(2))
-            else {
-                return Err(HostFnError::bad_input());
-            };
+        move |l: read_limit::Outputs| {
             let edge = LimitEdge {
-                time: *time,
-                pressed: !*level,
-                edges: *count,
+                time: l.time,
+                pressed: !l.level,
+                edges: l.edges,
             };
             let before = lock(&reports).limit.insert(module.clone(), edge);
             // The first report is the switch's state when the pipe began;
@@ -293,37 +242,31 @@ pub fn limit(
             if before.is_none_or(|b| b.edges != edge.edges) {
                 let _ = edges.send((module.clone(), edge));
             }
-            Ok(Vec::new())
+            Ok::<(), HostFnError>(())
         },
-    )
-    .map_err(|e| e.to_string())
+    )?)
 }
 
 /// `machine.position.<motor>(time, position)`, fed by the module's
 /// `get_position` (on change): what the motor stepped, while recording.
-pub fn position(motor: &str, index: usize, reports: SharedReports) -> Result<HostFunction, String> {
-    HostFunction::new(
+pub fn position(
+    motor: &str,
+    index: usize,
+    reports: SharedReports,
+) -> Result<HostFunction, MachineError> {
+    Ok(HostFunction::typed(
         &format!("machine.position.{motor}"),
-        &[
-            ("time", t(ScalarType::U64)),
-            ("position", t(ScalarType::F32)),
-        ],
-        &[],
-        move |ins: &[Value<'static>]| {
-            let (Some(Value::U64(time)), Some(Value::F32(p))) = (ins.first(), ins.get(1)) else {
-                return Err(HostFnError::bad_input());
-            };
+        move |p: get_position::Outputs| {
             if let Some(all) = &mut lock(&reports).positions {
                 if let Some(list) = all.get_mut(index) {
-                    if list.last().is_none_or(|l| l.0 < *time) {
-                        list.push((*time, f64::from(*p)));
+                    if list.last().is_none_or(|l| l.0 < p.time) {
+                        list.push((p.time, f64::from(p.position)));
                     }
                 }
             }
-            Ok(Vec::new())
+            Ok::<(), HostFnError>(())
         },
-    )
-    .map_err(|e| e.to_string())
+    )?)
 }
 
 #[cfg(test)]

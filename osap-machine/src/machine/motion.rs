@@ -11,7 +11,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use maxl::blocks::planner::{Limits, Planner, VectorLimits};
 use osap_host::som::{HostFnError, HostFunction, Value};
-use pipes_core::types::{ScalarType, Type};
+use pipes_core::export::{PipesArgs, PipesType};
+use pipes_core::types::Type;
 use tokio::sync::watch;
 
 use super::drive::{Drive, MAX_AXES};
@@ -180,33 +181,52 @@ impl Motion {
     }
 }
 
+/// The motion function's input, and its first output: the timer's stamp
+/// it sampled at.
+pub const STAMP: &str = "stamp";
+
+/// The motion function's input: the stamp to sample at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, pipes_core::PipesArgs)]
+pub struct Stamp {
+    /// Synchronized µs.
+    pub stamp: u64,
+}
+
+/// The name of the motion function's output for motor `index` (machine
+/// motor order): `m0`, `m1`, ..
+pub fn motor_output(index: usize) -> String {
+    format!("m{index}")
+}
+
 /// The host function `name(stamp) -> (stamp, m0, m1, ..)` that samples
 /// `motion`: its outputs are piped to each motor's `add_point`
-/// (`[0, 1 + i] → [0, 1]`).
-pub fn function(name: &str, motion: SharedMotion, motors: usize) -> Result<HostFunction, String> {
-    let out_names: Vec<String> = (0..motors).map(|i| format!("m{i}")).collect();
-    let mut outputs: Vec<(&str, Type)> = vec![("stamp", Type::Scalar(ScalarType::U64))];
-    outputs.extend(
-        out_names
-            .iter()
-            .map(|n| (n.as_str(), Type::Scalar(ScalarType::F32))),
-    );
-    HostFunction::new(
+/// ([`STAMP`] to `time`, [`motor_output`] to `position`). Its input is
+/// [`Stamp`]; its outputs are one per motor, a list only known at run
+/// time.
+pub fn function(
+    name: &str,
+    motion: SharedMotion,
+    motors: usize,
+) -> Result<HostFunction, MachineError> {
+    let inputs: Vec<(&str, Type)> = Stamp::ARGS.iter().map(|a| (a.name, a.ty)).collect();
+    let out_names: Vec<String> = (0..motors).map(motor_output).collect();
+    let mut outputs: Vec<(&str, Type)> = vec![(STAMP, u64::TYPE)];
+    outputs.extend(out_names.iter().map(|n| (n.as_str(), f32::TYPE)));
+    Ok(HostFunction::new(
         name,
-        &[("stamp", Type::Scalar(ScalarType::U64))],
+        &inputs,
         &outputs,
         move |ins: &[Value<'static>]| {
-            let Some(Value::U64(stamp)) = ins.first() else {
+            let Ok(Stamp { stamp }) = Stamp::from_values(ins) else {
                 return Err(HostFnError::new(BAD_STAMP));
             };
-            let m = lock(&motion).sample(*stamp)?;
+            let m = lock(&motion).sample(stamp)?;
             let mut out = Vec::with_capacity(1 + m.len());
-            out.push(Value::U64(*stamp));
+            out.push(Value::U64(stamp));
             out.extend(m.iter().map(|&v| Value::F32(v as f32)));
             Ok(out)
         },
-    )
-    .map_err(|e| e.to_string())
+    )?)
 }
 
 /// The planner a machine plans with: each axis's own velocity and

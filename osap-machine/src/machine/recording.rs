@@ -30,7 +30,7 @@ impl Machine {
         let mut manager = self.inner.manager.lock().await;
         for m in motors {
             let runtime = &self.inner.modules[&m.module].runtime;
-            let f = FnRef::new(runtime.as_str(), "get_position");
+            let f = crate::network::modfn::get_position::on(runtime);
             let mode = self.inner.capture_holds.machine_sets(&f, mode);
             manager.set_input_mode(&f, mode).await?;
         }

@@ -16,23 +16,26 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use osap_host::som::{FnRef, FunctionHandle, Manager, SomError, Value};
+use osap_host::som::{FnRef, FunctionHandle, Manager, SomError};
 
 use super::{som_refusal, MachineError, ModuleInfo};
 use crate::config::{MachineFile, Output};
+use crate::network::modfn::{
+    get_status, set_output_watchdog, set_safe_digital, set_safe_pwm, ModuleCall,
+};
 
 /// How many times per output watchdog time the host calls each module.
 pub(super) const FEEDS_PER_WATCHDOG: u32 = 4;
 
-/// A module function for setting outputs up, or an error naming what the
-/// module lacks.
-fn setup_function(
+/// Module function `C` for setting outputs up, or an error naming what
+/// the module lacks.
+fn setup_function<C: ModuleCall>(
     manager: &Manager,
     key: &str,
     runtime: &str,
-    function: &str,
     why: &str,
 ) -> Result<FunctionHandle, MachineError> {
+    let function = C::NAME;
     manager
         .function(&FnRef::new(runtime, function))
         .map_err(|e| match e {
@@ -56,22 +59,29 @@ pub(super) async fn arm_module(
     for (name, tool) in &tools {
         let why = format!("tool {name} would stay on if the host went quiet");
         let (function, args) = match tool.output {
-            Output::Pwm(channel) => (
-                "set_safe_pwm",
-                vec![Value::U8(channel), Value::F32(tool.off_duty as f32)],
-            ),
-            Output::Digital(pin) => ("set_safe_digital", vec![Value::U8(pin), Value::Bool(false)]),
+            Output::Pwm(channel) => {
+                let safe = set_safe_pwm::Inputs {
+                    channel,
+                    duty: tool.off_duty as f32,
+                };
+                let f = setup_function::<set_safe_pwm::Inputs>(manager, key, runtime, &why)?;
+                (f, safe.values())
+            }
+            Output::Digital(pin) => {
+                let safe = set_safe_digital::Inputs { pin, level: false };
+                let f = setup_function::<set_safe_digital::Inputs>(manager, key, runtime, &why)?;
+                (f, safe.values())
+            }
         };
-        setup_function(manager, key, runtime, function, &why)?
+        function
             .call_idempotent(&args)
             .await
-            .map_err(|e| som_refusal(key, function, e))?;
+            .map_err(|e| som_refusal(key, &function.function().function, e))?;
     }
-    let watchdog = match setup_function(
+    let watchdog = match setup_function::<set_output_watchdog::Inputs>(
         manager,
         key,
         runtime,
-        "set_output_watchdog",
         "its outputs would stay as they are if the host went quiet",
     ) {
         Ok(h) => h,
@@ -80,9 +90,9 @@ pub(super) async fn arm_module(
     };
     let ms = cfg.modules[key].output_watchdog_ms();
     watchdog
-        .call_idempotent(&[Value::U32(ms)])
+        .call_idempotent(&set_output_watchdog::Inputs { timeout_ms: ms }.values())
         .await
-        .map_err(|e| som_refusal(key, "set_output_watchdog", e))?;
+        .map_err(|e| som_refusal(key, set_output_watchdog::NAME, e))?;
     Ok(())
 }
 
@@ -117,7 +127,7 @@ pub(super) fn keep_fed(
         // A call waits for its reply at most a period: one lost request
         // delays the next call by no more than that.
         let h = manager
-            .function(&FnRef::new(m.runtime.as_str(), "get_status"))?
+            .function(&get_status::on(&m.runtime))?
             .with_timeout(period);
         let key = key.clone();
         tasks.push(tokio::spawn(async move {

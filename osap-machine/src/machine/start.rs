@@ -4,6 +4,11 @@
 
 use maxl::blocks::bedlevel::BedMesh;
 
+use crate::network::modfn::{
+    self, add_point, get_counters, get_fault, get_position, read_limit, set_enable, set_interval,
+    set_limits, set_microsteps, set_scale, ModuleCall,
+};
+
 use super::*;
 
 /// How closely a clock must follow its source before motion starts.
@@ -249,24 +254,29 @@ async fn wire(
     manager.set_output_mode(&tick, OutputMode::OnChange).await?;
     let n_motors = lock_motion(motion).drive.motors().len();
     let motion_fn = manager
-        .define(
-            motion::function("machine.motion", motion.clone(), n_motors)
-                .map_err(MachineError::Unsupported)?,
-        )
+        .define(motion::function(
+            "machine.motion",
+            motion.clone(),
+            n_motors,
+        )?)
         .await?;
     let o = PipeOptions::default();
-    manager.connect(&tick, &motion_fn, &[0], &[0], o).await?;
+    // The timer's `tick` answers with its `stamp`.
+    manager
+        .connect_named(&tick, &motion_fn, &[("stamp", motion::STAMP)], o)
+        .await?;
     let motors: Vec<_> = lock_motion(motion).drive.motors().to_vec();
     for (i, motor) in motors.iter().enumerate() {
         let runtime = &modules[&motor.module].runtime;
-        let out = u8::try_from(1 + i)
-            .map_err(|_| MachineError::Unsupported("more than 254 motors".into()))?;
+        let position = motion::motor_output(i);
         manager
-            .connect(
+            .connect_named(
                 &motion_fn,
-                &FnRef::new(runtime.as_str(), "add_point"),
-                &[0, out],
-                &[0, 1],
+                &add_point::on(runtime),
+                &[
+                    (motion::STAMP, add_point::input::time),
+                    (&position, add_point::input::position),
+                ],
                 o,
             )
             .await?;
@@ -303,33 +313,25 @@ async fn watch(
         let runtime = modules[&motor.module].runtime.clone();
         let key = motor.module.as_str();
         let counters_fn = manager
-            .define(
-                monitor::counters(key, reports.clone(), events.clone())
-                    .map_err(MachineError::Unsupported)?,
-            )
+            .define(monitor::counters(key, reports.clone(), events.clone())?)
             .await?;
-        source(
+        source::<get_counters::Inputs>(
             manager,
             &runtime,
-            "get_counters",
             Some(STATUS_PERIOD_US),
             true,
             &counters_fn,
-            4,
         )
         .await?;
     }
     for (i, motor) in motors.iter().enumerate() {
         let runtime = modules[&motor.module].runtime.clone();
         let f = manager
-            .define(
-                monitor::position(&motor.name, i, reports.clone())
-                    .map_err(MachineError::Unsupported)?,
-            )
+            .define(monitor::position(&motor.name, i, reports.clone())?)
             .await?;
         // Wired now, run only while recording (start_recording): at
         // 1 kHz per motor it is most of a simulation's work otherwise.
-        source(manager, &runtime, "get_position", None, true, &f, 2).await?;
+        source::<get_position::Inputs>(manager, &runtime, None, true, &f).await?;
     }
     let mut switch_modules: Vec<&str> = cfg
         .axes
@@ -341,72 +343,52 @@ async fn watch(
     switch_modules.dedup();
     // Every module's faults, pushed once each as they happen.
     for (key, m) in modules {
-        if manager
-            .function(&FnRef::new(m.runtime.as_str(), "get_fault"))
-            .is_err()
-        {
+        if manager.function(&get_fault::on(&m.runtime)).is_err() {
             continue;
         }
         let watched = switch_modules.contains(&key.as_str());
         let f = manager
-            .define(
-                monitor::fault(key, watched, reports.clone(), events.clone())
-                    .map_err(MachineError::Unsupported)?,
-            )
+            .define(monitor::fault(
+                key,
+                watched,
+                reports.clone(),
+                events.clone(),
+            )?)
             .await?;
-        source(
-            manager,
-            &m.runtime,
-            "get_fault",
-            Some(FAULT_PERIOD_US),
-            true,
-            &f,
-            4,
-        )
-        .await?;
+        source::<get_fault::Inputs>(manager, &m.runtime, Some(FAULT_PERIOD_US), true, &f).await?;
     }
     for key in switch_modules {
         let runtime = modules[key].runtime.clone();
         let f = manager
-            .define(
-                monitor::limit(key, reports.clone(), limit_edges.clone())
-                    .map_err(MachineError::Unsupported)?,
-            )
+            .define(monitor::limit(key, reports.clone(), limit_edges.clone())?)
             .await?;
-        source(
-            manager,
-            &runtime,
-            "read_limit",
-            Some(FAST_PERIOD_US),
-            true,
-            &f,
-            3,
-        )
-        .await?;
+        source::<read_limit::Inputs>(manager, &runtime, Some(FAST_PERIOD_US), true, &f).await?;
     }
 
     Ok(())
 }
 
-/// Pipes module function `function` into host function `to`, outputs
-/// `0..n` to inputs `0..n`, and runs it as a source on the module's timer
-/// every `period_us` (`None`: not yet; a function without inputs idles in
-/// its default input mode).
-pub(super) async fn source(
+/// Pipes module function `C` (on `runtime`) into host function `to`, each
+/// output into the input of the same name (`to` takes `C`'s outputs), and
+/// runs it as a source on the module's timer every `period_us` (`None`:
+/// not yet; a function without inputs idles in its default input mode).
+pub(super) async fn source<C: ModuleCall>(
     manager: &mut Manager,
     runtime: &str,
-    function: &str,
     period_us: Option<u32>,
     on_change: bool,
     to: &FnRef,
-    n: u8,
 ) -> Result<(), MachineError> {
-    let from = FnRef::new(runtime, function);
+    let from = FnRef::new(runtime, C::NAME);
     // Pipe first, then the modes: a run before the pipe exists would count
     // as sent, and "on change" would hold back the first report.
-    let map: Vec<u8> = (0..n).collect();
     manager
-        .connect(&from, to, &map, &map, PipeOptions::default())
+        .connect_named(
+            &from,
+            to,
+            &modfn::same_names::<C::Outputs>(),
+            PipeOptions::default(),
+        )
         .await?;
     let mode = if on_change {
         OutputMode::OnChange
@@ -430,24 +412,20 @@ pub(super) async fn configure_motor(
     motor: &drive::DriveMotor,
     limits: Option<ModuleLimits>,
 ) -> Result<f64, MachineError> {
-    let call = |f: &'static str, args: Vec<Value<'static>>| {
-        let h = manager.function(&FnRef::new(runtime, f));
-        let module = motor.module.clone();
-        async move {
-            // Each sets a value or reads one: a lost reply is asked again.
-            h.map_err(MachineError::Network)?
-                .call_idempotent(&args)
-                .await
-                .map_err(|e| som_refusal(&module, f, e))
-        }
+    let module = motor.module.as_str();
+    // Each sets a value or reads one: a lost reply is asked again.
+    let call = set_scale::Inputs {
+        full_steps_per_unit: motor.full_steps_per_unit as f32,
     };
-    call(
-        "set_scale",
-        vec![Value::F32(motor.full_steps_per_unit as f32)],
-    )
-    .await?;
-    call("set_microsteps", vec![Value::U16(motor.microsteps)]).await?;
-    call("set_interval", vec![Value::U32(INTERVAL_US)]).await?;
+    call_idempotent(manager, runtime, module, call).await?;
+    let call = set_microsteps::Inputs {
+        microsteps: motor.microsteps,
+    };
+    call_idempotent(manager, runtime, module, call).await?;
+    let call = set_interval::Inputs {
+        interval_us: INTERVAL_US,
+    };
+    call_idempotent(manager, runtime, module, call).await?;
     // All three 0 turns a module's limiter off (a reconnect may follow a
     // machine file that had limits).
     let l = limits.unwrap_or(ModuleLimits {
@@ -455,16 +433,33 @@ pub(super) async fn configure_motor(
         acceleration: 0.0,
         jerk: 0.0,
     });
-    call(
-        "set_limits",
-        [l.velocity, l.acceleration, l.jerk]
-            .map(|x| Value::F32(x as f32))
-            .to_vec(),
-    )
-    .await?;
-    call("set_enable", vec![Value::Bool(motor.enable)]).await?;
-    let out = call("get_position", vec![]).await?;
+    let call = set_limits::Inputs {
+        max_vel: l.velocity as f32,
+        max_acc: l.acceleration as f32,
+        max_jerk: l.jerk as f32,
+    };
+    call_idempotent(manager, runtime, module, call).await?;
+    let call = set_enable::Inputs { on: motor.enable };
+    call_idempotent(manager, runtime, module, call).await?;
+    let out = call_idempotent(manager, runtime, module, get_position::Inputs {}).await?;
     stop::stepped_position(&motor.module, &out)
+}
+
+/// Calls module function `C` on module `module` (at `runtime`) with
+/// `inputs`, asking again if a reply is lost (for calls that set or read a
+/// value); a refusal is named as the module names it.
+pub(super) async fn call_idempotent<C: ModuleCall>(
+    manager: &Manager,
+    runtime: &str,
+    module: &str,
+    inputs: C,
+) -> Result<Vec<Value<'static>>, MachineError> {
+    manager
+        .function(&FnRef::new(runtime, C::NAME))
+        .map_err(MachineError::Network)?
+        .call_idempotent(&inputs.values())
+        .await
+        .map_err(|e| som_refusal(module, C::NAME, e))
 }
 
 /// Room kept beyond a motor's span over the travel: stopping past a

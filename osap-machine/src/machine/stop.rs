@@ -25,8 +25,10 @@ use std::collections::BTreeMap;
 use std::sync::Arc;
 use std::time::Duration;
 
-use osap_host::som::{FnRef, FunctionHandle, Value};
+use osap_host::som::{FunctionHandle, Value};
 use tokio::task::JoinSet;
+
+use crate::network::modfn::{digital_write, get_position, halt, pwm_write, set_enable};
 
 use super::error::{StopReport, Unreached};
 use super::events::MachineEvent;
@@ -224,17 +226,23 @@ impl Machine {
     async fn tools_off(&self) -> Outcomes {
         let mut calls = JoinSet::new();
         for (name, tool) in &self.inner.cfg.tools {
-            let (function, args) = match tool.output {
-                Output::Pwm(channel) => (
-                    "pwm_write",
-                    vec![Value::U8(channel), Value::F32(tool.off_duty as f32)],
-                ),
-                Output::Digital(pin) => ("digital_write", vec![Value::U8(pin), Value::Bool(false)]),
-            };
+            let (output, off_duty) = (tool.output, tool.off_duty as f32);
             let machine = self.clone();
             let (name, module) = (name.clone(), tool.module.clone());
             calls.spawn(async move {
-                let r = machine.call_idempotent(&module, function, &args).await;
+                let r = match output {
+                    Output::Pwm(channel) => {
+                        let off = pwm_write::Inputs {
+                            channel,
+                            duty: off_duty,
+                        };
+                        machine.call_idempotent(&module, off).await
+                    }
+                    Output::Digital(pin) => {
+                        let off = digital_write::Inputs { pin, level: false };
+                        machine.call_idempotent(&module, off).await
+                    }
+                };
                 if r.is_ok() {
                     machine.tool_is_off(&name);
                 }
@@ -260,7 +268,7 @@ impl Machine {
         {
             let manager = self.inner.manager.lock().await;
             for (key, m) in &self.inner.modules {
-                match manager.function(&FnRef::new(m.runtime.as_str(), "halt")) {
+                match manager.function(&halt::on(&m.runtime)) {
                     Ok(h) => handles.push((key.clone(), h)),
                     // A module without `halt` (no motor) has only its tools
                     // to stop.
@@ -284,7 +292,7 @@ impl Machine {
                     .call_idempotent(&[])
                     .await
                     .map(|_| ())
-                    .map_err(|e| som_refusal(&key, "halt", e));
+                    .map_err(|e| som_refusal(&key, halt::NAME, e));
                 if let Some(start) = start {
                     let to = machine.now_us().await.unwrap_or(start);
                     let to = to.saturating_add(HALT_STAMP_MARGIN_US);
@@ -349,15 +357,13 @@ impl Machine {
             calls.spawn(async move {
                 let r = async {
                     if cycle {
-                        machine
-                            .call_idempotent(&module, "set_enable", &[Value::Bool(false)])
-                            .await?;
+                        let off = set_enable::Inputs { on: false };
+                        machine.call_idempotent(&module, off).await?;
                     }
-                    machine
-                        .call_idempotent(&module, "set_enable", &[Value::Bool(enable)])
-                        .await?;
+                    let on = set_enable::Inputs { on: enable };
+                    machine.call_idempotent(&module, on).await?;
                     let out = machine
-                        .call_idempotent(&module, "get_position", &[])
+                        .call_idempotent(&module, get_position::Inputs {})
                         .await?;
                     stepped_position(&module, &out)
                 }

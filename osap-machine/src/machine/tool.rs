@@ -2,10 +2,9 @@
 
 use std::time::Duration;
 
-use osap_host::som::Value;
-
 use super::{Machine, MachineError};
 use crate::config::Output;
+use crate::network::modfn::{digital_write, pwm_write};
 
 /// What the machine remembers of a tool.
 #[derive(Debug, Default, Clone)]
@@ -83,21 +82,15 @@ impl Tool {
         match t.output {
             Output::Pwm(channel) => {
                 let duty = t.off_duty + level * (t.on_duty - t.off_duty);
+                let duty = duty as f32;
                 self.machine
-                    .call(
-                        &t.module,
-                        "pwm_write",
-                        &[Value::U8(channel), Value::F32(duty as f32)],
-                    )
+                    .call_module(&t.module, pwm_write::Inputs { channel, duty })
                     .await?;
             }
             Output::Digital(pin) => {
+                let level = level > 0.0;
                 self.machine
-                    .call(
-                        &t.module,
-                        "digital_write",
-                        &[Value::U8(pin), Value::Bool(level > 0.0)],
-                    )
+                    .call_module(&t.module, digital_write::Inputs { pin, level })
                     .await?;
             }
         }

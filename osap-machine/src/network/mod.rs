@@ -8,6 +8,7 @@
 
 mod find;
 mod kinds;
+pub mod modfn;
 
 use std::time::Duration;
 

@@ -11,6 +11,9 @@
 //! - [`macro@class`] on an inherent `impl` block implements
 //!   `pipes_core::class::PipesClass`: a constructor signature, one
 //!   signature per exported member and an optional per-loop hook.
+//! - [`derive@PipesArgs`] on a struct with named fields implements
+//!   `pipes_core::export::PipesArgs`: the fields, in order, as a list of
+//!   arguments (names and types) and their values.
 //!
 //! Every type in a signature goes through `pipes_core::export::PipesType`,
 //! so a type with no PIPES encoding fails to compile with the message
@@ -24,8 +27,8 @@ use quote::{format_ident, quote, quote_spanned};
 use syn::parse::Parser;
 use syn::spanned::Spanned;
 use syn::{
-    Attribute, Error, Expr, FnArg, Ident, ImplItem, ImplItemFn, ItemFn, ItemImpl, Lit, LitStr,
-    Meta, Pat, ReturnType, Signature as FnSig, Type,
+    Attribute, Data, DeriveInput, Error, Expr, Fields, FnArg, Ident, ImplItem, ImplItemFn, ItemFn,
+    ItemImpl, Lit, LitStr, Meta, Pat, ReturnType, Signature as FnSig, Type,
 };
 
 /// The most inputs, and the most outputs, of a PIPES function
@@ -124,6 +127,115 @@ pub fn class(attr: TokenStream, item: TokenStream) -> TokenStream {
             quote!(#e #item).into()
         }
     }
+}
+
+/// Implements `pipes_core::export::PipesArgs` for a struct with named
+/// fields: its fields, in order, are a PIPES function's arguments.
+///
+/// ```ignore
+/// #[derive(pipes_core::PipesArgs)]
+/// struct Status { mode: u8, queued: u16, enabled: bool, faults: u32 }
+///
+/// // Status::ARGS: mode: u8, queued: u16, enabled: bool, faults: u32
+/// let s = Status::from_values(&values)?;
+/// ```
+///
+/// Each field's name (without `r#`) is the argument's name and its type
+/// goes through `pipes_core::export::PipesType`. Errors at compile time: a
+/// tuple or unit struct, an enum or union, generics (a `&str` field needs
+/// one: use owned scalars), more than 8 fields, and a field type with no
+/// PIPES encoding.
+#[proc_macro_derive(PipesArgs)]
+pub fn pipes_args(item: TokenStream) -> TokenStream {
+    match pipes_args_impl(item.into()) {
+        Ok(t) => t.into(),
+        Err(e) => e.to_compile_error().into(),
+    }
+}
+
+fn pipes_args_impl(item: TokenStream2) -> syn::Result<TokenStream2> {
+    let input: DeriveInput = syn::parse2(item)?;
+    let ident = &input.ident;
+    if !input.generics.params.is_empty() || input.generics.where_clause.is_some() {
+        return Err(Error::new(
+            input.generics.span(),
+            "PIPES argument lists cannot be generic: their signature is fixed at compile time",
+        ));
+    }
+    let Data::Struct(data) = &input.data else {
+        return Err(Error::new(
+            ident.span(),
+            "`PipesArgs` is derived for a struct with named fields: one per argument",
+        ));
+    };
+    let fields: Vec<&syn::Field> = match &data.fields {
+        Fields::Named(n) => n.named.iter().collect(),
+        Fields::Unit => Vec::new(),
+        Fields::Unnamed(u) => {
+            return Err(Error::new(
+                u.span(),
+                "`PipesArgs` needs named fields: each field's name is its argument's name",
+            ))
+        }
+    };
+    if fields.len() > MAX_ARGS {
+        return Err(Error::new(
+            ident.span(),
+            format!(
+                "a PIPES function has at most {MAX_ARGS} inputs or outputs, `{ident}` has {} fields",
+                fields.len()
+            ),
+        ));
+    }
+    let mut names = Vec::new();
+    let mut idents = Vec::new();
+    let mut types = Vec::new();
+    for f in &fields {
+        let Some(fi) = &f.ident else {
+            return Err(Error::new(f.span(), "expected a named field"));
+        };
+        let s = fi.to_string();
+        let name = s.strip_prefix("r#").map(str::to_string).unwrap_or(s);
+        check_name(&name, fi.span())?;
+        names.push(name);
+        idents.push(fi.clone());
+        types.push(f.ty.clone());
+    }
+    let args = names.iter().zip(&types).map(|(n, t)| {
+        quote_spanned!(t.span()=> ::pipes_core::signature::Arg::new(#n, <#t as ::pipes_core::export::PipesType>::TYPE))
+    });
+    let values = format_ident!("__pipes_values");
+    let decode = idents.iter().zip(&types).enumerate().map(|(i, (fi, t))| {
+        quote_spanned!(t.span()=> #fi: ::pipes_core::export::input::<#t>(#values, #i)?)
+    });
+    let index = format_ident!("__pipes_index");
+    let arms = idents.iter().enumerate().map(|(i, fi)| {
+        quote!(#i => ::core::option::Option::Some(::pipes_core::export::PipesType::to_value(&self.#fi)),)
+    });
+    let construct = if matches!(data.fields, Fields::Unit) {
+        quote!(#ident)
+    } else {
+        quote!(#ident { #(#decode),* })
+    };
+    Ok(quote! {
+        impl ::pipes_core::export::PipesArgs for #ident {
+            const ARGS: &'static [::pipes_core::signature::Arg] = &[#(#args),*];
+
+            #[allow(unused_variables)]
+            fn from_values(
+                #values: &[::pipes_core::Value<'_>],
+            ) -> ::core::result::Result<Self, ::pipes_core::function::CallError> {
+                ::core::result::Result::Ok(#construct)
+            }
+
+            fn value(&self, #index: usize) -> ::core::option::Option<::pipes_core::Value<'_>> {
+                match #index {
+                    #(#arms)*
+                    _ => ::core::option::Option::None,
+                }
+            }
+        }
+    })
 }
 
 /// Removes `#[constructor]`, `#[loop_hook]` and `#[outputs]` from the block.
