@@ -823,7 +823,7 @@ pub fn encode_described_reply(
     encode_signature_reply(w, sig)?;
     encode_tail(w, parts, failures).map_err(|e| {
         w.truncate(start);
-        DecodeError::Signature(e)
+        DecodeError::Signature(e.into())
     })
 }
 

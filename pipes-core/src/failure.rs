@@ -27,10 +27,65 @@
 
 use core::fmt;
 
-use osap_core::codec::{Reader, Writer};
+use osap_core::codec::{CodecError, Reader, Writer};
 use osap_core::segment::Window;
 
-use crate::signature::SignatureError;
+/// Why a failure table could not be written or read. A signature's
+/// errors include these ([`FailureError`](crate::signature::FailureError)
+/// converts each to its own variant of the same name).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum FailureError {
+    /// The bytes end early.
+    Truncated,
+    /// The output buffer is too small.
+    NoSpace,
+    /// A name or reason is not valid UTF-8.
+    BadUtf8,
+    /// A name or reason is longer than 255 bytes.
+    NameTooLong,
+    /// Bytes were left over after the table.
+    TrailingBytes,
+    /// More than 255 codes, or more than a section's 65 535 bytes.
+    TooManyFailures,
+    /// The table names this code twice.
+    DuplicateFailure(u8),
+}
+
+impl fmt::Display for FailureError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            FailureError::Truncated => f.write_str("failure table is truncated"),
+            FailureError::NoSpace => {
+                f.write_str("output buffer is too small for the failure table")
+            }
+            FailureError::BadUtf8 => f.write_str("a failure name is not valid UTF-8"),
+            FailureError::NameTooLong => f.write_str("a failure name is longer than 255 bytes"),
+            FailureError::TrailingBytes => f.write_str("bytes left over after the failure table"),
+            FailureError::TooManyFailures => {
+                f.write_str("the failure table has more than 255 codes or 65 535 bytes")
+            }
+            FailureError::DuplicateFailure(code) => {
+                write!(f, "the failure table names code {code} twice")
+            }
+        }
+    }
+}
+
+impl core::error::Error for FailureError {}
+
+impl From<CodecError> for FailureError {
+    fn from(e: CodecError) -> Self {
+        match e {
+            CodecError::NoSpace => FailureError::NoSpace,
+            CodecError::BadUtf8 => FailureError::BadUtf8,
+            CodecError::StringTooLong => FailureError::NameTooLong,
+            // Truncated, or a codec error a newer osap-core adds: the
+            // body could not be read.
+            _ => FailureError::Truncated,
+        }
+    }
+}
 
 /// One failure code, by name.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -86,17 +141,17 @@ impl SignatureParts {
 /// Checks a table before it is published: at most 255 entries, names and
 /// reasons of at most 255 bytes, no code twice, and a section that fits its
 /// `u16` length.
-pub fn check_failures(failures: &[Failure]) -> Result<(), SignatureError> {
+pub fn check_failures(failures: &[Failure]) -> Result<(), FailureError> {
     if failures.len() > usize::from(u8::MAX) || failures_body_len(failures) > usize::from(u16::MAX)
     {
-        return Err(SignatureError::TooManyFailures);
+        return Err(FailureError::TooManyFailures);
     }
     for (i, f) in failures.iter().enumerate() {
         if f.name.len() > 255 || f.reason.len() > 255 {
-            return Err(SignatureError::NameTooLong);
+            return Err(FailureError::NameTooLong);
         }
         if failures[..i].iter().any(|g| g.code == f.code) {
-            return Err(SignatureError::DuplicateFailure(f.code));
+            return Err(FailureError::DuplicateFailure(f.code));
         }
     }
     Ok(())
@@ -152,11 +207,11 @@ pub fn encode_tail(
     w: &mut Writer<'_>,
     parts: SignatureParts,
     failures: &[Failure],
-) -> Result<(), SignatureError> {
+) -> Result<(), FailureError> {
     check_failures(failures)?;
     let n = tail_len(parts, failures);
     if n > w.remaining() {
-        return Err(SignatureError::NoSpace);
+        return Err(FailureError::NoSpace);
     }
     let start = w.len();
     let mut buf = [0u8; 64];
@@ -169,7 +224,7 @@ pub fn encode_tail(
         let got = win.written();
         if got == 0 || w.bytes(&buf[..got]).is_err() {
             w.truncate(start);
-            return Err(SignatureError::NoSpace);
+            return Err(FailureError::NoSpace);
         }
         at += got;
     }
@@ -186,7 +241,7 @@ pub(crate) struct Tail<'a> {
 }
 
 /// Reads every byte left in `r` as tail sections.
-pub(crate) fn decode_tail<'a>(r: &mut Reader<'a>) -> Result<Tail<'a>, SignatureError> {
+pub(crate) fn decode_tail<'a>(r: &mut Reader<'a>) -> Result<Tail<'a>, FailureError> {
     let bytes = r.rest();
     let mut failures = None;
     while !r.is_empty() {
@@ -210,7 +265,7 @@ pub struct FailureList<'a> {
 
 impl<'a> FailureList<'a> {
     /// Reads a whole section body.
-    fn decode(body: &'a [u8]) -> Result<FailureList<'a>, SignatureError> {
+    fn decode(body: &'a [u8]) -> Result<FailureList<'a>, FailureError> {
         let mut r = Reader::new(body);
         let count = r.u8()?;
         let start = r.rest();
@@ -220,7 +275,7 @@ impl<'a> FailureList<'a> {
             r.str8()?;
         }
         if !r.is_empty() {
-            return Err(SignatureError::TrailingBytes);
+            return Err(FailureError::TrailingBytes);
         }
         Ok(FailureList {
             count,
@@ -369,23 +424,23 @@ mod tests {
         // A known section with a byte too many, or one too few.
         assert_eq!(
             decode_tail(&mut Reader::new(&[1, 2, 0, 0, 0])),
-            Err(SignatureError::TrailingBytes)
+            Err(FailureError::TrailingBytes)
         );
         assert_eq!(
             decode_tail(&mut Reader::new(&[1, 1, 0, 1])),
-            Err(SignatureError::Truncated)
+            Err(FailureError::Truncated)
         );
         assert_eq!(
             decode_tail(&mut Reader::new(&[1, 0])),
-            Err(SignatureError::Truncated)
+            Err(FailureError::Truncated)
         );
         assert_eq!(
             decode_tail(&mut Reader::new(&[1, 4, 0, 1, 3, 1, b'a'])),
-            Err(SignatureError::Truncated)
+            Err(FailureError::Truncated)
         );
         assert_eq!(
             decode_tail(&mut Reader::new(&[1, 5, 0, 1, 3, 1, 0xFF, 0])),
-            Err(SignatureError::BadUtf8)
+            Err(FailureError::BadUtf8)
         );
     }
 
@@ -405,7 +460,7 @@ mod tests {
         ];
         assert_eq!(
             check_failures(&TWICE),
-            Err(SignatureError::DuplicateFailure(1))
+            Err(FailureError::DuplicateFailure(1))
         );
         let long = "x".repeat(256).leak();
         let one = [Failure {
@@ -413,13 +468,13 @@ mod tests {
             name: long,
             reason: "",
         }];
-        assert_eq!(check_failures(&one), Err(SignatureError::NameTooLong));
+        assert_eq!(check_failures(&one), Err(FailureError::NameTooLong));
         assert_eq!(check_failures(&TABLE), Ok(()));
         let mut small = [0u8; 8];
         let mut w = Writer::new(&mut small);
         assert_eq!(
             encode_tail(&mut w, SignatureParts::FAILURES, &TABLE),
-            Err(SignatureError::NoSpace)
+            Err(FailureError::NoSpace)
         );
         assert_eq!(w.len(), 0);
     }

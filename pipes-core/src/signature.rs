@@ -19,7 +19,7 @@ use core::fmt;
 use osap_core::codec::{CodecError, Reader, Writer};
 use osap_core::segment::Window;
 
-use crate::failure::{decode_tail, FailureList, Tail};
+use crate::failure::{decode_tail, FailureError, FailureList, Tail};
 use crate::types::Type;
 use crate::value::ValueError;
 
@@ -115,6 +115,21 @@ impl fmt::Display for SignatureError {
 }
 
 impl core::error::Error for SignatureError {}
+
+impl From<FailureError> for SignatureError {
+    fn from(e: FailureError) -> Self {
+        match e {
+            FailureError::NoSpace => SignatureError::NoSpace,
+            FailureError::BadUtf8 => SignatureError::BadUtf8,
+            FailureError::NameTooLong => SignatureError::NameTooLong,
+            FailureError::TrailingBytes => SignatureError::TrailingBytes,
+            FailureError::TooManyFailures => SignatureError::TooManyFailures,
+            FailureError::DuplicateFailure(code) => SignatureError::DuplicateFailure(code),
+            // Truncated, or a failure error a newer pipes-core adds.
+            _ => SignatureError::Truncated,
+        }
+    }
+}
 
 impl From<CodecError> for SignatureError {
     fn from(e: CodecError) -> Self {
