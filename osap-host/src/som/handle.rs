@@ -278,6 +278,14 @@ impl FunctionHandle {
         self.target.port
     }
 
+    /// The failure table the function publishes with its signature: what
+    /// each of its refusal codes means, as the device names it. Read once
+    /// and kept (until the next scan); `None` if the function publishes
+    /// none or does not answer.
+    pub async fn failure_table(&self) -> Option<FailureTable> {
+        self.control.failure_table(&self.target).await
+    }
+
     /// The same handle waiting up to `timeout` for each reply.
     pub fn with_timeout(mut self, timeout: Duration) -> FunctionHandle {
         self.control.timeout = timeout;

@@ -7,11 +7,15 @@ pub(super) fn som_refusal(module: &str, function: &str, e: SomError) -> MachineE
     match e {
         SomError::Remote {
             error: ControlError::CallFailed(code),
+            failure,
             ..
         } => MachineError::ModuleRefused {
             module: module.into(),
             function: function.into(),
-            reason: error::module_reason(function, code.code()),
+            reason: failure.map_or_else(
+                || format!("failure code {}", code.code()),
+                |f| f.to_string(),
+            ),
         },
         other => MachineError::Network(other),
     }

@@ -3,9 +3,9 @@
 use crate::config::ConfigError;
 use maxl::blocks::kinematics::KinError;
 use maxl::blocks::planner::PlanError;
+use osap_host::som::failure::{lookup, Failure};
 use osap_host::som::SomError;
 use osap_host::HostError;
-use osap_module::failure::{failure, generic, Family};
 use osap_module::fault::FaultKind;
 
 /// An error of the [`Machine`](super::Machine) API.
@@ -229,29 +229,34 @@ impl std::fmt::Display for StopReport {
     }
 }
 
-/// A stepper failure code (`add_point`'s, say) by name and reason, from
-/// osap-module's table: `QueueFull (code 8): the module's queue is full ..`.
-pub fn stepper_reason(code: u8) -> String {
-    Family::Stepper
-        .failure(code)
-        .or_else(|| generic(code))
+/// A refusal code by name and reason, from the table the refusing
+/// function publishes with its signature (`QueueFull (code 8): the
+/// module's queue is full ..`); by number when the table does not name it
+/// or there is none.
+pub fn refusal_reason(table: Option<&[Failure]>, code: u8) -> String {
+    table
+        .and_then(|t| lookup(t, code))
         .map_or_else(|| format!("failure code {code}"), |f| f.to_string())
 }
 
-/// A failure code of the module function `function` by name and reason
-/// (osap-module's table); unknown codes by number.
-pub fn module_reason(function: &str, code: u8) -> String {
-    failure(function, code).map_or_else(|| format!("failure code {code}"), |f| f.to_string())
+/// What a module's fault means, as a predicate of the module ("module y
+/// refused a point: ..."): the `get_fault` kind and detail, by name; a
+/// refused point's code by number (see [`fault_reason_in`]).
+pub fn fault_reason(kind: FaultKind, detail: u32) -> String {
+    fault_reason_in(kind, detail, None)
 }
 
-/// What a module's fault means, as a predicate of the module ("module y
-/// refused a point: ..."): the `get_fault` kind and detail, by name.
-pub fn fault_reason(kind: FaultKind, detail: u32) -> String {
+/// [`fault_reason`], naming a refused point's code from `point_refusals`,
+/// the table the module's `add_point` publishes.
+pub fn fault_reason_in(kind: FaultKind, detail: u32, point_refusals: Option<&[Failure]>) -> String {
     match kind {
         FaultKind::None => "reported no fault".into(),
         FaultKind::Refused => {
             let code = u8::try_from(detail).unwrap_or(u8::MAX);
-            format!("refused a point: {}", stepper_reason(code))
+            format!(
+                "refused a point: {}",
+                refusal_reason(point_refusals, code)
+            )
         }
         FaultKind::Backstop => format!(
             "braked on its backstop: its stream ran dry mid-motion, {:.1} ms after its last point (the host fell behind or the link went quiet: more CPU, a longer timer lead, or a faster link)",

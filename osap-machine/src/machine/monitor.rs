@@ -12,10 +12,11 @@
 use std::collections::BTreeMap;
 use std::sync::{Arc, Mutex};
 
+use osap_host::som::failure::FailureTable;
 use osap_host::som::{HostFnError, HostFunction};
 use tokio::sync::broadcast;
 
-use super::error::{fault_reason, stepper_reason};
+use super::error::{fault_reason_in, refusal_reason};
 use super::events::{FaultKind, MachineEvent};
 use super::MachineError;
 use crate::network::modfn::{get_counters, get_fault, get_position, get_status, read_limit};
@@ -64,6 +65,9 @@ pub struct Reports {
     /// [`StopReport`](super::error::StopReport) reports, not a fault; its
     /// report may come after a later stop began.
     pub own_halts: BTreeMap<String, Vec<(u64, u64)>>,
+    /// Per module key: the failure table its `add_point` publishes, which
+    /// names the point refusals its faults and counters report by code.
+    pub point_refusals: BTreeMap<String, FailureTable>,
 }
 
 impl std::fmt::Debug for Reports {
@@ -77,6 +81,12 @@ impl std::fmt::Debug for Reports {
 pub const OWN_HALTS_KEPT: usize = 4;
 
 impl Reports {
+    /// What point refusal `code` of module `key` means, by the module's
+    /// own table.
+    fn refusal(&self, key: &str, code: u8) -> String {
+        refusal_reason(self.point_refusals.get(key).map(|t| &t[..]), code)
+    }
+
     /// Whether module `key`'s `Halted` fault stamped `time` is the
     /// machine's own halt.
     pub fn is_own_halt(&self, key: &str, time: u64) -> bool {
@@ -184,12 +194,13 @@ pub fn fault(
             {
                 return Ok(());
             }
+            let refusals = lock(&reports).point_refusals.get(&module).cloned();
             let _ = events.send(MachineEvent::Fault {
                 module: module.clone(),
                 kind,
                 detail: f.detail,
                 time: f.time,
-                reason: fault_reason(kind, f.detail),
+                reason: fault_reason_in(kind, f.detail, refusals.as_deref()),
             });
             Ok(())
         },
@@ -207,11 +218,14 @@ pub fn counters(
     Ok(HostFunction::typed(
         &format!("machine.counters.{key}"),
         move |c: get_counters::Outputs| {
-            if lock(&reports).take_refused(&module, c.refused) {
+            let mut r = lock(&reports);
+            if r.take_refused(&module, c.refused) {
+                let reason = r.refusal(&module, c.last_refused);
+                drop(r);
                 let _ = events.send(MachineEvent::Refused {
                     module: module.clone(),
                     count: c.refused,
-                    reason: stepper_reason(c.last_refused),
+                    reason,
                 });
             }
             Ok::<(), HostFnError>(())

@@ -307,6 +307,19 @@ async fn watch(
         limit_edges,
     } = m;
     let motors: Vec<_> = lock_motion(motion).drive.motors().to_vec();
+    // What each motor module's point refusals mean, by its own table.
+    for motor in &motors {
+        let runtime = &modules[&motor.module].runtime;
+        let table = manager
+            .function(&add_point::on(runtime))?
+            .failure_table()
+            .await;
+        if let Some(table) = table {
+            monitor::lock(reports)
+                .point_refusals
+                .insert(motor.module.clone(), table);
+        }
+    }
     // Reports from the modules.
     liveness::status_reports(manager, modules, reports).await?;
     for motor in &motors {
