@@ -15,9 +15,17 @@
 
 use crate::track::Interval;
 
-/// Position in steps as signed Q16.16 fixed point: `steps = raw / 65536`.
+/// Position in steps as signed Q16.16 fixed point: `steps = raw / 65536`,
+/// resolution 1/65536 step (1.53e-5 step).
 ///
-/// Range ±32768 steps, resolution 1/65536 step (1.53e-5 step).
+/// The value wraps: a position is known modulo 65 536 steps, and every
+/// operation on positions (evaluation, the tick evaluator, midpoints, the
+/// limiter, step counting) works on differences taken with wrapping
+/// arithmetic. So an axis has no end: a track may run through ±32 768 steps
+/// and on, as long as neighbouring control points are less than 32 768
+/// steps apart (at 100 kHz and 16 ms intervals a point moves at most
+/// 1 600 steps). Where the axis is in whole steps is counted by the step
+/// generator ([`crate::step::StepGen::position`], an `i64`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct Fx(pub i32);
 
@@ -33,6 +41,26 @@ impl Fx {
         let r = steps * 65536.0;
         let r = if r >= 0.0 { r + 0.5 } else { r - 0.5 };
         Fx(r as i32)
+    }
+
+    /// Nearest Q16.16 value to `steps`, wrapped modulo 65 536 steps (see
+    /// the type's docs): the position of an axis that has gone further.
+    /// Exact for any `|steps| < 2^47`; `None` for a value that is not
+    /// finite or beyond that.
+    pub fn wrapping_from_f64(steps: f64) -> Option<Self> {
+        let r = steps * 65536.0;
+        if !(r.is_finite() && r.abs() < 9.0e18) {
+            return None;
+        }
+        let r = if r >= 0.0 { r + 0.5 } else { r - 0.5 };
+        Some(Fx(r as i64 as i32))
+    }
+
+    /// `self − other` in raw units, for positions less than 32 768 steps
+    /// apart (wrapping).
+    #[inline]
+    pub fn wrapping_diff(self, other: Fx) -> i32 {
+        self.0.wrapping_sub(other.0)
     }
 
     /// Value in steps.
@@ -230,12 +258,22 @@ impl Point for Fx {
     type Kin = KinFx;
 
     fn midpoint(a: Fx, b: Fx) -> Fx {
-        // Exact in i64, then round half up.
-        Fx(((a.0 as i64 + b.0 as i64 + 1) >> 1) as i32)
+        // a + ⌊(b − a + 1) / 2⌋ = ⌊(a + b + 1) / 2⌋, round half up, on the
+        // wrapping difference.
+        Fx(a.0.wrapping_add(((b.wrapping_diff(a) as i64 + 1) >> 1) as i32))
     }
 
     fn eval(p: &[Fx; 4], du: u32, iv: Interval) -> KinFx {
-        let (p0, p1, p2, p3) = (p[0].0 as i64, p[1].0 as i64, p[2].0 as i64, p[3].0 as i64);
+        // Relative to P1 (wrapping differences), then P1 added back with a
+        // wrapping add: exact modulo 2^32 raw, so the track may run through
+        // the ends of the i32 range.
+        let base = p[1];
+        let (p0, p1, p2, p3) = (
+            p[0].wrapping_diff(base) as i64,
+            0i64,
+            p[2].wrapping_diff(base) as i64,
+            p[3].wrapping_diff(base) as i64,
+        );
         let c0 = p0 + 4 * p1 + p2;
         let c1 = 3 * (p2 - p0);
         let c2 = 3 * (p0 - 2 * p1 + p2);
@@ -251,7 +289,7 @@ impl Point for Fx {
         let acc6 = 2 * c2 + mul_q16(6 * c3, u);
         let jerk6 = 6 * c3;
         KinFx {
-            pos: Fx(div6(pos6) as i32),
+            pos: Fx(base.0.wrapping_add(div6(pos6) as i32)),
             vel: div6(per_second(vel6, shift)),
             acc: div6(per_second(per_second(acc6, shift), shift)),
             jerk: div6(per_second(
@@ -268,7 +306,7 @@ impl Point for Fx {
     fn with_offset(edge: &KinFx, dp: f32, vel: f32, acc: f32, jerk: f32) -> KinFx {
         let q = |x: f32| (x * 65536.0) as i64;
         KinFx {
-            pos: Fx((edge.pos.0 as i64 + q(dp)).clamp(i32::MIN as i64, i32::MAX as i64) as i32),
+            pos: Fx(edge.pos.0.wrapping_add(q(dp) as i32)),
             vel: q(vel),
             acc: q(acc),
             jerk: q(jerk),
@@ -499,7 +537,14 @@ impl TickEval {
     /// (2048 steps): then every sum below is under 14·2^59 (no overflow).
     /// Same results as [`TickEval::load_wide`], bit for bit.
     fn load_fast(&mut self, p: &[Fx; 4], du0: u32) -> bool {
-        let (p0, p1, p2, p3) = (p[0].0 as i64, p[1].0 as i64, p[2].0 as i64, p[3].0 as i64);
+        // Relative to P1 by wrapping differences (see [`Fx`]).
+        let base = p[1];
+        let (p0, p1, p2, p3) = (
+            p[0].wrapping_diff(base) as i64,
+            0i64,
+            p[2].wrapping_diff(base) as i64,
+            p[3].wrapping_diff(base) as i64,
+        );
         // e0 = c0 − 6·P1: the position relative to P1 keeps the sums small.
         let c = [
             p0 - 2 * p1 + p2,
@@ -535,7 +580,7 @@ impl TickEval {
         let h3x6 = umul_wide(6 * h2, h);
         let k2 = [0, 0, shl_wide(h2, s + 1), umul_wide(6 * dh, h) + h3x6];
         let k3 = [0, 0, 0, h3x6];
-        let base = p1 << TICK_FRAC;
+        let base = (base.0 as i64) << TICK_FRAC;
         self.p = base
             .wrapping_add(q32_small(&c, &k0, s))
             .wrapping_add(1 << (TICK_FRAC - 1));
@@ -547,11 +592,13 @@ impl TickEval {
 
     /// Setup in `i128`, for any `Fx` points.
     fn load_wide(&mut self, p: &[Fx; 4], du0: u32) {
+        // Relative to P1 by wrapping differences, P1 added back below.
+        let base = p[1];
         let (p0, p1, p2, p3) = (
-            p[0].0 as i128,
-            p[1].0 as i128,
-            p[2].0 as i128,
-            p[3].0 as i128,
+            p[0].wrapping_diff(base) as i128,
+            0i128,
+            p[2].wrapping_diff(base) as i128,
+            p[3].wrapping_diff(base) as i128,
         );
         let c0 = p0 + 4 * p1 + p2;
         let c1 = 3 * (p2 - p0);
@@ -568,7 +615,9 @@ impl TickEval {
             + c3 * (3 * d * d * h + 3 * d * h * h + h * h * h);
         let y2 = c2 * 2 * h * h * s1 + c3 * (6 * d * h * h + 6 * h * h * h);
         let y3 = 6 * c3 * h * h * h;
-        self.p = to_q32(y0, s).wrapping_add(1 << (TICK_FRAC - 1));
+        self.p = ((base.0 as i64) << TICK_FRAC)
+            .wrapping_add(to_q32(y0, s))
+            .wrapping_add(1 << (TICK_FRAC - 1));
         self.d1 = to_q32(y1, s);
         self.d2 = to_q32(y2, s);
         self.d3 = to_q32(y3, s);
@@ -728,6 +777,42 @@ mod tests {
     /// Random segments over the whole `Fx` range, every tick compared with
     /// the exact spline (≤ 2/3 raw) and `eval_f64` on the unquantized points
     /// (≤ 1.167 raw), and the tick bookkeeping.
+    /// Positions wrap (see `Fx`): a segment through the end of the `i32`
+    /// range evaluates, by either evaluator, to the same positions as the
+    /// same segment moved away from it, moved back (modulo 2^32 raw).
+    #[test]
+    fn a_segment_through_the_end_of_the_range_wraps_exactly() {
+        let iv = Interval::from_micros(1 << 12).unwrap();
+        let mut rng = Lcg(23);
+        for _ in 0..500 {
+            // Four points around the wrap, up to 2 048 steps apart.
+            let near = [0, 1, 2, 3].map(|_| rng.range(1 << 28) as i64 - (1 << 27));
+            let shift = rng.range(1 << 32) as i64;
+            let at = |off: i64| near.map(|v| Fx((v + off) as i32));
+            let wrapped = at(i32::MAX as i64 + shift);
+            let plain = at(0);
+            let moved = |x: Fx| Fx(x.0.wrapping_sub((i32::MAX as i64 + shift) as i32));
+            let du0 = rng.range(1 << 12) as u32;
+            let (mut a, mut b) = (
+                TickEval::new(iv, 10).unwrap(),
+                TickEval::new(iv, 10).unwrap(),
+            );
+            a.load(&wrapped, du0).unwrap();
+            b.load(&plain, du0).unwrap();
+            for (x, y) in a.by_ref().zip(b.by_ref()) {
+                assert_eq!(moved(x), y);
+            }
+            let du = rng.range(1 << 12) as u32;
+            let (kw, kp) = (Fx::eval(&wrapped, du, iv), Fx::eval(&plain, du, iv));
+            assert_eq!(moved(kw.pos), kp.pos);
+            assert_eq!((kw.vel, kw.acc, kw.jerk), (kp.vel, kp.acc, kp.jerk));
+            assert_eq!(
+                moved(Fx::midpoint(wrapped[0], wrapped[1])),
+                Fx::midpoint(plain[0], plain[1])
+            );
+        }
+    }
+
     #[test]
     fn tick_eval_error_bound_random_segments() {
         let mut rng = Lcg(11);
@@ -743,17 +828,15 @@ mod tests {
                 _ => min_h + rng.range((1u64 << s) - min_h as u64 + 1) as u32,
             };
             let mut e = TickEval::new(iv, h).unwrap();
-            // Wide points for some rounds (up to the full range), small moves for others.
-            let span = if round % 2 == 0 { 1u64 << 32 } else { 1 << 24 };
-            let base = rng.range(1 << 31) as i64 - (1 << 30);
+            // Wide points for some rounds (up to 16 384 steps apart, half
+            // the most neighbouring points may be apart: positions wrap,
+            // see `Fx`), small moves for others.
+            let span = if round % 2 == 0 { 1u64 << 30 } else { 1 << 24 };
+            let base = rng.range(3 << 30) as i64 - (1 << 31);
             let mut f = [0.0f64; 4];
             let mut p = [Fx(0); 4];
             for i in 0..4 {
-                let v = if span == 1 << 32 {
-                    rng.next() as i64 * 2 - (1i64 << 31) + rng.range(2) as i64
-                } else {
-                    base + rng.range(span) as i64
-                };
+                let v = base + rng.range(span) as i64;
                 let v = v.clamp(i32::MIN as i64 + 1, i32::MAX as i64 - 1);
                 // Unquantized point within ½ raw of the stored one.
                 f[i] = (v as f64 + (rng.range(1001) as f64 - 500.0) / 1000.0) / 65536.0;

@@ -238,7 +238,7 @@ pub trait Limitable: Copy + sealed::Sealed {
     type D: Num;
     /// `a − b`.
     fn diff(a: Self, b: Self) -> Self::D;
-    /// `p + d` (saturating for `Fx`).
+    /// `p + d` (wrapping for `Fx`, whose positions wrap).
     fn offset(p: Self, d: Self::D) -> Self;
 }
 
@@ -257,12 +257,11 @@ impl sealed::Sealed for Fx {}
 impl Limitable for Fx {
     type D = i64;
     fn diff(a: Fx, b: Fx) -> i64 {
-        a.0 as i64 - b.0 as i64
+        a.wrapping_diff(b) as i64
     }
     fn offset(p: Fx, d: i64) -> Fx {
-        Fx((p.0 as i64)
-            .saturating_add(d)
-            .clamp(i32::MIN as i64, i32::MAX as i64) as i32)
+        // Positions wrap (see `Fx`); a difference is less than 32 768 steps.
+        Fx(p.0.wrapping_add(d as i32))
     }
 }
 

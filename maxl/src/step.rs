@@ -83,13 +83,27 @@ pub struct StepStats {
 }
 
 /// Turns one position per tick into at most one step per tick.
+///
+/// Positions wrap every 65 536 steps ([`Fx`]); the generator counts the
+/// steps it sent in an `i64`, so the motor's step index has no end, and
+/// compares the step index of each position with it modulo 65 536 (the
+/// target is never 32 768 steps away).
 #[derive(Clone, Copy, Debug)]
 pub struct StepGen {
     half: i32,
-    /// Step indices fit in `i32` (`|count| <= 32768`), cheap on Cortex-M0+.
-    emitted: i32,
+    /// Net step index sent, whole.
+    emitted: i64,
+    /// Step index of the last position, modulo 65 536 (as `count_with`
+    /// gives it: `-32768..=32767`).
     target: i32,
     stats: StepStats,
+}
+
+/// `x` modulo 65 536, as a signed 16-bit value (`-32768..=32767`): the
+/// difference of two step indices known modulo 65 536.
+#[inline(always)]
+fn wrap16(x: i32) -> i32 {
+    (x << 16) >> 16
 }
 
 impl StepGen {
@@ -99,10 +113,28 @@ impl StepGen {
         let c = Self::count_with(start, half);
         StepGen {
             half,
-            emitted: c,
+            emitted: c as i64,
             target: c,
             stats: StepStats::default(),
         }
+    }
+
+    /// A generator whose motor is at whole step index `index` (any
+    /// `i64`: the index does not wrap), at rest there.
+    pub fn at_index(index: i64, rounding: Rounding) -> Self {
+        let half = rounding.half();
+        StepGen {
+            half,
+            emitted: index,
+            target: wrap16(index as i32),
+            stats: StepStats::default(),
+        }
+    }
+
+    /// The position of whole step index `index`, wrapped as positions are
+    /// ([`Fx`]).
+    pub fn index_position(index: i64) -> Fx {
+        Fx((index as i32).wrapping_mul(Fx::ONE))
     }
 
     #[inline]
@@ -121,10 +153,11 @@ impl StepGen {
     pub fn tick(&mut self, p: Fx) -> Option<Dir> {
         // Steps owed from earlier ticks (signed): the next ones in their
         // direction are late.
-        let owed = self.target - self.emitted;
+        let sent = self.emitted as i32;
+        let owed = wrap16(self.target.wrapping_sub(sent));
         self.target = Self::count_with(p, self.half);
         self.stats.ticks += 1;
-        let d = self.target - self.emitted;
+        let d = wrap16(self.target.wrapping_sub(sent));
         let out = if d > 0 {
             self.emitted += 1;
             self.stats.up += 1;
@@ -142,7 +175,7 @@ impl StepGen {
         } else {
             None
         };
-        if self.target != self.emitted {
+        if wrap16(self.target.wrapping_sub(self.emitted as i32)) != 0 {
             self.stats.overruns += 1;
             self.stats.max_backlog = self.stats.max_backlog.max(self.backlog());
         }
@@ -151,17 +184,24 @@ impl StepGen {
 
     /// Steps still owed to reach the last target (0 when caught up).
     pub fn backlog(&self) -> u64 {
-        (self.target - self.emitted).unsigned_abs() as u64
+        self.owed().unsigned_abs() as u64
     }
 
-    /// Net step index sent so far (start index + up − down).
+    /// Steps owed to reach the last target, signed.
+    fn owed(&self) -> i32 {
+        wrap16(self.target.wrapping_sub(self.emitted as i32))
+    }
+
+    /// Net step index sent so far (start index + up − down), whole: it
+    /// does not wrap with the positions.
     pub fn position(&self) -> i64 {
-        self.emitted as i64
+        self.emitted
     }
 
-    /// Step index of the last position seen.
+    /// Step index of the last position seen, whole (the index sent plus
+    /// the steps still owed).
     pub fn target(&self) -> i64 {
-        self.target as i64
+        self.emitted + self.owed() as i64
     }
 
     /// Steps sent late so far ([`StepStats::late`]), without copying the

@@ -314,3 +314,35 @@ fn queue_of_any_size_wraps_in_order() {
     assert!(next_in > 40, "only {next_in} events went through");
     assert!(q.is_empty());
 }
+
+/// Positions wrap every 65 536 steps (`Fx`); the generator's step index
+/// does not: a ramp up through the end of the range and back sends every
+/// step once, and its index counts on past 32 767.
+#[test]
+fn a_ramp_through_the_end_of_the_range_steps_exactly() {
+    let start = Fx(i32::MAX - 40 * Fx::ONE);
+    let mut g = StepGen::new(start, Rounding::Nearest);
+    let first = g.position();
+    assert_eq!(first, 32_728);
+    // 0.3 steps a tick: 300 steps up in 1 000 ticks, through the wrap.
+    let mut p = start;
+    for _ in 0..1000 {
+        p = Fx(p.0.wrapping_add(3 * Fx::ONE / 10));
+        g.tick(p);
+    }
+    for _ in 0..10 {
+        g.tick(p);
+    }
+    let s = g.stats();
+    assert_eq!((s.up, s.down, s.overruns), (300, 0, 0));
+    assert_eq!(g.position(), first + 300);
+    assert_eq!(g.target(), first + 300);
+    assert_eq!(g.backlog(), 0);
+    // And back down through it.
+    for _ in 0..1000 {
+        p = Fx(p.0.wrapping_sub(3 * Fx::ONE / 10));
+        g.tick(p);
+    }
+    assert_eq!(g.position(), first);
+    assert_eq!(g.stats().down, 300);
+}

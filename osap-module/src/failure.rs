@@ -306,8 +306,8 @@ failures! {
                 (a lossy link drops them: check its counters)",
         Faulted => "the axis is faulted or halted: cycle the motor's enable (set_enable \
                     false, then true)",
-        OutOfRange => "position not finite or beyond the module's track range (±32 767 \
-                       microsteps): lower the scale or the microsteps, or stay within travel",
+        OutOfRange => "position not finite or beyond 2^46 microsteps: send finite \
+                       positions in the motor's units (set_scale sets them)",
         Disabled => "the motor is disabled: enable it first (set_enable true)",
         Discontinuous => "a new stream must start where the axis stands: start it at \
                           get_position's position",

@@ -47,8 +47,13 @@ pub const QUEUE: usize = 64;
 /// The farthest a new stream may start from where the axis stands, in
 /// microsteps.
 pub const START_TOLERANCE_STEPS: f64 = 1.0;
-/// The largest position magnitude in microsteps (the Q16.16 track's range).
-pub const MAX_STEPS: f64 = 32_767.0;
+/// The largest position magnitude in microsteps. Positions on the track
+/// wrap every 65 536 microsteps ([`Fx`]) and the step count is an `i64`, so
+/// an axis has no end in practice: this bound (2^46) only keeps the
+/// conversion from units exact. What limits a long axis is the `f32` unit
+/// position on the wire: 24 bits, so at 2^k units a position is known to
+/// 2^(k−24) units (at 1 000 mm, 0.06 µm).
+pub const MAX_STEPS: f64 = 70_368_744_177_664.0;
 
 /// Why a stepper call was refused: the failure code a caller sees
 /// (`CallError::Failed(code)`).
@@ -65,8 +70,7 @@ pub enum StepperError {
     /// The stream ran dry mid-motion (or the axis was halted): disable and
     /// enable the motor to clear it.
     Faulted = 4,
-    /// The position is not finite or is beyond the track's range
-    /// (±32 767 microsteps).
+    /// The position is not finite or is beyond [`MAX_STEPS`] microsteps.
     OutOfRange = 5,
     /// The motor is disabled.
     Disabled = 6,
@@ -123,7 +127,7 @@ impl core::fmt::Display for StepperError {
             StepperError::Stale => "the time is not after the newest queued point",
             StepperError::Gap => "two or more points are missing before this one",
             StepperError::Faulted => "the axis is faulted or halted",
-            StepperError::OutOfRange => "the position is not finite or out of the track's range",
+            StepperError::OutOfRange => "the position is not finite or beyond 2^46 microsteps",
             StepperError::Disabled => "the motor is disabled",
             StepperError::Discontinuous => "a new stream must start where the axis stands",
             StepperError::QueueFull => "the queue is full",
@@ -287,7 +291,10 @@ impl Stepper {
 
     fn steps(&self, units: f32) -> Option<Fx> {
         let s = f64::from(units) * f64::from(self.steps_per_unit());
-        (s.is_finite() && s.abs() <= MAX_STEPS).then(|| Fx::from_f64(s))
+        if !(s.is_finite() && s.abs() <= MAX_STEPS) {
+            return None;
+        }
+        Fx::wrapping_from_f64(s)
     }
 
     fn units(&self, steps: f64) -> f32 {
@@ -340,7 +347,7 @@ impl Stepper {
             }
         }
         if self.track.is_empty() {
-            let away = (p.to_f64() - self.rest.to_f64()).abs();
+            let away = f64::from(p.wrapping_diff(self.rest)).abs() / f64::from(Fx::ONE);
             if away > START_TOLERANCE_STEPS {
                 return Err(StepperError::Discontinuous);
             }
@@ -554,8 +561,9 @@ impl Stepper {
     fn stand_still(&mut self) {
         self.clear_track();
         // Where the motor truly is: the steps sent, not the track's target.
-        self.rest = Fx((self.gen.position() as i32).saturating_mul(65_536));
-        self.gen = StepGen::new(self.rest, Rounding::Nearest);
+        let index = self.gen.position();
+        self.rest = StepGen::index_position(index);
+        self.gen = StepGen::at_index(index, Rounding::Nearest);
     }
 
     /// Sets the control-point interval (a power of two from 256 to
@@ -641,8 +649,11 @@ impl Stepper {
         self.limiter = limiter(self.limits, full * f32::from(microsteps), iv)?;
         self.full_steps_per_unit = full;
         self.microsteps = microsteps;
-        self.rest = Fx::from_f64(steps);
-        self.gen = StepGen::new(self.rest, Rounding::Nearest);
+        // Where the steps put the motor, in the new scale: the whole step
+        // nearest to it (half up, as the step generator rounds), and the
+        // position exactly.
+        self.rest = Fx::wrapping_from_f64(steps).ok_or(StepperError::OutOfRange)?;
+        self.gen = StepGen::at_index((steps + 0.5).floor() as i64, Rounding::Nearest);
         self.rebuild_track(iv);
         Ok(())
     }

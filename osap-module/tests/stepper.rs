@@ -140,9 +140,16 @@ fn refuses_bad_points_with_codes() {
         s.add_point(SystemInstant::ZERO, f32::NAN),
         Err(StepperError::OutOfRange)
     );
+    // Beyond 2^46 microsteps (1e13 units at 80 per unit).
+    assert_eq!(
+        s.add_point(SystemInstant::ZERO, 1e13),
+        Err(StepperError::OutOfRange)
+    );
+    // Far, but in range (positions wrap, an axis has no end): refused
+    // only because a stream starts where the axis stands.
     assert_eq!(
         s.add_point(SystemInstant::ZERO, 1e6),
-        Err(StepperError::OutOfRange)
+        Err(StepperError::Discontinuous)
     );
     assert_eq!(
         s.add_point(SystemInstant::ZERO, 5.0),
@@ -167,7 +174,7 @@ fn refuses_bad_points_with_codes() {
         "one missing point is filled"
     );
     assert_eq!(s.counters().filled, 1);
-    assert_eq!(s.counters().refused, 7);
+    assert_eq!(s.counters().refused, 8);
     assert_eq!(s.counters().last_refused, Some(StepperError::Gap));
     // Settings wait for an idle axis.
     assert_eq!(s.set_interval(1024), Err(StepperError::Busy));
@@ -253,8 +260,8 @@ fn settings_change_while_idle_and_keep_the_place() {
     assert!((s.position().1 - 1.0).abs() < 1e-6);
     assert_eq!(s.set_scale(f32::INFINITY), Err(StepperError::BadValue));
     assert_eq!(s.set_scale(-1.0), Err(StepperError::BadValue));
-    // 1 unit at 4000 full steps × 16 is beyond the track's range.
-    assert_eq!(s.set_scale(4000.0), Err(StepperError::OutOfRange));
+    // 1 unit at 1e13 full steps × 16 is beyond 2^46 microsteps.
+    assert_eq!(s.set_scale(1e13), Err(StepperError::OutOfRange));
     assert_eq!(s.set_interval(1000), Err(StepperError::BadValue));
     assert_eq!(s.set_interval(1024), Ok(()));
     assert_eq!(s.interval_us(), 1024);

@@ -140,7 +140,6 @@ impl Machine {
 /// (kinematics and motors) at the start position, and the mesh.
 fn check(cfg: &MachineFile, start: &[f64]) -> Result<(Drive, Option<BedMesh>), MachineError> {
     let drive = Drive::new(cfg, start).map_err(|e| MachineError::Unsupported(e.to_string()))?;
-    check_track_range(cfg, &drive)?;
     let mesh = cfg
         .bed_mesh_path()
         .map(|path| crate::mesh::load(&path))
@@ -473,63 +472,4 @@ pub(super) async fn call_idempotent<C: ModuleCall>(
         .call_idempotent(&inputs.values())
         .await
         .map_err(|e| som_refusal(module, C::NAME, e))
-}
-
-/// Room kept beyond a motor's span over the travel: stopping past a
-/// switch, backing off.
-pub(super) const RANGE_MARGIN: f64 = 1.05;
-
-/// A module's track holds ±32 767 microsteps: refuse a machine whose
-/// travel would not fit.
-pub(super) fn check_track_range(cfg: &MachineFile, drive: &Drive) -> Result<(), MachineError> {
-    // The motor's span over the whole travel box (a grid over it, for
-    // arms). A motor reads 0 where it booted, somewhere in that box, so
-    // it stays within ±span (plus a little for stopping past a switch).
-    let axes = drive.axes();
-    let n = axes.len();
-    let steps = 8usize;
-    let mut lo = vec![f64::INFINITY; drive.motors().len()];
-    let mut hi = vec![f64::NEG_INFINITY; drive.motors().len()];
-    let total = (steps + 1).pow(n as u32);
-    for idx in 0..total {
-        let mut k = idx;
-        let mut p = vec![0.0; n];
-        for (j, name) in axes.iter().enumerate() {
-            let a = &cfg.axes[name];
-            let f = (k % (steps + 1)) as f64 / steps as f64;
-            k /= steps + 1;
-            p[j] = a.min + f * (a.max - a.min);
-        }
-        if let Ok(m) = drive.motor_positions(&p) {
-            for (i, v) in m.iter().enumerate() {
-                lo[i] = lo[i].min(*v);
-                hi[i] = hi[i].max(*v);
-            }
-        }
-    }
-    for (i, motor) in drive.motors().iter().enumerate() {
-        let span = (hi[i] - lo[i]).max(0.0);
-        let per_unit = motor.full_steps_per_unit * f64::from(motor.microsteps);
-        let need = RANGE_MARGIN * span * per_unit;
-        let room = osap_module::stepper::MAX_STEPS;
-        if need > room {
-            let fit = (room / (RANGE_MARGIN * span * motor.full_steps_per_unit)).floor();
-            let fit = (0..9)
-                .map(|e| 1u32 << e)
-                .filter(|m| f64::from(*m) <= fit)
-                .max();
-            return Err(MachineError::Unsupported(format!(
-                "motors.{}: the travel spans {span:.1} units of this motor: {:.0} microsteps at {} full steps × {} microsteps per unit, and a module's track holds ±{room:.0} microsteps from where it booted. {}",
-                motor.name,
-                span * per_unit,
-                motor.full_steps_per_unit,
-                motor.microsteps,
-                match fit {
-                    Some(m) => format!("Set microsteps = {m} (or fewer)."),
-                    None => "Use a coarser drive (fewer full steps per unit).".into(),
-                }
-            )));
-        }
-    }
-    Ok(())
 }
