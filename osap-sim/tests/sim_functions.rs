@@ -365,10 +365,10 @@ async fn stepper_functions_refuse_with_the_firmware_codes() {
         scale.call(p, &[Value::F32(f32::NAN)]).await,
         stepper_failed(E::BadValue)
     );
-    // The simulated driver's mode pins set 1 to 32 microsteps (the firmware
-    // would take up to 256 on a driver that offers it).
-    assert_eq!(DRIVER_MICROSTEPS, [1, 2, 4, 8, 16, 32]);
-    for bad in [0u16, 3, 64, 256, 1000] {
+    // The simulated driver sets 1 to 256 microsteps, as the firmware
+    // takes them.
+    assert_eq!(DRIVER_MICROSTEPS, [1, 2, 4, 8, 16, 32, 64, 128, 256]);
+    for bad in [0u16, 3, 48, 512, 1000] {
         assert_eq!(
             micro.call(p, &[Value::U16(bad)]).await,
             stepper_failed(E::BadValue),
@@ -385,7 +385,8 @@ async fn stepper_functions_refuse_with_the_firmware_codes() {
     interval.call(p, &[Value::U32(IV as u32)]).await.unwrap();
     scale.call(p, &[Value::F32(100.0)]).await.unwrap();
     assert_eq!(shared.lock(|m| m.stepper.steps_per_unit()), 100.0);
-    // The farthest a position may be: 32 767 microsteps.
+    // The farthest a position may be: 2^46 microsteps (positions wrap on
+    // the track, an axis has no end).
     enable.call(p, &[Value::Bool(true)]).await.unwrap();
     assert_eq!(
         status.call(p, &[]).await.unwrap(),
@@ -393,7 +394,7 @@ async fn stepper_functions_refuse_with_the_firmware_codes() {
     );
     assert!(shared.lock(|m| m.board().driver().enabled()));
     assert_eq!(
-        add.call(p, &[Value::U64(t), Value::F32(400.0)]).await,
+        add.call(p, &[Value::U64(t), Value::F32(1e12)]).await,
         stepper_failed(E::OutOfRange)
     );
     assert_eq!(

@@ -44,7 +44,7 @@ pub struct StepEdge {
 /// The finest microstep the motor counts in: every step is a whole number
 /// of these (`FINEST / microsteps`), so positions are exact however the
 /// driver's mode changed.
-const FINEST: i64 = 32;
+const FINEST: i64 = 256;
 
 /// The simulated stepper driver's pins.
 #[derive(Debug, Clone)]

@@ -23,9 +23,9 @@ pub const DIGITAL_PINS: u8 = 4;
 pub const PWM_OUTPUTS: u8 = 2;
 /// Analog inputs of a simulated module.
 pub const ANALOG_INPUTS: u8 = 3;
-/// The microstep modes the simulated driver's mode pins can set (an A4988
-/// or DRV8825 with three mode pins).
-pub const DRIVER_MICROSTEPS: [u16; 6] = [1, 2, 4, 8, 16, 32];
+/// The microstep modes the simulated driver can set: 1 to 256, as a
+/// TMC2209 or TMC5160 does (and as the machine file allows).
+pub const DRIVER_MICROSTEPS: [u16; 9] = [1, 2, 4, 8, 16, 32, 64, 128, 256];
 
 fn default_full_steps_per_unit() -> f64 {
     80.0
