@@ -653,7 +653,7 @@ impl Stepper {
         // nearest to it (half up, as the step generator rounds), and the
         // position exactly.
         self.rest = Fx::wrapping_from_f64(steps).ok_or(StepperError::OutOfRange)?;
-        self.gen = StepGen::at_index((steps + 0.5).floor() as i64, Rounding::Nearest);
+        self.gen = StepGen::at_index(floor(steps + 0.5), Rounding::Nearest);
         self.rebuild_track(iv);
         Ok(())
     }
@@ -726,6 +726,16 @@ impl Stepper {
     /// The counters.
     pub fn counters(&self) -> StepperCounters {
         self.counters
+    }
+}
+
+/// `⌊x⌋` for `|x| < 2^62`, without `std` (no_std has no `f64::floor`).
+fn floor(x: f64) -> i64 {
+    let i = x as i64;
+    if (i as f64) > x {
+        i - 1
+    } else {
+        i
     }
 }
 
