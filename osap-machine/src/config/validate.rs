@@ -117,7 +117,7 @@ impl MachineFile {
             positive(
                 &format!("{at}.full_steps_per_unit"),
                 motor.full_steps_per_unit,
-                "full steps per unit of travel, e.g. 80 for a GT2 belt on a 20-tooth pulley",
+                "full steps per unit of travel, e.g. 5 for a GT2 belt on a 20-tooth pulley (40 mm a turn, 200 steps)",
             )?;
             let m = motor.microsteps;
             if !(1..=256).contains(&m) || !m.is_power_of_two() {
