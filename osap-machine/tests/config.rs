@@ -82,8 +82,10 @@ fn plotter_example_loads() {
     assert_eq!(m.axis_names(), ["x", "y"]);
     assert!(m.axes["x"].max - m.axes["x"].min >= 200.0);
     assert!(m.axes["y"].max - m.axes["y"].min >= 150.0);
-    assert_eq!(m.motors["a"].full_steps_per_unit, 80.0);
-    assert_eq!(m.motors["b"].full_steps_per_unit, 80.0);
+    // A GT2 belt on a 20-tooth pulley at 16 microsteps: 80 per mm.
+    assert_eq!(m.motors["a"].full_steps_per_unit, 5.0);
+    assert_eq!(m.motors["b"].full_steps_per_unit, 5.0);
+    assert_eq!(m.motors["a"].microsteps, 16);
     assert_eq!(m.motor_for_axis("x"), None);
     assert_eq!(m.motors_for_axis("x"), ["a", "b"]);
     assert_eq!(m.tools["pen"].kind, ToolKind::Pen);

@@ -87,7 +87,7 @@ fn the_plotter_derives() {
     // Motors with the file's scale; the pen's module has I/O.
     for m in ["a", "b"] {
         let spec = &t.modules[t.module_index(m).unwrap()];
-        assert_eq!(spec.motor.as_ref().unwrap().full_steps_per_unit, 80.0);
+        assert_eq!(spec.motor.as_ref().unwrap().full_steps_per_unit, 5.0);
         assert_eq!(spec.motor.as_ref().unwrap().limit_min, None);
     }
     let z = &t.modules[t.module_index("z").unwrap()];
