@@ -24,10 +24,12 @@ use maxl::bed::BedSurface;
 use serde::Deserialize;
 
 mod accel;
+mod jobs;
 mod probe;
 mod validate;
 
 pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
+pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use probe::{Probe, ProbeGridError};
 use validate::is_mechanism_axis;
 
@@ -135,6 +137,16 @@ fn invalid(key: impl Into<String>, message: impl Into<String>) -> ConfigError {
 pub struct MachineFile {
     /// The machine's name.
     pub name: String,
+    /// What the machine is (default: other); chooses the G-code dialect's
+    /// default.
+    #[serde(default)]
+    pub kind: MachineKind,
+    /// How G-code jobs are read (`[gcode]`).
+    #[serde(default)]
+    pub gcode: GcodeSettings,
+    /// CNC work zeros for G54–G59 (`[work_offsets]`).
+    #[serde(default)]
+    pub work_offsets: WorkOffsets,
     /// The modules the machine is built from, by the name this file uses for
     /// them.
     #[serde(default)]
@@ -804,6 +816,7 @@ impl MachineFile {
         self.validate_sim()?;
         accel::validate(self)?;
         probe::validate(self)?;
+        jobs::validate(self)?;
         if let Some(mesh) = &self.bed_mesh {
             if mesh.as_os_str().is_empty() {
                 return Err(invalid(
