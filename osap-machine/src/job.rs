@@ -6,8 +6,9 @@ use std::time::Duration;
 
 use maxl::blocks::planner::{Arc as PlanArc, Planner};
 
+use crate::config::Dialect;
 use crate::config::{MachineFile, ToolKind};
-use crate::gcode::{Action, GcodeError, Job};
+use crate::gcode::{Action, GcodeError, Job, ReadOptions};
 use crate::machine::{Machine, MachineError, MAX_AXES};
 use crate::svg::Drawing;
 
@@ -52,6 +53,8 @@ pub struct Program {
     pub moves: Vec<(usize, Move)>,
     /// What the readers skipped or changed, for the user.
     pub warnings: Vec<String>,
+    /// The dialect a G-code job was read in (`None` for a drawing).
+    pub dialect: Option<Dialect>,
 }
 
 /// Why a job cannot run on a machine.
@@ -153,6 +156,20 @@ fn pad(p: &[f64]) -> [f64; MAX_AXES] {
     out
 }
 
+/// How G-code is read on machine `cfg`: its dialect, and its work offsets
+/// with G54 at `origin` (machine coordinates of the work zero, mm) when
+/// given (`osap run --origin`), else as its `[work_offsets]` say.
+pub fn gcode_options(cfg: &MachineFile, origin: Option<[f64; 3]>) -> ReadOptions {
+    let mut work_offsets = cfg.work_offsets.all();
+    if origin.is_some() {
+        work_offsets[0] = origin;
+    }
+    ReadOptions {
+        dialect: cfg.dialect(),
+        work_offsets,
+    }
+}
+
 /// A G-code job as a program for machine `cfg`, starting at `start`
 /// (axis order). Every move, arcs included, is checked against the travel.
 pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program, JobError> {
@@ -229,6 +246,7 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
     Ok(Program {
         moves,
         warnings: job.warnings.iter().map(|w| w.to_string()).collect(),
+        dialect: Some(job.dialect),
     })
 }
 
@@ -297,7 +315,11 @@ pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Progr
     if has_tool {
         moves.push((drawing.polylines.len(), Move::Tool(None)));
     }
-    Ok(Program { moves, warnings })
+    Ok(Program {
+        moves,
+        warnings,
+        dialect: None,
+    })
 }
 
 /// What a stop at rest costs besides its wait: the machine waits for the

@@ -141,9 +141,7 @@ pub struct WorkOffsets {
 impl WorkOffsets {
     /// The six systems in order, G54 first.
     pub fn all(&self) -> [Option<[f64; 3]>; 6] {
-        [
-            self.g54, self.g55, self.g56, self.g57, self.g58, self.g59,
-        ]
+        [self.g54, self.g55, self.g56, self.g57, self.g58, self.g59]
     }
 }
 
@@ -165,7 +163,9 @@ pub(super) fn validate(file: &MachineFile) -> Result<(), ConfigError> {
             if !v.is_finite() {
                 return Err(invalid(
                     format!("work_offsets.G{}", 54 + k),
-                    format!("{axis} is {v}; give the work zero's machine coordinates [x, y, z] in mm"),
+                    format!(
+                        "{axis} is {v}; give the work zero's machine coordinates [x, y, z] in mm"
+                    ),
                 ));
             }
         }
@@ -189,7 +189,10 @@ mod tests {
 
     #[test]
     fn dialect_defaults_by_kind_and_can_be_set() {
-        assert_eq!(mill_with("kind = \"mill\"", "").unwrap().dialect(), Dialect::Rs274ngc);
+        assert_eq!(
+            mill_with("kind = \"mill\"", "").unwrap().dialect(),
+            Dialect::Rs274ngc
+        );
         for (kind, want) in [
             ("printer", Dialect::Marlin),
             ("plotter", Dialect::Marlin),
@@ -203,7 +206,10 @@ mod tests {
         }
         // No kind at all: other, and today's reading.
         let f = mill_with("", "").unwrap();
-        assert_eq!((f.kind, f.dialect()), (MachineKind::Other, Dialect::Rs274ngc));
+        assert_eq!(
+            (f.kind, f.dialect()),
+            (MachineKind::Other, Dialect::Rs274ngc)
+        );
         let f = mill_with("kind = \"mill\"", "[gcode]\ndialect = \"marlin\"").unwrap();
         assert_eq!(f.dialect(), Dialect::Marlin);
     }

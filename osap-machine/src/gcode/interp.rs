@@ -110,7 +110,12 @@ fn find(words: &[Word], letter: char) -> Option<&Word> {
     words.iter().find(|w| w.letter == letter)
 }
 
-pub(super) fn run(state: &mut State, job: &mut Job, line: usize, code: &Command) -> Result<(), GcodeError> {
+pub(super) fn run(
+    state: &mut State,
+    job: &mut Job,
+    line: usize,
+    code: &Command,
+) -> Result<(), GcodeError> {
     let words = &code.words[..];
     let name = format!("{}{}", code.letter, code.major);
     let known = code.minor.is_none();
@@ -264,6 +269,21 @@ pub(super) fn continuation(
         }
         Ok(())
     }
+}
+
+/// Sets the feed rate and spindle speed a block's bare words give.
+pub(super) fn feed_and_speed(
+    state: &mut State,
+    line: usize,
+    words: &[Word],
+) -> Result<(), GcodeError> {
+    if let Some(f) = find(words, 'F') {
+        set_feed(state, line, f)?;
+    }
+    if let Some(s) = find(words, 'S') {
+        state.speed = Some(s.value);
+    }
+    Ok(())
 }
 
 fn set_feed(state: &mut State, line: usize, f: &Word) -> Result<(), GcodeError> {
@@ -439,4 +459,3 @@ fn arc_center(
     }
     Ok(center)
 }
-

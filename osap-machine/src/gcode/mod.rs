@@ -270,6 +270,13 @@ pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
     };
     for block in &program.blocks {
         let line = block.span.line + 1;
+        let bare = interp::words(
+            line,
+            block.word_addresses.iter().map(|w| (w.letter, &w.value)),
+        )?;
+        // A block's own F and S apply before its commands (`S10000 M3`,
+        // `F600 G1 X10`), as RS274/NGC orders a block's execution.
+        interp::feed_and_speed(&mut state, line, &bare)?;
         for code in &block.codes {
             if state.ended {
                 return Ok(job);
@@ -294,15 +301,10 @@ pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
             };
             interp::run(&mut state, &mut job, line, &command)?;
         }
-        if !block.word_addresses.is_empty() && !state.ended {
-            let bare = interp::words(
-                line,
-                block.word_addresses.iter().map(|w| (w.letter, &w.value)),
-            )?;
+        if !bare.is_empty() && !state.ended {
             interp::continuation(&mut state, &mut job, line, &bare)?;
         }
         state.end_block();
     }
     Ok(job)
 }
-

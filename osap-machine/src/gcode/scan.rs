@@ -48,7 +48,10 @@ pub(super) fn clean(text: &str) -> Result<String, GcodeError> {
                 text: quote(kept.trim()),
             });
         }
-        for (mark, feature) in [('[', Unsupported::Expression), ('#', Unsupported::Parameter)] {
+        for (mark, feature) in [
+            ('[', Unsupported::Expression),
+            ('#', Unsupported::Parameter),
+        ] {
             if let Some(at) = kept.find(mark) {
                 return Err(GcodeError::Unsupported {
                     line,
@@ -132,8 +135,8 @@ mod tests {
 
     #[test]
     fn comments_go_and_lines_stay() {
-        let c = clean("G17 G2 (270 360) I0 J7 X9 Y6 Z13 F100000\n(only)\nG0 X1 ; note (x)\n")
-            .unwrap();
+        let c =
+            clean("G17 G2 (270 360) I0 J7 X9 Y6 Z13 F100000\n(only)\nG0 X1 ; note (x)\n").unwrap();
         assert_eq!(
             c.lines().collect::<Vec<_>>(),
             ["G17 G2   I0 J7 X9 Y6 Z13 F100000", " ", "G0 X1 ", ""][..3]

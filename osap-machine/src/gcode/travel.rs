@@ -73,4 +73,3 @@ fn arc_extremes(from: [f64; 3], to: [f64; 3], center: [f64; 2], clockwise: bool)
     }
     out
 }
-
