@@ -531,6 +531,45 @@ mod tests {
     }
 
     #[test]
+    fn a_cam_file_above_its_work_is_placed_by_its_origin() {
+        // LinuxCNC-style: z = +1 in is the clearance above the work, above
+        // the mill's travel (z up to 0) until the work zero is placed.
+        let mill = cfg("mill");
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/jobs/slot.ngc"
+        ))
+        .unwrap();
+        let read = |origin| crate::gcode::read_with(&text, &gcode_options(&mill, origin)).unwrap();
+        let e = from_gcode(&mill, &read(None), &[0.0; 3]).unwrap_err();
+        assert!(
+            matches!(&e, JobError::OutOfTravel { place, axis, value, .. }
+                if place == "line 12" && axis == "z" && (value - 25.4).abs() < 1e-9),
+            "{e}"
+        );
+        let p = from_gcode(&mill, &read(Some([20.0, 20.0, -60.0])), &[0.0; 3]).unwrap();
+        assert_eq!(p.dialect, Some(Dialect::Rs274ngc));
+        let lowest = p
+            .moves
+            .iter()
+            .filter_map(|(_, m)| match m {
+                Move::Line(to, _) | Move::Rapid(to) | Move::Arc { to, .. } => Some(to[2]),
+                _ => None,
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert!((lowest - (-60.0 - 0.05 * 25.4)).abs() < 1e-6, "{lowest}");
+        // The same work zero from the machine file's [work_offsets].
+        let mut placed = mill.clone();
+        placed.work_offsets.g54 = Some([20.0, 20.0, -60.0]);
+        let job = crate::gcode::read_with(&text, &gcode_options(&placed, None)).unwrap();
+        assert_eq!(from_gcode(&placed, &job, &[0.0; 3]).unwrap().moves, p.moves);
+        // --origin wins over the file's G54.
+        placed.work_offsets.g54 = Some([0.0, 0.0, 0.0]);
+        let o = gcode_options(&placed, Some([20.0, 20.0, -60.0]));
+        assert_eq!(o.work_offsets[0], Some([20.0, 20.0, -60.0]));
+    }
+
+    #[test]
     fn gcode_z_on_a_plotter_is_refused() {
         let plotter = cfg("plotter");
         let job = crate::gcode::read("G1 X10 Y10 Z-1 F600\n").unwrap();
