@@ -172,6 +172,11 @@ pub(crate) struct RunArgs {
     /// SVG: where the drawing's bottom-left corner goes, "X,Y".
     #[arg(long, value_parser = parse_pair, value_name = "X,Y")]
     pub offset: Option<[f64; 2]>,
+    /// G-code: the work zero, "X,Y,Z" in machine coordinates (mm), that
+    /// G54 selects (instead of the machine file's [work_offsets] G54, or
+    /// the machine's zero).
+    #[arg(long, value_parser = parse_triple, value_name = "X,Y,Z")]
+    pub origin: Option<[f64; 3]>,
     /// Do not home first: the machine is taken to be at its start position
     /// (0 on each axis, or its min).
     #[arg(long)]
@@ -192,29 +197,48 @@ fn parse_pair(s: &str) -> Result<[f64; 2], String> {
     Ok([p(a)?, p(b)?])
 }
 
-/// How an SVG job is placed and drawn.
-pub(crate) struct SvgPlacement {
-    pub scale: f64,
-    pub offset: [f64; 2],
-    pub feed: Option<f64>,
+fn parse_triple(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    let [x, y, z] = parts[..] else {
+        return Err(format!("{s:?}: give X,Y,Z"));
+    };
+    let p = |v: &str| {
+        v.trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("{v:?} is not a number"))
+    };
+    Ok([p(x)?, p(y)?, p(z)?])
 }
 
-impl Default for SvgPlacement {
+/// How a job is placed: an SVG drawing's scale, offset and feed, a G-code
+/// job's origin.
+pub(crate) struct JobPlacement {
+    pub scale: f64,
+    pub offset: Option<[f64; 2]>,
+    pub feed: Option<f64>,
+    pub origin: Option<[f64; 3]>,
+}
+
+impl Default for JobPlacement {
     fn default() -> Self {
-        SvgPlacement {
+        JobPlacement {
             scale: 1.0,
-            offset: [0.0, 0.0],
+            offset: None,
             feed: None,
+            origin: None,
         }
     }
 }
 
 /// Reads the job into a program checked against the machine's travel.
 fn read_job(cfg: &MachineFile, args: &RunArgs) -> Result<Program, Failure> {
-    let placement = SvgPlacement {
+    let placement = JobPlacement {
         scale: args.scale,
-        offset: args.offset.unwrap_or([0.0, 0.0]),
+        offset: args.offset,
         feed: args.feed,
+        origin: args.origin,
     };
     read_job_file(cfg, &args.job, &placement)
 }
@@ -224,7 +248,7 @@ fn read_job(cfg: &MachineFile, args: &RunArgs) -> Result<Program, Failure> {
 pub(crate) fn read_job_file(
     cfg: &MachineFile,
     path: &std::path::Path,
-    placement: &SvgPlacement,
+    placement: &JobPlacement,
 ) -> Result<Program, Failure> {
     let text = std::fs::read_to_string(path)
         .map_err(|e| Failure::refused(format!("job {}: {e}", path.display())))?;
@@ -237,9 +261,14 @@ pub(crate) fn read_job_file(
     let name = path.display();
     match ext.as_str() {
         "svg" => {
+            if placement.origin.is_some() {
+                return Err(Failure::refused(format!(
+                    "{name}: --origin X,Y,Z places G-code jobs; place a drawing with --offset X,Y"
+                )));
+            }
             let options = SvgOptions {
                 scale: placement.scale,
-                offset: placement.offset,
+                offset: placement.offset.unwrap_or([0.0, 0.0]),
                 ..SvgOptions::default()
             };
             let drawing = osap_machine::svg::read(&text, &options)
@@ -248,7 +277,13 @@ pub(crate) fn read_job_file(
             job::from_svg(cfg, &drawing, feed).map_err(|e| Failure::refused(format!("{name}: {e}; nothing moved")))
         }
         "gcode" | "nc" | "ngc" | "g" | "gc" | "tap" => {
-            let program = osap_machine::gcode::read(&text)
+            if placement.offset.is_some() {
+                return Err(Failure::refused(format!(
+                    "{name}: --offset X,Y places drawings; place G-code with --origin X,Y,Z (the work zero G54 selects)"
+                )));
+            }
+            let options = job::gcode_options(cfg, placement.origin);
+            let program = osap_machine::gcode::read_with(&text, &options)
                 .map_err(|e| Failure::refused(format!("{name}: {e}")))?;
             job::from_gcode(cfg, &program, &start)
                 .map_err(|e| Failure::refused(format!("{name}: {e}; nothing moved")))
@@ -391,6 +426,16 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     let stopped_by = faulted.or_else(|| heard.stopping.first().cloned());
 
     println!("job {}: {} moves", args.job.display(), program.moves.len());
+    if let Some(dialect) = program.dialect {
+        println!(
+            "G-code dialect     {dialect} ({})",
+            if cfg.gcode.dialect.is_some() {
+                "[gcode] dialect".to_string()
+            } else {
+                format!("the default for kind = \"{}\"", cfg.kind)
+            }
+        );
+    }
     println!("planned duration   {:>9.3} s", planned_s);
     println!(
         "executed duration  {:>9.3} s (motion; {:.3} s with tool waits)",

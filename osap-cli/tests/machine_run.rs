@@ -142,6 +142,68 @@ fn mill_cuts_the_example_part() {
 }
 
 #[test]
+fn a_cam_file_runs_once_placed_with_origin() {
+    let _one = serial();
+    let dir = scratch("origin");
+    let mill = example("machines/mill.toml");
+    let job = example("jobs/slot.ngc");
+    // Its z = +1 in clearance is above the mill's travel (z up to 0).
+    let o = osap(&["run", s(&mill), s(&job), "--sim", "--fast"], &dir);
+    let t = text(&o);
+    assert_eq!(o.status.code(), Some(2), "{t}");
+    assert!(
+        t.contains("line 12: axis z would go to 25.400") && t.contains("nothing moved"),
+        "{t}"
+    );
+    // --offset is for drawings.
+    let o = osap(
+        &[
+            "run",
+            s(&mill),
+            s(&job),
+            "--sim",
+            "--fast",
+            "--offset",
+            "20,20",
+        ],
+        &dir,
+    );
+    assert_eq!(o.status.code(), Some(2));
+    assert!(text(&o).contains("--origin X,Y,Z"), "{}", text(&o));
+    // The work's top at z = -60, its corner at (20, 20).
+    let o = osap(
+        &[
+            "run",
+            s(&mill),
+            s(&job),
+            "--sim",
+            "--fast",
+            "--origin",
+            "20,20,-60",
+            "--out",
+            "out",
+        ],
+        &dir,
+    );
+    let t = text(&o);
+    assert!(o.status.success(), "{t}");
+    assert!(
+        t.contains("G-code dialect     rs274ngc (the default for kind = \"mill\")"),
+        "{t}"
+    );
+    assert!(t.contains("faults: none"), "{t}");
+    assert!(!t.contains("warning:"), "{t}");
+    // The cut reaches 0.05 in below the work's top, and no deeper.
+    let planned = std::fs::read_to_string(dir.join("out/planned.csv")).unwrap();
+    let lowest = planned
+        .lines()
+        .skip(1)
+        .map(|l| l.split(',').nth(3).unwrap().parse::<f64>().unwrap())
+        .fold(f64::INFINITY, f64::min);
+    assert!((lowest - (-61.27)).abs() < 1e-3, "{lowest}");
+}
+
+#[test]
 fn jobs_that_leave_the_travel_are_refused_before_motion() {
     let _one = serial();
     let dir = scratch("refuse");

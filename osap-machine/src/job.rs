@@ -6,8 +6,9 @@ use std::time::Duration;
 
 use maxl::blocks::planner::{Arc as PlanArc, Planner};
 
+use crate::config::Dialect;
 use crate::config::{MachineFile, ToolKind};
-use crate::gcode::{Action, GcodeError, Job};
+use crate::gcode::{Action, GcodeError, Job, ReadOptions};
 use crate::machine::{Machine, MachineError, MAX_AXES};
 use crate::svg::Drawing;
 
@@ -52,6 +53,8 @@ pub struct Program {
     pub moves: Vec<(usize, Move)>,
     /// What the readers skipped or changed, for the user.
     pub warnings: Vec<String>,
+    /// The dialect a G-code job was read in (`None` for a drawing).
+    pub dialect: Option<Dialect>,
 }
 
 /// Why a job cannot run on a machine.
@@ -153,6 +156,20 @@ fn pad(p: &[f64]) -> [f64; MAX_AXES] {
     out
 }
 
+/// How G-code is read on machine `cfg`: its dialect, and its work offsets
+/// with G54 at `origin` (machine coordinates of the work zero, mm) when
+/// given (`osap run --origin`), else as its `[work_offsets]` say.
+pub fn gcode_options(cfg: &MachineFile, origin: Option<[f64; 3]>) -> ReadOptions {
+    let mut work_offsets = cfg.work_offsets.all();
+    if origin.is_some() {
+        work_offsets[0] = origin;
+    }
+    ReadOptions {
+        dialect: cfg.dialect(),
+        work_offsets,
+    }
+}
+
 /// A G-code job as a program for machine `cfg`, starting at `start`
 /// (axis order). Every move, arcs included, is checked against the travel.
 pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program, JobError> {
@@ -229,6 +246,7 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
     Ok(Program {
         moves,
         warnings: job.warnings.iter().map(|w| w.to_string()).collect(),
+        dialect: Some(job.dialect),
     })
 }
 
@@ -297,7 +315,11 @@ pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Progr
     if has_tool {
         moves.push((drawing.polylines.len(), Move::Tool(None)));
     }
-    Ok(Program { moves, warnings })
+    Ok(Program {
+        moves,
+        warnings,
+        dialect: None,
+    })
 }
 
 /// What a stop at rest costs besides its wait: the machine waits for the
@@ -506,6 +528,45 @@ mod tests {
             matches!(&e, JobError::OutOfTravel { place, .. } if place == "line 2"),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_cam_file_above_its_work_is_placed_by_its_origin() {
+        // LinuxCNC-style: z = +1 in is the clearance above the work, above
+        // the mill's travel (z up to 0) until the work zero is placed.
+        let mill = cfg("mill");
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/jobs/slot.ngc"
+        ))
+        .unwrap();
+        let read = |origin| crate::gcode::read_with(&text, &gcode_options(&mill, origin)).unwrap();
+        let e = from_gcode(&mill, &read(None), &[0.0; 3]).unwrap_err();
+        assert!(
+            matches!(&e, JobError::OutOfTravel { place, axis, value, .. }
+                if place == "line 12" && axis == "z" && (value - 25.4).abs() < 1e-9),
+            "{e}"
+        );
+        let p = from_gcode(&mill, &read(Some([20.0, 20.0, -60.0])), &[0.0; 3]).unwrap();
+        assert_eq!(p.dialect, Some(Dialect::Rs274ngc));
+        let lowest = p
+            .moves
+            .iter()
+            .filter_map(|(_, m)| match m {
+                Move::Line(to, _) | Move::Rapid(to) | Move::Arc { to, .. } => Some(to[2]),
+                _ => None,
+            })
+            .fold(f64::INFINITY, f64::min);
+        assert!((lowest - (-60.0 - 0.05 * 25.4)).abs() < 1e-6, "{lowest}");
+        // The same work zero from the machine file's [work_offsets].
+        let mut placed = mill.clone();
+        placed.work_offsets.g54 = Some([20.0, 20.0, -60.0]);
+        let job = crate::gcode::read_with(&text, &gcode_options(&placed, None)).unwrap();
+        assert_eq!(from_gcode(&placed, &job, &[0.0; 3]).unwrap().moves, p.moves);
+        // --origin wins over the file's G54.
+        placed.work_offsets.g54 = Some([0.0, 0.0, 0.0]);
+        let o = gcode_options(&placed, Some([20.0, 20.0, -60.0]));
+        assert_eq!(o.work_offsets[0], Some([20.0, 20.0, -60.0]));
     }
 
     #[test]

@@ -262,7 +262,7 @@ pub(crate) async fn view(args: ViewArgs) -> Result<ExitCode, Failure> {
 
 /// Homes and runs `file` on the machine, printing when it starts and ends.
 async fn run_job(machine: &Machine, file: &std::path::Path) -> Result<(), Failure> {
-    let placement = crate::machine_cmd::SvgPlacement::default();
+    let placement = crate::machine_cmd::JobPlacement::default();
     let program = crate::machine_cmd::read_job_file(machine.config(), file, &placement)?;
     machine.home().await.map_err(Failure::from_machine)?;
     println!("job: {} moves from {}", program.moves.len(), file.display());

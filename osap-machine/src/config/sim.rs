@@ -1,0 +1,141 @@
+//! The `[sim]` section: how the machine's simulation starts and behaves.
+
+use std::collections::BTreeMap;
+
+use maxl::bed::BedSurface;
+use serde::Deserialize;
+
+use super::{probe, Axis};
+
+/// Simulation settings.
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(from = "SimKeys")]
+pub struct Sim {
+    /// Per-axis simulation settings, by axis name.
+    pub axes: BTreeMap<String, SimAxis>,
+    /// A tilted, warped bed that the simulated probe touches
+    /// (`[sim.bed]`: `z`, `tilt_x`, `tilt_y`, `warp`, and optionally
+    /// `center` and `half`, which default to the middle and half the size
+    /// of the x-y travel; see [`Sim::with_bed`]).
+    pub bed: Option<BedSurface>,
+    /// Which of the bed's `center` and `half` the file gave; the others
+    /// are taken from the travel when the file is parsed.
+    bed_placed: [bool; 2],
+}
+
+/// `[sim]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SimKeys {
+    #[serde(default)]
+    axes: BTreeMap<String, SimAxis>,
+    #[serde(default)]
+    bed: Option<probe::BedKeys>,
+}
+
+impl From<SimKeys> for Sim {
+    fn from(k: SimKeys) -> Self {
+        let (bed, bed_placed) = match k.bed.map(probe::BedKeys::surface) {
+            Some((bed, placed)) => (Some(bed), placed),
+            None => (None, [true; 2]),
+        };
+        Sim {
+            axes: k.axes,
+            bed,
+            bed_placed,
+        }
+    }
+}
+
+impl Sim {
+    /// The same settings with `bed` as the simulated bed, placed as given.
+    pub fn with_bed(mut self, bed: BedSurface) -> Self {
+        self.bed = Some(bed);
+        self.bed_placed = [true; 2];
+        self
+    }
+
+    /// Centres the bed on the middle of the x-y travel and sizes it to the
+    /// travel where the file left that out.
+    pub(super) fn place_bed(&mut self, axes: &BTreeMap<String, Axis>) {
+        let (Some(bed), Some(x), Some(y)) = (&mut self.bed, axes.get("x"), axes.get("y")) else {
+            return;
+        };
+        if !self.bed_placed[0] {
+            bed.center = [(x.min + x.max) / 2.0, (y.min + y.max) / 2.0];
+        }
+        if !self.bed_placed[1] {
+            bed.half = [(x.max - x.min) / 2.0, (y.max - y.min) / 2.0];
+        }
+        self.bed_placed = [true; 2];
+    }
+}
+
+/// An axis in simulation (`[sim.axes.NAME]`): where its carriage stands at
+/// boot, and optionally a mass-spring resonance (`resonance_hz` and
+/// `damping_ratio`, both or neither).
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(from = "SimAxisKeys")]
+pub struct SimAxis {
+    /// Natural frequency, Hz; 0 when the axis has no resonance (read both
+    /// values with [`SimAxis::resonance`]).
+    pub resonance_hz: f64,
+    /// Damping ratio (0 undamped, 1 critically damped); 0 when the axis has
+    /// no resonance.
+    pub damping_ratio: f64,
+    /// Where the simulated carriage stands at boot, in axis units, within
+    /// `[min, max]`; `None`: the middle of the travel (so homing has to
+    /// find the switch). The simulator's `start_position` gives the position
+    /// in effect.
+    pub start: Option<f64>,
+    /// Which of `resonance_hz` and `damping_ratio` the file gave.
+    pub(super) given: [bool; 2],
+}
+
+/// `[sim.axes.NAME]` as written.
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct SimAxisKeys {
+    #[serde(default)]
+    resonance_hz: Option<f64>,
+    #[serde(default)]
+    damping_ratio: Option<f64>,
+    #[serde(default)]
+    start: Option<f64>,
+}
+
+impl From<SimAxisKeys> for SimAxis {
+    fn from(k: SimAxisKeys) -> Self {
+        SimAxis {
+            resonance_hz: k.resonance_hz.unwrap_or(0.0),
+            damping_ratio: k.damping_ratio.unwrap_or(0.0),
+            start: k.start,
+            given: [k.resonance_hz.is_some(), k.damping_ratio.is_some()],
+        }
+    }
+}
+
+impl SimAxis {
+    /// An axis with no resonance, starting at `start` (`None`: the middle
+    /// of its travel).
+    pub fn new(start: Option<f64>) -> Self {
+        SimAxis {
+            start,
+            ..SimAxis::default()
+        }
+    }
+
+    /// The same axis with a resonance at `resonance_hz`, damped by
+    /// `damping_ratio`.
+    pub fn with_resonance(mut self, resonance_hz: f64, damping_ratio: f64) -> Self {
+        self.resonance_hz = resonance_hz;
+        self.damping_ratio = damping_ratio;
+        self.given = [true, true];
+        self
+    }
+
+    /// The resonance, `(resonance_hz, damping_ratio)`, if the axis has one.
+    pub fn resonance(&self) -> Option<(f64, f64)> {
+        (self.given == [true, true]).then_some((self.resonance_hz, self.damping_ratio))
+    }
+}
