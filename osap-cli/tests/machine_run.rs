@@ -245,7 +245,7 @@ fn bad_arguments_and_files_get_clear_messages() {
     assert!(text(&o).contains("unknown job type"), "{}", text(&o));
     // A machine file with a non-positive step count names the key.
     let bad = std::fs::read_to_string(&plotter).unwrap().replacen(
-        "full_steps_per_unit = 80.0",
+        "full_steps_per_unit = 5.0",
         "full_steps_per_unit = 0.0",
         1,
     );

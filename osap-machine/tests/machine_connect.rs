@@ -75,8 +75,8 @@ async fn the_same_script_runs_on_connect() {
         let (_, up, down, _) = mm.stepper.step_counts();
         (up, down)
     });
-    // 10 mm at 40 full steps × 2 microsteps per mm, each way.
-    assert_eq!((up, down), (800, 800));
+    // 10 mm at 40 full steps × 8 microsteps per mm, each way.
+    assert_eq!((up, down), (3200, 3200));
     // The spindle's PWM was written on and off.
     let z = sim.module("mill-z").unwrap().module().unwrap();
     let duties: Vec<u16> = z.lock(|mm| {

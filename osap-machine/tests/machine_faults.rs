@@ -115,11 +115,12 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
         heard.clear();
         m.goto_via_queue([180.0, 75.0], 50.0).await.unwrap();
         tokio::time::sleep(Duration::from_millis(300)).await;
-        // A point the module cannot follow (beyond its track's range).
+        // A point the module cannot follow (beyond 2^46 microsteps: an axis
+        // has no end, but a position must convert exactly).
         let t0 = m.now_us().await.unwrap();
         let next = t0 / 2048 * 2048 + 200 * 2048;
         let e = m
-            .call("b", "add_point", &[Value::U64(next), Value::F32(1.0e6)])
+            .call("b", "add_point", &[Value::U64(next), Value::F32(1.0e13)])
             .await
             .unwrap_err();
         assert!(
@@ -139,7 +140,7 @@ fn a_refused_point_stops_the_machine_and_names_the_module_and_why() {
             panic!("{e}")
         };
         assert!(
-            reason.starts_with("module b refused a point:") && reason.contains("track range"),
+            reason.starts_with("module b refused a point:") && reason.contains("2^46 microsteps"),
             "{reason}"
         );
         // So does every call after it, until recovered.

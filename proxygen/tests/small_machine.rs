@@ -90,13 +90,14 @@ async fn proxies_drive_the_simulated_small_machine() {
         (counters.points, counters.refused, counters.last_refused),
         (1, 1, 6)
     );
-    // The simulated driver sets 1 to 32 microsteps (code 10, a bad value).
-    let e = y.set_microsteps(64).await.unwrap_err().to_string();
+    // The simulated driver sets 1 to 256 microsteps, powers of two (48:
+    // code 10, a bad value).
+    let e = y.set_microsteps(48).await.unwrap_err().to_string();
     assert!(
         e.contains("set_microsteps") && e.contains("BadValue (code 10)"),
         "{e}"
     );
-    y.set_microsteps(32).await.unwrap();
+    y.set_microsteps(256).await.unwrap();
     let limit = x.read_limit().await.unwrap();
     assert_eq!((limit.time, limit.level, limit.edges), (0, true, 0));
     assert!(x.digital_read(9).await.is_err(), "no pin 9");

@@ -49,7 +49,7 @@ use osap_core::netresponder::NAME_MAX;
 use osap_sim::machine::MODULE_LINKS;
 use osap_sim::topology::{
     BedContact, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, SimSpec, SpecError, SwitchSpec,
-    DRIVER_MICROSTEPS, HOST,
+    HOST,
 };
 
 use crate::config::{Direction, Kinematics, MachineFile};
@@ -293,16 +293,6 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                 format!(
                     "module {:?} already drives motor {other:?}; a simulated module has one motor: put each motor on its own module",
                     motor.module
-                ),
-            ));
-        }
-        let most = DRIVER_MICROSTEPS[DRIVER_MICROSTEPS.len() - 1];
-        if !DRIVER_MICROSTEPS.contains(&motor.microsteps) {
-            return Err(unsupported(
-                format!("motors.{key}.microsteps"),
-                format!(
-                    "microsteps {} is more than the simulated driver's {most}; use {most} or fewer to simulate",
-                    motor.microsteps
                 ),
             ));
         }
