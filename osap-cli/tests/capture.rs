@@ -66,13 +66,18 @@ fn one_second_of_two_sources_into_parquet_with_a_plot() {
     assert!(stdout.contains("a.analog_read(0).value"), "{stdout}");
     assert!(stdout.contains("b.get_position.position"), "{stdout}");
     assert!(!stdout.contains("lost"), "{stdout}");
-    // Every 2 ms for a second: about 500 samples per series.
+    // Every 2 ms for a second (and the few ms the recorder takes to
+    // finish): one sample per period over the span recorded, to within
+    // five (1 %).
     let capture = Capture::read(&out).unwrap();
     assert_eq!(capture.series.len(), 2);
     for s in &capture.series {
+        let span_s = (s.time_us.last().unwrap() - s.time_us[0]) as f64 * 1e-6;
+        assert!((1.0..1.05).contains(&span_s), "{}: {span_s} s", s.name);
+        let expected = span_s / 0.002 + 1.0;
         assert!(
-            (490..=510).contains(&s.value.len()),
-            "{}: {} samples",
+            (s.value.len() as f64 - expected).abs() <= 5.0,
+            "{}: {} samples over {span_s} s",
             s.name,
             s.value.len()
         );
