@@ -254,6 +254,18 @@ fn per_second(x: i64, shift: u32) -> i64 {
     x.saturating_mul(15625).saturating_add(1 << (s - 1)) >> s
 }
 
+/// `P0`, `P2` and `P3` relative to `P1`, by wrapping differences (see
+/// [`Fx`]): the segment as every evaluator takes it.
+#[inline(always)]
+fn relative(p: &[Fx; 4]) -> (i64, i64, i64) {
+    let base = p[1];
+    (
+        p[0].wrapping_diff(base) as i64,
+        p[2].wrapping_diff(base) as i64,
+        p[3].wrapping_diff(base) as i64,
+    )
+}
+
 impl Point for Fx {
     type Kin = KinFx;
 
@@ -268,12 +280,8 @@ impl Point for Fx {
         // wrapping add: exact modulo 2^32 raw, so the track may run through
         // the ends of the i32 range.
         let base = p[1];
-        let (p0, p1, p2, p3) = (
-            p[0].wrapping_diff(base) as i64,
-            0i64,
-            p[2].wrapping_diff(base) as i64,
-            p[3].wrapping_diff(base) as i64,
-        );
+        let (p0, p2, p3) = relative(p);
+        let p1 = 0i64;
         let c0 = p0 + 4 * p1 + p2;
         let c1 = 3 * (p2 - p0);
         let c2 = 3 * (p0 - 2 * p1 + p2);
@@ -539,12 +547,8 @@ impl TickEval {
     fn load_fast(&mut self, p: &[Fx; 4], du0: u32) -> bool {
         // Relative to P1 by wrapping differences (see [`Fx`]).
         let base = p[1];
-        let (p0, p1, p2, p3) = (
-            p[0].wrapping_diff(base) as i64,
-            0i64,
-            p[2].wrapping_diff(base) as i64,
-            p[3].wrapping_diff(base) as i64,
-        );
+        let (p0, p2, p3) = relative(p);
+        let p1 = 0i64;
         // e0 = c0 − 6·P1: the position relative to P1 keeps the sums small.
         let c = [
             p0 - 2 * p1 + p2,
@@ -594,12 +598,8 @@ impl TickEval {
     fn load_wide(&mut self, p: &[Fx; 4], du0: u32) {
         // Relative to P1 by wrapping differences, P1 added back below.
         let base = p[1];
-        let (p0, p1, p2, p3) = (
-            p[0].wrapping_diff(base) as i128,
-            0i128,
-            p[2].wrapping_diff(base) as i128,
-            p[3].wrapping_diff(base) as i128,
-        );
+        let (p0, p2, p3) = relative(p);
+        let (p0, p1, p2, p3) = (p0 as i128, 0i128, p2 as i128, p3 as i128);
         let c0 = p0 + 4 * p1 + p2;
         let c1 = 3 * (p2 - p0);
         let c2 = 3 * (p0 - 2 * p1 + p2);

@@ -183,33 +183,30 @@ pub(crate) struct RunArgs {
     pub no_home: bool,
 }
 
-fn parse_pair(s: &str) -> Result<[f64; 2], String> {
-    let (a, b) = s
-        .split_once(',')
-        .ok_or_else(|| format!("{s:?}: give X,Y"))?;
-    let p = |v: &str| {
-        v.trim()
+/// `N` finite numbers separated by commas (`X,Y` or `X,Y,Z`).
+fn parse_numbers<const N: usize>(s: &str, what: &str) -> Result<[f64; N], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != N {
+        return Err(format!("{s:?}: give {what}"));
+    }
+    let mut out = [0.0; N];
+    for (o, v) in out.iter_mut().zip(parts) {
+        *o = v
+            .trim()
             .parse::<f64>()
             .ok()
             .filter(|x| x.is_finite())
-            .ok_or_else(|| format!("{v:?} is not a number"))
-    };
-    Ok([p(a)?, p(b)?])
+            .ok_or_else(|| format!("{v:?} is not a number"))?;
+    }
+    Ok(out)
+}
+
+fn parse_pair(s: &str) -> Result<[f64; 2], String> {
+    parse_numbers(s, "X,Y")
 }
 
 fn parse_triple(s: &str) -> Result<[f64; 3], String> {
-    let parts: Vec<&str> = s.split(',').collect();
-    let [x, y, z] = parts[..] else {
-        return Err(format!("{s:?}: give X,Y,Z"));
-    };
-    let p = |v: &str| {
-        v.trim()
-            .parse::<f64>()
-            .ok()
-            .filter(|x| x.is_finite())
-            .ok_or_else(|| format!("{v:?} is not a number"))
-    };
-    Ok([p(x)?, p(y)?, p(z)?])
+    parse_numbers(s, "X,Y,Z")
 }
 
 /// How a job is placed: an SVG drawing's scale, offset and feed, a G-code
