@@ -49,7 +49,7 @@ fn a_fault_mid_job_names_the_module_and_exits_3() {
 
 /// A lead-screw axis (2 mm lead, 1.8° motor: 100 full steps/mm) at 32
 /// microsteps, allowed 40 mm/s: 128 000 microsteps/s, past the module's
-/// 100 000 step ticks/s, so a fast move sends steps late.
+/// 100 000 step ticks/s.
 const FAST_AXIS: &str = r#"
 name = "fast"
 [modules]
@@ -71,18 +71,18 @@ acceleration = 2000.0
 junction_deviation = 0.02
 "#;
 
-/// Runs an 8.5 mm move at 40 mm/s on the fast axis with `limits_extra`
-/// added to its `[limits]`: the exit code and what was printed.
-fn run_fast_move(name: &str, limits_extra: &str) -> (Option<i32>, String) {
-    let dir = std::env::temp_dir().join(format!("osap-run-{name}-{}", std::process::id()));
+/// A machine whose speeds need steps faster than the step tick is refused
+/// before anything moves, naming both fixes; late steps from what the
+/// check cannot see (an arm near a singular pose, a script's own points)
+/// are the module's fault to report, tested in osap-machine's
+/// `machine_stops`.
+#[test]
+fn a_machine_that_would_step_late_is_refused_with_the_fix() {
+    let dir = std::env::temp_dir().join(format!("osap-run-late-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
-    let machine = FAST_AXIS.replace(
-        "junction_deviation = 0.02",
-        &format!("junction_deviation = 0.02\n{limits_extra}"),
-    );
     let machine_path = dir.join("fast.toml");
-    std::fs::write(&machine_path, machine).unwrap();
+    std::fs::write(&machine_path, FAST_AXIS).unwrap();
     let job = dir.join("job.gcode");
     std::fs::write(&job, "G21\nG90\nG1 X8.5 F2400\n").unwrap();
     let o = Command::new(env!("CARGO_BIN_EXE_osap"))
@@ -94,46 +94,12 @@ fn run_fast_move(name: &str, limits_extra: &str) -> (Option<i32>, String) {
         .output()
         .unwrap();
     let _ = std::fs::remove_dir_all(&dir);
-    (
-        o.status.code(),
-        format!(
-            "{}\n{}",
-            String::from_utf8_lossy(&o.stdout),
-            String::from_utf8_lossy(&o.stderr)
-        ),
-    )
-}
-
-#[test]
-fn late_steps_are_a_fault_that_exits_3_never_a_warning() {
-    let (code, text) = run_fast_move("late", "");
-    assert_eq!(code, Some(3), "{text}");
+    let text = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{text}");
     assert!(
-        text.contains("error: fault: module x was asked to step faster than its step rate"),
+        text.contains("motors.x: axes.x.velocity 40.0 needs 128000 microsteps/s")
+            && text
+                .contains("lower axes.x.velocity to at most 31.2 or set motors.x.microsteps to 16"),
         "{text}"
     );
-    assert!(
-        text.contains("error: machine faulted: module x was asked to step faster"),
-        "{text}"
-    );
-    assert_eq!(
-        text.matches("error: fault:").count(),
-        1,
-        "the first late steps, once: {text}"
-    );
-    assert!(!text.contains("went on"), "{text}");
-    assert!(!text.contains("faults: none"), "{text}");
-}
-
-#[test]
-fn late_steps_within_the_files_bound_are_noted_and_the_job_passes() {
-    let (code, text) = run_fast_move("late-allowed", "max_late_steps = 1000000");
-    assert_eq!(code, Some(0), "{text}");
-    assert!(
-        text.contains("note: module x was asked to step faster than its step rate")
-            && text.contains("not a stop"),
-        "{text}"
-    );
-    assert!(!text.contains("error:"), "{text}");
-    assert_eq!(text.matches("note:").count(), 1, "{text}");
 }

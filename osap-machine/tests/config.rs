@@ -21,13 +21,13 @@ b = { name = "b" }
 z = { route = [0, 3] }
 [motors.a]
 module = "a"
-full_steps_per_unit = 80.0
+full_steps_per_unit = 5.0
 [motors.b]
 module = "b"
-full_steps_per_unit = 80.0
+full_steps_per_unit = 5.0
 [motors.z]
 module = "z"
-full_steps_per_unit = 400.0
+full_steps_per_unit = 25.0
 [kinematics]
 type = "corexy"
 motors = ["a", "b"]
@@ -204,6 +204,37 @@ fn missing_module_in_motor_tool_and_homing() {
     assert_eq!(key, "axes.x.homing.switch");
 }
 
+/// A module steps at most once per 10 µs tick: 100 000 microsteps/s.
+#[test]
+fn step_rates_past_the_step_tick_are_refused_with_the_fix() {
+    // z on a T8 screw (25 full steps/mm) at 256 microsteps: 6 400 per mm,
+    // so 10 mm/s needs 64 000 microsteps/s (fine) and 20 mm/s 128 000.
+    let ok = edited(
+        "full_steps_per_unit = 25.0",
+        "full_steps_per_unit = 25.0\nmicrosteps = 256",
+    );
+    MachineFile::parse(&ok).unwrap();
+    let fast = ok.replacen("velocity = 10.0", "velocity = 20.0", 1);
+    let (key, msg) = invalid_key(&fast);
+    assert_eq!(key, "motors.z");
+    assert!(msg.contains("needs 128000 microsteps/s"), "{msg}");
+    assert!(
+        msg.contains("lower axes.z.velocity to at most 15.6"),
+        "{msg}"
+    );
+    assert!(msg.contains("or set motors.z.microsteps to 128"), "{msg}");
+    // A CoreXY belt moves at up to √2 × the toolhead's speed: 250 mm/s at
+    // 80 microsteps/mm is 28 284/s; at 256 microsteps (1 280/mm) 452 548/s.
+    let belts = edited(
+        "module = \"a\"\nfull_steps_per_unit = 5.0",
+        "module = \"a\"\nfull_steps_per_unit = 5.0\nmicrosteps = 256",
+    );
+    let (key, msg) = invalid_key(&belts);
+    assert_eq!(key, "motors.a");
+    assert!(msg.contains("limits.velocity 353.6 needs"), "{msg}");
+    assert!(msg.contains("set motors.a.microsteps to 32"), "{msg}");
+}
+
 #[test]
 fn missing_motor() {
     let (key, msg) = invalid_key(&edited("motor = \"z\"", "motor = \"w\""));
@@ -214,18 +245,18 @@ fn missing_motor() {
 #[test]
 fn non_positive_steps() {
     let (key, msg) = invalid_key(&edited(
-        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = 25.0",
         "full_steps_per_unit = 0.0",
     ));
     assert_eq!(key, "motors.z.full_steps_per_unit");
     assert!(msg.contains("must be positive"), "{msg}");
     let (key, _) = invalid_key(&edited(
-        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = 25.0",
         "full_steps_per_unit = -3.0",
     ));
     assert_eq!(key, "motors.z.full_steps_per_unit");
     let (key, _) = invalid_key(&edited(
-        "full_steps_per_unit = 400.0",
+        "full_steps_per_unit = 25.0",
         "full_steps_per_unit = nan",
     ));
     assert_eq!(key, "motors.z.full_steps_per_unit");
@@ -234,13 +265,13 @@ fn non_positive_steps() {
 #[test]
 fn microsteps_must_be_a_power_of_two() {
     let text = edited(
-        "full_steps_per_unit = 400.0",
-        "full_steps_per_unit = 400.0\nmicrosteps = 12",
+        "full_steps_per_unit = 25.0",
+        "full_steps_per_unit = 25.0\nmicrosteps = 12",
     );
     assert_eq!(invalid_key(&text).0, "motors.z.microsteps");
     let text = edited(
-        "full_steps_per_unit = 400.0",
-        "full_steps_per_unit = 400.0\nmicrosteps = 512",
+        "full_steps_per_unit = 25.0",
+        "full_steps_per_unit = 25.0\nmicrosteps = 512",
     );
     assert_eq!(invalid_key(&text).0, "motors.z.microsteps");
 }
@@ -577,8 +608,8 @@ fn firmware_limits_are_validated_with_their_key() {
     assert_eq!(MachineFile::parse(&off).unwrap().limits.module_margin, 0.0);
     assert_eq!(MachineFile::parse(BASE).unwrap().limits.module_margin, 1.5);
     let own = edited(
-        "[motors.b]\nmodule = \"b\"\nfull_steps_per_unit = 80.0",
-        "[motors.b]\nmodule = \"b\"\nfull_steps_per_unit = 80.0\nlimits = { velocity = 400.0, acceleration = -1.0 }",
+        "[motors.b]\nmodule = \"b\"\nfull_steps_per_unit = 5.0",
+        "[motors.b]\nmodule = \"b\"\nfull_steps_per_unit = 5.0\nlimits = { velocity = 400.0, acceleration = -1.0 }",
     );
     let (key, _) = invalid_key(&own);
     assert_eq!(key, "motors.b.limits.acceleration");

@@ -293,42 +293,65 @@ fn a_machine_dropped_without_stopping_leaves_its_pen_up_within_the_watchdog() {
     });
 }
 
-/// A lead-screw axis (2 mm lead, 1.8° motor: 100 full steps/mm) at 32
-/// microsteps, allowed 40 mm/s: 128 000 microsteps/s, past the module's
-/// 100 000 step ticks/s.
-const FAST_AXIS: &str = r#"
-name = "fast"
+/// A SCARA arm on 100:1 harmonic drives (a 1.8° motor: 20 000 full steps
+/// a turn, 3 183 per radian) at 64 microsteps: 203 718 microsteps per
+/// radian. The machine file's step-rate check cannot bound an arm's joint
+/// speeds (they grow without bound near a singular pose), so this arm may
+/// be asked for more than the module's 100 000 microsteps/s: at 150 mm/s
+/// across the front of its reach its shoulder turns about 1 rad/s. The
+/// module's late-step fault is the backstop for such a stream.
+const FAST_ARM: &str = r#"
+name = "fast-arm"
 [modules]
-x = { name = "x" }
-[motors.x]
-module = "x"
-full_steps_per_unit = 100.0
-microsteps = 32
+s = { name = "s" }
+e = { name = "e" }
+[motors.s]
+module = "s"
+full_steps_per_unit = 3183.1
+microsteps = 64
+[motors.e]
+module = "e"
+full_steps_per_unit = 3183.1
+microsteps = 64
+[kinematics]
+type = "scara"
+motors = ["s", "e"]
+l1 = 100.0
+l2 = 100.0
+elbow = "left"
 [axes.x]
-motor = "x"
-min = 0.0
-max = 9.0
-velocity = 40.0
-acceleration = 2000.0
+min = 10.0
+max = 150.0
+velocity = 150.0
+acceleration = 3000.0
+jerk = 100000.0
+[axes.y]
+min = -150.0
+max = 150.0
+velocity = 150.0
+acceleration = 3000.0
 jerk = 100000.0
 [limits]
-velocity = 40.0
-acceleration = 2000.0
+velocity = 150.0
+acceleration = 3000.0
 junction_deviation = 0.02
 "#;
+
+const ARM_FROM: [f64; 2] = [120.0, -80.0];
+const ARM_TO: [f64; 2] = [120.0, 80.0];
 
 #[test]
 fn late_steps_past_the_bound_stop_the_machine() {
     virtual_runtime().unwrap().block_on(async {
-        let cfg = MachineFile::parse(FAST_AXIS).unwrap();
+        let cfg = MachineFile::parse(FAST_ARM).unwrap();
         assert_eq!(cfg.limits.max_late_steps, 0);
         let m = simulate(&cfg).await;
         let mut events = m.events();
-        m.set_position([0.5]).unwrap();
-        m.goto_via_queue([8.5], 40.0).await.unwrap();
+        m.set_position(ARM_FROM).unwrap();
+        m.goto_via_queue(ARM_TO, 150.0).await.unwrap();
         let e = m.idle().await.unwrap_err();
         assert!(
-            matches!(&e, MachineError::Faulted(r) if r.starts_with("module x was asked to step faster than its step rate")),
+            matches!(&e, MachineError::Faulted(r) if r.starts_with("module s was asked to step faster than its step rate")),
             "{e}"
         );
         let mut late = None;
@@ -346,15 +369,15 @@ fn late_steps_past_the_bound_stop_the_machine() {
         m.stop().await.unwrap();
 
         // A bound above what the move sends late: reported, not a stop.
-        let loose = FAST_AXIS.replace(
+        let loose = FAST_ARM.replace(
             "junction_deviation = 0.02",
             "junction_deviation = 0.02\nmax_late_steps = 1000000",
         );
         let cfg = MachineFile::parse(&loose).unwrap();
         let m = simulate(&cfg).await;
         let mut events = m.events();
-        m.set_position([0.5]).unwrap();
-        m.goto_via_queue([8.5], 40.0).await.unwrap();
+        m.set_position(ARM_FROM).unwrap();
+        m.goto_via_queue(ARM_TO, 150.0).await.unwrap();
         m.idle().await.unwrap();
         let mut late = Vec::new();
         while let Ok(e) = events.try_recv() {
@@ -368,7 +391,11 @@ fn late_steps_past_the_bound_stop_the_machine() {
             }
         }
         assert!(!late.is_empty() && late.iter().all(|n| *n <= 1_000_000), "{late:?}");
-        eprintln!("late steps reported in an 8 mm move at 40 mm/s: {late:?}");
+        eprintln!(
+            "late-step reports in a 160 mm sweep at 150 mm/s: {}, the count reaching {}",
+            late.len(),
+            late.iter().max().unwrap()
+        );
         m.stop().await.unwrap();
     });
 }

@@ -27,12 +27,14 @@ mod accel;
 mod jobs;
 mod probe;
 mod sim;
+mod step_rate;
 mod validate;
 
 pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
 pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use probe::{Probe, ProbeGridError};
 pub use sim::{Sim, SimAxis};
+pub use step_rate::MAX_STEP_RATE;
 use validate::is_mechanism_axis;
 
 /// The axis names a machine file may use, in the order
@@ -681,6 +683,7 @@ impl MachineFile {
         self.validate_motors()?;
         self.validate_axes()?;
         self.validate_limits()?;
+        self.validate_step_rates()?;
         self.validate_tools()?;
         self.validate_sim()?;
         accel::validate(self)?;

@@ -230,7 +230,7 @@ acceleration = 1000.0
 junction_deviation = 0.02
 [motors.x]
 module = "x"
-full_steps_per_unit = 80.0
+full_steps_per_unit = 5.0
 [axes.x]
 motor = "x"
 min = 0.0
@@ -288,8 +288,8 @@ fn bad_files_are_refused_naming_the_key() {
     // Every microstep setting the file allows is simulated (1 to 256).
     let cfg = parse(
         &format!("{BASE}\n[modules]\nx = {{ name = \"x\" }}\n").replace(
-            "full_steps_per_unit = 80.0",
-            "full_steps_per_unit = 80.0\nmicrosteps = 256",
+            "full_steps_per_unit = 5.0",
+            "full_steps_per_unit = 5.0\nmicrosteps = 256",
         ),
     );
     assert_eq!(spec(&cfg).unwrap().modules.len(), 2);
