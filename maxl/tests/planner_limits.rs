@@ -559,6 +559,7 @@ fn bad_vector_limits_are_refused() {
             max_speed: s,
             max_accel: a,
             min_cruise_ratio: r,
+            path_axes: 0,
         };
         assert!(
             matches!(v.validate(), Err(PlanError::InvalidLimit { .. })),
@@ -692,7 +693,8 @@ fn wire_set_vector_limits() {
         VectorLimits {
             max_speed: 250.0,
             max_accel: 2500.0,
-            min_cruise_ratio: 0.5
+            min_cruise_ratio: 0.5,
+            path_axes: 0,
         }
     );
     b.set_vector_limits(f64::INFINITY, f64::INFINITY, 0.0)
@@ -754,6 +756,7 @@ proptest::proptest! {
                     max_speed: x,
                     max_accel: accel * y.abs().max(1e-3),
                     min_cruise_ratio: y,
+                    path_axes: 0,
                 }),
                 5 => p.set_feed_scale(y * 2.0).map(|_| ()),
                 6 => p.halt().map(|_| ()),

@@ -139,6 +139,14 @@ pub struct VectorLimits {
     /// braking all the way. 0 (the default) turns it off; Klipper's default
     /// is [`KLIPPER_MIN_CRUISE_RATIO`].
     pub min_cruise_ratio: f64,
+    /// How many leading axes are the toolhead's (x, y, z): a segment's
+    /// length and feed are measured over them, and these limits bound
+    /// their motion. The other axes (an extruder, a rotary table) follow
+    /// along, each within its own per-axis limits; a move of those axes
+    /// alone (a retraction) is measured over them and is bounded by their
+    /// own limits only, as Klipper plans an extruder. 0 (the default):
+    /// every axis is the toolhead's.
+    pub path_axes: usize,
 }
 
 impl Default for VectorLimits {
@@ -153,6 +161,7 @@ impl VectorLimits {
         max_speed: f64::INFINITY,
         max_accel: f64::INFINITY,
         min_cruise_ratio: 0.0,
+        path_axes: 0,
     };
 
     /// Largest toolhead speed and acceleration (`f64::INFINITY` for none),
@@ -162,9 +171,17 @@ impl VectorLimits {
             max_speed,
             max_accel,
             min_cruise_ratio: 0.0,
+            path_axes: 0,
         };
         v.validate()?;
         Ok(v)
+    }
+
+    /// The same limits with the first `k` axes as the toolhead's (see
+    /// [`VectorLimits::path_axes`]; 0: all of them).
+    pub fn with_path_axes(mut self, k: usize) -> Self {
+        self.path_axes = k;
+        self
     }
 
     /// The same limits with a minimum cruise ratio in [0, 1).

@@ -196,6 +196,10 @@ impl<const N: usize> Planner<N> {
     /// passes; nothing changes then.
     pub fn set_vector_limits(&mut self, vector: VectorLimits) -> Result<(), PlanError> {
         vector.validate()?;
+        if vector.path_axes != self.vector.path_axes && !self.is_idle() {
+            // Queued segments were measured over the old path axes.
+            return Err(PlanError::Busy);
+        }
         self.vector = vector;
         for s in self.queue.iter_mut() {
             s.set_limits(&self.limits, &vector, self.feed_scale);

@@ -34,7 +34,9 @@ pub struct PlannedSegment<const N: usize> {
     pub start: [f64; N],
     /// Where it ends.
     pub end: [f64; N],
-    /// Unit direction.
+    /// Each axis's change per unit of path length (a unit vector over
+    /// the toolhead's axes when they move: see
+    /// [`super::VectorLimits::path_axes`]).
     pub dir: [f64; N],
     /// Its speed profile (entry, cruise, exit speed, acceleration, ramps).
     pub profile: Profile,

@@ -16,8 +16,16 @@ pub(crate) struct Segment<const N: usize> {
     pub id: u64,
     pub start: [f64; N],
     pub end: [f64; N],
+    /// The change of each axis per unit of `len`: a unit vector over the
+    /// toolhead's axes when they move (the others follow in proportion),
+    /// else over all axes.
     pub dir: [f64; N],
+    /// Length along the toolhead's axes, or over all axes when the
+    /// toolhead stands (see [`VectorLimits::path_axes`]).
     pub len: f64,
+    /// The toolhead's axes move: the vector limits and the junction's
+    /// cornering model apply.
+    pub on_path: bool,
     /// The requested feed (mm/s), before the feed scale.
     pub feed: f64,
     /// Largest speed keeping every axis within its speed limit along `dir`.
@@ -52,6 +60,14 @@ pub(crate) struct Segment<const N: usize> {
     pub cruise2: f64,
 }
 
+/// How many leading axes carry the path under `vector` (all for 0).
+pub(crate) fn path_axes<const N: usize>(vector: &VectorLimits) -> usize {
+    match vector.path_axes {
+        0 => N,
+        k => k.min(N),
+    }
+}
+
 /// The largest value `limit[i] / |dir[i]|` keeps within every axis's limit.
 pub(crate) fn along<const N: usize>(limit: &[f64; N], dir: &[f64; N]) -> f64 {
     let mut m = f64::INFINITY;
@@ -79,18 +95,25 @@ impl<const N: usize> Segment<N> {
         vector: &VectorLimits,
     ) -> Result<Option<Self>, ()> {
         let mut d = [0.0; N];
-        let mut len2 = 0.0;
+        let (mut len2, mut path2) = (0.0, 0.0);
+        let k = path_axes::<N>(vector);
         for i in 0..N {
             d[i] = end[i] - start[i];
             len2 += d[i] * d[i];
+            if i < k {
+                path2 += d[i] * d[i];
+            }
         }
-        let len = len2.sqrt();
-        if !len.is_finite() {
+        let all = len2.sqrt();
+        if !all.is_finite() {
             return Err(());
         }
-        if len <= 1e-9 {
+        if all <= 1e-9 {
             return Ok(None);
         }
+        let path = path2.sqrt();
+        let on_path = path > 1e-9;
+        let len = if on_path { path } else { all };
         for c in d.iter_mut() {
             *c /= len;
         }
@@ -100,6 +123,7 @@ impl<const N: usize> Segment<N> {
             end,
             dir: d,
             len,
+            on_path,
             feed,
             v_axis: 0.0,
             v_max: 0.0,
@@ -120,8 +144,12 @@ impl<const N: usize> Segment<N> {
     /// Sets the speed and acceleration limits along the direction: the
     /// per-axis ones and the vector ones, the feed scaled by `scale`.
     pub(crate) fn set_limits(&mut self, limits: &Limits<N>, vector: &VectorLimits, scale: f64) {
-        self.v_axis = along(&limits.max_vel, &self.dir).min(vector.max_speed);
-        self.acc = along(&limits.max_acc, &self.dir).min(vector.max_accel);
+        self.v_axis = along(&limits.max_vel, &self.dir);
+        self.acc = along(&limits.max_acc, &self.dir);
+        if self.on_path {
+            self.v_axis = self.v_axis.min(vector.max_speed);
+            self.acc = self.acc.min(vector.max_accel);
+        }
         self.scale_feed(scale);
     }
 
@@ -184,12 +212,31 @@ pub(crate) fn junction_speed<const N: usize>(
     limits: &Limits<N>,
     vector: &VectorLimits,
 ) -> f64 {
+    if prev.on_path != next.on_path {
+        // Into or out of a move of the following axes alone (a
+        // retraction): the two are measured on different lengths, so they
+        // meet at rest, as Klipper's extruder-only moves do.
+        return 0.0;
+    }
+    // The corner's geometry is the toolhead's (or, between two moves of
+    // the following axes alone, theirs); the following axes' velocity
+    // change is held to their `max_jump` below.
+    let k = if next.on_path {
+        path_axes::<N>(vector)
+    } else {
+        N
+    };
     let mut dot = 0.0;
     let mut w = [0.0; N];
+    let mut jump = [0.0; N];
     let (mut wn2, mut sn2) = (0.0, 0.0);
     for i in 0..N {
+        jump[i] = next.dir[i] - prev.dir[i];
+        if i >= k {
+            continue;
+        }
         dot += prev.dir[i] * next.dir[i];
-        w[i] = next.dir[i] - prev.dir[i];
+        w[i] = jump[i];
         wn2 += w[i] * w[i];
         let s = next.dir[i] + prev.dir[i];
         sn2 += s * s;
@@ -202,7 +249,10 @@ pub(crate) fn junction_speed<const N: usize>(
         let cos_half = 0.5 * wn;
         let sin_half = 0.5 * sn2.sqrt();
         let unit = w.map(|c| c / wn);
-        let a = along(&limits.max_acc, &unit).min(vector.max_accel);
+        let mut a = along(&limits.max_acc, &unit);
+        if next.on_path {
+            a = a.min(vector.max_accel);
+        }
         // Centripetal: ½·min(L)·tan(θ/2).
         let mut r = 0.5 * prev.len.min(next.len) * sin_half / cos_half;
         if -dot > -0.999_999 {
@@ -214,7 +264,7 @@ pub(crate) fn junction_speed<const N: usize>(
         v = v.min((a * r).sqrt());
     }
     // The per-axis jump: |v · Δdir_i| ≤ max_jump_i.
-    v = v.min(along(&limits.max_jump, &w));
+    v = v.min(along(&limits.max_jump, &jump));
     v.max(0.0)
 }
 
