@@ -67,9 +67,12 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
         self.module.with(|m| {
             m.poll_watchdog(now);
             m.poll_io(now, system);
-            m.poll_heaters(now);
             m.poll_boot(now);
         });
+        // The heaters' period (ADC reads and soft-float maths on a
+        // Cortex-M0+) in a critical section of its own, so the step
+        // interrupt waits for one piece of work at a time.
+        self.module.with(|m| m.poll_heaters(now));
     }
 
     fn wake_at(&self) -> Option<Instant> {
