@@ -15,6 +15,8 @@ use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
 use osap_sim::topology::SimSpec;
 use std::time::Duration;
 
+/// The heater's index on the module.
+const HEATER: u8 = 0;
 /// The thermistor breaks this long after the module boots.
 const FAILS_AT_S: f64 = 200.0;
 
@@ -49,10 +51,9 @@ async fn run() {
     let mut m = Manager::new(&host).await.expect("manager");
     m.refresh().await.expect("scan");
     let f = |name: &str| m.function(&FnRef::new("tool", name)).unwrap();
-    let index = Value::U8(0);
     f("heater_sensor")
         .call(&[
-            index.clone(),
+            Value::U8(HEATER),
             Value::U8(0),
             Value::F32(3950.0),
             Value::F32(100_000.0),
@@ -61,17 +62,17 @@ async fn run() {
         .await
         .unwrap();
     f("heater_output")
-        .call(&[index.clone(), Value::U8(0), Value::F32(1.0)])
+        .call(&[Value::U8(HEATER), Value::U8(0), Value::F32(1.0)])
         .await
         .unwrap();
     f("heater_limits")
-        .call(&[index.clone(), Value::F32(0.0), Value::F32(280.0)])
+        .call(&[Value::U8(HEATER), Value::F32(0.0), Value::F32(280.0)])
         .await
         .unwrap();
     // Klipper's example gains for such a hotend.
     f("heater_gains")
         .call(&[
-            index.clone(),
+            Value::U8(HEATER),
             Value::F32(22.2),
             Value::F32(1.08),
             Value::F32(114.0),
@@ -79,7 +80,7 @@ async fn run() {
         .await
         .unwrap();
     f("heater_target")
-        .call(&[index.clone(), Value::F32(200.0)])
+        .call(&[Value::U8(HEATER), Value::F32(200.0)])
         .await
         .unwrap();
     let module = sim.module("tool").unwrap().module().unwrap();
@@ -104,7 +105,7 @@ async fn run() {
         tokio::time::sleep(Duration::from_millis(500)).await;
     }
     assert!(band.0 > 199.0 && band.1 < 201.0, "held within {band:?}");
-    let out = f("heater_read").call(&[index.clone()]).await.unwrap();
+    let out = f("heater_read").call(&[Value::U8(HEATER)]).await.unwrap();
     let [Value::U64(time), Value::F32(temp), Value::F32(target), Value::F32(power), Value::U8(state)] =
         out[..]
     else {
@@ -141,11 +142,14 @@ async fn run() {
     assert_eq!(detail, runaway_detail(0, RunawayReason::SensorOpen));
     // Latched off: a new target is refused until the sensor reads sane.
     let refused = f("heater_target")
-        .call(&[index.clone(), Value::F32(200.0)])
+        .call(&[Value::U8(HEATER), Value::F32(200.0)])
         .await
         .unwrap_err();
     assert!(refused.to_string().contains("Faulted"), "{refused}");
-    let refused = f("heater_clear").call(&[index]).await.unwrap_err();
+    let refused = f("heater_clear")
+        .call(&[Value::U8(HEATER)])
+        .await
+        .unwrap_err();
     assert!(refused.to_string().contains("SensorFault"), "{refused}");
     tokio::time::sleep(Duration::from_secs(5)).await;
     assert_eq!(block().1, 0, "still off");
