@@ -24,6 +24,7 @@
 
 use crate::boot::BootError;
 use crate::functions::{FnId, ALL, NOT_INSTALLED, SIGNATURES};
+use crate::heater::HeaterError;
 use crate::io::IoError;
 use crate::stepper::StepperError;
 use pipes_core::export::{INPUT_DECODE_FAILED, NO_SUCH_MEMBER, STATE_BUSY};
@@ -41,6 +42,8 @@ pub enum Family {
     Io,
     /// [`BootError`] codes (`enter_bootloader`).
     Boot,
+    /// [`HeaterError`] codes (the `heater_` functions).
+    Heater,
     /// None of its own: the function cannot refuse (beyond [`generic`]).
     None,
 }
@@ -76,6 +79,15 @@ impl Family {
             | F::get_fault
             | F::set_output_watchdog => Family::None,
             F::enter_bootloader => Family::Boot,
+            F::heater_sensor
+            | F::heater_output
+            | F::heater_limits
+            | F::heater_gains
+            | F::heater_runaway
+            | F::heater_target
+            | F::heater_power
+            | F::heater_read
+            | F::heater_clear => Family::Heater,
         }
     }
 
@@ -86,6 +98,7 @@ impl Family {
             Family::Stepper => &STEPPER_FAILURES,
             Family::Io => &IO_FAILURES,
             Family::Boot => &BOOT_FAILURES,
+            Family::Heater => &HEATER_FAILURES,
             Family::None => &GENERIC_FAILURES,
         }
     }
@@ -97,6 +110,7 @@ impl Family {
             Family::Stepper => find(STEPPER.iter().map(|&e| stepper(e)), code),
             Family::Io => find(IO.iter().map(|&e| io(e)), code),
             Family::Boot => find(BOOT.iter().map(|&e| boot(e)), code),
+            Family::Heater => find(HEATER.iter().map(|&e| heater(e)), code),
             Family::None => None,
         }
     }
@@ -179,6 +193,8 @@ pub enum Refusal {
     Io(IoError),
     /// `enter_bootloader`'s refusal.
     Boot(BootError),
+    /// A heater function's refusal.
+    Heater(HeaterError),
     /// [`NOT_INSTALLED`]: the firmware never installed its board.
     NotInstalled,
     /// One of pipes-core's generated wrappers' codes
@@ -198,6 +214,7 @@ impl Refusal {
             Family::Stepper => StepperError::from_code(code).map(Refusal::Stepper),
             Family::Io => IoError::from_code(code).map(Refusal::Io),
             Family::Boot => BootError::from_code(code).map(Refusal::Boot),
+            Family::Heater => HeaterError::from_code(code).map(Refusal::Heater),
             Family::None => None,
         };
         own.unwrap_or(match pipes_core::FailureCode::from_code(code) {
@@ -218,6 +235,7 @@ impl Refusal {
             Refusal::Stepper(e) => e.code(),
             Refusal::Io(e) => e.code(),
             Refusal::Boot(e) => e.code(),
+            Refusal::Heater(e) => e.code(),
             Refusal::NotInstalled => NOT_INSTALLED,
             Refusal::Wrapper(c) => c.code(),
             Refusal::Other(c) => c,
@@ -231,6 +249,7 @@ impl Refusal {
             Refusal::Stepper(e) => Some(stepper(e)),
             Refusal::Io(e) => Some(io(e)),
             Refusal::Boot(e) => Some(boot(e)),
+            Refusal::Heater(e) => Some(heater(e)),
             Refusal::NotInstalled | Refusal::Wrapper(_) => generic(self.code()),
             Refusal::Other(_) => None,
         }
@@ -335,6 +354,29 @@ failures! {
         Full => "every slot for scheduled pulses (16) is taken: wait for some to run, or \
                  schedule less far ahead",
         NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
+        HeaterOutput => "a heater drives that PWM output: set it through heater_target or \
+                         heater_power, or move the heater to another output (heater_output)",
+    }
+}
+
+failures! {
+    /// A heater function's refusal ([`HeaterError`]), by name.
+    pub fn heater, HEATER, HEATER_FAILURES: HeaterError {
+        NoSuchHeater => "no such heater: a module has heaters 0 and 1",
+        NoSuchPin => "no such PWM output or analog input on this board: check the board's \
+                      pin numbers",
+        BadValue => "a value out of range: thermistor values and max_power (at most 1) are \
+                     positive, min_temp below max_temp, gains and runaway settings finite and \
+                     not negative, a target within [min_temp, max_temp), a duty within 0..=1",
+        NotConfigured => "the heater is not configured: give it heater_sensor, heater_output \
+                          and heater_limits (and heater_gains for a target) first",
+        Faulted => "the heater is latched off by a runaway fault (get_fault says why): fix \
+                    the cause, then heater_clear",
+        SensorFault => "the heater's sensor reads open, shorted or out of its limits: check \
+                        the thermistor and its wiring, then heater_clear again",
+        Busy => "the setting can only change while the heater is off: heater_target 0 first",
+        NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
+        InUse => "another heater drives that PWM output: give each heater its own output",
     }
 }
 
@@ -377,7 +419,13 @@ mod tests {
     #[test]
     fn refusals_decode_by_family_and_unknown_codes_are_other() {
         for byte in 0..=u8::MAX {
-            for family in [Family::Stepper, Family::Io, Family::Boot, Family::None] {
+            for family in [
+                Family::Stepper,
+                Family::Io,
+                Family::Boot,
+                Family::Heater,
+                Family::None,
+            ] {
                 assert_eq!(Refusal::from_code(family, byte).code(), byte);
             }
         }
@@ -406,7 +454,13 @@ mod tests {
         assert_eq!(Refusal::from_code(Family::Boot, 11), Refusal::Other(11));
         assert_eq!(StepperError::from_code(0), None);
         assert_eq!(StepperError::from_code(12), None);
-        assert_eq!(IoError::from_code(5), None);
+        assert_eq!(IoError::from_code(6), None);
+        assert_eq!(HeaterError::from_code(0), None);
+        assert_eq!(HeaterError::from_code(10), None);
+        assert_eq!(
+            Refusal::of(FnId::heater_target, 5),
+            Refusal::Heater(HeaterError::Faulted)
+        );
         assert_eq!(BootError::from_code(3), None);
         assert_eq!(Refusal::Other(42).to_string(), "unknown failure code 42");
         assert!(Refusal::Stepper(StepperError::QueueFull)
@@ -516,6 +570,24 @@ mod tests {
         for &e in IO {
             assert_eq!(generic(e.code()), None);
         }
+        for &e in HEATER {
+            assert_eq!(generic(e.code()), None);
+        }
+    }
+
+    #[test]
+    fn every_heater_error_is_named_by_its_variant() {
+        let mut codes = BTreeSet::new();
+        for &e in HEATER {
+            let f = heater(e);
+            assert_eq!((f.code, std::format!("{e:?}")), (e.code(), f.name.into()));
+            assert!(codes.insert(f.code), "{} twice", f.code);
+            assert!(f.reason.contains(": "), "{f}: name the fix");
+            assert_eq!(failure("heater_target", f.code), Some(f));
+            assert_eq!(failure("heater_read", f.code), Some(f));
+        }
+        assert_eq!(codes.len(), HeaterError::ALL.len());
+        assert_eq!(failure("heater_clear", 6).unwrap().name, "SensorFault");
     }
 
     #[test]
@@ -523,7 +595,7 @@ mod tests {
         assert_eq!(failure("add_point", 0), None);
         assert_eq!(failure("add_point", 12), None);
         assert_eq!(failure("add_point", 99), None);
-        assert_eq!(failure("pulse", 5), None);
+        assert_eq!(failure("pulse", 6), None);
         // Not one of the module's functions: its codes are its own.
         assert_eq!(failure("add_pointx", 8), None);
         assert_eq!(failure("move_to", 8), None);

@@ -17,6 +17,7 @@
 //! | 5 | [`FaultKind::Halted`]: `halt` stopped the axis | 0 |
 //! | 6 | [`FaultKind::OverLimit`]: a control point past the axis's limits (`set_limits`) was refused | which limits it went past, as bits: [`OVER_VELOCITY`] 1, [`OVER_ACCELERATION`] 2, [`OVER_JERK`] 4 |
 //! | 7 | [`FaultKind::OutputWatchdog`]: upstream was quiet past `set_output_watchdog`'s timeout, and the module put its outputs in their safe state | µs since a call or pipe datagram last reached the module (held at `u32::MAX`) |
+//! | 8 | [`FaultKind::HeaterRunaway`]: a heater cut itself off (see [`crate::heater`]) | the heater's index in the low byte, the [`RunawayReason`] code in the next: 1 not heating, 2 fell from target, 3 sensor open, 4 sensor short, 5 over max_temp ([`runaway_detail`]) |
 //!
 //! While the axis stands stopped by a backstop or a halt, the refusals that
 //! follow (code `Faulted`) are counted but keep the record of their cause.
@@ -41,6 +42,8 @@
 //! which limit.
 //!
 //! [`StepperError`]: crate::stepper::StepperError
+//! [`RunawayReason`]: crate::heater::RunawayReason
+//! [`runaway_detail`]: crate::heater::runaway_detail
 
 use crate::stepper::StepperError;
 use maxl::Clamped;
@@ -114,11 +117,17 @@ pub enum FaultKind {
     /// their safe state (see [`crate::watchdog`]); the detail is how long
     /// upstream had been quiet, µs.
     OutputWatchdog = 7,
+    /// A heater cut its output and latched off: its temperature ran away or
+    /// its sensor failed (see [`crate::heater`]); the detail is the
+    /// heater's index in the low byte and the
+    /// [`RunawayReason`](crate::heater::RunawayReason) code in the next
+    /// ([`runaway_detail`](crate::heater::runaway_detail)).
+    HeaterRunaway = 8,
 }
 
 impl FaultKind {
     /// Every kind, in code order.
-    pub const ALL: [FaultKind; 8] = [
+    pub const ALL: [FaultKind; 9] = [
         FaultKind::None,
         FaultKind::Refused,
         FaultKind::Backstop,
@@ -127,6 +136,7 @@ impl FaultKind {
         FaultKind::Halted,
         FaultKind::OverLimit,
         FaultKind::OutputWatchdog,
+        FaultKind::HeaterRunaway,
     ];
 
     /// The kind's code.
@@ -150,6 +160,7 @@ impl FaultKind {
             FaultKind::Halted => "halted",
             FaultKind::OverLimit => "point over limit",
             FaultKind::OutputWatchdog => "output watchdog",
+            FaultKind::HeaterRunaway => "heater runaway",
         }
     }
 }
@@ -229,7 +240,8 @@ mod tests {
         for k in FaultKind::ALL {
             assert_eq!(FaultKind::from_code(k.code()), Some(k));
         }
-        assert_eq!(FaultKind::from_code(8), None);
+        assert_eq!(FaultKind::from_code(8), Some(FaultKind::HeaterRunaway));
+        assert_eq!(FaultKind::from_code(9), None);
         assert_eq!(FaultKind::from_code(255), None);
     }
 

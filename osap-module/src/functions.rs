@@ -4,8 +4,8 @@
 //! Each is a method of [`Module`] (callable from Rust as is) and a PIPES
 //! function: a [`ModuleFn`] binds one of them to one module through a
 //! [`ModuleHandle`], so a runtime can hold them in one array. Failure codes
-//! are [`StepperError`], [`IoError`] and [`BootError`] codes, plus
-//! [`NOT_INSTALLED`].
+//! are [`StepperError`], [`IoError`], [`BootError`] and [`HeaterError`]
+//! codes, plus [`NOT_INSTALLED`].
 //!
 //! | function | inputs | outputs |
 //! |---|---|---|
@@ -32,6 +32,15 @@
 //! | `set_safe_pwm` | `channel: u8`, `duty: f32` | — |
 //! | `set_safe_digital` | `pin: u8`, `level: bool` | — |
 //! | `set_output_watchdog` | `timeout_ms: u32` | — |
+//! | `heater_sensor` | `index: u8`, `analog: u8`, `beta: f32`, `r25_ohms: f32`, `pullup_ohms: f32` | — |
+//! | `heater_output` | `index: u8`, `pwm: u8`, `max_power: f32` | — |
+//! | `heater_limits` | `index: u8`, `min_temp: f32`, `max_temp: f32` | — |
+//! | `heater_gains` | `index: u8`, `kp: f32`, `ki: f32`, `kd: f32` | — |
+//! | `heater_runaway` | `index: u8`, `hysteresis_c: f32`, `max_error: f32`, `heating_gain_c: f32`, `check_gain_time_s: f32` | — |
+//! | `heater_target` | `index: u8`, `celsius: f32` | — |
+//! | `heater_power` | `index: u8`, `duty: f32` | — |
+//! | `heater_read` | `index: u8` | `time: u64`, `temp: f32`, `target: f32`, `power: f32`, `state: u8` |
+//! | `heater_clear` | `index: u8` | — |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -53,9 +62,16 @@
 //! or jerk limit (`OverLimit`) and `get_fault` reports it, saying which
 //! limit (see [`crate::stepper`] and [`crate::fault`]). Limits are off
 //! until set.
+//!
+//! The `heater_` functions configure and run up to two heaters, whose PID
+//! control and runaway protection run on the module (see
+//! [`crate::heater`]): a heater that runs away or loses its sensor cuts
+//! itself off, `get_fault` reports why, and it stays off until
+//! `heater_clear`. Every stop and the output watchdog turn heaters off.
 
 use crate::board::Board;
 use crate::boot::BootError;
+use crate::heater::{Gains, HeaterError, Runaway, Thermistor};
 use crate::io::IoError;
 use crate::stepper::StepperError;
 use crate::{Module, ModuleHandle};
@@ -204,9 +220,13 @@ impl<B: Board> Module<B> {
         Ok((now.as_micros(), self.io.digital_read(hw, pin)?))
     }
 
-    /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`.
+    /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`; refused
+    /// for an output a heater drives.
     pub fn pwm_write(&mut self, channel: u8, duty: f32) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        if self.heaters.drives(channel) {
+            return Err(IoError::HeaterOutput.into());
+        }
         Ok(self.io.pwm_write(hw, channel, duty)?)
     }
 
@@ -251,9 +271,13 @@ impl<B: Board> Module<B> {
 
     /// Sets the duty (a fraction, `0..=1`) PWM output `channel` takes on
     /// every stop and when the output watchdog fires (0 until set). The
-    /// output keeps its duty until then.
+    /// output keeps its duty until then. Refused for an output a heater
+    /// drives (its safe duty is 0).
     pub fn set_safe_pwm(&mut self, channel: u8, duty: f32) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        if self.heaters.drives(channel) {
+            return Err(IoError::HeaterOutput.into());
+        }
         Ok(self.io.set_safe_pwm(hw, channel, duty)?)
     }
 
@@ -273,6 +297,111 @@ impl<B: Board> Module<B> {
         let now = self.board.now();
         self.watchdog.set(timeout_ms, now);
         Ok(())
+    }
+
+    /// Heater `index` (0 or 1) reads analog input `analog` through a Beta
+    /// thermistor (`beta`, K; `r25_ohms` at 25 °C) to ground with a
+    /// `pullup_ohms` pullup. Only while the heater is off.
+    pub fn heater_sensor(
+        &mut self,
+        index: u8,
+        analog: u8,
+        beta: f32,
+        r25_ohms: f32,
+        pullup_ohms: f32,
+    ) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
+        let thermistor = Thermistor {
+            beta,
+            r25_ohms,
+            pullup_ohms,
+        };
+        Ok(self.heaters.set_sensor(hw, index, analog, thermistor)?)
+    }
+
+    /// Heater `index` drives PWM output `pwm`, at most `max_power` (`0 <
+    /// max_power ≤ 1`) of full duty; the output goes to 0. Only while the
+    /// heater is off.
+    pub fn heater_output(&mut self, index: u8, pwm: u8, max_power: f32) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
+        Ok(self.heaters.set_output(hw, index, pwm, max_power)?)
+    }
+
+    /// Heater `index` runs between `min_temp` and `max_temp`, °C: below
+    /// `min_temp` its sensor reads open, at `max_temp` it cuts itself off.
+    /// Only while the heater is off.
+    pub fn heater_limits(
+        &mut self,
+        index: u8,
+        min_temp: f32,
+        max_temp: f32,
+    ) -> Result<(), CallError> {
+        Ok(self.heaters.set_limits(index, min_temp, max_temp)?)
+    }
+
+    /// Heater `index`'s PID gains in Klipper's units (`pid_Kp`, `pid_Ki`,
+    /// `pid_Kd`; see [`crate::heater`]). Only while the heater is off.
+    pub fn heater_gains(&mut self, index: u8, kp: f32, ki: f32, kd: f32) -> Result<(), CallError> {
+        Ok(self.heaters.set_gains(index, Gains { kp, ki, kd })?)
+    }
+
+    /// Heater `index`'s runaway protection (Klipper's `verify_heater`;
+    /// defaults 5 °C, 120 °C·s, 2 °C, 20 s; see [`crate::heater`]). Only
+    /// while the heater is off.
+    pub fn heater_runaway(
+        &mut self,
+        index: u8,
+        hysteresis_c: f32,
+        max_error: f32,
+        heating_gain_c: f32,
+        check_gain_time_s: f32,
+    ) -> Result<(), CallError> {
+        let runaway = Runaway {
+            hysteresis_c,
+            max_error,
+            heating_gain_c,
+            check_gain_time_s,
+        };
+        Ok(self.heaters.set_runaway(index, runaway)?)
+    }
+
+    /// Heater `index` holds `celsius` (within `[min_temp, max_temp)`); 0
+    /// turns it off. Refused for a heater not fully configured or latched
+    /// off by a fault. Leaves open-loop power mode.
+    pub fn heater_target(&mut self, index: u8, celsius: f32) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
+        Ok(self.heaters.set_target(hw, index, celsius)?)
+    }
+
+    /// Heater `index` runs open loop at `duty` (`0..=1`, capped at
+    /// `max_power`), for autotuning; its sensor checks, `max_temp` and the
+    /// output watchdog still guard it. `heater_target` leaves it.
+    pub fn heater_power(&mut self, index: u8, duty: f32) -> Result<(), CallError> {
+        Ok(self.heaters.set_power(index, duty)?)
+    }
+
+    /// Heater `index`: the synchronized time of its latest reading (0:
+    /// none yet), its temperature (°C), its target (0: off or open loop),
+    /// the duty it drives (`0..=1`), and its state (0 off, 1 heating, 2
+    /// holding, 3 open-loop power, 4 faulted; see
+    /// [`crate::heater::HeaterState`]).
+    pub fn heater_read(&mut self, index: u8) -> Result<(u64, f32, f32, f32, u8), CallError> {
+        let h = self
+            .heaters
+            .heater(index)
+            .ok_or(HeaterError::NoSuchHeater)?;
+        let (time, temp) = match h.reading() {
+            Some((local, temp)) => (self.time.system_time(local).as_micros(), temp),
+            None => (0, 0.0),
+        };
+        Ok((time, temp, h.target(), h.duty(), h.state() as u8))
+    }
+
+    /// Clears heater `index`'s runaway fault if its sensor reads sane now
+    /// (refused with `SensorFault` otherwise); the heater is then off.
+    pub fn heater_clear(&mut self, index: u8) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
+        Ok(self.heaters.clear(hw, index)?)
     }
 }
 
@@ -389,6 +518,15 @@ macro_rules! module_function_table {
             set_safe_pwm(channel: u8, duty: f32);
             set_safe_digital(pin: u8, level: bool);
             set_output_watchdog(timeout_ms: u32);
+            heater_sensor(index: u8, analog: u8, beta: f32, r25_ohms: f32, pullup_ohms: f32);
+            heater_output(index: u8, pwm: u8, max_power: f32);
+            heater_limits(index: u8, min_temp: f32, max_temp: f32);
+            heater_gains(index: u8, kp: f32, ki: f32, kd: f32);
+            heater_runaway(index: u8, hysteresis_c: f32, max_error: f32, heating_gain_c: f32, check_gain_time_s: f32);
+            heater_target(index: u8, celsius: f32);
+            heater_power(index: u8, duty: f32);
+            heater_read(index: u8) -> (time: u64, temp: f32, target: f32, power: f32, state: u8);
+            heater_clear(index: u8);
         }
     };
 }

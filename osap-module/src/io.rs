@@ -51,15 +51,19 @@ pub enum IoError {
     Full = 3,
     /// The I/O hardware was never installed (a firmware without it).
     NoHardware = 4,
+    /// A heater drives that PWM output (see [`crate::heater`]): only the
+    /// heater sets its duty, and its safe duty is 0.
+    HeaterOutput = 5,
 }
 
 impl IoError {
     /// Every I/O error, in code order.
-    pub const ALL: [IoError; 4] = [
+    pub const ALL: [IoError; 5] = [
         IoError::NoSuchPin,
         IoError::BadValue,
         IoError::Full,
         IoError::NoHardware,
+        IoError::HeaterOutput,
     ];
 
     /// The failure code.
@@ -81,6 +85,7 @@ impl core::fmt::Display for IoError {
             IoError::BadValue => "a value out of range",
             IoError::Full => "every slot for scheduled pulses is taken",
             IoError::NoHardware => "the I/O hardware was never installed",
+            IoError::HeaterOutput => "a heater drives that PWM output",
         })
     }
 }

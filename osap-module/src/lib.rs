@@ -3,7 +3,8 @@
 //! The logic of osap-rs module firmware, shared by every board and by the
 //! simulator: a stepper axis that follows MAXL control points in
 //! synchronized time and makes step/direction ticks at 100 kHz, and an I/O
-//! set (digital pins, PWM, analog inputs, timed pulses), all exposed as
+//! set (digital pins, PWM, analog inputs, timed pulses) and up to two
+//! heaters with their own runaway protection ([`heater`]), all exposed as
 //! PIPES functions that a network scan finds ([`functions`]). A firmware
 //! crate supplies only board glue: links, the step generator's peripheral,
 //! and a [`board::Board`].
@@ -36,6 +37,10 @@
 //! - when its output watchdog fires: nothing reached it from upstream for
 //!   `set_output_watchdog`'s timeout ([`watchdog`]).
 //!
+//! Each of these also turns every heater off (target 0), and a heater cuts
+//! itself off when its temperature runs away or its sensor fails
+//! ([`heater`]), recording a fault.
+//!
 //! A limit switch press does not: the module does not stop on it by itself
 //! (homing presses its switch on purpose), and the host's stop that follows
 //! a press outside homing is a `halt`, which does.
@@ -54,6 +59,7 @@ pub mod boot;
 pub mod failure;
 pub mod fault;
 pub mod functions;
+pub mod heater;
 pub mod hot_start;
 pub mod io;
 pub mod ports;
@@ -71,6 +77,7 @@ use boot::BootRequest;
 use core::cell::RefCell;
 use critical_section::Mutex;
 use fault::{Fault, FaultKind};
+use heater::Heaters;
 use io::Io;
 use osap_core::clock::TimeMap;
 use osap_core::{Duration, Instant, SystemInstant};
@@ -94,6 +101,8 @@ pub struct Module<B> {
     pub stepper: Stepper,
     /// The I/O set.
     pub io: Io,
+    /// The heaters.
+    pub heaters: Heaters,
     /// The limit switch.
     pub limit: Limit,
     /// The runtime's latest local-to-system time map.
@@ -136,6 +145,7 @@ impl<B: Board> Module<B> {
         Module {
             stepper: Stepper::new(),
             io: Io::new(),
+            heaters: Heaters::new(),
             limit: Limit::default(),
             time: TimeMap::IDENTITY,
             fault: Fault::default(),
@@ -283,11 +293,14 @@ impl<B: Board> Module<B> {
         self.fault.record(now, FaultKind::Halted, 0, true);
     }
 
-    /// Drives every output to its safe value (see [`io`]); nothing on a
-    /// board without I/O.
+    /// Drives every output to its safe value (see [`io`]) and turns every
+    /// heater off (see [`heater`]); nothing on a board without I/O.
     pub fn apply_safe_outputs(&mut self) {
         if let Some(hw) = self.board.io() {
             self.io.apply_safe(hw);
+            // After the safe values: a heater's output ends at 0 whatever
+            // was written to it before.
+            self.heaters.off_all(hw);
         }
     }
 
@@ -346,6 +359,27 @@ impl<B: Board> Module<B> {
     pub fn poll_io(&mut self, now: Instant, system: SystemInstant) {
         if let Some(hw) = self.board.io() {
             self.io.poll(hw, now, system);
+        }
+    }
+
+    /// Runs the heaters' control period if one is due at local time `now`
+    /// (see [`heater`]), recording each runaway it finds as a
+    /// [`FaultKind::HeaterRunaway`] fault. The runtime's loop calls it
+    /// through the pulse timer port, at
+    /// [`Heaters::wake_at`](heater::Heaters::wake_at).
+    pub fn poll_heaters(&mut self, now: Instant) {
+        let Some(hw) = self.board.io() else {
+            return;
+        };
+        let faults = self.heaters.poll(hw, now);
+        let at = self.time.system_time(now);
+        for (index, reason) in faults.into_iter().enumerate() {
+            if let Some(reason) = reason {
+                let detail = heater::runaway_detail(index as u8, reason);
+                let stopped = self.stepper.is_stopped();
+                self.fault
+                    .record(at, FaultKind::HeaterRunaway, detail, stopped);
+            }
         }
     }
 

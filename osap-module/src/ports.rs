@@ -1,6 +1,7 @@
 //! The module's ports, for the firmware's runtime: one PIPES function port
 //! per module function, and a port with no index of its own that ends and
-//! starts timed pulses from the runtime's loop, fires the output watchdog
+//! starts timed pulses from the runtime's loop, runs the heaters' control
+//! period ([`crate::heater`]), fires the output watchdog
 //! ([`crate::watchdog`]) and performs an armed reboot into the bootloader
 //! (see [`crate::boot`]).
 //!
@@ -68,6 +69,10 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
             m.poll_io(now, system);
             m.poll_boot(now);
         });
+        // The heaters' period (ADC reads and soft-float maths on a
+        // Cortex-M0+) in a critical section of its own, so the step
+        // interrupt waits for one piece of work at a time.
+        self.module.with(|m| m.poll_heaters(now));
     }
 
     fn wake_at(&self) -> Option<Instant> {
@@ -75,7 +80,8 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
         self.module
             .with(|m| {
                 let io = m.io_wake_at(now, system);
-                [io, m.boot.due_at(), m.watchdog.deadline()]
+                let heaters = m.heaters.wake_at();
+                [io, m.boot.due_at(), m.watchdog.deadline(), heaters]
                     .into_iter()
                     .flatten()
                     .min()

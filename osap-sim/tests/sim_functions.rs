@@ -1,6 +1,6 @@
 //! The PIPES functions of simulated modules, over the network: a `stepper`
 //! runs the module firmware's logic (`osap_module::Module` on a simulated
-//! board), so a scan finds the firmware's 23 functions on it, and calls
+//! board), so a scan finds the firmware's 32 functions on it, and calls
 //! reach that logic through the same ports and codecs as on hardware. Here:
 //! the function set and its signatures, argument conversion, every failure
 //! code the firmware gives (`osap_module::stepper::StepperError`,

@@ -13,13 +13,16 @@
 //!   outputs, 3 analog inputs) record what the module writes and read what
 //!   the topology or a test sets; an analog input may carry an
 //!   **accelerometer** ([`accel`]) that sees the carriage through a
-//!   mass-spring mode;
+//!   mass-spring mode, and a PWM output with an analog input may carry a
+//!   **heated block** ([`heater`]) that the output heats and a thermistor
+//!   on the input reads;
 //! - a **UF2 bootloader** ([`bootloader`]), if the topology gives the
 //!   module one: `enter_bootloader` then takes the module off the network
 //!   and shows a drive a UF2 file can be copied onto.
 
 pub mod accel;
 pub mod bootloader;
+pub mod heater;
 
 use super::clock::DriftClock;
 use crate::topology::{
@@ -27,6 +30,7 @@ use crate::topology::{
 };
 use accel::Accel;
 use bootloader::BootHook;
+use heater::ThermalHeater;
 use osap_core::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
 
@@ -230,6 +234,7 @@ pub struct Pins {
     writes: Vec<DigitalWrite>,
     pwm_writes: Vec<PwmWrite>,
     accel: Option<Accel>,
+    heaters: Vec<ThermalHeater>,
 }
 
 impl Pins {
@@ -250,7 +255,25 @@ impl Pins {
             writes: Vec::new(),
             pwm_writes: Vec::new(),
             accel: spec.accel.clone().map(Accel::new),
+            heaters: spec
+                .heaters
+                .iter()
+                .cloned()
+                .map(ThermalHeater::new)
+                .collect(),
         }
+    }
+
+    /// The heated blocks.
+    pub fn heaters(&self) -> &[ThermalHeater] {
+        &self.heaters
+    }
+
+    /// Seconds since the module booted, the heated blocks' time.
+    pub fn secs_since_boot(&self) -> f64 {
+        osap_host::clock::now()
+            .saturating_duration_since(self.clock.boot())
+            .as_secs_f64()
     }
 
     /// The accelerometer, if an analog input carries one.
@@ -328,8 +351,12 @@ impl IoHw for Pins {
         PWM_OUTPUTS
     }
     fn write_pwm(&mut self, channel: u8, duty: u16) {
+        let secs = self.secs_since_boot();
         if let Some(p) = self.pwm.get_mut(usize::from(channel)) {
             *p = duty;
+            for h in self.heaters.iter_mut().filter(|h| h.spec().pwm == channel) {
+                h.set_duty(secs, duty);
+            }
             self.pwm_writes.push(PwmWrite {
                 local: self.clock.now(),
                 channel,
@@ -346,8 +373,11 @@ impl IoHw for Pins {
     fn read_analog(&mut self, channel: u8) -> u16 {
         // A 12-bit converter's reading, shifted left by 4, as on the boards.
         let now = self.clock.now();
-        let v = match &mut self.accel {
-            Some(a) if a.spec().channel == channel => a.read(now),
+        let secs = self.secs_since_boot();
+        let heater = self.heaters.iter_mut().find(|h| h.spec().analog == channel);
+        let v = match (&mut self.accel, heater) {
+            (_, Some(h)) => h.read(secs),
+            (Some(a), None) if a.spec().channel == channel => a.read(now),
             _ => self
                 .analog
                 .get(usize::from(channel))

@@ -11,7 +11,7 @@
 //! Module types:
 //!
 //! - `stepper` is the module firmware itself: an [`osap_module::Module`]
-//!   on a simulated board ([`board::SimBoard`]), with the same 23 PIPES
+//!   on a simulated board ([`board::SimBoard`]), with the same 32 PIPES
 //!   functions, failure codes and step-word path as every board's firmware
 //!   (a scan of it gives the firmware's `FUNCTION_SET_ID`, so proxies
 //!   generated from it bind on hardware). Its step words are clocked out

@@ -1,6 +1,7 @@
 //! What a simulated module's board carries, as a [`SimSpec`](super::SimSpec)
-//! describes it: its motor and limit switch, its I/O pins and an
-//! accelerometer on one, and its UF2 bootloader.
+//! describes it: its motor and limit switch, its I/O pins with an
+//! accelerometer on one and heaters on a PWM output and an analog input
+//! each, and its UF2 bootloader.
 
 use serde::{Deserialize, Serialize};
 
@@ -112,6 +113,11 @@ pub struct IoSpec {
     /// (`[module.io.accel]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub accel: Option<AccelSpec>,
+    /// Heated blocks, each heated by a PWM output and read by a thermistor
+    /// on an analog input (`[[module.io.heater]]`; at most one per PWM
+    /// output).
+    #[serde(default, rename = "heater", skip_serializing_if = "Vec::is_empty")]
+    pub heaters: Vec<HeaterSpec>,
 }
 
 impl IoSpec {
@@ -136,6 +142,144 @@ impl IoSpec {
         }
         if let Some(a) = &self.accel {
             a.check()?;
+        }
+        for (i, h) in self.heaters.iter().enumerate() {
+            h.check()?;
+            let before = &self.heaters[..i];
+            if before.iter().any(|o| o.pwm == h.pwm) {
+                return Err(BoardError::new(format!(
+                    "[[module.io.heater]] two heaters on pwm {}: give each its own output",
+                    h.pwm
+                )));
+            }
+            let taken = before.iter().any(|o| o.analog == h.analog)
+                || self.accel.as_ref().is_some_and(|a| a.channel == h.analog);
+            if taken {
+                return Err(BoardError::new(format!(
+                    "[[module.io.heater]] analog {} already reads another heater or the \
+                     accelerometer: give each its own input",
+                    h.analog
+                )));
+            }
+        }
+        Ok(())
+    }
+}
+
+fn default_beta() -> f64 {
+    3950.0
+}
+
+fn default_r25_ohms() -> f64 {
+    100_000.0
+}
+
+fn default_pullup_ohms() -> f64 {
+    4_700.0
+}
+
+fn default_ambient_c() -> f64 {
+    25.0
+}
+
+/// A heated block on a module's I/O pins (`[[module.io.heater]]` in a
+/// topology file): a heater of `power_w` on PWM output `pwm` heats a block
+/// of `heat_capacity_j_per_k` that loses `loss_w_per_k` to the room,
+///
+/// ```text
+/// C·dT/dt = power_w·duty − loss_w_per_k·(T − ambient_c)
+/// ```
+///
+/// and a Beta thermistor to ground in it, with a pullup to the converter's
+/// reference, is read on analog input `analog` (the fraction `R / (R +
+/// pullup_ohms)` of full scale). The defaults are the common printer
+/// thermistor: 100 kΩ at 25 °C, β 3950, on a 4.7 kΩ pullup.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct HeaterSpec {
+    /// The PWM output that drives the heater (0..=1).
+    pub pwm: u8,
+    /// The analog input its thermistor is read on (0..=2).
+    pub analog: u8,
+    /// The thermistor's β, K (> 0; default 3950).
+    #[serde(default = "default_beta")]
+    pub beta: f64,
+    /// The thermistor's resistance at 25 °C, Ω (> 0; default 100 000).
+    #[serde(default = "default_r25_ohms")]
+    pub r25_ohms: f64,
+    /// The pullup, Ω (> 0; default 4 700).
+    #[serde(default = "default_pullup_ohms")]
+    pub pullup_ohms: f64,
+    /// The heater's power at full duty, W (≥ 0; 40 for a hotend
+    /// cartridge; 0 stands for a broken one).
+    pub power_w: f64,
+    /// The block's heat capacity, J/K (> 0; about 15 for a hotend's block
+    /// and nozzle).
+    pub heat_capacity_j_per_k: f64,
+    /// What the block loses to the room per kelvin above it, W/K (≥ 0).
+    pub loss_w_per_k: f64,
+    /// The room, °C (default 25); the block starts at it.
+    #[serde(default = "default_ambient_c")]
+    pub ambient_c: f64,
+    /// From this many seconds after the module boots, the thermistor reads
+    /// open (full scale), as a thermistor whose wire broke.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sensor_fails_at_s: Option<f64>,
+}
+
+impl HeaterSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), BoardError> {
+        if self.pwm >= PWM_OUTPUTS {
+            return Err(BoardError::new(format!(
+                "[[module.io.heater]] pwm {} does not exist: a module has PWM outputs 0 to {}",
+                self.pwm,
+                PWM_OUTPUTS - 1
+            )));
+        }
+        if self.analog >= ANALOG_INPUTS {
+            return Err(BoardError::new(format!(
+                "[[module.io.heater]] analog {} does not exist: a module has analog inputs 0 to {}",
+                self.analog,
+                ANALOG_INPUTS - 1
+            )));
+        }
+        let positive = [
+            ("beta", self.beta),
+            ("r25_ohms", self.r25_ohms),
+            ("pullup_ohms", self.pullup_ohms),
+            ("heat_capacity_j_per_k", self.heat_capacity_j_per_k),
+        ];
+        for (key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(BoardError::new(format!(
+                    "[[module.io.heater]] {key} {v} must be finite and positive"
+                )));
+            }
+        }
+        for (key, v) in [
+            ("power_w", self.power_w),
+            ("loss_w_per_k", self.loss_w_per_k),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(BoardError::new(format!(
+                    "[[module.io.heater]] {key} {v} must be finite and 0 or more"
+                )));
+            }
+        }
+        if !(self.ambient_c.is_finite() && self.ambient_c > -273.15) {
+            return Err(BoardError::new(format!(
+                "[[module.io.heater]] ambient_c {} must be finite and above absolute zero",
+                self.ambient_c
+            )));
+        }
+        if let Some(t) = self.sensor_fails_at_s {
+            if !(t.is_finite() && t >= 0.0) {
+                return Err(BoardError::new(format!(
+                    "[[module.io.heater]] sensor_fails_at_s {t} must be finite and 0 or more \
+                     (seconds after the module boots)"
+                )));
+            }
         }
         Ok(())
     }
