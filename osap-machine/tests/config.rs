@@ -655,3 +655,69 @@ fn stop_settings_are_validated_with_their_key() {
         MachineFile::parse(&negative)
     );
 }
+
+#[test]
+fn printer_example_loads() {
+    let m = MachineFile::load(example("printer.toml")).unwrap();
+    assert_eq!(m.axis_names(), ["x", "y", "z", "e"]);
+    assert_eq!(m.toolhead_axes(), 3);
+    let e = m.extruder().unwrap();
+    assert!(e.min.is_infinite() && e.max.is_infinite());
+    assert_eq!(e.extruder.filament_diameter, Some(1.75));
+    // 400 microsteps per mm on z (T8) and on the extruder.
+    for k in ["z", "e"] {
+        let mo = &m.motors[k];
+        assert_eq!(mo.full_steps_per_unit * f64::from(mo.microsteps), 400.0);
+    }
+    assert_eq!(m.heaters.len(), 2);
+    assert_eq!(
+        m.heaters["bed"].runaway("bed").check_gain_time_s,
+        Some(60.0)
+    );
+    assert_eq!(
+        m.heaters["hotend"].runaway("hotend").check_gain_time_s,
+        Some(20.0)
+    );
+}
+
+#[test]
+fn extruder_keys_are_checked_with_their_key() {
+    let text = std::fs::read_to_string(example("printer.toml")).unwrap();
+    let bad = |from: &str, to: &str| {
+        assert!(text.contains(from), "{from}");
+        match MachineFile::parse(&text.replacen(from, to, 1)) {
+            Err(ConfigError::Invalid { key, message, .. }) => (key, message),
+            other => panic!("{from} -> {to}: {other:?}"),
+        }
+    };
+    let (key, _) = bad("filament_diameter = 1.75", "filament_diameter = 17.5");
+    assert_eq!(key, "axes.e.filament_diameter");
+    let (key, msg) = bad("kind = \"extruder\"\n", "");
+    assert_eq!(key, "axes.e.kind", "{msg}");
+    let (key, msg) = bad(
+        "velocity = 10.0\n",
+        "velocity = 10.0\npressure_advance = 0.05\n",
+    );
+    assert_eq!(key, "axes.z.pressure_advance", "{msg}");
+    let (key, msg) = bad(
+        "kind = \"extruder\"\n",
+        "kind = \"extruder\"\nmin = 0.0\nmax = 10.0\n",
+    );
+    assert_eq!(key, "axes.e", "{msg}");
+    let (key, _) = bad("pressure_advance = 0.04", "pressure_advance = 2.0");
+    assert_eq!(key, "axes.e.pressure_advance");
+    // A typo in the flattened extruder keys is still refused.
+    assert!(matches!(
+        MachineFile::parse(&text.replacen("smooth_time = 0.04", "smoth_time = 0.04", 1)),
+        Err(ConfigError::Parse { .. })
+    ));
+    // Heaters.
+    let (key, _) = bad("max_temp = 290.0", "max_temp = 600.0");
+    assert_eq!(key, "heaters.hotend.max_temp");
+    let (key, _) = bad("output = { pwm = 1 }", "output = { pwm = 0 }");
+    assert_eq!(key, "heaters.hotend.output");
+    let (key, _) = bad("[sim.heaters.bed]", "[sim.heaters.chamber]");
+    assert_eq!(key, "sim.heaters.chamber");
+    let (key, _) = bad("kp = 21.5", "kp = -1.0");
+    assert_eq!(key, "heaters.hotend.kp");
+}

@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 mod accel;
+mod heaters;
 mod jobs;
 mod probe;
 mod sim;
@@ -31,6 +32,7 @@ mod step_rate;
 mod validate;
 
 pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
+pub use heaters::{Heater, Runaway, Sensor, MAX_HEATER_TEMP};
 pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use probe::{Probe, ProbeGridError};
 pub use sim::{Sim, SimAxis};
@@ -39,7 +41,12 @@ use validate::is_mechanism_axis;
 
 /// The axis names a machine file may use, in the order
 /// [`MachineFile::axis_names`] lists them.
-pub const AXIS_NAMES: [&str; 9] = ["x", "y", "z", "a", "b", "c", "u", "v", "w"];
+pub const AXIS_NAMES: [&str; 10] = ["x", "y", "z", "a", "b", "c", "u", "v", "w", "e"];
+
+/// The axes whose distance is the path's length, and whose motion the
+/// toolhead's `[limits]` bound; the others (rotary, extruder) follow
+/// along within their own limits.
+pub const TOOLHEAD_AXES: [&str; 3] = ["x", "y", "z"];
 
 /// The most hops a module's route may have (OSAP routes hold 32).
 pub const MAX_ROUTE_HOPS: usize = 32;
@@ -169,6 +176,9 @@ pub struct MachineFile {
     /// Tools, by name.
     #[serde(default)]
     pub tools: BTreeMap<String, Tool>,
+    /// Heaters, by name (`hotend`, `bed`, ..).
+    #[serde(default)]
+    pub heaters: BTreeMap<String, Heater>,
     /// A bed mesh file, relative to the machine file.
     #[serde(default)]
     pub bed_mesh: Option<PathBuf>,
@@ -367,9 +377,15 @@ pub struct Axis {
     /// do not drive, refused for x and y under corexy, scara and fivebar.
     #[serde(default)]
     pub motor: Option<String>,
-    /// Soft travel limit, low end.
+    /// What the axis is (default: linear).
+    #[serde(default)]
+    pub kind: AxisKind,
+    /// Soft travel limit, low end (required, except for an extruder,
+    /// which has no travel: it reads −∞).
+    #[serde(default = "no_travel")]
     pub min: f64,
-    /// Soft travel limit, high end.
+    /// Soft travel limit, high end (required, except for an extruder: +∞).
+    #[serde(default = "no_travel")]
     pub max: f64,
     /// Most velocity, units/s.
     pub velocity: f64,
@@ -388,6 +404,97 @@ pub struct Axis {
     /// (validated; not yet applied by the planner).
     #[serde(default)]
     pub shaper: Option<AxisShaper>,
+    /// The extruder's settings (`kind = "extruder"` only), flattened into
+    /// `[axes.e]`.
+    #[serde(flatten)]
+    pub extruder: ExtruderKeys,
+}
+
+/// What an axis is.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AxisKind {
+    /// A linear or rotary axis with a travel.
+    #[default]
+    Linear,
+    /// A filament extruder (axis `e`): no travel, units mm of filament.
+    Extruder,
+}
+
+fn no_travel() -> f64 {
+    f64::NAN
+}
+
+/// An extruder's keys in `[axes.e]`; every one is refused on another
+/// kind of axis.
+#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
+pub struct ExtruderKeys {
+    /// The filament's diameter, mm (1.75 or 2.85); required for an
+    /// extruder.
+    #[serde(default)]
+    pub filament_diameter: Option<f64>,
+    /// A cap on the melt flow of extruding moves, mm³/s: a move that
+    /// would extrude faster is slowed (not retractions).
+    #[serde(default)]
+    pub max_volumetric_speed: Option<f64>,
+    /// The drive's grip on the filament, N (what it can push before it
+    /// slips or grinds).
+    #[serde(default)]
+    pub max_force_n: Option<f64>,
+    /// Pressure advance, s (Klipper's `pressure_advance`): the extruder
+    /// runs ahead by this times its velocity. Default 0 (off).
+    #[serde(default)]
+    pub pressure_advance: Option<f64>,
+    /// The window pressure advance is smoothed over, s (Klipper's
+    /// `pressure_advance_smooth_time`; default 0.040).
+    #[serde(default)]
+    pub smooth_time: Option<f64>,
+    /// The largest change of the extruder's velocity at a corner, mm/s
+    /// (Klipper's `instantaneous_corner_velocity`; default 1).
+    #[serde(default)]
+    pub instantaneous_corner_velocity: Option<f64>,
+    /// Firmware retraction (`G10`): filament pulled back, mm (default 0.8).
+    #[serde(default)]
+    pub retract_length: Option<f64>,
+    /// Firmware retraction speed (`G10`, `G11`), mm/s (default 35).
+    #[serde(default)]
+    pub retract_speed: Option<f64>,
+}
+
+/// [`ExtruderKeys::smooth_time`]'s default, s.
+pub const DEFAULT_SMOOTH_TIME: f64 = 0.040;
+/// [`ExtruderKeys::instantaneous_corner_velocity`]'s default, mm/s.
+pub const DEFAULT_CORNER_VELOCITY: f64 = 1.0;
+/// [`ExtruderKeys::retract_length`]'s default, mm.
+pub const DEFAULT_RETRACT_LENGTH: f64 = 0.8;
+/// [`ExtruderKeys::retract_speed`]'s default, mm/s.
+pub const DEFAULT_RETRACT_SPEED: f64 = 35.0;
+
+impl ExtruderKeys {
+    /// The keys given, by name (to refuse them on a non-extruder axis).
+    fn given(&self) -> impl Iterator<Item = &'static str> + '_ {
+        [
+            ("filament_diameter", self.filament_diameter.is_some()),
+            ("max_volumetric_speed", self.max_volumetric_speed.is_some()),
+            ("max_force_n", self.max_force_n.is_some()),
+            ("pressure_advance", self.pressure_advance.is_some()),
+            ("smooth_time", self.smooth_time.is_some()),
+            (
+                "instantaneous_corner_velocity",
+                self.instantaneous_corner_velocity.is_some(),
+            ),
+            ("retract_length", self.retract_length.is_some()),
+            ("retract_speed", self.retract_speed.is_some()),
+        ]
+        .into_iter()
+        .filter_map(|(k, given)| given.then_some(k))
+    }
+
+    /// The filament's cross-section, mm² (0 without a diameter).
+    pub fn filament_area(&self) -> f64 {
+        let d = self.filament_diameter.unwrap_or(0.0);
+        std::f64::consts::PI * d * d / 4.0
+    }
 }
 
 /// Which end of its travel an axis homes to.
@@ -498,6 +605,9 @@ pub enum ToolKind {
     Pen,
     /// A laser (power by PWM duty, or on/off on a digital pin).
     Laser,
+    /// A fan (speed by PWM duty): a printer's part fan, set by `M106`
+    /// and `M107`.
+    Fan,
 }
 
 /// A module output a tool is wired to.
@@ -570,6 +680,11 @@ impl MachineFile {
                 message,
             }
         })?;
+        for axis in file.axes.values_mut() {
+            if axis.kind == AxisKind::Extruder && axis.min.is_nan() && axis.max.is_nan() {
+                (axis.min, axis.max) = (f64::NEG_INFINITY, f64::INFINITY);
+            }
+        }
         if let Some(sim) = &mut file.sim {
             sim.place_bed(&file.axes);
         }
@@ -599,13 +714,27 @@ impl MachineFile {
         })
     }
 
-    /// The axis names in order (x, y, z, a, b, c, u, v, w).
+    /// The axis names in order (x, y, z, a, b, c, u, v, w, e).
     pub fn axis_names(&self) -> Vec<&str> {
         AXIS_NAMES
             .iter()
             .copied()
             .filter(|name| self.axes.contains_key(*name))
             .collect()
+    }
+
+    /// How many of [`MachineFile::axis_names`] lead as the toolhead's
+    /// ([`TOOLHEAD_AXES`]); the rest follow along.
+    pub fn toolhead_axes(&self) -> usize {
+        self.axis_names()
+            .iter()
+            .take_while(|a| TOOLHEAD_AXES.contains(a))
+            .count()
+    }
+
+    /// The extruder axis (`[axes.e]`), if the machine has one.
+    pub fn extruder(&self) -> Option<&Axis> {
+        self.axes.get("e").filter(|a| a.kind == AxisKind::Extruder)
     }
 
     /// The motor driving `axis` alone (`None` for an unknown axis or one the
@@ -685,6 +814,7 @@ impl MachineFile {
         self.validate_limits()?;
         self.validate_step_rates()?;
         self.validate_tools()?;
+        heaters::validate(self)?;
         self.validate_sim()?;
         accel::validate(self)?;
         probe::validate(self)?;

@@ -21,6 +21,36 @@ pub struct Sim {
     /// Which of the bed's `center` and `half` the file gave; the others
     /// are taken from the travel when the file is parsed.
     bed_placed: [bool; 2],
+    /// Each heater's thermal model, by the name in `[heaters]`
+    /// (`[sim.heaters.NAME]`; a simulated heater needs one).
+    pub heaters: BTreeMap<String, SimHeater>,
+}
+
+/// A heater's thermal model in simulation (`[sim.heaters.NAME]`): a block
+/// of heat capacity `C` heated by `power_w` at full duty and losing
+/// `loss_w_per_k` per kelvin above the room: `C·dT/dt = P·duty − k·(T −
+/// T_room)`.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct SimHeater {
+    /// Power at full duty, W (40 for a hotend cartridge, 200–300 for a
+    /// bed).
+    pub power_w: f64,
+    /// Heat capacity, J/K (about 15 for a hotend's block and nozzle, 400
+    /// for an aluminium bed plate).
+    pub heat_capacity_j_per_k: f64,
+    /// Loss to the room per kelvin above it, W/K.
+    pub loss_w_per_k: f64,
+    /// The room, °C (default 25); the block starts at it.
+    #[serde(default = "room")]
+    pub ambient_c: f64,
+    /// From this many seconds after boot, the thermistor reads open.
+    #[serde(default)]
+    pub sensor_fails_at_s: Option<f64>,
+}
+
+fn room() -> f64 {
+    25.0
 }
 
 /// `[sim]` as written.
@@ -31,6 +61,8 @@ struct SimKeys {
     axes: BTreeMap<String, SimAxis>,
     #[serde(default)]
     bed: Option<probe::BedKeys>,
+    #[serde(default)]
+    heaters: BTreeMap<String, SimHeater>,
 }
 
 impl From<SimKeys> for Sim {
@@ -43,6 +75,7 @@ impl From<SimKeys> for Sim {
             axes: k.axes,
             bed,
             bed_placed,
+            heaters: k.heaters,
         }
     }
 }

@@ -239,6 +239,24 @@ impl MachineFile {
                     ),
                 ));
             }
+            self.validate_axis_kind(name, axis)?;
+            if axis.kind == AxisKind::Extruder {
+                positive(&format!("{at}.velocity"), axis.velocity, "mm/s")?;
+                positive(&format!("{at}.acceleration"), axis.acceleration, "mm/s²")?;
+                positive(&format!("{at}.jerk"), axis.jerk, "mm/s³")?;
+                continue;
+            }
+            for (key, v) in [("min", axis.min), ("max", axis.max)] {
+                if v.is_nan() {
+                    return Err(invalid(
+                        format!("{at}.{key}"),
+                        format!(
+                            "missing: give the soft travel's {} end (units)",
+                            if key == "min" { "low" } else { "high" }
+                        ),
+                    ));
+                }
+            }
             finite(&format!("{at}.min"), axis.min)?;
             finite(&format!("{at}.max"), axis.max)?;
             if axis.min >= axis.max {
@@ -255,6 +273,103 @@ impl MachineFile {
             positive(&format!("{at}.jerk"), axis.jerk, "units/s³")?;
             if let Some(homing) = &axis.homing {
                 self.validate_homing(&format!("{at}.homing"), axis, homing)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// An extruder is axis `e` and only it; its keys are refused
+    /// elsewhere, and checked there.
+    fn validate_axis_kind(&self, name: &str, axis: &Axis) -> Result<(), ConfigError> {
+        let at = format!("axes.{name}");
+        let extruder = axis.kind == AxisKind::Extruder;
+        if extruder != (name == "e") {
+            return Err(invalid(
+                format!("{at}.kind"),
+                if extruder {
+                    "only axis e may be an extruder; name it [axes.e]".to_string()
+                } else {
+                    "axis e is the extruder; add kind = \"extruder\" (and its filament_diameter)"
+                        .to_string()
+                },
+            ));
+        }
+        if !extruder {
+            if let Some(key) = axis.extruder.given().next() {
+                return Err(invalid(
+                    format!("{at}.{key}"),
+                    "an extruder's key on an axis that is not one; remove it, or move it to [axes.e]",
+                ));
+            }
+            return Ok(());
+        }
+        if !(axis.min.is_infinite() && axis.max.is_infinite()) {
+            return Err(invalid(at, "an extruder has no travel; remove min and max"));
+        }
+        if axis.homing.is_some() {
+            return Err(invalid(
+                format!("{at}.homing"),
+                "an extruder does not home; remove its homing",
+            ));
+        }
+        let e = &axis.extruder;
+        match e.filament_diameter {
+            None => {
+                return Err(invalid(
+                    format!("{at}.filament_diameter"),
+                    "missing: give the filament's diameter in mm (1.75 or 2.85)",
+                ))
+            }
+            Some(d) if !(d.is_finite() && (0.5..=5.0).contains(&d)) => {
+                return Err(invalid(
+                    format!("{at}.filament_diameter"),
+                    format!("{d} mm is not a filament diameter; use 1.75 or 2.85"),
+                ))
+            }
+            _ => {}
+        }
+        let keys = [
+            (
+                "max_volumetric_speed",
+                e.max_volumetric_speed,
+                "mm³/s, e.g. 15 for a V6-class hotend",
+            ),
+            (
+                "max_force_n",
+                e.max_force_n,
+                "N, e.g. 40 for a geared extruder",
+            ),
+            (
+                "instantaneous_corner_velocity",
+                e.instantaneous_corner_velocity,
+                "mm/s, e.g. 1",
+            ),
+            (
+                "retract_length",
+                e.retract_length,
+                "mm, e.g. 0.8 for a direct drive",
+            ),
+            ("retract_speed", e.retract_speed, "mm/s, e.g. 35"),
+        ];
+        for (key, v, hint) in keys {
+            if let Some(v) = v {
+                positive(&format!("{at}.{key}"), v, hint)?;
+            }
+        }
+        if let Some(k) = e.pressure_advance {
+            if !(k.is_finite() && (0.0..=1.0).contains(&k)) {
+                return Err(invalid(
+                    format!("{at}.pressure_advance"),
+                    format!("{k} s is outside 0 to 1 s; typical values are 0.02–0.1 for a direct drive, up to 1 for a Bowden tube"),
+                ));
+            }
+        }
+        if let Some(t) = e.smooth_time {
+            if !(t.is_finite() && t > 0.0 && t <= 0.2) {
+                return Err(invalid(
+                    format!("{at}.smooth_time"),
+                    format!("{t} s is outside (0, 0.2] s; Klipper's default is 0.040"),
+                ));
             }
         }
         Ok(())
@@ -530,6 +645,29 @@ impl MachineFile {
                         axis.damping_ratio
                     ),
                 ));
+            }
+        }
+        for (name, h) in &sim.heaters {
+            let at = format!("sim.heaters.{name}");
+            if !self.heaters.contains_key(name) {
+                return Err(invalid(
+                    at,
+                    format!("no heater {name:?} in [heaters] to simulate; fix the name or remove the section"),
+                ));
+            }
+            positive(
+                &format!("{at}.heat_capacity_j_per_k"),
+                h.heat_capacity_j_per_k,
+                "J/K, about 15 for a hotend, 400 for a bed",
+            )?;
+            for (k, v) in [("power_w", h.power_w), ("loss_w_per_k", h.loss_w_per_k)] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(invalid(format!("{at}.{k}"), format!("{v} must be ≥ 0")));
+                }
+            }
+            finite(&format!("{at}.ambient_c"), h.ambient_c)?;
+            if let Some(t) = h.sensor_fails_at_s {
+                positive(&format!("{at}.sensor_fails_at_s"), t, "s after boot")?;
             }
         }
         Ok(())

@@ -1,8 +1,10 @@
 //! The interpreter: the modal state a controller keeps, and what each
 //! block does to it and to the job.
 
+use std::collections::BTreeSet;
+
 use super::{
-    Action, Dialect, GcodeError, Job, ReadOptions, Step, Warning, ARC_TOLERANCE_MM,
+    Action, Dialect, GcodeError, HeaterRole, Job, ReadOptions, Step, Warning, ARC_TOLERANCE_MM,
     ARC_TOLERANCE_REL, MM_PER_INCH,
 };
 
@@ -25,6 +27,14 @@ pub(super) struct State {
     /// Feed rate, mm/s.
     feed: Option<f64>,
     speed: Option<f64>,
+    /// The extruder's position, mm of filament (machine).
+    e: f64,
+    /// `E` words are relative (M83, or G91 until an M82).
+    e_relative: bool,
+    /// Machine e minus program e (`G92 E`), mm.
+    e_offset: f64,
+    /// The words already warned about (each is said once).
+    warned: BTreeSet<String>,
     pub(super) ended: bool,
 }
 
@@ -42,6 +52,10 @@ impl State {
             machine_coordinates: false,
             feed: None,
             speed: None,
+            e: 0.0,
+            e_relative: false,
+            e_offset: 0.0,
+            warned: BTreeSet::new(),
             ended: false,
         }
     }
@@ -72,6 +86,19 @@ pub(super) struct Word {
     value: f64,
 }
 
+impl Word {
+    pub(super) fn new(letter: char, value: f64) -> Word {
+        Word { letter, value }
+    }
+}
+
+/// The decimal a parsed `f32` was written as, as `f64`: `0.1` is 0.1, not
+/// 0.100000001 (the shortest text that reads back as the same `f32` is
+/// what the program said, to the f32's 7 digits).
+fn as_written(x: f32) -> f64 {
+    x.to_string().parse().unwrap_or(f64::from(x))
+}
+
 /// A command read from a block: `G`, `M` or `T`, its number, its words.
 pub(super) struct Command {
     pub(super) letter: char,
@@ -88,7 +115,7 @@ pub(super) fn words<'a>(
         .map(|(letter, v)| match v {
             gcode::Value::Literal(x) if x.is_finite() => Ok(Word {
                 letter: letter.to_ascii_uppercase(),
-                value: f64::from(*x),
+                value: as_written(*x),
             }),
             gcode::Value::Literal(x) => Err(error(line, format!("{letter}{x} is not a number"))),
             other => Err(error(
@@ -108,6 +135,71 @@ pub(super) fn error(line: usize, message: impl Into<String>) -> GcodeError {
 
 fn find(words: &[Word], letter: char) -> Option<&Word> {
     words.iter().find(|w| w.letter == letter)
+}
+
+/// Warns about `key` the first time it is met, naming the line.
+fn warn_once(state: &mut State, job: &mut Job, line: usize, key: &str, message: String) {
+    if state.warned.insert(key.to_string()) {
+        job.warnings.push(Warning { line, message });
+    }
+}
+
+fn push(job: &mut Job, line: usize, action: Action) {
+    job.steps.push(Step { line, action });
+}
+
+/// `M104 S`/`M109 S|R`, `M140`/`M190`: a heater's target.
+fn heater(
+    state: &mut State,
+    job: &mut Job,
+    line: usize,
+    heater: HeaterRole,
+    wait: bool,
+    words: &[Word],
+) -> Result<(), GcodeError> {
+    if let Some(t) = find(words, 'T') {
+        if t.value != 0.0 {
+            return Err(error(
+                line,
+                format!(
+                    "T{} selects a second extruder; this machine has one",
+                    t.value
+                ),
+            ));
+        }
+    }
+    let Some(target) = find(words, 'S').or_else(|| find(words, 'R')) else {
+        if wait {
+            return Err(error(line, "a wait for a temperature needs S (°C)"));
+        }
+        warn_once(
+            state,
+            job,
+            line,
+            "M104 without S",
+            "a temperature code without S sets nothing; skipped".into(),
+        );
+        return Ok(());
+    };
+    if !(0.0..=500.0).contains(&target.value) {
+        return Err(error(
+            line,
+            format!(
+                "{} °C is not a temperature a heater is set to",
+                target.value
+            ),
+        ));
+    }
+    push(
+        job,
+        line,
+        Action::Heater {
+            heater,
+            celsius: target.value,
+            wait,
+        },
+    );
+    Ok(())
 }
 
 pub(super) fn run(
@@ -130,6 +222,98 @@ pub(super) fn run(
                 line,
                 action: Action::Dwell { seconds },
             });
+            Ok(())
+        }
+        ('G', 10 | 11) if known && state.dialect == Dialect::Marlin && find(words, 'L').is_none() => {
+            push(
+                job,
+                line,
+                Action::Retract {
+                    retract: code.major == 10,
+                },
+            );
+            Ok(())
+        }
+        ('G', 28) if known => {
+            let axes = ['X', 'Y', 'Z'].map(|a| find(words, a).is_some());
+            push(job, line, Action::Home { axes });
+            Ok(())
+        }
+        ('G', 29) if known => {
+            push(job, line, Action::BedMesh);
+            Ok(())
+        }
+        // One extruder: selecting it is nothing to do.
+        ('T', 0) if known => Ok(()),
+        ('M', 82) if known => {
+            state.e_relative = false;
+            Ok(())
+        }
+        ('M', 83) if known => {
+            state.e_relative = true;
+            Ok(())
+        }
+        ('M', 104) if known => heater(state, job, line, HeaterRole::Hotend, false, words),
+        ('M', 109) if known => heater(state, job, line, HeaterRole::Hotend, true, words),
+        ('M', 140) if known => heater(state, job, line, HeaterRole::Bed, false, words),
+        ('M', 190) if known => heater(state, job, line, HeaterRole::Bed, true, words),
+        ('M', 106 | 107) if known => {
+            if find(words, 'P').is_some_and(|p| p.value != 0.0) {
+                warn_once(state, job, line, "M106 P", "a fan other than the part fan (M106 P1..) is not supported; skipped".into());
+                return Ok(());
+            }
+            let duty = if code.major == 107 {
+                0.0
+            } else {
+                (find(words, 'S').map_or(255.0, |s| s.value) / 255.0).clamp(0.0, 1.0)
+            };
+            push(job, line, Action::Fan { duty });
+            Ok(())
+        }
+        ('M', 18 | 84) if known => {
+            if find(words, 'S').is_some() || words.iter().any(|w| "XYZE".contains(w.letter)) {
+                warn_once(state, job, line, "M84 S", format!("{name} with words (an idle timeout, some motors) is not supported; skipped"));
+            } else {
+                push(job, line, Action::MotorsOff);
+            }
+            Ok(())
+        }
+        ('M', 201 | 203 | 204) if known => {
+            // The smallest toolhead figure the words give; e's (E) are
+            // the machine file's alone.
+            let pick = |letters: &str| {
+                words
+                    .iter()
+                    .filter(|w| letters.contains(w.letter))
+                    .map(|w| w.value)
+                    .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.min(v))))
+            };
+            let (velocity, acceleration, text) = match code.major {
+                201 => (None, pick("XY"), "M201"),
+                203 => (pick("XY"), None, "M203"),
+                _ => (None, pick("PS"), "M204"),
+            };
+            if velocity.is_some() || acceleration.is_some() {
+                push(
+                    job,
+                    line,
+                    Action::Limits {
+                        velocity,
+                        acceleration,
+                        text,
+                    },
+                );
+            }
+            Ok(())
+        }
+        ('M', 205) if known => {
+            warn_once(state, job, line, "M205", "M205 (jerk, junction deviation) is kept at the machine file's [limits]; skipped".into());
+            Ok(())
+        }
+        ('M', 73) if known => {
+            if let Some(p) = find(words, 'P') {
+                push(job, line, Action::Progress { percent: p.value });
+            }
             Ok(())
         }
         ('G', 10) if known && state.dialect == Dialect::Rs274ngc && find(words, 'L').is_some() => {
@@ -160,8 +344,14 @@ pub(super) fn run(
                     }
                     state.system = k;
                 }
-                90 => state.relative = false,
-                91 => state.relative = true,
+                90 => {
+                    state.relative = false;
+                    state.e_relative = false;
+                }
+                91 => {
+                    state.relative = true;
+                    state.e_relative = true;
+                }
                 // G17 (the XY plane), G40 (no cutter compensation), G49
                 // (no tool length offset), G64 (blend the path: the
                 // planner always does, within its junction deviation and
@@ -184,6 +374,9 @@ pub(super) fn run(
             format!("{name} selects another plane; only XY arcs (G17) are supported"),
         )),
         ('G', 92) if known => {
+            if let Some(e) = find(words, 'E') {
+                state.e_offset = state.e - e.value * state.unit();
+            }
             let work = state.work();
             for (i, axis) in ['X', 'Y', 'Z'].into_iter().enumerate() {
                 if let Some(w) = find(words, axis) {
@@ -195,6 +388,7 @@ pub(super) fn run(
         }
         ('G', 92) if code.minor == Some(1) => {
             state.offset = [0.0; 3];
+            state.e_offset = 0.0;
             Ok(())
         }
         ('M', 3) if known => {
@@ -227,10 +421,8 @@ pub(super) fn run(
                 None => name,
                 Some(minor) => format!("{name}.{minor}"),
             };
-            job.warnings.push(Warning {
-                line,
-                message: format!("{full} is not supported; skipped"),
-            });
+            let message = format!("{full} is not supported; skipped (said once)");
+            warn_once(state, job, line, &full, message);
             Ok(())
         }
     }
@@ -244,15 +436,15 @@ pub(super) fn continuation(
     line: usize,
     words: &[Word],
 ) -> Result<(), GcodeError> {
-    let moves = words.iter().any(|w| "XYZIJR".contains(w.letter));
+    let moves = words.iter().any(|w| "XYZIJRE".contains(w.letter));
     for w in words {
         match w.letter {
-            'F' | 'X' | 'Y' | 'Z' | 'I' | 'J' | 'R' => {}
+            'F' | 'X' | 'Y' | 'Z' | 'I' | 'J' | 'R' | 'E' => {}
             'S' => state.speed = Some(w.value),
-            other => job.warnings.push(Warning {
-                line,
-                message: format!("{other}{} is not supported; skipped", w.value),
-            }),
+            other => {
+                let message = format!("{other}{} is not supported; skipped (said once)", w.value);
+                warn_once(state, job, line, &other.to_string(), message);
+            }
         }
     }
     if moves {
@@ -335,6 +527,26 @@ fn motion(
         }
     }
     let from = state.pos;
+    if let Some(w) = find(words, 'E') {
+        if n >= 2 {
+            return Err(error(
+                line,
+                "an arc with E (a slicer's arc fitting) is not supported: turn arc fitting off",
+            ));
+        }
+        let v = w.value * unit;
+        let e = if state.e_relative {
+            state.e + v
+        } else {
+            v + state.e_offset
+        };
+        let feed = feed(state, line, if n == 0 { "G0 with E" } else { "G1" })?;
+        let action = Action::Extrude { to, e, feed };
+        state.pos = to;
+        state.e = e;
+        job.steps.push(Step { line, action });
+        return Ok(());
+    }
     let action = match n {
         0 => Action::Rapid { to },
         1 => Action::Line {

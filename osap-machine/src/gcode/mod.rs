@@ -105,6 +105,86 @@ pub enum Action {
     ToolOff,
     /// End of program (`M2`, `M30`): nothing after it is read.
     End,
+    /// A straight move that also drives the extruder (`G1` with `E`).
+    Extrude {
+        /// Where to, `[x, y, z]`.
+        to: [f64; 3],
+        /// Where the extruder ends, mm of filament (absolute, after any
+        /// `G92 E`).
+        e: f64,
+        /// Speed along the path (of the extruder alone for a move that
+        /// only extrudes or retracts), mm/s.
+        feed: f64,
+    },
+    /// Firmware retraction: pull the filament back (`G10`, marlin) or
+    /// push it again (`G11`) by the machine file's `retract_length`.
+    Retract {
+        /// `true` for G10, `false` for G11.
+        retract: bool,
+    },
+    /// Set a heater's target, °C (`M104`, `M140`; 0 off), and with `wait`
+    /// wait until it is reached (`M109`, `M190`).
+    Heater {
+        /// Which heater.
+        heater: HeaterRole,
+        /// The target, °C.
+        celsius: f64,
+        /// Wait for the target (M109, M190).
+        wait: bool,
+    },
+    /// The part fan at a duty, 0–1 (`M106 S0–255`, `M107`).
+    Fan {
+        /// Duty cycle, 0–1.
+        duty: f64,
+    },
+    /// Home the given axes (`G28`; all of them when none are named).
+    Home {
+        /// Whether X, Y and Z were named; none named homes every axis.
+        axes: [bool; 3],
+    },
+    /// Follow the machine's bed mesh (`G29`).
+    BedMesh,
+    /// The motors off (`M84`, `M18`), at the end of a print.
+    MotorsOff,
+    /// The toolhead's speed or acceleration from the job (`M203`, `M204`,
+    /// `M201`), mm/s and mm/s²: held to the machine file's.
+    Limits {
+        /// Largest toolhead speed asked, mm/s.
+        velocity: Option<f64>,
+        /// Largest toolhead acceleration asked, mm/s².
+        acceleration: Option<f64>,
+        /// The words as written, for the message.
+        text: &'static str,
+    },
+    /// Progress the job reports (`M73 P`, %).
+    Progress {
+        /// Percent done.
+        percent: f64,
+    },
+    /// A new layer begins (a slicer's layer comment).
+    Layer {
+        /// The layer's number, from 1.
+        number: usize,
+    },
+}
+
+/// The heater a temperature code sets.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HeaterRole {
+    /// The hotend (`M104`, `M109`): the machine file's `[heaters.hotend]`.
+    Hotend,
+    /// The bed (`M140`, `M190`): `[heaters.bed]`.
+    Bed,
+}
+
+impl HeaterRole {
+    /// The heater's name in the machine file.
+    pub fn name(self) -> &'static str {
+        match self {
+            HeaterRole::Hotend => "hotend",
+            HeaterRole::Bed => "bed",
+        }
+    }
 }
 
 /// One action and the line (from 1) it came from.
@@ -257,6 +337,7 @@ pub fn read(text: &str) -> Result<Job, GcodeError> {
 
 /// Reads `text` (a G-code program) into a [`Job`] as `options` say.
 pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
+    let text_in = text;
     let text = scan::clean(text)?;
     let program = gcode::parse(&text).map_err(|d| match d.iter().next() {
         Some(first) => interp::error(first.span.line + 1, format!("cannot parse: {first}")),
@@ -268,8 +349,17 @@ pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
         warnings: Vec::new(),
         dialect: options.dialect,
     };
+    let layers = scan::layer_lines(text_in);
+    let mut next_layer = 0;
     for block in &program.blocks {
         let line = block.span.line + 1;
+        while next_layer < layers.len() && layers[next_layer] < line {
+            next_layer += 1;
+            job.steps.push(Step {
+                line: layers[next_layer - 1],
+                action: Action::Layer { number: next_layer },
+            });
+        }
         let bare = interp::words(
             line,
             block.word_addresses.iter().map(|w| (w.letter, &w.value)),
@@ -277,10 +367,8 @@ pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
         // A block's own F and S apply before its commands (`S10000 M3`,
         // `F600 G1 X10`), as RS274/NGC orders a block's execution.
         interp::feed_and_speed(&mut state, line, &bare)?;
+        let mut commands: Vec<interp::Command> = Vec::new();
         for code in &block.codes {
-            if state.ended {
-                return Ok(job);
-            }
             let (letter, number, args) = match code {
                 gcode::Code::General(g) => ('G', g.number, &g.args),
                 gcode::Code::Miscellaneous(m) => ('M', m.number, &m.args),
@@ -293,13 +381,27 @@ pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
                     continue;
                 }
             };
-            let command = interp::Command {
+            // A T after an M code on its line is that code's word
+            // (`M104 S210 T0`, `M204 P1500 T3000`), not a tool change.
+            if let (Some(prev), 'T', None) = (commands.last_mut(), letter, number.minor()) {
+                if prev.letter == 'M' {
+                    prev.words
+                        .push(interp::Word::new('T', f64::from(number.major())));
+                    continue;
+                }
+            }
+            commands.push(interp::Command {
                 letter,
                 major: number.major(),
                 minor: number.minor().map(|m| m.get()),
                 words: interp::words(line, args.iter().map(|a| (a.letter, &a.value)))?,
-            };
-            interp::run(&mut state, &mut job, line, &command)?;
+            });
+        }
+        for command in &commands {
+            if state.ended {
+                return Ok(job);
+            }
+            interp::run(&mut state, &mut job, line, command)?;
         }
         if !bare.is_empty() && !state.ended {
             interp::continuation(&mut state, &mut job, line, &bare)?;

@@ -18,6 +18,12 @@ pub(super) fn clean(text: &str) -> Result<String, GcodeError> {
         if i > 0 {
             out.push('\n');
         }
+        if let Some(code) = message_code(raw) {
+            // Its text is not G-code (it may hold `;`, `(` or `[`): the
+            // code alone is read, and said once to be skipped.
+            out.push_str(code);
+            continue;
+        }
         let mut kept = String::with_capacity(raw.len());
         let mut in_comment = false;
         for c in raw.chars() {
@@ -60,9 +66,44 @@ pub(super) fn clean(text: &str) -> Result<String, GcodeError> {
                 });
             }
         }
-        out.push_str(&kept);
+        out.push_str(&bare_home_axes(&kept));
     }
     Ok(out)
+}
+
+/// The codes whose words are free text (a display message, a file name),
+/// when `raw` is one: `M117 Printing...`.
+fn message_code(raw: &str) -> Option<&'static str> {
+    let t = raw.trim_start();
+    let head: String = t
+        .chars()
+        .take_while(|c| c.is_ascii_alphanumeric())
+        .collect::<String>()
+        .to_ascii_uppercase();
+    ["M117", "M118", "M23", "M28", "M32"]
+        .into_iter()
+        .find(|code| head == *code)
+}
+
+/// `G28 X Y` (Marlin's bare axis letters) as `G28 X0 Y0`, which the parser
+/// reads; any other line as it is.
+fn bare_home_axes(line: &str) -> std::borrow::Cow<'_, str> {
+    let mut words = line.split_whitespace();
+    let is_g28 = words.next().is_some_and(|w| w.eq_ignore_ascii_case("G28"));
+    if !is_g28 || !words.any(|w| w.len() == 1) {
+        return line.into();
+    }
+    line.split_whitespace()
+        .map(|w| {
+            if w.len() == 1 && "XYZxyz".contains(w) {
+                format!("{w}0")
+            } else {
+                w.to_string()
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" ")
+        .into()
 }
 
 /// The word around the construct at byte `at` of `line`: from the letter
@@ -127,6 +168,23 @@ fn is_o_word(line: &str) -> bool {
     }
     let after = rest.trim_start_matches(|c: char| c.is_ascii_digit());
     after.len() < rest.len() && !after.trim().is_empty()
+}
+
+/// The lines (from 1) of a slicer's layer-change comments: PrusaSlicer's,
+/// SuperSlicer's and OrcaSlicer's `;LAYER_CHANGE`, Cura's `;LAYER:N`.
+pub(super) fn layer_lines(text: &str) -> Vec<usize> {
+    text.split('\n')
+        .enumerate()
+        .filter(|(_, raw)| {
+            let t = raw.trim_start();
+            let Some(c) = t.strip_prefix(';') else {
+                return false;
+            };
+            let c = c.trim_start();
+            c.starts_with("LAYER_CHANGE") || c.starts_with("LAYER:")
+        })
+        .map(|(i, _)| i + 1)
+        .collect()
 }
 
 #[cfg(test)]

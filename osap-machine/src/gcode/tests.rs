@@ -89,11 +89,118 @@ fn bad_blocks_name_their_line() {
 }
 
 #[test]
-fn unsupported_words_warn_with_their_line() {
-    let job = read("G28\n(comment) G0 X1 ; note\nM106 S255\nT2\nG0 X2\n").unwrap();
+fn unsupported_words_warn_once_with_their_first_line() {
+    let job =
+        read("M117 Printing; (1/3) [x]\n(comment) G0 X1 ; note\nM117 again\nT2\nG0 X2\nT2\nM300\n")
+            .unwrap();
     let lines: Vec<usize> = job.warnings.iter().map(|w| w.line).collect();
-    assert_eq!(lines, vec![1, 3, 4], "{:?}", job.warnings);
+    assert_eq!(lines, vec![1, 4, 7], "{:?}", job.warnings);
+    assert!(job.warnings[0].message.starts_with("M117 is not supported"));
     assert_eq!(job.steps.len(), 2);
+}
+
+fn read_marlin(text: &str) -> Job {
+    read_with(text, &marlin()).unwrap()
+}
+
+/// `E` of each extruding move, in order.
+fn e_of(job: &Job) -> Vec<f64> {
+    job.steps
+        .iter()
+        .filter_map(|s| match s.action {
+            Action::Extrude { e, .. } => Some(e),
+            _ => None,
+        })
+        .collect()
+}
+
+#[test]
+fn absolute_and_relative_extrusion_and_g92_e() {
+    // PrusaSlicer's default: M83, relative E.
+    let j = read_marlin("M83\nG1 X10 E0.5 F1200\nG1 X20 E0.5\nG1 E-0.8 F2100\nG1 E0.8\n");
+    let e = e_of(&j);
+    for (got, want) in e.iter().zip([0.5, 1.0, 0.2, 1.0]) {
+        // Words are read as f32 (the parser's), so 0.8 is 0.800000012.
+        assert!((got - want).abs() < 1e-6, "{e:?}");
+    }
+    // Cura's: M82, absolute E with G92 E0 resets.
+    let j = read_marlin("M82\nG92 E0\nG1 X10 E0.5 F1200\nG1 X20 E1.0\nG92 E0\nG1 X30 E0.5\n");
+    assert_eq!(e_of(&j), [0.5, 1.0, 1.5]);
+    // G91 makes E relative too, until M82.
+    let j = read_marlin("G91\nG1 X1 E0.1 F600\nG1 X1 E0.1\nM82\nG1 X1 E5\n");
+    assert_eq!(e_of(&j), [0.1, 0.2, 5.0]);
+    // A move of E alone keeps x, y, z and carries the feed.
+    let Action::Extrude { to, e, feed } = j.steps[0].action else {
+        panic!("{:?}", j.steps[0])
+    };
+    assert_eq!((to, e, feed), ([1.0, 0.0, 0.0], 0.1, 10.0));
+    let e = read_with("G2 X1 Y1 I1 E0.2 F600\n", &ReadOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("arc fitting"), "{e}");
+}
+
+#[test]
+fn slicer_codes_become_actions() {
+    let j = read_marlin(concat!(
+        "M140 S60\nM104 S210 T0\nM190 S60\nM109 R215\nG28\nG28 Z\nG29\n",
+        ";LAYER_CHANGE\n;Z:0.2\nM106 S127.5\nG10\nG11\nM107\nM204 P1500 T3000\n",
+        "M201 X5000 Y4000\nM203 X200 Y300\nM205 X8 Y8\nM73 P50 R3\n;LAYER:1\nM84\nM104 S0\n"
+    ));
+    let a: Vec<Action> = j.steps.iter().map(|s| s.action).collect();
+    use super::HeaterRole::{Bed, Hotend};
+    let heat = |heater, celsius, wait| Action::Heater {
+        heater,
+        celsius,
+        wait,
+    };
+    assert_eq!(
+        a,
+        [
+            heat(Bed, 60.0, false),
+            heat(Hotend, 210.0, false),
+            heat(Bed, 60.0, true),
+            heat(Hotend, 215.0, true),
+            Action::Home { axes: [false; 3] },
+            Action::Home {
+                axes: [false, false, true]
+            },
+            Action::BedMesh,
+            Action::Layer { number: 1 },
+            Action::Fan { duty: 0.5 },
+            Action::Retract { retract: true },
+            Action::Retract { retract: false },
+            Action::Fan { duty: 0.0 },
+            Action::Limits {
+                velocity: None,
+                acceleration: Some(1500.0),
+                text: "M204"
+            },
+            Action::Limits {
+                velocity: None,
+                acceleration: Some(4000.0),
+                text: "M201"
+            },
+            Action::Limits {
+                velocity: Some(200.0),
+                acceleration: None,
+                text: "M203"
+            },
+            Action::Progress { percent: 50.0 },
+            Action::Layer { number: 2 },
+            Action::MotorsOff,
+            heat(Hotend, 0.0, false),
+        ]
+    );
+    // M205 is said once; nothing else is unknown.
+    assert_eq!(j.warnings.len(), 1, "{:?}", j.warnings);
+    assert!(j.warnings[0].message.starts_with("M205"));
+    // A second extruder and a wait without a target are refused.
+    let e = read_with("M104 S200 T1\n", &ReadOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("second extruder"), "{e}");
+    let e = read_with("M109\n", &ReadOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("needs S"), "{e}");
+    // In rs274ngc, G10 L2 is a work offset (refused), not a retraction.
+    let e = read("G10 L2 P1 X0\n").unwrap_err();
+    assert!(e.to_string().contains("G10 L"), "{e}");
 }
 
 #[test]

@@ -12,7 +12,9 @@ impl Job {
         let mut pos = [0.0f64; 3];
         for step in &self.steps {
             let (to, extra) = match step.action {
-                Action::Rapid { to } | Action::Line { to, .. } => (to, None),
+                Action::Rapid { to } | Action::Line { to, .. } | Action::Extrude { to, .. } => {
+                    (to, None)
+                }
                 Action::Arc {
                     to,
                     center,

@@ -16,7 +16,7 @@ use nalgebra::Vector2;
 use crate::config::{Kinematics, MachineFile, Side as FileSide};
 
 /// The most axes a machine plans together.
-pub const MAX_AXES: usize = 3;
+pub const MAX_AXES: usize = 6;
 
 /// What moves one motor.
 #[derive(Debug, Clone, PartialEq)]
@@ -50,7 +50,8 @@ pub struct Drive {
     motors: Vec<DriveMotor>,
     planar: Option<Box<dyn Planar + Send + Sync>>,
     offsets: Vec<f64>,
-    /// A bed mesh, added to z (slot 2) under the tool's x and y.
+    /// A bed mesh, added to z (slot 2) under the tool's x and y (the
+    /// axes after z follow unchanged).
     mesh: Option<BedMesh>,
 }
 
@@ -150,7 +151,7 @@ pub enum DriveError {
         /// Why the kinematics refused it.
         cause: KinError,
     },
-    /// A bed mesh on a machine without axes x, y and z (in that order).
+    /// A bed mesh on a machine whose axes do not begin x, y, z.
     #[error("bed_mesh: a bed mesh needs axes x, y and z; this machine has {}", .0.join(", "))]
     MeshNeedsXyz(Vec<String>),
     /// The position with the mesh applied is outside the kinematics.
@@ -215,7 +216,7 @@ impl Drive {
     /// must come after x and y) is raised by the mesh's height under x, y.
     /// The motors keep their positions at `at` (motor positions `m`).
     pub fn with_mesh(mut self, mesh: BedMesh, at: &[f64], m: &[f64]) -> Result<Drive, DriveError> {
-        if self.axes.len() != 3 || self.axes[..] != ["x", "y", "z"] {
+        if self.axes.len() < 3 || self.axes[..3] != ["x", "y", "z"] {
             return Err(DriveError::MeshNeedsXyz(self.axes));
         }
         self.mesh = Some(mesh);
@@ -262,11 +263,11 @@ impl Drive {
     pub fn motor_positions(&self, p: &[f64]) -> Result<Vec<f64>, KinError> {
         let meshed;
         let p = match &self.mesh {
-            Some(mesh) if p.len() == 3 => {
+            Some(mesh) if p.len() >= 3 => {
                 let z = mesh
                     .apply(p[0], p[1], p[2])
                     .map_err(|_| KinError::NonFinite)?;
-                meshed = [p[0], p[1], z];
+                meshed = [&[p[0], p[1], z][..], &p[3..]].concat();
                 &meshed[..]
             }
             _ => p,
@@ -308,7 +309,7 @@ impl Drive {
                 p[1] = xy.y;
             }
         }
-        if let (Some(mesh), 3) = (&self.mesh, p.len()) {
+        if let (Some(mesh), true) = (&self.mesh, p.len() >= 3) {
             p[2] = mesh
                 .unapply(p[0], p[1], p[2])
                 .map_err(|_| KinError::NonFinite)?;

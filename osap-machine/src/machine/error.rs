@@ -117,6 +117,17 @@ pub enum MachineError {
     /// No tool of that name in `[tools]`.
     #[error("no tool {0:?} in [tools]")]
     UnknownTool(String),
+    /// No heater of that name in `[heaters]`.
+    #[error("no heater {0:?} in [heaters]")]
+    UnknownHeater(String),
+    /// A heater refused or failed.
+    #[error("heater {heater}: {reason}")]
+    Heater {
+        /// The heater.
+        heater: String,
+        /// Why.
+        reason: String,
+    },
     /// No axis of that name.
     #[error("no axis {0:?} on this machine")]
     UnknownAxis(String),
@@ -271,6 +282,19 @@ pub fn fault_reason_in(kind: FaultKind, detail: u32, point_refusals: Option<&[Fa
             f64::from(detail) / 1e3
         ),
         FaultKind::Halted => "was halted (its motor must be cycled: recover())".into(),
+        FaultKind::HeaterRunaway => {
+            use osap_module::heater::RunawayReason as R;
+            let index = detail & 0xff;
+            let why = match R::from_code(((detail >> 8) & 0xff) as u8) {
+                Some(R::NotHeating) => "not heating: it did not warm by heating_gain_c within check_gain_time_s (a heater cartridge or thermistor out of its block, a broken heater wire, or gains far too low)",
+                Some(R::FellFromTarget) => "fell from its target and stayed below it past max_error (a thermistor out of its block, a fan on the heater block, or too little power)",
+                Some(R::SensorOpen) => "its thermistor reads open (a broken wire or connector)",
+                Some(R::SensorShort) => "its thermistor reads shorted (pinched wires)",
+                Some(R::OverTemp) => "it reached max_temp (a stuck MOSFET, or gains far too high)",
+                None => "an unknown runaway reason (a newer firmware?)",
+            };
+            format!("cut its heater {index} off: {why}")
+        }
         FaultKind::OverLimit => {
             let which: Vec<&str> = osap_module::fault::over_limit_names(detail).collect();
             let which = match which.len() {

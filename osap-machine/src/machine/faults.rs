@@ -19,7 +19,14 @@ impl Machine {
                             if !stops_motion(&inner, &module, kind, detail) {
                                 continue;
                             }
-                            (format!("module {module} {reason}"), false)
+                            let machine = Machine { inner };
+                            let heater = (kind == events::FaultKind::HeaterRunaway)
+                                .then(|| machine.heater_name(&module, (detail & 0xff) as u8))
+                                .flatten();
+                            match heater {
+                                Some(name) => (format!("heater {name}: module {module} {reason}"), false),
+                                None => (format!("module {module} {reason}"), false),
+                            }
                         }
                         Ok(MachineEvent::LinkLost { module }) => {
                             let Some(inner) = weak.upgrade() else { return };
@@ -132,8 +139,12 @@ pub(super) fn stops_motion(
             .motors()
             .iter()
             .any(|m| m.module == module && m.enable),
-        K::Refused | K::Backstop | K::LimitHit | K::Halted | K::OverLimit | K::OutputWatchdog => {
-            true
-        }
+        K::Refused
+        | K::Backstop
+        | K::LimitHit
+        | K::Halted
+        | K::OverLimit
+        | K::OutputWatchdog
+        | K::HeaterRunaway => true,
     }
 }

@@ -20,6 +20,7 @@
 pub mod drive;
 pub mod error;
 pub mod events;
+pub mod heaters;
 pub(crate) mod holds;
 mod homing;
 mod liveness;
@@ -50,6 +51,7 @@ use crate::module_limits::{module_limits, ModuleLimits};
 pub use drive::{Drive, DriveError, MAX_AXES};
 pub use error::{MachineError, StopReport, Unreached};
 pub use events::{MachineEvent, MachineState};
+pub use heaters::{Heater, HeaterReading, HeaterState};
 use monitor::{LimitEdge, SharedReports};
 use motion::{MotionStatus, SharedMotion};
 pub use tool::Tool;
@@ -229,6 +231,51 @@ impl Machine {
         Ok(lock_motion(&self.inner.motion)
             .planner
             .set_feed_scale(scale)?)
+    }
+
+    /// Sets the toolhead's largest speed (mm/s) and acceleration (mm/s²)
+    /// from now on, each held to the machine file's `[limits]` (a job's
+    /// `M204`); the queue is replanned.
+    pub fn set_toolhead_limits(
+        &self,
+        velocity: f64,
+        acceleration: f64,
+    ) -> Result<(), MachineError> {
+        let l = &self.inner.cfg.limits;
+        let mut m = lock_motion(&self.inner.motion);
+        let now = *m.planner.vector_limits();
+        m.planner
+            .set_vector_limits(maxl::blocks::planner::VectorLimits {
+                max_speed: velocity.min(l.velocity),
+                max_accel: acceleration.min(l.acceleration),
+                ..now
+            })?;
+        Ok(())
+    }
+
+    /// Powers every motor off (`M84` at a print's end), after the moves
+    /// queued; the axes that home are then unhomed (a motor off may be
+    /// turned by hand). [`Machine::recover`] powers them again.
+    pub async fn motors_off(&self) -> Result<(), MachineError> {
+        self.idle().await?;
+        let modules: std::collections::BTreeSet<String> = lock_motion(&self.inner.motion)
+            .drive
+            .motors()
+            .iter()
+            .map(|m| m.module.clone())
+            .collect();
+        for module in modules {
+            let off = crate::network::modfn::set_enable::Inputs { on: false };
+            self.call_idempotent(&module, off).await?;
+        }
+        let homes = self.homing_axes();
+        let mut homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
+        for (h, homes) in homed.iter_mut().zip(homes) {
+            if homes {
+                *h = false;
+            }
+        }
+        Ok(())
     }
 
     /// The synchronized system time, µs.

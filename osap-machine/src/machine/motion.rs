@@ -17,7 +17,7 @@ use tokio::sync::watch;
 
 use super::drive::{Drive, MAX_AXES};
 use super::MachineError;
-use crate::config::MachineFile;
+use crate::config::{AxisKind, MachineFile, DEFAULT_CORNER_VELOCITY};
 
 /// Failure code of the motion function while the machine is paused (no
 /// points are sent, so the motors stand).
@@ -230,20 +230,31 @@ pub fn function(
 }
 
 /// The planner a machine plans with: each axis's own velocity and
-/// acceleration, the toolhead's vector limits and minimum cruise ratio from
-/// `[limits]`, and its junction deviation (with the centripetal limit on
+/// acceleration (an extruder's velocity jump at a corner held to its
+/// `instantaneous_corner_velocity`), the toolhead's (x, y, z) vector limits
+/// and minimum cruise ratio from `[limits]`, and its junction deviation (with the centripetal limit on
 /// chorded curves that maxl's planner always applies).
 pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineError> {
     let mut vel = [1.0; MAX_AXES];
     let mut acc = [1.0; MAX_AXES];
+    let mut jump = [f64::INFINITY; MAX_AXES];
     for (k, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
         let a = &cfg.axes[*name];
         vel[k] = a.velocity;
         acc[k] = a.acceleration;
+        if a.kind == AxisKind::Extruder {
+            jump[k] = a
+                .extruder
+                .instantaneous_corner_velocity
+                .unwrap_or(DEFAULT_CORNER_VELOCITY);
+        }
     }
-    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?;
+    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?.with_max_jump(jump)?;
+    // The toolhead's axes carry the path; a machine without x, y or z
+    // (a rotary stage) plans over all its axes.
     let vector = VectorLimits::new(cfg.limits.velocity, cfg.limits.acceleration)?
-        .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?;
+        .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?
+        .with_path_axes(cfg.toolhead_axes());
     Ok(Planner::with_vector_limits(
         limits,
         vector,

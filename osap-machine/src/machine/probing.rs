@@ -99,7 +99,7 @@ impl Machine {
     /// machine's z where it stands is re-read through the new mesh, so the
     /// homed coordinates stay true. Waits for the queue to finish first.
     pub async fn set_bed_mesh(&self, mesh: Option<BedMesh>) -> Result<(), MachineError> {
-        if mesh.is_some() && self.axes() != ["x", "y", "z"] {
+        if mesh.is_some() && (self.axes().len() < 3 || self.axes()[..3] != ["x", "y", "z"]) {
             return Err(MachineError::Unsupported(format!(
                 "bed_mesh: a bed mesh needs axes x, y and z; this machine has {}",
                 self.axes().join(", ")

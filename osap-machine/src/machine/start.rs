@@ -196,6 +196,7 @@ async fn configure(
         let limits = module_limits(cfg, &motor.name, INTERVAL_S);
         motor_at.push(configure_motor(manager, runtime, motor, limits).await?);
     }
+    heaters::configure_heaters(cfg, manager, modules).await?;
     Ok(motor_at)
 }
 

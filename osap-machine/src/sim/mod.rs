@@ -48,8 +48,8 @@ use std::collections::BTreeMap;
 use osap_core::netresponder::NAME_MAX;
 use osap_sim::machine::MODULE_LINKS;
 use osap_sim::topology::{
-    BedContact, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, SimSpec, SpecError, SwitchSpec,
-    HOST,
+    BedContact, HeaterSpec, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, SimSpec, SpecError,
+    SwitchSpec, HOST,
 };
 
 use crate::config::{Direction, Kinematics, MachineFile};
@@ -330,6 +330,29 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                 }
                 if cfg.tools.values().any(|tool| tool.module == *key) {
                     spec = spec.with_io(IoSpec::default());
+                }
+                // The heaters on this module, each with its thermal model.
+                for (hname, h) in cfg.heaters.iter().filter(|(_, h)| h.module == *key) {
+                    let Some(model) = cfg.sim.as_ref().and_then(|s| s.heaters.get(hname)) else {
+                        return Err(unsupported(
+                            format!("heaters.{hname}"),
+                            format!("a simulated heater needs its thermal model: add [sim.heaters.{hname}] with power_w, heat_capacity_j_per_k and loss_w_per_k"),
+                        ));
+                    };
+                    let mut io = spec.io.clone().unwrap_or_default();
+                    io.heaters.push(HeaterSpec {
+                        pwm: h.pwm(),
+                        analog: h.sensor.analog,
+                        beta: h.sensor.beta,
+                        r25_ohms: h.sensor.r25_ohms,
+                        pullup_ohms: h.sensor.pullup_ohms,
+                        power_w: model.power_w,
+                        heat_capacity_j_per_k: model.heat_capacity_j_per_k,
+                        loss_w_per_k: model.loss_w_per_k,
+                        ambient_c: model.ambient_c,
+                        sensor_fails_at_s: model.sensor_fails_at_s,
+                    });
+                    spec = spec.with_io(io);
                 }
                 // An accelerometer of `osap resonance` on this module.
                 if let Some(accel) =

@@ -4,13 +4,16 @@
 
 use std::time::Duration;
 
-use maxl::blocks::planner::{Arc as PlanArc, Planner};
+use maxl::blocks::planner::{Arc as PlanArc, Planner, VectorLimits};
 
 use crate::config::Dialect;
 use crate::config::{MachineFile, ToolKind};
-use crate::gcode::{Action, GcodeError, Job, ReadOptions};
 use crate::machine::{Machine, MachineError, MAX_AXES};
 use crate::svg::Drawing;
+
+mod gcode;
+
+pub use gcode::{from_gcode, gcode_options};
 
 /// One thing a program does.
 #[derive(Debug, Clone, PartialEq)]
@@ -35,6 +38,36 @@ pub enum Move {
     /// The job's tool on at a level (0..=1) or a speed (rpm, for a
     /// spindle with `max_rpm`), or off (`None`).
     Tool(Option<ToolLevel>),
+    /// A heater's target, °C (0 off); with `wait`, the moves before
+    /// finish and the machine waits until the heater holds it.
+    Heater {
+        /// The heater's name in `[heaters]`.
+        name: String,
+        /// The target, °C.
+        celsius: f64,
+        /// Wait for it (M109, M190).
+        wait: bool,
+    },
+    /// The machine's fan at a duty, 0–1 (M106, M107).
+    Fan(f64),
+    /// Home these axes (all for none), after the moves before.
+    Home(Vec<String>),
+    /// The motors off, after the moves before (M84).
+    MotorsOff,
+    /// The toolhead's speed and acceleration asked by the job, held to
+    /// the machine file's.
+    Limits {
+        /// mm/s.
+        velocity: Option<f64>,
+        /// mm/s².
+        acceleration: Option<f64>,
+        /// The G-code that asked (`M204`).
+        code: &'static str,
+    },
+    /// Progress the job reports, % (M73).
+    Progress(f64),
+    /// A new layer begins (a slicer's layer comment), from 1.
+    Layer(usize),
 }
 
 /// How far a tool is turned on.
@@ -94,41 +127,19 @@ pub enum JobError {
     /// A drawing needs x and y.
     #[error("a drawing needs axes x and y; this machine has {0}")]
     NotPlanar(String),
+    /// The job sets a heater the machine does not have.
+    #[error(
+        "{place}: the job sets heater {heater}, but the machine file has no [heaters.{heater}]"
+    )]
+    NoSuchHeater {
+        /// `line N`.
+        place: String,
+        /// The heater's name.
+        heater: String,
+    },
     /// A feed rate that is not finite and positive.
     #[error("feed {0} must be finite and positive")]
     BadFeed(f64),
-}
-
-/// Where a G-code axis (0 x, 1 y, 2 z) is among the machine's axes.
-fn slots(cfg: &MachineFile) -> [Option<usize>; 3] {
-    let names = cfg.axis_names();
-    ["x", "y", "z"].map(|a| names.iter().position(|n| *n == a))
-}
-
-/// Machine coordinates of a G-code position, checked against the axes the
-/// machine has; `from` gives the coordinates of axes the program does not
-/// move.
-fn place_gcode(
-    cfg: &MachineFile,
-    to: [f64; 3],
-    from: &[f64],
-    line: usize,
-) -> Result<Vec<f64>, JobError> {
-    let mut out = from.to_vec();
-    for (g, slot) in slots(cfg).iter().enumerate() {
-        match slot {
-            Some(k) => out[*k] = to[g],
-            // G-code starts at 0: an axis the machine lacks may stay there.
-            None if to[g].abs() <= 1e-9 => {}
-            None => {
-                return Err(JobError::NoSuchAxis {
-                    place: format!("line {line}"),
-                    axis: ["x", "y", "z"][g].into(),
-                })
-            }
-        }
-    }
-    Ok(out)
 }
 
 fn check(cfg: &MachineFile, p: &[f64], place: &str) -> Result<(), JobError> {
@@ -154,100 +165,6 @@ fn pad(p: &[f64]) -> [f64; MAX_AXES] {
         *o = *v;
     }
     out
-}
-
-/// How G-code is read on machine `cfg`: its dialect, and its work offsets
-/// with G54 at `origin` (machine coordinates of the work zero, mm) when
-/// given (`osap run --origin`), else as its `[work_offsets]` say.
-pub fn gcode_options(cfg: &MachineFile, origin: Option<[f64; 3]>) -> ReadOptions {
-    let mut work_offsets = cfg.work_offsets.all();
-    if origin.is_some() {
-        work_offsets[0] = origin;
-    }
-    ReadOptions {
-        dialect: cfg.dialect(),
-        work_offsets,
-    }
-}
-
-/// A G-code job as a program for machine `cfg`, starting at `start`
-/// (axis order). Every move, arcs included, is checked against the travel.
-pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program, JobError> {
-    // The reader's own travel check covers whole arcs; axes the machine
-    // lacks are checked by `place_gcode` (they must stay at 0).
-    let (mut min, mut max) = ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]);
-    for (g, slot) in slots(cfg).iter().enumerate() {
-        if let Some(k) = slot {
-            let a = &cfg.axes[cfg.axis_names()[*k]];
-            (min[g], max[g]) = (a.min, a.max);
-        }
-    }
-    let mut moves = Vec::new();
-    let mut at = start.to_vec();
-    for step in &job.steps {
-        let mv = match step.action {
-            Action::Rapid { to } => {
-                let p = place_gcode(cfg, to, &at, step.line)?;
-                at.clone_from(&p);
-                Move::Rapid(p)
-            }
-            Action::Line { to, feed } => {
-                let p = place_gcode(cfg, to, &at, step.line)?;
-                at.clone_from(&p);
-                Move::Line(p, feed)
-            }
-            Action::Arc {
-                to,
-                center,
-                clockwise,
-                feed,
-            } => {
-                let p = place_gcode(cfg, to, &at, step.line)?;
-                if slots(cfg)[0] != Some(0) || slots(cfg)[1] != Some(1) {
-                    return Err(JobError::NotPlanar(cfg.axis_names().join(", ")));
-                }
-                at.clone_from(&p);
-                Move::Arc {
-                    to: p,
-                    center,
-                    clockwise,
-                    feed,
-                }
-            }
-            Action::Dwell { seconds } => Move::Dwell(seconds),
-            Action::ToolOn { speed } => Move::Tool(Some(match speed {
-                Some(s) => ToolLevel::Speed(s),
-                None => ToolLevel::Full,
-            })),
-            Action::ToolOff => Move::Tool(None),
-            Action::End => break,
-        };
-        moves.push((step.line, mv));
-    }
-    job.check_travel(min, max).map_err(|e| match e {
-        GcodeError::Travel {
-            line,
-            axis,
-            value,
-            min,
-            max,
-        } => JobError::OutOfTravel {
-            place: format!("line {line}"),
-            axis: axis.to_ascii_lowercase().to_string(),
-            value,
-            min,
-            max,
-        },
-        other => JobError::BadArc {
-            place: "G-code".into(),
-            reason: other.to_string(),
-        },
-    })?;
-    Ok(Program {
-        moves,
-        warnings: job.warnings.iter().map(|w| w.to_string()).collect(),
-        dialect: Some(job.dialect),
-    })
 }
 
 /// An SVG drawing as a program: for each polyline, tool off, travel to its
@@ -406,6 +323,24 @@ impl Program {
                             run_to(&mut planner, true)? + f64::from(t.settle_ms) * 1e-3 + RESTART_S;
                     }
                 }
+                // Heating and homing take what the machine takes: only
+                // the stop before them is planned.
+                Move::Heater { wait: true, .. } | Move::Home(_) | Move::MotorsOff => {
+                    total += run_to(&mut planner, true)? + RESTART_S;
+                }
+                Move::Limits {
+                    velocity,
+                    acceleration,
+                    ..
+                } => {
+                    let v = held_limits(cfg, *velocity, *acceleration);
+                    planner.set_vector_limits(VectorLimits {
+                        max_speed: v.0,
+                        max_accel: v.1,
+                        ..*planner.vector_limits()
+                    })?;
+                }
+                Move::Heater { .. } | Move::Fan(_) | Move::Progress(_) | Move::Layer(_) => {}
             }
             if planner.stats().pending >= maxl::blocks::planner::DEFAULT_CAPACITY - 2 {
                 // Keep the queue within capacity: run its first segment.
@@ -444,6 +379,28 @@ fn tool_level(tool: &crate::config::Tool, level: Option<ToolLevel>) -> f64 {
 
 pub use crate::machine::motion::machine_planner;
 
+/// A job's toolhead speed and acceleration held to the machine file's
+/// (a figure not given keeps the file's).
+pub fn held_limits(
+    cfg: &MachineFile,
+    velocity: Option<f64>,
+    acceleration: Option<f64>,
+) -> (f64, f64) {
+    let hold =
+        |asked: Option<f64>, file: f64| asked.filter(|v| *v > 0.0).map_or(file, |v| v.min(file));
+    (
+        hold(velocity, cfg.limits.velocity),
+        hold(acceleration, cfg.limits.acceleration),
+    )
+}
+
+/// What a run measured.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RunStats {
+    /// Time spent waiting for heaters to reach their targets, s.
+    pub heater_wait_s: f64,
+}
+
 impl Machine {
     /// Runs `program`: queues its moves with lookahead, switches the tool
     /// at rest (waiting for it to settle), and waits until the last move
@@ -452,7 +409,9 @@ impl Machine {
         &self,
         program: &Program,
         mut progress: impl FnMut(Progress),
-    ) -> Result<(), MachineError> {
+    ) -> Result<RunStats, MachineError> {
+        let mut stats = RunStats::default();
+        let fan = self.tool_of_kind(ToolKind::Fan);
         let rapid = self.config().limits.velocity;
         let tool = job_tool(self.config()).map(|(name, _)| name.to_string());
         let total = program.moves.len();
@@ -477,6 +436,50 @@ impl Machine {
                         t.await_ready().await?;
                     }
                 }
+                Move::Heater {
+                    name,
+                    celsius,
+                    wait,
+                } => {
+                    let h = self.heater(name)?;
+                    if *wait {
+                        // Nothing extrudes before the heater is there.
+                        self.idle().await?;
+                        h.set_target(*celsius).await?;
+                        stats.heater_wait_s += h.wait_for_target().await?.as_secs_f64();
+                    } else {
+                        h.set_target(*celsius).await?;
+                    }
+                }
+                // A fan follows the queue's feed of moves, not their
+                // motion: it changes while the moves queued before run.
+                Move::Fan(duty) => {
+                    if let Some(f) = &fan {
+                        f.set(duty.clamp(0.0, 1.0)).await?;
+                    }
+                }
+                Move::Home(axes) => {
+                    self.idle().await?;
+                    if axes.is_empty() {
+                        self.home().await?;
+                    } else {
+                        let axes: Vec<&str> = axes.iter().map(String::as_str).collect();
+                        self.home_axes(&axes).await?;
+                    }
+                }
+                Move::MotorsOff => {
+                    self.idle().await?;
+                    self.motors_off().await?;
+                }
+                Move::Limits {
+                    velocity,
+                    acceleration,
+                    ..
+                } => {
+                    let (v, a) = held_limits(self.config(), *velocity, *acceleration);
+                    self.set_toolhead_limits(v, a)?;
+                }
+                Move::Progress(_) | Move::Layer(_) => {}
             }
             progress(Progress {
                 done: i + 1,
@@ -487,7 +490,7 @@ impl Machine {
         self.idle().await?;
         // Let the last step reports arrive.
         tokio::time::sleep(Duration::from_millis(20)).await;
-        Ok(())
+        Ok(stats)
     }
 }
 
