@@ -825,7 +825,7 @@ impl Heaters {
     /// Runs heater `index`'s control period if it has a sensor and limits
     /// and its period is due at local `now`. Returns the runaway fault it
     /// found. One heater at a time, so a firmware holds its critical
-    /// section for one heater's work (about 85 µs on a 125 MHz Cortex-M0+,
+    /// section for one heater's work (about 80 µs on a 125 MHz Cortex-M0+,
     /// in soft float).
     pub fn poll_heater(
         &mut self,
