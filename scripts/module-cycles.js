@@ -12,9 +12,11 @@ const [elfPath, jsDir] = process.argv.slice(2);
 const open = {};
 const spans = {};
 let checks = null;
+let heaterCheck = null;
 runProbe(elfPath, jsDir, (code, core) => {
   const r = core.registers;
   if (code === 6) { checks = { up: r[0], late: r[1], mode: r[2] }; return; }
+  if (code === 12) { heaterCheck = { states: r[0] >>> 0, duty: r[1] >>> 0 }; return; }
   if (code % 2 === 0) {
     open[code] = { at: core.cycles, r0: r[0] >>> 0, r1: r[1] >>> 0 };
   } else {
@@ -80,3 +82,14 @@ const modes = ['disabled', 'idle', 'tracking', 'backstop', 'halted'];
 console.log(`checks: ${checks.up} steps up in the stream, ${checks.late} late steps, ` +
   `mode ${modes[checks.mode] ?? checks.mode} at the end`);
 if (checks.late !== 0 || checks.mode !== 2) throw new Error('the stream did not track cleanly');
+
+// Heater periods (10/11): each heater's Module::poll_heater in its own
+// critical section, two heaters holding their targets.
+const heaters = (spans[10] ?? []).map((s) => s.cycles - overhead);
+if (heaters.length === 0 || !heaterCheck) throw new Error('no heater periods');
+console.log('one heater\'s control period (two heaters holding; Module::poll_heater, each in its own critical section):');
+row(avg(heaters).toFixed(1), `average over ${heaters.length} heater periods (${(avg(heaters) / 125).toFixed(1)} us at 125 MHz)`);
+row(max(heaters), `worst period (${(max(heaters) / 125).toFixed(1)} us with interrupts masked)`);
+console.log(`checks: heater states ${heaterCheck.states & 0xff} and ${heaterCheck.states >> 8} ` +
+  `(2: holding), heater 0 duty ${heaterCheck.duty} of 65535`);
+if (heaterCheck.states !== 0x0202 || heaterCheck.duty === 0) throw new Error('the heaters did not hold');

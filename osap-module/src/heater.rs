@@ -245,9 +245,10 @@ impl Thermistor {
     /// The temperature, °C, of a raw reading (of 65 535); not finite at
     /// the ends of the scale.
     pub fn celsius(&self, raw: u16) -> f32 {
-        let f = f32::from(raw) / 65_535.0;
-        let r = self.pullup_ohms * f / (1.0 - f);
-        let inv = 1.0 / (25.0 + ZERO_C_IN_K) + libm::logf(r / self.r25_ohms) / self.beta;
+        // R / R25 = (pullup / R25) · raw / (full − raw): one division.
+        let ratio =
+            self.pullup_ohms * f32::from(raw) / (self.r25_ohms * (65_535.0 - f32::from(raw)));
+        let inv = 1.0 / (25.0 + ZERO_C_IN_K) + libm::logf(ratio) / self.beta;
         1.0 / inv - ZERO_C_IN_K
     }
 }
@@ -276,14 +277,19 @@ pub struct Runaway {
     pub check_gain_time_s: f32,
 }
 
+impl Runaway {
+    /// Klipper's defaults for a hotend: 5 °C, 120 °C·s, 2 °C in 20 s.
+    pub const DEFAULT: Runaway = Runaway {
+        hysteresis_c: 5.0,
+        max_error: 120.0,
+        heating_gain_c: 2.0,
+        check_gain_time_s: 20.0,
+    };
+}
+
 impl Default for Runaway {
     fn default() -> Self {
-        Runaway {
-            hysteresis_c: 5.0,
-            max_error: 120.0,
-            heating_gain_c: 2.0,
-            check_gain_time_s: 20.0,
-        }
+        Runaway::DEFAULT
     }
 }
 
@@ -349,6 +355,8 @@ pub struct Heater {
     integ: f32,
     deriv: f32,
     verify: Verify,
+    /// When its next control period is due, local time.
+    next: Instant,
 }
 
 impl Heater {
@@ -358,12 +366,7 @@ impl Heater {
             output: None,
             limits: None,
             gains: None,
-            runaway: Runaway {
-                hysteresis_c: 5.0,
-                max_error: 120.0,
-                heating_gain_c: 2.0,
-                check_gain_time_s: 20.0,
-            },
+            runaway: Runaway::DEFAULT,
             mode: Mode::Off,
             fault: None,
             reading: None,
@@ -378,6 +381,7 @@ impl Heater {
                 goal_time: Instant::ZERO,
                 error: 0.0,
             },
+            next: Instant::ZERO,
         }
     }
 
@@ -479,14 +483,14 @@ impl Heater {
             return None;
         }
         v.error += (target - r.hysteresis_c - temp) * dt;
-        let gain_time = Duration::from_micros((r.check_gain_time_s * 1e6) as u64);
+        let gain_time = || Duration::from_micros((r.check_gain_time_s * 1e6) as u64);
         if !v.approaching {
             if target != v.last_target {
                 // A new target: it must start to rise.
                 v.approaching = true;
                 v.starting = true;
                 v.goal_temp = temp + r.heating_gain_c;
-                v.goal_time = now + gain_time;
+                v.goal_time = now + gain_time();
             } else if v.error >= r.max_error {
                 return Some(RunawayReason::FellFromTarget);
             }
@@ -494,7 +498,7 @@ impl Heater {
             v.starting = false;
             v.error = 0.0;
             v.goal_temp = temp + r.heating_gain_c;
-            v.goal_time = now + gain_time;
+            v.goal_time = now + gain_time();
         } else if now >= v.goal_time {
             return Some(RunawayReason::NotHeating);
         } else if v.starting {
@@ -519,7 +523,7 @@ impl Heater {
             0.0
         };
         let integ = (self.integ + err * dt).clamp(0.0, integ_max);
-        let co = (g.kp * err + g.ki * integ - g.kd * self.deriv) / PID_PARAM_BASE;
+        let co = (g.kp * err + g.ki * integ - g.kd * self.deriv) * (1.0 / PID_PARAM_BASE);
         let bounded = co.clamp(0.0, o.max_power);
         // Anti-windup: the integral grows only while the output is free.
         if co == bounded {
@@ -545,7 +549,8 @@ impl Heater {
         if dt >= DERIVATIVE_TIME_S {
             self.deriv = dtemp / dt;
         } else if dtemp.is_finite() {
-            self.deriv = (self.deriv * (DERIVATIVE_TIME_S - dt) + dtemp) / DERIVATIVE_TIME_S;
+            self.deriv =
+                (self.deriv * (DERIVATIVE_TIME_S - dt) + dtemp) * (1.0 / DERIVATIVE_TIME_S);
         }
         if self.fault.is_some() {
             self.drive(hw, 0.0);
@@ -571,12 +576,10 @@ impl Heater {
     }
 }
 
-/// Every heater of a module, and their control period's clock.
+/// Every heater of a module.
 #[derive(Debug, Clone)]
 pub struct Heaters {
     heaters: [Heater; HEATERS],
-    /// When the next control period is due, local time.
-    next: Instant,
 }
 
 impl Default for Heaters {
@@ -594,7 +597,6 @@ impl Heaters {
     pub const fn new() -> Self {
         Heaters {
             heaters: [Heater::new(); HEATERS],
-            next: Instant::ZERO,
         }
     }
 
@@ -767,7 +769,7 @@ impl Heaters {
             h.mode = Mode::Target(celsius);
         }
         // The next period comes at once: the heater starts now.
-        self.next = Instant::ZERO;
+        h.next = Instant::ZERO;
         Ok(())
     }
 
@@ -789,7 +791,7 @@ impl Heaters {
         h.mode = Mode::Power(duty);
         h.integ = 0.0;
         h.verify = Verify::default();
-        self.next = Instant::ZERO;
+        h.next = Instant::ZERO;
         Ok(())
     }
 
@@ -820,18 +822,31 @@ impl Heaters {
         }
     }
 
-    /// Runs a control period for every heater with a sensor and limits if
-    /// one is due at local `now`. Returns the runaway faults it found,
-    /// by heater index.
-    pub fn poll(&mut self, hw: &mut dyn IoHw, now: Instant) -> [Option<RunawayReason>; HEATERS] {
-        let mut faults = [None; HEATERS];
-        if !self.heaters.iter().any(Heater::monitored) || now < self.next {
-            return faults;
+    /// Runs heater `index`'s control period if it has a sensor and limits
+    /// and its period is due at local `now`. Returns the runaway fault it
+    /// found. One heater at a time, so a firmware holds its critical
+    /// section for one heater's work (about 80 µs on a 125 MHz Cortex-M0+,
+    /// in soft float).
+    pub fn poll_heater(
+        &mut self,
+        hw: &mut dyn IoHw,
+        now: Instant,
+        index: u8,
+    ) -> Option<RunawayReason> {
+        let h = self.heaters.get_mut(usize::from(index))?;
+        if !h.monitored() || now < h.next {
+            return None;
         }
         // Late periods are not made up: the next is a period from now.
-        self.next = now + CONTROL_PERIOD;
-        for (h, f) in self.heaters.iter_mut().zip(&mut faults) {
-            *f = h.poll(hw, now);
+        h.next = now + CONTROL_PERIOD;
+        h.poll(hw, now)
+    }
+
+    /// [`poll_heater`](Self::poll_heater) for every heater, by index.
+    pub fn poll(&mut self, hw: &mut dyn IoHw, now: Instant) -> [Option<RunawayReason>; HEATERS] {
+        let mut faults = [None; HEATERS];
+        for (i, f) in faults.iter_mut().enumerate() {
+            *f = self.poll_heater(hw, now, i as u8);
         }
         faults
     }
@@ -841,7 +856,8 @@ impl Heaters {
     pub fn wake_at(&self) -> Option<Instant> {
         self.heaters
             .iter()
-            .any(Heater::monitored)
-            .then_some(self.next)
+            .filter(|h| h.monitored())
+            .map(|h| h.next)
+            .min()
     }
 }

@@ -368,18 +368,23 @@ impl<B: Board> Module<B> {
     /// through the pulse timer port, at
     /// [`Heaters::wake_at`](heater::Heaters::wake_at).
     pub fn poll_heaters(&mut self, now: Instant) {
+        for index in 0..heater::HEATERS as u8 {
+            self.poll_heater(now, index);
+        }
+    }
+
+    /// [`poll_heaters`](Self::poll_heaters) for heater `index` alone: the
+    /// pulse timer port runs each heater in a critical section of its own.
+    pub fn poll_heater(&mut self, now: Instant, index: u8) {
         let Some(hw) = self.board.io() else {
             return;
         };
-        let faults = self.heaters.poll(hw, now);
-        let at = self.time.system_time(now);
-        for (index, reason) in faults.into_iter().enumerate() {
-            if let Some(reason) = reason {
-                let detail = heater::runaway_detail(index as u8, reason);
-                let stopped = self.stepper.is_stopped();
-                self.fault
-                    .record(at, FaultKind::HeaterRunaway, detail, stopped);
-            }
+        if let Some(reason) = self.heaters.poll_heater(hw, now, index) {
+            let at = self.time.system_time(now);
+            let detail = heater::runaway_detail(index, reason);
+            let stopped = self.stepper.is_stopped();
+            self.fault
+                .record(at, FaultKind::HeaterRunaway, detail, stopped);
         }
     }
 

@@ -64,15 +64,20 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         let (now, system) = (tx.now(), tx.system_time());
         self.last = (now, system);
-        self.module.with(|m| {
+        let heaters_due = self.module.with(|m| {
             m.poll_watchdog(now);
             m.poll_io(now, system);
             m.poll_boot(now);
+            m.heaters.wake_at().is_some_and(|at| at <= now)
         });
-        // The heaters' period (ADC reads and soft-float maths on a
-        // Cortex-M0+) in a critical section of its own, so the step
-        // interrupt waits for one piece of work at a time.
-        self.module.with(|m| m.poll_heaters(now));
+        // Each heater's period (an ADC read and soft-float maths on a
+        // Cortex-M0+, about 80 µs) in a critical section of its own, so the
+        // step interrupt waits for one piece of work at a time.
+        if heaters_due == Some(true) {
+            for index in 0..crate::heater::HEATERS as u8 {
+                self.module.with(|m| m.poll_heater(now, index));
+            }
+        }
     }
 
     fn wake_at(&self) -> Option<Instant> {

@@ -12,7 +12,13 @@
 //! - 4/5: one word of an axis tracking a stream of control points
 //!   (1024 µs interval, 0.78 steps per 10 µs tick), 640 in a row: 100
 //!   segments;
-//! - 6: `r0` steps up, `r1` late steps, `r2` mode (checks, not spans).
+//! - 6: `r0` steps up, `r1` late steps, `r2` mode (checks, not spans);
+//! - 10/11: one heater's control period (`Module::poll_heater` in its own
+//!   critical section, as the pulse timer port runs it) of a module with
+//!   two heaters holding their targets, 50 periods of both (on a second module
+//!   whose board has I/O, so the step-word numbers above are unchanged);
+//! - 12: `r0` the two heaters' states (first in the low byte), `r1` heater
+//!   0's duty, of 65 535 (a check).
 //!
 //! At each opening marker `r0` holds the word's local start time and `r1`
 //! its synchronized one (low 32 bits), so the harness can tell which words
@@ -29,7 +35,7 @@ use core::arch::asm;
 use core::hint::black_box;
 use osap_core::clock::{Clock, TimeMap};
 use osap_core::Instant;
-use osap_module::board::{NoIo, Parts, StepperHw};
+use osap_module::board::{IoHw, NoIo, Parts, StepperHw};
 use osap_module::{Module, ModuleCell, ModuleHandle};
 
 #[panic_handler]
@@ -92,6 +98,55 @@ fn clock() -> Instant {
     // SAFETY: a plain read of a static.
     Instant::from_micros(unsafe { core::ptr::read_volatile(&raw const NOW) })
 }
+
+/// Two PWM outputs and two thermistors that read about 200 °C and 60 °C
+/// (100 kΩ, β 3950, 4.7 kΩ pullup): a hotend and a bed holding their
+/// targets.
+struct Heated {
+    pwm: [u16; 2],
+}
+
+impl IoHw for Heated {
+    fn digital_pins(&self) -> u8 {
+        0
+    }
+    fn write_digital(&mut self, _pin: u8, _level: bool) {}
+    fn read_digital(&mut self, _pin: u8) -> bool {
+        false
+    }
+    fn pwm_outputs(&self) -> u8 {
+        2
+    }
+    fn write_pwm(&mut self, channel: u8, duty: u16) {
+        if let Some(p) = self.pwm.get_mut(usize::from(channel)) {
+            *p = duty;
+        }
+    }
+    fn read_pwm(&self, channel: u8) -> u16 {
+        self.pwm.get(usize::from(channel)).copied().unwrap_or(0)
+    }
+    fn analog_inputs(&self) -> u8 {
+        2
+    }
+    fn read_analog(&mut self, channel: u8) -> u16 {
+        // 12-bit readings as a board's converter gives them.
+        black_box(if channel == 0 { 577 << 4 } else { 3_337 << 4 })
+    }
+}
+
+/// A module with two heaters, for the heater period's measurement.
+static HEATED: ModuleCell<Parts<Driver, Heated>> = ModuleCell::new();
+
+/// One heater's control period, as the pulse timer port runs it: in a
+/// critical section of its own.
+#[no_mangle]
+#[inline(never)]
+pub extern "C" fn probe_heater(local: u64, index: u8) {
+    HEATED.with(|m| m.poll_heater(Instant::from_micros(local), index));
+}
+
+/// Heater periods measured.
+const HEATER_PERIODS: u32 = 50;
 
 /// The module, as a firmware keeps it: a trivial board in a `static` cell.
 static MODULE: ModuleCell<Parts<Driver, NoIo>> = ModuleCell::new();
@@ -206,6 +261,41 @@ pub extern "C" fn _start() -> ! {
         asm!("bkpt #6", in("r0") up as u32, in("r1") late as u32,
              in("r2") u32::from(mode), options(nomem, nostack))
     };
+
+    // 10/11: heater periods.
+    HEATED.install(Parts {
+        stepper: Driver { on: false },
+        io: Some(Heated { pwm: [0; 2] }),
+        clock,
+        bootloader: None,
+    });
+    HEATED.with(|m| {
+        for (i, target) in [(0u8, 200.0f32), (1, 60.0)] {
+            m.heater_sensor(i, i, 3950.0, 100_000.0, 4_700.0).unwrap();
+            m.heater_output(i, i, 1.0).unwrap();
+            m.heater_limits(i, 0.0, 280.0).unwrap();
+            m.heater_gains(i, 22.2, 1.08, 114.0).unwrap();
+            m.heater_target(i, target).unwrap();
+        }
+    });
+    let mut local = black_box(clock()).as_micros();
+    for _ in 0..HEATER_PERIODS {
+        for index in 0..2 {
+            bkpt::<10>();
+            probe_heater(local, black_box(index));
+            bkpt::<11>();
+        }
+        local += 100_000;
+    }
+    let mut check = (0u32, 0u32);
+    HEATED.with(|m| {
+        let (_, _, _, _, s0) = m.heater_read(0).unwrap();
+        let (_, _, _, _, s1) = m.heater_read(1).unwrap();
+        let duty = m.board().io.as_ref().map_or(0, |io| io.read_pwm(0));
+        check = (u32::from(s0) | u32::from(s1) << 8, u32::from(duty));
+    });
+    // SAFETY: hands the check to the harness at the marker.
+    unsafe { asm!("bkpt #12", in("r0") check.0, in("r1") check.1, options(nomem, nostack)) };
 
     loop {
         bkpt::<0xFF>();
