@@ -384,6 +384,9 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         .await
         .map_err(Failure::from_machine)?;
     let t0 = machine.now_us().await.map_err(Failure::from_machine)?;
+    // Every heater at 10 Hz on the synchronized clock, for heaters.csv.
+    let heater_log = (!cfg.heaters.is_empty())
+        .then(|| machine.log_heaters(std::time::Duration::from_millis(100)));
     let mut first = true;
     // Machine time (tokio's clock: virtual with --fast).
     let began = tokio::time::Instant::now();
@@ -402,6 +405,13 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         })
         .await;
     bar.finish_and_clear();
+    let heater_rows = match heater_log {
+        Some(log) => {
+            let names = log.names().to_vec();
+            Some((names, log.finish().await))
+        }
+        None => None,
+    };
     let t1 = machine.now_us().await.map_err(Failure::from_machine)?;
     let recording = machine
         .take_recording(t0)
@@ -442,6 +452,20 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     for (axis, err) in recording.following_error() {
         println!("largest following error {axis}: {:.4} mm", err);
     }
+    if let Some(k) = recording.axes.iter().position(|a| a == "e") {
+        let e_at = |s: Option<&osap_machine::record::Sample>| s.map_or(0.0, |s| s.pos[k]);
+        let executed = e_at(recording.executed.last()) - e_at(recording.executed.first());
+        println!(
+            "filament used      {:>9.2} mm of e executed ({:.2} mm in the job)",
+            executed,
+            program.extruded_mm()
+        );
+    }
+    if let Ok(stats) = &result {
+        if !cfg.heaters.is_empty() {
+            println!("waited on heaters  {:>9.3} s", stats.heater_wait_s);
+        }
+    }
     for (module, (count, reason)) in &heard.refusals {
         println!("module {module} refused {count} points (the latest: {reason})");
     }
@@ -463,7 +487,7 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     for s in heard.stops.iter().filter(|s| !s.is_complete()) {
         println!("error: {s}");
     }
-    let files = recording
+    let mut files = recording
         .write_csv(&out)
         .and_then(|mut f| {
             f.extend(recording.plot(&out)?);
@@ -473,6 +497,16 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
             code: FAULTED,
             message: e.to_string(),
         })?;
+    if let Some((names, rows)) = &heater_rows {
+        let path = out.join("heaters.csv");
+        osap_machine::machine::heaters::write_heaters_csv(&path, names, rows, t0).map_err(|e| {
+            Failure {
+                code: FAULTED,
+                message: format!("{}: {e}", path.display()),
+            }
+        })?;
+        files.push(path);
+    }
     println!(
         "wrote {} files to {}: {}",
         files.len(),

@@ -50,4 +50,7 @@ pub mod sim;
 pub mod svg;
 
 pub use machine::events::FaultKind;
-pub use machine::{Machine, MachineError, MachineEvent, MachineState, StopReport};
+pub use machine::{
+    Heater, HeaterReading, HeaterState, Machine, MachineError, MachineEvent, MachineState,
+    StopReport,
+};

@@ -239,6 +239,12 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
         moves,
         warnings,
         dialect: Some(job.dialect),
+        e_slot: cfg.axis_names().iter().position(|n| *n == "e"),
+        e_start: cfg
+            .axis_names()
+            .iter()
+            .position(|n| *n == "e")
+            .map_or(0.0, |k| start[k]),
     })
 }
 

@@ -88,6 +88,10 @@ pub struct Program {
     pub warnings: Vec<String>,
     /// The dialect a G-code job was read in (`None` for a drawing).
     pub dialect: Option<Dialect>,
+    /// The extruder's slot among the machine's axes, if it has one.
+    pub e_slot: Option<usize>,
+    /// Where the extruder stood when the program starts, mm.
+    pub e_start: f64,
 }
 
 /// Why a job cannot run on a machine.
@@ -236,6 +240,8 @@ pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Progr
         moves,
         warnings,
         dialect: None,
+        e_slot: None,
+        e_start: 0.0,
     })
 }
 
@@ -257,6 +263,21 @@ pub struct Progress {
 }
 
 impl Program {
+    /// The filament the job extrudes, net of retractions, mm of e: the
+    /// extruder's last position less its first.
+    pub fn extruded_mm(&self) -> f64 {
+        let e = self.e_slot;
+        let mut first = None;
+        let mut last = None;
+        for (_, m) in &self.moves {
+            if let (Some(k), Move::Line(p, _) | Move::Rapid(p) | Move::Arc { to: p, .. }) = (e, m) {
+                first.get_or_insert(self.e_start);
+                last = Some(p[k]);
+            }
+        }
+        last.zip(first).map_or(0.0, |(l, f)| l - f)
+    }
+
     /// How long the moves take as planned, s: motion, dwells, tool settle
     /// times, and the restart after each stop at rest (a timer lead plus
     /// two intervals).

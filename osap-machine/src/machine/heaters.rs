@@ -268,10 +268,14 @@ impl Heater {
             self.machine.check_running()?;
             let r = self.read().await?;
             if r.state == HeaterState::Faulted {
-                return Err(MachineError::Heater {
-                    heater: self.name.clone(),
-                    reason: "its module cut it (runaway protection)".into(),
-                });
+                // Its module's fault report stops the machine too; the
+                // first fault is the one it keeps.
+                let reason = format!(
+                    "heater {}: its module cut it off (runaway protection) while waiting for {:.1} °C",
+                    self.name, r.target
+                );
+                self.machine.fault_and_stop(reason.clone());
+                return Err(MachineError::Faulted(reason));
             }
             if r.target == 0.0 || (r.celsius - r.target).abs() <= WAIT_WINDOW_C {
                 return Ok(start.elapsed());
@@ -287,4 +291,95 @@ impl Heater {
             tokio::time::sleep(WAIT_POLL).await;
         }
     }
+}
+
+/// One row of a heater log: synchronized time and each heater's reading.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeaterRow {
+    /// When the row was read, synchronized µs.
+    pub time_us: u64,
+    /// Each heater's reading, in [`Machine::heaters`] order.
+    pub readings: Vec<HeaterReading>,
+}
+
+/// Heaters read at a fixed period in the background (see
+/// [`Machine::log_heaters`]); [`HeaterLog::finish`] ends it.
+#[derive(Debug)]
+pub struct HeaterLog {
+    names: Vec<String>,
+    task: tokio::task::JoinHandle<Vec<HeaterRow>>,
+    stop: tokio::sync::watch::Sender<bool>,
+}
+
+impl Machine {
+    /// Reads every heater each `period` from now until
+    /// [`HeaterLog::finish`]: what `osap run` writes to heaters.csv. A
+    /// reading that fails (the machine stopping) ends the log.
+    pub fn log_heaters(&self, period: Duration) -> HeaterLog {
+        let heaters = self.heaters();
+        let names = heaters.iter().map(|h| h.name().to_string()).collect();
+        let (stop, mut stopped) = tokio::sync::watch::channel(false);
+        let machine = self.clone();
+        let task = tokio::spawn(async move {
+            let mut rows = Vec::new();
+            let mut tick = tokio::time::interval(period);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tokio::select! {
+                    _ = tick.tick() => {}
+                    _ = stopped.changed() => return rows,
+                }
+                let Ok(time_us) = machine.now_us().await else {
+                    return rows;
+                };
+                let mut readings = Vec::with_capacity(heaters.len());
+                for h in &heaters {
+                    match h.read().await {
+                        Ok(r) => readings.push(r),
+                        Err(_) => return rows,
+                    }
+                }
+                rows.push(HeaterRow { time_us, readings });
+            }
+        });
+        HeaterLog { names, task, stop }
+    }
+}
+
+impl HeaterLog {
+    /// The heaters' names, in column order.
+    pub fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    /// Ends the log and returns its rows.
+    pub async fn finish(self) -> Vec<HeaterRow> {
+        let _ = self.stop.send(true);
+        self.task.await.unwrap_or_default()
+    }
+}
+
+/// Writes `rows` as CSV with the header `t,NAME,NAME_target,NAME_power,..`
+/// (t in s after `t0_us`; °C, °C, duty 0–1).
+pub fn write_heaters_csv(
+    path: &std::path::Path,
+    names: &[String],
+    rows: &[HeaterRow],
+    t0_us: u64,
+) -> std::io::Result<()> {
+    use std::fmt::Write as _;
+    let mut text = String::from("t");
+    for n in names {
+        let _ = write!(text, ",{n},{n}_target,{n}_power");
+    }
+    text.push('\n');
+    for r in rows {
+        let t = (r.time_us as f64 - t0_us as f64) * 1e-6;
+        let _ = write!(text, "{t:.4}");
+        for h in &r.readings {
+            let _ = write!(text, ",{:.2},{:.1},{:.4}", h.celsius, h.target, h.power);
+        }
+        text.push('\n');
+    }
+    std::fs::write(path, text)
 }

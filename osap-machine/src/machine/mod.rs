@@ -51,7 +51,7 @@ use crate::module_limits::{module_limits, ModuleLimits};
 pub use drive::{Drive, DriveError, MAX_AXES};
 pub use error::{MachineError, StopReport, Unreached};
 pub use events::{MachineEvent, MachineState};
-pub use heaters::{Heater, HeaterReading, HeaterState};
+pub use heaters::{Heater, HeaterLog, HeaterReading, HeaterRow, HeaterState};
 use monitor::{LimitEdge, SharedReports};
 use motion::{MotionStatus, SharedMotion};
 pub use tool::Tool;
@@ -76,6 +76,11 @@ const STATUS_PERIOD_US: u32 = 50_000;
 const FAULT_PERIOD_US: u32 = 5_000;
 /// Period of the limit switch and stepped position reports, µs.
 const FAST_PERIOD_US: u32 = 1_000;
+/// Period of each motor's stepped position while a run is recorded, µs:
+/// the control-point interval. At 1 ms a motor module's reports left its
+/// link no room to answer calls (a heater on a motor module could not be
+/// read while a print was recorded, measured on the simulated printer).
+pub const RECORD_PERIOD_US: u32 = INTERVAL_US;
 /// A module silent for this long is lost.
 const LINK_LOST_AFTER: Duration = Duration::from_millis(1_000);
 
@@ -258,6 +263,18 @@ impl Machine {
     /// turned by hand). [`Machine::recover`] powers them again.
     pub async fn motors_off(&self) -> Result<(), MachineError> {
         self.idle().await?;
+        // No point may reach a disabled motor: the stream stops first, and
+        // the points already sent (a timer lead ahead) run out.
+        lock_motion(&self.inner.motion).paused = true;
+        let last = self.inner.status.borrow().stamp;
+        let until = last + 2 * u64::from(INTERVAL_US);
+        loop {
+            let now = self.now_us().await?;
+            if now >= until {
+                break;
+            }
+            tokio::time::sleep(Duration::from_micros(until - now)).await;
+        }
         let modules: std::collections::BTreeSet<String> = lock_motion(&self.inner.motion)
             .drive
             .motors()

@@ -13,12 +13,13 @@ impl Machine {
     }
 
     /// Starts keeping what was planned and what the motors stepped, for
-    /// [`Machine::take_recording`].
+    /// [`Machine::take_recording`]: each motor's stepped position every
+    /// [`RECORD_PERIOD_US`].
     pub async fn start_recording(&self) -> Result<(), MachineError> {
         lock_motion(&self.inner.motion).record = Some(Vec::new());
         let n = lock_motion(&self.inner.motion).drive.motors().len();
         monitor::lock(&self.inner.reports).positions = Some(vec![Vec::new(); n]);
-        self.position_reports(InputMode::OnTimer(FAST_PERIOD_US))
+        self.position_reports(InputMode::OnTimer(RECORD_PERIOD_US))
             .await
     }
 
