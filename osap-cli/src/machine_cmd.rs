@@ -405,6 +405,11 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         })
         .await;
     bar.finish_and_clear();
+    if result.is_err() && heater_log.is_some() {
+        // The fault's stop turns every heater off on its module: let it
+        // finish, so the log's last row shows them off.
+        let _ = machine.halt().await;
+    }
     let heater_rows = match heater_log {
         Some(log) => {
             let names = log.names().to_vec();

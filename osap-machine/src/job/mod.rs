@@ -432,7 +432,7 @@ impl Machine {
         mut progress: impl FnMut(Progress),
     ) -> Result<RunStats, MachineError> {
         let mut stats = RunStats::default();
-        let fan = self.tool_of_kind(ToolKind::Fan);
+        let in_order = InOrder::start(self);
         let rapid = self.config().limits.velocity;
         let tool = job_tool(self.config()).map(|(name, _)| name.to_string());
         let total = program.moves.len();
@@ -460,24 +460,20 @@ impl Machine {
                 Move::Heater {
                     name,
                     celsius,
-                    wait,
+                    wait: true,
                 } => {
                     let h = self.heater(name)?;
-                    if *wait {
-                        // Nothing extrudes before the heater is there.
-                        self.idle().await?;
-                        h.set_target(*celsius).await?;
-                        stats.heater_wait_s += h.wait_for_target().await?.as_secs_f64();
-                    } else {
-                        h.set_target(*celsius).await?;
-                    }
+                    // Nothing extrudes before the heater is there.
+                    self.idle().await?;
+                    in_order.flush().await?;
+                    h.set_target(*celsius).await?;
+                    stats.heater_wait_s += h.wait_for_target().await?.as_secs_f64();
                 }
-                // A fan follows the queue's feed of moves, not their
-                // motion: it changes while the moves queued before run.
-                Move::Fan(duty) => {
-                    if let Some(f) = &fan {
-                        f.set(duty.clamp(0.0, 1.0)).await?;
-                    }
+                // Set once the moves before have run, without stopping
+                // them (the queue runs far ahead of the motion).
+                Move::Heater { .. } | Move::Fan(_) => {
+                    self.heater_or_fan(m)?;
+                    in_order.send(self.queued_total(), m.clone())?;
                 }
                 Move::Home(axes) => {
                     self.idle().await?;
@@ -509,9 +505,87 @@ impl Machine {
             });
         }
         self.idle().await?;
+        in_order.flush().await?;
         // Let the last step reports arrive.
         tokio::time::sleep(Duration::from_millis(20)).await;
         Ok(stats)
+    }
+
+    /// Checks a heater or fan command can be carried out.
+    fn heater_or_fan(&self, m: &Move) -> Result<(), MachineError> {
+        if let Move::Heater { name, .. } = m {
+            self.heater(name)?;
+        }
+        Ok(())
+    }
+}
+
+/// Heater targets and fan speeds a job sets between moves, applied in
+/// order, each once the motors have finished the moves queued before it.
+struct InOrder {
+    tx: tokio::sync::mpsc::UnboundedSender<Deferred>,
+    task: tokio::task::JoinHandle<Result<(), MachineError>>,
+}
+
+enum Deferred {
+    /// Apply the move once `mark` segments have run.
+    At(u64, Move),
+    /// Tell when everything before has been applied.
+    Flush(tokio::sync::oneshot::Sender<()>),
+}
+
+impl InOrder {
+    fn start(machine: &Machine) -> InOrder {
+        let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let machine = machine.clone();
+        let fan = machine.tool_of_kind(ToolKind::Fan);
+        let task = tokio::spawn(async move {
+            while let Some(d) = rx.recv().await {
+                match d {
+                    Deferred::Flush(done) => {
+                        let _ = done.send(());
+                    }
+                    Deferred::At(mark, m) => {
+                        machine.wait_executed(mark).await?;
+                        match m {
+                            Move::Heater { name, celsius, .. } => {
+                                machine.heater(&name)?.set_target(celsius).await?
+                            }
+                            Move::Fan(duty) => {
+                                if let Some(f) = &fan {
+                                    f.set(duty.clamp(0.0, 1.0)).await?;
+                                }
+                            }
+                            _ => {}
+                        }
+                    }
+                }
+            }
+            Ok(())
+        });
+        InOrder { tx, task }
+    }
+
+    fn send(&self, mark: u64, m: Move) -> Result<(), MachineError> {
+        self.tx
+            .send(Deferred::At(mark, m))
+            .map_err(|_| MachineError::Stopped)
+    }
+
+    /// Waits until every command sent has been applied; the first error
+    /// applying one is returned.
+    async fn flush(&self) -> Result<(), MachineError> {
+        let (done, wait) = tokio::sync::oneshot::channel();
+        if self.tx.send(Deferred::Flush(done)).is_ok() && wait.await.is_ok() {
+            return Ok(());
+        }
+        Err(MachineError::Stopped)
+    }
+}
+
+impl Drop for InOrder {
+    fn drop(&mut self) {
+        self.task.abort();
     }
 }
 

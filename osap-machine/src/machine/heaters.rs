@@ -313,8 +313,8 @@ pub struct HeaterLog {
 
 impl Machine {
     /// Reads every heater each `period` from now until
-    /// [`HeaterLog::finish`]: what `osap run` writes to heaters.csv. A
-    /// reading that fails (the machine stopping) ends the log.
+    /// [`HeaterLog::finish`]: what `osap run` writes to heaters.csv. A row
+    /// with a failed reading is left out.
     pub fn log_heaters(&self, period: Duration) -> HeaterLog {
         let heaters = self.heaters();
         let names = heaters.iter().map(|h| h.name().to_string()).collect();
@@ -325,21 +325,28 @@ impl Machine {
             let mut tick = tokio::time::interval(period);
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             loop {
-                tokio::select! {
-                    _ = tick.tick() => {}
-                    _ = stopped.changed() => return rows,
-                }
+                // The last row is read when the log is finished.
+                let last = tokio::select! {
+                    _ = tick.tick() => false,
+                    _ = stopped.changed() => true,
+                };
+                // A row a read misses (a lost reply) is left out; the
+                // log goes on through a fault, to show the heaters off.
                 let Ok(time_us) = machine.now_us().await else {
-                    return rows;
+                    continue;
                 };
                 let mut readings = Vec::with_capacity(heaters.len());
                 for h in &heaters {
-                    match h.read().await {
-                        Ok(r) => readings.push(r),
-                        Err(_) => return rows,
+                    if let Ok(r) = h.read().await {
+                        readings.push(r);
                     }
                 }
-                rows.push(HeaterRow { time_us, readings });
+                if readings.len() == heaters.len() {
+                    rows.push(HeaterRow { time_us, readings });
+                }
+                if last {
+                    return rows;
+                }
             }
         });
         HeaterLog { names, task, stop }
@@ -352,7 +359,7 @@ impl HeaterLog {
         &self.names
     }
 
-    /// Ends the log and returns its rows.
+    /// Takes a last row, ends the log and returns its rows.
     pub async fn finish(self) -> Vec<HeaterRow> {
         let _ = self.stop.send(true);
         self.task.await.unwrap_or_default()

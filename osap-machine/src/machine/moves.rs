@@ -62,6 +62,27 @@ impl Machine {
         lock_motion(&self.inner.motion).planner.stats().pending
     }
 
+    /// How many segments have been queued since start: a mark for
+    /// [`Machine::wait_executed`].
+    pub fn queued_total(&self) -> u64 {
+        lock_motion(&self.inner.motion).planner.stats().queued_total
+    }
+
+    /// Waits until the motors have finished the first `mark` segments
+    /// queued ([`Machine::queued_total`] when a command was reached), so a
+    /// command takes effect where the job put it, without stopping the
+    /// motion. Fails if the machine stops meanwhile.
+    pub async fn wait_executed(&self, mark: u64) -> Result<(), MachineError> {
+        let mut status = self.inner.status.clone();
+        loop {
+            self.check_running()?;
+            if status.borrow_and_update().executed >= mark || self.queued_moves() == 0 {
+                return Ok(());
+            }
+            status.changed().await.map_err(|_| MachineError::Stopped)?;
+        }
+    }
+
     /// Waits until at most `n` segments are queued ahead of the motors.
     /// The queue holds thousands of moves; a script that generates motion
     /// without end (a soak, a jog, a sensor-driven path) waits here to stay
