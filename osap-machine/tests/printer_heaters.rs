@@ -84,3 +84,40 @@ fn a_broken_thermistor_cuts_the_heater_and_stops_the_machine_naming_it() {
         let _ = m.stop().await;
     });
 }
+
+/// Pressure advance on the simulated printer (K = 0.04 s, smooth time
+/// 0.04 s): while the toolhead cruises, the extruder stands K·v ahead of
+/// its nominal position; at rest it is exactly where the G-code says.
+#[test]
+fn the_extruder_runs_ahead_by_k_times_its_velocity_and_ends_where_it_should() {
+    virtual_runtime().unwrap().block_on(async {
+        let cfg = printer();
+        let m = simulate(&cfg).await;
+        m.set_position([10.0, 10.0, 1.0, 0.0]).unwrap();
+        m.start_recording().await.unwrap();
+        let t0 = m.now_us().await.unwrap();
+        // 100 mm of x at 100 mm/s laying 3.4 mm of filament.
+        m.goto_via_queue([110.0, 10.0, 1.0, 3.4], 100.0)
+            .await
+            .unwrap();
+        m.idle().await.unwrap();
+        let rec = m.take_recording(t0).await.unwrap();
+        assert_eq!(rec.axes, ["x", "y", "z", "e"]);
+        let mut cruising = 0;
+        for s in &rec.planned {
+            let nominal = (s.pos[0] - 10.0) * 0.034;
+            if (40.0..80.0).contains(&s.pos[0]) {
+                // 0.04 s × 3.4 mm/s.
+                assert!((s.pos[3] - nominal - 0.136).abs() < 1e-6, "{s:?}");
+                cruising += 1;
+            }
+        }
+        assert!(cruising > 100, "{cruising} samples while cruising");
+        let end = rec.planned.last().unwrap();
+        assert!((end.pos[3] - 3.4).abs() < 1e-9, "{end:?}");
+        let done = rec.executed.last().unwrap();
+        // Within a microstep (1/400 mm) where the motor stepped to.
+        assert!((done.pos[3] - 3.4).abs() <= 0.0025, "{done:?}");
+        m.stop().await.unwrap();
+    });
+}

@@ -9,6 +9,7 @@ pub mod kinematics;
 pub mod onedof;
 pub mod optimizer;
 pub mod planner;
+pub mod pressure_advance;
 pub mod shaper;
 pub mod timer;
 

@@ -9,7 +9,8 @@
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex, MutexGuard};
 
-use maxl::blocks::planner::{Limits, Planner, VectorLimits};
+use maxl::blocks::planner::{Kin, Limits, Planner, VectorLimits};
+use maxl::blocks::pressure_advance::{ExtruderState, PressureAdvance};
 use osap_host::som::{HostFnError, HostFunction, Value};
 use pipes_core::export::{PipesArgs, PipesType};
 use pipes_core::types::Type;
@@ -64,6 +65,8 @@ pub struct Motion {
     pub error: Option<String>,
     /// Added to the planned position at each stamp, while set.
     pub excitation: Option<Excitation>,
+    /// The extruder's pressure advance, if the machine has one.
+    advance: Option<Advance>,
     status: MotionStatus,
     notify: watch::Sender<MotionStatus>,
 }
@@ -102,6 +105,7 @@ impl Motion {
                 last_motors: motors,
                 error: None,
                 excitation: None,
+                advance: None,
                 status: MotionStatus::default(),
                 notify,
             },
@@ -135,6 +139,16 @@ impl Motion {
         Some((0..n).map(|k| a.1[k] + f * (b.1[k] - a.1[k])).collect())
     }
 
+    /// Advances the extruder in axis slot `slot` by `pa` from now on
+    /// (`None`: no pressure advance).
+    pub fn set_pressure_advance(&mut self, pa: Option<(usize, PressureAdvance)>) {
+        self.advance = pa.map(|(slot, pa)| Advance {
+            slot,
+            pa,
+            history: VecDeque::new(),
+        });
+    }
+
     /// The planner's position at `stamp` and the motor positions for it.
     pub fn sample(&mut self, stamp: u64) -> Result<Vec<f64>, u8> {
         if self.paused {
@@ -142,6 +156,9 @@ impl Motion {
         }
         let kin = self.planner.sample_kin(stamp).map_err(|_| BAD_STAMP)?;
         let mut pos = kin.pos;
+        if let Some(a) = &mut self.advance {
+            pos[a.slot] = a.advanced(&self.planner, stamp, &kin);
+        }
         if let Some(x) = &mut self.excitation {
             for (p, d) in pos.iter_mut().zip(x(stamp)) {
                 *p += d;
@@ -178,6 +195,77 @@ impl Motion {
             self.notify.send_replace(self.status);
         }
         Ok(motors)
+    }
+}
+
+/// The extruder's pressure advance: Klipper's smoothed `e + K·v` over a
+/// window around each stamp, the past from the stamps sampled, the future
+/// from the plan (the planner's [`Planner::state_at`]). A plan that
+/// changes within the window (a halt, moves appended to a queue that had
+/// run dry) moves the advanced position by what the change makes of the
+/// window, a few hundredths of a mm.
+struct Advance {
+    slot: usize,
+    pa: PressureAdvance,
+    /// Recent stamps (µs) and the nominal extruder state at each.
+    history: VecDeque<(u64, ExtruderState)>,
+}
+
+impl Advance {
+    fn state(&self, kin: &Kin<MAX_AXES>) -> ExtruderState {
+        let v = kin.vel[self.slot];
+        ExtruderState {
+            position: kin.pos[self.slot],
+            velocity: v,
+            // Klipper advances moves that extrude while x or y moves.
+            advances: v > 0.0 && (kin.vel[0] != 0.0 || kin.vel[1] != 0.0),
+        }
+    }
+
+    /// The advanced position at `stamp`, whose planned state is `kin`.
+    fn advanced(&mut self, planner: &Planner<MAX_AXES>, stamp: u64, kin: &Kin<MAX_AXES>) -> f64 {
+        let now = self.state(kin);
+        self.history.push_back((stamp, now));
+        let keep = (self.pa.reach() * 1e6) as u64 + 2 * u64::from(super::INTERVAL_US);
+        while self.history.front().is_some_and(|(t, _)| t + keep < stamp) {
+            self.history.pop_front();
+        }
+        let t_now = stamp as f64 * 1e-6;
+        let history = &self.history;
+        let nominal = |t: f64| -> ExtruderState {
+            let us = t * 1e6;
+            if us >= stamp as f64 {
+                return self.state(&planner.state_at(us));
+            }
+            // The past: between two samples, e is quadratic (constant
+            // acceleration), fixed by both ends' position and velocity.
+            let i = history.partition_point(|(s, _)| (*s as f64) <= us);
+            match (
+                i.checked_sub(1).and_then(|j| history.get(j)),
+                history.get(i),
+            ) {
+                (Some(&(t0, a)), Some(&(t1, b))) => {
+                    let dt = (t1 - t0) as f64 * 1e-6;
+                    let s = t - t0 as f64 * 1e-6;
+                    let acc = if dt > 0.0 {
+                        (b.velocity - a.velocity) / dt
+                    } else {
+                        0.0
+                    };
+                    ExtruderState {
+                        position: a.position + a.velocity * s + 0.5 * acc * s * s,
+                        velocity: a.velocity + acc * s,
+                        advances: a.advances,
+                    }
+                }
+                (Some(&(_, a)), None) => a,
+                // Before the first sample: where the extruder stood.
+                (None, _) => history
+                    .front()
+                    .map_or(now, |&(_, a)| ExtruderState { velocity: 0.0, ..a }),
+            }
+        };
+        self.pa.position(t_now, nominal)
     }
 }
 
@@ -260,4 +348,27 @@ pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineEr
         vector,
         maxl::blocks::planner::DEFAULT_CAPACITY,
     )?)
+}
+
+/// The extruder's pressure advance from its `[axes.e]` (`pressure_advance`
+/// and `smooth_time`) with its axis slot; `None` without an extruder or
+/// with `pressure_advance` 0.
+pub fn pressure_advance(
+    cfg: &MachineFile,
+) -> Result<Option<(usize, PressureAdvance)>, MachineError> {
+    let Some(e) = cfg.extruder() else {
+        return Ok(None);
+    };
+    let k = e.extruder.pressure_advance.unwrap_or(0.0);
+    if k == 0.0 {
+        return Ok(None);
+    }
+    let smooth = e
+        .extruder
+        .smooth_time
+        .unwrap_or(crate::config::DEFAULT_SMOOTH_TIME);
+    let pa = PressureAdvance::new(k, smooth)
+        .map_err(|err| MachineError::Unsupported(format!("axes.e: {err}")))?;
+    let slot = cfg.axis_names().iter().position(|n| *n == "e");
+    Ok(slot.map(|slot| (slot, pa)))
 }

@@ -221,6 +221,7 @@ fn plan(
     let mut start3 = [0.0; MAX_AXES];
     start3[..start.len()].copy_from_slice(start);
     motion.planner.set_position(start3)?;
+    motion.set_pressure_advance(motion::pressure_advance(cfg)?);
     Ok((Arc::new(Mutex::new(motion)), status))
 }
 

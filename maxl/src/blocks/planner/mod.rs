@@ -459,6 +459,40 @@ impl<const N: usize> Planner<N> {
         }
     }
 
+    /// The planned state at synchronized stamp `t` (µs, fractional), at or
+    /// after the last stamp sampled, without sampling: what the running
+    /// and queued segments will do then, as planned now (later appends and
+    /// a halt may change it). Walks only the segments up to `t`, so a
+    /// lookahead of a few milliseconds (pressure advance) stays cheap.
+    pub fn state_at(&self, t: f64) -> Kin<N> {
+        let epoch = self.epoch.unwrap_or(0) as f64;
+        let ts = (t - epoch) * 1e-6;
+        for r in &self.frozen {
+            if ts < r.t_end() {
+                let tau = (ts - r.t0).max(0.0);
+                return plan::kin_at(&r.seg.start, &r.seg.dir, &r.prof, tau);
+            }
+        }
+        let mut t0 = match self.frozen.back() {
+            Some(r) => r.t_end(),
+            None => match self.pending_start.or(self.last_stamp) {
+                Some(p) => (p as f64 - epoch) * 1e-6,
+                None => return Kin::rest(self.rest),
+            },
+        };
+        let mut entry = self.junction(0);
+        for (i, s) in self.queue.iter().enumerate() {
+            let exit = self.junction(i + 1);
+            let prof = Profile::plan(s.len, entry, exit, s.v_cap(), s.acc);
+            entry = exit;
+            if ts < t0 + prof.duration() {
+                return plan::kin_at(&s.start, &s.dir, &prof, (ts - t0).max(0.0));
+            }
+            t0 += prof.duration();
+        }
+        Kin::rest(self.tail)
+    }
+
     /// Counters and state.
     pub fn stats(&self) -> Stats {
         Stats {
