@@ -392,6 +392,41 @@ mod tests {
         assert_eq!(d.motor_positions(&[0.0; 3]).unwrap(), vec![0.0; 3]);
     }
 
+    /// A five-axis mill with a tool carousel: x, y, z, a, b, c, one motor
+    /// each; a seventh axis is more than the planner plans together.
+    fn axes_machine(names: &[&str]) -> String {
+        let mut t = String::from("name = \"six\"\n[limits]\nvelocity = 50.0\nacceleration = 500.0\njunction_deviation = 0.01\n");
+        for n in names {
+            t += &format!(
+                "[modules.{n}]\nname = \"{n}\"\n[motors.{n}]\nmodule = \"{n}\"\nfull_steps_per_unit = 40.0\nmicrosteps = 8\n[axes.{n}]\nmotor = \"{n}\"\nmin = -100.0\nmax = 100.0\nvelocity = 50.0\nacceleration = 500.0\njerk = 10000.0\n"
+            );
+        }
+        t
+    }
+
+    #[test]
+    fn six_axes_drive_and_plan_together_and_a_seventh_is_refused() {
+        let six = MachineFile::parse(&axes_machine(&["x", "y", "z", "a", "b", "c"])).unwrap();
+        let d = Drive::new(&six, &[0.0; 6]).unwrap();
+        assert_eq!(d.axes(), ["x", "y", "z", "a", "b", "c"]);
+        let m = d.motor_positions(&[1.0, 2.0, 3.0, 4.0, 5.0, 6.0]).unwrap();
+        assert_eq!(m, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
+        let mut p = crate::machine::motion::machine_planner(&six).unwrap();
+        assert_eq!(p.vector_limits().path_axes, 3);
+        p.line([10.0, 0.0, 0.0, 30.0, 20.0, 90.0], 40.0).unwrap();
+        // The feed is the toolhead's: 10 mm of x at 40 mm/s (the rotaries
+        // follow, c at 9 units per mm of path, within its 50).
+        let seg = &p.plan().segments[0];
+        assert!((seg.profile.length - 10.0).abs() < 1e-12);
+        assert!((seg.profile.cruise - 50.0 / 9.0).abs() < 1e-9, "{seg:?}");
+        let seven =
+            MachineFile::parse(&axes_machine(&["x", "y", "z", "a", "b", "c", "u"])).unwrap();
+        assert!(matches!(
+            Drive::new(&seven, &[0.0; 7]),
+            Err(DriveError::TooManyAxes(a)) if a.len() == 7
+        ));
+    }
+
     #[test]
     fn start_is_zero_inside_travel_else_min() {
         let cfg = MachineFile::load(concat!(
