@@ -40,6 +40,13 @@ pub struct DriveMotor {
     pub microsteps: u16,
     /// Enable the driver at start.
     pub enable: bool,
+    /// For a motor that never stops turning (an extruder's): the period,
+    /// in motor units, its positions may be sent modulo. A module's track
+    /// wraps every 65 536 microsteps, so a position sent less a whole
+    /// number of periods moves the motor the same, and stays small
+    /// enough for the wire's `f32` to carry to a fraction of a microstep
+    /// after any length of filament.
+    pub wrap: Option<f64>,
     sign: f64,
     source: Source,
 }
@@ -174,12 +181,22 @@ impl Drive {
                 .motors
                 .get(name)
                 .ok_or_else(|| DriveError::NoMotor(name.to_string()))?;
+            let continuous = match source {
+                Source::Axis(slot) => cfg
+                    .axes
+                    .get(cfg.axis_names()[slot])
+                    .is_some_and(|a| a.kind == crate::config::AxisKind::Extruder),
+                Source::Joint(_) => false,
+            };
+            // As the module computes its scale: in f32.
+            let per_unit = f64::from(m.full_steps_per_unit as f32) * f64::from(m.microsteps);
             motors.push(DriveMotor {
                 name: name.to_string(),
                 module: m.module.clone(),
                 full_steps_per_unit: m.full_steps_per_unit,
                 microsteps: m.microsteps,
                 enable: m.enable,
+                wrap: continuous.then(|| 65_536.0 / per_unit),
                 sign: if m.invert { -1.0 } else { 1.0 },
                 source,
             });

@@ -298,6 +298,12 @@ pub fn function(
 ) -> Result<HostFunction, MachineError> {
     let inputs: Vec<(&str, Type)> = Stamp::ARGS.iter().map(|a| (a.name, a.ty)).collect();
     let out_names: Vec<String> = (0..motors).map(motor_output).collect();
+    let wraps: Vec<Option<f64>> = lock(&motion)
+        .drive
+        .motors()
+        .iter()
+        .map(|m| m.wrap)
+        .collect();
     let mut outputs: Vec<(&str, Type)> = vec![(STAMP, u64::TYPE)];
     outputs.extend(out_names.iter().map(|n| (n.as_str(), f32::TYPE)));
     Ok(HostFunction::new(
@@ -311,10 +317,24 @@ pub fn function(
             let m = lock(&motion).sample(stamp)?;
             let mut out = Vec::with_capacity(1 + m.len());
             out.push(Value::U64(stamp));
-            out.extend(m.iter().map(|&v| Value::F32(v as f32)));
+            out.extend(
+                m.iter()
+                    .zip(wraps.iter().chain(std::iter::repeat(&None)))
+                    .map(|(&v, wrap)| Value::F32(wire_position(v, *wrap))),
+            );
             Ok(out)
         },
     )?)
+}
+
+/// A motor position as the wire carries it (`f32`, motor units): less a
+/// whole number of `wrap` periods for a motor that never stops turning
+/// (see [`super::drive::DriveMotor::wrap`]).
+pub fn wire_position(v: f64, wrap: Option<f64>) -> f32 {
+    match wrap {
+        Some(p) => v.rem_euclid(p) as f32,
+        None => v as f32,
+    }
 }
 
 /// The planner a machine plans with: each axis's own velocity and
@@ -371,4 +391,52 @@ pub fn pressure_advance(
         .map_err(|err| MachineError::Unsupported(format!("axes.e: {err}")))?;
     let slot = cfg.axis_names().iter().position(|n| *n == "e");
     Ok(slot.map(|slot| (slot, pa)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use maxl::Fx;
+
+    /// After 100 m of filament at 400 microsteps/mm, the position sent
+    /// modulo the extruder's period lands the module's track on the same
+    /// microstep fraction as the whole position would, where the whole
+    /// position as `f32` is 3 microsteps off.
+    #[test]
+    fn an_extruder_far_along_is_sent_to_a_fraction_of_a_microstep() {
+        let cfg = MachineFile::load(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/printer.toml"
+        ))
+        .unwrap();
+        let d = super::super::Drive::new(&cfg, &[0.0; 4]).unwrap();
+        let e = d.motors().iter().find(|m| m.name == "e").unwrap();
+        let period = e.wrap.unwrap();
+        assert!((period - 163.84).abs() < 1e-12, "{period}");
+        assert!(d
+            .motors()
+            .iter()
+            .filter(|m| m.name != "e")
+            .all(|m| m.wrap.is_none()));
+        let spu = 400.0;
+        for v in [
+            0.0,
+            163.83,
+            163.85,
+            100_000.123_456,
+            -2_500.5,
+            1.0e6 + 0.0025,
+        ] {
+            let track = |units: f64| Fx::wrapping_from_f64(units * spu).unwrap();
+            let exact = track(v);
+            let sent = track(f64::from(wire_position(v, Some(period))));
+            let diff = f64::from(sent.wrapping_diff(exact)).abs() / 65_536.0;
+            assert!(diff < 0.01, "{v}: {diff} microsteps off");
+            if v.abs() > 50_000.0 {
+                let whole = track(f64::from(v as f32));
+                let off = f64::from(whole.wrapping_diff(exact)).abs() / 65_536.0;
+                assert!(off > 0.5, "{v}: f32 alone is only {off} microsteps off");
+            }
+        }
+    }
 }
