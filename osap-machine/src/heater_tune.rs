@@ -36,7 +36,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use crate::config::MachineFile;
-use crate::{HeaterState, Machine, MachineError};
+use crate::{HeaterState, Machine, MachineError, MachineState};
 
 /// The relay's hysteresis: it heats again at `target −` this, °C
 /// (Klipper's `TUNE_PID_DELTA`).
@@ -347,6 +347,13 @@ async fn run_relay(
     let mut last: Option<(u64, f64)> = None;
     loop {
         tick.tick().await;
+        // A machine stopped by anything else (a halt, another module's
+        // fault) ends the test, also while the relay is off.
+        match machine.state() {
+            MachineState::Faulted(reason) => return Err(MachineError::Faulted(reason).into()),
+            MachineState::Stopped => return Err(MachineError::Stopped.into()),
+            _ => {}
+        }
         let r = h.read().await?;
         if r.state == HeaterState::Faulted {
             return Err(TuneError::Faulted {

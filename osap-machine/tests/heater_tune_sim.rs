@@ -82,6 +82,8 @@ fn the_hotends_tuned_gains_heat_it_and_hold_its_target() {
         let took = h.wait_for_target().await.unwrap().as_secs_f64();
         // At most 40 W: ≥ 60 s; a tuned loop does not crawl in.
         assert!((60.0..100.0).contains(&took), "{took} s");
+        // (The block has no sensor lag: stiff gains hold it too, so this
+        // catches weak or ringing gains, not fine differences.)
         // From the moment it reads within 1.5 °C, every reading for a
         // half minute (overshoot included) stays within 2 °C, and it settles.
         let (mut lo, mut hi) = (f64::MAX, f64::MIN);
@@ -101,4 +103,25 @@ fn the_hotends_tuned_gains_heat_it_and_hold_its_target() {
     });
     std::fs::remove_dir_all(&dir).unwrap();
     eprintln!("wall time {:.1} s", wall.elapsed().as_secs_f64());
+}
+
+#[test]
+fn a_thermistor_that_breaks_during_the_tune_ends_it_with_the_heater_cut() {
+    let text = std::fs::read_to_string(PRINTER).unwrap().replace(
+        "loss_w_per_k = 0.12          # holds 210 °C at about 55 % duty",
+        "loss_w_per_k = 0.12\nsensor_fails_at_s = 20.0",
+    );
+    let cfg = MachineFile::parse(&text).unwrap();
+    virtual_runtime().unwrap().block_on(async {
+        let m = simulate(&cfg).await;
+        let e = heater_tune::tune(&m, "hotend", &TuneOptions::new(210.0))
+            .await
+            .unwrap_err();
+        // The module's fault report or the heater's own state, whichever
+        // the test sees first: either names the hotend.
+        assert!(e.to_string().contains("hotend"), "{e}");
+        let r = m.heater("hotend").unwrap().read().await.unwrap();
+        assert_eq!((r.state, r.power), (HeaterState::Faulted, 0.0), "{r:?}");
+        let _ = m.stop().await;
+    });
 }
