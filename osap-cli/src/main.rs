@@ -21,6 +21,7 @@ mod capture_cmd;
 mod connection;
 mod flash_cmd;
 mod halt_cmd;
+mod heater_tune_cmd;
 mod level_cmd;
 mod machine_cmd;
 mod network;
@@ -128,6 +129,9 @@ enum Command {
     /// accelerometer, write the response (CSV, Bode SVG), and print the
     /// peak and the recommended input shaper (--write: into the file).
     Resonance(resonance_cmd::ResonanceArgs),
+    /// Tune a heater's PID gains: drive it as a relay about the target
+    /// (Klipper's PID_CALIBRATE), print kp, ki, kd (--write: into the file).
+    HeaterTune(heater_tune_cmd::HeaterTuneArgs),
     /// Home a machine (every axis, or the ones named).
     Home {
         #[command(flatten)]
@@ -201,6 +205,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Run(args) => machine_result(machine_cmd::run(args, started).await),
         Command::Level(args) => machine_result(level_cmd::level(args).await),
         Command::Resonance(args) => machine_result(resonance_cmd::resonance(args).await),
+        Command::HeaterTune(args) => machine_result(heater_tune_cmd::heater_tune(args).await),
         Command::Capture(args) => machine_result(capture_cmd::capture(args).await),
         Command::View(args) => machine_result(view::view(args).await),
         Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
@@ -340,6 +345,7 @@ fn main() -> ExitCode {
         Command::Run(a) => a.target.virtual_time(),
         Command::Level(a) => a.target.virtual_time(),
         Command::Resonance(a) => a.target.virtual_time(),
+        Command::HeaterTune(a) => a.target.virtual_time(),
         Command::Capture(a) => a.target.virtual_time(),
         Command::Home { target, .. }
         | Command::Jog { target, .. }

@@ -36,6 +36,7 @@ pub mod capture;
 pub mod config;
 pub mod gcode;
 pub mod halt;
+pub mod heater_tune;
 pub mod job;
 pub mod level;
 pub mod machine;
