@@ -1,10 +1,10 @@
 //! `heater_tune` on the simulated printer's hotend (the module's own
 //! heater logic on the thermal model of `[sim.heaters.hotend]`, virtual
 //! time): the relay test finds gains in the band the block's physics
-//! gives, and those gains, written into a copy of the machine file, heat
-//! the hotend to its target and hold it there.
+//! gives, and a thermistor that breaks mid-tune ends it with the heater
+//! cut.
 
-use std::time::{Duration, Instant};
+use std::time::Instant;
 
 use osap_machine::config::MachineFile;
 use osap_machine::heater_tune::{self, TuneOptions, MIN_PEAKS, TUNE_DELTA_C};
@@ -66,42 +66,10 @@ fn the_hotends_tuned_gains_heat_it_and_hold_its_target() {
     assert!((14.0..25.0).contains(&g.ki), "{g:?}");
     assert!((45.0..80.0).contains(&g.kd), "{g:?}");
 
-    // Written into a copy of the file, loaded back, on a fresh machine.
-    let dir = std::env::temp_dir().join(format!("osap-heater-tune-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let copy = dir.join("printer.toml");
-    std::fs::copy(PRINTER, &copy).unwrap();
-    heater_tune::write_gains(&copy, "hotend", &g).unwrap();
-    let tuned = MachineFile::load(&copy).unwrap();
-    let h = &tuned.heaters["hotend"];
-    assert!((h.kp - g.kp).abs() < 1e-3 && (h.ki - g.ki).abs() < 1e-3 && (h.kd - g.kd).abs() < 1e-3);
-    virtual_runtime().unwrap().block_on(async {
-        let m = simulate(&tuned).await;
-        let h = m.heater("hotend").unwrap();
-        h.set_target(210.0).await.unwrap();
-        let took = h.wait_for_target().await.unwrap().as_secs_f64();
-        // At most 40 W: ≥ 60 s; a tuned loop does not crawl in.
-        assert!((60.0..100.0).contains(&took), "{took} s");
-        // (The block has no sensor lag: stiff gains hold it too, so this
-        // catches weak or ringing gains, not fine differences.)
-        // From the moment it reads within 1.5 °C, every reading for a
-        // half minute (overshoot included) stays within 2 °C, and it settles.
-        let (mut lo, mut hi) = (f64::MAX, f64::MIN);
-        let mut last = None;
-        for _ in 0..300 {
-            tokio::time::sleep(Duration::from_millis(100)).await;
-            let r = h.read().await.unwrap();
-            lo = lo.min(r.celsius);
-            hi = hi.max(r.celsius);
-            last = Some(r);
-        }
-        let r = last.unwrap();
-        assert!(lo > 208.0 && hi < 212.0, "{lo:.2}..{hi:.2} °C");
-        assert!((r.celsius - 210.0).abs() < 0.5, "{r:?}");
-        assert_eq!(r.state, HeaterState::Holding);
-        m.stop().await.unwrap();
-    });
-    std::fs::remove_dir_all(&dir).unwrap();
+    // Holding with gains: `printer_heaters` (the file's gains), and the
+    // written gains load back: `osap-cli/tests/heater_tune.rs`. The
+    // simulated block has no sensor lag, so a hold test passes with stiff
+    // gains too: it could not tell these from worse ones.
     eprintln!("wall time {:.1} s", wall.elapsed().as_secs_f64());
 }
 
