@@ -185,20 +185,31 @@ impl Machine {
         Ok(())
     }
 
-    /// Moves axis slot `k` to `value` and waits until it stands.
+    /// Moves axis slot `k` to exactly `value` (not `here + (value −
+    /// here)`, which rounds) and waits until it stands.
     async fn absolute(&self, k: usize, value: f64, rate: f64) -> Result<(), MachineError> {
-        let here = lock_motion(&self.inner.motion).planner.tail()[k];
-        self.relative(k, value - here, rate).await
+        self.move_axis(k, |_| value, rate).await
     }
 
     /// Moves axis slot `k` by `delta` (no travel check: homing works
     /// before the travel is known) and waits until it stands.
     async fn relative(&self, k: usize, delta: f64, rate: f64) -> Result<(), MachineError> {
+        self.move_axis(k, |here| here + delta, rate).await
+    }
+
+    /// Moves axis slot `k` from where it stands to `to(here)`, and waits
+    /// until it stands.
+    async fn move_axis(
+        &self,
+        k: usize,
+        to: impl FnOnce(f64) -> f64,
+        rate: f64,
+    ) -> Result<(), MachineError> {
         {
             let mut m = lock_motion(&self.inner.motion);
-            let mut to = m.planner.tail();
-            to[k] += delta;
-            m.planner.line(to, rate)?;
+            let mut target = m.planner.tail();
+            target[k] = to(target[k]);
+            m.planner.line(target, rate)?;
             m.mark_busy();
         }
         self.idle().await

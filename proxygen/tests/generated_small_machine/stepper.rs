@@ -36,6 +36,15 @@ pub struct Stepper {
     set_safe_pwm: FunctionHandle,
     set_safe_digital: FunctionHandle,
     set_output_watchdog: FunctionHandle,
+    heater_sensor: FunctionHandle,
+    heater_output: FunctionHandle,
+    heater_limits: FunctionHandle,
+    heater_gains: FunctionHandle,
+    heater_runaway: FunctionHandle,
+    heater_target: FunctionHandle,
+    heater_power: FunctionHandle,
+    heater_read: FunctionHandle,
+    heater_clear: FunctionHandle,
 }
 
 impl Stepper {
@@ -160,6 +169,51 @@ impl Stepper {
             inputs: &[("timeout_ms", "u32")],
             outputs: &[],
         },
+        support::Signature {
+            function: "heater_sensor",
+            inputs: &[("index", "u8"), ("analog", "u8"), ("beta", "f32"), ("r25_ohms", "f32"), ("pullup_ohms", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_output",
+            inputs: &[("index", "u8"), ("pwm", "u8"), ("max_power", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_limits",
+            inputs: &[("index", "u8"), ("min_temp", "f32"), ("max_temp", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_gains",
+            inputs: &[("index", "u8"), ("kp", "f32"), ("ki", "f32"), ("kd", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_runaway",
+            inputs: &[("index", "u8"), ("hysteresis_c", "f32"), ("max_error", "f32"), ("heating_gain_c", "f32"), ("check_gain_time_s", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_target",
+            inputs: &[("index", "u8"), ("celsius", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_power",
+            inputs: &[("index", "u8"), ("duty", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "heater_read",
+            inputs: &[("index", "u8")],
+            outputs: &[("time", "u64"), ("temp", "f32"), ("target", "f32"), ("power", "f32"), ("state", "u8")],
+        },
+        support::Signature {
+            function: "heater_clear",
+            inputs: &[("index", "u8")],
+            outputs: &[],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -200,6 +254,15 @@ impl Stepper {
             set_safe_pwm: support::function(manager, runtime, "set_safe_pwm")?,
             set_safe_digital: support::function(manager, runtime, "set_safe_digital")?,
             set_output_watchdog: support::function(manager, runtime, "set_output_watchdog")?,
+            heater_sensor: support::function(manager, runtime, "heater_sensor")?,
+            heater_output: support::function(manager, runtime, "heater_output")?,
+            heater_limits: support::function(manager, runtime, "heater_limits")?,
+            heater_gains: support::function(manager, runtime, "heater_gains")?,
+            heater_runaway: support::function(manager, runtime, "heater_runaway")?,
+            heater_target: support::function(manager, runtime, "heater_target")?,
+            heater_power: support::function(manager, runtime, "heater_power")?,
+            heater_read: support::function(manager, runtime, "heater_read")?,
+            heater_clear: support::function(manager, runtime, "heater_clear")?,
         })
     }
 
@@ -769,6 +832,219 @@ impl Stepper {
     pub fn set_output_watchdog_ref(&self) -> &FnRef {
         self.set_output_watchdog.function()
     }
+
+    /// `heater_sensor`.
+    ///
+    /// - inputs: `index: u8`, `analog: u8`, `beta: f32`, `r25_ohms: f32`, `pullup_ohms: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_sensor(&self, index: u8, analog: u8, beta: f32, r25_ohms: f32, pullup_ohms: f32) -> Result<(), CallError> {
+        let h = &self.heater_sensor;
+        let values = h.call(&[support::to_u8(index), support::to_u8(analog), support::to_f32(beta), support::to_f32(r25_ohms), support::to_f32(pullup_ohms)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_sensor`, for `push` and raw calls.
+    pub fn heater_sensor_handle(&self) -> &FunctionHandle {
+        &self.heater_sensor
+    }
+
+    /// `heater_sensor` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_sensor_ref(&self) -> &FnRef {
+        self.heater_sensor.function()
+    }
+
+    /// `heater_output`.
+    ///
+    /// - inputs: `index: u8`, `pwm: u8`, `max_power: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_output(&self, index: u8, pwm: u8, max_power: f32) -> Result<(), CallError> {
+        let h = &self.heater_output;
+        let values = h.call(&[support::to_u8(index), support::to_u8(pwm), support::to_f32(max_power)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_output`, for `push` and raw calls.
+    pub fn heater_output_handle(&self) -> &FunctionHandle {
+        &self.heater_output
+    }
+
+    /// `heater_output` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_output_ref(&self) -> &FnRef {
+        self.heater_output.function()
+    }
+
+    /// `heater_limits`.
+    ///
+    /// - inputs: `index: u8`, `min_temp: f32`, `max_temp: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_limits(&self, index: u8, min_temp: f32, max_temp: f32) -> Result<(), CallError> {
+        let h = &self.heater_limits;
+        let values = h.call(&[support::to_u8(index), support::to_f32(min_temp), support::to_f32(max_temp)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_limits`, for `push` and raw calls.
+    pub fn heater_limits_handle(&self) -> &FunctionHandle {
+        &self.heater_limits
+    }
+
+    /// `heater_limits` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_limits_ref(&self) -> &FnRef {
+        self.heater_limits.function()
+    }
+
+    /// `heater_gains`.
+    ///
+    /// - inputs: `index: u8`, `kp: f32`, `ki: f32`, `kd: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_gains(&self, index: u8, kp: f32, ki: f32, kd: f32) -> Result<(), CallError> {
+        let h = &self.heater_gains;
+        let values = h.call(&[support::to_u8(index), support::to_f32(kp), support::to_f32(ki), support::to_f32(kd)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_gains`, for `push` and raw calls.
+    pub fn heater_gains_handle(&self) -> &FunctionHandle {
+        &self.heater_gains
+    }
+
+    /// `heater_gains` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_gains_ref(&self) -> &FnRef {
+        self.heater_gains.function()
+    }
+
+    /// `heater_runaway`.
+    ///
+    /// - inputs: `index: u8`, `hysteresis_c: f32`, `max_error: f32`, `heating_gain_c: f32`, `check_gain_time_s: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_runaway(&self, index: u8, hysteresis_c: f32, max_error: f32, heating_gain_c: f32, check_gain_time_s: f32) -> Result<(), CallError> {
+        let h = &self.heater_runaway;
+        let values = h.call(&[support::to_u8(index), support::to_f32(hysteresis_c), support::to_f32(max_error), support::to_f32(heating_gain_c), support::to_f32(check_gain_time_s)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_runaway`, for `push` and raw calls.
+    pub fn heater_runaway_handle(&self) -> &FunctionHandle {
+        &self.heater_runaway
+    }
+
+    /// `heater_runaway` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_runaway_ref(&self) -> &FnRef {
+        self.heater_runaway.function()
+    }
+
+    /// `heater_target`.
+    ///
+    /// - inputs: `index: u8`, `celsius: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_target(&self, index: u8, celsius: f32) -> Result<(), CallError> {
+        let h = &self.heater_target;
+        let values = h.call(&[support::to_u8(index), support::to_f32(celsius)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_target`, for `push` and raw calls.
+    pub fn heater_target_handle(&self) -> &FunctionHandle {
+        &self.heater_target
+    }
+
+    /// `heater_target` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_target_ref(&self) -> &FnRef {
+        self.heater_target.function()
+    }
+
+    /// `heater_power`.
+    ///
+    /// - inputs: `index: u8`, `duty: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_power(&self, index: u8, duty: f32) -> Result<(), CallError> {
+        let h = &self.heater_power;
+        let values = h.call(&[support::to_u8(index), support::to_f32(duty)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_power`, for `push` and raw calls.
+    pub fn heater_power_handle(&self) -> &FunctionHandle {
+        &self.heater_power
+    }
+
+    /// `heater_power` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_power_ref(&self) -> &FnRef {
+        self.heater_power.function()
+    }
+
+    /// `heater_read`.
+    ///
+    /// - inputs: `index: u8`
+    /// - outputs: `time: u64`, `temp: f32`, `target: f32`, `power: f32`, `state: u8`
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_read(&self, index: u8) -> Result<HeaterReadOutputs, CallError> {
+        let h = &self.heater_read;
+        let values = h.call(&[support::to_u8(index)]).await?;
+        let mut out = support::Outputs::new(h, values, 5)?;
+        Ok(HeaterReadOutputs {
+            time: out.next(support::from_u64)?,
+            temp: out.next(support::from_f32)?,
+            target: out.next(support::from_f32)?,
+            power: out.next(support::from_f32)?,
+            state: out.next(support::from_u8)?,
+        })
+    }
+
+    /// The handle of `heater_read`, for `push` and raw calls.
+    pub fn heater_read_handle(&self) -> &FunctionHandle {
+        &self.heater_read
+    }
+
+    /// `heater_read` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_read_ref(&self) -> &FnRef {
+        self.heater_read.function()
+    }
+
+    /// `heater_clear`.
+    ///
+    /// - inputs: `index: u8`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn heater_clear(&self, index: u8) -> Result<(), CallError> {
+        let h = &self.heater_clear;
+        let values = h.call(&[support::to_u8(index)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `heater_clear`, for `push` and raw calls.
+    pub fn heater_clear_handle(&self) -> &FunctionHandle {
+        &self.heater_clear
+    }
+
+    /// `heater_clear` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn heater_clear_ref(&self) -> &FnRef {
+        self.heater_clear.function()
+    }
 }
 
 /// Outputs of `get_position`.
@@ -859,4 +1135,19 @@ pub struct GetFaultOutputs {
     pub detail: u32,
     /// `count: u32`.
     pub count: u32,
+}
+
+/// Outputs of `heater_read`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeaterReadOutputs {
+    /// `time: u64`.
+    pub time: u64,
+    /// `temp: f32`.
+    pub temp: f32,
+    /// `target: f32`.
+    pub target: f32,
+    /// `power: f32`.
+    pub power: f32,
+    /// `state: u8`.
+    pub state: u8,
 }
