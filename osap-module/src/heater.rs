@@ -309,6 +309,23 @@ pub enum HeaterState {
     Faulted = 4,
 }
 
+impl HeaterState {
+    /// Every state, in code order.
+    pub const ALL: [HeaterState; 5] = [
+        HeaterState::Off,
+        HeaterState::Heating,
+        HeaterState::Holding,
+        HeaterState::Power,
+        HeaterState::Faulted,
+    ];
+
+    /// The state of code `code` (as `heater_read` reports it), if it is
+    /// one.
+    pub fn from_code(code: u8) -> Option<HeaterState> {
+        Self::ALL.get(usize::from(code)).copied()
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Mode {
     Off,

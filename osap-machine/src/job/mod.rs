@@ -266,16 +266,14 @@ impl Program {
     /// The filament the job extrudes, net of retractions, mm of e: the
     /// extruder's last position less its first.
     pub fn extruded_mm(&self) -> f64 {
-        let e = self.e_slot;
-        let mut first = None;
-        let mut last = None;
-        for (_, m) in &self.moves {
-            if let (Some(k), Move::Line(p, _) | Move::Rapid(p) | Move::Arc { to: p, .. }) = (e, m) {
-                first.get_or_insert(self.e_start);
-                last = Some(p[k]);
-            }
-        }
-        last.zip(first).map_or(0.0, |(l, f)| l - f)
+        let Some(k) = self.e_slot else {
+            return 0.0;
+        };
+        let last = self.moves.iter().rev().find_map(|(_, m)| match m {
+            Move::Line(p, _) | Move::Rapid(p) | Move::Arc { to: p, .. } => Some(p[k]),
+            _ => None,
+        });
+        last.map_or(0.0, |e| e - self.e_start)
     }
 
     /// How long the moves take as planned, s: motion, dwells, tool settle
@@ -523,6 +521,7 @@ impl Machine {
 /// Heater targets and fan speeds a job sets between moves, applied in
 /// order, each once the motors have finished the moves queued before it.
 struct InOrder {
+    machine: Machine,
     tx: tokio::sync::mpsc::UnboundedSender<Deferred>,
     task: tokio::task::JoinHandle<Result<(), MachineError>>,
 }
@@ -537,6 +536,7 @@ enum Deferred {
 impl InOrder {
     fn start(machine: &Machine) -> InOrder {
         let (tx, mut rx) = tokio::sync::mpsc::unbounded_channel();
+        let owner = machine.clone();
         let machine = machine.clone();
         let fan = machine.tool_of_kind(ToolKind::Fan);
         let task = tokio::spawn(async move {
@@ -563,7 +563,11 @@ impl InOrder {
             }
             Ok(())
         });
-        InOrder { tx, task }
+        InOrder {
+            machine: owner,
+            tx,
+            task,
+        }
     }
 
     fn send(&self, mark: u64, m: Move) -> Result<(), MachineError> {
@@ -579,6 +583,9 @@ impl InOrder {
         if self.tx.send(Deferred::Flush(done)).is_ok() && wait.await.is_ok() {
             return Ok(());
         }
+        // The task ended on an error: a fault names itself; anything else
+        // (a refused target) was checked before it was sent.
+        self.machine.check_running()?;
         Err(MachineError::Stopped)
     }
 }

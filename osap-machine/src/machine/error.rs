@@ -284,8 +284,8 @@ pub fn fault_reason_in(kind: FaultKind, detail: u32, point_refusals: Option<&[Fa
         FaultKind::Halted => "was halted (its motor must be cycled: recover())".into(),
         FaultKind::HeaterRunaway => {
             use osap_module::heater::RunawayReason as R;
-            let index = detail & 0xff;
-            let why = match R::from_code(((detail >> 8) & 0xff) as u8) {
+            let (index, reason) = osap_module::heater::runaway_parts(detail);
+            let why = match reason {
                 Some(R::NotHeating) => "not heating: it did not warm by heating_gain_c within check_gain_time_s (a heater cartridge or thermistor out of its block, a broken heater wire, or gains far too low)",
                 Some(R::FellFromTarget) => "fell from its target and stayed below it past max_error (a thermistor out of its block, a fan on the heater block, or too little power)",
                 Some(R::SensorOpen) => "its thermistor reads open (a broken wire or connector)",

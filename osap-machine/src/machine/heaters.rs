@@ -20,32 +20,8 @@ const WAIT_POLL: Duration = Duration::from_millis(100);
 /// How close to its target a heater must read for a wait to end, °C.
 pub const WAIT_WINDOW_C: f64 = 1.5;
 
-/// A heater's state as its module reports it.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum HeaterState {
-    /// Off.
-    Off,
-    /// Heating toward its target.
-    Heating,
-    /// Holding its target.
-    Holding,
-    /// Driven open loop (autotuning).
-    Power,
-    /// Cut by its runaway protection until cleared.
-    Faulted,
-}
-
-impl HeaterState {
-    fn from_code(code: u8) -> HeaterState {
-        match code {
-            0 => HeaterState::Off,
-            1 => HeaterState::Heating,
-            2 => HeaterState::Holding,
-            3 => HeaterState::Power,
-            _ => HeaterState::Faulted,
-        }
-    }
-}
+/// A heater's state as its module reports it (`heater_read`'s code).
+pub use osap_module::heater::HeaterState;
 
 /// One reading of a heater.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -253,7 +229,8 @@ impl Heater {
             celsius: f64::from(o.temp),
             target: f64::from(o.target),
             power: f64::from(o.power),
-            state: HeaterState::from_code(o.state),
+            // A code this host does not know is taken as the worst.
+            state: HeaterState::from_code(o.state).unwrap_or(HeaterState::Faulted),
         })
     }
 

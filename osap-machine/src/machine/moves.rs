@@ -4,7 +4,7 @@
 use super::*;
 
 impl Machine {
-    pub(super) fn check_running(&self) -> Result<(), MachineError> {
+    pub(crate) fn check_running(&self) -> Result<(), MachineError> {
         match &*self.inner.state.borrow() {
             MachineState::Faulted(r) => Err(MachineError::Faulted(r.clone())),
             MachineState::Stopped => Err(MachineError::Stopped),
