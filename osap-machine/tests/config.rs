@@ -3,7 +3,9 @@
 
 use std::path::PathBuf;
 
-use osap_machine::config::{ConfigError, Direction, Kinematics, MachineFile, Output, ToolKind};
+use osap_machine::config::{
+    ConfigError, Direction, Kinematics, MachineFile, Output, SteinhartHart, ToolKind,
+};
 use proptest::prelude::*;
 
 fn example(name: &str) -> PathBuf {
@@ -720,4 +722,68 @@ fn extruder_keys_are_checked_with_their_key() {
     assert_eq!(key, "sim.heaters.chamber");
     let (key, _) = bad("kp = 21.5", "kp = -1.0");
     assert_eq!(key, "heaters.hotend.kp");
+    // Thermistors: a name not catalogued (the message lists those that
+    // are), two curves at once, a table that is no thermistor, a pullup.
+    let (key, msg) = bad("\"ATC Semitec 104GT-2\"", "\"Semitec 104GT\"");
+    assert_eq!(key, "heaters.hotend.sensor.thermistor");
+    assert!(msg.contains("EPCOS 100K B57560G104F"), "{msg}");
+    let (key, msg) = bad(
+        "thermistor = \"ATC Semitec 104GT-2\"",
+        "thermistor = \"ATC Semitec 104GT-2\", beta = 4267.0",
+    );
+    assert_eq!(key, "heaters.hotend.sensor.thermistor", "{msg}");
+    let (key, msg) = bad(
+        "thermistor = \"ATC Semitec 104GT-2\"",
+        "points = [[25.0, 100000.0], [150.0, 1641.9]]",
+    );
+    assert_eq!(key, "heaters.hotend.sensor.points");
+    assert!(msg.contains("at least 3"), "{msg}");
+    let (key, msg) = bad(
+        "thermistor = \"ATC Semitec 104GT-2\"",
+        "points = [[100000.0, 25.0], [1641.9, 150.0], [226.15, 250.0]]",
+    );
+    assert_eq!(key, "heaters.hotend.sensor.points");
+    assert!(msg.contains("[°C, Ω]"), "{msg}");
+    let (key, _) = bad("pullup_ohms = 4700.0", "pullup_ohms = 0.0");
+    assert_eq!(key, "heaters.hotend.sensor.pullup_ohms");
+    let (key, _) = bad(
+        "sensor = { analog = 0, beta = 3950.0 }",
+        "sensor = { analog = 0, beta = -3950.0 }",
+    );
+    assert_eq!(key, "heaters.bed.sensor.beta");
+}
+
+#[test]
+fn a_thermistor_is_named_given_as_beta_or_as_points_and_each_is_its_curve() {
+    let text = std::fs::read_to_string(example("printer.toml")).unwrap();
+    let hotend = |sensor: &str| {
+        let t = text.replacen(
+            "sensor = { analog = 0, thermistor = \"ATC Semitec 104GT-2\", pullup_ohms = 4700.0 }",
+            sensor,
+            1,
+        );
+        MachineFile::parse(&t).unwrap().heaters["hotend"]
+            .sensor
+            .curve()
+            .unwrap()
+    };
+    // The catalogued 104GT-2 is the curve through its three datasheet
+    // points, and so are those points given as a table.
+    let named = hotend("sensor = { analog = 0, thermistor = \"ATC Semitec 104GT-2\" }");
+    let table = hotend(
+        "sensor = { analog = 0, points = [[20.0, 126800.0], [150.0, 1360.0], [300.0, 80.65]] }",
+    );
+    for (t, r) in [(20.0, 126_800.0), (150.0, 1_360.0), (300.0, 80.65)] {
+        assert!((named.celsius(r) - t).abs() < 1e-6);
+        assert!((table.celsius(r) - t).abs() < 1e-6);
+    }
+    // Nothing given: the common 100 kΩ β 3950.
+    let plain = hotend("sensor = { analog = 0 }");
+    assert_eq!(plain, SteinhartHart::from_beta(3950.0, 100_000.0));
+    assert!((plain.celsius(100_000.0) - 25.0).abs() < 1e-9);
+    // β 4267, the 104GT-2's own nominal β, reads 300 °C several degrees
+    // off the datasheet's curve: the reason to name the thermistor.
+    let beta = hotend("sensor = { analog = 0, beta = 4267.0 }");
+    let off = beta.celsius(80.65) - 300.0;
+    assert!(off.abs() > 3.0, "{off}");
 }

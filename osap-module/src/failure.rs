@@ -365,9 +365,10 @@ failures! {
         NoSuchHeater => "no such heater: a module has heaters 0 and 1",
         NoSuchPin => "no such PWM output or analog input on this board: check the board's \
                       pin numbers",
-        BadValue => "a value out of range: thermistor values and max_power (at most 1) are \
-                     positive, min_temp below max_temp, gains and runaway settings finite and \
-                     not negative, a target within [min_temp, max_temp), a duty within 0..=1",
+        BadValue => "a value out of range: a thermistor's curve falls as it warms, a pullup \
+                     or max_power (at most 1) is positive, min_temp below max_temp, gains and \
+                     runaway settings not negative, a target in [min_temp, max_temp), a duty \
+                     in 0..=1",
         NotConfigured => "the heater is not configured: give it heater_sensor, heater_output \
                           and heater_limits (and heater_gains for a target) first",
         Faulted => "the heater is latched off by a runaway fault (get_fault says why): fix \

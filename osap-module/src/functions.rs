@@ -32,7 +32,7 @@
 //! | `set_safe_pwm` | `channel: u8`, `duty: f32` | — |
 //! | `set_safe_digital` | `pin: u8`, `level: bool` | — |
 //! | `set_output_watchdog` | `timeout_ms: u32` | — |
-//! | `heater_sensor` | `index: u8`, `analog: u8`, `beta: f32`, `r25_ohms: f32`, `pullup_ohms: f32` | — |
+//! | `heater_sensor` | `index: u8`, `analog: u8`, `a: f32`, `b: f32`, `c: f32`, `pullup_ohms: f32` | — |
 //! | `heater_output` | `index: u8`, `pwm: u8`, `max_power: f32` | — |
 //! | `heater_limits` | `index: u8`, `min_temp: f32`, `max_temp: f32` | — |
 //! | `heater_gains` | `index: u8`, `kp: f32`, `ki: f32`, `kd: f32` | — |
@@ -299,21 +299,25 @@ impl<B: Board> Module<B> {
         Ok(())
     }
 
-    /// Heater `index` (0 or 1) reads analog input `analog` through a Beta
-    /// thermistor (`beta`, K; `r25_ohms` at 25 °C) to ground with a
-    /// `pullup_ohms` pullup. Only while the heater is off.
+    /// Heater `index` (0 or 1) reads analog input `analog` through an NTC
+    /// thermistor to ground with a `pullup_ohms` pullup, whose curve is
+    /// the Steinhart–Hart `1/T = a + b·ln R + c·ln³R` (T in K, R in Ω; a
+    /// Beta thermistor has `c = 0`, `b = 1/β`). Only while the heater is
+    /// off.
     pub fn heater_sensor(
         &mut self,
         index: u8,
         analog: u8,
-        beta: f32,
-        r25_ohms: f32,
+        a: f32,
+        b: f32,
+        c: f32,
         pullup_ohms: f32,
     ) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
         let thermistor = Thermistor {
-            beta,
-            r25_ohms,
+            a,
+            b,
+            c,
             pullup_ohms,
         };
         Ok(self.heaters.set_sensor(hw, index, analog, thermistor)?)
@@ -518,7 +522,7 @@ macro_rules! module_function_table {
             set_safe_pwm(channel: u8, duty: f32);
             set_safe_digital(pin: u8, level: bool);
             set_output_watchdog(timeout_ms: u32);
-            heater_sensor(index: u8, analog: u8, beta: f32, r25_ohms: f32, pullup_ohms: f32);
+            heater_sensor(index: u8, analog: u8, a: f32, b: f32, c: f32, pullup_ohms: f32);
             heater_output(index: u8, pwm: u8, max_power: f32);
             heater_limits(index: u8, min_temp: f32, max_temp: f32);
             heater_gains(index: u8, kp: f32, ki: f32, kd: f32);

@@ -3,7 +3,7 @@
 //!
 //! A module drives up to [`HEATERS`] heaters (a board has two PWM
 //! outputs). Each has an output (a PWM channel, its duty capped at
-//! `max_power`), a sensor (an analog input with a Beta thermistor), limits
+//! `max_power`), a sensor (an analog input with an NTC thermistor), limits
 //! (`min_temp`, `max_temp`), PID gains, and runaway settings. The host
 //! configures them (`heater_sensor`, `heater_output`, `heater_limits`,
 //! `heater_gains`, `heater_runaway`) and then sets a target
@@ -221,34 +221,65 @@ pub fn runaway_parts(detail: u32) -> (u8, Option<RunawayReason>) {
     (detail as u8, RunawayReason::from_code((detail >> 8) as u8))
 }
 
-/// A Beta-model NTC thermistor to ground, with a pullup to the converter's
-/// reference: the reading is the fraction `R / (R + pullup_ohms)` of full
-/// scale.
+/// An NTC thermistor to ground, with a pullup to the converter's
+/// reference (the reading is the fraction `R / (R + pullup_ohms)` of full
+/// scale), read by the Steinhart–Hart equation
+///
+/// ```text
+/// 1/T = a + b·ln R + c·(ln R)³        T in K, R in Ω
+/// ```
+///
+/// A Beta thermistor is the case `c = 0` ([`Thermistor::from_beta`]); the
+/// host fits `a`, `b` and `c` to a thermistor's datasheet points.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Thermistor {
-    /// Beta, K (3950 for the common 100 kΩ hotend thermistor).
-    pub beta: f32,
-    /// Resistance at 25 °C, Ω.
-    pub r25_ohms: f32,
+    /// Steinhart–Hart `a`, 1/K.
+    pub a: f32,
+    /// Steinhart–Hart `b`, 1/K.
+    pub b: f32,
+    /// Steinhart–Hart `c`, 1/K.
+    pub c: f32,
     /// The pullup, Ω (4 700 on most printer boards).
     pub pullup_ohms: f32,
 }
 
+/// `ln R` of the ends of the resistances a thermistor is read over (1 Ω to
+/// 100 MΩ): its curve must fall with temperature across them.
+const LN_OHMS_RANGE: (f32, f32) = (0.0, 18.42);
+
 impl Thermistor {
-    /// Whether every value is finite and positive.
-    pub fn is_valid(&self) -> bool {
-        [self.beta, self.r25_ohms, self.pullup_ohms]
-            .iter()
-            .all(|v| v.is_finite() && *v > 0.0)
+    /// A Beta thermistor: `beta`, K (3950 for the common 100 kΩ hotend
+    /// thermistor), `r25_ohms` at 25 °C.
+    pub fn from_beta(beta: f32, r25_ohms: f32, pullup_ohms: f32) -> Thermistor {
+        Thermistor {
+            a: 1.0 / (25.0 + ZERO_C_IN_K) - libm::logf(r25_ohms) / beta,
+            b: 1.0 / beta,
+            c: 0.0,
+            pullup_ohms,
+        }
     }
 
-    /// The temperature, °C, of a raw reading (of 65 535); not finite at
-    /// the ends of the scale.
+    /// Whether the values are finite, the pullup positive, and the curve
+    /// one of a thermistor: its resistance falls as it warms (`b + 3c·ln²R
+    /// > 0`) across 1 Ω to 100 MΩ.
+    pub fn is_valid(&self) -> bool {
+        let finite = [self.a, self.b, self.c, self.pullup_ohms]
+            .iter()
+            .all(|v| v.is_finite());
+        let slope = |ln_r: f32| self.b + 3.0 * self.c * ln_r * ln_r;
+        finite
+            && self.pullup_ohms > 0.0
+            && slope(LN_OHMS_RANGE.0) > 0.0
+            && slope(LN_OHMS_RANGE.1) > 0.0
+    }
+
+    /// The temperature, °C, of a raw reading (of 65 535); at the ends of
+    /// the scale absolute zero or NaN, which the sensor check reads as
+    /// open.
     pub fn celsius(&self, raw: u16) -> f32 {
-        // R / R25 = (pullup / R25) · raw / (full − raw): one division.
-        let ratio =
-            self.pullup_ohms * f32::from(raw) / (self.r25_ohms * (65_535.0 - f32::from(raw)));
-        let inv = 1.0 / (25.0 + ZERO_C_IN_K) + libm::logf(ratio) / self.beta;
+        let raw = f32::from(raw);
+        let ln_r = libm::logf(self.pullup_ohms * raw / (65_535.0 - raw));
+        let inv = self.a + self.b * ln_r + self.c * ln_r * ln_r * ln_r;
         1.0 / inv - ZERO_C_IN_K
     }
 }

@@ -25,6 +25,9 @@ use std::rc::Rc;
 const BETA: f64 = 3950.0;
 const R25: f64 = 100_000.0;
 const PULLUP: f64 = 4_700.0;
+/// The rig's thermistor, as the module takes it.
+static T: std::sync::LazyLock<Thermistor> =
+    std::sync::LazyLock::new(|| Thermistor::from_beta(BETA as f32, R25 as f32, PULLUP as f32));
 /// Klipper's example gains for an E3D-style hotend.
 const KP: f32 = 22.2;
 const KI: f32 = 1.08;
@@ -213,7 +216,7 @@ impl Rig {
 
     fn configure(&mut self, index: u8) {
         let m = &mut self.m;
-        m.heater_sensor(index, index, BETA as f32, R25 as f32, PULLUP as f32)
+        m.heater_sensor(index, index, T.a, T.b, T.c, T.pullup_ohms)
             .unwrap();
         m.heater_output(index, index, 1.0).unwrap();
         m.heater_limits(index, 0.0, 300.0).unwrap();
@@ -273,11 +276,7 @@ fn heater_error(e: HeaterError) -> Result<(), CallError> {
 
 #[test]
 fn the_thermistor_reads_its_beta_model() {
-    let t = Thermistor {
-        beta: BETA as f32,
-        r25_ohms: R25 as f32,
-        pullup_ohms: PULLUP as f32,
-    };
+    let t = *T;
     for want in [0.0, 25.0, 60.0, 110.0, 210.0, 280.0] {
         let mut b = Block::hotend();
         b.temp = want;
@@ -285,9 +284,58 @@ fn the_thermistor_reads_its_beta_model() {
         // The 12-bit converter's step at the hottest, 0.4 °C at 280 °C.
         assert!((got - want).abs() < 0.4, "{want} °C read as {got}");
     }
-    // The ends of the scale have no temperature (ln 0, ln ∞): both come
-    // out at absolute zero, outside any heater's limits.
-    assert!(t.celsius(0) < -273.0 && t.celsius(65_535) < -273.0);
+    // The ends of the scale have no temperature (ln 0, ln ∞): each comes
+    // out at absolute zero or not a number, outside any heater's limits.
+    for raw in [0, 65_535] {
+        let c = t.celsius(raw);
+        assert!(c.is_nan() || c <= -273.0, "{raw} read as {c} °C");
+    }
+}
+
+/// The Steinhart–Hart coefficients through three (°C, Ω) points, solved
+/// in f64 as a host does.
+fn steinhart_hart(points: [(f64, f64); 3]) -> [f64; 3] {
+    let l: Vec<f64> = points.iter().map(|p| p.1.ln()).collect();
+    let y: Vec<f64> = points.iter().map(|p| 1.0 / (p.0 + 273.15)).collect();
+    let g2 = (y[1] - y[0]) / (l[1] - l[0]);
+    let g3 = (y[2] - y[0]) / (l[2] - l[0]);
+    let c = (g3 - g2) / (l[2] - l[1]) / (l[0] + l[1] + l[2]);
+    let b = g2 - c * (l[0] * l[0] + l[0] * l[1] + l[1] * l[1]);
+    let a = y[0] - (b + c * l[0] * l[0]) * l[0];
+    [a, b, c]
+}
+
+#[test]
+fn the_thermistor_reads_a_steinhart_hart_curve_through_its_points() {
+    // EPCOS 100K B57560G104F's datasheet points, on a 4.7 kΩ pullup.
+    let points = [(25.0, 100_000.0), (150.0, 1_641.9), (250.0, 226.15)];
+    let [a, b, c] = steinhart_hart(points);
+    assert!(c > 0.0, "the fit has a cubic term: {c}");
+    let t = Thermistor {
+        a: a as f32,
+        b: b as f32,
+        c: c as f32,
+        pullup_ohms: PULLUP as f32,
+    };
+    assert!(t.is_valid());
+    for (want, ohms) in points {
+        // The exact reading of that resistance, rounded to the converter.
+        let raw = (65_535.0 * ohms / (ohms + PULLUP)).round() as u16;
+        let got = f64::from(t.celsius(raw));
+        // A 16-bit step at 250 °C (226 Ω on 4.7 kΩ) is 0.01 °C; the
+        // rest is f32.
+        assert!(
+            (got - want).abs() < 0.02,
+            "{ohms} Ω read as {got} °C, not {want}"
+        );
+    }
+    // The same thermistor as a Beta model through its 25 °C and 150 °C
+    // points reads 250 °C nearly 4 °C off: the curve is why tables exist.
+    let beta = (1.0 / 298.15 - 1.0 / 423.15) / (100_000.0f64 / 1_641.9).ln();
+    let b = Thermistor::from_beta((1.0 / beta) as f32, 1e5, PULLUP as f32);
+    let raw = (65_535.0 * 226.15 / (226.15 + PULLUP)).round() as u16;
+    let off = f64::from(b.celsius(raw)) - 250.0;
+    assert!(off.abs() > 2.0, "a Beta model would do: {off}");
 }
 
 #[test]
@@ -524,19 +572,26 @@ fn bad_arguments_are_refused_with_their_codes() {
     let mut r = Rig::new();
     let m = &mut r.m;
     assert_eq!(
-        m.heater_sensor(2, 0, 3950.0, 1e5, 4700.0),
+        m.heater_sensor(2, 0, T.a, T.b, T.c, T.pullup_ohms),
         heater_error(E::NoSuchHeater)
     );
     assert_eq!(
-        m.heater_sensor(0, 3, 3950.0, 1e5, 4700.0),
+        m.heater_sensor(0, 3, T.a, T.b, T.c, T.pullup_ohms),
         heater_error(E::NoSuchPin)
     );
-    for (b, r25, p) in [
-        (0.0, 1e5, 4700.0),
-        (3950.0, f32::NAN, 4700.0),
-        (3950.0, 1e5, -1.0),
+    // A resistance that rises with temperature somewhere from 1 Ω to
+    // 100 MΩ (b ≤ 0, or a c so negative that the curve turns), a value
+    // not finite, a pullup not positive.
+    for (a, b, c, p) in [
+        (T.a, 0.0, 0.0, T.pullup_ohms),
+        (T.a, -T.b, 0.0, T.pullup_ohms),
+        (T.a, T.b, -T.b / 1000.0, T.pullup_ohms),
+        (f32::NAN, T.b, T.c, T.pullup_ohms),
+        (T.a, T.b, f32::INFINITY, T.pullup_ohms),
+        (T.a, T.b, T.c, -1.0),
+        (T.a, T.b, T.c, 0.0),
     ] {
-        assert_eq!(m.heater_sensor(0, 0, b, r25, p), heater_error(E::BadValue));
+        assert_eq!(m.heater_sensor(0, 0, a, b, c, p), heater_error(E::BadValue));
     }
     assert_eq!(m.heater_output(0, 2, 1.0), heater_error(E::NoSuchPin));
     for p in [0.0, 1.01, f32::NAN] {
@@ -575,7 +630,7 @@ fn bad_arguments_are_refused_with_their_codes() {
     assert_eq!(m.heater_power(0, 0.5), heater_error(E::NotConfigured));
     assert_eq!(m.heater_target(0, 0.0), Ok(()));
     assert_eq!(m.heaters.wake_at(), None, "nothing to poll");
-    m.heater_sensor(0, 0, 3950.0, 1e5, 4700.0).unwrap();
+    m.heater_sensor(0, 0, T.a, T.b, T.c, T.pullup_ohms).unwrap();
     m.heater_output(0, 0, 1.0).unwrap();
     m.heater_limits(0, 0.0, 300.0).unwrap();
     assert_eq!(
@@ -609,7 +664,7 @@ fn bad_arguments_are_refused_with_their_codes() {
         now,
     });
     assert_eq!(
-        bare.heater_sensor(0, 0, 3950.0, 1e5, 4700.0),
+        bare.heater_sensor(0, 0, T.a, T.b, T.c, T.pullup_ohms),
         heater_error(E::NoHardware)
     );
     assert_eq!(bare.heater_target(0, 0.0), heater_error(E::NoHardware));

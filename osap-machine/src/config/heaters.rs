@@ -5,13 +5,19 @@
 //! [heaters.hotend]
 //! module = "tool"                   # a key of [modules]
 //! output = { pwm = 0 }              # the heater's MOSFET
-//! sensor = { analog = 0, beta = 4267, r25_ohms = 100000, pullup_ohms = 4700 }
+//! sensor = { analog = 0, thermistor = "EPCOS 100K B57560G104F" }
 //! min_temp = 5                      # below: the thermistor reads open
 //! max_temp = 290                    # at or above: the module cuts the heater
 //! kp = 21.5                         # PID gains in Klipper's units
 //! ki = 1.06                         # (osap heater-tune --write finds them)
 //! kd = 109.0
 //! ```
+//!
+//! A sensor names its thermistor one of three ways: `thermistor = "NAME"`
+//! (a catalogued one, [`THERMISTORS`](super::THERMISTORS)), `beta` and
+//! `r25_ohms` (a Beta model; with nothing given, β 3950 and 100 kΩ), or
+//! `points = [[°C, Ω], ...]` (three or more datasheet points: see
+//! [`super::thermistor`]). `pullup_ohms` defaults to 4 700.
 //!
 //! The hotend is `[heaters.hotend]` and the bed `[heaters.bed]`: the names
 //! `M104`/`M109` and `M140`/`M190` set. Runaway protection takes
@@ -23,6 +29,7 @@ use std::collections::BTreeMap;
 
 use serde::Deserialize;
 
+use super::thermistor::{Datasheet, SteinhartHart, THERMISTORS};
 use super::{invalid, ConfigError, MachineFile, Output, PWM_CHANNELS};
 
 /// A heater.
@@ -58,21 +65,73 @@ pub struct Heater {
     pub wait_timeout_s: f64,
 }
 
-/// A Beta thermistor to ground on an analog input, with a pullup.
-#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+/// An NTC thermistor to ground on an analog input, with a pullup: a
+/// catalogued one, a Beta model, or a table of points.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Sensor {
     /// The analog input it is read on.
     pub analog: u8,
-    /// Its β, K (default 3950, the common "100k NTC 3950").
-    #[serde(default = "default_beta")]
-    pub beta: f64,
-    /// Its resistance at 25 °C, Ω (default 100 000).
-    #[serde(default = "default_r25")]
-    pub r25_ohms: f64,
+    /// A catalogued thermistor by name (see [`THERMISTORS`]).
+    #[serde(default)]
+    pub thermistor: Option<String>,
+    /// Its β, K (3950, the common "100k NTC 3950", when nothing names the
+    /// curve).
+    #[serde(default)]
+    pub beta: Option<f64>,
+    /// Its resistance at 25 °C with `beta`, Ω (default 100 000).
+    #[serde(default)]
+    pub r25_ohms: Option<f64>,
+    /// Three or more (°C, Ω) points of its datasheet.
+    #[serde(default)]
+    pub points: Option<Vec<[f64; 2]>>,
     /// The pullup to the converter's reference, Ω (default 4 700).
     #[serde(default = "default_pullup")]
     pub pullup_ohms: f64,
+}
+
+impl Sensor {
+    /// The thermistor's curve, or which key is wrong and why.
+    pub fn curve(&self) -> Result<SteinhartHart, (&'static str, String)> {
+        let given = [
+            self.thermistor.is_some(),
+            self.beta.is_some() || self.r25_ohms.is_some(),
+            self.points.is_some(),
+        ];
+        if given.iter().filter(|g| **g).count() > 1 {
+            return Err((
+                "thermistor",
+                "give one of thermistor, beta (with r25_ohms) or points".into(),
+            ));
+        }
+        if let Some(name) = &self.thermistor {
+            let sheet = Datasheet::named(name).ok_or_else(|| {
+                let known: Vec<&str> = THERMISTORS.iter().map(|(n, _)| *n).collect();
+                (
+                    "thermistor",
+                    format!(
+                        "{name:?} is not catalogued; give one of {known:?}, or its beta                          and r25_ohms, or its datasheet points"
+                    ),
+                )
+            })?;
+            return sheet.curve().map_err(|e| ("thermistor", e));
+        }
+        if let Some(points) = &self.points {
+            let points: Vec<(f64, f64)> = points.iter().map(|p| (p[0], p[1])).collect();
+            return SteinhartHart::fit(&points).map_err(|e| ("points", e));
+        }
+        let beta = self.beta.unwrap_or(3950.0);
+        let r25 = self.r25_ohms.unwrap_or(100_000.0);
+        for (k, v) in [("beta", beta), ("r25_ohms", r25)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err((
+                    k,
+                    format!("{v} must be positive (the thermistor's data sheet gives it)"),
+                ));
+            }
+        }
+        Ok(SteinhartHart::from_beta(beta, r25))
+    }
 }
 
 /// Runaway protection: when the module cuts the heater by itself.
@@ -100,12 +159,6 @@ fn one() -> f64 {
 }
 fn default_wait_timeout_s() -> f64 {
     600.0
-}
-fn default_beta() -> f64 {
-    3950.0
-}
-fn default_r25() -> f64 {
-    100_000.0
 }
 fn default_pullup() -> f64 {
     4700.0
@@ -191,18 +244,17 @@ pub(super) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
             ));
         }
         let s = &h.sensor;
-        for (k, v) in [
-            ("beta", s.beta),
-            ("r25_ohms", s.r25_ohms),
-            ("pullup_ohms", s.pullup_ohms),
-        ] {
-            if !(v.is_finite() && v > 0.0) {
-                return Err(invalid(
-                    format!("{at}.sensor.{k}"),
-                    format!("{v} must be positive (the thermistor's data sheet gives it)"),
-                ));
-            }
+        if !(s.pullup_ohms.is_finite() && s.pullup_ohms > 0.0) {
+            return Err(invalid(
+                format!("{at}.sensor.pullup_ohms"),
+                format!(
+                    "{} must be positive (the board's schematic gives it)",
+                    s.pullup_ohms
+                ),
+            ));
         }
+        s.curve()
+            .map_err(|(k, why)| invalid(format!("{at}.sensor.{k}"), why))?;
         if !(h.min_temp.is_finite() && h.max_temp.is_finite())
             || h.min_temp < -50.0
             || h.min_temp >= h.max_temp

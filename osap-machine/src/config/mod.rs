@@ -29,6 +29,7 @@ mod jobs;
 mod probe;
 mod sim;
 mod step_rate;
+pub mod thermistor;
 mod validate;
 
 pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
@@ -37,6 +38,7 @@ pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use probe::{Probe, ProbeGridError};
 pub use sim::{Sim, SimAxis};
 pub use step_rate::MAX_STEP_RATE;
+pub use thermistor::{SteinhartHart, THERMISTORS};
 use validate::is_mechanism_axis;
 
 /// The axis names a machine file may use, in the order

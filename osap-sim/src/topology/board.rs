@@ -190,10 +190,13 @@ fn default_ambient_c() -> f64 {
 /// C·dT/dt = power_w·duty − loss_w_per_k·(T − ambient_c)
 /// ```
 ///
-/// and a Beta thermistor to ground in it, with a pullup to the converter's
+/// and an NTC thermistor to ground in it, with a pullup to the converter's
 /// reference, is read on analog input `analog` (the fraction `R / (R +
-/// pullup_ohms)` of full scale). The defaults are the common printer
-/// thermistor: 100 kΩ at 25 °C, β 3950, on a 4.7 kΩ pullup.
+/// pullup_ohms)` of full scale). The thermistor is a Beta model (`beta`,
+/// `r25_ohms`), or the Steinhart–Hart curve `steinhart_hart = [a, b, c]`
+/// (`1/T = a + b·ln R + c·ln³R`, T in K) instead when that is given. The
+/// defaults are the common printer thermistor: 100 kΩ at 25 °C, β 3950,
+/// on a 4.7 kΩ pullup.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct HeaterSpec {
@@ -207,6 +210,10 @@ pub struct HeaterSpec {
     /// The thermistor's resistance at 25 °C, Ω (> 0; default 100 000).
     #[serde(default = "default_r25_ohms")]
     pub r25_ohms: f64,
+    /// The thermistor's Steinhart–Hart curve `[a, b, c]`, 1/K, instead of
+    /// `beta` and `r25_ohms` (its resistance must fall as it warms).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub steinhart_hart: Option<[f64; 3]>,
     /// The pullup, Ω (> 0; default 4 700).
     #[serde(default = "default_pullup_ohms")]
     pub pullup_ohms: f64,
@@ -264,6 +271,17 @@ impl HeaterSpec {
             if !(v.is_finite() && v >= 0.0) {
                 return Err(BoardError::new(format!(
                     "[[module.io.heater]] {key} {v} must be finite and 0 or more"
+                )));
+            }
+        }
+        if let Some([a, b, c]) = self.steinhart_hart {
+            // Falling resistance from 1 Ω to 100 MΩ: ln R from 0 to 18.4.
+            let slope = |l: f64| b + 3.0 * c * l * l;
+            if !([a, b, c].iter().all(|v| v.is_finite()) && slope(0.0) > 0.0 && slope(18.42) > 0.0)
+            {
+                return Err(BoardError::new(format!(
+                    "[[module.io.heater]] steinhart_hart [{a}, {b}, {c}] is no thermistor: its \
+                     resistance must fall as it warms, from 1 Ω to 100 MΩ"
                 )));
             }
         }

@@ -171,7 +171,7 @@ impl Stepper {
         },
         support::Signature {
             function: "heater_sensor",
-            inputs: &[("index", "u8"), ("analog", "u8"), ("beta", "f32"), ("r25_ohms", "f32"), ("pullup_ohms", "f32")],
+            inputs: &[("index", "u8"), ("analog", "u8"), ("a", "f32"), ("b", "f32"), ("c", "f32"), ("pullup_ohms", "f32")],
             outputs: &[],
         },
         support::Signature {
@@ -835,12 +835,12 @@ impl Stepper {
 
     /// `heater_sensor`.
     ///
-    /// - inputs: `index: u8`, `analog: u8`, `beta: f32`, `r25_ohms: f32`, `pullup_ohms: f32`
+    /// - inputs: `index: u8`, `analog: u8`, `a: f32`, `b: f32`, `c: f32`, `pullup_ohms: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
-    pub async fn heater_sensor(&self, index: u8, analog: u8, beta: f32, r25_ohms: f32, pullup_ohms: f32) -> Result<(), CallError> {
+    pub async fn heater_sensor(&self, index: u8, analog: u8, a: f32, b: f32, c: f32, pullup_ohms: f32) -> Result<(), CallError> {
         let h = &self.heater_sensor;
-        let values = h.call(&[support::to_u8(index), support::to_u8(analog), support::to_f32(beta), support::to_f32(r25_ohms), support::to_f32(pullup_ohms)]).await?;
+        let values = h.call(&[support::to_u8(index), support::to_u8(analog), support::to_f32(a), support::to_f32(b), support::to_f32(c), support::to_f32(pullup_ohms)]).await?;
         let _out = support::Outputs::new(h, values, 0)?;
         Ok(())
     }

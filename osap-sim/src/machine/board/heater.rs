@@ -98,10 +98,28 @@ impl ThermalHeater {
             return 1.0;
         }
         let s = &self.spec;
-        let t = self.temp + ZERO_C_IN_K;
-        let r = s.r25_ohms * (s.beta * (1.0 / t - 1.0 / (25.0 + ZERO_C_IN_K))).exp();
+        let r = thermistor_ohms(s, self.temp);
         r / (r + s.pullup_ohms)
     }
+}
+
+/// The thermistor's resistance at `celsius`, Ω.
+fn thermistor_ohms(s: &HeaterSpec, celsius: f64) -> f64 {
+    let inv_t = 1.0 / (celsius + ZERO_C_IN_K);
+    let Some([a, b, c]) = s.steinhart_hart else {
+        return s.r25_ohms * (s.beta * (inv_t - 1.0 / (25.0 + ZERO_C_IN_K))).exp();
+    };
+    // a + b·L + c·L³ = 1/T for L = ln R: Newton from the curve's Beta
+    // part; the slope b + 3c·L² is positive (the spec is checked).
+    let mut l = (inv_t - a) / b;
+    for _ in 0..50 {
+        let step = (a + b * l + c * l * l * l - inv_t) / (b + 3.0 * c * l * l);
+        l -= step;
+        if step.abs() < 1e-12 {
+            break;
+        }
+    }
+    l.exp()
 }
 
 #[cfg(test)]
@@ -114,6 +132,7 @@ mod tests {
             analog: 0,
             beta: 3950.0,
             r25_ohms: 100_000.0,
+            steinhart_hart: None,
             pullup_ohms: 4_700.0,
             power_w: 40.0,
             heat_capacity_j_per_k: 15.0,
@@ -166,6 +185,41 @@ mod tests {
         assert!(bad(|s| s.loss_w_per_k = f64::INFINITY).contains("loss_w_per_k"));
         assert!(bad(|s| s.ambient_c = -300.0).contains("ambient_c"));
         assert!(bad(|s| s.sensor_fails_at_s = Some(-1.0)).contains("sensor_fails_at_s"));
+        assert!(bad(|s| s.steinhart_hart = Some([1e-3, -1e-4, 0.0])).contains("steinhart_hart"));
+        assert!(bad(|s| s.steinhart_hart = Some([1e-3, 2e-4, -1e-6])).contains("fall"));
         assert_eq!(hotend().check(), Ok(()));
+    }
+
+    #[test]
+    fn a_steinhart_hart_thermistor_reads_its_own_curve() {
+        // A curve with a real cubic term (EPCOS 100K's, through its
+        // datasheet points); at each temperature the resistance the sim
+        // gives maps back through the curve to that temperature.
+        let (a, b, c) = (7.221_363e-4, 2.167_666e-4, 8.929_358e-8);
+        let spec = HeaterSpec {
+            steinhart_hart: Some([a, b, c]),
+            ..hotend()
+        };
+        assert_eq!(spec.check(), Ok(()));
+        for celsius in [0.0, 25.0, 150.0, 250.0, 300.0] {
+            let l = thermistor_ohms(&spec, celsius).ln();
+            let back = 1.0 / (a + b * l + c * l * l * l) - ZERO_C_IN_K;
+            assert!(
+                (back - celsius).abs() < 1e-9,
+                "{celsius} °C came back {back}"
+            );
+        }
+        // Without the cubic term it is the Beta model it names.
+        let beta = HeaterSpec {
+            steinhart_hart: Some([1.0 / 298.15 - 1e5f64.ln() / 3950.0, 1.0 / 3950.0, 0.0]),
+            ..hotend()
+        };
+        for celsius in [25.0, 210.0] {
+            let (x, y) = (
+                thermistor_ohms(&beta, celsius),
+                thermistor_ohms(&hotend(), celsius),
+            );
+            assert!((x / y - 1.0).abs() < 1e-9, "{celsius} °C: {x} Ω, not {y}");
+        }
     }
 }
