@@ -62,6 +62,81 @@ impl Plan {
     }
 }
 
+/// Walks a [`Plan`] without passing a limit. Within each condition the
+/// setpoints rise; before running the next one the routine predicts its
+/// steady value from the last two it measured (a power law through them,
+/// the shape most process laws have locally) and skips the condition's
+/// remaining setpoints if the prediction, or a value measured, passes
+/// `limit`. An experiment that must not damage what it measures (a
+/// filament drive that would slip, a cutter that would break) stays below
+/// the limit this way without knowing the process beforehand.
+#[derive(Debug, Clone)]
+pub struct Routine {
+    plan: Plan,
+    limit: f64,
+    next: usize,
+    /// (setpoint, steady value) measured at the current condition.
+    seen: Vec<(f64, f64)>,
+}
+
+impl Routine {
+    /// A routine over `plan` that keeps each condition below `limit`.
+    pub fn new(plan: Plan, limit: f64) -> Routine {
+        Routine {
+            plan,
+            limit,
+            next: 0,
+            seen: Vec::new(),
+        }
+    }
+
+    /// The steady value predicted at `setpoint` from the last two
+    /// measured at this condition.
+    fn predict(&self, setpoint: f64) -> Option<f64> {
+        let [.., (s1, v1), (s2, v2)] = self.seen[..] else {
+            return None;
+        };
+        if !(s1 > 0.0 && s2 > s1 && v1 > 0.0 && v2 > 0.0) {
+            return None;
+        }
+        // The local exponent, no less than linear's half and at most
+        // quadratic: a noisy pair must not promise a flat curve.
+        let slope = ((v2 / v1).ln() / (s2 / s1).ln()).clamp(0.5, 2.0);
+        Some(v2 * (setpoint / s2).powf(slope))
+    }
+
+    /// The next step to run, given the steady value the previous step
+    /// reached (`None` for the first step, or when it had none).
+    pub fn next_step(&mut self, previous: Option<f64>) -> Option<StepSpec> {
+        if let Some(last) = self.next.checked_sub(1).map(|i| self.plan.steps[i]) {
+            if let Some(value) = previous {
+                self.seen.push((last.setpoint, value));
+            }
+            let over = |r: &Routine, s: &StepSpec| {
+                previous.is_some_and(|v| v > r.limit)
+                    || r.predict(s.setpoint).is_some_and(|p| p > r.limit)
+            };
+            while let Some(s) = self.plan.steps.get(self.next).copied() {
+                if s.condition != last.condition || !over(self, &s) {
+                    break;
+                }
+                self.next += 1;
+            }
+            if self
+                .plan
+                .steps
+                .get(self.next)
+                .is_none_or(|s| s.condition != last.condition)
+            {
+                self.seen.clear();
+            }
+        }
+        let step = self.plan.steps.get(self.next).copied();
+        self.next += 1;
+        step
+    }
+}
+
 /// One step reduced to its steady value.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SteadyState {
@@ -128,6 +203,22 @@ pub fn transients(steps: &[RanStep], record: &[(f64, f64)], before_s: f64) -> Ve
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_routine_skips_a_conditions_higher_setpoints_past_the_limit() {
+        let mut r = Routine::new(Plan::grid(&[1.0, 2.0], &[1.0, 2.0, 3.0], 1.0), 3.5);
+        // The response is setpoint × condition.
+        let mut seen = Vec::new();
+        let mut previous = None;
+        while let Some(s) = r.next_step(previous) {
+            seen.push((s.condition, s.setpoint));
+            previous = Some(s.condition * s.setpoint);
+        }
+        assert_eq!(
+            seen,
+            [(1.0, 1.0), (1.0, 2.0), (1.0, 3.0), (2.0, 1.0), (2.0, 2.0)]
+        );
+    }
 
     #[test]
     fn a_grid_runs_each_setpoint_at_each_condition_and_reduces_to_means() {

@@ -66,11 +66,16 @@ impl MeltModel {
         Law { t_ref: self.t_ref }.predict(&[self.flow_k, self.flow_n, self.temp_coeff], &[q, t])
     }
 
+    /// The flow that needs `force_n` at `t` °C, mm³/s: the law inverted.
+    pub fn flow_at(&self, force_n: f64, t: f64) -> f64 {
+        (force_n / (self.flow_k * (-self.temp_coeff * (t - self.t_ref)).exp()))
+            .powf(1.0 / self.flow_n)
+    }
+
     /// The flow at which the steady force reaches `force_n` at `t` °C,
     /// mm³/s.
     pub fn max_flow(&self, t: f64, force_n: f64) -> f64 {
-        (force_n / (self.flow_k * (-self.temp_coeff * (t - self.t_ref)).exp()))
-            .powf(1.0 / self.flow_n)
+        self.flow_at(force_n, t)
     }
 
     /// The lowest temperature within `range` (°C) at which `flow` (mm³/s)

@@ -51,13 +51,16 @@ async fn run() {
     let mut m = Manager::new(&host).await.expect("manager");
     m.refresh().await.expect("scan");
     let f = |name: &str| m.function(&FnRef::new("tool", name)).unwrap();
+    // The thermistor's curve: β 3950 through 100 kΩ at 25 °C.
+    let t = osap_module::heater::Thermistor::from_beta(3950.0, 100_000.0, 4_700.0);
     f("heater_sensor")
         .call(&[
             Value::U8(HEATER),
             Value::U8(0),
-            Value::F32(3950.0),
-            Value::F32(100_000.0),
-            Value::F32(4_700.0),
+            Value::F32(t.a),
+            Value::F32(t.b),
+            Value::F32(t.c),
+            Value::F32(t.pullup_ohms),
         ])
         .await
         .unwrap();

@@ -271,7 +271,8 @@ pub extern "C" fn _start() -> ! {
     });
     HEATED.with(|m| {
         for (i, target) in [(0u8, 200.0f32), (1, 60.0)] {
-            m.heater_sensor(i, i, 3950.0, 100_000.0, 4_700.0).unwrap();
+            let t = osap_module::heater::Thermistor::from_beta(3950.0, 100_000.0, 4_700.0);
+            m.heater_sensor(i, i, t.a, t.b, t.c, t.pullup_ohms).unwrap();
             m.heater_output(i, i, 1.0).unwrap();
             m.heater_limits(i, 0.0, 280.0).unwrap();
             m.heater_gains(i, 22.2, 1.08, 114.0).unwrap();

@@ -23,6 +23,7 @@
 pub mod accel;
 pub mod bootloader;
 pub mod heater;
+pub mod melt;
 
 use super::clock::DriftClock;
 use crate::topology::{
@@ -31,6 +32,7 @@ use crate::topology::{
 use accel::Accel;
 use bootloader::BootHook;
 use heater::ThermalHeater;
+use melt::Melt;
 use osap_core::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
 
@@ -235,6 +237,7 @@ pub struct Pins {
     pwm_writes: Vec<PwmWrite>,
     accel: Option<Accel>,
     heaters: Vec<ThermalHeater>,
+    melt: Option<Melt>,
 }
 
 impl Pins {
@@ -261,6 +264,30 @@ impl Pins {
                 .cloned()
                 .map(ThermalHeater::new)
                 .collect(),
+            melt: spec.melt.clone().map(|m| {
+                let ambient = spec
+                    .heaters
+                    .iter()
+                    .find(|h| h.pwm == m.heater_pwm)
+                    .map_or(25.0, |h| h.ambient_c);
+                Melt::new(m, ambient)
+            }),
+        }
+    }
+
+    /// The melt behind the extruder, if the board has one.
+    pub fn melt(&self) -> Option<&Melt> {
+        self.melt.as_ref()
+    }
+
+    /// Gives the melt its block's temperature now.
+    fn warm_melt(&mut self) {
+        let secs = self.secs_since_boot();
+        if let Some(m) = &mut self.melt {
+            let pwm = m.spec().heater_pwm;
+            if let Some(h) = self.heaters.iter().find(|h| h.spec().pwm == pwm) {
+                m.set_temperature(h.temperature(secs));
+            }
         }
     }
 
@@ -335,6 +362,21 @@ impl IoHw for Pins {
         DIGITAL_PINS
     }
     fn write_digital(&mut self, pin: u8, level: bool) {
+        // The load cell's clock: the converter sees the edge (and the
+        // pin's thousands of edges a second are not kept in `writes`).
+        if self
+            .melt
+            .as_ref()
+            .is_some_and(|m| m.spec().clock_pin == pin)
+        {
+            self.warm_melt();
+            let now = self.clock.now();
+            if let Some(m) = &mut self.melt {
+                m.write_clock(now, level);
+            }
+            self.digital[usize::from(pin)] = level;
+            return;
+        }
         if let Some(d) = self.digital.get_mut(usize::from(pin)) {
             *d = level;
             self.writes.push(DigitalWrite {
@@ -345,6 +387,10 @@ impl IoHw for Pins {
         }
     }
     fn read_digital(&mut self, pin: u8) -> bool {
+        let now = self.clock.now();
+        if let Some(m) = self.melt.as_mut().filter(|m| m.spec().data_pin == pin) {
+            return m.read_data(now);
+        }
         self.digital.get(usize::from(pin)).copied().unwrap_or(false)
     }
     fn pwm_outputs(&self) -> u8 {
@@ -497,8 +543,16 @@ impl SimBoard {
         let microsteps = self.driver.microsteps;
         let before = self.motor.position();
         self.motor.step(local, up, microsteps);
+        let moved = self.motor.position() - before;
         if let Some(a) = &mut self.pins.accel {
-            a.step(local, self.motor.position() - before);
+            a.step(local, moved);
+        }
+        if self.pins.melt.is_some() {
+            self.pins.warm_melt();
+            let now = self.clock.now();
+            if let Some(m) = &mut self.pins.melt {
+                m.step(local, moved, now);
+            }
         }
     }
 }

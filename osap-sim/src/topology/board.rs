@@ -118,6 +118,10 @@ pub struct IoSpec {
     /// output).
     #[serde(default, rename = "heater", skip_serializing_if = "Vec::is_empty")]
     pub heaters: Vec<HeaterSpec>,
+    /// A melt behind this module's extruder, weighed by a load cell on two
+    /// digital pins (`[module.io.melt]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub melt: Option<MeltSpec>,
 }
 
 impl IoSpec {
@@ -142,6 +146,16 @@ impl IoSpec {
         }
         if let Some(a) = &self.accel {
             a.check()?;
+        }
+        if let Some(m) = &self.melt {
+            m.check()?;
+            if !self.heaters.iter().any(|h| h.pwm == m.heater_pwm) {
+                return Err(BoardError::new(format!(
+                    "[module.io.melt] heater_pwm {} drives no [[module.io.heater]] of this \
+                     module: the melt is at its block's temperature",
+                    m.heater_pwm
+                )));
+            }
         }
         for (i, h) in self.heaters.iter().enumerate() {
             h.check()?;
@@ -450,6 +464,170 @@ impl BootloaderSpec {
                 "[module.bootloader] reboot_ms {} is over a minute: a board reboots in well \
                  under a second",
                 self.reboot_ms
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// A melt behind a module's extruder and the load cell that weighs it
+/// (`[module.io.melt]` in a topology file; see
+/// [`crate::machine::board::melt`]): the module's motor pushes filament
+/// of `filament_diameter` into a melt zone whose outflow lags with
+/// `response_ms`, at the temperature of the block `heater_pwm` heats, and
+/// the filament needs `F = flow_k · Q^flow_n · exp(−temp_coeff · (T −
+/// t_ref))` newtons. An HX711 on digital pins `data_pin` and `clock_pin`
+/// weighs it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeltSpec {
+    /// The filament, mm (default 1.75).
+    #[serde(default = "default_filament")]
+    pub filament_diameter: f64,
+    /// The PWM output of the heater whose block the melt is in.
+    #[serde(default)]
+    pub heater_pwm: u8,
+    /// Force at 1 mm³/s and `t_ref`, N (> 0).
+    pub flow_k: f64,
+    /// The flow exponent (0 < n ≤ 1.5; below 1: shear-thinning).
+    pub flow_n: f64,
+    /// How fast the melt thins as it warms, 1/°C (≥ 0).
+    pub temp_coeff: f64,
+    /// The reference temperature, °C.
+    pub t_ref: f64,
+    /// The outflow's lag behind the push, ms (> 0).
+    pub response_ms: f64,
+    /// The load cell's noise, N (one σ, ≥ 0).
+    #[serde(default)]
+    pub noise_n: f64,
+    /// The drive's grip: above this force the filament slips, N (> 0).
+    pub grip_n: f64,
+    /// The converter's data line: this digital pin.
+    #[serde(default)]
+    pub data_pin: u8,
+    /// The converter's clock line: this digital pin.
+    #[serde(default = "one_u8")]
+    pub clock_pin: u8,
+    /// Conversions a second (10 or 80 on an HX711; default 80).
+    #[serde(default = "default_sample_hz")]
+    pub sample_hz: f64,
+    /// Counts per newton (default 2 000: a 5 kg cell at gain 128).
+    #[serde(default = "default_counts_per_newton")]
+    pub counts_per_newton: f64,
+    /// Counts at no force (default 85 000: a bridge's own imbalance).
+    #[serde(default = "default_offset_counts")]
+    pub offset_counts: f64,
+    /// The cell's own lag, ms (default 2).
+    #[serde(default = "default_sensor_tau_ms")]
+    pub sensor_tau_ms: f64,
+    /// The noise's seed.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+fn default_filament() -> f64 {
+    1.75
+}
+fn one_u8() -> u8 {
+    1
+}
+fn default_sample_hz() -> f64 {
+    80.0
+}
+fn default_counts_per_newton() -> f64 {
+    2_000.0
+}
+fn default_offset_counts() -> f64 {
+    85_000.0
+}
+fn default_sensor_tau_ms() -> f64 {
+    2.0
+}
+
+impl Default for MeltSpec {
+    /// A PLA-like melt on a 40 N drive: 20 N at 5 mm³/s and 210 °C, 32 N
+    /// (80 % of the grip) at 10 mm³/s.
+    fn default() -> Self {
+        MeltSpec {
+            filament_diameter: default_filament(),
+            heater_pwm: 0,
+            flow_k: 8.0,
+            flow_n: 0.6,
+            temp_coeff: 0.02,
+            t_ref: 210.0,
+            response_ms: 60.0,
+            noise_n: 0.05,
+            grip_n: 40.0,
+            data_pin: 0,
+            clock_pin: 1,
+            sample_hz: default_sample_hz(),
+            counts_per_newton: default_counts_per_newton(),
+            offset_counts: default_offset_counts(),
+            sensor_tau_ms: default_sensor_tau_ms(),
+            seed: 0,
+        }
+    }
+}
+
+impl MeltSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), BoardError> {
+        let positive = [
+            ("filament_diameter", self.filament_diameter),
+            ("flow_k", self.flow_k),
+            ("response_ms", self.response_ms),
+            ("grip_n", self.grip_n),
+            ("sample_hz", self.sample_hz),
+            ("counts_per_newton", self.counts_per_newton),
+        ];
+        for (key, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(BoardError::new(format!(
+                    "[module.io.melt] {key} {v} must be finite and positive"
+                )));
+            }
+        }
+        for (key, v) in [
+            ("temp_coeff", self.temp_coeff),
+            ("noise_n", self.noise_n),
+            ("sensor_tau_ms", self.sensor_tau_ms),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return Err(BoardError::new(format!(
+                    "[module.io.melt] {key} {v} must be finite and 0 or more"
+                )));
+            }
+        }
+        if !(self.flow_n > 0.0 && self.flow_n <= 1.5) {
+            return Err(BoardError::new(format!(
+                "[module.io.melt] flow_n {} must be within (0, 1.5]: melts thin or stay \
+                 Newtonian as they flow faster",
+                self.flow_n
+            )));
+        }
+        if !self.t_ref.is_finite() || !self.offset_counts.is_finite() {
+            return Err(BoardError::new(
+                "[module.io.melt] t_ref and offset_counts must be finite",
+            ));
+        }
+        for (key, pin) in [("data_pin", self.data_pin), ("clock_pin", self.clock_pin)] {
+            if pin >= DIGITAL_PINS {
+                return Err(BoardError::new(format!(
+                    "[module.io.melt] {key} {pin} does not exist: a module has digital pins 0 \
+                     to {}",
+                    DIGITAL_PINS - 1
+                )));
+            }
+        }
+        if self.data_pin == self.clock_pin {
+            return Err(BoardError::new(
+                "[module.io.melt] data_pin and clock_pin are the same pin: the converter needs two",
+            ));
+        }
+        if self.heater_pwm >= PWM_OUTPUTS {
+            return Err(BoardError::new(format!(
+                "[module.io.melt] heater_pwm {} does not exist",
+                self.heater_pwm
             )));
         }
         Ok(())
