@@ -153,6 +153,11 @@ impl IoHw for IoPins {
         // 12-bit result, scaled to the trait's 0..=65535 range.
         self.adc.blocking_read(ch).map_or(0, |v| v << 4)
     }
+
+    fn hold_pulse(&mut self) {
+        // 40 cycles at 125 MHz: 0.32 µs.
+        cortex_m::asm::delay(40);
+    }
 }
 
 /// Reboots into the boot ROM's USB mass-storage bootloader (the

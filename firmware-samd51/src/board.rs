@@ -285,6 +285,11 @@ impl IoHw for IoPins {
         // 12-bit result, scaled to the trait's 0..=65535 range.
         (a.result().read().result().bits() & 0x0FFF) << 4
     }
+
+    fn hold_pulse(&mut self) {
+        // 40 cycles at 120 MHz: 0.32 µs.
+        cortex_m::asm::delay(40);
+    }
 }
 
 /// The board's pins, sorted by use.

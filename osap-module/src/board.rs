@@ -52,6 +52,11 @@ pub trait IoHw {
     /// scale in `0..=65535` (a 12-bit converter's reading shifted left by 4),
     /// so scripts see the same range on every board.
     fn read_analog(&mut self, channel: u8) -> u16;
+
+    /// Waits at least 0.25 µs: how long a bit-banged clock level is held
+    /// (an HX711 wants 0.2 µs high and low). A board whose pin writes
+    /// already take that long, or a simulated one, leaves it empty.
+    fn hold_pulse(&mut self) {}
 }
 
 impl<T: StepperHw + ?Sized> StepperHw for &mut T {
@@ -87,6 +92,9 @@ impl<T: IoHw + ?Sized> IoHw for &mut T {
     }
     fn read_analog(&mut self, channel: u8) -> u16 {
         (**self).read_analog(channel)
+    }
+    fn hold_pulse(&mut self) {
+        (**self).hold_pulse()
     }
 }
 

@@ -26,6 +26,7 @@ use crate::boot::BootError;
 use crate::functions::{FnId, ALL, NOT_INSTALLED, SIGNATURES};
 use crate::heater::HeaterError;
 use crate::io::IoError;
+use crate::loadcell::LoadCellError;
 use crate::stepper::StepperError;
 use pipes_core::export::{INPUT_DECODE_FAILED, NO_SUCH_MEMBER, STATE_BUSY};
 
@@ -44,6 +45,8 @@ pub enum Family {
     Boot,
     /// [`HeaterError`] codes (the `heater_` functions).
     Heater,
+    /// [`LoadCellError`] codes (the `loadcell_` functions).
+    LoadCell,
     /// None of its own: the function cannot refuse (beyond [`generic`]).
     None,
 }
@@ -88,6 +91,9 @@ impl Family {
             | F::heater_power
             | F::heater_read
             | F::heater_clear => Family::Heater,
+            F::loadcell_setup | F::loadcell_tare | F::loadcell_scale | F::loadcell_read => {
+                Family::LoadCell
+            }
         }
     }
 
@@ -99,6 +105,7 @@ impl Family {
             Family::Io => &IO_FAILURES,
             Family::Boot => &BOOT_FAILURES,
             Family::Heater => &HEATER_FAILURES,
+            Family::LoadCell => &LOADCELL_FAILURES,
             Family::None => &GENERIC_FAILURES,
         }
     }
@@ -111,6 +118,7 @@ impl Family {
             Family::Io => find(IO.iter().map(|&e| io(e)), code),
             Family::Boot => find(BOOT.iter().map(|&e| boot(e)), code),
             Family::Heater => find(HEATER.iter().map(|&e| heater(e)), code),
+            Family::LoadCell => find(LOADCELL.iter().map(|&e| loadcell(e)), code),
             Family::None => None,
         }
     }
@@ -195,6 +203,8 @@ pub enum Refusal {
     Boot(BootError),
     /// A heater function's refusal.
     Heater(HeaterError),
+    /// A load-cell function's refusal.
+    LoadCell(LoadCellError),
     /// [`NOT_INSTALLED`]: the firmware never installed its board.
     NotInstalled,
     /// One of pipes-core's generated wrappers' codes
@@ -215,6 +225,7 @@ impl Refusal {
             Family::Io => IoError::from_code(code).map(Refusal::Io),
             Family::Boot => BootError::from_code(code).map(Refusal::Boot),
             Family::Heater => HeaterError::from_code(code).map(Refusal::Heater),
+            Family::LoadCell => LoadCellError::from_code(code).map(Refusal::LoadCell),
             Family::None => None,
         };
         own.unwrap_or(match pipes_core::FailureCode::from_code(code) {
@@ -236,6 +247,7 @@ impl Refusal {
             Refusal::Io(e) => e.code(),
             Refusal::Boot(e) => e.code(),
             Refusal::Heater(e) => e.code(),
+            Refusal::LoadCell(e) => e.code(),
             Refusal::NotInstalled => NOT_INSTALLED,
             Refusal::Wrapper(c) => c.code(),
             Refusal::Other(c) => c,
@@ -250,6 +262,7 @@ impl Refusal {
             Refusal::Io(e) => Some(io(e)),
             Refusal::Boot(e) => Some(boot(e)),
             Refusal::Heater(e) => Some(heater(e)),
+            Refusal::LoadCell(e) => Some(loadcell(e)),
             Refusal::NotInstalled | Refusal::Wrapper(_) => generic(self.code()),
             Refusal::Other(_) => None,
         }
@@ -382,6 +395,18 @@ failures! {
 }
 
 failures! {
+    /// A load-cell function's refusal ([`LoadCellError`]), by name.
+    pub fn loadcell, LOADCELL, LOADCELL_FAILURES: LoadCellError {
+        NoSuchPin => "no such digital pin on this board, or data and clock on one pin: give \
+                      the converter's two pins",
+        BadValue => "a value out of range: a scale finite and not 0, a tare of 1 to 1000 \
+                     samples",
+        NotConfigured => "the load cell is not set up: loadcell_setup with its pins first",
+        NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
+    }
+}
+
+failures! {
     /// `enter_bootloader`'s refusal ([`BootError`]), by name.
     pub fn boot, BOOT, BOOT_FAILURES: BootError {
         Unsupported => "this board cannot reboot into a bootloader from its firmware: put it \
@@ -425,6 +450,7 @@ mod tests {
                 Family::Io,
                 Family::Boot,
                 Family::Heater,
+                Family::LoadCell,
                 Family::None,
             ] {
                 assert_eq!(Refusal::from_code(family, byte).code(), byte);
@@ -589,6 +615,23 @@ mod tests {
         }
         assert_eq!(codes.len(), HeaterError::ALL.len());
         assert_eq!(failure("heater_clear", 6).unwrap().name, "SensorFault");
+    }
+
+    #[test]
+    fn every_loadcell_error_is_named_by_its_variant() {
+        let mut codes = BTreeSet::new();
+        for &e in LOADCELL {
+            let f = loadcell(e);
+            assert_eq!((f.code, std::format!("{e:?}")), (e.code(), f.name.into()));
+            assert!(codes.insert(f.code), "{} twice", f.code);
+            assert!(f.reason.contains(": "), "{f}: name the fix");
+            assert_eq!(failure("loadcell_read", f.code), Some(f));
+        }
+        assert_eq!(codes.len(), LoadCellError::ALL.len());
+        assert_eq!(
+            Refusal::of(FnId::loadcell_tare, 2),
+            Refusal::LoadCell(LoadCellError::BadValue)
+        );
     }
 
     #[test]

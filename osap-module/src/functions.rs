@@ -41,6 +41,10 @@
 //! | `heater_power` | `index: u8`, `duty: f32` | — |
 //! | `heater_read` | `index: u8` | `time: u64`, `temp: f32`, `target: f32`, `power: f32`, `state: u8` |
 //! | `heater_clear` | `index: u8` | — |
+//! | `loadcell_setup` | `data_pin: u8`, `clock_pin: u8` | — |
+//! | `loadcell_tare` | `samples: u16` | — |
+//! | `loadcell_scale` | `newtons_per_count: f32` | — |
+//! | `loadcell_read` | — | `time: u64`, `force: f32`, `raw: i32`, `samples: u32`, `taring: bool` |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -63,6 +67,10 @@
 //! limit (see [`crate::stepper`] and [`crate::fault`]). Limits are off
 //! until set.
 //!
+//! The `loadcell_` functions read a load cell through an HX711-kind
+//! converter on two digital pins (see [`crate::loadcell`]):
+//! `loadcell_read` as an "on change" pipe source streams every sample.
+//!
 //! The `heater_` functions configure and run up to two heaters, whose PID
 //! control and runaway protection run on the module (see
 //! [`crate::heater`]): a heater that runs away or loses its sensor cuts
@@ -73,6 +81,7 @@ use crate::board::Board;
 use crate::boot::BootError;
 use crate::heater::{Gains, HeaterError, Runaway, Thermistor};
 use crate::io::IoError;
+use crate::loadcell::LoadCellError;
 use crate::stepper::StepperError;
 use crate::{Module, ModuleHandle};
 use osap_core::SystemInstant;
@@ -409,6 +418,47 @@ impl<B: Board> Module<B> {
     }
 }
 
+impl<B: Board> Module<B> {
+    /// The load cell's converter is on digital pins `data_pin` (its data
+    /// line) and `clock_pin` (its clock).
+    pub fn loadcell_setup(&mut self, data_pin: u8, clock_pin: u8) -> Result<(), CallError> {
+        let hw = self.board.io().ok_or(LoadCellError::NoHardware)?;
+        Ok(self.loadcell.setup(hw, data_pin, clock_pin)?)
+    }
+
+    /// The next `samples` readings (1 to 1 000) become the load cell's
+    /// zero; `loadcell_read`'s `taring` is true until they are in.
+    pub fn loadcell_tare(&mut self, samples: u16) -> Result<(), CallError> {
+        Ok(self.loadcell.tare(samples)?)
+    }
+
+    /// The load cell's scale, newtons per count (not 0; negative for a
+    /// cell mounted the other way).
+    pub fn loadcell_scale(&mut self, newtons_per_count: f32) -> Result<(), CallError> {
+        Ok(self.loadcell.set_scale(newtons_per_count)?)
+    }
+
+    /// The newest sample: when it was read (synchronized µs; 0 before the
+    /// first), its force, N, its raw counts, samples read since setup, and
+    /// whether a tare is under way.
+    pub fn loadcell_read(&mut self) -> Result<(u64, f32, i32, u32, bool), CallError> {
+        if !self.loadcell.is_set_up() {
+            return Err(LoadCellError::NotConfigured.into());
+        }
+        let (time, force, raw) = match self.loadcell.newest() {
+            Some(r) => (self.time.system_time(r.at).as_micros(), r.force, r.raw),
+            None => (0, 0.0, 0),
+        };
+        Ok((
+            time,
+            force,
+            raw,
+            self.loadcell.samples(),
+            self.loadcell.taring(),
+        ))
+    }
+}
+
 /// The next input of a call, as a `T`.
 fn next_input<'a, T: FromPipes<'a>>(
     inputs: &mut core::slice::Iter<'a, Value<'_>>,
@@ -531,6 +581,10 @@ macro_rules! module_function_table {
             heater_power(index: u8, duty: f32);
             heater_read(index: u8) -> (time: u64, temp: f32, target: f32, power: f32, state: u8);
             heater_clear(index: u8);
+            loadcell_setup(data_pin: u8, clock_pin: u8);
+            loadcell_tare(samples: u16);
+            loadcell_scale(newtons_per_count: f32);
+            loadcell_read() -> (time: u64, force: f32, raw: i32, samples: u32, taring: bool);
         }
     };
 }

@@ -62,6 +62,7 @@ pub mod functions;
 pub mod heater;
 pub mod hot_start;
 pub mod io;
+pub mod loadcell;
 pub mod ports;
 pub mod rate_store;
 pub mod sizes;
@@ -79,6 +80,7 @@ use critical_section::Mutex;
 use fault::{Fault, FaultKind};
 use heater::Heaters;
 use io::Io;
+use loadcell::LoadCell;
 use osap_core::clock::TimeMap;
 use osap_core::{Duration, Instant, SystemInstant};
 use stepper::Stepper;
@@ -103,6 +105,8 @@ pub struct Module<B> {
     pub io: Io,
     /// The heaters.
     pub heaters: Heaters,
+    /// The load cell.
+    pub loadcell: LoadCell,
     /// The limit switch.
     pub limit: Limit,
     /// The runtime's latest local-to-system time map.
@@ -146,6 +150,7 @@ impl<B: Board> Module<B> {
             stepper: Stepper::new(),
             io: Io::new(),
             heaters: Heaters::new(),
+            loadcell: LoadCell::new(),
             limit: Limit::default(),
             time: TimeMap::IDENTITY,
             fault: Fault::default(),
@@ -385,6 +390,16 @@ impl<B: Board> Module<B> {
             let stopped = self.stepper.is_stopped();
             self.fault
                 .record(at, FaultKind::HeaterRunaway, detail, stopped);
+        }
+    }
+
+    /// Reads the load cell's sample if its converter has one (see
+    /// [`loadcell`]), at local time `now`. The runtime's loop calls it
+    /// through the pulse timer port, at
+    /// [`LoadCell::wake_at`](loadcell::LoadCell::wake_at).
+    pub fn poll_loadcell(&mut self, now: Instant) {
+        if let Some(hw) = self.board.io() {
+            self.loadcell.poll(hw, now);
         }
     }
 

@@ -70,6 +70,9 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
             m.poll_boot(now);
             m.heaters.wake_at().is_some_and(|at| at <= now)
         });
+        // A load-cell sample (25 clock pulses, about 25 µs) in a critical
+        // section of its own, like each heater below.
+        self.module.with(|m| m.poll_loadcell(now));
         // Each heater's period (an ADC read and soft-float maths on a
         // Cortex-M0+, about 80 µs) in a critical section of its own, so the
         // step interrupt waits for one piece of work at a time.
@@ -86,10 +89,17 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
             .with(|m| {
                 let io = m.io_wake_at(now, system);
                 let heaters = m.heaters.wake_at();
-                [io, m.boot.due_at(), m.watchdog.deadline(), heaters]
-                    .into_iter()
-                    .flatten()
-                    .min()
+                let loadcell = m.loadcell.wake_at();
+                [
+                    io,
+                    m.boot.due_at(),
+                    m.watchdog.deadline(),
+                    heaters,
+                    loadcell,
+                ]
+                .into_iter()
+                .flatten()
+                .min()
             })
             .flatten()
     }

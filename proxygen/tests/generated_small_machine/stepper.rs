@@ -45,6 +45,10 @@ pub struct Stepper {
     heater_power: FunctionHandle,
     heater_read: FunctionHandle,
     heater_clear: FunctionHandle,
+    loadcell_setup: FunctionHandle,
+    loadcell_tare: FunctionHandle,
+    loadcell_scale: FunctionHandle,
+    loadcell_read: FunctionHandle,
 }
 
 impl Stepper {
@@ -214,6 +218,26 @@ impl Stepper {
             inputs: &[("index", "u8")],
             outputs: &[],
         },
+        support::Signature {
+            function: "loadcell_setup",
+            inputs: &[("data_pin", "u8"), ("clock_pin", "u8")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "loadcell_tare",
+            inputs: &[("samples", "u16")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "loadcell_scale",
+            inputs: &[("newtons_per_count", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "loadcell_read",
+            inputs: &[],
+            outputs: &[("time", "u64"), ("force", "f32"), ("raw", "i32"), ("samples", "u32"), ("taring", "bool")],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -263,6 +287,10 @@ impl Stepper {
             heater_power: support::function(manager, runtime, "heater_power")?,
             heater_read: support::function(manager, runtime, "heater_read")?,
             heater_clear: support::function(manager, runtime, "heater_clear")?,
+            loadcell_setup: support::function(manager, runtime, "loadcell_setup")?,
+            loadcell_tare: support::function(manager, runtime, "loadcell_tare")?,
+            loadcell_scale: support::function(manager, runtime, "loadcell_scale")?,
+            loadcell_read: support::function(manager, runtime, "loadcell_read")?,
         })
     }
 
@@ -1045,6 +1073,104 @@ impl Stepper {
     pub fn heater_clear_ref(&self) -> &FnRef {
         self.heater_clear.function()
     }
+
+    /// `loadcell_setup`.
+    ///
+    /// - inputs: `data_pin: u8`, `clock_pin: u8`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn loadcell_setup(&self, data_pin: u8, clock_pin: u8) -> Result<(), CallError> {
+        let h = &self.loadcell_setup;
+        let values = h.call(&[support::to_u8(data_pin), support::to_u8(clock_pin)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `loadcell_setup`, for `push` and raw calls.
+    pub fn loadcell_setup_handle(&self) -> &FunctionHandle {
+        &self.loadcell_setup
+    }
+
+    /// `loadcell_setup` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn loadcell_setup_ref(&self) -> &FnRef {
+        self.loadcell_setup.function()
+    }
+
+    /// `loadcell_tare`.
+    ///
+    /// - inputs: `samples: u16`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn loadcell_tare(&self, samples: u16) -> Result<(), CallError> {
+        let h = &self.loadcell_tare;
+        let values = h.call(&[support::to_u16(samples)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `loadcell_tare`, for `push` and raw calls.
+    pub fn loadcell_tare_handle(&self) -> &FunctionHandle {
+        &self.loadcell_tare
+    }
+
+    /// `loadcell_tare` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn loadcell_tare_ref(&self) -> &FnRef {
+        self.loadcell_tare.function()
+    }
+
+    /// `loadcell_scale`.
+    ///
+    /// - inputs: `newtons_per_count: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn loadcell_scale(&self, newtons_per_count: f32) -> Result<(), CallError> {
+        let h = &self.loadcell_scale;
+        let values = h.call(&[support::to_f32(newtons_per_count)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `loadcell_scale`, for `push` and raw calls.
+    pub fn loadcell_scale_handle(&self) -> &FunctionHandle {
+        &self.loadcell_scale
+    }
+
+    /// `loadcell_scale` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn loadcell_scale_ref(&self) -> &FnRef {
+        self.loadcell_scale.function()
+    }
+
+    /// `loadcell_read`.
+    ///
+    /// - inputs: none
+    /// - outputs: `time: u64`, `force: f32`, `raw: i32`, `samples: u32`, `taring: bool`
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn loadcell_read(&self) -> Result<LoadcellReadOutputs, CallError> {
+        let h = &self.loadcell_read;
+        let values = h.call(&[]).await?;
+        let mut out = support::Outputs::new(h, values, 5)?;
+        Ok(LoadcellReadOutputs {
+            time: out.next(support::from_u64)?,
+            force: out.next(support::from_f32)?,
+            raw_: out.next(support::from_i32)?,
+            samples: out.next(support::from_u32)?,
+            taring: out.next(support::from_bool)?,
+        })
+    }
+
+    /// The handle of `loadcell_read`, for `push` and raw calls.
+    pub fn loadcell_read_handle(&self) -> &FunctionHandle {
+        &self.loadcell_read
+    }
+
+    /// `loadcell_read` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn loadcell_read_ref(&self) -> &FnRef {
+        self.loadcell_read.function()
+    }
 }
 
 /// Outputs of `get_position`.
@@ -1150,4 +1276,19 @@ pub struct HeaterReadOutputs {
     pub power: f32,
     /// `state: u8`.
     pub state: u8,
+}
+
+/// Outputs of `loadcell_read`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LoadcellReadOutputs {
+    /// `time: u64`.
+    pub time: u64,
+    /// `force: f32`.
+    pub force: f32,
+    /// `raw: i32`.
+    pub raw_: i32,
+    /// `samples: u32`.
+    pub samples: u32,
+    /// `taring: bool`.
+    pub taring: bool,
 }
