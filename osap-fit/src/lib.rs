@@ -9,6 +9,8 @@
 //!   stepped) and their reduction to steady values and transients;
 //! - [`least_squares`]: any [`Model`](least_squares::Model) fitted by
 //!   Levenberg–Marquardt, with parameter standard errors;
+//! - [`lag`]: a first-order lag fitted over a whole record of input and
+//!   output;
 //! - [`melt`]: an extruder's melt-flow law and the flow it allows;
 //! - [`step_response`]: a first-order process's time constant, seen
 //!   through a sensor's own lag.
@@ -19,6 +21,7 @@
 //! the method.
 
 pub mod experiment;
+pub mod lag;
 pub mod least_squares;
 pub mod melt;
 pub mod step_response;

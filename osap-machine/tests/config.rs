@@ -754,6 +754,67 @@ fn extruder_keys_are_checked_with_their_key() {
 }
 
 #[test]
+fn load_cell_model_and_simulated_melt_keys_are_checked_with_their_key() {
+    let text = std::fs::read_to_string(example("printer.toml")).unwrap();
+    let bad = |from: &str, to: &str| {
+        assert!(text.contains(from), "{from}");
+        match MachineFile::parse(&text.replacen(from, to, 1)) {
+            Err(ConfigError::Invalid { key, message, .. }) => (key, message),
+            other => panic!("{from} -> {to}: {other:?}"),
+        }
+    };
+    let printer = MachineFile::parse(&text).unwrap();
+    let e = printer.extruder().unwrap();
+    assert_eq!(e.extruder.loadcell.as_ref().unwrap().clock_pin, 3);
+    let melt = printer.sim.as_ref().unwrap().axes["e"].melt.unwrap();
+    assert_eq!((melt.flow_k, melt.response_ms), (8.0, 45.0));
+    let (key, _) = bad("data_pin = 2", "data_pin = 4");
+    assert_eq!(key, "axes.e.loadcell.data_pin");
+    let (key, _) = bad("data_pin = 2", "data_pin = 3");
+    assert_eq!(key, "axes.e.loadcell.clock_pin");
+    let (key, msg) = bad("newtons_per_count = 0.0005", "newtons_per_count = 0.0");
+    assert_eq!(key, "axes.e.loadcell.newtons_per_count");
+    assert!(msg.contains("known weight"), "{msg}");
+    let (key, _) = bad(
+        "[axes.e.loadcell]\nmodule = \"e\"",
+        "[axes.e.loadcell]\nmodule = \"q\"",
+    );
+    assert_eq!(key, "axes.e.loadcell.module");
+    // The simulated melt: every key or none, physical values, a grip.
+    let (key, msg) = bad("response_ms = 45.0\n", "");
+    assert_eq!(key, "sim.axes.e.response_ms", "{msg}");
+    let (key, _) = bad("flow_n = 0.6", "flow_n = 2.0");
+    assert_eq!(key, "sim.axes.e.flow_n");
+    let (key, _) = bad("max_force_n = 40.0 ", "");
+    assert_eq!(key, "axes.e.max_force_n");
+    let (key, msg) = bad("[sim.axes.z]\nstart = 10.0", "[sim.axes.z]\nstart = 10.0\nflow_k = 1.0\nflow_n = 0.5\ntemp_coeff = 0.0\nt_ref = 200.0\nresponse_ms = 10.0");
+    assert_eq!(key, "sim.axes.z.flow_k", "{msg}");
+    // A fitted model: positive values, an ordered range.
+    let model = "retract_speed = 35.0\n\n[axes.e.model]\nflow_k = 8.0\nflow_n = 0.6\ntemp_coeff = 0.02\nt_ref = 210.0\nresponse_ms = 45.0\ntemp_range = [195.0, 235.0]\n";
+    let with_model = text.replacen("retract_speed = 35.0\n", model, 1);
+    let m = MachineFile::parse(&with_model).unwrap();
+    assert_eq!(
+        m.extruder()
+            .unwrap()
+            .extruder
+            .model
+            .as_ref()
+            .unwrap()
+            .temp_range,
+        [195.0, 235.0]
+    );
+    let bad_model = with_model.replacen(
+        "temp_range = [195.0, 235.0]",
+        "temp_range = [235.0, 195.0]",
+        1,
+    );
+    match MachineFile::parse(&bad_model) {
+        Err(ConfigError::Invalid { key, .. }) => assert_eq!(key, "axes.e.model.temp_range"),
+        other => panic!("{other:?}"),
+    }
+}
+
+#[test]
 fn a_thermistor_is_named_given_as_beta_or_as_points_and_each_is_its_curve() {
     let text = std::fs::read_to_string(example("printer.toml")).unwrap();
     let hotend = |sensor: &str| {

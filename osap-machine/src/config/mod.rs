@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 mod accel;
+mod extruder;
 mod heaters;
 mod jobs;
 mod probe;
@@ -33,10 +34,14 @@ pub mod thermistor;
 mod validate;
 
 pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
+pub use extruder::{
+    ExtruderKeys, LoadCellKeys, MeltModelKeys, DEFAULT_CORNER_VELOCITY, DEFAULT_RETRACT_LENGTH,
+    DEFAULT_RETRACT_SPEED, DEFAULT_SMOOTH_TIME,
+};
 pub use heaters::{Heater, Runaway, Sensor, MAX_HEATER_TEMP};
 pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use probe::{Probe, ProbeGridError};
-pub use sim::{Sim, SimAxis};
+pub use sim::{Sim, SimAxis, SimMelt};
 pub use step_rate::MAX_STEP_RATE;
 pub use thermistor::{SteinhartHart, THERMISTORS};
 use validate::is_mechanism_axis;
@@ -425,78 +430,6 @@ pub enum AxisKind {
 
 fn no_travel() -> f64 {
     f64::NAN
-}
-
-/// An extruder's keys in `[axes.e]`; every one is refused on another
-/// kind of axis.
-#[derive(Debug, Clone, Default, PartialEq, Deserialize)]
-pub struct ExtruderKeys {
-    /// The filament's diameter, mm (1.75 or 2.85); required for an
-    /// extruder.
-    #[serde(default)]
-    pub filament_diameter: Option<f64>,
-    /// A cap on the melt flow of extruding moves, mm³/s: a move that
-    /// would extrude faster is slowed (not retractions).
-    #[serde(default)]
-    pub max_volumetric_speed: Option<f64>,
-    /// The drive's grip on the filament, N (what it can push before it
-    /// slips or grinds).
-    #[serde(default)]
-    pub max_force_n: Option<f64>,
-    /// Pressure advance, s (Klipper's `pressure_advance`): the extruder
-    /// runs ahead by this times its velocity. Default 0 (off).
-    #[serde(default)]
-    pub pressure_advance: Option<f64>,
-    /// The window pressure advance is smoothed over, s (Klipper's
-    /// `pressure_advance_smooth_time`; default 0.040).
-    #[serde(default)]
-    pub smooth_time: Option<f64>,
-    /// The largest change of the extruder's velocity at a corner, mm/s
-    /// (Klipper's `instantaneous_corner_velocity`; default 1).
-    #[serde(default)]
-    pub instantaneous_corner_velocity: Option<f64>,
-    /// Firmware retraction (`G10`): filament pulled back, mm (default 0.8).
-    #[serde(default)]
-    pub retract_length: Option<f64>,
-    /// Firmware retraction speed (`G10`, `G11`), mm/s (default 35).
-    #[serde(default)]
-    pub retract_speed: Option<f64>,
-}
-
-/// [`ExtruderKeys::smooth_time`]'s default, s.
-pub const DEFAULT_SMOOTH_TIME: f64 = 0.040;
-/// [`ExtruderKeys::instantaneous_corner_velocity`]'s default, mm/s.
-pub const DEFAULT_CORNER_VELOCITY: f64 = 1.0;
-/// [`ExtruderKeys::retract_length`]'s default, mm.
-pub const DEFAULT_RETRACT_LENGTH: f64 = 0.8;
-/// [`ExtruderKeys::retract_speed`]'s default, mm/s.
-pub const DEFAULT_RETRACT_SPEED: f64 = 35.0;
-
-impl ExtruderKeys {
-    /// The keys given, by name (to refuse them on a non-extruder axis).
-    fn given(&self) -> impl Iterator<Item = &'static str> + '_ {
-        [
-            ("filament_diameter", self.filament_diameter.is_some()),
-            ("max_volumetric_speed", self.max_volumetric_speed.is_some()),
-            ("max_force_n", self.max_force_n.is_some()),
-            ("pressure_advance", self.pressure_advance.is_some()),
-            ("smooth_time", self.smooth_time.is_some()),
-            (
-                "instantaneous_corner_velocity",
-                self.instantaneous_corner_velocity.is_some(),
-            ),
-            ("retract_length", self.retract_length.is_some()),
-            ("retract_speed", self.retract_speed.is_some()),
-        ]
-        .into_iter()
-        .filter_map(|(k, given)| given.then_some(k))
-    }
-
-    /// The filament's cross-section, mm² (0 without a diameter).
-    pub fn filament_area(&self) -> f64 {
-        let d = self.filament_diameter.unwrap_or(0.0);
-        std::f64::consts::PI * d * d / 4.0
-    }
 }
 
 /// Which end of its travel an axis homes to.

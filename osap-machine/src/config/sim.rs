@@ -123,6 +123,33 @@ pub struct SimAxis {
     pub start: Option<f64>,
     /// Which of `resonance_hz` and `damping_ratio` the file gave.
     pub(super) given: [bool; 2],
+    /// The extruder's melt (`[sim.axes.e]` `flow_k`, `flow_n`,
+    /// `temp_coeff`, `t_ref`, `response_ms`, `noise_n`): a melt the
+    /// software has never seen, for `osap rheo --sim` and printing.
+    pub melt: Option<SimMelt>,
+    /// The first melt key missing when some were given.
+    pub(super) melt_missing: Option<String>,
+}
+
+/// A simulated melt behind the extruder (see
+/// `osap_sim::machine::board::melt`): the filament needs `F = flow_k ·
+/// Q^flow_n · exp(−temp_coeff · (T − t_ref))` newtons at Q mm³/s and the
+/// hotend's T °C, the outflow lags the push by `response_ms`, and the
+/// load cell reads it with `noise_n` newtons of noise.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SimMelt {
+    /// Force at 1 mm³/s and `t_ref`, N.
+    pub flow_k: f64,
+    /// The flow exponent.
+    pub flow_n: f64,
+    /// The temperature shift, 1/°C.
+    pub temp_coeff: f64,
+    /// The reference temperature, °C.
+    pub t_ref: f64,
+    /// The outflow's lag, ms.
+    pub response_ms: f64,
+    /// The load cell's noise, N (default 0.05).
+    pub noise_n: f64,
 }
 
 /// `[sim.axes.NAME]` as written.
@@ -135,15 +162,52 @@ struct SimAxisKeys {
     damping_ratio: Option<f64>,
     #[serde(default)]
     start: Option<f64>,
+    #[serde(default)]
+    flow_k: Option<f64>,
+    #[serde(default)]
+    flow_n: Option<f64>,
+    #[serde(default)]
+    temp_coeff: Option<f64>,
+    #[serde(default)]
+    t_ref: Option<f64>,
+    #[serde(default)]
+    response_ms: Option<f64>,
+    #[serde(default)]
+    noise_n: Option<f64>,
 }
 
 impl From<SimAxisKeys> for SimAxis {
     fn from(k: SimAxisKeys) -> Self {
+        let required = [
+            ("flow_k", k.flow_k),
+            ("flow_n", k.flow_n),
+            ("temp_coeff", k.temp_coeff),
+            ("t_ref", k.t_ref),
+            ("response_ms", k.response_ms),
+        ];
+        let any = required.iter().any(|(_, v)| v.is_some()) || k.noise_n.is_some();
+        let melt_missing = required
+            .iter()
+            .find(|(_, v)| any && v.is_none())
+            .map(|(key, _)| key.to_string());
+        let melt = match (any, &melt_missing, required.map(|(_, v)| v.unwrap_or(0.0))) {
+            (true, None, [flow_k, flow_n, temp_coeff, t_ref, response_ms]) => Some(SimMelt {
+                flow_k,
+                flow_n,
+                temp_coeff,
+                t_ref,
+                response_ms,
+                noise_n: k.noise_n.unwrap_or(0.05),
+            }),
+            _ => None,
+        };
         SimAxis {
             resonance_hz: k.resonance_hz.unwrap_or(0.0),
             damping_ratio: k.damping_ratio.unwrap_or(0.0),
             start: k.start,
             given: [k.resonance_hz.is_some(), k.damping_ratio.is_some()],
+            melt,
+            melt_missing,
         }
     }
 }

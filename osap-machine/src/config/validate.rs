@@ -372,7 +372,7 @@ impl MachineFile {
                 ));
             }
         }
-        Ok(())
+        super::extruder::validate_rheo(self, &at, e)
     }
 
     pub(super) fn validate_homing(
@@ -619,6 +619,7 @@ impl MachineFile {
                     ));
                 }
             }
+            super::extruder::validate_sim_melt(self, &at, name, axis)?;
             match axis.given {
                 [false, false] => continue,
                 [true, false] => {

@@ -128,6 +128,12 @@ pub enum MachineError {
         /// Why.
         reason: String,
     },
+    /// The machine file has no `[axes.e.loadcell]`.
+    #[error("the machine has no load cell: add [axes.e.loadcell] to its machine file")]
+    NoLoadCell,
+    /// The load cell failed.
+    #[error("load cell: {0}")]
+    LoadCell(String),
     /// No axis of that name.
     #[error("no axis {0:?} on this machine")]
     UnknownAxis(String),

@@ -22,11 +22,16 @@ impl Machine {
                 got: target.len(),
             });
         }
+        // Where the queue ends: the new move starts there.
+        let from = lock_motion(&self.inner.motion).planner.tail();
         let homed = self.inner.homed.lock().unwrap_or_else(|e| e.into_inner());
         let mut out = [0.0; MAX_AXES];
         for (k, (name, &v)) in axes.iter().zip(target).enumerate() {
             let a = &self.inner.cfg.axes[name];
-            if !homed[k] {
+            // An axis the move leaves where it is need not be homed (an
+            // extruder pushes filament before x and y home, as on any
+            // printer).
+            if !homed[k] && v != from[k] {
                 return Err(MachineError::NotHomed(name.clone()));
             }
             if !(v.is_finite() && a.min <= v && v <= a.max) {

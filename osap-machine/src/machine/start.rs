@@ -197,6 +197,7 @@ async fn configure(
         motor_at.push(configure_motor(manager, runtime, motor, limits).await?);
     }
     heaters::configure_heaters(cfg, manager, modules).await?;
+    super::loadcell::configure_loadcell(cfg, manager, modules).await?;
     Ok(motor_at)
 }
 

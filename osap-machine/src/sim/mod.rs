@@ -56,6 +56,7 @@ use crate::config::{Direction, Kinematics, MachineFile};
 
 pub(crate) mod accel;
 mod machine;
+pub(crate) mod melt;
 
 pub use machine::SimOptions;
 
@@ -355,6 +356,12 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                         ambient_c: model.ambient_c,
                         sensor_fails_at_s: model.sensor_fails_at_s,
                     });
+                    spec = spec.with_io(io);
+                }
+                // The extruder's melt and its load cell.
+                if let Some(melt) = melt::sim_melt(cfg, key).map_err(|(k, m)| unsupported(k, m))? {
+                    let mut io = spec.io.clone().unwrap_or_default();
+                    io.melt = Some(melt);
                     spec = spec.with_io(io);
                 }
                 // An accelerometer of `osap resonance` on this module.
