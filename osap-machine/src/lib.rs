@@ -46,6 +46,8 @@ pub mod network;
 pub mod record;
 #[cfg(feature = "resonance")]
 pub mod resonance;
+#[cfg(feature = "rheo")]
+pub mod rheo;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod svg;
