@@ -26,6 +26,7 @@ mod level_cmd;
 mod machine_cmd;
 mod network;
 mod resonance_cmd;
+mod rheo_cmd;
 mod run_events;
 mod serve_cmd;
 mod time_cmd;
@@ -132,6 +133,11 @@ enum Command {
     /// Tune a heater's PID gains: drive it as a relay about the target
     /// (Klipper's PID_CALIBRATE), print kp, ki, kd (--write: into the file).
     HeaterTune(heater_tune_cmd::HeaterTuneArgs),
+    /// Measure the melt with the load cell on the filament: heat through
+    /// temperatures, extrude at stepped flows, fit the melt law and its
+    /// response time, print the max flow per temperature (--write: the
+    /// model into the file).
+    Rheo(rheo_cmd::RheoArgs),
     /// Home a machine (every axis, or the ones named).
     Home {
         #[command(flatten)]
@@ -206,6 +212,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Level(args) => machine_result(level_cmd::level(args).await),
         Command::Resonance(args) => machine_result(resonance_cmd::resonance(args).await),
         Command::HeaterTune(args) => machine_result(heater_tune_cmd::heater_tune(args).await),
+        Command::Rheo(args) => machine_result(rheo_cmd::rheo(args).await),
         Command::Capture(args) => machine_result(capture_cmd::capture(args).await),
         Command::View(args) => machine_result(view::view(args).await),
         Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
@@ -346,6 +353,7 @@ fn main() -> ExitCode {
         Command::Level(a) => a.target.virtual_time(),
         Command::Resonance(a) => a.target.virtual_time(),
         Command::HeaterTune(a) => a.target.virtual_time(),
+        Command::Rheo(a) => a.target.virtual_time(),
         Command::Capture(a) => a.target.virtual_time(),
         Command::Home { target, .. }
         | Command::Jog { target, .. }
