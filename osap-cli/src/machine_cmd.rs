@@ -291,7 +291,9 @@ pub(crate) fn read_job_file(
     }
 }
 
-fn default_out(cfg: &MachineFile) -> PathBuf {
+/// A new output folder's name: `osap-KIND-NAME[-DETAIL]-SECS`, the
+/// machine's name made safe for a path, SECS the Unix time.
+pub(crate) fn default_folder(kind: &str, cfg: &MachineFile, detail: Option<&str>) -> PathBuf {
     let secs = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .map_or(0, |d| d.as_secs());
@@ -306,7 +308,8 @@ fn default_out(cfg: &MachineFile) -> PathBuf {
             }
         })
         .collect();
-    PathBuf::from(format!("osap-run-{safe}-{secs}"))
+    let detail = detail.map(|d| format!("-{d}")).unwrap_or_default();
+    PathBuf::from(format!("osap-{kind}-{safe}{detail}-{secs}"))
 }
 
 /// Refuses an output folder inside a repository's `docs` (runs are not
@@ -333,7 +336,10 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     for w in &program.warnings {
         eprintln!("warning: {w}");
     }
-    let out = args.out.clone().unwrap_or_else(|| default_out(&cfg));
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_folder("run", &cfg, None));
     check_out(&out)?;
     let start = osap_machine::machine::drive::start_position(&cfg);
 
@@ -655,5 +661,35 @@ mod tests {
             REFUSED
         );
         assert!(![0, FAULTED, REFUSED].contains(&MACHINE_FAULT));
+    }
+
+    #[test]
+    fn default_folders_name_the_command_the_machine_and_the_detail() {
+        let cfg = MachineFile::load(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/plotter.toml"
+        ))
+        .unwrap();
+        let name = |p: PathBuf| p.to_string_lossy().into_owned();
+        let safe: String = cfg
+            .name
+            .chars()
+            .map(|c| {
+                if c.is_ascii_alphanumeric() || c == '-' {
+                    c
+                } else {
+                    '_'
+                }
+            })
+            .collect();
+        let run = name(default_folder("run", &cfg, None));
+        assert!(run.starts_with(&format!("osap-run-{safe}-")), "{run}");
+        let res = name(default_folder("resonance", &cfg, Some("y")));
+        assert!(
+            res.starts_with(&format!("osap-resonance-{safe}-y-")),
+            "{res}"
+        );
+        let secs = res.rsplit('-').next().unwrap();
+        assert!(secs.parse::<u64>().is_ok(), "{res}");
     }
 }

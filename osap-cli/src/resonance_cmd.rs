@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use clap::Args;
 use osap_machine::resonance::{self, ResonanceError};
 
-use crate::machine_cmd::{check_out, Failure, Target, FAULTED};
+use crate::machine_cmd::{check_out, default_folder, Failure, Target, FAULTED};
 
 /// `osap resonance` options.
 #[derive(Args, Debug)]
@@ -54,23 +54,10 @@ pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> 
     let cfg = args.target.load()?;
     // Refuse a bad axis or a missing accelerometer before anything starts.
     let plan = resonance::Plan::for_axis(&cfg, &args.axis, args.seconds).map_err(failure)?;
-    let out = args.out.clone().unwrap_or_else(|| {
-        let secs = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
-        let safe: String = cfg
-            .name
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || c == '-' {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect();
-        PathBuf::from(format!("osap-resonance-{safe}-{}-{secs}", plan.axis))
-    });
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_folder("resonance", &cfg, Some(&plan.axis)));
     check_out(&out)?;
     let machine = args.target.start(&cfg).await?;
     if !args.no_home {

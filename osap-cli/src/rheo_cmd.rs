@@ -9,7 +9,7 @@ use std::process::ExitCode;
 use clap::Args;
 use osap_machine::rheo::{self, RheoError, RheoFit, RheoOptions, RheoRecord};
 
-use crate::machine_cmd::{check_out, Failure, Target, FAULTED, MACHINE_FAULT};
+use crate::machine_cmd::{check_out, default_folder, Failure, Target, FAULTED, MACHINE_FAULT};
 
 /// `osap rheo` options.
 #[derive(Args, Debug)]
@@ -57,23 +57,10 @@ pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
         opts.temps = args.temps.clone();
     }
     rheo::check(&cfg, &opts).map_err(failure)?;
-    let out = args.out.clone().unwrap_or_else(|| {
-        let secs = std::time::SystemTime::now()
-            .duration_since(std::time::UNIX_EPOCH)
-            .map_or(0, |d| d.as_secs());
-        let safe: String = cfg
-            .name
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || c == '-' {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect();
-        PathBuf::from(format!("osap-rheo-{safe}-{secs}"))
-    });
+    let out = args
+        .out
+        .clone()
+        .unwrap_or_else(|| default_folder("rheo", &cfg, None));
     check_out(&out)?;
     let machine = args.target.start(&cfg).await?;
     println!(
