@@ -671,17 +671,11 @@ mod tests {
         ))
         .unwrap();
         let name = |p: PathBuf| p.to_string_lossy().into_owned();
-        let safe: String = cfg
-            .name
-            .chars()
-            .map(|c| {
-                if c.is_ascii_alphanumeric() || c == '-' {
-                    c
-                } else {
-                    '_'
-                }
-            })
-            .collect();
+        let mut odd = cfg.clone();
+        odd.name = "my printer/2".into();
+        let odd = name(default_folder("rheo", &odd, None));
+        assert!(odd.starts_with("osap-rheo-my_printer_2-"), "{odd}");
+        let safe = "plotter";
         let run = name(default_folder("run", &cfg, None));
         assert!(run.starts_with(&format!("osap-run-{safe}-")), "{run}");
         let res = name(default_folder("resonance", &cfg, Some("y")));

@@ -40,7 +40,7 @@ fn the_load_cell_weighs_the_melt_while_the_extruder_pushes() {
         assert!(rest.force_n.abs() < 0.3, "{rest:?}");
         // 8 mm of filament at 2 mm/s: 4.81 mm³/s for 4 s.
         let mut to = m.position();
-        let e = to.len() - 1;
+        let e = m.axes().iter().position(|a| a == "e").unwrap();
         to[e] += 8.0;
         m.line(&to, 2.0).await.unwrap();
         let start = m.now_us().await.unwrap();

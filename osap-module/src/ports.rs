@@ -64,19 +64,23 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
     fn poll(&mut self, tx: &mut PortTx<'_>) {
         let (now, system) = (tx.now(), tx.system_time());
         self.last = (now, system);
-        let heaters_due = self.module.with(|m| {
+        let due = self.module.with(|m| {
             m.poll_watchdog(now);
             m.poll_io(now, system);
             m.poll_boot(now);
-            m.heaters.wake_at().is_some_and(|at| at <= now)
+            let due = |at: Option<Instant>| at.is_some_and(|at| at <= now);
+            (due(m.heaters.wake_at()), due(m.loadcell.wake_at()))
         });
+        let (heaters_due, loadcell_due) = due.unwrap_or((false, false));
         // A load-cell sample (25 clock pulses, about 25 µs) in a critical
-        // section of its own, like each heater below.
-        self.module.with(|m| m.poll_loadcell(now));
+        // section of its own, like each heater below; none without one.
+        if loadcell_due {
+            self.module.with(|m| m.poll_loadcell(now));
+        }
         // Each heater's period (an ADC read and soft-float maths on a
         // Cortex-M0+, about 80 µs) in a critical section of its own, so the
         // step interrupt waits for one piece of work at a time.
-        if heaters_due == Some(true) {
+        if heaters_due {
             for index in 0..crate::heater::HEATERS as u8 {
                 self.module.with(|m| m.poll_heater(now, index));
             }

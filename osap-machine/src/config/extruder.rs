@@ -260,30 +260,34 @@ pub(super) fn validate_sim_melt(
         ));
     }
     let checks = [
-        ("flow_k", m.flow_k > 0.0, "N at 1 mm³/s, e.g. 8"),
+        ("flow_k", m.flow_k, m.flow_k > 0.0, "N at 1 mm³/s, e.g. 8"),
         (
             "flow_n",
+            m.flow_n,
             m.flow_n > 0.0 && m.flow_n <= 1.5,
             "within (0, 1.5], e.g. 0.6",
         ),
         (
             "temp_coeff",
+            m.temp_coeff,
             m.temp_coeff >= 0.0,
             "1/°C, 0 or more, e.g. 0.02",
         ),
-        ("t_ref", m.t_ref.is_finite(), "°C, e.g. 210"),
-        ("response_ms", m.response_ms > 0.0, "ms, e.g. 60"),
-        ("noise_n", m.noise_n >= 0.0, "N, 0 or more, e.g. 0.05"),
+        ("t_ref", m.t_ref, true, "°C, e.g. 210"),
+        (
+            "response_ms",
+            m.response_ms,
+            m.response_ms > 0.0,
+            "ms, e.g. 60",
+        ),
+        (
+            "noise_n",
+            m.noise_n,
+            m.noise_n >= 0.0,
+            "N, 0 or more, e.g. 0.05",
+        ),
     ];
-    for (key, ok, hint) in checks {
-        let v = match key {
-            "flow_k" => m.flow_k,
-            "flow_n" => m.flow_n,
-            "temp_coeff" => m.temp_coeff,
-            "t_ref" => m.t_ref,
-            "response_ms" => m.response_ms,
-            _ => m.noise_n,
-        };
+    for (key, v, ok, hint) in checks {
         if !(ok && v.is_finite()) {
             return Err(invalid(format!("{at}.{key}"), format!("{v}: give {hint}")));
         }

@@ -277,8 +277,12 @@ async fn run_flow(
         Ok((cell.read().await?, temp_c))
     };
     let v = step.setpoint / area;
+    let e = m
+        .axes()
+        .iter()
+        .position(|a| a == "e")
+        .ok_or_else(|| RheoError::Refused("the machine has no axis e".into()))?;
     let mut to = m.position();
-    let e = to.len() - 1;
     to[e] += v * step.hold_s;
     m.line(&to, v).await?;
     let start = m.now_us().await?;
