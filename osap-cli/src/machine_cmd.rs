@@ -8,7 +8,7 @@ use clap::Args;
 use indicatif::{ProgressBar, ProgressStyle};
 use osap_host::link::serial;
 use osap_machine::config::MachineFile;
-use osap_machine::job::{self, Program};
+use osap_machine::job::{self, HotendTemperature, Program};
 use osap_machine::machine::Link;
 use osap_machine::sim::SimOptions;
 use osap_machine::svg::SvgOptions;
@@ -181,6 +181,25 @@ pub(crate) struct RunArgs {
     /// (0 on each axis, or its min).
     #[arg(long)]
     pub no_home: bool,
+    /// G-code: the hotend's temperature, replacing the job's M104/M109
+    /// targets: N °C, or `auto`, the lowest in the melt model's range
+    /// ([axes.e.model], from `osap rheo --write`) at which the job's peak
+    /// flow stays under the model's limit.
+    #[arg(long, value_parser = parse_temperature, value_name = "auto|C")]
+    pub temperature: Option<HotendTemperature>,
+}
+
+/// `auto` or a temperature, °C.
+fn parse_temperature(s: &str) -> Result<HotendTemperature, String> {
+    if s.eq_ignore_ascii_case("auto") {
+        return Ok(HotendTemperature::Auto);
+    }
+    s.trim()
+        .parse::<f64>()
+        .ok()
+        .filter(|c| c.is_finite() && *c > 0.0)
+        .map(HotendTemperature::Celsius)
+        .ok_or_else(|| format!("{s:?}: give auto or a temperature in °C, e.g. 215"))
 }
 
 /// `N` finite numbers separated by commas (`X,Y` or `X,Y,Z`).
@@ -216,6 +235,7 @@ pub(crate) struct JobPlacement {
     pub offset: Option<[f64; 2]>,
     pub feed: Option<f64>,
     pub origin: Option<[f64; 3]>,
+    pub temperature: Option<HotendTemperature>,
 }
 
 impl Default for JobPlacement {
@@ -225,6 +245,7 @@ impl Default for JobPlacement {
             offset: None,
             feed: None,
             origin: None,
+            temperature: None,
         }
     }
 }
@@ -236,6 +257,7 @@ fn read_job(cfg: &MachineFile, args: &RunArgs) -> Result<Program, Failure> {
         offset: args.offset,
         feed: args.feed,
         origin: args.origin,
+        temperature: args.temperature,
     };
     read_job_file(cfg, &args.job, &placement)
 }
@@ -263,6 +285,11 @@ pub(crate) fn read_job_file(
                     "{name}: --origin X,Y,Z places G-code jobs; place a drawing with --offset X,Y"
                 )));
             }
+            if placement.temperature.is_some() {
+                return Err(Failure::refused(format!(
+                    "{name}: --temperature sets a printer's hotend for a G-code job; a drawing heats nothing"
+                )));
+            }
             let options = SvgOptions {
                 scale: placement.scale,
                 offset: placement.offset.unwrap_or([0.0, 0.0]),
@@ -282,7 +309,8 @@ pub(crate) fn read_job_file(
             let options = job::gcode_options(cfg, placement.origin);
             let program = osap_machine::gcode::read_with(&text, &options)
                 .map_err(|e| Failure::refused(format!("{name}: {e}")))?;
-            job::from_gcode(cfg, &program, &start)
+            let hotend = placement.temperature.unwrap_or_default();
+            job::from_gcode_with(cfg, &program, &start, hotend)
                 .map_err(|e| Failure::refused(format!("{name}: {e}; nothing moved")))
         }
         other => Err(Failure::refused(format!(
@@ -380,6 +408,15 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     let planned_s = program
         .planned_seconds(&cfg, &machine.position())
         .map_err(Failure::from_machine)?;
+    // What the flow limit cost, planned: the same job at the feeds it asked.
+    let unlimited_s = if program.slowed.is_empty() {
+        planned_s
+    } else {
+        program
+            .without_flow_limit()
+            .planned_seconds(&cfg, &machine.position())
+            .map_err(Failure::from_machine)?
+    };
     let bar = ProgressBar::new(program.moves.len() as u64);
     bar.set_style(
         ProgressStyle::with_template("{bar:40} {pos}/{len} moves  {msg}")
@@ -429,6 +466,8 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         .await
         .map_err(Failure::from_machine)?;
 
+    // What the simulated melt did, read before the machine stops.
+    let melt = machine.sim_melt();
     // Whether a fault stopped the machine: its first fault is the reason.
     let faulted = match machine.state() {
         MachineState::Faulted(reason) => Some(reason),
@@ -455,6 +494,7 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         );
     }
     println!("planned duration   {:>9.3} s", planned_s);
+    print_flow(&cfg, &program, planned_s - unlimited_s);
     println!(
         "executed duration  {:>9.3} s (motion; {:.3} s with tool waits)",
         recording.executed_duration(),
@@ -470,6 +510,16 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
             "filament used      {:>9.2} mm of e executed ({:.2} mm in the job)",
             executed,
             program.extruded_mm()
+        );
+    }
+    if let Some((spec, stats)) = &melt {
+        println!(
+            "nozzle force peak  {:>9.2} N (simulated melt; grip {} N)",
+            stats.peak_force_n, spec.grip_n
+        );
+        println!(
+            "filament slips     {:>9} ({:.2} mm of filament stepped while slipping)",
+            stats.slips, stats.slipped_mm
         );
     }
     if let Ok(stats) = &result {
@@ -508,6 +558,14 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
             code: FAULTED,
             message: e.to_string(),
         })?;
+    if !program.slowed.is_empty() {
+        let path = out.join("slowed.csv");
+        program.write_slowed_csv(&path).map_err(|e| Failure {
+            code: FAULTED,
+            message: format!("{}: {e}", path.display()),
+        })?;
+        files.push(path);
+    }
     if let Some((names, rows)) = &heater_rows {
         let path = out.join("heaters.csv");
         osap_machine::machine::heaters::write_heaters_csv(&path, names, rows, t0).map_err(|e| {
@@ -546,6 +604,56 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         return Ok(ExitCode::from(FAULTED));
     }
     Ok(ExitCode::SUCCESS)
+}
+
+/// The run summary's hotend and flow-limit lines: the temperature
+/// `--temperature` set, and which moves the flow limit slowed and what it
+/// cost (`added_s`, planned).
+fn print_flow(cfg: &MachineFile, program: &Program, added_s: f64) {
+    if let Some(h) = &program.hotend {
+        let limit = h
+            .limit
+            .map_or(String::new(), |l| format!(", limit there {l:.2} mm³/s"));
+        println!(
+            "hotend             {:>9.0} °C (--temperature {}: the job's peak flow {:.2} mm³/s{limit})",
+            h.celsius,
+            if h.auto { "auto".to_string() } else { format!("{}", h.celsius) },
+            h.peak_flow,
+        );
+    }
+    let Some(e) = cfg.extruder().map(|a| &a.extruder) else {
+        return;
+    };
+    let source = match (&e.model, e.max_volumetric_speed) {
+        (Some(_), Some(_)) => "[axes.e.model] and max_volumetric_speed",
+        (Some(_), None) => "[axes.e.model]",
+        (None, Some(_)) => "max_volumetric_speed",
+        (None, None) => return,
+    };
+    if program.slowed.is_empty() {
+        println!("flow limit         no move slowed ({source})");
+        return;
+    }
+    let mut lines: Vec<String> = program
+        .slowed
+        .iter()
+        .take(6)
+        .map(|s| s.line.to_string())
+        .collect();
+    if program.slowed.len() > lines.len() {
+        lines.push("…".into());
+    }
+    let worst = program
+        .slowed
+        .iter()
+        .map(|s| s.flow / s.limit)
+        .fold(0.0, f64::max);
+    println!(
+        "flow limit         {:>9} moves slowed ({source}), {added_s:+.3} s planned; lines {} (slowed.csv); the most asked {:.0} % of its limit",
+        program.slowed.len(),
+        lines.join(", "),
+        worst * 100.0
+    );
 }
 
 /// `osap home MACHINE [AXIS ..]`.

@@ -9,7 +9,7 @@
 //! F in newtons at the filament, Q in mm³/s, T in °C, `t_ref` a chosen
 //! reference temperature (not fitted: it only rescales `flow_k`). Given a
 //! force the drive can hold, the law says the largest flow at each
-//! temperature ([`MeltModel::max_flow`]).
+//! temperature ([`MeltModel::flow_at`]).
 
 use crate::least_squares::{fit, Fit, Model, Point};
 use crate::FitError;
@@ -66,16 +66,11 @@ impl MeltModel {
         Law { t_ref: self.t_ref }.predict(&[self.flow_k, self.flow_n, self.temp_coeff], &[q, t])
     }
 
-    /// The flow that needs `force_n` at `t` °C, mm³/s: the law inverted.
+    /// The flow that needs `force_n` at `t` °C, mm³/s: the law inverted,
+    /// so the largest flow a drive that may push `force_n` allows.
     pub fn flow_at(&self, force_n: f64, t: f64) -> f64 {
         (force_n / (self.flow_k * (-self.temp_coeff * (t - self.t_ref)).exp()))
             .powf(1.0 / self.flow_n)
-    }
-
-    /// The flow at which the steady force reaches `force_n` at `t` °C,
-    /// mm³/s.
-    pub fn max_flow(&self, t: f64, force_n: f64) -> f64 {
-        self.flow_at(force_n, t)
     }
 
     /// The lowest temperature within `range` (°C) at which `flow` (mm³/s)
@@ -135,10 +130,11 @@ impl MeltFit {
         Ok(MeltFit { model, fit })
     }
 
-    /// [`MeltModel::max_flow`] and its standard error, mm³/s.
+    /// The flow at which the steady force reaches `force_n` at `t` °C
+    /// ([`MeltModel::flow_at`]) and its standard error, mm³/s.
     pub fn max_flow(&self, t: f64, force_n: f64) -> (f64, f64) {
         let m = &self.model;
-        let q = m.max_flow(t, force_n);
+        let q = m.flow_at(force_n, t);
         // ln Q = (ln F − ln k + a(T − t_ref)) / n
         let n = m.flow_n;
         let gradient = [-1.0 / (n * m.flow_k), -q.ln() / n, (t - m.t_ref) / n];
@@ -182,7 +178,7 @@ mod tests {
     fn max_flow_and_temperature_invert_the_law() {
         let m = pla();
         for t in [190.0, 210.0, 235.0] {
-            let q = m.max_flow(t, 20.0);
+            let q = m.flow_at(20.0, t);
             assert!((m.force(q, t) - 20.0).abs() < 1e-9, "{t}: {q}");
             let back = m.lowest_temperature_for(q, 20.0, (150.0, 300.0)).unwrap();
             assert!((back - t).abs() < 1e-9);
@@ -208,7 +204,7 @@ mod tests {
         assert!((f.model.flow_n - 0.45).abs() < 1e-7);
         assert!((f.model.temp_coeff - 0.018).abs() < 1e-9);
         let (q, err) = f.max_flow(210.0, 20.0);
-        assert!((q - m.max_flow(210.0, 20.0)).abs() < 1e-6 && err < 1e-6);
+        assert!((q - m.flow_at(20.0, 210.0)).abs() < 1e-6 && err < 1e-6);
     }
 
     #[test]

@@ -54,7 +54,7 @@ fn the_printer_measures_its_melt_and_fits_it() {
         "the routine pushed {peak:.1} N against a {grip} N grip"
     );
     for &(t, q, err) in &fit.max_flows {
-        let want = truth.max_flow(t, 0.8 * grip);
+        let want = truth.flow_at(0.8 * grip, t);
         assert!(
             (q / want - 1.0).abs() < 0.05,
             "{t} °C: fitted {q:.2} ± {err:.2} mm³/s, truth {want:.2}"
@@ -64,7 +64,7 @@ fn the_printer_measures_its_melt_and_fits_it() {
     for &(t, q, err) in &fit.max_flows {
         println!(
             "max flow at {t} °C: {q:.2} ± {err:.2} mm³/s (truth {:.2})",
-            truth.max_flow(t, 0.8 * grip)
+            truth.flow_at(0.8 * grip, t)
         );
     }
     println!(

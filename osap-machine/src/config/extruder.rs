@@ -48,6 +48,11 @@ pub struct ExtruderKeys {
     pub model: Option<MeltModelKeys>,
 }
 
+/// The share of the drive's grip (`max_force_n`) a melt model's flow
+/// limit lets the filament need: the rest is margin for the melt's
+/// scatter, and for its lag during a change of speed.
+pub const MODEL_FORCE_SHARE: f64 = 0.8;
+
 /// [`ExtruderKeys::smooth_time`]'s default, s.
 pub const DEFAULT_SMOOTH_TIME: f64 = 0.040;
 /// [`ExtruderKeys::instantaneous_corner_velocity`]'s default, mm/s.
@@ -77,6 +82,35 @@ impl ExtruderKeys {
         ]
         .into_iter()
         .filter_map(|(k, given)| given.then_some(k))
+    }
+
+    /// The largest melt flow an extruding move may need with the hotend's
+    /// target at `hotend_c` °C, mm³/s: the melt model's flow at
+    /// [`MODEL_FORCE_SHARE`] of the grip, and `max_volumetric_speed`,
+    /// whichever is lower; `None` with neither.
+    ///
+    /// The model is trusted only within its measured `temp_range`: above
+    /// it the limit stays at the top of the range's; below it the law is
+    /// extrapolated, which only lowers the limit (the melt thickens as it
+    /// cools).
+    pub fn flow_limit(&self, hotend_c: f64) -> Option<f64> {
+        let from_model = self.model.as_ref().zip(self.max_force_n).map(|(m, grip)| {
+            m.model()
+                .flow_at(MODEL_FORCE_SHARE * grip, hotend_c.min(m.temp_range[1]))
+        });
+        match (from_model, self.max_volumetric_speed) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
+        }
+    }
+
+    /// Pressure advance, s: `pressure_advance` as given, else the melt
+    /// model's response time (a first-order lag of τ is undone by running
+    /// τ·velocity ahead), else 0.
+    pub fn pressure_advance_s(&self) -> f64 {
+        self.pressure_advance
+            .or_else(|| self.model.as_ref().map(|m| m.response_ms / 1000.0))
+            .unwrap_or(0.0)
     }
 
     /// The filament's cross-section, mm² (0 without a diameter).
@@ -135,6 +169,18 @@ pub struct MeltModelKeys {
     /// The run it was fitted from (its output folder).
     #[serde(default)]
     pub fitted_from: Option<String>,
+}
+
+impl MeltModelKeys {
+    /// The steady law the keys give.
+    pub fn model(&self) -> osap_fit::MeltModel {
+        osap_fit::MeltModel {
+            flow_k: self.flow_k,
+            flow_n: self.flow_n,
+            temp_coeff: self.temp_coeff,
+            t_ref: self.t_ref,
+        }
+    }
 }
 
 /// Checks `[axes.e.loadcell]` and `[axes.e.model]`; the error names the

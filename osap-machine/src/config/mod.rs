@@ -36,7 +36,7 @@ mod validate;
 pub use accel::{Accelerometer, AxisShaper, AxisShaperError};
 pub use extruder::{
     ExtruderKeys, LoadCellKeys, MeltModelKeys, DEFAULT_CORNER_VELOCITY, DEFAULT_RETRACT_LENGTH,
-    DEFAULT_RETRACT_SPEED, DEFAULT_SMOOTH_TIME,
+    DEFAULT_RETRACT_SPEED, DEFAULT_SMOOTH_TIME, MODEL_FORCE_SHARE,
 };
 pub use heaters::{Heater, Runaway, Sensor, MAX_HEATER_TEMP};
 pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};

@@ -2,6 +2,7 @@
 //! machine's axes, the extruder's moves (with the machine file's flow cap
 //! and firmware retraction), and a printer's heater, fan and motor codes.
 
+use super::flow::{limit_flow, Extruding, HotendTemperature};
 use super::{JobError, Move, Program, ToolLevel};
 use crate::config::{MachineFile, DEFAULT_RETRACT_LENGTH, DEFAULT_RETRACT_SPEED};
 use crate::gcode::{Action, GcodeError, Job, ReadOptions};
@@ -53,8 +54,21 @@ pub fn gcode_options(cfg: &MachineFile, origin: Option<[f64; 3]>) -> ReadOptions
 }
 
 /// A G-code job as a program for machine `cfg`, starting at `start`
-/// (axis order). Every move, arcs included, is checked against the travel.
+/// (axis order). Every move, arcs included, is checked against the travel;
+/// extruding moves are held to the extruder's flow limit at the job's
+/// hotend targets.
 pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program, JobError> {
+    from_gcode_with(cfg, job, start, HotendTemperature::AsJob)
+}
+
+/// [`from_gcode`] with the hotend's temperature set as `hotend` says
+/// (`osap run --temperature`), its flow limit at that temperature.
+pub fn from_gcode_with(
+    cfg: &MachineFile,
+    job: &Job,
+    start: &[f64],
+    hotend: HotendTemperature,
+) -> Result<Program, JobError> {
     // The reader's own travel check covers whole arcs; axes the machine
     // lacks are checked by `place_gcode` (they must stay at 0).
     let (mut min, mut max) = ([f64::NEG_INFINITY; 3], [f64::INFINITY; 3]);
@@ -65,6 +79,7 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
         }
     }
     let mut moves = Vec::new();
+    let mut extruding = Vec::new();
     let mut at = start.to_vec();
     let mut retracted = false;
     let mut warnings: Vec<String> = job.warnings.iter().map(|w| w.to_string()).collect();
@@ -110,7 +125,12 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
                 let mut p = place_gcode(cfg, to, &at, step.line)?;
                 let k = e_slot(cfg, step.line)?;
                 p[k] = e;
-                let feed = flow_capped(cfg, &at, &p, k, feed);
+                if let Some(x) = extruding_move(cfg, &at, &p, k) {
+                    extruding.push(Extruding {
+                        index: moves.len(),
+                        ..x
+                    });
+                }
                 at.clone_from(&p);
                 Move::Line(p, feed)
             }
@@ -235,7 +255,7 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
             reason: other.to_string(),
         },
     })?;
-    Ok(Program {
+    let mut program = Program {
         moves,
         warnings,
         dialect: Some(job.dialect),
@@ -245,7 +265,10 @@ pub fn from_gcode(cfg: &MachineFile, job: &Job, start: &[f64]) -> Result<Program
             .iter()
             .position(|n| *n == "e")
             .map_or(0.0, |k| start[k]),
-    })
+        ..Program::default()
+    };
+    limit_flow(cfg, &mut program, &extruding, hotend)?;
+    Ok(program)
 }
 
 /// The slot of the machine's extruder, or the error for a job that
@@ -259,30 +282,21 @@ fn e_slot(cfg: &MachineFile, line: usize) -> Result<usize, JobError> {
         })
 }
 
-/// `feed` held to the extruder's `max_volumetric_speed` for an extruding
-/// move from `from` to `to` (the extruder in slot `k`): the filament
-/// melted per second, `feed · Δe/L · area`, stays within the cap. Moves
-/// that only extrude or retract, or that retract, are not capped.
-fn flow_capped(cfg: &MachineFile, from: &[f64], to: &[f64], k: usize, feed: f64) -> f64 {
-    let Some(x) = cfg.extruder().map(|a| &a.extruder) else {
-        return feed;
-    };
-    let Some(cap) = x.max_volumetric_speed else {
-        return feed;
-    };
+/// A move from `from` to `to` that extrudes (the extruder in slot `k`):
+/// its toolhead path and the melt it makes per mm/s of feed,
+/// `Δe / path · area`. Moves that only extrude or retract, or that
+/// retract, are not extruding moves (the flow limit leaves them).
+fn extruding_move(cfg: &MachineFile, from: &[f64], to: &[f64], k: usize) -> Option<Extruding> {
+    let x = cfg.extruder().map(|a| &a.extruder)?;
     let n = cfg.toolhead_axes();
     let path = (0..n)
         .map(|i| (to[i] - from[i]).powi(2))
         .sum::<f64>()
         .sqrt();
     let de = to[k] - from[k];
-    if path <= 1e-9 || de <= 0.0 {
-        return feed;
-    }
-    let flow = feed * de / path * x.filament_area();
-    if flow > cap {
-        feed * cap / flow
-    } else {
-        feed
-    }
+    (path > 1e-9 && de > 0.0).then(|| Extruding {
+        index: 0,
+        path,
+        flow_per_feed: de / path * x.filament_area(),
+    })
 }

@@ -11,9 +11,11 @@ use crate::config::{MachineFile, ToolKind};
 use crate::machine::{Machine, MachineError, MAX_AXES};
 use crate::svg::Drawing;
 
+mod flow;
 mod gcode;
 
-pub use gcode::{from_gcode, gcode_options};
+pub use flow::{HotendChoice, HotendTemperature, SlowedMove};
+pub use gcode::{from_gcode, from_gcode_with, gcode_options};
 
 /// One thing a program does.
 #[derive(Debug, Clone, PartialEq)]
@@ -92,6 +94,10 @@ pub struct Program {
     pub e_slot: Option<usize>,
     /// Where the extruder stood when the program starts, mm.
     pub e_start: f64,
+    /// The extruding moves the flow limit slowed, in order.
+    pub slowed: Vec<SlowedMove>,
+    /// The hotend's temperature when `--temperature` replaced the job's.
+    pub hotend: Option<HotendChoice>,
 }
 
 /// Why a job cannot run on a machine.
@@ -144,6 +150,9 @@ pub enum JobError {
     /// A feed rate that is not finite and positive.
     #[error("feed {0} must be finite and positive")]
     BadFeed(f64),
+    /// The hotend temperature asked cannot be set.
+    #[error("{0}")]
+    Temperature(String),
 }
 
 fn check(cfg: &MachineFile, p: &[f64], place: &str) -> Result<(), JobError> {
@@ -239,9 +248,7 @@ pub fn from_svg(cfg: &MachineFile, drawing: &Drawing, feed: f64) -> Result<Progr
     Ok(Program {
         moves,
         warnings,
-        dialect: None,
-        e_slot: None,
-        e_start: 0.0,
+        ..Program::default()
     })
 }
 

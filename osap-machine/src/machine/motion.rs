@@ -370,16 +370,16 @@ pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineEr
     )?)
 }
 
-/// The extruder's pressure advance from its `[axes.e]` (`pressure_advance`
-/// and `smooth_time`) with its axis slot; `None` without an extruder or
-/// with `pressure_advance` 0.
+/// The extruder's pressure advance from its `[axes.e]` (`pressure_advance`,
+/// else its melt model's response time; and `smooth_time`) with its axis
+/// slot; `None` without an extruder or with pressure advance 0.
 pub fn pressure_advance(
     cfg: &MachineFile,
 ) -> Result<Option<(usize, PressureAdvance)>, MachineError> {
     let Some(e) = cfg.extruder() else {
         return Ok(None);
     };
-    let k = e.extruder.pressure_advance.unwrap_or(0.0);
+    let k = e.extruder.pressure_advance_s();
     if k == 0.0 {
         return Ok(None);
     }

@@ -57,7 +57,7 @@ impl Default for RheoOptions {
             flows: vec![1.0, 2.0, 3.0, 5.0, 7.0, 10.0, 14.0, 19.0, 25.0],
             hold_s: 2.0,
             settle_s: 1.2,
-            force_share: 0.8,
+            force_share: crate::config::MODEL_FORCE_SHARE,
             soak_s: 5.0,
             tare_samples: 40,
         }

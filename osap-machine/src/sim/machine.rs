@@ -7,7 +7,9 @@ use std::future::Future;
 use std::pin::Pin;
 
 use osap_host::{Host, HostConfig};
+use osap_sim::machine::board::melt::MeltStats;
 use osap_sim::machine::{SimMachine, TimeMode};
+use osap_sim::topology::MeltSpec;
 
 use crate::config::MachineFile;
 use crate::machine::{Machine, MachineError, Underneath, HOST_NAME};
@@ -81,5 +83,22 @@ impl Machine {
             })
         })
         .filter(|v| v.is_finite())
+    }
+
+    /// What the simulated melt behind the extruder did so far (its peak
+    /// force, its slips), with the melt's own law; `None` when the
+    /// machine is not simulated or simulates no melt (`[sim.axes.e]`).
+    pub fn sim_melt(&self) -> Option<(MeltSpec, MeltStats)> {
+        self.with_sim(|s| {
+            s.modules().iter().find_map(|sm| {
+                sm.module()?.lock(|mm| {
+                    mm.board()
+                        .pins()
+                        .melt()
+                        .map(|melt| (melt.spec().clone(), melt.stats()))
+                })
+            })
+        })
+        .flatten()
     }
 }

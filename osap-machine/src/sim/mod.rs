@@ -59,6 +59,8 @@ mod machine;
 pub(crate) mod melt;
 
 pub use machine::SimOptions;
+/// What the simulated melt did ([`Machine::sim_melt`](crate::Machine::sim_melt)), and its law.
+pub use osap_sim::{machine::board::melt::MeltStats, topology::MeltSpec};
 
 /// The simulated hub's name.
 pub const HUB: &str = "hub";
