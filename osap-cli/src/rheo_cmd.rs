@@ -95,14 +95,21 @@ pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
     write_record(&out, &record)?;
     let fit = rheo::fit(&record, &opts).map_err(failure)?;
     write_steady(&out, &fit)?;
+    rheo::plot(&record, &fit, &out).map_err(|e| Failure {
+        code: FAULTED,
+        message: e.to_string(),
+    })?;
     print_fit(&fit);
     let run = out.display().to_string();
     if args.write {
-        rheo::write_model(&args.target.machine, &fit, Some(&run)).map_err(failure)?;
+        let notes = rheo::write_model(&args.target.machine, &fit, Some(&run)).map_err(failure)?;
         println!(
             "wrote [axes.e.model] into {}",
             args.target.machine.display()
         );
+        for n in notes {
+            println!("note: {n}");
+        }
     } else {
         println!("put this into the machine file (or run with --write):");
         for l in rheo::model_lines(&fit, Some(&run)) {

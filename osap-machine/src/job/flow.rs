@@ -484,6 +484,30 @@ mod tests {
     }
 
     #[test]
+    fn a_program_runs_its_extrusion_from_where_the_extruder_stands() {
+        let cfg = modelled();
+        let p = build(&cfg, "M109 S210\n", HotendTemperature::AsJob);
+        // Read for an extruder 100 mm along, the job extrudes from there.
+        let mut start = crate::machine::drive::start_position(&cfg);
+        let k = p.e_slot.unwrap();
+        start[k] = 100.0;
+        let along =
+            from_gcode_with(&cfg, &job("M109 S210\n"), &start, HotendTemperature::AsJob).unwrap();
+        assert_eq!(along.e_start, 100.0);
+        assert!((along.extruded_mm() - p.extruded_mm()).abs() < 1e-9);
+        assert!(along.extruded_mm() > 1.0);
+        let moved = p.with_e_start(p.e_start + 250.0);
+        assert_eq!(moved.e_start, p.e_start + 250.0);
+        assert!((moved.extruded_mm() - p.extruded_mm()).abs() < 1e-9);
+        for ((_, a), (_, b)) in p.moves.iter().zip(&moved.moves) {
+            if let (Move::Line(pa, _), Move::Line(pb, _)) = (a, b) {
+                assert!((pb[k] - pa[k] - 250.0).abs() < 1e-9);
+                assert_eq!(pa[..k], pb[..k]);
+            }
+        }
+    }
+
+    #[test]
     fn pressure_advance_comes_from_the_models_response_unless_given() {
         let cfg = modelled();
         let e = &cfg.extruder().unwrap().extruder;

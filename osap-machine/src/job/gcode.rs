@@ -124,7 +124,9 @@ pub fn from_gcode_with(
             Action::Extrude { to, e, feed } => {
                 let mut p = place_gcode(cfg, to, &at, step.line)?;
                 let k = e_slot(cfg, step.line)?;
-                p[k] = e;
+                // The reader's e starts at 0 with the job; the extruder
+                // goes on from where it stands.
+                p[k] = start[k] + e;
                 if let Some(x) = extruding_move(cfg, &at, &p, k) {
                     extruding.push(Extruding {
                         index: moves.len(),

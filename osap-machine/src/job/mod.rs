@@ -283,6 +283,26 @@ impl Program {
         last.map_or(0.0, |e| e - self.e_start)
     }
 
+    /// This program with its extruder positions shifted to start at `e`
+    /// (where the extruder stands), so a job read for one start runs from
+    /// another without pulling the filament back.
+    pub fn with_e_start(&self, e: f64) -> Program {
+        let mut p = self.clone();
+        let Some(k) = self.e_slot else {
+            return p;
+        };
+        let shift = e - self.e_start;
+        for (_, m) in &mut p.moves {
+            if let Move::Line(to, _) | Move::Rapid(to) | Move::Arc { to, .. } = m {
+                if let Some(v) = to.get_mut(k) {
+                    *v += shift;
+                }
+            }
+        }
+        p.e_start = e;
+        p
+    }
+
     /// How long the moves take as planned, s: motion, dwells, tool settle
     /// times, and the restart after each stop at rest (a timer lead plus
     /// two intervals).
@@ -436,6 +456,16 @@ impl Machine {
         program: &Program,
         mut progress: impl FnMut(Progress),
     ) -> Result<RunStats, MachineError> {
+        // The job's extrusion continues from where the extruder stands,
+        // not from where the program was read for.
+        let rebased;
+        let program = match program.e_slot {
+            Some(k) => {
+                rebased = program.with_e_start(self.position()[k]);
+                &rebased
+            }
+            None => program,
+        };
         let mut stats = RunStats::default();
         let in_order = InOrder::start(self);
         let rapid = self.config().limits.velocity;

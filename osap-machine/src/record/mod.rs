@@ -23,7 +23,7 @@ use std::path::{Path, PathBuf};
 use thiserror::Error;
 
 #[cfg(feature = "plot")]
-mod plot;
+pub(crate) mod plot;
 #[cfg(feature = "plot")]
 pub use plot::plot_timeline;
 

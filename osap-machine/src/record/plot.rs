@@ -180,9 +180,10 @@ pub(super) fn plot_speed(
     area.present().map_err(&err)
 }
 
-type Chart<'a, 'b> = ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
+pub(crate) type Chart<'a, 'b> =
+    ChartContext<'a, SVGBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>;
 
-pub(super) fn draw_line<F: Fn(DrawingAreaErrorKind<io::Error>) -> RecordError>(
+pub(crate) fn draw_line<F: Fn(DrawingAreaErrorKind<io::Error>) -> RecordError>(
     chart: &mut Chart<'_, '_>,
     points: Vec<(f64, f64)>,
     color: RGBAColor,
@@ -200,7 +201,7 @@ pub(super) fn draw_line<F: Fn(DrawingAreaErrorKind<io::Error>) -> RecordError>(
     Ok(())
 }
 
-pub(super) fn legend<'a, 'b: 'a, F: Fn(DrawingAreaErrorKind<io::Error>) -> RecordError>(
+pub(crate) fn legend<'a, 'b: 'a, F: Fn(DrawingAreaErrorKind<io::Error>) -> RecordError>(
     chart: &mut Chart<'a, 'b>,
     err: F,
 ) -> Result<(), RecordError> {
@@ -214,7 +215,7 @@ pub(super) fn legend<'a, 'b: 'a, F: Fn(DrawingAreaErrorKind<io::Error>) -> Recor
 }
 
 /// The range of finite values, widened when empty or a single value.
-pub(super) fn range(values: impl Iterator<Item = f64>) -> Range<f64> {
+pub(crate) fn range(values: impl Iterator<Item = f64>) -> Range<f64> {
     let (lo, hi) = values
         .filter(|v| v.is_finite())
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
@@ -231,7 +232,7 @@ pub(super) fn range(values: impl Iterator<Item = f64>) -> Range<f64> {
 }
 
 /// `r` with a 5 % margin on each side.
-pub(super) fn pad(r: Range<f64>) -> Range<f64> {
+pub(crate) fn pad(r: Range<f64>) -> Range<f64> {
     let m = (r.end - r.start) * 0.05;
     r.start - m..r.end + m
 }
@@ -434,7 +435,7 @@ pub fn plot_timeline(
     area.present().map_err(&err)
 }
 
-pub(super) fn plot_err<E: std::fmt::Debug>(path: &Path) -> impl Fn(E) -> RecordError + '_ {
+pub(crate) fn plot_err<E: std::fmt::Debug>(path: &Path) -> impl Fn(E) -> RecordError + '_ {
     move |e| RecordError::Plot {
         path: path.to_path_buf(),
         message: format!("{e:?}"),

@@ -26,7 +26,11 @@ use osap_fit::{FitError, MeltFit};
 use crate::config::MachineFile;
 use crate::machine::{Machine, MachineError};
 
+#[cfg(feature = "plot")]
+mod plot;
 mod write;
+#[cfg(feature = "plot")]
+pub use plot::plot;
 pub use write::{model_lines, write_model};
 
 /// How the melt is measured.
@@ -382,6 +386,9 @@ pub struct RheoFit {
     pub lag: LagFit,
     /// Each flow's settled force.
     pub steady: Vec<SteadyState>,
+    /// The settled points the law was fitted to: (mm³/s, °C, N), flow
+    /// and temperature as measured.
+    pub points: Vec<(f64, f64, f64)>,
     /// Per temperature: (°C, max flow mm³/s, its standard error).
     pub max_flows: Vec<(f64, f64, f64)>,
     /// The share of the grip the max flows are quoted at, and the grip, N.
@@ -474,6 +481,7 @@ pub fn fit(record: &RheoRecord, opts: &RheoOptions) -> Result<RheoFit, RheoError
         melt,
         lag,
         steady,
+        points,
         max_flows,
         force_limit_n,
         temp_range: [lo, hi],

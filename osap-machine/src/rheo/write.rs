@@ -8,42 +8,15 @@ use toml_edit::{value, Array, DocumentMut, Item, Table};
 use super::{RheoError, RheoFit};
 use crate::config::MachineFile;
 
-/// The `[axes.e.model]` table for `fit`, as lines of TOML.
-pub fn model_lines(fit: &RheoFit, fitted_from: Option<&str>) -> Vec<String> {
+/// The `[axes.e.model]` table for `fit`, rounded to what the fit
+/// resolves.
+fn model_table(fit: &RheoFit, fitted_from: Option<&str>) -> Table {
     let m = &fit.melt.model;
-    let mut lines = vec![
-        "[axes.e.model]".to_string(),
-        format!("flow_k = {:.4}", m.flow_k),
-        format!("flow_n = {:.4}", m.flow_n),
-        format!("temp_coeff = {:.5}", m.temp_coeff),
-        format!("t_ref = {:.1}", m.t_ref),
-        format!("response_ms = {:.1}", fit.lag.tau_s * 1000.0),
-        format!(
-            "temp_range = [{:.1}, {:.1}]",
-            fit.temp_range[0], fit.temp_range[1]
-        ),
-    ];
-    if let Some(run) = fitted_from {
-        lines.push(format!("fitted_from = {run:?}"));
-    }
-    lines
-}
-
-/// Sets `[axes.e.model]` of the machine file at `path` to `fit` (replacing
-/// an earlier model), keeping the rest of the file as it is; refused when
-/// the result would not load.
-pub fn write_model(path: &Path, fit: &RheoFit, fitted_from: Option<&str>) -> Result<(), RheoError> {
-    let io = |e: std::io::Error| RheoError::Refused(format!("{}: {e}", path.display()));
-    let text = std::fs::read_to_string(path).map_err(io)?;
-    let mut doc: DocumentMut = text
-        .parse()
-        .map_err(|e| RheoError::Refused(format!("{}: {e}", path.display())))?;
-    let m = &fit.melt.model;
-    let mut t = Table::new();
     let round = |v: f64, digits: i32| {
         let s = 10f64.powi(digits);
         (v * s).round() / s
     };
+    let mut t = Table::new();
     t["flow_k"] = value(round(m.flow_k, 4));
     t["flow_n"] = value(round(m.flow_n, 4));
     t["temp_coeff"] = value(round(m.temp_coeff, 5));
@@ -56,15 +29,61 @@ pub fn write_model(path: &Path, fit: &RheoFit, fitted_from: Option<&str>) -> Res
     if let Some(run) = fitted_from {
         t["fitted_from"] = value(run);
     }
+    t
+}
+
+/// The `[axes.e.model]` table for `fit`, as lines of TOML (what
+/// [`write_model`] writes).
+pub fn model_lines(fit: &RheoFit, fitted_from: Option<&str>) -> Vec<String> {
+    let mut doc = DocumentMut::new();
+    let mut e = Table::new();
+    e.set_implicit(true);
+    e.insert("model", Item::Table(model_table(fit, fitted_from)));
+    let mut axes = Table::new();
+    axes.set_implicit(true);
+    axes.insert("e", Item::Table(e));
+    doc.insert("axes", Item::Table(axes));
+    doc.to_string().lines().map(str::to_string).collect()
+}
+
+/// Sets `[axes.e.model]` of the machine file at `path` to `fit` (replacing
+/// an earlier model), keeping the rest of the file as it is; refused when
+/// the result would not load. Returns notes for the user: `[axes.e]` keys
+/// kept that still override or cap the model.
+pub fn write_model(
+    path: &Path,
+    fit: &RheoFit,
+    fitted_from: Option<&str>,
+) -> Result<Vec<String>, RheoError> {
+    let io = |e: std::io::Error| RheoError::Refused(format!("{}: {e}", path.display()));
+    let text = std::fs::read_to_string(path).map_err(io)?;
+    let mut doc: DocumentMut = text
+        .parse()
+        .map_err(|e| RheoError::Refused(format!("{}: {e}", path.display())))?;
     let e = doc
         .get_mut("axes")
         .and_then(|a| a.get_mut("e"))
         .and_then(Item::as_table_mut)
         .ok_or_else(|| RheoError::Refused(format!("{}: no [axes.e] table", path.display())))?;
-    e.insert("model", Item::Table(t));
+    e.insert("model", Item::Table(model_table(fit, fitted_from)));
     let out = doc.to_string();
-    MachineFile::parse(&out)
+    let cfg = MachineFile::parse(&out)
         .and_then(|c| c.validate().map(|_| c))
         .map_err(|e| RheoError::Refused(format!("the file with the model would not load: {e}")))?;
-    std::fs::write(path, out).map_err(io)
+    std::fs::write(path, out).map_err(io)?;
+    let mut notes = Vec::new();
+    if let Some(x) = cfg.extruder().map(|a| &a.extruder) {
+        if let Some(k) = x.pressure_advance {
+            notes.push(format!(
+                "axes.e.pressure_advance = {k} is kept and overrides the model's {:.3} s; delete it to take pressure advance from the model",
+                fit.lag.tau_s
+            ));
+        }
+        if let Some(q) = x.max_volumetric_speed {
+            notes.push(format!(
+                "axes.e.max_volumetric_speed = {q} is kept and caps the flow wherever the model allows more; delete it to print from the model alone"
+            ));
+        }
+    }
+    Ok(notes)
 }

@@ -40,6 +40,9 @@ pub struct Melt {
     area: f64,
     /// Outflow, mm³/s.
     q: f64,
+    /// The void a retraction left above the melt, mm³: the next push
+    /// fills it before it presses on the melt.
+    gap: f64,
     /// The force through the cell's lag, N.
     sensed: f64,
     /// Local time the state is at.
@@ -84,6 +87,7 @@ impl Melt {
             area: std::f64::consts::PI * r * r,
             spec,
             q: 0.0,
+            gap: 0.0,
             sensed: 0.0,
             at: Instant::ZERO,
             pending: VecDeque::new(),
@@ -160,6 +164,24 @@ impl Melt {
         self.q *= (-dt / self.tau()).exp();
     }
 
+    /// The drive moves `volume` mm³ of filament (negative: retracts). The
+    /// melt holds `q·τ` mm³ pressed: a retraction first relieves that,
+    /// and what it pulls back beyond leaves a void; a push first fills
+    /// the void, then presses the melt.
+    fn press(&mut self, volume: f64) {
+        let tau = self.tau();
+        if volume < 0.0 {
+            let pressed = self.q.max(0.0) * tau;
+            let relieved = (-volume).min(pressed);
+            self.q -= relieved / tau;
+            self.gap += -volume - relieved;
+        } else {
+            let filled = volume.min(self.gap);
+            self.gap -= filled;
+            self.q += (volume - filled) / tau;
+        }
+    }
+
     /// Advances to local `now`, applying the steps due.
     fn advance(&mut self, now: Instant) {
         while let Some(&(t, d)) = self.pending.front() {
@@ -181,9 +203,7 @@ impl Melt {
             }
             self.slipping = false;
             self.stats.pushed_mm += d;
-            // A retraction pulls melt back: the outflow may go negative
-            // for a moment (suck-back); the force law is for pushing.
-            self.q += d * self.area / self.tau();
+            self.press(d * self.area);
             self.stats.peak_force_n = self.stats.peak_force_n.max(self.force());
         }
         if now > self.at {
@@ -318,6 +338,50 @@ mod tests {
         assert!(s.pushed_mm + s.slipped_mm > 19.99);
         // The force stays at the grip: a step is refused above it.
         assert!(s.peak_force_n < 40.0 * 1.05, "{s:?}");
+    }
+
+    /// A slicer's retraction and unretraction (0.8 mm at 35 mm/s) between
+    /// two extrusions: the unretraction fills the void the retraction
+    /// left and presses the melt back only as it was, where the same
+    /// 0.8 mm pushed into a full nozzle slips the filament.
+    #[test]
+    fn an_unretraction_fills_the_void_of_its_retraction() {
+        let mut m = Melt::new(pla(), 210.0);
+        m.set_temperature(210.0);
+        let step = 1.0 / 400.0;
+        let t = push(&mut m, Instant::ZERO, 2.0, 1.0, step);
+        let steady = m.force();
+        let t = retract(&mut m, t, 35.0, 0.8, step);
+        assert!(m.outflow() <= 1e-9, "{}", m.outflow());
+        let t = push(&mut m, t + secs(0.2), 35.0, 0.8 / 35.0, step);
+        // The melt pressed as it was before the retraction, no more.
+        assert!(
+            m.force() < steady * 1.01,
+            "{} N, steady {steady} N",
+            m.force()
+        );
+        push(&mut m, t, 2.0, 1.0, step);
+        let s = m.stats();
+        assert_eq!(s.slips, 0, "{s:?}");
+        assert!(s.peak_force_n < steady * 1.02, "{s:?}, steady {steady}");
+        // Into a full nozzle, the same push slips.
+        let mut full = Melt::new(pla(), 210.0);
+        full.set_temperature(210.0);
+        let t = push(&mut full, Instant::ZERO, 2.0, 1.0, step);
+        push(&mut full, t, 35.0, 0.8 / 35.0, step);
+        assert!(full.stats().slips >= 1, "{:?}", full.stats());
+    }
+
+    /// Pulls `mm` of filament back at `mm_s`.
+    fn retract(m: &mut Melt, from: Instant, mm_s: f64, mm: f64, step_mm: f64) -> Instant {
+        let n = (mm / step_mm).round() as u64;
+        let dt = step_mm / mm_s;
+        for k in 1..=n {
+            m.step(from + secs(dt * k as f64), -step_mm, from);
+        }
+        let end = from + secs(dt * n as f64);
+        m.advance(end);
+        end
     }
 
     #[test]
