@@ -649,8 +649,9 @@ fn print_flow(cfg: &MachineFile, program: &Program, added_s: f64) {
         .map(|s| s.flow / s.limit)
         .fold(0.0, f64::max);
     println!(
-        "flow limit         {:>9} moves slowed ({source}), {added_s:+.3} s planned; lines {} (slowed.csv); the most asked {:.0} % of its limit",
+        "flow limit         {:>9} moves held to it ({source}): {added_s:+.3} s as planned (at most {:+.3} s at cruise); lines {} (slowed.csv); the most asked {:.0} % of its limit",
         program.slowed.len(),
+        program.flow_limit_added_s(),
         lines.join(", "),
         worst * 100.0
     );

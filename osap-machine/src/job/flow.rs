@@ -38,7 +38,8 @@ pub struct SlowedMove {
     pub flow: f64,
     /// The limit at the hotend's target then, mm³/s.
     pub limit: f64,
-    /// The time it adds at cruise, s (path / feed − path / asked).
+    /// The most time it adds, s: at cruise (path / feed − path / asked);
+    /// less where the planner's acceleration keeps it slower anyway.
     pub added_s: f64,
 }
 
@@ -366,8 +367,18 @@ mod tests {
             [6, 7]
         );
         assert!((cold.slowed[0].limit - limit_at(190.0)).abs() < 1e-9);
-        // Without the limit the feeds are the job's again.
+        // Without the limit the feeds are the job's again, and it plans
+        // quicker.
         let back = p.without_flow_limit();
+        let start = crate::machine::drive::start_position(&cfg);
+        let (limited_s, unlimited_s) = (
+            p.planned_seconds(&cfg, &start).unwrap(),
+            back.planned_seconds(&cfg, &start).unwrap(),
+        );
+        assert!(
+            limited_s > unlimited_s + 0.005,
+            "{limited_s} vs {unlimited_s}"
+        );
         assert!(back.slowed.is_empty());
         assert!(matches!(back.moves[s.index].1, Move::Line(_, f) if f == 200.0));
     }
