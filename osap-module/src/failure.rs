@@ -403,6 +403,9 @@ failures! {
                      samples",
         NotConfigured => "the load cell is not set up: loadcell_setup with its pins first",
         NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
+        NoConverter => "data line low after a read, so no converter drives it: check its \
+                        wiring, then loadcell_setup",
+        Silent => "no sample for 0.5 s: check the converter's power and data line",
     }
 }
 
@@ -583,8 +586,11 @@ mod tests {
             assert!(reply < 4096, "{}: {reply} bytes", sig.name);
             total += reply;
         }
+        // A scan reads every signature with its failure table (33 390 bytes
+        // with the load cell's wiring checks): a budget, so a table that
+        // grows by much is noticed.
         assert!(
-            total < 32 * 1024,
+            total < 34 * 1024,
             "a scan reads {total} bytes of signatures"
         );
     }

@@ -422,8 +422,9 @@ impl<B: Board> Module<B> {
     /// The load cell's converter is on digital pins `data_pin` (its data
     /// line) and `clock_pin` (its clock).
     pub fn loadcell_setup(&mut self, data_pin: u8, clock_pin: u8) -> Result<(), CallError> {
+        let now = self.board.now();
         let hw = self.board.io().ok_or(LoadCellError::NoHardware)?;
-        Ok(self.loadcell.setup(hw, data_pin, clock_pin)?)
+        Ok(self.loadcell.setup(hw, data_pin, clock_pin, now)?)
     }
 
     /// The next `samples` readings (1 to 1 000) become the load cell's
@@ -440,11 +441,10 @@ impl<B: Board> Module<B> {
 
     /// The newest sample: when it was read (synchronized µs; 0 before the
     /// first), its force, N, its raw counts, samples read since setup, and
-    /// whether a tare is under way.
+    /// whether a tare is under way. Fails when no converter answers
+    /// (`NoConverter`, `Silent`): a dead cell's zeros are never a force.
     pub fn loadcell_read(&mut self) -> Result<(u64, f32, i32, u32, bool), CallError> {
-        if !self.loadcell.is_set_up() {
-            return Err(LoadCellError::NotConfigured.into());
-        }
+        self.loadcell.check(self.board.now())?;
         let (time, force, raw) = match self.loadcell.newest() {
             Some(r) => (self.time.system_time(r.at).as_micros(), r.force, r.raw),
             None => (0, 0.0, 0),

@@ -12,6 +12,13 @@
 //! held high between pulses: an HX711 powers down when its clock stays
 //! high for 60 µs, so the whole read runs in one piece of work.
 //!
+//! **Wiring.** A converter drives its data line high after the 25th pulse
+//! until its next sample. A line still low then is not driven (unwired,
+//! or held low): the sample is dropped and `loadcell_read` fails with
+//! `NoConverter`. A converter that gives no sample for [`SILENT_AFTER`]
+//! (unpowered, or its line held high) fails it with `Silent`. Neither
+//! passes off a dead cell's zeros as a force.
+//!
 //! **Tare and scale.** `loadcell_tare(samples)` averages the next
 //! `samples` readings as the zero; `loadcell_scale(newtons_per_count)`
 //! sets the scale. A reading is then `(raw − tare) · newtons_per_count`.
@@ -26,6 +33,10 @@ use osap_core::{Duration, Instant};
 /// third of the 80-a-second converter's period, so a sample waits at most
 /// 1 ms to be read.
 pub const POLL_PERIOD: Duration = Duration::from_micros(1_000);
+
+/// How long without a sample before `loadcell_read` says the converter
+/// is silent: five periods of a 10-a-second converter.
+pub const SILENT_AFTER: Duration = Duration::from_micros(500_000);
 
 /// The most samples a tare may average (at 80 a second, 12.5 s).
 pub const MAX_TARE_SAMPLES: u16 = 1_000;
@@ -44,15 +55,21 @@ pub enum LoadCellError {
     NotConfigured = 3,
     /// The I/O hardware was never installed (a firmware without it).
     NoHardware = 4,
+    /// The data line stayed low after a read: no converter drives it.
+    NoConverter = 5,
+    /// No sample for [`SILENT_AFTER`]: the converter is off or unwired.
+    Silent = 6,
 }
 
 impl LoadCellError {
     /// Every load-cell error, in code order.
-    pub const ALL: [LoadCellError; 4] = [
+    pub const ALL: [LoadCellError; 6] = [
         LoadCellError::NoSuchPin,
         LoadCellError::BadValue,
         LoadCellError::NotConfigured,
         LoadCellError::NoHardware,
+        LoadCellError::NoConverter,
+        LoadCellError::Silent,
     ];
 
     /// The failure code.
@@ -74,6 +91,8 @@ impl core::fmt::Display for LoadCellError {
             LoadCellError::BadValue => "a value out of range",
             LoadCellError::NotConfigured => "the load cell is not set up",
             LoadCellError::NoHardware => "the I/O hardware was never installed",
+            LoadCellError::NoConverter => "no converter drives the data line",
+            LoadCellError::Silent => "the converter gives no samples",
         })
     }
 }
@@ -120,6 +139,10 @@ pub struct LoadCell {
     newest: Option<Reading>,
     samples: u32,
     next_poll: Option<Instant>,
+    /// The last sample, or the setup: when the converter last answered.
+    answered_at: Instant,
+    /// The data line was seen undriven since setup.
+    undriven: bool,
 }
 
 impl LoadCell {
@@ -132,9 +155,16 @@ impl LoadCell {
     }
 
     /// The converter's data line is digital pin `data`, its clock `clock`;
-    /// the clock goes low. Forgets the newest sample and any tare under
-    /// way (the tare and scale stay).
-    pub fn setup(&mut self, hw: &mut dyn IoHw, data: u8, clock: u8) -> Result<(), LoadCellError> {
+    /// the clock goes low at local time `now`. Forgets the newest sample,
+    /// any tare under way and any wiring fault seen (the tare and scale
+    /// stay).
+    pub fn setup(
+        &mut self,
+        hw: &mut dyn IoHw,
+        data: u8,
+        clock: u8,
+        now: Instant,
+    ) -> Result<(), LoadCellError> {
         let pins = hw.digital_pins();
         if data >= pins || clock >= pins || data == clock {
             return Err(LoadCellError::NoSuchPin);
@@ -144,6 +174,8 @@ impl LoadCell {
         self.newest = None;
         self.taring = None;
         self.next_poll = Some(Instant::ZERO);
+        self.answered_at = now;
+        self.undriven = false;
         Ok(())
     }
 
@@ -195,6 +227,23 @@ impl LoadCell {
         self.pins.is_some()
     }
 
+    /// Whether a converter answers, at local time `now`: `NoConverter`
+    /// once its data line was seen undriven (until set up again), `Silent`
+    /// after
+    /// [`SILENT_AFTER`] without a sample.
+    pub fn check(&self, now: Instant) -> Result<(), LoadCellError> {
+        if self.pins.is_none() {
+            return Err(LoadCellError::NotConfigured);
+        }
+        if self.undriven {
+            return Err(LoadCellError::NoConverter);
+        }
+        if now.saturating_duration_since(self.answered_at) > SILENT_AFTER {
+            return Err(LoadCellError::Silent);
+        }
+        Ok(())
+    }
+
     /// When [`poll`](Self::poll) next has work, local time.
     pub fn wake_at(&self) -> Option<Instant> {
         self.pins.and(self.next_poll)
@@ -227,6 +276,13 @@ impl LoadCell {
         hw.write_digital(clock, true);
         hw.hold_pulse();
         hw.write_digital(clock, false);
+        hw.hold_pulse();
+        // A converter now drives its line high until the next sample.
+        if !hw.read_digital(data) {
+            self.undriven = true;
+            return false;
+        }
+        self.answered_at = now;
         // Sign-extend the 24-bit two's complement.
         let raw = ((raw << 8) as i32) >> 8;
         self.samples = self.samples.wrapping_add(1);

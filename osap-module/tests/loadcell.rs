@@ -5,7 +5,7 @@
 //! does: the test counts the edges and watches the clock's level between
 //! calls).
 
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::rc::Rc;
 
 use osap_core::{Duration, Instant};
@@ -26,6 +26,8 @@ struct Hx711 {
     edges: u32,
     /// Clock pulses seen with no sample ready (a driver fault).
     stray: u32,
+    /// The data line held low: no converter on it (a pull-down).
+    held_low: bool,
 }
 
 impl Hx711 {
@@ -43,6 +45,9 @@ impl Hx711 {
     }
 
     fn data(&self) -> bool {
+        if self.held_low {
+            return false;
+        }
         match self.shifting {
             Some((s, e)) => (s >> (24 - u32::from(e))) & 1 == 1,
             None => self.ready.is_empty(),
@@ -96,6 +101,7 @@ impl StepperHw for Driver {
 struct TestBoard {
     driver: Driver,
     pins: Option<Pins>,
+    now: Rc<Cell<Instant>>,
 }
 
 impl Board for TestBoard {
@@ -106,7 +112,7 @@ impl Board for TestBoard {
         self.pins.as_mut().map(|p| p as &mut dyn IoHw)
     }
     fn now(&self) -> Instant {
-        Instant::ZERO
+        self.now.get()
     }
 }
 
@@ -115,13 +121,21 @@ fn refused(e: LoadCellError) -> Result<(), CallError> {
 }
 
 fn rig() -> (Module<TestBoard>, Rc<RefCell<Hx711>>) {
+    let (m, chip, _) = rig_with_clock();
+    (m, chip)
+}
+
+/// The rig with the board's clock to set.
+fn rig_with_clock() -> (Module<TestBoard>, Rc<RefCell<Hx711>>, Rc<Cell<Instant>>) {
     let pins = Pins::default();
     let chip = pins.0.clone();
+    let now = Rc::new(Cell::new(Instant::ZERO));
     let m = Module::new(TestBoard {
         driver: Driver,
         pins: Some(pins),
+        now: now.clone(),
     });
-    (m, chip)
+    (m, chip, now)
 }
 
 #[test]
@@ -195,9 +209,54 @@ fn bad_calls_are_refused_by_name() {
     let mut bare = Module::new(TestBoard {
         driver: Driver,
         pins: None,
+        now: Rc::default(),
     });
     assert_eq!(
         bare.loadcell_setup(0, 1),
         refused(LoadCellError::NoHardware)
     );
+}
+
+/// A data line no converter drives, held low by a pull-down, looks ready
+/// at every poll and shifts out zeros: the driver sees it still low after
+/// the 25th pulse, drops the sample and says so, until set up again.
+#[test]
+fn a_data_line_no_converter_drives_is_reported_not_read_as_zero() {
+    let (mut m, chip) = rig();
+    chip.borrow_mut().held_low = true;
+    m.loadcell_setup(2, 3).unwrap();
+    m.poll_loadcell(Instant::ZERO);
+    assert_eq!(chip.borrow().edges, 25, "one read was tried");
+    assert_eq!(
+        m.loadcell_read(),
+        Err(refused(LoadCellError::NoConverter).unwrap_err())
+    );
+    m.poll_loadcell(Instant::ZERO + POLL_PERIOD);
+    assert_eq!(m.loadcell.samples(), 0, "no zeros taken as samples");
+    // Wired again and set up again: it reads.
+    chip.borrow_mut().held_low = false;
+    m.loadcell_setup(2, 3).unwrap();
+    chip.borrow_mut().ready.push(1_234);
+    m.poll_loadcell(Instant::ZERO + POLL_PERIOD * 2);
+    assert_eq!(m.loadcell_read().unwrap().2, 1_234);
+}
+
+/// A converter that gives no sample (unpowered, or its line pulled high)
+/// is silent: reads fail after half a second without one, and a sample
+/// ends it.
+#[test]
+fn a_converter_with_no_samples_is_reported_silent() {
+    let (mut m, chip, now) = rig_with_clock();
+    m.loadcell_setup(2, 3).unwrap();
+    now.set(Instant::ZERO + Duration::from_micros(499_000));
+    m.poll_loadcell(now.get());
+    assert!(m.loadcell_read().is_ok(), "not silent yet");
+    now.set(Instant::ZERO + Duration::from_micros(501_000));
+    assert_eq!(
+        m.loadcell_read(),
+        Err(refused(LoadCellError::Silent).unwrap_err())
+    );
+    chip.borrow_mut().ready.push(7);
+    m.poll_loadcell(now.get());
+    assert_eq!(m.loadcell_read().unwrap().2, 7);
 }
