@@ -7,7 +7,7 @@
 //! [`ExtruderKeys::flow_limit`]: crate::config::ExtruderKeys::flow_limit
 
 use super::{JobError, Move, Program};
-use crate::config::{MachineFile, MODEL_FORCE_SHARE};
+use crate::config::{ExtruderKeys, MachineFile, MODEL_FORCE_SHARE};
 use crate::gcode::HeaterRole;
 
 /// The hotend's temperature for a job.
@@ -89,69 +89,27 @@ pub(super) fn limit_flow(
         .iter()
         .map(|x| asked(x, &program.moves) * x.flow_per_feed)
         .fold(0.0, f64::max);
-    let hotend_name = HeaterRole::Hotend.name();
-    let chosen = match hotend {
-        HotendTemperature::AsJob => None,
-        HotendTemperature::Celsius(c) => Some((c, false)),
-        HotendTemperature::Auto => {
-            let (Some(m), Some(grip)) = (&e.model, e.max_force_n) else {
-                return Err(JobError::Temperature(
-                    "--temperature auto picks from the melt model: the machine file has no \
-                     [axes.e.model] (osap rheo MACHINE --write measures one), so give \
-                     --temperature N"
-                        .into(),
-                ));
-            };
-            let [lo, hi] = m.temp_range;
-            let t = m
-                .model()
-                .lowest_temperature_for(peak_flow.max(1e-9), MODEL_FORCE_SHARE * grip, (lo, hi))
-                .map_or(hi, |t| t.ceil().min(hi));
-            Some((t, true))
-        }
-    };
-    // The hotend's target at each move, then the limit there.
-    let mut target: Option<f64> = None;
-    let mut unset = None;
-    if let Some((c, auto)) = chosen {
-        let Some(h) = cfg.heaters.get(hotend_name) else {
-            return Err(JobError::Temperature(format!(
-                "--temperature sets the hotend, but the machine file has no [heaters.{hotend_name}]"
-            )));
-        };
-        if !(c.is_finite() && c > h.min_temp && c < h.max_temp) {
-            return Err(JobError::Temperature(format!(
-                "--temperature {c}: the hotend runs between its min_temp {} and max_temp {} °C",
-                h.min_temp, h.max_temp
-            )));
-        }
-        if !set_hotend(program, hotend_name, c) {
-            // Heated first: see the end.
-            unset = Some(c);
-            target = Some(c);
-        }
+    // A heater move put first shifts every extruding move by one.
+    let mut shift = 0;
+    if let Some((celsius, auto)) = chosen_temperature(e, hotend, peak_flow)? {
+        shift = set_hotend(cfg, program, celsius, auto)?;
         program.hotend = Some(HotendChoice {
-            celsius: c,
+            celsius,
             auto,
             peak_flow,
-            limit: e.flow_limit(c),
+            limit: e.flow_limit(celsius),
         });
-        if let Some(m) = &e.model {
-            let [lo, hi] = m.temp_range;
-            if !auto && !(lo..=hi).contains(&c) {
-                program.warnings.push(format!(
-                    "--temperature {c}: outside the {lo}–{hi} °C the melt model was measured at; \
-                     the flow limit takes the law {}",
-                    if c > hi {
-                        format!("at {hi} °C (no higher)")
-                    } else {
-                        "as it extrapolates (lower)".into()
-                    }
-                ));
-            }
-        }
     }
-    let mut next = extruding.iter().peekable();
+    // The hotend's target at each move, then the limit there.
+    let hotend_name = HeaterRole::Hotend.name();
+    let mut target: Option<f64> = None;
+    let mut next = extruding
+        .iter()
+        .map(|x| Extruding {
+            index: x.index + shift,
+            ..*x
+        })
+        .peekable();
     let mut cold_said = false;
     let mut slowed = Vec::new();
     for i in 0..program.moves.len() {
@@ -184,7 +142,7 @@ pub(super) fn limit_flow(
         let Some(limit) = e.flow_limit(hotend_c) else {
             continue;
         };
-        let want = asked(x, &program.moves);
+        let want = asked(&x, &program.moves);
         let flow = want * x.flow_per_feed;
         if flow > limit {
             let feed = want * limit / flow;
@@ -203,32 +161,75 @@ pub(super) fn limit_flow(
         }
     }
     program.slowed = slowed;
-    if let Some(celsius) = unset {
-        program.moves.insert(
-            0,
-            (
-                0,
-                Move::Heater {
-                    name: hotend_name.into(),
-                    celsius,
-                    wait: true,
-                },
-            ),
-        );
-        for s in &mut program.slowed {
-            s.index += 1;
-        }
-        program.warnings.push(format!(
-            "the job sets no {hotend_name} temperature: --temperature heats it to {celsius} °C and waits before the first move"
-        ));
-    }
     Ok(())
 }
 
-/// Replaces every non-zero target of heater `name` in `program` with
-/// `celsius` (a target of 0 turns it off, and stays); whether the program
-/// sets it at all.
-fn set_hotend(program: &mut Program, name: &str, celsius: f64) -> bool {
+/// The temperature `--temperature` asks, and whether the model picked it:
+/// `auto` is the lowest whole degree in the model's range that carries
+/// `peak_flow` (the range's top when none does).
+fn chosen_temperature(
+    e: &ExtruderKeys,
+    hotend: HotendTemperature,
+    peak_flow: f64,
+) -> Result<Option<(f64, bool)>, JobError> {
+    match hotend {
+        HotendTemperature::AsJob => Ok(None),
+        HotendTemperature::Celsius(c) => Ok(Some((c, false))),
+        HotendTemperature::Auto => {
+            let (Some(m), Some(grip)) = (&e.model, e.max_force_n) else {
+                return Err(JobError::Temperature(
+                    "--temperature auto picks from the melt model: the machine file has no \
+                     [axes.e.model] (osap rheo MACHINE --write measures one), so give \
+                     --temperature N"
+                        .into(),
+                ));
+            };
+            let [lo, hi] = m.temp_range;
+            let t = m
+                .model()
+                .lowest_temperature_for(peak_flow.max(1e-9), MODEL_FORCE_SHARE * grip, (lo, hi))
+                .map_or(hi, |t| t.ceil().min(hi));
+            Ok(Some((t, true)))
+        }
+    }
+}
+
+/// Sets the hotend to `celsius` in `program`: every non-zero target of the
+/// job replaced (a target of 0 turns it off, and stays), or, in a job that
+/// never sets it, a wait for it put first. Refuses a temperature the
+/// heater cannot hold. Returns the moves put first (0 or 1).
+fn set_hotend(
+    cfg: &MachineFile,
+    program: &mut Program,
+    celsius: f64,
+    auto: bool,
+) -> Result<usize, JobError> {
+    let name = HeaterRole::Hotend.name();
+    let Some(h) = cfg.heaters.get(name) else {
+        return Err(JobError::Temperature(format!(
+            "--temperature sets the hotend, but the machine file has no [heaters.{name}]"
+        )));
+    };
+    if !(celsius.is_finite() && celsius > h.min_temp && celsius < h.max_temp) {
+        return Err(JobError::Temperature(format!(
+            "--temperature {celsius}: the hotend runs between its min_temp {} and max_temp {} °C",
+            h.min_temp, h.max_temp
+        )));
+    }
+    if let Some(m) = cfg.extruder().and_then(|a| a.extruder.model.as_ref()) {
+        let [lo, hi] = m.temp_range;
+        if !auto && !(lo..=hi).contains(&celsius) {
+            program.warnings.push(format!(
+                "--temperature {celsius}: outside the {lo}–{hi} °C the melt model was measured \
+                 at; the flow limit takes the law {}",
+                if celsius > hi {
+                    format!("at {hi} °C (no higher)")
+                } else {
+                    "as it extrapolates (lower)".into()
+                }
+            ));
+        }
+    }
     let mut found = false;
     for (_, mv) in &mut program.moves {
         if let Move::Heater {
@@ -243,7 +244,24 @@ fn set_hotend(program: &mut Program, name: &str, celsius: f64) -> bool {
             }
         }
     }
-    found
+    if found {
+        return Ok(0);
+    }
+    program.moves.insert(
+        0,
+        (
+            0,
+            Move::Heater {
+                name: name.into(),
+                celsius,
+                wait: true,
+            },
+        ),
+    );
+    program.warnings.push(format!(
+        "the job sets no {name} temperature: --temperature heats it to {celsius} °C and waits before the first move"
+    ));
+    Ok(1)
 }
 
 impl Program {

@@ -127,12 +127,7 @@ pub fn from_gcode_with(
                 // The reader's e starts at 0 with the job; the extruder
                 // goes on from where it stands.
                 p[k] = start[k] + e;
-                if let Some(x) = extruding_move(cfg, &at, &p, k) {
-                    extruding.push(Extruding {
-                        index: moves.len(),
-                        ..x
-                    });
-                }
+                extruding.extend(extruding_move(cfg, &at, &p, k, moves.len()));
                 at.clone_from(&p);
                 Move::Line(p, feed)
             }
@@ -284,11 +279,17 @@ fn e_slot(cfg: &MachineFile, line: usize) -> Result<usize, JobError> {
         })
 }
 
-/// A move from `from` to `to` that extrudes (the extruder in slot `k`):
-/// its toolhead path and the melt it makes per mm/s of feed,
+/// Move `index`, from `from` to `to`, if it extrudes (the extruder in slot
+/// `k`): its toolhead path and the melt it makes per mm/s of feed,
 /// `Δe / path · area`. Moves that only extrude or retract, or that
 /// retract, are not extruding moves (the flow limit leaves them).
-fn extruding_move(cfg: &MachineFile, from: &[f64], to: &[f64], k: usize) -> Option<Extruding> {
+fn extruding_move(
+    cfg: &MachineFile,
+    from: &[f64],
+    to: &[f64],
+    k: usize,
+    index: usize,
+) -> Option<Extruding> {
     let x = cfg.extruder().map(|a| &a.extruder)?;
     let n = cfg.toolhead_axes();
     let path = (0..n)
@@ -297,7 +298,7 @@ fn extruding_move(cfg: &MachineFile, from: &[f64], to: &[f64], k: usize) -> Opti
         .sqrt();
     let de = to[k] - from[k];
     (path > 1e-9 && de > 0.0).then(|| Extruding {
-        index: 0,
+        index,
         path,
         flow_per_feed: de / path * x.filament_area(),
     })

@@ -459,12 +459,12 @@ impl Machine {
         // The job's extrusion continues from where the extruder stands,
         // not from where the program was read for.
         let rebased;
-        let program = match program.e_slot {
-            Some(k) => {
-                rebased = program.with_e_start(self.position()[k]);
+        let program = match program.e_slot.map(|k| self.position()[k]) {
+            Some(e) if (e - program.e_start).abs() > 1e-9 => {
+                rebased = program.with_e_start(e);
                 &rebased
             }
-            None => program,
+            _ => program,
         };
         let mut stats = RunStats::default();
         let in_order = InOrder::start(self);

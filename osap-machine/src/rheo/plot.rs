@@ -24,8 +24,7 @@ pub fn plot(record: &RheoRecord, fit: &RheoFit, dir: &Path) -> Result<Vec<PathBu
     Ok(files.to_vec())
 }
 
-/// The temperatures measured: each settled point's nearest step
-/// temperature.
+/// The temperatures the steps held, each once, rising.
 fn temperatures(fit: &RheoFit) -> Vec<f64> {
     let mut temps: Vec<f64> = fit.steady.iter().map(|s| s.spec.condition).collect();
     temps.sort_by(f64::total_cmp);
