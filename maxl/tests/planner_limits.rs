@@ -560,6 +560,7 @@ fn bad_vector_limits_are_refused() {
             max_accel: a,
             min_cruise_ratio: r,
             path_axes: 0,
+            ..VectorLimits::NONE
         };
         assert!(
             matches!(v.validate(), Err(PlanError::InvalidLimit { .. })),
@@ -695,6 +696,7 @@ fn wire_set_vector_limits() {
             max_accel: 2500.0,
             min_cruise_ratio: 0.5,
             path_axes: 0,
+            ..VectorLimits::NONE
         }
     );
     b.set_vector_limits(f64::INFINITY, f64::INFINITY, 0.0)
@@ -757,6 +759,7 @@ proptest::proptest! {
                     max_accel: accel * y.abs().max(1e-3),
                     min_cruise_ratio: y,
                     path_axes: 0,
+                    ..VectorLimits::NONE
                 }),
                 5 => p.set_feed_scale(y * 2.0).map(|_| ()),
                 6 => p.halt().map(|_| ()),

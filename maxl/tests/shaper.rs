@@ -38,6 +38,7 @@ fn formula_duration(kind: ShaperKind, f: f64, z: f64) -> f64 {
         ShaperKind::TwoHumpEi => {
             (1.49920 - 0.09297 * z - 0.28338 * z * z + 1.85710 * z * z * z) / f
         }
+        ShaperKind::ThreeHumpEi => 2.0 * t_d,
     }
 }
 
@@ -51,6 +52,7 @@ fn impulses_sum_to_one_ascend_and_last_the_formulas_duration() {
                 let n = match kind {
                     ShaperKind::Zv => 2,
                     ShaperKind::TwoHumpEi => 4,
+                    ShaperKind::ThreeHumpEi => 5,
                     _ => 3,
                 };
                 assert_eq!(imp.len(), n, "{kind:?}");
@@ -82,6 +84,12 @@ fn impulses_sum_to_one_ascend_and_last_the_formulas_duration() {
         &a(ShaperKind::Ei, 0.0),
         &[0.2621605, 0.4756125, 0.262227]
     ));
+    // 3-hump EI, undamped: a₁ = (1 + 3v + 2√(2v(v+1)))/16 = 0.1124,
+    // a₂ = (1 − v)/4, a₃ = (1 + v)/2 − 2a₁, symmetric; 5 % tolerance.
+    let a1 = (1.0 + 0.15 + 2.0 * (2.0f64 * 0.05 * 1.05).sqrt()) / 16.0;
+    let three = a(ShaperKind::ThreeHumpEi, 0.0);
+    assert!((three[0] - 0.112_379_6).abs() < 1e-6, "{three:?}");
+    assert!(close(&three, &[a1, 0.2375, 0.525 - 2.0 * a1, 0.2375, a1]));
     // Damped ZV: amplitudes 1 : exp(−ζπ/√(1−ζ²)).
     let z: f64 = 0.1;
     let k = (-z * PI / (1.0 - z * z).sqrt()).exp();
@@ -109,7 +117,7 @@ fn theoretical_residual_vibration() {
         );
         match kind {
             ShaperKind::Zv | ShaperKind::Mzv | ShaperKind::Zvd => assert!(v(40.0) < 1e-12),
-            ShaperKind::Ei | ShaperKind::TwoHumpEi => {
+            ShaperKind::Ei | ShaperKind::TwoHumpEi | ShaperKind::ThreeHumpEi => {
                 assert!(v(40.0) <= EI_TOL + 0.005, "{kind:?}: {}", v(40.0));
                 assert!(v(36.0) < EI_TOL + 0.005 && v(44.0) < EI_TOL + 0.005);
             }
@@ -530,7 +538,7 @@ fn bad_configurations_are_refused() {
         e(ShaperKind::Zv, 40.0, f64::INFINITY),
         Some(BadDamping { .. })
     ));
-    assert_eq!(ShaperKind::from_code(6), Err(UnknownKind(6)));
+    assert_eq!(ShaperKind::from_code(7), Err(UnknownKind(7)));
     assert_eq!(ShaperKind::from_code(0), Ok(None));
     for k in ShaperKind::ALL {
         assert_eq!(ShaperKind::from_code(k.code()), Ok(Some(k)));

@@ -461,10 +461,13 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         None => None,
     };
     let t1 = machine.now_us().await.map_err(Failure::from_machine)?;
-    let recording = machine
+    let mut recording = machine
         .take_recording(t0)
         .await
         .map_err(Failure::from_machine)?;
+    if args.target.sim {
+        recording.vibration = osap_machine::sim::vibration(&cfg, &recording);
+    }
 
     // What the simulated melt did, read before the machine stops.
     let melt = machine.sim_melt();
@@ -502,6 +505,9 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     );
     for (axis, err) in recording.following_error() {
         println!("largest following error {axis}: {:.4} mm", err);
+    }
+    for (axis, v) in recording.largest_vibration() {
+        println!("largest vibration {axis}: {v:.4} mm");
     }
     if let Some(k) = recording.axes.iter().position(|a| a == "e") {
         let e_at = |s: Option<&osap_machine::record::Sample>| s.map_or(0.0, |s| s.pos[k]);

@@ -81,7 +81,7 @@ pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> 
             Some(s) => {
                 resonance::write_shaper(&args.target.machine, &args.axis, &s).map_err(failure)?;
                 println!(
-                    "wrote shaper = {} at {:.2} Hz into {} (validated; the planner does not apply it yet)",
+                    "wrote shaper = {} at {:.2} Hz into {} (validated; every move the machine makes is shaped with it)",
                     s.kind().name(),
                     s.freq_hz(),
                     args.target.machine.display()

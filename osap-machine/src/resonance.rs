@@ -48,8 +48,10 @@
 //!
 //! `[axes.NAME] shaper = { kind = "mzv", freq_hz = 45.2, damping = 0.08 }`
 //! is validated with the machine file (the kind one of `zv`, `mzv`, `ei`,
-//! `2hump_ei`, `zvd`; frequency and damping within maxl's bounds) and
-//! written by `osap resonance --write`. The planner does not apply it yet.
+//! `2hump_ei`, `zvd`, `3hump_ei`; frequency and damping within maxl's
+//! bounds) and written by `osap resonance --write`. The machine's motion
+//! source shapes every move with it ([`crate::machine::motion`]); the
+//! measurement's own chirp is added after shaping, so it is never shaped.
 
 pub mod analysis;
 
@@ -75,7 +77,7 @@ use analysis::{Analysis, AnalysisError, Peak};
 /// position reports).
 pub const SAMPLE_PERIOD_US: u32 = 1_000;
 /// The smallest chirp amplitude, in the axis's microsteps.
-pub const MIN_STEPS: f64 = 2.0;
+pub const MIN_STEPS: f64 = 1.5;
 /// The lowest chirp frequency, Hz.
 pub const MIN_FREQ_HZ: f64 = 5.0;
 /// The highest chirp frequency, Hz.

@@ -19,10 +19,13 @@
 //! | EI | 3 | Singhose's fit for a 5 % tolerance (cubic in `ζ`) | `0, t₂(ζ)·t_d, t_d` | 5 % |
 //! | 2-hump EI | 4 | Singhose's fit for 5 % (cubic in `ζ`) | cubic in `ζ`, × `1/f`, ≈ `0, ½, 1, 1½ /f` | ≈ 0 (5 % humps either side) |
 //! | ZVD | 5 | `1, 2K, K²` | `0, t_d/2, t_d` | 0 |
+//! | 3-hump EI | 6 | closed form in `K` and the 5 % tolerance (below) | `0, ½, 1, 1½, 2 · t_d` | ≈ 0 (5 % humps across a wide band) |
 //!
-//! (MZV, EI and 2-hump EI as the Klipper firmware defines them for printers;
-//! EI and 2-hump EI trade exact cancellation at `f` for a wider band where
-//! `V ≤ 5 %`.) Kind 0 is no shaper.
+//! (MZV, EI, 2-hump and 3-hump EI as the Klipper firmware defines them for
+//! printers; the EI family trades exact cancellation at `f` for a wider
+//! band where `V ≤ 5 %`.) Kind 0 is no shaper. 3-hump EI, with `v` the
+//! tolerance: `a₁ = (1 + 3v + 2√(2v(v + 1)))/16`, `a₂ = (1 − v)K/4`,
+//! `a₃ = ((1 + v)/2 − 2a₁)K²`, `a₄ = a₂K²`, `a₅ = a₁K⁴`.
 //!
 //! # Streaming
 //!
@@ -76,7 +79,7 @@
 //! Failure codes ([`ShaperError::code`]; the constructor fails with 1, 2 or
 //! 3): 1 bad frequency (not finite, or outside 1..=1000 Hz), 2 bad damping
 //! (outside `[0, 1)`, or above the kind's fitted range: 0.99 for ZV, MZV
-//! and ZVD, 0.4 for EI, 0.3 for 2-hump EI), 3 unknown kind, 4 stamp before
+//! and ZVD, 0.4 for EI, 0.3 for 2-hump and 3-hump EI), 3 unknown kind, 4 stamp before
 //! the newest sample, 5 a position not finite, 6 no such axis, 7 not at rest
 //! (`set_axis`).
 
@@ -152,7 +155,7 @@ impl fmt::Display for ShaperError {
             }
             ShaperError::UnknownKind(k) => write!(
                 f,
-                "shaper kind {k} is unknown (0 none, 1 ZV, 2 MZV, 3 EI, 4 2-hump EI, 5 ZVD)"
+                "shaper kind {k} is unknown (0 none, 1 ZV, 2 MZV, 3 EI, 4 2-hump EI, 5 ZVD, 6 3-hump EI)"
             ),
             ShaperError::Stale { stamp, newest } => {
                 write!(f, "stamp {stamp} is before the newest sample ({newest})")
@@ -189,19 +192,23 @@ pub enum ShaperKind {
     TwoHumpEi,
     /// Zero vibration and derivative: three impulses over a damped period.
     Zvd,
+    /// Three-hump extra-insensitive, 5 % tolerance: five impulses over two
+    /// periods, the widest band of all.
+    ThreeHumpEi,
 }
 
 impl ShaperKind {
     /// Every kind, in code order.
-    pub const ALL: [ShaperKind; 5] = [
+    pub const ALL: [ShaperKind; 6] = [
         ShaperKind::Zv,
         ShaperKind::Mzv,
         ShaperKind::Ei,
         ShaperKind::TwoHumpEi,
         ShaperKind::Zvd,
+        ShaperKind::ThreeHumpEi,
     ];
 
-    /// The wire code (1..=5; 0 is no shaper).
+    /// The wire code (1..=6; 0 is no shaper).
     pub fn code(self) -> u8 {
         match self {
             ShaperKind::Zv => 1,
@@ -209,6 +216,7 @@ impl ShaperKind {
             ShaperKind::Ei => 3,
             ShaperKind::TwoHumpEi => 4,
             ShaperKind::Zvd => 5,
+            ShaperKind::ThreeHumpEi => 6,
         }
     }
 
@@ -224,7 +232,8 @@ impl ShaperKind {
         }
     }
 
-    /// The name printers use for it (`zv`, `mzv`, `ei`, `2hump_ei`, `zvd`).
+    /// The name printers use for it (`zv`, `mzv`, `ei`, `2hump_ei`, `zvd`,
+    /// `3hump_ei`).
     pub fn name(self) -> &'static str {
         match self {
             ShaperKind::Zv => "zv",
@@ -232,15 +241,16 @@ impl ShaperKind {
             ShaperKind::Ei => "ei",
             ShaperKind::TwoHumpEi => "2hump_ei",
             ShaperKind::Zvd => "zvd",
+            ShaperKind::ThreeHumpEi => "3hump_ei",
         }
     }
 
     /// The largest damping ratio the kind takes: its fit's range for EI
-    /// (0.4) and 2-hump EI (0.3), else 0.99.
+    /// (0.4) and 2-hump EI (0.3), the same for 3-hump EI, else 0.99.
     pub fn max_damping(self) -> f64 {
         match self {
             ShaperKind::Ei => 0.4,
-            ShaperKind::TwoHumpEi => 0.3,
+            ShaperKind::TwoHumpEi | ShaperKind::ThreeHumpEi => 0.3,
             ShaperKind::Zv | ShaperKind::Mzv | ShaperKind::Zvd => 0.99,
         }
     }
@@ -379,6 +389,16 @@ impl ShaperConfig {
                     z,
                 );
                 (vec![a1, 1.0 - a1 - a3, a3], vec![0.0, t2 * t_d, t_d])
+            }
+            ShaperKind::ThreeHumpEi => {
+                let v = EI_VIBRATION_TOLERANCE;
+                let a1 = 0.0625 * (1.0 + 3.0 * v + 2.0 * (2.0 * (v + 1.0) * v).sqrt());
+                let a2 = 0.25 * (1.0 - v) * k;
+                let a3 = (0.5 * (1.0 + v) - 2.0 * a1) * k * k;
+                (
+                    vec![a1, a2, a3, a2 * k * k, a1 * k.powi(4)],
+                    vec![0.0, 0.5 * t_d, t_d, 1.5 * t_d, 2.0 * t_d],
+                )
             }
             ShaperKind::TwoHumpEi => TWO_HUMP_EI
                 .iter()

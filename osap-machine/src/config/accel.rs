@@ -24,7 +24,7 @@ pub struct Accelerometer {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AxisShaper {
-    /// `zv`, `mzv`, `ei`, `2hump_ei` or `zvd`.
+    /// `zv`, `mzv`, `ei`, `2hump_ei`, `zvd` or `3hump_ei`.
     pub kind: String,
     /// The mode's frequency, Hz.
     pub freq_hz: f64,
@@ -37,7 +37,7 @@ pub struct AxisShaper {
 #[non_exhaustive]
 pub enum AxisShaperError {
     /// `kind` is none of the shapers.
-    #[error("unknown shaper kind {0:?}; use one of zv, mzv, ei, 2hump_ei, zvd")]
+    #[error("unknown shaper kind {0:?}; use one of zv, mzv, ei, 2hump_ei, zvd, 3hump_ei")]
     UnknownKind(String),
     /// The frequency or damping is out of range.
     #[error("{0}")]

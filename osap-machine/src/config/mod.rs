@@ -524,10 +524,31 @@ pub struct Limits {
     /// any late step stops the machine.
     #[serde(default)]
     pub max_late_steps: u32,
+    /// The speed profile of every move: `"trapezoid"` (constant
+    /// acceleration, the default) or `"scurve"` (jerk-limited by each
+    /// axis's `jerk` and the toolhead's [`Limits::jerk`]).
+    #[serde(default)]
+    pub profile: ProfileKind,
+    /// Most toolhead jerk, units/s³, with `profile = "scurve"`; default:
+    /// none beyond the axes' own.
+    #[serde(default)]
+    pub jerk: Option<f64>,
 }
 
 fn default_module_margin() -> f64 {
     1.5
+}
+
+/// `[limits] profile`: the shape of every move's speed profile.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProfileKind {
+    /// Constant acceleration ramps (Klipper's, Marlin's without S-curve).
+    #[default]
+    Trapezoid,
+    /// Jerk-limited ramps: the acceleration rises and falls at most at the
+    /// jerk limit, and is continuous through every junction.
+    Scurve,
 }
 
 /// What a tool is.

@@ -509,6 +509,15 @@ impl MachineFile {
                 format!("{r} must be in [0, 1), e.g. 0.5"),
             ));
         }
+        if let Some(j) = l.jerk {
+            positive("limits.jerk", j, "units/s³, e.g. 100000")?;
+            if l.profile != super::ProfileKind::Scurve {
+                return Err(invalid(
+                    "limits.jerk",
+                    "the toolhead's jerk only bounds jerk-limited profiles: add profile = \"scurve\", or remove jerk",
+                ));
+            }
+        }
         let m = l.module_margin;
         if !(m.is_finite() && (m == 0.0 || m >= 1.0)) {
             return Err(invalid(

@@ -275,7 +275,7 @@ impl Machine {
         m.drive.rebase(&p[..n], &motors)?;
         let mut p3 = [0.0; MAX_AXES];
         p3[..n].copy_from_slice(&p[..n]);
-        m.planner.set_position(p3)?;
+        m.set_position(p3)?;
         Ok(())
     }
 }

@@ -209,7 +209,7 @@ impl Machine {
         let s = self.inner.state.borrow().clone();
         match s {
             MachineState::Idle | MachineState::Moving => {
-                if lock_motion(&self.inner.motion).planner.is_idle() {
+                if lock_motion(&self.inner.motion).is_idle() {
                     MachineState::Idle
                 } else {
                     MachineState::Moving
@@ -345,14 +345,14 @@ impl Machine {
     /// Re-defines the machine position as `at` where the motors stand.
     fn rebase(&self, at: &[f64]) -> Result<(), MachineError> {
         let mut m = lock_motion(&self.inner.motion);
-        if !m.planner.is_idle() {
+        if !m.is_idle() {
             return Err(MachineError::Plan(maxl::blocks::planner::PlanError::Busy));
         }
         let mut p = [0.0; MAX_AXES];
         p[..at.len()].copy_from_slice(at);
         let motors = m.last_motors.clone();
         m.drive.rebase(at, &motors)?;
-        m.planner.set_position(p)?;
+        m.set_position(p)?;
         Ok(())
     }
 

@@ -11,6 +11,7 @@ use std::sync::{Arc, Mutex, MutexGuard};
 
 use maxl::blocks::planner::{Kin, Limits, Planner, VectorLimits};
 use maxl::blocks::pressure_advance::{ExtruderState, PressureAdvance};
+use maxl::blocks::shaper::{InputShaper, ShaperConfig};
 use osap_host::som::{HostFnError, HostFunction, Value};
 use pipes_core::export::{PipesArgs, PipesType};
 use pipes_core::types::Type;
@@ -18,7 +19,7 @@ use tokio::sync::watch;
 
 use super::drive::{Drive, MAX_AXES};
 use super::MachineError;
-use crate::config::{AxisKind, MachineFile, DEFAULT_CORNER_VELOCITY};
+use crate::config::{AxisKind, MachineFile, ProfileKind, DEFAULT_CORNER_VELOCITY};
 
 /// Failure code of the motion function while the machine is paused (no
 /// points are sent, so the motors stand).
@@ -56,8 +57,9 @@ pub struct Motion {
     pub drive: Drive,
     /// No points are sent while set (recovering motors).
     pub paused: bool,
-    /// Planned samples kept for a recording: (stamp, machine position).
-    pub record: Option<Vec<(u64, [f64; MAX_AXES])>>,
+    /// Samples kept for a recording: (stamp, machine position sent to the
+    /// motors, the planner's position before input shaping).
+    pub record: Option<Vec<(u64, [f64; MAX_AXES], [f64; MAX_AXES])>>,
     recent: VecDeque<(u64, [f64; MAX_AXES])>,
     /// The motor positions sent last.
     pub last_motors: Vec<f64>,
@@ -67,6 +69,9 @@ pub struct Motion {
     pub excitation: Option<Excitation>,
     /// The extruder's pressure advance, if the machine has one.
     advance: Option<Advance>,
+    /// The input shaper every sample goes through (after pressure
+    /// advance, before the excitation and kinematics).
+    shaper: InputShaper<MAX_AXES>,
     status: MotionStatus,
     notify: watch::Sender<MotionStatus>,
 }
@@ -106,6 +111,7 @@ impl Motion {
                 error: None,
                 excitation: None,
                 advance: None,
+                shaper: InputShaper::unshaped(),
                 status: MotionStatus::default(),
                 notify,
             },
@@ -139,6 +145,49 @@ impl Motion {
         Some((0..n).map(|k| a.1[k] + f * (b.1[k] - a.1[k])).collect())
     }
 
+    /// Shapes every axis slot with its shaper (`None`: only delayed by the
+    /// common lag, so the axes stay in step). Refused unless the shaper is
+    /// at rest.
+    pub fn set_shapers(
+        &mut self,
+        shapers: [Option<ShaperConfig>; MAX_AXES],
+    ) -> Result<(), maxl::blocks::shaper::ShaperError> {
+        if !self.shaper.settled() {
+            return Err(maxl::blocks::shaper::ShaperError::Moving);
+        }
+        self.shaper = InputShaper::new(shapers);
+        Ok(())
+    }
+
+    /// The input shaper's common lag, s: at constant velocity the motors
+    /// follow the plan this much later.
+    pub fn shaper_lag_s(&self) -> f64 {
+        self.shaper.lag_s()
+    }
+
+    /// Whether nothing is planned and the shaped output is at rest.
+    pub fn is_idle(&self) -> bool {
+        self.planner.is_idle() && self.shaper.settled()
+    }
+
+    /// Re-defines the planner's coordinates as `p` (a jump the motors must
+    /// not follow): the shaper starts afresh at rest there.
+    pub fn set_position(
+        &mut self,
+        p: [f64; MAX_AXES],
+    ) -> Result<(), maxl::blocks::planner::PlanError> {
+        self.planner.set_position(p)?;
+        self.shaper.reset();
+        Ok(())
+    }
+
+    /// Replaces the planner (a fault's stop voids what was planned): the
+    /// shaper starts afresh at rest at its position.
+    pub fn replace_planner(&mut self, planner: Planner<MAX_AXES>) {
+        self.planner = planner;
+        self.shaper.reset();
+    }
+
     /// Advances the extruder in axis slot `slot` by `pa` from now on
     /// (`None`: no pressure advance).
     pub fn set_pressure_advance(&mut self, pa: Option<(usize, PressureAdvance)>) {
@@ -155,10 +204,15 @@ impl Motion {
             return Err(PAUSED);
         }
         let kin = self.planner.sample_kin(stamp).map_err(|_| BAD_STAMP)?;
+        let plan = kin.pos;
         let mut pos = kin.pos;
         if let Some(a) = &mut self.advance {
             pos[a.slot] = a.advanced(&self.planner, stamp, &kin);
         }
+        // Stamps only increase and positions are finite here, so the
+        // shaper refuses nothing; if it did, the unshaped position is the
+        // safe one to send.
+        pos = self.shaper.shape(stamp, pos).unwrap_or(pos);
         if let Some(x) = &mut self.excitation {
             for (p, d) in pos.iter_mut().zip(x(stamp)) {
                 *p += d;
@@ -180,10 +234,11 @@ impl Motion {
         }
         self.recent.push_back((stamp, pos));
         if let Some(rec) = &mut self.record {
-            rec.push((stamp, pos));
+            rec.push((stamp, pos, plan));
         }
         let stats = self.planner.stats();
-        let busy = !stats.idle;
+        // Busy until the shaped output has come to rest too.
+        let busy = !stats.idle || !self.shaper.settled();
         let was = self.status;
         self.status.stamp = stamp;
         self.status.executed = stats.executed;
@@ -338,18 +393,24 @@ pub fn wire_position(v: f64, wrap: Option<f64>) -> f32 {
 }
 
 /// The planner a machine plans with: each axis's own velocity and
-/// acceleration (an extruder's velocity jump at a corner held to its
-/// `instantaneous_corner_velocity`), the toolhead's (x, y, z) vector limits
+/// acceleration (and with `[limits] profile = "scurve"` its jerk, and the
+/// toolhead's `[limits] jerk`), an extruder's velocity jump at a corner held to its
+/// `instantaneous_corner_velocity`, the toolhead's (x, y, z) vector limits
 /// and minimum cruise ratio from `[limits]`, and its junction deviation (with the centripetal limit on
 /// chorded curves that maxl's planner always applies).
 pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineError> {
     let mut vel = [1.0; MAX_AXES];
     let mut acc = [1.0; MAX_AXES];
     let mut jump = [f64::INFINITY; MAX_AXES];
+    let mut jerk = [f64::INFINITY; MAX_AXES];
+    let scurve = cfg.limits.profile == ProfileKind::Scurve;
     for (k, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
         let a = &cfg.axes[*name];
         vel[k] = a.velocity;
         acc[k] = a.acceleration;
+        if scurve {
+            jerk[k] = a.jerk;
+        }
         if a.kind == AxisKind::Extruder {
             jump[k] = a
                 .extruder
@@ -357,17 +418,38 @@ pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineEr
                 .unwrap_or(DEFAULT_CORNER_VELOCITY);
         }
     }
-    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?.with_max_jump(jump)?;
+    let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?
+        .with_max_jump(jump)?
+        .with_max_jerk(jerk)?;
     // The toolhead's axes carry the path; a machine without x, y or z
     // (a rotary stage) plans over all its axes.
     let vector = VectorLimits::new(cfg.limits.velocity, cfg.limits.acceleration)?
         .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?
+        .with_max_jerk(match (scurve, cfg.limits.jerk) {
+            (true, Some(j)) => j,
+            _ => f64::INFINITY,
+        })?
         .with_path_axes(cfg.toolhead_axes());
     Ok(Planner::with_vector_limits(
         limits,
         vector,
         maxl::blocks::planner::DEFAULT_CAPACITY,
     )?)
+}
+
+/// The input shaper of each axis slot, from `[axes.NAME] shaper` (`None`
+/// for an axis without one).
+pub fn shapers(cfg: &MachineFile) -> Result<[Option<ShaperConfig>; MAX_AXES], MachineError> {
+    let mut out = [None; MAX_AXES];
+    for (slot, name) in cfg.axis_names().iter().enumerate().take(MAX_AXES) {
+        if let Some(s) = &cfg.axes[*name].shaper {
+            out[slot] = Some(
+                s.config()
+                    .map_err(|e| MachineError::Unsupported(format!("axes.{name}.shaper: {e}")))?,
+            );
+        }
+    }
+    Ok(out)
 }
 
 /// The extruder's pressure advance from its `[axes.e]` (`pressure_advance`,

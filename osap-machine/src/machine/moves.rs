@@ -199,7 +199,7 @@ impl Machine {
         let rest = loop {
             self.check_running()?;
             let s = *status.borrow_and_update();
-            let idle = lock_motion(&self.inner.motion).planner.is_idle();
+            let idle = lock_motion(&self.inner.motion).is_idle();
             if idle && !s.busy && s.rest_stamp != 0 {
                 break s.rest_stamp;
             }
@@ -225,7 +225,7 @@ impl Machine {
         let mut status = self.inner.status.clone();
         loop {
             let s = *status.borrow_and_update();
-            if lock_motion(&self.inner.motion).planner.is_idle() && !s.busy {
+            if lock_motion(&self.inner.motion).is_idle() && !s.busy {
                 break;
             }
             status.changed().await.map_err(|_| MachineError::Stopped)?;

@@ -119,7 +119,7 @@ impl Machine {
         };
         let mut p3 = [0.0; MAX_AXES];
         p3[..p.len()].copy_from_slice(&p);
-        m.planner.set_position(p3)?;
+        m.set_position(p3)?;
         Ok(())
     }
 }

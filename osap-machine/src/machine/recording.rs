@@ -64,9 +64,14 @@ impl Machine {
             .unwrap_or_default();
         let n = drive_axes.len();
         let secs = |t: u64| (t as f64 - from_us as f64) * 1e-6;
-        let planned: Vec<crate::record::Sample> = planned
-            .iter()
-            .filter(|s| s.0 >= from_us)
+        let kept = || planned.iter().filter(|s| s.0 >= from_us);
+        let unshaped: Vec<crate::record::Sample> = kept()
+            .map(|s| crate::record::Sample {
+                t: secs(s.0),
+                pos: s.2[..n].to_vec(),
+            })
+            .collect();
+        let planned: Vec<crate::record::Sample> = kept()
             .map(|s| crate::record::Sample {
                 t: secs(s.0),
                 pos: s.1[..n].to_vec(),
@@ -103,6 +108,8 @@ impl Machine {
             axes: drive_axes,
             planned,
             executed,
+            unshaped,
+            vibration: Vec::new(),
         })
     }
 }

@@ -221,8 +221,11 @@ fn plan(
     let (mut motion, status) = motion::Motion::new(planner, drive, motor_at);
     let mut start3 = [0.0; MAX_AXES];
     start3[..start.len()].copy_from_slice(start);
-    motion.planner.set_position(start3)?;
+    motion.set_position(start3)?;
     motion.set_pressure_advance(motion::pressure_advance(cfg)?);
+    motion
+        .set_shapers(motion::shapers(cfg)?)
+        .map_err(|e| MachineError::Unsupported(format!("shaper: {e}")))?;
     Ok((Arc::new(Mutex::new(motion)), status))
 }
 

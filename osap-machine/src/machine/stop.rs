@@ -184,7 +184,7 @@ impl Machine {
         let rest = tokio::time::timeout(bound, async {
             loop {
                 let s = *status.borrow_and_update();
-                if lock_motion(&self.inner.motion).planner.is_idle() && !s.busy {
+                if lock_motion(&self.inner.motion).is_idle() && !s.busy {
                     return Some(s.rest_stamp);
                 }
                 if status.changed().await.is_err() {
@@ -399,7 +399,7 @@ impl Machine {
         let mut p3 = [0.0; MAX_AXES];
         p3[..p.len()].copy_from_slice(&p);
         planner.set_position(p3)?;
-        m.planner = planner;
+        m.replace_planner(planner);
         m.last_motors = at;
         m.error = None;
         Ok(())

@@ -56,12 +56,25 @@ pub struct Sample {
 pub struct Recording {
     /// The axis names, in the order of every [`Sample::pos`].
     pub axes: Vec<String>,
-    /// The planned positions, in time order.
+    /// The planned positions, in time order: what the motors were sent,
+    /// after input shaping.
     pub planned: Vec<Sample>,
     /// The executed positions (readbacks through forward kinematics), in
     /// time order.
     pub executed: Vec<Sample>,
+    /// The planner's positions before input shaping, at the times of
+    /// [`Recording::planned`] (the same positions without a shaper; empty
+    /// when not known, as for a recording read back from CSV).
+    pub unshaped: Vec<Sample>,
+    /// A simulated run's vibration of each axis with a simulated
+    /// resonance: (axis name, one value per [`Recording::executed`]
+    /// sample, machine units). Written as `vibration_AXIS` columns of
+    /// `executed.csv`.
+    pub vibration: Vec<(String, Vec<f64>)>,
 }
+
+/// The prefix of a vibration column's name in `executed.csv`.
+pub const VIBRATION_PREFIX: &str = "vibration_";
 
 /// Why a recording could not be written or read; every variant names the
 /// file.
@@ -88,6 +101,18 @@ pub enum RecordError {
         len: usize,
         /// How many axes the recording has.
         axes: usize,
+    },
+    /// An extra column does not have one value per sample.
+    #[error("{}: column {name} has {len} values for {samples} samples", .path.display())]
+    Column {
+        /// The file it would have gone to.
+        path: PathBuf,
+        /// The column.
+        name: String,
+        /// How many values it has.
+        len: usize,
+        /// How many samples the file has.
+        samples: usize,
     },
     /// An axis name would break the CSV header (a comma, quote or line
     /// break).
@@ -140,10 +165,18 @@ impl Recording {
     /// a comma, quote or line break, is refused before anything is written.
     pub fn write_csv(&self, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
         let files = [
-            (dir.join(PLANNED_CSV), &self.planned),
-            (dir.join(EXECUTED_CSV), &self.executed),
+            (dir.join(PLANNED_CSV), &self.planned, &[][..]),
+            (dir.join(EXECUTED_CSV), &self.executed, &self.vibration[..]),
         ];
-        for (path, samples) in &files {
+        for (path, samples, extra) in &files {
+            if let Some((name, values)) = extra.iter().find(|(_, v)| v.len() != samples.len()) {
+                return Err(RecordError::Column {
+                    path: path.clone(),
+                    name: format!("{VIBRATION_PREFIX}{name}"),
+                    len: values.len(),
+                    samples: samples.len(),
+                });
+            }
             if let Some(name) = self
                 .axes
                 .iter()
@@ -169,8 +202,8 @@ impl Recording {
         }
         create_dir(dir)?;
         let mut written = Vec::with_capacity(files.len());
-        for (path, samples) in files {
-            write_samples(&path, &self.axes, samples).map_err(io_err(&path))?;
+        for (path, samples, extra) in files {
+            write_samples(&path, &self.axes, samples, extra).map_err(io_err(&path))?;
             written.push(path);
         }
         Ok(written)
@@ -179,9 +212,9 @@ impl Recording {
     /// Reads back what [`Recording::write_csv`] wrote in `dir`. Both files
     /// must name the same axes.
     pub fn read_csv(dir: &Path) -> Result<Recording, RecordError> {
-        let (axes, planned) = read_samples(&dir.join(PLANNED_CSV))?;
+        let (axes, planned, _) = read_samples(&dir.join(PLANNED_CSV))?;
         let path = dir.join(EXECUTED_CSV);
-        let (executed_axes, executed) = read_samples(&path)?;
+        let (executed_axes, executed, vibration) = read_samples(&path)?;
         if executed_axes != axes {
             return Err(RecordError::Parse {
                 path,
@@ -193,7 +226,24 @@ impl Recording {
             axes,
             planned,
             executed,
+            unshaped: Vec::new(),
+            vibration,
         })
+    }
+
+    /// The largest vibration of each axis that has a vibration column
+    /// (non-finite values skipped).
+    pub fn largest_vibration(&self) -> Vec<(String, f64)> {
+        self.vibration
+            .iter()
+            .map(|(axis, v)| {
+                let worst = v
+                    .iter()
+                    .filter(|x| x.is_finite())
+                    .fold(0.0f64, |a, b| a.max(b.abs()));
+                (axis.clone(), worst)
+            })
+            .collect()
     }
 
     /// The largest |executed − planned| of each axis, with the planned
@@ -313,27 +363,45 @@ fn sub(a: &[f64], b: &[f64], f: impl Fn(f64, usize) -> f64) -> Vec<f64> {
         .collect()
 }
 
-fn write_samples(path: &Path, axes: &[String], samples: &[Sample]) -> io::Result<()> {
+/// Writes `t,<axes>,vibration_<axis>…`: the extra columns have one value
+/// per sample (checked by the caller).
+fn write_samples(
+    path: &Path,
+    axes: &[String],
+    samples: &[Sample],
+    extra: &[(String, Vec<f64>)],
+) -> io::Result<()> {
     let mut w = BufWriter::new(fs::File::create(path)?);
     let mut line = String::from("t");
     for a in axes {
         line.push(',');
         line.push_str(a);
     }
+    for (a, _) in extra {
+        line.push(',');
+        line.push_str(VIBRATION_PREFIX);
+        line.push_str(a);
+    }
     writeln!(w, "{line}")?;
-    for s in samples {
+    for (i, s) in samples.iter().enumerate() {
         line.clear();
         // Display prints the shortest text that reads back to the same f64.
         let _ = write!(line, "{}", s.t);
         for p in &s.pos {
             let _ = write!(line, ",{p}");
         }
+        for (_, v) in extra {
+            let _ = write!(line, ",{}", v[i]);
+        }
         writeln!(w, "{line}")?;
     }
     w.flush()
 }
 
-fn read_samples(path: &Path) -> Result<(Vec<String>, Vec<Sample>), RecordError> {
+/// The axes, the samples and any vibration columns of a recording's CSV.
+type ReadSamples = (Vec<String>, Vec<Sample>, Vec<(String, Vec<f64>)>);
+
+fn read_samples(path: &Path) -> Result<ReadSamples, RecordError> {
     let text = fs::read_to_string(path).map_err(io_err(path))?;
     let parse = |line: usize, message: String| RecordError::Parse {
         path: path.to_path_buf(),
@@ -349,7 +417,22 @@ fn read_samples(path: &Path) -> Result<(Vec<String>, Vec<Sample>), RecordError> 
             format!("header {header:?} does not start with `t`"),
         ));
     }
-    let axes: Vec<String> = cols.map(str::to_string).collect();
+    let names: Vec<String> = cols.map(str::to_string).collect();
+    // Vibration columns come after the axes.
+    let split = names
+        .iter()
+        .position(|n| n.starts_with(VIBRATION_PREFIX))
+        .unwrap_or(names.len());
+    let axes = names[..split].to_vec();
+    let mut vibration: Vec<(String, Vec<f64>)> = names[split..]
+        .iter()
+        .map(|n| {
+            (
+                n[VIBRATION_PREFIX.len().min(n.len())..].to_string(),
+                Vec::new(),
+            )
+        })
+        .collect();
     let mut samples = Vec::new();
     for (i, l) in lines {
         if l.trim().is_empty() {
@@ -360,18 +443,21 @@ fn read_samples(path: &Path) -> Result<(Vec<String>, Vec<Sample>), RecordError> 
             .map(|v| v.trim().parse::<f64>())
             .collect::<Result<Vec<f64>, _>>()
             .map_err(|e| parse(i + 1, format!("{l:?}: {e}")))?;
-        if values.len() != axes.len() + 1 {
+        if values.len() != names.len() + 1 {
             return Err(parse(
                 i + 1,
-                format!("{} values for t and {} axes", values.len(), axes.len()),
+                format!("{} values for t and {} columns", values.len(), names.len()),
             ));
         }
         samples.push(Sample {
             t: values[0],
-            pos: values[1..].to_vec(),
+            pos: values[1..=split].to_vec(),
         });
+        for (col, v) in vibration.iter_mut().zip(&values[split + 1..]) {
+            col.1.push(*v);
+        }
     }
-    Ok((axes, samples))
+    Ok((axes, samples, vibration))
 }
 
 /// Resamples `(time, value)` samples onto the grid `t0 + k·dt`,

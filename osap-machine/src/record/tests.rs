@@ -44,6 +44,8 @@ fn csv_round_trip() {
             s(0.002, &[-2.5e-7, 1e6]),
         ],
         executed: vec![s(0.0005, &[0.05, f64::NAN])],
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     let dir = tmp("csv");
     let files = rec.write_csv(&dir.join("out")).unwrap();
@@ -82,6 +84,8 @@ fn csv_refuses_mismatched_samples_and_bad_names() {
         axes: axes(&["x", "y"]),
         planned: vec![s(0.0, &[0.0, 0.0])],
         executed: vec![s(0.0, &[0.0, 0.0]), s(0.001, &[1.0])],
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     let e = rec.write_csv(&dir).unwrap_err();
     assert!(
@@ -129,6 +133,8 @@ fn following_error_of_offset_and_delay() {
         axes: axes(&["x", "y"]),
         planned,
         executed,
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     let fe = rec.following_error();
     assert_eq!(fe.len(), 2);
@@ -161,6 +167,8 @@ fn following_error_skips_what_it_cannot_use() {
             s(2.0, &[9.0, 9.0]),
             s(f64::NAN, &[9.0, 9.0]),
         ],
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     // x: 0.75 - 0.5; y: NaN planned, so nothing to compare.
     assert_eq!(rec.following_error(), vec![("x".to_string(), 0.25)]);
@@ -175,6 +183,8 @@ fn following_error_skips_what_it_cannot_use() {
         axes: axes(&["x"]),
         planned: vec![s(1.0, &[2.0])],
         executed: vec![s(1.0, &[2.5]), s(1.5, &[7.0])],
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     assert_eq!(one.following_error(), vec![("x".to_string(), 0.5)]);
     assert_eq!(one.planned_duration(), 0.0);
@@ -259,6 +269,8 @@ fn plots_written_and_small() {
         axes: axes(&["x", "y"]),
         planned: circle(0.0, 1e-12),
         executed: circle(0.002, 0.0125),
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     let dir = tmp("plot");
     let files = rec.plot(&dir).unwrap();
@@ -288,6 +300,8 @@ fn plots_written_and_small() {
             })
             .collect(),
         executed: vec![s(0.2, &[2.0])],
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     assert_svgs(
         &one.plot(&dir.join("one")).unwrap(),
@@ -321,6 +335,8 @@ fn empty_and_degenerate_recordings() {
             axes: axes(&["x", "y"]),
             planned: vec![s(0.0, &[1.0, 2.0])],
             executed: vec![s(0.0, &[1.0, 2.0])],
+            unshaped: Vec::new(),
+            vibration: Vec::new(),
         },
         Recording {
             axes: axes(&["x", "y", "z"]),
@@ -330,6 +346,8 @@ fn empty_and_degenerate_recordings() {
                 s(1.0, &[1.0]),
             ],
             executed: vec![s(0.5, &[]), s(0.5, &[f64::INFINITY, 0.0, f64::NAN])],
+            unshaped: Vec::new(),
+            vibration: Vec::new(),
         },
     ];
     for (i, rec) in odd.iter().enumerate() {
@@ -364,6 +382,8 @@ fn a_timeline_stacks_motion_and_streams() {
                 pos: vec![i as f64 - 0.1],
             })
             .collect(),
+        unshaped: Vec::new(),
+        vibration: Vec::new(),
     };
     let stream = Stream {
         name: "z.analog_read(0).value".into(),

@@ -567,7 +567,7 @@ mod tests {
             damping: 0.1,
             gain: 1.0,
         });
-        assert_eq!(s.len(), 5);
+        assert_eq!(s.len(), 6);
         let r = recommend(&s).unwrap();
         assert!(s
             .iter()

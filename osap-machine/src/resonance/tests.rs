@@ -73,9 +73,9 @@ fn the_plan_follows_the_limits() {
     ))
     .unwrap();
     let p = Plan::for_axis(&cfg, "x", 8.0).unwrap();
-    // 2500 units/s² × 0.9 at 12.5 µm steps: 2 steps at 47.7 Hz.
-    assert!((p.f1 - 47.7).abs() < 0.5, "{p:?}");
-    for f in [5.0, 20.0, 47.0] {
+    // 2500 units/s² × 0.9 at 12.5 µm steps: 1.5 steps at 55.1 Hz.
+    assert!((p.f1 - 55.1).abs() < 0.5, "{p:?}");
+    for f in [5.0, 20.0, 47.0, 55.0] {
         let w = 2.0 * PI * f;
         let a = p.amplitude(f);
         assert!(a * w * w <= p.acceleration * 1.0001);

@@ -57,10 +57,12 @@ use crate::config::{Direction, Kinematics, MachineFile};
 pub(crate) mod accel;
 mod machine;
 pub(crate) mod melt;
+mod vibration;
 
 pub use machine::SimOptions;
 /// What the simulated melt did ([`Machine::sim_melt`](crate::Machine::sim_melt)), and its law.
 pub use osap_sim::{machine::board::melt::MeltStats, topology::MeltSpec};
+pub use vibration::vibration;
 
 /// The simulated hub's name.
 pub const HUB: &str = "hub";

@@ -219,6 +219,7 @@ pub mod board;
 mod bus;
 mod clock;
 pub mod faults;
+pub mod mode;
 mod module;
 mod switch;
 mod wire;

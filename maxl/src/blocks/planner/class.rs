@@ -179,7 +179,7 @@ impl PlannerBlock {
             max_speed: speed,
             max_accel: accel,
             min_cruise_ratio,
-            path_axes: self.planner.vector_limits().path_axes,
+            ..*self.planner.vector_limits()
         })
     }
 }

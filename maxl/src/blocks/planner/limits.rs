@@ -20,6 +20,10 @@ pub struct Limits<const N: usize> {
     /// (mm/s), > 0; `f64::INFINITY` leaves the junction to the deviation
     /// model alone.
     pub max_jump: [f64; N],
+    /// Largest jerk of each axis (mm/s³), > 0; `f64::INFINITY` (the
+    /// default) plans trapezoidal profiles, anything finite jerk-limited
+    /// ones (see [`super::Profile`]).
+    pub max_jerk: [f64; N],
 }
 
 impl<const N: usize> Limits<N> {
@@ -34,9 +38,18 @@ impl<const N: usize> Limits<N> {
             max_acc,
             junction_deviation,
             max_jump: [f64::INFINITY; N],
+            max_jerk: [f64::INFINITY; N],
         };
         l.validate()?;
         Ok(l)
+    }
+
+    /// The same limits with a per-axis jerk limit: profiles whose
+    /// acceleration ramps at most this fast (`f64::INFINITY`: trapezoids).
+    pub fn with_max_jerk(mut self, max_jerk: [f64; N]) -> Result<Self, PlanError> {
+        self.max_jerk = max_jerk;
+        self.validate()?;
+        Ok(self)
     }
 
     /// The same limits with a per-axis velocity-jump limit at junctions.
@@ -80,6 +93,10 @@ impl<const N: usize> Limits<N> {
             let j = self.max_jump[i];
             if j.is_nan() || j <= 0.0 {
                 return Err(bad("max_jump", Some(i), j));
+            }
+            let j = self.max_jerk[i];
+            if j.is_nan() || j <= 0.0 {
+                return Err(bad("max_jerk", Some(i), j));
             }
         }
         let d = self.junction_deviation;
@@ -147,6 +164,9 @@ pub struct VectorLimits {
     /// own limits only, as Klipper plans an extruder. 0 (the default):
     /// every axis is the toolhead's.
     pub path_axes: usize,
+    /// Largest toolhead jerk |j| (mm/s³), > 0; `f64::INFINITY` for none
+    /// (with every axis's jerk infinite too, profiles are trapezoids).
+    pub max_jerk: f64,
 }
 
 impl Default for VectorLimits {
@@ -162,6 +182,7 @@ impl VectorLimits {
         max_accel: f64::INFINITY,
         min_cruise_ratio: 0.0,
         path_axes: 0,
+        max_jerk: f64::INFINITY,
     };
 
     /// Largest toolhead speed and acceleration (`f64::INFINITY` for none),
@@ -172,6 +193,7 @@ impl VectorLimits {
             max_accel,
             min_cruise_ratio: 0.0,
             path_axes: 0,
+            max_jerk: f64::INFINITY,
         };
         v.validate()?;
         Ok(v)
@@ -182,6 +204,13 @@ impl VectorLimits {
     pub fn with_path_axes(mut self, k: usize) -> Self {
         self.path_axes = k;
         self
+    }
+
+    /// The same limits with a toolhead jerk limit (`f64::INFINITY`: none).
+    pub fn with_max_jerk(mut self, jerk: f64) -> Result<Self, PlanError> {
+        self.max_jerk = jerk;
+        self.validate()?;
+        Ok(self)
     }
 
     /// The same limits with a minimum cruise ratio in [0, 1).
@@ -204,6 +233,9 @@ impl VectorLimits {
         }
         if self.max_accel.is_nan() || self.max_accel <= 0.0 {
             return Err(bad("max_accel", self.max_accel));
+        }
+        if self.max_jerk.is_nan() || self.max_jerk <= 0.0 {
+            return Err(bad("max_jerk", self.max_jerk));
         }
         let r = self.min_cruise_ratio;
         if !(r.is_finite() && (0.0..1.0).contains(&r)) {

@@ -447,7 +447,7 @@ impl<const N: usize> Planner<N> {
         let mut entry = self.junction(0);
         for (i, s) in self.queue.iter().enumerate() {
             let exit = self.junction(i + 1);
-            let prof = Profile::plan(s.len, entry, exit, s.v_cap(), s.acc);
+            let prof = Profile::plan_jerk(s.len, entry, exit, s.v_cap(), s.acc, s.jerk);
             entry = exit;
             let p = planned(s, prof, t, false);
             t = p.end_us();
@@ -483,7 +483,7 @@ impl<const N: usize> Planner<N> {
         let mut entry = self.junction(0);
         for (i, s) in self.queue.iter().enumerate() {
             let exit = self.junction(i + 1);
-            let prof = Profile::plan(s.len, entry, exit, s.v_cap(), s.acc);
+            let prof = Profile::plan_jerk(s.len, entry, exit, s.v_cap(), s.acc, s.jerk);
             entry = exit;
             if ts < t0 + prof.duration() {
                 return plan::kin_at(&s.start, &s.dir, &prof, (ts - t0).max(0.0));
@@ -518,7 +518,14 @@ impl<const N: usize> Planner<N> {
         let Some(seg) = self.queue.pop_front() else {
             return;
         };
-        let prof = Profile::plan(seg.len, self.fixed_entry, exit, seg.v_cap(), seg.acc);
+        let prof = Profile::plan_jerk(
+            seg.len,
+            self.fixed_entry,
+            exit,
+            seg.v_cap(),
+            seg.acc,
+            seg.jerk,
+        );
         self.fixed_entry = exit;
         self.frozen.push_back(Running { seg, prof, t0 });
         self.refix_front();
@@ -783,7 +790,7 @@ impl<const N: usize> Planner<N> {
             let s = &mut q[i];
             s.junction_max = jm;
             s.floor = floor;
-            floor = (floor * floor - 2.0 * s.acc * s.len).max(0.0).sqrt();
+            floor = s.reach_down(floor);
         }
         let mut next = 0.0;
         for s in q.iter_mut().rev() {

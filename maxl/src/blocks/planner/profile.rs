@@ -1,5 +1,16 @@
-//! One segment's geometry, its limits and its trapezoidal speed profile, and
-//! the junction speed between two segments.
+//! One segment's geometry, its limits and its speed profile (trapezoidal,
+//! or jerk-limited), and the junction speed between two segments.
+//!
+//! # Jerk-limited ramps
+//!
+//! With a finite jerk `j`, every change of speed from `u` to `w` is an
+//! S-shaped ramp whose acceleration rises from 0 at `j`, holds at most
+//! `a`, and falls back to 0 at `j`: with `Δv = |w − u|`, it lasts
+//! `Δv/a + a/j` when `Δv ≥ a²/j` (it reaches `a`), else `2√(Δv/j)`
+//! (it peaks at `√(Δv·j)`). Its speed is point-symmetric about its middle,
+//! so it covers `(u + w)/2` times its duration. Every segment starts and
+//! ends at zero acceleration, so the acceleration is continuous through
+//! every junction; with `j = ∞` the ramps are the trapezoid's, exactly.
 
 // Index loops run over several `[f64; N]` at once.
 #![allow(clippy::needless_range_loop)]
@@ -34,6 +45,9 @@ pub(crate) struct Segment<const N: usize> {
     pub v_max: f64,
     /// Largest acceleration keeping every axis within its limit along `dir`.
     pub acc: f64,
+    /// Largest jerk keeping every axis within its limit along `dir`
+    /// (`f64::INFINITY`: trapezoidal profiles).
+    pub jerk: f64,
     /// Largest entry speed the junction with the previous segment allows.
     pub junction_max: f64,
     /// Slowest entry speed reachable at full deceleration from the entry the
@@ -128,6 +142,7 @@ impl<const N: usize> Segment<N> {
             v_axis: 0.0,
             v_max: 0.0,
             acc: 0.0,
+            jerk: f64::INFINITY,
             junction_max: 0.0,
             floor: 0.0,
             back: 0.0,
@@ -146,9 +161,11 @@ impl<const N: usize> Segment<N> {
     pub(crate) fn set_limits(&mut self, limits: &Limits<N>, vector: &VectorLimits, scale: f64) {
         self.v_axis = along(&limits.max_vel, &self.dir);
         self.acc = along(&limits.max_acc, &self.dir);
+        self.jerk = along(&limits.max_jerk, &self.dir);
         if self.on_path {
             self.v_axis = self.v_axis.min(vector.max_speed);
             self.acc = self.acc.min(vector.max_accel);
+            self.jerk = self.jerk.min(vector.max_jerk);
         }
         self.scale_feed(scale);
     }
@@ -181,7 +198,124 @@ impl<const N: usize> Segment<N> {
 
     /// The speed reachable at the far end of this segment from `v` at one end.
     pub(crate) fn reach(&self, v: f64) -> f64 {
-        (v * v + 2.0 * self.acc * self.len).sqrt()
+        ramp_reach(v, self.len, self.acc, self.jerk)
+    }
+
+    /// The lowest speed this segment can slow to from `v` (0 if it can
+    /// stop within it).
+    pub(crate) fn reach_down(&self, v: f64) -> f64 {
+        if self.jerk.is_infinite() {
+            return (v * v - 2.0 * self.acc * self.len).max(0.0).sqrt();
+        }
+        let fits = |u: f64| ramp_distance(u, v, self.acc, self.jerk) <= self.len;
+        if fits(0.0) {
+            return 0.0;
+        }
+        // The distance need not grow monotonically as the end speed falls
+        // (a short ramp to a stop is slow): bisect to a speed that fits.
+        let (mut lo, mut hi) = (0.0, v);
+        for _ in 0..60 {
+            let mid = 0.5 * (lo + hi);
+            if fits(mid) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        hi
+    }
+}
+
+/// The duration of a ramp between two speeds `dv` apart at acceleration
+/// `acc` and jerk `jerk` (see the module docs).
+pub(crate) fn ramp_time(dv: f64, acc: f64, jerk: f64) -> f64 {
+    if jerk.is_infinite() {
+        dv / acc
+    } else if dv * jerk >= acc * acc {
+        dv / acc + acc / jerk
+    } else {
+        2.0 * (dv / jerk).sqrt()
+    }
+}
+
+/// The distance a ramp from speed `u` to `w` covers.
+pub(crate) fn ramp_distance(u: f64, w: f64, acc: f64, jerk: f64) -> f64 {
+    if jerk.is_infinite() {
+        (w * w - u * u).abs() / (2.0 * acc)
+    } else {
+        0.5 * (u + w) * ramp_time((w - u).abs(), acc, jerk)
+    }
+}
+
+/// The highest speed a ramp from `v` reaches within `len`.
+pub(crate) fn ramp_reach(v: f64, len: f64, acc: f64, jerk: f64) -> f64 {
+    if jerk.is_infinite() {
+        return (v * v + 2.0 * acc * len).sqrt();
+    }
+    // Reaching `acc` (Δv ≥ a²/j = 2c): (w² − v²)/2a + (v + w)·c/a = len.
+    let c = acc * acc / (2.0 * jerk);
+    let w = -c + ((v - c) * (v - c) + 2.0 * acc * len).sqrt();
+    if w - v >= 2.0 * c {
+        return w;
+    }
+    // Short of `acc`: with u = √Δv, (2v + u²)·u = len·√j. The left side is
+    // convex and increasing, so Newton from above converges monotonically.
+    let (p, q) = (2.0 * v, len * jerk.sqrt());
+    let mut u = q.cbrt();
+    if p > 0.0 {
+        u = u.min(q / p);
+    }
+    for _ in 0..30 {
+        let f = u * u * u + p * u - q;
+        let next = u - f / (3.0 * u * u + p);
+        if !(next < u) || next <= 0.0 {
+            break;
+        }
+        u = next;
+    }
+    v + u * u
+}
+
+/// Distance, speed and acceleration `tau` into a jerk-limited ramp from
+/// `u` to `w` (finite `jerk`), clamped to the ramp.
+fn ramp_at(u: f64, w: f64, acc: f64, jerk: f64, tau: f64) -> (f64, f64, f64) {
+    let dv = (w - u).abs();
+    if dv == 0.0 {
+        return (u * tau.max(0.0), u, 0.0);
+    }
+    let sg = if w > u { 1.0 } else { -1.0 };
+    let (t1, t2, ap) = if dv * jerk >= acc * acc {
+        (acc / jerk, dv / acc - acc / jerk, acc)
+    } else {
+        let ap = (dv * jerk).sqrt();
+        (ap / jerk, 0.0, ap)
+    };
+    let total = 2.0 * t1 + t2;
+    let tau = tau.clamp(0.0, total);
+    let j = sg * jerk;
+    if tau < t1 {
+        (
+            u * tau + j * tau * tau * tau / 6.0,
+            u + 0.5 * j * tau * tau,
+            j * tau,
+        )
+    } else if tau < t1 + t2 {
+        let (v1, s1) = (u + 0.5 * j * t1 * t1, u * t1 + j * t1 * t1 * t1 / 6.0);
+        let d = tau - t1;
+        (
+            s1 + v1 * d + 0.5 * sg * ap * d * d,
+            v1 + sg * ap * d,
+            sg * ap,
+        )
+    } else {
+        // Counted back from the ramp's end, where the speed is `w`.
+        let r = total - tau;
+        let length = 0.5 * (u + w) * total;
+        (
+            length - (w * r - j * r * r * r / 6.0),
+            w - 0.5 * j * r * r,
+            j * r,
+        )
     }
 }
 
@@ -268,7 +402,10 @@ pub(crate) fn junction_speed<const N: usize>(
     v.max(0.0)
 }
 
-/// A trapezoidal (constant-acceleration) speed profile over one segment.
+/// A segment's speed profile: a ramp from the entry to the cruise speed,
+/// a cruise, and a ramp to the exit speed. The ramps are trapezoidal
+/// (constant acceleration) with `jerk` infinite, else jerk-limited (see the
+/// module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Profile {
     /// Entry speed (mm/s).
@@ -277,8 +414,11 @@ pub struct Profile {
     pub cruise: f64,
     /// Exit speed (mm/s).
     pub exit: f64,
-    /// Acceleration magnitude used in the ramps (mm/s²).
+    /// Acceleration magnitude used in the ramps (mm/s²): their peak when
+    /// they are long enough to reach it.
     pub accel: f64,
+    /// Jerk of the ramps (mm/s³); `f64::INFINITY` for a trapezoid.
+    pub jerk: f64,
     /// Segment length (mm).
     pub length: f64,
     /// Duration of the first ramp, from the entry to the cruise speed (s):
@@ -317,10 +457,62 @@ impl Profile {
             cruise: vc,
             exit: v1,
             accel: acc,
+            jerk: f64::INFINITY,
             length: len,
             t_acc: (vc - v0).abs() / acc,
             t_cruise,
             t_dec: (vc - v1) / acc,
+            d_acc,
+            d_cruise,
+        }
+    }
+
+    /// As [`Profile::plan`], with ramps limited to `jerk` (`f64::INFINITY`:
+    /// exactly [`Profile::plan`]). The cruise speed is the highest whose
+    /// two ramps fit in `len`; a `v1` the caller's lookahead made reachable
+    /// within rounding is absorbed as there.
+    pub fn plan_jerk(len: f64, v0: f64, v1: f64, v_max: f64, acc: f64, jerk: f64) -> Self {
+        if jerk.is_infinite() {
+            return Profile::plan(len, v0, v1, v_max, acc);
+        }
+        let ramps = |vc: f64| ramp_distance(v0, vc, acc, jerk) + ramp_distance(vc, v1, acc, jerk);
+        let vc = if v0 > v_max {
+            v_max.max(v1)
+        } else {
+            let lo = v0.max(v1);
+            let hi = v_max.max(lo);
+            if ramps(hi) <= len {
+                hi
+            } else {
+                // The ramps' length grows with the cruise speed: bisect.
+                let (mut lo, mut hi) = (lo, ramp_reach(lo, len, acc, jerk).min(hi));
+                if ramps(hi) <= len {
+                    lo = hi;
+                }
+                while hi - lo > 1e-12 * hi.max(1.0) {
+                    let mid = 0.5 * (lo + hi);
+                    if ramps(mid) <= len {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                lo
+            }
+        };
+        let d_acc = ramp_distance(v0, vc, acc, jerk);
+        let d_dec = ramp_distance(vc, v1, acc, jerk);
+        let d_cruise = (len - d_acc - d_dec).max(0.0);
+        Profile {
+            entry: v0,
+            cruise: vc,
+            exit: v1,
+            accel: acc,
+            jerk,
+            length: len,
+            t_acc: ramp_time((vc - v0).abs(), acc, jerk),
+            t_cruise: if vc > 0.0 { d_cruise / vc } else { 0.0 },
+            t_dec: ramp_time(vc - v1, acc, jerk),
             d_acc,
             d_cruise,
         }
@@ -335,6 +527,9 @@ impl Profile {
     /// its start (clamped to the segment).
     pub fn at(&self, tau: f64) -> (f64, f64, f64) {
         let tau = tau.max(0.0);
+        if self.jerk.is_finite() {
+            return self.at_jerk(tau);
+        }
         let a = self.accel;
         let (s, v, acc) = if tau < self.t_acc {
             // The first ramp decelerates when entered above the cruise speed.
@@ -357,6 +552,34 @@ impl Profile {
                 self.cruise - a * td,
                 -a,
             )
+        } else {
+            (self.length, self.exit, 0.0)
+        };
+        (s.clamp(0.0, self.length), v.max(0.0), acc)
+    }
+}
+
+impl Profile {
+    /// [`Profile::at`] for jerk-limited ramps.
+    fn at_jerk(&self, tau: f64) -> (f64, f64, f64) {
+        let (a, j) = (self.accel, self.jerk);
+        let (s, v, acc) = if tau < self.t_acc {
+            ramp_at(self.entry, self.cruise, a, j, tau)
+        } else if tau < self.t_acc + self.t_cruise {
+            (
+                self.d_acc + self.cruise * (tau - self.t_acc),
+                self.cruise,
+                0.0,
+            )
+        } else if tau < self.duration() {
+            let (s, v, acc) = ramp_at(
+                self.cruise,
+                self.exit,
+                a,
+                j,
+                tau - self.t_acc - self.t_cruise,
+            );
+            (self.d_acc + self.d_cruise + s, v, acc)
         } else {
             (self.length, self.exit, 0.0)
         };

@@ -21,16 +21,16 @@
 //! a fraction of full scale as `0.5 + a / (2·range)` and clamped, so the
 //! module's own `analog_read` reads it through the 12-bit converter.
 
+use crate::machine::mode::Mode;
 use crate::topology::AccelSpec;
 use osap_core::Instant;
 use std::collections::VecDeque;
-use std::f64::consts::PI;
 
 /// The running model.
 #[derive(Debug, Clone)]
 pub struct Accel {
     spec: AccelSpec,
-    omega: f64,
+    mode: Mode,
     /// Relative displacement `e = y − x`, axis units.
     e: f64,
     /// The tool's velocity, axis units/s (equal to `e'` between steps).
@@ -46,10 +46,10 @@ pub struct Accel {
 impl Accel {
     /// An accelerometer at rest at local time 0.
     pub fn new(spec: AccelSpec) -> Self {
-        let omega = 2.0 * PI * spec.resonance_hz;
+        let mode = Mode::new(spec.resonance_hz, spec.damping_ratio);
         Accel {
             spec,
-            omega,
+            mode,
             e: 0.0,
             v: 0.0,
             at: Instant::ZERO,
@@ -69,27 +69,10 @@ impl Accel {
         self.pending.push_back((local, delta * self.spec.coef));
     }
 
-    /// Rings the free mode for `dt` seconds (exact for any damping).
+    /// Rings the free mode for `dt` seconds (exact for any damping);
+    /// between steps the carriage stands, so the tool's velocity is `e'`.
     fn ring(&mut self, dt: f64) {
-        if dt <= 0.0 {
-            return;
-        }
-        let (w, z) = (self.omega, self.spec.damping_ratio);
-        let sigma = z * w;
-        let decay = (-sigma * dt).exp();
-        // c: cos-like term; s: sin(ω_d t)/ω_d-like term (also for ζ ≥ 1).
-        let (c, s) = if z < 1.0 {
-            let wd = w * (1.0 - z * z).sqrt();
-            ((wd * dt).cos(), (wd * dt).sin() / wd)
-        } else if z > 1.0 {
-            let wd = w * (z * z - 1.0).sqrt();
-            ((wd * dt).cosh(), (wd * dt).sinh() / wd)
-        } else {
-            (1.0, dt)
-        };
-        let (e0, v0) = (self.e, self.v);
-        self.e = decay * (e0 * c + (v0 + sigma * e0) * s);
-        self.v = decay * (v0 * c - (sigma * v0 + w * w * e0) * s);
+        (self.e, self.v) = self.mode.ring(self.e, self.v, dt);
     }
 
     /// Advances the model to local `now`, applying the steps due.
@@ -103,7 +86,7 @@ impl Accel {
             self.ring((t - self.at).as_secs_f64());
             self.at = t;
             self.e -= d;
-            self.v += 2.0 * self.spec.damping_ratio * self.omega * d;
+            self.v += 2.0 * self.spec.damping_ratio * self.mode.omega() * d;
         }
         if now > self.at {
             self.ring((now - self.at).as_secs_f64());
@@ -135,6 +118,7 @@ impl Accel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::PI;
 
     fn spec(f: f64, z: f64) -> AccelSpec {
         AccelSpec {
