@@ -26,8 +26,16 @@
 //! spirals, zigzags, diagonals, long straight moves) is planned by both, at
 //! several speeds, accelerations, square-corner velocities and minimum
 //! cruise ratios, and maxl's total planned duration must match the model's
-//! within 1 %. The worst mismatch per family is printed
+//! within 0.5 % (it matches to about 1e-13). The worst mismatch per family
+//! is printed
 //! (`cargo test -p maxl --features std --test planner_klipper -- --nocapture`).
+//!
+//! Checked once against Klipper's own `klippy/toolhead.py` too (its
+//! `Move` and `LookAheadQueue`, run unmodified with stub modules, at
+//! Klipper commit 84104bbbd): 168 plans of circles, a spiral, zigzags and
+//! random polylines with z steps, at 3 velocity/acceleration pairs, square
+//! corner velocities 1 and 5, ratios 0 and 0.5 and feeds 100 and 1000;
+//! worst mismatch 9.7e-14 (docs/planner.md).
 
 use maxl::blocks::planner::{
     square_corner_deviation, Limits, Planner, VectorLimits, KLIPPER_MIN_CRUISE_RATIO,
@@ -360,7 +368,7 @@ fn durations_match_klipper_within_one_percent() {
                     );
                 }
                 assert!(
-                    rel <= 0.01,
+                    rel <= 0.005,
                     "{family}: {} points, {c:?}: maxl {m} s vs Klipper {k} s",
                     pts.len()
                 );
