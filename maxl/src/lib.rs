@@ -37,6 +37,8 @@ pub mod track;
 
 #[cfg(feature = "std")]
 pub mod blocks;
+#[cfg(feature = "std")]
+pub mod motor;
 
 pub use backstop::{BackstopLimits, StopProfile};
 pub use eval::{eval_f64, Fx, KinF32, KinF64, KinFx, Point};

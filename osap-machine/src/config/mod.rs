@@ -27,6 +27,7 @@ mod accel;
 mod extruder;
 mod heaters;
 mod jobs;
+mod motor_model;
 mod probe;
 mod sim;
 mod step_rate;
@@ -40,6 +41,7 @@ pub use extruder::{
 };
 pub use heaters::{Heater, Runaway, Sensor, MAX_HEATER_TEMP};
 pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
+pub use motor_model::{MotorModelKeys, PlannerModel, DEFAULT_TORQUE_MARGIN};
 pub use probe::{Probe, ProbeGridError};
 pub use sim::{Sim, SimAxis, SimMelt};
 pub use step_rate::MAX_STEP_RATE;
@@ -259,6 +261,10 @@ pub struct Motor {
     /// the `module_limits` module).
     #[serde(default)]
     pub limits: Option<MotorLimits>,
+    /// The motor's datasheet values, for planning from what it can give
+    /// (`[limits] model = "motors"`) and for simulating its stalls.
+    #[serde(default)]
+    pub model: Option<MotorModelKeys>,
 }
 
 /// A motor's firmware limits, in motor units (mm or radians) per s, s², s³.
@@ -407,10 +413,14 @@ pub struct Axis {
     /// (`osap resonance`).
     #[serde(default)]
     pub accelerometer: Option<Accelerometer>,
-    /// The axis's input shaper, as `osap resonance --write` puts it
-    /// (validated; not yet applied by the planner).
+    /// The axis's input shaper, as `osap resonance --write` puts it; every
+    /// move is shaped with it.
     #[serde(default)]
     pub shaper: Option<AxisShaper>,
+    /// The mass the axis moves, kg: for `[limits] model = "motors"` and
+    /// the simulated motors' load.
+    #[serde(default)]
+    pub moving_mass_kg: Option<f64>,
     /// The extruder's settings (`kind = "extruder"` only), flattened into
     /// `[axes.e]`.
     #[serde(flatten)]
@@ -533,6 +543,19 @@ pub struct Limits {
     /// none beyond the axes' own.
     #[serde(default)]
     pub jerk: Option<f64>,
+    /// What bounds each move's acceleration besides the limits above:
+    /// `"motors"` plans from the motors' torque at speed (the axes' and
+    /// toolhead's `acceleration` then bound only what no model covers).
+    #[serde(default)]
+    pub model: Option<PlannerModel>,
+    /// The share of a motor's torque the motor model may plan with, in
+    /// (0, 1]; default 0.7.
+    #[serde(default = "default_torque_margin")]
+    pub torque_margin: f64,
+}
+
+fn default_torque_margin() -> f64 {
+    DEFAULT_TORQUE_MARGIN
 }
 
 fn default_module_margin() -> f64 {
@@ -768,6 +791,7 @@ impl MachineFile {
         self.validate_motors()?;
         self.validate_axes()?;
         self.validate_limits()?;
+        self.validate_motor_models()?;
         self.validate_step_rates()?;
         self.validate_tools()?;
         heaters::validate(self)?;

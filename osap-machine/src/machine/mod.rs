@@ -27,6 +27,7 @@ mod liveness;
 pub mod loadcell;
 pub mod monitor;
 pub mod motion;
+pub mod motor_accel;
 mod probing;
 mod safe;
 mod stop;

@@ -421,20 +421,32 @@ pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineEr
     let limits = Limits::new(vel, acc, cfg.limits.junction_deviation)?
         .with_max_jump(jump)?
         .with_max_jerk(jerk)?;
+    // Planning from the motors, the toolhead's constant acceleration gives
+    // way to the model; each axis's own stays as a ceiling.
+    let model = match cfg.limits.model {
+        Some(crate::config::PlannerModel::Motors) => super::motor_accel::MotorAccel::new(cfg)?,
+        None => None,
+    };
+    let vector_accel = if model.is_some() {
+        f64::INFINITY
+    } else {
+        cfg.limits.acceleration
+    };
     // The toolhead's axes carry the path; a machine without x, y or z
     // (a rotary stage) plans over all its axes.
-    let vector = VectorLimits::new(cfg.limits.velocity, cfg.limits.acceleration)?
+    let vector = VectorLimits::new(cfg.limits.velocity, vector_accel)?
         .with_min_cruise_ratio(cfg.limits.minimum_cruise_ratio)?
         .with_max_jerk(match (scurve, cfg.limits.jerk) {
             (true, Some(j)) => j,
             _ => f64::INFINITY,
         })?
         .with_path_axes(cfg.toolhead_axes());
-    Ok(Planner::with_vector_limits(
-        limits,
-        vector,
-        maxl::blocks::planner::DEFAULT_CAPACITY,
-    )?)
+    let mut planner =
+        Planner::with_vector_limits(limits, vector, maxl::blocks::planner::DEFAULT_CAPACITY)?;
+    if let Some(m) = model {
+        planner.set_accel_model(Some(std::sync::Arc::new(m)));
+    }
+    Ok(planner)
 }
 
 /// The input shaper of each axis slot, from `[axes.NAME] shaper` (`None`

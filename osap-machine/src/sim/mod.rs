@@ -48,8 +48,8 @@ use std::collections::BTreeMap;
 use osap_core::netresponder::NAME_MAX;
 use osap_sim::machine::MODULE_LINKS;
 use osap_sim::topology::{
-    BedContact, HeaterSpec, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, SimSpec, SpecError,
-    SwitchSpec, HOST,
+    BedContact, HeaterSpec, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, RotorSpec, SimSpec,
+    SpecError, SwitchSpec, HOST,
 };
 
 use crate::config::{Direction, Kinematics, MachineFile};
@@ -312,6 +312,9 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
             -RATE_SPREAD_PPM + 2.0 * RATE_SPREAD_PPM * i as f64 / (count - 1) as f64
         }
     };
+    // The load each modelled motor feels (kinematics linear in the motors;
+    // arms simulate their motors without stalls).
+    let loads = crate::machine::motor_accel::reflected_inertia(cfg).unwrap_or_default();
     let mut t = SimSpec::new(&cfg.name)
         .with_module(ModuleSpec::new(HUB, "hub").with_rate_ppm(rate(0)))
         .with_link(LinkSpec::new(HOST, HUB, LinkKind::Usb));
@@ -327,9 +330,22 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
             Some(key) => {
                 let name = module_name(cfg, key).unwrap_or(key).to_string();
                 let mut spec = ModuleSpec::new(&name, "stepper");
-                if let Some(motor) = motor_of.get(key).map(|m| &cfg.motors[*m]) {
+                if let Some((motor_key, motor)) = motor_of.get(key).map(|m| (*m, &cfg.motors[*m])) {
+                    // A motor with datasheet values stalls as it would.
+                    let rotor = match motor.model {
+                        Some(keys) => Some(RotorSpec {
+                            model: keys.model(),
+                            load_inertia_kgm2: loads
+                                .iter()
+                                .find(|(n, _)| n == motor_key)
+                                .map_or(0.0, |l| l.1),
+                            damping_ratio: 0.3,
+                        }),
+                        None => None,
+                    };
                     spec = spec.with_motor(MotorSpec {
                         full_steps_per_unit: motor.full_steps_per_unit,
+                        rotor,
                         ..MotorSpec::default()
                     });
                 }

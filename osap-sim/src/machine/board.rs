@@ -24,6 +24,7 @@ pub mod accel;
 pub mod bootloader;
 pub mod heater;
 pub mod melt;
+pub mod rotor;
 
 use super::clock::DriftClock;
 use crate::topology::{
@@ -99,11 +100,14 @@ pub struct Motor {
     pending_limit: Vec<(Instant, bool)>,
     /// The switch input's level after the newest step.
     limit_level: bool,
+    /// The rotor, when the spec simulates stalls.
+    rotor: Option<rotor::Rotor>,
 }
 
 impl Motor {
     fn new(spec: MotorSpec) -> Self {
         let mut m = Motor {
+            rotor: spec.rotor.map(rotor::Rotor::new),
             spec,
             fine: 0,
             steps: 0,
@@ -129,8 +133,18 @@ impl Motor {
     /// Takes one step at local time `local` with the driver in `microsteps`.
     fn step(&mut self, local: Instant, up: bool, microsteps: u16) {
         let size = FINEST / i64::from(microsteps.max(1));
-        self.fine += if up { size } else { -size };
         self.steps += if up { 1 } else { -1 };
+        let signed = if up { size } else { -size };
+        let follows = match &mut self.rotor {
+            Some(r) => r.step(local, signed as f64 / FINEST as f64),
+            None => true,
+        };
+        if !follows {
+            // Stalled: the module counted the step, the carriage did not
+            // move.
+            return;
+        }
+        self.fine += signed;
         let position = self.position();
         if self.spec.record {
             self.edges.push(StepEdge {
@@ -173,6 +187,11 @@ impl Motor {
     /// Net microsteps taken.
     pub fn steps(&self) -> i64 {
         self.steps
+    }
+
+    /// The rotor, when the motor simulates stalls (its stalls, its lag).
+    pub fn rotor(&self) -> Option<&rotor::Rotor> {
+        self.rotor.as_ref()
     }
 
     /// Every step edge kept so far (see [`MotorSpec::record`]).

@@ -57,6 +57,29 @@ pub struct MotorSpec {
     /// by default; a very long run may turn it off and read only the counts.
     #[serde(default = "yes")]
     pub record: bool,
+    /// The motor's rotor behind its driver, which stalls when asked for
+    /// more torque than it has (absent: the carriage takes every step).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rotor: Option<RotorSpec>,
+}
+
+/// A simulated stepper's rotor (see
+/// [`Rotor`](crate::machine::board::rotor::Rotor)): its motor, the load's
+/// inertia reflected onto its shaft, and how damped it follows.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RotorSpec {
+    /// The motor.
+    pub model: maxl::motor::StepperModel,
+    /// The load's inertia on the motor's shaft, kg·m².
+    pub load_inertia_kgm2: f64,
+    /// The damping ratio of the rotor's small-signal mode; default 0.3.
+    #[serde(default = "default_rotor_damping")]
+    pub damping_ratio: f64,
+}
+
+fn default_rotor_damping() -> f64 {
+    0.3
 }
 
 fn yes() -> bool {
@@ -70,6 +93,7 @@ impl Default for MotorSpec {
             limit_min: None,
             limit_max: None,
             record: true,
+            rotor: None,
         }
     }
 }
@@ -93,6 +117,21 @@ impl MotorSpec {
                 return Err(BoardError::new(format!(
                     "[module.motor] limit position {x} must be finite"
                 )));
+            }
+        }
+        if let Some(r) = &self.rotor {
+            r.model
+                .check()
+                .map_err(|e| BoardError::new(format!("[module.motor.rotor.model] {e}")))?;
+            for (name, v) in [
+                ("load_inertia_kgm2", r.load_inertia_kgm2),
+                ("damping_ratio", r.damping_ratio),
+            ] {
+                if !(v.is_finite() && v >= 0.0) {
+                    return Err(BoardError::new(format!(
+                        "[module.motor.rotor] {name} {v} must be finite and at least 0"
+                    )));
+                }
             }
         }
         Ok(())

@@ -23,7 +23,7 @@ mod host;
 pub use bed::{BedContact, BedSurface};
 pub use board::{
     AccelSpec, BoardError, BootloaderSpec, Chip, HeaterSpec, IoSpec, MeltSpec, MotorSpec,
-    ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
+    RotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
 };
 pub use error::SpecError;
 pub use host::{ClockSource, HostSpec};

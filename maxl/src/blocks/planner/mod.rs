@@ -47,6 +47,7 @@
 mod arc;
 mod class;
 mod limits;
+mod model;
 mod plan;
 mod profile;
 
@@ -57,6 +58,7 @@ pub use class::{PlannerBlock, WIRE_CHORD_TOLERANCE};
 pub use limits::{
     square_corner_deviation, Limits, PlanError, VectorLimits, KLIPPER_MIN_CRUISE_RATIO,
 };
+pub use model::AccelModel;
 pub use plan::{Kin, Plan, PlannedSegment, Stats};
 pub use profile::Profile;
 
@@ -132,6 +134,8 @@ pub struct Planner<const N: usize> {
     pending_start: Option<u64>,
     next_id: u64,
     executed: u64,
+    /// Speed- and direction-dependent acceleration limits, if any.
+    model: Option<std::sync::Arc<dyn AccelModel<N>>>,
 }
 
 impl<const N: usize> Planner<N> {
@@ -173,12 +177,29 @@ impl<const N: usize> Planner<N> {
             pending_start: None,
             next_id: 0,
             executed: 0,
+            model: None,
         })
     }
 
     /// The limits.
     pub fn limits(&self) -> &Limits<N> {
         &self.limits
+    }
+
+    /// Bounds every segment's and corner's acceleration by `model` too
+    /// (`None`: the limits alone), from now on: the queue is replanned.
+    /// The running segment and a halt's stop keep their profiles.
+    pub fn set_accel_model(&mut self, model: Option<std::sync::Arc<dyn AccelModel<N>>>) {
+        self.model = model;
+        for s in self.queue.iter_mut() {
+            s.set_limits(&self.limits, &self.vector, self.feed_scale);
+        }
+        self.replan_all();
+    }
+
+    /// The acceleration model, if any.
+    pub fn accel_model(&self) -> Option<&dyn AccelModel<N>> {
+        self.model.as_deref()
     }
 
     /// The toolhead (vector) limits and minimum cruise ratio.
@@ -573,8 +594,12 @@ impl<const N: usize> Planner<N> {
             .queue
             .back()
             .or_else(|| self.frozen.back().map(|r| &r.seg));
-        seg.junction_max =
-            prev.map_or(0.0, |p| junction_speed(p, &seg, &self.limits, &self.vector));
+        seg.junction_max = prev.map_or(0.0, |p| {
+            junction_speed(p, &seg, &self.limits, &self.vector, self.model.as_deref())
+        });
+        if let Some(m) = &self.model {
+            seg.apply_model(m.as_ref());
+        }
         let mcr = self.mcr();
         if mcr {
             let r = self.vector.min_cruise_ratio;
@@ -779,6 +804,7 @@ impl<const N: usize> Planner<N> {
     fn replan_all(&mut self) {
         let limits = &self.limits;
         let vector = &self.vector;
+        let model = self.model.as_deref();
         let q = &mut self.queue;
         let mut floor = self.fixed_entry;
         for i in 0..q.len() {
@@ -786,10 +812,13 @@ impl<const N: usize> Planner<N> {
                 0 => self.frozen.back().map(|r| &r.seg),
                 _ => Some(&q[i - 1]),
             };
-            let jm = prev.map_or(0.0, |p| junction_speed(p, &q[i], limits, vector));
+            let jm = prev.map_or(0.0, |p| junction_speed(p, &q[i], limits, vector, model));
             let s = &mut q[i];
             s.junction_max = jm;
             s.floor = floor;
+            if let Some(m) = model {
+                s.apply_model(m);
+            }
             floor = s.reach_down(floor);
         }
         let mut next = 0.0;

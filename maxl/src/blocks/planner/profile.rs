@@ -16,6 +16,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::limits::{Limits, VectorLimits};
+use super::model::AccelModel;
 
 /// Components below this are treated as zero when dividing a limit by a
 /// direction component.
@@ -43,8 +44,11 @@ pub(crate) struct Segment<const N: usize> {
     pub v_axis: f64,
     /// Largest speed: the scaled feed and `v_axis`.
     pub v_max: f64,
-    /// Largest acceleration keeping every axis within its limit along `dir`.
+    /// Largest acceleration keeping every axis within its limit along `dir`
+    /// (and within the acceleration model's at the speeds reached).
     pub acc: f64,
+    /// The acceleration the limits alone allow along `dir`.
+    pub acc_cap: f64,
     /// Largest jerk keeping every axis within its limit along `dir`
     /// (`f64::INFINITY`: trapezoidal profiles).
     pub jerk: f64,
@@ -142,6 +146,7 @@ impl<const N: usize> Segment<N> {
             v_axis: 0.0,
             v_max: 0.0,
             acc: 0.0,
+            acc_cap: 0.0,
             jerk: f64::INFINITY,
             junction_max: 0.0,
             floor: 0.0,
@@ -167,7 +172,23 @@ impl<const N: usize> Segment<N> {
             self.acc = self.acc.min(vector.max_accel);
             self.jerk = self.jerk.min(vector.max_jerk);
         }
+        self.acc_cap = self.acc;
         self.scale_feed(scale);
+    }
+
+    /// Bounds the acceleration by `model` at the highest speed this segment
+    /// can reach: its speed limit, or its junction speed plus a ramp over
+    /// its length at the model's acceleration at rest (whichever is lower),
+    /// and at least the floor a lowered feed scale left. Uses the current
+    /// `junction_max` and `floor`.
+    pub(crate) fn apply_model(&mut self, model: &dyn AccelModel<N>) {
+        let at_rest = self.acc_cap.min(model.max_accel(&self.dir, &self.dir, 0.0));
+        let reach = (self.junction_max * self.junction_max + 2.0 * at_rest * self.len).sqrt();
+        let top = self.v_max.max(self.floor).min(reach.max(self.floor));
+        let a = model.max_accel(&self.dir, &self.dir, top);
+        // A model that leaves nothing at this speed still has to let the
+        // segment move: the file's validation keeps it from coming to this.
+        self.acc = self.acc_cap.min(a).max(1e-9 * self.acc_cap);
     }
 
     /// The speed limit within the minimum cruise ratio's cap.
@@ -345,6 +366,7 @@ pub(crate) fn junction_speed<const N: usize>(
     next: &Segment<N>,
     limits: &Limits<N>,
     vector: &VectorLimits,
+    model: Option<&dyn AccelModel<N>>,
 ) -> f64 {
     if prev.on_path != next.on_path {
         // Into or out of a move of the following axes alone (a
@@ -386,6 +408,9 @@ pub(crate) fn junction_speed<const N: usize>(
         let mut a = along(&limits.max_acc, &unit);
         if next.on_path {
             a = a.min(vector.max_accel);
+        }
+        if let Some(m) = model {
+            a = a.min(m.max_accel(&next.dir, &unit, v));
         }
         // Centripetal: ½·min(L)·tan(θ/2).
         let mut r = 0.5 * prev.len.min(next.len) * sin_half / cos_half;
