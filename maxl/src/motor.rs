@@ -3,14 +3,15 @@
 //! A hybrid stepper's driver regulates each phase's current to the rated
 //! current while it can. As the motor turns faster, the supply must also
 //! overcome the phase's inductance and the motor's back-EMF, so above some
-//! speed the current, and with it the torque, falls. With `k = T_hold /
-//! I_rated` (torque per amp, also the back-EMF in volts per rad/s), `p =
+//! speed the current, and with it the torque, falls. The holding torque is
+//! given with both phases at the rated current, so one phase's torque (and
+//! back-EMF) constant is `k = T_hold / (√2·I_rated)`. With `p =
 //! steps_per_rev / 4` rotor pole pairs, mechanical speed `ω` and electrical
 //! speed `p·ω`, the model takes what the supply `V` has left over the
 //! back-EMF `E = k·ω` across the phase's impedance:
 //!
 //! ```text
-//! I(ω) = min(I_rated, (V − E) / √(R² + (p·ω·L)²))      T(ω) = k·I(ω)
+//! I(ω) = min(I_rated, (V − E) / √(R² + (p·ω·L)²))      T(ω) = T_hold·I(ω)/I_rated
 //! ```
 //!
 //! the holding torque at rest, 0 once the back-EMF reaches the supply.
@@ -83,9 +84,9 @@ impl StepperModel {
         Ok(())
     }
 
-    /// Torque per amp, N·m/A (and back-EMF, V per rad/s).
+    /// One phase's torque per amp, N·m/A, and back-EMF, V per rad/s.
     pub fn torque_constant(&self) -> f64 {
-        self.holding_torque_nm / self.rated_current_a
+        self.holding_torque_nm / (core::f64::consts::SQRT_2 * self.rated_current_a)
     }
 
     /// The phase current the supply can drive at `omega` rad/s (either
@@ -103,7 +104,7 @@ impl StepperModel {
 
     /// The torque available at `omega` rad/s, N·m.
     pub fn torque_at(&self, omega: f64) -> f64 {
-        self.torque_constant() * self.current_at(omega)
+        self.holding_torque_nm * self.current_at(omega) / self.rated_current_a
     }
 
     /// The small-signal stiffness about a full-step equilibrium, N·m/rad:
@@ -148,14 +149,15 @@ mod tests {
             assert!(t <= last && t >= 0.0, "{rps} rev/s: {t}");
             last = t;
         }
-        // At 10 rev/s (400 mm/s on a 40 mm pulley): (24 − 14.1 V) over
-        // 9.5 Ω, 1.04 A: 0.23 N·m, half of holding; at the back-EMF limit
-        // (24 V / 0.225 V·s = 107 rad/s, 17 rev/s) nothing.
+        // At 10 rev/s (400 mm/s on a 40 mm pulley), k = 0.159 V·s: (24 −
+        // 10.0 V) over 9.5 Ω, 1.47 A: 0.33 N·m, 73 % of holding; at the
+        // back-EMF limit (24 V / 0.159 V·s = 151 rad/s, 24 rev/s) nothing.
+        let k = 0.45 / (2f64.sqrt() * 2.0);
         let w = 2.0 * PI * 10.0;
-        let want = 0.225 * (24.0 - 0.225 * w) / 1.4f64.hypot(50.0 * w * 3e-3);
+        let want = 0.45 / 2.0 * (24.0 - k * w) / 1.4f64.hypot(50.0 * w * 3e-3);
         assert!((m.torque_at(w) - want).abs() < 1e-12);
-        assert!((0.22..0.24).contains(&want), "{want}");
-        assert_eq!(m.torque_at(24.0 / 0.225 + 1.0), 0.0);
+        assert!((0.32..0.34).contains(&want), "{want}");
+        assert_eq!(m.torque_at(24.0 / k + 1.0), 0.0);
     }
 
     #[test]

@@ -469,8 +469,9 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         recording.vibration = osap_machine::sim::vibration(&cfg, &recording);
     }
 
-    // What the simulated melt did, read before the machine stops.
+    // What the simulated melt and motors did, read before the machine stops.
     let melt = machine.sim_melt();
+    let stalls = machine.sim_stalls();
     // Whether a fault stopped the machine: its first fault is the reason.
     let faulted = match machine.state() {
         MachineState::Faulted(reason) => Some(reason),
@@ -508,6 +509,16 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     }
     for (axis, v) in recording.largest_vibration() {
         println!("largest vibration {axis}: {v:.4} mm");
+    }
+    if !stalls.is_empty() {
+        let n: usize = stalls.iter().map(|s| s.stalls).sum();
+        println!("stalls: {n}");
+        for s in stalls.iter().filter(|s| s.stalls > 0) {
+            println!(
+                "error: motor {} stalled {} times and lost {:.0} full steps: its carriage is not where the machine thinks",
+                s.motor, s.stalls, s.lost_full_steps
+            );
+        }
     }
     if let Some(k) = recording.axes.iter().position(|a| a == "e") {
         let e_at = |s: Option<&osap_machine::record::Sample>| s.map_or(0.0, |s| s.pos[k]);

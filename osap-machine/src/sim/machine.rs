@@ -15,6 +15,17 @@ use crate::config::MachineFile;
 use crate::machine::{Machine, MachineError, Underneath, HOST_NAME};
 use crate::network::Entry;
 
+/// One simulated motor's stalls ([`Machine::sim_stalls`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct SimStalls {
+    /// The motor's key in `[motors]`.
+    pub motor: String,
+    /// How many times it stalled.
+    pub stalls: usize,
+    /// Full steps it was sent while stalled (the carriage did not move).
+    pub lost_full_steps: f64,
+}
+
 /// Options of [`Machine::simulate_with`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct SimOptions {
@@ -83,6 +94,38 @@ impl Machine {
             })
         })
         .filter(|v| v.is_finite())
+    }
+
+    /// The simulated motors' stalls so far: for each motor simulated with
+    /// its datasheet values (`[motors.NAME.model]`), its `[motors]` key,
+    /// how many times it stalled and the full steps it lost. Empty when
+    /// the machine is not simulated or no motor has a model.
+    pub fn sim_stalls(&self) -> Vec<SimStalls> {
+        let cfg = self.config();
+        let mut out = Vec::new();
+        for (key, motor) in &cfg.motors {
+            if motor.model.is_none() {
+                continue;
+            }
+            let Some(name) = super::module_name(cfg, &motor.module) else {
+                continue;
+            };
+            let found = self
+                .with_sim(|s| {
+                    s.module(name).and_then(|sm| sm.module()).and_then(|sm| {
+                        sm.lock(|mm| {
+                            mm.board().motor().rotor().map(|r| SimStalls {
+                                motor: key.clone(),
+                                stalls: r.stalls().len(),
+                                lost_full_steps: r.stalls().iter().map(|s| s.lost_full_steps).sum(),
+                            })
+                        })
+                    })
+                })
+                .flatten();
+            out.extend(found);
+        }
+        out
     }
 
     /// What the simulated melt behind the extruder did so far (its peak

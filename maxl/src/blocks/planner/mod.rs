@@ -60,7 +60,7 @@ pub use limits::{
 };
 pub use model::AccelModel;
 pub use plan::{Kin, Plan, PlannedSegment, Stats};
-pub use profile::Profile;
+pub use profile::{AccelBands, Profile, ACCEL_BANDS};
 
 use profile::{junction_speed, Segment};
 
@@ -468,7 +468,7 @@ impl<const N: usize> Planner<N> {
         let mut entry = self.junction(0);
         for (i, s) in self.queue.iter().enumerate() {
             let exit = self.junction(i + 1);
-            let prof = Profile::plan_jerk(s.len, entry, exit, s.v_cap(), s.acc, s.jerk);
+            let prof = s.profile(entry, exit);
             entry = exit;
             let p = planned(s, prof, t, false);
             t = p.end_us();
@@ -504,7 +504,7 @@ impl<const N: usize> Planner<N> {
         let mut entry = self.junction(0);
         for (i, s) in self.queue.iter().enumerate() {
             let exit = self.junction(i + 1);
-            let prof = Profile::plan_jerk(s.len, entry, exit, s.v_cap(), s.acc, s.jerk);
+            let prof = s.profile(entry, exit);
             entry = exit;
             if ts < t0 + prof.duration() {
                 return plan::kin_at(&s.start, &s.dir, &prof, (ts - t0).max(0.0));
@@ -539,14 +539,7 @@ impl<const N: usize> Planner<N> {
         let Some(seg) = self.queue.pop_front() else {
             return;
         };
-        let prof = Profile::plan_jerk(
-            seg.len,
-            self.fixed_entry,
-            exit,
-            seg.v_cap(),
-            seg.acc,
-            seg.jerk,
-        );
+        let prof = seg.profile(self.fixed_entry, exit);
         self.fixed_entry = exit;
         self.frozen.push_back(Running { seg, prof, t0 });
         self.refix_front();

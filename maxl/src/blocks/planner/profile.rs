@@ -49,6 +49,9 @@ pub(crate) struct Segment<const N: usize> {
     pub acc: f64,
     /// The acceleration the limits alone allow along `dir`.
     pub acc_cap: f64,
+    /// Speed-dependent acceleration from the model (trapezoidal profiles
+    /// only); `acc` is then its slowest band's.
+    pub bands: Option<AccelBands>,
     /// Largest jerk keeping every axis within its limit along `dir`
     /// (`f64::INFINITY`: trapezoidal profiles).
     pub jerk: f64,
@@ -147,6 +150,7 @@ impl<const N: usize> Segment<N> {
             v_max: 0.0,
             acc: 0.0,
             acc_cap: 0.0,
+            bands: None,
             jerk: f64::INFINITY,
             junction_max: 0.0,
             floor: 0.0,
@@ -173,6 +177,7 @@ impl<const N: usize> Segment<N> {
             self.jerk = self.jerk.min(vector.max_jerk);
         }
         self.acc_cap = self.acc;
+        self.bands = None;
         self.scale_feed(scale);
     }
 
@@ -185,10 +190,39 @@ impl<const N: usize> Segment<N> {
         let at_rest = self.acc_cap.min(model.max_accel(&self.dir, &self.dir, 0.0));
         let reach = (self.junction_max * self.junction_max + 2.0 * at_rest * self.len).sqrt();
         let top = self.v_max.max(self.floor).min(reach.max(self.floor));
-        let a = model.max_accel(&self.dir, &self.dir, top);
-        // A model that leaves nothing at this speed still has to let the
+        // A model that leaves nothing at a speed still has to let the
         // segment move: the file's validation keeps it from coming to this.
-        self.acc = self.acc_cap.min(a).max(1e-9 * self.acc_cap);
+        let at = |v: f64| {
+            self.acc_cap
+                .min(model.max_accel(&self.dir, &self.dir, v))
+                .max(1e-9 * self.acc_cap)
+        };
+        self.acc = at(top);
+        self.bands = None;
+        if self.jerk.is_infinite() && top > 0.0 {
+            // Each band accelerates at what the model gives at its top
+            // speed, which holds over the whole band.
+            let mut b = AccelBands {
+                top: [f64::INFINITY; ACCEL_BANDS],
+                accel: [self.acc; ACCEL_BANDS],
+            };
+            for k in 0..ACCEL_BANDS {
+                let edge = top * (k + 1) as f64 / ACCEL_BANDS as f64;
+                b.accel[k] = at(edge);
+                if k + 1 < ACCEL_BANDS {
+                    b.top[k] = edge;
+                }
+            }
+            self.bands = Some(b);
+        }
+    }
+
+    /// This segment's profile from `v0` to `v1`.
+    pub(crate) fn profile(&self, v0: f64, v1: f64) -> Profile {
+        match &self.bands {
+            Some(b) => Profile::plan_banded(self.len, v0, v1, self.v_cap(), b),
+            None => Profile::plan_jerk(self.len, v0, v1, self.v_cap(), self.acc, self.jerk),
+        }
     }
 
     /// The speed limit within the minimum cruise ratio's cap.
@@ -219,12 +253,18 @@ impl<const N: usize> Segment<N> {
 
     /// The speed reachable at the far end of this segment from `v` at one end.
     pub(crate) fn reach(&self, v: f64) -> f64 {
-        ramp_reach(v, self.len, self.acc, self.jerk)
+        match &self.bands {
+            Some(b) => b.reach(v, self.len),
+            None => ramp_reach(v, self.len, self.acc, self.jerk),
+        }
     }
 
     /// The lowest speed this segment can slow to from `v` (0 if it can
     /// stop within it).
     pub(crate) fn reach_down(&self, v: f64) -> f64 {
+        if let Some(b) = &self.bands {
+            return b.reach_down(v, self.len);
+        }
         if self.jerk.is_infinite() {
             return (v * v - 2.0 * self.acc * self.len).max(0.0).sqrt();
         }
@@ -244,6 +284,119 @@ impl<const N: usize> Segment<N> {
             }
         }
         hi
+    }
+}
+
+/// How many speed bands a speed-dependent acceleration is split into.
+pub const ACCEL_BANDS: usize = 6;
+
+/// A speed-dependent acceleration as bands: `accel[k]` up to speed
+/// `top[k]` (ascending; the last band's top is infinite). A ramp through
+/// them is trapezoidal within each band.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AccelBands {
+    /// Each band's top speed.
+    pub top: [f64; ACCEL_BANDS],
+    /// Each band's acceleration.
+    pub accel: [f64; ACCEL_BANDS],
+}
+
+impl AccelBands {
+    /// The band holding speed `v` (a speed on an edge belongs below).
+    fn band(&self, v: f64) -> usize {
+        self.top
+            .iter()
+            .position(|&t| v <= t)
+            .unwrap_or(ACCEL_BANDS - 1)
+    }
+
+    /// The bands' pieces between speeds `lo < hi`: (from, to, accel).
+    fn pieces(&self, lo: f64, hi: f64) -> impl Iterator<Item = (f64, f64, f64)> + '_ {
+        let first = self.band(lo);
+        (first..ACCEL_BANDS).map_while(move |k| {
+            let from = if k == first { lo } else { self.top[k - 1] };
+            (from < hi).then(|| (from, self.top[k].min(hi), self.accel[k]))
+        })
+    }
+
+    /// The distance a ramp between speeds `u` and `w` covers.
+    pub fn distance(&self, u: f64, w: f64) -> f64 {
+        let (lo, hi) = if u < w { (u, w) } else { (w, u) };
+        self.pieces(lo, hi)
+            .map(|(a, b, acc)| (b * b - a * a) / (2.0 * acc))
+            .sum()
+    }
+
+    /// The time a ramp between speeds `u` and `w` takes.
+    pub fn time(&self, u: f64, w: f64) -> f64 {
+        let (lo, hi) = if u < w { (u, w) } else { (w, u) };
+        self.pieces(lo, hi).map(|(a, b, acc)| (b - a) / acc).sum()
+    }
+
+    /// The highest speed a ramp from `v` reaches within `len`.
+    pub fn reach(&self, mut v: f64, mut len: f64) -> f64 {
+        let mut k = self.band(v);
+        loop {
+            let acc = self.accel[k];
+            let top = self.top[k];
+            let need = (top * top - v * v) / (2.0 * acc);
+            if k + 1 >= ACCEL_BANDS || need >= len {
+                return (v * v + 2.0 * acc * len).sqrt();
+            }
+            len -= need.max(0.0);
+            v = top;
+            k += 1;
+        }
+    }
+
+    /// The lowest speed a ramp down from `v` reaches within `len` (0 if it
+    /// stops).
+    pub fn reach_down(&self, mut v: f64, mut len: f64) -> f64 {
+        let mut k = self.band(v);
+        loop {
+            let acc = self.accel[k];
+            let bottom = if k == 0 { 0.0 } else { self.top[k - 1] };
+            let need = (v * v - bottom * bottom) / (2.0 * acc);
+            if k == 0 || need >= len {
+                return (v * v - 2.0 * acc * len).max(0.0).sqrt();
+            }
+            len -= need.max(0.0);
+            v = bottom;
+            k -= 1;
+        }
+    }
+
+    /// Distance, speed and acceleration `tau` into a ramp from `u` to `w`.
+    fn at(&self, u: f64, w: f64, tau: f64) -> (f64, f64, f64) {
+        if u == w {
+            return (u * tau.max(0.0), u, 0.0);
+        }
+        let up = w > u;
+        let (mut v, mut s, mut t) = (u, 0.0, tau.max(0.0));
+        let mut k = self.band(u);
+        loop {
+            let acc = self.accel[k];
+            // The speed where this band's piece ends.
+            let end = if up {
+                self.top[k].min(w)
+            } else {
+                (if k == 0 { 0.0 } else { self.top[k - 1] }).max(w)
+            };
+            let dt = (end - v).abs() / acc;
+            let sign = if up { 1.0 } else { -1.0 };
+            if t <= dt || end == w {
+                let t = t.min(dt);
+                return (
+                    s + v * t + 0.5 * sign * acc * t * t,
+                    v + sign * acc * t,
+                    sign * acc,
+                );
+            }
+            s += (end * end - v * v).abs() / (2.0 * acc);
+            t -= dt;
+            v = end;
+            k = if up { k + 1 } else { k - 1 };
+        }
     }
 }
 
@@ -444,6 +597,9 @@ pub struct Profile {
     pub accel: f64,
     /// Jerk of the ramps (mm/s³); `f64::INFINITY` for a trapezoid.
     pub jerk: f64,
+    /// Speed-dependent acceleration of the ramps, if any (then `accel` is
+    /// its slowest band's).
+    pub bands: Option<AccelBands>,
     /// Segment length (mm).
     pub length: f64,
     /// Duration of the first ramp, from the entry to the cruise speed (s):
@@ -483,6 +639,7 @@ impl Profile {
             exit: v1,
             accel: acc,
             jerk: f64::INFINITY,
+            bands: None,
             length: len,
             t_acc: (vc - v0).abs() / acc,
             t_cruise,
@@ -534,10 +691,56 @@ impl Profile {
             exit: v1,
             accel: acc,
             jerk,
+            bands: None,
             length: len,
             t_acc: ramp_time((vc - v0).abs(), acc, jerk),
             t_cruise: if vc > 0.0 { d_cruise / vc } else { 0.0 },
             t_dec: ramp_time(vc - v1, acc, jerk),
+            d_acc,
+            d_cruise,
+        }
+    }
+
+    /// As [`Profile::plan`], with the ramps' acceleration in speed bands.
+    pub fn plan_banded(len: f64, v0: f64, v1: f64, v_max: f64, bands: &AccelBands) -> Self {
+        let ramps = |vc: f64| bands.distance(v0, vc) + bands.distance(vc, v1);
+        let vc = if v0 > v_max {
+            v_max.max(v1)
+        } else {
+            let lo = v0.max(v1);
+            let hi = v_max.max(lo);
+            if ramps(hi) <= len {
+                hi
+            } else {
+                let (mut lo, mut hi) = (lo, bands.reach(lo, len).min(hi));
+                if ramps(hi) <= len {
+                    lo = hi;
+                }
+                while hi - lo > 1e-12 * hi.max(1.0) {
+                    let mid = 0.5 * (lo + hi);
+                    if ramps(mid) <= len {
+                        lo = mid;
+                    } else {
+                        hi = mid;
+                    }
+                }
+                lo
+            }
+        };
+        let d_acc = bands.distance(v0, vc);
+        let d_dec = bands.distance(vc, v1);
+        let d_cruise = (len - d_acc - d_dec).max(0.0);
+        Profile {
+            entry: v0,
+            cruise: vc,
+            exit: v1,
+            accel: bands.accel[ACCEL_BANDS - 1],
+            jerk: f64::INFINITY,
+            bands: Some(*bands),
+            length: len,
+            t_acc: bands.time(v0, vc),
+            t_cruise: if vc > 0.0 { d_cruise / vc } else { 0.0 },
+            t_dec: bands.time(vc, v1),
             d_acc,
             d_cruise,
         }
@@ -554,6 +757,9 @@ impl Profile {
         let tau = tau.max(0.0);
         if self.jerk.is_finite() {
             return self.at_jerk(tau);
+        }
+        if let Some(b) = &self.bands {
+            return self.at_banded(b, tau);
         }
         let a = self.accel;
         let (s, v, acc) = if tau < self.t_acc {
@@ -604,6 +810,27 @@ impl Profile {
                 j,
                 tau - self.t_acc - self.t_cruise,
             );
+            (self.d_acc + self.d_cruise + s, v, acc)
+        } else {
+            (self.length, self.exit, 0.0)
+        };
+        (s.clamp(0.0, self.length), v.max(0.0), acc)
+    }
+}
+
+impl Profile {
+    /// [`Profile::at`] for banded ramps.
+    fn at_banded(&self, b: &AccelBands, tau: f64) -> (f64, f64, f64) {
+        let (s, v, acc) = if tau < self.t_acc {
+            b.at(self.entry, self.cruise, tau)
+        } else if tau < self.t_acc + self.t_cruise {
+            (
+                self.d_acc + self.cruise * (tau - self.t_acc),
+                self.cruise,
+                0.0,
+            )
+        } else if tau < self.duration() {
+            let (s, v, acc) = b.at(self.cruise, self.exit, tau - self.t_acc - self.t_cruise);
             (self.d_acc + self.d_cruise + s, v, acc)
         } else {
             (self.length, self.exit, 0.0)
