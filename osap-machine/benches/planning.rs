@@ -5,7 +5,12 @@
 //!
 //! `cargo bench -p osap-machine --bench planning -- --warm-up-time 1 --measurement-time 3`
 //!
-//! Two jobs on a 200 × 150 mm sheet, 0.2 mm chords at 100 mm/s:
+//! Each job is planned with per-axis limits alone, and (`vector/`) with the
+//! toolhead's vector limits on top, as a machine file sets them; then with
+//! Klipper's minimum cruise ratio 0.5 (`vector+mcr/`), S-curves at
+//! 100 000 mm/s³ (`scurve/`) and a speed-dependent acceleration model
+//! (`motors/`). Two jobs
+//! on a 200 × 150 mm sheet, 0.2 mm chords at 100 mm/s:
 //! - `zigzag`: raster hatching, rows 1 mm apart (long collinear runs, a
 //!   reversal at every row end);
 //! - `spiral`: an elliptical spiral inward, 1 mm pitch (every junction a
@@ -15,7 +20,7 @@
 #![allow(missing_docs)]
 
 use criterion::{black_box, criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
-use maxl::blocks::planner::{Limits, Planner};
+use maxl::blocks::planner::{AccelModel, Limits, Planner, VectorLimits, KLIPPER_MIN_CRUISE_RATIO};
 
 /// Chord length, mm.
 const CHORD: f64 = 0.2;
@@ -69,6 +74,54 @@ fn limits() -> Limits<2> {
     Limits::new([300.0, 300.0], [3000.0, 3000.0], 0.02).unwrap()
 }
 
+/// The toolhead's limits as a machine file sets them (the plotter's):
+/// |v| ≤ 250 mm/s, |a| ≤ 2500 mm/s², both axes the toolhead's.
+fn vector() -> VectorLimits {
+    VectorLimits::new(250.0, 2500.0).unwrap().with_path_axes(2)
+}
+
+/// How a benchmark plans: the toolhead's vector limits, Klipper's minimum
+/// cruise ratio on top, a jerk limit (S-curve), or a motor model.
+#[derive(Clone, Copy, PartialEq)]
+enum Mode {
+    Vector,
+    Cruise,
+    Scurve,
+    Motors,
+}
+
+/// A falling acceleration, as a stepper's torque falls with speed:
+/// 6000 mm/s² at rest, 1500 at 300 mm/s.
+#[derive(Debug)]
+struct Falling;
+
+impl AccelModel<2> for Falling {
+    fn max_accel(&self, _: &[f64; 2], _: &[f64; 2], speed: f64) -> f64 {
+        6000.0 * (1.0 - speed / 400.0).max(0.25)
+    }
+}
+
+/// A planner at the job's first point holding the whole job, planning in
+/// `mode`.
+fn queued_with(path: &[[f64; 2]], mode: Mode) -> Planner<2> {
+    let mut v = vector();
+    let mut l = limits();
+    match mode {
+        Mode::Vector | Mode::Motors => {}
+        Mode::Cruise => v = v.with_min_cruise_ratio(KLIPPER_MIN_CRUISE_RATIO).unwrap(),
+        Mode::Scurve => l = l.with_max_jerk([100_000.0; 2]).unwrap(),
+    }
+    let mut p = Planner::with_vector_limits(l, v, path.len()).unwrap();
+    if mode == Mode::Motors {
+        p.set_accel_model(Some(std::sync::Arc::new(Falling)));
+    }
+    p.set_position(path[0]).unwrap();
+    for q in &path[1..] {
+        p.line(*q, FEED).unwrap();
+    }
+    p
+}
+
 /// A planner at the job's first point holding the whole job.
 fn queued(path: &[[f64; 2]]) -> Planner<2> {
     let mut p = Planner::with_capacity(limits(), path.len()).unwrap();
@@ -117,6 +170,25 @@ fn bench(c: &mut Criterion) {
         g.bench_with_input(BenchmarkId::new("queue+sample", name), &path, |b, path| {
             b.iter(|| sample_all(&mut queued(path)))
         });
+        // As a machine plans: the toolhead's vector limits on top; and
+        // with the minimum cruise ratio, S-curves, or a motor model.
+        for (label, mode) in [
+            ("vector", Mode::Vector),
+            ("vector+mcr", Mode::Cruise),
+            ("scurve", Mode::Scurve),
+            ("motors", Mode::Motors),
+        ] {
+            g.bench_with_input(
+                BenchmarkId::new(format!("{label}/queue"), name),
+                &path,
+                |b, path| b.iter(|| queued_with(path, mode).stats().pending),
+            );
+        }
+        g.bench_with_input(
+            BenchmarkId::new("vector/queue+sample", name),
+            &path,
+            |b, path| b.iter(|| sample_all(&mut queued_with(path, Mode::Vector))),
+        );
     }
     g.finish();
 }

@@ -427,6 +427,24 @@ pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineEr
         Some(crate::config::PlannerModel::Motors) => super::motor_accel::MotorAccel::new(cfg)?,
         None => None,
     };
+    if let Some(m) = &model {
+        // Every toolhead axis must keep some torque at its own speed limit.
+        for (k, name) in cfg
+            .axis_names()
+            .iter()
+            .enumerate()
+            .take(cfg.toolhead_axes())
+        {
+            let mut u = [0.0; MAX_AXES];
+            u[k] = 1.0;
+            let v = cfg.axes[*name].velocity;
+            if maxl::blocks::planner::AccelModel::max_accel(m, &u, &u, v) <= 0.0 {
+                return Err(MachineError::Unsupported(format!(
+                    "axes.{name}.velocity: at {v} units/s its motor has no torque left (the back-EMF reaches [motors.NAME.model] supply_v): lower the velocity or raise the supply"
+                )));
+            }
+        }
+    }
     let vector_accel = if model.is_some() {
         f64::INFINITY
     } else {

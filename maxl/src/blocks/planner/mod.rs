@@ -67,6 +67,10 @@ use profile::{junction_speed, Segment};
 /// Default number of queued (not yet running) segments.
 pub const DEFAULT_CAPACITY: usize = 4096;
 
+/// The most queue slots a planner reserves when it is made (a larger
+/// capacity grows as needed): 262 144 segments, some 60 MB for three axes.
+pub const QUEUE_RESERVE: usize = 1 << 18;
+
 /// Largest feed scale [`Planner::set_feed_scale`] takes.
 pub const MAX_FEED_SCALE: f64 = 10.0;
 
@@ -166,7 +170,9 @@ impl<const N: usize> Planner<N> {
             limits,
             vector,
             capacity,
-            queue: VecDeque::new(),
+            // Reserved up front (up to QUEUE_RESERVE): a queue grown by
+            // doubling copies every segment again at each step.
+            queue: VecDeque::with_capacity(capacity.min(QUEUE_RESERVE)),
             frozen: VecDeque::new(),
             fixed_entry: 0.0,
             feed_scale: 1.0,
@@ -555,11 +561,7 @@ impl<const N: usize> Planner<N> {
             (0, Some(_)) => self.fixed_entry,
             (_, Some(s)) => {
                 let cap2 = s.cruise2.min(q[i - 1].cruise2);
-                if cap2 < s.entry * s.entry {
-                    cap2.sqrt()
-                } else {
-                    s.entry
-                }
+                cap2.min(s.entry2).sqrt()
             }
         }
     }
@@ -615,31 +617,22 @@ impl<const N: usize> Planner<N> {
     /// then a forward pass over the changed stretch. Returns the first index
     /// whose entry may have changed.
     fn replan(&mut self) -> usize {
-        let q = &mut self.queue;
-        let k = q.len() - 1;
-        q[k].back = q[k].bound().min(q[k].reach(0.0));
-        let mut from = 0;
-        for i in (0..k).rev() {
-            let nb = q[i].bound().min(q[i].reach(q[i + 1].back));
-            if nb == q[i].back {
-                from = i + 1;
-                break;
-            }
-            q[i].back = nb;
-        }
+        // The passes run on a slice when the queue is contiguous (always,
+        // until segments start leaving its front): no wrapping index.
+        let from = match self.queue.as_mut_slices() {
+            (q, []) => backward(q),
+            _ => backward(&mut self.queue),
+        };
         self.forward(from);
         from
     }
 
     /// Forward pass from `queue[from]` to the tail.
     fn forward(&mut self, from: usize) {
-        let q = &mut self.queue;
-        for i in from..q.len() {
-            q[i].entry = if i == 0 {
-                self.fixed_entry
-            } else {
-                q[i].back.min(q[i - 1].reach(q[i - 1].entry))
-            };
+        let fixed2 = self.fixed_entry * self.fixed_entry;
+        match self.queue.as_mut_slices() {
+            (q, []) => forward(q, from, fixed2),
+            _ => forward(&mut self.queue, from, fixed2),
         }
     }
 
@@ -690,14 +683,14 @@ impl<const N: usize> Planner<N> {
             return;
         }
         let mut hi = 0;
-        if q[0].entry != fixed {
-            q[0].entry = fixed;
+        if q[0].entry2 != fixed * fixed {
+            q[0].entry2 = fixed * fixed;
             for i in 1..q.len() {
-                let e = q[i].back.min(q[i - 1].reach(q[i - 1].entry));
-                if e == q[i].entry {
+                let e = q[i].back2.min(q[i - 1].reach2(q[i - 1].entry2));
+                if e == q[i].entry2 {
                     break;
                 }
-                q[i].entry = e;
+                q[i].entry2 = e;
                 hi = i;
             }
         }
@@ -771,11 +764,11 @@ impl<const N: usize> Planner<N> {
         for i in lo..=k {
             let s = &q[i];
             let c = if s.hill >= 0.0 {
-                let e1 = q.get(i + 1).map_or(0.0, |n| n.entry);
-                let peak = (s.entry * s.entry + e1 * e1 + 2.0 * s.acc * s.len) * 0.5;
+                let e1 = q.get(i + 1).map_or(0.0, |n| n.entry2);
+                let peak = (s.entry2 + e1 + 2.0 * s.acc * s.len) * 0.5;
                 peak.min(s.hill)
             } else {
-                prev.min(s.entry * s.entry)
+                prev.min(s.entry2)
             };
             if i > hi && c == s.cruise2 {
                 break;
@@ -816,8 +809,8 @@ impl<const N: usize> Planner<N> {
         }
         let mut next = 0.0;
         for s in q.iter_mut().rev() {
-            s.back = s.bound().min(s.reach(next));
-            next = s.back;
+            s.back2 = s.bound2().min(s.reach2(next));
+            next = s.back2;
         }
         self.forward(0);
         if self.queue.is_empty() {
@@ -846,6 +839,52 @@ impl<const N: usize> Planner<N> {
         }
         let k = q.len() - 1;
         self.refresh_caps(0, k);
+    }
+}
+
+/// The segments of a queue, indexed: a slice, or the deque itself.
+trait Segments<const N: usize>: core::ops::IndexMut<usize, Output = Segment<N>> {
+    fn count(&self) -> usize;
+}
+
+impl<const N: usize> Segments<N> for [Segment<N>] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+}
+
+impl<const N: usize> Segments<N> for VecDeque<Segment<N>> {
+    fn count(&self) -> usize {
+        self.len()
+    }
+}
+
+/// The backward pass from the tail (ending at rest) until an entry bound
+/// stops changing; returns the first index whose entry may have changed.
+#[inline]
+fn backward<const N: usize, Q: Segments<N> + ?Sized>(q: &mut Q) -> usize {
+    let k = q.count() - 1;
+    q[k].back2 = q[k].bound2().min(q[k].reach2(0.0));
+    for i in (0..k).rev() {
+        let nb = q[i].bound2().min(q[i].reach2(q[i + 1].back2));
+        if nb == q[i].back2 {
+            return i + 1;
+        }
+        q[i].back2 = nb;
+    }
+    0
+}
+
+/// The forward pass from `from` to the tail; `fixed2` is the entry² of the
+/// first segment.
+#[inline]
+fn forward<const N: usize, Q: Segments<N> + ?Sized>(q: &mut Q, from: usize, fixed2: f64) {
+    for i in from..q.count() {
+        q[i].entry2 = if i == 0 {
+            fixed2
+        } else {
+            q[i].back2.min(q[i - 1].reach2(q[i - 1].entry2))
+        };
     }
 }
 
@@ -883,8 +922,8 @@ fn decelerate<const N: usize>(
         } else {
             (v * v - 2.0 * seg.acc * seg.len).max(0.0).sqrt()
         };
-        seg.entry = v;
-        seg.back = v;
+        seg.entry2 = v * v;
+        seg.back2 = v * v;
         let prof = Profile::plan(seg.len, v, v1, v, seg.acc);
         let run = Running { seg, prof, t0: t };
         t = run.t_end();

@@ -50,8 +50,9 @@ pub(crate) struct Segment<const N: usize> {
     /// The acceleration the limits alone allow along `dir`.
     pub acc_cap: f64,
     /// Speed-dependent acceleration from the model (trapezoidal profiles
-    /// only); `acc` is then its slowest band's.
-    pub bands: Option<AccelBands>,
+    /// only); `acc` is then its slowest band's. Boxed: most planners have
+    /// no model, and the queue's segments stay small.
+    pub bands: Option<Box<AccelBands>>,
     /// Largest jerk keeping every axis within its limit along `dir`
     /// (`f64::INFINITY`: trapezoidal profiles).
     pub jerk: f64,
@@ -61,11 +62,13 @@ pub(crate) struct Segment<const N: usize> {
     /// running segment fixed, as of the last full replan (0 unless a lower
     /// feed scale leaves the path above its new speed limit for a while).
     pub floor: f64,
-    /// Entry-speed bound from the backward pass (reaching rest at the tail).
-    pub back: f64,
+    /// Entry-speed bound from the backward pass (reaching rest at the
+    /// tail), squared: the passes work in v², as Klipper's, with no root
+    /// in their chain.
+    pub back2: f64,
     /// Planned entry speed of the acceleration-limited lookahead (before
-    /// the minimum cruise ratio's caps).
-    pub entry: f64,
+    /// the minimum cruise ratio's caps), squared.
+    pub entry2: f64,
     /// Minimum cruise ratio: the smoothed pass's forward bound on the entry
     /// (v², mm²/s²), `min(junction², previous + 2·a'·L_previous)`.
     pub mcr_fwd: f64,
@@ -154,8 +157,8 @@ impl<const N: usize> Segment<N> {
             jerk: f64::INFINITY,
             junction_max: 0.0,
             floor: 0.0,
-            back: 0.0,
-            entry: 0.0,
+            back2: 0.0,
+            entry2: 0.0,
             mcr_fwd: 0.0,
             mcr_start: 0.0,
             hill: 0.0,
@@ -213,7 +216,7 @@ impl<const N: usize> Segment<N> {
                     b.top[k] = edge;
                 }
             }
-            self.bands = Some(b);
+            self.bands = Some(Box::new(b));
         }
     }
 
@@ -245,14 +248,33 @@ impl<const N: usize> Segment<N> {
         self.v_max = (self.feed * k).min(self.v_axis);
     }
 
+    /// [`Segment::bound`], squared.
+    #[inline]
+    pub(crate) fn bound2(&self) -> f64 {
+        let b = self.bound();
+        b * b
+    }
+
+    /// The square of the speed reachable at the far end from speed² `v2`
+    /// at one end (no root for a trapezoid).
+    #[inline]
+    pub(crate) fn reach2(&self, v2: f64) -> f64 {
+        if self.bands.is_none() && self.jerk == f64::INFINITY {
+            return v2 + 2.0 * self.acc * self.len;
+        }
+        let r = self.reach_shaped(v2.sqrt());
+        r * r
+    }
+
     /// The entry-speed bound of the backward pass: the junction's, raised
     /// to the floor a feed-scale change may leave.
     pub(crate) fn bound(&self) -> f64 {
         self.junction_max.max(self.floor)
     }
 
-    /// The speed reachable at the far end of this segment from `v` at one end.
-    pub(crate) fn reach(&self, v: f64) -> f64 {
+    /// The speed an S-curve or banded ramp from `v` reaches at the far end.
+    #[inline(never)]
+    fn reach_shaped(&self, v: f64) -> f64 {
         match &self.bands {
             Some(b) => b.reach(v, self.len),
             None => ramp_reach(v, self.len, self.acc, self.jerk),
