@@ -127,10 +127,9 @@ proptest::proptest! {
         let k = sample_all(&mut p, dt_us);
         proptest::prop_assert!(k.len() > 100, "{} samples", k.len());
         for w in k.windows(2) {
-            let mut da = [0.0; 3];
-            for i in 0..3 {
-                da[i] = w[1].acc[i] - w[0].acc[i];
-                proptest::prop_assert!(da[i].abs() <= jerk * dt * (1.0 + 1e-6) + 1e-6, "axis {i}: Δa {}", da[i]);
+            let da: [f64; 3] = std::array::from_fn(|i| w[1].acc[i] - w[0].acc[i]);
+            for (i, d) in da.iter().enumerate() {
+                proptest::prop_assert!(d.abs() <= jerk * dt * (1.0 + 1e-6) + 1e-6, "axis {i}: Δa {d}");
             }
             proptest::prop_assert!(norm(&da) <= jerk * dt * (1.0 + 1e-6) + 1e-6);
             proptest::prop_assert!(norm(&w[1].acc) <= 2500.0 * (1.0 + 1e-9));

@@ -49,6 +49,10 @@ pub struct MotionStatus {
     pub executed: u64,
 }
 
+/// A sample kept for a recording: the stamp, the machine position sent to
+/// the motors, and the planner's position before input shaping.
+pub type Recorded = (u64, [f64; MAX_AXES], [f64; MAX_AXES]);
+
 /// The planner, the drive and what they produced.
 pub struct Motion {
     /// The lookahead planner, in machine coordinates (3 slots).
@@ -57,9 +61,8 @@ pub struct Motion {
     pub drive: Drive,
     /// No points are sent while set (recovering motors).
     pub paused: bool,
-    /// Samples kept for a recording: (stamp, machine position sent to the
-    /// motors, the planner's position before input shaping).
-    pub record: Option<Vec<(u64, [f64; MAX_AXES], [f64; MAX_AXES])>>,
+    /// Samples kept for a recording.
+    pub record: Option<Vec<Recorded>>,
     recent: VecDeque<(u64, [f64; MAX_AXES])>,
     /// The motor positions sent last.
     pub last_motors: Vec<f64>,

@@ -332,17 +332,14 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                 let mut spec = ModuleSpec::new(&name, "stepper");
                 if let Some((motor_key, motor)) = motor_of.get(key).map(|m| (*m, &cfg.motors[*m])) {
                     // A motor with datasheet values stalls as it would.
-                    let rotor = match motor.model {
-                        Some(keys) => Some(RotorSpec {
-                            model: keys.model(),
-                            load_inertia_kgm2: loads
-                                .iter()
-                                .find(|(n, _)| n == motor_key)
-                                .map_or(0.0, |l| l.1),
-                            damping_ratio: 0.3,
-                        }),
-                        None => None,
-                    };
+                    let rotor = motor.model.map(|keys| RotorSpec {
+                        model: keys.model(),
+                        load_inertia_kgm2: loads
+                            .iter()
+                            .find(|(n, _)| n == motor_key)
+                            .map_or(0.0, |l| l.1),
+                        damping_ratio: 0.3,
+                    });
                     spec = spec.with_motor(MotorSpec {
                         full_steps_per_unit: motor.full_steps_per_unit,
                         rotor,

@@ -464,7 +464,8 @@ pub(crate) fn ramp_reach(v: f64, len: f64, acc: f64, jerk: f64) -> f64 {
     for _ in 0..30 {
         let f = u * u * u + p * u - q;
         let next = u - f / (3.0 * u * u + p);
-        if !(next < u) || next <= 0.0 {
+        // Stop once it no longer falls (or is not a number).
+        if next.partial_cmp(&u) != Some(core::cmp::Ordering::Less) || next <= 0.0 {
             break;
         }
         u = next;
