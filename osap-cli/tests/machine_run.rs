@@ -74,6 +74,8 @@ fn plotter_draws_the_example_drawing() {
         "executed duration",
         "largest following error x",
         "largest following error y",
+        "largest vibration x",
+        "largest vibration y",
         "faults: none",
         "wrote 5 files to out",
     ] {
@@ -89,10 +91,11 @@ fn plotter_draws_the_example_drawing() {
         let p = dir.join("out").join(f);
         assert!(p.metadata().map(|m| m.len() > 100).unwrap_or(false), "{f}");
     }
-    // Header, seconds, machine axes by name; executed at ≥ 1 kHz.
+    // Header, seconds, machine axes by name, the simulated vibration of
+    // the axes with a [sim.axes] resonance; executed at ≥ 1 kHz.
     let executed = std::fs::read_to_string(dir.join("out/executed.csv")).unwrap();
     let mut lines = executed.lines();
-    assert_eq!(lines.next(), Some("t,x,y"));
+    assert_eq!(lines.next(), Some("t,x,y,vibration_x,vibration_y"));
     let times: Vec<f64> = lines
         .map(|l| l.split(',').next().unwrap().parse().unwrap())
         .collect();
