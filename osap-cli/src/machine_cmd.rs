@@ -467,6 +467,36 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         .map_err(Failure::from_machine)?;
     if args.target.sim {
         recording.vibration = osap_machine::sim::vibration(&cfg, &recording);
+        // Each stall on the recording's clock: the host's clock now and
+        // the synchronized time now pair the two.
+        let spans = machine.sim_stall_spans();
+        if !spans.is_empty() {
+            let now = osap_host::clock::now();
+            let sync_now = machine.now_us().await.map_err(Failure::from_machine)?;
+            let at = |t: f64| -> std::time::Instant {
+                let sync = t0 as f64 + t * 1e6;
+                let back =
+                    std::time::Duration::from_secs_f64(((sync_now as f64 - sync) * 1e-6).max(0.0));
+                now.checked_sub(back).unwrap_or(now)
+            };
+            recording.stalled = spans
+                .into_iter()
+                .map(|(motor, spans)| {
+                    let flags = recording
+                        .executed
+                        .iter()
+                        .map(|e| {
+                            let i = at(e.t);
+                            let stalled = spans
+                                .iter()
+                                .any(|(a, b)| *a <= i && b.is_none_or(|b| i < b));
+                            f64::from(u8::from(stalled))
+                        })
+                        .collect();
+                    (motor, flags)
+                })
+                .collect();
+        }
     }
 
     // What the simulated melt and motors did, read before the machine stops.

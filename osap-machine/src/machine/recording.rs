@@ -110,6 +110,7 @@ impl Machine {
             executed,
             unshaped,
             vibration: Vec::new(),
+            stalled: Vec::new(),
         })
     }
 }

@@ -71,10 +71,16 @@ pub struct Recording {
     /// sample, machine units). Written as `vibration_AXIS` columns of
     /// `executed.csv`.
     pub vibration: Vec<(String, Vec<f64>)>,
+    /// A simulated run's stalled motors: (motor key, 1 at every
+    /// [`Recording::executed`] sample while the motor was stalled, else
+    /// 0). Written as `stalled_MOTOR` columns of `executed.csv`.
+    pub stalled: Vec<(String, Vec<f64>)>,
 }
 
 /// The prefix of a vibration column's name in `executed.csv`.
 pub const VIBRATION_PREFIX: &str = "vibration_";
+/// The prefix of a stalled motor's column in `executed.csv`.
+pub const STALLED_PREFIX: &str = "stalled_";
 
 /// Why a recording could not be written or read; every variant names the
 /// file.
@@ -164,15 +170,25 @@ impl Recording {
     /// A sample whose length does not match the axes, or an axis name with
     /// a comma, quote or line break, is refused before anything is written.
     pub fn write_csv(&self, dir: &Path) -> Result<Vec<PathBuf>, RecordError> {
+        let executed_extra: Vec<(String, &[f64])> = self
+            .vibration
+            .iter()
+            .map(|(a, v)| (format!("{VIBRATION_PREFIX}{a}"), &v[..]))
+            .chain(
+                self.stalled
+                    .iter()
+                    .map(|(m, v)| (format!("{STALLED_PREFIX}{m}"), &v[..])),
+            )
+            .collect();
         let files = [
             (dir.join(PLANNED_CSV), &self.planned, &[][..]),
-            (dir.join(EXECUTED_CSV), &self.executed, &self.vibration[..]),
+            (dir.join(EXECUTED_CSV), &self.executed, &executed_extra[..]),
         ];
         for (path, samples, extra) in &files {
             if let Some((name, values)) = extra.iter().find(|(_, v)| v.len() != samples.len()) {
                 return Err(RecordError::Column {
                     path: path.clone(),
-                    name: format!("{VIBRATION_PREFIX}{name}"),
+                    name: name.clone(),
                     len: values.len(),
                     samples: samples.len(),
                 });
@@ -214,7 +230,14 @@ impl Recording {
     pub fn read_csv(dir: &Path) -> Result<Recording, RecordError> {
         let (axes, planned, _) = read_samples(&dir.join(PLANNED_CSV))?;
         let path = dir.join(EXECUTED_CSV);
-        let (executed_axes, executed, vibration) = read_samples(&path)?;
+        let (executed_axes, executed, extra) = read_samples(&path)?;
+        let pick = |prefix: &str| -> Vec<(String, Vec<f64>)> {
+            extra
+                .iter()
+                .filter_map(|(n, v)| Some((n.strip_prefix(prefix)?.to_string(), v.clone())))
+                .collect()
+        };
+        let (vibration, stalled) = (pick(VIBRATION_PREFIX), pick(STALLED_PREFIX));
         if executed_axes != axes {
             return Err(RecordError::Parse {
                 path,
@@ -228,6 +251,7 @@ impl Recording {
             executed,
             unshaped: Vec::new(),
             vibration,
+            stalled,
         })
     }
 
@@ -363,13 +387,13 @@ fn sub(a: &[f64], b: &[f64], f: impl Fn(f64, usize) -> f64) -> Vec<f64> {
         .collect()
 }
 
-/// Writes `t,<axes>,vibration_<axis>…`: the extra columns have one value
-/// per sample (checked by the caller).
+/// Writes `t,<axes>,<extra columns>`: each extra column (its full name)
+/// has one value per sample (checked by the caller).
 fn write_samples(
     path: &Path,
     axes: &[String],
     samples: &[Sample],
-    extra: &[(String, Vec<f64>)],
+    extra: &[(String, &[f64])],
 ) -> io::Result<()> {
     let mut w = BufWriter::new(fs::File::create(path)?);
     let mut line = String::from("t");
@@ -377,10 +401,9 @@ fn write_samples(
         line.push(',');
         line.push_str(a);
     }
-    for (a, _) in extra {
+    for (name, _) in extra {
         line.push(',');
-        line.push_str(VIBRATION_PREFIX);
-        line.push_str(a);
+        line.push_str(name);
     }
     writeln!(w, "{line}")?;
     for (i, s) in samples.iter().enumerate() {
@@ -398,7 +421,8 @@ fn write_samples(
     w.flush()
 }
 
-/// The axes, the samples and any vibration columns of a recording's CSV.
+/// The axes, the samples and any further columns (full names) of a
+/// recording's CSV.
 type ReadSamples = (Vec<String>, Vec<Sample>, Vec<(String, Vec<f64>)>);
 
 fn read_samples(path: &Path) -> Result<ReadSamples, RecordError> {
@@ -418,20 +442,15 @@ fn read_samples(path: &Path) -> Result<ReadSamples, RecordError> {
         ));
     }
     let names: Vec<String> = cols.map(str::to_string).collect();
-    // Vibration columns come after the axes.
+    // Vibration and stall columns come after the axes.
     let split = names
         .iter()
-        .position(|n| n.starts_with(VIBRATION_PREFIX))
+        .position(|n| n.starts_with(VIBRATION_PREFIX) || n.starts_with(STALLED_PREFIX))
         .unwrap_or(names.len());
     let axes = names[..split].to_vec();
     let mut vibration: Vec<(String, Vec<f64>)> = names[split..]
         .iter()
-        .map(|n| {
-            (
-                n[VIBRATION_PREFIX.len().min(n.len())..].to_string(),
-                Vec::new(),
-            )
-        })
+        .map(|n| (n.clone(), Vec::new()))
         .collect();
     let mut samples = Vec::new();
     for (i, l) in lines {

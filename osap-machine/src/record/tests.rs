@@ -35,6 +35,44 @@ fn ramp(v: f64, dt: f64, t_from: f64, n: usize, delay: f64, offset: [f64; 2]) ->
 }
 
 #[test]
+fn vibration_and_stall_columns_round_trip_and_must_fit() {
+    let mut rec = Recording {
+        axes: axes(&["x", "y"]),
+        planned: vec![s(0.0, &[0.0, 0.0]), s(0.002, &[0.1, 0.2])],
+        executed: vec![s(0.0, &[0.0, 0.0]), s(0.001, &[0.05, 0.1])],
+        unshaped: Vec::new(),
+        vibration: vec![
+            ("x".into(), vec![f64::NAN, 0.25]),
+            ("y".into(), vec![0.0, 1e-3]),
+        ],
+        stalled: vec![("a".into(), vec![0.0, 1.0])],
+    };
+    let dir = tmp("columns");
+    rec.write_csv(&dir).unwrap();
+    let text = fs::read_to_string(dir.join(EXECUTED_CSV)).unwrap();
+    assert_eq!(
+        text,
+        "t,x,y,vibration_x,vibration_y,stalled_a\n0,0,0,NaN,0,0\n0.001,0.05,0.1,0.25,0.001,1\n"
+    );
+    let back = Recording::read_csv(&dir).unwrap();
+    assert_eq!(back.axes, rec.axes);
+    assert_eq!(back.executed, rec.executed);
+    assert_eq!(back.stalled, rec.stalled);
+    assert_eq!(back.vibration[1], rec.vibration[1]);
+    assert_eq!(back.vibration[0].0, "x");
+    assert_eq!(back.vibration[0].1[1], 0.25);
+    assert_eq!(
+        back.largest_vibration(),
+        vec![("x".into(), 0.25), ("y".into(), 1e-3)]
+    );
+    // A column that does not fit the samples is refused, naming it.
+    rec.stalled[0].1.pop();
+    let e = rec.write_csv(&dir).unwrap_err().to_string();
+    assert!(e.contains("stalled_a has 1 values for 2 samples"), "{e}");
+    let _ = fs::remove_dir_all(&dir);
+}
+
+#[test]
 fn csv_round_trip() {
     let rec = Recording {
         axes: axes(&["x", "y"]),
@@ -46,6 +84,7 @@ fn csv_round_trip() {
         executed: vec![s(0.0005, &[0.05, f64::NAN])],
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     let dir = tmp("csv");
     let files = rec.write_csv(&dir.join("out")).unwrap();
@@ -86,6 +125,7 @@ fn csv_refuses_mismatched_samples_and_bad_names() {
         executed: vec![s(0.0, &[0.0, 0.0]), s(0.001, &[1.0])],
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     let e = rec.write_csv(&dir).unwrap_err();
     assert!(
@@ -135,6 +175,7 @@ fn following_error_of_offset_and_delay() {
         executed,
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     let fe = rec.following_error();
     assert_eq!(fe.len(), 2);
@@ -169,6 +210,7 @@ fn following_error_skips_what_it_cannot_use() {
         ],
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     // x: 0.75 - 0.5; y: NaN planned, so nothing to compare.
     assert_eq!(rec.following_error(), vec![("x".to_string(), 0.25)]);
@@ -185,6 +227,7 @@ fn following_error_skips_what_it_cannot_use() {
         executed: vec![s(1.0, &[2.5]), s(1.5, &[7.0])],
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     assert_eq!(one.following_error(), vec![("x".to_string(), 0.5)]);
     assert_eq!(one.planned_duration(), 0.0);
@@ -271,6 +314,7 @@ fn plots_written_and_small() {
         executed: circle(0.002, 0.0125),
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     let dir = tmp("plot");
     let files = rec.plot(&dir).unwrap();
@@ -302,6 +346,7 @@ fn plots_written_and_small() {
         executed: vec![s(0.2, &[2.0])],
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     assert_svgs(
         &one.plot(&dir.join("one")).unwrap(),
@@ -337,6 +382,7 @@ fn empty_and_degenerate_recordings() {
             executed: vec![s(0.0, &[1.0, 2.0])],
             unshaped: Vec::new(),
             vibration: Vec::new(),
+            stalled: Vec::new(),
         },
         Recording {
             axes: axes(&["x", "y", "z"]),
@@ -348,6 +394,7 @@ fn empty_and_degenerate_recordings() {
             executed: vec![s(0.5, &[]), s(0.5, &[f64::INFINITY, 0.0, f64::NAN])],
             unshaped: Vec::new(),
             vibration: Vec::new(),
+            stalled: Vec::new(),
         },
     ];
     for (i, rec) in odd.iter().enumerate() {
@@ -384,6 +431,7 @@ fn a_timeline_stacks_motion_and_streams() {
             .collect(),
         unshaped: Vec::new(),
         vibration: Vec::new(),
+        stalled: Vec::new(),
     };
     let stream = Stream {
         name: "z.analog_read(0).value".into(),

@@ -5,6 +5,7 @@
 use std::any::Any;
 use std::future::Future;
 use std::pin::Pin;
+use std::time::Instant;
 
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::board::melt::MeltStats;
@@ -14,6 +15,10 @@ use osap_sim::topology::MeltSpec;
 use crate::config::MachineFile;
 use crate::machine::{Machine, MachineError, Underneath, HOST_NAME};
 use crate::network::Entry;
+
+/// When a simulated motor stalled and when it held again (`None`: still
+/// stalled), on the host's clock.
+pub type StallSpan = (Instant, Option<Instant>);
 
 /// One simulated motor's stalls ([`Machine::sim_stalls`]).
 #[derive(Debug, Clone, PartialEq)]
@@ -124,6 +129,46 @@ impl Machine {
                 })
                 .flatten();
             out.extend(found);
+        }
+        out
+    }
+
+    /// When each simulated motor with a model was stalled: per `[motors]`
+    /// key, (start, end) on the host's clock ([`osap_host::clock::now`]'s);
+    /// `None` for a stall still going on. Empty when not simulated.
+    pub fn sim_stall_spans(&self) -> Vec<(String, Vec<StallSpan>)> {
+        let cfg = self.config();
+        let mut out = Vec::new();
+        for (key, motor) in &cfg.motors {
+            if motor.model.is_none() {
+                continue;
+            }
+            let Some(name) = super::module_name(cfg, &motor.module) else {
+                continue;
+            };
+            let spans = self
+                .with_sim(|s| {
+                    s.module(name).and_then(|sm| sm.module()).and_then(|sm| {
+                        sm.lock(|mm| {
+                            let clock = mm.board().clock();
+                            mm.board().motor().rotor().map(|r| {
+                                r.stalls()
+                                    .iter()
+                                    .map(|st| {
+                                        (
+                                            clock.instant_at(st.local),
+                                            st.end.map(|e| clock.instant_at(e)),
+                                        )
+                                    })
+                                    .collect::<Vec<_>>()
+                            })
+                        })
+                    })
+                })
+                .flatten();
+            if let Some(spans) = spans {
+                out.push((key.clone(), spans));
+            }
         }
         out
     }

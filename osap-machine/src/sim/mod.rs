@@ -59,7 +59,7 @@ mod machine;
 pub(crate) mod melt;
 mod vibration;
 
-pub use machine::{SimOptions, SimStalls};
+pub use machine::{SimOptions, SimStalls, StallSpan};
 /// What the simulated melt did ([`Machine::sim_melt`](crate::Machine::sim_melt)), and its law.
 pub use osap_sim::{machine::board::melt::MeltStats, topology::MeltSpec};
 pub use vibration::vibration;

@@ -37,6 +37,8 @@ pub struct Stall {
     pub local: Instant,
     /// Full steps sent while it was stalled.
     pub lost_full_steps: f64,
+    /// When it held again, local µs (`None` while still stalled).
+    pub end: Option<Instant>,
 }
 
 /// The rotor's state (see the module docs).
@@ -146,6 +148,9 @@ impl Rotor {
             }
             // Held again where it stands.
             self.stalled = false;
+            if let Some(s) = self.stalls.last_mut() {
+                s.end = Some(local);
+            }
             self.command = self.theta;
             self.omega = 0.0;
         }
@@ -159,6 +164,7 @@ impl Rotor {
             self.stalls.push(Stall {
                 local,
                 lost_full_steps: delta.abs(),
+                end: None,
             });
             return false;
         }
