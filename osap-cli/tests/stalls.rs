@@ -1,7 +1,8 @@
 //! `osap run --sim` on a mill whose motors have datasheet values: a job
 //! accelerating the 20 kg y gantry past what its NEMA 23 can give stalls
-//! the motor; the summary says so and `executed.csv`'s `stalled_y` column
-//! marks when. Within the motor's torque, nothing stalls.
+//! the motor; the summary says so, `executed.csv`'s `stalled_y` column
+//! marks when, and the run exits with the machine-fault code. Within the
+//! motor's torque, nothing stalls.
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -39,8 +40,9 @@ fn mill(accel: f64) -> String {
 }
 
 /// Runs the shuttle (y 40 mm out and back at 50 mm/s, five times) on the
-/// mill at `accel`; returns stdout and the `stalled_y` column.
-fn shuttle(accel: f64, dir: &std::path::Path) -> (String, Vec<f64>) {
+/// mill at `accel`; returns the exit code, stdout and the `stalled_y`
+/// column.
+fn shuttle(accel: f64, dir: &std::path::Path) -> (Option<i32>, String, Vec<f64>) {
     std::fs::create_dir_all(dir).unwrap();
     std::fs::copy(
         examples().join("machines/mill-mesh.toml"),
@@ -72,7 +74,7 @@ fn shuttle(accel: f64, dir: &std::path::Path) -> (String, Vec<f64>) {
         .unwrap();
     let stdout = String::from_utf8_lossy(&o.stdout).into_owned();
     let stderr = String::from_utf8_lossy(&o.stderr);
-    assert!(o.status.success(), "{stdout}\n{stderr}");
+    assert!(dir.join("out/executed.csv").exists(), "{stdout}\n{stderr}");
     let csv = std::fs::read_to_string(dir.join("out/executed.csv")).unwrap();
     let mut lines = csv.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
@@ -83,17 +85,25 @@ fn shuttle(accel: f64, dir: &std::path::Path) -> (String, Vec<f64>) {
     let column = lines
         .map(|l| l.split(',').nth(k).unwrap().parse().unwrap())
         .collect();
-    (stdout, column)
+    (o.status.code(), stdout, column)
 }
 
 #[test]
 fn a_stall_is_reported_and_marked_in_executed_csv() {
     let dir = std::env::temp_dir().join(format!("osap-stalls-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
-    let (calm, column) = shuttle(3000.0, &dir.join("calm"));
-    assert!(calm.contains("stalls: 0"), "{calm}");
+    let (code, calm, column) = shuttle(3000.0, &dir.join("calm"));
+    assert_eq!(code, Some(0), "{calm}");
+    assert!(
+        calm.contains("stalls: 0") && calm.contains("faults: none"),
+        "{calm}"
+    );
     assert!(column.iter().all(|&v| v == 0.0));
-    let (hard, column) = shuttle(28_000.0, &dir.join("hard"));
+    // A stall spoils the job: no "faults: none", and the run fails with
+    // the machine-fault code (3), as a fault's stop would.
+    let (code, hard, column) = shuttle(28_000.0, &dir.join("hard"));
+    assert_eq!(code, Some(3), "{hard}");
+    assert!(!hard.contains("faults: none"), "{hard}");
     assert!(hard.contains("stalls: 1"), "{hard}");
     assert!(hard.contains("error: motor y stalled 1 times"), "{hard}");
     // Stalled from the first acceleration at 50 mm/s until the job ends

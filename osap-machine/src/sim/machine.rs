@@ -9,6 +9,8 @@ use std::time::Instant;
 
 use osap_host::{Host, HostConfig};
 use osap_sim::machine::board::melt::MeltStats;
+use osap_sim::machine::board::rotor::Rotor;
+use osap_sim::machine::DriftClock;
 use osap_sim::machine::{SimMachine, TimeMode};
 use osap_sim::topology::MeltSpec;
 
@@ -101,76 +103,65 @@ impl Machine {
         .filter(|v| v.is_finite())
     }
 
-    /// The simulated motors' stalls so far: for each motor simulated with
-    /// its datasheet values (`[motors.NAME.model]`), its `[motors]` key,
-    /// how many times it stalled and the full steps it lost. Empty when
-    /// the machine is not simulated or no motor has a model.
-    pub fn sim_stalls(&self) -> Vec<SimStalls> {
+    /// `f` on each simulated motor's rotor (the motors with
+    /// `[motors.NAME.model]`) and its module's clock, with its `[motors]`
+    /// key.
+    fn each_rotor<R>(&self, mut f: impl FnMut(&Rotor, DriftClock) -> R) -> Vec<(String, R)> {
         let cfg = self.config();
         let mut out = Vec::new();
-        for (key, motor) in &cfg.motors {
-            if motor.model.is_none() {
-                continue;
-            }
+        for (key, motor) in cfg.motors.iter().filter(|(_, m)| m.model.is_some()) {
             let Some(name) = super::module_name(cfg, &motor.module) else {
                 continue;
             };
             let found = self
                 .with_sim(|s| {
-                    s.module(name).and_then(|sm| sm.module()).and_then(|sm| {
-                        sm.lock(|mm| {
-                            mm.board().motor().rotor().map(|r| SimStalls {
-                                motor: key.clone(),
-                                stalls: r.stalls().len(),
-                                lost_full_steps: r.stalls().iter().map(|s| s.lost_full_steps).sum(),
-                            })
-                        })
+                    let sm = s.module(name)?.module()?;
+                    sm.lock(|mm| {
+                        let clock = mm.board().clock();
+                        mm.board().motor().rotor().map(|r| f(r, clock))
                     })
                 })
                 .flatten();
-            out.extend(found);
+            out.extend(found.map(|r| (key.clone(), r)));
         }
         out
+    }
+
+    /// The simulated motors' stalls so far: for each motor simulated with
+    /// its datasheet values (`[motors.NAME.model]`), its `[motors]` key,
+    /// how many times it stalled and the full steps it lost. Empty when
+    /// the machine is not simulated or no motor has a model.
+    pub fn sim_stalls(&self) -> Vec<SimStalls> {
+        self.each_rotor(|r, _| {
+            (
+                r.stalls().len(),
+                r.stalls().iter().map(|s| s.lost_full_steps).sum(),
+            )
+        })
+        .into_iter()
+        .map(|(motor, (stalls, lost_full_steps))| SimStalls {
+            motor,
+            stalls,
+            lost_full_steps,
+        })
+        .collect()
     }
 
     /// When each simulated motor with a model was stalled: per `[motors]`
     /// key, (start, end) on the host's clock ([`osap_host::clock::now`]'s);
     /// `None` for a stall still going on. Empty when not simulated.
     pub fn sim_stall_spans(&self) -> Vec<(String, Vec<StallSpan>)> {
-        let cfg = self.config();
-        let mut out = Vec::new();
-        for (key, motor) in &cfg.motors {
-            if motor.model.is_none() {
-                continue;
-            }
-            let Some(name) = super::module_name(cfg, &motor.module) else {
-                continue;
-            };
-            let spans = self
-                .with_sim(|s| {
-                    s.module(name).and_then(|sm| sm.module()).and_then(|sm| {
-                        sm.lock(|mm| {
-                            let clock = mm.board().clock();
-                            mm.board().motor().rotor().map(|r| {
-                                r.stalls()
-                                    .iter()
-                                    .map(|st| {
-                                        (
-                                            clock.instant_at(st.local),
-                                            st.end.map(|e| clock.instant_at(e)),
-                                        )
-                                    })
-                                    .collect::<Vec<_>>()
-                            })
-                        })
-                    })
+        self.each_rotor(|r, clock| {
+            r.stalls()
+                .iter()
+                .map(|st| {
+                    (
+                        clock.instant_at(st.local),
+                        st.end.map(|e| clock.instant_at(e)),
+                    )
                 })
-                .flatten();
-            if let Some(spans) = spans {
-                out.push((key.clone(), spans));
-            }
-        }
-        out
+                .collect()
+        })
     }
 
     /// What the simulated melt behind the extruder did so far (its peak

@@ -309,6 +309,42 @@ impl<const N: usize> Segment<N> {
     }
 }
 
+/// The cruise speed of a profile over `len` from `v0` to `v1` within
+/// `v_max`: the highest whose two ramps (`ramps(vc)`, their length, which
+/// grows with `vc`) fit, found by bisection below `reach(max(v0, v1))`.
+/// An entry above `v_max` (a lowered feed scale) slows to `v_max` (or
+/// straight to `v1`, if higher).
+fn cruise_speed(
+    len: f64,
+    v0: f64,
+    v1: f64,
+    v_max: f64,
+    ramps: impl Fn(f64) -> f64,
+    reach: impl Fn(f64) -> f64,
+) -> f64 {
+    if v0 > v_max {
+        return v_max.max(v1);
+    }
+    let lo = v0.max(v1);
+    let hi = v_max.max(lo);
+    if ramps(hi) <= len {
+        return hi;
+    }
+    let (mut lo, mut hi) = (lo, reach(lo).min(hi));
+    if ramps(hi) <= len {
+        lo = hi;
+    }
+    while hi - lo > 1e-12 * hi.max(1.0) {
+        let mid = 0.5 * (lo + hi);
+        if ramps(mid) <= len {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
+}
+
 /// How many speed bands a speed-dependent acceleration is split into.
 pub const ACCEL_BANDS: usize = 6;
 
@@ -681,30 +717,7 @@ impl Profile {
             return Profile::plan(len, v0, v1, v_max, acc);
         }
         let ramps = |vc: f64| ramp_distance(v0, vc, acc, jerk) + ramp_distance(vc, v1, acc, jerk);
-        let vc = if v0 > v_max {
-            v_max.max(v1)
-        } else {
-            let lo = v0.max(v1);
-            let hi = v_max.max(lo);
-            if ramps(hi) <= len {
-                hi
-            } else {
-                // The ramps' length grows with the cruise speed: bisect.
-                let (mut lo, mut hi) = (lo, ramp_reach(lo, len, acc, jerk).min(hi));
-                if ramps(hi) <= len {
-                    lo = hi;
-                }
-                while hi - lo > 1e-12 * hi.max(1.0) {
-                    let mid = 0.5 * (lo + hi);
-                    if ramps(mid) <= len {
-                        lo = mid;
-                    } else {
-                        hi = mid;
-                    }
-                }
-                lo
-            }
-        };
+        let vc = cruise_speed(len, v0, v1, v_max, ramps, |v| ramp_reach(v, len, acc, jerk));
         let d_acc = ramp_distance(v0, vc, acc, jerk);
         let d_dec = ramp_distance(vc, v1, acc, jerk);
         let d_cruise = (len - d_acc - d_dec).max(0.0);
@@ -727,29 +740,7 @@ impl Profile {
     /// As [`Profile::plan`], with the ramps' acceleration in speed bands.
     pub fn plan_banded(len: f64, v0: f64, v1: f64, v_max: f64, bands: &AccelBands) -> Self {
         let ramps = |vc: f64| bands.distance(v0, vc) + bands.distance(vc, v1);
-        let vc = if v0 > v_max {
-            v_max.max(v1)
-        } else {
-            let lo = v0.max(v1);
-            let hi = v_max.max(lo);
-            if ramps(hi) <= len {
-                hi
-            } else {
-                let (mut lo, mut hi) = (lo, bands.reach(lo, len).min(hi));
-                if ramps(hi) <= len {
-                    lo = hi;
-                }
-                while hi - lo > 1e-12 * hi.max(1.0) {
-                    let mid = 0.5 * (lo + hi);
-                    if ramps(mid) <= len {
-                        lo = mid;
-                    } else {
-                        hi = mid;
-                    }
-                }
-                lo
-            }
-        };
+        let vc = cruise_speed(len, v0, v1, v_max, ramps, |v| bands.reach(v, len));
         let d_acc = bands.distance(v0, vc);
         let d_dec = bands.distance(vc, v1);
         let d_cruise = (len - d_acc - d_dec).max(0.0);
