@@ -554,6 +554,17 @@ pub struct Limits {
     pub torque_margin: f64,
 }
 
+impl Limits {
+    /// The toolhead's constant acceleration, units/s²: `acceleration`, or
+    /// none (infinite) when the motors' model bounds it instead.
+    pub fn vector_acceleration(&self) -> f64 {
+        match self.model {
+            Some(PlannerModel::Motors) => f64::INFINITY,
+            None => self.acceleration,
+        }
+    }
+}
+
 fn default_torque_margin() -> f64 {
     DEFAULT_TORQUE_MARGIN
 }

@@ -83,7 +83,7 @@ pub fn from_gcode_with(
     let mut at = start.to_vec();
     let mut retracted = false;
     let mut warnings: Vec<String> = job.warnings.iter().map(|w| w.to_string()).collect();
-    let (mut g29_said, mut limits_said) = (false, false);
+    let (mut g29_said, mut limits_said, mut model_capped_said) = (false, false, false);
     for step in &job.steps {
         let mv = match step.action {
             Action::Rapid { to } => {
@@ -213,8 +213,18 @@ pub fn from_gcode_with(
                 acceleration,
                 text,
             } => {
+                let model = cfg.limits.model.is_some();
                 let asked_more = velocity.is_some_and(|v| v > cfg.limits.velocity)
-                    || acceleration.is_some_and(|a| a > cfg.limits.acceleration);
+                    || acceleration.is_some_and(|a| a > cfg.limits.vector_acceleration());
+                if model && acceleration.is_some() && !model_capped_said {
+                    // The job's own acceleration is honoured as a ceiling,
+                    // which may leave the motors' model nothing to do.
+                    model_capped_said = true;
+                    warnings.push(format!(
+                        "line {}: {text} caps the acceleration the motors' model ([limits] model = \"motors\") plans with (said once)",
+                        step.line
+                    ));
+                }
                 if asked_more && !limits_said {
                     limits_said = true;
                     warnings.push(format!(

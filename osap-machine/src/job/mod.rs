@@ -379,7 +379,13 @@ impl Program {
                     acceleration,
                     ..
                 } => {
-                    let v = held_limits(cfg, *velocity, *acceleration);
+                    let now = planner.vector_limits();
+                    let v = held_limits(
+                        cfg,
+                        (now.max_speed, now.max_accel),
+                        *velocity,
+                        *acceleration,
+                    );
                     planner.set_vector_limits(VectorLimits {
                         max_speed: v.0,
                         max_accel: v.1,
@@ -425,18 +431,21 @@ fn tool_level(tool: &crate::config::Tool, level: Option<ToolLevel>) -> f64 {
 
 pub use crate::machine::motion::machine_planner;
 
-/// A job's toolhead speed and acceleration held to the machine file's
-/// (a figure not given keeps the file's).
+/// A job's toolhead speed and acceleration held to the machine file's; a
+/// figure the job did not give keeps its value `now` (an `M203` leaves
+/// the acceleration, and an `M204` the speed, as they were).
 pub fn held_limits(
     cfg: &MachineFile,
+    now: (f64, f64),
     velocity: Option<f64>,
     acceleration: Option<f64>,
 ) -> (f64, f64) {
-    let hold =
-        |asked: Option<f64>, file: f64| asked.filter(|v| *v > 0.0).map_or(file, |v| v.min(file));
+    let hold = |asked: Option<f64>, now: f64, file: f64| {
+        asked.filter(|v| *v > 0.0).map_or(now, |v| v.min(file))
+    };
     (
-        hold(velocity, cfg.limits.velocity),
-        hold(acceleration, cfg.limits.acceleration),
+        hold(velocity, now.0, cfg.limits.velocity),
+        hold(acceleration, now.1, cfg.limits.vector_acceleration()),
     )
 }
 
@@ -528,7 +537,12 @@ impl Machine {
                     acceleration,
                     ..
                 } => {
-                    let (v, a) = held_limits(self.config(), *velocity, *acceleration);
+                    let (v, a) = held_limits(
+                        self.config(),
+                        self.toolhead_limits(),
+                        *velocity,
+                        *acceleration,
+                    );
                     self.set_toolhead_limits(v, a)?;
                 }
                 Move::Progress(_) | Move::Layer(_) => {}

@@ -241,6 +241,14 @@ impl Machine {
             .set_feed_scale(scale)?)
     }
 
+    /// The toolhead's largest speed (mm/s) and acceleration (mm/s²; infinite
+    /// while the motors' model bounds it) now.
+    pub fn toolhead_limits(&self) -> (f64, f64) {
+        let m = lock_motion(&self.inner.motion);
+        let v = m.planner.vector_limits();
+        (v.max_speed, v.max_accel)
+    }
+
     /// Sets the toolhead's largest speed (mm/s) and acceleration (mm/s²)
     /// from now on, each held to the machine file's `[limits]` (a job's
     /// `M204`); the queue is replanned.
@@ -255,7 +263,7 @@ impl Machine {
         m.planner
             .set_vector_limits(maxl::blocks::planner::VectorLimits {
                 max_speed: velocity.min(l.velocity),
-                max_accel: acceleration.min(l.acceleration),
+                max_accel: acceleration.min(l.vector_acceleration()),
                 ..now
             })?;
         Ok(())

@@ -448,11 +448,7 @@ pub fn machine_planner(cfg: &MachineFile) -> Result<Planner<MAX_AXES>, MachineEr
             }
         }
     }
-    let vector_accel = if model.is_some() {
-        f64::INFINITY
-    } else {
-        cfg.limits.acceleration
-    };
+    let vector_accel = cfg.limits.vector_acceleration();
     // The toolhead's axes carry the path; a machine without x, y or z
     // (a rotary stage) plans over all its axes.
     let vector = VectorLimits::new(cfg.limits.velocity, vector_accel)?
