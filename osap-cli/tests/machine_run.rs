@@ -92,10 +92,14 @@ fn plotter_draws_the_example_drawing() {
         assert!(p.metadata().map(|m| m.len() > 100).unwrap_or(false), "{f}");
     }
     // Header, seconds, machine axes by name, the simulated vibration of
-    // the axes with a [sim.axes] resonance; executed at ≥ 1 kHz.
+    // the axes with a [sim.axes] resonance and the stalls of the motors
+    // with datasheet values; executed at ≥ 1 kHz.
     let executed = std::fs::read_to_string(dir.join("out/executed.csv")).unwrap();
     let mut lines = executed.lines();
-    assert_eq!(lines.next(), Some("t,x,y,vibration_x,vibration_y"));
+    assert_eq!(
+        lines.next(),
+        Some("t,x,y,vibration_x,vibration_y,stalled_a,stalled_b")
+    );
     let times: Vec<f64> = lines
         .map(|l| l.split(',').next().unwrap().parse().unwrap())
         .collect();

@@ -107,7 +107,21 @@ fn a_print_extrudes_what_its_gcode_says_and_only_once_the_hotend_is_hot() {
     assert!(text.contains("waited on heaters"), "{text}");
 
     let (header, executed) = csv(&out.join("executed.csv"));
-    assert_eq!(header, ["t", "x", "y", "z", "e"]);
+    // The motors with datasheet values (not the extruder's) get a stall
+    // column each.
+    assert_eq!(
+        header,
+        [
+            "t",
+            "x",
+            "y",
+            "z",
+            "e",
+            "stalled_a",
+            "stalled_b",
+            "stalled_z"
+        ]
+    );
     let e0 = executed[0][4];
     let e1 = executed.last().unwrap()[4];
     let extruded = e1 - e0;
