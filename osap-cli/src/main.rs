@@ -16,6 +16,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod bridge_cmd;
 mod call_cmd;
 mod capture_cmd;
 mod connection;
@@ -187,6 +188,11 @@ enum Command {
     },
     /// Run a simulated machine that other processes can connect to.
     Serve(serve_cmd::ServeArgs),
+    /// Serve a machine on zenoh (osap/NAME/info, state, events, call,
+    /// home, halt, job) until Ctrl-C; docs/fleet.md.
+    Bridge(bridge_cmd::BridgeArgs),
+    /// List every machine bridged on zenoh that this computer reaches.
+    Fleet(bridge_cmd::FleetArgs),
     /// The live machine in a browser: the graph of runtimes, links and
     /// pipes, link load, clocks, axes and faults; call functions, plot
     /// captures (docs/view.md).
@@ -214,6 +220,8 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::HeaterTune(args) => machine_result(heater_tune_cmd::heater_tune(args).await),
         Command::Rheo(args) => machine_result(rheo_cmd::rheo(args).await),
         Command::Capture(args) => machine_result(capture_cmd::capture(args).await),
+        Command::Bridge(args) => machine_result(bridge_cmd::bridge(args).await),
+        Command::Fleet(args) => machine_result(bridge_cmd::fleet(args).await),
         Command::View(args) => machine_result(view::view(args).await),
         Command::Home { target, axes } => machine_result(machine_cmd::home(target, axes).await),
         Command::Jog {
@@ -355,6 +363,7 @@ fn main() -> ExitCode {
         Command::HeaterTune(a) => a.target.virtual_time(),
         Command::Rheo(a) => a.target.virtual_time(),
         Command::Capture(a) => a.target.virtual_time(),
+        Command::Bridge(a) => a.target.virtual_time(),
         Command::Home { target, .. }
         | Command::Jog { target, .. }
         | Command::Move { target, .. }

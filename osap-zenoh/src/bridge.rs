@@ -1,10 +1,17 @@
 //! One machine served on a zenoh session (see the crate docs for the keys).
 //!
-//! Every queryable runs in its own task, and every query that takes time
-//! (a call, homing, a halt, a job) in a task of its own, so a halt is
-//! answered while a job runs.
+//! The bridge has two halves joined by channels:
+//!
+//! - the **machine side** runs on the machine's runtime (which may be a
+//!   simulation in virtual time): it samples the state, forwards events
+//!   and carries out requests, each in a task of its own, so a halt is
+//!   answered while a job runs;
+//! - the **zenoh side** runs on a multi-thread runtime in real time (zenoh
+//!   needs one): its queryables turn queries into requests, and it
+//!   publishes the latest state at its own real-time rate and every event.
+//!
+//! So zenoh's I/O never waits on the machine, nor the machine on zenoh.
 
-use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Duration;
 
@@ -14,6 +21,8 @@ use osap_machine::svg::{self, SvgOptions};
 use osap_machine::{Machine, MachineState};
 use pipes_core::control::ControlError;
 use serde_json::{json, Value as Json};
+use tokio::runtime::Handle;
+use tokio::sync::{mpsc, oneshot, watch};
 use tokio::task::JoinHandle;
 use zenoh::query::Query;
 use zenoh::Session;
@@ -32,7 +41,7 @@ pub const CALL_TIMEOUT: Duration = Duration::from_secs(2);
 pub struct BridgeOptions {
     /// The name in the keys (`osap/NAME/…`); default the machine file's.
     pub name: Option<String>,
-    /// How often `osap/NAME/state` is published.
+    /// How often `osap/NAME/state` is published (real time).
     pub state_period: Duration,
 }
 
@@ -57,32 +66,115 @@ fn zerr(e: impl std::fmt::Display) -> BridgeError {
     BridgeError::Zenoh(e.to_string())
 }
 
-/// A machine served on a zenoh session, until [`Bridge::close`].
-#[derive(Debug)]
-pub struct Bridge {
-    keys: MachineKeys,
-    tasks: Vec<JoinHandle<()>>,
-}
-
 /// An error reply: a name a program can match and a text a person reads.
 fn error(name: &str, message: impl std::fmt::Display) -> String {
     json!({ "error": name, "message": message.to_string() }).to_string()
 }
 
-async fn reply(query: &Query, result: Result<Json, String>) {
-    let sent = match result {
-        Ok(body) => query.reply(query.key_expr().clone(), body.to_string()).await,
-        Err(body) => query.reply_err(body).await,
+/// What a query asks of the machine side.
+#[derive(Debug)]
+enum Ask {
+    Info,
+    Call {
+        key: String,
+        payload: Option<Result<String, String>>,
+    },
+    Home,
+    Halt,
+    Job {
+        payload: Option<Result<String, String>>,
+        kind: Option<String>,
+    },
+}
+
+/// The one job a bridge runs at a time, and how a halt stops it.
+#[derive(Debug)]
+struct Jobs {
+    /// Held while a job runs (and while a halt stops one).
+    running: tokio::sync::Mutex<()>,
+    /// Set by a halt: the job stops queueing and ends.
+    cancel: watch::Sender<bool>,
+}
+
+/// How a queryable turns its query into a request.
+type AskOf = fn(&Query) -> Ask;
+
+/// One request and where its answer goes.
+#[derive(Debug)]
+struct Request {
+    ask: Ask,
+    answer: oneshot::Sender<Result<Json, String>>,
+}
+
+/// A machine served on a zenoh session, until [`Bridge::close`].
+#[derive(Debug)]
+pub struct Bridge {
+    keys: MachineKeys,
+    machine_tasks: Vec<JoinHandle<()>>,
+    zenoh_tasks: Vec<JoinHandle<()>>,
+}
+
+fn payload_text(q: &Query) -> Option<Result<String, String>> {
+    q.payload().map(|p| {
+        p.try_to_string()
+            .map(|t| t.into_owned())
+            .map_err(|e| e.to_string())
+    })
+}
+
+/// The zenoh side of one queryable: every query on `key` becomes a
+/// request, answered when the machine side answers.
+async fn serve_queries(
+    session: Session,
+    key: String,
+    requests: mpsc::UnboundedSender<Request>,
+    ask: AskOf,
+) {
+    let queryable = match session.declare_queryable(&key).await {
+        Ok(q) => q,
+        Err(e) => {
+            tracing::error!("zenoh queryable {key}: {e}");
+            return;
+        }
     };
-    if let Err(e) = sent {
-        tracing::warn!("zenoh reply to {}: {e}", query.key_expr());
+    while let Ok(q) = queryable.recv_async().await {
+        // A reply names the key it answers for: the declared one, or the
+        // query's own where the declared key has wildcards (a call).
+        let reply_key = if key.contains('*') {
+            q.key_expr().as_str().to_string()
+        } else {
+            key.clone()
+        };
+        let (answer, answered) = oneshot::channel();
+        let sent = requests.send(Request {
+            ask: ask(&q),
+            answer,
+        });
+        tokio::spawn(async move {
+            let result = match sent {
+                Ok(()) => answered
+                    .await
+                    .unwrap_or_else(|_| Err(error("stopped", "the bridge is stopping"))),
+                Err(_) => Err(error("stopped", "the bridge is stopping")),
+            };
+            let sent = match result {
+                Ok(body) => q.reply(reply_key, body.to_string()).await,
+                Err(body) => q.reply_err(body).await,
+            };
+            if let Err(e) = sent {
+                tracing::warn!("zenoh reply to {}: {e}", q.key_expr());
+            }
+        });
     }
 }
 
 impl Bridge {
-    /// Declares every key of `machine` on `session` and starts serving.
+    /// Serves `machine` on `session`. Call it on the machine's runtime;
+    /// `zenoh` is a handle of the multi-thread runtime the session was
+    /// opened on (the same runtime's when that is where the machine runs).
     pub async fn start(
-        session: &Session,
+        session: Session,
+        zenoh: Handle,
         machine: Machine,
         options: BridgeOptions,
     ) -> Result<Bridge, BridgeError> {
@@ -91,12 +183,22 @@ impl Bridge {
             .clone()
             .unwrap_or_else(|| machine.config().name.clone());
         let keys = MachineKeys::new(&name);
-        let mut tasks = Vec::new();
+        let mut machine_tasks = Vec::new();
+        let mut zenoh_tasks = Vec::new();
 
-        // Events first: nothing that happens from here on is missed.
-        let publisher = session.declare_publisher(keys.events()).await.map_err(zerr)?;
+        // Events: subscribed to before anything else, so nothing from
+        // here on is missed.
+        let events_pub = {
+            let (s, k) = (session.clone(), keys.events());
+            zenoh
+                .spawn(async move { s.declare_publisher(k).await })
+                .await
+        }
+        .map_err(zerr)?
+        .map_err(zerr)?;
+        let (event_tx, mut event_rx) = mpsc::unbounded_channel::<Json>();
         let mut events = machine.events();
-        tasks.push(tokio::spawn(async move {
+        machine_tasks.push(tokio::spawn(async move {
             loop {
                 let body = match events.recv().await {
                     Ok(e) => json::event(&e),
@@ -106,98 +208,130 @@ impl Bridge {
                     }
                     Err(tokio::sync::broadcast::error::RecvError::Closed) => break,
                 };
-                if let Err(e) = publisher.put(body.to_string()).await {
+                if event_tx.send(body).is_err() {
+                    break;
+                }
+            }
+        }));
+        zenoh_tasks.push(zenoh.spawn(async move {
+            while let Some(body) = event_rx.recv().await {
+                if let Err(e) = events_pub.put(body.to_string()).await {
                     tracing::warn!("zenoh events: {e}");
                 }
             }
         }));
 
-        let publisher = session.declare_publisher(keys.state()).await.map_err(zerr)?;
+        // State: sampled on the machine side, published in real time.
+        let state_pub = {
+            let (s, k) = (session.clone(), keys.state());
+            zenoh
+                .spawn(async move { s.declare_publisher(k).await })
+                .await
+        }
+        .map_err(zerr)?
+        .map_err(zerr)?;
+        let (state_tx, mut state_rx) = watch::channel(Json::Null);
         let m = machine.clone();
+        // The machine side samples at the same period on its own clock
+        // (virtual time samples as often in virtual seconds).
         let period = options.state_period;
-        tasks.push(tokio::spawn(async move {
+        machine_tasks.push(tokio::spawn(async move {
             let mut tick = tokio::time::interval(period);
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
             loop {
                 tick.tick().await;
                 let Ok(t) = m.now_us().await else { continue };
-                if let Err(e) = publisher.put(json::state(&m, t).to_string()).await {
+                if state_tx.send(json::state(&m, t)).is_err() {
+                    break;
+                }
+            }
+        }));
+        zenoh_tasks.push(zenoh.spawn(async move {
+            let mut tick = tokio::time::interval(period);
+            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+            loop {
+                tick.tick().await;
+                if state_rx.has_changed().is_err() {
+                    break;
+                }
+                let body = state_rx.borrow_and_update().clone();
+                if body.is_null() {
+                    continue;
+                }
+                if let Err(e) = state_pub.put(body.to_string()).await {
                     tracing::warn!("zenoh state: {e}");
                 }
             }
         }));
 
-        let queryable = session.declare_queryable(keys.info()).await.map_err(zerr)?;
-        let m = machine.clone();
-        tasks.push(tokio::spawn(async move {
-            while let Ok(q) = queryable.recv_async().await {
-                let info = serde_json::to_value(json::info(&m)).map_err(|e| error("internal", e));
-                reply(&q, info).await;
-            }
-        }));
-
-        let queryable = session.declare_queryable(keys.calls()).await.map_err(zerr)?;
+        // Requests: queries in, answers out.
+        let (request_tx, mut request_rx) = mpsc::unbounded_channel::<Request>();
+        let queryables: [(String, AskOf); 5] = [
+            (keys.info(), |_| Ask::Info),
+            (keys.calls(), |q| Ask::Call {
+                key: q.key_expr().as_str().to_string(),
+                payload: payload_text(q),
+            }),
+            (keys.home(), |_| Ask::Home),
+            (keys.halt(), |_| Ask::Halt),
+            (keys.job(), |q| Ask::Job {
+                payload: payload_text(q),
+                kind: q.parameters().get("type").map(String::from),
+            }),
+        ];
+        for (key, ask) in queryables {
+            zenoh_tasks.push(zenoh.spawn(serve_queries(
+                session.clone(),
+                key,
+                request_tx.clone(),
+                ask,
+            )));
+        }
         let (m, k) = (machine.clone(), keys.clone());
-        tasks.push(tokio::spawn(async move {
-            while let Ok(q) = queryable.recv_async().await {
-                let (m, k) = (m.clone(), k.clone());
+        let jobs = Arc::new(Jobs {
+            running: tokio::sync::Mutex::new(()),
+            cancel: watch::channel(false).0,
+        });
+        machine_tasks.push(tokio::spawn(async move {
+            while let Some(Request { ask, answer }) = request_rx.recv().await {
+                let (m, k, jobs) = (m.clone(), k.clone(), jobs.clone());
                 tokio::spawn(async move {
-                    let result = call(&m, &k, &q).await;
-                    reply(&q, result).await;
-                });
-            }
-        }));
-
-        let queryable = session.declare_queryable(keys.home()).await.map_err(zerr)?;
-        let m = machine.clone();
-        tasks.push(tokio::spawn(async move {
-            while let Ok(q) = queryable.recv_async().await {
-                let m = m.clone();
-                tokio::spawn(async move {
-                    let result = home(&m).await;
-                    reply(&q, result).await;
-                });
-            }
-        }));
-
-        let queryable = session.declare_queryable(keys.halt()).await.map_err(zerr)?;
-        let m = machine.clone();
-        tasks.push(tokio::spawn(async move {
-            while let Ok(q) = queryable.recv_async().await {
-                let m = m.clone();
-                tokio::spawn(async move {
-                    let result = match m.halt().await {
-                        Ok(r) => Ok(json!({
-                            "halted": r.is_complete(),
-                            "confirmed": r.confirmed,
-                            "unreachable": r.unreachable.iter().map(|u| u.module.clone()).collect::<Vec<_>>(),
-                        })),
-                        Err(e) => Err(error("halt_failed", e)),
+                    let result = match ask {
+                        Ask::Info => {
+                            serde_json::to_value(json::info(&m)).map_err(|e| error("internal", e))
+                        }
+                        Ask::Call { key, payload } => call(&m, &k, &key, payload).await,
+                        Ask::Home => home(&m).await,
+                        Ask::Halt => {
+                            // The job stops queueing moves first, so that
+                            // none follows the halt.
+                            jobs.cancel.send_replace(true);
+                            let held = jobs.running.lock().await;
+                            let r = halt(&m).await;
+                            jobs.cancel.send_replace(false);
+                            drop(held);
+                            r
+                        }
+                        Ask::Job { payload, kind } => match jobs.running.try_lock() {
+                            Err(_) => Err(error(
+                                "busy",
+                                "a job is running: wait for its reply, or halt it",
+                            )),
+                            Ok(_running) => {
+                                run_job(&m, payload, kind, jobs.cancel.subscribe()).await
+                            }
+                        },
                     };
-                    reply(&q, result).await;
+                    let _ = answer.send(result);
                 });
             }
         }));
 
-        let queryable = session.declare_queryable(keys.job()).await.map_err(zerr)?;
-        let m = machine.clone();
-        let busy = Arc::new(AtomicBool::new(false));
-        tasks.push(tokio::spawn(async move {
-            while let Ok(q) = queryable.recv_async().await {
-                if busy.swap(true, Ordering::AcqRel) {
-                    reply(&q, Err(error("busy", "a job is running: wait for its reply, or halt it"))).await;
-                    continue;
-                }
-                let (m, busy) = (m.clone(), busy.clone());
-                tokio::spawn(async move {
-                    let result = run_job(&m, &q).await;
-                    busy.store(false, Ordering::Release);
-                    reply(&q, result).await;
-                });
-            }
-        }));
-
-        Ok(Bridge { keys, tasks })
+        Ok(Bridge {
+            keys,
+            machine_tasks,
+            zenoh_tasks,
+        })
     }
 
     /// The keys it serves.
@@ -205,39 +339,62 @@ impl Bridge {
         &self.keys
     }
 
-    /// Stops serving: every key is undeclared.
+    /// Stops serving: every task ends and its keys are undeclared.
     pub fn close(self) {
-        for t in self.tasks {
+        for t in self.machine_tasks.into_iter().chain(self.zenoh_tasks) {
             t.abort();
         }
     }
 }
 
+async fn halt(machine: &Machine) -> Result<Json, String> {
+    match machine.halt().await {
+        Ok(r) => Ok(json!({
+            "halted": r.is_complete(),
+            "confirmed": r.confirmed,
+            "unreachable": r.unreachable.iter().map(|u| u.module.clone()).collect::<Vec<_>>(),
+        })),
+        Err(e) => Err(error("halt_failed", e)),
+    }
+}
+
 /// `osap/NAME/call/MODULE/FUNCTION` with a JSON array of arguments.
-async fn call(machine: &Machine, keys: &MachineKeys, q: &Query) -> Result<Json, String> {
-    let key = q.key_expr().as_str();
-    let (module, function) = keys
-        .parse_call(key)
-        .ok_or_else(|| error("bad_key", format!("{key}: ask osap/NAME/call/MODULE/FUNCTION")))?;
+async fn call(
+    machine: &Machine,
+    keys: &MachineKeys,
+    key: &str,
+    payload: Option<Result<String, String>>,
+) -> Result<Json, String> {
+    let (module, function) = keys.parse_call(key).ok_or_else(|| {
+        error(
+            "bad_key",
+            format!("{key}: ask osap/NAME/call/MODULE/FUNCTION"),
+        )
+    })?;
     let runtime = machine
         .modules()
         .get(module)
         .map(|m| m.runtime.clone())
         .ok_or_else(|| {
             let known: Vec<&String> = machine.modules().keys().collect();
-            error("unknown_module", format!("no module {module}: this machine has {known:?}"))
+            error(
+                "unknown_module",
+                format!("no module {module}: this machine has {known:?}"),
+            )
         })?;
-    let args: Vec<Json> = match q.payload() {
+    let args: Vec<Json> = match payload {
         None => Vec::new(),
         Some(p) => {
-            let text = p
-                .try_to_string()
-                .map_err(|e| error("bad_arguments", format!("the payload is not UTF-8: {e}")))?;
+            let text =
+                p.map_err(|e| error("bad_arguments", format!("the payload is not UTF-8: {e}")))?;
             if text.trim().is_empty() {
                 Vec::new()
             } else {
                 serde_json::from_str(&text).map_err(|e| {
-                    error("bad_arguments", format!("the payload must be a JSON array of arguments: {e}"))
+                    error(
+                        "bad_arguments",
+                        format!("the payload must be a JSON array of arguments: {e}"),
+                    )
                 })?
             }
         }
@@ -263,13 +420,23 @@ async fn call(machine: &Machine, keys: &MachineKeys, q: &Query) -> Result<Json, 
     }
     let mut values = Vec::with_capacity(args.len());
     for (input, arg) in inputs.iter().zip(&args) {
-        let bad = |why: String| error("bad_arguments", format!("input {} ({}): {why}", input.name, input.type_name));
-        let ty = input.ty().ok_or_else(|| bad("a type this build does not know".into()))?;
-        let text = json::argument_text(arg).ok_or_else(|| bad(format!("{arg} is not a number, bool or string")))?;
+        let bad = |why: String| {
+            error(
+                "bad_arguments",
+                format!("input {} ({}): {why}", input.name, input.type_name),
+            )
+        };
+        let ty = input
+            .ty()
+            .ok_or_else(|| bad("a type this build does not know".into()))?;
+        let text = json::argument_text(arg)
+            .ok_or_else(|| bad(format!("{arg} is not a number, bool or string")))?;
         values.push(parse_value(&ty, &text).map_err(|e| bad(e.to_string()))?);
     }
     match handle.call(&values).await {
-        Ok(outputs) => Ok(json!({ "outputs": outputs.iter().map(json::value).collect::<Vec<_>>() })),
+        Ok(outputs) => {
+            Ok(json!({ "outputs": outputs.iter().map(json::value).collect::<Vec<_>>() }))
+        }
         Err(SomError::Remote {
             error: ControlError::CallFailed(code),
             failure,
@@ -290,44 +457,71 @@ async fn call(machine: &Machine, keys: &MachineKeys, q: &Query) -> Result<Json, 
 /// `osap/NAME/home`: recovers a stopped or faulted machine (homing is what
 /// makes its position trustworthy again), then homes every axis.
 async fn home(machine: &Machine) -> Result<Json, String> {
-    if matches!(machine.state(), MachineState::Faulted(_) | MachineState::Stopped) {
-        machine.recover().await.map_err(|e| error("recover_failed", e))?;
+    if matches!(
+        machine.state(),
+        MachineState::Faulted(_) | MachineState::Stopped
+    ) {
+        machine
+            .recover()
+            .await
+            .map_err(|e| error("recover_failed", e))?;
     }
-    machine.home().await.map_err(|e| error("homing_failed", e))?;
+    machine
+        .home()
+        .await
+        .map_err(|e| error("homing_failed", e))?;
     Ok(json!({ "homed": machine.homed(), "position": machine.position() }))
 }
 
 /// The job a query carries: its text, and `type=gcode` or `type=svg`.
-fn read_job(machine: &Machine, q: &Query) -> Result<Program, String> {
+fn read_job(
+    machine: &Machine,
+    payload: Option<Result<String, String>>,
+    kind: Option<String>,
+) -> Result<Program, String> {
     let cfg = machine.config();
-    let text = match q.payload() {
-        Some(p) => p
-            .try_to_string()
-            .map_err(|e| error("bad_job", format!("the job is not UTF-8: {e}")))?
-            .into_owned(),
-        None => return Err(error("bad_job", "the query carries no job: put its text in the payload")),
+    let text = match payload {
+        Some(p) => p.map_err(|e| error("bad_job", format!("the job is not UTF-8: {e}")))?,
+        None => {
+            return Err(error(
+                "bad_job",
+                "the query carries no job: put its text in the payload",
+            ))
+        }
     };
-    match q.parameters().get("type") {
+    match kind.as_deref() {
         Some("gcode") => {
             let g = osap_machine::gcode::read_with(&text, &job::gcode_options(cfg, None))
                 .map_err(|e| error("bad_job", e))?;
             job::from_gcode(cfg, &g, &machine.position()).map_err(|e| error("bad_job", e))
         }
         Some("svg") => {
-            let drawing = svg::read(&text, &SvgOptions::default()).map_err(|e| error("bad_job", e))?;
+            let drawing =
+                svg::read(&text, &SvgOptions::default()).map_err(|e| error("bad_job", e))?;
             job::from_svg(cfg, &drawing, cfg.limits.velocity / 2.0).map_err(|e| error("bad_job", e))
         }
         other => Err(error(
             "bad_job",
-            format!("type={}: say type=gcode or type=svg in the selector", other.unwrap_or("(none)")),
+            format!(
+                "type={}: say type=gcode or type=svg in the selector",
+                other.unwrap_or("(none)")
+            ),
         )),
     }
 }
 
 /// `osap/NAME/job`: homes if needed, runs the job, and sums it up.
-async fn run_job(machine: &Machine, q: &Query) -> Result<Json, String> {
-    let program = read_job(machine, q)?;
-    if matches!(machine.state(), MachineState::Faulted(_) | MachineState::Stopped) {
+async fn run_job(
+    machine: &Machine,
+    payload: Option<Result<String, String>>,
+    kind: Option<String>,
+    mut cancel: watch::Receiver<bool>,
+) -> Result<Json, String> {
+    let program = read_job(machine, payload, kind)?;
+    if matches!(
+        machine.state(),
+        MachineState::Faulted(_) | MachineState::Stopped
+    ) {
         return Err(error(
             "not_ready",
             format!(
@@ -342,17 +536,32 @@ async fn run_job(machine: &Machine, q: &Query) -> Result<Json, String> {
         .iter()
         .map(|a| machine.config().axes[*a].homing.is_some())
         .collect();
-    if machine.homed().iter().zip(&homing).any(|(h, needs)| *needs && !h) {
-        machine.home().await.map_err(|e| error("homing_failed", e))?;
+    if machine
+        .homed()
+        .iter()
+        .zip(&homing)
+        .any(|(h, needs)| *needs && !h)
+    {
+        tokio::select! {
+            r = machine.home() => r.map_err(|e| error("homing_failed", e))?,
+            _ = cancel.wait_for(|c| *c) => return Err(error("halted", "halted while homing before the job")),
+        }
     }
     let cfg = machine.config();
     let planned_s = program
         .planned_seconds(cfg, &machine.position())
         .map_err(|e| error("bad_job", e))?;
-    machine.start_recording().await.map_err(|e| error("job_failed", e))?;
+    machine
+        .start_recording()
+        .await
+        .map_err(|e| error("job_failed", e))?;
     let t0 = machine.now_us().await.map_err(|e| error("job_failed", e))?;
     let began = tokio::time::Instant::now();
-    let result = machine.run_program(&program, |_| {}).await;
+    // A halt drops the program where it stands: no move is queued after it.
+    let result = tokio::select! {
+        r = machine.run_program(&program, |_| {}) => r.map(|_| ()).map_err(|e| e.to_string()),
+        _ = cancel.wait_for(|c| *c) => Err("halted by osap/NAME/halt".to_string()),
+    };
     let executed_s = began.elapsed().as_secs_f64();
     let following_error = match machine.take_recording(t0).await {
         Ok(r) => r.following_error().into_iter().collect(),
@@ -360,7 +569,7 @@ async fn run_job(machine: &Machine, q: &Query) -> Result<Json, String> {
     };
     let mut faults = Vec::new();
     if let Err(e) = result {
-        faults.push(e.to_string());
+        faults.push(e);
     }
     if let MachineState::Faulted(reason) = machine.state() {
         if !faults.iter().any(|f| f.contains(&reason)) {

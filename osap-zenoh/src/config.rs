@@ -75,7 +75,11 @@ fn read_file(path: &Path) -> Result<(zenoh::Config, FileSets), ConfigError> {
     Ok((config, sets))
 }
 
-fn insert(config: &mut zenoh::Config, key: &str, value: serde_json::Value) -> Result<(), ConfigError> {
+fn insert(
+    config: &mut zenoh::Config,
+    key: &str,
+    value: serde_json::Value,
+) -> Result<(), ConfigError> {
     config
         .insert_json5(key, &value.to_string())
         .map_err(|e| ConfigError::Zenoh(format!("{key}: {e}")))
@@ -118,7 +122,8 @@ fn on_loopback(address: &str) -> bool {
         _ => address,
     };
     let host = host.trim_start_matches('[').trim_end_matches(']');
-    host.eq_ignore_ascii_case("localhost") || host.parse::<IpAddr>().is_ok_and(|ip| ip.is_loopback())
+    host.eq_ignore_ascii_case("localhost")
+        || host.parse::<IpAddr>().is_ok_and(|ip| ip.is_loopback())
 }
 
 /// Checks that no endpoint of `config` exposes the machine to peers that
@@ -170,7 +175,11 @@ impl ZenohOptions {
             insert(&mut config, "scouting/multicast/enabled", false.into())?;
         }
         if !self.connect.is_empty() {
-            insert(&mut config, "connect/endpoints", self.connect.clone().into())?;
+            insert(
+                &mut config,
+                "connect/endpoints",
+                self.connect.clone().into(),
+            )?;
         }
         Ok((config, sets))
     }
@@ -199,7 +208,11 @@ impl ZenohOptions {
             insert(&mut config, "listen/endpoints", serde_json::json!([]))?;
         }
         if self.connect.is_empty() && endpoints(&config, "connect/endpoints").is_empty() {
-            insert(&mut config, "connect/endpoints", vec![DEFAULT_LISTEN].into())?;
+            insert(
+                &mut config,
+                "connect/endpoints",
+                vec![DEFAULT_LISTEN].into(),
+            )?;
         }
         Ok(config)
     }
@@ -274,7 +287,11 @@ mod tests {
         .unwrap();
         assert_eq!(endpoints(&c, "listen/endpoints"), ["tcp/127.0.0.1:7600"]);
         assert_eq!(c.get_json("scouting/multicast/enabled").unwrap(), "true");
-        let e = bridge(&[], Some(r#"{ listen: { endpoints: ["tcp/0.0.0.0:7600"] } }"#)).unwrap_err();
+        let e = bridge(
+            &[],
+            Some(r#"{ listen: { endpoints: ["tcp/0.0.0.0:7600"] } }"#),
+        )
+        .unwrap_err();
         assert!(matches!(e, ConfigError::Exposed { .. }), "{e}");
         let e = bridge(&[], Some("{ not json5")).unwrap_err();
         assert!(matches!(e, ConfigError::File { .. }), "{e}");

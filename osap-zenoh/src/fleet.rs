@@ -37,7 +37,10 @@ pub async fn list(session: &Session, timeout: Duration) -> Result<Vec<Found>, St
             .unwrap_or(key)
             .to_string();
         let text = sample.payload().try_to_string().map(|t| t.into_owned());
-        match text.ok().and_then(|t| serde_json::from_str::<Info>(&t).ok()) {
+        match text
+            .ok()
+            .and_then(|t| serde_json::from_str::<Info>(&t).ok())
+        {
             Some(info) => found.push(Found { key_name, info }),
             None => tracing::warn!("{key}: not a machine's info"),
         }

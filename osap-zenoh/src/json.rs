@@ -57,7 +57,11 @@ pub fn state(machine: &Machine, t_us: u64) -> Json {
         .map(String::as_str)
         .zip(machine.position())
         .collect();
-    let homed: BTreeMap<&str, bool> = axes.iter().map(String::as_str).zip(machine.homed()).collect();
+    let homed: BTreeMap<&str, bool> = axes
+        .iter()
+        .map(String::as_str)
+        .zip(machine.homed())
+        .collect();
     let s = machine.state();
     let mut out = json!({
         "t": t_us as f64 * 1e-6,
@@ -143,7 +147,9 @@ pub fn value(v: &Value<'static>) -> Json {
         Value::U16(x) => (*x).into(),
         Value::U32(x) => (*x).into(),
         Value::U64(x) => (*x).into(),
-        Value::F32(x) => serde_json::Number::from_f64(f64::from(*x)).map_or(Json::Null, Json::Number),
+        Value::F32(x) => {
+            serde_json::Number::from_f64(f64::from(*x)).map_or(Json::Null, Json::Number)
+        }
         Value::F64(x) => serde_json::Number::from_f64(*x).map_or(Json::Null, Json::Number),
         other => other.to_string().into(),
     }

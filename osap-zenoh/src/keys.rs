@@ -106,7 +106,10 @@ mod tests {
         let k = MachineKeys::new("lab/3*");
         assert_eq!(k.name(), "lab_3_");
         assert_eq!(k.info(), "osap/lab_3_/info");
-        assert_eq!(k.call("a", "get_position"), "osap/lab_3_/call/a/get_position");
+        assert_eq!(
+            k.call("a", "get_position"),
+            "osap/lab_3_/call/a/get_position"
+        );
     }
 
     #[test]
