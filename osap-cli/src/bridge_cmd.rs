@@ -51,6 +51,13 @@ pub(crate) struct BridgeArgs {
     /// How often the state is published, Hz (at least 10).
     #[arg(long, default_value_t = 20.0)]
     pub state_hz: f64,
+    /// A source published on osap/NAME/capture/SOURCE (repeatable), as
+    /// `osap capture` takes it: MODULE.FUNCTION[(ARGS)][.OUTPUT].
+    #[arg(long = "source", value_name = "SOURCE")]
+    pub sources: Vec<String>,
+    /// Sampling period of every source, µs.
+    #[arg(long, default_value_t = 1_000)]
+    pub period_us: u32,
 }
 
 /// zenoh runs on a multi-thread runtime of its own, in real time, whatever
@@ -128,18 +135,30 @@ pub(crate) async fn bridge(args: BridgeArgs) -> Result<ExitCode, Failure> {
     let options = BridgeOptions {
         name: args.name.clone(),
         state_period: Duration::from_secs_f64(1.0 / args.state_hz),
+        sources: args.sources.clone(),
+        period_us: args.period_us,
     };
-    let bridge = Bridge::start(
+    let started = Bridge::start(
         session.clone(),
         rt.handle().clone(),
         machine.clone(),
         options,
     )
-    .await
-    .map_err(|e| Failure {
-        code: FAULTED,
-        message: e.to_string(),
-    })?;
+    .await;
+    let bridge = match started {
+        Ok(b) => b,
+        Err(e) => {
+            let _ = machine.stop().await;
+            close(rt, session).await;
+            return Err(match e {
+                osap_zenoh::BridgeError::Source { .. } => Failure::refused(e.to_string()),
+                other => Failure {
+                    code: FAULTED,
+                    message: other.to_string(),
+                },
+            });
+        }
+    };
     println!(
         "machine {} bridged on zenoh as osap/{}/… (listening on {listening}); Ctrl-C stops",
         cfg.name,
@@ -148,7 +167,7 @@ pub(crate) async fn bridge(args: BridgeArgs) -> Result<ExitCode, Failure> {
     use std::io::Write;
     let _ = std::io::stdout().flush();
     interrupted().await;
-    bridge.close();
+    bridge.close().await;
     let stopped = machine.stop().await;
     close(rt, session).await;
     match stopped {

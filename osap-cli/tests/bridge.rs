@@ -80,7 +80,10 @@ async fn ask(
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_client_reads_info_state_and_events_calls_and_runs_a_job() {
-    let (_bridge, endpoint) = bridge("plotter.toml", &[]);
+    let (_bridge, endpoint) = bridge(
+        "plotter.toml",
+        &["--source", "a.analog_read(0)", "--period-us", "10000"],
+    );
     let s = client(&endpoint).await;
 
     let info = ask(&s, "osap/plotter/info", None, 5).await.unwrap();
@@ -105,6 +108,32 @@ async fn a_client_reads_info_state_and_events_calls_and_runs_a_job() {
         n += 1;
     }
     assert!(n >= 10, "{n} state messages in 2 s");
+    // A subscriber's queue is bounded: one nobody drains holds up the
+    // session's other replies. Undeclared once read.
+    drop(states);
+
+    // The capture: samples of a's analog input, in time order, every
+    // 10 ms of the (virtual) synchronized clock.
+    let samples = s
+        .declare_subscriber("osap/plotter/capture/a.analog_read(0)")
+        .await
+        .unwrap();
+    let mut times = Vec::new();
+    while times.len() < 50 {
+        let sample = tokio::time::timeout(Duration::from_secs(5), samples.recv_async())
+            .await
+            .expect("no capture samples")
+            .unwrap();
+        let v: Value = serde_json::from_str(&sample.payload().try_to_string().unwrap()).unwrap();
+        assert!(v["value"].is_number(), "{v}");
+        times.push(v["t"].as_f64().unwrap());
+    }
+    drop(samples);
+    // Stamped by a's clock: 10 ms apart, within its sync's corrections.
+    for w in times.windows(2).skip(1) {
+        let dt = w[1] - w[0];
+        assert!((0.00998..0.01002).contains(&dt), "{times:?}");
+    }
 
     // Any module function: a's position, then a call with a wrong count.
     let got = ask(&s, "osap/plotter/call/a/get_position", Some("[]".into()), 5)
@@ -208,6 +237,25 @@ fn two_bridges_and_fleet_lists_both() {
     assert!(lines[0].starts_with("plotter  plotter  idle"), "{text}");
     // The name's special characters are replaced in its keys.
     assert!(lines[1].starts_with("shop_mill_2  mill  idle"), "{text}");
+}
+
+#[test]
+fn a_bad_source_is_refused_with_2() {
+    let o = Command::new(env!("CARGO_BIN_EXE_osap"))
+        .arg("bridge")
+        .arg(examples().join("machines/plotter.toml"))
+        .args([
+            "--sim",
+            "--fast",
+            "--zenoh-listen",
+            &format!("tcp/127.0.0.1:{}", free_port()),
+        ])
+        .args(["--source", "a.no_such_function"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(2), "{err}");
+    assert!(err.contains("--source a.no_such_function"), "{err}");
 }
 
 #[test]

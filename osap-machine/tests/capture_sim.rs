@@ -219,3 +219,35 @@ fn bad_sources_are_refused_before_anything_is_wired() {
         m.stop().await.unwrap();
     });
 }
+
+/// A stream of a's analog input while the machine homes on a's switch:
+/// homing finishes, the samples arrive in order on the synchronized clock,
+/// and stopping the stream unwires it.
+#[test]
+fn a_stream_beside_homing_on_the_same_module() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start().await;
+        let (stream, rows) = m
+            .stream(&["a.analog_read(0)"], 10_000, 1 << 16)
+            .await
+            .unwrap();
+        assert_eq!(stream.series().len(), 1);
+        tokio::time::timeout(std::time::Duration::from_secs(60), m.home())
+            .await
+            .expect("homing hung beside the stream")
+            .unwrap();
+        let times: Vec<u64> = rows.try_iter().map(|r| r.time_us).collect();
+        assert!(times.len() > 100, "{} samples", times.len());
+        // Stamped by a's clock: 10 ms apart within its sync's corrections.
+        assert!(
+            times
+                .windows(2)
+                .skip(1)
+                .all(|w| (w[1] - w[0]).abs_diff(10_000) < 20),
+            "{times:?}"
+        );
+        stream.stop().await;
+        assert_eq!(pipes(&m, "a", "analog_read").await, 0);
+        m.stop().await.unwrap();
+    });
+}

@@ -43,6 +43,11 @@ pub struct BridgeOptions {
     pub name: Option<String>,
     /// How often `osap/NAME/state` is published (real time).
     pub state_period: Duration,
+    /// Sources sampled and published on `osap/NAME/capture/SOURCE`
+    /// (`MODULE.FUNCTION[(ARGS)][.OUTPUT]`, as `osap capture` takes them).
+    pub sources: Vec<String>,
+    /// Their sampling period, µs.
+    pub period_us: u32,
 }
 
 impl Default for BridgeOptions {
@@ -50,9 +55,14 @@ impl Default for BridgeOptions {
         BridgeOptions {
             name: None,
             state_period: DEFAULT_STATE_PERIOD,
+            sources: Vec::new(),
+            period_us: 1_000,
         }
     }
 }
+
+/// Samples a source's channel holds before it drops (and counts) them.
+const CAPTURE_QUEUE: usize = 1 << 16;
 
 /// Why a bridge could not start.
 #[derive(Debug, thiserror::Error)]
@@ -60,6 +70,14 @@ pub enum BridgeError {
     /// zenoh refused a declaration.
     #[error("zenoh: {0}")]
     Zenoh(String),
+    /// A capture source was refused.
+    #[error("--source {source_text}: {reason}")]
+    Source {
+        /// The source as given.
+        source_text: String,
+        /// Why.
+        reason: String,
+    },
 }
 
 fn zerr(e: impl std::fmt::Display) -> BridgeError {
@@ -112,6 +130,7 @@ pub struct Bridge {
     keys: MachineKeys,
     machine_tasks: Vec<JoinHandle<()>>,
     zenoh_tasks: Vec<JoinHandle<()>>,
+    streams: Vec<osap_machine::capture::Stream>,
 }
 
 fn payload_text(q: &Query) -> Option<Result<String, String>> {
@@ -327,10 +346,60 @@ impl Bridge {
             }
         }));
 
+        // Captures: each source streamed on its own, each sample
+        // published as it comes.
+        let mut streams = Vec::new();
+        for source in &options.sources {
+            let refused = |reason: String| BridgeError::Source {
+                source_text: source.clone(),
+                reason,
+            };
+            let (stream, rows) = machine
+                .stream(&[source.as_str()], options.period_us, CAPTURE_QUEUE)
+                .await
+                .map_err(|e| refused(e.to_string()))?;
+            let names: Vec<String> = stream.series().iter().map(|s| s.name.clone()).collect();
+            streams.push(stream);
+            let publisher = {
+                let (s, k) = (session.clone(), keys.capture(source));
+                zenoh
+                    .spawn(async move { s.declare_publisher(k).await })
+                    .await
+            }
+            .map_err(zerr)?
+            .map_err(zerr)?;
+            let (tx, mut rx) = mpsc::unbounded_channel::<Json>();
+            // The stream's channel blocks: a thread of its own moves its
+            // rows on, and ends when the stream stops.
+            std::thread::Builder::new()
+                .name(format!("capture {source}"))
+                .spawn(move || {
+                    while let Ok(row) = rows.recv() {
+                        let body = json!({
+                            "t": row.time_us as f64 * 1e-6,
+                            "value": row.value,
+                            "series": names.get(usize::from(row.series)),
+                        });
+                        if tx.send(body).is_err() {
+                            break;
+                        }
+                    }
+                })
+                .map_err(|e| refused(e.to_string()))?;
+            zenoh_tasks.push(zenoh.spawn(async move {
+                while let Some(body) = rx.recv().await {
+                    if let Err(e) = publisher.put(body.to_string()).await {
+                        tracing::warn!("zenoh capture: {e}");
+                    }
+                }
+            }));
+        }
+
         Ok(Bridge {
             keys,
             machine_tasks,
             zenoh_tasks,
+            streams,
         })
     }
 
@@ -339,8 +408,12 @@ impl Bridge {
         &self.keys
     }
 
-    /// Stops serving: every task ends and its keys are undeclared.
-    pub fn close(self) {
+    /// Stops serving: the captures are unwired, every task ends and its
+    /// keys are undeclared. Call it on the machine's runtime.
+    pub async fn close(self) {
+        for s in self.streams {
+            s.stop().await;
+        }
         for t in self.machine_tasks.into_iter().chain(self.zenoh_tasks) {
             t.abort();
         }

@@ -360,11 +360,6 @@ impl Machine {
         sources: &[&str],
         options: RecordOptions,
     ) -> Result<Recorder, CaptureError> {
-        if sources.is_empty() {
-            return Err(CaptureError::BadOptions(
-                "no source given: name one as MODULE.FUNCTION, e.g. x.get_position".into(),
-            ));
-        }
         if options.period_us < MIN_PERIOD_US {
             return Err(CaptureError::BadOptions(format!(
                 "period_us = {}: at least {MIN_PERIOD_US} µs",
@@ -378,6 +373,99 @@ impl Machine {
             Some(f) => f,
             None => Format::from_path(&options.out)?,
         };
+        let (resolved, series) = self.prepare(sources).await?;
+        let w = SampleWriter::create_as(&options.out, format, &series, options.writer)?;
+
+        let id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
+        let shared = Arc::new(Shared::default());
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Row>(options.queue_rows);
+        let (done_tx, done_rx) = tokio::sync::oneshot::channel();
+        {
+            let shared = shared.clone();
+            std::thread::Builder::new()
+                .name(format!("capture-{id}"))
+                .spawn(move || {
+                    let _ = done_tx.send(write_loop(w, rx, shared));
+                })
+                .map_err(|e| CaptureError::Io {
+                    path: options.out.clone(),
+                    source: e,
+                })?;
+        }
+        // Arrival stamps: the host's local clock, moved onto the
+        // synchronized one through the host runtime's time map.
+        let host = self.host().clone();
+        let map = host
+            .with_runtime(|rt, _| rt.time_map())
+            .await
+            .map_err(SomError::from)?;
+        let mut recorder = Recorder {
+            machine: self.clone(),
+            id,
+            path: options.out.clone(),
+            format,
+            series,
+            wired: Vec::new(),
+            shared: shared.clone(),
+            done: Some(done_rx),
+        };
+        recorder
+            .wire_all(&resolved, tx, map, options.period_us)
+            .await?;
+        Ok(recorder)
+    }
+
+    /// Streams `sources` (see [`crate::capture`]) instead of writing them:
+    /// every sample arrives on the returned channel as a [`Row`] (its
+    /// `series` indexes [`Stream::series`]). The channel holds
+    /// `queue_rows`; samples that find it full are dropped and counted in
+    /// [`Stream::stats`].
+    pub async fn stream(
+        &self,
+        sources: &[&str],
+        period_us: u32,
+        queue_rows: usize,
+    ) -> Result<(Stream, Receiver<Row>), CaptureError> {
+        if period_us < MIN_PERIOD_US {
+            return Err(CaptureError::BadOptions(format!(
+                "period_us = {period_us}: at least {MIN_PERIOD_US} µs"
+            )));
+        }
+        if queue_rows == 0 {
+            return Err(CaptureError::BadOptions("queue_rows must be > 0".into()));
+        }
+        let (resolved, series) = self.prepare(sources).await?;
+        let (tx, rx) = std::sync::mpsc::sync_channel::<Row>(queue_rows);
+        let map = self
+            .host()
+            .with_runtime(|rt, _| rt.time_map())
+            .await
+            .map_err(SomError::from)?;
+        let mut recorder = Recorder {
+            machine: self.clone(),
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            path: PathBuf::new(),
+            format: Format::Csv,
+            series,
+            wired: Vec::new(),
+            shared: Arc::new(Shared::default()),
+            done: None,
+        };
+        recorder.wire_all(&resolved, tx, map, period_us).await?;
+        Ok((Stream { recorder }, rx))
+    }
+
+    /// Every source parsed, resolved on the network and checked, and the
+    /// series they give, in order.
+    async fn prepare(
+        &self,
+        sources: &[&str],
+    ) -> Result<(Vec<Resolved>, Vec<SeriesInfo>), CaptureError> {
+        if sources.is_empty() {
+            return Err(CaptureError::BadOptions(
+                "no source given: name one as MODULE.FUNCTION, e.g. x.get_position".into(),
+            ));
+        }
         let specs: Vec<SourceSpec> = sources
             .iter()
             .map(|s| SourceSpec::parse(s))
@@ -424,57 +512,55 @@ impl Machine {
                 });
             }
         }
-        let w = SampleWriter::create_as(&options.out, format, &series, options.writer)?;
+        Ok((resolved, series))
+    }
+}
 
-        let id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
-        let shared = Arc::new(Shared::default());
-        let (tx, rx) = std::sync::mpsc::sync_channel::<Row>(options.queue_rows);
-        let (done_tx, done_rx) = tokio::sync::oneshot::channel();
-        {
-            let shared = shared.clone();
-            std::thread::Builder::new()
-                .name(format!("capture-{id}"))
-                .spawn(move || {
-                    let _ = done_tx.send(write_loop(w, rx, shared));
-                })
-                .map_err(|e| CaptureError::Io {
-                    path: options.out.clone(),
-                    source: e,
-                })?;
-        }
-        // Arrival stamps: the host's local clock, moved onto the
-        // synchronized one through the host runtime's time map.
-        let host = self.host().clone();
-        let map = host
-            .with_runtime(|rt, _| rt.time_map())
-            .await
-            .map_err(SomError::from)?;
-        let mut recorder = Recorder {
-            machine: self.clone(),
-            id,
-            path: options.out.clone(),
-            format,
-            series,
-            wired: Vec::new(),
-            shared: shared.clone(),
-            done: Some(done_rx),
-        };
-        let mut first_series = 0u16;
-        for r in &resolved {
-            let result = recorder
-                .wire(r, first_series, tx.clone(), map, options.period_us)
-                .await;
-            if let Err(e) = result {
-                recorder.unwire().await;
-                return Err(e);
-            }
-            first_series += r.series.len() as u16;
-        }
-        Ok(recorder)
+/// A stream of samples (see [`Machine::stream`]), until [`Stream::stop`].
+#[derive(Debug)]
+pub struct Stream {
+    recorder: Recorder,
+}
+
+impl Stream {
+    /// The series, in the order rows index them.
+    pub fn series(&self) -> &[SeriesInfo] {
+        self.recorder.series()
+    }
+
+    /// Samples received, dropped and stale so far.
+    pub fn stats(&self) -> RecorderStats {
+        self.recorder.stats()
+    }
+
+    /// Stops sampling and unwires the sources.
+    pub async fn stop(mut self) {
+        self.recorder.unwire().await;
     }
 }
 
 impl Recorder {
+    /// Wires every source, their series numbered in order; on an error
+    /// what was wired is unwired again.
+    async fn wire_all(
+        &mut self,
+        resolved: &[Resolved],
+        tx: SyncSender<Row>,
+        map: osap_core::clock::TimeMap,
+        period_us: u32,
+    ) -> Result<(), CaptureError> {
+        let mut first_series = 0u16;
+        for r in resolved {
+            let result = self.wire(r, first_series, tx.clone(), map, period_us).await;
+            if let Err(e) = result {
+                self.unwire().await;
+                return Err(e);
+            }
+            first_series += r.series.len() as u16;
+        }
+        Ok(())
+    }
+
     async fn wire(
         &mut self,
         r: &Resolved,
