@@ -63,7 +63,7 @@ pub(crate) struct BridgeArgs {
 /// zenoh runs on a multi-thread runtime of its own, in real time, whatever
 /// the machine's runtime is (a simulation in virtual time runs on one
 /// paused thread).
-fn zenoh_runtime() -> Result<tokio::runtime::Runtime, Failure> {
+pub(crate) fn zenoh_runtime() -> Result<tokio::runtime::Runtime, Failure> {
     tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("zenoh")
@@ -75,7 +75,7 @@ fn zenoh_runtime() -> Result<tokio::runtime::Runtime, Failure> {
         })
 }
 
-async fn open(
+pub(crate) async fn open(
     rt: &tokio::runtime::Runtime,
     config: zenoh::Config,
 ) -> Result<zenoh::Session, Failure> {
@@ -90,7 +90,7 @@ async fn open(
 }
 
 /// Closes the session where it runs, then lets the runtime go.
-async fn close(rt: tokio::runtime::Runtime, session: zenoh::Session) {
+pub(crate) async fn close(rt: tokio::runtime::Runtime, session: zenoh::Session) {
     let _ = rt.spawn(async move { session.close().await }).await;
     rt.shutdown_background();
 }

@@ -239,6 +239,93 @@ fn two_bridges_and_fleet_lists_both() {
     assert!(lines[1].starts_with("shop_mill_2  mill  idle"), "{text}");
 }
 
+/// A plain HTTP GET: the status and the body.
+fn http_get(addr: &str, path: &str) -> (u16, String) {
+    use std::io::{Read, Write};
+    let mut c = std::net::TcpStream::connect(addr).unwrap();
+    write!(
+        c,
+        "GET {path} HTTP/1.1\r\nHost: {addr}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    c.read_to_string(&mut text).unwrap();
+    let status = text[9..12].parse().unwrap();
+    let body = text
+        .split_once("\r\n\r\n")
+        .map_or("", |(_, b)| b)
+        .to_string();
+    (status, body)
+}
+
+#[test]
+fn the_fleet_view_shows_a_card_per_machine() {
+    let (_a, a) = bridge("plotter.toml", &[]);
+    let (_b, b) = bridge("mill.toml", &[]);
+    let mut view = Command::new(env!("CARGO_BIN_EXE_osap"))
+        .args([
+            "view",
+            "--zenoh",
+            &a,
+            "--zenoh",
+            &b,
+            "--http",
+            "127.0.0.1:0",
+        ])
+        .stdout(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut line = String::new();
+    BufReader::new(view.stdout.take().unwrap())
+        .read_line(&mut line)
+        .unwrap();
+    let _view = Killed(view);
+    let url = line.split_whitespace().last().unwrap().to_string();
+    let addr = url
+        .trim_start_matches("http://")
+        .trim_end_matches('/')
+        .to_string();
+    // Both machines, each with its info and a state, within 10 s.
+    let mut fleet = Value::Null;
+    for _ in 0..100 {
+        let (status, body) = http_get(&addr, "/api/fleet");
+        assert_eq!(status, 200, "{body}");
+        fleet = serde_json::from_str(&body).unwrap();
+        let ready = fleet.as_array().is_some_and(|m| {
+            m.len() == 2
+                && m.iter()
+                    .all(|c| c["info"].is_object() && c["state"].is_object())
+        });
+        if ready {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+    let names: Vec<&str> = fleet
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| c["name"].as_str().unwrap())
+        .collect();
+    assert_eq!(names, ["mill", "plotter"], "{fleet}");
+    assert_eq!(fleet[1]["info"]["kind"], "plotter", "{fleet}");
+    assert!(fleet[0]["state"]["position"]["z"].is_number(), "{fleet}");
+    let (status, page) = http_get(&addr, "/");
+    assert_eq!(status, 200);
+    assert!(
+        page.contains("Machines on zenoh") && page.contains("/machine/"),
+        "{page}"
+    );
+    let (status, one) = http_get(&addr, "/api/fleet/plotter");
+    assert_eq!(status, 200);
+    assert_eq!(
+        serde_json::from_str::<Value>(&one).unwrap()["name"],
+        "plotter"
+    );
+    assert_eq!(http_get(&addr, "/machine/plotter").0, 200);
+    assert_eq!(http_get(&addr, "/api/fleet/lathe").0, 404);
+}
+
 #[test]
 fn a_bad_source_is_refused_with_2() {
     let o = Command::new(env!("CARGO_BIN_EXE_osap"))

@@ -250,6 +250,7 @@ impl Bridge {
         .map_err(zerr)?
         .map_err(zerr)?;
         let (state_tx, mut state_rx) = watch::channel(Json::Null);
+        state_rx.mark_unchanged();
         let m = machine.clone();
         // The machine side samples at the same period on its own clock
         // (virtual time samples as often in virtual seconds).
@@ -265,21 +266,16 @@ impl Bridge {
                 }
             }
         }));
+        // Each sample is published as soon as it is taken, and at most
+        // twice a period in real time: a machine in virtual time samples
+        // faster than that, and its latest sample wins.
         zenoh_tasks.push(zenoh.spawn(async move {
-            let mut tick = tokio::time::interval(period);
-            tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
-            loop {
-                tick.tick().await;
-                if state_rx.has_changed().is_err() {
-                    break;
-                }
-                let body = state_rx.borrow_and_update().clone();
-                if body.is_null() {
-                    continue;
-                }
-                if let Err(e) = state_pub.put(body.to_string()).await {
+            while state_rx.changed().await.is_ok() {
+                let body = state_rx.borrow_and_update().to_string();
+                if let Err(e) = state_pub.put(body).await {
                     tracing::warn!("zenoh state: {e}");
                 }
+                tokio::time::sleep(period / 2).await;
             }
         }));
 

@@ -97,7 +97,7 @@ fn page(body: &'static str, kind: &'static str) -> Response {
 }
 
 /// Whether `given` is the token, compared in constant time.
-fn token_matches(expected: &str, given: &str) -> bool {
+pub(super) fn token_matches(expected: &str, given: &str) -> bool {
     let (a, b) = (expected.as_bytes(), given.as_bytes());
     a.len() == b.len() && a.iter().zip(b).fold(0u8, |d, (x, y)| d | (x ^ y)) == 0
 }
@@ -154,7 +154,7 @@ async fn same_page(
 /// On a loopback address, `host` must name it: its own text, or
 /// `localhost`, `127.0.0.1` or `[::1]` with its port (the port may be left
 /// out when it is 80).
-fn check_host(listen: std::net::SocketAddr, host: Option<&str>) -> Result<(), String> {
+pub(super) fn check_host(listen: std::net::SocketAddr, host: Option<&str>) -> Result<(), String> {
     if !listen.ip().is_loopback() {
         return Ok(());
     }

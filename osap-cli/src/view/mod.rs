@@ -12,6 +12,7 @@
 //! - a plain network (`osap view --sim TOPOLOGY | --port | --tcp`), with
 //!   no machine: the graph, links, clocks, functions and faults.
 
+mod fleet;
 mod http;
 mod info;
 mod poll;
@@ -71,6 +72,13 @@ pub(crate) struct ViewArgs {
     /// How often the page is updated, ms (at least 100: 10 Hz).
     #[arg(long, default_value_t = 200)]
     pub interval_ms: u64,
+    /// Instead of one machine: every machine bridged on zenoh (`osap
+    /// bridge`) reachable through this endpoint (repeatable), a card each.
+    #[arg(long = "zenoh", value_name = "ENDPOINT")]
+    pub zenoh: Vec<String>,
+    /// A zenoh config file for --zenoh (TLS, authentication).
+    #[arg(long = "zenoh-config", value_name = "FILE")]
+    pub zenoh_config: Option<PathBuf>,
 }
 
 /// What the server watches: the host, its model of the network, and the
@@ -119,6 +127,18 @@ impl ViewArgs {
                     "--token: at least 16 characters of A-Z, a-z, 0-9, - and _ (e.g. from `openssl rand -hex 16`)",
                 ));
             }
+        }
+        let fleet = !self.zenoh.is_empty() || self.zenoh_config.is_some();
+        let local = self.machine.is_some()
+            || self.sim.is_some()
+            || !self.ports.is_empty()
+            || !self.tcp.is_empty()
+            || self.job.is_some()
+            || self.captures.is_some();
+        if fleet && local {
+            return Err(Failure::refused(
+                "--zenoh views the machines bridged on zenoh: give it without a machine file, --sim, --port, --tcp, --job or --captures",
+            ));
         }
         if self.job.is_some() && self.machine_file().is_none() {
             return Err(Failure::refused(
@@ -204,6 +224,9 @@ impl ViewArgs {
 /// Runs `osap view`.
 pub(crate) async fn view(args: ViewArgs) -> Result<ExitCode, Failure> {
     args.check()?;
+    if !args.zenoh.is_empty() || args.zenoh_config.is_some() {
+        return fleet::view_fleet(args).await;
+    }
     let source = Arc::new(args.source().await?);
     let info = info::build(&source).await;
     let (state_tx, _) = tokio::sync::broadcast::channel::<String>(32);
