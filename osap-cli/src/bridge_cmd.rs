@@ -6,7 +6,7 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use clap::Args;
-use osap_zenoh::{Bridge, BridgeOptions, ZenohOptions};
+use osap_zenoh::{zenoh, Bridge, BridgeOptions, ZenohOptions};
 
 use crate::machine_cmd::{Failure, Target, FAULTED};
 

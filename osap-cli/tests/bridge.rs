@@ -10,6 +10,7 @@ use std::process::{Command, Stdio};
 use std::time::Duration;
 
 use common::Killed;
+use osap_zenoh::zenoh;
 use serde_json::{json, Value};
 
 fn examples() -> PathBuf {
@@ -153,6 +154,15 @@ async fn a_client_reads_info_state_and_events_calls_and_runs_a_job() {
         .await
         .unwrap_err();
     assert_eq!(refused["error"], "unknown_module", "{refused}");
+    // The module's own refusal, by its name and text.
+    let refused = ask(&s, "osap/plotter/call/z/analog_read", Some("[9]".into()), 5)
+        .await
+        .unwrap_err();
+    assert_eq!(refused["error"], "NoSuchPin", "{refused}");
+    assert!(
+        refused["message"].as_str().unwrap().contains("no such pin"),
+        "{refused}"
+    );
 
     // A small G-code job: the bridge homes first (the events say so),
     // then runs it and sums it up.
@@ -276,9 +286,8 @@ fn the_fleet_view_shows_a_card_per_machine() {
         .spawn()
         .unwrap();
     let mut line = String::new();
-    BufReader::new(view.stdout.take().unwrap())
-        .read_line(&mut line)
-        .unwrap();
+    let mut out = BufReader::new(view.stdout.take().unwrap());
+    out.read_line(&mut line).unwrap();
     let _view = Killed(view);
     let url = line.split_whitespace().last().unwrap().to_string();
     let addr = url

@@ -19,3 +19,6 @@ pub mod keys;
 pub use bridge::{Bridge, BridgeError, BridgeOptions};
 pub use config::{ConfigError, ZenohOptions};
 pub use keys::MachineKeys;
+/// The zenoh this crate is built on (its version and transports), for
+/// clients and the CLI.
+pub use zenoh;

@@ -144,8 +144,8 @@ pub(crate) async fn view_fleet(args: ViewArgs) -> Result<ExitCode, Failure> {
         Some(t) => format!("http://{listen}/?token={t}"),
         None => format!("http://{listen}/"),
     };
-    println!("osap view (fleet on zenoh): {url}");
-    println!("(Ctrl-C stops)");
+    // One line: whoever reads it may close the pipe after it.
+    println!("osap view (fleet on zenoh; Ctrl-C stops): {url}");
     let server = tokio::spawn(async move { axum::serve(listener, router).await });
     let _ = tokio::signal::ctrl_c().await;
     server.abort();
