@@ -21,6 +21,7 @@ mod call_cmd;
 mod capture_cmd;
 mod connection;
 mod flash_cmd;
+mod graph_cmd;
 mod halt_cmd;
 mod heater_tune_cmd;
 mod level_cmd;
@@ -101,6 +102,9 @@ enum Command {
     /// Call a runtime's PIPES function once: its outputs print one a
     /// line, a refusal by name (exit code 3).
     Call(call_cmd::CallArgs),
+    /// Save a network's wired dataflow graph to a file, or apply one.
+    #[command(subcommand)]
+    Graph(graph_cmd::GraphCommand),
     /// Update a module's firmware over the network: reboot it into its
     /// UF2 bootloader, copy FIRMWARE (a .uf2, or an ELF with its .uf2)
     /// onto the drive, check it came back, and optionally rename it.
@@ -336,6 +340,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Time(args) => time_cmd::time(args).await,
         Command::Flash(args) => flash_cmd::flash(args).await,
         Command::Call(args) => call_cmd::call(args).await,
+        Command::Graph(command) => graph_cmd::graph(command).await,
         Command::Serve(args) => serve_cmd::serve(args).await,
         Command::Keygen { file } => {
             Key::write_new(&file).map_err(|e| e.to_string())?;

@@ -32,6 +32,7 @@
 //! ```
 
 pub mod failure;
+pub mod graph;
 mod handle;
 mod host_class;
 mod host_fn;
