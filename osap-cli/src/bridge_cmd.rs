@@ -129,9 +129,24 @@ pub(crate) async fn bridge(args: BridgeArgs) -> Result<ExitCode, Failure> {
     let listening = config
         .get_json("listen/endpoints")
         .unwrap_or_else(|_| "[]".into());
-    let machine = args.target.start(&cfg).await?;
+    // zenoh first: an endpoint already in use fails before the machine
+    // is touched.
     let rt = zenoh_runtime()?;
-    let session = open(&rt, config).await?;
+    let session = match open(&rt, config).await {
+        Ok(s) => s,
+        Err(f) => {
+            // A runtime may not be dropped inside another's task.
+            rt.shutdown_background();
+            return Err(f);
+        }
+    };
+    let machine = match args.target.start(&cfg).await {
+        Ok(m) => m,
+        Err(f) => {
+            close(rt, session).await;
+            return Err(f);
+        }
+    };
     let options = BridgeOptions {
         name: args.name.clone(),
         state_period: Duration::from_secs_f64(1.0 / args.state_hz),
@@ -194,7 +209,14 @@ pub(crate) async fn fleet(args: FleetArgs) -> Result<ExitCode, Failure> {
         .client_config()
         .map_err(|e| Failure::refused(e.to_string()))?;
     let rt = zenoh_runtime()?;
-    let session = open(&rt, config).await?;
+    let session = match open(&rt, config).await {
+        Ok(s) => s,
+        Err(f) => {
+            // A runtime may not be dropped inside another's task.
+            rt.shutdown_background();
+            return Err(f);
+        }
+    };
     let timeout = Duration::from_millis(args.timeout_ms);
     let s = session.clone();
     let found = rt

@@ -336,6 +336,22 @@ fn the_fleet_view_shows_a_card_per_machine() {
 }
 
 #[test]
+fn a_second_bridge_on_a_taken_endpoint_fails_before_starting() {
+    let (_a, endpoint) = bridge("plotter.toml", &[]);
+    let o = Command::new(env!("CARGO_BIN_EXE_osap"))
+        .arg("bridge")
+        .arg(examples().join("machines/mill.toml"))
+        .args(["--sim", "--fast", "--zenoh-listen", &endpoint])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert_eq!(o.status.code(), Some(1), "{err}");
+    assert!(err.contains("zenoh"), "{err}");
+    // Nothing was served: the line that says so never came.
+    assert!(!String::from_utf8_lossy(&o.stdout).contains("bridged"));
+}
+
+#[test]
 fn a_bad_source_is_refused_with_2() {
     let o = Command::new(env!("CARGO_BIN_EXE_osap"))
         .arg("bridge")

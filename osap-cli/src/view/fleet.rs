@@ -72,8 +72,19 @@ pub(crate) async fn view_fleet(args: ViewArgs) -> Result<ExitCode, Failure> {
     }
     .client_config()
     .map_err(|e| Failure::refused(e.to_string()))?;
+    // The page's address first: a port in use fails before zenoh starts.
+    let listener = tokio::net::TcpListener::bind(args.http)
+        .await
+        .map_err(|e| Failure::refused(format!("--http {}: {e}", args.http)))?;
     let rt = zenoh_runtime()?;
-    let session = open(&rt, config).await?;
+    let session = match open(&rt, config).await {
+        Ok(s) => s,
+        Err(f) => {
+            // A runtime may not be dropped inside another's task.
+            rt.shutdown_background();
+            return Err(f);
+        }
+    };
     let fleet: Fleet = Arc::default();
 
     let mut tasks = Vec::new();
@@ -119,12 +130,13 @@ pub(crate) async fn view_fleet(args: ViewArgs) -> Result<ExitCode, Failure> {
         }
     }));
 
-    let listener = tokio::net::TcpListener::bind(args.http)
-        .await
-        .map_err(|e| Failure::refused(format!("--http {}: {e}", args.http)))?;
-    let listen = listener
-        .local_addr()
-        .map_err(|e| Failure::refused(e.to_string()))?;
+    let listen = match listener.local_addr() {
+        Ok(a) => a,
+        Err(e) => {
+            close(rt, session).await;
+            return Err(Failure::refused(e.to_string()));
+        }
+    };
     let app = FleetApp {
         fleet,
         token: args.token.clone(),
