@@ -60,33 +60,35 @@ pub(crate) struct BridgeArgs {
     pub period_us: u32,
 }
 
-/// zenoh runs on a multi-thread runtime of its own, in real time, whatever
-/// the machine's runtime is (a simulation in virtual time runs on one
-/// paused thread).
-pub(crate) fn zenoh_runtime() -> Result<tokio::runtime::Runtime, Failure> {
-    tokio::runtime::Builder::new_multi_thread()
+/// A zenoh session on a multi-thread runtime of its own, in real time,
+/// whatever the machine's runtime is (a simulation in virtual time runs on
+/// one paused thread). On an error the runtime is let go at once: a
+/// runtime may not be dropped inside another's task.
+pub(crate) async fn open_zenoh(
+    config: zenoh::Config,
+) -> Result<(tokio::runtime::Runtime, zenoh::Session), Failure> {
+    let failed = |message: String| Failure {
+        code: FAULTED,
+        message,
+    };
+    let rt = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(2)
         .thread_name("zenoh")
         .enable_all()
         .build()
-        .map_err(|e| Failure {
-            code: FAULTED,
-            message: format!("cannot start zenoh's runtime: {e}"),
-        })
-}
-
-pub(crate) async fn open(
-    rt: &tokio::runtime::Runtime,
-    config: zenoh::Config,
-) -> Result<zenoh::Session, Failure> {
-    rt.spawn(async move { zenoh::open(config).await.map_err(|e| e.to_string()) })
+        .map_err(|e| failed(format!("cannot start zenoh's runtime: {e}")))?;
+    let opened = rt
+        .spawn(async move { zenoh::open(config).await.map_err(|e| e.to_string()) })
         .await
         .map_err(|e| e.to_string())
-        .and_then(|r| r)
-        .map_err(|e| Failure {
-            code: FAULTED,
-            message: format!("zenoh: {e}"),
-        })
+        .and_then(|r| r);
+    match opened {
+        Ok(session) => Ok((rt, session)),
+        Err(e) => {
+            rt.shutdown_background();
+            Err(failed(format!("zenoh: {e}")))
+        }
+    }
 }
 
 /// Closes the session where it runs, then lets the runtime go.
@@ -131,15 +133,7 @@ pub(crate) async fn bridge(args: BridgeArgs) -> Result<ExitCode, Failure> {
         .unwrap_or_else(|_| "[]".into());
     // zenoh first: an endpoint already in use fails before the machine
     // is touched.
-    let rt = zenoh_runtime()?;
-    let session = match open(&rt, config).await {
-        Ok(s) => s,
-        Err(f) => {
-            // A runtime may not be dropped inside another's task.
-            rt.shutdown_background();
-            return Err(f);
-        }
-    };
+    let (rt, session) = open_zenoh(config).await?;
     let machine = match args.target.start(&cfg).await {
         Ok(m) => m,
         Err(f) => {
@@ -208,15 +202,7 @@ pub(crate) async fn fleet(args: FleetArgs) -> Result<ExitCode, Failure> {
         .options()
         .client_config()
         .map_err(|e| Failure::refused(e.to_string()))?;
-    let rt = zenoh_runtime()?;
-    let session = match open(&rt, config).await {
-        Ok(s) => s,
-        Err(f) => {
-            // A runtime may not be dropped inside another's task.
-            rt.shutdown_background();
-            return Err(f);
-        }
-    };
+    let (rt, session) = open_zenoh(config).await?;
     let timeout = Duration::from_millis(args.timeout_ms);
     let s = session.clone();
     let found = rt

@@ -17,19 +17,11 @@ fn examples() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../examples")
 }
 
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 /// Starts `osap bridge MACHINE --sim --fast` on a free loopback port with
 /// `extra` arguments; the process and its endpoint, once it says it
 /// serves.
 fn bridge(machine: &str, extra: &[&str]) -> (Killed, String) {
-    let endpoint = format!("tcp/127.0.0.1:{}", free_port());
+    let endpoint = format!("tcp/127.0.0.1:{}", common::free_port());
     let mut child = Command::new(env!("CARGO_BIN_EXE_osap"))
         .arg("bridge")
         .arg(examples().join("machines").join(machine))
@@ -360,7 +352,7 @@ fn a_bad_source_is_refused_with_2() {
             "--sim",
             "--fast",
             "--zenoh-listen",
-            &format!("tcp/127.0.0.1:{}", free_port()),
+            &format!("tcp/127.0.0.1:{}", common::free_port()),
         ])
         .args(["--source", "a.no_such_function"])
         .output()

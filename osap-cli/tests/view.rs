@@ -84,15 +84,6 @@ fn wait_line(rx: &Receiver<String>, prefix: &str, limit: Duration) -> String {
     }
 }
 
-/// A free loopback port (bound and released).
-fn free_port() -> u16 {
-    std::net::TcpListener::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 /// chromedriver and the browsers it starts, in a process group of their
 /// own: dropped, the whole group is killed, so a failed test leaves no
 /// browser behind.
@@ -113,7 +104,7 @@ fn start_chromedriver() -> (Group, u16) {
         Path::new(CHROMEDRIVER).exists() && Path::new(CHROMIUM).exists(),
         "the browser test needs Debian's chromium and chromium-driver: apt-get install chromium chromium-driver"
     );
-    let port = free_port();
+    let port = common::free_port();
     // At the lowest priority: the simulated machine runs in real time and
     // must not wait for the browser's rendering.
     let child: Child = Command::new("nice")

@@ -503,9 +503,9 @@ async fn call(
         values.push(parse_value(&ty, &text).map_err(|e| bad(e.to_string()))?);
     }
     match handle.call(&values).await {
-        Ok(outputs) => {
-            Ok(json!({ "outputs": outputs.iter().map(json::value).collect::<Vec<_>>() }))
-        }
+        Ok(outputs) => Ok(
+            json!({ "outputs": outputs.iter().map(osap_host::som::value_json).collect::<Vec<_>>() }),
+        ),
         Err(SomError::Remote {
             error: ControlError::CallFailed(code),
             failure,
@@ -599,18 +599,7 @@ async fn run_job(
             ),
         ));
     }
-    let homing: Vec<bool> = machine
-        .config()
-        .axis_names()
-        .iter()
-        .map(|a| machine.config().axes[*a].homing.is_some())
-        .collect();
-    if machine
-        .homed()
-        .iter()
-        .zip(&homing)
-        .any(|(h, needs)| *needs && !h)
-    {
+    if !machine.is_homed() {
         tokio::select! {
             r = machine.home() => r.map_err(|e| error("homing_failed", e))?,
             _ = cancel.wait_for(|c| *c) => return Err(error("halted", "halted while homing before the job")),

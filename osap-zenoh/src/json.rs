@@ -3,7 +3,6 @@
 
 use std::collections::BTreeMap;
 
-use osap_host::som::Value;
 use osap_machine::{Machine, MachineEvent, MachineState};
 use serde::Serialize;
 use serde_json::{json, Value as Json};
@@ -133,28 +132,6 @@ pub fn event(e: &MachineEvent) -> Json {
     }
 }
 
-/// A function's output as JSON: numbers and bools as themselves, anything
-/// else as its text.
-pub fn value(v: &Value<'static>) -> Json {
-    match v {
-        Value::Null => Json::Null,
-        Value::Bool(x) => (*x).into(),
-        Value::I8(x) => (*x).into(),
-        Value::I16(x) => (*x).into(),
-        Value::I32(x) => (*x).into(),
-        Value::I64(x) => (*x).into(),
-        Value::U8(x) => (*x).into(),
-        Value::U16(x) => (*x).into(),
-        Value::U32(x) => (*x).into(),
-        Value::U64(x) => (*x).into(),
-        Value::F32(x) => {
-            serde_json::Number::from_f64(f64::from(*x)).map_or(Json::Null, Json::Number)
-        }
-        Value::F64(x) => serde_json::Number::from_f64(*x).map_or(Json::Null, Json::Number),
-        other => other.to_string().into(),
-    }
-}
-
 /// A call's argument as the text `osap call` would take for it: numbers
 /// and bools bare, strings as they are; `None` for arrays, objects and
 /// null.
@@ -187,10 +164,13 @@ mod tests {
 
     #[test]
     fn values_and_arguments_are_plain_json() {
-        assert_eq!(value(&Value::I32(-4)), json!(-4));
-        assert_eq!(value(&Value::F64(0.5)), json!(0.5));
-        assert_eq!(value(&Value::F64(f64::NAN)), Json::Null);
-        assert_eq!(value(&Value::Bool(true)), json!(true));
+        use osap_host::som::{value_json, Value};
+        assert_eq!(value_json(&Value::I32(-4)), json!(-4));
+        assert_eq!(value_json(&Value::U64(7)), json!(7));
+        assert_eq!(value_json(&Value::F64(0.5)), json!(0.5));
+        assert_eq!(value_json(&Value::F64(f64::NAN)), Json::Null);
+        assert_eq!(value_json(&Value::Bool(true)), json!(true));
+        assert_eq!(value_json(&Value::Utf8("a".into())), json!("a"));
         assert_eq!(argument_text(&json!(1024)), Some("1024".into()));
         assert_eq!(argument_text(&json!(-1.5)), Some("-1.5".into()));
         assert_eq!(argument_text(&json!("on")), Some("on".into()));

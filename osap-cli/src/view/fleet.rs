@@ -18,7 +18,7 @@ use serde_json::{json, Value};
 
 use super::http::{check_host, token_matches};
 use super::ViewArgs;
-use crate::bridge_cmd::{close, open, zenoh_runtime};
+use crate::bridge_cmd::{close, open_zenoh};
 use crate::machine_cmd::Failure;
 
 /// Events kept per machine.
@@ -76,15 +76,7 @@ pub(crate) async fn view_fleet(args: ViewArgs) -> Result<ExitCode, Failure> {
     let listener = tokio::net::TcpListener::bind(args.http)
         .await
         .map_err(|e| Failure::refused(format!("--http {}: {e}", args.http)))?;
-    let rt = zenoh_runtime()?;
-    let session = match open(&rt, config).await {
-        Ok(s) => s,
-        Err(f) => {
-            // A runtime may not be dropped inside another's task.
-            rt.shutdown_background();
-            return Err(f);
-        }
-    };
+    let (rt, session) = open_zenoh(config).await?;
     let fleet: Fleet = Arc::default();
 
     let mut tasks = Vec::new();

@@ -24,7 +24,6 @@ use axum::response::{IntoResponse, Response};
 use axum::routing::{get, post};
 use axum::{Json, Router};
 use osap_host::som::{self, parse_value, FnRef};
-use pipes_core::Type;
 use serde_json::{json, Value};
 use tokio::sync::broadcast;
 
@@ -308,22 +307,8 @@ async fn call_function(
     Ok(outputs
         .iter()
         .zip(values)
-        .map(|(o, v)| json!({ "name": o.name, "type": o.type_name, "value": to_json(&v) }))
+        .map(|(o, v)| json!({ "name": o.name, "type": o.type_name, "value": som::value_json(&v) }))
         .collect())
-}
-
-/// A value as JSON: numbers, bools and strings as themselves, others as
-/// their text.
-fn to_json(v: &som::Value<'static>) -> Value {
-    match v {
-        som::Value::Bool(b) => json!(b),
-        som::Value::Utf8(s) | som::Value::Ascii(s) => json!(s.as_str()),
-        som::Value::Null => Value::Null,
-        other => match (other.ty(), other.as_f64()) {
-            (Type::Scalar(_), Some(x)) if x.is_finite() => json!(x),
-            _ => json!(other.to_string()),
-        },
-    }
 }
 
 /// Capture files in the captures folder (names only).
@@ -446,12 +431,5 @@ mod tests {
             assert!(e.contains("its own page"), "{e}");
         }
         assert!(check_origin(Some("http://127.0.0.1:7078"), None).is_err());
-    }
-
-    #[test]
-    fn values_become_json() {
-        assert_eq!(to_json(&som::Value::U64(7)), json!(7.0));
-        assert_eq!(to_json(&som::Value::Bool(true)), json!(true));
-        assert_eq!(to_json(&som::Value::Utf8("a".into())), json!("a"));
     }
 }

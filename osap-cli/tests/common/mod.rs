@@ -89,3 +89,13 @@ pub(crate) fn number_after(line: &str, word: &str) -> Option<u64> {
         .parse()
         .ok()
 }
+
+/// A free loopback port (bound and released).
+#[allow(dead_code)] // not every test binary needs one
+pub(crate) fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}

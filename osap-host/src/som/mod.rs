@@ -52,7 +52,7 @@ pub use model::{RuntimeLookupError, Som, SOM_VERSION};
 pub use pipes_core::pipe::PipeStats;
 /// PIPES values, owning their data as `Value<'static>` (pipes-core's type).
 pub use pipes_core::{Element, Text, Value};
-pub use value::{parse_value, ParseValueError};
+pub use value::{parse_value, value_json, ParseValueError};
 
 use crate::HostError;
 use pipes_core::control::ControlError;

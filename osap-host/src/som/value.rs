@@ -2,8 +2,9 @@
 //!
 //! Host code keeps PIPES values as pipes-core's own [`Value`], owning its
 //! data (`Value<'static>`, with pipes-core's `alloc` feature). This module
-//! adds the one host-only piece: reading a value of a known type from text,
-//! as the command line and the viewer take it.
+//! adds the host-only pieces: reading a value of a known type from text,
+//! as the command line and the viewer take it, and writing one as JSON, as
+//! the viewer and the zenoh bridge send it.
 
 use pipes_core::{ScalarType, Type, Value};
 
@@ -106,6 +107,33 @@ pub fn parse_value(ty: &Type, text: &str) -> Result<Value<'static>, ParseValueEr
         Type::Ascii => return Err(ParseValueError::NotAscii { text: owned() }),
         other => return Err(ParseValueError::NoTextForm(*other)),
     })
+}
+
+/// A value as JSON: bools, integers and strings as themselves, floats as
+/// numbers (null when not finite), anything else (arrays, tensors, 128-bit
+/// integers) as its text.
+pub fn value_json(v: &Value<'static>) -> serde_json::Value {
+    use serde_json::Value as Json;
+    let float = |x: f64| serde_json::Number::from_f64(x).map_or(Json::Null, Json::Number);
+    match v {
+        Value::Null => Json::Null,
+        Value::Bool(x) => (*x).into(),
+        Value::I8(x) => (*x).into(),
+        Value::I16(x) => (*x).into(),
+        Value::I32(x) => (*x).into(),
+        Value::I64(x) => (*x).into(),
+        Value::U8(x) => (*x).into(),
+        Value::U16(x) => (*x).into(),
+        Value::U32(x) => (*x).into(),
+        Value::U64(x) => (*x).into(),
+        Value::F32(x) => float(f64::from(*x)),
+        Value::F64(x) => float(*x),
+        Value::Utf8(s) | Value::Ascii(s) => s.as_str().into(),
+        other => match (other.ty(), other.as_f64()) {
+            (Type::Scalar(ScalarType::F16), Some(x)) => float(x),
+            _ => other.to_string().into(),
+        },
+    }
 }
 
 #[cfg(test)]

@@ -320,6 +320,14 @@ impl Machine {
             .collect()
     }
 
+    /// Whether every axis that homes is homed.
+    pub fn is_homed(&self) -> bool {
+        self.homed()
+            .iter()
+            .zip(self.homing_axes())
+            .all(|(homed, homes)| *homed || !homes)
+    }
+
     /// Which axes are homed (axis order).
     pub fn homed(&self) -> Vec<bool> {
         self.inner
