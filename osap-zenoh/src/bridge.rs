@@ -623,7 +623,11 @@ async fn run_job(
     let executed_s = began.elapsed().as_secs_f64();
     let following_error = match machine.take_recording(t0).await {
         Ok(r) => r.following_error().into_iter().collect(),
-        Err(_) => Default::default(),
+        // The job ran; only its measurement is missing: said, not hidden.
+        Err(e) => {
+            tracing::warn!("job summary without following error: {e}");
+            Default::default()
+        }
     };
     let mut faults = Vec::new();
     if let Err(e) = result {
