@@ -3,6 +3,7 @@
 //! name.
 
 use crate::{connect, Connect};
+use osap_host::som::model::SomArg;
 use osap_host::som::{parse_value, FnRef, Manager, SomError, Value};
 use pipes_core::control::ControlError;
 use std::process::ExitCode;
@@ -40,29 +41,8 @@ pub(crate) async fn call(args: CallArgs) -> Result<ExitCode, String> {
         .map_err(|e| format!("{e} (`osap scan -f` lists every runtime's functions)"))?
         .with_timeout(c.timeout);
     let inputs = handle.inputs().to_vec();
-    if args.args.len() != inputs.len() {
-        return Err(format!(
-            "{}.{} takes {} input(s) ({}), {} given",
-            args.runtime,
-            args.function,
-            inputs.len(),
-            osap_host::som::describe(&inputs),
-            args.args.len()
-        ));
-    }
-    let mut values = Vec::new();
-    for (input, text) in inputs.iter().zip(&args.args) {
-        let ty = input.ty().ok_or_else(|| {
-            format!(
-                "input {}: type {} is unknown to this build of osap (update it)",
-                input.name, input.type_name
-            )
-        })?;
-        values.push(
-            parse_value(&ty, text)
-                .map_err(|e| format!("input {} ({}): {e}", input.name, input.type_name))?,
-        );
-    }
+    let what = format!("{}.{}", args.runtime, args.function);
+    let values = parse_inputs(&what, &inputs, &args.args)?;
     match handle.call(&values).await {
         Ok(outputs) => {
             for (o, v) in handle.outputs().iter().zip(&outputs) {
@@ -78,6 +58,37 @@ pub(crate) async fn call(args: CallArgs) -> Result<ExitCode, String> {
             None => Err(e.to_string()),
         },
     }
+}
+
+/// The values of `texts` for `inputs` (one each, in order), or what is
+/// wrong with them, naming `what` takes them.
+pub(crate) fn parse_inputs(
+    what: &str,
+    inputs: &[SomArg],
+    texts: &[String],
+) -> Result<Vec<Value<'static>>, String> {
+    if texts.len() != inputs.len() {
+        return Err(format!(
+            "{what} takes {} input(s) ({}), {} given",
+            inputs.len(),
+            osap_host::som::describe(inputs),
+            texts.len()
+        ));
+    }
+    let mut values = Vec::new();
+    for (input, text) in inputs.iter().zip(texts) {
+        let ty = input.ty().ok_or_else(|| {
+            format!(
+                "input {}: type {} is unknown to this build of osap (update it)",
+                input.name, input.type_name
+            )
+        })?;
+        values.push(
+            parse_value(&ty, text)
+                .map_err(|e| format!("input {} ({}): {e}", input.name, input.type_name))?,
+        );
+    }
+    Ok(values)
 }
 
 /// A refusal with a failure code, as one line: by name when the host knows
@@ -101,25 +112,9 @@ fn refusal(runtime: &str, function: &str, e: &SomError) -> Option<String> {
     })
 }
 
-/// A value as a person types it: numbers and bools bare (the value's own
-/// Display names scalar types, `U8(0)`), others as the value prints.
-fn plain(v: &Value<'static>) -> String {
-    match v {
-        Value::Bool(x) => x.to_string(),
-        Value::I8(x) => x.to_string(),
-        Value::I16(x) => x.to_string(),
-        Value::I32(x) => x.to_string(),
-        Value::I64(x) => x.to_string(),
-        Value::I128(x) => x.to_string(),
-        Value::U8(x) => x.to_string(),
-        Value::U16(x) => x.to_string(),
-        Value::U32(x) => x.to_string(),
-        Value::U64(x) => x.to_string(),
-        Value::U128(x) => x.to_string(),
-        Value::F32(x) => x.to_string(),
-        Value::F64(x) => x.to_string(),
-        other => other.to_string(),
-    }
+/// A value as a person types it.
+pub(crate) fn plain(v: &Value<'static>) -> String {
+    osap_host::som::value_text(v)
 }
 
 #[cfg(test)]

@@ -367,8 +367,9 @@ fn function_set(rt: &SomRuntime) -> Option<u32> {
             .map(|a| a.ty().map(|ty| (a.name.as_str(), ty.key())))
             .collect()
     }
-    let mut id = FunctionSetHasher::new(rt.functions.len());
-    for f in &rt.functions {
+    // Blocks made at run time are not what the firmware was built with.
+    let mut id = FunctionSetHasher::new(rt.built_functions().count());
+    for f in rt.built_functions() {
         let (inputs, outputs) = (keys(&f.inputs)?, keys(&f.outputs)?);
         id.function(&f.name, inputs.into_iter(), outputs.into_iter());
     }

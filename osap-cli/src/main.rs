@@ -16,6 +16,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
+mod block_cmd;
 mod bridge_cmd;
 mod call_cmd;
 mod capture_cmd;
@@ -105,6 +106,10 @@ enum Command {
     /// Save a network's wired dataflow graph to a file, or apply one.
     #[command(subcommand)]
     Graph(graph_cmd::GraphCommand),
+    /// Make and delete blocks (comparators, filters, triggers) on a
+    /// runtime while it runs.
+    #[command(subcommand)]
+    Block(block_cmd::BlockCommand),
     /// Update a module's firmware over the network: reboot it into its
     /// UF2 bootloader, copy FIRMWARE (a .uf2, or an ELF with its .uf2)
     /// onto the drive, check it came back, and optionally rename it.
@@ -341,6 +346,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Flash(args) => flash_cmd::flash(args).await,
         Command::Call(args) => call_cmd::call(args).await,
         Command::Graph(command) => graph_cmd::graph(command).await,
+        Command::Block(command) => block_cmd::block(command).await,
         Command::Serve(args) => serve_cmd::serve(args).await,
         Command::Keygen { file } => {
             Key::write_new(&file).map_err(|e| e.to_string())?;

@@ -125,6 +125,29 @@ impl PortTx<'_> {
         self.base
     }
 
+    /// Runs `f` with a handle for the `count` ports from `offset` on, as if
+    /// they were an object of their own (offset 0 is the first of them):
+    /// how an object that holds other ports (a pool of blocks, say) hands
+    /// each its share. `None` if they are not all this object's.
+    pub fn with_sub<R>(
+        &mut self,
+        offset: u16,
+        count: u16,
+        f: impl FnOnce(&mut PortTx<'_>) -> R,
+    ) -> Option<R> {
+        if offset.checked_add(count)? > self.count {
+            return None;
+        }
+        let mut sub = PortTx {
+            sink: &mut *self.sink,
+            base: self.base + offset,
+            count,
+            now: self.now,
+            system: self.system,
+        };
+        Some(f(&mut sub))
+    }
+
     fn index(&self, offset: u16) -> Result<u16, SendError> {
         if offset >= self.count {
             return Err(SendError::NoSuchPort);

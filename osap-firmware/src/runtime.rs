@@ -56,7 +56,7 @@ pub type ModuleRuntime<const LINKS: usize> = Runtime<SLOTS, MTU, PORTS, LINKS>;
 /// it to its runtime task, which passes its fields to [`run`] by reference
 /// (moving them into another future would keep a second copy of the
 /// gateways' frame buffers in the task).
-pub struct ModuleParts<F: NameFlash + 'static, H: 'static, R: RateFlash + 'static> {
+pub struct ModuleParts<F: NameFlash + 'static, H: ModuleHandle + 'static, R: RateFlash + 'static> {
     /// The runtime.
     pub runtime: &'static mut ModuleRuntime<2>,
     /// The module's ports.
@@ -72,7 +72,7 @@ pub struct ModuleParts<F: NameFlash + 'static, H: 'static, R: RateFlash + 'stati
     pub rates: RateKeeper<R>,
 }
 
-impl<F: NameFlash, H, R: RateFlash> core::fmt::Debug for ModuleParts<F, H, R> {
+impl<F: NameFlash, H: ModuleHandle, R: RateFlash> core::fmt::Debug for ModuleParts<F, H, R> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("ModuleParts")
             .field("runtime", &self.runtime)
@@ -211,7 +211,7 @@ pub async fn run<F: NameFlash, H: ModuleHandle, R: RateFlash, const LINKS: usize
             .set_motion_active(moving.unwrap_or(false));
         let result = {
             let mut gateways = links.each_mut().map(|l| &mut **l as &mut dyn LinkGateway);
-            runtime.poll(now, ports.ports(), &mut gateways)
+            runtime.poll(now, core::slice::from_mut(&mut *ports), &mut gateways)
         };
         ports.module().publish_time(runtime.time_map());
         // The poll may have queued motion: whether the axis stands now

@@ -123,11 +123,15 @@ pub enum FaultKind {
     /// [`RunawayReason`](crate::heater::RunawayReason) code in the next
     /// ([`runaway_detail`](crate::heater::runaway_detail)).
     HeaterRunaway = 8,
+    /// A comparator block made with `halt` halted the axis: its input rose
+    /// past its threshold (see [`crate::blocks`]); the detail is the
+    /// block's slot.
+    BlockHalt = 9,
 }
 
 impl FaultKind {
     /// Every kind, in code order.
-    pub const ALL: [FaultKind; 9] = [
+    pub const ALL: [FaultKind; 10] = [
         FaultKind::None,
         FaultKind::Refused,
         FaultKind::Backstop,
@@ -137,6 +141,7 @@ impl FaultKind {
         FaultKind::OverLimit,
         FaultKind::OutputWatchdog,
         FaultKind::HeaterRunaway,
+        FaultKind::BlockHalt,
     ];
 
     /// The kind's code.
@@ -161,6 +166,7 @@ impl FaultKind {
             FaultKind::OverLimit => "point over limit",
             FaultKind::OutputWatchdog => "output watchdog",
             FaultKind::HeaterRunaway => "heater runaway",
+            FaultKind::BlockHalt => "halted by a block",
         }
     }
 }
@@ -241,7 +247,8 @@ mod tests {
             assert_eq!(FaultKind::from_code(k.code()), Some(k));
         }
         assert_eq!(FaultKind::from_code(8), Some(FaultKind::HeaterRunaway));
-        assert_eq!(FaultKind::from_code(9), None);
+        assert_eq!(FaultKind::from_code(9), Some(FaultKind::BlockHalt));
+        assert_eq!(FaultKind::from_code(10), None);
         assert_eq!(FaultKind::from_code(255), None);
     }
 

@@ -54,6 +54,7 @@
 #[cfg(test)]
 extern crate std;
 
+pub mod blocks;
 pub mod board;
 pub mod boot;
 pub mod failure;
@@ -296,6 +297,17 @@ impl<B: Board> Module<B> {
         self.apply_safe_outputs();
         let now = self.system_now();
         self.fault.record(now, FaultKind::Halted, 0, true);
+    }
+
+    /// Halts the axis for the comparator block in slot `slot` (see
+    /// [`crate::blocks`]): the stepper's emergency stop, recorded as a
+    /// [`FaultKind::BlockHalt`] fault. Outputs and heaters are left as they
+    /// are: a probe that touched the bed is no reason to cool the nozzle.
+    pub fn halt_by_block(&mut self, slot: u8) {
+        self.stepper.halt();
+        let now = self.system_now();
+        self.fault
+            .record(now, FaultKind::BlockHalt, u32::from(slot), true);
     }
 
     /// Drives every output to its safe value (see [`io`]) and turns every

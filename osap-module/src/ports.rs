@@ -9,11 +9,13 @@
 //! that reaches a function (whether it runs, or fails) feeds it; a run the
 //! function's own timer makes does not.
 
+use crate::blocks::{block_port, BlockPort, BLOCK_SLOTS};
 use crate::functions::{ModuleFn, ALL};
 use crate::ModuleHandle;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::{Instant, SystemInstant};
 use pipes_core::function::PipesFunction;
+use pipes_core::manager::BlocksError;
 use pipes_core::signature::SignatureError;
 
 /// Pipe slots of each module function.
@@ -176,18 +178,36 @@ pub const PORT_COUNT: usize = ALL.len() + 1;
 
 /// How many port indices the module's ports take, port 0 (the
 /// netresponder) included: size the runtime's `PORTS` to at least this, or
-/// the functions numbered past it are listed by a scan but can never reply.
-pub const PORT_INDICES: usize = 1 + ALL.len() * (1 + FN_PIPES);
+/// the ports numbered past it are listed by a scan but can never reply.
+/// The functions come first, then the block manager and its pools'
+/// reserved ports ([`crate::blocks`]).
+pub const PORT_INDICES: usize = 1 + ALL.len() * (1 + FN_PIPES) + 1 + BLOCK_SLOTS * (1 + FN_PIPES);
 
-/// Every port of one module, to hand to `Runtime::poll`.
-pub struct ModulePorts<H> {
+/// Every port of one module: itself a port that holds the others (the
+/// functions, then the block port), so a firmware hands `Runtime::poll`
+/// just this (`core::slice::from_mut(&mut ports)`).
+pub struct ModulePorts<H: ModuleHandle> {
     module: H,
     ports: [ModulePort<H>; PORT_COUNT],
+    blocks: BlockPort<H>,
 }
 
 impl<H: ModuleHandle + core::fmt::Debug> core::fmt::Debug for ModulePorts<H> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.debug_list().entries(self.ports.iter()).finish()
+        f.debug_struct("ModulePorts")
+            .field("functions", &self.ports)
+            .field("blocks", &self.blocks)
+            .finish()
+    }
+}
+
+/// A block pool whose classes do not add up to its slots cannot be built:
+/// the sizes are constants ([`crate::blocks::BLOCK_SLOTS`]) the crate's
+/// tests build, so only a class signature beyond the limits can fail here.
+fn blocks_error(e: BlocksError) -> SignatureError {
+    match e {
+        BlocksError::Signature(s) => s,
+        _ => SignatureError::TooManyArgs,
     }
 }
 
@@ -207,10 +227,15 @@ impl<H: ModuleHandle> ModulePorts<H> {
             },
             None => ModulePort::Timer(PulseTimer::new(module.clone())),
         });
-        match error {
-            Some(e) => Err(e),
-            None => Ok(ModulePorts { module, ports }),
+        if let Some(e) = error {
+            return Err(e);
         }
+        let blocks = block_port(module.clone()).map_err(blocks_error)?;
+        Ok(ModulePorts {
+            module,
+            ports,
+            blocks,
+        })
     }
 
     /// The module the ports reach (to publish the runtime's time map).
@@ -218,14 +243,103 @@ impl<H: ModuleHandle> ModulePorts<H> {
         &self.module
     }
 
-    /// The ports, in the order the runtime numbers them.
+    /// The functions and the pulse timer, in the order the runtime numbers
+    /// them (the block port follows them: see [`all`](Self::all)).
     pub fn ports(&mut self) -> &mut [ModulePort<H>] {
         &mut self.ports
     }
 
-    /// The ports, each on its own (for a runtime that holds ports one by
-    /// one, such as a host's).
-    pub fn into_ports(self) -> [ModulePort<H>; PORT_COUNT] {
-        self.ports
+    /// The block manager and its pool.
+    pub fn blocks(&mut self) -> &mut BlockPort<H> {
+        &mut self.blocks
+    }
+
+    /// The functions and the block port, each on its own (for a runtime
+    /// that holds ports one by one, such as the simulator's): the
+    /// functions first, then the block port.
+    pub fn into_parts(self) -> ([ModulePort<H>; PORT_COUNT], BlockPort<H>) {
+        (self.ports, self.blocks)
+    }
+}
+
+impl<H: ModuleHandle> ModulePorts<H> {
+    /// The port holding `offset`, with its first offset.
+    fn locate(&self, offset: u16) -> Option<(&dyn Port, u16)> {
+        let mut base = 0u16;
+        let all = self
+            .ports
+            .iter()
+            .map(|p| p as &dyn Port)
+            .chain(core::iter::once(&self.blocks as &dyn Port));
+        for p in all {
+            let n = p.port_count();
+            if offset < base + n {
+                return Some((p, base));
+            }
+            base += n;
+        }
+        None
+    }
+}
+
+impl<H: ModuleHandle> Port for ModulePorts<H> {
+    fn port_count(&self) -> u16 {
+        let functions: u16 = self.ports.iter().map(|p| p.port_count()).sum();
+        functions + self.blocks.port_count()
+    }
+
+    fn info(&self, offset: u16) -> PortInfo<'_> {
+        match self.locate(offset) {
+            Some((p, base)) => p.info(offset - base),
+            None => PortInfo {
+                type_name: "",
+                name: "",
+            },
+        }
+    }
+
+    fn clear_to_receive(&self, offset: u16) -> bool {
+        self.locate(offset)
+            .is_none_or(|(p, base)| p.clear_to_receive(offset - base))
+    }
+
+    fn on_packet(&mut self, delivery: Delivery<'_>, tx: &mut PortTx<'_>) {
+        let all = self
+            .ports
+            .iter_mut()
+            .map(|p| p as &mut dyn Port)
+            .chain(core::iter::once(&mut self.blocks as &mut dyn Port));
+        let mut base = 0u16;
+        for p in all {
+            let n = p.port_count();
+            if delivery.offset < base + n {
+                let d = Delivery {
+                    offset: delivery.offset - base,
+                    ..delivery
+                };
+                let _ = tx.with_sub(base, n, |tx| p.on_packet(d, tx));
+                return;
+            }
+            base += n;
+        }
+    }
+
+    fn poll(&mut self, tx: &mut PortTx<'_>) {
+        let all = self
+            .ports
+            .iter_mut()
+            .map(|p| p as &mut dyn Port)
+            .chain(core::iter::once(&mut self.blocks as &mut dyn Port));
+        let mut base = 0u16;
+        for p in all {
+            let n = p.port_count();
+            let _ = tx.with_sub(base, n, |tx| p.poll(tx));
+            base += n;
+        }
+    }
+
+    fn wake_at(&self) -> Option<Instant> {
+        let functions = self.ports.iter().filter_map(|p| p.wake_at());
+        functions.chain(self.blocks.wake_at()).min()
     }
 }

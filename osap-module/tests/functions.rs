@@ -158,12 +158,17 @@ fn the_function_set_is_whole_and_unique() {
     let mut ports =
         ModulePorts::new(Shared::new(fresh(true).module)).expect("every signature is accepted");
     assert_eq!(ports.ports().len(), PORT_COUNT);
-    let indices: u16 = ports
+    let functions: u16 = ports
         .ports()
         .iter()
         .map(osap_core::port::Port::port_count)
         .sum();
-    assert_eq!(usize::from(indices) + 1, osap_module::PORT_INDICES);
+    // The block manager and its pools follow the functions.
+    let blocks = 1 + osap_module::blocks::BLOCK_SLOTS as u16 * 3;
+    assert_eq!(osap_core::port::Port::port_count(ports.blocks()), blocks);
+    let all = osap_core::port::Port::port_count(&ports);
+    assert_eq!(all, functions + blocks);
+    assert_eq!(usize::from(all) + 1, osap_module::PORT_INDICES);
 }
 
 #[test]

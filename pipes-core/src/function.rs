@@ -198,6 +198,13 @@ pub trait Implementation {
     /// The function's signature (at most [`MAX_ARGS`] inputs and outputs).
     fn signature(&self) -> &'static Signature;
 
+    /// The name the function answers to: its signature's, unless it was
+    /// named at run time (a block made on a device, see
+    /// [`crate::manager`]), at most 255 bytes.
+    fn name(&self) -> &str {
+        self.signature().name
+    }
+
     /// Runs the function. `inputs[i]` is the value of input `i`, already of
     /// its declared type; every output must be [`set`](Outputs::set).
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError>;
@@ -307,18 +314,19 @@ pub struct PipesFunction<I, const PIPES: usize = 2, const Q: usize = 2, const B:
 
 /// A signature reply, `[transport][2][0][signature][tail]`, read a window
 /// at a time so that it can go out in segments without a buffer of its own.
-struct SignatureReply {
+struct SignatureReply<'a> {
     transport: Transport,
+    name: &'a str,
     sig: &'static Signature,
     parts: SignatureParts,
     failures: &'static [Failure],
 }
 
-impl SegmentSource for SignatureReply {
+impl SegmentSource for SignatureReply<'_> {
     fn len(&self) -> usize {
         self.transport.encoded_len()
             + 2
-            + self.sig.encoded_len()
+            + self.sig.encoded_len_named(self.name)
             + tail_len(self.parts, self.failures)
     }
 
@@ -328,7 +336,7 @@ impl SegmentSource for SignatureReply {
         let n = self.transport.encode(&mut head).unwrap_or(0);
         w.put(&head[..n]);
         w.put(&[ControlKey::GetSignature.to_u8(), 0]);
-        self.sig.write_pieces(&mut w);
+        self.sig.write_pieces_named(self.name, &mut w);
         write_tail(&mut w, self.parts, self.failures);
         w.written()
     }
@@ -778,8 +786,24 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         result: Result<Answer, ControlError>,
     ) {
         let (sig, failures) = (self.sig, self.failures);
+        let name = self.imp.name();
         let out = self.out.get(..self.out_len).unwrap_or(&[]);
         let r = tx.send_with(0, &d.reply_route, d.source_port, self.reply_ttl, |buf| {
+            if let Ok(Answer::Signature(parts)) = &result {
+                if name != sig.name {
+                    // Named at run time: the reply is written with the
+                    // name, as a segmented one would be.
+                    let reply = SignatureReply {
+                        transport,
+                        name,
+                        sig,
+                        parts: *parts,
+                        failures,
+                    };
+                    let len = reply.len();
+                    return (len <= buf.len()).then(|| reply.read_at(0, buf));
+                }
+            }
             let h = transport.encode(buf)?;
             let mut w = Writer::new(buf.get_mut(h..)?);
             let ok = match &result {
@@ -819,9 +843,10 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         }
     }
 
-    fn signature_reply(&self) -> SignatureReply {
+    fn signature_reply(&self) -> SignatureReply<'_> {
         SignatureReply {
             transport: self.seg_reply,
+            name: self.imp.name(),
             sig: self.sig,
             parts: self.seg_parts,
             failures: self.failures,
@@ -833,7 +858,15 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         if !self.seg.is_busy() {
             return;
         }
-        let src = self.signature_reply();
+        // Built from the fields (not `signature_reply`): the sender is
+        // borrowed mutably beside them.
+        let src = SignatureReply {
+            transport: self.seg_reply,
+            name: self.imp.name(),
+            sig: self.sig,
+            parts: self.seg_parts,
+            failures: self.failures,
+        };
         if let Pump::Abandoned(_) = self.seg.pump(tx, 0, &src) {
             self.stats.reply_drops = self.stats.reply_drops.wrapping_add(1);
         }
@@ -985,7 +1018,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize> Port
         if offset == 0 {
             PortInfo {
                 type_name: FUNCTION_PORT_TYPE,
-                name: self.sig.name,
+                name: self.imp.name(),
             }
         } else {
             PortInfo {

@@ -36,6 +36,7 @@ pub mod convert;
 pub mod f16;
 pub mod failure;
 pub mod function;
+pub mod manager;
 pub mod message;
 pub mod pipe;
 pub mod signature;

@@ -16,7 +16,7 @@
 
 use core::fmt;
 
-use osap_core::codec::{Reader, Writer};
+use osap_core::codec::{CodecError, Reader, Writer};
 
 use crate::value::{Value, ValueError};
 
@@ -149,6 +149,15 @@ impl<'a> Args<'a> {
     /// The number of arguments.
     pub fn len(&self) -> usize {
         self.count as usize
+    }
+
+    /// Writes the list as it was read: `[count]` then the arguments.
+    pub fn encode(&self, w: &mut Writer<'_>) -> Result<(), CodecError> {
+        if w.remaining() < 1 + self.bytes.len() {
+            return Err(CodecError::NoSpace);
+        }
+        w.u8(self.count)?;
+        w.bytes(self.bytes)
     }
 
     /// Whether there are no arguments.

@@ -191,12 +191,24 @@ impl Signature {
     /// pass [`check`](Signature::check) (a function checks it once, when it
     /// is made); a longer name is cut to 255 bytes here.
     pub fn write_pieces(&self, w: &mut Window<'_>) {
+        self.write_pieces_named(self.name, w)
+    }
+
+    /// [`encoded_len`](Signature::encoded_len) with `name` in place of the
+    /// signature's own (cut to 255 bytes, as written).
+    pub fn encoded_len_named(&self, name: &str) -> usize {
+        self.encoded_len() - self.name.len().min(255) + name.len().min(255)
+    }
+
+    /// [`write_pieces`](Signature::write_pieces) with `name` in place of
+    /// the signature's own: a function named at run time.
+    pub fn write_pieces_named(&self, name: &str, w: &mut Window<'_>) {
         let str8 = |w: &mut Window<'_>, s: &str| {
             let b = &s.as_bytes()[..s.len().min(255)];
             w.put(&[b.len() as u8]);
             w.put(b);
         };
-        str8(w, self.name);
+        str8(w, name);
         for list in [self.inputs, self.outputs] {
             w.put(&[list.len().min(MAX_ARGS) as u8]);
             for a in list.iter().take(MAX_ARGS) {

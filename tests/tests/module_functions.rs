@@ -75,7 +75,8 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
         bootloader: None,
     });
     let module = Host::start(HostConfig::named("stepper-0")).unwrap();
-    for port in ModulePorts::new(&MODULE).unwrap().into_ports() {
+    let (functions, _blocks) = ModulePorts::new(&MODULE).unwrap().into_parts();
+    for port in functions {
         // A host holds only ports with indices: the pulse timer (none) is
         // left out, so pulses here would not end.
         if osap_core::port::Port::port_count(&port) > 0 {

@@ -12,13 +12,24 @@ use std::fmt;
 use serde::{Deserialize, Serialize};
 
 use super::manager::{Manager, PipeOptions};
-use super::model::{Som, SomArg, SomArgPair, SomDelivery, SomInputMode, SomOutputMode};
-use super::{FnRef, SomError};
+use super::model::{
+    Som, SomArg, SomArgPair, SomBlockArgument, SomDelivery, SomInputMode, SomOutputMode,
+};
+use super::{parse_value, FnRef, SomError};
+
+/// `threshold = 0.5, halt = true`.
+fn arguments_text(args: &[SomBlockArgument]) -> String {
+    args.iter()
+        .map(|a| format!("{} = {}", a.name, a.value))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
 
 /// What a graph file's `format` says.
 pub const GRAPH_FORMAT: &str = "osap-graph";
-/// The layout version this build writes and reads.
-pub const GRAPH_VERSION: u32 = 1;
+/// The layout version this build writes. It reads this and version 1
+/// (before blocks: a version 1 file has none).
+pub const GRAPH_VERSION: u32 = 2;
 
 /// A function in a graph: its signature (checked against the network's)
 /// and its modes.
@@ -70,6 +81,28 @@ pub struct GraphPipe {
     pub delivery: SomDelivery,
 }
 
+/// A block made at run time, in a graph: re-made when missing.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct GraphBlock {
+    /// The runtime's name.
+    pub runtime: String,
+    /// The block's name (its function's).
+    pub name: String,
+    /// Its class.
+    pub class: String,
+    /// The constructor's arguments it is made with, in order.
+    pub arguments: Vec<SomBlockArgument>,
+}
+
+impl GraphBlock {
+    fn end(&self) -> GraphEnd {
+        GraphEnd {
+            runtime: self.runtime.clone(),
+            function: self.name.clone(),
+        }
+    }
+}
+
 /// A graph file.
 #[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
 pub struct Graph {
@@ -82,11 +115,16 @@ pub struct Graph {
     pub functions: Vec<GraphFunction>,
     /// Every pipe between two such functions, by source and slot.
     pub pipes: Vec<GraphPipe>,
+    /// Every block made at run time, by runtime then name (version 2).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub blocks: Vec<GraphBlock>,
 }
 
 /// One thing `apply` changes (or, dry, would).
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum GraphChange {
+    /// A block made.
+    Block(GraphBlock),
     /// A function's input mode.
     InputMode(GraphEnd, SomInputMode),
     /// A function's output mode.
@@ -98,6 +136,17 @@ pub enum GraphChange {
 impl fmt::Display for GraphChange {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {
+            GraphChange::Block(b) => write!(
+                f,
+                "{}: make a {}({})",
+                b.end(),
+                b.class,
+                b.arguments
+                    .iter()
+                    .map(|a| format!("{} = {}", a.name, a.value))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ),
             GraphChange::InputMode(e, m) => write!(f, "{e}: input mode {m:?}"),
             GraphChange::OutputMode(e, m) => write!(f, "{e}: output mode {m:?}"),
             GraphChange::Pipe(p) => write!(
@@ -192,11 +241,26 @@ impl Graph {
         }
         functions.sort_by(|a, b| (&a.runtime, &a.function).cmp(&(&b.runtime, &b.function)));
         pipes.sort_by(|a, b| (&a.source, a.slot).cmp(&(&b.source, b.slot)));
+        let mut blocks: Vec<GraphBlock> = som
+            .runtimes
+            .iter()
+            .skip(1)
+            .flat_map(|rt| {
+                rt.blocks.iter().map(|b| GraphBlock {
+                    runtime: rt.record.name.clone(),
+                    name: b.name.clone(),
+                    class: b.class.clone(),
+                    arguments: b.arguments.clone(),
+                })
+            })
+            .collect();
+        blocks.sort_by(|a, b| (&a.runtime, &a.name).cmp(&(&b.runtime, &b.name)));
         Graph {
             format: GRAPH_FORMAT.into(),
             version: GRAPH_VERSION,
             functions,
             pipes,
+            blocks,
         }
     }
 
@@ -204,7 +268,7 @@ impl Graph {
     /// it cannot: a runtime or function missing, a signature that differs,
     /// a slot another pipe holds.
     pub fn changes(&self, som: &Som) -> Result<Vec<GraphChange>, GraphError> {
-        if self.format != GRAPH_FORMAT || self.version != GRAPH_VERSION {
+        if self.format != GRAPH_FORMAT || !(1..=GRAPH_VERSION).contains(&self.version) {
             return Err(GraphError::Format {
                 format: self.format.clone(),
                 version: self.version,
@@ -213,6 +277,43 @@ impl Graph {
         let live = Graph::from_som(som);
         let mut mismatches = Vec::new();
         let mut changes = Vec::new();
+        // Blocks first: the functions and pipes below may be theirs.
+        let mut to_make = Vec::new();
+        for b in &self.blocks {
+            let Some(rt) = som
+                .runtimes
+                .iter()
+                .skip(1)
+                .find(|r| r.record.name == b.runtime)
+            else {
+                mismatches.push(format!("no runtime {} on the network", b.runtime));
+                continue;
+            };
+            match (
+                live.blocks
+                    .iter()
+                    .find(|l| l.runtime == b.runtime && l.name == b.name),
+                rt.functions.iter().any(|f| f.name == b.name),
+            ) {
+                (Some(l), _) if l.class == b.class && l.arguments == b.arguments => {}
+                (Some(l), _) => mismatches.push(format!(
+                    "{}: a {} made with ({}) on the network, a {} made with ({}) in the graph",
+                    b.end(),
+                    l.class,
+                    arguments_text(&l.arguments),
+                    b.class,
+                    arguments_text(&b.arguments)
+                )),
+                (None, true) => mismatches.push(format!(
+                    "{}: a function of that name, not a block, is on the network",
+                    b.end()
+                )),
+                (None, false) => {
+                    to_make.push(b.end());
+                    changes.push(GraphChange::Block(b.clone()));
+                }
+            }
+        }
         let find = |e: &GraphEnd| {
             som.runtimes
                 .iter()
@@ -225,6 +326,12 @@ impl Graph {
                 runtime: g.runtime.clone(),
                 function: g.function.clone(),
             };
+            if to_make.contains(&end) {
+                // Made by this apply: its modes are set after it is.
+                changes.push(GraphChange::InputMode(end.clone(), g.input_mode));
+                changes.push(GraphChange::OutputMode(end, g.output_mode));
+                continue;
+            }
             match find(&end) {
                 None => mismatches.push(format!("no runtime {} on the network", g.runtime)),
                 Some(None) => mismatches.push(format!("{end}: no such function on {}", g.runtime)),
@@ -288,6 +395,26 @@ impl Graph {
         let changes = self.changes(manager.som())?;
         let fref = |e: &GraphEnd| FnRef::new(e.runtime.as_str(), e.function.as_str());
         for c in &changes {
+            if let GraphChange::Block(b) = c {
+                let mut values = Vec::new();
+                for a in &b.arguments {
+                    let bad = |detail: String| {
+                        GraphError::Mismatch(vec![format!(
+                            "{}: argument {}: {detail}",
+                            b.end(),
+                            a.name
+                        )])
+                    };
+                    let ty = pipes_core::Type::from_name(&a.type_name)
+                        .ok_or_else(|| bad(format!("unknown type {}", a.type_name)))?;
+                    values.push(parse_value(&ty, &a.value).map_err(|e| bad(e.to_string()))?);
+                }
+                manager
+                    .new_block(&b.runtime, &b.class, &b.name, &values)
+                    .await?;
+            }
+        }
+        for c in &changes {
             if let GraphChange::Pipe(p) = c {
                 let outputs: Vec<u8> = p.argmap.iter().map(|a| a.output).collect();
                 let inputs: Vec<u8> = p.argmap.iter().map(|a| a.input).collect();
@@ -316,7 +443,7 @@ impl Graph {
                 GraphChange::OutputMode(e, m) => {
                     manager.set_output_mode(&fref(e), (*m).into()).await?
                 }
-                GraphChange::Pipe(_) => {}
+                GraphChange::Pipe(_) | GraphChange::Block(_) => {}
             }
         }
         Ok(changes)

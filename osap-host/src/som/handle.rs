@@ -42,6 +42,11 @@ pub(crate) struct Target {
 pub(crate) struct ReplyBytes(Vec<u8>);
 
 impl ReplyBytes {
+    /// The reply's bytes.
+    pub(crate) fn into_bytes(self) -> Vec<u8> {
+        self.0
+    }
+
     /// The reply's body, or the function's error.
     pub(crate) fn body(
         &self,

@@ -16,6 +16,7 @@ use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
 use pipes_core::convert::{rule, Rule};
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
+use pipes_core::manager::BLOCK_PORT_TYPE;
 use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
 use std::sync::Arc;
 use std::time::Duration;
@@ -170,12 +171,23 @@ impl Manager {
                 .record
                 .ports
                 .iter()
-                .filter(|p| p.type_name == FUNCTION_PORT_TYPE)
+                .filter(|p| p.type_name == FUNCTION_PORT_TYPE || p.type_name == BLOCK_PORT_TYPE)
                 .map(|p| p.index)
                 .collect();
+            let has_blocks = som.runtimes[ri]
+                .record
+                .ports
+                .iter()
+                .any(|p| p.type_name == BLOCK_PORT_TYPE);
             for port in ports {
                 match self.read_function(&som, ri, port).await {
                     Ok(f) => som.runtimes[ri].functions.push(f),
+                    Err(e) => report.function_failures.push(e.to_string()),
+                }
+            }
+            if has_blocks {
+                match self.read_blocks(&som, ri).await {
+                    Ok(b) => som.runtimes[ri].blocks = b,
                     Err(e) => report.function_failures.push(e.to_string()),
                 }
             }
@@ -303,7 +315,7 @@ impl Manager {
     }
 
     /// Reads the function whose control port is `port` on runtime `ri`.
-    async fn read_function(
+    pub(super) async fn read_function(
         &self,
         som: &Som,
         ri: usize,
@@ -847,7 +859,39 @@ impl Manager {
         ))
     }
 
-    fn edit_function(&mut self, ri: usize, name: &str, edit: impl FnOnce(&mut SomFunction)) {
+    /// Edits runtime `ri` of the model, then resolves the pipes again.
+    pub(super) fn edit_runtime(
+        &mut self,
+        ri: usize,
+        edit: impl FnOnce(&mut super::model::SomRuntime),
+    ) {
+        if let Some(r) = self.som.runtimes.get_mut(ri) {
+            edit(r);
+        }
+        self.som.resolve_pipes();
+    }
+
+    /// The request client.
+    pub(super) fn control(&self) -> &Control {
+        &self.control
+    }
+
+    /// The index of the runtime named `name` in the model.
+    pub(super) fn runtime_index(&self, name: &str) -> Result<usize, SomError> {
+        self.runtime(&FnRef::new(name, ""))
+    }
+
+    /// Where `f`'s control port is.
+    pub(super) fn target_of(&self, f: &FnRef) -> Result<(usize, Target), SomError> {
+        self.target(f)
+    }
+
+    pub(super) fn edit_function(
+        &mut self,
+        ri: usize,
+        name: &str,
+        edit: impl FnOnce(&mut SomFunction),
+    ) {
         if let Some(f) = self
             .som
             .runtimes
@@ -882,7 +926,7 @@ fn group_members(som: &mut Som) {
 }
 
 /// The route from the host (runtime 0) to runtime `ri`, with its MTU.
-fn host_route(som: &Som, ri: usize) -> Route {
+pub(super) fn host_route(som: &Som, ri: usize) -> Route {
     som.runtimes
         .get(ri)
         .map_or(Route::local(), |r| r.record.route())

@@ -31,6 +31,7 @@
 //! # let _ = out; Ok(()) }
 //! ```
 
+mod blocks;
 pub mod failure;
 pub mod graph;
 mod handle;
@@ -42,6 +43,7 @@ mod named;
 pub mod proxy;
 mod value;
 
+pub use blocks::BlockClassInfo;
 pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{
@@ -52,7 +54,7 @@ pub use model::{RuntimeLookupError, Som, SOM_VERSION};
 pub use pipes_core::pipe::PipeStats;
 /// PIPES values, owning their data as `Value<'static>` (pipes-core's type).
 pub use pipes_core::{Element, Text, Value};
-pub use value::{parse_value, value_json, ParseValueError};
+pub use value::{parse_value, value_json, value_text, ParseValueError};
 
 use crate::HostError;
 use pipes_core::control::ControlError;
@@ -197,6 +199,20 @@ pub enum SomError {
         /// What was looked for.
         detail: String,
     },
+    /// A runtime's block manager refused a request.
+    #[error("{runtime}: {request} refused: {error}")]
+    Block {
+        /// The runtime.
+        runtime: String,
+        /// What was asked.
+        request: &'static str,
+        /// Why it refused.
+        error: pipes_core::manager::ManagerError,
+    },
+    /// The runtime has no block manager (a firmware from before blocks, or
+    /// a host).
+    #[error("runtime {0:?} cannot make blocks: it has no block manager (a firmware from before blocks?)")]
+    NoBlockManager(String),
     /// A host function's definition is refused.
     #[error("host function {name:?}: {detail}")]
     BadDefinition {

@@ -59,8 +59,64 @@ pub struct SomRuntime {
     /// What the scan found (JSON: the record's fields, inline).
     #[serde(flatten)]
     pub record: RuntimeRecord,
-    /// The PIPES functions among its ports, by port index.
+    /// The PIPES functions among its ports, by port index: the blocks made
+    /// at run time too (they are functions like any other).
     pub functions: Vec<SomFunction>,
+    /// The blocks made on it at run time, by slot (see
+    /// [`pipes_core::manager`]); empty when it has no block manager.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub blocks: Vec<SomBlock>,
+}
+
+/// A block made on a runtime at run time: a function among its runtime's,
+/// whose class its block manager knows.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SomBlock {
+    /// Its name (also its function's).
+    pub name: String,
+    /// Its class (`comparator`, `lowpass`, ...).
+    pub class: String,
+    /// Its slot in the manager's pool.
+    pub slot: u8,
+    /// Its control port's index.
+    pub port: u16,
+    /// The constructor's arguments it was made with, in order.
+    #[serde(default)]
+    pub arguments: Vec<SomBlockArgument>,
+}
+
+/// One constructor argument of a [`SomBlock`].
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SomBlockArgument {
+    /// The argument's name.
+    pub name: String,
+    /// Its type's name (`f32`, `bool`, ...).
+    #[serde(rename = "type")]
+    pub type_name: String,
+    /// Its value as a person types it (`0.5`, `true`).
+    pub value: String,
+}
+
+impl SomRuntime {
+    /// Whether `function` is a block made at run time.
+    pub fn is_block(&self, function: &SomFunction) -> bool {
+        self.blocks.iter().any(|b| b.port == function.port)
+    }
+
+    /// The functions the runtime was built with: every function but its
+    /// blocks (what a function-set id covers).
+    pub fn built_functions(&self) -> impl Iterator<Item = &SomFunction> {
+        self.functions.iter().filter(|f| !self.is_block(f))
+    }
+
+    /// The block manager's port, if the runtime has one.
+    pub fn block_manager_port(&self) -> Option<u16> {
+        self.record
+            .ports
+            .iter()
+            .find(|p| p.type_name == pipes_core::manager::MANAGER_PORT_TYPE)
+            .map(|p| p.index)
+    }
 }
 
 /// A named, typed input or output.
@@ -330,6 +386,7 @@ impl Som {
                 .map(|r| SomRuntime {
                     record: r.clone(),
                     functions: Vec::new(),
+                    blocks: Vec::new(),
                 })
                 .collect(),
             links: map.links.clone(),

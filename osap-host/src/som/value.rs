@@ -109,6 +109,29 @@ pub fn parse_value(ty: &Type, text: &str) -> Result<Value<'static>, ParseValueEr
     })
 }
 
+/// A value as a person types it, the form [`parse_value`] reads back:
+/// numbers and bools bare (`0.5`, `true`), strings as they are, anything
+/// else (arrays, tensors) as the value prints.
+pub fn value_text(v: &Value<'_>) -> String {
+    match v {
+        Value::Bool(x) => x.to_string(),
+        Value::I8(x) => x.to_string(),
+        Value::I16(x) => x.to_string(),
+        Value::I32(x) => x.to_string(),
+        Value::I64(x) => x.to_string(),
+        Value::I128(x) => x.to_string(),
+        Value::U8(x) => x.to_string(),
+        Value::U16(x) => x.to_string(),
+        Value::U32(x) => x.to_string(),
+        Value::U64(x) => x.to_string(),
+        Value::U128(x) => x.to_string(),
+        Value::F32(x) => x.to_string(),
+        Value::F64(x) => x.to_string(),
+        Value::Utf8(s) | Value::Ascii(s) => s.as_str().to_string(),
+        other => other.to_string(),
+    }
+}
+
 /// A value as JSON: bools, integers and strings as themselves, floats as
 /// numbers (null when not finite), anything else (arrays, tensors, 128-bit
 /// integers) as its text.

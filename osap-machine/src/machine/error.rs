@@ -288,6 +288,9 @@ pub fn fault_reason_in(kind: FaultKind, detail: u32, point_refusals: Option<&[Fa
             f64::from(detail) / 1e3
         ),
         FaultKind::Halted => "was halted (its motor must be cycled: recover())".into(),
+        FaultKind::BlockHalt => format!(
+            "was halted by its comparator block in slot {detail}: the block's input rose past its threshold (its motor must be cycled: recover())"
+        ),
         FaultKind::HeaterRunaway => {
             use osap_module::heater::RunawayReason as R;
             let (index, reason) = osap_module::heater::runaway_parts(detail);

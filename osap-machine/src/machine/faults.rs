@@ -145,6 +145,7 @@ pub(super) fn stops_motion(
         | K::Halted
         | K::OverLimit
         | K::OutputWatchdog
-        | K::HeaterRunaway => true,
+        | K::HeaterRunaway
+        | K::BlockHalt => true,
     }
 }

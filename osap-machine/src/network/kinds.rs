@@ -152,8 +152,8 @@ fn mismatch(rt: &SomRuntime, kind: &ModuleKind) -> Mismatch {
         kind: kind.name,
         expected_id: kind.id(),
         expected_count: kind.signatures.len(),
-        found_id: found_id(&rt.functions),
-        found_count: rt.functions.len(),
+        found_id: found_id(&rt.built_functions().collect::<Vec<_>>()),
+        found_count: rt.built_functions().count(),
         missing,
         different,
         out_of_order,
@@ -161,7 +161,7 @@ fn mismatch(rt: &SomRuntime, kind: &ModuleKind) -> Mismatch {
 }
 
 /// The function-set id of `functions` (`None` if a type is unknown).
-fn found_id(functions: &[SomFunction]) -> Option<u32> {
+fn found_id(functions: &[&SomFunction]) -> Option<u32> {
     fn keys(list: &[SomArg]) -> Option<Vec<(&str, u8)>> {
         list.iter()
             .map(|a| a.ty().map(|ty| (a.name.as_str(), ty.key())))
@@ -233,6 +233,7 @@ mod tests {
 
     fn runtime(functions: Vec<SomFunction>) -> SomRuntime {
         SomRuntime {
+            blocks: Vec::new(),
             record: RuntimeRecord {
                 name: "a".into(),
                 type_name: "stepper".into(),

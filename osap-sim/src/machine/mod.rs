@@ -1256,10 +1256,13 @@ impl SimModule {
             let level = steps.initial_level();
             module.lock(|m| m.limit_initial(level));
             let module_ports = ModulePorts::new(module.clone()).map_err(ConfigError::from)?;
-            // The functions, then the pulse timer (it takes no port index).
-            for port in module_ports.into_ports() {
+            // The functions, then the pulse timer (it takes no port index),
+            // then the block manager and its pools.
+            let (functions, blocks) = module_ports.into_parts();
+            for port in functions {
                 ports.push(Box::new(port));
             }
+            ports.push(Box::new(blocks));
             stepper = Some((module, steps));
         }
         let task = ModuleTask {
