@@ -75,7 +75,10 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     let half = args(&[(0, Value::F32(0.5)), (1, Value::F32(-1.0))]);
     let half_args = Args::decode(&mut Reader::new(&half)).unwrap();
 
-    put("blocks.request.list_classes", req(ManagerRequest::ListClasses { from: 0 }));
+    put(
+        "blocks.request.list_classes",
+        req(ManagerRequest::ListClasses { from: 0 }),
+    );
     put(
         "blocks.reply.list_classes",
         ok(1, |w| {
@@ -122,7 +125,10 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             w.u16(7).unwrap();
         }),
     );
-    put("blocks.request.list_blocks", req(ManagerRequest::ListBlocks { from: 0 }));
+    put(
+        "blocks.request.list_blocks",
+        req(ManagerRequest::ListBlocks { from: 0 }),
+    );
     put(
         "blocks.reply.list_blocks",
         ok(5, |w| {
@@ -137,7 +143,10 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             write_block_entry(w, &e).unwrap();
         }),
     );
-    put("blocks.request.get_block", req(ManagerRequest::GetBlock { slot: 2 }));
+    put(
+        "blocks.request.get_block",
+        req(ManagerRequest::GetBlock { slot: 2 }),
+    );
     put(
         "blocks.reply.get_block",
         ok(6, |w| {
@@ -149,15 +158,27 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             w.bytes(&half).unwrap();
         }),
     );
-    put("blocks.request.delete", req(ManagerRequest::DeleteBlock { name: "half" }));
+    put(
+        "blocks.request.delete",
+        req(ManagerRequest::DeleteBlock { name: "half" }),
+    );
     put("blocks.reply.delete", ok(4, |w| w.u8(2).unwrap()));
-    put("blocks.reply.error.pool_full", refused(3, ManagerError::PoolFull(1)));
+    put(
+        "blocks.reply.error.pool_full",
+        refused(3, ManagerError::PoolFull(1)),
+    );
     put(
         "blocks.reply.error.bad_argument",
         refused(3, ManagerError::Failed(FailureCode::Other(BAD_ARGUMENT))),
     );
-    put("blocks.reply.error.name_taken", refused(3, ManagerError::NameTaken));
-    put("blocks.reply.error.no_such_block", refused(4, ManagerError::NoSuchBlock));
+    put(
+        "blocks.reply.error.name_taken",
+        refused(3, ManagerError::NameTaken),
+    );
+    put(
+        "blocks.reply.error.no_such_block",
+        refused(4, ManagerError::NoSuchBlock),
+    );
     v
 }
 
@@ -177,7 +198,10 @@ fn document_matches_code() {
         assert_eq!(hex(d), hex(b), "{k}");
     }
     for k in doc.keys() {
-        assert!(code.contains_key(k), "{k} in docs/pipes.md is unknown to the test");
+        assert!(
+            code.contains_key(k),
+            "{k} in docs/pipes.md is unknown to the test"
+        );
     }
 }
 

@@ -843,6 +843,46 @@ async fn the_firmware_runs_on_an_emulated_rp2040() {
         );
     }
 
+    // 1b. A block made at run time on the firmware: listed, called like a
+    // function, deleted; its slot's ports are free again.
+    let classes = m.block_classes(&name).await.unwrap();
+    let names: Vec<&str> = classes.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(
+        names,
+        ["comparator", "scale", "lowpass", "limiter", "trigger"]
+    );
+    let block = m
+        .new_block(&name, "scale", "half", &[Value::F32(0.5), Value::F32(-1.0)])
+        .await
+        .unwrap();
+    let out = m
+        .function(&FnRef::new(&name, "half"))
+        .unwrap()
+        .call(&[Value::U64(1000), Value::F32(3.0)])
+        .await
+        .unwrap();
+    assert_eq!(out, [Value::U64(1000), Value::F32(0.5)]);
+    m.refresh().await.unwrap();
+    let rt = m
+        .som()
+        .runtimes
+        .iter()
+        .find(|r| r.record.name == name)
+        .unwrap();
+    assert_eq!(rt.blocks.len(), 1, "{:?}", rt.blocks);
+    assert_eq!(rt.blocks[0].port, block.port);
+    assert_eq!(rt.blocks[0].arguments[0].value, "0.5");
+    m.delete_block(&name, "half").await.unwrap();
+    m.refresh().await.unwrap();
+    let rt = m
+        .som()
+        .runtimes
+        .iter()
+        .find(|r| r.record.name == name)
+        .unwrap();
+    assert!(rt.blocks.is_empty() && !rt.functions.iter().any(|f| f.name == "half"));
+    println!("block: a scale made, called and deleted on the firmware");
+
     // 2. RPC round trips.
     let f = |fname: &str| m.function(&FnRef::new(&name, fname)).unwrap();
     let mut rtts = Vec::new();

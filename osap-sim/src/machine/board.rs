@@ -22,7 +22,9 @@
 
 pub mod accel;
 pub mod bootloader;
+pub mod contact;
 pub mod heater;
+pub mod hx711;
 pub mod melt;
 pub mod rotor;
 
@@ -32,6 +34,7 @@ use crate::topology::{
 };
 use accel::Accel;
 use bootloader::BootHook;
+use contact::Contact;
 use heater::ThermalHeater;
 use melt::Melt;
 use osap_core::Instant;
@@ -257,6 +260,7 @@ pub struct Pins {
     accel: Option<Accel>,
     heaters: Vec<ThermalHeater>,
     melt: Option<Melt>,
+    contact: Option<Contact>,
 }
 
 impl Pins {
@@ -283,6 +287,8 @@ impl Pins {
                 .cloned()
                 .map(ThermalHeater::new)
                 .collect(),
+            // Placed where the carriage starts by the board.
+            contact: None,
             melt: spec.melt.clone().map(|m| {
                 let ambient = spec
                     .heaters
@@ -292,6 +298,11 @@ impl Pins {
                 Melt::new(m, ambient)
             }),
         }
+    }
+
+    /// The bed contact under the axis, if the board has one.
+    pub fn contact(&self) -> Option<&Contact> {
+        self.contact.as_ref()
     }
 
     /// The melt behind the extruder, if the board has one.
@@ -381,6 +392,11 @@ impl IoHw for Pins {
         DIGITAL_PINS
     }
     fn write_digital(&mut self, pin: u8, level: bool) {
+        if let Some(c) = self.contact.as_mut().filter(|c| c.spec().clock_pin == pin) {
+            c.write_clock(self.clock.now(), level);
+            self.digital[usize::from(pin)] = level;
+            return;
+        }
         // The load cell's clock: the converter sees the edge (and the
         // pin's thousands of edges a second are not kept in `writes`).
         if self
@@ -409,6 +425,9 @@ impl IoHw for Pins {
         let now = self.clock.now();
         if let Some(m) = self.melt.as_mut().filter(|m| m.spec().data_pin == pin) {
             return m.read_data(now);
+        }
+        if let Some(c) = self.contact.as_ref().filter(|c| c.spec().data_pin == pin) {
+            return c.read_data(now);
         }
         self.digital.get(usize::from(pin)).copied().unwrap_or(false)
     }
@@ -510,14 +529,20 @@ pub struct SimBoard {
 impl SimBoard {
     /// A board at rest: driver off, full steps, carriage at 0.
     pub fn new(clock: DriftClock, motor: MotorSpec, io: &IoSpec) -> Self {
+        let motor = Motor::new(motor);
+        let mut pins = Pins::new(io, clock);
+        pins.contact = io
+            .contact
+            .clone()
+            .map(|c| Contact::new(c, motor.position()));
         SimBoard {
             clock,
             driver: Driver {
                 enabled: false,
                 microsteps: 1,
             },
-            motor: Motor::new(motor),
-            pins: Pins::new(io, clock),
+            motor,
+            pins,
             boot: None,
         }
     }
@@ -565,6 +590,9 @@ impl SimBoard {
         let moved = self.motor.position() - before;
         if let Some(a) = &mut self.pins.accel {
             a.step(local, moved);
+        }
+        if let Some(c) = &mut self.pins.contact {
+            c.step(local, self.motor.position());
         }
         if self.pins.melt.is_some() {
             self.pins.warm_melt();

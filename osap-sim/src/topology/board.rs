@@ -161,6 +161,10 @@ pub struct IoSpec {
     /// digital pins (`[module.io.melt]`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub melt: Option<MeltSpec>,
+    /// A load cell this module's axis presses on a bed with, on two
+    /// digital pins (`[module.io.contact]`): a nozzle load-cell probe.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub contact: Option<ContactSpec>,
 }
 
 impl IoSpec {
@@ -185,6 +189,15 @@ impl IoSpec {
         }
         if let Some(a) = &self.accel {
             a.check()?;
+        }
+        if let Some(c) = &self.contact {
+            c.check()?;
+            if self.melt.is_some() {
+                return Err(BoardError::new(
+                    "[module.io.contact] and [module.io.melt] on one module: a module reads one \
+                     load cell (its driver has one converter)",
+                ));
+            }
         }
         if let Some(m) = &self.melt {
             m.check()?;
@@ -668,6 +681,102 @@ impl MeltSpec {
                 "[module.io.melt] heater_pwm {} does not exist",
                 self.heater_pwm
             )));
+        }
+        Ok(())
+    }
+}
+
+/// A load cell under a module's axis that presses a bed
+/// (`[module.io.contact]` in a topology file; see
+/// [`crate::machine::board::contact`]): a nozzle load-cell probe. Past
+/// `touch_at` the bed pushes back with `stiffness_n_per_unit` newtons per
+/// unit of the module's carriage; an HX711-kind converter on `data_pin` and
+/// `clock_pin` weighs it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ContactSpec {
+    /// The carriage position (the module's units) where the tip touches.
+    pub touch_at: f64,
+    /// Pressing while the carriage is below `touch_at` (default; `false`:
+    /// above it).
+    #[serde(default = "default_true")]
+    pub pressing_below: bool,
+    /// How hard the bed pushes back, N per unit past the touch (default
+    /// 40: a printer's bed and gantry).
+    #[serde(default = "default_stiffness")]
+    pub stiffness_n_per_unit: f64,
+    /// The converter's data line: this digital pin.
+    #[serde(default)]
+    pub data_pin: u8,
+    /// The converter's clock line: this digital pin.
+    #[serde(default = "one_u8")]
+    pub clock_pin: u8,
+    /// Conversions a second (default 320: an HX717, as probing load cells
+    /// use; an HX711 gives 10 or 80).
+    #[serde(default = "default_contact_hz")]
+    pub sample_hz: f64,
+    /// Counts per newton (default 2 000).
+    #[serde(default = "default_counts_per_newton")]
+    pub counts_per_newton: f64,
+    /// Counts at no force (default 85 000).
+    #[serde(default = "default_offset_counts")]
+    pub offset_counts: f64,
+    /// The cell's noise, N (one σ; default 0.02).
+    #[serde(default = "default_contact_noise")]
+    pub noise_n: f64,
+    /// The noise's seed.
+    #[serde(default)]
+    pub seed: u64,
+}
+
+fn default_true() -> bool {
+    true
+}
+fn default_stiffness() -> f64 {
+    40.0
+}
+fn default_contact_hz() -> f64 {
+    320.0
+}
+fn default_contact_noise() -> f64 {
+    0.02
+}
+
+impl ContactSpec {
+    /// Checks the values; the message says which and why.
+    pub fn check(&self) -> Result<(), BoardError> {
+        for (key, v) in [
+            ("stiffness_n_per_unit", self.stiffness_n_per_unit),
+            ("sample_hz", self.sample_hz),
+            ("counts_per_newton", self.counts_per_newton),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(BoardError::new(format!(
+                    "[module.io.contact] {key} {v} must be finite and positive"
+                )));
+            }
+        }
+        if !(self.noise_n.is_finite() && self.noise_n >= 0.0)
+            || !self.touch_at.is_finite()
+            || !self.offset_counts.is_finite()
+        {
+            return Err(BoardError::new(
+                "[module.io.contact] touch_at and offset_counts must be finite, noise_n 0 or more",
+            ));
+        }
+        for (key, pin) in [("data_pin", self.data_pin), ("clock_pin", self.clock_pin)] {
+            if pin >= DIGITAL_PINS {
+                return Err(BoardError::new(format!(
+                    "[module.io.contact] {key} {pin} does not exist: a module has digital pins 0 \
+                     to {}",
+                    DIGITAL_PINS - 1
+                )));
+            }
+        }
+        if self.data_pin == self.clock_pin {
+            return Err(BoardError::new(
+                "[module.io.contact] data_pin and clock_pin must differ",
+            ));
         }
         Ok(())
     }

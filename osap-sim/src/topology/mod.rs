@@ -22,8 +22,8 @@ mod host;
 
 pub use bed::{BedContact, BedSurface};
 pub use board::{
-    AccelSpec, BoardError, BootloaderSpec, Chip, HeaterSpec, IoSpec, MeltSpec, MotorSpec,
-    RotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
+    AccelSpec, BoardError, BootloaderSpec, Chip, ContactSpec, HeaterSpec, IoSpec, MeltSpec,
+    MotorSpec, RotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
 };
 pub use error::SpecError;
 pub use host::{ClockSource, HostSpec};

@@ -18,16 +18,11 @@
 //! file's `max_force_n`), a step the drive takes does not move the
 //! filament: it is counted as slipped (under-extrusion) and adds no melt.
 //!
-//! **Load cell.** The converter completes a conversion every
-//! `1 / sample_hz`; its data line goes low when one is ready. The 24-bit
-//! sample is `offset_counts + counts_per_newton · F_s + noise`, where
-//! `F_s` is the force through the cell's own first-order lag
-//! (`sensor_tau_ms`) and the noise is Gaussian of `noise_n` newtons. The
-//! module clocks it out MSB first on 24 rising clock edges; a 25th edge
-//! ends the read (channel A, gain 128), and the data line stays high
-//! until the next conversion.
+//! **Load cell.** An HX711 ([`super::hx711`]) converts `F_s`, the force
+//! through the cell's own first-order lag (`sensor_tau_ms`), every
+//! `1 / sample_hz`.
 
-use crate::rng::Rng;
+use super::hx711::{Edge, Hx711, Hx711Spec};
 use crate::topology::MeltSpec;
 use osap_core::Instant;
 use std::collections::VecDeque;
@@ -52,13 +47,8 @@ pub struct Melt {
     /// The block's temperature now, °C (set by the board).
     temp_c: f64,
     stats: MeltStats,
-    rng: Rng,
-    /// The converter's read-out: the sample being shifted, edges seen.
-    shifting: Option<(u32, u8)>,
-    /// When the next conversion is ready.
-    next_ready: Instant,
-    /// The clock line's level.
-    sck: bool,
+    /// The load cell's converter.
+    cell: Hx711,
     /// Whether the last step the drive took slipped.
     slipping: bool,
 }
@@ -82,7 +72,13 @@ impl Melt {
     /// A melt at rest, its block at `ambient_c`.
     pub fn new(spec: MeltSpec, ambient_c: f64) -> Self {
         let r = spec.filament_diameter / 2.0;
-        let seed = spec.seed;
+        let cell = Hx711::new(Hx711Spec {
+            sample_hz: spec.sample_hz,
+            counts_per_newton: spec.counts_per_newton,
+            offset_counts: spec.offset_counts,
+            noise_n: spec.noise_n,
+            seed: spec.seed,
+        });
         Melt {
             area: std::f64::consts::PI * r * r,
             spec,
@@ -93,10 +89,7 @@ impl Melt {
             pending: VecDeque::new(),
             temp_c: ambient_c,
             stats: MeltStats::default(),
-            rng: Rng::new(seed),
-            shifting: None,
-            next_ready: Instant::ZERO,
-            sck: false,
+            cell,
             slipping: false,
         }
     }
@@ -108,7 +101,10 @@ impl Melt {
 
     /// What it did.
     pub fn stats(&self) -> MeltStats {
-        self.stats
+        MeltStats {
+            samples_read: self.cell.samples_read(),
+            ..self.stats
+        }
     }
 
     /// The outflow now, mm³/s.
@@ -212,56 +208,18 @@ impl Melt {
         }
     }
 
-    /// One conversion at local `now`: the 24-bit two's-complement sample.
-    fn convert(&mut self, now: Instant) -> u32 {
-        self.advance(now);
-        let s = &self.spec;
-        let force = self.sensed + s.noise_n * self.rng.normal();
-        let counts = (s.offset_counts + s.counts_per_newton * force).round();
-        let counts = counts.clamp(-8_388_608.0, 8_388_607.0) as i32;
-        (counts as u32) & 0x00ff_ffff
-    }
-
-    /// The converter's data line at local `now`: low while a conversion
-    /// waits to be read, then each bit as it is clocked out.
+    /// The converter's data line at local `now`.
     pub fn read_data(&mut self, now: Instant) -> bool {
-        match self.shifting {
-            Some((sample, edges)) => (sample >> (24 - u32::from(edges))) & 1 == 1,
-            None => now < self.next_ready,
-        }
+        self.cell.read_data(now)
     }
 
     /// The module drives the converter's clock line to `level` at local
-    /// `now`.
+    /// `now`; a read-out that starts converts the sensed force then.
     pub fn write_clock(&mut self, now: Instant, level: bool) {
-        let rising = level && !self.sck;
-        self.sck = level;
-        if !rising {
-            return;
+        if self.cell.write_clock(now, level) == Edge::Sample {
+            self.advance(now);
+            self.cell.load(self.sensed);
         }
-        self.shifting = match self.shifting {
-            // A pulse with no conversion ready shifts nothing.
-            None if now < self.next_ready => None,
-            None => Some((self.convert(now), 1)),
-            Some((sample, edges)) if edges < 24 => Some((sample, edges + 1)),
-            // The 25th edge: read done; the next conversion is due a
-            // period after the one just read.
-            Some(_) => {
-                self.stats.samples_read += 1;
-                let period = (1e6 / self.spec.sample_hz) as u64;
-                let due = self.next_ready.as_micros() + period;
-                let now_us = now.as_micros();
-                // Conversions not read are overwritten: the next one
-                // ready after now.
-                let next = if due > now_us {
-                    due
-                } else {
-                    now_us + period - (now_us - due) % period
-                };
-                self.next_ready = Instant::from_micros(next);
-                None
-            }
-        };
     }
 }
 
