@@ -756,10 +756,11 @@ impl ContactSpec {
                 )));
             }
         }
-        if !(self.noise_n.is_finite() && self.noise_n >= 0.0)
-            || !self.touch_at.is_finite()
-            || !self.offset_counts.is_finite()
-        {
+        let finite = self.noise_n.is_finite()
+            && self.noise_n >= 0.0
+            && self.touch_at.is_finite()
+            && self.offset_counts.is_finite();
+        if !finite {
             return Err(BoardError::new(
                 "[module.io.contact] touch_at and offset_counts must be finite, noise_n 0 or more",
             ));
