@@ -33,6 +33,7 @@ use crate::control::{
     OutputMode, Reply, ReplyBody, Request, ANY_SLOT,
 };
 use crate::convert::{convert, ConvertError};
+use crate::docs::check_docs;
 use crate::failure::{check_failures, tail_len, write_tail, Failure, SignatureParts};
 use crate::message::{Args, ArgsWriter, MessageKey};
 use crate::pipe::{AckStep, PipeConfig, PipeDelivery, PipeState};
@@ -208,6 +209,14 @@ pub trait Implementation {
     fn failures(&self) -> &'static [Failure] {
         &[]
     }
+
+    /// The function's documentation, its `///` doc comment (the macros
+    /// fill it in): sent with its signature when a host asks, the first
+    /// sentence as its summary ([`crate::docs`]). In flash, never copied;
+    /// at most [`MAX_DOCS`](crate::docs::MAX_DOCS) bytes. None by default.
+    fn docs(&self) -> &'static str {
+        ""
+    }
 }
 
 /// An [`Implementation`] made of a signature and a closure or fn pointer.
@@ -303,6 +312,8 @@ pub struct PipesFunction<I, const PIPES: usize = 2, const Q: usize = 2, const B:
     seg_parts: SignatureParts,
     /// The function's failure table (checked).
     failures: &'static [Failure],
+    /// The function's documentation (checked).
+    docs: &'static str,
 }
 
 /// A signature reply, `[transport][2][0][signature][tail]`, read a window
@@ -312,6 +323,7 @@ struct SignatureReply {
     sig: &'static Signature,
     parts: SignatureParts,
     failures: &'static [Failure],
+    docs: &'static str,
 }
 
 impl SegmentSource for SignatureReply {
@@ -319,7 +331,7 @@ impl SegmentSource for SignatureReply {
         self.transport.encoded_len()
             + 2
             + self.sig.encoded_len()
-            + tail_len(self.parts, self.failures)
+            + tail_len(self.parts, self.failures, self.docs)
     }
 
     fn read_at(&self, offset: usize, out: &mut [u8]) -> usize {
@@ -329,7 +341,7 @@ impl SegmentSource for SignatureReply {
         w.put(&head[..n]);
         w.put(&[ControlKey::GetSignature.to_u8(), 0]);
         self.sig.write_pieces(&mut w);
-        write_tail(&mut w, self.parts, self.failures);
+        write_tail(&mut w, self.parts, self.failures, self.docs);
         w.written()
     }
 }
@@ -360,6 +372,8 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         sig.check()?;
         let failures = imp.failures();
         check_failures(failures)?;
+        let docs = imp.docs();
+        check_docs(docs)?;
         Ok(PipesFunction {
             imp,
             sig,
@@ -381,6 +395,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             seg_reply: Transport::Raw,
             seg_parts: SignatureParts::NONE,
             failures,
+            docs,
         })
     }
 
@@ -777,7 +792,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         key: u8,
         result: Result<Answer, ControlError>,
     ) {
-        let (sig, failures) = (self.sig, self.failures);
+        let (sig, failures, docs) = (self.sig, self.failures, self.docs);
         let out = self.out.get(..self.out_len).unwrap_or(&[]);
         let r = tx.send_with(0, &d.reply_route, d.source_port, self.reply_ttl, |buf| {
             let h = transport.encode(buf)?;
@@ -785,7 +800,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             let ok = match &result {
                 Err(e) => encode_error(&mut w, key, e),
                 Ok(Answer::Signature(parts)) => {
-                    encode_described_reply(&mut w, sig, *parts, failures)
+                    encode_described_reply(&mut w, sig, *parts, failures, docs)
                 }
                 Ok(Answer::Outputs) => (|| {
                     w.u8(key)?;
@@ -825,6 +840,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             sig: self.sig,
             parts: self.seg_parts,
             failures: self.failures,
+            docs: self.docs,
         }
     }
 

@@ -33,6 +33,7 @@ extern crate std;
 
 pub mod control;
 pub mod convert;
+pub mod docs;
 pub mod f16;
 pub mod failure;
 pub mod function;

@@ -37,7 +37,7 @@ static TABLE: [Failure; 3] = [
 fn reply(parts: SignatureParts) -> Vec<u8> {
     let mut buf = vec![0u8; 512];
     let mut w = Writer::new(&mut buf);
-    encode_described_reply(&mut w, &MOVE, parts, &TABLE).unwrap();
+    encode_described_reply(&mut w, &MOVE, parts, &TABLE, "").unwrap();
     let n = w.len();
     buf.truncate(n);
     buf
