@@ -102,7 +102,10 @@ mod tests {
             summary("Sets the microstep mode (1, 2, 4, ..\n256, e.g. 16).\nMore."),
             "Sets the microstep mode (1, 2, 4, ..\n256, e.g. 16)."
         );
-        assert_eq!(summary("No full stop\nat all\n\nSecond."), "No full stop\nat all");
+        assert_eq!(
+            summary("No full stop\nat all\n\nSecond."),
+            "No full stop\nat all"
+        );
         assert_eq!(summary("\n  Leading space.  "), "Leading space.");
         assert_eq!(summary("Ends at the end."), "Ends at the end.");
         assert_eq!(summary("A 1.5 mm step. B."), "A 1.5 mm step.");

@@ -67,7 +67,10 @@ fn doc_text(attrs: &[Attribute]) -> syn::Result<String> {
         .map(|l| l.len() - l.trim_start().len())
         .min()
         .unwrap_or(0);
-    let lines: Vec<&str> = lines.iter().map(|l| l.get(indent..).unwrap_or("")).collect();
+    let lines: Vec<&str> = lines
+        .iter()
+        .map(|l| l.get(indent..).unwrap_or(""))
+        .collect();
     let text = lines.join("\n").trim_matches('\n').to_string();
     if text.len() > MAX_DOCS {
         return Err(Error::new(
