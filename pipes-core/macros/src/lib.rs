@@ -45,7 +45,7 @@ const MAX_DOCS: usize = 2048;
 /// dropped. Doc attributes that are not string literals are skipped.
 /// Refused when longer than [`MAX_DOCS`]: the text travels with the
 /// signature.
-fn doc_text(attrs: &[Attribute]) -> syn::Result<String> {
+fn doc_text_of(attrs: &[Attribute]) -> syn::Result<String> {
     let mut lines: Vec<String> = Vec::new();
     let mut first: Option<Span> = None;
     for a in attrs.iter().filter(|a| a.path().is_ident("doc")) {
@@ -181,6 +181,32 @@ pub fn class(attr: TokenStream, item: TokenStream) -> TokenStream {
             };
             quote!(#e #item).into()
         }
+    }
+}
+
+/// The text of the doc attributes given, as one string literal: the
+/// documentation a PIPES function publishes, read exactly as
+/// [`macro@function`] reads a doc comment (lines joined by `\n`, common
+/// indentation removed; at most 2048 bytes).
+///
+/// For tables of functions written by `macro_rules!` (osap-module's
+/// `module_function_table!`), whose `///` lines arrive as `#[doc = ".."]`
+/// attributes:
+///
+/// ```ignore
+/// const DOCS: &str = pipes_core::doc_text!(
+///     /// Queues a control point:
+///     ///   at `time`.
+/// );
+/// assert_eq!(DOCS, "Queues a control point:\n  at `time`.");
+/// ```
+#[proc_macro]
+pub fn doc_text(item: TokenStream) -> TokenStream {
+    let parsed =
+        Parser::parse2(Attribute::parse_outer, item.into()).and_then(|attrs| doc_text_of(&attrs));
+    match parsed {
+        Ok(text) => quote!(#text).into(),
+        Err(e) => e.to_compile_error().into(),
     }
 }
 
@@ -609,7 +635,7 @@ fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStr
     let args = decode_args(&ins, &values);
     let write = write_outputs(&ret, &value, &outputs);
     let call = unwrap_call(&ret, quote!(#ident(#(#args),*)));
-    let docs = doc_text(&f.attrs)?;
+    let docs = doc_text_of(&f.attrs)?;
     let docs_fn = (!docs.is_empty()).then(|| {
         quote! {
             fn docs(&self) -> &'static str {
@@ -765,7 +791,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
                 return Err(e);
             }
             constructor = Some((sig.ident.clone(), inputs(sig)?, sig.ident.span()));
-            ctor_docs = doc_text(&f.attrs)?;
+            ctor_docs = doc_text_of(&f.attrs)?;
             ctor_fallible = returned(&sig.output).fallible;
             continue;
         }
@@ -814,7 +840,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
         members.push(MemberFn {
             ident: sig.ident.clone(),
             name,
-            docs: doc_text(&f.attrs)?,
+            docs: doc_text_of(&f.attrs)?,
             inputs: ins,
             ret,
             outputs: outs,
