@@ -46,6 +46,9 @@ pub const FUNCTION_PORT_TYPE: &str = "pipes_function";
 pub const PIPE_PORT_TYPE: &str = "pipes_pipe";
 /// Default time-to-live of replies and error reports, µs.
 pub const DEFAULT_REPLY_TTL: u16 = 20_000;
+/// Time-to-live of a signature reply sent in segments, µs: the time its
+/// segments have, together, to go out (the longest a `u16` says).
+pub const SEGMENTED_REPLY_TTL: u16 = u16::MAX;
 
 /// Why a function's `call` failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -825,7 +828,10 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 self.seg_reply = transport;
                 self.seg_parts = *parts;
                 let len = self.signature_reply().len();
-                let ttl = self.reply_ttl;
+                // With its docs, a reply may take dozens of segments (2 KiB
+                // of text on a 64-byte link): it gets the longest time to
+                // live, whatever the function's reply TTL, to go out whole.
+                let ttl = self.reply_ttl.max(SEGMENTED_REPLY_TTL);
                 self.seg
                     .start(tx.now(), &d.reply_route, d.source_port, ttl, len);
                 self.send_segments(tx);

@@ -31,6 +31,7 @@
 //! # let _ = out; Ok(()) }
 //! ```
 
+mod description;
 pub mod failure;
 pub mod graph;
 mod handle;
@@ -42,6 +43,7 @@ mod named;
 pub mod proxy;
 mod value;
 
+pub use description::Description;
 pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{
