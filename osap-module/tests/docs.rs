@@ -24,6 +24,12 @@ fn every_function_is_documented_within_the_limit() {
         let summary = pipes_core::docs::summary(docs);
         assert!(summary.ends_with('.'), "{name}: summary {summary:?}");
     }
+    // What the docs cost in flash (the texts; the table of pointers adds
+    // 8 bytes a function): a budget, so a text that grows by much is
+    // noticed.
+    let total: usize = DOCS.iter().map(|d| d.len()).sum();
+    println!("module docs: {total} bytes in {} texts", DOCS.len());
+    assert!(total < 8 * 1024, "{total} bytes of docs");
     assert!(FnId::add_point
         .docs()
         .starts_with("Queues a control point: the axis is at `position` (user units) at\n"));

@@ -315,8 +315,6 @@ pub struct PipesFunction<I, const PIPES: usize = 2, const Q: usize = 2, const B:
     seg_parts: SignatureParts,
     /// The function's failure table (checked).
     failures: &'static [Failure],
-    /// The function's documentation (checked).
-    docs: &'static str,
 }
 
 /// A signature reply, `[transport][2][0][signature][tail]`, read a window
@@ -375,8 +373,9 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         sig.check()?;
         let failures = imp.failures();
         check_failures(failures)?;
-        let docs = imp.docs();
-        check_docs(docs)?;
+        // Checked here, read from `imp` when sent: no copy, not even of
+        // the pointer.
+        check_docs(imp.docs())?;
         Ok(PipesFunction {
             imp,
             sig,
@@ -398,7 +397,6 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             seg_reply: Transport::Raw,
             seg_parts: SignatureParts::NONE,
             failures,
-            docs,
         })
     }
 
@@ -795,7 +793,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         key: u8,
         result: Result<Answer, ControlError>,
     ) {
-        let (sig, failures, docs) = (self.sig, self.failures, self.docs);
+        let (sig, failures, docs) = (self.sig, self.failures, self.imp.docs());
         let out = self.out.get(..self.out_len).unwrap_or(&[]);
         let r = tx.send_with(0, &d.reply_route, d.source_port, self.reply_ttl, |buf| {
             let h = transport.encode(buf)?;
@@ -846,7 +844,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             sig: self.sig,
             parts: self.seg_parts,
             failures: self.failures,
-            docs: self.docs,
+            docs: self.imp.docs(),
         }
     }
 
