@@ -829,7 +829,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 // With its docs, a reply may take dozens of segments (2 KiB
                 // of text on a 64-byte link): it gets the longest time to
                 // live, whatever the function's reply TTL, to go out whole.
-                let ttl = self.reply_ttl.max(SEGMENTED_REPLY_TTL);
+                let ttl = SEGMENTED_REPLY_TTL;
                 self.seg
                     .start(tx.now(), &d.reply_route, d.source_port, ttl, len);
                 self.send_segments(tx);
