@@ -126,9 +126,39 @@ mod tests {
 
     #[test]
     fn texts_beyond_the_limit_are_refused() {
+        use crate::function::{CallError, Implementation, Outputs, PipesFunction};
+        use crate::signature::{Signature, SignatureError};
+        use crate::value::Value;
+
         let long = "x".repeat(MAX_DOCS + 1);
         assert_eq!(check_docs(&long), Err(FailureError::DocsTooLong));
         assert_eq!(check_docs(&long[..MAX_DOCS]), Ok(()));
         assert_eq!(decode_text(&[0xFF]), Err(FailureError::BadUtf8));
+
+        static SIG: Signature = Signature {
+            name: "chatty",
+            inputs: &[],
+            outputs: &[],
+        };
+        struct Chatty(&'static str);
+        impl Implementation for Chatty {
+            fn signature(&self) -> &'static Signature {
+                &SIG
+            }
+            fn call(&mut self, _: &[Value<'_>], _: &mut Outputs<'_>) -> Result<(), CallError> {
+                Ok(())
+            }
+            fn docs(&self) -> &'static str {
+                self.0
+            }
+        }
+        let long: &'static str = long.leak();
+        let f = PipesFunction::<_, 0, 1, 8>::new(Chatty(long));
+        assert_eq!(f.err(), Some(SignatureError::DocsTooLong));
+        assert_eq!(
+            std::format!("{}", SignatureError::DocsTooLong),
+            "the documentation is longer than 2048 bytes: shorten it"
+        );
+        assert!(PipesFunction::<_, 0, 1, 8>::new(Chatty(&long[..MAX_DOCS])).is_ok());
     }
 }
