@@ -5,7 +5,11 @@
 //! function: a [`ModuleFn`] binds one of them to one module through a
 //! [`ModuleHandle`], so a runtime can hold them in one array. Failure codes
 //! are [`StepperError`], [`IoError`], [`BootError`] and [`HeaterError`]
-//! codes, plus [`NOT_INSTALLED`].
+//! codes, plus [`NOT_INSTALLED`]. Each explains itself: its documentation
+//! (below, on each [`FnId`] variant and `Module` method) is written once,
+//! in [`module_function_table!`](crate::module_function_table), and sent
+//! with its signature when a host asks ([`DOCS`], `pipes_core::docs`;
+//! `osap describe`).
 //!
 //! | function | inputs | outputs |
 //! |---|---|---|
