@@ -21,6 +21,7 @@ mod bridge_cmd;
 mod call_cmd;
 mod capture_cmd;
 mod connection;
+mod describe_cmd;
 mod flash_cmd;
 mod graph_cmd;
 mod halt_cmd;
@@ -67,7 +68,9 @@ enum Command {
         /// system object model (the input of `proxygen`) as JSON to this file.
         #[arg(long, value_name = "FILE")]
         som: Option<PathBuf>,
-        /// Also list every runtime's PIPES functions with their signatures.
+        /// Also list every runtime's PIPES functions with their signatures
+        /// and, after `  # `, their summary lines (`osap describe` prints
+        /// a function's whole documentation).
         #[arg(short = 'f', long)]
         functions: bool,
         /// Retries for a request that got no reply.
@@ -103,6 +106,10 @@ enum Command {
     /// Call a runtime's PIPES function once: its outputs print one a
     /// line, a refusal by name (exit code 3).
     Call(call_cmd::CallArgs),
+    /// Print what a runtime's PIPES function says of itself: its
+    /// signature, its documentation, and its refusal codes with their
+    /// fixes.
+    Describe(describe_cmd::DescribeArgs),
     /// Save a network's wired dataflow graph to a file, or apply one.
     #[command(subcommand)]
     Graph(graph_cmd::GraphCommand),
@@ -345,6 +352,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Time(args) => time_cmd::time(args).await,
         Command::Flash(args) => flash_cmd::flash(args).await,
         Command::Call(args) => call_cmd::call(args).await,
+        Command::Describe(args) => describe_cmd::describe(args).await,
         Command::Graph(command) => graph_cmd::graph(command).await,
         Command::Block(command) => block_cmd::block(command).await,
         Command::Serve(args) => serve_cmd::serve(args).await,

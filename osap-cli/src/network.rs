@@ -213,30 +213,37 @@ pub(crate) async fn link_counter_listing(
     Ok(out)
 }
 
-/// Every runtime's functions, one signature a line:
-/// `x: add_point(time: u64, position: f32)`,
-/// `x: get_position() -> (time: u64, position: f32)`.
+/// Every runtime's functions, one signature a line, followed by the
+/// function's summary (the first sentence of its docs) after `  # ` if it
+/// sent one: `x: add_point(time: u64, position: f32)  # Queues a ..`,
+/// `x: get_position() -> (time: u64, position: f32)  # Where ..`.
 pub(crate) fn function_listing(som: &osap_host::som::Som) -> String {
+    let mut out = String::new();
+    for rt in &som.runtimes {
+        for f in &rt.functions {
+            out.push_str(&format!("{}: {}", rt.record.name, signature_line(f)));
+            if !f.summary.is_empty() {
+                out.push_str("  # ");
+                out.push_str(&f.summary);
+            }
+            out.push('\n');
+        }
+    }
+    out
+}
+
+/// `name(input: type, ..) -> (output: type, ..)` (no `->` without
+/// outputs): a function as `osap scan -f` and `osap describe` print it.
+pub(crate) fn signature_line(f: &osap_host::som::model::SomFunction) -> String {
     let args = |a: &[osap_host::som::model::SomArg]| {
         a.iter()
             .map(|a| format!("{}: {}", a.name, a.type_name))
             .collect::<Vec<_>>()
             .join(", ")
     };
-    let mut out = String::new();
-    for rt in &som.runtimes {
-        for f in &rt.functions {
-            out.push_str(&format!(
-                "{}: {}({})",
-                rt.record.name,
-                f.name,
-                args(&f.inputs)
-            ));
-            if !f.outputs.is_empty() {
-                out.push_str(&format!(" -> ({})", args(&f.outputs)));
-            }
-            out.push('\n');
-        }
+    let mut line = format!("{}({})", f.name, args(&f.inputs));
+    if !f.outputs.is_empty() {
+        line.push_str(&format!(" -> ({})", args(&f.outputs)));
     }
-    out
+    line
 }

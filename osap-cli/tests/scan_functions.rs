@@ -1,8 +1,8 @@
 //! `osap scan -f --sim FILE` lists, for every simulated stepper, exactly the
-//! module firmware's functions (osap-module's set), in port order, and
-//! nothing for a hub.
+//! module firmware's functions (osap-module's set), in port order, each
+//! with its summary line, and nothing for a hub.
 
-use osap_module::functions::SIGNATURES;
+use osap_module::functions::{ALL, SIGNATURES};
 use pipes_core::signature::Arg;
 use std::process::Command;
 
@@ -31,11 +31,16 @@ fn scan_lists_the_firmware_functions_of_every_simulated_stepper() {
     );
     let want: Vec<String> = SIGNATURES
         .iter()
-        .map(|s| {
+        .zip(ALL)
+        .map(|(s, id)| {
             let mut line = format!("{}({})", s.name, listed(s.inputs));
             if !s.outputs.is_empty() {
                 line.push_str(&format!(" -> ({})", listed(s.outputs)));
             }
+            // The summary the function sent: its docs' first sentence,
+            // on one line.
+            let summary = pipes_core::docs::summary(id.docs()).replace('\n', " ");
+            line.push_str(&format!("  # {summary}"));
             line
         })
         .collect();

@@ -16,6 +16,8 @@ use pipes_core::control::{
 use pipes_core::failure::Failure;
 use pipes_core::function::FUNCTION_PORT_TYPE;
 use pipes_core::signature::Signature;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Arc;
 
 static JAM: [Failure; 2] = [
     Failure {
@@ -37,11 +39,14 @@ static OLD: Signature = Signature {
 };
 
 /// A function port as a firmware from before the failure tables answers:
-/// `[2][parts]` is malformed, everything else as usual, and a call fails
-/// with code 5.
-async fn serve_old_function(port: osap_host::PortHandle) {
+/// `[2][parts]` is malformed (counted in `refused`), everything else as
+/// usual, and a call fails with code 5.
+async fn serve_old_function(port: osap_host::PortHandle, refused: Arc<AtomicUsize>) {
     loop {
         let d = port.recv().await;
+        if matches!(Request::parse(&d.body), Ok(Request::Describe(_))) {
+            refused.fetch_add(1, Ordering::Relaxed);
+        }
         let mut buf = [0u8; 64];
         let mut w = Writer::new(&mut buf);
         let reply = |key: ControlKey, result| Reply {
@@ -91,7 +96,7 @@ async fn refusals_are_named_from_the_scanned_table_and_old_functions_still_read(
         .unwrap();
     attach_function(&b, feed).await.unwrap();
     let old = b.open_port(FUNCTION_PORT_TYPE).await.unwrap();
-    let server = tokio::spawn(serve_old_function(old));
+    let server = tokio::spawn(serve_old_function(old, Arc::default()));
     memory::connect(&h, &b).await.unwrap();
     let mut m = Manager::new(&h).await.unwrap();
     refresh(&mut m).await;
@@ -155,4 +160,69 @@ fn a_table_beyond_the_limits_is_refused() {
     let f = HostFunction::new("f", &[], &[], |_| Ok(vec![])).unwrap();
     let e = f.with_failures(&TWICE).err().unwrap();
     assert!(e.to_string().contains("code 1 twice"), "{e}");
+}
+
+const FEED_DOCS: &str = "Feeds one part.\nRefuses when jammed or empty.";
+
+#[tokio::test]
+async fn summaries_come_with_the_scan_and_docs_on_demand_and_old_functions_read_as_undocumented() {
+    let (h, b) = (host("h"), host("b"));
+    let feed = HostFunction::new("feed", &[], &[], |_| Err(HostFnError::new(5)))
+        .unwrap()
+        .with_failures(&JAM)
+        .unwrap()
+        .with_docs(FEED_DOCS)
+        .unwrap();
+    attach_function(&b, feed).await.unwrap();
+    let refused = Arc::new(AtomicUsize::new(0));
+    let mut servers = Vec::new();
+    for _ in 0..2 {
+        let old = b.open_port(FUNCTION_PORT_TYPE).await.unwrap();
+        servers.push(tokio::spawn(serve_old_function(old, refused.clone())));
+    }
+    memory::connect(&h, &b).await.unwrap();
+    let mut m = Manager::new(&h).await.unwrap();
+    refresh(&mut m).await;
+
+    let rb = m.som().runtime_index("b").unwrap();
+    let functions = &m.som().runtimes[rb].functions;
+    let summary = |name: &str| {
+        let f = functions.iter().find(|f| f.name == name).unwrap();
+        f.summary.clone()
+    };
+    assert_eq!(summary("feed"), "Feeds one part.");
+    assert_eq!(summary("old"), "");
+    assert_eq!(functions.iter().filter(|f| f.name == "old").count(), 2);
+    // The first old function refused `[2][02]`; its neighbour on the same
+    // runtime was asked `[2]` alone.
+    assert_eq!(refused.load(Ordering::Relaxed), 1);
+    // In the model's JSON only where there is one.
+    let json = m.som().to_json();
+    assert_eq!(json.matches("\"summary\"").count(), 1, "{json}");
+
+    let d = m.describe(&FnRef::new("b", "feed")).await.unwrap();
+    assert_eq!(d.summary, "Feeds one part.");
+    assert_eq!(d.docs, FEED_DOCS);
+    let table = d.failures.unwrap();
+    let lines: Vec<String> = table.iter().map(ToString::to_string).collect();
+    assert_eq!(
+        lines,
+        [
+            "Jammed (code 5): the feeder is jammed: clear it, then call again",
+            "Empty (code 6)"
+        ]
+    );
+    let d = m.describe(&FnRef::new("b", "old")).await.unwrap();
+    assert_eq!(d, osap_host::som::Description::default());
+    for s in servers {
+        s.abort();
+    }
+}
+
+#[test]
+fn docs_beyond_the_limit_are_refused() {
+    let f = HostFunction::new("f", &[], &[], |_| Ok(vec![])).unwrap();
+    let long = "x".repeat(pipes_core::docs::MAX_DOCS + 1);
+    let e = f.with_docs(&long).err().unwrap();
+    assert!(e.to_string().contains("longer than 2048 bytes"), "{e}");
 }

@@ -56,10 +56,70 @@ async fn net() -> (Host, Host) {
         ],
         |_| Ok(vec![Value::Bool(true), Value::F32(1.0)]),
     )
+    .unwrap()
+    .with_docs(&long_docs())
     .unwrap();
     attach_function(&a, f).await.unwrap();
     connect_small(&h, &a, MTU).await;
     (h, a)
+}
+
+/// `configure_axis`'s documentation: 1.9 KB, multi-byte characters
+/// (`µ`, `°`) cut across segment boundaries.
+fn long_docs() -> String {
+    let mut docs = String::from("Configures one axis: limits in mm/s, mm/s² and mm/s³.\n\n");
+    for i in 0..38 {
+        docs.push_str(&format!(
+            "Line {i:02}: steps every 25 µs at 40 °C, or else.\n"
+        ));
+    }
+    docs.truncate(docs.trim_end().len());
+    assert!(docs.len() > 1800 && docs.len() <= pipes_core::docs::MAX_DOCS);
+    docs
+}
+
+#[tokio::test]
+async fn documentation_longer_than_many_packets_is_read_whole() {
+    let (h, _a) = net().await;
+    let mut m = Manager::new(&h).await.unwrap();
+    refresh(&mut m).await;
+    let f = &m.som().runtimes[1].functions[0];
+    assert_eq!(
+        f.summary,
+        "Configures one axis: limits in mm/s, mm/s² and mm/s³."
+    );
+    let fref = osap_host::som::FnRef::new("a", "configure_axis");
+    let d = m.describe(&fref).await.unwrap();
+    assert_eq!(d.docs, long_docs());
+    assert_eq!(d.summary, f.summary);
+    assert!(d.failures.as_ref().unwrap().is_empty());
+    // The same through a handle.
+    let d2 = m.function(&fref).unwrap().describe().await.unwrap();
+    assert_eq!(d2, d);
+
+    // Over the wire: a reply of 30-odd segments, read whole, byte for byte.
+    let port = h.open_port("script").await.unwrap();
+    let route = Route::through_links(&[0]).unwrap().with_mtu(MTU);
+    let mut b = vec![0u8; 4];
+    let mut w = osap_core::codec::Writer::new(&mut b);
+    Request::Describe(pipes_core::failure::SignatureParts::DOCS)
+        .encode(&mut w)
+        .unwrap();
+    let n = w.len();
+    b.truncate(n);
+    let reply = port
+        .request(&route, 1, &b, Duration::from_millis(2000))
+        .await
+        .unwrap();
+    let Ok(ReplyBody::Signature(sig)) = Reply::parse(&reply.body).unwrap().result else {
+        panic!("not a signature reply")
+    };
+    assert_eq!(sig.docs(), Some(long_docs().as_str()));
+    assert_eq!(sig.summary(), None, "not asked for");
+    let st = port.segment_stats();
+    assert_eq!(st.delivered, 1);
+    assert!(st.segments >= 30, "{st:?}");
+    assert_eq!((st.lost, st.malformed, st.duplicates), (0, 0, 0));
 }
 
 #[tokio::test]

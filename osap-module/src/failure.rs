@@ -580,10 +580,14 @@ mod tests {
                     sig.name
                 );
             }
-            let reply = 2 + sig.encoded_len() + tail_len(SignatureParts::FAILURES, table);
+            let reply = 2 + sig.encoded_len() + tail_len(SignatureParts::FAILURES, table, "");
             // A host reassembles replies of up to 8 KiB; a stepper function's
-            // is about 2.
-            assert!(reply < 4096, "{}: {reply} bytes", sig.name);
+            // is about 2, 3 with its docs.
+            let all = SignatureParts::FAILURES
+                .with(SignatureParts::SUMMARY)
+                .with(SignatureParts::DOCS);
+            let described = 2 + sig.encoded_len() + tail_len(all, table, id.docs());
+            assert!(described < 4096, "{}: {described} bytes", sig.name);
             total += reply;
         }
         // A scan reads every signature with its failure table (33 390 bytes

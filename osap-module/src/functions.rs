@@ -5,7 +5,11 @@
 //! function: a [`ModuleFn`] binds one of them to one module through a
 //! [`ModuleHandle`], so a runtime can hold them in one array. Failure codes
 //! are [`StepperError`], [`IoError`], [`BootError`] and [`HeaterError`]
-//! codes, plus [`NOT_INSTALLED`].
+//! codes, plus [`NOT_INSTALLED`]. Each explains itself: its documentation
+//! (below, on each [`FnId`] variant and `Module` method) is written once,
+//! in [`module_function_table!`](crate::module_function_table), and sent
+//! with its signature when a host asks ([`DOCS`], `pipes_core::docs`;
+//! `osap describe`).
 //!
 //! | function | inputs | outputs |
 //! |---|---|---|
@@ -94,35 +98,50 @@ use pipes_core::Value;
 /// board (see [`crate::ModuleCell::install`]).
 pub const NOT_INSTALLED: u8 = 100;
 
+// One text per function: each function's documentation is written once,
+// as the `///` lines of its entry in [`module_function_table!`]. From
+// there it is the text the function publishes with its signature
+// ([`DOCS`], `Implementation::docs`), the docs of its [`FnId`] variant,
+// and (through `fn_docs!`, defined here so that it is in scope for the
+// methods below) the docs of the `Module` method of the same name: the
+// methods carry `#[doc = fn_docs!(name)]`, never a copy of the prose.
+macro_rules! method_docs {
+    ($(
+        $(#[doc = $doc:tt])*
+        $f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;
+    )*) => {
+        /// Each function's documentation, by its name.
+        macro_rules! fn_docs {
+            $(($f) => { pipes_core::doc_text!($(#[doc = $doc])*) };)*
+        }
+    };
+}
+crate::module_function_table!(method_docs);
+
 impl<B: Board> Module<B> {
-    /// Queues a control point: the axis is at `position` (user units) at
-    /// synchronized `time` (a multiple of the interval).
+    #[doc = fn_docs!(add_point)]
     pub fn add_point(&mut self, time: u64, position: f32) -> Result<(), CallError> {
         Ok(self.queue_point(SystemInstant::from_micros(time), position)?)
     }
 
-    /// Sets the control-point interval, µs (a power of two, 256 to 16 384),
-    /// while no stream is queued.
+    #[doc = fn_docs!(set_interval)]
     pub fn set_interval(&mut self, interval_us: u32) -> Result<(), CallError> {
         Ok(self.stepper.set_interval(interval_us)?)
     }
 
-    /// Where the steps sent so far put the motor (user units), and the
-    /// synchronized time of the latest step tick they include.
+    #[doc = fn_docs!(get_position)]
     pub fn get_position(&mut self) -> Result<(u64, f32), CallError> {
         let (time, position) = self.stepper.position();
         Ok((time.as_micros(), position))
     }
 
-    /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted),
-    /// points queued, whether the motor is powered, and faults since boot.
+    #[doc = fn_docs!(get_status)]
     pub fn get_status(&mut self) -> Result<(u8, u16, bool, u32), CallError> {
         let s = &self.stepper;
         Ok((s.mode() as u8, s.queued(), s.enabled(), s.counters().faults))
     }
 
-    /// Points accepted, refused, the latest refusal's code, and single gaps
-    /// filled.
+    #[doc = fn_docs!(get_counters)]
     pub fn get_counters(&mut self) -> Result<(u32, u32, u8, u32), CallError> {
         let c = self.stepper.counters();
         Ok((
@@ -133,33 +152,24 @@ impl<B: Board> Module<B> {
         ))
     }
 
-    /// Where the steps put the motor, in microsteps (net steps; a scale or
-    /// microstep change re-expresses it), then the steps up, steps down and
-    /// late steps (steps that went out on a later tick than the one they
-    /// fell due at, more than one step tick late; each is a fault, see
-    /// [`crate::fault`]) since the step generator last started: at boot, on
-    /// `set_enable`, `halt`, and a scale or microstep change.
+    #[doc = fn_docs!(get_steps)]
     pub fn get_steps(&mut self) -> Result<(i64, u64, u64, u64), CallError> {
         Ok(self.stepper.step_counts())
     }
 
-    /// Powers the motor or lets it go limp; powering down stops the axis
-    /// where it stands and drops its stream, powering up clears a fault or a
-    /// halt.
+    #[doc = fn_docs!(set_enable)]
     pub fn set_enable(&mut self, on: bool) -> Result<(), CallError> {
         self.stepper.set_enable(on);
         self.board.stepper().set_enable(on);
         Ok(())
     }
 
-    /// Sets the motor's full steps per user unit (the microstep mode
-    /// multiplies it), while no stream is queued.
+    #[doc = fn_docs!(set_scale)]
     pub fn set_scale(&mut self, full_steps_per_unit: f32) -> Result<(), CallError> {
         Ok(self.stepper.set_scale(full_steps_per_unit)?)
     }
 
-    /// Sets the driver's microstep mode (1, 2, 4, .. 256, as the board's
-    /// driver offers), while no stream is queued.
+    #[doc = fn_docs!(set_microsteps)]
     pub fn set_microsteps(&mut self, microsteps: u16) -> Result<(), CallError> {
         self.stepper.check_idle()?;
         if !self.board.stepper().set_microsteps(microsteps) {
@@ -168,14 +178,7 @@ impl<B: Board> Module<B> {
         Ok(self.stepper.set_microsteps(microsteps)?)
     }
 
-    /// Sets the limits on incoming points, in user units (those of
-    /// `add_point`'s position) per s, s² and s³, while no stream is queued:
-    /// `add_point` then refuses a point past one (`OverLimit`, a fault
-    /// `get_fault` reports). 0 turns a limit off; `set_limits(0, 0, 0)`
-    /// (the default) turns the check off. A limit that is not finite, is
-    /// negative, or rounds to nothing at the interval and scale is a
-    /// `BadValue`; a later interval, scale or microstep change that would
-    /// make one round to nothing is refused the same way.
+    #[doc = fn_docs!(set_limits)]
     pub fn set_limits(
         &mut self,
         max_vel: f32,
@@ -189,8 +192,7 @@ impl<B: Board> Module<B> {
         })?)
     }
 
-    /// The limit switch: when its level last changed (synchronized µs, 0:
-    /// never), its level, and the edges seen since boot.
+    #[doc = fn_docs!(read_limit)]
     pub fn read_limit(&mut self) -> Result<(u64, bool, u32), CallError> {
         Ok((
             self.limit.time.as_micros(),
@@ -199,38 +201,31 @@ impl<B: Board> Module<B> {
         ))
     }
 
-    /// Stops stepping at once and drops the stream (an emergency stop), and
-    /// drives every output to its safe value (`set_safe_pwm`,
-    /// `set_safe_digital`); the axis refuses points until the motor is
-    /// disabled and enabled again. Safe to repeat.
+    #[doc = fn_docs!(halt)]
     pub fn halt(&mut self) -> Result<(), CallError> {
         self.halt_axis();
         Ok(())
     }
 
-    /// The latest fault: its synchronized time, its kind
-    /// ([`crate::fault::FaultKind`] code), its detail, and the faults since
-    /// boot (see [`crate::fault`]).
+    #[doc = fn_docs!(get_fault)]
     pub fn get_fault(&mut self) -> Result<(u64, u8, u32, u32), CallError> {
         Ok(self.fault.outputs())
     }
 
-    /// Drives digital pin `pin` high or low.
+    #[doc = fn_docs!(digital_write)]
     pub fn digital_write(&mut self, pin: u8, level: bool) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         Ok(self.io.digital_write(hw, pin, level)?)
     }
 
-    /// Reads digital pin `pin`: the synchronized time of the read and the
-    /// level.
+    #[doc = fn_docs!(digital_read)]
     pub fn digital_read(&mut self, pin: u8) -> Result<(u64, bool), CallError> {
         let now = self.system_now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         Ok((now.as_micros(), self.io.digital_read(hw, pin)?))
     }
 
-    /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`; refused
-    /// for an output a heater drives.
+    #[doc = fn_docs!(pwm_write)]
     pub fn pwm_write(&mut self, channel: u8, duty: f32) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         if self.heaters.drives(channel) {
@@ -239,15 +234,14 @@ impl<B: Board> Module<B> {
         Ok(self.io.pwm_write(hw, channel, duty)?)
     }
 
-    /// Drives `pin` high now and low `duration_us` later (at most 10 s).
+    #[doc = fn_docs!(pulse)]
     pub fn pulse(&mut self, pin: u8, duration_us: u32) -> Result<(), CallError> {
         let now = self.board.now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         Ok(self.io.pulse(hw, now, pin, duration_us)?)
     }
 
-    /// Schedules a pulse of `duration_us` on `pin` at synchronized `time`
-    /// (at most 60 s ahead; 16 may wait at once).
+    #[doc = fn_docs!(pulse_at)]
     pub fn pulse_at(&mut self, time: u64, pin: u8, duration_us: u32) -> Result<(), CallError> {
         let now = self.system_now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
@@ -255,17 +249,14 @@ impl<B: Board> Module<B> {
         Ok(self.io.pulse_at(hw, now, start, pin, duration_us)?)
     }
 
-    /// Samples analog input `channel`: the synchronized time of the sample
-    /// and the reading as a fraction of full scale.
+    #[doc = fn_docs!(analog_read)]
     pub fn analog_read(&mut self, channel: u8) -> Result<(u64, f32), CallError> {
         let now = self.system_now();
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         Ok((now.as_micros(), self.io.analog_read(hw, channel)?))
     }
 
-    /// Reboots the board into its bootloader for a firmware update, after
-    /// this call has answered (see [`crate::boot`]): refused on a board
-    /// without one, and while the axis has motion queued or running.
+    #[doc = fn_docs!(enter_bootloader)]
     pub fn enter_bootloader(&mut self) -> Result<(), CallError> {
         if !self.board.has_bootloader() {
             return Err(BootError::Unsupported.into());
@@ -278,10 +269,7 @@ impl<B: Board> Module<B> {
         Ok(())
     }
 
-    /// Sets the duty (a fraction, `0..=1`) PWM output `channel` takes on
-    /// every stop and when the output watchdog fires (0 until set). The
-    /// output keeps its duty until then. Refused for an output a heater
-    /// drives (its safe duty is 0).
+    #[doc = fn_docs!(set_safe_pwm)]
     pub fn set_safe_pwm(&mut self, channel: u8, duty: f32) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         if self.heaters.drives(channel) {
@@ -290,29 +278,20 @@ impl<B: Board> Module<B> {
         Ok(self.io.set_safe_pwm(hw, channel, duty)?)
     }
 
-    /// Sets the level digital pin `pin` takes on every stop and when the
-    /// output watchdog fires (low until set). The pin keeps its level until
-    /// then.
+    #[doc = fn_docs!(set_safe_digital)]
     pub fn set_safe_digital(&mut self, pin: u8, level: bool) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
         Ok(self.io.set_safe_digital(hw, pin, level)?)
     }
 
-    /// Arms the output watchdog: when no call or pipe datagram reaches any
-    /// of the module's functions for `timeout_ms`, the module drives every
-    /// output to its safe value and `get_fault` reports it. 0 turns it off
-    /// (as at boot). See [`crate::watchdog`].
+    #[doc = fn_docs!(set_output_watchdog)]
     pub fn set_output_watchdog(&mut self, timeout_ms: u32) -> Result<(), CallError> {
         let now = self.board.now();
         self.watchdog.set(timeout_ms, now);
         Ok(())
     }
 
-    /// Heater `index` (0 or 1) reads analog input `analog` through an NTC
-    /// thermistor to ground with a `pullup_ohms` pullup, whose curve is
-    /// the Steinhart–Hart `1/T = a + b·ln R + c·ln³R` (T in K, R in Ω; a
-    /// Beta thermistor has `c = 0`, `b = 1/β`). Only while the heater is
-    /// off.
+    #[doc = fn_docs!(heater_sensor)]
     pub fn heater_sensor(
         &mut self,
         index: u8,
@@ -332,17 +311,13 @@ impl<B: Board> Module<B> {
         Ok(self.heaters.set_sensor(hw, index, analog, thermistor)?)
     }
 
-    /// Heater `index` drives PWM output `pwm`, at most `max_power` (`0 <
-    /// max_power ≤ 1`) of full duty; the output goes to 0. Only while the
-    /// heater is off.
+    #[doc = fn_docs!(heater_output)]
     pub fn heater_output(&mut self, index: u8, pwm: u8, max_power: f32) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
         Ok(self.heaters.set_output(hw, index, pwm, max_power)?)
     }
 
-    /// Heater `index` runs between `min_temp` and `max_temp`, °C: below
-    /// `min_temp` its sensor reads open, at `max_temp` it cuts itself off.
-    /// Only while the heater is off.
+    #[doc = fn_docs!(heater_limits)]
     pub fn heater_limits(
         &mut self,
         index: u8,
@@ -352,15 +327,12 @@ impl<B: Board> Module<B> {
         Ok(self.heaters.set_limits(index, min_temp, max_temp)?)
     }
 
-    /// Heater `index`'s PID gains in Klipper's units (`pid_Kp`, `pid_Ki`,
-    /// `pid_Kd`; see [`crate::heater`]). Only while the heater is off.
+    #[doc = fn_docs!(heater_gains)]
     pub fn heater_gains(&mut self, index: u8, kp: f32, ki: f32, kd: f32) -> Result<(), CallError> {
         Ok(self.heaters.set_gains(index, Gains { kp, ki, kd })?)
     }
 
-    /// Heater `index`'s runaway protection (Klipper's `verify_heater`;
-    /// defaults 5 °C, 120 °C·s, 2 °C, 20 s; see [`crate::heater`]). Only
-    /// while the heater is off.
+    #[doc = fn_docs!(heater_runaway)]
     pub fn heater_runaway(
         &mut self,
         index: u8,
@@ -378,26 +350,18 @@ impl<B: Board> Module<B> {
         Ok(self.heaters.set_runaway(index, runaway)?)
     }
 
-    /// Heater `index` holds `celsius` (within `[min_temp, max_temp)`); 0
-    /// turns it off. Refused for a heater not fully configured or latched
-    /// off by a fault. Leaves open-loop power mode.
+    #[doc = fn_docs!(heater_target)]
     pub fn heater_target(&mut self, index: u8, celsius: f32) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
         Ok(self.heaters.set_target(hw, index, celsius)?)
     }
 
-    /// Heater `index` runs open loop at `duty` (`0..=1`, capped at
-    /// `max_power`), for autotuning; its sensor checks, `max_temp` and the
-    /// output watchdog still guard it. `heater_target` leaves it.
+    #[doc = fn_docs!(heater_power)]
     pub fn heater_power(&mut self, index: u8, duty: f32) -> Result<(), CallError> {
         Ok(self.heaters.set_power(index, duty)?)
     }
 
-    /// Heater `index`: the synchronized time of its latest reading (0:
-    /// none yet), its temperature (°C), its target (0: off or open loop),
-    /// the duty it drives (`0..=1`), and its state (0 off, 1 heating, 2
-    /// holding, 3 open-loop power, 4 faulted; see
-    /// [`crate::heater::HeaterState`]).
+    #[doc = fn_docs!(heater_read)]
     pub fn heater_read(&mut self, index: u8) -> Result<(u64, f32, f32, f32, u8), CallError> {
         let h = self
             .heaters
@@ -410,8 +374,7 @@ impl<B: Board> Module<B> {
         Ok((time, temp, h.target(), h.duty(), h.state() as u8))
     }
 
-    /// Clears heater `index`'s runaway fault if its sensor reads sane now
-    /// (refused with `SensorFault` otherwise); the heater is then off.
+    #[doc = fn_docs!(heater_clear)]
     pub fn heater_clear(&mut self, index: u8) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(HeaterError::NoHardware)?;
         Ok(self.heaters.clear(hw, index)?)
@@ -419,30 +382,24 @@ impl<B: Board> Module<B> {
 }
 
 impl<B: Board> Module<B> {
-    /// The load cell's converter is on digital pins `data_pin` (its data
-    /// line) and `clock_pin` (its clock).
+    #[doc = fn_docs!(loadcell_setup)]
     pub fn loadcell_setup(&mut self, data_pin: u8, clock_pin: u8) -> Result<(), CallError> {
         let now = self.board.now();
         let hw = self.board.io().ok_or(LoadCellError::NoHardware)?;
         Ok(self.loadcell.setup(hw, data_pin, clock_pin, now)?)
     }
 
-    /// The next `samples` readings (1 to 1 000) become the load cell's
-    /// zero; `loadcell_read`'s `taring` is true until they are in.
+    #[doc = fn_docs!(loadcell_tare)]
     pub fn loadcell_tare(&mut self, samples: u16) -> Result<(), CallError> {
         Ok(self.loadcell.tare(samples)?)
     }
 
-    /// The load cell's scale, newtons per count (not 0; negative for a
-    /// cell mounted the other way).
+    #[doc = fn_docs!(loadcell_scale)]
     pub fn loadcell_scale(&mut self, newtons_per_count: f32) -> Result<(), CallError> {
         Ok(self.loadcell.set_scale(newtons_per_count)?)
     }
 
-    /// The newest sample: when it was read (synchronized µs; 0 before the
-    /// first), its force, N, its raw counts, samples read since setup, and
-    /// whether a tare is under way. Fails when no converter answers
-    /// (`NoConverter`, `Silent`): a dead cell's zeros are never a force.
+    #[doc = fn_docs!(loadcell_read)]
     pub fn loadcell_read(&mut self) -> Result<(u64, f32, i32, u32, bool), CallError> {
         self.loadcell.check(self.board.now())?;
         let (time, force, raw) = match self.loadcell.newest() {
@@ -473,6 +430,7 @@ fn next_input<'a, T: FromPipes<'a>>(
 
 macro_rules! module_functions {
     ($(
+        $(#[doc = $doc:tt])*
         $f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;
     )*) => {
         /// Which of the module's functions: one per [`Module`] method of
@@ -482,10 +440,15 @@ macro_rules! module_functions {
         #[repr(u8)]
         pub enum FnId {
             $(
-                #[doc = concat!("`", stringify!($f), "`")]
+                $(#[doc = $doc])*
                 $f,
             )*
         }
+
+        /// Each function's documentation, in the order of [`ALL`]: the
+        /// `///` lines of its table entry, which it publishes with its
+        /// signature (in flash, read in place).
+        pub static DOCS: [&str; ALL.len()] = [$(pipes_core::doc_text!($(#[doc = $doc])*)),*];
 
         /// Every function, in the order a scan lists them.
         pub const ALL: [FnId; [$(stringify!($f)),*].len()] = [$(FnId::$f),*];
@@ -530,16 +493,19 @@ macro_rules! module_functions {
     };
 }
 
-/// Hands the module's function table to macro `$m`: one line per
-/// function, in port order, `name(input: type, ..) -> (output: type, ..);`
-/// (no `->` for a function without outputs). This module builds its
+/// Hands the module's function table to macro `$m`: one entry per
+/// function, in port order, its documentation as `///` lines (which reach
+/// `$m` as `#[doc = ".."]` attributes: match them with
+/// `$(#[doc = $doc:tt])*`), then `name(input: type, ..) -> (output: type,
+/// ..);` (no `->` for a function without outputs). The documentation is
+/// each function's only text: see [`FnId::docs`]. This module builds its
 /// function set from it, and a host builds typed handles from it (see
 /// osap-machine's `network::modfn`), so both read one table and cannot
 /// disagree.
 ///
 /// ```
 /// macro_rules! count {
-///     ($($f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;)*) => {
+///     ($($(#[doc = $doc:tt])* $f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;)*) => {
 ///         [$(stringify!($f)),*].len()
 ///     };
 /// }
@@ -549,41 +515,144 @@ macro_rules! module_functions {
 macro_rules! module_function_table {
     ($m:ident) => {
         $m! {
+            /// Queues a control point: the axis is at `position` (user units) at
+            /// synchronized `time` (a multiple of the interval).
             add_point(time: u64, position: f32);
+            /// Sets the control-point interval, µs (a power of two, 256 to 16 384),
+            /// while no stream is queued.
             set_interval(interval_us: u32);
+            /// Where the steps sent so far put the motor (user units), and the
+            /// synchronized time of the latest step tick they include.
             get_position() -> (time: u64, position: f32);
+            /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted),
+            /// points queued, whether the motor is powered, and faults since boot.
             get_status() -> (mode: u8, queued: u16, enabled: bool, faults: u32);
+            /// Points accepted, refused, the latest refusal's code, and single gaps
+            /// filled.
             get_counters() -> (points: u32, refused: u32, last_refused: u8, filled: u32);
+            /// Where the steps put the motor, in microsteps (net steps; a scale or
+            /// microstep change re-expresses it), then the steps up, steps down and
+            /// late steps (steps that went out on a later tick than the one they
+            /// fell due at, more than one step tick late; each is a fault, see
+            /// [`crate::fault`]) since the step generator last started: at boot, on
+            /// `set_enable`, `halt`, and a scale or microstep change.
             get_steps() -> (steps: i64, up: u64, down: u64, late: u64);
+            /// Powers the motor or lets it go limp; powering down stops the axis
+            /// where it stands and drops its stream, powering up clears a fault or a
+            /// halt.
             set_enable(on: bool);
+            /// Sets the motor's full steps per user unit (the microstep mode
+            /// multiplies it), while no stream is queued.
             set_scale(full_steps_per_unit: f32);
+            /// Sets the driver's microstep mode (1, 2, 4, .. 256, as the board's
+            /// driver offers), while no stream is queued.
             set_microsteps(microsteps: u16);
+            /// Sets the limits on incoming points, in user units (those of
+            /// `add_point`'s position) per s, s² and s³, while no stream is queued:
+            /// `add_point` then refuses a point past one (`OverLimit`, a fault
+            /// `get_fault` reports). 0 turns a limit off; `set_limits(0, 0, 0)`
+            /// (the default) turns the check off. A limit that is not finite, is
+            /// negative, or rounds to nothing at the interval and scale is a
+            /// `BadValue`; a later interval, scale or microstep change that would
+            /// make one round to nothing is refused the same way.
             set_limits(max_vel: f32, max_acc: f32, max_jerk: f32);
+            /// The limit switch: when its level last changed (synchronized µs, 0:
+            /// never), its level, and the edges seen since boot.
             read_limit() -> (time: u64, level: bool, edges: u32);
+            /// Stops stepping at once and drops the stream (an emergency stop), and
+            /// drives every output to its safe value (`set_safe_pwm`,
+            /// `set_safe_digital`); the axis refuses points until the motor is
+            /// disabled and enabled again. Safe to repeat.
             halt();
+            /// Drives digital pin `pin` high or low.
             digital_write(pin: u8, level: bool);
+            /// Reads digital pin `pin`: the synchronized time of the read and the
+            /// level.
             digital_read(pin: u8) -> (time: u64, level: bool);
+            /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`; refused
+            /// for an output a heater drives.
             pwm_write(channel: u8, duty: f32);
+            /// Drives `pin` high now and low `duration_us` later (at most 10 s).
             pulse(pin: u8, duration_us: u32);
+            /// Schedules a pulse of `duration_us` on `pin` at synchronized `time`
+            /// (at most 60 s ahead; 16 may wait at once).
             pulse_at(time: u64, pin: u8, duration_us: u32);
+            /// Samples analog input `channel`: the synchronized time of the sample
+            /// and the reading as a fraction of full scale.
             analog_read(channel: u8) -> (time: u64, value: f32);
+            /// The latest fault: its synchronized time, its kind
+            /// ([`crate::fault::FaultKind`] code), its detail, and the faults since
+            /// boot (see [`crate::fault`]).
             get_fault() -> (time: u64, code: u8, detail: u32, count: u32);
+            /// Reboots the board into its bootloader for a firmware update, after
+            /// this call has answered (see [`crate::boot`]): refused on a board
+            /// without one, and while the axis has motion queued or running.
             enter_bootloader();
+            /// Sets the duty (a fraction, `0..=1`) PWM output `channel` takes on
+            /// every stop and when the output watchdog fires (0 until set). The
+            /// output keeps its duty until then. Refused for an output a heater
+            /// drives (its safe duty is 0).
             set_safe_pwm(channel: u8, duty: f32);
+            /// Sets the level digital pin `pin` takes on every stop and when the
+            /// output watchdog fires (low until set). The pin keeps its level until
+            /// then.
             set_safe_digital(pin: u8, level: bool);
+            /// Arms the output watchdog: when no call or pipe datagram reaches any
+            /// of the module's functions for `timeout_ms`, the module drives every
+            /// output to its safe value and `get_fault` reports it. 0 turns it off
+            /// (as at boot). See [`crate::watchdog`].
             set_output_watchdog(timeout_ms: u32);
+            /// Heater `index` (0 or 1) reads analog input `analog` through an NTC
+            /// thermistor to ground with a `pullup_ohms` pullup, whose curve is
+            /// the Steinhart–Hart `1/T = a + b·ln R + c·ln³R` (T in K, R in Ω; a
+            /// Beta thermistor has `c = 0`, `b = 1/β`). Only while the heater is
+            /// off.
             heater_sensor(index: u8, analog: u8, a: f32, b: f32, c: f32, pullup_ohms: f32);
+            /// Heater `index` drives PWM output `pwm`, at most `max_power` (`0 <
+            /// max_power ≤ 1`) of full duty; the output goes to 0. Only while the
+            /// heater is off.
             heater_output(index: u8, pwm: u8, max_power: f32);
+            /// Heater `index` runs between `min_temp` and `max_temp`, °C: below
+            /// `min_temp` its sensor reads open, at `max_temp` it cuts itself off.
+            /// Only while the heater is off.
             heater_limits(index: u8, min_temp: f32, max_temp: f32);
+            /// Heater `index`'s PID gains in Klipper's units (`pid_Kp`, `pid_Ki`,
+            /// `pid_Kd`; see [`crate::heater`]). Only while the heater is off.
             heater_gains(index: u8, kp: f32, ki: f32, kd: f32);
+            /// Heater `index`'s runaway protection (Klipper's `verify_heater`;
+            /// defaults 5 °C, 120 °C·s, 2 °C, 20 s; see [`crate::heater`]). Only
+            /// while the heater is off.
             heater_runaway(index: u8, hysteresis_c: f32, max_error: f32, heating_gain_c: f32, check_gain_time_s: f32);
+            /// Heater `index` holds `celsius` (within `[min_temp, max_temp)`); 0
+            /// turns it off. Refused for a heater not fully configured or latched
+            /// off by a fault. Leaves open-loop power mode.
             heater_target(index: u8, celsius: f32);
+            /// Heater `index` runs open loop at `duty` (`0..=1`, capped at
+            /// `max_power`), for autotuning; its sensor checks, `max_temp` and the
+            /// output watchdog still guard it. `heater_target` leaves it.
             heater_power(index: u8, duty: f32);
+            /// Heater `index`: the synchronized time of its latest reading (0:
+            /// none yet), its temperature (°C), its target (0: off or open loop),
+            /// the duty it drives (`0..=1`), and its state (0 off, 1 heating, 2
+            /// holding, 3 open-loop power, 4 faulted; see
+            /// [`crate::heater::HeaterState`]).
             heater_read(index: u8) -> (time: u64, temp: f32, target: f32, power: f32, state: u8);
+            /// Clears heater `index`'s runaway fault if its sensor reads sane now
+            /// (refused with `SensorFault` otherwise); the heater is then off.
             heater_clear(index: u8);
+            /// The load cell's converter is on digital pins `data_pin` (its data
+            /// line) and `clock_pin` (its clock).
             loadcell_setup(data_pin: u8, clock_pin: u8);
+            /// The next `samples` readings (1 to 1 000) become the load cell's
+            /// zero; `loadcell_read`'s `taring` is true until they are in.
             loadcell_tare(samples: u16);
+            /// The load cell's scale, newtons per count (not 0; negative for a
+            /// cell mounted the other way).
             loadcell_scale(newtons_per_count: f32);
+            /// The newest sample: when it was read (synchronized µs; 0 before the
+            /// first), its force, N, its raw counts, samples read since setup, and
+            /// whether a tare is under way. Fails when no converter answers
+            /// (`NoConverter`, `Silent`): a dead cell's zeros are never a force.
             loadcell_read() -> (time: u64, force: f32, raw: i32, samples: u32, taring: bool);
         }
     };
@@ -629,6 +698,19 @@ impl<H: ModuleHandle> Implementation for ModuleFn<H> {
     /// its refusals by.
     fn failures(&self) -> &'static [pipes_core::failure::Failure] {
         self.id.failures()
+    }
+
+    /// The function's documentation, from [`DOCS`].
+    fn docs(&self) -> &'static str {
+        self.id.docs()
+    }
+}
+
+impl FnId {
+    /// The function's documentation ([`DOCS`]): the `///` lines of its
+    /// entry in [`module_function_table!`](crate::module_function_table).
+    pub fn docs(self) -> &'static str {
+        DOCS.get(self as usize).copied().unwrap_or("")
     }
 }
 

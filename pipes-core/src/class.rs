@@ -50,6 +50,12 @@ pub trait PipesClass: Sized {
     /// The exported members' signatures, by member index. Each is named
     /// `"Class.member"`.
     const MEMBERS: &'static [&'static Signature];
+    /// The constructor's documentation ([`crate::docs`]): its `///` doc
+    /// comment. None by default.
+    const CONSTRUCTOR_DOCS: &'static str = "";
+    /// The exported members' documentation, by member index (a missing
+    /// entry is none). None by default.
+    const MEMBER_DOCS: &'static [&'static str] = &[];
 
     /// Builds the state from the constructor's inputs (already of their
     /// declared types).
@@ -136,6 +142,10 @@ impl<C: PipesClass> Implementation for Member<'_, C> {
         }
         s.call_member(self.index, inputs, outputs)
     }
+
+    fn docs(&self) -> &'static str {
+        C::MEMBER_DOCS.get(self.index).copied().unwrap_or("")
+    }
 }
 
 /// A class's constructor as an [`Implementation`]: a call replaces the state
@@ -170,6 +180,10 @@ impl<C: PipesClass> Implementation for Constructor<'_, C> {
             .map_err(|_| CallError::Failed(FailureCode::StateBusy))?;
         *s = new;
         Ok(())
+    }
+
+    fn docs(&self) -> &'static str {
+        C::CONSTRUCTOR_DOCS
     }
 }
 

@@ -811,17 +811,18 @@ pub fn encode_signature_reply(w: &mut Writer<'_>, sig: &Signature) -> Result<(),
 }
 
 /// Writes the success reply to "get signature" with the parts `parts`
-/// asks for appended: `failures` is the function's table. On error nothing
-/// is written.
+/// asks for appended: `failures` is the function's table, `docs` its
+/// documentation ([`crate::docs`]). On error nothing is written.
 pub fn encode_described_reply(
     w: &mut Writer<'_>,
     sig: &Signature,
     parts: SignatureParts,
     failures: &[Failure],
+    docs: &str,
 ) -> Result<(), DecodeError> {
     let start = w.len();
     encode_signature_reply(w, sig)?;
-    encode_tail(w, parts, failures).map_err(|e| {
+    encode_tail(w, parts, failures, docs).map_err(|e| {
         w.truncate(start);
         DecodeError::Signature(e.into())
     })

@@ -15,6 +15,8 @@
 //! request  [2][parts: u8]      -> reply [2][0][signature] sections
 //! section  [tag: u8][len: u16 LE][body: len bytes]
 //! tag 1    failures: [count: u8] count × ([code: u8][name: str8][reason: str8])
+//! tag 2    summary: UTF-8 text (crate::docs)
+//! tag 3    docs: UTF-8 text (crate::docs)
 //! ```
 //!
 //! `parts` is a bit set ([`SignatureParts`]); a function answers the parts
@@ -50,6 +52,8 @@ pub enum FailureError {
     TooManyFailures,
     /// The table names this code twice.
     DuplicateFailure(u8),
+    /// The documentation is longer than [`crate::docs::MAX_DOCS`] bytes.
+    DocsTooLong,
 }
 
 impl fmt::Display for FailureError {
@@ -68,6 +72,11 @@ impl fmt::Display for FailureError {
             FailureError::DuplicateFailure(code) => {
                 write!(f, "the failure table names code {code} twice")
             }
+            FailureError::DocsTooLong => write!(
+                f,
+                "the documentation is longer than {} bytes: shorten it",
+                crate::docs::MAX_DOCS
+            ),
         }
     }
 }
@@ -131,10 +140,31 @@ impl SignatureParts {
     pub const NONE: SignatureParts = SignatureParts(0);
     /// Bit 0: the failure table (section [`TAG_FAILURES`]).
     pub const FAILURES: SignatureParts = SignatureParts(1);
+    /// Bit 1: the documentation's summary line (section
+    /// [`TAG_SUMMARY`](crate::docs::TAG_SUMMARY)).
+    pub const SUMMARY: SignatureParts = SignatureParts(2);
+    /// Bit 2: the whole documentation (section
+    /// [`TAG_DOCS`](crate::docs::TAG_DOCS)).
+    pub const DOCS: SignatureParts = SignatureParts(4);
 
     /// Whether the failure table is asked for.
     pub const fn failures(self) -> bool {
         self.0 & Self::FAILURES.0 != 0
+    }
+
+    /// Whether the summary line is asked for.
+    pub const fn summary(self) -> bool {
+        self.0 & Self::SUMMARY.0 != 0
+    }
+
+    /// Whether the whole documentation is asked for.
+    pub const fn docs(self) -> bool {
+        self.0 & Self::DOCS.0 != 0
+    }
+
+    /// Both sets of parts.
+    pub const fn with(self, other: SignatureParts) -> SignatureParts {
+        SignatureParts(self.0 | other.0)
     }
 }
 
@@ -165,23 +195,58 @@ fn failures_body_len(failures: &[Failure]) -> usize {
         .sum::<usize>()
 }
 
-/// Bytes [`write_tail`] writes for `parts`.
-pub fn tail_len(parts: SignatureParts, failures: &[Failure]) -> usize {
+/// The documentation as sent: cut to [`MAX_DOCS`](crate::docs::MAX_DOCS)
+/// bytes at a character boundary (a checked text is never cut).
+fn sent_docs(docs: &str) -> &str {
+    let mut end = docs.len().min(crate::docs::MAX_DOCS);
+    while !docs.is_char_boundary(end) {
+        end -= 1;
+    }
+    docs.get(..end).unwrap_or("")
+}
+
+/// Bytes [`write_tail`] writes for `parts`, with the failure table
+/// `failures` and the documentation `docs`.
+pub fn tail_len(parts: SignatureParts, failures: &[Failure], docs: &str) -> usize {
+    let docs = sent_docs(docs);
+    let mut n = 0;
     if parts.failures() {
-        SECTION_HEADER + failures_body_len(failures)
-    } else {
-        0
+        n += SECTION_HEADER + failures_body_len(failures);
+    }
+    if parts.summary() {
+        n += SECTION_HEADER + crate::docs::summary_len(docs);
+    }
+    if parts.docs() {
+        n += SECTION_HEADER + docs.len();
+    }
+    n
+}
+
+/// Writes the tail `parts` asks for, piece by piece (see the module docs):
+/// the failure table, the summary and the documentation, in this order.
+/// The table must pass [`check_failures`] and the text
+/// [`check_docs`](crate::docs::check_docs) (a function checks both once,
+/// when it is made); past the limits the lengths would not match the
+/// bytes, so unchecked ones are cut to them here.
+pub fn write_tail(w: &mut Window<'_>, parts: SignatureParts, failures: &[Failure], docs: &str) {
+    let docs = sent_docs(docs);
+    if parts.failures() {
+        write_failures(w, failures);
+    }
+    if parts.summary() {
+        w.put(&[crate::docs::TAG_SUMMARY]);
+        w.put(&(crate::docs::summary_len(docs) as u16).to_le_bytes());
+        crate::docs::write_summary(w, docs);
+    }
+    if parts.docs() {
+        w.put(&[crate::docs::TAG_DOCS]);
+        w.put(&(docs.len() as u16).to_le_bytes());
+        w.put(docs.as_bytes());
     }
 }
 
-/// Writes the tail `parts` asks for, piece by piece (see the module docs).
-/// The table must pass [`check_failures`] (a function checks it once, when
-/// it is made); past the limits the lengths would not match the bytes, so
-/// an unchecked table is cut to them here.
-pub fn write_tail(w: &mut Window<'_>, parts: SignatureParts, failures: &[Failure]) {
-    if !parts.failures() {
-        return;
-    }
+/// Writes the failure section.
+fn write_failures(w: &mut Window<'_>, failures: &[Failure]) {
     let failures = failures.get(..255).unwrap_or(failures);
     let len = failures_body_len(failures).min(usize::from(u16::MAX)) as u16;
     w.put(&[TAG_FAILURES]);
@@ -207,9 +272,11 @@ pub fn encode_tail(
     w: &mut Writer<'_>,
     parts: SignatureParts,
     failures: &[Failure],
+    docs: &str,
 ) -> Result<(), FailureError> {
     check_failures(failures)?;
-    let n = tail_len(parts, failures);
+    crate::docs::check_docs(docs)?;
+    let n = tail_len(parts, failures, docs);
     if n > w.remaining() {
         return Err(FailureError::NoSpace);
     }
@@ -220,7 +287,7 @@ pub fn encode_tail(
     let mut at = 0;
     while at < n {
         let mut win = Window::new(at, &mut buf);
-        write_tail(&mut win, parts, failures);
+        write_tail(&mut win, parts, failures, docs);
         let got = win.written();
         if got == 0 || w.bytes(&buf[..got]).is_err() {
             w.truncate(start);
@@ -236,6 +303,10 @@ pub fn encode_tail(
 pub(crate) struct Tail<'a> {
     /// The failure table, if the tail has one.
     pub(crate) failures: Option<FailureList<'a>>,
+    /// The summary line, if the tail has one.
+    pub(crate) summary: Option<&'a str>,
+    /// The whole documentation, if the tail has one.
+    pub(crate) docs: Option<&'a str>,
     /// Every byte of the tail, as read.
     pub(crate) bytes: &'a [u8],
 }
@@ -243,17 +314,29 @@ pub(crate) struct Tail<'a> {
 /// Reads every byte left in `r` as tail sections.
 pub(crate) fn decode_tail<'a>(r: &mut Reader<'a>) -> Result<Tail<'a>, FailureError> {
     let bytes = r.rest();
-    let mut failures = None;
+    let mut t = Tail {
+        bytes,
+        ..Tail::default()
+    };
     while !r.is_empty() {
         let tag = r.u8()?;
         let len = r.u16()?;
         let body = r.bytes(usize::from(len))?;
         // A later section of a known tag is skipped like an unknown one.
-        if tag == TAG_FAILURES && failures.is_none() {
-            failures = Some(FailureList::decode(body)?);
+        match tag {
+            TAG_FAILURES if t.failures.is_none() => {
+                t.failures = Some(FailureList::decode(body)?);
+            }
+            crate::docs::TAG_SUMMARY if t.summary.is_none() => {
+                t.summary = Some(crate::docs::decode_text(body)?);
+            }
+            crate::docs::TAG_DOCS if t.docs.is_none() => {
+                t.docs = Some(crate::docs::decode_text(body)?);
+            }
+            _ => {}
         }
     }
-    Ok(Tail { failures, bytes })
+    Ok(t)
 }
 
 /// A checked failure table read from a signature reply.
@@ -380,9 +463,9 @@ mod tests {
     fn tail(parts: SignatureParts, failures: &[Failure]) -> std::vec::Vec<u8> {
         let mut buf = [0u8; 256];
         let mut w = Writer::new(&mut buf);
-        encode_tail(&mut w, parts, failures).unwrap();
+        encode_tail(&mut w, parts, failures, "").unwrap();
         let n = w.len();
-        assert_eq!(n, tail_len(parts, failures));
+        assert_eq!(n, tail_len(parts, failures, ""));
         buf[..n].to_vec()
     }
 
@@ -473,7 +556,7 @@ mod tests {
         let mut small = [0u8; 8];
         let mut w = Writer::new(&mut small);
         assert_eq!(
-            encode_tail(&mut w, SignatureParts::FAILURES, &TABLE),
+            encode_tail(&mut w, SignatureParts::FAILURES, &TABLE, ""),
             Err(FailureError::NoSpace)
         );
         assert_eq!(w.len(), 0);

@@ -33,6 +33,7 @@ use crate::control::{
     OutputMode, Reply, ReplyBody, Request, ANY_SLOT,
 };
 use crate::convert::{convert, ConvertError};
+use crate::docs::check_docs;
 use crate::failure::{check_failures, tail_len, write_tail, Failure, SignatureParts};
 use crate::message::{Args, ArgsWriter, MessageKey};
 use crate::pipe::{AckStep, PipeConfig, PipeDelivery, PipeState};
@@ -45,6 +46,9 @@ pub const FUNCTION_PORT_TYPE: &str = "pipes_function";
 pub const PIPE_PORT_TYPE: &str = "pipes_pipe";
 /// Default time-to-live of replies and error reports, µs.
 pub const DEFAULT_REPLY_TTL: u16 = 20_000;
+/// Time-to-live of a signature reply sent in segments, µs: the time its
+/// segments have, together, to go out (the longest a `u16` says).
+pub const SEGMENTED_REPLY_TTL: u16 = u16::MAX;
 
 /// Why a function's `call` failed.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -215,6 +219,14 @@ pub trait Implementation {
     fn failures(&self) -> &'static [Failure] {
         &[]
     }
+
+    /// The function's documentation, its `///` doc comment (the macros
+    /// fill it in): sent with its signature when a host asks, the first
+    /// sentence as its summary ([`crate::docs`]). In flash, never copied;
+    /// at most [`MAX_DOCS`](crate::docs::MAX_DOCS) bytes. None by default.
+    fn docs(&self) -> &'static str {
+        ""
+    }
 }
 
 /// An [`Implementation`] made of a signature and a closure or fn pointer.
@@ -320,6 +332,7 @@ struct SignatureReply<'a> {
     sig: &'static Signature,
     parts: SignatureParts,
     failures: &'static [Failure],
+    docs: &'static str,
 }
 
 impl SegmentSource for SignatureReply<'_> {
@@ -327,7 +340,7 @@ impl SegmentSource for SignatureReply<'_> {
         self.transport.encoded_len()
             + 2
             + self.sig.encoded_len_named(self.name)
-            + tail_len(self.parts, self.failures)
+            + tail_len(self.parts, self.failures, self.docs)
     }
 
     fn read_at(&self, offset: usize, out: &mut [u8]) -> usize {
@@ -337,7 +350,7 @@ impl SegmentSource for SignatureReply<'_> {
         w.put(&head[..n]);
         w.put(&[ControlKey::GetSignature.to_u8(), 0]);
         self.sig.write_pieces_named(self.name, &mut w);
-        write_tail(&mut w, self.parts, self.failures);
+        write_tail(&mut w, self.parts, self.failures, self.docs);
         w.written()
     }
 }
@@ -368,6 +381,9 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         sig.check()?;
         let failures = imp.failures();
         check_failures(failures)?;
+        // Checked here, read from `imp` when sent: no copy, not even of
+        // the pointer.
+        check_docs(imp.docs())?;
         Ok(PipesFunction {
             imp,
             sig,
@@ -785,7 +801,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
         key: u8,
         result: Result<Answer, ControlError>,
     ) {
-        let (sig, failures) = (self.sig, self.failures);
+        let (sig, failures, docs) = (self.sig, self.failures, self.imp.docs());
         let name = self.imp.name();
         let out = self.out.get(..self.out_len).unwrap_or(&[]);
         let r = tx.send_with(0, &d.reply_route, d.source_port, self.reply_ttl, |buf| {
@@ -799,6 +815,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                         sig,
                         parts: *parts,
                         failures,
+                        docs,
                     };
                     let len = reply.len();
                     return (len <= buf.len()).then(|| reply.read_at(0, buf));
@@ -809,7 +826,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             let ok = match &result {
                 Err(e) => encode_error(&mut w, key, e),
                 Ok(Answer::Signature(parts)) => {
-                    encode_described_reply(&mut w, sig, *parts, failures)
+                    encode_described_reply(&mut w, sig, *parts, failures, docs)
                 }
                 Ok(Answer::Outputs) => (|| {
                     w.u8(key)?;
@@ -834,7 +851,10 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
                 self.seg_reply = transport;
                 self.seg_parts = *parts;
                 let len = self.signature_reply().len();
-                let ttl = self.reply_ttl;
+                // With its docs, a reply may take dozens of segments (2 KiB
+                // of text on a 64-byte link): it gets the longest time to
+                // live, whatever the function's reply TTL, to go out whole.
+                let ttl = SEGMENTED_REPLY_TTL;
                 self.seg
                     .start(tx.now(), &d.reply_route, d.source_port, ttl, len);
                 self.send_segments(tx);
@@ -850,6 +870,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             sig: self.sig,
             parts: self.seg_parts,
             failures: self.failures,
+            docs: self.imp.docs(),
         }
     }
 
@@ -866,6 +887,7 @@ impl<I: Implementation, const PIPES: usize, const Q: usize, const B: usize>
             sig: self.sig,
             parts: self.seg_parts,
             failures: self.failures,
+            docs: self.imp.docs(),
         };
         if let Pump::Abandoned(_) = self.seg.pump(tx, 0, &src) {
             self.stats.reply_drops = self.stats.reply_drops.wrapping_add(1);

@@ -33,6 +33,7 @@ extern crate std;
 
 pub mod control;
 pub mod convert;
+pub mod docs;
 pub mod f16;
 pub mod failure;
 pub mod function;
@@ -56,6 +57,10 @@ pub use export::{FromPipes, PipesArgs, PipesOutputs, PipesType};
 /// `#[pipes_core::class]` on an inherent `impl` block: see
 /// [`pipes_macros::class`](macro@pipes_macros::class) and [`class`](mod@class).
 pub use pipes_macros::class;
+/// `pipes_core::doc_text!(/// ..)`: doc attributes as the text a function
+/// publishes ([`docs`](mod@docs)); see
+/// [`pipes_macros::doc_text`](macro@pipes_macros::doc_text).
+pub use pipes_macros::doc_text;
 /// `#[pipes_core::function(outputs = "a, b")]` on a plain `fn`: see
 /// [`pipes_macros::function`](macro@pipes_macros::function).
 pub use pipes_macros::function;

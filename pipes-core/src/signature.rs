@@ -85,6 +85,8 @@ pub enum SignatureError {
     TooManyFailures,
     /// A failure table names this code twice.
     DuplicateFailure(u8),
+    /// The documentation is longer than [`crate::docs::MAX_DOCS`] bytes.
+    DocsTooLong,
 }
 
 impl fmt::Display for SignatureError {
@@ -110,6 +112,7 @@ impl fmt::Display for SignatureError {
             SignatureError::DuplicateFailure(code) => {
                 write!(f, "the failure table names code {code} twice")
             }
+            SignatureError::DocsTooLong => FailureError::DocsTooLong.fmt(f),
         }
     }
 }
@@ -125,6 +128,7 @@ impl From<FailureError> for SignatureError {
             FailureError::TrailingBytes => SignatureError::TrailingBytes,
             FailureError::TooManyFailures => SignatureError::TooManyFailures,
             FailureError::DuplicateFailure(code) => SignatureError::DuplicateFailure(code),
+            FailureError::DocsTooLong => SignatureError::DocsTooLong,
             // Truncated, or a failure error a newer pipes-core adds.
             _ => SignatureError::Truncated,
         }
@@ -407,6 +411,20 @@ impl<'a> SignatureView<'a> {
     /// reply in the old layout, or to a request that did not ask for it.
     pub fn failures(&self) -> Option<FailureList<'a>> {
         self.tail.failures
+    }
+
+    /// The function's summary line (the first sentence of its docs), if
+    /// the reply had one: `None` for a reply that did not carry it (not
+    /// asked for, or a function from before the docs); `Some("")` for a
+    /// function without docs ([`crate::docs`]).
+    pub fn summary(&self) -> Option<&'a str> {
+        self.tail.summary
+    }
+
+    /// The function's whole documentation, if the reply had it (as
+    /// [`summary`](Self::summary)).
+    pub fn docs(&self) -> Option<&'a str> {
+        self.tail.docs
     }
 
     /// The tail's bytes, as read (empty in the old layout).

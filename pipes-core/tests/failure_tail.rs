@@ -1,7 +1,7 @@
-//! Failure tables on the wire (`pipes_core::failure`): a reply in the old
-//! layout reads with no table, a described one reads back whole, and no
-//! cut, extension or corruption of the tail panics or yields a partial
-//! table.
+//! Failure tables and docs on the wire (`pipes_core::failure`,
+//! `pipes_core::docs`): a reply in the old layout reads with no table, a
+//! described one reads back whole, and no cut, extension or corruption of
+//! the tail panics or yields a partial table or text.
 
 use osap_core::codec::Writer;
 use pipes_core::control::{encode_described_reply, ControlKey, Reply, ReplyBody};
@@ -34,10 +34,13 @@ static TABLE: [Failure; 3] = [
     },
 ];
 
+/// `move_to`'s documentation, with multi-byte characters to cut through.
+const DOCS: &str = "Moves to `x`, mm.\nAt 20 °C, within 5 µm.";
+
 fn reply(parts: SignatureParts) -> Vec<u8> {
     let mut buf = vec![0u8; 512];
     let mut w = Writer::new(&mut buf);
-    encode_described_reply(&mut w, &MOVE, parts, &TABLE).unwrap();
+    encode_described_reply(&mut w, &MOVE, parts, &TABLE, DOCS).unwrap();
     let n = w.len();
     buf.truncate(n);
     buf
@@ -104,6 +107,36 @@ proptest! {
     }
 
     #[test]
+    fn every_cut_of_the_docs_is_a_shorter_reply_or_an_error(cut in 0usize..300) {
+        let all = SignatureParts::FAILURES
+            .with(SignatureParts::SUMMARY)
+            .with(SignatureParts::DOCS);
+        let new = reply(all);
+        let cut = cut.min(new.len());
+        // Where a whole section ends: the only cuts that read.
+        let ends = [
+            reply(SignatureParts::NONE).len(),
+            reply(SignatureParts::FAILURES).len(),
+            reply(SignatureParts::FAILURES.with(SignatureParts::SUMMARY)).len(),
+            new.len(),
+        ];
+        match signature(&new[..cut]) {
+            Some(s) => {
+                prop_assert!(ends.contains(&cut), "cut {cut} read");
+                prop_assert_eq!(s.summary().is_some(), cut >= ends[2]);
+                prop_assert_eq!(s.docs().is_some(), cut == ends[3]);
+                if let Some(summary) = s.summary() {
+                    prop_assert_eq!(summary, "Moves to `x`, mm.");
+                }
+                if let Some(docs) = s.docs() {
+                    prop_assert_eq!(docs, DOCS);
+                }
+            }
+            None => prop_assert!(!ends.contains(&cut)),
+        }
+    }
+
+    #[test]
     fn any_tail_reads_whole_or_not_at_all(tail in proptest::collection::vec(any::<u8>(), 0..300)) {
         let mut bytes = reply(SignatureParts::NONE);
         bytes.extend_from_slice(&tail);
@@ -118,8 +151,12 @@ proptest! {
     }
 
     #[test]
-    fn corrupting_one_byte_never_panics(at in 0usize..200, byte in any::<u8>()) {
-        let mut bytes = reply(SignatureParts::FAILURES);
+    fn corrupting_one_byte_never_panics(at in 0usize..300, byte in any::<u8>()) {
+        let mut bytes = reply(
+            SignatureParts::FAILURES
+                .with(SignatureParts::SUMMARY)
+                .with(SignatureParts::DOCS),
+        );
         let at = at % bytes.len();
         bytes[at] = byte;
         if let Some(s) = signature(&bytes) {

@@ -32,6 +32,9 @@ static ADD_FAILURES: [Failure; 1] = [Failure {
     reason: "the sum is not finite: add smaller numbers",
 }];
 
+/// `add`'s documentation: what a reply to `[2][06]` carries.
+const ADD_DOCS: &str = "Adds a and b.\nRounds to nearest.";
+
 #[path = "../../osap-core/tests/support/doc_vectors.rs"]
 mod doc_vectors;
 use doc_vectors::hex;
@@ -91,7 +94,22 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
     );
     put(
         "fn.reply.get_signature.add.failures",
-        enc(|w| encode_described_reply(w, &ADD, SignatureParts::FAILURES, &ADD_FAILURES).unwrap()),
+        enc(|w| {
+            encode_described_reply(w, &ADD, SignatureParts::FAILURES, &ADD_FAILURES, "").unwrap()
+        }),
+    );
+    let docs = SignatureParts::SUMMARY.with(SignatureParts::DOCS);
+    put(
+        "fn.request.get_signature.docs",
+        enc(|w| Request::Describe(docs).encode(w).unwrap()),
+    );
+    put(
+        "fn.reply.get_signature.add.docs",
+        enc(|w| encode_described_reply(w, &ADD, docs, &[], ADD_DOCS).unwrap()),
+    );
+    put(
+        "fn.reply.get_signature.add.no_docs",
+        enc(|w| encode_described_reply(w, &ADD, docs, &[], "").unwrap()),
     );
     put(
         "fn.request.call.add",
@@ -289,4 +307,31 @@ fn document_vectors_decode() {
             assert_eq!(&again[..n], &b[..], "{k}");
         }
     }
+}
+
+#[test]
+fn the_docs_vectors_read_as_their_text() {
+    let doc = document_vectors();
+    let read = |k: &str| -> (Option<String>, Option<String>) {
+        let b = &doc[k];
+        let Ok(ReplyBody::Signature(s)) = Reply::parse(b).unwrap().result else {
+            panic!("{k}: not a signature reply")
+        };
+        assert!(ADD.matches(&s), "{k}");
+        assert_eq!(s.failures(), None, "{k}");
+        (s.summary().map(str::to_owned), s.docs().map(str::to_owned))
+    };
+    assert_eq!(
+        read("fn.reply.get_signature.add.docs"),
+        (Some("Adds a and b.".into()), Some(ADD_DOCS.into()))
+    );
+    assert_eq!(
+        read("fn.reply.get_signature.add.no_docs"),
+        (Some(String::new()), Some(String::new()))
+    );
+    let old = &doc["fn.reply.get_signature.add"];
+    let Ok(ReplyBody::Signature(s)) = Reply::parse(old).unwrap().result else {
+        panic!("not a signature reply")
+    };
+    assert_eq!((s.summary(), s.docs()), (None, None));
 }

@@ -196,6 +196,7 @@ struct Comparator {
 
 #[pipes_core::class]
 impl Comparator {
+    /// A comparator of values against `lower..=upper`.
     #[constructor]
     fn new(lower: f32, upper: f32) -> Self {
         Comparator {
@@ -216,6 +217,10 @@ impl Comparator {
         self.value = value;
     }
 
+    /// When the state last ticked, and whether the value
+    /// lies within the bounds.
+    ///
+    ///     indented example line
     #[outputs = "time, in_bounds"]
     fn reading(&mut self) -> (u64, bool) {
         (self.now_us, self._within())
@@ -308,6 +313,9 @@ fn boxed<const PIPES: usize>(imp: impl Implementation + 'static) -> Box<dyn Test
             outputs: &mut pipes_core::function::Outputs<'_>,
         ) -> Result<(), pipes_core::function::CallError> {
             self.0.call(inputs, outputs)
+        }
+        fn docs(&self) -> &'static str {
+            self.0.docs()
         }
     }
     Box::new(PipesFunction::<_, PIPES, 2, 64>::new(Dyn(Box::new(imp))).unwrap())
@@ -689,4 +697,67 @@ fn derived_args_name_and_type_each_field_in_order() {
     assert!(NoArgs::ARGS.is_empty());
     assert_eq!(NoArgs::from_values(&[]), Ok(NoArgs {}));
     assert!(<() as PipesArgs>::ARGS.is_empty());
+}
+
+#[test]
+fn doc_comments_are_the_docs() {
+    assert_eq!(add::pipes().docs(), "Two inputs, one (non-tuple) output.");
+    assert_eq!(
+        strlen::pipes().docs(),
+        "Strings in and out, a renamed signature, a one-element tuple."
+    );
+    assert_eq!(
+        Comparator::CONSTRUCTOR_DOCS,
+        "A comparator of values against `lower..=upper`."
+    );
+    let reading = Comparator::member_index("reading").unwrap();
+    assert_eq!(
+        Comparator::MEMBER_DOCS[reading],
+        "When the state last ticked, and whether the value\nlies within the bounds.\n\n    \
+         indented example line"
+    );
+    // Undocumented members have empty docs, in member order.
+    assert_eq!(Comparator::MEMBER_DOCS.len(), Comparator::MEMBERS.len());
+    assert_eq!(Comparator::MEMBER_DOCS[0], "");
+}
+
+#[test]
+fn docs_over_the_network() {
+    use pipes_core::failure::SignatureParts;
+    let mut w = World::new();
+    let both = SignatureParts::SUMMARY.with(SignatureParts::DOCS);
+    let mut read = |route: Route, port: u16, parts: SignatureParts| {
+        let body = w.ask(route, port, &Request::Describe(parts));
+        let ReplyBody::Signature(v) = ok(&body) else {
+            panic!()
+        };
+        (v.summary().map(str::to_owned), v.docs().map(str::to_owned))
+    };
+    assert_eq!(
+        read(Route::local(), ADD_PORT, both),
+        (
+            Some("Two inputs, one (non-tuple) output.".into()),
+            Some("Two inputs, one (non-tuple) output.".into())
+        )
+    );
+    assert_eq!(
+        read(to_b(), CLASS_READING_PORT, SignatureParts::SUMMARY),
+        (
+            Some(
+                "When the state last ticked, and whether the value lies within the bounds.".into()
+            ),
+            None
+        )
+    );
+    assert_eq!(
+        read(to_b(), CLASS_PORT, SignatureParts::DOCS),
+        (
+            None,
+            Some("A comparator of values against `lower..=upper`.".into())
+        )
+    );
+    assert_eq!(
+        read(to_b(), SETUP_PORT, both),
+        (Some(String::new()), Some(String::new()))
+    );
 }

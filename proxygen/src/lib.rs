@@ -89,6 +89,8 @@ struct FnCtx {
     kind: &'static str,
     ret: String,
     out_struct: Option<String>,
+    /// The function's summary as `///` lines (none if it sent none).
+    docs: Vec<String>,
 }
 
 #[derive(Debug, Serialize)]
@@ -146,9 +148,11 @@ fn args(list: &[SomArg], scope: &mut Scope) -> Vec<ArgCtx> {
 
 /// The context of one function; `methods` is the struct's method scope,
 /// `items` the module's type scope.
+#[allow(clippy::too_many_arguments)]
 fn function(
     name: &str,
     short: &str,
+    summary: &str,
     inputs: &[SomArg],
     outputs: &[SomArg],
     owner: &str,
@@ -192,12 +196,26 @@ fn function(
         kind,
         ret,
         out_struct,
+        docs: doc_lines(summary),
     }
+}
+
+/// A function's summary (the first sentence of its docs, as the model
+/// holds it) as the lines of a generated `///` comment. Intra-doc links
+/// (``[`crate::fault`]``) name items of the device's crate, not of the
+/// proxy's: they are kept as code spans.
+fn doc_lines(summary: &str) -> Vec<String> {
+    summary
+        .replace("[`", "`")
+        .replace("`]", "`")
+        .lines()
+        .map(|l| l.trim_end().to_string())
+        .collect()
 }
 
 fn plain(f: &SomFunction, owner: &str, methods: &mut Scope, items: &mut Scope) -> FnCtx {
     function(
-        &f.name, &f.name, &f.inputs, &f.outputs, owner, methods, items,
+        &f.name, &f.name, &f.summary, &f.inputs, &f.outputs, owner, methods, items,
     )
 }
 
@@ -257,6 +275,7 @@ fn devices(som: &Som, options: &Options) -> Vec<DeviceCtx> {
             let mut constructor = function(
                 &c.name,
                 "construct",
+                "",
                 &c.constructor,
                 &[],
                 &c.name,
@@ -274,6 +293,7 @@ fn devices(som: &Som, options: &Options) -> Vec<DeviceCtx> {
                     function(
                         &f.name,
                         short,
+                        &f.summary,
                         &f.inputs,
                         &f.outputs,
                         &c.name,

@@ -25,6 +25,7 @@ fn sixty_four_devices_of_twenty_functions() {
         r.functions = (0..20u16)
             .map(|f| SomFunction {
                 name: format!("function_{f}"),
+                summary: String::new(),
                 port: 1 + f * 3,
                 pipe_ports: vec![2 + f * 3, 3 + f * 3],
                 inputs: vec![

@@ -115,7 +115,7 @@ mod tests {
         let mut buf = vec![0u8; 1024];
         let mut w = Writer::new(&mut buf);
         if described {
-            encode_described_reply(&mut w, &ADD_POINT, SignatureParts::FAILURES, &TABLE)
+            encode_described_reply(&mut w, &ADD_POINT, SignatureParts::FAILURES, &TABLE, "")
         } else {
             encode_signature_reply(&mut w, &ADD_POINT)
         }

@@ -1,6 +1,7 @@
 //! Talking to a function's control port: the request/reply client the
 //! manager uses, and [`FunctionHandle`] for RPC from async Rust.
 
+use super::description::Description;
 use super::failure::{lookup, Failure, FailureTable};
 use super::model::SomArg;
 use super::{FnRef, SomError, Value};
@@ -11,7 +12,7 @@ use pipes_core::control::{ControlError, ControlKey, Reply, ReplyBody, Request};
 use pipes_core::convert::{rule, Rule};
 use pipes_core::failure::SignatureParts;
 use pipes_core::{Args, ArgsWriter, Type};
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
@@ -25,6 +26,10 @@ pub(crate) struct Control {
     /// function published none, or did not answer): each is read once,
     /// when its function first refuses with a failure code.
     pub(crate) tables: Arc<Mutex<Tables>>,
+    /// Routes whose functions refused `[2][parts]` as malformed (firmware
+    /// from before the signature's sections): their functions are asked
+    /// for the signature alone, `[2]`, until the next refresh.
+    pub(crate) no_sections: Arc<Mutex<HashSet<Route>>>,
 }
 
 /// Failure tables by route and control port.
@@ -126,9 +131,61 @@ impl Control {
         table
     }
 
-    /// Forgets every failure table read (a new scan may find other
-    /// functions at the same ports).
+    /// The function at `at`'s documentation and failure table, asked for
+    /// with its signature (`[2][07]`, one request, retried on timeouts).
+    /// A function that refuses the request as malformed (one from before
+    /// the signature's sections) is described as having neither. The table
+    /// read is kept as [`failure_table`](Self::failure_table) keeps it.
+    pub(crate) async fn describe(&self, at: &Target) -> Result<Description, SomError> {
+        let parts = SignatureParts::FAILURES
+            .with(SignatureParts::SUMMARY)
+            .with(SignatureParts::DOCS);
+        let what = "get signature with its docs";
+        let reply = self.ask(at, what, &Request::Describe(parts), true).await?;
+        let d = match reply.body(at, what, ControlKey::GetSignature) {
+            Ok(ReplyBody::Signature(s)) => Description::from_view(&s),
+            Ok(other) => {
+                return Err(SomError::Malformed {
+                    function: at.function.clone(),
+                    request: what,
+                    detail: format!("unexpected reply {other:?}"),
+                })
+            }
+            Err(SomError::Remote {
+                error: ControlError::Malformed,
+                ..
+            }) => Description::default(),
+            Err(e) => return Err(e),
+        };
+        self.tables()
+            .insert((at.route, at.port), d.failures.clone());
+        Ok(d)
+    }
+
+    /// Whether the functions on `route` refused `[2][parts]` as malformed
+    /// since the last refresh.
+    pub(crate) fn without_sections(&self, route: &Route) -> bool {
+        self.no_sections
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .contains(route)
+    }
+
+    /// Remembers that the functions on `route` do not read `[2][parts]`.
+    pub(crate) fn set_without_sections(&self, route: Route) {
+        self.no_sections
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .insert(route);
+    }
+
+    /// Forgets every failure table read and which runtimes read no
+    /// sections (a new scan may find other functions at the same ports).
     pub(crate) fn forget_tables(&self) {
+        self.no_sections
+            .lock()
+            .unwrap_or_else(|e| e.into_inner())
+            .clear();
         self.tables().clear();
     }
 
@@ -289,6 +346,14 @@ impl FunctionHandle {
     /// none or does not answer.
     pub async fn failure_table(&self) -> Option<FailureTable> {
         self.control.failure_table(&self.target).await
+    }
+
+    /// What the function says of itself: its documentation (summary and
+    /// whole text) and its failure table, read from it now (one request;
+    /// see [`Description`]). The table is kept as
+    /// [`failure_table`](Self::failure_table) keeps it.
+    pub async fn describe(&self) -> Result<Description, SomError> {
+        self.control.describe(&self.target).await
     }
 
     /// The same handle waiting up to `timeout` for each reply.

@@ -15,6 +15,7 @@
 use super::SomError;
 use crate::Host;
 use pipes_core::control::{FailureCode, InputMode, OutputMode};
+use pipes_core::docs::check_docs;
 use pipes_core::export::PipesArgs;
 use pipes_core::failure::{check_failures, Failure};
 use pipes_core::function::{CallError, Implementation, Outputs, PipesFunction};
@@ -82,6 +83,7 @@ struct HostImpl {
     sig: &'static Signature,
     body: HostBody,
     failures: &'static [Failure],
+    docs: &'static str,
 }
 
 impl Implementation for HostImpl {
@@ -91,6 +93,10 @@ impl Implementation for HostImpl {
 
     fn failures(&self) -> &'static [Failure] {
         self.failures
+    }
+
+    fn docs(&self) -> &'static str {
+        self.docs
     }
 
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
@@ -109,6 +115,7 @@ pub struct HostFunction {
     sig: &'static Signature,
     body: HostBody,
     failures: &'static [Failure],
+    docs: &'static str,
     input_mode: InputMode,
     output_mode: OutputMode,
 }
@@ -214,6 +221,7 @@ impl HostFunction {
             sig: Box::leak(Box::new(sig)),
             body,
             failures: &[],
+            docs: "",
             input_mode: InputMode::default(),
             output_mode: OutputMode::default(),
         })
@@ -236,6 +244,20 @@ impl HostFunction {
             detail: e.to_string(),
         })?;
         self.failures = failures;
+        Ok(self)
+    }
+
+    /// The same function publishing `docs` with its signature: what it
+    /// does, its first sentence a summary that `osap scan -f` shows (see
+    /// `pipes_core::docs`; `osap describe` prints the whole text). Leaked
+    /// as the name is. Refused: a text longer than
+    /// [`MAX_DOCS`](pipes_core::docs::MAX_DOCS) bytes.
+    pub fn with_docs(mut self, docs: &str) -> Result<HostFunction, SomError> {
+        check_docs(docs).map_err(|e| SomError::BadDefinition {
+            name: self.sig.name.to_string(),
+            detail: e.to_string(),
+        })?;
+        self.docs = leak(docs);
         Ok(self)
     }
 
@@ -264,6 +286,7 @@ impl HostFunction {
                 sig: self.sig,
                 body: self.body,
                 failures: self.failures,
+                docs: self.docs,
             })
             .map_err(|e| SomError::BadDefinition {
                 name: name.to_string(),

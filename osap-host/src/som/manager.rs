@@ -1,6 +1,7 @@
 //! The manager: builds the system object model from the network and edits
 //! the pipes and modes it describes.
 
+use super::description::Description;
 use super::handle::{arg_type, describe, Control, FunctionHandle, Target};
 use super::host_class::{attach_class, ClassHandle};
 use super::host_fn::{attach_function, HostFunction};
@@ -13,8 +14,11 @@ use crate::netrunner::{self, ScanFailure, ScanOptions};
 use crate::Host;
 use osap_core::route::Route;
 use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
-use pipes_core::control::{ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT};
+use pipes_core::control::{
+    ControlError, ControlKey, InputMode, OutputMode, ReplyBody, Request, ANY_SLOT,
+};
 use pipes_core::convert::{rule, Rule};
+use pipes_core::failure::SignatureParts;
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
 use pipes_core::manager::BLOCK_PORT_TYPE;
 use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
@@ -25,6 +29,8 @@ use tokio::time::Instant;
 /// A function's signature, as read from it.
 struct ScannedSignature {
     name: String,
+    /// The first sentence of its docs (empty: none, or not read).
+    summary: String,
     inputs: Vec<SomArg>,
     outputs: Vec<SomArg>,
 }
@@ -138,6 +144,7 @@ impl Manager {
                 timeout: options.timeout,
                 retries: options.retries,
                 tables: Arc::default(),
+                no_sections: Arc::default(),
             },
             options,
             som: Som::empty(),
@@ -162,6 +169,7 @@ impl Manager {
         let start = Instant::now();
         let scan = netrunner::scan(&self.host, &self.options.scan).await?;
         let mut som = Som::from_map(&scan.map);
+        self.control.forget_tables();
         let mut report = RefreshReport {
             scan_failures: scan.failures,
             ..RefreshReport::default()
@@ -255,15 +263,37 @@ impl Manager {
         Ok((at, sig))
     }
 
-    /// Asks the control port `at` for its function's name, inputs and
-    /// outputs (the signature alone: a function's failure table is read
-    /// when it first refuses, see [`Control::failure_table`]).
+    /// Asks the control port `at` for its function's name, inputs,
+    /// outputs and summary line, in one request (`[2][02]`: a function's
+    /// failure table is read when it first refuses, see
+    /// [`Control::failure_table`], its whole docs on demand,
+    /// [`describe`](Self::describe)). A function that refuses that as
+    /// malformed (firmware from before the signature's sections) is asked
+    /// again with `[2]`, and so are the other functions on its runtime
+    /// from then on, until the next refresh.
     async fn ask_signature(&self, at: &Target) -> Result<ScannedSignature, SomError> {
-        let sig = self
-            .control
-            .ask(at, "get signature", &Request::GetSignature, true)
-            .await?;
-        match sig.body(at, "get signature", ControlKey::GetSignature)? {
+        let what = "get signature";
+        let sections = !self.control.without_sections(&at.route);
+        let request = if sections {
+            Request::Describe(SignatureParts::SUMMARY)
+        } else {
+            Request::GetSignature
+        };
+        let mut sig = self.control.ask(at, what, &request, true).await?;
+        if sections {
+            if let Err(SomError::Remote {
+                error: ControlError::Malformed,
+                ..
+            }) = sig.body(at, what, ControlKey::GetSignature)
+            {
+                self.control.set_without_sections(at.route);
+                sig = self
+                    .control
+                    .ask(at, what, &Request::GetSignature, true)
+                    .await?;
+            }
+        }
+        match sig.body(at, what, ControlKey::GetSignature)? {
             ReplyBody::Signature(s) => {
                 let args = |l: pipes_core::signature::ArgList<'_>| -> Vec<SomArg> {
                     l.iter()
@@ -275,6 +305,7 @@ impl Manager {
                 };
                 Ok(ScannedSignature {
                     name: s.name().to_string(),
+                    summary: s.summary().unwrap_or_default().to_string(),
                     inputs: args(s.inputs()),
                     outputs: args(s.outputs()),
                 })
@@ -325,6 +356,7 @@ impl Manager {
         let (at, sig) = self.read_signature(som, ri, port).await?;
         let ScannedSignature {
             name,
+            summary,
             inputs,
             outputs,
         } = sig;
@@ -394,6 +426,7 @@ impl Manager {
             .collect();
         Ok(SomFunction {
             name,
+            summary,
             port,
             pipe_ports,
             inputs,
@@ -449,6 +482,13 @@ impl Manager {
             inputs,
             outputs,
         ))
+    }
+
+    /// What function `f` says of itself: its documentation and its failure
+    /// table, read from it now (one request; see [`Description`]).
+    pub async fn describe(&self, f: &FnRef) -> Result<Description, SomError> {
+        let (_, target) = self.target(f)?;
+        self.control.describe(&target).await
     }
 
     /// A handle for the function whose control port is `port` on the

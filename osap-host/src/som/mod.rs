@@ -32,6 +32,7 @@
 //! ```
 
 mod blocks;
+mod description;
 pub mod failure;
 pub mod graph;
 mod handle;
@@ -44,6 +45,7 @@ pub mod proxy;
 mod value;
 
 pub use blocks::BlockClassInfo;
+pub use description::Description;
 pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};
 pub use host_fn::{

@@ -293,6 +293,12 @@ impl SomFunctionPipe {
 pub struct SomFunction {
     /// Its name (from its signature).
     pub name: String,
+    /// The first sentence of its documentation, as it sent it
+    /// (`pipes_core::docs`); empty if it has none or predates the docs.
+    /// The whole text is read on demand
+    /// ([`Manager::describe`](super::Manager::describe)).
+    #[serde(default, skip_serializing_if = "String::is_empty")]
+    pub summary: String,
     /// Its control port's index.
     pub port: u16,
     /// The sending ports of its pipe slots, by slot (the `pipes_pipe`

@@ -81,6 +81,7 @@ fn function(outputs: &[(&str, &str)]) -> SomFunction {
     };
     SomFunction {
         name: "f".into(),
+        summary: String::new(),
         port: 1,
         pipe_ports: vec![2, 3],
         inputs: Vec::new(),

@@ -273,6 +273,7 @@ mod tests {
                 };
                 SomFunction {
                     name: s.name.into(),
+                    summary: String::new(),
                     port: 1 + 3 * i as u16,
                     pipe_ports: Vec::new(),
                     inputs: args(s.inputs),

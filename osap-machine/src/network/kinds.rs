@@ -220,6 +220,7 @@ mod tests {
         };
         SomFunction {
             name: s.name.into(),
+            summary: String::new(),
             port,
             pipe_ports: Vec::new(),
             inputs: args(s.inputs),

@@ -64,6 +64,8 @@ pub fn same_names<A: PipesArgs>() -> Vec<(&'static str, &'static str)> {
 
 macro_rules! typed_functions {
     ($(
+        // The documentation: osap-module's, which its `FnId` shows.
+        $(#[doc = $doc:tt])*
         $f:ident ( $($in:ident : $inty:ty),* ) $(-> ( $($out:ident : $outty:ty),* ))? ;
     )*) => {
     $(

@@ -35,6 +35,56 @@ use syn::{
 /// (`pipes_core::signature::MAX_ARGS`).
 const MAX_ARGS: usize = 8;
 
+/// The longest documentation of a PIPES function, bytes
+/// (`pipes_core::docs::MAX_DOCS`).
+const MAX_DOCS: usize = 2048;
+
+/// The text of the `///` doc comment in `attrs`, as rustdoc shows it: the
+/// lines of every `#[doc = ".."]` joined by `\n`, their common leading
+/// whitespace removed, trailing whitespace and blank lines at either end
+/// dropped. Doc attributes that are not string literals are skipped.
+/// Refused when longer than [`MAX_DOCS`]: the text travels with the
+/// signature.
+fn doc_text_of(attrs: &[Attribute]) -> syn::Result<String> {
+    let mut lines: Vec<String> = Vec::new();
+    let mut first: Option<Span> = None;
+    for a in attrs.iter().filter(|a| a.path().is_ident("doc")) {
+        let Meta::NameValue(nv) = &a.meta else {
+            continue;
+        };
+        let Expr::Lit(syn::ExprLit {
+            lit: Lit::Str(s), ..
+        }) = &nv.value
+        else {
+            continue;
+        };
+        first.get_or_insert(a.span());
+        lines.extend(s.value().split('\n').map(|l| l.trim_end().to_string()));
+    }
+    let indent = lines
+        .iter()
+        .filter(|l| !l.is_empty())
+        .map(|l| l.len() - l.trim_start().len())
+        .min()
+        .unwrap_or(0);
+    let lines: Vec<&str> = lines
+        .iter()
+        .map(|l| l.get(indent..).unwrap_or(""))
+        .collect();
+    let text = lines.join("\n").trim_matches('\n').to_string();
+    if text.len() > MAX_DOCS {
+        return Err(Error::new(
+            first.unwrap_or_else(Span::call_site),
+            format!(
+                "this doc comment is {} bytes; a PIPES function's travels with its signature \
+                 and may be at most {MAX_DOCS}: shorten it (move the details to the module docs)",
+                text.len()
+            ),
+        ));
+    }
+    Ok(text)
+}
+
 /// Turns a plain function into a PIPES function.
 ///
 /// ```ignore
@@ -52,7 +102,9 @@ const MAX_ARGS: usize = 8;
 ///   the returned tuple (or single value; `()` or nothing means no outputs);
 /// - `pipes()`: the value to hand to `PipesFunction::new`;
 /// - an `Implementation` that decodes the inputs, calls the function and sets
-///   every output.
+///   every output, and whose `docs()` is the function's `///` doc comment
+///   (sent with the signature when a host asks: `pipes_core::docs`; at most
+///   2048 bytes, in flash).
 ///
 /// A function that can fail returns `Result<T, E>` with `E:
 /// Into<CallError>` (e.g. `CallError` itself, or a type with a `From` impl
@@ -103,6 +155,9 @@ pub fn function(attr: TokenStream, item: TokenStream) -> TokenStream {
 ///   with `_` is an exported member, signature `"Type.method"`, with output
 ///   names from `#[outputs = ".."]` and `Result` returns as for
 ///   [`macro@function`];
+/// - the `///` doc comments of the constructor and of each member are
+///   their documentation (`CONSTRUCTOR_DOCS`, `MEMBER_DOCS`; see
+///   [`macro@function`]);
 /// - at most one `#[loop_hook]` method
 ///   `fn(&mut self, now: pipes_core::time::SystemInstant)`, given the
 ///   runtime's synchronized system time.
@@ -126,6 +181,32 @@ pub fn class(attr: TokenStream, item: TokenStream) -> TokenStream {
             };
             quote!(#e #item).into()
         }
+    }
+}
+
+/// The text of the doc attributes given, as one string literal: the
+/// documentation a PIPES function publishes, read exactly as
+/// [`macro@function`] reads a doc comment (lines joined by `\n`, common
+/// indentation removed; at most 2048 bytes).
+///
+/// For tables of functions written by `macro_rules!` (osap-module's
+/// `module_function_table!`), whose `///` lines arrive as `#[doc = ".."]`
+/// attributes:
+///
+/// ```ignore
+/// const DOCS: &str = pipes_core::doc_text!(
+///     /// Queues a control point:
+///     ///   at `time`.
+/// );
+/// assert_eq!(DOCS, "Queues a control point:\n  at `time`.");
+/// ```
+#[proc_macro]
+pub fn doc_text(item: TokenStream) -> TokenStream {
+    let parsed =
+        Parser::parse2(Attribute::parse_outer, item.into()).and_then(|attrs| doc_text_of(&attrs));
+    match parsed {
+        Ok(text) => quote!(#text).into(),
+        Err(e) => e.to_compile_error().into(),
     }
 }
 
@@ -554,6 +635,14 @@ fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStr
     let args = decode_args(&ins, &values);
     let write = write_outputs(&ret, &value, &outputs);
     let call = unwrap_call(&ret, quote!(#ident(#(#args),*)));
+    let docs = doc_text_of(&f.attrs)?;
+    let docs_fn = (!docs.is_empty()).then(|| {
+        quote! {
+            fn docs(&self) -> &'static str {
+                #docs
+            }
+        }
+    });
     let vis = &f.vis;
     let doc = format!(
         "The PIPES function of [`{ident}()`]: hand [`{ident}::pipes()`] to \
@@ -592,6 +681,8 @@ fn function_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStr
                 let #value = #call;
                 #write
             }
+
+            #docs_fn
         }
     })
 }
@@ -630,6 +721,7 @@ fn expect_bare(a: &Attribute, what: &str) -> syn::Result<()> {
 struct MemberFn {
     ident: Ident,
     name: String,
+    docs: String,
     inputs: Vec<Input>,
     ret: Returned,
     outputs: Vec<String>,
@@ -667,6 +759,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
     };
 
     let mut constructor: Option<(Ident, Vec<Input>, Span)> = None;
+    let mut ctor_docs = String::new();
     let mut ctor_fallible = false;
     let mut hook: Option<Ident> = None;
     let mut members: Vec<MemberFn> = Vec::new();
@@ -698,6 +791,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
                 return Err(e);
             }
             constructor = Some((sig.ident.clone(), inputs(sig)?, sig.ident.span()));
+            ctor_docs = doc_text_of(&f.attrs)?;
             ctor_fallible = returned(&sig.output).fallible;
             continue;
         }
@@ -746,6 +840,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
         members.push(MemberFn {
             ident: sig.ident.clone(),
             name,
+            docs: doc_text_of(&f.attrs)?,
             inputs: ins,
             ret,
             outputs: outs,
@@ -769,6 +864,7 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
     let outputs = format_ident!("__pipes_outputs");
     let value = format_ident!("__pipes_returned");
     let ctor_args = decode_args(&ctor_inputs, &values);
+    let member_docs = members.iter().map(|m| &m.docs);
     let member_sigs = members
         .iter()
         .map(|m| signature_expr(&m.name, &m.inputs, &m.outputs, &m.ret));
@@ -808,6 +904,8 @@ fn class_impl(attr: TokenStream2, item: TokenStream2) -> syn::Result<TokenStream
             const CONSTRUCTOR: &'static ::pipes_core::signature::Signature = #ctor_sig;
             const MEMBERS: &'static [&'static ::pipes_core::signature::Signature] =
                 &[#(#member_sigs),*];
+            const CONSTRUCTOR_DOCS: &'static str = #ctor_docs;
+            const MEMBER_DOCS: &'static [&'static str] = &[#(#member_docs),*];
 
             #[allow(clippy::useless_conversion)]
             fn construct(

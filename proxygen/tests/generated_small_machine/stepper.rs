@@ -301,6 +301,8 @@ impl Stepper {
 
     /// `add_point`.
     ///
+    /// Queues a control point: the axis is at `position` (user units) at synchronized `time` (a multiple of the interval).
+    ///
     /// - inputs: `time: u64`, `position: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -324,6 +326,8 @@ impl Stepper {
 
     /// `set_interval`.
     ///
+    /// Sets the control-point interval, µs (a power of two, 256 to 16 384), while no stream is queued.
+    ///
     /// - inputs: `interval_us: u32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -346,6 +350,8 @@ impl Stepper {
     }
 
     /// `get_position`.
+    ///
+    /// Where the steps sent so far put the motor (user units), and the synchronized time of the latest step tick they include.
     ///
     /// - inputs: none
     /// - outputs: `time: u64`, `position: f32`
@@ -372,6 +378,8 @@ impl Stepper {
     }
 
     /// `get_status`.
+    ///
+    /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted), points queued, whether the motor is powered, and faults since boot.
     ///
     /// - inputs: none
     /// - outputs: `mode: u8`, `queued: u16`, `enabled: bool`, `faults: u32`
@@ -401,6 +409,8 @@ impl Stepper {
 
     /// `get_counters`.
     ///
+    /// Points accepted, refused, the latest refusal's code, and single gaps filled.
+    ///
     /// - inputs: none
     /// - outputs: `points: u32`, `refused: u32`, `last_refused: u8`, `filled: u32`
     /// - generated from: `stepper` firmware 0.1.0
@@ -428,6 +438,8 @@ impl Stepper {
     }
 
     /// `get_steps`.
+    ///
+    /// Where the steps put the motor, in microsteps (net steps; a scale or microstep change re-expresses it), then the steps up, steps down and late steps (steps that went out on a later tick than the one they fell due at, more than one step tick late; each is a fault, see `crate::fault`) since the step generator last started: at boot, on `set_enable`, `halt`, and a scale or microstep change.
     ///
     /// - inputs: none
     /// - outputs: `steps: i64`, `up: u64`, `down: u64`, `late: u64`
@@ -457,6 +469,8 @@ impl Stepper {
 
     /// `set_enable`.
     ///
+    /// Powers the motor or lets it go limp; powering down stops the axis where it stands and drops its stream, powering up clears a fault or a halt.
+    ///
     /// - inputs: `on: bool`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -479,6 +493,8 @@ impl Stepper {
     }
 
     /// `set_scale`.
+    ///
+    /// Sets the motor's full steps per user unit (the microstep mode multiplies it), while no stream is queued.
     ///
     /// - inputs: `full_steps_per_unit: f32`
     /// - outputs: none
@@ -503,6 +519,8 @@ impl Stepper {
 
     /// `set_microsteps`.
     ///
+    /// Sets the driver's microstep mode (1, 2, 4, .. 256, as the board's driver offers), while no stream is queued.
+    ///
     /// - inputs: `microsteps: u16`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -526,6 +544,8 @@ impl Stepper {
 
     /// `set_limits`.
     ///
+    /// Sets the limits on incoming points, in user units (those of `add_point`'s position) per s, s² and s³, while no stream is queued: `add_point` then refuses a point past one (`OverLimit`, a fault `get_fault` reports).
+    ///
     /// - inputs: `max_vel: f32`, `max_acc: f32`, `max_jerk: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -548,6 +568,8 @@ impl Stepper {
     }
 
     /// `read_limit`.
+    ///
+    /// The limit switch: when its level last changed (synchronized µs, 0: never), its level, and the edges seen since boot.
     ///
     /// - inputs: none
     /// - outputs: `time: u64`, `level: bool`, `edges: u32`
@@ -576,6 +598,8 @@ impl Stepper {
 
     /// `halt`.
     ///
+    /// Stops stepping at once and drops the stream (an emergency stop), and drives every output to its safe value (`set_safe_pwm`, `set_safe_digital`); the axis refuses points until the motor is disabled and enabled again.
+    ///
     /// - inputs: none
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -599,6 +623,8 @@ impl Stepper {
 
     /// `digital_write`.
     ///
+    /// Drives digital pin `pin` high or low.
+    ///
     /// - inputs: `pin: u8`, `level: bool`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -621,6 +647,8 @@ impl Stepper {
     }
 
     /// `digital_read`.
+    ///
+    /// Reads digital pin `pin`: the synchronized time of the read and the level.
     ///
     /// - inputs: `pin: u8`
     /// - outputs: `time: u64`, `level: bool`
@@ -648,6 +676,8 @@ impl Stepper {
 
     /// `pwm_write`.
     ///
+    /// Sets PWM output `channel`'s duty cycle, a fraction `0..=1`; refused for an output a heater drives.
+    ///
     /// - inputs: `channel: u8`, `duty: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -670,6 +700,8 @@ impl Stepper {
     }
 
     /// `pulse`.
+    ///
+    /// Drives `pin` high now and low `duration_us` later (at most 10 s).
     ///
     /// - inputs: `pin: u8`, `duration_us: u32`
     /// - outputs: none
@@ -694,6 +726,8 @@ impl Stepper {
 
     /// `pulse_at`.
     ///
+    /// Schedules a pulse of `duration_us` on `pin` at synchronized `time` (at most 60 s ahead; 16 may wait at once).
+    ///
     /// - inputs: `time: u64`, `pin: u8`, `duration_us: u32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -716,6 +750,8 @@ impl Stepper {
     }
 
     /// `analog_read`.
+    ///
+    /// Samples analog input `channel`: the synchronized time of the sample and the reading as a fraction of full scale.
     ///
     /// - inputs: `channel: u8`
     /// - outputs: `time: u64`, `value: f32`
@@ -742,6 +778,8 @@ impl Stepper {
     }
 
     /// `get_fault`.
+    ///
+    /// The latest fault: its synchronized time, its kind (`crate::fault::FaultKind` code), its detail, and the faults since boot (see `crate::fault`).
     ///
     /// - inputs: none
     /// - outputs: `time: u64`, `code: u8`, `detail: u32`, `count: u32`
@@ -771,6 +809,8 @@ impl Stepper {
 
     /// `enter_bootloader`.
     ///
+    /// Reboots the board into its bootloader for a firmware update, after this call has answered (see `crate::boot`): refused on a board without one, and while the axis has motion queued or running.
+    ///
     /// - inputs: none
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -793,6 +833,8 @@ impl Stepper {
     }
 
     /// `set_safe_pwm`.
+    ///
+    /// Sets the duty (a fraction, `0..=1`) PWM output `channel` takes on every stop and when the output watchdog fires (0 until set).
     ///
     /// - inputs: `channel: u8`, `duty: f32`
     /// - outputs: none
@@ -817,6 +859,8 @@ impl Stepper {
 
     /// `set_safe_digital`.
     ///
+    /// Sets the level digital pin `pin` takes on every stop and when the output watchdog fires (low until set).
+    ///
     /// - inputs: `pin: u8`, `level: bool`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -839,6 +883,8 @@ impl Stepper {
     }
 
     /// `set_output_watchdog`.
+    ///
+    /// Arms the output watchdog: when no call or pipe datagram reaches any of the module's functions for `timeout_ms`, the module drives every output to its safe value and `get_fault` reports it.
     ///
     /// - inputs: `timeout_ms: u32`
     /// - outputs: none
@@ -863,6 +909,8 @@ impl Stepper {
 
     /// `heater_sensor`.
     ///
+    /// Heater `index` (0 or 1) reads analog input `analog` through an NTC thermistor to ground with a `pullup_ohms` pullup, whose curve is the Steinhart–Hart `1/T = a + b·ln R + c·ln³R` (T in K, R in Ω; a Beta thermistor has `c = 0`, `b = 1/β`).
+    ///
     /// - inputs: `index: u8`, `analog: u8`, `a: f32`, `b: f32`, `c: f32`, `pullup_ohms: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -885,6 +933,8 @@ impl Stepper {
     }
 
     /// `heater_output`.
+    ///
+    /// Heater `index` drives PWM output `pwm`, at most `max_power` (`0 < max_power ≤ 1`) of full duty; the output goes to 0.
     ///
     /// - inputs: `index: u8`, `pwm: u8`, `max_power: f32`
     /// - outputs: none
@@ -909,6 +959,8 @@ impl Stepper {
 
     /// `heater_limits`.
     ///
+    /// Heater `index` runs between `min_temp` and `max_temp`, °C: below `min_temp` its sensor reads open, at `max_temp` it cuts itself off.
+    ///
     /// - inputs: `index: u8`, `min_temp: f32`, `max_temp: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -931,6 +983,8 @@ impl Stepper {
     }
 
     /// `heater_gains`.
+    ///
+    /// Heater `index`'s PID gains in Klipper's units (`pid_Kp`, `pid_Ki`, `pid_Kd`; see `crate::heater`).
     ///
     /// - inputs: `index: u8`, `kp: f32`, `ki: f32`, `kd: f32`
     /// - outputs: none
@@ -955,6 +1009,8 @@ impl Stepper {
 
     /// `heater_runaway`.
     ///
+    /// Heater `index`'s runaway protection (Klipper's `verify_heater`; defaults 5 °C, 120 °C·s, 2 °C, 20 s; see `crate::heater`).
+    ///
     /// - inputs: `index: u8`, `hysteresis_c: f32`, `max_error: f32`, `heating_gain_c: f32`, `check_gain_time_s: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -977,6 +1033,8 @@ impl Stepper {
     }
 
     /// `heater_target`.
+    ///
+    /// Heater `index` holds `celsius` (within `[min_temp, max_temp)`); 0 turns it off.
     ///
     /// - inputs: `index: u8`, `celsius: f32`
     /// - outputs: none
@@ -1001,6 +1059,8 @@ impl Stepper {
 
     /// `heater_power`.
     ///
+    /// Heater `index` runs open loop at `duty` (`0..=1`, capped at `max_power`), for autotuning; its sensor checks, `max_temp` and the output watchdog still guard it.
+    ///
     /// - inputs: `index: u8`, `duty: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -1023,6 +1083,8 @@ impl Stepper {
     }
 
     /// `heater_read`.
+    ///
+    /// Heater `index`: the synchronized time of its latest reading (0: none yet), its temperature (°C), its target (0: off or open loop), the duty it drives (`0..=1`), and its state (0 off, 1 heating, 2 holding, 3 open-loop power, 4 faulted; see `crate::heater::HeaterState`).
     ///
     /// - inputs: `index: u8`
     /// - outputs: `time: u64`, `temp: f32`, `target: f32`, `power: f32`, `state: u8`
@@ -1053,6 +1115,8 @@ impl Stepper {
 
     /// `heater_clear`.
     ///
+    /// Clears heater `index`'s runaway fault if its sensor reads sane now (refused with `SensorFault` otherwise); the heater is then off.
+    ///
     /// - inputs: `index: u8`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -1075,6 +1139,8 @@ impl Stepper {
     }
 
     /// `loadcell_setup`.
+    ///
+    /// The load cell's converter is on digital pins `data_pin` (its data line) and `clock_pin` (its clock).
     ///
     /// - inputs: `data_pin: u8`, `clock_pin: u8`
     /// - outputs: none
@@ -1099,6 +1165,8 @@ impl Stepper {
 
     /// `loadcell_tare`.
     ///
+    /// The next `samples` readings (1 to 1 000) become the load cell's zero; `loadcell_read`'s `taring` is true until they are in.
+    ///
     /// - inputs: `samples: u16`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -1122,6 +1190,8 @@ impl Stepper {
 
     /// `loadcell_scale`.
     ///
+    /// The load cell's scale, newtons per count (not 0; negative for a cell mounted the other way).
+    ///
     /// - inputs: `newtons_per_count: f32`
     /// - outputs: none
     /// - generated from: `stepper` firmware 0.1.0
@@ -1144,6 +1214,8 @@ impl Stepper {
     }
 
     /// `loadcell_read`.
+    ///
+    /// The newest sample: when it was read (synchronized µs; 0 before the first), its force, N, its raw counts, samples read since setup, and whether a tare is under way.
     ///
     /// - inputs: none
     /// - outputs: `time: u64`, `force: f32`, `raw: i32`, `samples: u32`, `taring: bool`

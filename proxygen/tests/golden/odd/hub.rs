@@ -56,6 +56,8 @@ impl Hub {
 
     /// `get_uptime`.
     ///
+    /// The time since boot, µs: see `crate::clock`, */ "quoted" {{ braces }}.
+    ///
     /// - inputs: none
     /// - outputs: `uptime_us: u64`
     /// - generated from: `hub` firmware 0.1.0
