@@ -66,6 +66,12 @@ fn blocks_are_made_used_and_deleted_from_the_command_line() {
     assert!(scan.contains("half"), "{scan}");
     let out = ok(&osap(&["call", "x", "half", "1000", "3", "--tcp", a]));
     assert_eq!(out, "time = 1000\nvalue = 0.5\n");
+    // It explains itself, as its class.
+    let d = ok(&osap(&["describe", "x", "half", "--tcp", a]));
+    assert!(
+        d.contains("half(time: u64, value: f32)") && d.contains("A scale block"),
+        "{d}"
+    );
 
     // Refusals say what is wrong.
     let e = err(&osap(&[

@@ -274,6 +274,17 @@ impl<H: ModuleHandle> Implementation for ModuleBlock<H> {
         self.name.as_str()
     }
 
+    /// The class's description (`osap describe` shows it for each block).
+    fn docs(&self) -> &'static str {
+        match self.kind {
+            Kind::Comparator(_) => "A comparator block: sends `above` when its input rises past `threshold` or falls below `threshold - hysteresis`, stamped with the crossing sample's time, once per crossing (on change).\n\nMade with `halt`, a rise halts this module's axis in the same loop (outputs and heaters are left as they are) and records a BlockHalt fault.",
+            Kind::Scale(_) => "A scale block: `gain * value + offset`, the sample's time passed through.",
+            Kind::Lowpass(_) => "A first-order low-pass block at `cutoff_hz`, by the samples' own time stamps; the first sample passes through.",
+            Kind::Limiter(_) => "A limiter block: clamps to `[min, max]` and, unless `rate` is 0, moves at most `rate` units a second by the samples' time stamps.",
+            Kind::Trigger(_) => "A trigger block: fires once at or after the synchronized time `at` (checked every 100 µs unless its input mode says otherwise), sets `pin` to `level` unless `pin` is 255, and sends the time it fired and how often it has.",
+        }
+    }
+
     fn call(&mut self, inputs: &[Value<'_>], outputs: &mut Outputs<'_>) -> Result<(), CallError> {
         let not_installed = CallError::Failed(FailureCode::Other(NOT_INSTALLED));
         let pair = |outputs: &mut Outputs<'_>, t: u64, v: f32| {

@@ -91,6 +91,12 @@
 //! [module.io]                # optional, for "stepper" only
 //! digital = [false, false]   # levels of pins 0..4 while nothing drives them
 //! analog = [0.5, 0.0, 1.0]   # analog inputs 0..3, fractions of full scale
+//! [module.io.contact]        # optional: a nozzle load cell pressing a bed
+//! touch_at = -2.0            # carriage position where the tip touches
+//! stiffness_n_per_unit = 40.0  # optional: the bed's push past the touch
+//! data_pin = 2               # the HX711-kind converter's pins
+//! clock_pin = 3
+//! sample_hz = 320.0          # optional (default 320, an HX717)
 //! [module.bootloader]        # optional, for "stepper" only: a UF2 bootloader
 //! drive = "/tmp/x-drive"     # the directory its USB drive appears in
 //! chip = "rp2040"            # optional: "rp2040" (default) or "samd51"
