@@ -102,7 +102,7 @@ async fn a_saved_graph_applies_exactly_and_once() {
         other => panic!("{other:?}"),
     }
     let mut future = graph.clone();
-    future.version = 2;
+    future.version = osap_host::som::graph::GRAPH_VERSION + 1;
     assert!(matches!(
         future.changes(fresh.som()),
         Err(GraphError::Format { .. })
