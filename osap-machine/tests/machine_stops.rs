@@ -356,9 +356,9 @@ fn late_steps_past_the_bound_stop_the_machine() {
             // rad/s near the ends, against 0.49 rad/s): whichever reports
             // first stops the machine.
             matches!(&e, MachineError::Faulted(r)
-                if ["module s", "module e"].iter().any(|m| r.starts_with(&format!(
-                    "{m} was asked to step faster than its step rate"
-                )))),
+            if ["module s", "module e"].iter().any(|m| r.starts_with(&format!(
+                "{m} was asked to step faster than its step rate"
+            )))),
             "{e}"
         );
         let mut late = None;
@@ -397,7 +397,10 @@ fn late_steps_past_the_bound_stop_the_machine() {
                 late.push(detail);
             }
         }
-        assert!(!late.is_empty() && late.iter().all(|n| *n <= 1_000_000), "{late:?}");
+        assert!(
+            !late.is_empty() && late.iter().all(|n| *n <= 1_000_000),
+            "{late:?}"
+        );
         eprintln!(
             "late-step reports in a 160 mm sweep at 150 mm/s: {}, the count reaching {}",
             late.len(),
