@@ -42,7 +42,7 @@ pub use extruder::{
 pub use heaters::{Heater, Runaway, Sensor, MAX_HEATER_TEMP};
 pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use motor_model::{MotorModelKeys, PlannerModel, DEFAULT_TORQUE_MARGIN};
-pub use probe::{Probe, ProbeGridError};
+pub use probe::{Probe, ProbeGridError, ProbeLoadCell};
 pub use sim::{Sim, SimAxis, SimMelt};
 pub use step_rate::MAX_STEP_RATE;
 pub use thermistor::{SteinhartHart, THERMISTORS};

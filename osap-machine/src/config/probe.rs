@@ -35,6 +35,32 @@ pub struct Probe {
     pub search_speed: f64,
     /// Speed of the moves between points (units/s).
     pub travel_speed: f64,
+    /// A load cell on the probe's module that the tip presses (a nozzle
+    /// load-cell probe), read by a comparator block on that module which
+    /// halts the z axis in its own loop; without it, the probe is a switch
+    /// on the module's limit input.
+    #[serde(default)]
+    pub loadcell: Option<ProbeLoadCell>,
+}
+
+/// `[probe] loadcell`: the probe's load cell, an HX711-kind converter on
+/// two of the probe module's digital pins.
+#[derive(Debug, Clone, Copy, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ProbeLoadCell {
+    /// The converter's data line.
+    pub data_pin: u8,
+    /// The converter's clock line.
+    pub clock_pin: u8,
+    /// Newtons per count of the converter.
+    pub newtons_per_count: f64,
+    /// The force that means "touching", N (default 1).
+    #[serde(default = "default_threshold_n")]
+    pub threshold_n: f64,
+}
+
+fn default_threshold_n() -> f64 {
+    1.0
 }
 
 fn default_margin() -> f64 {
@@ -181,6 +207,49 @@ pub(super) fn validate(cfg: &MachineFile) -> Result<(), ConfigError> {
             "probe.margin",
             format!("{} must be 0 or more", p.margin),
         ));
+    }
+    if let Some(l) = &p.loadcell {
+        for (key, pin) in [("data_pin", l.data_pin), ("clock_pin", l.clock_pin)] {
+            if pin >= super::DIGITAL_PINS {
+                return Err(invalid(
+                    &format!("probe.loadcell.{key}"),
+                    format!(
+                        "pin {pin} does not exist: a module has digital pins 0 to {}",
+                        super::DIGITAL_PINS - 1
+                    ),
+                ));
+            }
+        }
+        if l.data_pin == l.clock_pin {
+            return Err(invalid(
+                "probe.loadcell.clock_pin",
+                "the converter's data and clock lines need two pins".into(),
+            ));
+        }
+        for (key, v) in [
+            ("newtons_per_count", l.newtons_per_count),
+            ("threshold_n", l.threshold_n),
+        ] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(invalid(
+                    &format!("probe.loadcell.{key}"),
+                    format!("{v} must be positive"),
+                ));
+            }
+        }
+        let extruder_cell = cfg
+            .extruder()
+            .and_then(|e| e.extruder.loadcell.as_ref())
+            .is_some_and(|c| c.module == p.module);
+        if extruder_cell {
+            return Err(invalid(
+                "probe.loadcell",
+                format!(
+                    "module {:?} already reads the extruder's load cell; a module reads one",
+                    p.module
+                ),
+            ));
+        }
     }
     if p.search_speed > z.velocity {
         return Err(invalid(

@@ -130,8 +130,18 @@ pub(super) fn stops_motion(
     use events::FaultKind as K;
     use osap_module::stepper::StepperError as E;
     let code = |e: E| u32::from(e.code());
+    let halt_expected = inner
+        .expecting_halt
+        .lock()
+        .unwrap_or_else(|e| e.into_inner())
+        .as_deref()
+        == Some(module);
     match kind {
         K::None => false,
+        // A load-cell probe's comparator halting z ends its search; the
+        // points streamed past the touch are refused as halted.
+        K::BlockHalt if halt_expected => false,
+        K::Refused if halt_expected && detail == code(E::Faulted) => false,
         // Late steps stall a real motor: more than the file allows stop.
         K::StepOverrun => detail > inner.cfg.limits.max_late_steps,
         K::Refused if detail == code(E::Disabled) => lock_motion(&inner.motion)

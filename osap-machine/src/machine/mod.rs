@@ -128,6 +128,9 @@ struct Inner {
     /// The module whose switch homing or probing presses now: its press is
     /// expected. A press on any other switch still stops the machine.
     expecting: Mutex<Option<String>>,
+    /// The module whose axis a load-cell probe's comparator halts now: its
+    /// `BlockHalt`, and the points it refuses as halted, are expected.
+    expecting_halt: Mutex<Option<String>>,
     tools: Mutex<BTreeMap<String, tool::ToolState>>,
     underneath: Mutex<Option<Box<dyn Underneath>>>,
     /// Modules that stopped answering since the last recovery: they may

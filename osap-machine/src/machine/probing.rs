@@ -10,8 +10,64 @@
 use maxl::blocks::bedlevel::BedMesh;
 use tokio::sync::broadcast;
 
+use std::time::Duration;
+
+use osap_host::som::{FnRef, Manager, PipeOptions, Value};
+use pipes_core::control::{InputMode, OutputMode};
+
 use super::homing::ExpectSwitch;
-use super::{lock_motion, monitor, Machine, MachineError, MAX_AXES};
+use super::start::call_idempotent;
+use super::{lock_motion, monitor, Machine, MachineError, ModuleInfo, MAX_AXES};
+use super::{INTERVAL_US, LEAD_US};
+use crate::config::{MachineFile, ProbeLoadCell};
+use crate::network::modfn::{
+    get_status, loadcell_read, loadcell_scale, loadcell_setup, loadcell_tare,
+};
+
+/// The name of the comparator block a load-cell probe makes on its module
+/// for each search.
+pub(crate) const PROBE_BLOCK: &str = "osap_probe";
+
+/// Sets up the probe's load cell (`[probe] loadcell`: pins, scale) during
+/// the machine's configure phase.
+pub(super) async fn configure_probe_cell(
+    cfg: &MachineFile,
+    manager: &Manager,
+    modules: &std::collections::BTreeMap<String, ModuleInfo>,
+) -> Result<(), MachineError> {
+    let Some((p, cell)) = cfg.probe.as_ref().and_then(|p| Some((p, p.loadcell?))) else {
+        return Ok(());
+    };
+    let runtime = modules[&p.module].runtime.as_str();
+    let setup = loadcell_setup::Inputs {
+        data_pin: cell.data_pin,
+        clock_pin: cell.clock_pin,
+    };
+    call_idempotent(manager, runtime, &p.module, setup).await?;
+    let scale = loadcell_scale::Inputs {
+        newtons_per_count: cell.newtons_per_count as f32,
+    };
+    call_idempotent(manager, runtime, &p.module, scale).await?;
+    Ok(())
+}
+
+/// Expects the axis of one module to halt (a load-cell probe's comparator
+/// block) until dropped: its `BlockHalt` fault, and the points it then
+/// refuses, are the search ending, not a crash.
+pub(super) struct ExpectHalt<'a>(&'a std::sync::Mutex<Option<String>>);
+
+impl<'a> ExpectHalt<'a> {
+    fn new(slot: &'a std::sync::Mutex<Option<String>>, module: &str) -> Self {
+        *slot.lock().unwrap_or_else(|e| e.into_inner()) = Some(module.to_string());
+        ExpectHalt(slot)
+    }
+}
+
+impl Drop for ExpectHalt<'_> {
+    fn drop(&mut self) {
+        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = None;
+    }
+}
 
 impl Machine {
     /// Whether the switch on `module`'s limit input reads pressed (as last
@@ -50,6 +106,17 @@ impl Machine {
             .iter()
             .position(|a| a == "z")
             .ok_or_else(|| MachineError::UnknownAxis("z".into()))?;
+        if let Some(cell) = self
+            .config()
+            .probe
+            .as_ref()
+            .filter(|p| p.module == module)
+            .and_then(|p| p.loadcell)
+        {
+            return self
+                .probe_down_by_reflex(module, cell, k, depth, rate)
+                .await;
+        }
         self.idle().await?;
         // A probe press is expected now, on this module alone: not a
         // crash. A press on any other switch still stops the machine.
@@ -88,6 +155,149 @@ impl Machine {
                 ),
             })?;
         Ok(Some((edge.time, at)))
+    }
+
+    /// [`probe_down`](Self::probe_down) with a load cell (`[probe]
+    /// loadcell`): a comparator block on the probe's module, fed by the
+    /// module's own cell, halts z in the module's loop when the force
+    /// passes `threshold_n`; the machine then stands where the motors
+    /// stopped, which it returns with the time it saw the halt.
+    async fn probe_down_by_reflex(
+        &self,
+        module: &str,
+        cell: ProbeLoadCell,
+        k: usize,
+        depth: f64,
+        rate: f64,
+    ) -> Result<Option<(u64, Vec<f64>)>, MachineError> {
+        self.idle().await?;
+        self.tare_probe_cell(module).await?;
+        let runtime = self.inner.modules[module].runtime.clone();
+        let read = FnRef::new(runtime.as_str(), loadcell_read::NAME);
+        {
+            let mut manager = self.inner.manager.lock().await;
+            // A block an interrupted search left starts afresh.
+            if manager
+                .som()
+                .runtimes
+                .iter()
+                .any(|r| r.record.name == runtime && r.blocks.iter().any(|b| b.name == PROBE_BLOCK))
+            {
+                manager.delete_block(&runtime, PROBE_BLOCK).await?;
+            }
+            let threshold = cell.threshold_n as f32;
+            manager
+                .new_block(
+                    &runtime,
+                    "comparator",
+                    PROBE_BLOCK,
+                    &[
+                        Value::F32(threshold),
+                        Value::F32(0.2 * threshold),
+                        Value::Bool(true),
+                    ],
+                )
+                .await?;
+            let touch = FnRef::new(runtime.as_str(), PROBE_BLOCK);
+            manager
+                .connect(&read, &touch, &[0, 1], &[0, 1], PipeOptions::default())
+                .await?;
+            manager.set_output_mode(&read, OutputMode::OnChange).await?;
+            manager
+                .set_input_mode(&read, InputMode::OnTimer(250))
+                .await?;
+        }
+        let result = self.search_until_halted(module, k, depth, rate).await;
+        // The block goes with its pipe; the cell is read on demand again.
+        {
+            let mut manager = self.inner.manager.lock().await;
+            manager.delete_block(&runtime, PROBE_BLOCK).await?;
+            manager.set_input_mode(&read, InputMode::OnAnyFresh).await?;
+            manager.set_output_mode(&read, OutputMode::Always).await?;
+        }
+        result
+    }
+
+    /// Streams z down by up to `depth` at `rate` until `module`'s axis
+    /// halts (its comparator saw the touch) or the search ends.
+    async fn search_until_halted(
+        &self,
+        module: &str,
+        k: usize,
+        depth: f64,
+        rate: f64,
+    ) -> Result<Option<(u64, Vec<f64>)>, MachineError> {
+        let _expect = ExpectHalt::new(&self.inner.expecting_halt, module);
+        {
+            let mut m = lock_motion(&self.inner.motion);
+            let mut to = m.planner.tail();
+            to[k] -= depth;
+            m.planner.line(to, rate)?;
+            m.mark_busy();
+        }
+        let halted = || async {
+            let out = self.call_idempotent(module, get_status::Inputs {}).await?;
+            Ok::<bool, MachineError>(matches!(out.first(), Some(Value::U8(4))))
+        };
+        let touched = loop {
+            tokio::select! {
+                r = self.idle() => {
+                    // The last points may have run before the halt was seen.
+                    if halted().await? {
+                        break true;
+                    }
+                    r?;
+                    break false;
+                }
+                () = tokio::time::sleep(Duration::from_millis(2)) => {
+                    if halted().await? {
+                        break true;
+                    }
+                }
+            }
+        };
+        if !touched {
+            return Ok(None);
+        }
+        let at = self.now_us().await?;
+        // What was planned past the touch is void: the halted axis refused
+        // it. The stream pauses, the points in flight land, and the machine
+        // stands where the motors stopped (the halt clears as z is enabled
+        // again), as a recovery does.
+        lock_motion(&self.inner.motion).paused = true;
+        tokio::time::sleep(Duration::from_micros(u64::from(LEAD_US + 4 * INTERVAL_US))).await;
+        let rearmed = self.rearm_motors(false).await;
+        lock_motion(&self.inner.motion).paused = false;
+        rearmed?;
+        let tail = lock_motion(&self.inner.motion).planner.tail();
+        Ok(Some((at, tail[..self.axes().len()].to_vec())))
+    }
+
+    /// Zeroes the probe's cell with its tip off the bed, and waits for it.
+    async fn tare_probe_cell(&self, module: &str) -> Result<(), MachineError> {
+        const SAMPLES: u16 = 16;
+        self.call_idempotent(module, loadcell_tare::Inputs { samples: SAMPLES })
+            .await?;
+        // At 10 samples a second, the slowest converter.
+        let deadline =
+            tokio::time::Instant::now() + Duration::from_secs_f64(f64::from(SAMPLES) / 10.0 + 1.0);
+        loop {
+            let out = self
+                .call_idempotent(module, loadcell_read::Inputs {})
+                .await?;
+            if !matches!(out.get(4), Some(Value::Bool(true))) {
+                return Ok(());
+            }
+            if tokio::time::Instant::now() > deadline {
+                return Err(MachineError::Probe {
+                    point: "z".into(),
+                    reason: format!(
+                        "the probe's load cell did not finish its tare of {SAMPLES} samples: is its converter wired (data and clock pins) and powered?"
+                    ),
+                });
+            }
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
     }
 
     /// The bed mesh the machine follows, if any.

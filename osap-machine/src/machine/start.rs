@@ -120,6 +120,7 @@ impl Machine {
                 state,
                 homed: Mutex::new(homed),
                 expecting: Mutex::default(),
+                expecting_halt: Mutex::default(),
                 tools: Mutex::new(tools),
                 underneath: Mutex::new(underneath),
                 lost: Mutex::default(),
@@ -198,6 +199,7 @@ async fn configure(
     }
     heaters::configure_heaters(cfg, manager, modules).await?;
     super::loadcell::configure_loadcell(cfg, manager, modules).await?;
+    super::probing::configure_probe_cell(cfg, manager, modules).await?;
     Ok(motor_at)
 }
 

@@ -48,11 +48,11 @@ use std::collections::BTreeMap;
 use osap_core::netresponder::NAME_MAX;
 use osap_sim::machine::MODULE_LINKS;
 use osap_sim::topology::{
-    BedContact, HeaterSpec, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec, RotorSpec, SimSpec,
-    SpecError, SwitchSpec, HOST,
+    BedContact, ContactSpec, HeaterSpec, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec,
+    RotorSpec, SimSpec, SpecError, SwitchSpec, HOST,
 };
 
-use crate::config::{Direction, Kinematics, MachineFile};
+use crate::config::{Direction, Kinematics, MachineFile, Probe};
 
 pub(crate) mod accel;
 mod machine;
@@ -381,6 +381,12 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                     io.melt = Some(melt);
                     spec = spec.with_io(io);
                 }
+                // A nozzle load cell the probe's module weighs the bed with.
+                if let Some(contact) = probe_contact(cfg, key)? {
+                    let mut io = spec.io.clone().unwrap_or_default();
+                    io.contact = Some(contact);
+                    spec = spec.with_io(io);
+                }
                 // An accelerometer of `osap resonance` on this module.
                 if let Some(accel) =
                     accel::sim_accel(cfg, key).map_err(|(k, m)| unsupported(k, m))?
@@ -426,7 +432,8 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
 
     // The bed probe: pressed while its tip is at or below the bed.
     let bed = cfg.sim.as_ref().and_then(|s| s.bed.as_ref());
-    if let (Some(probe), Some(bed)) = (&cfg.probe, bed) {
+    // (A load-cell probe is the probe module's contact, above.)
+    if let (Some(probe @ Probe { loadcell: None, .. }), Some(bed)) = (&cfg.probe, bed) {
         let (surface, Some(module)) = (*bed, module_name(cfg, &probe.module)) else {
             return Err(unsupported(
                 "probe",
@@ -457,6 +464,56 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
 
     t.validate().map_err(SimError::Spec)?;
     Ok(t)
+}
+
+/// The contact a `[probe] loadcell` presses on `key`'s module: the bed of
+/// `[sim.bed]` (flat) under the tip the module's own carriage moves.
+fn probe_contact(cfg: &MachineFile, key: &str) -> Result<Option<ContactSpec>, SimError> {
+    let Some((probe, cell)) = cfg
+        .probe
+        .as_ref()
+        .and_then(|p| Some((p, p.loadcell?)))
+        .filter(|(p, _)| p.module == key)
+    else {
+        return Ok(None);
+    };
+    let Some(bed) = cfg.sim.as_ref().and_then(|s| s.bed.as_ref()) else {
+        return Ok(None);
+    };
+    if bed.tilt_x != 0.0 || bed.tilt_y != 0.0 || bed.warp != 0.0 {
+        return Err(unsupported(
+            "probe.loadcell",
+            "a simulated load-cell probe presses a flat bed: set [sim.bed] tilt_x, tilt_y and warp to 0",
+        ));
+    }
+    let z = axis_form(cfg, "z")?;
+    let name = module_name(cfg, key).unwrap_or(key);
+    let [(module, coef)] = z.terms.as_slice() else {
+        return Err(unsupported(
+            "probe.loadcell",
+            "a simulated load-cell probe weighs the z axis its module drives alone",
+        ));
+    };
+    if module != name || *coef == 0.0 {
+        return Err(unsupported(
+            "probe.loadcell",
+            format!("a simulated load-cell probe weighs z: put it on z's module, not {key:?}"),
+        ));
+    }
+    // The tip is at coef·p + offset + offset_z; it touches at the bed's z.
+    let touch_at = (bed.z - z.offset - probe.offset[2]) / coef;
+    Ok(Some(ContactSpec {
+        touch_at,
+        pressing_below: *coef > 0.0,
+        stiffness_n_per_unit: 40.0,
+        data_pin: cell.data_pin,
+        clock_pin: cell.clock_pin,
+        sample_hz: 320.0,
+        counts_per_newton: 1.0 / cell.newtons_per_count,
+        offset_counts: 85_000.0,
+        noise_n: 0.02,
+        seed: 0,
+    }))
 }
 
 #[cfg(test)]
