@@ -149,3 +149,47 @@ fn a_wrong_load_cell_is_refused_by_key() {
     let e = with("{ data_pin = 2, clock_pin = 3, newtons_per_count = 0.0005, threshold_n = -1.0 }");
     assert!(e.contains("probe.loadcell.threshold_n"), "{e}");
 }
+
+/// z homes down onto the bed with the load cell (`probe = true`): the
+/// touch becomes the bed's z, and a probe afterwards finds the bed there.
+#[test]
+fn z_homes_on_the_bed_with_the_load_cell() {
+    virtual_runtime().unwrap().block_on(async {
+        let mut cfg = mill_with_loadcell_probe();
+        let homing = cfg.axes.get_mut("z").unwrap().homing.as_mut().unwrap();
+        homing.switch = None;
+        homing.latch_speed = None;
+        homing.probe = true;
+        homing.direction = osap_machine::config::Direction::Min;
+        homing.endstop = Some(-70.0);
+        homing.search_speed = 5.0;
+        homing.backoff = 3.0;
+        // x and y first: z comes down over the bed.
+        homing.order = 3;
+        cfg.validate().unwrap();
+        let m = Machine::simulate_with(
+            &cfg,
+            SimOptions {
+                time: TimeMode::Virtual,
+            },
+        )
+        .await
+        .unwrap();
+        m.home().await.unwrap();
+        assert!(m.homed().iter().all(|h| *h));
+        assert!((m.position()[2] + 67.0).abs() < 1e-9, "{:?}", m.position());
+        // The touch at 5 mm/s reads -70; a probe at 2 mm/s stops a little
+        // sooner past the threshold: within 0.02 mm of it.
+        let (_, at) = m
+            .probe_down("z", 7.0, 2.0)
+            .await
+            .unwrap()
+            .expect("it touched");
+        assert!(
+            (at[2] + 70.0).abs() < 0.02,
+            "the bed after homing is at {}",
+            at[2]
+        );
+        m.stop().await.unwrap();
+    });
+}

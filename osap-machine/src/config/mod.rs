@@ -462,6 +462,10 @@ pub struct Homing {
     /// Home by stall detection on this motor (a key of `[motors]`).
     #[serde(default)]
     pub stall: Option<String>,
+    /// Home z on the bed with the probe's load cell (`[probe] loadcell`),
+    /// downwards: `endstop` is the z of the bed's surface.
+    #[serde(default)]
+    pub probe: bool,
     /// The end of travel to home to.
     pub direction: Direction,
     /// Speed to seek the switch or stall, units/s.

@@ -375,12 +375,73 @@ impl MachineFile {
         super::extruder::validate_rheo(self, &at, e)
     }
 
+    /// `probe = true`: z homes down onto the bed with the probe's load
+    /// cell.
+    fn validate_probe_homing(
+        &self,
+        at: &str,
+        axis: &Axis,
+        homing: &Homing,
+    ) -> Result<(), ConfigError> {
+        if homing.switch.is_some() || homing.stall.is_some() {
+            return Err(invalid(
+                at,
+                "probe homing takes no switch or stall; keep one way of homing",
+            ));
+        }
+        if at != "axes.z.homing" || homing.direction != Direction::Min {
+            return Err(invalid(
+                at,
+                "probe homing is z's, downwards onto the bed: direction = \"min\"",
+            ));
+        }
+        if self.probe.as_ref().and_then(|p| p.loadcell).is_none() {
+            return Err(invalid(
+                format!("{at}.probe"),
+                "probe homing presses the bed with [probe]'s load cell: give [probe] a loadcell",
+            ));
+        }
+        let Some(bed) = homing.endstop else {
+            return Err(invalid(
+                format!("{at}.endstop"),
+                "probe homing needs endstop: the z of the bed's surface",
+            ));
+        };
+        if !(bed.is_finite() && (axis.min..=axis.max).contains(&bed)) {
+            return Err(invalid(
+                format!("{at}.endstop"),
+                format!(
+                    "the bed's z {bed} must lie within z's travel [{}, {}]",
+                    axis.min, axis.max
+                ),
+            ));
+        }
+        positive(
+            &format!("{at}.search_speed"),
+            homing.search_speed,
+            "units/s",
+        )?;
+        if homing.search_speed > axis.velocity {
+            return Err(invalid(
+                format!("{at}.search_speed"),
+                format!(
+                    "search speed {} is above the axis velocity {}; lower it",
+                    homing.search_speed, axis.velocity
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     pub(super) fn validate_homing(
         &self,
         at: &str,
         axis: &Axis,
         homing: &Homing,
     ) -> Result<(), ConfigError> {
+        if homing.probe {
+            return self.validate_probe_homing(at, axis, homing);
+        }
         match (&homing.switch, &homing.stall) {
             (Some(_), Some(_)) => {
                 return Err(invalid(

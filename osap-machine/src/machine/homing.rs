@@ -96,6 +96,16 @@ impl Machine {
             .homing
             .as_ref()
             .ok_or_else(|| fail("no homing configured".into()))?;
+        if homing.probe {
+            self.idle().await?;
+            self.inner.state.send_replace(super::MachineState::Homing);
+            let result = self.home_axis_on_probe(axis, homing, a).await;
+            let homing = matches!(*self.inner.state.borrow(), super::MachineState::Homing);
+            if homing {
+                self.inner.state.send_replace(super::MachineState::Idle);
+            }
+            return result;
+        }
         let Some(switch) = homing.switch.as_deref() else {
             return Err(fail(
                 "stall homing is not supported yet: wire a switch and set `switch`".into(),
@@ -178,6 +188,52 @@ impl Machine {
             self.shift_axis(k, home - at)?;
             self.absolute(k, off, homing.search_speed).await?;
         }
+        self.inner.homed.lock().unwrap_or_else(|e| e.into_inner())[k] = true;
+        let _ = self.inner.events.send(MachineEvent::Homed {
+            axis: axis.to_string(),
+        });
+        Ok(())
+    }
+
+    /// Homes z down onto the bed with the probe's load cell: the touch is
+    /// `endstop`, then z backs off to its homed position.
+    async fn home_axis_on_probe(
+        &self,
+        axis: &str,
+        homing: &crate::config::Homing,
+        a: &crate::config::Axis,
+    ) -> Result<(), MachineError> {
+        let fail = |reason: String| MachineError::Homing {
+            axis: axis.to_string(),
+            reason,
+        };
+        let k = self
+            .axes()
+            .iter()
+            .position(|n| n == axis)
+            .ok_or_else(|| MachineError::UnknownAxis(axis.into()))?;
+        let cfg = self.config().clone();
+        let Some((module, cell)) = cfg
+            .probe
+            .as_ref()
+            .and_then(|p| Some((p.module.clone(), p.loadcell?)))
+        else {
+            return Err(fail("probe homing needs [probe] with a loadcell".into()));
+        };
+        let travel = a.max - a.min;
+        let search = travel * (1.0 + SEARCH_MARGIN) + homing.backoff;
+        let Some((_, at)) = self
+            .probe_down_by_reflex(&module, cell, k, search, homing.search_speed)
+            .await?
+        else {
+            return Err(fail(format!(
+                "the probe's load cell never reached {} N in {search:.1} of search: is the bed under the tip, and the cell wired?",
+                cell.threshold_n
+            )));
+        };
+        self.shift_axis(k, homing.endstop(a) - at[k])?;
+        self.absolute(k, homing.homed_position(a), homing.search_speed)
+            .await?;
         self.inner.homed.lock().unwrap_or_else(|e| e.into_inner())[k] = true;
         let _ = self.inner.events.send(MachineEvent::Homed {
             axis: axis.to_string(),

@@ -162,7 +162,7 @@ impl Machine {
     /// module's own cell, halts z in the module's loop when the force
     /// passes `threshold_n`; the machine then stands where the motors
     /// stopped, which it returns with the time it saw the halt.
-    async fn probe_down_by_reflex(
+    pub(super) async fn probe_down_by_reflex(
         &self,
         module: &str,
         cell: ProbeLoadCell,
