@@ -8,7 +8,7 @@ use clap::Subcommand;
 use osap_host::som::{describe, Manager};
 
 use crate::call_cmd::parse_inputs;
-use crate::{connect, Connect};
+use crate::Connect;
 
 /// `osap block` subcommands.
 #[derive(Subcommand)]
@@ -48,13 +48,7 @@ pub(crate) enum BlockCommand {
 }
 
 async fn manager(connect_args: &Connect) -> Result<(crate::Connection, Manager), String> {
-    let c = connect(connect_args).await?;
-    let mut manager = Manager::new(&c.host).await.map_err(|e| e.to_string())?;
-    let report = manager.refresh().await.map_err(|e| e.to_string())?;
-    for f in &report.function_failures {
-        eprintln!("warning: {f}");
-    }
-    Ok((c, manager))
+    crate::connection::connect_scanned(connect_args).await
 }
 
 /// Runs `osap block …`.

@@ -2,9 +2,9 @@
 //! from the command line, its outputs printed one a line, a refusal by
 //! name.
 
-use crate::{connect, Connect};
+use crate::Connect;
 use osap_host::som::model::SomArg;
-use osap_host::som::{parse_value, FnRef, Manager, SomError, Value};
+use osap_host::som::{parse_value, FnRef, SomError, Value};
 use pipes_core::control::ControlError;
 use std::process::ExitCode;
 
@@ -29,12 +29,7 @@ pub(crate) struct CallArgs {
 /// Calls the function once (never retried: a call may have effects) and
 /// prints `name = value` per output.
 pub(crate) async fn call(args: CallArgs) -> Result<ExitCode, String> {
-    let c = connect(&args.connect).await?;
-    let mut manager = Manager::new(&c.host).await.map_err(|e| e.to_string())?;
-    let refresh = manager.refresh().await.map_err(|e| e.to_string())?;
-    for f in &refresh.function_failures {
-        eprintln!("warning: {f}");
-    }
+    let (c, manager) = crate::connection::connect_scanned(&args.connect).await?;
     let fref = FnRef::new(args.runtime.as_str(), args.function.as_str());
     let handle = manager
         .function(&fref)

@@ -59,6 +59,23 @@ pub(crate) struct Connection {
     pub(crate) timeout: Duration,
 }
 
+/// Connects as `args` say and reads the network into a fresh
+/// [`Manager`](osap_host::som::Manager), warning of what did not answer:
+/// what `osap call`, `describe`, `block` and `graph` start from.
+pub(crate) async fn connect_scanned(
+    args: &Connect,
+) -> Result<(Connection, osap_host::som::Manager), String> {
+    let c = connect(args).await?;
+    let mut manager = osap_host::som::Manager::new(&c.host)
+        .await
+        .map_err(|e| e.to_string())?;
+    let report = manager.refresh().await.map_err(|e| e.to_string())?;
+    for f in &report.function_failures {
+        eprintln!("warning: {f}");
+    }
+    Ok((c, manager))
+}
+
 pub(crate) async fn connect(args: &Connect) -> Result<Connection, String> {
     let network = !(args.tcp.is_empty() && args.udp.is_empty() && args.unix.is_empty());
     let local = args.sim.is_some() || !args.ports.is_empty() || !network;

@@ -3,8 +3,8 @@
 //! with their fixes (`osap_host::som::Description`).
 
 use crate::network::signature_line;
-use crate::{connect, Connect};
-use osap_host::som::{Description, FnRef, Manager};
+use crate::Connect;
+use osap_host::som::{Description, FnRef};
 use std::fmt::Write as _;
 use std::process::ExitCode;
 
@@ -22,12 +22,7 @@ pub(crate) struct DescribeArgs {
 /// Reads the function's description (one request, after the scan) and
 /// prints it.
 pub(crate) async fn describe(args: DescribeArgs) -> Result<ExitCode, String> {
-    let c = connect(&args.connect).await?;
-    let mut manager = Manager::new(&c.host).await.map_err(|e| e.to_string())?;
-    let refresh = manager.refresh().await.map_err(|e| e.to_string())?;
-    for f in &refresh.function_failures {
-        eprintln!("warning: {f}");
-    }
+    let (c, manager) = crate::connection::connect_scanned(&args.connect).await?;
     let fref = FnRef::new(args.runtime.as_str(), args.function.as_str());
     let (_, function) = manager
         .som()

@@ -9,7 +9,7 @@ use clap::Subcommand;
 use osap_host::som::graph::Graph;
 use osap_host::som::Manager;
 
-use crate::{connect, Connect};
+use crate::Connect;
 
 /// `osap graph` subcommands.
 #[derive(Subcommand)]
@@ -36,13 +36,7 @@ pub(crate) enum GraphCommand {
 }
 
 async fn manager(connect_args: &Connect) -> Result<(crate::Connection, Manager), String> {
-    let c = connect(connect_args).await?;
-    let mut manager = Manager::new(&c.host).await.map_err(|e| e.to_string())?;
-    let report = manager.refresh().await.map_err(|e| e.to_string())?;
-    for f in &report.function_failures {
-        eprintln!("warning: {f}");
-    }
-    Ok((c, manager))
+    crate::connection::connect_scanned(connect_args).await
 }
 
 /// Runs `osap graph …`.

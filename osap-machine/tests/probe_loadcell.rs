@@ -28,6 +28,9 @@ fn mill_with_loadcell_probe() -> MachineFile {
     let mut cfg = MachineFile::parse(&text).unwrap();
     assert!(cfg.probe.as_ref().unwrap().loadcell.is_some());
     cfg.bed_mesh = None;
+    // z at 16 microsteps (the file's 8 is coarser than a mill is built).
+    cfg.motors.get_mut("z").unwrap().microsteps = 16;
+    cfg.validate().unwrap();
     cfg
 }
 
@@ -82,7 +85,9 @@ fn a_load_cell_probe_stops_z_by_reflex_and_the_machine_goes_on() {
             .await
             .unwrap()
             .expect("it touched");
-        assert!((again[2] - z).abs() <= 2.0 * step, "{} then {z}", again[2]);
+        // Two searches differ by where the touch falls in the cell's
+        // conversion period: within the stop window above.
+        assert!((again[2] - z).abs() <= 0.012 + step, "{} then {z}", again[2]);
         m.stop().await.unwrap();
     });
 }

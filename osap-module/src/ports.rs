@@ -263,6 +263,22 @@ impl<H: ModuleHandle> ModulePorts<H> {
 }
 
 impl<H: ModuleHandle> ModulePorts<H> {
+    /// Every port in the order the runtime numbers them, with its first
+    /// offset and its count.
+    fn each(&mut self) -> impl Iterator<Item = (u16, u16, &mut dyn Port)> {
+        let mut base = 0u16;
+        self.ports
+            .iter_mut()
+            .map(|p| p as &mut dyn Port)
+            .chain(core::iter::once(&mut self.blocks as &mut dyn Port))
+            .map(move |p| {
+                let n = p.port_count();
+                let at = base;
+                base += n;
+                (at, n, p)
+            })
+    }
+
     /// The port holding `offset`, with its first offset.
     fn locate(&self, offset: u16) -> Option<(&dyn Port, u16)> {
         let mut base = 0u16;
@@ -284,8 +300,8 @@ impl<H: ModuleHandle> ModulePorts<H> {
 
 impl<H: ModuleHandle> Port for ModulePorts<H> {
     fn port_count(&self) -> u16 {
-        let functions: u16 = self.ports.iter().map(|p| p.port_count()).sum();
-        functions + self.blocks.port_count()
+        // Fixed by the build: every function's ports and the pools'.
+        (PORT_INDICES - 1) as u16
     }
 
     fn info(&self, offset: u16) -> PortInfo<'_> {
@@ -304,37 +320,19 @@ impl<H: ModuleHandle> Port for ModulePorts<H> {
     }
 
     fn on_packet(&mut self, delivery: Delivery<'_>, tx: &mut PortTx<'_>) {
-        let all = self
-            .ports
-            .iter_mut()
-            .map(|p| p as &mut dyn Port)
-            .chain(core::iter::once(&mut self.blocks as &mut dyn Port));
-        let mut base = 0u16;
-        for p in all {
-            let n = p.port_count();
-            if delivery.offset < base + n {
-                let d = Delivery {
-                    offset: delivery.offset - base,
-                    ..delivery
-                };
-                let _ = tx.with_sub(base, n, |tx| p.on_packet(d, tx));
-                return;
-            }
-            base += n;
+        let target = self.each().find(|(base, n, _)| delivery.offset < base + n);
+        if let Some((base, n, p)) = target {
+            let d = Delivery {
+                offset: delivery.offset - base,
+                ..delivery
+            };
+            let _ = tx.with_sub(base, n, |tx| p.on_packet(d, tx));
         }
     }
 
     fn poll(&mut self, tx: &mut PortTx<'_>) {
-        let all = self
-            .ports
-            .iter_mut()
-            .map(|p| p as &mut dyn Port)
-            .chain(core::iter::once(&mut self.blocks as &mut dyn Port));
-        let mut base = 0u16;
-        for p in all {
-            let n = p.port_count();
+        for (base, n, p) in self.each() {
             let _ = tx.with_sub(base, n, |tx| p.poll(tx));
-            base += n;
         }
     }
 

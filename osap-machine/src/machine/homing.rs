@@ -27,7 +27,9 @@ const SEARCH_MARGIN: f64 = 0.1;
 pub(super) struct ExpectSwitch<'a>(&'a Mutex<Option<String>>);
 
 impl<'a> ExpectSwitch<'a> {
-    /// Expects a press on `module`'s switch until dropped.
+    /// Marks `module` in `slot` as expected until dropped: a press on its
+    /// switch (`expecting`), or its axis's halt by a probe's comparator
+    /// (`expecting_halt`).
     pub(super) fn new(slot: &'a Mutex<Option<String>>, module: &str) -> Self {
         *slot.lock().unwrap_or_else(|e| e.into_inner()) = Some(module.to_string());
         ExpectSwitch(slot)

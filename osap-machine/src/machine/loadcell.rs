@@ -106,19 +106,37 @@ impl LoadCell {
     /// in an error after `samples / 5` seconds, enough at 10 a second).
     pub async fn tare(&self, samples: u16) -> Result<(), MachineError> {
         self.machine.check_running()?;
-        self.machine
-            .call_idempotent(&self.module(), loadcell_tare::Inputs { samples })
+        if self.machine.tare_cell(&self.module(), samples).await? {
+            return Ok(());
+        }
+        Err(MachineError::LoadCell(format!(
+            "the tare of {samples} samples did not finish: is the converter wired (data and clock pins) and powered?"
+        )))
+    }
+}
+
+impl Machine {
+    /// Tares the load cell on `module` with the mean of its next `samples`
+    /// samples and waits for them: `false` if they are not in after
+    /// `samples / 5 + 1` seconds (enough at 10 samples a second, the
+    /// slowest converter).
+    pub(super) async fn tare_cell(&self, module: &str, samples: u16) -> Result<bool, MachineError> {
+        self.call_idempotent(module, loadcell_tare::Inputs { samples })
             .await?;
         let deadline =
             tokio::time::Instant::now() + Duration::from_secs_f64(f64::from(samples) / 5.0 + 1.0);
         loop {
-            if !self.read().await?.taring {
-                return Ok(());
+            let out = self
+                .call_idempotent(module, loadcell_read::Inputs {})
+                .await?;
+            let taring = loadcell_read::Outputs::from_values(&out)
+                .map_err(|_| MachineError::LoadCell(format!("loadcell_read answered {out:?}")))?
+                .taring;
+            if !taring {
+                return Ok(true);
             }
             if tokio::time::Instant::now() > deadline {
-                return Err(MachineError::LoadCell(format!(
-                    "the tare of {samples} samples did not finish: is the converter wired (data and clock pins) and powered?"
-                )));
+                return Ok(false);
             }
             tokio::time::sleep(Duration::from_millis(20)).await;
         }

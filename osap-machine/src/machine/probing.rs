@@ -20,9 +20,7 @@ use super::start::call_idempotent;
 use super::{lock_motion, monitor, Machine, MachineError, ModuleInfo, MAX_AXES};
 use super::{INTERVAL_US, LEAD_US};
 use crate::config::{MachineFile, ProbeLoadCell};
-use crate::network::modfn::{
-    get_status, loadcell_read, loadcell_scale, loadcell_setup, loadcell_tare,
-};
+use crate::network::modfn::{get_status, loadcell_read, loadcell_scale, loadcell_setup};
 
 /// The name of the comparator block a load-cell probe makes on its module
 /// for each search.
@@ -49,24 +47,6 @@ pub(super) async fn configure_probe_cell(
     };
     call_idempotent(manager, runtime, &p.module, scale).await?;
     Ok(())
-}
-
-/// Expects the axis of one module to halt (a load-cell probe's comparator
-/// block) until dropped: its `BlockHalt` fault, and the points it then
-/// refuses, are the search ending, not a crash.
-pub(super) struct ExpectHalt<'a>(&'a std::sync::Mutex<Option<String>>);
-
-impl<'a> ExpectHalt<'a> {
-    fn new(slot: &'a std::sync::Mutex<Option<String>>, module: &str) -> Self {
-        *slot.lock().unwrap_or_else(|e| e.into_inner()) = Some(module.to_string());
-        ExpectHalt(slot)
-    }
-}
-
-impl Drop for ExpectHalt<'_> {
-    fn drop(&mut self) {
-        *self.0.lock().unwrap_or_else(|e| e.into_inner()) = None;
-    }
 }
 
 impl Machine {
@@ -227,7 +207,9 @@ impl Machine {
         depth: f64,
         rate: f64,
     ) -> Result<Option<(u64, Vec<f64>)>, MachineError> {
-        let _expect = ExpectHalt::new(&self.inner.expecting_halt, module);
+        // The comparator's halt of this module, and the points its halted
+        // axis then refuses, end the search: not a crash.
+        let _expect = ExpectSwitch::new(&self.inner.expecting_halt, module);
         {
             let mut m = lock_motion(&self.inner.motion);
             let mut to = m.planner.tail();
@@ -276,28 +258,15 @@ impl Machine {
     /// Zeroes the probe's cell with its tip off the bed, and waits for it.
     async fn tare_probe_cell(&self, module: &str) -> Result<(), MachineError> {
         const SAMPLES: u16 = 16;
-        self.call_idempotent(module, loadcell_tare::Inputs { samples: SAMPLES })
-            .await?;
-        // At 10 samples a second, the slowest converter.
-        let deadline =
-            tokio::time::Instant::now() + Duration::from_secs_f64(f64::from(SAMPLES) / 10.0 + 1.0);
-        loop {
-            let out = self
-                .call_idempotent(module, loadcell_read::Inputs {})
-                .await?;
-            if !matches!(out.get(4), Some(Value::Bool(true))) {
-                return Ok(());
-            }
-            if tokio::time::Instant::now() > deadline {
-                return Err(MachineError::Probe {
-                    point: "z".into(),
-                    reason: format!(
-                        "the probe's load cell did not finish its tare of {SAMPLES} samples: is its converter wired (data and clock pins) and powered?"
-                    ),
-                });
-            }
-            tokio::time::sleep(Duration::from_millis(10)).await;
+        if self.tare_cell(module, SAMPLES).await? {
+            return Ok(());
         }
+        Err(MachineError::Probe {
+            point: "z".into(),
+            reason: format!(
+                "the probe's load cell did not finish its tare of {SAMPLES} samples: is its converter wired (data and clock pins) and powered?"
+            ),
+        })
     }
 
     /// The bed mesh the machine follows, if any.
