@@ -87,7 +87,11 @@ fn a_load_cell_probe_stops_z_by_reflex_and_the_machine_goes_on() {
             .expect("it touched");
         // Two searches differ by where the touch falls in the cell's
         // conversion period: within the stop window above.
-        assert!((again[2] - z).abs() <= 0.012 + step, "{} then {z}", again[2]);
+        assert!(
+            (again[2] - z).abs() <= 0.012 + step,
+            "{} then {z}",
+            again[2]
+        );
         m.stop().await.unwrap();
     });
 }
