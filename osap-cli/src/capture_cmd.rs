@@ -11,6 +11,7 @@ use clap::Args;
 use osap_machine::capture::{Capture, CaptureError, Clock, RecordOptions, MIN_PERIOD_US};
 
 use crate::machine_cmd::{Failure, Target, FAULTED};
+use crate::run_record::{self, Summary};
 
 /// `osap capture` options.
 #[derive(Args, Debug)]
@@ -66,7 +67,29 @@ pub(crate) async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
             .map_err(|e| Failure::refused(format!("{}: {e}", dir.display())))?;
     }
     let cfg = args.target.load()?;
-    let machine = args.target.start(&cfg).await?;
+    let mut record = run_record::begin("capture", &args.target, &cfg)?;
+    record.options = serde_json::json!({
+        "sources": args.sources,
+        "seconds": args.seconds,
+        "period_us": args.period_us,
+        "out": args.out.display().to_string(),
+        "plot": args.plot.as_ref().map(|p| p.display().to_string()),
+    });
+    let record_file = run_record::beside(&args.out);
+    let mut end_sync = None;
+    let result = record_sources(&args, &cfg, &mut record, &mut end_sync).await;
+    run_record::finish(record, &record_file, end_sync, result).map(ExitCode::from)
+}
+
+/// Records the sources into the file (and plots them).
+async fn record_sources(
+    args: &CaptureArgs,
+    cfg: &osap_machine::config::MachineFile,
+    record: &mut osap_machine::runs::RunRecord,
+    end_sync: &mut Option<u64>,
+) -> Result<u8, Failure> {
+    let machine = args.target.start(cfg).await?;
+    run_record::machine_started(record, &machine).await;
     let sources: Vec<&str> = args.sources.iter().map(String::as_str).collect();
     let options = RecordOptions::new(&args.out).period_us(args.period_us);
     let recorder = machine.record(&sources, options).await.map_err(refused)?;
@@ -102,6 +125,7 @@ pub(crate) async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
         }
     }
     let result = recorder.finish().await;
+    *end_sync = machine.now_us().await.ok();
     let _ = machine.stop().await;
     let file = match (result, write_error) {
         (Ok(file), None) => file,
@@ -112,10 +136,15 @@ pub(crate) async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
             })
         }
     };
+    let mut sum = Summary {
+        record,
+        print: true,
+    };
     if interrupted {
-        println!("interrupted: the file is closed and holds what came so far");
+        sum.line("interrupted: the file is closed and holds what came so far");
     }
-    println!("{} rows in {}", file.rows, file.path.display());
+    sum.line(format!("{} rows in {}", file.rows, file.path.display()));
+    sum.record.figure("rows", file.rows as f64);
     for s in &file.series {
         let span = match (s.stats.first_us, s.stats.last_us) {
             (Some(a), Some(b)) => format!("{:.3} s", (b - a) as f64 * 1e-6),
@@ -125,28 +154,39 @@ pub(crate) async fn capture(args: CaptureArgs) -> Result<ExitCode, Failure> {
             Clock::Source => "",
             Clock::Arrival => "  (stamped on arrival at the host)",
         };
-        println!(
+        sum.line(format!(
             "  {:<32} {:>9} rows over {span}{clock}",
             s.info.name, s.stats.rows
-        );
+        ));
     }
+    sum.record.figure("dropped", file.stats.dropped as f64);
+    sum.record.figure("stale", file.stats.stale as f64);
+    sum.record
+        .figure("lost_at_source", file.stats.lost_at_source as f64);
     if file.stats.dropped > 0 || file.stats.stale > 0 {
-        println!(
+        sum.line(format!(
             "  {} samples dropped on a full queue, {} out of order (not written)",
             file.stats.dropped, file.stats.stale
-        );
+        ));
     }
     if file.stats.lost_at_source > 0 {
-        println!(
+        sum.line(format!(
             "  {} samples lost at the modules (a pipe queue was full: sample less often with --period-us, or record fewer sources per module)",
             file.stats.lost_at_source
-        );
+        ));
     }
+    let mut files = vec![file.path.clone()];
     if let Some(plot) = &args.plot {
         let capture = Capture::read(&file.path).map_err(refused)?;
         osap_machine::record::plot_timeline(plot, None, &capture.streams(t0))
             .map_err(|e| Failure::refused(e.to_string()))?;
         println!("plot: {}", plot.display());
+        files.push(plot.clone());
     }
-    Ok(ExitCode::SUCCESS)
+    let beside = args.out.parent().unwrap_or(std::path::Path::new(""));
+    sum.record.add_files(beside, &files).map_err(|e| Failure {
+        code: FAULTED,
+        message: e.to_string(),
+    })?;
+    Ok(0)
 }

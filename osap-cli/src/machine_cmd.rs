@@ -10,10 +10,14 @@ use osap_host::link::serial;
 use osap_machine::config::MachineFile;
 use osap_machine::job::{self, HotendTemperature, Program};
 use osap_machine::machine::Link;
+use osap_machine::runs::{InputFile, RUN_FILE};
 use osap_machine::sim::SimOptions;
 use osap_machine::svg::SvgOptions;
 use osap_machine::{Machine, MachineError, MachineState};
 use osap_sim::machine::TimeMode;
+use serde::{Deserialize, Serialize};
+
+use crate::run_record::Summary;
 
 /// Exit code of a job or argument refused before any motion.
 pub(crate) const REFUSED: u8 = 2;
@@ -319,25 +323,17 @@ pub(crate) fn read_job_file(
     }
 }
 
-/// A new output folder's name: `osap-KIND-NAME[-DETAIL]-SECS`, the
-/// machine's name made safe for a path, SECS the Unix time.
+/// A new output folder in the current directory:
+/// `osap-KIND-NAME[-DETAIL]-YYYYMMDD-HHMMSS` (local time), the machine's
+/// name made safe for a path ([`osap_machine::runs::folder_name`]).
 pub(crate) fn default_folder(kind: &str, cfg: &MachineFile, detail: Option<&str>) -> PathBuf {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let safe: String = cfg
-        .name
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect();
-    let detail = detail.map(|d| format!("-{d}")).unwrap_or_default();
-    PathBuf::from(format!("osap-{kind}-{safe}{detail}-{secs}"))
+    osap_machine::runs::folder_name(
+        Path::new(""),
+        kind,
+        &cfg.name,
+        detail,
+        osap_machine::runs::local_now(),
+    )
 }
 
 /// Refuses an output folder inside a repository's `docs` (runs are not
@@ -357,10 +353,99 @@ pub(crate) fn check_out(dir: &Path) -> Result<(), Failure> {
     Ok(())
 }
 
+/// What `osap run` records of a job's placement (`run.json`'s
+/// `options`), to run it again the same way.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+pub(crate) struct RunOptions {
+    /// `--feed`.
+    #[serde(default)]
+    pub feed: Option<f64>,
+    /// `--scale`.
+    #[serde(default = "one")]
+    pub scale: f64,
+    /// `--offset`.
+    #[serde(default)]
+    pub offset: Option<[f64; 2]>,
+    /// `--origin`.
+    #[serde(default)]
+    pub origin: Option<[f64; 3]>,
+    /// `--no-home`.
+    #[serde(default)]
+    pub no_home: bool,
+    /// `--temperature`: `auto` or °C.
+    #[serde(default)]
+    pub temperature: Option<String>,
+}
+
+fn one() -> f64 {
+    1.0
+}
+
+impl RunOptions {
+    /// The options `args` gives.
+    pub(crate) fn of(args: &RunArgs) -> RunOptions {
+        RunOptions {
+            feed: args.feed,
+            scale: args.scale,
+            offset: args.offset,
+            origin: args.origin,
+            no_home: args.no_home,
+            temperature: args.temperature.and_then(|t| match t {
+                HotendTemperature::AsJob => None,
+                HotendTemperature::Auto => Some("auto".to_string()),
+                HotendTemperature::Celsius(c) => Some(c.to_string()),
+            }),
+        }
+    }
+
+    /// `osap run` arguments for `job` on `target` with these options.
+    pub(crate) fn args(
+        &self,
+        target: Target,
+        job: PathBuf,
+        out: PathBuf,
+    ) -> Result<RunArgs, Failure> {
+        let temperature = self
+            .temperature
+            .as_deref()
+            .map(parse_temperature)
+            .transpose()
+            .map_err(Failure::refused)?;
+        Ok(RunArgs {
+            target,
+            job,
+            out: Some(out),
+            feed: self.feed,
+            scale: self.scale,
+            offset: self.offset,
+            origin: self.origin,
+            no_home: self.no_home,
+            temperature,
+        })
+    }
+}
+
 /// `osap run`.
 pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Failure> {
+    let job = args.job.display().to_string();
+    run_recorded(&args, started, &job, true, None)
+        .await
+        .map(|(code, _)| ExitCode::from(code))
+}
+
+/// `osap run`, recorded in `run.json` in its folder however it ends: the
+/// exit code and the folder. `job_name` is the job as the summary names
+/// it; `print` says whether the summary is printed (replay prints it side
+/// by side instead); `replay_of` names the record it replays.
+pub(crate) async fn run_recorded(
+    args: &RunArgs,
+    started: Instant,
+    job_name: &str,
+    print: bool,
+    replay_of: Option<String>,
+) -> Result<(u8, PathBuf), Failure> {
     let cfg = args.target.load()?;
-    let program = read_job(&cfg, &args)?;
+    let program = read_job(&cfg, args)?;
     for w in &program.warnings {
         eprintln!("warning: {w}");
     }
@@ -369,9 +454,50 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         .clone()
         .unwrap_or_else(|| default_folder("run", &cfg, None));
     check_out(&out)?;
-    let start = osap_machine::machine::drive::start_position(&cfg);
+    let mut record = crate::run_record::begin("run", &args.target, &cfg)?;
+    record.job = Some(
+        InputFile::read(&args.job)
+            .map_err(|e| Failure::refused(format!("job {}: {e}", args.job.display())))?,
+    );
+    record.options = serde_json::to_value(RunOptions::of(args)).unwrap_or_default();
+    record.replay_of = replay_of;
+    let mut end_sync = None;
+    let result = run_job(
+        args,
+        &cfg,
+        &program,
+        &out,
+        started,
+        job_name,
+        Summary {
+            record: &mut record,
+            print,
+        },
+        &mut end_sync,
+    )
+    .await;
+    let code = crate::run_record::finish(record, &out.join(RUN_FILE), end_sync, result)?;
+    Ok((code, out))
+}
 
-    let machine = args.target.start(&cfg).await?;
+/// Runs the job: the machine from start to stop, the summary and the
+/// data files (listed in the record). The exit code, or why it failed.
+#[allow(clippy::too_many_arguments)] // one call site; the parts are distinct
+async fn run_job(
+    args: &RunArgs,
+    cfg: &MachineFile,
+    program: &Program,
+    out: &Path,
+    started: Instant,
+    job_name: &str,
+    mut sum: Summary<'_>,
+    end_sync: &mut Option<u64>,
+) -> Result<u8, Failure> {
+    let print = sum.print;
+    let start = osap_machine::machine::drive::start_position(cfg);
+
+    let machine = args.target.start(cfg).await?;
+    crate::run_record::machine_started(sum.record, &machine).await;
     // Every event, taken as it comes: a long job must not outrun the
     // stream.
     let (events_done, done) = tokio::sync::oneshot::channel();
@@ -381,7 +507,7 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         Box::new(move |module, kind, detail| judge.fault_stops(module, kind, detail)),
         done,
     ));
-    eprintln!(
+    sum.wall(format!(
         "machine {} ready ({} modules, {}) after {:.2} s",
         cfg.name,
         machine.modules().len(),
@@ -395,18 +521,21 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
             "connected"
         },
         started.elapsed().as_secs_f64()
-    );
+    ));
     if args.no_home {
         machine
             .set_position(&start)
             .map_err(Failure::from_machine)?;
     } else {
         machine.home().await.map_err(Failure::from_machine)?;
-        eprintln!("homed after {:.2} s", started.elapsed().as_secs_f64());
+        sum.wall(format!(
+            "homed after {:.2} s",
+            started.elapsed().as_secs_f64()
+        ));
     }
 
     let planned_s = program
-        .planned_seconds(&cfg, &machine.position())
+        .planned_seconds(cfg, &machine.position())
         .map_err(Failure::from_machine)?;
     // What the flow limit cost, planned: the same job at the feeds it asked.
     let unlimited_s = if program.slowed.is_empty() {
@@ -414,7 +543,7 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     } else {
         program
             .without_flow_limit()
-            .planned_seconds(&cfg, &machine.position())
+            .planned_seconds(cfg, &machine.position())
             .map_err(Failure::from_machine)?
     };
     let bar = ProgressBar::new(program.moves.len() as u64);
@@ -430,17 +559,20 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     // Every heater at 10 Hz on the synchronized clock, for heaters.csv.
     let heater_log = (!cfg.heaters.is_empty())
         .then(|| machine.log_heaters(std::time::Duration::from_millis(100)));
-    let mut first = true;
+    let mut first = None;
     // Machine time (tokio's clock: virtual with --fast).
     let began = tokio::time::Instant::now();
     let result = machine
-        .run_program(&program, |p| {
-            if first {
-                first = false;
-                eprintln!(
+        .run_program(program, |p| {
+            if first.is_none() {
+                let line = format!(
                     "first job move queued {:.2} s after start",
                     started.elapsed().as_secs_f64()
                 );
+                if print {
+                    eprintln!("{line}");
+                }
+                first = Some(line);
             }
             bar.set_position(p.done as u64);
             let left = (planned_s - began.elapsed().as_secs_f64()).max(0.0);
@@ -448,6 +580,9 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         })
         .await;
     bar.finish_and_clear();
+    if let Some(line) = first {
+        sum.record.wall_line(line);
+    }
     if result.is_err() && heater_log.is_some() {
         // The fault's stop turns every heater off on its module: let it
         // finish, so the log's last row shows them off.
@@ -461,12 +596,13 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         None => None,
     };
     let t1 = machine.now_us().await.map_err(Failure::from_machine)?;
+    *end_sync = Some(t1);
     let mut recording = machine
         .take_recording(t0)
         .await
         .map_err(Failure::from_machine)?;
     if args.target.sim {
-        recording.vibration = osap_machine::sim::vibration(&cfg, &recording);
+        recording.vibration = osap_machine::sim::vibration(cfg, &recording);
         // Each stall on the recording's clock: the host's clock now and
         // the synchronized time now pair the two.
         let spans = machine.sim_stall_spans();
@@ -516,91 +652,107 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
     })?;
     let stopped_by = faulted.or_else(|| heard.stopping.first().cloned());
 
-    println!("job {}: {} moves", args.job.display(), program.moves.len());
+    sum.line(format!("job {job_name}: {} moves", program.moves.len()));
     if let Some(dialect) = program.dialect {
-        println!(
+        sum.line(format!(
             "G-code dialect     {dialect} ({})",
             if cfg.gcode.dialect.is_some() {
                 "[gcode] dialect".to_string()
             } else {
                 format!("the default for kind = \"{}\"", cfg.kind)
             }
-        );
+        ));
     }
-    println!("planned duration   {:>9.3} s", planned_s);
-    print_flow(&cfg, &program, planned_s - unlimited_s);
-    println!(
+    sum.line(format!("planned duration   {:>9.3} s", planned_s));
+    sum.record.figure("planned_s", planned_s);
+    print_flow(&mut sum, cfg, program, planned_s - unlimited_s);
+    let executed_s = recording.executed_duration();
+    let with_waits_s = (t1.saturating_sub(t0)) as f64 * 1e-6;
+    sum.line(format!(
         "executed duration  {:>9.3} s (motion; {:.3} s with tool waits)",
-        recording.executed_duration(),
-        (t1.saturating_sub(t0)) as f64 * 1e-6
-    );
+        executed_s, with_waits_s
+    ));
+    sum.record.figure("executed_s", executed_s);
+    sum.record.figure("executed_with_waits_s", with_waits_s);
     for (axis, err) in recording.following_error() {
-        println!("largest following error {axis}: {:.4} mm", err);
+        sum.line(format!("largest following error {axis}: {:.4} mm", err));
+        sum.record
+            .figure(&format!("following_error_{axis}_mm"), err);
     }
     for (axis, v) in recording.largest_vibration() {
-        println!("largest vibration {axis}: {v:.4} mm");
+        sum.line(format!("largest vibration {axis}: {v:.4} mm"));
+        sum.record.figure(&format!("vibration_{axis}_mm"), v);
     }
     // A stall is a fault the open-loop machine cannot hear: the job is
     // spoilt all the same.
     let stalled: usize = stalls.iter().map(|s| s.stalls).sum();
     if !stalls.is_empty() {
-        println!("stalls: {stalled}");
+        sum.line(format!("stalls: {stalled}"));
+        sum.record.figure("stalls", stalled as f64);
         for s in stalls.iter().filter(|s| s.stalls > 0) {
-            println!(
+            sum.fault(format!(
                 "error: motor {} stalled {} times and lost {:.0} full steps: its carriage is not where the machine thinks",
                 s.motor, s.stalls, s.lost_full_steps
-            );
+            ));
         }
     }
     if let Some(k) = recording.axes.iter().position(|a| a == "e") {
         let e_at = |s: Option<&osap_machine::record::Sample>| s.map_or(0.0, |s| s.pos[k]);
         let executed = e_at(recording.executed.last()) - e_at(recording.executed.first());
-        println!(
+        sum.line(format!(
             "filament used      {:>9.2} mm of e executed ({:.2} mm in the job)",
             executed,
             program.extruded_mm()
-        );
+        ));
+        sum.record.figure("filament_mm", executed);
     }
     if let Some((spec, stats)) = &melt {
-        println!(
+        sum.line(format!(
             "nozzle force peak  {:>9.2} N (simulated melt; grip {} N)",
             stats.peak_force_n, spec.grip_n
-        );
-        println!(
+        ));
+        sum.line(format!(
             "filament slips     {:>9} ({:.2} mm of filament stepped while slipping)",
             stats.slips, stats.slipped_mm
-        );
+        ));
+        sum.record.figure("nozzle_force_peak_n", stats.peak_force_n);
+        sum.record.figure("filament_slips", stats.slips as f64);
     }
     if let Ok(stats) = &result {
         if !cfg.heaters.is_empty() {
-            println!("waited on heaters  {:>9.3} s", stats.heater_wait_s);
+            sum.line(format!("waited on heaters  {:>9.3} s", stats.heater_wait_s));
+            sum.record.figure("heater_wait_s", stats.heater_wait_s);
         }
     }
     for (module, (count, reason)) in &heard.refusals {
-        println!("module {module} refused {count} points (the latest: {reason})");
+        sum.fault(format!(
+            "module {module} refused {count} points (the latest: {reason})"
+        ));
     }
     for f in &heard.passed {
-        println!("note: {f} (within this machine file's bounds: not a stop)");
+        sum.line(format!(
+            "note: {f} (within this machine file's bounds: not a stop)"
+        ));
     }
     if heard.missed > 0 {
-        println!(
+        sum.fault(format!(
             "error: {} machine events were missed (the event stream lagged): the faults below may be incomplete",
             heard.missed
-        );
+        ));
     }
     if !heard.stopped() && stopped_by.is_none() && heard.missed == 0 && stalled == 0 {
-        println!("faults: none");
+        sum.line("faults: none");
     }
     for f in &heard.stopping {
-        println!("error: fault: {f}");
+        sum.fault(format!("error: fault: {f}"));
     }
     for s in heard.stops.iter().filter(|s| !s.is_complete()) {
-        println!("error: {s}");
+        sum.fault(format!("error: {s}"));
     }
     let mut files = recording
-        .write_csv(&out)
+        .write_csv(out)
         .and_then(|mut f| {
-            f.extend(recording.plot(&out)?);
+            f.extend(recording.plot(out)?);
             Ok(f)
         })
         .map_err(|e| Failure {
@@ -625,54 +777,70 @@ pub(crate) async fn run(args: RunArgs, started: Instant) -> Result<ExitCode, Fai
         })?;
         files.push(path);
     }
-    println!(
-        "wrote {} files to {}: {}",
-        files.len(),
-        out.display(),
-        files
-            .iter()
-            .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
-            .collect::<Vec<_>>()
-            .join(", ")
-    );
+    sum.record.add_files(out, &files).map_err(|e| Failure {
+        code: FAULTED,
+        message: e.to_string(),
+    })?;
+    if print {
+        println!(
+            "wrote {} files to {}: {}",
+            files.len(),
+            out.display(),
+            files
+                .iter()
+                .filter_map(|f| f.file_name().map(|n| n.to_string_lossy().into_owned()))
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     result.map_err(Failure::from_machine)?;
     stopped.map_err(Failure::from_machine)?;
-    if let Some(reason) = stopped_by {
-        eprintln!("error: machine fault: {reason}");
-        return Ok(ExitCode::from(MACHINE_FAULT));
+    let verdict = if let Some(reason) = stopped_by {
+        Some((MACHINE_FAULT, format!("error: machine fault: {reason}")))
+    } else if heard.stopped() {
+        Some((
+            MACHINE_FAULT,
+            "error: machine fault: a stop did not reach every module".to_string(),
+        ))
+    } else if stalled > 0 {
+        Some((MACHINE_FAULT, format!("error: machine fault: a simulated motor stalled ({stalled} stalls): the carriages are not where the job put them")))
+    } else if heard.missed > 0 {
+        Some((
+            FAULTED,
+            format!(
+                "error: {} machine events were missed: whether the job ran clean is unknown",
+                heard.missed
+            ),
+        ))
+    } else {
+        None
+    };
+    match verdict {
+        Some((code, line)) => {
+            if print {
+                eprintln!("{line}");
+            }
+            sum.record.faults.insert(0, line);
+            Ok(code)
+        }
+        None => Ok(0),
     }
-    if heard.stopped() {
-        eprintln!("error: machine fault: a stop did not reach every module");
-        return Ok(ExitCode::from(MACHINE_FAULT));
-    }
-    if stalled > 0 {
-        eprintln!("error: machine fault: a simulated motor stalled ({stalled} stalls): the carriages are not where the job put them");
-        return Ok(ExitCode::from(MACHINE_FAULT));
-    }
-    if heard.missed > 0 {
-        eprintln!(
-            "error: {} machine events were missed: whether the job ran clean is unknown",
-            heard.missed
-        );
-        return Ok(ExitCode::from(FAULTED));
-    }
-    Ok(ExitCode::SUCCESS)
 }
 
 /// The run summary's hotend and flow-limit lines: the temperature
 /// `--temperature` set, and which moves the flow limit slowed and what it
 /// cost (`added_s`, planned).
-fn print_flow(cfg: &MachineFile, program: &Program, added_s: f64) {
+fn print_flow(sum: &mut Summary<'_>, cfg: &MachineFile, program: &Program, added_s: f64) {
     if let Some(h) = &program.hotend {
         let limit = h
             .limit
             .map_or(String::new(), |l| format!(", limit there {l:.2} mm³/s"));
-        println!(
+        sum.line(format!(
             "hotend             {:>9.0} °C (--temperature {}: the job's peak flow {:.2} mm³/s{limit})",
             h.celsius,
             if h.auto { "auto".to_string() } else { format!("{}", h.celsius) },
             h.peak_flow,
-        );
+        ));
     }
     let Some(e) = cfg.extruder().map(|a| &a.extruder) else {
         return;
@@ -684,7 +852,7 @@ fn print_flow(cfg: &MachineFile, program: &Program, added_s: f64) {
         (None, None) => return,
     };
     if program.slowed.is_empty() {
-        println!("flow limit         no move slowed ({source})");
+        sum.line(format!("flow limit         no move slowed ({source})"));
         return;
     }
     let mut lines: Vec<String> = program
@@ -701,13 +869,13 @@ fn print_flow(cfg: &MachineFile, program: &Program, added_s: f64) {
         .iter()
         .map(|s| s.flow / s.limit)
         .fold(0.0, f64::max);
-    println!(
+    sum.line(format!(
         "flow limit         {:>9} moves held to it ({source}): {added_s:+.3} s as planned (at most {:+.3} s at cruise); lines {} (slowed.csv); the most asked {:.0} % of its limit",
         program.slowed.len(),
         program.flow_limit_added_s(),
         lines.join(", "),
         worst * 100.0
-    );
+    ));
 }
 
 /// `osap home MACHINE [AXIS ..]`.
@@ -845,7 +1013,13 @@ mod tests {
             res.starts_with(&format!("osap-resonance-{safe}-y-")),
             "{res}"
         );
-        let secs = res.rsplit('-').next().unwrap();
-        assert!(secs.parse::<u64>().is_ok(), "{res}");
+        // …-YYYYMMDD-HHMMSS.
+        let mut tail = res.rsplit('-');
+        let (time, date) = (tail.next().unwrap(), tail.next().unwrap());
+        assert_eq!((date.len(), time.len()), (8, 6), "{res}");
+        assert!(
+            date.parse::<u32>().is_ok() && time.parse::<u32>().is_ok(),
+            "{res}"
+        );
     }
 }

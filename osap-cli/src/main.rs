@@ -32,6 +32,8 @@ mod network;
 mod resonance_cmd;
 mod rheo_cmd;
 mod run_events;
+mod run_record;
+mod runs_cmd;
 mod serve_cmd;
 mod time_cmd;
 mod view;
@@ -117,6 +119,10 @@ enum Command {
     /// runtime while it runs.
     #[command(subcommand)]
     Block(block_cmd::BlockCommand),
+    /// The run records (`run.json`) that run, resonance, rheo, capture and
+    /// level leave: list them, show one, replay a job.
+    #[command(subcommand)]
+    Runs(runs_cmd::RunsCommand),
     /// Update a module's firmware over the network: reboot it into its
     /// UF2 bootloader, copy FIRMWARE (a .uf2, or an ELF with its .uf2)
     /// onto the drive, check it came back, and optionally rename it.
@@ -355,6 +361,7 @@ async fn run(cli: Cli, started: std::time::Instant) -> Result<ExitCode, String> 
         Command::Describe(args) => describe_cmd::describe(args).await,
         Command::Graph(command) => graph_cmd::graph(command).await,
         Command::Block(command) => block_cmd::block(command).await,
+        Command::Runs(command) => machine_result(runs_cmd::runs(command, started).await),
         Command::Serve(args) => serve_cmd::serve(args).await,
         Command::Keygen { file } => {
             Key::write_new(&file).map_err(|e| e.to_string())?;
@@ -383,6 +390,7 @@ fn main() -> ExitCode {
         Command::Rheo(a) => a.target.virtual_time(),
         Command::Capture(a) => a.target.virtual_time(),
         Command::Bridge(a) => a.target.virtual_time(),
+        Command::Runs(runs_cmd::RunsCommand::Replay(a)) => a.virtual_time(),
         Command::Home { target, .. }
         | Command::Jog { target, .. }
         | Command::Move { target, .. }

@@ -9,7 +9,10 @@ use std::process::ExitCode;
 use clap::Args;
 use osap_machine::resonance::{self, ResonanceError};
 
+use osap_machine::runs::RUN_FILE;
+
 use crate::machine_cmd::{check_out, default_folder, Failure, Target, FAULTED};
+use crate::run_record::{self, Summary};
 
 /// `osap resonance` options.
 #[derive(Args, Debug)]
@@ -49,7 +52,7 @@ fn failure(e: ResonanceError) -> Failure {
     }
 }
 
-/// Runs `osap resonance`.
+/// Runs `osap resonance`, recorded in `run.json` in its folder.
 pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> {
     let cfg = args.target.load()?;
     // Refuse a bad axis or a missing accelerometer before anything starts.
@@ -59,7 +62,39 @@ pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> 
         .clone()
         .unwrap_or_else(|| default_folder("resonance", &cfg, Some(&plan.axis)));
     check_out(&out)?;
-    let machine = args.target.start(&cfg).await?;
+    let mut record = run_record::begin("resonance", &args.target, &cfg)?;
+    record.options = serde_json::json!({
+        "axis": args.axis,
+        "seconds": args.seconds,
+        "no_home": args.no_home,
+        "write": args.write,
+    });
+    let record_file = out.join(RUN_FILE);
+    let mut end_sync = None;
+    let result = measure(
+        &args,
+        &cfg,
+        &plan,
+        &out,
+        &record_file,
+        &mut record,
+        &mut end_sync,
+    )
+    .await;
+    run_record::finish(record, &record_file, end_sync, result).map(ExitCode::from)
+}
+
+async fn measure(
+    args: &ResonanceArgs,
+    cfg: &osap_machine::config::MachineFile,
+    plan: &resonance::Plan,
+    out: &std::path::Path,
+    record_file: &std::path::Path,
+    record: &mut osap_machine::runs::RunRecord,
+    end_sync: &mut Option<u64>,
+) -> Result<u8, Failure> {
+    let machine = args.target.start(cfg).await?;
+    run_record::machine_started(record, &machine).await;
     if !args.no_home {
         machine.home().await.map_err(Failure::from_machine)?;
     }
@@ -68,18 +103,34 @@ pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> 
         plan.axis, plan.f0, plan.f1, plan.duration_s
     );
     let result = resonance::measure(&machine, &args.axis, args.seconds).await;
+    *end_sync = machine.now_us().await.ok();
     let _ = machine.stop().await;
     let m = result.map_err(failure)?;
+    let mut sum = Summary {
+        record,
+        print: true,
+    };
     for line in resonance::summary(&m) {
-        println!("{line}");
+        sum.line(line);
     }
-    for f in resonance::write(&m, &out).map_err(failure)? {
+    if let Some(s) = &m.analysis.recommended {
+        sum.record.figure("shaper_freq_hz", s.freq_hz());
+        sum.record.figure("shaper_damping", s.damping());
+    }
+    let files = resonance::write(&m, out).map_err(failure)?;
+    for f in &files {
         println!("wrote {}", f.display());
     }
+    sum.record.add_files(out, &files).map_err(|e| Failure {
+        code: FAULTED,
+        message: e.to_string(),
+    })?;
     if args.write {
         match m.analysis.recommended {
             Some(s) => {
-                resonance::write_shaper(&args.target.machine, &args.axis, &s).map_err(failure)?;
+                let from = record_file.display().to_string();
+                resonance::write_shaper(&args.target.machine, &args.axis, &s, Some(&from))
+                    .map_err(failure)?;
                 println!(
                     "wrote shaper = {} at {:.2} Hz into {} (validated; every move the machine makes is shaped with it)",
                     s.kind().name(),
@@ -92,5 +143,5 @@ pub(crate) async fn resonance(args: ResonanceArgs) -> Result<ExitCode, Failure> 
             )),
         }
     }
-    Ok(ExitCode::SUCCESS)
+    Ok(0)
 }

@@ -9,7 +9,10 @@ use std::process::ExitCode;
 use clap::Args;
 use osap_machine::rheo::{self, RheoError, RheoFit, RheoOptions, RheoRecord};
 
+use osap_machine::runs::RUN_FILE;
+
 use crate::machine_cmd::{check_out, default_folder, Failure, Target, FAULTED, MACHINE_FAULT};
+use crate::run_record::{self, Summary};
 
 /// `osap rheo` options.
 #[derive(Args, Debug)]
@@ -49,7 +52,7 @@ fn io_failure(path: &Path) -> impl Fn(std::io::Error) -> Failure + '_ {
     }
 }
 
-/// Runs `osap rheo`.
+/// Runs `osap rheo`, recorded in `run.json` in its folder.
 pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
     let cfg = args.target.load()?;
     let mut opts = RheoOptions::default();
@@ -62,7 +65,35 @@ pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
         .clone()
         .unwrap_or_else(|| default_folder("rheo", &cfg, None));
     check_out(&out)?;
-    let machine = args.target.start(&cfg).await?;
+    let mut record = run_record::begin("rheo", &args.target, &cfg)?;
+    record.options = serde_json::json!({ "temps": opts.temps, "write": args.write });
+    let record_file = out.join(RUN_FILE);
+    let mut end_sync = None;
+    let result = measure(
+        &args,
+        &cfg,
+        &opts,
+        &out,
+        &record_file,
+        &mut record,
+        &mut end_sync,
+    )
+    .await;
+    run_record::finish(record, &record_file, end_sync, result).map(ExitCode::from)
+}
+
+async fn measure(
+    args: &RheoArgs,
+    cfg: &osap_machine::config::MachineFile,
+    opts: &RheoOptions,
+    out: &Path,
+    record_file: &Path,
+    run: &mut osap_machine::runs::RunRecord,
+    end_sync: &mut Option<u64>,
+) -> Result<u8, Failure> {
+    let (out, opts) = (out.to_path_buf(), opts.clone());
+    let machine = args.target.start(cfg).await?;
+    run_record::machine_started(run, &machine).await;
     println!(
         "measuring the melt at {:?} °C, flows up to {} mm³/s under {:.0} % of the drive's grip (Ctrl-C stops; the hotend is turned off)",
         opts.temps,
@@ -76,6 +107,7 @@ pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
     if let Ok(h) = machine.heater("hotend") {
         let _ = h.set_target(0.0).await;
     }
+    *end_sync = machine.now_us().await.ok();
     let _ = machine.stop().await;
     let Some(record) = result else {
         return Err(Failure {
@@ -92,15 +124,23 @@ pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
         e => failure(e),
     })?;
     std::fs::create_dir_all(&out).map_err(io_failure(&out))?;
-    write_record(&out, &record)?;
+    let mut files = write_record(&out, &record)?;
     let fit = rheo::fit(&record, &opts).map_err(failure)?;
-    write_steady(&out, &fit)?;
-    rheo::plot(&record, &fit, &out).map_err(|e| Failure {
+    files.push(write_steady(&out, &fit)?);
+    files.extend(rheo::plot(&record, &fit, &out).map_err(|e| Failure {
+        code: FAULTED,
+        message: e.to_string(),
+    })?);
+    let mut sum = Summary {
+        record: run,
+        print: true,
+    };
+    print_fit(&mut sum, &fit);
+    sum.record.add_files(&out, &files).map_err(|e| Failure {
         code: FAULTED,
         message: e.to_string(),
     })?;
-    print_fit(&fit);
-    let run = out.display().to_string();
+    let run = record_file.display().to_string();
     if args.write {
         let notes = rheo::write_model(&args.target.machine, &fit, Some(&run)).map_err(failure)?;
         println!(
@@ -117,35 +157,44 @@ pub(crate) async fn rheo(args: RheoArgs) -> Result<ExitCode, Failure> {
         }
     }
     println!("data in {}", out.display());
-    Ok(ExitCode::SUCCESS)
+    Ok(0)
 }
 
-fn print_fit(fit: &RheoFit) {
+fn print_fit(sum: &mut Summary<'_>, fit: &RheoFit) {
     let m = &fit.melt.model;
     let e = &fit.melt.fit.std_errors;
-    println!(
+    sum.line(format!(
         "melt law: F = {:.3} ± {:.3} · Q^({:.4} ± {:.4}) · exp(−({:.5} ± {:.5}) · (T − {:.1})) N",
         m.flow_k, e[0], m.flow_n, e[1], m.temp_coeff, e[2], m.t_ref
-    );
-    println!(
+    ));
+    sum.line(format!(
         "fit: {} settled flows, residual {:.3} N rms",
         fit.melt.fit.points, fit.melt.fit.rms_residual
-    );
-    println!(
+    ));
+    sum.line(format!(
         "response time: {:.1} ± {:.1} ms (pressure advance {:.3} s)",
         fit.lag.tau_s * 1000.0,
         fit.lag.std_error * 1000.0,
         fit.lag.tau_s
-    );
+    ));
     for &(t, q, err) in &fit.max_flows {
-        println!(
+        sum.line(format!(
             "max flow at {t:.0} °C: {q:.1} mm³/s (± {err:.2}; the force reaches {:.1} N)",
             fit.force_limit_n
-        );
+        ));
+    }
+    for (name, v) in [
+        ("flow_k", m.flow_k),
+        ("flow_n", m.flow_n),
+        ("temp_coeff", m.temp_coeff),
+        ("response_time_s", fit.lag.tau_s),
+        ("rms_residual_n", fit.melt.fit.rms_residual),
+    ] {
+        sum.record.figure(name, v);
     }
 }
 
-fn write_record(out: &Path, record: &RheoRecord) -> Result<(), Failure> {
+fn write_record(out: &Path, record: &RheoRecord) -> Result<Vec<PathBuf>, Failure> {
     let path = out.join("force.csv");
     let mut f = std::io::BufWriter::new(std::fs::File::create(&path).map_err(io_failure(&path))?);
     let w = |f: &mut std::io::BufWriter<std::fs::File>, s: String| {
@@ -159,15 +208,17 @@ fn write_record(out: &Path, record: &RheoRecord) -> Result<(), Failure> {
         )?;
     }
     f.flush().map_err(io_failure(&path))?;
+    let force = path;
     let path = out.join("inflow.csv");
     let mut text = String::from("t,flow_mm3_s\n");
     for (t, q) in &record.inflow {
         text.push_str(&format!("{t:.6},{q:.4}\n"));
     }
-    std::fs::write(&path, text).map_err(io_failure(&path))
+    std::fs::write(&path, text).map_err(io_failure(&path))?;
+    Ok(vec![force, path])
 }
 
-fn write_steady(out: &Path, fit: &RheoFit) -> Result<(), Failure> {
+fn write_steady(out: &Path, fit: &RheoFit) -> Result<PathBuf, Failure> {
     let path = out.join("steady.csv");
     let mut text = String::from("temp_c,flow_mm3_s,force_n,std_dev_n,samples\n");
     for s in &fit.steady {
@@ -176,5 +227,6 @@ fn write_steady(out: &Path, fit: &RheoFit) -> Result<(), Failure> {
             s.spec.condition, s.spec.setpoint, s.mean, s.std_dev, s.samples
         ));
     }
-    std::fs::write(&path, text).map_err(io_failure(&path))
+    std::fs::write(&path, text).map_err(io_failure(&path))?;
+    Ok(path)
 }

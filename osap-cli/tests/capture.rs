@@ -95,6 +95,21 @@ fn one_second_of_two_sources_into_parquet_with_a_plot() {
         svg.contains("a.analog_read(0).value"),
         "the plot names its series"
     );
+    // The record beside the file: what was captured, and both files.
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(dir.join("run.parquet.run.json")).unwrap())
+            .unwrap();
+    assert_eq!(record["command"], "capture");
+    assert_eq!(record["outcome"]["status"], "ok");
+    assert_eq!(record["options"]["sources"][1], "b.get_position");
+    assert_eq!(record["figures"]["lost_at_source"], 0.0);
+    let files: Vec<&str> = record["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["path"].as_str().unwrap())
+        .collect();
+    assert_eq!(files, ["run.parquet", "run.svg"]);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -38,6 +38,21 @@ fn level_the_simulated_mill() {
     assert_eq!((m.grid().nx, m.grid().ny), (5, 4));
     let svg = std::fs::read_to_string(mesh.with_extension("svg")).unwrap();
     assert!(svg.contains("<svg"));
+    // The mesh names its run; the record beside it holds the probing.
+    let record_file = dir.join("mill-mesh.toml.run.json");
+    assert!(
+        text.contains(&format!(
+            "fitted_from = {:?}",
+            record_file.display().to_string()
+        )),
+        "{text}"
+    );
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&record_file).unwrap()).unwrap();
+    assert_eq!(record["command"], "level");
+    assert_eq!(record["outcome"]["status"], "ok");
+    assert_eq!(record["modules"].as_object().unwrap().len(), 3);
+    assert!(record["figures"]["rms"].as_f64().unwrap() > 0.0);
     let _ = std::fs::remove_dir_all(&dir);
 }
 

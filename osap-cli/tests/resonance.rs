@@ -92,6 +92,36 @@ fn resonance_measures_the_plotters_y_and_writes_its_shaper() {
         (written - model).abs() <= WITHIN * model,
         "{line} against the model's {model} Hz"
     );
+    // The shaper names the run it was fitted from, and that run's record
+    // holds the file as it was before the shaper went in, and the data.
+    let record_file = out.join("run.json");
+    assert!(
+        line.contains(&format!(
+            "fitted_from = {:?}",
+            record_file.display().to_string()
+        )),
+        "{line}"
+    );
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&record_file).unwrap()).unwrap();
+    assert_eq!(record["command"], "resonance");
+    assert_eq!(record["outcome"]["status"], "ok");
+    assert_eq!(record["options"]["axis"], "y");
+    assert!(!record["machine"]["text"]
+        .as_str()
+        .unwrap()
+        .contains("shaper = "));
+    let fitted = record["figures"]["shaper_freq_hz"].as_f64().unwrap();
+    assert!((fitted - written).abs() < 0.01, "{fitted} vs {written}");
+    let files: Vec<&str> = record["files"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| f["path"].as_str().unwrap())
+        .collect();
+    for f in ["response.csv", "samples.csv", "bode.svg"] {
+        assert!(files.contains(&f), "{f} in {files:?}");
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -96,9 +96,26 @@ fn rheo_measures_fits_writes_the_model_and_run_takes_it() {
     let cfg = osap_machine::config::MachineFile::load(&machine).unwrap();
     let model = cfg.extruder().unwrap().extruder.model.clone().unwrap();
     assert_eq!(model.temp_range, [200.0, 230.0]);
+    // The model names the run record it was fitted from: that record
+    // holds the file as it was before the model went in.
+    let record_file = out_dir.join("run.json");
     assert_eq!(
         model.fitted_from.as_deref(),
-        Some(out_dir.display().to_string().as_str())
+        Some(record_file.display().to_string().as_str())
+    );
+    let record: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&record_file).unwrap()).unwrap();
+    assert_eq!(record["command"], "rheo");
+    assert_eq!(record["outcome"]["status"], "ok");
+    assert!(!record["machine"]["text"]
+        .as_str()
+        .unwrap()
+        .contains("[axes.e.model]"));
+    // The printed response time (ms, one decimal) is the figure's.
+    let recorded_ms = record["figures"]["response_time_s"].as_f64().unwrap() * 1e3;
+    assert!(
+        (recorded_ms - tau).abs() <= 0.05,
+        "{recorded_ms} ms vs {tau} ms"
     );
 
     // osap run refuses a temperature the hotend cannot hold, and one for a

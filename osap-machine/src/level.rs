@@ -248,8 +248,13 @@ pub fn fit(grid: &MeshGrid, points: &[ProbePoint]) -> Result<Levelled, LevelErro
 }
 
 /// Saves the mesh to `path` (the format of [`crate::mesh`]), with a header
-/// saying what it is relative to.
-pub fn save(levelled: &Levelled, path: &Path) -> Result<(), crate::mesh::MeshError> {
+/// saying what it is relative to and `fitted_from`, the run record of the
+/// probing (`osap level` writes `FILE.run.json`).
+pub fn save(
+    levelled: &Levelled,
+    path: &Path,
+    fitted_from: Option<&str>,
+) -> Result<(), crate::mesh::MeshError> {
     let header = format!(
         "Bed mesh probed by `osap level`: {} points. Heights are relative to\n\
          the bed's mean probed height, machine z = {:.4}: after levelling, z =\n\
@@ -262,7 +267,7 @@ pub fn save(levelled: &Levelled, path: &Path) -> Result<(), crate::mesh::MeshErr
         levelled.stats.min,
         levelled.stats.max,
     );
-    crate::mesh::save(path, &levelled.mesh, &header)
+    crate::mesh::save(path, &levelled.mesh, &header, fitted_from)
 }
 
 /// Plots the mesh as a heat map (SVG): the bilinear surface coloured by
@@ -479,7 +484,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("osap-level-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let mesh = dir.join("mesh.toml");
-        save(&l, &mesh).unwrap();
+        save(&l, &mesh, None).unwrap();
         let back = crate::mesh::load(&mesh).unwrap();
         assert!(
             (back.correction(20.0, 10.0).unwrap() - l.mesh.correction(20.0, 10.0).unwrap()).abs()

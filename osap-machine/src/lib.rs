@@ -27,6 +27,8 @@
 //!   ([`Machine::record`]) to Parquet or CSV, on the synchronized clock.
 //! - [`network`]: how a machine is reached (links, its entry point) and
 //!   its modules found and checked, without a [`Machine`];
+//! - [`runs`]: run records (`run.json`): what a command ran, on which
+//!   machine file, job and firmware, how it ended and what it wrote;
 //! - [`halt`]: every module of a machine halted and every tool switched
 //!   off from the network alone (`osap halt`).
 #![deny(missing_docs)]
@@ -48,6 +50,8 @@ pub mod record;
 pub mod resonance;
 #[cfg(feature = "rheo")]
 pub mod rheo;
+#[cfg(feature = "runs")]
+pub mod runs;
 #[cfg(feature = "sim")]
 pub mod sim;
 pub mod svg;

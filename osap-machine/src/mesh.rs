@@ -30,6 +30,10 @@ struct MeshFile {
     dx: f64,
     dy: f64,
     z: Vec<Vec<f64>>,
+    /// The run record of the probing that measured it (`osap level`).
+    #[serde(default)]
+    #[allow(dead_code)] // provenance for people and `osap runs`; the mesh does not use it
+    fitted_from: Option<String>,
 }
 
 /// Why a bed mesh could not be read or written.
@@ -99,13 +103,17 @@ fn parse_text(text: &str) -> Result<BedMesh, String> {
     Ok(mesh)
 }
 
-/// The mesh as a mesh file's text, `header` (lines) as comments on top.
+/// The mesh as a mesh file's text, `header` (lines) as comments on top,
+/// and `fitted_from` (the run record of the probing) as its key.
 /// Unprobed nodes are written as 0.
-pub fn to_toml(mesh: &BedMesh, header: &str) -> String {
+pub fn to_toml(mesh: &BedMesh, header: &str, fitted_from: Option<&str>) -> String {
     let g = mesh.grid();
     let mut s = String::new();
     for line in header.lines() {
         s.push_str(&format!("# {line}\n"));
+    }
+    if let Some(run) = fitted_from {
+        s.push_str(&format!("fitted_from = {run:?}\n"));
     }
     s.push_str(&format!(
         "x0 = {:?}\ny0 = {:?}\ndx = {:?}\ndy = {:?}\nz = [\n",
@@ -126,8 +134,13 @@ pub fn to_toml(mesh: &BedMesh, header: &str) -> String {
 }
 
 /// Writes the mesh to `path` ([`to_toml`]); the error names the file.
-pub fn save(path: &Path, mesh: &BedMesh, header: &str) -> Result<(), MeshError> {
-    std::fs::write(path, to_toml(mesh, header)).map_err(|source| MeshError::Io {
+pub fn save(
+    path: &Path,
+    mesh: &BedMesh,
+    header: &str,
+    fitted_from: Option<&str>,
+) -> Result<(), MeshError> {
+    std::fs::write(path, to_toml(mesh, header, fitted_from)).map_err(|source| MeshError::Io {
         action: "writing",
         path: path.to_path_buf(),
         source,
@@ -144,6 +157,18 @@ mod tests {
             .unwrap();
         assert_eq!(m.correction(5.0, 5.0).unwrap(), 1.5);
         assert_eq!(m.correction(0.0, 10.0).unwrap(), 2.0);
+    }
+
+    #[test]
+    fn a_mesh_names_the_run_it_came_from_and_reads_back() {
+        let m = parse("x0 = 0.0\ny0 = 0.0\ndx = 10.0\ndy = 10.0\nz = [[0.0, 1.0], [2.0, 3.0]]\n")
+            .unwrap();
+        let text = to_toml(&m, "probed", Some("runs/mesh.toml.run.json"));
+        assert!(
+            text.contains("fitted_from = \"runs/mesh.toml.run.json\"\n"),
+            "{text}"
+        );
+        assert_eq!(parse(&text).unwrap().correction(5.0, 5.0).unwrap(), 1.5);
     }
 
     #[test]

@@ -662,12 +662,21 @@ fn plot_bode(m: &Measurement, path: &Path) -> Result<(), ResonanceError> {
 }
 
 /// Puts `shaper = { .. }` into `[axes.AXIS]` of the machine file at
-/// `path`, replacing one already there; the file is parsed and validated
+/// `path`, replacing one already there, with `fitted_from` naming the
+/// run record of the measurement; the file is parsed and validated
 /// before it is written, and the rest of it (comments too) is kept.
-pub fn write_shaper(path: &Path, axis: &str, shaper: &ShaperConfig) -> Result<(), ResonanceError> {
+pub fn write_shaper(
+    path: &Path,
+    axis: &str,
+    shaper: &ShaperConfig,
+    fitted_from: Option<&str>,
+) -> Result<(), ResonanceError> {
     let text = std::fs::read_to_string(path).map_err(io_err(path))?;
+    let from = fitted_from
+        .map(|run| format!(", fitted_from = {run:?}"))
+        .unwrap_or_default();
     let line = format!(
-        "shaper = {{ kind = \"{}\", freq_hz = {:.2}, damping = {:.3} }}   # osap resonance",
+        "shaper = {{ kind = \"{}\", freq_hz = {:.2}, damping = {:.3}{from} }}   # osap resonance",
         shaper.kind().name(),
         shaper.freq_hz(),
         shaper.damping()

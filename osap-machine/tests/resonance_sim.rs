@@ -148,13 +148,24 @@ fn the_plotter_measures_y_and_writes_its_shaper() {
         let copy = dir.join("plotter.toml");
         std::fs::copy(&path, &copy).unwrap();
         let shaper = r.analysis.recommended.expect("a shaper");
-        resonance::write_shaper(&copy, "y", &shaper).unwrap();
+        resonance::write_shaper(
+            &copy,
+            "y",
+            &shaper,
+            Some("osap-resonance-plotter-y-20261129-143502/run.json"),
+        )
+        .unwrap();
         let back = MachineFile::load(&copy).unwrap();
-        let s = back.axes["y"].shaper.as_ref().unwrap().config().unwrap();
+        let written = back.axes["y"].shaper.as_ref().unwrap();
+        assert_eq!(
+            written.fitted_from.as_deref(),
+            Some("osap-resonance-plotter-y-20261129-143502/run.json")
+        );
+        let s = written.config().unwrap();
         assert_eq!(s.kind(), shaper.kind());
         assert!((s.freq_hz() - shaper.freq_hz()).abs() < 0.01);
         // Twice: the line is replaced, not added.
-        resonance::write_shaper(&copy, "y", &shaper).unwrap();
+        resonance::write_shaper(&copy, "y", &shaper, None).unwrap();
         let text = std::fs::read_to_string(&copy).unwrap();
         assert_eq!(text.matches("shaper =").count(), 1);
         let _ = std::fs::remove_dir_all(&dir);

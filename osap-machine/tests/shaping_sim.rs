@@ -26,6 +26,7 @@ fn plotter(shaped: bool) -> MachineFile {
                 kind: "zvd".into(),
                 freq_hz: hz,
                 damping: zeta,
+                fitted_from: None,
             });
         }
     }

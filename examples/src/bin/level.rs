@@ -101,7 +101,7 @@ async fn level_and_run(
         .map_err(|e| format!("output folder {}: {e}", args.out.display()))?;
     let mesh = args.out.join("mesh.toml");
     let plot = args.out.join("mesh.svg");
-    level::save(&levelled, &mesh)?;
+    level::save(&levelled, &mesh, None)?;
     level::plot(&levelled, &plot)?;
     println!("wrote {}", mesh.display());
     println!("wrote {}", plot.display());

@@ -30,6 +30,10 @@ pub struct AxisShaper {
     pub freq_hz: f64,
     /// The mode's damping ratio.
     pub damping: f64,
+    /// The run record of the measurement it was fitted from (`osap
+    /// resonance --write` sets it).
+    #[serde(default)]
+    pub fitted_from: Option<String>,
 }
 
 /// Why an [`AxisShaper`] names no shaper.

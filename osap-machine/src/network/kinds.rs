@@ -160,6 +160,12 @@ fn mismatch(rt: &SomRuntime, kind: &ModuleKind) -> Mismatch {
     }
 }
 
+/// The function-set id of the functions `rt` was built with (not the
+/// blocks made on it at run time); `None` if a type is unknown.
+pub fn function_set_id_of(rt: &SomRuntime) -> Option<u32> {
+    found_id(&rt.built_functions().collect::<Vec<_>>())
+}
+
 /// The function-set id of `functions` (`None` if a type is unknown).
 fn found_id(functions: &[&SomFunction]) -> Option<u32> {
     fn keys(list: &[SomArg]) -> Option<Vec<(&str, u8)>> {

@@ -16,7 +16,7 @@ use osap_host::link::stream::LinkHandle;
 use osap_host::{Host, HostError};
 
 pub use find::{find_modules, FindError, ModuleInfo};
-pub use kinds::{kind_of, Mismatch, ModuleKind, KNOWN_KINDS};
+pub use kinds::{function_set_id_of, kind_of, Mismatch, ModuleKind, KNOWN_KINDS};
 
 /// How to reach a machine's modules.
 #[derive(Debug, Clone, PartialEq, Eq)]
