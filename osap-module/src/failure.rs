@@ -71,7 +71,9 @@ impl Family {
             | F::pulse_at
             | F::analog_read
             | F::set_safe_pwm
-            | F::set_safe_digital => Family::Io,
+            | F::set_safe_digital
+            | F::tach_setup
+            | F::tach_read => Family::Io,
             F::get_position
             | F::get_status
             | F::get_counters
@@ -369,6 +371,8 @@ failures! {
         NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
         HeaterOutput => "a heater drives that PWM output: set it through heater_target or \
                          heater_power, or move the heater to another output (heater_output)",
+        NoCounter => "no pulse counter on that pin, or no tachometer set up: tach_setup on a \
+                      pin the board counts pulses on first",
     }
 }
 
