@@ -792,10 +792,8 @@ impl MachineFile {
     /// one at a time; the joints can, and the machine position follows
     /// from them. `None` for any other axis or kinematics.
     pub fn homed_joint(&self, axis: &str) -> Option<usize> {
-        let homing = self.axes.get(axis)?.homing.as_ref()?;
-        if homing.switch.is_none() {
-            return None;
-        }
+        // Switch homing only (an arm has no other way yet).
+        self.axes.get(axis)?.homing.as_ref()?.switch.as_ref()?;
         match (&self.kinematics, axis) {
             (Kinematics::Scara { .. } | Kinematics::FiveBar { .. }, "x") => Some(0),
             (Kinematics::Scara { .. } | Kinematics::FiveBar { .. }, "y") => Some(1),
