@@ -152,3 +152,42 @@ fn the_scara_arm_homes_its_joints_and_draws_the_svg() {
         m.stop().await.unwrap();
     });
 }
+
+/// An elbow switch on the wrong side of straight: homing turns the elbow
+/// through the stretched pose and ends it in the other working mode than
+/// the file's (`elbow = "right"`, b > 0), where the kinematics would put
+/// the same pen position at other joint angles. Homing says so, and the
+/// arm stays unhomed (moves are refused) rather than jump.
+#[test]
+fn an_arm_homed_into_its_other_working_mode_stays_unhomed() {
+    virtual_runtime().unwrap().block_on(async {
+        let text = std::fs::read_to_string(concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../examples/machines/scara.toml"
+        ))
+        .unwrap();
+        let wrong = text.replace(
+            "direction = \"max\", endstop = 2.80",
+            "direction = \"min\", endstop = -2.80",
+        );
+        assert_ne!(wrong, text);
+        let cfg = MachineFile::parse(&wrong).unwrap();
+        let m = Machine::simulate_with(
+            &cfg,
+            SimOptions {
+                time: TimeMode::Virtual,
+            },
+        )
+        .await
+        .unwrap();
+        let e = m.home().await.unwrap_err();
+        assert!(
+            matches!(&e, osap_machine::MachineError::Homing { reason, .. } if reason.contains("another working mode")),
+            "{e}"
+        );
+        assert!(!m.is_homed());
+        let e = m.goto_via_queue([0.0, 200.0], 50.0).await.unwrap_err();
+        assert!(matches!(e, osap_machine::MachineError::NotHomed(_)), "{e}");
+        m.stop().await.unwrap();
+    });
+}

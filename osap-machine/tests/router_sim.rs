@@ -186,3 +186,39 @@ fn a_stalled_spindle_stops_the_job_and_is_reported() {
         m.stop().await.unwrap();
     });
 }
+
+#[test]
+fn a_spindle_that_never_reaches_its_speed_faults_after_its_timeout() {
+    virtual_runtime().unwrap().block_on(async {
+        let cfg = router();
+        let m = start(&cfg).await;
+        // Jammed before it starts: 2 N·m against the drive's 1.3.
+        assert!(m.sim_load_spindle("spindle", 2.0));
+        let spindle = m.tool("spindle").unwrap();
+        spindle.set_rpm(18_000.0).await.unwrap();
+        let t0 = tokio::time::Instant::now();
+        let e = spindle.await_speed().await.unwrap_err();
+        let waited = t0.elapsed().as_secs_f64();
+        eprintln!("after {waited:.3} s: {e}");
+        assert!(
+            matches!(&e, MachineError::Tool { reason, .. }
+                if reason.contains("did not reach 18000 rpm within 10 s") && reason.contains("measures 0 rpm")),
+            "{e}"
+        );
+        // The tachometer's timeout, to the host's 10 ms poll.
+        assert!((10.0..10.03).contains(&waited), "{waited}");
+        assert!(matches!(m.state(), MachineState::Faulted(r) if r.contains("did not reach")));
+        // The stop switched the drive off.
+        tokio::time::sleep(Duration::from_millis(100)).await;
+        let duty = m
+            .with_sim(|s| {
+                s.module("router-spindle")
+                    .and_then(|sm| sm.module())
+                    .map(|sm| sm.lock(|mm| mm.board().pins().pwm()[0]))
+            })
+            .flatten()
+            .unwrap();
+        assert_eq!(duty, 0);
+        m.stop().await.unwrap();
+    });
+}
