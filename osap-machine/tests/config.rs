@@ -488,6 +488,18 @@ fn scara_and_fivebar() {
         "type = \"corexy\"",
         "type = \"scara\"\nl1 = 100.0\nl2 = 80.0\nelbow = \"right\"",
     );
+    // An arm's x homing homes its first joint, in radians: the switch's
+    // angle is needed, and the second joint (y's homing) homes too.
+    assert_eq!(invalid_key(&scara).0, "axes.x.homing.endstop");
+    let joint = scara.replace("backoff = 2.0", "backoff = 0.1, endstop = -1.0");
+    assert_eq!(invalid_key(&joint).0, "axes.y.homing");
+    assert_eq!(
+        invalid_key(&scara.replace("backoff = 2.0", "backoff = 4.0, endstop = -1.0")).0,
+        "axes.x.homing.backoff"
+    );
+    let homing = "homing = { switch = \"a\", direction = \"min\", search_speed = 20.0, latch_speed = 2.0, backoff = 2.0, order = 1 }\n";
+    assert!(scara.contains(homing));
+    let scara = scara.replace(homing, "");
     let m = MachineFile::parse(&scara).unwrap();
     assert!(matches!(m.kinematics, Kinematics::Scara { margin_deg, .. } if margin_deg == 5.0));
     assert_eq!(
@@ -503,6 +515,7 @@ fn scara_and_fivebar() {
         "type = \"corexy\"",
         "type = \"fivebar\"\nspan = 50.0\nl1 = 100.0\nl2 = 120.0\nleft_elbow = \"left\"\nright_elbow = \"right\"\ntool = \"left\"\nmargin_deg = 3.0",
     );
+    let fivebar = fivebar.replace(homing, "");
     MachineFile::parse(&fivebar).unwrap();
     assert_eq!(
         invalid_key(&fivebar.replace("margin_deg = 3.0", "margin_deg = 95.0")).0,

@@ -53,6 +53,16 @@ pub trait IoHw {
     /// so scripts see the same range on every board.
     fn read_analog(&mut self, channel: u8) -> u16;
 
+    /// Pulse counting on digital pin `pin` (a tachometer's input, see
+    /// [`crate::tach`]): the rising edges counted since boot (wrapping)
+    /// and the local time of the newest (0 before any), latched together
+    /// by the counting hardware or its edge interrupt. `None` for a pin
+    /// the board cannot count on; the default counts on none.
+    fn edge_count(&mut self, pin: u8) -> Option<(u32, Instant)> {
+        let _ = pin;
+        None
+    }
+
     /// Waits at least 0.25 µs: how long a bit-banged clock level is held
     /// (an HX711 wants 0.2 µs high and low). A board whose pin writes
     /// already take that long, or a simulated one, leaves it empty.
@@ -92,6 +102,9 @@ impl<T: IoHw + ?Sized> IoHw for &mut T {
     }
     fn read_analog(&mut self, channel: u8) -> u16 {
         (**self).read_analog(channel)
+    }
+    fn edge_count(&mut self, pin: u8) -> Option<(u32, Instant)> {
+        (**self).edge_count(pin)
     }
     fn hold_pulse(&mut self) {
         (**self).hold_pulse()

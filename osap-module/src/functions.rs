@@ -49,6 +49,8 @@
 //! | `loadcell_tare` | `samples: u16` | — |
 //! | `loadcell_scale` | `newtons_per_count: f32` | — |
 //! | `loadcell_read` | — | `time: u64`, `force: f32`, `raw: i32`, `samples: u32`, `taring: bool` |
+//! | `tach_setup` | `pin: u8`, `pulses_per_rev: u16` | — |
+//! | `tach_read` | — | `time: u64`, `rpm: f32` |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -74,6 +76,13 @@
 //! The `loadcell_` functions read a load cell through an HX711-kind
 //! converter on two digital pins (see [`crate::loadcell`]):
 //! `loadcell_read` as an "on change" pipe source streams every sample.
+//!
+//! The `tach_` functions measure a speed from the pulses on a digital pin
+//! (a spindle's hall sensor or encoder; see [`crate::tach`]): the board
+//! counts the edges, the module turns them into turns a minute over whole
+//! pulse periods, and `tach_read` as an "on change" pipe source streams
+//! every new measurement. A spindle's speed is then measured where it
+//! is, the same on firmware and in simulation.
 //!
 //! The `heater_` functions configure and run up to two heaters, whose PID
 //! control and runaway protection run on the module (see
@@ -416,6 +425,21 @@ impl<B: Board> Module<B> {
     }
 }
 
+impl<B: Board> Module<B> {
+    #[doc = fn_docs!(tach_setup)]
+    pub fn tach_setup(&mut self, pin: u8, pulses_per_rev: u16) -> Result<(), CallError> {
+        let now = self.board.now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        Ok(self.tach.setup(hw, pin, pulses_per_rev, now)?)
+    }
+
+    #[doc = fn_docs!(tach_read)]
+    pub fn tach_read(&mut self) -> Result<(u64, f32), CallError> {
+        let s = self.tach.speed()?;
+        Ok((self.time.system_time(s.at).as_micros(), s.rpm))
+    }
+}
+
 /// The next input of a call, as a `T`.
 fn next_input<'a, T: FromPipes<'a>>(
     inputs: &mut core::slice::Iter<'a, Value<'_>>,
@@ -654,6 +678,15 @@ macro_rules! module_function_table {
             /// whether a tare is under way. Fails when no converter answers
             /// (`NoConverter`, `Silent`): a dead cell's zeros are never a force.
             loadcell_read() -> (time: u64, force: f32, raw: i32, samples: u32, taring: bool);
+            /// Measures a speed from digital pin `pin`'s pulses, `pulses_per_rev`
+            /// a turn (1 to 1 000; see [`crate::tach`]); refused with `NoCounter`
+            /// on a pin the board cannot count pulses on.
+            tach_setup(pin: u8, pulses_per_rev: u16);
+            /// The newest measured speed: when it was measured (synchronized µs:
+            /// the pulse it ends at, or the read that lowered it for want of
+            /// pulses) and turns a minute (0 after 0.5 s without a pulse).
+            /// `NoCounter` until `tach_setup`.
+            tach_read() -> (time: u64, rpm: f32);
         }
     };
 }

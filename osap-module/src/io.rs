@@ -54,16 +54,20 @@ pub enum IoError {
     /// A heater drives that PWM output (see [`crate::heater`]): only the
     /// heater sets its duty, and its safe duty is 0.
     HeaterOutput = 5,
+    /// The board cannot count pulses on that pin, or no tachometer is set
+    /// up (`tach_setup`; see [`crate::tach`]).
+    NoCounter = 6,
 }
 
 impl IoError {
     /// Every I/O error, in code order.
-    pub const ALL: [IoError; 5] = [
+    pub const ALL: [IoError; 6] = [
         IoError::NoSuchPin,
         IoError::BadValue,
         IoError::Full,
         IoError::NoHardware,
         IoError::HeaterOutput,
+        IoError::NoCounter,
     ];
 
     /// The failure code.
@@ -86,6 +90,7 @@ impl core::fmt::Display for IoError {
             IoError::Full => "every slot for scheduled pulses is taken",
             IoError::NoHardware => "the I/O hardware was never installed",
             IoError::HeaterOutput => "a heater drives that PWM output",
+            IoError::NoCounter => "no pulse counter on that pin, or no tachometer set up",
         })
     }
 }

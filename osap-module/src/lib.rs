@@ -68,6 +68,7 @@ pub mod ports;
 pub mod rate_store;
 pub mod sizes;
 pub mod stepper;
+pub mod tach;
 pub mod watchdog;
 
 pub use functions::FUNCTION_SET_ID;
@@ -85,6 +86,7 @@ use loadcell::LoadCell;
 use osap_core::clock::TimeMap;
 use osap_core::{Duration, Instant, SystemInstant};
 use stepper::Stepper;
+use tach::Tach;
 use watchdog::Watchdog;
 
 /// The limit switch's latest edge.
@@ -108,6 +110,8 @@ pub struct Module<B> {
     pub heaters: Heaters,
     /// The load cell.
     pub loadcell: LoadCell,
+    /// The tachometer.
+    pub tach: Tach,
     /// The limit switch.
     pub limit: Limit,
     /// The runtime's latest local-to-system time map.
@@ -152,6 +156,7 @@ impl<B: Board> Module<B> {
             io: Io::new(),
             heaters: Heaters::new(),
             loadcell: LoadCell::new(),
+            tach: Tach::new(),
             limit: Limit::default(),
             time: TimeMap::IDENTITY,
             fault: Fault::default(),
@@ -412,6 +417,15 @@ impl<B: Board> Module<B> {
     pub fn poll_loadcell(&mut self, now: Instant) {
         if let Some(hw) = self.board.io() {
             self.loadcell.poll(hw, now);
+        }
+    }
+
+    /// Reads the tachometer's pulse count (see [`tach`]), at local time
+    /// `now`. The runtime's loop calls it through the pulse timer port, at
+    /// [`Tach::wake_at`](tach::Tach::wake_at).
+    pub fn poll_tach(&mut self, now: Instant) {
+        if let Some(hw) = self.board.io() {
+            self.tach.poll(hw, now);
         }
     }
 

@@ -71,9 +71,17 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
             m.poll_io(now, system);
             m.poll_boot(now);
             let due = |at: Option<Instant>| at.is_some_and(|at| at <= now);
-            (due(m.heaters.wake_at()), due(m.loadcell.wake_at()))
+            (
+                due(m.heaters.wake_at()),
+                due(m.loadcell.wake_at()),
+                due(m.tach.wake_at()),
+            )
         });
-        let (heaters_due, loadcell_due) = due.unwrap_or((false, false));
+        let (heaters_due, loadcell_due, tach_due) = due.unwrap_or((false, false, false));
+        // A tachometer's count: two register reads.
+        if tach_due {
+            self.module.with(|m| m.poll_tach(now));
+        }
         // A load-cell sample (25 clock pulses, about 25 µs) in a critical
         // section of its own, like each heater below; none without one.
         if loadcell_due {
@@ -96,12 +104,14 @@ impl<H: ModuleHandle> Port for PulseTimer<H> {
                 let io = m.io_wake_at(now, system);
                 let heaters = m.heaters.wake_at();
                 let loadcell = m.loadcell.wake_at();
+                let tach = m.tach.wake_at();
                 [
                     io,
                     m.boot.due_at(),
                     m.watchdog.deadline(),
                     heaters,
                     loadcell,
+                    tach,
                 ]
                 .into_iter()
                 .flatten()

@@ -30,6 +30,7 @@ mod jobs;
 mod motor_model;
 mod probe;
 mod sim;
+mod spindle;
 mod step_rate;
 pub mod thermistor;
 mod validate;
@@ -44,6 +45,7 @@ pub use jobs::{Dialect, GcodeSettings, MachineKind, WorkOffsets};
 pub use motor_model::{MotorModelKeys, PlannerModel, DEFAULT_TORQUE_MARGIN};
 pub use probe::{Probe, ProbeGridError, ProbeLoadCell};
 pub use sim::{Sim, SimAxis, SimMelt};
+pub use spindle::{SimSpindle, Tach};
 pub use step_rate::MAX_STEP_RATE;
 pub use thermistor::{SteinhartHart, THERMISTORS};
 use validate::is_mechanism_axis;
@@ -633,9 +635,14 @@ pub struct Tool {
     /// Spindle speed at `on_duty`, rpm (spindles only; scales `S` words).
     #[serde(default)]
     pub max_rpm: Option<f64>,
-    /// Time to wait after switching the tool, milliseconds.
+    /// Time to wait after switching the tool, milliseconds (a spindle
+    /// with a `tach` waits for its measured speed instead).
     #[serde(default)]
     pub settle_ms: u32,
+    /// A spindle's tachometer: speeds are waited for as measured, and a
+    /// stall faults the machine (see [`Tach`]).
+    #[serde(default)]
+    pub tach: Option<Tach>,
 }
 
 fn default_on_duty() -> f64 {
@@ -652,9 +659,17 @@ pub struct SwitchPlacement<'a> {
     /// The end of travel the switch is at.
     pub direction: Direction,
     /// The axis position at which the switch closes (the homing's
-    /// `endstop`: beyond the travel end, or at it).
+    /// `endstop`: beyond the travel end, or at it); for a joint switch
+    /// ([`SwitchPlacement::joint`]) the joint's angle, radians.
     pub position: f64,
+    /// For an arm (scara, fivebar), the index (0 or 1) of the mechanism's
+    /// joint whose angle presses the switch: see
+    /// [`MachineFile::homed_joint`].
+    pub joint: Option<usize>,
 }
+
+/// How far a joint homing searches for its switch: a full turn, radians.
+pub const JOINT_SEARCH: f64 = std::f64::consts::TAU;
 
 impl MachineFile {
     /// Parses and validates a machine file's text.
@@ -767,6 +782,25 @@ impl MachineFile {
         groups.into_values().collect()
     }
 
+    /// The mechanism joint that `axis`'s switch homing homes, on an arm:
+    /// under scara and fivebar kinematics, x's homing homes joint 0 (the
+    /// first of `[kinematics] motors`: the shoulder, or the left motor)
+    /// and y's joint 1 (the elbow, or the right motor), each on a switch
+    /// pressed by that joint's angle, in the joint's units (radians:
+    /// `endstop`, `backoff`; rad/s: `search_speed`, `latch_speed`). An
+    /// arm's x and y are not linear in its motors, so they cannot home
+    /// one at a time; the joints can, and the machine position follows
+    /// from them. `None` for any other axis or kinematics.
+    pub fn homed_joint(&self, axis: &str) -> Option<usize> {
+        // Switch homing only (an arm has no other way yet).
+        self.axes.get(axis)?.homing.as_ref()?.switch.as_ref()?;
+        match (&self.kinematics, axis) {
+            (Kinematics::Scara { .. } | Kinematics::FiveBar { .. }, "x") => Some(0),
+            (Kinematics::Scara { .. } | Kinematics::FiveBar { .. }, "y") => Some(1),
+            _ => None,
+        }
+    }
+
     /// Where the homing switches sit, for placing simulated limit switches:
     /// one per axis that homes on a switch, at its endstop (beyond the
     /// travel end it homes to, by default [`ENDSTOP_BEYOND`]).
@@ -787,6 +821,7 @@ impl MachineFile {
                 module,
                 direction: homing.direction,
                 position: homing.endstop(axis),
+                joint: self.homed_joint(name),
             });
         }
         placements
@@ -809,6 +844,7 @@ impl MachineFile {
         self.validate_motor_models()?;
         self.validate_step_rates()?;
         self.validate_tools()?;
+        self.validate_spindles()?;
         heaters::validate(self)?;
         self.validate_sim()?;
         accel::validate(self)?;

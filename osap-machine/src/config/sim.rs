@@ -24,6 +24,10 @@ pub struct Sim {
     /// Each heater's thermal model, by the name in `[heaters]`
     /// (`[sim.heaters.NAME]`; a simulated heater needs one).
     pub heaters: BTreeMap<String, SimHeater>,
+    /// Each spindle's motor and drive, by the name in `[tools]`
+    /// (`[sim.spindles.NAME]`; a simulated spindle with a `tach` needs
+    /// one).
+    pub spindles: BTreeMap<String, super::SimSpindle>,
 }
 
 /// A heater's thermal model in simulation (`[sim.heaters.NAME]`): a block
@@ -63,6 +67,8 @@ struct SimKeys {
     bed: Option<probe::BedKeys>,
     #[serde(default)]
     heaters: BTreeMap<String, SimHeater>,
+    #[serde(default)]
+    spindles: BTreeMap<String, super::SimSpindle>,
 }
 
 impl From<SimKeys> for Sim {
@@ -76,6 +82,7 @@ impl From<SimKeys> for Sim {
             bed,
             bed_placed,
             heaters: k.heaters,
+            spindles: k.spindles,
         }
     }
 }

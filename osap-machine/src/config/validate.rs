@@ -490,6 +490,13 @@ impl MachineFile {
             homing.search_speed,
             "units/s",
         )?;
+        if let Some(joint) = at
+            .strip_prefix("axes.")
+            .and_then(|a| a.strip_suffix(".homing"))
+            .and_then(|a| self.homed_joint(a))
+        {
+            return self.validate_joint_homing(at, joint, homing);
+        }
         if homing.search_speed > axis.velocity {
             return Err(invalid(
                 format!("{at}.search_speed"),
@@ -510,6 +517,48 @@ impl MachineFile {
             ));
         }
         self.validate_endstop(at, axis, homing)
+    }
+
+    /// An arm's joint homing ([`MachineFile::homed_joint`]): in radians,
+    /// with the switch's angle given, a backoff within half a turn, and
+    /// the other joint homed on a switch too (an arm's pose needs both).
+    fn validate_joint_homing(
+        &self,
+        at: &str,
+        joint: usize,
+        homing: &Homing,
+    ) -> Result<(), ConfigError> {
+        let Some(endstop) = homing.endstop else {
+            return Err(invalid(
+                format!("{at}.endstop"),
+                format!(
+                    "an arm's {} homes joint {joint} ({}): give endstop, the joint's angle in radians where its switch closes",
+                    self.kinematics.type_name(),
+                    self.kinematics.motors().get(joint).map_or("?", String::as_str)
+                ),
+            ));
+        };
+        finite(&format!("{at}.endstop"), endstop)?;
+        if !(homing.backoff > 0.0 && homing.backoff < std::f64::consts::PI) {
+            return Err(invalid(
+                format!("{at}.backoff"),
+                format!(
+                    "backoff {} rad must be above 0 and below half a turn (π); e.g. 0.1",
+                    homing.backoff
+                ),
+            ));
+        }
+        let other = if joint == 0 { "y" } else { "x" };
+        if self.homed_joint(other).is_none() {
+            return Err(invalid(
+                format!("axes.{other}.homing"),
+                format!(
+                    "{} kinematics home both joints (x's homing the first, y's the second); give axes.{other} switch homing too",
+                    self.kinematics.type_name()
+                ),
+            ));
+        }
+        Ok(())
     }
 
     /// The endstop lies beyond the soft travel (or at its edge) on the
@@ -772,13 +821,25 @@ fn finite(key: &str, value: f64) -> Result<(), ConfigError> {
     }
 }
 
-fn positive(key: &str, value: f64, what: &str) -> Result<(), ConfigError> {
+pub(super) fn positive(key: &str, value: f64, what: &str) -> Result<(), ConfigError> {
     if value.is_finite() && value > 0.0 {
         Ok(())
     } else {
         Err(invalid(
             key,
             format!("{value} must be positive; give a positive value ({what})"),
+        ))
+    }
+}
+
+/// `value` finite and within `lo..=hi`.
+pub(super) fn finite_in(key: &str, value: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
+    if value.is_finite() && (lo..=hi).contains(&value) {
+        Ok(())
+    } else {
+        Err(invalid(
+            key,
+            format!("{value} is outside {lo} to {hi}; give a value within it"),
         ))
     }
 }

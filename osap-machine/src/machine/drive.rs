@@ -60,6 +60,9 @@ pub struct Drive {
     /// A bed mesh, added to z (slot 2) under the tool's x and y (the
     /// axes after z follow unchanged).
     mesh: Option<BedMesh>,
+    /// Slots 0 and 1 hold the mechanism's joint coordinates themselves
+    /// (an arm homing its joints), not x and y; no mesh applies.
+    joint_space: bool,
 }
 
 impl std::fmt::Debug for Drive {
@@ -70,6 +73,7 @@ impl std::fmt::Debug for Drive {
             .field("planar", &self.planar.is_some())
             .field("offsets", &self.offsets)
             .field("mesh", &self.mesh.is_some())
+            .field("joint_space", &self.joint_space)
             .finish()
     }
 }
@@ -218,6 +222,7 @@ impl Drive {
             motors,
             planar,
             mesh: None,
+            joint_space: false,
         };
         let zeros = vec![0.0; drive.motors.len()];
         drive
@@ -262,6 +267,36 @@ impl Drive {
         &self.motors
     }
 
+    /// Whether slots 0 and 1 are the mechanism's joints
+    /// ([`Drive::set_joint_space`]).
+    pub fn joint_space(&self) -> bool {
+        self.joint_space
+    }
+
+    /// Plans in the mechanism's joint space (`true`: slots 0 and 1 are
+    /// its two joint coordinates, radians, sent to the motors as they are)
+    /// or in machine coordinates. The offsets stay, so the same motor
+    /// positions read as the joints they are in either space: an arm
+    /// homes its joints, and its machine position follows from them. No
+    /// effect without a mechanism (cartesian).
+    pub fn set_joint_space(&mut self, on: bool) {
+        self.joint_space = on && self.planar.is_some();
+    }
+
+    /// The mechanism's joint coordinates of xy `(x, y)`, if it has a
+    /// mechanism.
+    pub fn inverse_xy(&self, x: f64, y: f64) -> Option<Result<[f64; 2], KinError>> {
+        let k = self.planar.as_ref()?;
+        Some(k.inverse_xy(Vector2::new(x, y)).map(|q| [q[0], q[1]]))
+    }
+
+    /// The tool's xy at the mechanism's joint coordinates `q`, if it has a
+    /// mechanism.
+    pub fn forward_xy(&self, q: [f64; 2]) -> Option<Result<[f64; 2], KinError>> {
+        let k = self.planar.as_ref()?;
+        Some(k.forward_xy(Vector2::new(q[0], q[1])).map(|p| [p[0], p[1]]))
+    }
+
     /// Joint coordinates of machine position `p`.
     fn joints(&self, p: &[f64]) -> Result<Option<Vector2<f64>>, KinError> {
         match &self.planar {
@@ -270,6 +305,9 @@ impl Drive {
                 let xy = Vector2::new(p[0], p.get(1).copied().unwrap_or(0.0));
                 if !(xy.x.is_finite() && xy.y.is_finite()) {
                     return Err(KinError::NonFinite);
+                }
+                if self.joint_space {
+                    return Ok(Some(xy));
                 }
                 k.inverse_xy(xy).map(Some)
             }
@@ -280,7 +318,7 @@ impl Drive {
     pub fn motor_positions(&self, p: &[f64]) -> Result<Vec<f64>, KinError> {
         let meshed;
         let p = match &self.mesh {
-            Some(mesh) if p.len() >= 3 => {
+            Some(mesh) if p.len() >= 3 && !self.joint_space => {
                 let z = mesh
                     .apply(p[0], p[1], p[2])
                     .map_err(|_| KinError::NonFinite)?;
@@ -316,7 +354,7 @@ impl Drive {
                 Source::Joint(j) => q[j] = joint,
             }
         }
-        if let Some(k) = &self.planar {
+        if let Some(k) = self.planar.as_ref().filter(|_| !self.joint_space) {
             let xy = k.forward_xy(q)?;
             if !(xy.x.is_finite() && xy.y.is_finite()) {
                 return Err(KinError::Overflow);
@@ -325,8 +363,13 @@ impl Drive {
             if p.len() > 1 {
                 p[1] = xy.y;
             }
+        } else if self.joint_space {
+            p[0] = q[0];
+            if p.len() > 1 {
+                p[1] = q[1];
+            }
         }
-        if let (Some(mesh), true) = (&self.mesh, p.len() >= 3) {
+        if let (Some(mesh), true) = (&self.mesh, p.len() >= 3 && !self.joint_space) {
             p[2] = mesh
                 .unapply(p[0], p[1], p[2])
                 .map_err(|_| KinError::NonFinite)?;

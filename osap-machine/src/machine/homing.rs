@@ -19,6 +19,8 @@ use super::events::MachineEvent;
 use super::{lock_motion, monitor, Machine, MachineError, MAX_AXES};
 use crate::config::Direction;
 
+mod joints;
+
 /// How far past the travel a search may go, as a fraction of the travel.
 const SEARCH_MARGIN: f64 = 0.1;
 
@@ -45,14 +47,30 @@ impl Drop for ExpectSwitch<'_> {
 impl Machine {
     /// Homes every axis that has homing, in the file's order (lower
     /// `order` first; axes of one order one after another, in axis order).
+    /// An arm's x and y home its two joints, together, where the first of
+    /// them comes in the order ([`Machine::home_joints`]).
     pub async fn home(&self) -> Result<(), MachineError> {
-        let groups: Vec<Vec<String>> = self
+        let order: Vec<String> = self
             .config()
             .homing_order()
             .into_iter()
-            .map(|g| g.into_iter().map(String::from).collect())
+            .flatten()
+            .map(String::from)
             .collect();
-        for axis in groups.iter().flatten() {
+        self.home_in_order(&order).await
+    }
+
+    /// Homes `order`'s axes one after another; an arm's joints once.
+    async fn home_in_order(&self, order: &[String]) -> Result<(), MachineError> {
+        let mut joints_homed = false;
+        for axis in order {
+            if self.config().homed_joint(axis).is_some() {
+                if !joints_homed {
+                    self.home_joints().await?;
+                    joints_homed = true;
+                }
+                continue;
+            }
             self.home_axis(axis).await?;
         }
         Ok(())
@@ -73,18 +91,17 @@ impl Machine {
                 });
             }
         }
-        let order: Vec<String> = self
-            .config()
+        // An arm's joints home together: x or y names both.
+        let cfg = self.config();
+        let arm = axes.iter().any(|a| cfg.homed_joint(a).is_some());
+        let order: Vec<String> = cfg
             .homing_order()
             .into_iter()
             .flatten()
-            .filter(|a| axes.contains(a))
+            .filter(|a| axes.contains(a) || (arm && cfg.homed_joint(a).is_some()))
             .map(String::from)
             .collect();
-        for axis in &order {
-            self.home_axis(axis).await?;
-        }
-        Ok(())
+        self.home_in_order(&order).await
     }
 
     async fn home_axis(&self, axis: &str) -> Result<(), MachineError> {

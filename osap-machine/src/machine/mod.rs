@@ -30,6 +30,7 @@ pub mod motion;
 pub mod motor_accel;
 mod probing;
 mod safe;
+pub mod spindle;
 mod stop;
 mod tool;
 
@@ -57,6 +58,7 @@ pub use heaters::{Heater, HeaterLog, HeaterReading, HeaterRow, HeaterState};
 pub use loadcell::{LoadCell, LoadCellReading};
 use monitor::{LimitEdge, SharedReports};
 use motion::{MotionStatus, SharedMotion};
+pub use spindle::SpeedReached;
 pub use tool::Tool;
 
 use crate::network::Entry;

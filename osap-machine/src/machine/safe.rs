@@ -9,6 +9,10 @@
 //! safe values by itself, and its `halt` does the same: a dead host or a
 //! cut cable cannot leave a spindle, laser or pen on.
 //!
+//! A spindle's tachometer (`[tools.NAME] tach`) is set up on its module
+//! at the same time (`tach_setup`), so its speed is measured from the
+//! start.
+//!
 //! While the machine runs, a task per module calls its `get_status`
 //! four times per watchdog time, so even a module that no stream reaches
 //! (a tool's) hears from the host often enough.
@@ -21,7 +25,7 @@ use osap_host::som::{FnRef, FunctionHandle, Manager, SomError};
 use super::{som_refusal, MachineError, ModuleInfo};
 use crate::config::{MachineFile, Output};
 use crate::network::modfn::{
-    get_status, set_output_watchdog, set_safe_digital, set_safe_pwm, ModuleCall,
+    get_status, set_output_watchdog, set_safe_digital, set_safe_pwm, tach_setup, ModuleCall,
 };
 
 /// How many times per output watchdog time the host calls each module.
@@ -77,6 +81,18 @@ pub(super) async fn arm_module(
             .call_idempotent(&args)
             .await
             .map_err(|e| som_refusal(key, &function.function().function, e))?;
+        // A spindle's tachometer counts on its module from the start.
+        if let Some(tach) = tool.tach {
+            let why = format!("spindle {name}'s speed could not be measured");
+            let f = setup_function::<tach_setup::Inputs>(manager, key, runtime, &why)?;
+            let args = tach_setup::Inputs {
+                pin: tach.pin,
+                pulses_per_rev: tach.pulses_per_rev,
+            };
+            f.call_idempotent(&args.values())
+                .await
+                .map_err(|e| som_refusal(key, tach_setup::NAME, e))?;
+        }
     }
     let watchdog = match setup_function::<set_output_watchdog::Inputs>(
         manager,

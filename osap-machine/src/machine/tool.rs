@@ -10,9 +10,12 @@ use crate::network::modfn::{digital_write, pwm_write};
 #[derive(Debug, Default, Clone)]
 pub(crate) struct ToolState {
     /// The level set last (0 off, 1 full).
-    level: f64,
+    pub(super) level: f64,
     /// When the tool will have settled after the last change.
     ready_at: Option<tokio::time::Instant>,
+    /// Bumped on every change of level: a spindle's stall watch ends when
+    /// the level it watches is no longer the tool's.
+    pub(super) generation: u64,
 }
 
 /// A tool of the machine (see [`Machine::tool`]).
@@ -47,6 +50,7 @@ impl Machine {
         let s = tools.entry(name.to_string()).or_default();
         s.level = 0.0;
         s.ready_at = None;
+        s.generation += 1;
     }
 
     /// The first tool of a kind (pen, spindle, laser), if any.
@@ -70,7 +74,8 @@ impl Tool {
 
     /// Sets the tool's level now: 0 off, 1 on (full speed or power), and
     /// between for PWM tools; a digital output is on for any level > 0.
-    /// The tool is ready [`Tool::await_ready`] after its settle time.
+    /// The tool is ready [`Tool::await_ready`] after its settle time, or,
+    /// for a spindle with a tachometer, once its measured speed is there.
     pub async fn set(&self, level: f64) -> Result<(), MachineError> {
         if !(level.is_finite() && (0.0..=1.0).contains(&level)) {
             return Err(MachineError::Tool {
@@ -104,6 +109,7 @@ impl Tool {
         let s = tools.entry(self.name.clone()).or_default();
         s.level = level;
         s.ready_at = Some(tokio::time::Instant::now() + settle);
+        s.generation += 1;
         Ok(())
     }
 
@@ -117,7 +123,13 @@ impl Tool {
         self.set(0.0).await
     }
 
-    /// A spindle at `rpm` (scaled by its `max_rpm`).
+    /// The machine it belongs to.
+    pub(super) fn machine(&self) -> &Machine {
+        &self.machine
+    }
+
+    /// A spindle at `rpm` (scaled by its `max_rpm`). With a tachometer,
+    /// [`Tool::await_ready`] then waits for the measured speed.
     pub async fn set_rpm(&self, rpm: f64) -> Result<(), MachineError> {
         let t = &self.machine.config().tools[&self.name];
         let Some(max) = t.max_rpm else {
@@ -147,8 +159,13 @@ impl Tool {
     }
 
     /// Waits until the tool has settled after its last change (a spindle
-    /// at speed, a pen down), by its `settle_ms`.
+    /// at speed, a pen down), by its `settle_ms`; a spindle with a
+    /// tachometer until its measured speed is within its tolerance
+    /// ([`Tool::await_speed`]), which also starts watching it for a stall.
     pub async fn await_ready(&self) -> Result<(), MachineError> {
+        if self.tach().is_some() {
+            return self.await_speed().await.map(|_| ());
+        }
         let at = self
             .machine
             .inner

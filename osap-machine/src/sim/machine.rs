@@ -180,4 +180,36 @@ impl Machine {
         })
         .flatten()
     }
+
+    /// Puts a load of `nm` N·m on the simulated spindle of tool `tool`
+    /// from now on (a cut; past its drive's torque limit, a stall), as a
+    /// test's hook into the physics. `false` when the machine is not
+    /// simulated or the tool has no simulated spindle (a `tach` and
+    /// `[sim.spindles.NAME]`).
+    pub fn sim_load_spindle(&self, tool: &str, nm: f64) -> bool {
+        self.with_spindle_pins(tool, |pins| pins.load_spindle(nm))
+            .unwrap_or(false)
+    }
+
+    /// The simulated spindle's true speed now, rpm (what the tachometer's
+    /// pulses follow); `None` when there is none.
+    pub fn sim_spindle_rpm(&self, tool: &str) -> Option<f64> {
+        self.with_spindle_pins(tool, |pins| pins.spindle_rpm())
+            .flatten()
+    }
+
+    /// `f` on the pins of tool `tool`'s simulated module.
+    fn with_spindle_pins<R>(
+        &self,
+        tool: &str,
+        f: impl FnOnce(&mut osap_sim::machine::board::Pins) -> R,
+    ) -> Option<R> {
+        let cfg = self.config();
+        let name = super::module_name(cfg, &cfg.tools.get(tool)?.module)?;
+        self.with_sim(|s| {
+            let sm = s.module(name)?.module()?;
+            Some(sm.lock(|mm| f(mm.board_mut().pins_mut())))
+        })
+        .flatten()
+    }
 }

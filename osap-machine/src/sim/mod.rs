@@ -39,9 +39,12 @@
 //!   limit input, over that axis's form, pressed at the travel end it homes
 //!   to (`direction = "min"`: while the axis is at or below `min`; `"max"`:
 //!   at or above `max`). Its edges carry the time of the step that crossed
-//!   (see [`osap_sim::machine`]'s switches over several motors). Scara and
-//!   fivebar machines homing x or y on a switch are refused (not linear;
-//!   not simulated yet).
+//!   (see [`osap_sim::machine`]'s switches over several motors).
+//! - **Joint switches**: an arm (scara, fivebar) homes its joints
+//!   ([`MachineFile::homed_joint`]): x's switch is pressed by the first
+//!   joint's angle, y's by the second's, at the homing's `endstop`
+//!   (radians), over the joint's form ([`joint_form`]: `q_j = q_j(start)
+//!   + s_j·p_j`, exact, since a joint is its motor's own coordinate).
 
 use std::collections::BTreeMap;
 
@@ -49,7 +52,7 @@ use osap_core::netresponder::NAME_MAX;
 use osap_sim::machine::MODULE_LINKS;
 use osap_sim::topology::{
     BedContact, ContactSpec, HeaterSpec, IoSpec, LinkKind, LinkSpec, ModuleSpec, MotorSpec,
-    RotorSpec, SimSpec, SpecError, SwitchSpec, HOST,
+    RotorSpec, SimSpec, SpecError, SpindleSpec, SwitchSpec, HOST,
 };
 
 use crate::config::{Direction, Kinematics, MachineFile, Probe};
@@ -188,7 +191,7 @@ pub fn axis_form(cfg: &MachineFile, axis: &str) -> Result<AxisForm, SimError> {
         (Kinematics::Scara { .. } | Kinematics::FiveBar { .. }, "x" | "y") => Err(unsupported(
             key,
             format!(
-                "{} kinematics are not linear in the motors: switches on x and y are not simulated yet; home x and y another way (stall), or simulate without homing them",
+                "{} kinematics are not linear in the motors: x and y have no linear form; an arm's switches sit on its joints (joint_form)",
                 cfg.kinematics.type_name()
             ),
         )),
@@ -197,6 +200,49 @@ pub fn axis_form(cfg: &MachineFile, axis: &str) -> Result<AxisForm, SimError> {
             "no motor drives the axis; add motor = \"...\"",
         )),
     }
+}
+
+/// An arm's joint `j` (0 or 1 of `[kinematics] motors`) on the simulated
+/// machine as a linear form of its motor's carriage: `q_j = q_j(start) +
+/// s_j·p_j`, with `q(start)` the kinematics' inverse of the `[sim]` start
+/// (see the conventions above). An error naming the kinematics when the
+/// machine has no arm or the start is out of its reach.
+pub fn joint_form(cfg: &MachineFile, j: usize) -> Result<AxisForm, SimError> {
+    let key = "kinematics";
+    let motor = cfg
+        .kinematics
+        .motors()
+        .get(j)
+        .ok_or_else(|| unsupported(key, format!("the kinematics have no joint {j}")))?;
+    let mechanism = crate::machine::drive::mechanism(cfg)
+        .map_err(|e| unsupported(key, e.to_string()))?
+        .ok_or_else(|| unsupported(key, "cartesian kinematics have no joints"))?;
+    let (Some(x), Some(y)) = (start_position(cfg, "x"), start_position(cfg, "y")) else {
+        return Err(unsupported(key, "an arm needs axes x and y"));
+    };
+    let q = mechanism
+        .inverse_xy(nalgebra::Vector2::new(x, y))
+        .map_err(|e| {
+            unsupported(
+                "sim.axes",
+                format!("the simulated arm's start ({x}, {y}) is out of its reach: {e}; give [sim.axes.x] and [sim.axes.y] start within it"),
+            )
+        })?;
+    let m = cfg
+        .motors
+        .get(motor)
+        .ok_or_else(|| unsupported(key, format!("motor {motor:?} is not in [motors]")))?;
+    let name = module_name(cfg, &m.module).ok_or_else(|| {
+        unsupported(
+            format!("motors.{motor}.module"),
+            format!("module {:?} is not in [modules]", m.module),
+        )
+    })?;
+    let sign = if m.invert { -1.0 } else { 1.0 };
+    Ok(AxisForm {
+        terms: vec![(name.to_string(), sign)],
+        offset: q[j],
+    })
 }
 
 /// The simulated machine `cfg` describes (see the module docs for the
@@ -349,6 +395,12 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
                 if cfg.tools.values().any(|tool| tool.module == *key) {
                     spec = spec.with_io(IoSpec::default());
                 }
+                // A spindle with a tachometer: its motor and drive.
+                if let Some(spindle) = sim_spindle(cfg, key)? {
+                    let mut io = spec.io.clone().unwrap_or_default();
+                    io.spindle = Some(spindle);
+                    spec = spec.with_io(io);
+                }
                 // The heaters on this module, each with its thermal model.
                 for (hname, h) in cfg.heaters.iter().filter(|(_, h)| h.module == *key) {
                     let Some(model) = cfg.sim.as_ref().and_then(|s| s.heaters.get(hname)) else {
@@ -408,7 +460,11 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
 
     // Switches.
     for placement in cfg.switch_placements() {
-        let form = axis_form(cfg, placement.axis).map_err(|e| match e {
+        let form = match placement.joint {
+            Some(j) => joint_form(cfg, j),
+            None => axis_form(cfg, placement.axis),
+        }
+        .map_err(|e| match e {
             SimError::Unsupported { message, .. } => {
                 unsupported(format!("axes.{}.homing.switch", placement.axis), message)
             }
@@ -464,6 +520,49 @@ pub fn spec(cfg: &MachineFile) -> Result<SimSpec, SimError> {
 
     t.validate().map_err(SimError::Spec)?;
     Ok(t)
+}
+
+/// The simulated spindle of `key`'s module: its spindle tool with a
+/// `tach`, driven by its PWM output at `duty × max_rpm / on_duty` (the
+/// drive's full scale), with the motor and drive of
+/// `[sim.spindles.NAME]`.
+fn sim_spindle(cfg: &MachineFile, key: &str) -> Result<Option<SpindleSpec>, SimError> {
+    let Some((name, tool, tach)) = cfg
+        .tools
+        .iter()
+        .filter(|(_, t)| t.module == key)
+        .find_map(|(n, t)| Some((n, t, t.tach?)))
+    else {
+        return Ok(None);
+    };
+    let Some(model) = cfg.sim.as_ref().and_then(|s| s.spindles.get(name)) else {
+        return Err(unsupported(
+            format!("tools.{name}.tach"),
+            format!("a simulated spindle with a tachometer needs its motor and drive: add [sim.spindles.{name}] with inertia_kgm2, max_torque_nm and time_constant_s"),
+        ));
+    };
+    let (crate::config::Output::Pwm(pwm), Some(max_rpm)) = (tool.output, tool.max_rpm) else {
+        return Err(unsupported(
+            format!("tools.{name}.output"),
+            "a simulated spindle's drive is commanded by a PWM output: give output = { pwm = N } and max_rpm",
+        ));
+    };
+    if tool.off_duty != 0.0 || tool.on_duty <= 0.0 {
+        return Err(unsupported(
+            format!("tools.{name}.off_duty"),
+            "a simulated spindle's drive stands at 0 duty and scales with it: keep off_duty = 0 and on_duty above 0",
+        ));
+    }
+    Ok(Some(SpindleSpec {
+        pwm,
+        max_rpm: max_rpm / tool.on_duty,
+        tach_pin: tach.pin,
+        pulses_per_rev: tach.pulses_per_rev,
+        inertia_kgm2: model.inertia_kgm2,
+        max_torque_nm: model.max_torque_nm,
+        time_constant_s: model.time_constant_s,
+        drag_nm: model.drag_nm,
+    }))
 }
 
 /// The contact a `[probe] loadcell` presses on `key`'s module: the bed of

@@ -293,7 +293,7 @@ fn bad_files_are_refused_naming_the_key() {
         ),
     );
     assert_eq!(spec(&cfg).unwrap().modules.len(), 2);
-    // Scara homing x on a switch: not simulated yet.
+    // A scara homes its joints on switches pressed by the joints' angles.
     let scara = r#"
 name = "arm"
 [limits]
@@ -309,6 +309,7 @@ full_steps_per_unit = 100.0
 [motors.e]
 module = "e"
 full_steps_per_unit = 100.0
+invert = true
 [kinematics]
 type = "scara"
 motors = ["s", "e"]
@@ -321,27 +322,47 @@ max = 150.0
 velocity = 50.0
 acceleration = 500.0
 jerk = 10000.0
-homing = { switch = "s", direction = "min", search_speed = 10.0, latch_speed = 1.0, backoff = 2.0 }
+homing = { switch = "s", direction = "min", endstop = -1.0, search_speed = 0.5, latch_speed = 0.05, backoff = 0.1 }
 [axes.y]
 min = 10.0
 max = 150.0
 velocity = 50.0
 acceleration = 500.0
 jerk = 10000.0
+homing = { switch = "e", direction = "max", endstop = -0.2, search_speed = 0.5, latch_speed = 0.05, backoff = 0.1 }
 "#;
-    let (key, message) = err(&parse(scara));
-    assert_eq!(key, "axes.x.homing.switch");
-    assert!(
-        message.contains("scara") && message.contains("not simulated yet"),
-        "{message}"
-    );
-    // Without switch homing a scara arm simulates.
-    let t = spec(&parse(&scara.replace(
-        "homing = { switch = \"s\", direction = \"min\", search_speed = 10.0, latch_speed = 1.0, backoff = 2.0 }\n",
+    let cfg = parse(scara);
+    let t = spec(&cfg).unwrap();
+    assert_eq!(t.switches.len(), 2);
+    // The joints at the sim's start (the travel's middle, (80, 80)).
+    let q = crate::machine::drive::mechanism(&cfg)
+        .unwrap()
+        .unwrap()
+        .inverse_xy(nalgebra::Vector2::new(80.0, 80.0))
+        .unwrap();
+    let (s, e) = (&t.switches[0], &t.switches[1]);
+    assert_eq!(s.terms, vec![("s".to_string(), 1.0)]);
+    assert_eq!(e.terms, vec![("e".to_string(), -1.0)]);
+    assert!((s.offset - q[0]).abs() < 1e-12 && (e.offset - q[1]).abs() < 1e-12);
+    assert_eq!((s.at, s.pressed_below), (-1.0, true));
+    assert_eq!((e.at, e.pressed_below), (-0.2, false));
+    // Its homing is in radians, at an angle the file must give, and homes
+    // both joints.
+    let no_endstop = scara.replace("endstop = -1.0, ", "");
+    let e = MachineFile::parse(&no_endstop).unwrap_err();
+    assert_eq!(e.key(), Some("axes.x.homing.endstop"), "{e}");
+    let one_joint = scara.replace(
+        "homing = { switch = \"e\", direction = \"max\", endstop = -0.2, search_speed = 0.5, latch_speed = 0.05, backoff = 0.1 }\n",
         "",
-    )))
-    .unwrap();
-    assert!(t.switches.is_empty());
+    );
+    let e = MachineFile::parse(&one_joint).unwrap_err();
+    assert_eq!(e.key(), Some("axes.y.homing"), "{e}");
+    // Without homing a scara arm simulates without switches.
+    let none = one_joint.replace(
+        "homing = { switch = \"s\", direction = \"min\", endstop = -1.0, search_speed = 0.5, latch_speed = 0.05, backoff = 0.1 }\n",
+        "",
+    );
+    assert!(spec(&parse(&none)).unwrap().switches.is_empty());
 }
 
 #[test]

@@ -27,6 +27,7 @@ pub mod heater;
 pub mod hx711;
 pub mod melt;
 pub mod rotor;
+pub mod spindle;
 
 use super::clock::DriftClock;
 use crate::topology::{
@@ -39,6 +40,7 @@ use heater::ThermalHeater;
 use melt::Melt;
 use osap_core::Instant;
 use osap_module::board::{Board, IoHw, StepperHw};
+use spindle::Spindle;
 
 /// One step the motor took.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -261,6 +263,7 @@ pub struct Pins {
     heaters: Vec<ThermalHeater>,
     melt: Option<Melt>,
     contact: Option<Contact>,
+    spindle: Option<Spindle>,
 }
 
 impl Pins {
@@ -289,6 +292,7 @@ impl Pins {
                 .collect(),
             // Placed where the carriage starts by the board.
             contact: None,
+            spindle: spec.spindle.clone().map(Spindle::new),
             melt: spec.melt.clone().map(|m| {
                 let ambient = spec
                     .heaters
@@ -303,6 +307,30 @@ impl Pins {
     /// The bed contact under the axis, if the board has one.
     pub fn contact(&self) -> Option<&Contact> {
         self.contact.as_ref()
+    }
+
+    /// The spindle on the pins, if the board has one.
+    pub fn spindle(&self) -> Option<&Spindle> {
+        self.spindle.as_ref()
+    }
+
+    /// Puts a load of `nm` N·m on the spindle from now on (a cut, or a
+    /// tool caught in the work); `false` if the board has no spindle.
+    pub fn load_spindle(&mut self, nm: f64) -> bool {
+        let secs = self.secs_since_boot();
+        match &mut self.spindle {
+            Some(s) => {
+                s.set_load(secs, nm);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// The spindle's speed now, rpm; `None` without one.
+    pub fn spindle_rpm(&mut self) -> Option<f64> {
+        let secs = self.secs_since_boot();
+        self.spindle.as_mut().map(|s| s.rpm(secs))
     }
 
     /// The melt behind the extruder, if the board has one.
@@ -441,6 +469,9 @@ impl IoHw for Pins {
             for h in self.heaters.iter_mut().filter(|h| h.spec().pwm == channel) {
                 h.set_duty(secs, duty);
             }
+            if let Some(s) = self.spindle.as_mut().filter(|s| s.spec().pwm == channel) {
+                s.set_duty(secs, duty);
+            }
             self.pwm_writes.push(PwmWrite {
                 local: self.clock.now(),
                 channel,
@@ -450,6 +481,20 @@ impl IoHw for Pins {
     }
     fn read_pwm(&self, channel: u8) -> u16 {
         self.pwm.get(usize::from(channel)).copied().unwrap_or(0)
+    }
+    fn edge_count(&mut self, pin: u8) -> Option<(u32, Instant)> {
+        // Only the spindle's tachometer pin has a counter on it.
+        let secs = self.secs_since_boot();
+        let now = self.clock.now();
+        let s = self.spindle.as_mut().filter(|s| s.spec().tach_pin == pin)?;
+        let (count, edge) = s.edges(secs);
+        let back = ((secs - edge).max(0.0) * 1e6).round() as u64;
+        let local = if count == 0 {
+            Instant::ZERO
+        } else {
+            Instant::from_micros(now.as_micros().saturating_sub(back))
+        };
+        Some((count, local))
     }
     fn analog_inputs(&self) -> u8 {
         ANALOG_INPUTS

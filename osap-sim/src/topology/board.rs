@@ -11,7 +11,7 @@ use serde::{Deserialize, Serialize};
 pub struct BoardError(String);
 
 impl BoardError {
-    fn new(message: impl Into<String>) -> Self {
+    pub(super) fn new(message: impl Into<String>) -> Self {
         BoardError(message.into())
     }
 }
@@ -165,6 +165,10 @@ pub struct IoSpec {
     /// digital pins (`[module.io.contact]`): a nozzle load-cell probe.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub contact: Option<ContactSpec>,
+    /// A spindle commanded by a PWM output, its tachometer on a digital
+    /// pin (`[module.io.spindle]`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub spindle: Option<super::SpindleSpec>,
 }
 
 impl IoSpec {
@@ -189,6 +193,15 @@ impl IoSpec {
         }
         if let Some(a) = &self.accel {
             a.check()?;
+        }
+        if let Some(sp) = &self.spindle {
+            sp.check()?;
+            if self.heaters.iter().any(|h| h.pwm == sp.pwm) {
+                return Err(BoardError::new(format!(
+                    "[module.io.spindle] pwm {} drives a heater too: give each its own output",
+                    sp.pwm
+                )));
+            }
         }
         if let Some(c) = &self.contact {
             c.check()?;

@@ -19,6 +19,7 @@ mod check;
 mod error;
 pub(crate) mod graph;
 mod host;
+mod spindle;
 
 pub use bed::{BedContact, BedSurface};
 pub use board::{
@@ -27,6 +28,7 @@ pub use board::{
 };
 pub use error::SpecError;
 pub use host::{ClockSource, HostSpec};
+pub use spindle::SpindleSpec;
 
 use check::{invalid, item_line};
 use serde::{Deserialize, Serialize};
