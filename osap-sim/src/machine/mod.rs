@@ -228,6 +228,7 @@ pub mod faults;
 pub mod mode;
 mod module;
 mod switch;
+pub mod winch;
 mod wire;
 
 pub use bus::BusStats;
@@ -316,6 +317,8 @@ struct Machine {
     wire: Option<WireHandle>,
     /// Where watched motors' carriages are (`None`: no switch over motors).
     positions: Option<Arc<Positions>>,
+    /// The cable robot's world, if the topology has a `[winch]`.
+    winch: Option<winch::SharedPlant>,
     /// The I/O sides of dangling UARTs, closed on drop (ending their
     /// drains).
     dangling: Mutex<Vec<LinkIo>>,
@@ -571,6 +574,10 @@ impl SimMachine {
         let machine = Arc::new(Machine {
             dangling: Mutex::new(Vec::new()),
             positions,
+            winch: topology
+                .winch
+                .as_ref()
+                .map(|w| winch::SharedPlant::new(winch::Plant::new(w))),
             topology: topology.clone(),
             epoch,
             host_clock,
@@ -689,6 +696,12 @@ impl SimMachine {
     /// What the pair of `[[bus]]` number `index` (file order) carried.
     pub fn bus_stats(&self, index: usize) -> Option<&BusStats> {
         self.machine.bus_stats.get(index).map(|s| &**s)
+    }
+
+    /// The cable robot's world (`[winch]`), if the topology has one: where
+    /// the mass truly is, for a script's check.
+    pub fn winch(&self) -> Option<&winch::SharedPlant> {
+        self.machine.winch.as_ref()
     }
 
     /// The topology it was started from.
@@ -1246,6 +1259,17 @@ impl SimModule {
                 &spec.io.clone().unwrap_or_default(),
             );
             board.motor_mut().place(parked.carriage);
+            let spool = machine
+                .topology
+                .winch
+                .as_ref()
+                .and_then(|w| w.spools.iter().position(|s| s.module == spec.name));
+            if let (Some(plant), Some(index)) = (&machine.winch, spool) {
+                board.set_winch(winch::WinchMotor {
+                    plant: plant.clone(),
+                    index,
+                });
+            }
             if spec.bootloader.is_some() {
                 board.set_bootloader(self.boot_hook());
             }

@@ -19,6 +19,7 @@ mod check;
 mod error;
 pub(crate) mod graph;
 mod host;
+mod winch;
 
 pub use bed::{BedContact, BedSurface};
 pub use board::{
@@ -27,6 +28,7 @@ pub use board::{
 };
 pub use error::SpecError;
 pub use host::{ClockSource, HostSpec};
+pub use winch::{SpoolSpec, WinchSpec};
 
 use check::{invalid, item_line};
 use serde::{Deserialize, Serialize};
@@ -109,6 +111,10 @@ pub struct SimSpec {
     /// one shared pair (see `osap_core::bus`).
     #[serde(rename = "bus", default, skip_serializing_if = "Vec::is_empty")]
     pub buses: Vec<BusSpec>,
+    /// A cable robot's world, `[winch]` in a file: a point mass on cables
+    /// wound on steppers' spools (see [`WinchSpec`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub winch: Option<WinchSpec>,
 }
 
 fn default_bus_baud() -> u32 {
@@ -487,6 +493,7 @@ impl SimSpec {
             links: Vec::new(),
             switches: Vec::new(),
             buses: Vec::new(),
+            winch: None,
         }
     }
 
