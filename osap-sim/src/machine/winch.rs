@@ -201,9 +201,9 @@ impl Plant {
             s.omega += acc * dt;
             s.theta += s.omega * dt;
         }
-        for k in 0..2 {
-            self.vel[k] += force[k] / self.mass * dt;
-            self.pos[k] += self.vel[k] * dt;
+        for ((v, p), f) in self.vel.iter_mut().zip(&mut self.pos).zip(force) {
+            *v += f / self.mass * dt;
+            *p += *v * dt;
         }
     }
 
