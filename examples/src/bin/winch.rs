@@ -81,8 +81,8 @@ struct Args {
 /// The control loop's period, s.
 const CYCLE_S: f64 = 0.005;
 /// The path's stiffness and damping, 1/s² and 1/s: a 3.2 Hz loop,
-/// damping ratio 0.8, well inside the loop's latency (a read and a write
-/// over USB and a UART, about 8 ms).
+/// damping ratio 0.8, slow enough for the loop's latency (a read and a write
+/// over USB and a UART, 10 ms a cycle).
 const KP: f64 = 400.0;
 const KD: f64 = 32.0;
 /// The least a cable is asked to pull, N (a slack cable loses its spool's

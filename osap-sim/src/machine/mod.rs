@@ -28,12 +28,15 @@
 //!
 //! A machine is described by a [`SimSpec`], usually
 //! read from a TOML file ([`SimSpec::load`](crate::topology::SimSpec::load)), and started against a host with [`SimMachine::start`]. The
-//! repository ships six in `osap-sim/topologies/`: `single-usb.toml` (one
+//! repository ships seven in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
 //! UARTs), `loop.toml` (a network with a loop), `corexy-plotter.toml`
 //! (a hub with three steppers, one with a limit switch), and, written for
-//! the clock-sync report, `uart-chain.toml` and `chain4-hub-root.toml`.
-//! The discrete-event simulator runs the same specs
+//! the clock-sync report, `uart-chain.toml` and `chain4-hub-root.toml`;
+//! and `winch.toml`, a cable winch whose `[winch]`
+//! ([`WinchSpec`](crate::topology::WinchSpec)) puts four motors' spools,
+//! their cables and a hanging mass in one physical world ([`winch`];
+//! `docs/winch.md`). The discrete-event simulator runs the same specs
 //! ([`crate::network::from_spec`]).
 //!
 //! ```no_run
@@ -125,6 +128,15 @@
 //! offset = 100.0             # optional: added to the sum (default 0)
 //! at = 0.0                   # where it closes
 //! pressed_below = true       # pressed while sum + offset <= at (false: >= at)
+//!
+//! [winch]                    # optional: a cable winch over steppers' motors
+//! mass_kg = 1.0              # (keys: osap_sim::topology::WinchSpec)
+//! start = [0.5, 0.5]
+//! [winch.model]              # maxl's StepperModel, SI units
+//! # holding_torque_nm, rated_current_a, ...
+//! [[winch.spool]]            # one per cable: its stepper and its anchor
+//! module = "a"
+//! anchor = [0.0, 1.0]
 //! ```
 //!
 //! Unknown keys are errors. A module's link indices (what routes name)
