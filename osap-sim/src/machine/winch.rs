@@ -298,7 +298,9 @@ impl SharedPlant {
         SharedPlant(Arc::new(Mutex::new(plant)))
     }
 
-    /// The plant, integrated up to the host's clock now.
+    /// The plant, integrated up to the host's clock now. The guard locks
+    /// it (every board on the winch waits): take what is needed and let it
+    /// go; a second `now()` while one is held never returns.
     pub fn now(&self) -> MutexGuard<'_, Plant> {
         let mut p = self.0.lock().unwrap_or_else(|e| e.into_inner());
         p.advance_to_now();
