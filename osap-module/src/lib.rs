@@ -37,7 +37,8 @@
 //! - when its output watchdog fires: nothing reached it from upstream for
 //!   `set_output_watchdog`'s timeout ([`watchdog`]).
 //!
-//! Each of these also turns every heater off (target 0), and a heater cuts
+//! Each of these also ends a torque request ([`torque`]; the motor then
+//! holds where it stands) and turns every heater off (target 0), and a heater cuts
 //! itself off when its temperature runs away or its sensor fails
 //! ([`heater`]), recording a fault.
 //!

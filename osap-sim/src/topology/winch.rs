@@ -1,31 +1,6 @@
 //! `[winch]`: a cable robot's physical world, a point mass held by cables
 //! wound on spools on the motors of `stepper` modules (see
 //! [`crate::machine::winch`] for the physics).
-//!
-//! ```toml
-//! [winch]
-//! mass_kg = 1.0                    # the point mass
-//! start = [0.5, 0.5]               # where it hangs at boot, m (x right, y up)
-//! gravity = 9.81                   # optional, m/s² (down, along −y)
-//! cable_stiffness_n_per_m = 20000  # optional: the cable's EA / length
-//! cable_damping_ns_per_m = 20.0    # optional
-//! encoder_counts = 16384           # optional: each motor's encoder, per turn
-//! [winch.model]                    # every motor's datasheet values (SI)
-//! holding_torque_nm = 0.45
-//! rated_current_a = 2.0
-//! resistance_ohm = 1.4
-//! inductance_h = 0.003
-//! supply_v = 24.0
-//! rotor_inertia_kgm2 = 54e-7
-//! steps_per_rev = 200.0
-//! [[winch.spool]]                  # one per cable
-//! module = "a"                     # the stepper whose motor turns it
-//! anchor = [0.0, 1.0]              # where its cable leaves the frame, m
-//! radius_mm = 12.0                 # optional (default 12)
-//! inertia_kgm2 = 1.7e-6            # optional: the spool's own (default 1.7e-6)
-//! friction_nm = 0.002              # optional: Coulomb friction (default 2 mN·m)
-//! viscous_nms = 1e-5               # optional: viscous friction (default 1e-5)
-//! ```
 
 use super::{ModuleKind, SimSpec};
 use maxl::motor::StepperModel;
@@ -57,8 +32,33 @@ fn default_viscous() -> f64 {
     1e-5
 }
 
-/// A cable robot's world, `[winch]` in a topology file (see the [module
-/// docs](self)).
+/// A cable robot's world, `[winch]` in a topology file (the physics:
+/// [`crate::machine::winch`]):
+///
+/// ```toml
+/// [winch]
+/// mass_kg = 1.0                    # the point mass
+/// start = [0.5, 0.5]               # where it hangs at boot, m (x right, y up)
+/// gravity = 9.81                   # optional, m/s² (down, along −y)
+/// cable_stiffness_n_per_m = 20000  # optional: the cable's EA / length
+/// cable_damping_ns_per_m = 20.0    # optional
+/// encoder_counts = 16384           # optional: each motor's encoder, per turn
+/// [winch.model]                    # every motor's datasheet values (SI)
+/// holding_torque_nm = 0.45
+/// rated_current_a = 2.0
+/// resistance_ohm = 1.4
+/// inductance_h = 0.003
+/// supply_v = 24.0
+/// rotor_inertia_kgm2 = 54e-7
+/// steps_per_rev = 200.0
+/// [[winch.spool]]                  # one per cable
+/// module = "a"                     # the stepper whose motor turns it
+/// anchor = [0.0, 1.0]              # where its cable leaves the frame, m
+/// radius_mm = 12.0                 # optional (default 12)
+/// inertia_kgm2 = 1.7e-6            # optional: the spool's own (default 1.7e-6)
+/// friction_nm = 0.002              # optional: Coulomb friction (default 2 mN·m)
+/// viscous_nms = 1e-5               # optional: viscous friction (default 1e-5)
+/// ```
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WinchSpec {
