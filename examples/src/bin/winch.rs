@@ -31,6 +31,10 @@
 //! ```text
 //! cargo run -p osap-examples --bin winch -- --fast
 //! ```
+//!
+//! Without `--fast` it runs in real time, where the simulated modules'
+//! commutation is only as regular as the host's scheduler (see
+//! `docs/winch.md`: on a loaded machine the mass is lost).
 
 use std::error::Error;
 use std::path::PathBuf;
