@@ -21,6 +21,26 @@ pub trait StepperHw {
     /// or a value its driver does not offer); the logic then refuses the
     /// call and keeps the old setting.
     fn set_microsteps(&mut self, microsteps: u16) -> bool;
+
+    /// The shaft's angle from the motor's encoder, in Q16.16 full steps
+    /// (65 536 per full step, counting whole turns), zero where the
+    /// coils' electrical angle is zero (the board aligns its encoder to
+    /// the coils); `None` on a board without an encoder (the default). The
+    /// torque mode ([`crate::torque`]) commutes from it and reports it.
+    fn read_shaft(&mut self) -> Option<i64> {
+        None
+    }
+
+    /// Drives the coils' currents directly, in Q15 fractions of the
+    /// driver's set current (±32 768: [`maxl::phase::Coils`]), instead of
+    /// from the step and direction inputs; `None` hands them back to the
+    /// step input, which holds the shaft where it stands (the driver's
+    /// microstep position re-aligned to the shaft). Returns `false` if this
+    /// driver cannot (the default): the torque mode is then refused.
+    fn drive_coils(&mut self, coils: Option<maxl::phase::Coils>) -> bool {
+        let _ = coils;
+        false
+    }
 }
 
 /// A general-purpose I/O board: digital pins, PWM outputs and analog inputs,
@@ -75,6 +95,12 @@ impl<T: StepperHw + ?Sized> StepperHw for &mut T {
     }
     fn set_microsteps(&mut self, microsteps: u16) -> bool {
         (**self).set_microsteps(microsteps)
+    }
+    fn read_shaft(&mut self) -> Option<i64> {
+        (**self).read_shaft()
+    }
+    fn drive_coils(&mut self, coils: Option<maxl::phase::Coils>) -> bool {
+        (**self).drive_coils(coils)
     }
 }
 

@@ -51,6 +51,8 @@
 //! | `loadcell_read` | — | `time: u64`, `force: f32`, `raw: i32`, `samples: u32`, `taring: bool` |
 //! | `tach_setup` | `pin: u8`, `pulses_per_rev: u16` | — |
 //! | `tach_read` | — | `time: u64`, `rpm: f32` |
+//! | `set_torque` | `fraction: f32` | — |
+//! | `torque_off` | — | — |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -83,6 +85,11 @@
 //! pulse periods, and `tach_read` as an "on change" pipe source streams
 //! every new measurement. A spindle's speed is then measured where it
 //! is, the same on firmware and in simulation.
+//! `set_torque` makes the motor a torque device, commuted from its shaft
+//! encoder on the module (see [`crate::torque`]); `get_position` then
+//! reports the shaft's real position, and every stop, `set_enable`,
+//! `torque_off` and the output watchdog end the torque with the motor
+//! holding where it stands.
 //!
 //! The `heater_` functions configure and run up to two heaters, whose PID
 //! control and runaway protection run on the module (see
@@ -168,6 +175,7 @@ impl<B: Board> Module<B> {
 
     #[doc = fn_docs!(set_enable)]
     pub fn set_enable(&mut self, on: bool) -> Result<(), CallError> {
+        self.end_torque();
         self.stepper.set_enable(on);
         self.board.stepper().set_enable(on);
         Ok(())
@@ -270,7 +278,7 @@ impl<B: Board> Module<B> {
         if !self.board.has_bootloader() {
             return Err(BootError::Unsupported.into());
         }
-        if !self.stepper.is_standing() {
+        if !self.stepper.is_standing() || self.stepper.is_torque() {
             return Err(BootError::Moving.into());
         }
         let now = self.board.now();
@@ -438,6 +446,17 @@ impl<B: Board> Module<B> {
         let s = self.tach.speed()?;
         Ok((self.time.system_time(s.at).as_micros(), s.rpm))
     }
+
+    #[doc = fn_docs!(set_torque)]
+    pub fn set_torque(&mut self, fraction: f32) -> Result<(), CallError> {
+        Ok(self.torque_request(fraction)?)
+    }
+
+    #[doc = fn_docs!(torque_off)]
+    pub fn torque_off(&mut self) -> Result<(), CallError> {
+        self.end_torque();
+        Ok(())
+    }
 }
 
 /// The next input of a call, as a `T`.
@@ -548,7 +567,8 @@ macro_rules! module_function_table {
             /// Where the steps sent so far put the motor (user units), and the
             /// synchronized time of the latest step tick they include.
             get_position() -> (time: u64, position: f32);
-            /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted),
+            /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted, 5
+            /// torque),
             /// points queued, whether the motor is powered, and faults since boot.
             get_status() -> (mode: u8, queued: u16, enabled: bool, faults: u32);
             /// Points accepted, refused, the latest refusal's code, and single gaps
@@ -687,6 +707,19 @@ macro_rules! module_function_table {
             /// pulses) and turns a minute (0 after 0.5 s without a pulse).
             /// `NoCounter` until `tach_setup`.
             tach_read() -> (time: u64, rpm: f32);
+            /// Drives the motor as a torque device at `fraction` of its holding
+            /// torque (`-1..=1`; positive turns the way positive positions go),
+            /// commuting from its shaft encoder (see [`crate::torque`]): the first
+            /// call leaves position mode (the motor enabled, not halted, no stream;
+            /// `Unsupported` on a board without an encoder or coil drive), later
+            /// ones change the torque. `get_position` then reports the shaft, and
+            /// `add_point` is refused (`WrongMode`). `torque_off`, `halt`,
+            /// `set_enable` and the output watchdog end it: the motor holds where
+            /// it stands.
+            set_torque(fraction: f32);
+            /// Ends torque mode: the motor holds the shaft where it stands, and a
+            /// stream may start there. Safe to repeat, and in position mode.
+            torque_off();
         }
     };
 }

@@ -37,7 +37,8 @@
 //! - when its output watchdog fires: nothing reached it from upstream for
 //!   `set_output_watchdog`'s timeout ([`watchdog`]).
 //!
-//! Each of these also turns every heater off (target 0), and a heater cuts
+//! Each of these also ends a torque request ([`torque`]; the motor then
+//! holds where it stands) and turns every heater off (target 0), and a heater cuts
 //! itself off when its temperature runs away or its sensor fails
 //! ([`heater`]), recording a fault.
 //!
@@ -69,6 +70,7 @@ pub mod rate_store;
 pub mod sizes;
 pub mod stepper;
 pub mod tach;
+pub mod torque;
 pub mod watchdog;
 
 pub use functions::FUNCTION_SET_ID;
@@ -122,6 +124,9 @@ pub struct Module<B> {
     pub boot: BootRequest,
     /// The output watchdog, armed by `set_output_watchdog`.
     pub watchdog: Watchdog,
+    /// The torque request, while the motor is a torque device
+    /// ([`torque`]).
+    pub torque: torque::Torque,
     /// When the latest control point was accepted.
     last_point_at: SystemInstant,
     /// The late-step count the latest `StepOverrun` record carried.
@@ -162,6 +167,7 @@ impl<B: Board> Module<B> {
             fault: Fault::default(),
             boot: BootRequest::default(),
             watchdog: Watchdog::new(),
+            torque: torque::Torque::default(),
             last_point_at: SystemInstant::ZERO,
             late_reported: 0,
             board,
@@ -298,6 +304,7 @@ impl<B: Board> Module<B> {
     /// safe state ([`apply_safe_outputs`](Self::apply_safe_outputs)),
     /// recording it as a fault.
     pub fn halt_axis(&mut self) {
+        self.end_torque();
         self.stepper.halt();
         self.apply_safe_outputs();
         let now = self.system_now();
@@ -309,15 +316,18 @@ impl<B: Board> Module<B> {
     /// [`FaultKind::BlockHalt`] fault. Outputs and heaters are left as they
     /// are: a probe that touched the bed is no reason to cool the nozzle.
     pub fn halt_by_block(&mut self, slot: u8) {
+        self.end_torque();
         self.stepper.halt();
         let now = self.system_now();
         self.fault
             .record(now, FaultKind::BlockHalt, u32::from(slot), true);
     }
 
-    /// Drives every output to its safe value (see [`io`]) and turns every
-    /// heater off (see [`heater`]); nothing on a board without I/O.
+    /// Drives every output to its safe value (see [`io`]), turns every
+    /// heater off (see [`heater`]; nothing on a board without I/O), and
+    /// ends a torque request: the motor holds where it stands ([`torque`]).
     pub fn apply_safe_outputs(&mut self) {
+        self.end_torque();
         if let Some(hw) = self.board.io() {
             self.io.apply_safe(hw);
             // After the safe values: a heater's output ends at 0 whatever

@@ -89,11 +89,18 @@ pub enum StepperError {
     /// The point is past the axis's velocity, acceleration or jerk limit
     /// ([`Stepper::set_limits`]): the limiter would have changed it.
     OverLimit = 11,
+    /// The board cannot drive its motor as a torque device: it has no
+    /// shaft encoder or cannot set its coils' currents (see
+    /// [`crate::torque`]).
+    Unsupported = 12,
+    /// The call needs the other mode: control points are refused while
+    /// the motor is a torque device (`torque_off` first).
+    WrongMode = 13,
 }
 
 impl StepperError {
     /// Every stepper error, in code order.
-    pub const ALL: [StepperError; 11] = [
+    pub const ALL: [StepperError; 13] = [
         StepperError::Misaligned,
         StepperError::Stale,
         StepperError::Gap,
@@ -105,6 +112,8 @@ impl StepperError {
         StepperError::Busy,
         StepperError::BadValue,
         StepperError::OverLimit,
+        StepperError::Unsupported,
+        StepperError::WrongMode,
     ];
 
     /// The failure code.
@@ -134,6 +143,8 @@ impl core::fmt::Display for StepperError {
             StepperError::Busy => "the setting can only change while no stream is queued",
             StepperError::BadValue => "the value is not allowed",
             StepperError::OverLimit => "the point is past the axis's limits",
+            StepperError::Unsupported => "the board cannot drive its motor as a torque device",
+            StepperError::WrongMode => "the motor is a torque device: points are refused",
         })
     }
 }
@@ -197,6 +208,9 @@ pub enum Mode {
     Backstop = 3,
     /// Halted by `halt`: standing until the motor is cycled.
     Halted = 4,
+    /// A torque device: the module sets the coils' currents from the
+    /// shaft's own angle (see [`crate::torque`]); no stream, no steps.
+    Torque = 5,
 }
 
 /// What happened to the points sent to an axis and to its ticks.
@@ -244,6 +258,9 @@ pub struct Stepper {
     limiter: Option<Limiter<Fx>>,
     /// The limits the latest `OverLimit` point went past.
     over_limit: Clamped,
+    /// In torque mode: the latest shaft reading (synchronized time, Q16.16
+    /// full steps); `None` in position mode.
+    shaft: Option<(SystemInstant, i64)>,
 }
 
 impl Default for Stepper {
@@ -281,6 +298,7 @@ impl Stepper {
             limits: Limits::OFF,
             limiter: None,
             over_limit: Clamped::default(),
+            shaft: None,
         }
     }
 
@@ -330,6 +348,9 @@ impl Stepper {
     fn push(&mut self, time: SystemInstant, position: f32) -> Result<(), StepperError> {
         if !self.enabled {
             return Err(StepperError::Disabled);
+        }
+        if self.shaft.is_some() {
+            return Err(StepperError::WrongMode);
         }
         if self.halted {
             return Err(StepperError::Faulted);
@@ -490,7 +511,7 @@ impl Stepper {
     pub fn fill_word(&mut self, t0: SystemInstant) -> u32 {
         self.counters.words = self.counters.words.wrapping_add(1);
         let mut word = 0;
-        if self.is_standing() {
+        if self.is_standing() || self.shaft.is_some() {
             // Nothing can move: skip the per-tick evaluation (most of an
             // idle module's step-interrupt time).
             for _ in 0..TICKS_PER_WORD {
@@ -501,7 +522,7 @@ impl Stepper {
             self.last_tick = ticks_after(t0, TICKS_PER_WORD - 1);
             // A stream whose stop has ended stays in its mode until the
             // next stream clears it.
-            if self.enabled && !self.halted && self.track.is_empty() {
+            if self.enabled && !self.halted && self.track.is_empty() && self.shaft.is_none() {
                 self.mode = Mode::Idle;
             }
             return word;
@@ -533,7 +554,9 @@ impl Stepper {
     pub fn is_standing(&self) -> bool {
         !self.enabled
             || self.halted
-            || (self.gen.backlog() == 0 && (self.track.is_empty() || self.settled()))
+            || (self.shaft.is_none()
+                && self.gen.backlog() == 0
+                && (self.track.is_empty() || self.settled()))
     }
 
     /// Powers the motor (`true`) or lets it go limp. Powering down drops
@@ -666,7 +689,68 @@ impl Stepper {
     /// The position the steps sent so far put the motor at, user units, and
     /// the synchronized time of the latest tick they include.
     pub fn position(&self) -> (SystemInstant, f32) {
-        (self.last_tick, self.position_units())
+        match self.shaft {
+            Some((at, shaft)) => (at, self.shaft_units(shaft)),
+            None => (self.last_tick, self.position_units()),
+        }
+    }
+
+    /// A shaft angle in Q16.16 full steps, in user units.
+    fn shaft_units(&self, shaft: i64) -> f32 {
+        (shaft as f64 / 65_536.0 / f64::from(self.full_steps_per_unit)) as f32
+    }
+
+    /// Makes the motor a torque device, its shaft at `shaft` (Q16.16 full
+    /// steps, read at `at`): the axis must be enabled, not halted or
+    /// faulted, and have no stream queued or running. Points are then
+    /// refused ([`StepperError::WrongMode`]) and no steps are made until
+    /// [`leave_torque`](Self::leave_torque).
+    pub fn enter_torque(&mut self, at: SystemInstant, shaft: i64) -> Result<(), StepperError> {
+        if !self.enabled {
+            return Err(StepperError::Disabled);
+        }
+        if self.halted || (self.track.backstop().is_some() && !self.stopped_cleanly()) {
+            return Err(StepperError::Faulted);
+        }
+        self.check_idle()?;
+        self.clear_track();
+        self.shaft = Some((at, shaft));
+        self.mode = Mode::Torque;
+        Ok(())
+    }
+
+    /// A new shaft reading in torque mode (ignored in position mode).
+    pub fn read_shaft(&mut self, at: SystemInstant, shaft: i64) {
+        if self.shaft.is_some() {
+            self.shaft = Some((at, shaft));
+        }
+    }
+
+    /// Whether the motor is a torque device.
+    pub fn is_torque(&self) -> bool {
+        self.shaft.is_some()
+    }
+
+    /// Back to position mode where the shaft last stood: the axis rests at
+    /// the microstep nearest to it (the step generator starts again
+    /// there), so a stream may start from where the torque left the shaft.
+    /// Nothing in position mode.
+    pub fn leave_torque(&mut self) {
+        let Some((at, shaft)) = self.shaft.take() else {
+            return;
+        };
+        let micro = shaft as f64 * f64::from(self.microsteps) / 65_536.0;
+        self.clear_track();
+        self.gen = StepGen::at_index(floor(micro + 0.5), Rounding::Nearest);
+        self.rest = StepGen::index_position(self.gen.position());
+        self.last_tick = self.last_tick.max(at);
+        self.mode = if !self.enabled {
+            Mode::Disabled
+        } else if self.halted {
+            Mode::Halted
+        } else {
+            Mode::Idle
+        };
     }
 
     fn position_units(&self) -> f32 {

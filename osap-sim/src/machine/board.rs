@@ -29,6 +29,8 @@ pub mod melt;
 pub mod rotor;
 pub mod spindle;
 
+use super::winch::WinchMotor;
+
 use super::clock::DriftClock;
 use crate::topology::{
     IoSpec, MotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
@@ -58,11 +60,15 @@ pub struct StepEdge {
 /// driver's mode changed.
 const FINEST: i64 = 256;
 
-/// The simulated stepper driver's pins.
+/// The simulated stepper driver's pins, and, on a winch's motor, its coil
+/// drive and shaft encoder.
 #[derive(Debug, Clone)]
 pub struct Driver {
     enabled: bool,
     microsteps: u16,
+    /// The winch spool the motor turns, if it turns one: its encoder and
+    /// coils reach the winch's physics.
+    winch: Option<WinchMotor>,
 }
 
 impl Driver {
@@ -80,6 +86,24 @@ impl Driver {
 impl StepperHw for Driver {
     fn set_enable(&mut self, on: bool) {
         self.enabled = on;
+        if let Some(w) = &self.winch {
+            w.plant.now().set_enabled(w.index, on);
+        }
+    }
+
+    fn read_shaft(&mut self) -> Option<i64> {
+        let w = self.winch.as_ref()?;
+        w.plant.now().read_shaft(w.index)
+    }
+
+    fn drive_coils(&mut self, coils: Option<maxl::phase::Coils>) -> bool {
+        match &self.winch {
+            Some(w) => {
+                w.plant.now().drive_coils(w.index, coils);
+                true
+            }
+            None => false,
+        }
     }
 
     fn set_microsteps(&mut self, microsteps: u16) -> bool {
@@ -585,11 +609,18 @@ impl SimBoard {
             driver: Driver {
                 enabled: false,
                 microsteps: 1,
+                winch: None,
             },
             motor,
             pins,
             boot: None,
         }
+    }
+
+    /// Puts the board's motor on a winch's spool: its driver gets a shaft
+    /// encoder and a coil drive, and its steps turn the spool.
+    pub(crate) fn set_winch(&mut self, winch: WinchMotor) {
+        self.driver.winch = Some(winch);
     }
 
     /// Gives the board a bootloader: rebooting into it calls `hook`.
@@ -630,6 +661,12 @@ impl SimBoard {
     /// Takes one step of a step word, at local `local`.
     pub(crate) fn step(&mut self, local: Instant, up: bool) {
         let microsteps = self.driver.microsteps;
+        if let Some(w) = &self.driver.winch {
+            let full = 1.0 / f64::from(microsteps.max(1));
+            w.plant
+                .now()
+                .step_motor(w.index, if up { full } else { -full });
+        }
         let before = self.motor.position();
         self.motor.step(local, up, microsteps);
         let moved = self.motor.position() - before;

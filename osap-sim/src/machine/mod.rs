@@ -28,12 +28,15 @@
 //!
 //! A machine is described by a [`SimSpec`], usually
 //! read from a TOML file ([`SimSpec::load`](crate::topology::SimSpec::load)), and started against a host with [`SimMachine::start`]. The
-//! repository ships six in `osap-sim/topologies/`: `single-usb.toml` (one
+//! repository ships seven in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
 //! UARTs), `loop.toml` (a network with a loop), `corexy-plotter.toml`
 //! (a hub with three steppers, one with a limit switch), and, written for
-//! the clock-sync report, `uart-chain.toml` and `chain4-hub-root.toml`.
-//! The discrete-event simulator runs the same specs
+//! the clock-sync report, `uart-chain.toml` and `chain4-hub-root.toml`;
+//! and `winch.toml`, a cable winch whose `[winch]`
+//! ([`WinchSpec`](crate::topology::WinchSpec)) puts four motors' spools,
+//! their cables and a hanging mass in one physical world ([`winch`];
+//! `docs/winch.md`). The discrete-event simulator runs the same specs
 //! ([`crate::network::from_spec`]).
 //!
 //! ```no_run
@@ -125,6 +128,15 @@
 //! offset = 100.0             # optional: added to the sum (default 0)
 //! at = 0.0                   # where it closes
 //! pressed_below = true       # pressed while sum + offset <= at (false: >= at)
+//!
+//! [winch]                    # optional: a cable winch over steppers' motors
+//! mass_kg = 1.0              # (keys: osap_sim::topology::WinchSpec)
+//! start = [0.5, 0.5]
+//! [winch.model]              # maxl's StepperModel, SI units
+//! # holding_torque_nm, rated_current_a, ...
+//! [[winch.spool]]            # one per cable: its stepper and its anchor
+//! module = "a"
+//! anchor = [0.0, 1.0]
 //! ```
 //!
 //! Unknown keys are errors. A module's link indices (what routes name)
@@ -228,6 +240,7 @@ pub mod faults;
 pub mod mode;
 mod module;
 mod switch;
+pub mod winch;
 mod wire;
 
 pub use bus::BusStats;
@@ -316,6 +329,8 @@ struct Machine {
     wire: Option<WireHandle>,
     /// Where watched motors' carriages are (`None`: no switch over motors).
     positions: Option<Arc<Positions>>,
+    /// The cable robot's world, if the topology has a `[winch]`.
+    winch: Option<winch::SharedPlant>,
     /// The I/O sides of dangling UARTs, closed on drop (ending their
     /// drains).
     dangling: Mutex<Vec<LinkIo>>,
@@ -571,6 +586,10 @@ impl SimMachine {
         let machine = Arc::new(Machine {
             dangling: Mutex::new(Vec::new()),
             positions,
+            winch: topology
+                .winch
+                .as_ref()
+                .map(|w| winch::SharedPlant::new(winch::Plant::new(w))),
             topology: topology.clone(),
             epoch,
             host_clock,
@@ -689,6 +708,12 @@ impl SimMachine {
     /// What the pair of `[[bus]]` number `index` (file order) carried.
     pub fn bus_stats(&self, index: usize) -> Option<&BusStats> {
         self.machine.bus_stats.get(index).map(|s| &**s)
+    }
+
+    /// The cable robot's world (`[winch]`), if the topology has one: where
+    /// the mass truly is, for a script's check.
+    pub fn winch(&self) -> Option<&winch::SharedPlant> {
+        self.machine.winch.as_ref()
     }
 
     /// The topology it was started from.
@@ -1246,6 +1271,17 @@ impl SimModule {
                 &spec.io.clone().unwrap_or_default(),
             );
             board.motor_mut().place(parked.carriage);
+            let spool = machine
+                .topology
+                .winch
+                .as_ref()
+                .and_then(|w| w.spools.iter().position(|s| s.module == spec.name));
+            if let (Some(plant), Some(index)) = (&machine.winch, spool) {
+                board.set_winch(winch::WinchMotor {
+                    plant: plant.clone(),
+                    index,
+                });
+            }
             if spec.bootloader.is_some() {
                 board.set_bootloader(self.boot_hook());
             }

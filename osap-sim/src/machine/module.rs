@@ -59,6 +59,9 @@ const WORD: Duration = Duration::from_micros((STEP_TICK_US * TICKS_PER_WORD) as 
 const STEP_LEAD: Duration = Duration::from_micros(8 * WORD.as_micros() + 1_000);
 /// How often a moving axis's step generator is topped up, local time.
 const STEP_REFILL: Duration = Duration::from_millis(1);
+/// How often a torque device commutes, local time: its firmware's timer
+/// (1 kHz: a tokio timer's tick, which shorter waits would round up to).
+const COMMUTATE: Duration = Duration::from_millis(1);
 
 /// The firmware's step generator, simulated: it asks the module for each
 /// word of 16 ticks (the same `fill_step_word` the firmware's step
@@ -174,6 +177,8 @@ impl StepClock {
                 p.publish(*next, None);
             }
             Self::deliver(input, m, now);
+            // A torque device's commutation timer (see osap_module::torque).
+            m.commutate(now);
             !m.stepper.is_standing()
         })
     }
@@ -204,7 +209,8 @@ impl StepClock {
                 None => m.board().motor().next_limit_edge(),
             };
             let refill = (!standing).then_some(now + STEP_REFILL);
-            [limit, refill].into_iter().flatten().min()
+            let commutate = m.stepper.is_torque().then_some(now + COMMUTATE);
+            [limit, refill, commutate].into_iter().flatten().min()
         })
     }
 }

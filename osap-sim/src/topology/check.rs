@@ -61,6 +61,7 @@ impl SimSpec {
         self.check_modules()?;
         self.check_links()?;
         self.check_switches()?;
+        self.check_winch().map_err(CheckError::file)?;
         self.check_graph().map_err(CheckError::file)
     }
 

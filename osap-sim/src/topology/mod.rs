@@ -20,6 +20,7 @@ mod error;
 pub(crate) mod graph;
 mod host;
 mod spindle;
+mod winch;
 
 pub use bed::{BedContact, BedSurface};
 pub use board::{
@@ -29,6 +30,7 @@ pub use board::{
 pub use error::SpecError;
 pub use host::{ClockSource, HostSpec};
 pub use spindle::SpindleSpec;
+pub use winch::{SpoolSpec, WinchSpec};
 
 use check::{invalid, item_line};
 use serde::{Deserialize, Serialize};
@@ -111,6 +113,10 @@ pub struct SimSpec {
     /// one shared pair (see `osap_core::bus`).
     #[serde(rename = "bus", default, skip_serializing_if = "Vec::is_empty")]
     pub buses: Vec<BusSpec>,
+    /// A cable robot's world, `[winch]` in a file: a point mass on cables
+    /// wound on steppers' spools (see [`WinchSpec`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub winch: Option<WinchSpec>,
 }
 
 fn default_bus_baud() -> u32 {
@@ -489,6 +495,7 @@ impl SimSpec {
             links: Vec::new(),
             switches: Vec::new(),
             buses: Vec::new(),
+            winch: None,
         }
     }
 

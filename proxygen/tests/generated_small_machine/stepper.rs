@@ -49,6 +49,8 @@ pub struct Stepper {
     loadcell_tare: FunctionHandle,
     loadcell_scale: FunctionHandle,
     loadcell_read: FunctionHandle,
+    set_torque: FunctionHandle,
+    torque_off: FunctionHandle,
 }
 
 impl Stepper {
@@ -238,6 +240,16 @@ impl Stepper {
             inputs: &[],
             outputs: &[("time", "u64"), ("force", "f32"), ("raw", "i32"), ("samples", "u32"), ("taring", "bool")],
         },
+        support::Signature {
+            function: "set_torque",
+            inputs: &[("fraction", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "torque_off",
+            inputs: &[],
+            outputs: &[],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -291,6 +303,8 @@ impl Stepper {
             loadcell_tare: support::function(manager, runtime, "loadcell_tare")?,
             loadcell_scale: support::function(manager, runtime, "loadcell_scale")?,
             loadcell_read: support::function(manager, runtime, "loadcell_read")?,
+            set_torque: support::function(manager, runtime, "set_torque")?,
+            torque_off: support::function(manager, runtime, "torque_off")?,
         })
     }
 
@@ -379,7 +393,7 @@ impl Stepper {
 
     /// `get_status`.
     ///
-    /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted), points queued, whether the motor is powered, and faults since boot.
+    /// The axis mode (0 disabled, 1 idle, 2 tracking, 3 backstop, 4 halted, 5 torque), points queued, whether the motor is powered, and faults since boot.
     ///
     /// - inputs: none
     /// - outputs: `mode: u8`, `queued: u16`, `enabled: bool`, `faults: u32`
@@ -1242,6 +1256,56 @@ impl Stepper {
     /// `set_input_mode` and `set_output_mode`.
     pub fn loadcell_read_ref(&self) -> &FnRef {
         self.loadcell_read.function()
+    }
+
+    /// `set_torque`.
+    ///
+    /// Drives the motor as a torque device at `fraction` of its holding torque (`-1..=1`; positive turns the way positive positions go), commuting from its shaft encoder (see `crate::torque`): the first call leaves position mode (the motor enabled, not halted, no stream; `Unsupported` on a board without an encoder or coil drive), later ones change the torque.
+    ///
+    /// - inputs: `fraction: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn set_torque(&self, fraction: f32) -> Result<(), CallError> {
+        let h = &self.set_torque;
+        let values = h.call(&[support::to_f32(fraction)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `set_torque`, for `push` and raw calls.
+    pub fn set_torque_handle(&self) -> &FunctionHandle {
+        &self.set_torque
+    }
+
+    /// `set_torque` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn set_torque_ref(&self) -> &FnRef {
+        self.set_torque.function()
+    }
+
+    /// `torque_off`.
+    ///
+    /// Ends torque mode: the motor holds the shaft where it stands, and a stream may start there.
+    ///
+    /// - inputs: none
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn torque_off(&self) -> Result<(), CallError> {
+        let h = &self.torque_off;
+        let values = h.call(&[]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `torque_off`, for `push` and raw calls.
+    pub fn torque_off_handle(&self) -> &FunctionHandle {
+        &self.torque_off
+    }
+
+    /// `torque_off` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn torque_off_ref(&self) -> &FnRef {
+        self.torque_off.function()
     }
 }
 
