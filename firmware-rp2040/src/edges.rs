@@ -16,30 +16,32 @@
 //! watcher stops for good (the interface has no way back to input) and
 //! `edge_count` answers `None` for it.
 //!
-//! **Cost (estimated from the code paths, not measured on silicon):** per
-//! edge, embassy-rp's IO_IRQ_BANK0 handler scans the 30 pins' status
-//! registers (about 500 cycles) and wakes the task; the executor's
-//! tail-chained interrupt polls it: a timer read, a critical section,
-//! clearing the pin's edge latch and re-enabling its interrupt (about 300
-//! cycles). About 800 cycles, 6.4 µs at 125 MHz. At a spindle's worst
-//! case, 24 000 rpm × 2 pulses a turn = 800 Hz, that is 5.1 ms a second,
-//! 0.5 % of the core. The step path cannot be starved by it: the PIO's
-//! FIFO holds 1.28 ms of ticks and is refilled with 640 µs to spare, and an
-//! edge delays a refill by at most 6.4 µs (26 µs if all four pins' edges
-//! land together), so the tick timing, clocked by the PIO, is untouched.
+//! **Cost:** per edge, embassy-rp's IO_IRQ_BANK0 handler scans the 30
+//! pins' status registers and wakes the task; the executor's tail-chained
+//! interrupt polls it: a timer read, a critical section, clearing the
+//! pin's edge latch and re-enabling its interrupt. Measured on the emulated
+//! chip (`emulator/edge-cost.mjs`, rp2040js's cycle counts, not silicon):
+//! 1 840 cycles a rising edge, 14.7 µs at 125 MHz (an estimate from the
+//! code paths had said 800). At a spindle's worst case, 24 000 rpm × 2
+//! pulses a turn = 800 Hz, that is 11.8 ms a second, 1.2 % of the core.
+//! The step path is not starved by it: the PIO's FIFO holds 1.28 ms of
+//! ticks and is refilled with 640 µs to spare, and an edge delays a refill
+//! by at most 14.7 µs (59 µs if all four pins' edges land together), so
+//! the tick timing, clocked by the PIO, is untouched.
 //!
 //! **Highest rate and stamp error:** re-arming clears the pin's edge
 //! latch, and the latch holds one edge, so edges closer together than the
-//! re-arm's latency merge into one. That latency is the ~6.4 µs above plus
+//! re-arm's latency merge into one. That latency is the ~15 µs above plus
 //! whatever holds the interrupt off: another P0 interrupt (USB, UART, PIO,
 //! timer; a few µs each) or a critical section (interrupts off; tens of
 //! µs, up to 50 µs while the step machine is restarted). So rising edges
-//! 60 µs or more apart count without loss. Sustained, the rate is bounded
-//! by what the step path can spare: 10 kHz on one pin takes 6.4 % of the
+//! 70 µs or more apart count without loss. Sustained, the rate is bounded
+//! by what the step path can spare: 10 kHz on one pin takes 15 % of the
 //! core, and a streaming axis's refills need about a third of it, so keep
 //! a tachometer at or under 10 kHz (12.5 times the 800 Hz above). Each
-//! edge's stamp is late by the same latency: on the emulated chip, reads
-//! over 10 ms were exact or up to 0.4 % off (one stamp ~40 µs late). A
+//! edge's stamp is late by the same latency: on the emulated chip, most
+//! reads over 10 ms were exact, some 0.4 to 0.8 % off (a stamp 40 to 80 µs
+//! late). A
 //! flash erase (~45 ms with interrupts off, only while the axis stands and
 //! a name, bus role or clock rate is saved) merges the edges within it:
 //! the read across it comes out low.

@@ -21,16 +21,17 @@
 //! **Cost (estimated from the code path, not measured on silicon):** the
 //! handler reads the time driver's counter (a READSYNC of TC2, under a
 //! microsecond at its 16 MHz clock), clears the flag and takes a critical
-//! section: about 2 µs at 120 MHz with entry and exit. At a spindle's worst
-//! case, 24 000 rpm × 2 pulses a turn = 800 Hz, that is 1.6 ms a second,
-//! 0.2 % of the core. It runs at [`EDGE_PRIORITY`] (0x20, the limit
+//! section: about 2 µs at 120 MHz with entry and exit (the RP2040's
+//! estimate came out 2.3 times low when measured in its emulator, so allow
+//! 5 µs). At a spindle's worst case, 24 000 rpm × 2 pulses a turn = 800
+//! Hz, that is at most 4 ms a second, 0.4 % of the core. It runs at [`EDGE_PRIORITY`] (0x20, the limit
 //! switch's), below the step tick interrupt (0x00), which preempts it and
 //! is never masked by its critical section (BASEPRI 0x20, [`crate::cs`]):
 //! an edge adds no jitter to a step. The flag latches one edge while its
 //! handler is pending or masked, so edges closer together than the
 //! longest critical section or same-priority handler (the time driver,
 //! the limit switch, the step task's refill) merge into one; sustained,
-//! 10 kHz takes 2 % of the core, so a tachometer at or under 10 kHz
+//! 10 kHz takes 2 to 5 % of the core, so a tachometer at or under 10 kHz
 //! (12.5 times the 800 Hz above) leaves the step path and the links their
 //! time. Each stamp is late by the same latency: under a µs when nothing
 //! holds it off. A flash write (NVMCTRL, only while the axis stands and a
