@@ -8,7 +8,9 @@
 # (proxygen/tests/generated_small_machine/, checked against a live
 # simulated scan by proxygen's small_machine.rs) to the firmware, unchanged, and runs
 # one control-point sequence through it on the emulated module and on a
-# simulated stepper: the step counts must be equal.
+# simulated stepper: the step counts must be equal. Another drives digital
+# pin 0 (GP10) with a square wave at 800 and 200 Hz and checks the speed
+# tach_read measures from the firmware's edge counts.
 #
 # The emulator runs at half pace, and the test's host clock with it
 # (OSAP_EMULATOR_SLOWDOWN=1 for real time; see tests/tests/emulator.rs).

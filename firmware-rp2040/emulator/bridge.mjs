@@ -13,6 +13,7 @@ import { TcpLink } from './tcp-link.mjs';
 import { ControlServer, gpioReport } from './control.mjs';
 import { EdgeCounter } from './edges.mjs';
 import { PinInputs } from './pins.mjs';
+import { SquareWave } from './square.mjs';
 import { parseUniqueId, DEFAULT_UNIQUE_ID } from './ssi.mjs';
 
 const USAGE = `usage: node bridge.mjs --elf <firmware.elf> [--usb <port>] [--uart0 <port>] [--control <port>]
@@ -183,6 +184,7 @@ async function main() {
 
   let runner = null;
   const inputs = new PinInputs();
+  const square = new SquareWave(inputs);
   const edges = new EdgeCounter(() => (runner ? runner.chip.nanos / 1000 : 0));
   const usbLink = opts.usb !== undefined ? new TcpLink('usb', { onData: (d) => toUsb(d), onConnect: () => dtr(true), onDisconnect: () => dtr(false), log: vlog }) : null;
   const uartLink = opts.uart0 !== undefined ? new TcpLink('uart0', { onData: (d) => toUart(d), log: vlog }) : null;
@@ -226,6 +228,7 @@ async function main() {
     chip.rp.uart[1].onByte = () => {};
     inputs.attach(chip.rp.gpio);
     edges.attach(chip.rp.gpio);
+    square.attach(chip.clock);
     return chip;
   };
 
@@ -280,6 +283,13 @@ async function main() {
           // emulated clock stands still while wall time runs on.
           behind_ms: runner.realtime ? runner.behindNowMs() : null,
         };
+      },
+      // A square wave on an input: {"pin":10,"period_us":1250} starts
+      // it, {} stops it; answers the pin, period and rising edges made.
+      square: (m) => {
+        const r = m.period_us === undefined || m.period_us === null ? square.stop() : square.start(Number(m.pin), Number(m.period_us));
+        runner.wake(); // its first edge is an alarm to run to
+        return { ...r, emulated_ns: runner.chip.nanos };
       },
       'count-stop': () => {
         const s = edges.snapshot();

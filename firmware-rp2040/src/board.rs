@@ -16,7 +16,7 @@
 //! | GP7   | MS1 microstep select                                       |
 //! | GP8   | MS2 microstep select                                       |
 //! | GP9   | MS3 microstep select                                       |
-//! | GP10-13 | digital I/O 0-3                                          |
+//! | GP10-13 | digital I/O 0-3; rising edges counted while inputs ([`crate::edges`]) |
 //! | GP14  | PWM output 0 (slice 7 A)                                   |
 //! | GP15  | PWM output 1 (slice 7 B)                                   |
 //! | GP26-28 | analog inputs 0-2 (ADC0-2)                               |
@@ -24,6 +24,7 @@
 use embassy_rp::adc::{self, Adc, Channel};
 use embassy_rp::gpio::{Flex, Level, Output, Pull};
 use embassy_rp::pwm::{self, Pwm};
+use osap_core::Instant;
 use osap_module::board::{IoHw, StepperHw};
 
 /// The stepper driver's enable and microstep pins.
@@ -111,6 +112,8 @@ impl IoHw for IoPins {
         if let Some(p) = self.digital.get_mut(usize::from(pin)) {
             p.set_level(Level::from(level));
             p.set_as_output();
+            // Its edges are its own from now on: it counts no more.
+            crate::edges::mark_output(usize::from(pin));
         }
     }
 
@@ -152,6 +155,12 @@ impl IoHw for IoPins {
         };
         // 12-bit result, scaled to the trait's 0..=65535 range.
         self.adc.blocking_read(ch).map_or(0, |v| v << 4)
+    }
+
+    fn edge_count(&mut self, pin: u8) -> Option<(u32, Instant)> {
+        // Counted by the pin's edge interrupt (crate::edges): every
+        // digital pin while it is an input.
+        crate::edges::count(usize::from(pin)).map(|(n, at)| (n, Instant::from_micros(at)))
     }
 
     fn hold_pulse(&mut self) {

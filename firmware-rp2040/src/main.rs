@@ -7,6 +7,7 @@
 //!
 //! | where                         | what                                  |
 //! |-------------------------------|---------------------------------------|
+//! | edge executor, `SWI_IRQ_2`, P0 | digital pins' rising edges ([`edges`]) |
 //! | step executor, `SWI_IRQ_1`, P1 | PIO step words, limit switch ([`steps`]) |
 //! | link executor, `SWI_IRQ_0`, P2 | USB and UART I/O, time stamps         |
 //! | thread mode                   | the OSAP runtime ([`runtime_task`])   |
@@ -22,6 +23,7 @@
 #![no_main]
 
 mod board;
+mod edges;
 mod name_store;
 mod rate_store;
 mod runtime_task;
@@ -35,7 +37,7 @@ use embassy_rp::flash::Flash;
 use embassy_rp::gpio::{Flex, Input, Level, Output, Pull};
 use embassy_rp::interrupt;
 use embassy_rp::interrupt::{InterruptExt, Priority};
-use embassy_rp::peripherals::{PIO0, UART0, USB};
+use embassy_rp::peripherals::{PIN_10, PIN_11, PIN_12, PIN_13, PIO0, UART0, USB};
 use embassy_rp::pio::{self, Pio};
 use embassy_rp::pwm::Pwm;
 use embassy_rp::uart::{self, BufferedUart};
@@ -88,8 +90,15 @@ bind_interrupts!(
     PIO0_IRQ_0 => pio::InterruptHandler<PIO0>;
 });
 
+static EDGE_EXECUTOR: InterruptExecutor = InterruptExecutor::new();
 static STEP_EXECUTOR: InterruptExecutor = InterruptExecutor::new();
 static LINK_EXECUTOR: InterruptExecutor = InterruptExecutor::new();
+
+#[interrupt]
+unsafe fn SWI_IRQ_2() {
+    // SAFETY: the executor was started on this interrupt in `main`.
+    unsafe { EDGE_EXECUTOR.on_interrupt() }
+}
 
 #[interrupt]
 unsafe fn SWI_IRQ_1() {
@@ -105,7 +114,6 @@ unsafe fn SWI_IRQ_0() {
 
 static USB_SHARED: LinkShared = LinkShared::new();
 static UART_SHARED: LinkShared = LinkShared::new();
-
 
 #[embassy_executor::main]
 async fn main(spawner: Spawner) {
@@ -137,6 +145,19 @@ async fn main(spawner: Spawner) {
             Output::new(p.PIN_9, Level::Low),
         ],
     });
+    // Second handles on the digital pins, only to await their edges
+    // (edges::edge_task); made first, so the I/O set's own configuration
+    // below (pull-downs) is what stays.
+    // SAFETY: the watchers only arm the pins' edge interrupts and never
+    // change their direction, pull or function; the I/O set owns those.
+    let watchers = unsafe {
+        [
+            Flex::new(PIN_10::steal()),
+            Flex::new(PIN_11::steal()),
+            Flex::new(PIN_12::steal()),
+            Flex::new(PIN_13::steal()),
+        ]
+    };
     static IO: StaticCell<IoPins> = StaticCell::new();
     let pwm_config = IoPins::pwm_start_config();
     let io = IO.init(IoPins {
@@ -197,6 +218,12 @@ async fn main(spawner: Spawner) {
     let driver_enable = Output::new(p.PIN_6, Level::Low);
 
     // The executors, highest first.
+    interrupt::SWI_IRQ_2.set_priority(Priority::P0);
+    let edge_spawner = EDGE_EXECUTOR.start(interrupt::SWI_IRQ_2);
+    for (index, watch) in watchers.into_iter().enumerate() {
+        edge_spawner.spawn(unwrap(edges::edge_task(index, watch)));
+    }
+
     interrupt::SWI_IRQ_1.set_priority(Priority::P1);
     let step_spawner = STEP_EXECUTOR.start(interrupt::SWI_IRQ_1);
     step_spawner.spawn(unwrap(steps::step_task(sm0)));
@@ -233,8 +260,8 @@ async fn main(spawner: Spawner) {
     })));
 }
 
-/// Every task is spawned once, into its own one-task pool, so spawning
-/// cannot fail.
+/// Every task is spawned into a pool sized for its spawns (one task, or
+/// one per digital pin), so spawning cannot fail.
 pub(crate) fn unwrap<T>(r: Result<T, embassy_executor::SpawnError>) -> T {
     match r {
         Ok(t) => t,

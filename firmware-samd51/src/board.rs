@@ -13,7 +13,7 @@
 //! | EN, active low | D4 / PB13 | D6 / PA18 |
 //! | LIMIT, pull-up, both edges stamped | D5 / PB14 (EXTINT14) | D9 / PA19 (EXTINT3) |
 //! | RS-485 driver enable (DE and /RE tied) | D6 / PB15 | D12 / PA22 |
-//! | digital I/O 0-3 | D7 / PB12, D10 / PA18, D11 / PA19, D12 / PA17 | MISO / PB22, MOSI / PB23, SCK / PA17, A4 / PA04 |
+//! | digital I/O 0-3, rising edges counted while inputs ([`crate::edges`]) | D7 / PB12 (EXTINT12), D10 / PA18 (EXTINT2), D11 / PA19 (EXTINT3), D12 / PA17 (EXTINT1) | MISO / PB22 (EXTINT6), MOSI / PB23 (EXTINT7), SCK / PA17 (EXTINT1), A4 / PA04 (EXTINT4) |
 //! | PWM 0, 1 (TCC0 WO0, WO1) | D9 / PA20, D8 / PA21 | D10 / PA20, D11 / PA21 |
 //! | analog 0-2 (ADC0) | A0 / PA02 (AIN0), A1 / PA05 (AIN5), A2 / PA06 (AIN6) | A0 / PA02 (AIN0), A1 / PA05 (AIN5), A2 / PB08 (AIN2) |
 //! | LED (on while USB is configured) | D13 / PA16 | D13 / PA23 |
@@ -23,6 +23,7 @@
 
 use atsamd_hal::gpio::{DynGroup, DynPin};
 use atsamd_hal::pac;
+use osap_core::Instant;
 use osap_module::board::{IoHw, StepperHw};
 
 /// A pin written and read through the PORT's set, clear and input
@@ -91,6 +92,16 @@ impl FastPin {
     /// The pin's level (its input buffer must be on).
     pub fn read(self) -> bool {
         self.port().in_().read().bits() & self.mask() != 0
+    }
+
+    /// Turns the pin's input buffer on, so [`read`](Self::read) sees its
+    /// level while a peripheral (the EIC) has the pin.
+    pub fn enable_input(self) {
+        if self.num < 32 {
+            self.port()
+                .pincfg(usize::from(self.num))
+                .modify(|_, w| w.inen().set_bit());
+        }
     }
 }
 
@@ -233,6 +244,8 @@ impl IoHw for IoPins {
             // what the pin drives.
             p.into_readable_output();
             fast.set(level);
+            // Off the EIC now: it counts no more.
+            crate::edges::mark_output(usize::from(pin));
         }
     }
 
@@ -284,6 +297,12 @@ impl IoHw for IoPins {
         while a.intflag().read().resrdy().bit_is_clear() {}
         // 12-bit result, scaled to the trait's 0..=65535 range.
         (a.result().read().result().bits() & 0x0FFF) << 4
+    }
+
+    fn edge_count(&mut self, pin: u8) -> Option<(u32, Instant)> {
+        // Counted by the pin's EXTINT interrupt (crate::edges): every
+        // digital pin while it is an input.
+        crate::edges::count(usize::from(pin)).map(|(n, at)| (n, Instant::from_micros(at)))
     }
 
     fn hold_pulse(&mut self) {
@@ -342,6 +361,15 @@ mod map {
     ];
     /// The limit switch's EXTINT line.
     pub(crate) const LIMIT_IRQ: Interrupt = Interrupt::EIC_EXTINT_14;
+    /// Digital I/O 0..3's EXTINT channels (PB12, PA18, PA19, PA17).
+    pub(crate) const DIGITAL_CHANNELS: [u8; 4] = [12, 2, 3, 1];
+    /// Their interrupt lines.
+    pub(crate) const DIGITAL_IRQS: [Interrupt; 4] = [
+        Interrupt::EIC_EXTINT_12,
+        Interrupt::EIC_EXTINT_2,
+        Interrupt::EIC_EXTINT_3,
+        Interrupt::EIC_EXTINT_1,
+    ];
 
     /// The Metro M4's pins by use.
     pub(crate) fn take(p: Pins) -> super::BoardPins {
@@ -381,6 +409,22 @@ mod map {
     fn EIC_EXTINT_14() {
         crate::steps::on_limit_interrupt();
     }
+    #[interrupt]
+    fn EIC_EXTINT_12() {
+        crate::edges::on_edge(0);
+    }
+    #[interrupt]
+    fn EIC_EXTINT_2() {
+        crate::edges::on_edge(1);
+    }
+    #[interrupt]
+    fn EIC_EXTINT_3() {
+        crate::edges::on_edge(2);
+    }
+    #[interrupt]
+    fn EIC_EXTINT_1() {
+        crate::edges::on_edge(3);
+    }
 }
 
 #[cfg(feature = "feather-m4")]
@@ -402,6 +446,15 @@ mod map {
     ];
     /// The limit switch's EXTINT line.
     pub(crate) const LIMIT_IRQ: Interrupt = Interrupt::EIC_EXTINT_3;
+    /// Digital I/O 0..3's EXTINT channels (PB22, PB23, PA17, PA04).
+    pub(crate) const DIGITAL_CHANNELS: [u8; 4] = [6, 7, 1, 4];
+    /// Their interrupt lines.
+    pub(crate) const DIGITAL_IRQS: [Interrupt; 4] = [
+        Interrupt::EIC_EXTINT_6,
+        Interrupt::EIC_EXTINT_7,
+        Interrupt::EIC_EXTINT_1,
+        Interrupt::EIC_EXTINT_4,
+    ];
 
     /// The Feather M4's pins by use.
     pub(crate) fn take(p: Pins) -> super::BoardPins {
@@ -441,9 +494,27 @@ mod map {
     fn EIC_EXTINT_3() {
         crate::steps::on_limit_interrupt();
     }
+    #[interrupt]
+    fn EIC_EXTINT_6() {
+        crate::edges::on_edge(0);
+    }
+    #[interrupt]
+    fn EIC_EXTINT_7() {
+        crate::edges::on_edge(1);
+    }
+    #[interrupt]
+    fn EIC_EXTINT_1() {
+        crate::edges::on_edge(2);
+    }
+    #[interrupt]
+    fn EIC_EXTINT_4() {
+        crate::edges::on_edge(3);
+    }
 }
 
-pub(crate) use map::{take, UartPads, UartSercom, LIMIT_IRQ, UART_IRQS};
+pub(crate) use map::{
+    take, UartPads, UartSercom, DIGITAL_CHANNELS, DIGITAL_IRQS, LIMIT_IRQ, UART_IRQS,
+};
 
 /// The UART, configured.
 pub(crate) type BoardUart = atsamd_hal::sercom::uart::Uart<

@@ -11,7 +11,7 @@
 //! | where | priority | what |
 //! |-------|----------|------|
 //! | TC0 interrupt | 0x00 | the 100 kHz step tick ([`steps`]), never masked |
-//! | TC2, EIC interrupts | 0x20 | time driver ([`time_driver`]), limit switch |
+//! | TC2, EIC interrupts | 0x20 | time driver ([`time_driver`]), limit switch, digital pins' edge counts ([`edges`]) |
 //! | step executor, `PDEC_MC0` | 0x20 | the step task: refills the tick's words |
 //! | USB, SERCOM interrupts | 0x40 | link I/O, receive time stamps |
 //! | link executor, `PDEC_OTHER` | 0x60 | the links' tasks |
@@ -39,6 +39,7 @@ compile_error!(
 mod board;
 mod clocks;
 mod cs;
+mod edges;
 mod name_store;
 mod rate_store;
 mod runtime_task;
@@ -117,7 +118,6 @@ fn PDEC_OTHER() {
 static USB_SHARED: LinkShared = LinkShared::new();
 static UART_SHARED: LinkShared = LinkShared::new();
 
-
 /// A pin as a push-pull output at `high`, for [`FastPin`] writes.
 fn output(mut pin: DynPin, high: bool) -> FastPin {
     let fast = FastPin::of(&pin);
@@ -195,8 +195,11 @@ async fn main(spawner: Spawner) {
     static IO: StaticCell<IoPins> = StaticCell::new();
     let mut digital = pins.digital;
     for d in &mut digital {
-        // Nothing connected is driven until a script writes it.
-        d.into_pull_down_input();
+        // Nothing connected is driven until a script writes it. Inputs
+        // through the EIC, which counts their rising edges (edges), with
+        // the input buffer on so they read as plain inputs too.
+        d.into_pull_down_interrupt();
+        FastPin::of(d).enable_input();
     }
     let io = IO.init(IoPins {
         digital,
@@ -224,7 +227,13 @@ async fn main(spawner: Spawner) {
     let Some(_) = clocks.eic(&gclk4) else {
         panic!("EIC clock in use");
     };
-    start_eic(&mut p.mclk, &p.eic, pins.limit_channel);
+    start_eic(
+        &mut p.mclk,
+        &p.eic,
+        pins.limit_channel,
+        &board::DIGITAL_CHANNELS,
+    );
+    edges::start(&mut core.NVIC);
     steps::start_limit(
         &mut core.NVIC,
         steps::Limit {
@@ -308,21 +317,25 @@ async fn main(spawner: Spawner) {
     })));
 }
 
-/// Enables the EIC with both-edge sensing on `channel` and its interrupt
-/// (the EIC's generic clock must be routed already).
-fn start_eic(mclk: &mut pac::Mclk, eic: &pac::Eic, channel: u8) {
+/// Enables the EIC with both-edge sensing on `both` (the limit switch) and
+/// rising-edge sensing on `rising` (the digital pins' edge counting), and
+/// their interrupts (the EIC's generic clock must be routed already).
+fn start_eic(mclk: &mut pac::Mclk, eic: &pac::Eic, both: u8, rising: &[u8]) {
     mclk.apbamask().modify(|_, w| w.eic_().set_bit());
     eic.ctrla().write(|w| w.swrst().set_bit());
     while eic.syncbusy().read().swrst().bit_is_set() {}
-    // Sense BOTH (3) in the channel's 4-bit field; CONFIG is writable
-    // only while the EIC is disabled.
-    let shift = 4 * u32::from(channel % 8);
-    // SAFETY: only the channel's SENSE field changes.
-    eic.config(usize::from(channel / 8))
-        .modify(|r, w| unsafe { w.bits(r.bits() & !(0xF << shift) | 3 << shift) });
-    // SAFETY: write-one-to-clear and -set registers, this channel's bit.
-    eic.intflag().write(|w| unsafe { w.bits(1 << channel) });
-    eic.intenset().write(|w| unsafe { w.bits(1 << channel) });
+    // SENSE is BOTH (3) or RISE (1) in the channel's 4-bit field; CONFIG
+    // is writable only while the EIC is disabled.
+    let senses = rising.iter().map(|&c| (c, 1u32)).chain([(both, 3u32)]);
+    for (channel, sense) in senses.filter(|&(c, _)| c < 16) {
+        let shift = 4 * u32::from(channel % 8);
+        // SAFETY: only the channel's SENSE field changes.
+        eic.config(usize::from(channel / 8))
+            .modify(|r, w| unsafe { w.bits(r.bits() & !(0xF << shift) | sense << shift) });
+        // SAFETY: write-one-to-clear and -set registers, this channel's bit.
+        eic.intflag().write(|w| unsafe { w.bits(1 << channel) });
+        eic.intenset().write(|w| unsafe { w.bits(1 << channel) });
+    }
     eic.ctrla().modify(|_, w| w.enable().set_bit());
     while eic.syncbusy().read().enable().bit_is_set() {}
 }
