@@ -71,7 +71,10 @@ impl Family {
             | F::pulse_at
             | F::analog_read
             | F::set_safe_pwm
-            | F::set_safe_digital => Family::Io,
+            | F::set_safe_digital
+            | F::level_point
+            | F::event_point
+            | F::level_read => Family::Io,
             F::get_position
             | F::get_status
             | F::get_counters
@@ -364,11 +367,16 @@ failures! {
                       board's pin numbers",
         BadValue => "a value out of range: a duty cycle is within 0..=1, a pulse at most \
                      10 s long, a scheduled start at most 60 s ahead",
-        Full => "every slot for scheduled pulses (16) is taken: wait for some to run, or \
-                 schedule less far ahead",
+        Full => "every slot for scheduled pulses (16), or a track's queue (64 level points \
+                 an output, 32 pin changes), is taken: wait for some to run, or schedule less \
+                 far ahead",
         NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
         HeaterOutput => "a heater drives that PWM output: set it through heater_target or \
                          heater_power, or move the heater to another output (heater_output)",
+        Late => "the point's time has already passed when it arrived: send level and event \
+                 points further ahead of their time",
+        OutOfOrder => "the point is stamped before (or, for a level, at) one already queued \
+                       for its output: send points in time order",
     }
 }
 
@@ -484,7 +492,8 @@ mod tests {
         assert_eq!(Refusal::from_code(Family::Boot, 11), Refusal::Other(11));
         assert_eq!(StepperError::from_code(0), None);
         assert_eq!(StepperError::from_code(12), None);
-        assert_eq!(IoError::from_code(6), None);
+        assert_eq!(IoError::from_code(6), Some(IoError::Late));
+        assert_eq!(IoError::from_code(8), None);
         assert_eq!(HeaterError::from_code(0), None);
         assert_eq!(HeaterError::from_code(10), None);
         assert_eq!(
@@ -502,7 +511,7 @@ mod tests {
         );
         assert_eq!(
             IoError::Full.to_string(),
-            "every slot for scheduled pulses is taken"
+            "every slot for scheduled pulses or track points is taken"
         );
         assert_eq!(
             BootError::Moving.to_string(),

@@ -636,6 +636,29 @@ pub struct Tool {
     /// Time to wait after switching the tool, milliseconds.
     #[serde(default)]
     pub settle_ms: u32,
+    /// A laser's power follows its speed along the path for every job
+    /// (`power = level × speed / feed`, as G-code `M4` asks per job):
+    /// constant energy per mm through accelerations and corners. Lasers
+    /// on a PWM output only; default false.
+    #[serde(default)]
+    pub dynamic: bool,
+    /// The `S` word that means full power (a laser's; Grbl's `$30`,
+    /// LightBurn's "S value max"); default [`DEFAULT_S_MAX`] for a laser.
+    #[serde(default)]
+    pub s_max: Option<f64>,
+}
+
+/// The `S` word of full laser power when a laser gives no `s_max`:
+/// Grbl's default `$30`.
+pub const DEFAULT_S_MAX: f64 = 1000.0;
+
+impl Tool {
+    /// Whether the machine streams this tool's level with the motion
+    /// (see `machine::levels`): a laser on a PWM output, switched and
+    /// powered at its place on the path without stopping.
+    pub fn streamed(&self) -> bool {
+        self.kind == ToolKind::Laser && matches!(self.output, Output::Pwm(_))
+    }
 }
 
 fn default_on_duty() -> f64 {

@@ -32,6 +32,7 @@ mod probing;
 mod safe;
 mod stop;
 mod tool;
+pub mod tool_track;
 
 use std::collections::BTreeMap;
 use std::future::Future;

@@ -183,7 +183,7 @@ impl Machine {
         self.check_running()?;
         {
             let mut m = lock_motion(&self.inner.motion);
-            m.planner.halt()?;
+            m.halt()?;
             m.planner.line(to, rate)?;
             m.mark_busy();
         }
@@ -219,7 +219,7 @@ impl Machine {
     pub(crate) async fn stop_motion(&self) -> Result<(), MachineError> {
         {
             let mut m = lock_motion(&self.inner.motion);
-            m.planner.halt()?;
+            m.halt()?;
             m.mark_busy();
         }
         let mut status = self.inner.status.clone();

@@ -49,6 +49,23 @@ impl Machine {
         s.ready_at = None;
     }
 
+    /// The streamed tool does `cmd` from the next segment queued on (from
+    /// where the queue ends), or at once if nothing is queued: a job's
+    /// tool command on the path (see [`super::tool_track`]).
+    pub fn tool_command(&self, cmd: super::tool_track::ToolCommand) {
+        let mut m = super::motion::lock(&self.inner.motion);
+        let mark = m.planner.stats().queued_total;
+        if let Some(t) = &mut m.tool {
+            t.command(mark, cmd);
+        }
+    }
+
+    /// Notes the level a job left tool `name` at.
+    pub(crate) fn note_tool_level(&self, name: &str, level: f64) {
+        let mut tools = self.inner.tools.lock().unwrap_or_else(|e| e.into_inner());
+        tools.entry(name.to_string()).or_default().level = level;
+    }
+
     /// The first tool of a kind (pen, spindle, laser), if any.
     pub fn tool_of_kind(&self, kind: crate::config::ToolKind) -> Option<Tool> {
         let name = self
@@ -79,7 +96,25 @@ impl Tool {
             });
         }
         let t = &self.machine.config().tools[&self.name];
+        let streamed = {
+            let mut m = super::motion::lock(&self.machine.inner.motion);
+            match &mut m.tool {
+                Some(track) if track.name == self.name => {
+                    track.set_now(level);
+                    true
+                }
+                _ => false,
+            }
+        };
+        // A streamed tool's level goes out with the next stamp, which the
+        // module applies a timer lead later.
+        let lead = if streamed {
+            Duration::from_micros(u64::from(super::LEAD_US))
+        } else {
+            Duration::ZERO
+        };
         match t.output {
+            _ if streamed => {}
             Output::Pwm(channel) => {
                 let duty = t.off_duty + level * (t.on_duty - t.off_duty);
                 let duty = duty as f32;
@@ -103,7 +138,7 @@ impl Tool {
             .unwrap_or_else(|e| e.into_inner());
         let s = tools.entry(self.name.clone()).or_default();
         s.level = level;
-        s.ready_at = Some(tokio::time::Instant::now() + settle);
+        s.ready_at = Some(tokio::time::Instant::now() + lead + settle);
         Ok(())
     }
 
