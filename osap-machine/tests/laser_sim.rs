@@ -217,7 +217,7 @@ fn the_engraving_runs_in_its_planned_time() {
         )
         .await
         .unwrap();
-        m.set_position(&start_position(&cfg)).unwrap();
+        m.set_position(start_position(&cfg)).unwrap();
         let t0 = tokio::time::Instant::now();
         m.run_program(&program, |_| {}).await.unwrap();
         let took = t0.elapsed().as_secs_f64();
