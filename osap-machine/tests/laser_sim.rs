@@ -242,3 +242,56 @@ fn the_engraving_runs_in_its_planned_time() {
         assert!(switches >= 30, "{switches} switches");
     });
 }
+
+/// A halt in the middle of a cut: the laser goes off with the stop and
+/// stays off, though the motion stream goes on afterwards (the points it
+/// had queued for the cut are dropped on the module and the stream's are
+/// off).
+#[test]
+fn a_halt_mid_cut_puts_the_laser_out_for_good() {
+    let cfg = laser();
+    let program = engraving(&cfg);
+    virtual_runtime().unwrap().block_on(async {
+        let m = Machine::simulate_with(
+            &cfg,
+            SimOptions {
+                time: TimeMode::Virtual,
+            },
+        )
+        .await
+        .unwrap();
+        m.set_position(start_position(&cfg)).unwrap();
+        m.start_recording().await.unwrap();
+        let t0 = m.now_us().await.unwrap();
+        let job = {
+            let (m, p) = (m.clone(), program.clone());
+            tokio::spawn(async move { m.run_program(&p, |_| {}).await })
+        };
+        // 3 s in: the frame is being cut.
+        tokio::time::sleep(std::time::Duration::from_secs(3)).await;
+        job.abort();
+        let halted_at = m.now_us().await.unwrap();
+        m.halt().await.unwrap();
+        let stopped_at = m.now_us().await.unwrap();
+        tokio::time::sleep(std::time::Duration::from_millis(500)).await;
+        let rec = m.take_recording(t0).await.unwrap();
+        m.stop().await.unwrap();
+        let readbacks = &rec.tool_readbacks[0].1;
+        let secs = |us: u64| (us - t0) as f64 * 1e-6;
+        let on_before = readbacks
+            .iter()
+            .filter(|(t, d)| *t < secs(halted_at) && *d > 0.1)
+            .count();
+        assert!(on_before > 500, "the laser was on for {on_before} readbacks");
+        let after: Vec<_> = readbacks
+            .iter()
+            .filter(|(t, _)| *t >= secs(stopped_at))
+            .collect();
+        assert!(after.len() > 400, "{} readbacks after the stop", after.len());
+        assert!(
+            after.iter().all(|(_, d)| *d == 0.0),
+            "lit after the stop: {:?}",
+            after.iter().find(|(_, d)| *d != 0.0)
+        );
+    });
+}
