@@ -200,10 +200,23 @@ fn an_engraving_s_power_follows_its_speed_through_every_corner() {
 }
 
 /// The switches cost the motion nothing: the job runs in the time it was
-/// planned to, with no stop per layer.
+/// planned to, with no stop per layer; and a laser with a settle time
+/// holds the path that long where it comes to rest at each switch, and
+/// not a timer lead more.
 #[test]
 fn the_engraving_runs_in_its_planned_time() {
-    let cfg = laser();
+    let plain = planned_and_run(laser());
+    assert!((29.0..32.0).contains(&plain), "{plain} s");
+    let mut settling = laser();
+    settling.tools.get_mut("laser").unwrap().settle_ms = 50;
+    let held = planned_and_run(settling);
+    // 40 switches, each now a stop where the path ends and a 50 ms hold.
+    assert!(held > plain + 40.0 * 0.05, "{held} s against {plain} s");
+}
+
+/// Runs the engraving on `cfg`: checks it took what was planned, and
+/// returns the planned seconds.
+fn planned_and_run(cfg: MachineFile) -> f64 {
     let program = engraving(&cfg);
     let planned = program
         .planned_seconds(&cfg, &start_position(&cfg))
@@ -239,8 +252,9 @@ fn the_engraving_runs_in_its_planned_time() {
             .iter()
             .filter(|(_, m)| matches!(m, Move::Tool(_)))
             .count();
-        assert!(switches >= 30, "{switches} switches");
+        assert_eq!(switches, 40);
     });
+    planned
 }
 
 /// A halt in the middle of a cut: the laser goes off with the stop and
@@ -282,12 +296,19 @@ fn a_halt_mid_cut_puts_the_laser_out_for_good() {
             .iter()
             .filter(|(t, d)| *t < secs(halted_at) && *d > 0.1)
             .count();
-        assert!(on_before > 500, "the laser was on for {on_before} readbacks");
+        assert!(
+            on_before > 500,
+            "the laser was on for {on_before} readbacks"
+        );
         let after: Vec<_> = readbacks
             .iter()
             .filter(|(t, _)| *t >= secs(stopped_at))
             .collect();
-        assert!(after.len() > 400, "{} readbacks after the stop", after.len());
+        assert!(
+            after.len() > 400,
+            "{} readbacks after the stop",
+            after.len()
+        );
         assert!(
             after.iter().all(|(_, d)| *d == 0.0),
             "lit after the stop: {:?}",

@@ -369,8 +369,17 @@ impl Program {
                 Move::Tool(l) => {
                     let Some((_, t)) = tool else { continue };
                     let want = tool_level(t, *l);
-                    // A streamed laser switches on the move: no stop.
+                    // A streamed tool switches where the path comes to
+                    // rest, or on the move: no stop, only a pen's settle
+                    // held where the path ends.
                     if t.streamed() {
+                        if (want - level).abs() > 1e-9 {
+                            level = want;
+                            if t.settle_ms > 0 {
+                                total +=
+                                    run_to(&mut planner, true)? + f64::from(t.settle_ms) * 1e-3;
+                            }
+                        }
                         continue;
                     }
                     if (want - level).abs() > 1e-9 {
@@ -507,12 +516,12 @@ impl Machine {
         let in_order = InOrder::start(self);
         let rapid = self.config().limits.velocity;
         let tool = job_tool(self.config()).map(|(name, _)| name.to_string());
-        // A streamed laser: its level and whether its power follows the
-        // speed, as the job's last tool command left them.
+        // A streamed laser or pen: its level and whether its power follows
+        // the speed, as the job's last tool command left them.
         let mut laser = tool
             .as_deref()
             .filter(|n| self.config().tools[*n].streamed())
-            .map(|n| Laser {
+            .map(|n| Streamed {
                 name: n.to_string(),
                 level: 0.0,
                 dynamic: false,
@@ -548,13 +557,18 @@ impl Machine {
                 Move::Tool(level) if laser.is_some() => {
                     let Some(l) = &mut laser else { continue };
                     let t = &self.config().tools[&l.name];
+                    let was = l.level;
                     l.level = tool_level(t, *level);
                     l.dynamic = tool_dynamic(t, *level);
                     // Standing still (a dwell next, or the job's end) the
-                    // laser takes it at once; a move that follows carries
+                    // tool takes it at once; a move that follows carries
                     // its own command from the same place.
                     self.tool_command(l.on_move(0.0));
                     self.note_tool_level(&l.name, l.level);
+                    // A pen settles where the path comes to rest.
+                    if t.settle_ms > 0 && (l.level - was).abs() > 1e-9 {
+                        self.hold_path(f64::from(t.settle_ms) * 1e-3).await?;
+                    }
                 }
                 Move::Tool(level) => {
                     let Some(name) = &tool else { continue };
@@ -634,8 +648,8 @@ impl Machine {
     }
 }
 
-/// A streamed laser as a job's tool commands leave it.
-struct Laser {
+/// A streamed laser or pen as a job's tool commands leave it.
+struct Streamed {
     /// Its key in `[tools]`.
     name: String,
     /// Its level, 0..=1.
@@ -644,7 +658,7 @@ struct Laser {
     dynamic: bool,
 }
 
-impl Laser {
+impl Streamed {
     /// What it does along a move at `feed` (units/s; 0 at rest).
     fn on_move(&self, feed: f64) -> ToolCommand {
         if self.level <= 0.0 {

@@ -199,6 +199,17 @@ impl Motion {
         self.planner.halt()
     }
 
+    /// A controlled stop of the planner that keeps the streamed tool as it
+    /// is (a move that replaces the queue: `goto_now`, homing's stops):
+    /// only the tool commands of the dropped moves go with them, so none
+    /// applies to the moves queued next.
+    pub fn halt_path(&mut self) -> Result<[f64; MAX_AXES], maxl::blocks::planner::PlanError> {
+        if let Some(t) = &mut self.tool {
+            t.drop_queued();
+        }
+        self.planner.halt()
+    }
+
     /// Replaces the planner (a fault's stop voids what was planned): the
     /// shaper starts afresh at rest at its position.
     pub fn replace_planner(&mut self, planner: Planner<MAX_AXES>) {

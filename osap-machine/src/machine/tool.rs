@@ -96,25 +96,15 @@ impl Tool {
             });
         }
         let t = &self.machine.config().tools[&self.name];
-        let streamed = {
-            let mut m = super::motion::lock(&self.machine.inner.motion);
-            match &mut m.tool {
-                Some(track) if track.name == self.name => {
-                    track.set_now(level);
-                    true
-                }
-                _ => false,
+        // A streamed tool's stream takes the level from its next point on;
+        // the write below sets it now (and drops the points its module had
+        // queued).
+        if let Some(track) = &mut super::motion::lock(&self.machine.inner.motion).tool {
+            if track.name == self.name {
+                track.set_now(level);
             }
-        };
-        // A streamed tool's level goes out with the next stamp, which the
-        // module applies a timer lead later.
-        let lead = if streamed {
-            Duration::from_micros(u64::from(super::LEAD_US))
-        } else {
-            Duration::ZERO
-        };
+        }
         match t.output {
-            _ if streamed => {}
             Output::Pwm(channel) => {
                 let duty = t.off_duty + level * (t.on_duty - t.off_duty);
                 let duty = duty as f32;
@@ -138,7 +128,7 @@ impl Tool {
             .unwrap_or_else(|e| e.into_inner());
         let s = tools.entry(self.name.clone()).or_default();
         s.level = level;
-        s.ready_at = Some(tokio::time::Instant::now() + lead + settle);
+        s.ready_at = Some(tokio::time::Instant::now() + settle);
         Ok(())
     }
 

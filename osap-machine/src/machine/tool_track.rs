@@ -148,6 +148,12 @@ impl ToolTrack {
         self.commands.push_back((0, cmd));
     }
 
+    /// Drops the commands queued for segments not yet run (the planner
+    /// dropped them: a new move replaces them); the one in force stays.
+    pub fn drop_queued(&mut self) {
+        self.commands.clear();
+    }
+
     /// Off from the next point on, and nothing queued (a stop).
     pub fn off(&mut self) {
         self.set_now(0.0);

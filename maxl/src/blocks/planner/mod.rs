@@ -145,6 +145,8 @@ pub struct Planner<const N: usize> {
     /// The latest segments begun: id, start (synchronized µs) and speed
     /// along the path there, at most [`BEGUN_KEPT`].
     begun: VecDeque<(u64, f64, f64)>,
+    /// When the path last came to rest (synchronized µs).
+    rest_since: Option<f64>,
     /// Speed- and direction-dependent acceleration limits, if any.
     model: Option<std::sync::Arc<dyn AccelModel<N>>>,
 }
@@ -191,6 +193,7 @@ impl<const N: usize> Planner<N> {
             next_id: 0,
             executed: 0,
             begun: VecDeque::with_capacity(BEGUN_KEPT),
+            rest_since: None,
             model: None,
         })
     }
@@ -447,6 +450,7 @@ impl<const N: usize> Planner<N> {
                 }
                 if self.queue.is_empty() {
                     self.fixed_entry = 0.0;
+                    self.rest_since = Some(epoch as f64 + t_end * 1e6);
                     return Ok(Kin::rest(self.rest));
                 }
                 self.begin(t_end);
@@ -615,6 +619,13 @@ impl<const N: usize> Planner<N> {
         // A segment's end is the next one's start: once.
         out.dedup_by(|later, earlier| (later.0 - earlier.0).abs() < 1e-6 && later.1 == earlier.1);
         out
+    }
+
+    /// When the path last came to rest, synchronized µs (fractional): the
+    /// end of the last segment run before the queue ran out; `None` before
+    /// any.
+    pub fn rest_since(&self) -> Option<f64> {
+        self.rest_since
     }
 
     /// The id of the segment running at the last sampled stamp (segments
