@@ -162,6 +162,32 @@ impl<V: Copy, const N: usize> LevelTrack<V, N> {
         self.queue.oldest()
     }
 
+    /// The next pending change, stamp and value: with [`since`](Self::since)
+    /// and the value in force, what a ramp between two changes needs.
+    pub fn next(&self) -> Option<(u64, V)> {
+        (self.queue.len > 0).then(|| self.queue.get(0))
+    }
+
+    /// The value in force at the latest `advance`.
+    pub fn current(&self) -> V {
+        self.current
+    }
+
+    /// The stamp of the change in force (`None` before the first, and
+    /// after [`clear_to`](Self::clear_to)).
+    pub fn since(&self) -> Option<u64> {
+        self.since
+    }
+
+    /// Drops every pending change and puts `value` in force with no stamp
+    /// (a stop): the next change starts afresh. Stamps before the latest
+    /// `now` are still refused as `Late`.
+    pub fn clear_to(&mut self, value: V) {
+        while self.queue.pop().is_some() {}
+        self.current = value;
+        self.since = None;
+    }
+
     /// Pending changes.
     pub fn pending(&self) -> usize {
         self.queue.len
@@ -228,6 +254,11 @@ impl<E: Copy, const N: usize> EventTrack<E, N> {
             late_us: self.now - time,
             event,
         })
+    }
+
+    /// Drops every pending event (a stop); the count fired stays.
+    pub fn clear(&mut self) {
+        while self.queue.pop().is_some() {}
     }
 
     /// Stamp of the next pending event (to arm a timer).

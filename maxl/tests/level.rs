@@ -124,3 +124,29 @@ fn errors_display() {
     assert!(s.contains("5"));
     assert!(!TimedPushError::Full.to_string().is_empty());
 }
+
+#[test]
+fn a_ramp_reads_its_ends_and_a_stop_clears_what_waits() {
+    let mut l: LevelTrack<f32, 4> = LevelTrack::new(0.0);
+    assert_eq!((l.since(), l.next()), (None, None));
+    l.push(100, 0.5).unwrap();
+    l.push(200, 1.0).unwrap();
+    assert_eq!(l.next(), Some((100, 0.5)));
+    assert_eq!(l.advance(150), 0.5);
+    assert_eq!((l.since(), l.next()), (Some(100), Some((200, 1.0))));
+    l.clear_to(0.25);
+    assert_eq!((l.since(), l.next(), l.pending()), (None, None, 0));
+    assert_eq!(l.advance(300), 0.25);
+    // The past stays closed after a stop.
+    assert_eq!(l.push(299, 1.0), Err(TimedPushError::Late { now: 300 }));
+    // A new change after a stop is not out of order against the old one.
+    l.push(300, 0.75).unwrap();
+    assert_eq!(l.advance(300), 0.75);
+
+    let mut e: EventTrack<u8, 2> = EventTrack::default();
+    e.push(10, 1).unwrap();
+    e.push(20, 2).unwrap();
+    assert_eq!(e.poll(10).map(|f| f.event), Some(1));
+    e.clear();
+    assert_eq!((e.pending(), e.poll(30), e.fired()), (0, None, 1));
+}

@@ -76,7 +76,10 @@ impl Family {
             | F::set_safe_pwm
             | F::set_safe_digital
             | F::tach_setup
-            | F::tach_read => Family::Io,
+            | F::tach_read
+            | F::level_point
+            | F::event_point
+            | F::level_read => Family::Io,
             F::get_position
             | F::get_status
             | F::get_counters
@@ -372,13 +375,15 @@ failures! {
                       board's pin numbers",
         BadValue => "a value out of range: a duty cycle is within 0..=1, a pulse at most \
                      10 s long, a scheduled start at most 60 s ahead",
-        Full => "every slot for scheduled pulses (16) is taken: wait for some to run, or \
-                 schedule less far ahead",
+        Full => "every slot for scheduled pulses (16) or track points is taken: wait for \
+                 some to run, or schedule less far ahead",
         NoHardware => "this firmware has no I/O hardware: use a board build with I/O",
         HeaterOutput => "a heater drives that PWM output: set it through heater_target or \
                          heater_power, or move the heater to another output (heater_output)",
         NoCounter => "no pulse counter on that pin, or no tachometer set up: tach_setup on a \
                       pin the board counts pulses on first",
+        Late => "the point's time had passed: send points further ahead",
+        OutOfOrder => "stamped before one queued for its output: send points in time order",
     }
 }
 
@@ -494,7 +499,8 @@ mod tests {
         assert_eq!(Refusal::from_code(Family::Boot, 11), Refusal::Other(11));
         assert_eq!(StepperError::from_code(0), None);
         assert_eq!(StepperError::from_code(14), None);
-        assert_eq!(IoError::from_code(7), None);
+        assert_eq!(IoError::from_code(7), Some(IoError::Late));
+        assert_eq!(IoError::from_code(9), None);
         assert_eq!(HeaterError::from_code(0), None);
         assert_eq!(HeaterError::from_code(10), None);
         assert_eq!(
@@ -512,7 +518,7 @@ mod tests {
         );
         assert_eq!(
             IoError::Full.to_string(),
-            "every slot for scheduled pulses is taken"
+            "every slot for scheduled pulses or track points is taken"
         );
         assert_eq!(
             BootError::Moving.to_string(),
@@ -602,11 +608,12 @@ mod tests {
         }
         // A scan reads every signature with its failure table (33 390 bytes
         // with the load cell's wiring checks; more with the tachometer's
-        // functions, the I/O family's NoCounter and the torque functions,
-        // whose `set_torque` carries the stepper table): a budget, so a
-        // table that grows by much is noticed.
+        // functions and NoCounter, the torque functions (`set_torque`
+        // carries the stepper table), and the level and event tracks'
+        // functions with the I/O family's two codes for them: 43 756): a
+        // budget, so a table that grows by much is noticed.
         assert!(
-            total < 39 * 1024,
+            total < 44 * 1024,
             "a scan reads {total} bytes of signatures"
         );
     }
@@ -661,7 +668,7 @@ mod tests {
         assert_eq!(failure("add_point", 0), None);
         assert_eq!(failure("add_point", 14), None);
         assert_eq!(failure("add_point", 99), None);
-        assert_eq!(failure("pulse", 7), None);
+        assert_eq!(failure("pulse", 9), None);
         // Not one of the module's functions: its codes are its own.
         assert_eq!(failure("add_pointx", 8), None);
         assert_eq!(failure("move_to", 8), None);

@@ -53,6 +53,9 @@
 //! | `tach_read` | — | `time: u64`, `rpm: f32` |
 //! | `set_torque` | `fraction: f32` | — |
 //! | `torque_off` | — | — |
+//! | `level_point` | `time: u64`, `channel: u8`, `before: f32`, `after: f32` | — |
+//! | `event_point` | `time: u64`, `pin: u8`, `level: bool` | — |
+//! | `level_read` | — | `time: u64`, `pwm0: f32`, `pwm1: f32`, `pins: u32` |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -90,6 +93,16 @@
 //! reports the shaft's real position, and every stop, `set_enable`,
 //! `torque_off` and the output watchdog end the torque with the motor
 //! holding where it stands.
+//!
+//! `level_point` and `event_point` queue tool outputs at synchronized
+//! times, on the motion's time base: a PWM duty ramped linearly between
+//! points (and stepped at a point where its two duties differ), and a pin
+//! going high or low. The module
+//! applies them on its own loop; every stop clears them before the safe
+//! values go out, and a direct `pwm_write` or `digital_write` drops the
+//! points queued for its output. `level_read`, as a pipe source on a
+//! timer, reports what the outputs actually drive, time-stamped (see
+//! [`crate::levels`]).
 //!
 //! The `heater_` functions configure and run up to two heaters, whose PID
 //! control and runaway protection run on the module (see
@@ -232,7 +245,9 @@ impl<B: Board> Module<B> {
     #[doc = fn_docs!(digital_write)]
     pub fn digital_write(&mut self, pin: u8, level: bool) -> Result<(), CallError> {
         let hw = self.board.io().ok_or(IoError::NoHardware)?;
-        Ok(self.io.digital_write(hw, pin, level)?)
+        self.io.digital_write(hw, pin, level)?;
+        self.tracks.clear_pin(pin);
+        Ok(())
     }
 
     #[doc = fn_docs!(digital_read)]
@@ -248,7 +263,9 @@ impl<B: Board> Module<B> {
         if self.heaters.drives(channel) {
             return Err(IoError::HeaterOutput.into());
         }
-        Ok(self.io.pwm_write(hw, channel, duty)?)
+        self.io.pwm_write(hw, channel, duty)?;
+        self.tracks.clear_channel(channel);
+        Ok(())
     }
 
     #[doc = fn_docs!(pulse)]
@@ -456,6 +473,49 @@ impl<B: Board> Module<B> {
     pub fn torque_off(&mut self) -> Result<(), CallError> {
         self.end_torque();
         Ok(())
+    }
+
+    #[doc = fn_docs!(level_point)]
+    pub fn level_point(
+        &mut self,
+        time: u64,
+        channel: u8,
+        before: f32,
+        after: f32,
+    ) -> Result<(), CallError> {
+        let now = self.system_now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        if self.heaters.drives(channel) {
+            return Err(IoError::HeaterOutput.into());
+        }
+        let time = SystemInstant::from_micros(time);
+        self.tracks
+            .level_point(hw, now, time, channel, before, after)?;
+        self.io.mark_pwm_output(channel);
+        Ok(())
+    }
+
+    #[doc = fn_docs!(event_point)]
+    pub fn event_point(&mut self, time: u64, pin: u8, level: bool) -> Result<(), CallError> {
+        let now = self.system_now();
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        let time = SystemInstant::from_micros(time);
+        self.tracks.event_point(hw, now, time, pin, level)?;
+        self.io.mark_digital_output(pin);
+        Ok(())
+    }
+
+    #[doc = fn_docs!(level_read)]
+    pub fn level_read(&mut self) -> Result<(u64, f32, f32, u32), CallError> {
+        let local = self.board.now();
+        let now = self.time.system_time(local);
+        let hw = self.board.io().ok_or(IoError::NoHardware)?;
+        // The tracks first catch up to the read's time, so what it reports
+        // is what they drive now (the loop's own updates may be due in the
+        // same pass, after this function's run).
+        self.tracks.poll(hw, local, now);
+        let ([pwm0, pwm1], pins) = crate::levels::applied(hw);
+        Ok((now.as_micros(), pwm0, pwm1, pins))
     }
 }
 
@@ -720,6 +780,26 @@ macro_rules! module_function_table {
             /// Ends torque mode: the motor holds the shaft where it stands, and a
             /// stream may start there. Safe to repeat, and in position mode.
             torque_off();
+            /// A point on PWM output `channel` (0 or 1) at synchronized `time`
+            /// (at most 60 s ahead): the duty ramps linearly from the point
+            /// before to `before` there and leaves at `after` (`0..=1`; a step
+            /// where they differ); 64 points wait an output. Points come in
+            /// time order: one stamped before now is `Late`, before (or at) one
+            /// queued `OutOfOrder`, past the queue `Full`. Refused for an output
+            /// a heater drives. Every stop and a `pwm_write` to the output drop
+            /// what waits (see [`crate::levels`]).
+            level_point(time: u64, channel: u8, before: f32, after: f32);
+            /// Digital pin `pin` goes to `level` at synchronized `time` (at most
+            /// 60 s ahead); 32 changes wait at once, in time order (`Late`,
+            /// `OutOfOrder`, `Full` as for `level_point`). Every stop and a
+            /// `digital_write` to the pin drop what waits.
+            event_point(time: u64, pin: u8, level: bool);
+            /// What the outputs drive now, as a pipe source's record of what a
+            /// tool did: the synchronized time of the read, the duty PWM outputs
+            /// 0 and 1 drive (`0..=1`), and the levels of digital pins 0 to 31
+            /// (bit `k` is pin `k`). The level and event tracks are brought up to
+            /// the read's time first.
+            level_read() -> (time: u64, pwm0: f32, pwm1: f32, pins: u32);
         }
     };
 }

@@ -45,9 +45,11 @@ pub enum IoError {
     /// No such pin, PWM output or analog input on this board.
     NoSuchPin = 1,
     /// A value out of range: a duty cycle outside `0..=1` or NaN, a pulse
-    /// longer than 10 s, or a start more than 60 s ahead.
+    /// longer than 10 s, or a start (or a track point) more than 60 s
+    /// ahead.
     BadValue = 2,
-    /// Every slot for scheduled pulses is taken.
+    /// Every slot for scheduled pulses is taken, or a level or event
+    /// track's queue is full (see [`crate::levels`]).
     Full = 3,
     /// The I/O hardware was never installed (a firmware without it).
     NoHardware = 4,
@@ -57,17 +59,26 @@ pub enum IoError {
     /// The board cannot count pulses on that pin, or no tachometer is set
     /// up (`tach_setup`; see [`crate::tach`]).
     NoCounter = 6,
+    /// A level or event point stamped before now: it would take effect
+    /// late (see [`crate::levels`]).
+    Late = 7,
+    /// A level or event point stamped before one already queued for its
+    /// output (or at the same time as a level point): send points in time
+    /// order.
+    OutOfOrder = 8,
 }
 
 impl IoError {
     /// Every I/O error, in code order.
-    pub const ALL: [IoError; 6] = [
+    pub const ALL: [IoError; 8] = [
         IoError::NoSuchPin,
         IoError::BadValue,
         IoError::Full,
         IoError::NoHardware,
         IoError::HeaterOutput,
         IoError::NoCounter,
+        IoError::Late,
+        IoError::OutOfOrder,
     ];
 
     /// The failure code.
@@ -87,10 +98,12 @@ impl core::fmt::Display for IoError {
         f.write_str(match self {
             IoError::NoSuchPin => "no such pin, PWM output or analog input on this board",
             IoError::BadValue => "a value out of range",
-            IoError::Full => "every slot for scheduled pulses is taken",
+            IoError::Full => "every slot for scheduled pulses or track points is taken",
             IoError::NoHardware => "the I/O hardware was never installed",
             IoError::HeaterOutput => "a heater drives that PWM output",
             IoError::NoCounter => "no pulse counter on that pin, or no tachometer set up",
+            IoError::Late => "the point's time has already passed",
+            IoError::OutOfOrder => "the point is stamped before one already queued",
         })
     }
 }
@@ -202,6 +215,18 @@ impl Io {
         self.digital_outputs |= bit(pin, MAX_SAFE_PINS);
         hw.write_digital(pin, level);
         Ok(())
+    }
+
+    /// Notes that `pin` is driven (an event track switches it), so a stop
+    /// drives it to its safe level.
+    pub fn mark_digital_output(&mut self, pin: u8) {
+        self.digital_outputs |= bit(pin, MAX_SAFE_PINS);
+    }
+
+    /// Notes that PWM output `channel` is driven (a level track drives
+    /// it), so a stop drives it to its safe duty.
+    pub fn mark_pwm_output(&mut self, channel: u8) {
+        self.pwm_outputs |= bit(channel, MAX_SAFE_PWM);
     }
 
     /// Reads `pin`'s level.

@@ -3,7 +3,8 @@
 //! The logic of osap-rs module firmware, shared by every board and by the
 //! simulator: a stepper axis that follows MAXL control points in
 //! synchronized time and makes step/direction ticks at 100 kHz, and an I/O
-//! set (digital pins, PWM, analog inputs, timed pulses) and up to two
+//! set (digital pins, PWM, analog inputs, timed pulses, and level and
+//! event tracks that change outputs at stamped times, [`levels`]) and up to two
 //! heaters with their own runaway protection ([`heater`]), all exposed as
 //! PIPES functions that a network scan finds ([`functions`]). A firmware
 //! crate supplies only board glue: links, the step generator's peripheral,
@@ -64,6 +65,7 @@ pub mod functions;
 pub mod heater;
 pub mod hot_start;
 pub mod io;
+pub mod levels;
 pub mod loadcell;
 pub mod ports;
 pub mod rate_store;
@@ -108,6 +110,8 @@ pub struct Module<B> {
     pub stepper: Stepper,
     /// The I/O set.
     pub io: Io,
+    /// The level and event tracks on the I/O set's outputs.
+    pub tracks: levels::Tracks,
     /// The heaters.
     pub heaters: Heaters,
     /// The load cell.
@@ -159,6 +163,7 @@ impl<B: Board> Module<B> {
         Module {
             stepper: Stepper::new(),
             io: Io::new(),
+            tracks: levels::Tracks::new(),
             heaters: Heaters::new(),
             loadcell: LoadCell::new(),
             tach: Tach::new(),
@@ -327,6 +332,8 @@ impl<B: Board> Module<B> {
     /// heater off (see [`heater`]; nothing on a board without I/O), and
     /// ends a torque request: the motor holds where it stands ([`torque`]).
     pub fn apply_safe_outputs(&mut self) {
+        // Before the safe values: nothing queued may switch a tool back on.
+        self.tracks.clear();
         self.end_torque();
         if let Some(hw) = self.board.io() {
             self.io.apply_safe(hw);
@@ -386,11 +393,13 @@ impl<B: Board> Module<B> {
         }
     }
 
-    /// Starts and ends timed pulses at local time `now` (synchronized
-    /// `system`): the runtime's loop calls it through the pulse timer port.
+    /// Starts and ends timed pulses and applies the level and event
+    /// tracks' points due at local time `now` (synchronized `system`): the
+    /// runtime's loop calls it through the pulse timer port.
     pub fn poll_io(&mut self, now: Instant, system: SystemInstant) {
         if let Some(hw) = self.board.io() {
             self.io.poll(hw, now, system);
+            self.tracks.poll(hw, now, system);
         }
     }
 
@@ -441,7 +450,8 @@ impl<B: Board> Module<B> {
 
     /// When [`poll_io`](Self::poll_io) next has work, local time.
     pub fn io_wake_at(&self, now: Instant, system: SystemInstant) -> Option<Instant> {
-        self.io.wake_at(now, system)
+        let tracks = self.tracks.wake_at(now, system);
+        self.io.wake_at(now, system).into_iter().chain(tracks).min()
     }
 
     /// Reboots into the bootloader if `enter_bootloader` armed it and it is

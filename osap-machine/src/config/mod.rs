@@ -643,6 +643,30 @@ pub struct Tool {
     /// stall faults the machine (see [`Tach`]).
     #[serde(default)]
     pub tach: Option<Tach>,
+    /// A laser's power follows its speed along the path for every job
+    /// (`power = level × speed / feed`, as G-code `M4` asks per job):
+    /// constant energy per mm through accelerations and corners. Lasers
+    /// on a PWM output only; default false.
+    #[serde(default)]
+    pub dynamic: bool,
+    /// The `S` word that means full power (a laser's; Grbl's `$30`,
+    /// LightBurn's "S value max"); default [`DEFAULT_S_MAX`] for a laser.
+    #[serde(default)]
+    pub s_max: Option<f64>,
+}
+
+/// The `S` word of full laser power when a laser gives no `s_max`:
+/// Grbl's default `$30`.
+pub const DEFAULT_S_MAX: f64 = 1000.0;
+
+impl Tool {
+    /// Whether the machine streams this tool's level with the motion
+    /// (see `machine::tool_track`): a laser on a PWM output, switched and
+    /// powered at its place on the path without stopping (a `settle_ms`,
+    /// if it has one, held where the path comes to rest).
+    pub fn streamed(&self) -> bool {
+        self.kind == ToolKind::Laser && matches!(self.output, Output::Pwm(_))
+    }
 }
 
 fn default_on_duty() -> f64 {

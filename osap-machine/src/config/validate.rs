@@ -707,6 +707,21 @@ impl MachineFile {
                 }
                 positive(&format!("{at}.max_rpm"), rpm, "rpm")?;
             }
+            if tool.dynamic && !tool.streamed() {
+                return Err(invalid(
+                    format!("{at}.dynamic"),
+                    "dynamic power is for a laser on a PWM output; remove it, or set kind = \"laser\" and output = { pwm = N }",
+                ));
+            }
+            if let Some(s) = tool.s_max {
+                if tool.kind != ToolKind::Laser {
+                    return Err(invalid(
+                        format!("{at}.s_max"),
+                        "s_max is for lasers only (a spindle's S is rpm: give max_rpm); remove it or set kind = \"laser\"",
+                    ));
+                }
+                positive(&format!("{at}.s_max"), s, "(the S word at full power)")?;
+            }
         }
         Ok(())
     }

@@ -27,6 +27,9 @@ pub(super) struct State {
     /// Feed rate, mm/s.
     feed: Option<f64>,
     speed: Option<f64>,
+    /// The tool is on (`M3`, `M4`), and whether its power follows the
+    /// speed (`M4`); `None` after `M5`.
+    tool_on: Option<bool>,
     /// The extruder's position, mm of filament (machine).
     e: f64,
     /// `E` words are relative (M83, or G91 until an M82).
@@ -52,6 +55,7 @@ impl State {
             machine_coordinates: false,
             feed: None,
             speed: None,
+            tool_on: None,
             e: 0.0,
             e_relative: false,
             e_offset: 0.0,
@@ -391,17 +395,23 @@ pub(super) fn run(
             state.e_offset = 0.0;
             Ok(())
         }
-        ('M', 3) if known => {
+        ('M', 3 | 4) if known => {
             if let Some(s) = find(words, 'S') {
                 state.speed = Some(s.value);
             }
+            let dynamic = code.major == 4;
+            state.tool_on = Some(dynamic);
             job.steps.push(Step {
                 line,
-                action: Action::ToolOn { speed: state.speed },
+                action: Action::ToolOn {
+                    speed: state.speed,
+                    dynamic,
+                },
             });
             Ok(())
         }
         ('M', 5) if known => {
+            state.tool_on = None;
             job.steps.push(Step {
                 line,
                 action: Action::ToolOff,
@@ -440,7 +450,7 @@ pub(super) fn continuation(
     for w in words {
         match w.letter {
             'F' | 'X' | 'Y' | 'Z' | 'I' | 'J' | 'R' | 'E' => {}
-            'S' => state.speed = Some(w.value),
+            'S' => set_speed(state, job, line, w.value),
             other => {
                 let message = format!("{other}{} is not supported; skipped (said once)", w.value);
                 warn_once(state, job, line, &other.to_string(), message);
@@ -466,6 +476,7 @@ pub(super) fn continuation(
 /// Sets the feed rate and spindle speed a block's bare words give.
 pub(super) fn feed_and_speed(
     state: &mut State,
+    job: &mut Job,
     line: usize,
     words: &[Word],
 ) -> Result<(), GcodeError> {
@@ -473,9 +484,26 @@ pub(super) fn feed_and_speed(
         set_feed(state, line, f)?;
     }
     if let Some(s) = find(words, 'S') {
-        state.speed = Some(s.value);
+        set_speed(state, job, line, s.value);
     }
     Ok(())
+}
+
+/// A new `S`: with the tool on, the tool takes it from here (a laser's
+/// power changing between two moves of a cut, as LightBurn writes `G1 X..
+/// S..`), as Grbl applies an `S` word at once.
+fn set_speed(state: &mut State, job: &mut Job, line: usize, value: f64) {
+    let changed = state.speed != Some(value);
+    state.speed = Some(value);
+    if let (true, Some(dynamic)) = (changed, state.tool_on) {
+        job.steps.push(Step {
+            line,
+            action: Action::ToolOn {
+                speed: state.speed,
+                dynamic,
+            },
+        });
+    }
 }
 
 fn set_feed(state: &mut State, line: usize, f: &Word) -> Result<(), GcodeError> {
@@ -497,6 +525,10 @@ fn motion(
 ) -> Result<(), GcodeError> {
     if let Some(f) = find(words, 'F') {
         set_feed(state, line, f)?;
+    }
+    // A laser's power on the move's own line applies to the move.
+    if let Some(s) = find(words, 'S') {
+        set_speed(state, job, line, s.value);
     }
     let unit = state.unit();
     if state.machine_coordinates && (n > 1 || state.relative) {

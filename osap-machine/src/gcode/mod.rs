@@ -21,6 +21,8 @@
 //! | `G90`, `G91` | absolute, relative distances |
 //! | `G92`, `G92.1` | set the current position to the given coordinates; clear that |
 //! | `M3 S`, `M5` | spindle (or laser, pen) on at speed `S`, off |
+//! | `M4 S` | laser on with dynamic power: its power follows the speed along the path |
+//! | `S` with the tool on | the tool takes the new speed or power from here (`G1 X10 S500`) |
 //! | `M2`, `M30` | end of program |
 //! | `F` | feed rate, units per minute |
 //!
@@ -95,11 +97,13 @@ pub enum Action {
         /// How long, s.
         seconds: f64,
     },
-    /// The spindle (or laser, or pen) on at `speed` (`M3`; the last `S`,
-    /// if any was given).
+    /// The spindle (or laser, or pen) on at `speed` (`M3`, `M4`; the last
+    /// `S`, if any was given; again at each new `S` while on).
     ToolOn {
         /// The speed or power given by `S`, if any.
         speed: Option<f64>,
+        /// `M4`: a laser's power follows its speed along the path.
+        dynamic: bool,
     },
     /// The tool off (`M5`).
     ToolOff,
@@ -366,7 +370,7 @@ pub fn read_with(text: &str, options: &ReadOptions) -> Result<Job, GcodeError> {
         )?;
         // A block's own F and S apply before its commands (`S10000 M3`,
         // `F600 G1 X10`), as RS274/NGC orders a block's execution.
-        interp::feed_and_speed(&mut state, line, &bare)?;
+        interp::feed_and_speed(&mut state, &mut job, line, &bare)?;
         let mut commands: Vec<interp::Command> = Vec::new();
         for code in &block.codes {
             let (letter, number, args) = match code {

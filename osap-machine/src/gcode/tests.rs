@@ -210,7 +210,8 @@ fn spindle_dwell_and_end() {
         a,
         vec![
             Action::ToolOn {
-                speed: Some(12_000.0)
+                speed: Some(12_000.0),
+                dynamic: false,
             },
             Action::Dwell { seconds: 1.5 },
             Action::ToolOff,
@@ -469,7 +470,8 @@ fn a_linuxcnc_cam_file_in_inches_reads_with_modal_r_arcs_and_g64() {
     assert_eq!(
         a[0],
         Action::ToolOn {
-            speed: Some(10_000.0)
+            speed: Some(10_000.0),
+            dynamic: false,
         }
     );
     // z = +1 in above the work; x and y stay where the machine is.
@@ -519,4 +521,45 @@ fn a_linuxcnc_cam_file_in_inches_reads_with_modal_r_arcs_and_g64() {
         );
     }
     assert_eq!(a.last(), Some(&Action::End));
+}
+
+#[test]
+fn m4_is_dynamic_and_an_s_while_on_changes_the_power_in_place() {
+    let a = actions("M4 S800\nG1 X10 F600\nG1 X20 S400\nX30 S400\nS200\nM5\nS900\nG1 X40\n");
+    assert_eq!(
+        a,
+        vec![
+            Action::ToolOn {
+                speed: Some(800.0),
+                dynamic: true,
+            },
+            Action::Line {
+                to: [10.0, 0.0, 0.0],
+                feed: 10.0
+            },
+            Action::ToolOn {
+                speed: Some(400.0),
+                dynamic: true,
+            },
+            Action::Line {
+                to: [20.0, 0.0, 0.0],
+                feed: 10.0
+            },
+            // The same S again changes nothing.
+            Action::Line {
+                to: [30.0, 0.0, 0.0],
+                feed: 10.0
+            },
+            Action::ToolOn {
+                speed: Some(200.0),
+                dynamic: true,
+            },
+            Action::ToolOff,
+            // An S with the tool off only sets the next M3's speed.
+            Action::Line {
+                to: [40.0, 0.0, 0.0],
+                feed: 10.0
+            },
+        ]
+    );
 }

@@ -115,7 +115,14 @@ pub fn from_gcode_with(
                 }
             }
             Action::Dwell { seconds } => Move::Dwell(seconds),
-            Action::ToolOn { speed } => Move::Tool(Some(match speed {
+            Action::ToolOn {
+                speed,
+                dynamic: true,
+            } => Move::Tool(Some(ToolLevel::Dynamic(speed))),
+            Action::ToolOn {
+                speed,
+                dynamic: false,
+            } => Move::Tool(Some(match speed {
                 Some(s) => ToolLevel::Speed(s),
                 None => ToolLevel::Full,
             })),

@@ -8,6 +8,7 @@ use maxl::blocks::planner::{Arc as PlanArc, Planner, VectorLimits};
 
 use crate::config::Dialect;
 use crate::config::{MachineFile, ToolKind};
+use crate::machine::tool_track::ToolCommand;
 use crate::machine::{Machine, MachineError, MAX_AXES};
 use crate::svg::Drawing;
 
@@ -77,8 +78,12 @@ pub enum Move {
 pub enum ToolLevel {
     /// Full on.
     Full,
-    /// A speed from the job (rpm, or power for a laser without `max_rpm`).
+    /// A speed from the job (rpm for a spindle with `max_rpm`, power for a
+    /// laser: of its `s_max`).
     Speed(f64),
+    /// `M4`: a laser's power at `S` (of its `s_max`; full without one),
+    /// following its speed along the path (`power × speed / feed`).
+    Dynamic(Option<f64>),
 }
 
 /// A job, ready to run: moves with where they came from.
@@ -305,7 +310,8 @@ impl Program {
 
     /// How long the moves take as planned, s: motion, dwells, tool settle
     /// times, and the restart after each stop at rest (a timer lead plus
-    /// two intervals).
+    /// two intervals). A streamed laser's switches cost nothing: they ride
+    /// on the motion.
     pub fn planned_seconds(&self, cfg: &MachineFile, start: &[f64]) -> Result<f64, MachineError> {
         let mut planner = machine_planner(cfg)?;
         planner.set_position(pad(start))?;
@@ -363,6 +369,19 @@ impl Program {
                 Move::Tool(l) => {
                     let Some((_, t)) = tool else { continue };
                     let want = tool_level(t, *l);
+                    // A streamed tool switches where the path comes to
+                    // rest, or on the move: no stop, only a pen's settle
+                    // held where the path ends.
+                    if t.streamed() {
+                        if (want - level).abs() > 1e-9 {
+                            level = want;
+                            if t.settle_ms > 0 {
+                                total +=
+                                    run_to(&mut planner, true)? + f64::from(t.settle_ms) * 1e-3;
+                            }
+                        }
+                        continue;
+                    }
                     if (want - level).abs() > 1e-9 {
                         level = want;
                         total +=
@@ -417,15 +436,33 @@ fn job_tool(cfg: &MachineFile) -> Option<(&str, &crate::config::Tool)> {
 }
 
 /// The level (0..=1) a job's tool command asks of `tool`: a speed is
-/// scaled by `max_rpm` when the tool has one.
+/// scaled by `max_rpm` when the tool has one, a laser's power by its
+/// `s_max`.
 fn tool_level(tool: &crate::config::Tool, level: Option<ToolLevel>) -> f64 {
+    let power = |s: f64| {
+        let max = tool.s_max.unwrap_or(crate::config::DEFAULT_S_MAX);
+        (s / max).clamp(0.0, 1.0)
+    };
     match level {
         None => 0.0,
-        Some(ToolLevel::Full) => 1.0,
-        Some(ToolLevel::Speed(s)) => match tool.max_rpm {
+        Some(ToolLevel::Full | ToolLevel::Dynamic(None)) => 1.0,
+        Some(ToolLevel::Speed(s) | ToolLevel::Dynamic(Some(s))) if tool.kind == ToolKind::Laser => {
+            power(s)
+        }
+        Some(ToolLevel::Speed(s) | ToolLevel::Dynamic(Some(s))) => match tool.max_rpm {
             Some(max) if max > 0.0 => (s / max).clamp(0.0, 1.0),
             _ => 1.0,
         },
+    }
+}
+
+/// Whether a job's tool command asks `tool`'s power to follow its speed:
+/// `M4`, or any on command for a laser with `dynamic = true`.
+fn tool_dynamic(tool: &crate::config::Tool, level: Option<ToolLevel>) -> bool {
+    match level {
+        None => false,
+        Some(ToolLevel::Dynamic(_)) => true,
+        Some(_) => tool.dynamic,
     }
 }
 
@@ -479,18 +516,60 @@ impl Machine {
         let in_order = InOrder::start(self);
         let rapid = self.config().limits.velocity;
         let tool = job_tool(self.config()).map(|(name, _)| name.to_string());
+        // A streamed laser or pen: its level and whether its power follows
+        // the speed, as the job's last tool command left them.
+        let mut laser = tool
+            .as_deref()
+            .filter(|n| self.config().tools[*n].streamed())
+            .map(|n| Streamed {
+                name: n.to_string(),
+                level: 0.0,
+                dynamic: false,
+            });
         let total = program.moves.len();
         for (i, (line, m)) in program.moves.iter().enumerate() {
             match m {
-                Move::Rapid(p) => self.goto_via_queue(p, rapid).await?,
-                Move::Line(p, f) => self.goto_via_queue(p, *f).await?,
+                Move::Rapid(p) => {
+                    // Rapids are travel: a laser is off along them.
+                    if laser.is_some() {
+                        self.tool_command(ToolCommand::OFF);
+                    }
+                    self.goto_via_queue(p, rapid).await?
+                }
+                Move::Line(p, f) => {
+                    if let Some(l) = &laser {
+                        self.tool_command(l.on_move(*f));
+                    }
+                    self.goto_via_queue(p, *f).await?
+                }
                 Move::Arc {
                     to,
                     center,
                     clockwise,
                     feed,
-                } => self.arc(to, *center, *clockwise, *feed).await?,
+                } => {
+                    if let Some(l) = &laser {
+                        self.tool_command(l.on_move(*feed));
+                    }
+                    self.arc(to, *center, *clockwise, *feed).await?
+                }
                 Move::Dwell(s) => self.dwell(*s).await?,
+                Move::Tool(level) if laser.is_some() => {
+                    let Some(l) = &mut laser else { continue };
+                    let t = &self.config().tools[&l.name];
+                    let was = l.level;
+                    l.level = tool_level(t, *level);
+                    l.dynamic = tool_dynamic(t, *level);
+                    // Standing still (a dwell next, or the job's end) the
+                    // tool takes it at once; a move that follows carries
+                    // its own command from the same place.
+                    self.tool_command(l.on_move(0.0));
+                    self.note_tool_level(&l.name, l.level);
+                    // A pen settles where the path comes to rest.
+                    if t.settle_ms > 0 && (l.level - was).abs() > 1e-9 {
+                        self.hold_path(f64::from(t.settle_ms) * 1e-3).await?;
+                    }
+                }
                 Move::Tool(level) => {
                     let Some(name) = &tool else { continue };
                     let t = self.tool(name)?;
@@ -566,6 +645,31 @@ impl Machine {
             self.heater(name)?;
         }
         Ok(())
+    }
+}
+
+/// A streamed laser or pen as a job's tool commands leave it.
+struct Streamed {
+    /// Its key in `[tools]`.
+    name: String,
+    /// Its level, 0..=1.
+    level: f64,
+    /// Its power follows the speed.
+    dynamic: bool,
+}
+
+impl Streamed {
+    /// What it does along a move at `feed` (units/s; 0 at rest).
+    fn on_move(&self, feed: f64) -> ToolCommand {
+        if self.level <= 0.0 {
+            return ToolCommand::OFF;
+        }
+        ToolCommand {
+            level: self.level,
+            dynamic: self.dynamic,
+            // Only dynamic power depends on the feed.
+            feed: if self.dynamic { feed } else { 0.0 },
+        }
     }
 }
 

@@ -95,7 +95,7 @@ impl Machine {
     pub(super) fn fault(&self, reason: String) -> bool {
         {
             let mut m = lock_motion(&self.inner.motion);
-            let _ = m.planner.halt();
+            let _ = m.halt();
             m.mark_busy();
         }
         if matches!(*self.inner.state.borrow(), MachineState::Faulted(_)) {

@@ -33,6 +33,7 @@ mod safe;
 pub mod spindle;
 mod stop;
 mod tool;
+pub mod tool_track;
 
 use std::collections::BTreeMap;
 use std::future::Future;

@@ -19,7 +19,9 @@ use tokio::sync::broadcast;
 use super::error::{fault_reason_in, refusal_reason};
 use super::events::{FaultKind, MachineEvent};
 use super::MachineError;
-use crate::network::modfn::{get_counters, get_fault, get_position, get_status, read_limit};
+use crate::network::modfn::{
+    get_counters, get_fault, get_position, get_status, level_read, read_limit,
+};
 
 /// Failure code of a fault monitor given a fault code this host does not
 /// know (a newer firmware's): the report is refused, not misread.
@@ -58,6 +60,9 @@ pub struct Reports {
     /// Per motor index: stepped positions (synchronized µs, motor units),
     /// while recording.
     pub positions: Option<Vec<Vec<(u64, f64)>>>,
+    /// The streamed tool's output as its module drives it (synchronized
+    /// µs, PWM duty), while recording.
+    pub applied: Option<Vec<(u64, f64)>>,
     /// Per module key: the synchronized time spans (µs, both ends
     /// included) of the machine's own latest `halt`s of it, oldest first
     /// (at most [`OWN_HALTS_KEPT`]). A `Halted` fault stamped within one is
@@ -276,6 +281,28 @@ pub fn position(
                     if list.last().is_none_or(|l| l.0 < p.time) {
                         list.push((p.time, f64::from(p.position)));
                     }
+                }
+            }
+            Ok::<(), HostFnError>(())
+        },
+    )?)
+}
+
+/// `machine.applied.<tool>(time, pwm0, pwm1, pins)`, fed by the tool
+/// module's `level_read` (on change): the duty its PWM output `channel`
+/// drives, while recording.
+pub fn applied(
+    tool: &str,
+    channel: u8,
+    reports: SharedReports,
+) -> Result<HostFunction, MachineError> {
+    Ok(HostFunction::typed(
+        &format!("machine.applied.{tool}"),
+        move |r: level_read::Outputs| {
+            if let Some(list) = &mut lock(&reports).applied {
+                let duty = if channel == 0 { r.pwm0 } else { r.pwm1 };
+                if list.last().is_none_or(|l| l.0 < r.time) {
+                    list.push((r.time, f64::from(duty)));
                 }
             }
             Ok::<(), HostFnError>(())

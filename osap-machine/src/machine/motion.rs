@@ -18,6 +18,7 @@ use pipes_core::types::Type;
 use tokio::sync::watch;
 
 use super::drive::{Drive, MAX_AXES};
+use super::tool_track::{LevelPoint, ToolTrack};
 use super::MachineError;
 use crate::config::{AxisKind, MachineFile, ProfileKind, DEFAULT_CORNER_VELOCITY};
 
@@ -70,6 +71,9 @@ pub struct Motion {
     pub error: Option<String>,
     /// Added to the planned position at each stamp, while set.
     pub excitation: Option<Excitation>,
+    /// The laser whose level is streamed with the motion, if the machine
+    /// has one (see [`super::tool_track`]).
+    pub tool: Option<ToolTrack>,
     /// The extruder's pressure advance, if the machine has one.
     advance: Option<Advance>,
     /// The input shaper every sample goes through (after pressure
@@ -113,6 +117,7 @@ impl Motion {
                 last_motors: motors,
                 error: None,
                 excitation: None,
+                tool: None,
                 advance: None,
                 shaper: InputShaper::unshaped(),
                 status: MotionStatus::default(),
@@ -184,6 +189,27 @@ impl Motion {
         Ok(())
     }
 
+    /// A controlled stop of the planner ([`Planner::halt`]), with the
+    /// streamed tool off from the next stamp on: whatever stops the motion
+    /// stops the laser too, and nothing it had queued lights it again.
+    pub fn halt(&mut self) -> Result<[f64; MAX_AXES], maxl::blocks::planner::PlanError> {
+        if let Some(t) = &mut self.tool {
+            t.off();
+        }
+        self.planner.halt()
+    }
+
+    /// A controlled stop of the planner that keeps the streamed tool as it
+    /// is (a move that replaces the queue: `goto_now`, homing's stops):
+    /// only the tool commands of the dropped moves go with them, so none
+    /// applies to the moves queued next.
+    pub fn halt_path(&mut self) -> Result<[f64; MAX_AXES], maxl::blocks::planner::PlanError> {
+        if let Some(t) = &mut self.tool {
+            t.drop_queued();
+        }
+        self.planner.halt()
+    }
+
     /// Replaces the planner (a fault's stop voids what was planned): the
     /// shaper starts afresh at rest at its position.
     pub fn replace_planner(&mut self, planner: Planner<MAX_AXES>) {
@@ -201,12 +227,17 @@ impl Motion {
         });
     }
 
-    /// The planner's position at `stamp` and the motor positions for it.
-    pub fn sample(&mut self, stamp: u64) -> Result<Vec<f64>, u8> {
+    /// The planner's position at `stamp` and the motor positions for it,
+    /// with the streamed tool's level point for it.
+    pub fn sample(&mut self, stamp: u64) -> Result<(Vec<f64>, Option<LevelPoint>), u8> {
         if self.paused {
             return Err(PAUSED);
         }
         let kin = self.planner.sample_kin(stamp).map_err(|_| BAD_STAMP)?;
+        let level = self
+            .tool
+            .as_mut()
+            .map(|t| t.sample(&self.planner, stamp, u64::from(super::INTERVAL_US)));
         let plan = kin.pos;
         let mut pos = kin.pos;
         if let Some(a) = &mut self.advance {
@@ -252,7 +283,7 @@ impl Motion {
         if was.busy != busy || was.executed != stats.executed || was.rest_stamp == 0 {
             self.notify.send_replace(self.status);
         }
-        Ok(motors)
+        Ok((motors, level))
     }
 }
 
@@ -338,6 +369,10 @@ pub struct Stamp {
     pub stamp: u64,
 }
 
+/// The motion function's outputs for the streamed tool's `level_point`
+/// (time, channel, duty, ramp), present when the machine streams one.
+pub const TOOL_OUTPUTS: [&str; 4] = ["tool_time", "tool_channel", "tool_before", "tool_after"];
+
 /// The name of the motion function's output for motor `index` (machine
 /// motor order): `m0`, `m1`, ..
 pub fn motor_output(index: usize) -> String {
@@ -362,8 +397,13 @@ pub fn function(
         .iter()
         .map(|m| m.wrap)
         .collect();
+    let tool_channel = lock(&motion).tool.as_ref().map(|t| t.channel);
     let mut outputs: Vec<(&str, Type)> = vec![(STAMP, u64::TYPE)];
     outputs.extend(out_names.iter().map(|n| (n.as_str(), f32::TYPE)));
+    if tool_channel.is_some() {
+        let types = [u64::TYPE, u8::TYPE, f32::TYPE, f32::TYPE];
+        outputs.extend(TOOL_OUTPUTS.iter().copied().zip(types));
+    }
     Ok(HostFunction::new(
         name,
         &inputs,
@@ -372,14 +412,22 @@ pub fn function(
             let Ok(Stamp { stamp }) = Stamp::from_values(ins) else {
                 return Err(HostFnError::new(BAD_STAMP));
             };
-            let m = lock(&motion).sample(stamp)?;
-            let mut out = Vec::with_capacity(1 + m.len());
+            let (m, level) = lock(&motion).sample(stamp)?;
+            let mut out = Vec::with_capacity(5 + m.len());
             out.push(Value::U64(stamp));
             out.extend(
                 m.iter()
                     .zip(wraps.iter().chain(std::iter::repeat(&None)))
                     .map(|(&v, wrap)| Value::F32(wire_position(v, *wrap))),
             );
+            if let (Some(channel), Some(p)) = (tool_channel, level) {
+                out.extend([
+                    Value::U64(p.time),
+                    Value::U8(channel),
+                    Value::F32(p.before),
+                    Value::F32(p.after),
+                ]);
+            }
             Ok(out)
         },
     )?)

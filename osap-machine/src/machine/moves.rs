@@ -175,6 +175,31 @@ impl Machine {
         Ok(())
     }
 
+    /// Holds the path where it comes to rest for `seconds`: waits until
+    /// the planner has run every queued move to its end (a timer lead
+    /// ahead of the motors), then the moves queued next start `seconds`
+    /// after that end, on the synchronized clock. A dwell at a place on the
+    /// path (a pen settling) without the stop-and-go of [`Machine::dwell`]:
+    /// the stream never stops, so no timer lead is lost.
+    pub async fn hold_path(&self, seconds: f64) -> Result<(), MachineError> {
+        let mut status = self.inner.status.clone();
+        loop {
+            self.check_running()?;
+            let s = *status.borrow_and_update();
+            if lock_motion(&self.inner.motion).is_idle() && !s.busy && s.rest_stamp != 0 {
+                break;
+            }
+            status.changed().await.map_err(|_| MachineError::Stopped)?;
+        }
+        let mut m = lock_motion(&self.inner.motion);
+        let last = m.planner.last_stamp().unwrap_or(0);
+        let end = m.planner.rest_since().unwrap_or(last as f64);
+        let hold = (seconds.max(0.0) * 1e6).round();
+        let start = ((end + hold).ceil() as u64).max(last);
+        m.planner.start(start)?;
+        Ok(())
+    }
+
     /// Moves to `target` now and waits until the machine stands there:
     /// moves still queued are stopped first (a controlled stop).
     pub async fn goto_now(&self, target: impl AsRef<[f64]>, rate: f64) -> Result<(), MachineError> {
@@ -183,7 +208,7 @@ impl Machine {
         self.check_running()?;
         {
             let mut m = lock_motion(&self.inner.motion);
-            m.planner.halt()?;
+            m.halt_path()?;
             m.planner.line(to, rate)?;
             m.mark_busy();
         }
@@ -219,7 +244,7 @@ impl Machine {
     pub(crate) async fn stop_motion(&self) -> Result<(), MachineError> {
         {
             let mut m = lock_motion(&self.inner.motion);
-            m.planner.halt()?;
+            m.halt_path()?;
             m.mark_busy();
         }
         let mut status = self.inner.status.clone();

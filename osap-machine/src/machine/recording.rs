@@ -18,7 +18,11 @@ impl Machine {
     pub async fn start_recording(&self) -> Result<(), MachineError> {
         lock_motion(&self.inner.motion).record = Some(Vec::new());
         let n = lock_motion(&self.inner.motion).drive.motors().len();
-        monitor::lock(&self.inner.reports).positions = Some(vec![Vec::new(); n]);
+        {
+            let mut r = monitor::lock(&self.inner.reports);
+            r.positions = Some(vec![Vec::new(); n]);
+            r.applied = Some(Vec::new());
+        }
         self.position_reports(InputMode::OnTimer(RECORD_PERIOD_US))
             .await
     }
@@ -27,11 +31,27 @@ impl Machine {
     /// on a timer while recording, idle otherwise (or a recorder's timer,
     /// while one samples it).
     pub(super) async fn position_reports(&self, mode: InputMode) -> Result<(), MachineError> {
-        let motors: Vec<_> = lock_motion(&self.inner.motion).drive.motors().to_vec();
+        let (motors, tool) = {
+            let m = lock_motion(&self.inner.motion);
+            let tool = m.tool.as_ref().map(|t| t.module.clone());
+            (m.drive.motors().to_vec(), tool)
+        };
         let mut manager = self.inner.manager.lock().await;
         for m in motors {
             let runtime = &self.inner.modules[&m.module].runtime;
             let f = crate::network::modfn::get_position::on(runtime);
+            let mode = self.inner.capture_holds.machine_sets(&f, mode);
+            manager.set_input_mode(&f, mode).await?;
+        }
+        // The streamed tool's output, read back every millisecond: its
+        // ramps change every 100 µs.
+        if let Some(key) = tool {
+            let runtime = &self.inner.modules[&key].runtime;
+            let f = crate::network::modfn::level_read::on(runtime);
+            let mode = match mode {
+                InputMode::OnTimer(_) => InputMode::OnTimer(FAST_PERIOD_US),
+                other => other,
+            };
             let mode = self.inner.capture_holds.machine_sets(&f, mode);
             manager.set_input_mode(&f, mode).await?;
         }
@@ -58,10 +78,17 @@ impl Machine {
             let mut m = lock_motion(&self.inner.motion);
             (m.record.take().unwrap_or_default(), m.drive.axes().to_vec())
         };
-        let positions = monitor::lock(&self.inner.reports)
-            .positions
-            .take()
-            .unwrap_or_default();
+        let (positions, applied) = {
+            let mut r = monitor::lock(&self.inner.reports);
+            (
+                r.positions.take().unwrap_or_default(),
+                r.applied.take().unwrap_or_default(),
+            )
+        };
+        let tool = lock_motion(&self.inner.motion)
+            .tool
+            .as_ref()
+            .map(|t| t.name.clone());
         let n = drive_axes.len();
         let secs = |t: u64| (t as f64 - from_us as f64) * 1e-6;
         let kept = || planned.iter().filter(|s| s.0 >= from_us);
@@ -104,6 +131,30 @@ impl Machine {
                 }
             }
         }
+        // The tool's duty on the executed grid: interpolated between its
+        // readbacks (a ramp between two is a ramp).
+        let mut tools = Vec::new();
+        let mut tool_readbacks = Vec::new();
+        if let Some(name) = tool {
+            let pts: Vec<(f64, f64)> = applied
+                .iter()
+                .filter(|a| a.0 >= from_us)
+                .map(|a| (secs(a.0), a.1))
+                .collect();
+            if let Some(last) = executed.last() {
+                // The executed grid (1 ms), less any sample the kinematics
+                // could not place: pick each sample's own grid point.
+                let dt = 1e-3;
+                let count = (last.t / dt).round() as usize + 1;
+                let grid = crate::record::resample_linear(&pts, 0.0, dt, count);
+                let column = executed
+                    .iter()
+                    .map(|s| grid[((s.t / dt).round() as usize).min(count - 1)])
+                    .collect();
+                tools.push((name.clone(), column));
+            }
+            tool_readbacks.push((name, pts));
+        }
         Ok(crate::record::Recording {
             axes: drive_axes,
             planned,
@@ -111,6 +162,8 @@ impl Machine {
             unshaped,
             vibration: Vec::new(),
             stalled: Vec::new(),
+            tools,
+            tool_readbacks,
         })
     }
 }

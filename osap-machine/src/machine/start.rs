@@ -5,8 +5,8 @@
 use maxl::blocks::bedlevel::BedMesh;
 
 use crate::network::modfn::{
-    self, add_point, get_counters, get_fault, get_position, read_limit, set_enable, set_interval,
-    set_limits, set_microsteps, set_scale, ModuleCall,
+    self, add_point, get_counters, get_fault, get_position, level_point, level_read, read_limit,
+    set_enable, set_interval, set_limits, set_microsteps, set_scale, ModuleCall,
 };
 
 use super::*;
@@ -228,7 +228,24 @@ fn plan(
     motion
         .set_shapers(motion::shapers(cfg)?)
         .map_err(|e| MachineError::Unsupported(format!("shaper: {e}")))?;
+    motion.tool = streamed_tool(cfg);
     Ok((Arc::new(Mutex::new(motion)), status))
+}
+
+/// The tool whose level the machine streams with the motion: its first
+/// laser on a PWM output (see [`super::tool_track`]).
+fn streamed_tool(cfg: &MachineFile) -> Option<super::tool_track::ToolTrack> {
+    let (name, t) = cfg.tools.iter().find(|(_, t)| t.streamed())?;
+    let crate::config::Output::Pwm(channel) = t.output else {
+        return None;
+    };
+    Some(super::tool_track::ToolTrack::new(
+        name,
+        &t.module,
+        channel,
+        (t.off_duty, t.on_duty),
+        cfg.toolhead_axes(),
+    ))
 }
 
 /// Wire: the host's timer into the motion function, and the motion
@@ -283,6 +300,25 @@ async fn wire(
                 &[
                     (motion::STAMP, add_point::input::time),
                     (&position, add_point::input::position),
+                ],
+                o,
+            )
+            .await?;
+    }
+    // The streamed tool's level points, on the motion's stamps.
+    let tool = lock_motion(motion).tool.as_ref().map(|t| t.module.clone());
+    if let Some(key) = tool {
+        let runtime = &modules[&key].runtime;
+        let [time, channel, before, after] = motion::TOOL_OUTPUTS;
+        manager
+            .connect_named(
+                &motion_fn,
+                &level_point::on(runtime),
+                &[
+                    (time, level_point::input::time),
+                    (channel, level_point::input::channel),
+                    (before, level_point::input::before),
+                    (after, level_point::input::after),
                 ],
                 o,
             )
@@ -352,6 +388,19 @@ async fn watch(
         // Wired now, run only while recording (start_recording): at
         // 1 kHz per motor it is most of a simulation's work otherwise.
         source::<get_position::Inputs>(manager, &runtime, None, true, &f).await?;
+    }
+    // What the streamed tool's output drives: wired now, run only while
+    // recording, as the stepped positions.
+    let tool = lock_motion(motion)
+        .tool
+        .as_ref()
+        .map(|t| (t.name.clone(), t.module.clone(), t.channel));
+    if let Some((name, key, channel)) = tool {
+        let runtime = modules[&key].runtime.clone();
+        let f = manager
+            .define(monitor::applied(&name, channel, reports.clone())?)
+            .await?;
+        source::<level_read::Inputs>(manager, &runtime, None, true, &f).await?;
     }
     let mut switch_modules: Vec<&str> = cfg
         .axes

@@ -171,7 +171,7 @@ impl Machine {
     async fn come_to_rest(&self) {
         {
             let mut m = lock_motion(&self.inner.motion);
-            let _ = m.planner.halt();
+            let _ = m.halt();
             if m.paused {
                 // No point is sent: the motors stand (a stop before this
                 // one halted them).

@@ -53,6 +53,23 @@ impl Machine {
         s.generation += 1;
     }
 
+    /// The streamed tool does `cmd` from the next segment queued on (from
+    /// where the queue ends), or at once if nothing is queued: a job's
+    /// tool command on the path (see [`super::tool_track`]).
+    pub fn tool_command(&self, cmd: super::tool_track::ToolCommand) {
+        let mut m = super::motion::lock(&self.inner.motion);
+        let mark = m.planner.stats().queued_total;
+        if let Some(t) = &mut m.tool {
+            t.command(mark, cmd);
+        }
+    }
+
+    /// Notes the level a job left tool `name` at.
+    pub(crate) fn note_tool_level(&self, name: &str, level: f64) {
+        let mut tools = self.inner.tools.lock().unwrap_or_else(|e| e.into_inner());
+        tools.entry(name.to_string()).or_default().level = level;
+    }
+
     /// The first tool of a kind (pen, spindle, laser), if any.
     pub fn tool_of_kind(&self, kind: crate::config::ToolKind) -> Option<Tool> {
         let name = self
@@ -84,6 +101,14 @@ impl Tool {
             });
         }
         let t = &self.machine.config().tools[&self.name];
+        // A streamed tool's stream takes the level from its next point on;
+        // the write below sets it now (and drops the points its module had
+        // queued).
+        if let Some(track) = &mut super::motion::lock(&self.machine.inner.motion).tool {
+            if track.name == self.name {
+                track.set_now(level);
+            }
+        }
         match t.output {
             Output::Pwm(channel) => {
                 let duty = t.off_duty + level * (t.on_duty - t.off_duty);

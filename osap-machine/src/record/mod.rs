@@ -75,12 +75,22 @@ pub struct Recording {
     /// [`Recording::executed`] sample while the motor was stalled, else
     /// 0). Written as `stalled_MOTOR` columns of `executed.csv`.
     pub stalled: Vec<(String, Vec<f64>)>,
+    /// The output each streamed tool's module drove: (tool key, one PWM
+    /// duty per [`Recording::executed`] sample, interpolated between the
+    /// module's readbacks). Written as `tool_TOOL` columns of
+    /// `executed.csv`.
+    pub tools: Vec<(String, Vec<f64>)>,
+    /// The module's readbacks behind [`Recording::tools`]: (tool key, (s
+    /// since the start, duty) as `level_read` reported them). Not written.
+    pub tool_readbacks: Vec<(String, Vec<(f64, f64)>)>,
 }
 
 /// The prefix of a vibration column's name in `executed.csv`.
 pub const VIBRATION_PREFIX: &str = "vibration_";
 /// The prefix of a stalled motor's column in `executed.csv`.
 pub const STALLED_PREFIX: &str = "stalled_";
+/// The prefix of a streamed tool's applied duty column in `executed.csv`.
+pub const TOOL_PREFIX: &str = "tool_";
 
 /// Why a recording could not be written or read; every variant names the
 /// file.
@@ -179,6 +189,11 @@ impl Recording {
                     .iter()
                     .map(|(m, v)| (format!("{STALLED_PREFIX}{m}"), &v[..])),
             )
+            .chain(
+                self.tools
+                    .iter()
+                    .map(|(t, v)| (format!("{TOOL_PREFIX}{t}"), &v[..])),
+            )
             .collect();
         let files = [
             (dir.join(PLANNED_CSV), &self.planned, &[][..]),
@@ -238,6 +253,7 @@ impl Recording {
                 .collect()
         };
         let (vibration, stalled) = (pick(VIBRATION_PREFIX), pick(STALLED_PREFIX));
+        let tools = pick(TOOL_PREFIX);
         if executed_axes != axes {
             return Err(RecordError::Parse {
                 path,
@@ -252,6 +268,8 @@ impl Recording {
             unshaped: Vec::new(),
             vibration,
             stalled,
+            tools,
+            tool_readbacks: Vec::new(),
         })
     }
 
@@ -442,10 +460,14 @@ fn read_samples(path: &Path) -> Result<ReadSamples, RecordError> {
         ));
     }
     let names: Vec<String> = cols.map(str::to_string).collect();
-    // Vibration and stall columns come after the axes.
+    // Vibration, stall and tool columns come after the axes.
     let split = names
         .iter()
-        .position(|n| n.starts_with(VIBRATION_PREFIX) || n.starts_with(STALLED_PREFIX))
+        .position(|n| {
+            [VIBRATION_PREFIX, STALLED_PREFIX, TOOL_PREFIX]
+                .iter()
+                .any(|p| n.starts_with(p))
+        })
         .unwrap_or(names.len());
     let axes = names[..split].to_vec();
     let mut vibration: Vec<(String, Vec<f64>)> = names[split..]

@@ -46,18 +46,21 @@ fn vibration_and_stall_columns_round_trip_and_must_fit() {
             ("y".into(), vec![0.0, 1e-3]),
         ],
         stalled: vec![("a".into(), vec![0.0, 1.0])],
+        tools: vec![("laser".into(), vec![0.25, 0.5])],
+        tool_readbacks: Vec::new(),
     };
     let dir = tmp("columns");
     rec.write_csv(&dir).unwrap();
     let text = fs::read_to_string(dir.join(EXECUTED_CSV)).unwrap();
     assert_eq!(
         text,
-        "t,x,y,vibration_x,vibration_y,stalled_a\n0,0,0,NaN,0,0\n0.001,0.05,0.1,0.25,0.001,1\n"
+        "t,x,y,vibration_x,vibration_y,stalled_a,tool_laser\n0,0,0,NaN,0,0,0.25\n0.001,0.05,0.1,0.25,0.001,1,0.5\n"
     );
     let back = Recording::read_csv(&dir).unwrap();
     assert_eq!(back.axes, rec.axes);
     assert_eq!(back.executed, rec.executed);
     assert_eq!(back.stalled, rec.stalled);
+    assert_eq!(back.tools, rec.tools);
     assert_eq!(back.vibration[1], rec.vibration[1]);
     assert_eq!(back.vibration[0].0, "x");
     assert_eq!(back.vibration[0].1[1], 0.25);
@@ -85,6 +88,8 @@ fn csv_round_trip() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     let dir = tmp("csv");
     let files = rec.write_csv(&dir.join("out")).unwrap();
@@ -126,6 +131,8 @@ fn csv_refuses_mismatched_samples_and_bad_names() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     let e = rec.write_csv(&dir).unwrap_err();
     assert!(
@@ -176,6 +183,8 @@ fn following_error_of_offset_and_delay() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     let fe = rec.following_error();
     assert_eq!(fe.len(), 2);
@@ -211,6 +220,8 @@ fn following_error_skips_what_it_cannot_use() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     // x: 0.75 - 0.5; y: NaN planned, so nothing to compare.
     assert_eq!(rec.following_error(), vec![("x".to_string(), 0.25)]);
@@ -228,6 +239,8 @@ fn following_error_skips_what_it_cannot_use() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     assert_eq!(one.following_error(), vec![("x".to_string(), 0.5)]);
     assert_eq!(one.planned_duration(), 0.0);
@@ -315,6 +328,8 @@ fn plots_written_and_small() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     let dir = tmp("plot");
     let files = rec.plot(&dir).unwrap();
@@ -347,6 +362,8 @@ fn plots_written_and_small() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     assert_svgs(
         &one.plot(&dir.join("one")).unwrap(),
@@ -383,6 +400,8 @@ fn empty_and_degenerate_recordings() {
             unshaped: Vec::new(),
             vibration: Vec::new(),
             stalled: Vec::new(),
+            tools: Vec::new(),
+            tool_readbacks: Vec::new(),
         },
         Recording {
             axes: axes(&["x", "y", "z"]),
@@ -395,6 +414,8 @@ fn empty_and_degenerate_recordings() {
             unshaped: Vec::new(),
             vibration: Vec::new(),
             stalled: Vec::new(),
+            tools: Vec::new(),
+            tool_readbacks: Vec::new(),
         },
     ];
     for (i, rec) in odd.iter().enumerate() {
@@ -432,6 +453,8 @@ fn a_timeline_stacks_motion_and_streams() {
         unshaped: Vec::new(),
         vibration: Vec::new(),
         stalled: Vec::new(),
+        tools: Vec::new(),
+        tool_readbacks: Vec::new(),
     };
     let stream = Stream {
         name: "z.analog_read(0).value".into(),

@@ -107,6 +107,27 @@ fn the_plotter_derives() {
 }
 
 #[test]
+fn the_laser_derives() {
+    let cfg = example("laser.toml");
+    let t = spec(&cfg).unwrap();
+    let names: Vec<&str> = t.modules.iter().map(|m| m.name.as_str()).collect();
+    // By name, in key order head, x, y.
+    assert_eq!(names, ["hub", "laser-head", "laser-x", "laser-y"]);
+    let spec = |n: &str| &t.modules[t.module_index(n).unwrap()];
+    // The laser's module: I/O and no motor; the belts: 5 full steps/mm.
+    let head = spec("laser-head");
+    assert_eq!((head.motor.is_none(), head.io.is_some()), (true, true));
+    for m in ["laser-x", "laser-y"] {
+        let motor = spec(m).motor.as_ref().unwrap();
+        assert_eq!(motor.full_steps_per_unit, 5.0);
+        assert!(spec(m).io.is_none());
+    }
+    // x and y home on their own modules' inputs, 1 mm below 0.
+    assert_eq!(t.switches.len(), 2);
+    assert!(t.switches.iter().all(|s| s.pressed_below && s.at == -1.0));
+}
+
+#[test]
 fn the_mill_derives() {
     let cfg = example("mill.toml");
     let t = spec(&cfg).unwrap();

@@ -49,8 +49,13 @@ pub struct Stepper {
     loadcell_tare: FunctionHandle,
     loadcell_scale: FunctionHandle,
     loadcell_read: FunctionHandle,
+    tach_setup: FunctionHandle,
+    tach_read: FunctionHandle,
     set_torque: FunctionHandle,
     torque_off: FunctionHandle,
+    level_point: FunctionHandle,
+    event_point: FunctionHandle,
+    level_read: FunctionHandle,
 }
 
 impl Stepper {
@@ -241,6 +246,16 @@ impl Stepper {
             outputs: &[("time", "u64"), ("force", "f32"), ("raw", "i32"), ("samples", "u32"), ("taring", "bool")],
         },
         support::Signature {
+            function: "tach_setup",
+            inputs: &[("pin", "u8"), ("pulses_per_rev", "u16")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "tach_read",
+            inputs: &[],
+            outputs: &[("time", "u64"), ("rpm", "f32")],
+        },
+        support::Signature {
             function: "set_torque",
             inputs: &[("fraction", "f32")],
             outputs: &[],
@@ -249,6 +264,21 @@ impl Stepper {
             function: "torque_off",
             inputs: &[],
             outputs: &[],
+        },
+        support::Signature {
+            function: "level_point",
+            inputs: &[("time", "u64"), ("channel", "u8"), ("before", "f32"), ("after", "f32")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "event_point",
+            inputs: &[("time", "u64"), ("pin", "u8"), ("level", "bool")],
+            outputs: &[],
+        },
+        support::Signature {
+            function: "level_read",
+            inputs: &[],
+            outputs: &[("time", "u64"), ("pwm0", "f32"), ("pwm1", "f32"), ("pins", "u32")],
         },
     ];
     /// The classes it was generated from.
@@ -303,8 +333,13 @@ impl Stepper {
             loadcell_tare: support::function(manager, runtime, "loadcell_tare")?,
             loadcell_scale: support::function(manager, runtime, "loadcell_scale")?,
             loadcell_read: support::function(manager, runtime, "loadcell_read")?,
+            tach_setup: support::function(manager, runtime, "tach_setup")?,
+            tach_read: support::function(manager, runtime, "tach_read")?,
             set_torque: support::function(manager, runtime, "set_torque")?,
             torque_off: support::function(manager, runtime, "torque_off")?,
+            level_point: support::function(manager, runtime, "level_point")?,
+            event_point: support::function(manager, runtime, "event_point")?,
+            level_read: support::function(manager, runtime, "level_read")?,
         })
     }
 
@@ -1258,6 +1293,59 @@ impl Stepper {
         self.loadcell_read.function()
     }
 
+    /// `tach_setup`.
+    ///
+    /// Measures a speed from digital pin `pin`'s pulses, `pulses_per_rev` a turn (1 to 1 000; see `crate::tach`); refused with `NoCounter` on a pin the board cannot count pulses on.
+    ///
+    /// - inputs: `pin: u8`, `pulses_per_rev: u16`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn tach_setup(&self, pin: u8, pulses_per_rev: u16) -> Result<(), CallError> {
+        let h = &self.tach_setup;
+        let values = h.call(&[support::to_u8(pin), support::to_u16(pulses_per_rev)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `tach_setup`, for `push` and raw calls.
+    pub fn tach_setup_handle(&self) -> &FunctionHandle {
+        &self.tach_setup
+    }
+
+    /// `tach_setup` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn tach_setup_ref(&self) -> &FnRef {
+        self.tach_setup.function()
+    }
+
+    /// `tach_read`.
+    ///
+    /// The newest measured speed: when it was measured (synchronized µs: the pulse it ends at, or the read that lowered it for want of pulses) and turns a minute (0 after 0.5 s without a pulse).
+    ///
+    /// - inputs: none
+    /// - outputs: `time: u64`, `rpm: f32`
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn tach_read(&self) -> Result<TachReadOutputs, CallError> {
+        let h = &self.tach_read;
+        let values = h.call(&[]).await?;
+        let mut out = support::Outputs::new(h, values, 2)?;
+        Ok(TachReadOutputs {
+            time: out.next(support::from_u64)?,
+            rpm: out.next(support::from_f32)?,
+        })
+    }
+
+    /// The handle of `tach_read`, for `push` and raw calls.
+    pub fn tach_read_handle(&self) -> &FunctionHandle {
+        &self.tach_read
+    }
+
+    /// `tach_read` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn tach_read_ref(&self) -> &FnRef {
+        self.tach_read.function()
+    }
+
     /// `set_torque`.
     ///
     /// Drives the motor as a torque device at `fraction` of its holding torque (`-1..=1`; positive turns the way positive positions go), commuting from its shaft encoder (see `crate::torque`): the first call leaves position mode (the motor enabled, not halted, no stream; `Unsupported` on a board without an encoder or coil drive), later ones change the torque.
@@ -1306,6 +1394,86 @@ impl Stepper {
     /// `set_input_mode` and `set_output_mode`.
     pub fn torque_off_ref(&self) -> &FnRef {
         self.torque_off.function()
+    }
+
+    /// `level_point`.
+    ///
+    /// A point on PWM output `channel` (0 or 1) at synchronized `time` (at most 60 s ahead): the duty ramps linearly from the point before to `before` there and leaves at `after` (`0..=1`; a step where they differ); 64 points wait an output.
+    ///
+    /// - inputs: `time: u64`, `channel: u8`, `before: f32`, `after: f32`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn level_point(&self, time: u64, channel: u8, before: f32, after: f32) -> Result<(), CallError> {
+        let h = &self.level_point;
+        let values = h.call(&[support::to_u64(time), support::to_u8(channel), support::to_f32(before), support::to_f32(after)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `level_point`, for `push` and raw calls.
+    pub fn level_point_handle(&self) -> &FunctionHandle {
+        &self.level_point
+    }
+
+    /// `level_point` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn level_point_ref(&self) -> &FnRef {
+        self.level_point.function()
+    }
+
+    /// `event_point`.
+    ///
+    /// Digital pin `pin` goes to `level` at synchronized `time` (at most 60 s ahead); 32 changes wait at once, in time order (`Late`, `OutOfOrder`, `Full` as for `level_point`).
+    ///
+    /// - inputs: `time: u64`, `pin: u8`, `level: bool`
+    /// - outputs: none
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn event_point(&self, time: u64, pin: u8, level: bool) -> Result<(), CallError> {
+        let h = &self.event_point;
+        let values = h.call(&[support::to_u64(time), support::to_u8(pin), support::to_bool(level)]).await?;
+        let _out = support::Outputs::new(h, values, 0)?;
+        Ok(())
+    }
+
+    /// The handle of `event_point`, for `push` and raw calls.
+    pub fn event_point_handle(&self) -> &FunctionHandle {
+        &self.event_point
+    }
+
+    /// `event_point` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn event_point_ref(&self) -> &FnRef {
+        self.event_point.function()
+    }
+
+    /// `level_read`.
+    ///
+    /// What the outputs drive now, as a pipe source's record of what a tool did: the synchronized time of the read, the duty PWM outputs 0 and 1 drive (`0..=1`), and the levels of digital pins 0 to 31 (bit `k` is pin `k`).
+    ///
+    /// - inputs: none
+    /// - outputs: `time: u64`, `pwm0: f32`, `pwm1: f32`, `pins: u32`
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn level_read(&self) -> Result<LevelReadOutputs, CallError> {
+        let h = &self.level_read;
+        let values = h.call(&[]).await?;
+        let mut out = support::Outputs::new(h, values, 4)?;
+        Ok(LevelReadOutputs {
+            time: out.next(support::from_u64)?,
+            pwm0: out.next(support::from_f32)?,
+            pwm1: out.next(support::from_f32)?,
+            pins: out.next(support::from_u32)?,
+        })
+    }
+
+    /// The handle of `level_read`, for `push` and raw calls.
+    pub fn level_read_handle(&self) -> &FunctionHandle {
+        &self.level_read
+    }
+
+    /// `level_read` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn level_read_ref(&self) -> &FnRef {
+        self.level_read.function()
     }
 }
 
@@ -1427,4 +1595,26 @@ pub struct LoadcellReadOutputs {
     pub samples: u32,
     /// `taring: bool`.
     pub taring: bool,
+}
+
+/// Outputs of `tach_read`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TachReadOutputs {
+    /// `time: u64`.
+    pub time: u64,
+    /// `rpm: f32`.
+    pub rpm: f32,
+}
+
+/// Outputs of `level_read`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct LevelReadOutputs {
+    /// `time: u64`.
+    pub time: u64,
+    /// `pwm0: f32`.
+    pub pwm0: f32,
+    /// `pwm1: f32`.
+    pub pwm1: f32,
+    /// `pins: u32`.
+    pub pins: u32,
 }

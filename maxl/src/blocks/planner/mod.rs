@@ -113,6 +113,10 @@ fn planned<const N: usize>(
     }
 }
 
+/// How many segment starts a planner keeps for
+/// [`Planner::segment_start`].
+pub const BEGUN_KEPT: usize = 64;
+
 /// A lookahead planner for straight segments in `N` axes.
 #[derive(Clone, Debug)]
 pub struct Planner<const N: usize> {
@@ -138,6 +142,11 @@ pub struct Planner<const N: usize> {
     pending_start: Option<u64>,
     next_id: u64,
     executed: u64,
+    /// The latest segments begun: id, start (synchronized µs) and speed
+    /// along the path there, at most [`BEGUN_KEPT`].
+    begun: VecDeque<(u64, f64, f64)>,
+    /// When the path last came to rest (synchronized µs).
+    rest_since: Option<f64>,
     /// Speed- and direction-dependent acceleration limits, if any.
     model: Option<std::sync::Arc<dyn AccelModel<N>>>,
 }
@@ -183,6 +192,8 @@ impl<const N: usize> Planner<N> {
             pending_start: None,
             next_id: 0,
             executed: 0,
+            begun: VecDeque::with_capacity(BEGUN_KEPT),
+            rest_since: None,
             model: None,
         })
     }
@@ -439,6 +450,7 @@ impl<const N: usize> Planner<N> {
                 }
                 if self.queue.is_empty() {
                     self.fixed_entry = 0.0;
+                    self.rest_since = Some(epoch as f64 + t_end * 1e6);
                     return Ok(Kin::rest(self.rest));
                 }
                 self.begin(t_end);
@@ -520,6 +532,121 @@ impl<const N: usize> Planner<N> {
         Kin::rest(self.tail)
     }
 
+    /// Walks the running and queued segments in path order, each with its
+    /// id, its start (seconds after the epoch) and its profile as planned
+    /// now, while `f` returns true.
+    fn walk(&self, mut f: impl FnMut(u64, f64, &Profile) -> bool) {
+        for r in &self.frozen {
+            if !f(r.seg.id, r.t0, &r.prof) {
+                return;
+            }
+        }
+        let epoch = self.epoch.unwrap_or(0) as f64;
+        let mut t0 = match self.frozen.back() {
+            Some(r) => r.t_end(),
+            None => match self.pending_start.or(self.last_stamp) {
+                Some(p) => (p as f64 - epoch) * 1e-6,
+                None => return,
+            },
+        };
+        let mut entry = self.junction(0);
+        for (i, s) in self.queue.iter().enumerate() {
+            let exit = self.junction(i + 1);
+            let prof = s.profile(entry, exit);
+            entry = exit;
+            if !f(s.id, t0, &prof) {
+                return;
+            }
+            t0 += prof.duration();
+        }
+    }
+
+    /// The id of the segment that runs at synchronized `t_us` (at or after
+    /// the last stamp sampled) as planned now, or, at rest, of the next
+    /// segment to run ([`Stats::queued_total`] once everything queued has
+    /// run).
+    pub fn segment_at(&self, t_us: f64) -> u64 {
+        let ts = (t_us - self.epoch.unwrap_or(0) as f64) * 1e-6;
+        let mut at = self.next_id;
+        self.walk(|id, t0, prof| {
+            if ts < t0 + prof.duration() {
+                at = id;
+                return false;
+            }
+            true
+        });
+        at
+    }
+
+    /// Where the path's speed changes slope in (`from_us`, `to_us`]
+    /// (synchronized µs, at or after the last stamp sampled) as planned
+    /// now, in time order: where segments meet and where the path comes to
+    /// rest (`true`), and the ends of ramps within a segment (`false`),
+    /// each with the id of the segment running from there (at rest, the
+    /// next to run).
+    /// Between two of them a trapezoid's speed is linear in time, so a
+    /// level that follows the speed (a laser's dynamic power) is exact when
+    /// ramped linearly between them.
+    pub fn speed_breaks(&self, from_us: f64, to_us: f64) -> Vec<(f64, u64, bool)> {
+        let epoch = self.epoch.unwrap_or(0) as f64;
+        let us = |s: f64| epoch + s * 1e6;
+        let mut out = Vec::new();
+        self.walk(|id, t0, prof| {
+            let start = us(t0);
+            if start > to_us {
+                return false;
+            }
+            // (time, id from there, a boundary, kept)
+            let ends = [
+                (start, id, true, true),
+                (us(t0 + prof.t_acc), id, false, prof.t_acc > 0.0),
+                (
+                    us(t0 + prof.t_acc + prof.t_cruise),
+                    id,
+                    false,
+                    prof.t_dec > 0.0,
+                ),
+                // The next segment's start, or the path's end at rest.
+                (us(t0 + prof.duration()), id + 1, true, true),
+            ];
+            for (t, id, boundary, keep) in ends {
+                if keep && t > from_us && t <= to_us {
+                    out.push((t, id, boundary));
+                }
+            }
+            true
+        });
+        // A segment's end is the next one's start: once.
+        out.dedup_by(|later, earlier| (later.0 - earlier.0).abs() < 1e-6 && later.1 == earlier.1);
+        out
+    }
+
+    /// When the path last came to rest, synchronized µs (fractional): the
+    /// end of the last segment run before the queue ran out; `None` before
+    /// any.
+    pub fn rest_since(&self) -> Option<f64> {
+        self.rest_since
+    }
+
+    /// The id of the segment running at the last sampled stamp (segments
+    /// are numbered from 0 in the order they were queued, as
+    /// [`Stats::queued_total`] counts them); `None` at rest.
+    pub fn running_id(&self) -> Option<u64> {
+        self.frozen.front().map(|r| r.seg.id)
+    }
+
+    /// When segment `id` began (synchronized µs, fractional) and its speed
+    /// along the path there, for the latest [`BEGUN_KEPT`] segments begun:
+    /// where a tool switched between two segments switches on the
+    /// synchronized clock.
+    pub fn segment_start(&self, id: u64) -> Option<(f64, f64)> {
+        self.begun
+            .iter()
+            .rev()
+            .find(|b| b.0 == id)
+            .map(|b| (b.1, b.2))
+    }
+
     /// Counters and state.
     pub fn stats(&self) -> Stats {
         Stats {
@@ -547,6 +674,11 @@ impl<const N: usize> Planner<N> {
         };
         let prof = seg.profile(self.fixed_entry, exit);
         self.fixed_entry = exit;
+        if self.begun.len() == BEGUN_KEPT {
+            self.begun.pop_front();
+        }
+        let start_us = self.epoch.unwrap_or(0) as f64 + t0 * 1e6;
+        self.begun.push_back((seg.id, start_us, prof.at(0.0).1));
         self.frozen.push_back(Running { seg, prof, t0 });
         self.refix_front();
     }
