@@ -238,15 +238,23 @@ fn a_stream_beside_homing_on_the_same_module() {
             .unwrap();
         let times: Vec<u64> = rows.try_iter().map(|r| r.time_us).collect();
         assert!(times.len() > 100, "{} samples", times.len());
-        // Stamped by a's clock: 10 ms apart within its sync's corrections.
-        // The first two gaps also hold the source's start: its first sample
-        // is taken as the pipe opens, the next on the simulated module's
-        // loop, which turns on a 1 ms tick (one tick late at most).
-        let gap = |w: &[u64]| (w[1] - w[0]).abs_diff(10_000);
+        // Stamped by a's clock: 10 ms apart within its sync's corrections,
+        // after the first sample (taken as the pipe opens). The simulated
+        // module's loop turns on a 1 ms tick, so a sample whose timer falls
+        // due just after a tick is taken (and stamped) at the next: a gap
+        // may be one tick long or short, never more, and all but a few
+        // are 10 ms to within 20 µs.
+        let gaps: Vec<u64> = times
+            .windows(2)
+            .skip(1)
+            .map(|w| (w[1] - w[0]).abs_diff(10_000))
+            .collect();
+        assert!(gaps.iter().all(|g| *g < 1_000 + 20), "{times:?}");
+        let off_tick = gaps.iter().filter(|g| **g >= 20).count();
         assert!(
-            times.windows(2).take(2).all(|w| gap(w) < 1_000 + 20)
-                && times.windows(2).skip(2).all(|w| gap(w) < 20),
-            "{times:?}"
+            off_tick * 50 <= gaps.len(),
+            "{off_tick} of {} gaps off: {times:?}",
+            gaps.len()
         );
         stream.stop().await;
         assert_eq!(pipes(&m, "a", "analog_read").await, 0);
