@@ -661,11 +661,13 @@ pub const DEFAULT_S_MAX: f64 = 1000.0;
 
 impl Tool {
     /// Whether the machine streams this tool's level with the motion
-    /// (see `machine::tool_track`): a laser on a PWM output, switched and
-    /// powered at its place on the path without stopping (a `settle_ms`,
-    /// if it has one, held where the path comes to rest).
+    /// (see `machine::tool_track`): a laser or a pen on a PWM output,
+    /// switched (and a laser powered) at its place on the path without
+    /// stopping (a `settle_ms`, if it has one, held where the path comes
+    /// to rest).
     pub fn streamed(&self) -> bool {
-        self.kind == ToolKind::Laser && matches!(self.output, Output::Pwm(_))
+        matches!(self.kind, ToolKind::Laser | ToolKind::Pen)
+            && matches!(self.output, Output::Pwm(_))
     }
 }
 

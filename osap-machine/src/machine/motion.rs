@@ -373,6 +373,29 @@ pub struct Stamp {
 /// (time, channel, duty, ramp), present when the machine streams one.
 pub const TOOL_OUTPUTS: [&str; 4] = ["tool_time", "tool_channel", "tool_before", "tool_after"];
 
+/// The tool function's outputs, piped to the tool module's `level_point`.
+pub const TOOL_POINT: [&str; 4] = ["time", "channel", "before", "after"];
+
+/// The host function `name(tool_time, tool_channel, tool_before,
+/// tool_after) -> (time, channel, before, after)` between the motion
+/// function's tool outputs and the tool module's `level_point`: it passes
+/// each point on, and with its output mode "on change" a point repeated
+/// (the track's way of saying nothing changed, [`ToolTrack::sample`])
+/// sends nothing. The motion's other outputs change every stamp, so this
+/// is where a tool at rest stops costing its module a datagram an
+/// interval.
+pub fn tool_function(name: &str) -> Result<HostFunction, MachineError> {
+    let types = [u64::TYPE, u8::TYPE, f32::TYPE, f32::TYPE];
+    let inputs: Vec<(&str, Type)> = TOOL_OUTPUTS.iter().copied().zip(types).collect();
+    let outputs: Vec<(&str, Type)> = TOOL_POINT.iter().copied().zip(types).collect();
+    Ok(HostFunction::new(
+        name,
+        &inputs,
+        &outputs,
+        |ins: &[Value<'static>]| Ok(ins.to_vec()),
+    )?)
+}
+
 /// The name of the motion function's output for motor `index` (machine
 /// motor order): `m0`, `m1`, ..
 pub fn motor_output(index: usize) -> String {

@@ -305,14 +305,26 @@ async fn wire(
             )
             .await?;
     }
-    // The streamed tool's level points, on the motion's stamps.
+    // The streamed tool's level points, on the motion's stamps, through
+    // the tool function, which sends a point only when it changed.
     let tool = lock_motion(motion).tool.as_ref().map(|t| t.module.clone());
     if let Some(key) = tool {
         let runtime = &modules[&key].runtime;
-        let [time, channel, before, after] = motion::TOOL_OUTPUTS;
+        let tool_fn = manager
+            .define(motion::tool_function("machine.tool")?)
+            .await?;
+        manager
+            .set_output_mode(&tool_fn, OutputMode::OnChange)
+            .await?;
+        // Its inputs are named as the motion's outputs they take.
+        let pairs: Vec<(&str, &str)> = motion::TOOL_OUTPUTS.iter().map(|n| (*n, *n)).collect();
+        manager
+            .connect_named(&motion_fn, &tool_fn, &pairs, o)
+            .await?;
+        let [time, channel, before, after] = motion::TOOL_POINT;
         manager
             .connect_named(
-                &motion_fn,
+                &tool_fn,
                 &level_point::on(runtime),
                 &[
                     (time, level_point::input::time),

@@ -89,7 +89,15 @@ pub struct ToolTrack {
     commands: VecDeque<(u64, ToolCommand)>,
     /// The command in force at the last point.
     current: ToolCommand,
+    /// The last point sent, and how many intervals ago.
+    sent: Option<(LevelPoint, u32)>,
 }
+
+/// Intervals a tool at rest may go without a point: a point repeated
+/// sends nothing ([`ToolTrack::sample`]), but every this many intervals
+/// (about 100 ms) one goes out anyway, so that a point the link lost is
+/// made good within that time.
+pub const REFRESH_INTERVALS: u32 = 49;
 
 impl ToolTrack {
     /// The track of tool `name` on `module`'s PWM output `channel`, with
@@ -111,6 +119,7 @@ impl ToolTrack {
             path_axes: path_axes.clamp(1, MAX_AXES),
             commands: VecDeque::new(),
             current: ToolCommand::OFF,
+            sent: None,
         }
     }
 
@@ -184,6 +193,13 @@ impl ToolTrack {
 
     /// The level point for the interval after stamp `stamp` (`interval_us`
     /// long), from `planner` just after it sampled `stamp`.
+    ///
+    /// Where nothing changes (no command, no break in the speed's slope,
+    /// the same duty before and after as the last point sent) it gives
+    /// the last point sent again, which the tool function does not send
+    /// on: the module's ramp from that point to the next one is flat, as
+    /// the level is. Every [`REFRESH_INTERVALS`] a new one goes out all
+    /// the same.
     pub fn sample(
         &mut self,
         planner: &Planner<MAX_AXES>,
@@ -197,10 +213,10 @@ impl ToolTrack {
         let change = breaks
             .iter()
             .find(|b| b.2 && self.command_at(b.1) != self.command_at(b.1.wrapping_sub(1)));
-        let time = change
-            .or(breaks.last())
-            .map_or(end, |b| (b.0.ceil() as u64).clamp(stamp + 1, end));
+        let at_break = change.or(breaks.last());
+        let time = at_break.map_or(end, |b| (b.0.ceil() as u64).clamp(stamp + 1, end));
         let v = self.speed(planner, time);
+        let was = self.current;
         let before = self.duty(self.current.level_at(v));
         let id = planner.segment_at(time as f64);
         let now = self.command_at(id);
@@ -208,11 +224,22 @@ impl ToolTrack {
             self.commands.pop_front();
         }
         self.current = now;
-        LevelPoint {
+        let point = LevelPoint {
             time,
             before,
             after: self.duty(now.level_at(v)),
+        };
+        if let Some((last, age)) = &mut self.sent {
+            // A break in the speed's slope bends only a dynamic level.
+            let bends = change.is_some() || (at_break.is_some() && (was.dynamic || now.dynamic));
+            let flat = !bends && point.before == last.after && point.after == last.after;
+            if flat && *age < REFRESH_INTERVALS {
+                *age += 1;
+                return *last;
+            }
         }
+        self.sent = Some((point, 0));
+        point
     }
 }
 
@@ -264,13 +291,20 @@ mod tests {
         p.line(at(50.0, 0.0), 200.0).unwrap();
         // Sampled as the motion function samples: each stamp, then its
         // point; the plan's truth at every µs kept for the check.
-        let mut points = Vec::new();
+        // Only the points the module receives: the tool function drops
+        // a point repeated.
+        let mut points: Vec<LevelPoint> = Vec::new();
         let mut truth = Vec::new();
         let mut stamp = 4096;
+        let mut stamps = 0;
         while stamp < 1_500_000 {
             p.sample_kin(stamp).unwrap();
             let q = t.sample(&p, stamp, DT);
-            assert!(q.time > stamp && q.time <= stamp + DT, "{q:?} at {stamp}");
+            stamps += 1;
+            let repeated = points.last() == Some(&q);
+            if !repeated {
+                assert!(q.time > stamp && q.time <= stamp + DT, "{q:?} at {stamp}");
+            }
             let mut u = stamp + 1;
             while u <= stamp + DT {
                 let id = p.segment_at(u as f64);
@@ -285,9 +319,16 @@ mod tests {
                 ));
                 u += 7;
             }
-            points.push(q);
+            if !repeated {
+                points.push(q);
+            }
             stamp += DT;
         }
+        // Off, and standing still after the job: a point each refresh.
+        let rest = points.iter().filter(|q| q.time > 1_000_000).count();
+        let due = (1_500_000 - 1_000_000) / (DT as usize * (REFRESH_INTERVALS as usize + 1));
+        assert!(rest.abs_diff(due) <= 1, "{rest} points at rest, {due} due");
+        assert!(points.len() < stamps, "{} of {stamps}", points.len());
         let steps: Vec<_> = points.iter().filter(|q| q.before != q.after).collect();
         assert_eq!(steps.len(), 2, "{steps:?}");
         // On where segment 1 began, off where segment 3 began, both
