@@ -92,17 +92,30 @@ fn plotter_draws_the_example_drawing() {
         assert!(p.metadata().map(|m| m.len() > 100).unwrap_or(false), "{f}");
     }
     // Header, seconds, machine axes by name, the simulated vibration of
-    // the axes with a [sim.axes] resonance and the stalls of the motors
-    // with datasheet values; executed at ≥ 1 kHz.
+    // the axes with a [sim.axes] resonance, the stalls of the motors
+    // with datasheet values and the duty the pen's module applied (the
+    // pen is streamed with the motion); executed at ≥ 1 kHz.
     let executed = std::fs::read_to_string(dir.join("out/executed.csv")).unwrap();
     let mut lines = executed.lines();
     assert_eq!(
         lines.next(),
-        Some("t,x,y,vibration_x,vibration_y,stalled_a,stalled_b")
+        Some("t,x,y,vibration_x,vibration_y,stalled_a,stalled_b,tool_pen")
     );
-    let times: Vec<f64> = lines
-        .map(|l| l.split(',').next().unwrap().parse().unwrap())
+    let rows: Vec<Vec<f64>> = lines
+        .map(|l| l.split(',').map(|v| v.parse().unwrap()).collect())
         .collect();
+    let times: Vec<f64> = rows.iter().map(|r| r[0]).collect();
+    // The pen (0.05 up, 0.075 down) is up at both ends and goes down
+    // for each of the drawing's 4 strokes.
+    let pen: Vec<f64> = rows.iter().map(|r| r[7]).collect();
+    for end in [pen[0], pen[pen.len() - 1]] {
+        assert!((end - 0.05).abs() < 1e-4, "{end}");
+    }
+    let downs = pen
+        .windows(2)
+        .filter(|w| w[0] < 0.0625 && w[1] >= 0.0625)
+        .count();
+    assert_eq!(downs, 4, "pen-down steps");
     let span = times.last().unwrap() - times.first().unwrap();
     assert!(span > 5.0, "{span}");
     assert!(

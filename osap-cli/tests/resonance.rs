@@ -219,6 +219,9 @@ fn the_recommended_shapers_cut_the_drawings_vibration_5x() {
     }
     let executed = std::fs::read_to_string(shaped_out.join("executed.csv")).unwrap();
     let header = executed.lines().next().unwrap();
-    assert_eq!(header, "t,x,y,vibration_x,vibration_y,stalled_a,stalled_b");
+    assert_eq!(
+        header,
+        "t,x,y,vibration_x,vibration_y,stalled_a,stalled_b,tool_pen"
+    );
     let _ = std::fs::remove_dir_all(&dir);
 }

@@ -251,7 +251,11 @@ fn a_stream_beside_homing_on_the_same_module() {
             .collect();
         assert!(gaps.iter().all(|g| *g < 1_000 + 20), "{times:?}");
         let off_tick = gaps.iter().filter(|g| **g >= 20).count();
-        assert!(off_tick * 50 <= gaps.len(), "{off_tick} of {} gaps off: {times:?}", gaps.len());
+        assert!(
+            off_tick * 50 <= gaps.len(),
+            "{off_tick} of {} gaps off: {times:?}",
+            gaps.len()
+        );
         stream.stop().await;
         assert_eq!(pipes(&m, "a", "analog_read").await, 0);
         m.stop().await.unwrap();
