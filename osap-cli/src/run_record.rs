@@ -85,7 +85,7 @@ fn status_of(code: u8) -> &'static str {
         0 => "ok",
         MACHINE_FAULT => "machine_fault",
         REFUSED => "refused",
-        FAULTED => "failed",
+        // FAULTED, and any other code.
         _ => "failed",
     }
 }
