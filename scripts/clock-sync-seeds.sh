@@ -10,17 +10,24 @@
 # TOPOLOGIES=chain4,osap-sim/topologies/chain4-hub-root.toml (rows are
 # named after each file's `name`).
 #
-#   [TOPOLOGIES=...] scripts/clock-sync-seeds.sh [SEEDS] [FIRST]
+# The binary is built into CARGO_TARGET_DIR (default target); BIN=path runs
+# a binary built earlier instead (e.g. a copy from another commit, to compare).
+#
+#   [TOPOLOGIES=...] [BIN=...] scripts/clock-sync-seeds.sh [SEEDS] [FIRST]
 set -euo pipefail
 cd "$(dirname "$0")/.."
 seeds=${1:-20}
 first=${2:-1}
 topologies=${TOPOLOGIES:-chain4,star8,loop}
-cargo build -q --release -p osap-sim --features plot --bin clock_sync_report
+bin=${BIN:-}
+if [ -z "$bin" ]; then
+  cargo build -q --release -p osap-sim --features plot --bin clock_sync_report
+  bin=${CARGO_TARGET_DIR:-target}/release/clock_sync_report
+fi
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 for seed in $(seq "$first" $((first + seeds - 1))); do
-  ./target/release/clock_sync_report --minutes 0.67 --seed "$seed" --out "$out/$seed" \
+  "$bin" --minutes 0.67 --seed "$seed" --out "$out/$seed" \
     --topologies "$topologies" --variants cold,hot,busy --jobs 2 2>/dev/null |
     awk -F'|' '/^\| / && !/^\| topology / && !/^\|---/{gsub(/ /,""); print $2, $3, $4}'
 done | sort -k1,1 -k2,2 -k3,3g | awk '

@@ -39,11 +39,14 @@ fn uart_hops_converge_in_seconds_and_hold_microseconds() {
         assert!(to_50 < 2.0, "seed {seed}: within 50 µs after {to_50} s");
         let to_10 = cold.converged_10us_s.expect("converged to 10 µs");
         assert!(to_10 < 2.0, "seed {seed}: within 10 µs after {to_10} s");
-        // Steady state: from 5 s on.
+        // Steady state: from 5 s on. Errors are read in whole µs (as the
+        // modules read their time), so 1 µs is the least a nonzero error
+        // reads; before the responder's midpoint was taken below the µs and
+        // the phase averaged over the stamps' noise, both were 2 µs.
         let p99 = m.pooled_stats(5.0).p99;
-        assert!(p99 < 5.0, "seed {seed}: p99 {p99}");
+        assert!(p99 <= 1.0, "seed {seed}: p99 {p99}");
         let hops = m.hop_stats("uart", 5.0).unwrap().p99;
-        assert!(hops < 5.0, "seed {seed}: UART hop p99 {hops}");
+        assert!(hops <= 1.0, "seed {seed}: UART hop p99 {hops}");
 
         let hot = Scenario::new(uart_chain())
             .seed(seed)
@@ -81,7 +84,10 @@ fn usb_topologies_hold_the_usb_target() {
         println!("{name}: USB hop p99 {usb}, UART hop p99 {uart}, error p99 {err}");
         assert!(usb < 50.0, "{name}: USB hop p99 {usb}");
         assert!(err < 50.0, "{name}: error p99 {err}");
-        assert!(uart < 5.0, "{name}: UART hop p99 {uart}");
+        // Behind a hub that follows USB the hop is limited by the hub's
+        // own time moving (it slews away the USB link's noise), not by
+        // the UART: see docs/clock-sync.md.
+        assert!(uart <= 2.0, "{name}: UART hop p99 {uart}");
     }
 }
 
@@ -162,7 +168,7 @@ fn a_module_root_keeps_every_uart_hop_within_microseconds() {
         .unwrap()
         .metrics;
     let uart = m.hop_stats("uart", 10.0).unwrap().p99;
-    assert!(uart < 5.0, "UART hop p99 {uart}");
+    assert!(uart <= 1.0, "UART hop p99 {uart}");
     let usb = m.hop_stats("usb_cdc", 10.0).unwrap().p99;
     assert!(usb < 50.0, "USB hop p99 {usb}");
 }
@@ -186,6 +192,12 @@ fn busy_modules_cause_no_spike_beyond_100_us() {
             .copied()
             .fold(0.0, f64::max);
         assert!(worst <= 100.0, "{name}: spike of {worst} µs");
+        if name == "uartchain" {
+            // Late stamps are white noise to the phase filter: with a root
+            // behind a clean UART the hops stay within a µs.
+            let hops = m.hop_stats("uart", from + 5.0).unwrap().p99;
+            assert!(hops <= 1.0, "{name}: busy UART hop p99 {hops}");
+        }
     }
 }
 

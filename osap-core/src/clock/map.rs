@@ -122,12 +122,30 @@ impl TimeMap {
         self.slew_len - elapsed.clamp(0, self.slew_len)
     }
 
-    /// Our system time minus our local counter at `now`, in half µs.
-    pub(crate) fn own_y_half(&self, now: Instant) -> i64 {
-        self.system_time_q32(now)
-            .0
+    /// Our system time minus our local counter at `now`: whole half µs,
+    /// and the rest below that, µs (in [0, 0.5)). The rest matters: a
+    /// neighbour's time is compared with our map as it runs, not with its
+    /// readings in whole µs.
+    pub(crate) fn own_y_half(&self, now: Instant) -> (i64, f32) {
+        let (whole, frac) = self.system_time_q32(now);
+        let half = whole
             .wrapping_sub(now.as_micros() as i64)
             .saturating_mul(2)
+            .saturating_add(i64::from(frac >> 31));
+        (half, (frac & 0x7fff_ffff) as f32 / 4_294_967_296.0)
+    }
+
+    /// System time at the midpoint of local times `a` and `b`, to the
+    /// nearest µs (never below 0): the responder's time for a time stamp
+    /// reply, whose two stamps are whole µs of the local counter.
+    pub(crate) fn midpoint_rounded(&self, a: Instant, b: Instant) -> SystemInstant {
+        let q = |l: Instant| {
+            let (whole, frac) = self.system_time_q32(l);
+            (i128::from(whole) << 32) + i128::from(frac)
+        };
+        // Mean of the two, plus half a µs, floored: rounded to nearest.
+        let mid = (q(a) + q(b) + (1i128 << 32)) >> 33;
+        SystemInstant::from_micros(mid.clamp(0, i128::from(i64::MAX)) as u64)
     }
 }
 

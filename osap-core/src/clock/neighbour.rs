@@ -29,8 +29,20 @@ pub const FIT_WINDOW_MAX: usize = 64;
 /// (fraction, here 2 ppm): a slope from few or noisy samples would steer
 /// worse than the frequency loop does without it.
 const MAX_SLOPE_STDERR: f32 = 2e-6;
-/// Phase noise aimed for when averaging the newest residuals, µs.
+/// Phase noise aimed for when averaging the newest residuals while the
+/// slope is not yet trusted, µs: then the neighbour's time may still bend
+/// (it is settling itself) and the newest samples say most.
 const PHASE_NOISE_TARGET_US: f32 = 2.0;
+/// Largest ratio of the samples' scatter about the fitted line to their
+/// scatter from one to the next at which the neighbour's time is taken not
+/// to bend: white noise (whole-µs stamps, a late stamp) scatters both
+/// alike, a neighbour that moves its time between samples (a hub slewing
+/// away the noise of a USB link) only the first.
+const BEND_RATIO: f32 = 1.3;
+/// Phase noise aimed for on such a link, µs: the phase from one sample
+/// moved the clock by 0.45 µs rms every interval, and each hop added its
+/// own such steps to its parent's.
+const SETTLED_PHASE_NOISE_TARGET_US: f32 = 0.1;
 /// Request intervals a fit must span before its slope is trusted as the
 /// rate (40 × 50 ms: two seconds).
 const TRUSTED_SLOPE_SPAN_INTERVALS: u64 = 40;
@@ -385,11 +397,28 @@ impl Neighbour {
             fitted && n >= 8 && span >= TRUSTED_SLOPE_SPAN_INTERVALS * u64::from(cfg.interval_us);
         let slope = (fitted && stderr <= MAX_SLOPE_STDERR).then_some(b);
         // The line is a long average; the phase now comes from the newest
-        // samples' residuals, as many as the noise needs (one, on a clean
-        // link), so a neighbour whose own time bends is followed closely.
-        let wanted = (jitter / PHASE_NOISE_TARGET_US) * (jitter / PHASE_NOISE_TARGET_US);
+        // samples' residuals, as many as the noise needs, so a neighbour
+        // whose own time bends is followed closely. While the slope is not
+        // trusted, or the residuals' scatter about the line is more than
+        // `BEND_RATIO` times their scatter from one to the next (the
+        // neighbour's time moves between samples: a hub that follows a
+        // noisy USB estimate), that is one sample on a clean link: a long
+        // average would trail the neighbour. Otherwise the scatter is the
+        // stamps' own, white, and the newest residuals are fitted with a
+        // short line of their own read at `now`, over enough of them to
+        // bring the phase's noise to `SETTLED_PHASE_NOISE_TARGET_US` (a
+        // line's end is twice as noisy as a mean: four times the samples;
+        // a line, so a neighbour slewing its time in a ramp is not
+        // trailed).
+        let fine = slope.is_some() && rms <= BEND_RATIO * jitter;
+        let wanted = if fine {
+            4.0 * (jitter / SETTLED_PHASE_NOISE_TARGET_US)
+                * (jitter / SETTLED_PHASE_NOISE_TARGET_US)
+        } else {
+            (jitter / PHASE_NOISE_TARGET_US) * (jitter / PHASE_NOISE_TARGET_US)
+        };
         let take = (wanted as usize).clamp(1, usize::from(n));
-        let (mut taken, mut resid) = (0usize, 0f32);
+        let (mut taken, mut sr, mut srx, mut sx1, mut sxx1) = (0usize, 0f32, 0f32, 0f32, 0f32);
         for back in 1..=len {
             if taken == take {
                 break;
@@ -398,18 +427,34 @@ impl Neighbour {
             if !usable(&s) {
                 continue;
             }
-            resid += residual(s);
+            let (x, r) = (s.x(now), residual(s));
+            sr += r;
+            srx += r * x;
+            sx1 += x;
+            sxx1 += x * x;
             taken += 1;
         }
+        let k = taken.max(1) as f32;
+        let (mr, mx1) = (sr / k, sx1 / k);
+        let var_x = sxx1 / k - mx1 * mx1;
+        // The short line's value at now (x = 0), and its noise there. (x
+        // is within the fit's few seconds: µs² sums stay well inside f32.)
+        let (phase, phase_noise) = if fine && taken >= 3 && var_x > 0.0 {
+            let b1 = (srx / k - mr * mx1) / var_x;
+            let spread = 1.0 / k + mx1 * mx1 / (var_x * k);
+            (mr - b1 * mx1, jitter * libm_sqrt(spread))
+        } else {
+            (mr, jitter / libm_sqrt(k))
+        };
         Some(Estimate {
-            y_rel: mv - b * mx + resid / taken.max(1) as f32,
+            y_rel: mv - b * mx + phase,
             y_ref_half,
             slope,
             rms,
             jitter,
             used: n,
             newest: newest_sent,
-            phase_noise: jitter / libm_sqrt(taken.max(1) as f32),
+            phase_noise,
         })
     }
 

@@ -146,7 +146,7 @@ impl<const LINKS: usize> Clock<LINKS> {
     /// over its fresh neighbours, with the noise of the measurement and the
     /// mean of any trusted fitted rates.
     fn measure(&self, now: Instant, tier: u8) -> Option<Measurement> {
-        let own = self.map.own_y_half(now);
+        let (own, own_rest) = self.map.own_y_half(now);
         let prior = self.learned_q32 as f32 / Q32;
         let settled = self.phase.lock().is_some_and(|l| l.settled);
         let (mut offset_sum, mut offsets) = (0f32, 0u8);
@@ -162,13 +162,14 @@ impl<const LINKS: usize> Clock<LINKS> {
                 slopes += 1;
             }
             let fit = est.map(|e| {
-                let offset = e.y_ref_half.saturating_sub(own) as f32 * 0.5 + e.y_rel;
+                let offset = e.y_ref_half.saturating_sub(own) as f32 * 0.5 + e.y_rel - own_rest;
                 (offset, e.jitter, e.phase_noise)
             });
             let envelope = n
                 .envelope_offset(now, prior, &self.config)
                 .map(|(v, rel, sigma)| {
-                    let offset = v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel;
+                    let offset =
+                        v.saturating_mul(2).saturating_sub(own) as f32 * 0.5 + rel - own_rest;
                     (offset, sigma, sigma)
                 });
             // Over a link where most exchanges wait (USB frames), the few

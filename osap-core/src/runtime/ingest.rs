@@ -152,9 +152,14 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
 
 /// Rewrites the stamp of a time message this runtime originated as it starts
 /// onto the wire at local time `on_wire`: a request gets our local counter;
-/// a reply's responder time becomes the mean of our system time when the
-/// request arrived (written when the reply was made) and now, so it stands
-/// for the midpoint of our turnaround.
+/// a reply's responder time (our local counter when the request arrived,
+/// written when the reply was made) becomes our system time at the midpoint
+/// of that and now, rounded to the nearest µs.
+///
+/// The midpoint is taken on the local counter and mapped once, in the time
+/// map's fixed point: the mean of two system times each read in whole µs
+/// (and halved in whole µs) lost up to a µs a hop, always the same way,
+/// which the requester cannot tell from the link's delay.
 pub(super) fn stamp_time_message<const LINKS: usize>(
     packet: &mut [u8],
     on_wire: Instant,
@@ -179,12 +184,11 @@ pub(super) fn stamp_time_message<const LINKS: usize>(
         (CODE_TIME_REPLY, TIME_REPLY_LEN) => {
             let mut arrived = [0u8; 8];
             arrived.copy_from_slice(&body[8..16]);
-            let arrived = SystemInstant::from_micros(u64::from_le_bytes(arrived));
-            let leaving = clock.system_time(on_wire);
-            // Signed: a hard jump between the two may have moved time back.
-            let half = leaving.signed_micros_since(arrived) / 2;
-            let mid = arrived.as_micros().wrapping_add(half as u64);
-            body[8..16].copy_from_slice(&mid.to_le_bytes());
+            let arrived = Instant::from_micros(u64::from_le_bytes(arrived));
+            // Both ends through today's map: a hard jump between the two
+            // cannot put the midpoint outside them.
+            let mid = clock.time_map().midpoint_rounded(arrived, on_wire);
+            body[8..16].copy_from_slice(&mid.as_micros().to_le_bytes());
         }
         _ => {}
     }

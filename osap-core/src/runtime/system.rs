@@ -101,11 +101,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                     bump(&mut self.counters.unknown_system);
                     return Served::Dropped;
                 };
-                // Our time when the request arrived; averaged with our time
-                // when the reply starts onto the wire at transmit.
+                // Our *local* counter when the request arrived, for now:
+                // at transmit it is replaced by our system time at the
+                // midpoint of it and the reply's start onto the wire,
+                // worked out below the µs (`stamp_time_message`).
                 let reply = TimeReply {
                     request_time: Instant::from_micros(u64::from_le_bytes(stamp)),
-                    responder_time: self.clock.system_time(meta.arrival),
+                    responder_time: SystemInstant::from_micros(meta.arrival.as_micros()),
                     responder_tier: self.clock.tier(),
                 };
                 let ttl = self.config.reply_ttl_us;
