@@ -193,6 +193,19 @@ mod tests {
     }
 
     #[test]
+    fn a_reply_midpoint_is_rounded_below_the_microsecond() {
+        // Half a µs of offset in the map's fraction: the two readings in
+        // whole µs (5_000_001 and 5_000_004), their difference halved in
+        // whole µs, gave 5_000_002; the map itself says 5_000_003.0.
+        let mut m = map(0, 0, 0);
+        m.base_frac = 1 << 31;
+        let mid = m.midpoint_rounded(Instant::from_micros(1_001), Instant::from_micros(1_004));
+        assert_eq!(mid, SystemInstant::from_micros(5_000_003));
+        let one = m.midpoint_rounded(Instant::from_micros(1_000), Instant::from_micros(1_000));
+        assert_eq!(one, SystemInstant::from_micros(5_000_001));
+    }
+
+    #[test]
     fn before_the_map_reaches_is_zero() {
         assert_eq!(map(0, 0, 0).local_time(SystemInstant::ZERO), Instant::ZERO);
     }

@@ -172,3 +172,56 @@ fn the_prompt_envelope_gives_rate_and_offset_where_round_trips_do_not() {
     assert!((y - truth).abs() < 10.0, "envelope {y} truth {truth}");
     assert!(sigma < 10.0, "scatter {sigma}");
 }
+
+/// A neighbour `offset` µs ahead and `ppm` fast whose every stamp is
+/// whole µs: our send and receive stamps floored, its reply rounded.
+/// Returns the truth at `now` and the estimate there, µs.
+fn whole_us_stamps(count: u64, ppm: f64, offset: f64) -> (f64, f64) {
+    let mut n = Neighbour::default();
+    let at = |i: u64| 1_000_000.0 + i as f64 * 50_000.0 + (i * 7_919 % 1_000) as f64 * 0.001;
+    let theirs = |l: f64| l + offset + l * ppm * 1e-6;
+    for i in 0..count {
+        let sent = at(i);
+        let received = sent + 187.3;
+        let mid = theirs(0.5 * (sent + received));
+        n.add(
+            Instant::from_micros(sent as u64),
+            Instant::from_micros(received as u64),
+            SystemInstant::from_micros(mid.round() as u64),
+            0,
+            &cfg(),
+            0.0,
+        );
+    }
+    let now = at(count) as u64;
+    let e = n.estimate(Instant::from_micros(now), &cfg(), 0.0).unwrap();
+    assert!(e.slope.is_some(), "{e:?}");
+    (
+        theirs(now as f64) - now as f64,
+        e.y_ref_half as f64 * 0.5 + f64::from(e.y_rel),
+    )
+}
+
+#[test]
+fn a_settled_phase_averages_the_stamps_whole_microseconds_away() {
+    extern crate std;
+    // One sample's phase scatters by 0.3-0.45 µs rms from its whole-µs
+    // stamps (here our two stamps floored, its reply rounded); the short
+    // line through the newest residuals must scatter far less. Our floored
+    // stamps also bias every sample by half a µs, which the responder's
+    // own floored stamps cancel on the wire (not modelled here): the
+    // scatter about the mean error is what the filter decides.
+    let errors: std::vec::Vec<f64> = (0..24u64)
+        .map(|k| {
+            let (truth, got) =
+                whole_us_stamps(64 + k, 37.0 + k as f64 * 3.1, 1234.37 + k as f64 * 0.13);
+            got - truth
+        })
+        .collect();
+    let mean = errors.iter().sum::<f64>() / errors.len() as f64;
+    let sd =
+        (errors.iter().map(|e| (e - mean) * (e - mean)).sum::<f64>() / errors.len() as f64).sqrt();
+    std::eprintln!("phase error: mean {mean:.3} µs, sd {sd:.3} µs");
+    assert!(sd < 0.15, "phase scatters by {sd} µs: {errors:?}");
+    assert!((mean - 0.5).abs() < 0.15, "mean {mean} µs");
+}
