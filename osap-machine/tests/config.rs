@@ -91,7 +91,7 @@ fn plotter_example_loads() {
     assert_eq!(m.motor_for_axis("x"), None);
     assert_eq!(m.motors_for_axis("x"), ["a", "b"]);
     assert_eq!(m.tools["pen"].kind, ToolKind::Pen);
-    assert_eq!(m.homing_order(), vec![vec!["x"], vec!["y"]]);
+    assert_eq!(m.homing_order(), vec![vec!["x", "y"]]);
     let switches = m.switch_placements();
     assert_eq!(switches.len(), 2);
     assert_eq!(switches[0].module, "a");

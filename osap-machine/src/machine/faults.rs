@@ -47,8 +47,7 @@ impl Machine {
                                 .expecting
                                 .lock()
                                 .unwrap_or_else(|e| e.into_inner())
-                                .as_deref()
-                                == Some(module.as_str());
+                                .contains(&module);
                             let _ = inner.events.send(MachineEvent::Limit {
                                 module: module.clone(),
                                 time: edge.time,
@@ -134,8 +133,8 @@ pub(super) fn stops_motion(
         .expecting_halt
         .lock()
         .unwrap_or_else(|e| e.into_inner())
-        .as_deref()
-        == Some(module);
+        .iter()
+        .any(|m| m == module);
     match kind {
         K::None => false,
         // A load-cell probe's comparator halting z ends its search; the

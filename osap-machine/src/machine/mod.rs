@@ -128,12 +128,13 @@ struct Inner {
     limit_edges: broadcast::Sender<(String, LimitEdge)>,
     state: watch::Sender<MachineState>,
     homed: Mutex<Vec<bool>>,
-    /// The module whose switch homing or probing presses now: its press is
+    /// The modules whose switches homing or probing presses now (the
+    /// axes of one homing order press theirs together): their presses are
     /// expected. A press on any other switch still stops the machine.
-    expecting: Mutex<Option<String>>,
+    expecting: Mutex<Vec<String>>,
     /// The module whose axis a load-cell probe's comparator halts now: its
     /// `BlockHalt`, and the points it refuses as halted, are expected.
-    expecting_halt: Mutex<Option<String>>,
+    expecting_halt: Mutex<Vec<String>>,
     tools: Mutex<BTreeMap<String, tool::ToolState>>,
     underneath: Mutex<Option<Box<dyn Underneath>>>,
     /// Modules that stopped answering since the last recovery: they may

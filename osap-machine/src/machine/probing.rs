@@ -100,7 +100,7 @@ impl Machine {
         self.idle().await?;
         // A probe press is expected now, on this module alone: not a
         // crash. A press on any other switch still stops the machine.
-        let _expect = ExpectSwitch::new(&self.inner.expecting, module);
+        let _expect = ExpectSwitch::new(&self.inner.expecting, &[module]);
         let mut edges = self.inner.limit_edges.subscribe();
         let since = self.now_us().await?;
         {
@@ -209,7 +209,7 @@ impl Machine {
     ) -> Result<Option<(u64, Vec<f64>)>, MachineError> {
         // The comparator's halt of this module, and the points its halted
         // axis then refuses, end the search: not a crash.
-        let _expect = ExpectSwitch::new(&self.inner.expecting_halt, module);
+        let _expect = ExpectSwitch::new(&self.inner.expecting_halt, &[module]);
         {
             let mut m = lock_motion(&self.inner.motion);
             let mut to = m.planner.tail();

@@ -12,7 +12,7 @@ use osap_sim::machine::board::melt::MeltStats;
 use osap_sim::machine::board::rotor::Rotor;
 use osap_sim::machine::DriftClock;
 use osap_sim::machine::{SimMachine, TimeMode};
-use osap_sim::topology::MeltSpec;
+use osap_sim::topology::{MeltSpec, SimSpec};
 
 use crate::config::MachineFile;
 use crate::machine::{Machine, MachineError, Underneath, HOST_NAME};
@@ -68,8 +68,21 @@ impl Machine {
     ) -> Result<Machine, MachineError> {
         cfg.validate()?;
         let spec = super::spec(cfg).map_err(|e| MachineError::Unsupported(e.to_string()))?;
+        Self::simulate_on(cfg, &spec, options).await
+    }
+
+    /// [`Machine::simulate_with`] on a simulation of the caller's: the
+    /// machine file's machine in a world that differs from the file, such
+    /// as [`super::spec`]'s with a switch taken away (a broken wire) or
+    /// moved (one pressed at start).
+    pub async fn simulate_on(
+        cfg: &MachineFile,
+        spec: &SimSpec,
+        options: SimOptions,
+    ) -> Result<Machine, MachineError> {
+        cfg.validate()?;
         let host = Host::start(HostConfig::named(HOST_NAME))?;
-        let sim = SimMachine::start_with(&host, &spec, options.time).await?;
+        let sim = SimMachine::start_with(&host, spec, options.time).await?;
         Self::start(
             cfg,
             host,

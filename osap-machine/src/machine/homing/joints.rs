@@ -1,12 +1,17 @@
 //! Homing an arm (scara, fivebar): its joints, one at a time, in joint
-//! space; then x and y from the joints through the kinematics.
+//! space, by the switch sequence cartesian axes home with; then x and y
+//! from the joints through the kinematics.
+//!
+//! The joints stay one at a time: a combined turn of both is no straight
+//! line in x and y, and the arm's reach is checked only when homing
+//! leaves joint space.
 
 use maxl::blocks::planner::{Limits, Planner, VectorLimits, DEFAULT_CAPACITY};
 
-use super::ExpectSwitch;
+use super::search::SwitchHoming;
 use crate::config::{Direction, Kinematics, MachineFile, JOINT_SEARCH};
 use crate::machine::events::MachineEvent;
-use crate::machine::{lock_motion, monitor, Machine, MachineError, MAX_AXES};
+use crate::machine::{lock_motion, Machine, MachineError, MAX_AXES};
 
 impl Machine {
     /// Homes an arm's two joints (scara, fivebar: x's homing homes the
@@ -152,8 +157,9 @@ impl Machine {
         Ok(())
     }
 
-    /// Homes one arm joint on its switch, in joint space: slot `k` of the
-    /// axis is the joint's angle (radians).
+    /// Homes one arm joint on its switch, in joint space (slot `k` of the
+    /// axis is the joint's angle, radians), alone: the switch sequence of
+    /// a cartesian axis ([`SwitchHoming`]).
     async fn home_joint(&self, axis: &str) -> Result<(), MachineError> {
         let fail = |reason: String| MachineError::Homing {
             axis: axis.to_string(),
@@ -174,48 +180,24 @@ impl Machine {
             .iter()
             .position(|n| n == axis)
             .ok_or_else(|| MachineError::UnknownAxis(axis.into()))?;
-        let _expect = ExpectSwitch::new(&self.inner.expecting, switch);
         let dir = match homing.direction {
             Direction::Min => -1.0,
             Direction::Max => 1.0,
         };
-        let reason = |e: MachineError| match e {
-            MachineError::Homing { reason, .. } => fail(reason),
-            other => other,
+        let joint = SwitchHoming {
+            axis: axis.to_string(),
+            k,
+            switch: switch.to_string(),
+            dir,
+            search: JOINT_SEARCH + homing.backoff,
+            home,
+            off: home - dir * homing.backoff,
+            backoff: homing.backoff,
+            search_speed: homing.search_speed,
+            latch_speed: homing.latch_speed,
+            unit: "rad",
         };
-        let pressed = || {
-            monitor::lock(&self.inner.reports)
-                .limit
-                .get(switch)
-                .is_some_and(|e| e.pressed)
-        };
-        if pressed() {
-            self.relative(k, -dir * 2.0 * homing.backoff, homing.search_speed)
-                .await?;
-            if pressed() {
-                return Err(fail(format!(
-                    "the switch on module {switch} stays pressed after turning {} rad off it",
-                    2.0 * homing.backoff
-                )));
-            }
-        }
-        let search = JOINT_SEARCH + homing.backoff;
-        let at = self
-            .seek(k, switch, dir * search, homing.search_speed)
-            .await
-            .map_err(reason)?;
-        self.shift_axis(k, home - at)?;
-        let off = home - dir * homing.backoff;
-        self.absolute(k, off, homing.search_speed).await?;
-        if let Some(latch) = homing.latch_speed {
-            let at = self
-                .seek(k, switch, dir * 2.0 * homing.backoff, latch)
-                .await
-                .map_err(reason)?;
-            self.shift_axis(k, home - at)?;
-            self.absolute(k, off, homing.search_speed).await?;
-        }
-        Ok(())
+        self.home_on_switches(std::slice::from_ref(&joint)).await
     }
 }
 
