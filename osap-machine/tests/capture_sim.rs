@@ -137,6 +137,9 @@ fn a_capture_beside_a_job_is_synchronized_and_in_order() {
         // The capture's wiring is gone; the machine's own stays.
         assert_eq!(pipes(&m, "a", "get_position").await, 1);
         assert_eq!(pipes(&m, "z", "analog_read").await, 0);
+        for key in ["a", "b", "z"] {
+            assert_eq!(pipes(&m, key, "sample_block").await, 0, "{key}");
+        }
         m.stop().await.unwrap();
     });
 }
@@ -160,8 +163,9 @@ fn csv_captures_read_back_too() {
         // 0.1 s at 1 kHz.
         assert!(analog.time_us.len() >= 90, "{}", analog.time_us.len());
         assert!(analog.time_us.windows(2).all(|w| w[0] < w[1]));
-        // Status has no time output: stamped on arrival, at 1 kHz too
-        // (faster than the machine's own 20 Hz, which comes back after).
+        // Status has no time output: b stamps each sample as it takes it
+        // (in a block), at 1 kHz too (faster than the machine's own 20 Hz,
+        // which comes back after).
         let queued = capture.get("b.get_status.queued").unwrap();
         assert_eq!(queued.clock, None, "a CSV file does not say");
         assert!(queued.time_us.len() >= 90, "{}", queued.time_us.len());
