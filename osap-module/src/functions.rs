@@ -56,7 +56,7 @@
 //! | `level_point` | `time: u64`, `channel: u8`, `before: f32`, `after: f32` | — |
 //! | `event_point` | `time: u64`, `pin: u8`, `level: bool` | — |
 //! | `level_read` | — | `time: u64`, `pwm0: f32`, `pwm1: f32`, `pins: u32` |
-//! | `sample_block` | `source0: u8`, `arg0: u8`, `source1: u8`, `arg1: u8`, `source2: u8`, `arg2: u8`, `latency_us: u32`, `session: u32` | `seq: u32`, `first: u32`, `time: u64`, `samples: arry_u8` |
+//! | `sample_block` | `source0: u8`, `arg0: u8`, `source1: u8`, `arg1: u8`, `source2: u8`, `arg2: u8`, `latency_us: u32`, `session: u32` | `seq: u32`, `first: u32`, `time: u64`, `samples: arry_u8`, `session: u32` |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -522,10 +522,10 @@ impl<B: Board> Module<B> {
         arg2: u8,
         latency_us: u32,
         session: u32,
-    ) -> Result<(u32, u32, u64, crate::sampler::Block), CallError> {
+    ) -> Result<(u32, u32, u64, crate::sampler::Block, u32), CallError> {
         let sources = [(source0, arg0), (source1, arg1), (source2, arg2)];
         let c = self.run_sampler(sources, latency_us, session)?;
-        Ok((c.seq, c.first, c.time, c.block))
+        Ok((c.seq, c.first, c.time, c.block, c.session))
     }
 
     #[doc = fn_docs!(level_read)]
@@ -839,7 +839,7 @@ macro_rules! module_function_table {
             /// argument) on its timer into stamped, numbered blocks. A block goes down
             /// its pipes when full or `latency_us` old (0: close it now); see
             /// [`crate::sampler`].
-            sample_block(source0: u8, arg0: u8, source1: u8, arg1: u8, source2: u8, arg2: u8, latency_us: u32, session: u32) -> (seq: u32, first: u32, time: u64, samples: $crate::sampler::Block);
+            sample_block(source0: u8, arg0: u8, source1: u8, arg1: u8, source2: u8, arg2: u8, latency_us: u32, session: u32) -> (seq: u32, first: u32, time: u64, samples: $crate::sampler::Block, session: u32);
         }
     };
 }

@@ -29,11 +29,18 @@ pub const FN_STORE: usize = 48;
 /// A module function as a runtime port.
 pub type ModuleFunction<H> = PipesFunction<ModuleFn<H>, FN_PIPES, FN_QUEUE, FN_STORE>;
 
+/// The largest outputs `sample_block` writes, as an argument list: the
+/// count, then with its index and type key each of `seq`, `first` and
+/// `session` (`u32`), `time` (`u64`), and `samples` with its length and a
+/// full block.
+const SAMPLER_OUTPUTS: usize = 1 + 3 * (2 + 4) + (2 + 8) + (2 + 2 + crate::sampler::BLOCK_BYTES);
+
 /// Byte size of `sample_block`'s stores, output buffer and queued
-/// datagrams: its outputs carry a block of [`crate::sampler::BLOCK_BYTES`]
-/// bytes with its sequence, first index and time (221 bytes as a
-/// datagram).
-pub const SAMPLER_STORE: usize = 224;
+/// datagrams: its outputs with a full block of
+/// [`crate::sampler::BLOCK_BYTES`], and as a datagram the transport and
+/// message keys before them (227 bytes; a packet of 237 over two hops,
+/// within a module's 256).
+pub const SAMPLER_STORE: usize = SAMPLER_OUTPUTS + 2;
 /// Datagrams each of `sample_block`'s pipes queues: at 1 kHz a block
 /// closes every 9 ms or so, so two cover a port busy for 18 ms.
 pub const SAMPLER_QUEUE: usize = 2;

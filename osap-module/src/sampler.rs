@@ -26,12 +26,14 @@
 //!    number and counts every block it never received.
 //!
 //! # A block
-//! Outputs `(seq, first, time, samples)`: `seq` counts the session's
+//! Outputs `(seq, first, time, samples, session)`: `seq` counts the session's
 //! blocks from 1 (0: none closed yet), `first` is the session's index of
 //! the block's first sample (so samples lost with a block are `first` of
 //! the next minus `first` of the last received, minus what it held),
-//! `time` the synchronized time of the first sample, µs. `samples` (an
-//! `arry_u8`) holds one record per sample:
+//! `time` the synchronized time of the first sample, µs, and `session`
+//! the session it was taken in (a host ignores another session's blocks:
+//! an earlier capture's, sent before the new inputs arrived). `samples`
+//! (an `arry_u8`) holds one record per sample:
 //!
 //! | bytes | what |
 //! |---|---|
@@ -179,6 +181,9 @@ struct Config {
 /// A block closed: `sample_block`'s outputs.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
 pub struct Closed {
+    /// The session it belongs to (the `session` input it was taken
+    /// under), so a host tells a new capture's blocks from an old one's.
+    pub session: u32,
     /// The block's number in its session, from 1 (0: none yet).
     pub seq: u32,
     /// The session's index of its first sample.
@@ -224,6 +229,7 @@ impl Sampler {
             return;
         }
         self.closed = Closed {
+            session: self.config.map_or(0, |c| c.session),
             seq: self.closed.seq.wrapping_add(1),
             first: self.open_first,
             time: self.open_time,
@@ -237,6 +243,10 @@ impl Sampler {
         if self.config != Some(config) {
             *self = Sampler {
                 config: Some(config),
+                closed: Closed {
+                    session: config.session,
+                    ..Closed::default()
+                },
                 ..Sampler::default()
             };
         }

@@ -569,7 +569,7 @@ fn sample_block_batches_stamped_numbered_samples() {
         if out.0 > 0
             && blocks
                 .last()
-                .is_none_or(|b: &(u32, u32, u64, _)| b.0 != out.0)
+                .is_none_or(|b: &(u32, u32, u64, _, u32)| b.0 != out.0)
         {
             blocks.push(out);
         }
@@ -578,8 +578,8 @@ fn sample_block_batches_stamped_numbered_samples() {
     // index, type key and value of a u64 and an f32), 17 of analog_read:
     // 38, so five to a block of 192 bytes.
     assert_eq!(blocks.len(), 20);
-    for (k, (seq, first, time, block)) in blocks.iter().enumerate() {
-        assert_eq!(*seq, k as u32 + 1);
+    for (k, (seq, first, time, block, session)) in blocks.iter().enumerate() {
+        assert_eq!((*seq, *session), (k as u32 + 1, 7));
         assert_eq!(*first, 5 * k as u32);
         assert_eq!(*time, 1_000 + 1_000 * u64::from(*first));
         let recs = records(block.bytes(), 2);
@@ -603,7 +603,7 @@ fn sample_block_batches_stamped_numbered_samples() {
     let mut firsts = Vec::new();
     for k in 0..10u64 {
         now.set(Instant::from_micros(200_000 + 10_000 * k));
-        let (seq, first, _, block) = m.sample_block(pos, 0, 255, 0, 255, 0, 20_000, 8).unwrap();
+        let (seq, first, _, block, _) = m.sample_block(pos, 0, 255, 0, 255, 0, 20_000, 8).unwrap();
         if seq > 0 && firsts.last().is_none_or(|f: &(u32, u32, usize)| f.0 != seq) {
             firsts.push((seq, first, records(block.bytes(), 1).len()));
         }
@@ -611,7 +611,7 @@ fn sample_block_batches_stamped_numbered_samples() {
     // A new session: numbering from 1 again.
     assert_eq!(firsts, [(1, 0, 3), (2, 3, 3), (3, 6, 3)]);
     // Latency 0 closes the open block (sample 9) without a sample.
-    let (seq, first, _, block) = m.sample_block(pos, 0, 255, 0, 255, 0, 0, 8).unwrap();
+    let (seq, first, _, block, _) = m.sample_block(pos, 0, 255, 0, 255, 0, 0, 8).unwrap();
     assert_eq!((seq, first, records(block.bytes(), 1).len()), (4, 9, 1));
     // Again: nothing open, nothing new.
     assert_eq!(m.sample_block(pos, 0, 255, 0, 255, 0, 0, 8).unwrap().0, 4);
@@ -635,6 +635,6 @@ fn sample_block_takes_only_read_functions() {
     let analog = index(FnId::analog_read);
     m.sample_block(analog, 3, 255, 0, 255, 0, 20_000, 2)
         .unwrap();
-    let (_, _, _, block) = m.sample_block(analog, 3, 255, 0, 255, 0, 0, 2).unwrap();
+    let (_, _, _, block, _) = m.sample_block(analog, 3, 255, 0, 255, 0, 0, 2).unwrap();
     assert_eq!(records(block.bytes(), 1), [(0, vec![vec![]])]);
 }

@@ -137,6 +137,8 @@ struct Member {
 
 /// A module's blocks turned into rows, in order, with what was lost.
 pub(super) struct Decoder {
+    /// The session the capture set: another's blocks are not its.
+    session: u32,
     members: Vec<Member>,
     tx: SyncSender<Row>,
     shared: Arc<Shared>,
@@ -160,6 +162,7 @@ impl std::fmt::Debug for Decoder {
 /// A block as `sample_block` sends it.
 #[derive(Debug, Clone, Copy)]
 pub(super) struct BlockIn<'a> {
+    pub(super) session: u32,
     pub(super) seq: u32,
     pub(super) first: u32,
     pub(super) time: u64,
@@ -171,10 +174,11 @@ impl<'a> BlockIn<'a> {
     /// same order).
     pub(super) fn from_values(v: &'a [Value<'static>]) -> Option<BlockIn<'a>> {
         match v {
-            [Value::U32(seq), Value::U32(first), Value::U64(time), Value::Array(a), ..]
+            [Value::U32(seq), Value::U32(first), Value::U64(time), Value::Array(a), Value::U32(session), ..]
                 if a.elem() == ScalarType::U8 =>
             {
                 Some(BlockIn {
+                    session: *session,
                     seq: *seq,
                     first: *first,
                     time: *time,
@@ -190,6 +194,7 @@ impl Decoder {
     /// The blocks of `resolved`'s sources `members` (their series from
     /// `first_series[i]`), into `tx`.
     fn new(
+        session: u32,
         resolved: &[Resolved],
         members: &[usize],
         first_series: &[u16],
@@ -197,6 +202,7 @@ impl Decoder {
         shared: Arc<Shared>,
     ) -> Decoder {
         Decoder {
+            session,
             members: members
                 .iter()
                 .map(|&i| Member {
@@ -228,9 +234,10 @@ impl Decoder {
 
     /// Takes one block: samples between the last block and this one are
     /// counted lost, then every record becomes rows. Block 0 (none closed
-    /// yet) and blocks already taken change nothing.
+    /// yet), blocks already taken and another session's blocks change
+    /// nothing.
     pub(super) fn take(&mut self, b: BlockIn<'_>) {
-        if b.seq == 0 || self.has(b.seq) {
+        if b.session != self.session || b.seq == 0 || self.has(b.seq) {
             return;
         }
         self.lose(b.first.wrapping_sub(self.next_first));
@@ -359,7 +366,9 @@ impl Recorder {
         let source = FnRef::new(group.runtime.clone(), SAMPLE_BLOCK);
         let module = &resolved[group.members[0]].spec.module;
         let name = format!("capture{}.{module}.{SAMPLE_BLOCK}", self.id);
+        let session = session(self.id);
         let decoder = Arc::new(Mutex::new(Decoder::new(
+            session,
             resolved,
             &group.members,
             first_series,
@@ -379,6 +388,7 @@ impl Recorder {
             ("first", Type::Scalar(ScalarType::U32)),
             ("time", Type::Scalar(ScalarType::U64)),
             ("samples", Type::Array(ScalarType::U8)),
+            ("session", Type::Scalar(ScalarType::U32)),
         ];
         let function = HostFunction::new(&name, &inputs, &[], body)?;
         let mut manager = self.machine.manager().lock().await;
@@ -403,7 +413,7 @@ impl Recorder {
             values.push(Value::U8(a));
         }
         values.push(Value::U32(BLOCK_LATENCY_US));
-        values.push(Value::U32(session(self.id)));
+        values.push(Value::U32(session));
         self.wired.push(Wired {
             source: source.clone(),
             dest: dest.clone(),
@@ -419,26 +429,30 @@ impl Recorder {
             .connect(
                 &source,
                 &dest,
-                &[0, 1, 2, 3],
-                &[0, 1, 2, 3],
+                &[0, 1, 2, 3, 4],
+                &[0, 1, 2, 3, 4],
                 PipeOptions::default(),
             )
             .await?;
         if let Some(w) = self.wired.last_mut() {
             w.slot = Some(pipe.slot);
         }
-        let pushed: Vec<(u8, Value<'static>)> = values
-            .into_iter()
-            .enumerate()
-            .map(|(i, v)| (i as u8, v))
-            .collect();
-        manager.function(&source)?.push(&pushed).await?;
+        // The timer first: with it, the push below stores the inputs
+        // without a run (a run before the timer's first period would be a
+        // sample off the grid), and the timer runs nothing until every
+        // input is held.
         manager
             .set_output_mode(&source, OutputMode::OnChange)
             .await?;
         manager
             .set_input_mode(&source, InputMode::OnTimer(period_us))
             .await?;
+        let pushed: Vec<(u8, Value<'static>)> = values
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| (i as u8, v))
+            .collect();
+        manager.function(&source)?.push(&pushed).await?;
         Ok(())
     }
 
@@ -489,6 +503,7 @@ mod tests {
         let (tx, rx) = std::sync::mpsc::sync_channel(1000);
         let shared = Arc::new(Shared::default());
         let d = Decoder {
+            session: 9,
             members: vec![Member {
                 outputs: if stamped { vec![0, 1] } else { vec![0] },
                 stamped,
@@ -525,6 +540,7 @@ mod tests {
         let (mut d, rx, shared) = decoder(true);
         let one = records(1_000, &[1_000, 2_000, 3_000]);
         d.take(BlockIn {
+            session: 9,
             seq: 1,
             first: 0,
             time: 1_000,
@@ -533,6 +549,7 @@ mod tests {
         // Block 2 (samples 3, 4) never arrives.
         let three = records(6_000, &[6_000, 7_000]);
         d.take(BlockIn {
+            session: 9,
             seq: 3,
             first: 5,
             time: 6_000,
@@ -546,16 +563,26 @@ mod tests {
         assert_eq!(d.accounted(), 7);
         // A duplicate, and the "none yet" block, change nothing.
         d.take(BlockIn {
+            session: 9,
             seq: 3,
             first: 5,
             time: 6_000,
             records: &three,
         });
         d.take(BlockIn {
+            session: 9,
             seq: 0,
             first: 0,
             time: 0,
             records: &[],
+        });
+        // An earlier capture's block (another session) is not this one's.
+        d.take(BlockIn {
+            session: 8,
+            seq: 40,
+            first: 200,
+            time: 9_000,
+            records: &three,
         });
         assert_eq!(rx.try_iter().count(), 0);
         assert_eq!(shared.lost.load(Ordering::Relaxed), 2);
@@ -574,6 +601,7 @@ mod tests {
         w.u8(0).unwrap(); // the source failed
         let n = w.len();
         d.take(BlockIn {
+            session: 9,
             seq: 1,
             first: 0,
             time: 10_000,
