@@ -171,7 +171,7 @@ async fn record_sources(
     }
     if file.stats.lost_at_source > 0 {
         sum.line(format!(
-            "  {} samples lost at the modules (a pipe queue was full: sample less often with --period-us, or record fewer sources per module)",
+            "  {} samples lost at the modules (blocks that never arrived, a full pipe queue or a failed read: sample less often with --period-us, or record fewer sources per module)",
             file.stats.lost_at_source
         ));
     }

@@ -137,6 +137,9 @@ fn a_capture_beside_a_job_is_synchronized_and_in_order() {
         // The capture's wiring is gone; the machine's own stays.
         assert_eq!(pipes(&m, "a", "get_position").await, 1);
         assert_eq!(pipes(&m, "z", "analog_read").await, 0);
+        for key in ["a", "b", "z"] {
+            assert_eq!(pipes(&m, key, "sample_block").await, 0, "{key}");
+        }
         m.stop().await.unwrap();
     });
 }
@@ -160,8 +163,9 @@ fn csv_captures_read_back_too() {
         // 0.1 s at 1 kHz.
         assert!(analog.time_us.len() >= 90, "{}", analog.time_us.len());
         assert!(analog.time_us.windows(2).all(|w| w[0] < w[1]));
-        // Status has no time output: stamped on arrival, at 1 kHz too
-        // (faster than the machine's own 20 Hz, which comes back after).
+        // Status has no time output: b stamps each sample as it takes it
+        // (in a block), at 1 kHz too (faster than the machine's own 20 Hz,
+        // which comes back after).
         let queued = capture.get("b.get_status.queued").unwrap();
         assert_eq!(queued.clock, None, "a CSV file does not say");
         assert!(queued.time_us.len() >= 90, "{}", queued.time_us.len());
@@ -258,6 +262,40 @@ fn a_stream_beside_homing_on_the_same_module() {
         );
         stream.stop().await;
         assert_eq!(pipes(&m, "a", "analog_read").await, 0);
+        m.stop().await.unwrap();
+    });
+}
+
+/// Two captures of one module, one after the other: the second's blocks
+/// are its own (a new session), none of the first's counted or written,
+/// none of its own lost.
+#[test]
+fn a_second_capture_of_a_module_starts_its_own_count() {
+    virtual_runtime().unwrap().block_on(async {
+        let m = start().await;
+        for k in 0..2 {
+            let path = out(&format!("again{k}.csv"));
+            let recorder = m
+                .record(
+                    &["a.get_position", "a.analog_read(0)"],
+                    RecordOptions::new(&path).period_us(1_000),
+                )
+                .await
+                .unwrap();
+            m.dwell(0.2).await.unwrap();
+            let file = recorder.finish().await.unwrap();
+            let s = file.stats;
+            assert_eq!(
+                (s.lost_at_source, s.stale, s.dropped),
+                (0, 0, 0),
+                "{k}: {s:?}"
+            );
+            // Every sample taken written: 0.2 s at 1 kHz and the round
+            // trips that wire and unwire the capture (about 50 ms).
+            assert_eq!(s.taken_at_source, s.received, "{k}: {s:?}");
+            assert!((2 * 200..=2 * 300).contains(&s.received), "{k}: {s:?}");
+            assert_eq!(pipes(&m, "a", "sample_block").await, 0);
+        }
         m.stop().await.unwrap();
     });
 }

@@ -27,6 +27,7 @@ use crate::functions::{FnId, ALL, NOT_INSTALLED, SIGNATURES};
 use crate::heater::HeaterError;
 use crate::io::IoError;
 use crate::loadcell::LoadCellError;
+use crate::sampler::SamplerError;
 use crate::stepper::StepperError;
 use pipes_core::export::{INPUT_DECODE_FAILED, NO_SUCH_MEMBER, STATE_BUSY};
 
@@ -47,6 +48,8 @@ pub enum Family {
     Heater,
     /// [`LoadCellError`] codes (the `loadcell_` functions).
     LoadCell,
+    /// [`SamplerError`] codes (`sample_block`).
+    Sampler,
     /// None of its own: the function cannot refuse (beyond [`generic`]).
     None,
 }
@@ -103,6 +106,7 @@ impl Family {
             F::loadcell_setup | F::loadcell_tare | F::loadcell_scale | F::loadcell_read => {
                 Family::LoadCell
             }
+            F::sample_block => Family::Sampler,
         }
     }
 
@@ -115,6 +119,7 @@ impl Family {
             Family::Boot => &BOOT_FAILURES,
             Family::Heater => &HEATER_FAILURES,
             Family::LoadCell => &LOADCELL_FAILURES,
+            Family::Sampler => &SAMPLER_FAILURES,
             Family::None => &GENERIC_FAILURES,
         }
     }
@@ -128,6 +133,7 @@ impl Family {
             Family::Boot => find(BOOT.iter().map(|&e| boot(e)), code),
             Family::Heater => find(HEATER.iter().map(|&e| heater(e)), code),
             Family::LoadCell => find(LOADCELL.iter().map(|&e| loadcell(e)), code),
+            Family::Sampler => find(SAMPLER.iter().map(|&e| sampler(e)), code),
             Family::None => None,
         }
     }
@@ -214,6 +220,8 @@ pub enum Refusal {
     Heater(HeaterError),
     /// A load-cell function's refusal.
     LoadCell(LoadCellError),
+    /// `sample_block`'s refusal.
+    Sampler(SamplerError),
     /// [`NOT_INSTALLED`]: the firmware never installed its board.
     NotInstalled,
     /// One of pipes-core's generated wrappers' codes
@@ -235,6 +243,7 @@ impl Refusal {
             Family::Boot => BootError::from_code(code).map(Refusal::Boot),
             Family::Heater => HeaterError::from_code(code).map(Refusal::Heater),
             Family::LoadCell => LoadCellError::from_code(code).map(Refusal::LoadCell),
+            Family::Sampler => SamplerError::from_code(code).map(Refusal::Sampler),
             Family::None => None,
         };
         own.unwrap_or(match pipes_core::FailureCode::from_code(code) {
@@ -257,6 +266,7 @@ impl Refusal {
             Refusal::Boot(e) => e.code(),
             Refusal::Heater(e) => e.code(),
             Refusal::LoadCell(e) => e.code(),
+            Refusal::Sampler(e) => e.code(),
             Refusal::NotInstalled => NOT_INSTALLED,
             Refusal::Wrapper(c) => c.code(),
             Refusal::Other(c) => c,
@@ -272,6 +282,7 @@ impl Refusal {
             Refusal::Boot(e) => Some(boot(e)),
             Refusal::Heater(e) => Some(heater(e)),
             Refusal::LoadCell(e) => Some(loadcell(e)),
+            Refusal::Sampler(e) => Some(sampler(e)),
             Refusal::NotInstalled | Refusal::Wrapper(_) => generic(self.code()),
             Refusal::Other(_) => None,
         }
@@ -425,6 +436,17 @@ failures! {
 }
 
 failures! {
+    /// `sample_block`'s refusal ([`SamplerError`]), by name.
+    pub fn sampler, SAMPLER, SAMPLER_FAILURES: SamplerError {
+        BadSource => "a source is not one of the module's read functions (outputs, and no \
+                      input or one u8 input; not sample_block): name read functions such as \
+                      get_position or analog_read",
+        TooLarge => "one sample of the sources does not fit a block: sample fewer sources at \
+                     once",
+    }
+}
+
+failures! {
     /// `enter_bootloader`'s refusal ([`BootError`]), by name.
     pub fn boot, BOOT, BOOT_FAILURES: BootError {
         Unsupported => "this board cannot reboot into a bootloader from its firmware: put it \
@@ -469,6 +491,7 @@ mod tests {
                 Family::Boot,
                 Family::Heater,
                 Family::LoadCell,
+                Family::Sampler,
                 Family::None,
             ] {
                 assert_eq!(Refusal::from_code(family, byte).code(), byte);
@@ -661,6 +684,20 @@ mod tests {
             Refusal::of(FnId::loadcell_tare, 2),
             Refusal::LoadCell(LoadCellError::BadValue)
         );
+    }
+
+    #[test]
+    fn every_sampler_error_is_named_by_its_variant() {
+        let mut codes = BTreeSet::new();
+        for &e in SAMPLER {
+            let f = sampler(e);
+            assert_eq!((f.code, std::format!("{e:?}")), (e.code(), f.name.into()));
+            assert!(codes.insert(f.code), "{} twice", f.code);
+            assert!(f.reason.contains(": "), "{f}: name the fix");
+            assert_eq!(failure("sample_block", f.code), Some(f));
+            assert_eq!(generic(e.code()), None);
+        }
+        assert_eq!(codes.len(), SamplerError::ALL.len());
     }
 
     #[test]

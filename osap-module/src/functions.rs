@@ -56,6 +56,7 @@
 //! | `level_point` | `time: u64`, `channel: u8`, `before: f32`, `after: f32` | — |
 //! | `event_point` | `time: u64`, `pin: u8`, `level: bool` | — |
 //! | `level_read` | — | `time: u64`, `pwm0: f32`, `pwm1: f32`, `pins: u32` |
+//! | `sample_block` | `source0: u8`, `arg0: u8`, `source1: u8`, `arg1: u8`, `source2: u8`, `arg2: u8`, `latency_us: u32`, `session: u32` | `seq: u32`, `first: u32`, `time: u64`, `samples: arry_u8`, `session: u32` |
 //!
 //! Times are synchronized system µs. `read_limit` is meant as a pipe source
 //! with its output mode set to "on change": it then sends each switch edge
@@ -103,6 +104,10 @@
 //! points queued for its output. `level_read`, as a pipe source on a
 //! timer, reports what the outputs actually drive, time-stamped (see
 //! [`crate::levels`]).
+//!
+//! `sample_block` batches samples of up to three read functions into
+//! stamped, numbered blocks, one datagram each, for captures at 1 kHz and
+//! beyond (see [`crate::sampler`]).
 //!
 //! The `heater_` functions configure and run up to two heaters, whose PID
 //! control and runaway protection run on the module (see
@@ -505,6 +510,24 @@ impl<B: Board> Module<B> {
         Ok(())
     }
 
+    #[doc = fn_docs!(sample_block)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn sample_block(
+        &mut self,
+        source0: u8,
+        arg0: u8,
+        source1: u8,
+        arg1: u8,
+        source2: u8,
+        arg2: u8,
+        latency_us: u32,
+        session: u32,
+    ) -> Result<(u32, u32, u64, crate::sampler::Block, u32), CallError> {
+        let sources = [(source0, arg0), (source1, arg1), (source2, arg2)];
+        let c = self.run_sampler(sources, latency_us, session)?;
+        Ok((c.seq, c.first, c.time, c.block, c.session))
+    }
+
     #[doc = fn_docs!(level_read)]
     pub fn level_read(&mut self) -> Result<(u64, f32, f32, u32), CallError> {
         let local = self.board.now();
@@ -574,9 +597,11 @@ macro_rules! module_functions {
         /// interface every osap-rs module firmware presents.
         pub const SIGNATURES: [&Signature; ALL.len()] = [$(&signature::$f),*];
 
-        fn dispatch<H: ModuleHandle>(
+        /// Runs function `id` on `module`, already in hand (the sampler
+        /// calls its sources so, inside the module's lock).
+        pub(crate) fn call_on<B: Board>(
             id: FnId,
-            module: &H,
+            module: &mut Module<B>,
             inputs: &[Value<'_>],
             outputs: &mut Outputs<'_>,
         ) -> Result<(), CallError> {
@@ -585,13 +610,23 @@ macro_rules! module_functions {
                 $(
                     FnId::$f => {
                         $(let $in: $inty = next_input(&mut args)?;)*
-                        let out = module
-                            .with(|m| m.$f($($in),*))
-                            .ok_or(CallError::Failed(pipes_core::FailureCode::Other(NOT_INSTALLED)))??;
-                        out.write(outputs)
+                        module.$f($($in),*)?.write(outputs)
                     }
                 )*
             }
+        }
+
+        fn dispatch<H: ModuleHandle>(
+            id: FnId,
+            module: &H,
+            inputs: &[Value<'_>],
+            outputs: &mut Outputs<'_>,
+        ) -> Result<(), CallError> {
+            // One match for both paths (flash is scarce); the outputs are
+            // encoded inside the module's lock, a few bytes' work.
+            module
+                .with(|m| call_on(id, m, inputs, outputs))
+                .ok_or(CallError::Failed(pipes_core::FailureCode::Other(NOT_INSTALLED)))?
         }
     };
 }
@@ -800,6 +835,11 @@ macro_rules! module_function_table {
             /// (bit `k` is pin `k`). The level and event tracks are brought up to
             /// the read's time first.
             level_read() -> (time: u64, pwm0: f32, pwm1: f32, pins: u32);
+            /// Samples up to three read functions (table index, 255: none; one `u8`
+            /// argument) on its timer into stamped, numbered blocks. A block goes down
+            /// its pipes when full or `latency_us` old (0: close it now); see
+            /// [`crate::sampler`].
+            sample_block(source0: u8, arg0: u8, source1: u8, arg1: u8, source2: u8, arg2: u8, latency_us: u32, session: u32) -> (seq: u32, first: u32, time: u64, samples: $crate::sampler::Block, session: u32);
         }
     };
 }

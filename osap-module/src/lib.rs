@@ -69,6 +69,7 @@ pub mod levels;
 pub mod loadcell;
 pub mod ports;
 pub mod rate_store;
+pub mod sampler;
 pub mod sizes;
 pub mod stepper;
 pub mod tach;
@@ -131,6 +132,8 @@ pub struct Module<B> {
     /// The torque request, while the motor is a torque device
     /// ([`torque`]).
     pub torque: torque::Torque,
+    /// Samples batched into blocks (`sample_block`, [`sampler`]).
+    pub sampler: sampler::Sampler,
     /// When the latest control point was accepted.
     last_point_at: SystemInstant,
     /// The late-step count the latest `StepOverrun` record carried.
@@ -173,6 +176,7 @@ impl<B: Board> Module<B> {
             boot: BootRequest::default(),
             watchdog: Watchdog::new(),
             torque: torque::Torque::default(),
+            sampler: sampler::Sampler::new(),
             last_point_at: SystemInstant::ZERO,
             late_reported: 0,
             board,

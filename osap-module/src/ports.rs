@@ -10,7 +10,7 @@
 //! function's own timer makes does not.
 
 use crate::blocks::{block_port, BlockPort, BLOCK_SLOTS};
-use crate::functions::{ModuleFn, ALL};
+use crate::functions::{FnId, ModuleFn, ALL};
 use crate::ModuleHandle;
 use osap_core::port::{Delivery, Port, PortInfo, PortTx};
 use osap_core::{Instant, SystemInstant};
@@ -28,6 +28,50 @@ pub const FN_STORE: usize = 48;
 
 /// A module function as a runtime port.
 pub type ModuleFunction<H> = PipesFunction<ModuleFn<H>, FN_PIPES, FN_QUEUE, FN_STORE>;
+
+/// The largest outputs `sample_block` writes, as an argument list: the
+/// count, then with its index and type key each of `seq`, `first` and
+/// `session` (`u32`), `time` (`u64`), and `samples` with its length and a
+/// full block.
+const SAMPLER_OUTPUTS: usize = 1 + 3 * (2 + 4) + (2 + 8) + (2 + 2 + crate::sampler::BLOCK_BYTES);
+
+/// Byte size of `sample_block`'s stores, output buffer and queued
+/// datagrams: its outputs with a full block of
+/// [`crate::sampler::BLOCK_BYTES`], and as a datagram the transport and
+/// message keys before them (227 bytes; a packet of 237 over two hops,
+/// within a module's 256).
+pub const SAMPLER_STORE: usize = SAMPLER_OUTPUTS + 2;
+/// Datagrams each of `sample_block`'s pipes queues: at 1 kHz a block
+/// closes every 9 ms or so, so two cover a port busy for 18 ms.
+pub const SAMPLER_QUEUE: usize = 2;
+
+/// `sample_block` as a runtime port: a module function with buffers
+/// large enough for a block (see [`crate::sampler`]).
+pub type SamplerFunction<H> = PipesFunction<ModuleFn<H>, FN_PIPES, SAMPLER_QUEUE, SAMPLER_STORE>;
+
+/// Where `sample_block` stands in the array of function ports: its port
+/// is held beside them ([`ModulePorts`]), so the array's elements stay the
+/// size of a plain function's (the sampler's buffers are four times
+/// larger). Serves no port index itself.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct SamplerSlot;
+
+impl Port for SamplerSlot {
+    fn port_count(&self) -> u16 {
+        0
+    }
+
+    fn info(&self, _offset: u16) -> PortInfo<'_> {
+        PortInfo {
+            type_name: "",
+            name: "",
+        }
+    }
+
+    fn on_packet(&mut self, _delivery: Delivery<'_>, _tx: &mut PortTx<'_>) {}
+
+    fn poll(&mut self, _tx: &mut PortTx<'_>) {}
+}
 
 /// The timer for pulses and for an armed reboot into the bootloader:
 /// serves no port index; the runtime polls it and wakes for it.
@@ -128,6 +172,8 @@ pub enum ModulePort<H> {
     Function(ModuleFunction<H>),
     /// The pulse timer.
     Timer(PulseTimer<H>),
+    /// Where `sample_block` stands: its port is [`ModulePorts`]'s own.
+    Sampler(SamplerSlot),
 }
 
 impl<H: ModuleHandle + core::fmt::Debug> core::fmt::Debug for ModulePort<H> {
@@ -135,6 +181,7 @@ impl<H: ModuleHandle + core::fmt::Debug> core::fmt::Debug for ModulePort<H> {
         match self {
             ModulePort::Function(func) => write!(f, "Function({})", func.signature().name),
             ModulePort::Timer(t) => write!(f, "{t:?}"),
+            ModulePort::Sampler(_) => f.write_str("Sampler"),
         }
     }
 }
@@ -144,6 +191,7 @@ macro_rules! delegate {
         match $self {
             ModulePort::Function($p) => $e,
             ModulePort::Timer($p) => $e,
+            ModulePort::Sampler($p) => $e,
         }
     };
 }
@@ -173,6 +221,7 @@ impl<H: ModuleHandle> Port for ModulePort<H> {
                 }
             }
             ModulePort::Timer(t) => t.on_packet(delivery, tx),
+            ModulePort::Sampler(s) => s.on_packet(delivery, tx),
         }
     }
     fn poll(&mut self, tx: &mut PortTx<'_>) {
@@ -199,6 +248,7 @@ pub const PORT_INDICES: usize = 1 + ALL.len() * (1 + FN_PIPES) + 1 + BLOCK_SLOTS
 pub struct ModulePorts<H: ModuleHandle> {
     module: H,
     ports: [ModulePort<H>; PORT_COUNT],
+    sampler: SamplerFunction<H>,
     blocks: BlockPort<H>,
 }
 
@@ -206,6 +256,7 @@ impl<H: ModuleHandle + core::fmt::Debug> core::fmt::Debug for ModulePorts<H> {
     fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
         f.debug_struct("ModulePorts")
             .field("functions", &self.ports)
+            .field("sampler", &self.sampler)
             .field("blocks", &self.blocks)
             .finish()
     }
@@ -228,6 +279,7 @@ impl<H: ModuleHandle> ModulePorts<H> {
     pub fn new(module: H) -> Result<Self, SignatureError> {
         let mut error = None;
         let ports = core::array::from_fn(|i| match ALL.get(i) {
+            Some(FnId::sample_block) => ModulePort::Sampler(SamplerSlot),
             Some(f) => match ModuleFunction::new(ModuleFn::new(*f, module.clone())) {
                 Ok(func) => ModulePort::Function(func),
                 Err(e) => {
@@ -240,10 +292,12 @@ impl<H: ModuleHandle> ModulePorts<H> {
         if let Some(e) = error {
             return Err(e);
         }
+        let sampler = SamplerFunction::new(ModuleFn::new(FnId::sample_block, module.clone()))?;
         let blocks = block_port(module.clone()).map_err(blocks_error)?;
         Ok(ModulePorts {
             module,
             ports,
+            sampler,
             blocks,
         })
     }
@@ -254,9 +308,15 @@ impl<H: ModuleHandle> ModulePorts<H> {
     }
 
     /// The functions and the pulse timer, in the order the runtime numbers
-    /// them (the block port follows them: see [`all`](Self::all)).
+    /// them (`sample_block` stands as a [`ModulePort::Sampler`]: its port is
+    /// [`sampler`](Self::sampler); the block port follows them).
     pub fn ports(&mut self) -> &mut [ModulePort<H>] {
         &mut self.ports
+    }
+
+    /// `sample_block`'s port.
+    pub fn sampler(&mut self) -> &mut SamplerFunction<H> {
+        &mut self.sampler
     }
 
     /// The block manager and its pool.
@@ -264,11 +324,18 @@ impl<H: ModuleHandle> ModulePorts<H> {
         &mut self.blocks
     }
 
-    /// The functions and the block port, each on its own (for a runtime
-    /// that holds ports one by one, such as the simulator's): the
-    /// functions first, then the block port.
-    pub fn into_parts(self) -> ([ModulePort<H>; PORT_COUNT], BlockPort<H>) {
-        (self.ports, self.blocks)
+    /// The functions, `sample_block`'s port and the block port, each on
+    /// its own (for a runtime that holds ports one by one, such as the
+    /// simulator's): the functions first, with `sample_block`'s port where
+    /// the [`ModulePort::Sampler`] stands, then the block port.
+    pub fn into_parts(
+        self,
+    ) -> (
+        [ModulePort<H>; PORT_COUNT],
+        SamplerFunction<H>,
+        BlockPort<H>,
+    ) {
+        (self.ports, self.sampler, self.blocks)
     }
 }
 
@@ -277,9 +344,13 @@ impl<H: ModuleHandle> ModulePorts<H> {
     /// offset and its count.
     fn each(&mut self) -> impl Iterator<Item = (u16, u16, &mut dyn Port)> {
         let mut base = 0u16;
+        let mut sampler = Some(&mut self.sampler as &mut dyn Port);
         self.ports
             .iter_mut()
-            .map(|p| p as &mut dyn Port)
+            .map(move |p| match p {
+                ModulePort::Sampler(slot) => sampler.take().unwrap_or(slot as &mut dyn Port),
+                p => p as &mut dyn Port,
+            })
             .chain(core::iter::once(&mut self.blocks as &mut dyn Port))
             .map(move |p| {
                 let n = p.port_count();
@@ -295,7 +366,10 @@ impl<H: ModuleHandle> ModulePorts<H> {
         let all = self
             .ports
             .iter()
-            .map(|p| p as &dyn Port)
+            .map(|p| match p {
+                ModulePort::Sampler(_) => &self.sampler as &dyn Port,
+                p => p as &dyn Port,
+            })
             .chain(core::iter::once(&self.blocks as &dyn Port));
         for p in all {
             let n = p.port_count();
@@ -348,6 +422,9 @@ impl<H: ModuleHandle> Port for ModulePorts<H> {
 
     fn wake_at(&self) -> Option<Instant> {
         let functions = self.ports.iter().filter_map(|p| p.wake_at());
-        functions.chain(self.blocks.wake_at()).min()
+        functions
+            .chain(self.sampler.wake_at())
+            .chain(self.blocks.wake_at())
+            .min()
     }
 }

@@ -4,7 +4,7 @@
 use osap_core::clock::TimeMap;
 use osap_core::time::{Duration, Instant, SystemInstant};
 use osap_module::board::{Board, IoHw, StepperHw};
-use osap_module::functions::{FnId, ModuleFn, SIGNATURES};
+use osap_module::functions::{FnId, ModuleFn, ALL, SIGNATURES};
 use osap_module::{Module, ModuleCell, ModuleHandle, ModulePorts, PORT_COUNT};
 use pipes_core::function::{call_direct, CallError};
 use pipes_core::Value;
@@ -158,11 +158,13 @@ fn the_function_set_is_whole_and_unique() {
     let mut ports =
         ModulePorts::new(Shared::new(fresh(true).module)).expect("every signature is accepted");
     assert_eq!(ports.ports().len(), PORT_COUNT);
+    // sample_block's port stands beside the others, in its slot's place.
     let functions: u16 = ports
         .ports()
         .iter()
         .map(osap_core::port::Port::port_count)
-        .sum();
+        .sum::<u16>()
+        + osap_core::port::Port::port_count(ports.sampler());
     // The block manager and its pools follow the functions.
     let blocks = 1 + osap_module::blocks::BLOCK_SLOTS as u16 * 3;
     assert_eq!(osap_core::port::Port::port_count(ports.blocks()), blocks);
@@ -524,4 +526,115 @@ fn late_steps_wait_behind_a_fresh_fault_then_report_the_whole_count() {
     assert_eq!(u64::from(detail), late);
     // The press and one late-step record.
     assert_eq!(m.get_fault().unwrap().3, 2);
+}
+
+/// The table index of `id`, as `sample_block` takes it.
+fn index(id: FnId) -> u8 {
+    ALL.iter().position(|f| *f == id).unwrap() as u8
+}
+
+/// One source's outputs in a record: (index, value as printed).
+type Outputs = Vec<(u8, String)>;
+
+/// A block's records: per record its offset and each source's outputs.
+fn records(bytes: &[u8], sources: usize) -> Vec<(u32, Vec<Outputs>)> {
+    let mut r = osap_core::codec::Reader::new(bytes);
+    let mut out = Vec::new();
+    while !r.is_empty() {
+        let offset = r.u32().unwrap();
+        let lists = (0..sources)
+            .map(|_| {
+                let args = pipes_core::Args::decode(&mut r).unwrap();
+                args.iter().map(|(i, v)| (i, format!("{v:?}"))).collect()
+            })
+            .collect();
+        out.push((offset, lists));
+    }
+    out
+}
+
+#[test]
+fn sample_block_batches_stamped_numbered_samples() {
+    let Fixture {
+        module: mut m, now, ..
+    } = fresh(true);
+    let (pos, analog) = (index(FnId::get_position), index(FnId::analog_read));
+    // 1 kHz for 100 ms: get_position and analog_read(0) each time.
+    let mut blocks = Vec::new();
+    for k in 0..100u64 {
+        now.set(Instant::from_micros(1_000 + 1_000 * k));
+        let out = m
+            .sample_block(pos, 0, analog, 0, 255, 0, 20_000, 7)
+            .unwrap();
+        if out.0 > 0
+            && blocks
+                .last()
+                .is_none_or(|b: &(u32, u32, u64, _, u32)| b.0 != out.0)
+        {
+            blocks.push(out);
+        }
+    }
+    // A record: 4 bytes of offset, 17 of get_position (a count, then
+    // index, type key and value of a u64 and an f32), 17 of analog_read:
+    // 38, so five to a block of 192 bytes.
+    assert_eq!(blocks.len(), 20);
+    for (k, (seq, first, time, block, session)) in blocks.iter().enumerate() {
+        assert_eq!((*seq, *session), (k as u32 + 1, 7));
+        assert_eq!(*first, 5 * k as u32);
+        assert_eq!(*time, 1_000 + 1_000 * u64::from(*first));
+        let recs = records(block.bytes(), 2);
+        let offsets: Vec<u32> = recs.iter().map(|r| r.0).collect();
+        assert_eq!(offsets, [0, 1_000, 2_000, 3_000, 4_000]);
+        for (offset, lists) in &recs {
+            // analog_read stamps its own sample: the block's time plus
+            // the record's offset, and reads full scale.
+            let t = time + u64::from(*offset);
+            assert_eq!(
+                lists[1],
+                [
+                    (0, format!("{:?}", Value::U64(t))),
+                    (1, format!("{:?}", Value::F32(1.0)))
+                ]
+            );
+            assert_eq!(lists[0].len(), 2, "get_position's time and position");
+        }
+    }
+    // At 100 Hz a block closes by age: its first sample 20 ms old.
+    let mut firsts = Vec::new();
+    for k in 0..10u64 {
+        now.set(Instant::from_micros(200_000 + 10_000 * k));
+        let (seq, first, _, block, _) = m.sample_block(pos, 0, 255, 0, 255, 0, 20_000, 8).unwrap();
+        if seq > 0 && firsts.last().is_none_or(|f: &(u32, u32, usize)| f.0 != seq) {
+            firsts.push((seq, first, records(block.bytes(), 1).len()));
+        }
+    }
+    // A new session: numbering from 1 again.
+    assert_eq!(firsts, [(1, 0, 3), (2, 3, 3), (3, 6, 3)]);
+    // Latency 0 closes the open block (sample 9) without a sample.
+    let (seq, first, _, block, _) = m.sample_block(pos, 0, 255, 0, 255, 0, 0, 8).unwrap();
+    assert_eq!((seq, first, records(block.bytes(), 1).len()), (4, 9, 1));
+    // Again: nothing open, nothing new.
+    assert_eq!(m.sample_block(pos, 0, 255, 0, 255, 0, 0, 8).unwrap().0, 4);
+    assert_eq!(m.sampler.taken(), 10);
+}
+
+#[test]
+fn sample_block_takes_only_read_functions() {
+    let Fixture { module: mut m, .. } = fresh(true);
+    let bad = CallError::Failed(pipes_core::FailureCode::Other(1));
+    for id in [FnId::sample_block, FnId::add_point, FnId::halt, FnId::pulse] {
+        assert_eq!(
+            m.sample_block(index(id), 0, 255, 0, 255, 0, 20_000, 1),
+            Err(bad),
+            "{id:?}"
+        );
+    }
+    assert_eq!(m.sample_block(255, 0, 255, 0, 255, 0, 20_000, 1), Err(bad));
+    assert_eq!(m.sample_block(200, 0, 255, 0, 255, 0, 20_000, 1), Err(bad));
+    // A source that fails (no analog input 3) leaves an empty list.
+    let analog = index(FnId::analog_read);
+    m.sample_block(analog, 3, 255, 0, 255, 0, 20_000, 2)
+        .unwrap();
+    let (_, _, _, block, _) = m.sample_block(analog, 3, 255, 0, 255, 0, 0, 2).unwrap();
+    assert_eq!(records(block.bytes(), 1), [(0, vec![vec![]])]);
 }

@@ -425,7 +425,7 @@ fn calls_and_datagrams_feed_the_watchdog_and_timer_runs_do_not() {
     assert_eq!(n.fired(), 0);
     let runs = match &n.ports.ports()[ALL.iter().position(|f| *f == FnId::get_fault).unwrap()] {
         ModulePort::Function(f) => f.stats().runs,
-        ModulePort::Timer(_) => unreachable!("a function port"),
+        ModulePort::Timer(_) | ModulePort::Sampler(_) => unreachable!("a function port"),
     };
     assert!(runs >= 40, "get_fault ran on its timer: {runs}");
     n.poll(2_200_000);

@@ -75,11 +75,17 @@ async fn a_module_is_scanned_and_called_over_the_wire() {
         bootloader: None,
     });
     let module = Host::start(HostConfig::named("stepper-0")).unwrap();
-    let (functions, _blocks) = ModulePorts::new(&MODULE).unwrap().into_parts();
+    let (functions, sampler, _blocks) = ModulePorts::new(&MODULE).unwrap().into_parts();
+    let mut sampler = Some(sampler);
     for port in functions {
         // A host holds only ports with indices: the pulse timer (none) is
-        // left out, so pulses here would not end.
-        if osap_core::port::Port::port_count(&port) > 0 {
+        // left out, so pulses here would not end. sample_block's port
+        // stands where its slot is.
+        if let osap_module::ModulePort::Sampler(_) = port {
+            if let Some(s) = sampler.take() {
+                module.attach_port(Box::new(s)).await.unwrap();
+            }
+        } else if osap_core::port::Port::port_count(&port) > 0 {
             module.attach_port(Box::new(port)).await.unwrap();
         }
     }

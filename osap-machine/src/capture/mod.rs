@@ -37,15 +37,32 @@
 //! multi-hop link, or an unchanged `read_limit`) is counted as stale and
 //! not written.
 //!
-//! **How.** For each source the recorder defines a host function, pipes
-//! the source's outputs to it (a free pipe slot of the source) and runs the
-//! source on its module's timer every [`RecordOptions::period_us`]. A
-//! source the machine already runs faster (its fault and limit reports)
-//! keeps its own period; its timer goes back to what it was when the
-//! recorder finishes. The host function hands each sample to a writer
-//! thread through a queue of [`RecordOptions::queue_rows`]; a sample that
-//! finds the queue full is dropped and counted, so a slow disk never holds
-//! up the host's network runtime. The writer ([`writer::SampleWriter`])
+//! **How.** Each module samples its sources itself: its `sample_block`
+//! function (see [`osap_module::sampler`]) runs up to three of them on the
+//! module's timer every [`RecordOptions::period_us`], and sends their
+//! samples in blocks, one datagram per block (when full, or
+//! [`BLOCK_LATENCY_US`] after its first sample), stamped on the
+//! synchronized clock and numbered. The recorder's host function for the
+//! module decodes each block into rows; samples in a block that never
+//! arrived are counted from the numbers, as they happen
+//! ([`RecorderStats::lost_at_source`]): loss is never silent. Functions
+//! without a `time` output take the module's stamp, so every series of a
+//! block is on the source clock.
+//!
+//! A source `sample_block` cannot take (a module without it, or whose
+//! `sample_block` another capture holds; a function whose inputs are not
+//! one `u8`; a fourth source on one module) is sampled one datagram a
+//! sample: the recorder pipes the source's outputs to a host function (a
+//! free pipe slot of the source) and runs the source on its module's timer.
+//! Such a source the machine already runs faster (its fault and limit
+//! reports) keeps its own period; its timer goes back to what it was when
+//! the recorder finishes, and what its pipe could not send is read from the
+//! module then.
+//!
+//! Either way the host function hands each sample to a writer thread
+//! through a queue of [`RecordOptions::queue_rows`]; a sample that finds
+//! the queue full is dropped and counted, so a slow disk never holds up
+//! the host's network runtime. The writer ([`writer::SampleWriter`])
 //! flushes a row group as it fills: memory stays bounded.
 //!
 //! **Closing.** [`Recorder::finish`] unwires the sources and closes the
@@ -54,8 +71,11 @@
 //! disk) stops writing, shows in [`Recorder::check`] at once, and is
 //! returned by [`Recorder::finish`].
 
+mod blocks;
 mod source;
 pub mod writer;
+
+pub use blocks::BLOCK_LATENCY_US;
 
 pub use source::SourceSpec;
 use source::{resolve, Resolved};
@@ -236,6 +256,7 @@ struct Shared {
     dropped: AtomicU64,
     stale: AtomicU64,
     lost: AtomicU64,
+    taken: AtomicU64,
     stop: AtomicBool,
     error: Mutex<Option<String>>,
 }
@@ -249,10 +270,19 @@ pub struct RecorderStats {
     pub dropped: u64,
     /// Samples not after the series' last (not written).
     pub stale: u64,
-    /// Samples the modules could not send: the capture's pipe queue was
-    /// full (counted by the modules, read when the capture finishes; 0
-    /// before). Each is one sample of every series of its source.
+    /// Samples taken on the modules that never reached the recorder, or
+    /// that a module's source failed to take: for sources sampled in
+    /// blocks, counted from the blocks' numbers as they arrive (and, when
+    /// the capture finishes, up to the module's last sample); for sources
+    /// sampled one datagram at a time, the capture's pipe queue was full
+    /// (counted by the modules, read when the capture finishes). Each is
+    /// one sample of every series of its source.
     pub lost_at_source: u64,
+    /// Samples the modules took of the sources sampled in blocks, each one
+    /// sample of one source (so with `stale` and `lost_at_source` it
+    /// accounts for every sample: per source, rows of its first series =
+    /// taken − lost − stale).
+    pub taken_at_source: u64,
 }
 
 /// Per series in a finished capture.
@@ -292,6 +322,8 @@ struct Wired {
     port: Option<u16>,
     /// The capture's pipe slot on the source, once connected.
     slot: Option<u8>,
+    /// A module's `sample_block`: its decoder and inputs.
+    group: Option<blocks::GroupWired>,
 }
 
 /// A capture running beside whatever the machine does; see the module
@@ -373,7 +405,7 @@ impl Machine {
             Some(f) => f,
             None => Format::from_path(&options.out)?,
         };
-        let (resolved, series) = self.prepare(sources).await?;
+        let (resolved, plan, series) = self.prepare(sources).await?;
         let w = SampleWriter::create_as(&options.out, format, &series, options.writer)?;
 
         let id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
@@ -410,7 +442,7 @@ impl Machine {
             done: Some(done_rx),
         };
         recorder
-            .wire_all(&resolved, tx, map, options.period_us)
+            .wire_all(&resolved, &plan, tx, map, options.period_us)
             .await?;
         Ok(recorder)
     }
@@ -434,7 +466,7 @@ impl Machine {
         if queue_rows == 0 {
             return Err(CaptureError::BadOptions("queue_rows must be > 0".into()));
         }
-        let (resolved, series) = self.prepare(sources).await?;
+        let (resolved, plan, series) = self.prepare(sources).await?;
         let (tx, rx) = std::sync::mpsc::sync_channel::<Row>(queue_rows);
         let map = self
             .host()
@@ -451,7 +483,9 @@ impl Machine {
             shared: Arc::new(Shared::default()),
             done: None,
         };
-        recorder.wire_all(&resolved, tx, map, period_us).await?;
+        recorder
+            .wire_all(&resolved, &plan, tx, map, period_us)
+            .await?;
         Ok((Stream { recorder }, rx))
     }
 
@@ -460,7 +494,7 @@ impl Machine {
     async fn prepare(
         &self,
         sources: &[&str],
-    ) -> Result<(Vec<Resolved>, Vec<SeriesInfo>), CaptureError> {
+    ) -> Result<(Vec<Resolved>, blocks::Plan, Vec<SeriesInfo>), CaptureError> {
         if sources.is_empty() {
             return Err(CaptureError::BadOptions(
                 "no source given: name one as MODULE.FUNCTION, e.g. x.get_position".into(),
@@ -475,12 +509,14 @@ impl Machine {
             .iter()
             .map(|(k, m)| (k.clone(), m.runtime.clone()))
             .collect();
-        let resolved: Vec<Resolved> = {
+        let (resolved, plan) = {
             let manager = self.manager().lock().await;
-            specs
+            let resolved: Vec<Resolved> = specs
                 .iter()
                 .map(|s| resolve(s, &keys, &manager))
-                .collect::<Result<_, _>>()?
+                .collect::<Result<_, _>>()?;
+            let plan = blocks::plan(&resolved, &manager);
+            (resolved, plan)
         };
         for (i, r) in resolved.iter().enumerate() {
             if resolved[..i].iter().any(|o| o.function == r.function) {
@@ -494,7 +530,9 @@ impl Machine {
             }
         }
         let mut series = Vec::new();
-        for r in &resolved {
+        for (i, r) in resolved.iter().enumerate() {
+            // A block's records carry the module's stamp of each sample.
+            let source_clock = r.stamped || plan.in_blocks(i);
             for name in &r.series {
                 if series.iter().any(|s: &SeriesInfo| &s.name == name) {
                     return Err(CaptureError::BadSource {
@@ -504,7 +542,7 @@ impl Machine {
                 }
                 series.push(SeriesInfo {
                     name: name.clone(),
-                    clock: if r.stamped {
+                    clock: if source_clock {
                         Clock::Source
                     } else {
                         Clock::Arrival
@@ -512,7 +550,7 @@ impl Machine {
                 });
             }
         }
-        Ok((resolved, series))
+        Ok((resolved, plan, series))
     }
 }
 
@@ -540,23 +578,40 @@ impl Stream {
 }
 
 impl Recorder {
-    /// Wires every source, their series numbered in order; on an error
-    /// what was wired is unwired again.
+    /// Wires every source, their series numbered in order: a module's
+    /// group through its `sample_block`, the others one datagram a sample.
+    /// On an error what was wired is unwired again.
     async fn wire_all(
         &mut self,
         resolved: &[Resolved],
+        plan: &blocks::Plan,
         tx: SyncSender<Row>,
         map: osap_core::clock::TimeMap,
         period_us: u32,
     ) -> Result<(), CaptureError> {
-        let mut first_series = 0u16;
+        let mut first_series = Vec::with_capacity(resolved.len());
+        let mut next = 0u16;
         for r in resolved {
-            let result = self.wire(r, first_series, tx.clone(), map, period_us).await;
+            first_series.push(next);
+            next += r.series.len() as u16;
+        }
+        for g in &plan.groups {
+            let result = self
+                .wire_group(g, resolved, &first_series, tx.clone(), period_us)
+                .await;
             if let Err(e) = result {
                 self.unwire().await;
                 return Err(e);
             }
-            first_series += r.series.len() as u16;
+        }
+        for &i in &plan.singles {
+            let result = self
+                .wire(&resolved[i], first_series[i], tx.clone(), map, period_us)
+                .await;
+            if let Err(e) = result {
+                self.unwire().await;
+                return Err(e);
+            }
         }
         Ok(())
     }
@@ -621,6 +676,7 @@ impl Recorder {
             dest: dest.clone(),
             port,
             slot: None,
+            group: None,
         });
         let map: Vec<u8> = (0..r.outputs.len() as u8).collect();
         let pipe = manager
@@ -654,15 +710,18 @@ impl Recorder {
     async fn unwire(&mut self) {
         let holds = self.machine.capture_holds();
         let mut manager = self.machine.manager().lock().await;
-        for w in self.wired.drain(..) {
-            if let Some(mode) = holds.release(&w.source, self.id) {
+        let wired: Vec<Wired> = self.wired.drain(..).collect();
+        for w in wired {
+            if let Some(g) = &w.group {
+                self.unwire_group(&mut manager, &w, g).await;
+            } else if let Some(mode) = holds.release(&w.source, self.id) {
                 if let Err(e) = manager.set_input_mode(&w.source, mode).await {
                     tracing::warn!("capture: {}: timer not restored: {e}", w.source);
                 }
             }
             // What the module could not send: its pipe's queue was full
             // (the function's port busy with its other pipes' datagrams).
-            if let Some(slot) = w.slot {
+            if let Some(slot) = w.slot.filter(|_| w.group.is_none()) {
                 match manager.pipe_stats(&w.source, slot).await {
                     Ok(st) => {
                         let lost = u64::from(st.overflows)
@@ -702,6 +761,7 @@ impl Recorder {
             dropped: self.shared.dropped.load(Ordering::Relaxed),
             stale: self.shared.stale.load(Ordering::Relaxed),
             lost_at_source: self.shared.lost.load(Ordering::Relaxed),
+            taken_at_source: self.shared.taken.load(Ordering::Relaxed),
         }
     }
 

@@ -291,7 +291,7 @@ use osap_core::Instruction;
 use osap_host::error::ConfigError;
 use osap_host::link::{self, ChannelLink, LinkConfig, LinkIo, LinkStats};
 use osap_host::{Host, HostError};
-use osap_module::{Module, ModulePorts};
+use osap_module::{Module, ModulePort, ModulePorts};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::Instant;
@@ -1300,9 +1300,17 @@ impl SimModule {
             let module_ports = ModulePorts::new(module.clone()).map_err(ConfigError::from)?;
             // The functions, then the pulse timer (it takes no port index),
             // then the block manager and its pools.
-            let (functions, blocks) = module_ports.into_parts();
+            // sample_block's port stands where its slot is.
+            let (functions, sampler, blocks) = module_ports.into_parts();
+            let mut sampler = Some(sampler);
             for port in functions {
-                ports.push(Box::new(port));
+                match (port, sampler.take()) {
+                    (ModulePort::Sampler(_), Some(s)) => ports.push(Box::new(s)),
+                    (port, s) => {
+                        sampler = s;
+                        ports.push(Box::new(port));
+                    }
+                }
             }
             ports.push(Box::new(blocks));
             stepper = Some((module, steps));
