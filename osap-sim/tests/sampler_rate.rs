@@ -11,7 +11,7 @@
 //! direct USB link take:
 //!
 //! ```text
-//! cargo test --release -p osap-sim --test sampler_rate -- --ignored --nocapture
+//! cargo test -p osap-sim --test sampler_rate -- --ignored --nocapture
 //! ```
 
 use osap_core::codec::{Reader, Writer};
