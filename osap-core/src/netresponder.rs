@@ -227,6 +227,9 @@ pub struct LogLine {
 #[derive(Debug, Clone)]
 pub struct State {
     last_scan_id: u32,
+    /// The scan id held before `last_scan_id`: what a repeated request
+    /// (a retry whose first try arrived) is answered.
+    prior_scan_id: u32,
     verbosity: Level,
     log: Deque<LogLine, LOG_LINES>,
     next_seq: u32,
@@ -245,6 +248,7 @@ impl Default for State {
     fn default() -> Self {
         State {
             last_scan_id: 0,
+            prior_scan_id: 0,
             verbosity: Level::Info,
             log: Deque::new(),
             next_seq: 0,
@@ -448,7 +452,14 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
         key::RUNTIME_INFO => {
             let scan_id = r.u32()?;
             end(r)?;
-            let previous = core::mem::replace(&mut ctx.state.last_scan_id, scan_id);
+            // A retry of the request it last answered gets the same answer:
+            // that first try's reply may be the one that was lost.
+            let previous = if scan_id == ctx.state.last_scan_id {
+                ctx.state.prior_scan_id
+            } else {
+                ctx.state.prior_scan_id = ctx.state.last_scan_id;
+                core::mem::replace(&mut ctx.state.last_scan_id, scan_id)
+            };
             out.u32(previous)?;
             out.bytes(&ctx.identity.version)?;
             out.u8(ctx.identity.build.to_u8())?;

@@ -115,7 +115,16 @@ async fn scan_as(
     let info = runner.runtime_info(&local, next_id).await?;
     sent_to.insert(next_id, 0);
     next_id = next_id.wrapping_add(1);
-    let (record, failed) = describe(&runner, &local, &info, info.packet_size, read_ports).await;
+    let gates = Gates::default();
+    let (record, failed) = describe(
+        &runner,
+        &local,
+        &info,
+        info.packet_size,
+        read_ports,
+        &gates.of(&local),
+    )
+    .await;
     failures.extend(failed);
     let mut more = each(&record);
     found.push(Found {
@@ -176,19 +185,28 @@ async fn scan_as(
             .collect();
         // Each runtime is asked across as many of its links at once as a
         // microcontroller's link holds; different runtimes all at once.
-        let mut gates: HashMap<usize, Semaphore> = HashMap::new();
+        let mut probe_gates: HashMap<usize, Semaphore> = HashMap::new();
         for t in &targets {
-            gates
+            probe_gates
                 .entry(t.parent)
                 .or_insert_with(|| Semaphore::new(AT_ONCE));
         }
-        let replies = join_all(targets.iter().zip(&ids).map(|(t, id)| {
-            let (runner, gate) = (&runner, &gates[&t.parent]);
-            async move {
-                let _turn = gate.acquire().await;
-                probe(runner, &t.here, &t.route, &t.link, *id).await
-            }
-        }))
+        // A probe across a bus also takes a turn of that bus's gate.
+        let bus_gates: Vec<_> = targets.iter().map(|t| gates.of(&t.route)).collect();
+        let replies = join_all(
+            targets
+                .iter()
+                .zip(&ids)
+                .zip(&bus_gates)
+                .map(|((t, id), bus)| {
+                    let (runner, gate) = (&runner, &probe_gates[&t.parent]);
+                    async move {
+                        let _turn = gate.acquire().await;
+                        let _bus_turn = bus.acquire().await;
+                        probe(runner, &t.here, &t.route, &t.link, *id).await
+                    }
+                }),
+        )
         .await;
         let mut answered: Vec<Option<RuntimeInfo>> = Vec::new();
         for (t, reply) in targets.iter().zip(replies) {
@@ -231,7 +249,11 @@ async fn scan_as(
         let mut new: Vec<usize> = Vec::new();
         for (k, info) in answered.iter().enumerate() {
             let Some(info) = info else { continue };
-            if first_of(k) != k || sent_to.contains_key(&info.previous_scan_id) {
+            // Reached before by this scan: by an earlier level, or by a
+            // probe of this one (even one whose reply was lost).
+            let ours = sent_to.contains_key(&info.previous_scan_id)
+                || ids.contains(&info.previous_scan_id);
+            if first_of(k) != k || ours {
                 continue;
             }
             if found.len() + new.len() >= options.max_runtimes {
@@ -244,13 +266,17 @@ async fn scan_as(
             new.push(k);
         }
         let runner = &runner;
-        let described = join_all(new.iter().filter_map(|&k| {
+        // Runtimes behind one bus share its few requests at a time (a
+        // drop's replies queue for the bus's turns; too many at once
+        // would outwait their timeouts).
+        let described_gates: Vec<_> = new.iter().map(|&k| gates.of(&targets[k].route)).collect();
+        let described = join_all(new.iter().zip(&described_gates).filter_map(|(&k, gate)| {
             let info = answered[k].as_ref()?;
             let t = &targets[k];
             let mtu = t.mtu.min(info.packet_size);
             let route = t.route.with_mtu(mtu);
             Some(async move {
-                let (record, failed) = describe(runner, &route, info, mtu, read_ports).await;
+                let (record, failed) = describe(runner, &route, info, mtu, read_ports, gate).await;
                 (k, route, record, failed)
             })
         }))
@@ -397,6 +423,35 @@ fn route_drops(route: &Route) -> Vec<Option<u8>> {
     }
 }
 
+/// One gate of [`AT_ONCE`] requests for each bus a scan crosses last on
+/// the way to a runtime, and one for each runtime behind no bus.
+#[derive(Default)]
+struct Gates(std::sync::Mutex<HashMap<Vec<u8>, std::sync::Arc<Semaphore>>>);
+
+impl Gates {
+    /// The gate of the runtime at `route`: its last bus's (1, then the
+    /// hops up to that bus), or its own (0, then its hops).
+    fn of(&self, route: &Route) -> std::sync::Arc<Semaphore> {
+        let hops = hops_of(route);
+        let drops = route_drops(route);
+        let key = match drops.iter().rposition(Option::is_some) {
+            Some(last_bus) => [&[1], &hops[..=last_bus]].concat(),
+            None => [&[0], hops.as_slice()].concat(),
+        };
+        let mut gates = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        gates
+            .entry(key)
+            .or_insert_with(|| std::sync::Arc::new(Semaphore::new(AT_ONCE)))
+            .clone()
+    }
+}
+
+/// `f`, once `gate` lets one more request go.
+async fn gated<T>(gate: &Semaphore, f: impl std::future::Future<Output = T>) -> T {
+    let _turn = gate.acquire().await;
+    f.await
+}
+
 /// Reads the first `count` ports of the runtime at `route` a reply-full at
 /// a time (port list); returns them and the indices left to ask one by
 /// one: from where the list stopped (a runtime without the query, a reply
@@ -430,6 +485,7 @@ async fn describe(
     info: &RuntimeInfo,
     route_mtu: u16,
     read_ports: Ports<'_>,
+    gate: &Semaphore,
 ) -> (RuntimeRecord, Vec<ScanFailure>) {
     let mut failures = Vec::new();
     let mut fail = |what: &str, e: HostError| {
@@ -440,23 +496,20 @@ async fn describe(
     };
     // Name, type and the first links at once, then the other links and
     // the ports, as many at a time as a microcontroller's link holds.
-    let indices: Vec<u8> = (0..info.link_count).collect();
+    // (Owned indices, not borrowed: the scan's future stays spawnable.)
+    let first = info.link_count.min(AT_ONCE as u8 - 2);
     let (name, type_name, mut link_infos) = tokio::join!(
-        runner.name(route),
-        runner.type_name(route),
-        join_all(
-            indices
-                .iter()
-                .take(AT_ONCE - 2)
-                .map(|&index| runner.link_info(route, index))
-        )
+        gated(gate, runner.name(route)),
+        gated(gate, runner.type_name(route)),
+        join_all((0..first).map(|index| gated(gate, runner.link_info(route, index))))
     );
-    let rest = indices.iter().skip(AT_ONCE - 2);
     link_infos.extend(
-        stream::iter(rest.map(|&index| runner.link_info(route, index)))
-            .buffered(AT_ONCE)
-            .collect::<Vec<_>>()
-            .await,
+        stream::iter(
+            (first..info.link_count).map(|index| gated(gate, runner.link_info(route, index))),
+        )
+        .buffered(AT_ONCE)
+        .collect::<Vec<_>>()
+        .await,
     );
     let name = match name {
         Ok(n) => n,
@@ -496,14 +549,15 @@ async fn describe(
         }
     };
     let mut ports = known.cloned().unwrap_or_default();
-    let (listed, rest) = list_ports(runner, route, port_count).await;
+    let (listed, rest) = gated(gate, list_ports(runner, route, port_count)).await;
     ports.extend(listed);
-    let port_infos = stream::iter(
-        rest.map(|index| async move { (index, runner.port_info(route, index).await) }),
-    )
-    .buffered(AT_ONCE)
-    .collect::<Vec<_>>()
-    .await;
+    let port_infos =
+        stream::iter(rest.map(|index| async move {
+            (index, gated(gate, runner.port_info(route, index)).await)
+        }))
+        .buffered(AT_ONCE)
+        .collect::<Vec<_>>()
+        .await;
     for (index, p) in port_infos {
         match p {
             Ok(p) => ports.push(p),

@@ -330,7 +330,7 @@ impl Manager {
         let mut failed = Vec::new();
         let mut functions = Vec::new();
         let cached = ports.iter().filter(|&&p| known(p).is_some()).count();
-        let read = stream::iter(ports.iter().map(|&port| {
+        let read = stream::iter(ports.into_iter().map(|port| {
             let known = known(port);
             async move {
                 let _turn = gate.acquire().await;
@@ -358,7 +358,7 @@ impl Manager {
             None
         };
         let mut classes = Vec::new();
-        let read = stream::iter(class_ports.iter().map(|&port| async move {
+        let read = stream::iter(class_ports.into_iter().map(|port| async move {
             let _turn = gate.acquire().await;
             self.read_class(som, ri, port).await
         }))
