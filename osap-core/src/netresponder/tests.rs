@@ -241,8 +241,8 @@ fn ask_many(rt: &mut Rt, links: &mut [Link; 2], body: &[u8]) -> heapless::Vec<u8
 fn a_port_list_holds_whole_records_and_agrees_with_port_information() {
     let mut rt = runtime();
     let mut links = [Link::new(), Link::new()];
-    let mut listed: std::vec::Vec<(u16, std::string::String, std::string::String)> =
-        std::vec::Vec::new();
+    type Name = heapless::String<32>;
+    let mut listed: heapless::Vec<(u16, Name, Name), 64> = heapless::Vec::new();
     let mut from = 0u16;
     let mut replies = 0;
     loop {
@@ -253,9 +253,9 @@ fn a_port_list_holds_whole_records_and_agrees_with_port_information() {
         assert_eq!(r.u16().unwrap(), from);
         let count = r.u8().unwrap();
         for k in 0..u16::from(count) {
-            let t = r.str8().unwrap().into();
-            let n = r.str8().unwrap().into();
-            listed.push((from + k, t, n));
+            let t = Name::try_from(r.str8().unwrap()).unwrap();
+            let n = Name::try_from(r.str8().unwrap()).unwrap();
+            listed.push((from + k, t, n)).unwrap();
         }
         assert!(r.is_empty(), "whole records only");
         if count == 0 {
@@ -273,8 +273,8 @@ fn a_port_list_holds_whole_records_and_agrees_with_port_information() {
         let reply = ask_many(&mut rt, &mut links, &[key::PORT_INFO, a, b]);
         let mut r = Reader::new(&reply[2..]);
         assert_eq!(r.u16().unwrap(), *index);
-        assert_eq!(r.str8().unwrap(), type_name);
-        assert_eq!(r.str8().unwrap(), name);
+        assert_eq!(r.str8().unwrap(), type_name.as_str());
+        assert_eq!(r.str8().unwrap(), name.as_str());
     }
     // A malformed request is refused as such.
     let reply = ask_many(&mut rt, &mut links, &[key::PORT_LIST, 0]);
