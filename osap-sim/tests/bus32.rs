@@ -72,13 +72,11 @@ async fn statuses(sim: &SimMachine) -> Vec<osap_core::clock::ClockStatus> {
 
 /// Starts `spec` under a host, scans it at once, and watches every clock
 /// for `run` of virtual time.
-async fn measure(spec: &SimSpec, run: Duration) -> Figures {
+async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
     let cpu0 = cpu_time();
     let host = Host::start(HostConfig::named("h")).unwrap();
     let t0 = Instant::now();
-    let sim = SimMachine::start_with(&host, spec, TimeMode::Virtual)
-        .await
-        .unwrap();
+    let sim = SimMachine::start_with(&host, spec, mode).await.unwrap();
     let scanned = {
         let host = host.clone();
         tokio::spawn(async move {
@@ -139,6 +137,23 @@ async fn measure(spec: &SimSpec, run: Duration) -> Figures {
     figures
 }
 
+/// [`measure`] in virtual time, or with `OSAP_BUS_REAL_TIME=1` in real
+/// time (2 tokio workers; frames timed to the µs on the wire thread).
+fn run(spec: &SimSpec, length: Duration) -> Figures {
+    if std::env::var_os("OSAP_BUS_REAL_TIME").is_some() {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap()
+            .block_on(measure(spec, length, TimeMode::RealTime))
+    } else {
+        virtual_runtime()
+            .unwrap()
+            .block_on(measure(spec, length, TimeMode::Virtual))
+    }
+}
+
 fn print(f: &Figures) {
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     println!(
@@ -169,9 +184,7 @@ fn bus32_toml_is_the_bus_tree_of_four_by_eight() {
 
 fn bus32() -> Figures {
     let spec = SimSpec::load(common::shipped("bus32.toml")).unwrap();
-    let f = virtual_runtime()
-        .unwrap()
-        .block_on(measure(&spec, Duration::from_secs(6)));
+    let f = run(&spec, Duration::from_secs(6));
     println!("{HEADER}");
     print(&f);
     f
@@ -210,9 +223,7 @@ fn growth_curve() {
     println!("{HEADER}");
     for (buses, drops) in [(1, 4), (1, 8), (2, 8), (4, 8)] {
         let spec = bus_tree(buses, drops).unwrap();
-        let f = virtual_runtime()
-            .unwrap()
-            .block_on(measure(&spec, Duration::from_secs(8)));
+        let f = run(&spec, Duration::from_secs(8));
         print(&f);
     }
 }
