@@ -217,8 +217,11 @@ struct SyncWaits {
     /// When the waits began.
     began: tokio::time::Instant,
     /// Each module's outcome, and when the last ended.
-    task: tokio::task::JoinHandle<(Vec<(String, Result<(), HostError>)>, tokio::time::Instant)>,
+    task: tokio::task::JoinHandle<(Vec<WaitOutcome>, tokio::time::Instant)>,
 }
+
+/// A module's key and how its clock-sync wait ended.
+type WaitOutcome = (String, Result<(), HostError>);
 
 impl SyncWaits {
     /// Starts waiting for every clock of `routes` at once.
