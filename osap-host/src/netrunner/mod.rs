@@ -379,8 +379,8 @@ impl Netrunner {
                 route,
                 "port list",
                 ReplyProblem::WrongIndex {
-                    asked: from.into(),
-                    answered: first.into(),
+                    asked: from,
+                    answered: first,
                 },
             ));
         }
