@@ -85,6 +85,9 @@ pub mod key {
     /// Set one link's bus role (off, head, or drop; see
     /// [`crate::bus::BusRole`]), on a link that can take one.
     pub const SET_BUS: u8 = 0x0F;
+    /// Information on consecutive ports from one index, as many as fit in
+    /// one reply (a scan's ports in a few requests, not one each).
+    pub const PORT_LIST: u8 = 0x10;
 }
 
 /// Outcome code in every netresponder reply.
@@ -146,6 +149,11 @@ pub struct Identity {
     pub version: [u8; 3],
     /// Which implementation and build this is.
     pub build: BuildKey,
+    /// The function-set id of the functions it was built with (module
+    /// firmware: `osap_module::FUNCTION_SET_ID`), 0 when it has none or
+    /// does not say. A host may keep what it read of such a runtime's
+    /// functions and trust it while the id (and version) stay the same.
+    pub function_set: u32,
 }
 
 /// Which implementation a runtime is; reported in runtime information.
@@ -219,6 +227,9 @@ pub struct LogLine {
 #[derive(Debug, Clone)]
 pub struct State {
     last_scan_id: u32,
+    /// The scan id held before `last_scan_id`: what a repeated request
+    /// (a retry whose first try arrived) is answered.
+    prior_scan_id: u32,
     verbosity: Level,
     log: Deque<LogLine, LOG_LINES>,
     next_seq: u32,
@@ -237,6 +248,7 @@ impl Default for State {
     fn default() -> Self {
         State {
             last_scan_id: 0,
+            prior_scan_id: 0,
             verbosity: Level::Info,
             log: Deque::new(),
             next_seq: 0,
@@ -440,7 +452,14 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
         key::RUNTIME_INFO => {
             let scan_id = r.u32()?;
             end(r)?;
-            let previous = core::mem::replace(&mut ctx.state.last_scan_id, scan_id);
+            // A retry of the request it last answered gets the same answer:
+            // that first try's reply may be the one that was lost.
+            let previous = if scan_id == ctx.state.last_scan_id {
+                ctx.state.prior_scan_id
+            } else {
+                ctx.state.prior_scan_id = ctx.state.last_scan_id;
+                core::mem::replace(&mut ctx.state.last_scan_id, scan_id)
+            };
             out.u32(previous)?;
             out.bytes(&ctx.identity.version)?;
             out.u8(ctx.identity.build.to_u8())?;
@@ -449,6 +468,7 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             out.u8(ctx.links.len().min(64) as u8)?;
             out.u8(ctx.clock.tier())?;
             out.u8(ctx.arrival_link)?;
+            out.u32(ctx.identity.function_set)?;
         }
         key::TYPE_NAME => {
             end(r)?;
@@ -512,6 +532,29 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
             out.u16(index)?;
             out.str8(type_name)?;
             out.str8(name)?;
+        }
+        key::PORT_LIST => {
+            let from = r.u16()?;
+            end(r)?;
+            out.u16(from)?;
+            let count_at = out.len();
+            out.u8(0)?;
+            let mut count = 0u8;
+            // As many whole records as fit; the caller asks again from
+            // `from + count` (a record too long for any reply: PORT_INFO).
+            while let Some((type_name, name)) = from
+                .checked_add(u16::from(count))
+                .filter(|_| count < u8::MAX)
+                .and_then(|i| ctx.port_info(i))
+            {
+                if out.remaining() < 2 + type_name.len() + name.len() {
+                    break;
+                }
+                out.str8(type_name)?;
+                out.str8(name)?;
+                count += 1;
+            }
+            out.patch_u8(count_at, count)?;
         }
         key::DEBUG_MESSAGES => {
             let since = r.u32()?;

@@ -186,6 +186,7 @@ fn code_vectors() -> BTreeMap<String, Vec<u8>> {
             w.u8(2).unwrap(); // links
             w.u8(255).unwrap(); // tier
             w.u8(1).unwrap(); // arrived on link 1
+            w.u32(0x96fb_3630).unwrap(); // function-set id
         }),
     );
     put(

@@ -92,7 +92,9 @@ pub fn module_runtime<const LINKS: usize>(
     version: [u8; 3],
 ) -> ModuleRuntime<LINKS> {
     match ModuleRuntime::new(module_type, name) {
-        Ok(rt) => rt.with_version(version, osap_core::netresponder::BuildKey::RustEmbedded),
+        Ok(rt) => rt
+            .with_version(version, osap_core::netresponder::BuildKey::RustEmbedded)
+            .with_function_set(osap_module::FUNCTION_SET_ID),
         Err(_) => panic!("module name too long"),
     }
 }

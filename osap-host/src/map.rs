@@ -31,6 +31,10 @@ pub struct NetworkMap {
     pub links: Vec<LinkEdge>,
 }
 
+fn is_zero(v: &u32) -> bool {
+    *v == 0
+}
+
 /// One runtime.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct RuntimeRecord {
@@ -43,6 +47,10 @@ pub struct RuntimeRecord {
     pub version: String,
     /// Build key: 1 osap-rs embedded, 2 osap-rs host, 3 osap-rs simulated.
     pub build: u8,
+    /// The function-set id of the functions it was built with, as it
+    /// reports it (0: none, or a runtime that does not say).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub function_set: u32,
     /// Largest packet it handles, bytes.
     pub packet_size: u16,
     /// Clock tier when scanned (0 root, 255 unsynchronised).
@@ -136,7 +144,56 @@ pub struct LinkEdge {
     pub b: LinkEnd,
 }
 
+/// What a runtime was built as, by what it reports: runtimes with the same
+/// identity present the same ports and the same built functions, so what
+/// was read of one holds for the others and for later runs. Only a
+/// runtime that reports a function-set id has one.
+#[derive(Debug, Clone, PartialEq, Eq, Hash, PartialOrd, Ord, Serialize, Deserialize)]
+pub struct BuildIdentity {
+    /// Its type name.
+    pub type_name: String,
+    /// Its version, `major.minor.patch`.
+    pub version: String,
+    /// Its build key.
+    pub build: u8,
+    /// The function-set id it reports (never 0).
+    pub function_set: u32,
+    /// How many ports it has (port 0 included).
+    pub port_count: u16,
+}
+
+impl BuildIdentity {
+    /// The identity of a runtime that reports these, or `None` if it
+    /// reports no function-set id (it cannot be told from another build).
+    pub fn new(
+        type_name: &str,
+        version: &str,
+        build: u8,
+        function_set: u32,
+        port_count: u16,
+    ) -> Option<BuildIdentity> {
+        (function_set != 0 && !type_name.is_empty()).then(|| BuildIdentity {
+            type_name: type_name.into(),
+            version: version.into(),
+            build,
+            function_set,
+            port_count,
+        })
+    }
+}
+
 impl RuntimeRecord {
+    /// What it was built as ([`BuildIdentity`]), if it says.
+    pub fn build_identity(&self) -> Option<BuildIdentity> {
+        BuildIdentity::new(
+            &self.type_name,
+            &self.version,
+            self.build,
+            self.function_set,
+            u16::try_from(self.ports.len()).ok()?,
+        )
+    }
+
     /// The route to this runtime, with its MTU.
     pub fn route(&self) -> Route {
         // Routes in a map come from scans and are short; a hand-edited map

@@ -162,6 +162,8 @@ struct FirstMotion {
     /// load falls behind its timer lead); it does not void the figures
     /// above, and the table says so.
     fault: Option<String>,
+    /// `Machine::start_phases`, as `osap run -v` prints them.
+    phases: String,
 }
 
 /// Steps taken so far by the simulated belt motors.
@@ -181,6 +183,7 @@ async fn first_motion(cfg: &MachineFile) -> FirstMotion {
     let t0 = Instant::now();
     let machine = Machine::simulate(cfg).await.expect("the machine starts");
     let ready = t0.elapsed();
+    let phases = machine.start_phases().to_string();
     let start = drive::start_position(cfg);
     machine.set_position(&start).expect("set_position");
     let mut to = start.clone();
@@ -210,6 +213,7 @@ async fn first_motion(cfg: &MachineFile) -> FirstMotion {
         sampled: sampled.unwrap_or(stepped),
         stepped,
         fault,
+        phases,
     }
 }
 
@@ -620,6 +624,11 @@ fn bench_first_motion(cfg: &MachineFile, reps: usize) {
     {
         println!("note: a move faulted after its first step (run {i}): {fault}\n");
     }
+    println!("`Machine::start_phases` of each start-up:\n");
+    for r in &runs {
+        println!("- {}", r.phases);
+    }
+    println!();
 
     let n = reps.min(3);
     println!("### `Machine::simulate` taken apart ({n} runs)\n");

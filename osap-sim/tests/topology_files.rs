@@ -19,8 +19,19 @@ use std::time::Duration;
 mod common;
 use common::shipped;
 
-/// Every `*.toml` in `osap-sim/topologies/`.
+/// Every `*.toml` in `osap-sim/topologies/` without an RS-485 bus: the
+/// discrete-event simulator models none and refuses them (checked in
+/// `bus_topologies_are_refused_by_the_discrete_event_simulator`; they run in
+/// the simulated machines, `tests/bus.rs` and `tests/bus32.rs`).
 fn shipped_files() -> Vec<PathBuf> {
+    all_shipped_files()
+        .into_iter()
+        .filter(|p| SimSpec::load(p).is_ok_and(|m| m.buses.is_empty()))
+        .collect()
+}
+
+/// Every `*.toml` in `osap-sim/topologies/`.
+fn all_shipped_files() -> Vec<PathBuf> {
     let dir = shipped("");
     let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
         .unwrap()
@@ -40,6 +51,23 @@ fn no_text_topologies_are_left() {
             path.extension().and_then(|e| e.to_str()),
             Some("toml"),
             "{}: topologies are TOML files",
+            path.display()
+        );
+    }
+}
+
+#[test]
+fn bus_topologies_are_refused_by_the_discrete_event_simulator() {
+    let buses: Vec<PathBuf> = all_shipped_files()
+        .into_iter()
+        .filter(|p| SimSpec::load(p).is_ok_and(|m| !m.buses.is_empty()))
+        .collect();
+    assert!(buses.iter().any(|p| p.ends_with("bus32.toml")), "{buses:?}");
+    for path in buses {
+        let e = Network::load(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("models no RS-485 bus"),
+            "{}: {e}",
             path.display()
         );
     }

@@ -206,3 +206,77 @@ fn set_bus_takes_a_role_on_a_switchable_link_only() {
     assert_eq!(&refused[..], &[key::SET_BUS, Status::Refused as u8]);
     assert_eq!(rt.take_bus_request(), None);
 }
+
+/// A port of 40 sub-ports, named by offset.
+struct ManyPorts;
+
+const NAMES: [&str; 4] = ["alpha", "beta.pipe", "gamma", "a_longer_name"];
+
+impl Port for ManyPorts {
+    fn port_count(&self) -> u16 {
+        40
+    }
+    fn info(&self, offset: u16) -> PortInfo<'_> {
+        PortInfo {
+            type_name: "pipes_function",
+            name: NAMES[usize::from(offset) % NAMES.len()],
+        }
+    }
+    fn on_packet(&mut self, _: Delivery<'_>, _: &mut PortTx<'_>) {}
+}
+
+/// Asks `body` of a runtime with [`ManyPorts`]; the reply from its key.
+fn ask_many(rt: &mut Rt, links: &mut [Link; 2], body: &[u8]) -> heapless::Vec<u8, 128> {
+    let mut payload = [0u8; 16];
+    let n = Transport::Request(5).encode(&mut payload).unwrap();
+    payload[n..n + body.len()].copy_from_slice(body);
+    assert!(links[0].inject(&packet(0, &payload[..n + body.len()])));
+    let mut ports = [ManyPorts];
+    rt.poll(Instant::from_micros(1_000), &mut ports, links);
+    let reply = links[0].take_sent().expect("a reply");
+    heapless::Vec::from_slice(&reply[12..]).unwrap()
+}
+
+#[test]
+fn a_port_list_holds_whole_records_and_agrees_with_port_information() {
+    let mut rt = runtime();
+    let mut links = [Link::new(), Link::new()];
+    type Name = heapless::String<32>;
+    let mut listed: heapless::Vec<(u16, Name, Name), 64> = heapless::Vec::new();
+    let mut from = 0u16;
+    let mut replies = 0;
+    loop {
+        let [a, b] = from.to_le_bytes();
+        let reply = ask_many(&mut rt, &mut links, &[key::PORT_LIST, a, b]);
+        assert_eq!(&reply[..2], &[key::PORT_LIST, Status::Ok as u8]);
+        let mut r = Reader::new(&reply[2..]);
+        assert_eq!(r.u16().unwrap(), from);
+        let count = r.u8().unwrap();
+        for k in 0..u16::from(count) {
+            let t = Name::try_from(r.str8().unwrap()).unwrap();
+            let n = Name::try_from(r.str8().unwrap()).unwrap();
+            listed.push((from + k, t, n)).unwrap();
+        }
+        assert!(r.is_empty(), "whole records only");
+        if count == 0 {
+            break;
+        }
+        replies += 1;
+        from += u16::from(count);
+    }
+    // Port 0 (the netresponder) and the 40: several replies of a 128-byte
+    // MTU, far fewer than one each.
+    assert_eq!(listed.len(), 41);
+    assert!((3..=10).contains(&replies), "{replies} replies");
+    for (index, type_name, name) in &listed {
+        let [a, b] = index.to_le_bytes();
+        let reply = ask_many(&mut rt, &mut links, &[key::PORT_INFO, a, b]);
+        let mut r = Reader::new(&reply[2..]);
+        assert_eq!(r.u16().unwrap(), *index);
+        assert_eq!(r.str8().unwrap(), type_name.as_str());
+        assert_eq!(r.str8().unwrap(), name.as_str());
+    }
+    // A malformed request is refused as such.
+    let reply = ask_many(&mut rt, &mut links, &[key::PORT_LIST, 0]);
+    assert_eq!(&reply[..2], &[key::PORT_LIST, Status::Malformed as u8]);
+}

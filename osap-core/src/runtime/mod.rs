@@ -201,6 +201,7 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
                 name: netresponder::name(name)?,
                 version: [0, 0, 0],
                 build: BuildKey::Unknown,
+                function_set: 0,
             },
             config: RuntimeConfig::default(),
             stack: PacketStack::new(),
@@ -227,6 +228,13 @@ impl<const SLOTS: usize, const MTU: usize, const PORTS: usize, const LINKS: usiz
     pub fn with_version(mut self, version: [u8; 3], build: BuildKey) -> Self {
         self.identity.version = version;
         self.identity.build = build;
+        self
+    }
+
+    /// Sets the function-set id reported in runtime information (see
+    /// [`Identity::function_set`]).
+    pub fn with_function_set(mut self, id: u32) -> Self {
+        self.identity.function_set = id;
         self
     }
 

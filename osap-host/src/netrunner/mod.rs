@@ -3,7 +3,10 @@
 //! A scan is a breadth-first walk over runtimes. It starts at the host's own
 //! netresponder, asks each runtime for its links, and sends a runtime
 //! information request out of every open link, building routes one hop at a
-//! time. Each request carries a fresh scan id; a runtime answers with the id
+//! time. It walks level by level: the runtimes found at one distance are
+//! all asked at once (each across a few links at a time, as many requests
+//! as a microcontroller's link holds), so independent branches, hubs and
+//! buses, are walked side by side. Each request carries a fresh scan id; a runtime answers with the id
 //! it was sent before, so a runtime reached again through a loop gives
 //! itself away, and which one it is, and the reply also names the link the
 //! request came in on, so every link is mapped end to end. A runtime that
@@ -33,7 +36,7 @@ use osap_core::route::Route;
 use std::time::Duration;
 use tokio::time::Instant;
 
-pub use scan::{scan, scan_runtimes, scan_with_progress};
+pub use scan::{scan, scan_known, scan_runtimes, scan_with_progress, KnownPorts};
 
 /// How a scan behaves.
 #[derive(Debug, Clone)]
@@ -96,6 +99,9 @@ pub struct RuntimeInfo {
     pub tier: u8,
     /// The link the request came in on (255: from a local port).
     pub arrival_link: u8,
+    /// The function-set id of the functions it was built with (0: none,
+    /// or a runtime that does not say).
+    pub function_set: u32,
 }
 
 /// What [`Netrunner::wait_synchronised`] waits for.
@@ -137,6 +143,13 @@ impl std::fmt::Debug for Netrunner {
             .field("retries", &self.retries)
             .finish()
     }
+}
+
+/// How often [`Netrunner::wait_synchronised`] polls a clock for `goal`: a
+/// twentieth of its quiet window, no more often than every 5 ms (a query
+/// is a round trip through every hop) and at least every 50 ms.
+fn poll_every(goal: SyncGoal) -> Duration {
+    (goal.quiet / 20).clamp(Duration::from_millis(5), Duration::from_millis(50))
 }
 
 /// The fields of a netresponder's reply to query `asked`, after its key
@@ -235,8 +248,9 @@ impl Netrunner {
             port_count: r.u16().map_err(m)?,
             link_count: r.u8().map_err(m)?,
             tier: r.u8().map_err(m)?,
-            // Older netresponders end here.
+            // Older netresponders end here, or before the function set.
             arrival_link: r.u8().unwrap_or(255),
+            function_set: r.u32().unwrap_or(0),
         })
     }
 
@@ -349,6 +363,39 @@ impl Netrunner {
         })
     }
 
+    /// Information on the ports from index `from` on, as many as one reply
+    /// holds (none: `from` is past the last port, or its record does not
+    /// fit a reply). A runtime without the query refuses it
+    /// ([`Status::UnknownKey`]): ask [`port_info`](Self::port_info).
+    pub async fn port_list(&self, route: &Route, from: u16) -> Result<Vec<PortRecord>, HostError> {
+        let mut body = vec![key::PORT_LIST];
+        body.extend_from_slice(&from.to_le_bytes());
+        let f = self.query(route, &body).await?;
+        let mut r = Reader::new(&f);
+        let m = |e| HostError::malformed(route, "port list", e);
+        let first = r.u16().map_err(m)?;
+        if first != from {
+            return Err(HostError::malformed(
+                route,
+                "port list",
+                ReplyProblem::WrongIndex {
+                    asked: from,
+                    answered: first,
+                },
+            ));
+        }
+        let count = r.u8().map_err(m)?;
+        (0..u16::from(count))
+            .map(|k| {
+                Ok(PortRecord {
+                    index: from.saturating_add(k),
+                    type_name: r.str8().map_err(m)?.to_string(),
+                    name: r.str8().map_err(m)?.to_string(),
+                })
+            })
+            .collect()
+    }
+
     /// The time-controller configuration.
     pub async fn time_config(&self, route: &Route) -> Result<TimeConfig, HostError> {
         let f = self.query(route, &[key::GET_TIME_CONFIG]).await?;
@@ -378,8 +425,9 @@ impl Netrunner {
     /// its offset estimate within `goal.max_offset`, and neither out of
     /// that bound nor hard-jumped for `goal.quiet`. Motion streams are keyed
     /// by synchronized time, and a clock that still steps while settling
-    /// would step the axis with it. Polls the clock status every 50 ms;
-    /// fails with [`HostError::NotSynchronised`] after `goal.timeout`.
+    /// would step the axis with it. Polls the clock status every
+    /// twentieth of `goal.quiet` (5 to 50 ms), so the wait ends within 5 %
+    /// of the quiet window's end; fails with [`HostError::NotSynchronised`] after `goal.timeout`.
     pub async fn wait_synchronised(
         &self,
         route: &Route,
@@ -406,7 +454,7 @@ impl Netrunner {
                     last: s,
                 })));
             }
-            tokio::time::sleep(Duration::from_millis(50)).await;
+            tokio::time::sleep(poll_every(goal)).await;
         }
     }
 

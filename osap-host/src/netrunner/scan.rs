@@ -2,12 +2,32 @@
 //! docs](super)), in full or for runtimes only.
 
 use super::{Netrunner, RuntimeInfo, ScanFailure, ScanOptions, ScanReport};
-use crate::map::{LinkEdge, LinkEnd, LinkRecord, NetworkMap, RuntimeRecord, MAP_VERSION};
+use crate::map::{
+    BuildIdentity, LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord,
+    MAP_VERSION,
+};
 use crate::{Host, HostError};
 use futures_util::future::join_all;
+use futures_util::stream::{self, StreamExt};
 use osap_core::route::Route;
-use std::collections::{HashMap, VecDeque};
+use std::collections::HashMap;
+use tokio::sync::Semaphore;
 use tokio::time::Instant;
+
+/// Requests one runtime is sent at once during a scan: as many as a
+/// microcontroller's link holds, so none waits in a full queue or is lost.
+const AT_ONCE: usize = osap_core::stack::DEFAULT_LINK_QUOTA as usize;
+
+/// A link of a runtime found at the last level, to be asked across.
+struct Target {
+    /// The runtime it leaves (index in the scan's list) and its route.
+    parent: usize,
+    here: Route,
+    link: LinkRecord,
+    /// Route to the neighbour, and its MTU so far.
+    route: Route,
+    mtu: u16,
+}
 
 /// A runtime found during a scan, with the route it was reached by.
 struct Found {
@@ -26,14 +46,37 @@ pub async fn scan_with_progress(
     options: &ScanOptions,
     progress: impl FnMut(usize, usize),
 ) -> Result<ScanReport, HostError> {
-    scan_as(host, options, true, progress, |_| true).await
+    scan_as(host, options, Ports::Read(None), progress, |_| true).await
+}
+
+/// Ports already known, by the build of the runtimes that have them.
+pub type KnownPorts = HashMap<BuildIdentity, Vec<PortRecord>>;
+
+/// [`scan`], taking the ports of each runtime whose [`BuildIdentity`] is
+/// in `known` from there instead of asking it for them (most of a full
+/// scan's requests are a module's ports). The rest of every runtime
+/// (name, links) is read as always.
+pub async fn scan_known(
+    host: &Host,
+    options: &ScanOptions,
+    known: &KnownPorts,
+) -> Result<ScanReport, HostError> {
+    scan_as(host, options, Ports::Read(Some(known)), |_, _| {}, |_| true).await
+}
+
+/// Whether a scan reads ports, and which it knows already.
+#[derive(Clone, Copy)]
+enum Ports<'a> {
+    /// None read.
+    Skip,
+    /// Every runtime's read, but for those whose build is known.
+    Read(Option<&'a KnownPorts>),
 }
 
 /// A scan for runtimes, not their functions: it reads no ports (each
 /// record's `ports` is empty; a module's are most of a full scan's
-/// requests), asks each runtime its name, type and links at once, and
-/// calls `found` with each runtime the moment it is described, nearest
-/// first. It stops as soon as `found` returns false. For a caller that
+/// requests), and calls `found` with each runtime as soon as its level
+/// is described, nearest first. It stops as soon as `found` returns false. For a caller that
 /// looks for a few runtimes by name and must act on each at once (`osap
 /// halt`): those found early need not wait for the rest.
 pub async fn scan_runtimes(
@@ -41,15 +84,16 @@ pub async fn scan_runtimes(
     options: &ScanOptions,
     found: impl FnMut(&RuntimeRecord) -> bool,
 ) -> Result<ScanReport, HostError> {
-    scan_as(host, options, false, |_, _| {}, found).await
+    scan_as(host, options, Ports::Skip, |_, _| {}, found).await
 }
 
-/// The scan: every runtime's ports read one by one (`read_ports`), or
-/// none and the rest of a runtime's records asked at once.
+/// The scan, level by level (a level's runtimes asked at once, each
+/// across up to [`AT_ONCE`] links at a time), with every runtime's ports
+/// (a reply-full at a time, or taken from those known) or none.
 async fn scan_as(
     host: &Host,
     options: &ScanOptions,
-    read_ports: bool,
+    read_ports: Ports<'_>,
     mut progress: impl FnMut(usize, usize),
     mut each: impl FnMut(&RuntimeRecord) -> bool,
 ) -> Result<ScanReport, HostError> {
@@ -65,186 +109,219 @@ async fn scan_as(
     let mut found: Vec<Found> = Vec::new();
     let mut links: Vec<LinkEdge> = Vec::new();
     let mut failures = Vec::new();
-    let mut queue = VecDeque::new();
 
     // The host itself.
     let local = Route::local();
     let info = runner.runtime_info(&local, next_id).await?;
     sent_to.insert(next_id, 0);
     next_id = next_id.wrapping_add(1);
-    let (record, failed) = describe(&runner, &local, &info, info.packet_size, read_ports).await;
+    let gates = Gates::default();
+    let (record, failed) = describe(
+        &runner,
+        &local,
+        &info,
+        info.packet_size,
+        read_ports,
+        &gates.of(&local),
+    )
+    .await;
     failures.extend(failed);
     let mut more = each(&record);
     found.push(Found {
         record,
         route: local,
     });
-    queue.push_back(0);
-    progress(1, queue.len());
+    progress(1, 1);
 
-    while let Some(i) = queue.pop_front().filter(|_| more) {
-        let here = found[i].route;
-        let link_list = found[i].record.links.clone();
+    // Level by level: every runtime of a level is asked across its links
+    // at once, so independent branches (hubs, buses) are walked side by
+    // side, not one after another.
+    let mut level: Vec<usize> = vec![0];
+    while more && !level.is_empty() {
         // A point-to-point link leads to one neighbour; a bus head's link
         // to each drop it knows, a drop's to its head.
-        let mut targets = Vec::new();
-        for link in link_list.iter().filter(|l| l.open) {
-            let hops: Vec<osap_core::Instruction> = match &link.bus {
-                None => vec![osap_core::Instruction::LinkForward(link.index)],
-                Some(bus) => bus
-                    .present
-                    .iter()
-                    .map(|&drop| osap_core::Instruction::BusForward {
-                        bus: link.index,
-                        drop,
-                    })
-                    .collect(),
-            };
-            for hop in hops {
-                let Ok(route) = here.with_hop(hop) else {
-                    failures.push(ScanFailure {
-                        route: hops_of(&here),
-                        error: format!("route through link {} is too long", link.index),
-                    });
-                    continue;
+        let mut targets: Vec<Target> = Vec::new();
+        for &i in &level {
+            let here = found[i].route;
+            for link in found[i].record.links.iter().filter(|l| l.open) {
+                let hops: Vec<osap_core::Instruction> = match &link.bus {
+                    None => vec![osap_core::Instruction::LinkForward(link.index)],
+                    Some(bus) => bus
+                        .present
+                        .iter()
+                        .map(|&drop| osap_core::Instruction::BusForward {
+                            bus: link.index,
+                            drop,
+                        })
+                        .collect(),
                 };
-                let mtu = here.mtu().min(link.mtu);
-                targets.push((link, route.with_mtu(mtu), mtu));
+                for hop in hops {
+                    let Ok(route) = here.with_hop(hop) else {
+                        failures.push(ScanFailure {
+                            route: hops_of(&here),
+                            error: format!("route through link {} is too long", link.index),
+                        });
+                        continue;
+                    };
+                    let mtu = here.mtu().min(link.mtu);
+                    targets.push(Target {
+                        parent: i,
+                        here,
+                        link: link.clone(),
+                        route: route.with_mtu(mtu),
+                        mtu,
+                    });
+                }
             }
         }
-        // A full scan asks across one link at a time; a scan for runtimes
-        // across the links of a runtime at once, as many as a
-        // microcontroller's link holds.
-        let batch = if read_ports {
-            1
-        } else {
-            usize::from(osap_core::stack::DEFAULT_LINK_QUOTA)
-        };
-        for chunk in targets.chunks(batch) {
-            if !more {
-                break;
-            }
-            let ids: Vec<u32> = chunk
+        level.clear();
+        let ids: Vec<u32> = targets
+            .iter()
+            .map(|_| {
+                let id = next_id;
+                next_id = next_id.wrapping_add(1);
+                id
+            })
+            .collect();
+        // Each runtime is asked across as many of its links at once as a
+        // microcontroller's link holds; different runtimes all at once.
+        let mut probe_gates: HashMap<usize, Semaphore> = HashMap::new();
+        for t in &targets {
+            probe_gates
+                .entry(t.parent)
+                .or_insert_with(|| Semaphore::new(AT_ONCE));
+        }
+        // A probe across a bus also takes a turn of that bus's gate.
+        let bus_gates: Vec<_> = targets.iter().map(|t| gates.of(&t.route)).collect();
+        let replies = join_all(
+            targets
                 .iter()
-                .map(|_| {
-                    let id = next_id;
-                    next_id = next_id.wrapping_add(1);
-                    id
-                })
-                .collect();
-            let replies = join_all(
-                chunk
-                    .iter()
-                    .zip(&ids)
-                    .map(|((link, route, _), id)| probe(&runner, &here, route, link, *id)),
-            )
-            .await;
-            let mut answered: Vec<Option<RuntimeInfo>> = Vec::new();
-            for ((link, route, _), reply) in chunk.iter().zip(replies) {
-                answered.push(match reply {
-                    Probe::Answered(info) => {
-                        // Whatever its runtime heard lately, a neighbour is there.
-                        set_heard(&mut found[i].record, link.index, true);
-                        Some(info)
+                .zip(&ids)
+                .zip(&bus_gates)
+                .map(|((t, id), bus)| {
+                    let (runner, gate) = (&runner, &probe_gates[&t.parent]);
+                    async move {
+                        let _turn = gate.acquire().await;
+                        let _bus_turn = bus.acquire().await;
+                        probe(runner, &t.here, &t.route, &t.link, *id).await
                     }
-                    Probe::NoNeighbour => {
-                        set_heard(&mut found[i].record, link.index, false);
-                        None
-                    }
-                    Probe::Failed(error) => {
-                        // Listed as a failure, so not as a link with no neighbour.
-                        set_heard(&mut found[i].record, link.index, true);
-                        failures.push(ScanFailure {
-                            route: hops_of(route),
-                            error,
-                        });
-                        None
-                    }
-                });
-            }
-            // Probes of one batch that reached the same runtime: each reply
-            // names the id that runtime held before, another of the batch's.
-            let first_of = |k: usize| -> usize {
-                let mut at = k;
-                for _ in 0..chunk.len() {
-                    let Some(info) = &answered[at] else { break };
-                    match ids.iter().position(|id| *id == info.previous_scan_id) {
-                        Some(j) if answered[j].is_some() && j != at => at = j,
-                        _ => break,
-                    }
+                }),
+        )
+        .await;
+        let mut answered: Vec<Option<RuntimeInfo>> = Vec::new();
+        for (t, reply) in targets.iter().zip(replies) {
+            let record = &mut found[t.parent].record;
+            answered.push(match reply {
+                Probe::Answered(info) => {
+                    // Whatever its runtime heard lately, a neighbour is there.
+                    set_heard(record, t.link.index, true);
+                    Some(info)
                 }
-                at
-            };
-            // The runtimes new to this scan, described (at once).
-            let mut new: Vec<usize> = Vec::new();
-            for (k, info) in answered.iter().enumerate() {
-                let Some(info) = info else { continue };
-                if first_of(k) != k || sent_to.contains_key(&info.previous_scan_id) {
-                    continue;
+                Probe::NoNeighbour => {
+                    set_heard(record, t.link.index, false);
+                    None
                 }
-                if found.len() + new.len() >= options.max_runtimes {
+                Probe::Failed(error) => {
+                    // Listed as a failure, so not as a link with no neighbour.
+                    set_heard(record, t.link.index, true);
                     failures.push(ScanFailure {
-                        route: hops_of(&chunk[k].1),
-                        error: format!("stopped at {} runtimes", options.max_runtimes),
+                        route: hops_of(&t.route),
+                        error,
                     });
-                    continue;
+                    None
                 }
-                new.push(k);
-            }
-            let runner = &runner;
-            let described = join_all(new.iter().filter_map(|&k| {
-                let info = answered[k].as_ref()?;
-                let (_, route, mtu) = &chunk[k];
-                let mtu = (*mtu).min(info.packet_size);
-                let route = route.with_mtu(mtu);
-                Some(async move {
-                    let (record, failed) = describe(runner, &route, info, mtu, read_ports).await;
-                    (k, route, record, failed)
-                })
-            }))
-            .await;
-            let mut far_of: HashMap<usize, usize> = HashMap::new();
-            for (k, route, record, failed) in described {
-                failures.extend(failed);
-                if more {
-                    more = each(&record);
+            });
+        }
+        // Probes of one level that reached the same runtime: each reply
+        // names the id that runtime held before, another of the level's.
+        let first_of = |k: usize| -> usize {
+            let mut at = k;
+            for _ in 0..targets.len() {
+                let Some(info) = &answered[at] else { break };
+                match ids.iter().position(|id| *id == info.previous_scan_id) {
+                    Some(j) if answered[j].is_some() && j != at => at = j,
+                    _ => break,
                 }
-                found.push(Found { record, route });
-                queue.push_back(found.len() - 1);
-                progress(found.len(), queue.len());
-                far_of.insert(k, found.len() - 1);
             }
-            for (k, info) in answered.iter().enumerate() {
-                let Some(info) = info else { continue };
-                let first = first_of(k);
-                let far = match far_of.get(&first) {
-                    Some(&far) => far,
-                    // Seen before in this scan: a loop, or the way back.
-                    None => match answered[first]
-                        .as_ref()
-                        .and_then(|f| sent_to.get(&f.previous_scan_id))
-                    {
-                        Some(&known) => known,
-                        // Past the runtime limit.
-                        None => continue,
-                    },
-                };
-                sent_to.insert(ids[k], far);
-                let a = LinkEnd {
-                    runtime: i,
-                    link: chunk[k].0.index,
-                };
-                let b = LinkEnd {
-                    runtime: far,
-                    link: info.arrival_link,
-                };
-                // Each link is met from both ends; keep it once.
-                if !links
-                    .iter()
-                    .any(|e| (e.a == b && e.b == a) || (e.a == a && e.b == b))
+            at
+        };
+        // The runtimes new to this scan, described (all at once).
+        let mut new: Vec<usize> = Vec::new();
+        for (k, info) in answered.iter().enumerate() {
+            let Some(info) = info else { continue };
+            // Reached before by this scan: by an earlier level, or by a
+            // probe of this one (even one whose reply was lost).
+            let ours = sent_to.contains_key(&info.previous_scan_id)
+                || ids.contains(&info.previous_scan_id);
+            if first_of(k) != k || ours {
+                continue;
+            }
+            if found.len() + new.len() >= options.max_runtimes {
+                failures.push(ScanFailure {
+                    route: hops_of(&targets[k].route),
+                    error: format!("stopped at {} runtimes", options.max_runtimes),
+                });
+                continue;
+            }
+            new.push(k);
+        }
+        let runner = &runner;
+        // Runtimes behind one bus share its few requests at a time (a
+        // drop's replies queue for the bus's turns; too many at once
+        // would outwait their timeouts).
+        let described_gates: Vec<_> = new.iter().map(|&k| gates.of(&targets[k].route)).collect();
+        let described = join_all(new.iter().zip(&described_gates).filter_map(|(&k, gate)| {
+            let info = answered[k].as_ref()?;
+            let t = &targets[k];
+            let mtu = t.mtu.min(info.packet_size);
+            let route = t.route.with_mtu(mtu);
+            Some(async move {
+                let (record, failed) = describe(runner, &route, info, mtu, read_ports, gate).await;
+                (k, route, record, failed)
+            })
+        }))
+        .await;
+        let mut far_of: HashMap<usize, usize> = HashMap::new();
+        for (k, route, record, failed) in described {
+            failures.extend(failed);
+            if more {
+                more = each(&record);
+            }
+            found.push(Found { record, route });
+            level.push(found.len() - 1);
+            progress(found.len(), level.len());
+            far_of.insert(k, found.len() - 1);
+        }
+        for (k, info) in answered.iter().enumerate() {
+            let Some(info) = info else { continue };
+            let first = first_of(k);
+            let far = match far_of.get(&first) {
+                Some(&far) => far,
+                // Seen before in this scan: a loop, or the way back.
+                None => match answered[first]
+                    .as_ref()
+                    .and_then(|f| sent_to.get(&f.previous_scan_id))
                 {
-                    links.push(LinkEdge { a, b });
-                }
+                    Some(&known) => known,
+                    // Past the runtime limit.
+                    None => continue,
+                },
+            };
+            sent_to.insert(ids[k], far);
+            let a = LinkEnd {
+                runtime: targets[k].parent,
+                link: targets[k].link.index,
+            };
+            let b = LinkEnd {
+                runtime: far,
+                link: info.arrival_link,
+            };
+            // Each link is met from both ends; keep it once.
+            if !links
+                .iter()
+                .any(|e| (e.a == b && e.b == a) || (e.a == a && e.b == b))
+            {
+                links.push(LinkEdge { a, b });
             }
         }
     }
@@ -346,14 +423,69 @@ fn route_drops(route: &Route) -> Vec<Option<u8>> {
     }
 }
 
-/// Asks a newly found runtime everything about itself (its ports only if
-/// `read_ports`); what it fails to answer is recorded and left empty.
+/// One gate of [`AT_ONCE`] requests for each bus a scan crosses last on
+/// the way to a runtime, and one for each runtime behind no bus.
+#[derive(Default)]
+struct Gates(std::sync::Mutex<HashMap<Vec<u8>, std::sync::Arc<Semaphore>>>);
+
+impl Gates {
+    /// The gate of the runtime at `route`: its last bus's (1, then the
+    /// hops up to that bus), or its own (0, then its hops).
+    fn of(&self, route: &Route) -> std::sync::Arc<Semaphore> {
+        let hops = hops_of(route);
+        let drops = route_drops(route);
+        let key = match drops.iter().rposition(Option::is_some) {
+            Some(last_bus) => [&[1], &hops[..=last_bus]].concat(),
+            None => [&[0], hops.as_slice()].concat(),
+        };
+        let mut gates = self.0.lock().unwrap_or_else(|e| e.into_inner());
+        gates
+            .entry(key)
+            .or_insert_with(|| std::sync::Arc::new(Semaphore::new(AT_ONCE)))
+            .clone()
+    }
+}
+
+/// `f`, once `gate` lets one more request go.
+async fn gated<T>(gate: &Semaphore, f: impl std::future::Future<Output = T>) -> T {
+    let _turn = gate.acquire().await;
+    f.await
+}
+
+/// Reads the first `count` ports of the runtime at `route` a reply-full at
+/// a time (port list); returns them and the indices left to ask one by
+/// one: from where the list stopped (a runtime without the query, a reply
+/// lost, or a record too long for one) to the end.
+async fn list_ports(
+    runner: &Netrunner,
+    route: &Route,
+    count: u16,
+) -> (Vec<PortRecord>, std::ops::Range<u16>) {
+    let mut ports: Vec<PortRecord> = Vec::new();
+    let mut next = 0;
+    while next < count {
+        match runner.port_list(route, next).await {
+            Ok(list) if !list.is_empty() => {
+                let take = list.len().min(usize::from(count - next));
+                next += take as u16;
+                ports.extend(list.into_iter().take(take));
+            }
+            _ => break,
+        }
+    }
+    (ports, next..count)
+}
+
+/// Asks a newly found runtime everything about itself (its ports as
+/// `read_ports` says: none, or read unless its build's are known); what it
+/// fails to answer is recorded and left empty.
 async fn describe(
     runner: &Netrunner,
     route: &Route,
     info: &RuntimeInfo,
     route_mtu: u16,
-    read_ports: bool,
+    read_ports: Ports<'_>,
+    gate: &Semaphore,
 ) -> (RuntimeRecord, Vec<ScanFailure>) {
     let mut failures = Vec::new();
     let mut fail = |what: &str, e: HostError| {
@@ -362,36 +494,23 @@ async fn describe(
             error: format!("{what}: {e}"),
         })
     };
-    // Asked one after another in a full scan (as it always was), all at
-    // once in a scan for runtimes.
-    let (name, type_name, link_infos) = if read_ports {
-        let name = runner.name(route).await;
-        let type_name = runner.type_name(route).await;
-        let mut links = Vec::new();
-        for index in 0..info.link_count {
-            links.push(runner.link_info(route, index).await);
-        }
-        (name, type_name, links)
-    } else {
-        // Name, type and the first two links at once, then the others as
-        // many at a time: no more than a microcontroller's link holds.
-        let at_once = usize::from(osap_core::stack::DEFAULT_LINK_QUOTA);
-        let indices: Vec<u8> = (0..info.link_count).collect();
-        let (name, type_name, mut links) = tokio::join!(
-            runner.name(route),
-            runner.type_name(route),
-            join_all(
-                indices
-                    .iter()
-                    .take(at_once - 2)
-                    .map(|&index| runner.link_info(route, index))
-            )
-        );
-        for chunk in indices[indices.len().min(at_once - 2)..].chunks(at_once) {
-            links.extend(join_all(chunk.iter().map(|&index| runner.link_info(route, index))).await);
-        }
-        (name, type_name, links)
-    };
+    // Name, type and the first links at once, then the other links and
+    // the ports, as many at a time as a microcontroller's link holds.
+    // (Owned indices, not borrowed: the scan's future stays spawnable.)
+    let first = info.link_count.min(AT_ONCE as u8 - 2);
+    let (name, type_name, mut link_infos) = tokio::join!(
+        gated(gate, runner.name(route)),
+        gated(gate, runner.type_name(route)),
+        join_all((0..first).map(|index| gated(gate, runner.link_info(route, index))))
+    );
+    link_infos.extend(
+        stream::iter(
+            (first..info.link_count).map(|index| gated(gate, runner.link_info(route, index))),
+        )
+        .buffered(AT_ONCE)
+        .collect::<Vec<_>>()
+        .await,
+    );
     let name = match name {
         Ok(n) => n,
         Err(e) => {
@@ -413,19 +532,44 @@ async fn describe(
             Err(e) => fail(&format!("link {index}"), e),
         }
     }
-    let mut ports = Vec::new();
-    for index in (0..info.port_count).filter(|_| read_ports) {
-        match runner.port_info(route, index).await {
+    let [a, b, c] = info.version;
+    let version = format!("{a}.{b}.{c}");
+    let identity = BuildIdentity::new(
+        &type_name,
+        &version,
+        info.build,
+        info.function_set,
+        info.port_count,
+    );
+    let (port_count, known) = match read_ports {
+        Ports::Skip => (0, None),
+        Ports::Read(known) => {
+            let known = identity.and_then(|id| known?.get(&id));
+            (if known.is_some() { 0 } else { info.port_count }, known)
+        }
+    };
+    let mut ports = known.cloned().unwrap_or_default();
+    let (listed, rest) = gated(gate, list_ports(runner, route, port_count)).await;
+    ports.extend(listed);
+    let port_infos =
+        stream::iter(rest.map(|index| async move {
+            (index, gated(gate, runner.port_info(route, index)).await)
+        }))
+        .buffered(AT_ONCE)
+        .collect::<Vec<_>>()
+        .await;
+    for (index, p) in port_infos {
+        match p {
             Ok(p) => ports.push(p),
             Err(e) => fail(&format!("port {index}"), e),
         }
     }
-    let [a, b, c] = info.version;
     let record = RuntimeRecord {
         name,
         type_name,
-        version: format!("{a}.{b}.{c}"),
+        version,
         build: info.build,
+        function_set: info.function_set,
         packet_size: info.packet_size,
         tier: info.tier,
         route: hops_of(route),

@@ -1,17 +1,20 @@
 //! The manager: builds the system object model from the network and edits
 //! the pipes and modes it describes.
 
+use super::cache::{CachedSignature, SomCache};
 use super::description::Description;
 use super::handle::{arg_type, describe, Control, FunctionHandle, Target};
 use super::host_class::{attach_class, ClassHandle};
 use super::host_fn::{attach_function, HostFunction};
 use super::model::{
-    pipe_record, Som, SomArg, SomClass, SomFunction, SomInputMode, SomOutputMode, SomPipe,
+    pipe_record, Som, SomArg, SomBlock, SomClass, SomFunction, SomInputMode, SomOutputMode, SomPipe,
 };
 use super::{FnRef, RuntimeLookupError, SomError, TypeMismatch};
-use crate::map::PortRecord;
+use crate::map::{NetworkMap, PortRecord};
 use crate::netrunner::{self, ScanFailure, ScanOptions};
 use crate::Host;
+use futures_util::future::join_all;
+use futures_util::stream::{self, StreamExt};
 use osap_core::route::Route;
 use pipes_core::class::{PipesClass, CLASS_PORT_TYPE};
 use pipes_core::control::{
@@ -22,9 +25,35 @@ use pipes_core::failure::SignatureParts;
 use pipes_core::function::{FUNCTION_PORT_TYPE, PIPE_PORT_TYPE};
 use pipes_core::manager::BLOCK_PORT_TYPE;
 use pipes_core::pipe::{PipeConfig, PipeDelivery, PipeStats, MAX_ARGMAP};
+use std::collections::HashMap;
 use std::sync::Arc;
 use std::time::Duration;
+use tokio::sync::Semaphore;
 use tokio::time::Instant;
+
+/// Functions read from one runtime at once: as many requests as a
+/// microcontroller's link holds, so none waits in a full queue or is lost.
+const AT_ONCE: usize = osap_core::stack::DEFAULT_LINK_QUOTA as usize;
+
+/// What limits how many of a runtime's functions are read at once: the
+/// last bus its route crosses (1, then the route up to that bus, with its
+/// link), or the runtime itself (0, then its whole route).
+fn gate_key(record: &crate::map::RuntimeRecord) -> Vec<u8> {
+    match record.route_drops.iter().rposition(Option::is_some) {
+        Some(last_bus) => [&[1], &record.route[..=last_bus]].concat(),
+        None => [&[0], record.route.as_slice()].concat(),
+    }
+}
+
+/// What [`Manager::read_runtime`] read: functions, blocks, classes, what
+/// failed, and how many signatures came from the cache.
+type RuntimeRead = (
+    Vec<SomFunction>,
+    Option<Vec<SomBlock>>,
+    Vec<SomClass>,
+    Vec<String>,
+    usize,
+);
 
 /// A function's signature, as read from it.
 struct ScannedSignature {
@@ -103,6 +132,11 @@ pub struct RefreshReport {
     pub function_failures: Vec<String>,
     /// How long it took.
     pub elapsed: Duration,
+    /// How long the network scan took, of that (the rest read functions).
+    pub scanned: Duration,
+    /// Functions whose signature was taken from a cache
+    /// ([`Manager::refresh_cached`]), not asked.
+    pub from_cache: usize,
 }
 
 /// Builds the system object model and edits the network through it.
@@ -162,56 +196,84 @@ impl Manager {
     }
 
     /// Scans the network, then reads every PIPES function found (its
-    /// signature, modes and pipes), and replaces the model. Runtimes or
+    /// signature, modes and pipes; every runtime at once, a few functions
+    /// at a time on each), and replaces the model. Runtimes or
     /// functions that do not answer are left out and listed in the report;
     /// the rest of the model is built anyway.
     pub async fn refresh(&mut self) -> Result<RefreshReport, SomError> {
+        self.refresh_with(|_| {}).await
+    }
+
+    /// [`refresh`](Self::refresh), calling `scanned` with the network's
+    /// map as soon as the scan is done, before the functions are read: a
+    /// caller can start what needs only routes (clock-sync waits) while
+    /// the rest of the model is read.
+    pub async fn refresh_with(
+        &mut self,
+        scanned: impl FnOnce(&NetworkMap),
+    ) -> Result<RefreshReport, SomError> {
+        self.refresh_from(None, scanned).await
+    }
+
+    /// [`refresh_with`](Self::refresh_with), taking from `cache` what it
+    /// holds of each runtime's build (its ports, its built functions'
+    /// signatures; see [`SomCache`]) instead of asking, and teaching it the
+    /// builds it did not hold. Modes, pipes and blocks are read as always.
+    /// Returns the report; `cache` tells whether it learnt anything new
+    /// (save it then).
+    pub async fn refresh_cached(
+        &mut self,
+        cache: &mut SomCache,
+        scanned: impl FnOnce(&NetworkMap),
+    ) -> Result<(RefreshReport, bool), SomError> {
+        let report = self.refresh_from(Some(cache), scanned).await?;
+        let learnt = cache.learn(&self.som);
+        Ok((report, learnt))
+    }
+
+    async fn refresh_from(
+        &mut self,
+        cache: Option<&SomCache>,
+        scanned: impl FnOnce(&NetworkMap),
+    ) -> Result<RefreshReport, SomError> {
         let start = Instant::now();
-        let scan = netrunner::scan(&self.host, &self.options.scan).await?;
+        let scan = match cache {
+            Some(c) => {
+                netrunner::scan_known(&self.host, &self.options.scan, &c.known_ports()).await?
+            }
+            None => netrunner::scan(&self.host, &self.options.scan).await?,
+        };
+        scanned(&scan.map);
         let mut som = Som::from_map(&scan.map);
         self.control.forget_tables();
         let mut report = RefreshReport {
+            scanned: start.elapsed(),
             scan_failures: scan.failures,
             ..RefreshReport::default()
         };
-        for ri in 0..som.runtimes.len() {
-            let ports: Vec<u16> = som.runtimes[ri]
-                .record
-                .ports
-                .iter()
-                .filter(|p| p.type_name == FUNCTION_PORT_TYPE || p.type_name == BLOCK_PORT_TYPE)
-                .map(|p| p.index)
-                .collect();
-            let has_blocks = som.runtimes[ri]
-                .record
-                .ports
-                .iter()
-                .any(|p| p.type_name == BLOCK_PORT_TYPE);
-            for port in ports {
-                match self.read_function(&som, ri, port).await {
-                    Ok(f) => som.runtimes[ri].functions.push(f),
-                    Err(e) => report.function_failures.push(e.to_string()),
-                }
+        // Every runtime at once, each with a few functions at a time; the
+        // runtimes behind one bus share its few (a drop's replies queue for
+        // the bus's turns, and too many at once would outwait their
+        // timeouts).
+        let mut gates: HashMap<Vec<u8>, Semaphore> = HashMap::new();
+        let keys: Vec<Vec<u8>> = som.runtimes.iter().map(|r| gate_key(&r.record)).collect();
+        for key in &keys {
+            gates
+                .entry(key.clone())
+                .or_insert_with(|| Semaphore::new(AT_ONCE));
+        }
+        let read = join_all(
+            (0..som.runtimes.len()).map(|ri| self.read_runtime(&som, ri, &gates[&keys[ri]], cache)),
+        )
+        .await;
+        for (ri, (functions, blocks, classes, failed, cached)) in read.into_iter().enumerate() {
+            report.from_cache += cached;
+            som.runtimes[ri].functions = functions;
+            if let Some(blocks) = blocks {
+                som.runtimes[ri].blocks = blocks;
             }
-            if has_blocks {
-                match self.read_blocks(&som, ri).await {
-                    Ok(b) => som.runtimes[ri].blocks = b,
-                    Err(e) => report.function_failures.push(e.to_string()),
-                }
-            }
-            let class_ports: Vec<u16> = som.runtimes[ri]
-                .record
-                .ports
-                .iter()
-                .filter(|p| p.type_name == CLASS_PORT_TYPE)
-                .map(|p| p.index)
-                .collect();
-            for port in class_ports {
-                match self.read_class(&som, ri, port).await {
-                    Ok(c) => som.classes.push(c),
-                    Err(e) => report.function_failures.push(e.to_string()),
-                }
-            }
+            som.classes.extend(classes);
+            report.function_failures.extend(failed);
         }
         group_members(&mut som);
         som.resolve_pipes();
@@ -239,6 +301,79 @@ impl Manager {
         Ok(report)
     }
 
+    /// Reads runtime `ri`'s PIPES functions, its blocks (`None`: it has
+    /// no block manager) and its classes, as many functions at a time as
+    /// `gate` lets (shared by the runtimes behind one bus), the built
+    /// functions' signatures from `cache` where it knows the runtime's
+    /// build; what failed, as text.
+    async fn read_runtime(
+        &self,
+        som: &Som,
+        ri: usize,
+        gate: &Semaphore,
+        cache: Option<&SomCache>,
+    ) -> RuntimeRead {
+        let record = &som.runtimes[ri].record;
+        let identity = cache.and(record.build_identity());
+        let known = |port: u16| cache?.signature(identity.as_ref()?, port);
+        let of_type = |types: &[&str]| -> Vec<u16> {
+            record
+                .ports
+                .iter()
+                .filter(|p| types.contains(&p.type_name.as_str()))
+                .map(|p| p.index)
+                .collect()
+        };
+        let ports = of_type(&[FUNCTION_PORT_TYPE, BLOCK_PORT_TYPE]);
+        let has_blocks = !of_type(&[BLOCK_PORT_TYPE]).is_empty();
+        let class_ports = of_type(&[CLASS_PORT_TYPE]);
+        let mut failed = Vec::new();
+        let mut functions = Vec::new();
+        let cached = ports.iter().filter(|&&p| known(p).is_some()).count();
+        let read = stream::iter(ports.into_iter().map(|port| {
+            let known = known(port);
+            async move {
+                let _turn = gate.acquire().await;
+                self.read_function_known(som, ri, port, known).await
+            }
+        }))
+        .buffered(AT_ONCE)
+        .collect::<Vec<_>>()
+        .await;
+        for f in read {
+            match f {
+                Ok(f) => functions.push(f),
+                Err(e) => failed.push(e.to_string()),
+            }
+        }
+        let blocks = if has_blocks {
+            match self.read_blocks(som, ri).await {
+                Ok(b) => Some(b),
+                Err(e) => {
+                    failed.push(e.to_string());
+                    None
+                }
+            }
+        } else {
+            None
+        };
+        let mut classes = Vec::new();
+        let read = stream::iter(class_ports.into_iter().map(|port| async move {
+            let _turn = gate.acquire().await;
+            self.read_class(som, ri, port).await
+        }))
+        .buffered(AT_ONCE)
+        .collect::<Vec<_>>()
+        .await;
+        for c in read {
+            match c {
+                Ok(c) => classes.push(c),
+                Err(e) => failed.push(e.to_string()),
+            }
+        }
+        (functions, blocks, classes, failed, cached)
+    }
+
     /// Asks the control port `port` of runtime `ri` for its signature:
     /// where it is, its name, inputs and outputs.
     async fn read_signature(
@@ -247,18 +382,7 @@ impl Manager {
         ri: usize,
         port: u16,
     ) -> Result<(Target, ScannedSignature), SomError> {
-        let r = &som.runtimes[ri];
-        let listed = r
-            .record
-            .ports
-            .iter()
-            .find(|p| p.index == port)
-            .map_or(String::new(), |p| p.name.clone());
-        let at = Target {
-            function: FnRef::new(r.record.name.clone(), listed),
-            route: host_route(som, ri),
-            port,
-        };
+        let at = port_target(som, ri, port);
         let sig = self.ask_signature(&at).await?;
         Ok((at, sig))
     }
@@ -352,8 +476,31 @@ impl Manager {
         ri: usize,
         port: u16,
     ) -> Result<SomFunction, SomError> {
+        self.read_function_known(som, ri, port, None).await
+    }
+
+    /// [`read_function`](Self::read_function), its signature taken from
+    /// `known` when given (a cached build's) instead of asked.
+    async fn read_function_known(
+        &self,
+        som: &Som,
+        ri: usize,
+        port: u16,
+        known: Option<&CachedSignature>,
+    ) -> Result<SomFunction, SomError> {
         let r = &som.runtimes[ri];
-        let (at, sig) = self.read_signature(som, ri, port).await?;
+        let (at, sig) = match known {
+            Some(k) => (
+                port_target(som, ri, port),
+                ScannedSignature {
+                    name: k.name.clone(),
+                    summary: k.summary.clone(),
+                    inputs: k.inputs.clone(),
+                    outputs: k.outputs.clone(),
+                },
+            ),
+            None => self.read_signature(som, ri, port).await?,
+        };
         let ScannedSignature {
             name,
             summary,
@@ -966,6 +1113,23 @@ fn group_members(som: &mut Som) {
 }
 
 /// The route from the host (runtime 0) to runtime `ri`, with its MTU.
+/// Where the control port `port` of runtime `ri` is, named as its port
+/// record names it.
+fn port_target(som: &Som, ri: usize, port: u16) -> Target {
+    let r = &som.runtimes[ri];
+    let listed = r
+        .record
+        .ports
+        .iter()
+        .find(|p| p.index == port)
+        .map_or(String::new(), |p| p.name.clone());
+    Target {
+        function: FnRef::new(r.record.name.clone(), listed),
+        route: host_route(som, ri),
+        port,
+    }
+}
+
 pub(super) fn host_route(som: &Som, ri: usize) -> Route {
     som.runtimes
         .get(ri)

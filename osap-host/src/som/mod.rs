@@ -32,6 +32,7 @@
 //! ```
 
 mod blocks;
+mod cache;
 mod description;
 pub mod failure;
 pub mod graph;
@@ -45,6 +46,7 @@ pub mod proxy;
 mod value;
 
 pub use blocks::BlockClassInfo;
+pub use cache::{SomCache, CACHE_VERSION};
 pub use description::Description;
 pub use handle::{describe, FunctionHandle};
 pub use host_class::{attach_class, ClassHandle, SharedState};

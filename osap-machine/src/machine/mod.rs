@@ -28,8 +28,10 @@ pub mod loadcell;
 pub mod monitor;
 pub mod motion;
 pub mod motor_accel;
+pub mod phases;
 mod probing;
 mod safe;
+mod som_cache;
 pub mod spindle;
 mod stop;
 mod tool;
@@ -148,6 +150,8 @@ struct Inner {
     watchdog: tokio::task::JoinHandle<()>,
     /// The tasks that keep the modules' output watchdogs fed.
     feeders: Vec<tokio::task::JoinHandle<()>>,
+    /// How long each phase of the start took.
+    phases: phases::StartPhases,
 }
 
 impl Drop for Inner {
@@ -193,6 +197,11 @@ impl Machine {
     /// The modules of `[modules]`, found.
     pub fn modules(&self) -> &BTreeMap<String, ModuleInfo> {
         &self.inner.modules
+    }
+
+    /// How long each phase of the machine's start took.
+    pub fn start_phases(&self) -> &phases::StartPhases {
+        &self.inner.phases
     }
 
     /// What runs underneath the machine (a simulator), if anything:

@@ -1,8 +1,13 @@
-//! Starting a machine, in named phases: find the modules (discover),
-//! wait for their clocks (sync), set up the motors (configure), build the
-//! planner (plan), wire the graph (wire) and its reports (watch).
+//! Starting a machine, in named phases: find the modules (discover; the
+//! waits for their clocks start as soon as the scan places them and run
+//! in the background, all at once), set up the motors (configure), build
+//! the planner (plan), wire the graph (wire) and its reports (watch), then
+//! the rest of the clocks' wait (sync). [`super::phases`] times them.
 
 use maxl::blocks::bedlevel::BedMesh;
+use osap_host::HostError;
+
+use super::phases::StartPhases;
 
 use crate::network::modfn::{
     self, add_point, get_counters, get_fault, get_position, level_point, level_read, read_limit,
@@ -72,23 +77,37 @@ impl Machine {
         entry: Entry,
         underneath: Option<Box<dyn Underneath>>,
     ) -> Result<Machine, MachineError> {
+        let mut phases = StartPhases::new();
         let start = drive::start_position(cfg);
         let (drive, mesh) = check(cfg, &start)?;
-        let (mut manager, modules) = discover(cfg, &host, entry).await?;
-        sync(&host, &modules).await?;
+        phases.mark("check");
+        // The clocks' waits start as soon as the scan places the modules
+        // and run, all at once, while the functions are read and the
+        // machine is set up.
+        let (mut manager, modules, waits) = discover(cfg, &host, entry, &mut phases).await?;
         let motor_at = configure(cfg, &manager, &modules, &drive).await?;
+        phases.mark("configure");
         let (motion, status) = plan(cfg, drive, mesh, &start, motor_at)?;
+        phases.mark("plan");
         let (events, _) = broadcast::channel(1024);
         let (limit_edges, _) = broadcast::channel(256);
         let reports: SharedReports = Arc::default();
         wire(&mut manager, &modules, &motion).await?;
+        phases.mark("wire");
         let monitors = Monitors {
             reports: &reports,
             events: &events,
             limit_edges: &limit_edges,
         };
         watch(cfg, &mut manager, &modules, &motion, monitors).await?;
-
+        phases.mark("watch");
+        // Motion is keyed by synchronized time: every module's clock must
+        // follow the host's before a point is sent.
+        if let Some((began, done)) = sync(&host, waits, &modules).await? {
+            phases.synced(began, done);
+        }
+        phases.mark("clock sync, rest of the wait");
+        phases.finish();
         let (state, _) = watch::channel(MachineState::Idle);
         let homed = cfg
             .axis_names()
@@ -129,6 +148,7 @@ impl Machine {
                 _links: links,
                 watchdog,
                 feeders,
+                phases,
             }),
         };
         machine.spawn_fault_handler();
@@ -149,34 +169,131 @@ fn check(cfg: &MachineFile, start: &[f64]) -> Result<(Drive, Option<BedMesh>), M
 }
 
 /// Discover: the network's functions, and each module of `[modules]` on
-/// it, checked to be a kind the machine knows.
+/// it, checked to be a kind the machine knows. The clock-sync waits of the
+/// modules the scan places start before the functions are read.
 async fn discover(
     cfg: &MachineFile,
     host: &Host,
     entry: Entry,
-) -> Result<(Manager, BTreeMap<String, ModuleInfo>), MachineError> {
+    phases: &mut StartPhases,
+) -> Result<(Manager, BTreeMap<String, ModuleInfo>, Option<SyncWaits>), MachineError> {
     let mut manager = Manager::new(host).await?;
-    manager.refresh().await?;
+    let netrunner = Netrunner::new(host).await?;
+    let mut waits = None;
+    let start_waits = |map: &osap_host::map::NetworkMap| {
+        let som = osap_host::som::Som::from_map(map);
+        let routes = crate::network::module_routes(cfg, &som, entry);
+        waits = Some(SyncWaits::spawn(netrunner, routes));
+    };
+    // What earlier starts read of these modules' builds is taken from the
+    // cache; what it did not know is read and kept for the next start.
+    let cache_path = super::som_cache::path(cfg);
+    let report = match &cache_path {
+        Some(path) => {
+            let mut cache = super::som_cache::load(path);
+            let (report, learnt) = manager.refresh_cached(&mut cache, start_waits).await?;
+            if learnt {
+                super::som_cache::save(path, &cache);
+            }
+            report
+        }
+        None => manager.refresh_with(start_waits).await?,
+    };
+    phases.add("scan", report.scanned);
+    phases.add(
+        "read functions",
+        report.elapsed.saturating_sub(report.scanned),
+    );
     let modules = crate::network::find_modules(cfg, manager.som(), entry)?;
-
-    Ok((manager, modules))
+    phases.mark("find modules");
+    Ok((manager, modules, waits))
 }
 
-/// Sync: every module's clock follows the host's.
-async fn sync(host: &Host, modules: &BTreeMap<String, ModuleInfo>) -> Result<(), MachineError> {
-    // Motion is keyed by synchronized time: every module's clock must
-    // follow the host's before a point is sent.
-    let netrunner = Netrunner::new(host).await?;
-    for (key, m) in modules {
-        netrunner
-            .wait_synchronised(&m.route, SYNC_GOAL)
-            .await
-            .map_err(|e| MachineError::NotSynchronised {
-                module: key.clone(),
-                detail: e.to_string(),
-            })?;
+/// The modules' clock-sync waits, one task running them all at once;
+/// aborted if dropped (a start that failed meanwhile).
+struct SyncWaits {
+    /// The routes waited for, by module key.
+    routes: BTreeMap<String, Route>,
+    /// When the waits began.
+    began: tokio::time::Instant,
+    /// Each module's outcome, and when the last ended.
+    task: tokio::task::JoinHandle<(Vec<WaitOutcome>, tokio::time::Instant)>,
+}
+
+/// A module's key and how its clock-sync wait ended.
+type WaitOutcome = (String, Result<(), HostError>);
+
+impl SyncWaits {
+    /// Starts waiting for every clock of `routes` at once.
+    fn spawn(netrunner: Netrunner, routes: BTreeMap<String, Route>) -> SyncWaits {
+        let waited = routes.clone();
+        let task = tokio::spawn(async move {
+            let nr = &netrunner;
+            let results =
+                futures_util::future::join_all(waited.into_iter().map(|(key, route)| async move {
+                    let r = nr.wait_synchronised(&route, SYNC_GOAL).await.map(drop);
+                    (key, r)
+                }))
+                .await;
+            (results, tokio::time::Instant::now())
+        });
+        SyncWaits {
+            routes,
+            began: tokio::time::Instant::now(),
+            task,
+        }
     }
-    Ok(())
+}
+
+impl Drop for SyncWaits {
+    fn drop(&mut self) {
+        self.task.abort();
+    }
+}
+
+/// Sync: every module's clock follows the host's. Takes the waits started
+/// at the scan (`waits`), and waits for any module they did not cover, all
+/// at once. Returns when the waits began and when the last clock was found
+/// synchronised (`None` if nothing was waited for).
+async fn sync(
+    host: &Host,
+    waits: Option<SyncWaits>,
+    modules: &BTreeMap<String, ModuleInfo>,
+) -> Result<Option<(tokio::time::Instant, tokio::time::Instant)>, MachineError> {
+    let not_synced = |key: &str, e: HostError| MachineError::NotSynchronised {
+        module: key.into(),
+        detail: e.to_string(),
+    };
+    let mut covered = BTreeMap::new();
+    let mut window = None;
+    if let Some(mut w) = waits {
+        let (results, done) = (&mut w.task)
+            .await
+            .map_err(|e| MachineError::Unsupported(format!("clock-sync wait: {e}")))?;
+        for (key, r) in results {
+            r.map_err(|e| not_synced(&key, e))?;
+        }
+        covered = std::mem::take(&mut w.routes);
+        window = Some((w.began, done));
+    }
+    let rest: Vec<(&String, &ModuleInfo)> = modules
+        .iter()
+        .filter(|(key, m)| covered.get(*key) != Some(&m.route))
+        .collect();
+    if rest.is_empty() {
+        return Ok(window);
+    }
+    let netrunner = Netrunner::new(host).await?;
+    let results = futures_util::future::join_all(
+        rest.iter()
+            .map(|(_, m)| netrunner.wait_synchronised(&m.route, SYNC_GOAL)),
+    )
+    .await;
+    for ((key, _), r) in rest.iter().zip(results) {
+        r.map_err(|e| not_synced(key, e))?;
+    }
+    let now = tokio::time::Instant::now();
+    Ok(Some(window.map_or((now, now), |(began, _)| (began, now))))
 }
 
 /// Configure: every module's safe outputs armed, then every motor's

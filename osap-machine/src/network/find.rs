@@ -95,6 +95,89 @@ pub enum FindError {
     NoEntry(u8),
 }
 
+/// A module of `[modules]` placed on the network: its runtime's index in
+/// the model and name, how it was looked for, and what else was found
+/// (for messages).
+struct Located {
+    index: usize,
+    name: String,
+    wanted: String,
+    found: String,
+}
+
+/// Where module `key` (`m`) is in `som`: by name, or by route from
+/// `entry`; never the host itself, and never under a name another runtime
+/// shares.
+fn locate(
+    som: &Som,
+    entry: Entry,
+    key: &str,
+    m: &crate::config::ModuleRef,
+) -> Result<Located, FindError> {
+    let names: Vec<&str> = som
+        .runtimes
+        .iter()
+        .map(|r| r.record.name.as_str())
+        .collect();
+    let found = names.iter().skip(1).copied().collect::<Vec<_>>().join(", ");
+    let start = match entry {
+        Entry::Host => 0,
+        Entry::Beyond(link) => som.neighbour(0, link).ok_or(FindError::NoEntry(link))?.0,
+    };
+    let (index, wanted) = if let Some(name) = &m.name {
+        let hits: Vec<usize> = (0..names.len()).filter(|i| names[*i] == name).collect();
+        if hits.len() > 1 {
+            return Err(FindError::SameName {
+                key: key.into(),
+                name: name.clone(),
+                count: hits.len(),
+            });
+        }
+        (hits.first().copied(), format!("named {name:?}"))
+    } else {
+        let route = file_route(m.route.as_deref().unwrap_or_default());
+        (som.walk(start, &route), format!("at route {route:?}"))
+    };
+    // Never the host itself (a route back to it, or its name).
+    let Some(index) = index.filter(|&i| i != 0) else {
+        return Err(FindError::NotFound {
+            key: key.into(),
+            wanted,
+            found,
+        });
+    };
+    let name = names[index].to_string();
+    if names.iter().filter(|n| **n == name).count() > 1 {
+        return Err(FindError::NameShared {
+            key: key.into(),
+            wanted,
+            name,
+        });
+    }
+    Ok(Located {
+        index,
+        name,
+        wanted,
+        found,
+    })
+}
+
+/// The routes of the modules of `cfg`'s `[modules]` that `som` places
+/// (a model with or without functions: only its runtimes and links are
+/// read), by key; those it does not place are left out. What a caller
+/// can start on before the functions are read ([`find_modules`] checks
+/// them).
+pub fn module_routes(cfg: &MachineFile, som: &Som, entry: Entry) -> BTreeMap<String, Route> {
+    cfg.modules
+        .iter()
+        .filter_map(|(key, m)| {
+            let at = locate(som, entry, key, m).ok()?;
+            let route = som.path(0, at.index)?.route()?;
+            Some((key.clone(), route))
+        })
+        .collect()
+}
+
 /// Finds every module of `cfg`'s `[modules]` in `som` (a model this host
 /// built: runtime 0 is the host), by name or by route from `entry`, and
 /// checks each presents a known function set ([`super::kind_of`]).
@@ -103,43 +186,19 @@ pub fn find_modules(
     som: &Som,
     entry: Entry,
 ) -> Result<BTreeMap<String, ModuleInfo>, FindError> {
-    let names: Vec<String> = som.runtimes.iter().map(|r| r.record.name.clone()).collect();
-    let found = names.iter().skip(1).cloned().collect::<Vec<_>>().join(", ");
-    let start = match entry {
-        Entry::Host => 0,
-        Entry::Beyond(link) => som.neighbour(0, link).ok_or(FindError::NoEntry(link))?.0,
-    };
     let mut out = BTreeMap::new();
     for (key, m) in &cfg.modules {
-        let (index, wanted) = if let Some(name) = &m.name {
-            let hits: Vec<usize> = (0..names.len()).filter(|i| &names[*i] == name).collect();
-            if hits.len() > 1 {
-                return Err(FindError::SameName {
-                    key: key.clone(),
-                    name: name.clone(),
-                    count: hits.len(),
-                });
-            }
-            (hits.first().copied(), format!("named {name:?}"))
-        } else {
-            let route = file_route(m.route.as_deref().unwrap_or_default());
-            (som.walk(start, &route), format!("at route {route:?}"))
-        };
+        let Located {
+            index,
+            name,
+            wanted,
+            found,
+        } = locate(som, entry, key, m)?;
         let not_found = || FindError::NotFound {
             key: key.clone(),
             wanted: wanted.clone(),
             found: found.clone(),
         };
-        // Never the host itself (a route back to it, or its name).
-        let index = index.filter(|&i| i != 0).ok_or_else(not_found)?;
-        let name = names[index].clone();
-        if names.iter().filter(|n| **n == name).count() > 1 {
-            return Err(FindError::NameShared {
-                key: key.clone(),
-                wanted,
-                name,
-            });
-        }
         let path = som.path(0, index).ok_or_else(not_found)?;
         let route = path.route().ok_or_else(not_found)?;
         let route_text = path
@@ -196,6 +255,7 @@ mod tests {
             type_name: "t".into(),
             version: "0.1.0".into(),
             build: 3,
+            function_set: 0,
             packet_size: 256,
             tier: 1,
             route: Vec::new(),

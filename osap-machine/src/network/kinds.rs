@@ -246,6 +246,7 @@ mod tests {
                 type_name: "stepper".into(),
                 version: "0.1.0".into(),
                 build: 3,
+                function_set: 0,
                 packet_size: 256,
                 tier: 1,
                 route: vec![0, 1],

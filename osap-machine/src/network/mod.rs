@@ -15,7 +15,7 @@ use std::time::Duration;
 use osap_host::link::stream::LinkHandle;
 use osap_host::{Host, HostError};
 
-pub use find::{find_modules, FindError, ModuleInfo};
+pub use find::{find_modules, module_routes, FindError, ModuleInfo};
 pub use kinds::{function_set_id_of, kind_of, Mismatch, ModuleKind, KNOWN_KINDS};
 
 /// How to reach a machine's modules.

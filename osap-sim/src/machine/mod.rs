@@ -28,7 +28,7 @@
 //!
 //! A machine is described by a [`SimSpec`], usually
 //! read from a TOML file ([`SimSpec::load`](crate::topology::SimSpec::load)), and started against a host with [`SimMachine::start`]. The
-//! repository ships seven in `osap-sim/topologies/`: `single-usb.toml` (one
+//! repository ships eight in `osap-sim/topologies/`: `single-usb.toml` (one
 //! module on USB), `small-machine.toml` (a hub on USB with four modules on
 //! UARTs), `loop.toml` (a network with a loop), `corexy-plotter.toml`
 //! (a hub with three steppers, one with a limit switch), and, written for
@@ -36,8 +36,9 @@
 //! and `winch.toml`, a cable winch whose `[winch]`
 //! ([`WinchSpec`](crate::topology::WinchSpec)) puts four motors' spools,
 //! their cables and a hanging mass in one physical world ([`winch`];
-//! `docs/winch.md`). The discrete-event simulator runs the same specs
-//! ([`crate::network::from_spec`]).
+//! `docs/winch.md`); and `bus32.toml`, 32 steppers on four RS-485 buses
+//! behind hubs, the scale test. The discrete-event simulator runs the same
+//! specs ([`crate::network::from_spec`]), those without a bus.
 //!
 //! ```no_run
 //! # async fn demo() -> Result<(), osap_host::HostError> {
@@ -1241,9 +1242,16 @@ impl SimModule {
             enabled: machine.topology.sync,
             ..TimeConfig::default()
         };
+        // A stepper runs the module firmware's functions; a hub has none.
+        let function_set = if spec.kind() == Some(ModuleKind::Stepper) {
+            osap_module::FUNCTION_SET_ID
+        } else {
+            0
+        };
         let runtime = ModuleRuntime::new(&spec.type_name, &parked.name)
             .map_err(ConfigError::from)?
             .with_version(version(), BuildKey::RustSimulated)
+            .with_function_set(function_set)
             .with_time_config(time)
             .map_err(ConfigError::from)?;
         let clock = DriftClock::new(osap_host::clock::now(), spec.clock_model());

@@ -15,6 +15,7 @@
 
 mod bed;
 mod board;
+mod bus_tree;
 mod check;
 mod error;
 pub(crate) mod graph;
@@ -27,6 +28,7 @@ pub use board::{
     AccelSpec, BoardError, BootloaderSpec, Chip, ContactSpec, HeaterSpec, IoSpec, MeltSpec,
     MotorSpec, RotorSpec, ANALOG_INPUTS, DIGITAL_PINS, DRIVER_MICROSTEPS, PWM_OUTPUTS,
 };
+pub use bus_tree::bus_tree;
 pub use error::SpecError;
 pub use host::{ClockSource, HostSpec};
 pub use spindle::SpindleSpec;
