@@ -18,7 +18,8 @@
 //! timers, whose 1 ms granularity would swamp a UART's tens of µs: the
 //! thread sleeps on a condition variable until just before the earliest
 //! delivery is due and spins through the last [`SPIN`], so packets land
-//! within a few µs of their time.
+//! within a few µs of their time. In virtual time one [`Wire`] task per
+//! machine keeps the same schedule on tokio's (paused) timer.
 
 use super::faults::LinkFaults;
 use crate::medium::{StampMode, Transmitter};
