@@ -469,7 +469,10 @@ impl SimMachine {
                     })?;
                     (Some(thread.handle()), Some(thread))
                 }
-                TimeMode::Virtual => (Some(WireHandle::Virtual), None),
+                TimeMode::Virtual => {
+                    let task = Wire::start_virtual();
+                    (Some(task.handle()), Some(task))
+                }
             }
         } else {
             (None, None)

@@ -18,7 +18,8 @@
 //! timers, whose 1 ms granularity would swamp a UART's tens of µs: the
 //! thread sleeps on a condition variable until just before the earliest
 //! delivery is due and spins through the last [`SPIN`], so packets land
-//! within a few µs of their time.
+//! within a few µs of their time. In virtual time one [`Wire`] task per
+//! machine keeps the same schedule on tokio's (paused) timer.
 
 use super::faults::LinkFaults;
 use crate::medium::{StampMode, Transmitter};
@@ -88,80 +89,172 @@ impl WireShared {
 }
 
 /// A handle to schedule actions: on a [`Wire`] thread in real time, or on
-/// tokio timers in virtual time (tokio's clock paused: timers then fire in
-/// order at their ms ticks, and a run is the same every time).
+/// a [`Wire`] task on tokio's timer in virtual time (tokio's clock paused:
+/// the task wakes at the ms tick of the earliest action and runs every
+/// action due by then in time order, so a run is the same every time).
 #[derive(Clone)]
 pub(crate) enum WireHandle {
     Thread(Arc<WireShared>),
-    Virtual,
+    Virtual(Arc<VirtualShared>),
+}
+
+/// A virtual-time wire's schedule and its task's wake-up.
+#[derive(Default)]
+pub(crate) struct VirtualShared {
+    schedule: Mutex<Schedule>,
+    /// Woken when an action becomes the earliest, or on stop.
+    changed: Notify,
+}
+
+impl VirtualShared {
+    fn lock(&self) -> MutexGuard<'_, Schedule> {
+        self.schedule.lock().unwrap_or_else(|e| e.into_inner())
+    }
 }
 
 impl WireHandle {
     /// Runs `action` at `at`.
     pub(crate) fn at(&self, at: Instant, action: impl FnOnce() + Send + 'static) {
-        let shared = match self {
-            WireHandle::Thread(shared) => shared,
-            WireHandle::Virtual => {
-                let at = tokio::time::Instant::from_std(at);
-                tokio::spawn(async move {
-                    tokio::time::sleep_until(at).await;
-                    action();
-                });
-                return;
+        match self {
+            WireHandle::Thread(shared) => {
+                if schedule(&mut shared.lock(), at, Box::new(action)) {
+                    shared.version.fetch_add(1, Ordering::AcqRel);
+                    shared.changed.notify_one();
+                }
             }
-        };
-        let mut s = shared.lock();
-        if s.stop {
-            return;
-        }
-        let seq = s.seq;
-        s.seq += 1;
-        let earliest = s.events.peek().is_none_or(|e| at < e.at);
-        s.events.push(Event {
-            at,
-            seq,
-            action: Box::new(action),
-        });
-        drop(s);
-        if earliest {
-            shared.version.fetch_add(1, Ordering::AcqRel);
-            shared.changed.notify_one();
+            WireHandle::Virtual(shared) => {
+                if schedule(&mut shared.lock(), at, Box::new(action)) {
+                    shared.changed.notify_one();
+                }
+            }
         }
     }
 }
 
-/// The thread that carries out a machine's scheduled deliveries; stopped
-/// when dropped (what is still scheduled is dropped: in flight when the
-/// machine went away).
-pub(crate) struct Wire {
-    shared: Arc<WireShared>,
-    thread: Option<JoinHandle<()>>,
+/// Adds `action` at `at` to `s`; returns whether it is now the earliest
+/// (the wire must wake earlier). Nothing is added once the wire stopped.
+fn schedule(s: &mut Schedule, at: Instant, action: Action) -> bool {
+    if s.stop {
+        return false;
+    }
+    let seq = s.seq;
+    s.seq += 1;
+    let earliest = s.events.peek().is_none_or(|e| at < e.at);
+    s.events.push(Event { at, seq, action });
+    earliest
+}
+
+/// What carries out a machine's scheduled deliveries: a thread in real
+/// time, a task in virtual time. Stopped when dropped (what is still
+/// scheduled is dropped: in flight when the machine went away).
+pub(crate) enum Wire {
+    Thread {
+        shared: Arc<WireShared>,
+        thread: Option<JoinHandle<()>>,
+    },
+    Virtual {
+        shared: Arc<VirtualShared>,
+        task: tokio::task::JoinHandle<()>,
+    },
 }
 
 impl Wire {
+    /// A wire thread, for real time.
     pub(crate) fn start() -> std::io::Result<Wire> {
         let shared = Arc::new(WireShared::default());
         let run = shared.clone();
         let thread = std::thread::Builder::new()
             .name("osap-sim-wire".into())
             .spawn(move || run_wire(&run))?;
-        Ok(Wire {
+        Ok(Wire::Thread {
             shared,
             thread: Some(thread),
         })
     }
 
+    /// A wire task on the current tokio runtime, for virtual time: one
+    /// timer for the whole machine, where a task and a timer per delivery
+    /// cost a spawn, a timer registration and a wake-up each.
+    pub(crate) fn start_virtual() -> Wire {
+        let shared = Arc::new(VirtualShared::default());
+        let task = tokio::spawn(run_virtual(shared.clone()));
+        Wire::Virtual { shared, task }
+    }
+
     pub(crate) fn handle(&self) -> WireHandle {
-        WireHandle::Thread(self.shared.clone())
+        match self {
+            Wire::Thread { shared, .. } => WireHandle::Thread(shared.clone()),
+            Wire::Virtual { shared, .. } => WireHandle::Virtual(shared.clone()),
+        }
     }
 }
 
 impl Drop for Wire {
     fn drop(&mut self) {
-        self.shared.lock().stop = true;
-        self.shared.changed.notify_all();
-        if let Some(t) = self.thread.take() {
-            let _ = t.join();
+        match self {
+            Wire::Thread { shared, thread } => {
+                shared.lock().stop = true;
+                shared.changed.notify_all();
+                if let Some(t) = thread.take() {
+                    let _ = t.join();
+                }
+            }
+            Wire::Virtual { shared, task } => {
+                let mut s = shared.lock();
+                s.stop = true;
+                let dropped = std::mem::take(&mut s.events);
+                drop(s);
+                drop(dropped);
+                task.abort();
+            }
+        }
+    }
+}
+
+/// The virtual-time wire: sleeps until the earliest action's time (tokio
+/// rounds it up to its next ms tick), then runs every action due by the
+/// clock, earliest first (ties in the order they were scheduled).
+async fn run_virtual(shared: Arc<VirtualShared>) {
+    let sleep = tokio::time::sleep_until(tokio::time::Instant::now());
+    tokio::pin!(sleep);
+    let mut armed: Option<Instant> = None;
+    loop {
+        let changed = shared.changed.notified();
+        let next = {
+            let s = shared.lock();
+            if s.stop {
+                return;
+            }
+            s.events.peek().map(|e| e.at)
+        };
+        let Some(next) = next else {
+            changed.await;
+            continue;
+        };
+        let now = tokio::time::Instant::now().into_std();
+        if next <= now {
+            let mut due = Vec::new();
+            {
+                let mut s = shared.lock();
+                while s.events.peek().is_some_and(|e| e.at <= now) {
+                    if let Some(e) = s.events.pop() {
+                        due.push(e.action);
+                    }
+                }
+            }
+            for action in due {
+                action();
+            }
+            continue;
+        }
+        if armed != Some(next) {
+            sleep.as_mut().reset(tokio::time::Instant::from_std(next));
+            armed = Some(next);
+        }
+        tokio::select! {
+            biased;
+            _ = changed => {}
+            _ = sleep.as_mut() => {}
         }
     }
 }
@@ -330,6 +423,7 @@ mod tests {
                 };
                 let (mut tx, tx_io) = channel(cfg.clone(), Arc::new(Notify::new()), clock);
                 let (mut rx, rx_io) = channel(cfg, Arc::new(Notify::new()), clock);
+                let wire = Wire::start_virtual();
                 tx_io.set_open(true);
                 rx_io.set_open(true);
                 let carrier = Carrier {
@@ -337,7 +431,7 @@ mod tests {
                     to: rx_io.clone(),
                     transmitter: Transmitter::new(model, Side::A, Rng::new(1)),
                     stamp: model.stamp_mode(Side::B),
-                    wire: WireHandle::Virtual,
+                    wire: wire.handle(),
                     epoch: osap_host::clock::now(),
                     host_clock: clock,
                     generation: Arc::new(AtomicU64::new(0)),
