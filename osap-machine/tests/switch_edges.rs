@@ -195,7 +195,7 @@ fn homing_one_axis_expects_only_its_own_switch() {
         m.home_axes(&["x"]).await.unwrap();
         let mut events = m.events();
         let other = async {
-            // y's search from mid-travel takes seconds at 20 mm/s: 0.5 s in,
+            // y's search from mid-travel takes 1.5 s at 50 mm/s: 0.5 s in,
             // it is still seeking.
             tokio::time::sleep(std::time::Duration::from_millis(500)).await;
             assert_eq!(m.state(), MachineState::Homing);
