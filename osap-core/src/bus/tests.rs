@@ -350,7 +350,56 @@ fn a_drop_keeps_one_time_request_waiting_at_the_plain_rate() {
     let (h, packet) = BusHeader::parse(&frame).unwrap();
     assert_eq!(h.dst, HEAD);
     assert_eq!(packet[7], CODE_TIME_REQUEST);
+    // Stamped as it goes onto the wire (a `bus_forward` hop is two bytes
+    // long), not when the clock asked for it 15 ms before.
+    let stamp = u64::from_le_bytes(packet[8..16].try_into().unwrap());
+    assert_eq!(stamp, now + links[0].lower.queue_delay().as_micros());
+    // The request's frame ends the turn itself: no bare END on a later pass.
+    assert_ne!(h.flags & END, 0);
+    assert!(!links[0].clear_to_send());
     assert_eq!(rt.stack().held(crate::stack::Owner::System), Some(0));
     rt.poll(Instant::from_micros(now + 1_000), ports, &mut links);
+    assert!(links[0].lower.take_sent().is_none());
     assert_eq!(rt.stack().held(crate::stack::Owner::System), Some(0));
+}
+
+#[test]
+fn a_drop_ends_its_turn_on_its_time_request() {
+    let mut head = Station::new(Lower::new(), BusConfig::head(1));
+    let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));
+    let mut buf = [0u8; 64];
+    let to_head = Route::local()
+        .with_hop(Instruction::BusForward { bus: 0, drop: HEAD })
+        .unwrap();
+    // Any other packet leaves burst for more (burst 2): no END.
+    head.poll(Instant::ZERO);
+    carry(&mut [&mut head, &mut d1]);
+    d1.receive(&mut buf);
+    d1.send(&packet_to(&to_head, 9, &[1])).unwrap();
+    let frame = d1.lower.take_sent().unwrap();
+    let (h, _) = BusHeader::parse(&frame).unwrap();
+    assert_eq!(h.flags & END, 0);
+    assert!(head.lower.inject(&frame));
+    assert!(d1.clear_to_send());
+    d1.poll(Instant::from_micros(10)); // bare END
+    carry(&mut [&mut head, &mut d1]);
+    assert!(head.receive(&mut buf).is_some());
+    assert!(head.receive(&mut buf).is_none());
+    // A time request, first in the turn, ends it at once.
+    head.poll(Instant::from_micros(20));
+    carry(&mut [&mut head, &mut d1]);
+    d1.receive(&mut buf);
+    assert!(d1.clear_to_send());
+    let request = packet_to(&to_head, CODE_TIME_REQUEST, &7u64.to_le_bytes());
+    d1.send(&request).unwrap();
+    let frame = d1.lower.take_sent().unwrap();
+    let (h, _) = BusHeader::parse(&frame).unwrap();
+    assert_ne!(h.flags & END, 0);
+    assert!(!d1.clear_to_send());
+    assert_eq!(d1.wake_at(), None);
+    // The head has the medium back with the request, and may answer now.
+    assert!(head.lower.inject(&frame));
+    assert!(head.receive(&mut buf).is_some());
+    assert!(head.clear_to_send());
+    assert_eq!(head.core.counters().timeouts, 0);
 }

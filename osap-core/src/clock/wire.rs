@@ -22,6 +22,39 @@ pub const TIER_ROOT: u8 = 0;
 /// Tiers count up to this in holdover, then become [`TIER_UNSYNCED`].
 pub const TIER_LIMIT: u8 = 32;
 
+/// The system message code and the body's offset of a time message
+/// (request or reply, by its code and body length) that the sending
+/// runtime originated, in a whole OSAP packet: its route is one hop to a
+/// neighbour (a `link_forward`, or a `bus_forward`, which is two bytes
+/// long) and the system message. `None` for any other packet, and for one
+/// forwarded for someone else (its pointer is past the first hop).
+pub fn own_time_message(packet: &[u8]) -> Option<(u8, usize)> {
+    use crate::packet::{Instruction, HEADER_LEN};
+    if packet.first() != Some(&(HEADER_LEN as u8)) {
+        return None;
+    }
+    let hop = Instruction::len_from_first_byte(*packet.get(HEADER_LEN)?);
+    let at = HEADER_LEN + hop;
+    let code = match Instruction::decode(packet.get(at..)?) {
+        Ok(Instruction::SystemMsg(code)) => code,
+        _ => return None,
+    };
+    let body = at + 1;
+    match (code, packet.len().checked_sub(body)?) {
+        (CODE_TIME_REQUEST, TIME_REQUEST_LEN) | (CODE_TIME_REPLY, TIME_REPLY_LEN) => {
+            Some((code, body))
+        }
+        _ => None,
+    }
+}
+
+/// Whether `packet` (a whole OSAP packet) is a time stamp request its
+/// sender originated. A bus drop ends its turn on the frame that carries
+/// one, so the head's reply is not held back by the drop's next pass.
+pub fn is_own_time_request(packet: &[u8]) -> bool {
+    matches!(own_time_message(packet), Some((CODE_TIME_REQUEST, _)))
+}
+
 /// A time stamp reply: the request's stamp, the responder's time and tier.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct TimeReply {

@@ -165,18 +165,10 @@ pub(super) fn stamp_time_message<const LINKS: usize>(
     on_wire: Instant,
     clock: &Clock<LINKS>,
 ) {
-    const BODY: usize = HEADER_LEN + 2;
-    if packet.first() != Some(&(HEADER_LEN as u8)) {
-        return; // forwarded for someone else: not ours to stamp
-    }
-    let code = match packet
-        .get(HEADER_LEN + 1)
-        .map(|b| Instruction::decode(&[*b]))
-    {
-        Some(Ok(Instruction::SystemMsg(code))) => code,
-        _ => return,
+    let Some((code, at)) = own_time_message(packet) else {
+        return; // forwarded for someone else, or not a time message
     };
-    let body = &mut packet[BODY..];
+    let body = &mut packet[at..];
     match (code, body.len()) {
         (CODE_TIME_REQUEST, TIME_REQUEST_LEN) => {
             body.copy_from_slice(&on_wire.as_micros().to_le_bytes())

@@ -19,14 +19,14 @@
 //! wait too, so each link and port takes its packets in serving order.
 
 use crate::clock::{
-    Clock, TimeConfig, TimeReply, CODE_TIME_REPLY, CODE_TIME_REQUEST, TIME_REPLY_LEN,
-    TIME_REQUEST_LEN,
+    own_time_message, Clock, TimeConfig, TimeReply, CODE_TIME_REPLY, CODE_TIME_REQUEST,
+    TIME_REPLY_LEN, TIME_REQUEST_LEN,
 };
 use crate::codec::Writer;
 use crate::counters::{bump, Counters, LinkCounters};
 use crate::link::LinkGateway;
 use crate::netresponder::{self, BuildKey, Changes, Identity, Level, NameTooLong};
-use crate::packet::{Instruction, Packet, PacketError, HEADER_LEN};
+use crate::packet::{Instruction, Packet, PacketError};
 use crate::port::{Delivery, PacketSink, Port, PortTx, SendError};
 use crate::route::Route;
 use crate::stack::{ClaimError, Owner, PacketStack, PushError, SlotId, SlotMeta};
