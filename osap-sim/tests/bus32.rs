@@ -208,11 +208,11 @@ fn bus32_scans_within_2_s() {
     assert!(f.scan <= Duration::from_secs(2), "scan {:?}", f.scan);
 }
 
-/// Not met yet: in virtual time the drops reject about ten clock
-/// exchanges for each one they accept, and not every clock says settled
-/// 6 s after start (docs/performance.md, "Scale").
+/// Not met yet: every drop's clock settles, but the root hub (on USB) and
+/// a bus-head hub (on a UART) have no trusted fitted rate 6 s after start,
+/// so not every clock says settled (docs/performance.md, "Scale").
 #[test]
-#[ignore = "not met yet: bus drops' clocks do not all settle within 5 s (docs/performance.md, Scale)"]
+#[ignore = "not met yet: two hubs' clocks (USB, UART hops) do not settle within 5 s (docs/performance.md, Scale)"]
 fn bus32_clocks_settle_within_5_s() {
     let f = bus32();
     let settled = f

@@ -18,12 +18,15 @@
 //!   turn for what it sends unasked (time requests, streams).
 //! - A granted drop sends up to [`BusConfig::burst`] frames (to any drop)
 //!   and hands the medium back with `END`, on its last frame or on a bare
-//!   frame. A frame carrying a time stamp request of the drop's own always
-//!   ends the turn (`END`), whatever burst is left: the head answers it in
-//!   the pass that reads it, so the request's round trip is wire time and
-//!   the head's serve pass, not also the drop's next runtime pass (whose
-//!   varying length the clock's round-trip filter would reject).
-//!   Whatever else the drop had queued waits for its next turn. A turn that came with data for the drop lasts
+//!   frame. In a turn from a bare poll, a frame carrying a time stamp
+//!   request of the drop's own ends the turn (`END`), whatever burst is
+//!   left: the head answers it in the pass that reads it, so the request's
+//!   round trip is wire time and the head's serve pass, not also the
+//!   drop's next runtime pass (whose varying length the clock's round-trip
+//!   filter would reject). Whatever else the drop had queued waits for its
+//!   next turn. A turn that came with data for the drop is not ended by a
+//!   time request: the answer the head waits for must not be put off by
+//!   the clock, which asks again and again while it settles. A turn that came with data for the drop lasts
 //!   [`BusConfig::answer_passes`] more runtime passes, so a port that
 //!   answers on its next pass still answers in this turn.
 //! - A drop that does not answer within [`BusConfig::reply_timeout`]
@@ -326,9 +329,10 @@ impl<const N: usize> BusCore<N> {
         // Without room for the answer, the frame goes without a grant and
         // the drop answers in its next poll.
         let grant = head && to != BROADCAST && to != HEAD && self.can_lend();
-        // A drop's time request ends its turn: the head answers it at once,
-        // so the requester's round trip is the wire's and the head's serve
-        // pass, not also the drop's own next pass (which varies).
+        // A drop's time request ends a bare-poll turn: the head answers it
+        // at once, so the requester's round trip is the wire's and the
+        // head's serve pass, not also the drop's own next pass (which
+        // varies). A turn with data for us is kept for its answer.
         let poll_turn = matches!(self.turn, Turn::Granted { poll: true, .. });
         let last = !head
             && (self.sent.saturating_add(1) >= self.config.burst.max(1)

@@ -260,3 +260,48 @@ fn tier_ages_in_holdover_and_never_follows_upward() {
     assert_eq!(c.tier(), 2);
     assert_eq!(c.system_time(Instant::from_micros(now + 100)), before);
 }
+
+/// A time message of ours is found after a one-byte `link_forward` and after
+/// a two-byte `bus_forward` hop alike; a forwarded one, or another system
+/// message, is not.
+#[test]
+fn own_time_messages_are_found_after_either_hop() {
+    use crate::packet::{Instruction, HEADER_LEN};
+    use crate::route::Route;
+    let packet = |hop: Instruction, code: u8, body: &[u8]| {
+        let mut buf = [0u8; 64];
+        let route = Route::local().with_hop(hop).unwrap();
+        let n = route
+            .write_packet(&mut buf, Instruction::SystemMsg(code), 1000, 64, body)
+            .unwrap();
+        (buf, n)
+    };
+    let link = Instruction::LinkForward(2);
+    let bus = Instruction::BusForward { bus: 1, drop: 0 };
+    let (p, n) = packet(link, CODE_TIME_REQUEST, &[0; TIME_REQUEST_LEN]);
+    assert_eq!(
+        own_time_message(&p[..n]),
+        Some((CODE_TIME_REQUEST, HEADER_LEN + 2))
+    );
+    assert!(is_own_time_request(&p[..n]));
+    let (p, n) = packet(bus, CODE_TIME_REQUEST, &[0; TIME_REQUEST_LEN]);
+    assert_eq!(
+        own_time_message(&p[..n]),
+        Some((CODE_TIME_REQUEST, HEADER_LEN + 3))
+    );
+    assert!(is_own_time_request(&p[..n]));
+    let (p, n) = packet(bus, CODE_TIME_REPLY, &[0; TIME_REPLY_LEN]);
+    assert_eq!(
+        own_time_message(&p[..n]),
+        Some((CODE_TIME_REPLY, HEADER_LEN + 3))
+    );
+    assert!(!is_own_time_request(&p[..n]));
+    // A wrong body length, another system message, a forwarded packet.
+    let (p, n) = packet(bus, CODE_TIME_REQUEST, &[0; 4]);
+    assert_eq!(own_time_message(&p[..n]), None);
+    let (p, n) = packet(bus, 7, &[0; TIME_REQUEST_LEN]);
+    assert_eq!(own_time_message(&p[..n]), None);
+    let (mut p, n) = packet(bus, CODE_TIME_REQUEST, &[0; TIME_REQUEST_LEN]);
+    p[0] = (HEADER_LEN + 2) as u8;
+    assert_eq!(own_time_message(&p[..n]), None);
+}

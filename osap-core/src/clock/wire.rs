@@ -49,7 +49,7 @@ pub fn own_time_message(packet: &[u8]) -> Option<(u8, usize)> {
 }
 
 /// Whether `packet` (a whole OSAP packet) is a time stamp request its
-/// sender originated. A bus drop ends its turn on the frame that carries
+/// sender originated. A bus drop ends a bare-poll turn on the frame that carries
 /// one, so the head's reply is not held back by the drop's next pass.
 pub fn is_own_time_request(packet: &[u8]) -> bool {
     matches!(own_time_message(packet), Some((CODE_TIME_REQUEST, _)))
