@@ -25,17 +25,30 @@ fn number_after(text: &str, label: &str) -> f64 {
         .unwrap_or_else(|_| panic!("no number after {label:?} in:\n{text}"))
 }
 
-/// Within 2 % of the model's natural frequency: the bound
-/// docs/resonance.md gives the raw response peak over 20 to 120 Hz. A 4 s
-/// chirp resolves 1 / 4 s = 0.25 Hz (0.7 % of 38 Hz); the fitted mode
-/// comes out within 0.04 % there.
+/// The raw response peak within 2 % of where the model's `|H|` peaks
+/// (`model_peak_hz`: 37.6 Hz for 38 Hz at damping 0.1, 1 % below the
+/// natural frequency), the bound docs/resonance.md gives the raw peak. A 4 s
+/// chirp resolves 1 / 4 s = 0.25 Hz (0.7 % of 38 Hz).
 const WITHIN: f64 = 0.02;
+
+/// The fitted natural frequency, and the shaper tuned to it, within 0.5 %
+/// of the model's (it comes out within 0.1 %).
+const FIT_WITHIN: f64 = 0.005;
 
 /// `[sim.axes.y] resonance_hz` of the shipped plotter.
 fn osap_machine_model_hz() -> f64 {
+    sim_axis_y("resonance_hz = ")
+}
+
+/// `[sim.axes.y] damping_ratio` of the shipped plotter.
+fn model_damping() -> f64 {
+    sim_axis_y("damping_ratio = ")
+}
+
+fn sim_axis_y(key: &str) -> f64 {
     let text = std::fs::read_to_string(plotter()).unwrap();
     let section = &text[text.find("[sim.axes.y]").expect("a [sim.axes.y] section")..];
-    number_after(section, "resonance_hz = ")
+    number_after(section, key)
 }
 
 #[test]
@@ -70,12 +83,16 @@ fn resonance_measures_the_plotters_y_and_writes_its_shaper() {
     // The simulated y axis rings at the file's [sim.axes.y] resonance_hz.
     let model = osap_machine_model_hz();
     assert_eq!(model, 38.0);
-    for label in ["peak: ", "mode: natural frequency "] {
+    let model_peak = osap_machine::resonance::analysis::model_peak_hz(model, model_damping());
+    for (label, expected, within) in [
+        ("peak: ", model_peak, WITHIN),
+        ("mode: natural frequency ", model, FIT_WITHIN),
+    ] {
         let found = number_after(&stdout, label);
-        eprintln!("{label}{found} Hz, model {model} Hz");
+        eprintln!("{label}{found} Hz, model {expected:.2} Hz");
         assert!(
-            (found - model).abs() <= WITHIN * model,
-            "{label}{found} Hz against the model's {model} Hz:\n{stdout}"
+            (found - expected).abs() <= within * expected,
+            "{label}{found} Hz against the model's {expected:.2} Hz:\n{stdout}"
         );
     }
     assert!(stdout.contains("recommended shaper: "), "{stdout}");
@@ -89,7 +106,7 @@ fn resonance_measures_the_plotters_y_and_writes_its_shaper() {
         .unwrap_or_else(|| panic!("no shaper line:\n{text}"));
     let written = number_after(line, "freq_hz = ");
     assert!(
-        (written - model).abs() <= WITHIN * model,
+        (written - model).abs() <= FIT_WITHIN * model,
         "{line} against the model's {model} Hz"
     );
     // The shaper names the run it was fitted from, and that run's record

@@ -46,6 +46,7 @@ fn runtime_info_returns_the_previous_scan_id() {
     assert_eq!(r.u8().unwrap(), 2, "links");
     assert_eq!(r.u8().unwrap(), 255, "unsynced tier");
     assert_eq!(r.u8().unwrap(), 1, "the request came in on b's link 1");
+    assert_eq!(r.u32().unwrap(), 0, "function set: none declared");
     assert!(r.is_empty());
     // The next scan sees the id of the last one: that is how a scanner
     // recognises a runtime it already visited through another path.

@@ -33,6 +33,9 @@ struct Target {
 struct Found {
     record: RuntimeRecord,
     route: Route,
+    /// Reached across a bus: its bus link and the drop address of the
+    /// station it was reached from (the way back, not asked again).
+    bus_back: Option<(u8, u8)>,
 }
 
 /// Scans the network reachable from `host`.
@@ -130,6 +133,7 @@ async fn scan_as(
     found.push(Found {
         record,
         route: local,
+        bus_back: None,
     });
     progress(1, 1);
 
@@ -146,9 +150,15 @@ async fn scan_as(
             for link in found[i].record.links.iter().filter(|l| l.open) {
                 let hops: Vec<osap_core::Instruction> = match &link.bus {
                     None => vec![osap_core::Instruction::LinkForward(link.index)],
+                    // Not back across the bus to the station this
+                    // runtime was reached from: that one is known, and
+                    // every drop of a level asking its head at once put
+                    // twice the requests on the bus (each crosses it twice
+                    // each way), which outwaited their timeouts.
                     Some(bus) => bus
                         .present
                         .iter()
+                        .filter(|&&drop| found[i].bus_back != Some((link.index, drop)))
                         .map(|&drop| osap_core::Instruction::BusForward {
                             bus: link.index,
                             drop,
@@ -287,7 +297,18 @@ async fn scan_as(
             if more {
                 more = each(&record);
             }
-            found.push(Found { record, route });
+            let t = &targets[k];
+            let bus_back = t
+                .link
+                .bus
+                .as_ref()
+                .zip(answered[k].as_ref())
+                .map(|(bus, info)| (info.arrival_link, bus.drop));
+            found.push(Found {
+                record,
+                route,
+                bus_back,
+            });
             level.push(found.len() - 1);
             progress(found.len(), level.len());
             far_of.insert(k, found.len() - 1);
@@ -423,19 +444,24 @@ fn route_drops(route: &Route) -> Vec<Option<u8>> {
     }
 }
 
-/// One gate of [`AT_ONCE`] requests for each bus a scan crosses last on
+/// One gate of [`AT_ONCE`] requests for each bus a scan crosses first on
 /// the way to a runtime, and one for each runtime behind no bus.
 #[derive(Default)]
 struct Gates(std::sync::Mutex<HashMap<Vec<u8>, std::sync::Arc<Semaphore>>>);
 
 impl Gates {
-    /// The gate of the runtime at `route`: its last bus's (1, then the
-    /// hops up to that bus), or its own (0, then its hops).
+    /// The gate of the runtime at `route`: its first bus's (1, then the
+    /// hops up to that bus), or its own (0, then its hops). The first, so
+    /// that a probe from a drop back across its bus to the head (which
+    /// crosses the bus twice) shares the gate of the probes to the drops:
+    /// keyed by its last crossing it had a gate of its own, and a bus of
+    /// eight drops carried twelve requests at once, two of which outwaited
+    /// their timeouts.
     fn of(&self, route: &Route) -> std::sync::Arc<Semaphore> {
         let hops = hops_of(route);
         let drops = route_drops(route);
-        let key = match drops.iter().rposition(Option::is_some) {
-            Some(last_bus) => [&[1], &hops[..=last_bus]].concat(),
+        let key = match drops.iter().position(Option::is_some) {
+            Some(first_bus) => [&[1], &hops[..=first_bus]].concat(),
             None => [&[0], hops.as_slice()].concat(),
         };
         let mut gates = self.0.lock().unwrap_or_else(|e| e.into_inner());

@@ -100,6 +100,13 @@ pub trait Underneath: Send + Sync + 'static {
     fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = Result<(), MachineError>> + Send>>;
     /// Itself, for the layer that put it there to find it again.
     fn as_any(&self) -> &dyn std::any::Any;
+    /// Whether a run on it must come out the same every time (simulated
+    /// modules in virtual time): the start then reads every module afresh
+    /// rather than from the functions cache, whose state would change the
+    /// start's timing and so the run (a record's replay must match it).
+    fn reproducible(&self) -> bool {
+        false
+    }
 }
 
 /// A machine: its modules, its motion graph, its tools.

@@ -84,7 +84,9 @@ impl Machine {
         // The clocks' waits start as soon as the scan places the modules
         // and run, all at once, while the functions are read and the
         // machine is set up.
-        let (mut manager, modules, waits) = discover(cfg, &host, entry, &mut phases).await?;
+        let use_cache = !underneath.as_ref().is_some_and(|u| u.reproducible());
+        let (mut manager, modules, waits) =
+            discover(cfg, &host, entry, use_cache, &mut phases).await?;
         let motor_at = configure(cfg, &manager, &modules, &drive).await?;
         phases.mark("configure");
         let (motion, status) = plan(cfg, drive, mesh, &start, motor_at)?;
@@ -175,6 +177,7 @@ async fn discover(
     cfg: &MachineFile,
     host: &Host,
     entry: Entry,
+    use_cache: bool,
     phases: &mut StartPhases,
 ) -> Result<(Manager, BTreeMap<String, ModuleInfo>, Option<SyncWaits>), MachineError> {
     let mut manager = Manager::new(host).await?;
@@ -187,7 +190,11 @@ async fn discover(
     };
     // What earlier starts read of these modules' builds is taken from the
     // cache; what it did not know is read and kept for the next start.
-    let cache_path = super::som_cache::path(cfg);
+    let cache_path = if use_cache {
+        super::som_cache::path(cfg)
+    } else {
+        None
+    };
     let report = match &cache_path {
         Some(path) => {
             let mut cache = super::som_cache::load(path);

@@ -41,8 +41,9 @@ pub struct SimOptions {
     pub time: TimeMode,
 }
 
-/// The simulated machine kept under a [`Machine`], stopped with it.
-struct Simulated(SimMachine);
+/// The simulated machine kept under a [`Machine`], stopped with it, and
+/// whether it runs in virtual time.
+struct Simulated(SimMachine, bool);
 
 impl Underneath for Simulated {
     fn stop(self: Box<Self>) -> Pin<Box<dyn Future<Output = Result<(), MachineError>> + Send>> {
@@ -51,6 +52,10 @@ impl Underneath for Simulated {
 
     fn as_any(&self) -> &dyn Any {
         self
+    }
+
+    fn reproducible(&self) -> bool {
+        self.1
     }
 }
 
@@ -82,13 +87,14 @@ impl Machine {
     ) -> Result<Machine, MachineError> {
         cfg.validate()?;
         let host = Host::start(HostConfig::named(HOST_NAME))?;
+        let virtual_time = matches!(options.time, TimeMode::Virtual);
         let sim = SimMachine::start_with(&host, spec, options.time).await?;
         Self::start(
             cfg,
             host,
             Vec::new(),
             Entry::Host,
-            Some(Box::new(Simulated(sim))),
+            Some(Box::new(Simulated(sim, virtual_time))),
         )
         .await
     }

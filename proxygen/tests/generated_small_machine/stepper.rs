@@ -56,6 +56,7 @@ pub struct Stepper {
     level_point: FunctionHandle,
     event_point: FunctionHandle,
     level_read: FunctionHandle,
+    sample_block: FunctionHandle,
 }
 
 impl Stepper {
@@ -280,6 +281,11 @@ impl Stepper {
             inputs: &[],
             outputs: &[("time", "u64"), ("pwm0", "f32"), ("pwm1", "f32"), ("pins", "u32")],
         },
+        support::Signature {
+            function: "sample_block",
+            inputs: &[("source0", "u8"), ("arg0", "u8"), ("source1", "u8"), ("arg1", "u8"), ("source2", "u8"), ("arg2", "u8"), ("latency_us", "u32"), ("session", "u32")],
+            outputs: &[("seq", "u32"), ("first", "u32"), ("time", "u64"), ("samples", "arry_u8"), ("session", "u32")],
+        },
     ];
     /// The classes it was generated from.
     pub const CLASSES: &'static [support::Class] = &[
@@ -340,6 +346,7 @@ impl Stepper {
             level_point: support::function(manager, runtime, "level_point")?,
             event_point: support::function(manager, runtime, "event_point")?,
             level_read: support::function(manager, runtime, "level_read")?,
+            sample_block: support::function(manager, runtime, "sample_block")?,
         })
     }
 
@@ -1475,6 +1482,37 @@ impl Stepper {
     pub fn level_read_ref(&self) -> &FnRef {
         self.level_read.function()
     }
+
+    /// `sample_block`.
+    ///
+    /// Samples up to three read functions (table index, 255: none; one `u8` argument) on its timer into stamped, numbered blocks.
+    ///
+    /// - inputs: `source0: u8`, `arg0: u8`, `source1: u8`, `arg1: u8`, `source2: u8`, `arg2: u8`, `latency_us: u32`, `session: u32`
+    /// - outputs: `seq: u32`, `first: u32`, `time: u64`, `samples: arry_u8`, `session: u32`
+    /// - generated from: `stepper` firmware 0.1.0
+    pub async fn sample_block(&self, source0: u8, arg0: u8, source1: u8, arg1: u8, source2: u8, arg2: u8, latency_us: u32, session: u32) -> Result<SampleBlockOutputs, CallError> {
+        let h = &self.sample_block;
+        let values = h.call(&[support::to_u8(source0), support::to_u8(arg0), support::to_u8(source1), support::to_u8(arg1), support::to_u8(source2), support::to_u8(arg2), support::to_u32(latency_us), support::to_u32(session)]).await?;
+        let mut out = support::Outputs::new(h, values, 5)?;
+        Ok(SampleBlockOutputs {
+            seq: out.next(support::from_u32)?,
+            first: out.next(support::from_u32)?,
+            time: out.next(support::from_u64)?,
+            samples: out.next(support::from_arry_u8)?,
+            session: out.next(support::from_u32)?,
+        })
+    }
+
+    /// The handle of `sample_block`, for `push` and raw calls.
+    pub fn sample_block_handle(&self) -> &FunctionHandle {
+        &self.sample_block
+    }
+
+    /// `sample_block` as the manager names it, for `connect`, `disconnect`,
+    /// `set_input_mode` and `set_output_mode`.
+    pub fn sample_block_ref(&self) -> &FnRef {
+        self.sample_block.function()
+    }
 }
 
 /// Outputs of `get_position`.
@@ -1617,4 +1655,19 @@ pub struct LevelReadOutputs {
     pub pwm1: f32,
     /// `pins: u32`.
     pub pins: u32,
+}
+
+/// Outputs of `sample_block`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SampleBlockOutputs {
+    /// `seq: u32`.
+    pub seq: u32,
+    /// `first: u32`.
+    pub first: u32,
+    /// `time: u64`.
+    pub time: u64,
+    /// `samples: arry_u8`.
+    pub samples: Vec<u8>,
+    /// `session: u32`.
+    pub session: u32,
 }
