@@ -1490,6 +1490,8 @@ impl Stepper {
     /// - inputs: `source0: u8`, `arg0: u8`, `source1: u8`, `arg1: u8`, `source2: u8`, `arg2: u8`, `latency_us: u32`, `session: u32`
     /// - outputs: `seq: u32`, `first: u32`, `time: u64`, `samples: arry_u8`, `session: u32`
     /// - generated from: `stepper` firmware 0.1.0
+    // One argument per input of the function, as it is declared.
+    #[allow(clippy::too_many_arguments)]
     pub async fn sample_block(&self, source0: u8, arg0: u8, source1: u8, arg1: u8, source2: u8, arg2: u8, latency_us: u32, session: u32) -> Result<SampleBlockOutputs, CallError> {
         let h = &self.sample_block;
         let values = h.call(&[support::to_u8(source0), support::to_u8(arg0), support::to_u8(source1), support::to_u8(arg1), support::to_u8(source2), support::to_u8(arg2), support::to_u32(latency_us), support::to_u32(session)]).await?;
