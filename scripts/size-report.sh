@@ -5,8 +5,10 @@
 #
 # Two variants: `minimal` (netresponder, answers time requests, no clock
 # controller) and `sync` (with osap-core's clock-synchronisation controller).
-# Fails if the minimal thumbv6m-none-eabi .text exceeds the budget (16 KiB,
-# or $OSAP_TEXT_BUDGET bytes).
+# Fails if the minimal thumbv6m-none-eabi .text exceeds the budget (17 KiB,
+# or $OSAP_TEXT_BUDGET bytes). It was 16 KiB until issue 39: stamping time
+# messages sent over buses (they were never stamped) and the responder's
+# sub-µs midpoint took the minimal build to 16 936 B (docs/performance.md).
 #
 # Usage: scripts/size-report.sh [--symbols N]
 #   --symbols N   also list the N largest symbols per target
@@ -14,7 +16,7 @@ set -euo pipefail
 
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 probe="$root/osap-core/size-probe"
-budget="${OSAP_TEXT_BUDGET:-16384}"
+budget="${OSAP_TEXT_BUDGET:-17408}"
 targets=(thumbv6m-none-eabi thumbv7em-none-eabihf)
 bin=osap-size-probe
 
