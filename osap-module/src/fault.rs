@@ -21,6 +21,8 @@
 //!
 //! While the axis stands stopped by a backstop or a halt, the refusals that
 //! follow (code `Faulted`) are counted but keep the record of their cause.
+//! So do the `Gap` refusals right behind refused points: the points missing
+//! are the ones the module refused, and the record keeps why it did.
 //!
 //! **Late steps.** A step that went out on a later tick than the one it
 //! fell due at (more than one step tick, 10 µs, after the position crossed
@@ -216,6 +218,12 @@ impl Fault {
             self.kind = kind;
             self.detail = detail;
         }
+    }
+
+    /// Counts a fault that follows from the recorded one (a point refused
+    /// for a gap the module's own refusals opened), keeping the record.
+    pub fn count_consequence(&mut self) {
+        self.count = self.count.wrapping_add(1);
     }
 
     /// Whether a late-step record may replace the record at synchronized

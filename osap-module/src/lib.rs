@@ -136,6 +136,8 @@ pub struct Module<B> {
     pub sampler: sampler::Sampler,
     /// When the latest control point was accepted.
     last_point_at: SystemInstant,
+    /// Whether the latest control point was refused.
+    refusing: bool,
     /// The late-step count the latest `StepOverrun` record carried.
     late_reported: u64,
     board: B,
@@ -178,6 +180,7 @@ impl<B: Board> Module<B> {
             torque: torque::Torque::default(),
             sampler: sampler::Sampler::new(),
             last_point_at: SystemInstant::ZERO,
+            refusing: false,
             late_reported: 0,
             board,
             step_anchor: None,
@@ -300,12 +303,18 @@ impl<B: Board> Module<B> {
                 let which = fault::over_limit_detail(self.stepper.over_limit());
                 self.fault.record(now, FaultKind::OverLimit, which, false);
             }
+            // The points missing before this one are the ones this module
+            // just refused: the gap is their consequence, and the record
+            // keeps their cause (a host that reads the fault a few points
+            // later must still learn why the stream broke).
+            Err(stepper::StepperError::Gap) if self.refusing => self.fault.count_consequence(),
             Err(e) => {
                 let stopped = self.stepper.is_stopped();
                 self.fault
                     .record(now, FaultKind::Refused, u32::from(e.code()), stopped);
             }
         }
+        self.refusing = result.is_err();
         result
     }
 

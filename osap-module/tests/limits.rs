@@ -431,3 +431,38 @@ fn set_limits_is_a_module_function() {
     let named = osap_module::failure::failure("add_point", 11).unwrap();
     assert_eq!(named.name, "OverLimit");
 }
+
+#[test]
+fn the_gap_behind_a_refused_point_keeps_the_refusal_as_the_fault() {
+    let gap = CallError::Failed(pipes_core::FailureCode::from_code(StepperError::Gap as u8));
+    let (mut m, _) = module();
+    m.set_limits(V, 0.0, 0.0).unwrap();
+    for k in 0..3 {
+        m.add_point(T0 + k * IV, 0.0).unwrap();
+    }
+    // Refused past the velocity limit, then the stream goes on past the
+    // hole its refusals left: those points are refused for the gap, and
+    // counted, but the fault a host reads later still says why.
+    assert_eq!(m.add_point(T0 + 3 * IV, (1.5 * VD) as f32), Err(OVER_LIMIT));
+    assert_eq!(m.add_point(T0 + 4 * IV, (3.0 * VD) as f32), Err(OVER_LIMIT));
+    assert_eq!(m.add_point(T0 + 5 * IV, 0.0), Err(gap));
+    assert_eq!(m.add_point(T0 + 6 * IV, 0.0), Err(gap));
+    let (_, kind, detail, count) = m.get_fault().unwrap();
+    assert_eq!(
+        (kind, detail, count),
+        (FaultKind::OverLimit.code(), OVER_VELOCITY, 4)
+    );
+    // A gap the module did not open is the fault.
+    let (mut m, _) = module();
+    for k in 0..3 {
+        m.add_point(T0 + k * IV, 0.0).unwrap();
+    }
+    assert_eq!(m.add_point(T0 + 6 * IV, 0.0), Err(gap));
+    assert_eq!(
+        fault(&mut m),
+        (
+            FaultKind::Refused.code(),
+            u32::from(StepperError::Gap as u8)
+        )
+    );
+}

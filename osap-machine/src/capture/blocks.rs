@@ -391,14 +391,7 @@ impl Recorder {
             ("session", Type::Scalar(ScalarType::U32)),
         ];
         let function = HostFunction::new(&name, &inputs, &[], body)?;
-        let mut manager = self.machine.manager().lock().await;
-        let dest = manager.define(function).await?;
-        let port = manager
-            .som()
-            .runtimes
-            .first()
-            .and_then(|h| h.functions.iter().find(|f| f.name == name))
-            .map(|f| f.port);
+        let (mut manager, dest, port) = define_sink(&self.machine, &name, function).await?;
         let mode = manager
             .som()
             .runtime_index(&source.runtime)

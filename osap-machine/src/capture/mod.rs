@@ -577,6 +577,25 @@ impl Stream {
     }
 }
 
+/// Defines the host function `function`, named `name`, that a capture's
+/// pipe feeds: its reference and its port on the host runtime, with the
+/// manager still locked for the wiring that follows.
+async fn define_sink<'m>(
+    machine: &'m Machine,
+    name: &str,
+    function: HostFunction,
+) -> Result<(tokio::sync::MutexGuard<'m, Manager>, FnRef, Option<u16>), CaptureError> {
+    let mut manager = machine.manager().lock().await;
+    let dest = manager.define(function).await?;
+    let port = manager
+        .som()
+        .runtimes
+        .first()
+        .and_then(|h| h.functions.iter().find(|f| f.name == name))
+        .map(|f| f.port);
+    Ok((manager, dest, port))
+}
+
 impl Recorder {
     /// Wires every source, their series numbered in order: a module's
     /// group through its `sample_block`, the others one datagram a sample.
@@ -663,14 +682,7 @@ impl Recorder {
             Ok(Vec::new())
         };
         let function = HostFunction::new(&name, &inputs, &[], body)?;
-        let mut manager = self.machine.manager().lock().await;
-        let dest = manager.define(function).await?;
-        let port = manager
-            .som()
-            .runtimes
-            .first()
-            .and_then(|h| h.functions.iter().find(|f| f.name == name))
-            .map(|f| f.port);
+        let (mut manager, dest, port) = define_sink(&self.machine, &name, function).await?;
         self.wired.push(Wired {
             source: r.function.clone(),
             dest: dest.clone(),

@@ -31,7 +31,10 @@ pub(super) fn path(cfg: &MachineFile) -> Option<PathBuf> {
         .chars()
         .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
         .collect();
-    Some(dir.join(format!("{name}-{:016x}.json", fnv1a(folder.as_bytes()))))
+    Some(dir.join(format!(
+        "{name}-{:016x}.json",
+        folder_key(folder.as_bytes())
+    )))
 }
 
 /// The cache at `path`, or an empty one when there is none or it cannot be
@@ -51,10 +54,8 @@ pub(super) fn save(path: &std::path::Path, cache: &SomCache) {
     }
 }
 
-/// FNV-1a, 64 bits: a file name from a folder's path that stays the same
-/// across builds (std's hasher may not).
-fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325, |h, &b| {
-        (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3)
-    })
+/// A file name from a folder's path that stays the same across builds
+/// and platforms (std's hasher may not): its CRC-64.
+fn folder_key(bytes: &[u8]) -> u64 {
+    crc::Crc::<u64>::new(&crc::CRC_64_XZ).checksum(bytes)
 }
