@@ -848,14 +848,9 @@ async fn run_job(cfg: &MachineFile, program: &Program, variant: Variant) -> JobR
     }
     let cfg = &cfg;
     let w = Instant::now();
-    let machine = Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .expect("the machine starts");
+    let machine = Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .expect("the machine starts");
     let started = w.elapsed();
     let mut events = machine.events();
     let homed = match variant {

@@ -11,7 +11,7 @@ use osap_machine::job::from_svg;
 use osap_machine::sim::{joint_form, SimOptions};
 use osap_machine::svg::{self, SvgOptions};
 use osap_machine::{Machine, MachineEvent};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 fn scara() -> MachineFile {
     MachineFile::load(concat!(
@@ -67,9 +67,7 @@ fn the_scara_arm_homes_its_joints_and_draws_the_svg() {
         let cfg = scara();
         let m = Machine::simulate_with(
             &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
+            SimOptions::VIRTUAL,
         )
         .await
         .unwrap();
@@ -174,9 +172,7 @@ fn an_arm_homed_into_its_other_working_mode_stays_unhomed() {
         let cfg = MachineFile::parse(&wrong).unwrap();
         let m = Machine::simulate_with(
             &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
+            SimOptions::VIRTUAL,
         )
         .await
         .unwrap();

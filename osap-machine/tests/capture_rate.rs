@@ -16,7 +16,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::svg::SvgOptions;
 use osap_machine::{job, Machine};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 use std::path::PathBuf;
 
 /// Every motor and sensor of the plotter: both belt motors' positions and
@@ -92,14 +92,9 @@ async fn capture_beside(
     period_us: u32,
     name: &str,
 ) -> Run {
-    let m = Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap();
+    let m = Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap();
     m.home().await.unwrap();
     let wall = std::time::Instant::now();
     let recorder = m

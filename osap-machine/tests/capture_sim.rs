@@ -7,7 +7,7 @@ use osap_machine::capture::{CaptureError, Clock, RecordOptions};
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 use std::path::PathBuf;
 
 fn plotter() -> MachineFile {
@@ -25,14 +25,9 @@ fn out(name: &str) -> PathBuf {
 }
 
 async fn start() -> Machine {
-    Machine::simulate_with(
-        &plotter(),
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(&plotter(), SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 /// Pipes of `function` on module `key`, as the manager's model lists them.

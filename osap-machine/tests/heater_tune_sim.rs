@@ -10,7 +10,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::heater_tune::{self, TuneOptions, MIN_PEAKS, TUNE_DELTA_C};
 use osap_machine::sim::SimOptions;
 use osap_machine::{HeaterState, Machine};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 const PRINTER: &str = concat!(
     env!("CARGO_MANIFEST_DIR"),
@@ -18,14 +18,9 @@ const PRINTER: &str = concat!(
 );
 
 async fn simulate(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 #[test]

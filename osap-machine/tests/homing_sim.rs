@@ -8,7 +8,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
-use osap_sim::machine::{virtual_runtime, Fault, TimeMode};
+use osap_sim::machine::{virtual_runtime, Fault};
 use std::time::Duration;
 
 fn load(name: &str) -> MachineFile {
@@ -18,10 +18,6 @@ fn load(name: &str) -> MachineFile {
     ))
     .unwrap()
 }
-
-const VIRTUAL: SimOptions = SimOptions {
-    time: TimeMode::Virtual,
-};
 
 /// The file's x and y searching at `speed` (mm/s), on one order.
 fn searching_at(mut cfg: MachineFile, speed: f64) -> MachineFile {
@@ -38,18 +34,6 @@ fn searching_at(mut cfg: MachineFile, speed: f64) -> MachineFile {
 fn microstep(cfg: &MachineFile, motor: &str) -> f64 {
     let m = &cfg.motors[motor];
     1.0 / (m.full_steps_per_unit * f64::from(m.microsteps))
-}
-
-/// Presses the switch on module `module`'s limit input now, as its edge
-/// interrupt would: the module's own logic records the edge.
-fn press(m: &Machine, module: &str) {
-    let runtime = &m.modules()[module].runtime;
-    let sm = m
-        .with_sim(|s| s.module(runtime).cloned())
-        .flatten()
-        .unwrap();
-    let now = sm.local_now();
-    sm.module().unwrap().lock(|mm| mm.limit_changed(now, false));
 }
 
 /// Where the simulated carriage stands on x and y.
@@ -73,7 +57,7 @@ fn the_home_position_is_the_same_at_search_speeds_from_5_to_100_mm_s() {
         for speed in [5.0, 10.0, 20.0, 50.0, 100.0] {
             let cfg = searching_at(load("plotter"), speed);
             let step = microstep(&cfg, "a");
-            let m = Machine::simulate_with(&cfg, VIRTUAL).await.unwrap();
+            let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL).await.unwrap();
             m.start_recording().await.unwrap();
             let t0 = m.now_us().await.unwrap();
             m.home().await.unwrap();
@@ -132,7 +116,9 @@ fn the_home_position_is_the_same_at_search_speeds_from_5_to_100_mm_s() {
 fn corexy_x_and_y_search_together_and_each_stops_at_its_switch() {
     virtual_runtime().unwrap().block_on(async {
         let cfg = searching_at(load("plotter"), 100.0);
-        let m = Machine::simulate_with(&cfg, VIRTUAL).await.unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let mut events = m.events();
         m.start_recording().await.unwrap();
         let t0 = m.now_us().await.unwrap();
@@ -193,7 +179,9 @@ fn a_switch_that_never_closes_stops_the_combined_search_and_says_which() {
         let cfg = searching_at(load("plotter"), 100.0);
         let mut spec = osap_machine::sim::spec(&cfg).unwrap();
         spec.switches.retain(|s| s.module != "b");
-        let m = Machine::simulate_on(&cfg, &spec, VIRTUAL).await.unwrap();
+        let m = Machine::simulate_on(&cfg, &spec, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let start = carriage(&m);
         let e = m.home().await.unwrap_err();
         let MachineError::Homing { axis, reason } = &e else {
@@ -234,7 +222,9 @@ fn a_switch_that_stays_pressed_stops_homing_before_the_search() {
         for s in spec.switches.iter_mut().filter(|s| s.module == "a") {
             s.at = 150.0;
         }
-        let m = Machine::simulate_on(&cfg, &spec, VIRTUAL).await.unwrap();
+        let m = Machine::simulate_on(&cfg, &spec, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         assert!(m.switch_pressed("a"));
         let start = carriage(&m);
         let e = m.home().await.unwrap_err();
@@ -263,7 +253,9 @@ fn a_switch_that_stays_pressed_stops_homing_before_the_search() {
 fn a_crash_during_the_combined_search_stops_every_motor() {
     virtual_runtime().unwrap().block_on(async {
         let cfg = load("mill");
-        let m = Machine::simulate_with(&cfg, VIRTUAL).await.unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let mut events = m.events();
         let mut stops = m.events();
         let crash = async {
@@ -278,7 +270,7 @@ fn a_crash_during_the_combined_search_stops_every_motor() {
             // both still move.
             tokio::time::sleep(Duration::from_millis(300)).await;
             assert_eq!(m.state(), MachineState::Homing);
-            press(&m, "z");
+            assert!(m.sim_press_limit("z"));
         };
         let (homed, ()) = tokio::join!(m.home(), crash);
         let e = homed.unwrap_err();
@@ -321,7 +313,9 @@ fn a_crash_during_the_combined_search_stops_every_motor() {
 fn a_module_lost_during_the_combined_search_faults_the_machine() {
     virtual_runtime().unwrap().block_on(async {
         let cfg = searching_at(load("plotter"), 20.0);
-        let m = Machine::simulate_with(&cfg, VIRTUAL).await.unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let lose = async {
             // From the middle of the sheet at 20 mm/s: seconds of search.
             tokio::time::sleep(Duration::from_millis(500)).await;

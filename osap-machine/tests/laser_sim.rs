@@ -13,7 +13,7 @@ use osap_machine::machine::drive::start_position;
 use osap_machine::machine::motion::machine_planner;
 use osap_machine::machine::{Machine, INTERVAL_US, MAX_AXES};
 use osap_machine::sim::SimOptions;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 fn laser() -> MachineFile {
     MachineFile::load(concat!(
@@ -74,9 +74,7 @@ fn an_engraving_s_power_follows_its_speed_through_every_corner() {
     virtual_runtime().unwrap().block_on(async {
         let m = Machine::simulate_with(
             &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
+            SimOptions::VIRTUAL,
         )
         .await
         .unwrap();
@@ -222,14 +220,9 @@ fn planned_and_run(cfg: MachineFile) -> f64 {
         .planned_seconds(&cfg, &start_position(&cfg))
         .unwrap();
     virtual_runtime().unwrap().block_on(async {
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         m.set_position(start_position(&cfg)).unwrap();
         let t0 = tokio::time::Instant::now();
         m.run_program(&program, |_| {}).await.unwrap();
@@ -266,14 +259,9 @@ fn a_halt_mid_cut_puts_the_laser_out_for_good() {
     let cfg = laser();
     let program = engraving(&cfg);
     virtual_runtime().unwrap().block_on(async {
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         m.set_position(start_position(&cfg)).unwrap();
         m.start_recording().await.unwrap();
         let t0 = m.now_us().await.unwrap();

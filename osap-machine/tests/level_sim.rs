@@ -8,7 +8,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::level;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 fn mill() -> MachineFile {
     let mut cfg = MachineFile::load(format!(
@@ -22,14 +22,9 @@ fn mill() -> MachineFile {
 }
 
 async fn start(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 #[test]

@@ -7,7 +7,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineEvent};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 /// A 1 m axis on a 20-tooth GT2 pulley (40 mm a turn, 5 full steps/mm)
 /// at 256 microsteps: 1 280 microsteps/mm. At 70 mm/s it steps at
@@ -48,14 +48,9 @@ const MICROSTEP: f64 = 1.0 / 1280.0;
 fn a_one_metre_axis_at_256_microsteps_reaches_both_ends_exactly() {
     let cfg = MachineFile::parse(LONG_AXIS).unwrap();
     virtual_runtime().unwrap().block_on(async {
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let mut events = m.events();
         m.home().await.unwrap();
         let mut at = Vec::new();

@@ -8,7 +8,7 @@ use osap_machine::machine::events::FaultKind;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
 use osap_module::stepper::StepperError;
-use osap_sim::machine::{virtual_runtime, Fault, TimeMode};
+use osap_sim::machine::{virtual_runtime, Fault};
 use std::time::Duration;
 
 fn plotter() -> MachineFile {
@@ -30,14 +30,9 @@ async fn counters(m: &Machine, key: &str) -> [u64; 4] {
 #[test]
 fn points_lost_on_a_uart_stop_the_machine_with_a_gap() {
     virtual_runtime().unwrap().block_on(async {
-        let m = Machine::simulate_with(
-            &plotter(),
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&plotter(), SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let faults = m.with_sim(|s| s.injector()).unwrap();
         let mut events = m.events();
         m.set_position([20.0, 75.0]).unwrap();

@@ -9,7 +9,7 @@ use osap_machine::machine::events::FaultKind;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
 use osap_module::stepper::StepperError;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 use std::time::Duration;
 use tokio::sync::broadcast;
 
@@ -23,14 +23,9 @@ fn plotter_file() -> MachineFile {
 
 /// The simulated plotter of `cfg`, in virtual time.
 async fn plotter_with(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 async fn plotter() -> Machine {

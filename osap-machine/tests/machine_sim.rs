@@ -5,7 +5,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 fn load(name: &str) -> MachineFile {
     MachineFile::load(format!(
@@ -16,14 +16,9 @@ fn load(name: &str) -> MachineFile {
 }
 
 async fn start(name: &str) -> Machine {
-    Machine::simulate_with(
-        &load(name),
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(&load(name), SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 #[test]

@@ -12,7 +12,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::machine::events::FaultKind;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
-use osap_sim::machine::{virtual_runtime, Fault, TimeMode};
+use osap_sim::machine::{virtual_runtime, Fault};
 use tokio::sync::broadcast;
 
 fn plotter_file() -> MachineFile {
@@ -24,14 +24,9 @@ fn plotter_file() -> MachineFile {
 }
 
 async fn simulate(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 /// A PWM duty as the simulated board holds it (of 65 535).

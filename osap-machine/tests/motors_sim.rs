@@ -20,7 +20,7 @@ use osap_machine::machine::drive::start_position;
 use osap_machine::sim::SimOptions;
 use osap_machine::svg::{self, SvgOptions};
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 const NEMA23: MotorModelKeys = MotorModelKeys {
     holding_torque_nm: 1.26,
@@ -60,14 +60,9 @@ fn mill(accel: f64, motors: bool) -> MachineFile {
 /// of its holding torque), ten times; returns (seconds, stalls, full
 /// steps lost).
 async fn shuttle(cfg: &MachineFile) -> (f64, usize, f64) {
-    let m = Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap();
+    let m = Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap();
     m.set_position([150.0, 100.0, -10.0]).unwrap();
     let t0 = tokio::time::Instant::now();
     for k in 0..10 {
@@ -147,14 +142,9 @@ fn program(cfg: &MachineFile, job: &str) -> Program {
 /// the stalls of all motors.
 async fn run_job(cfg: &MachineFile, job: &str, at: &[f64]) -> (f64, usize) {
     let p = program(cfg, job);
-    let m = Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap();
+    let m = Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap();
     m.set_position(at).unwrap();
     let t0 = tokio::time::Instant::now();
     m.run_program(&p, |_| {}).await.unwrap();

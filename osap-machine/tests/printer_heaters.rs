@@ -6,7 +6,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{HeaterState, Machine, MachineError, MachineState};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 fn printer() -> MachineFile {
     MachineFile::load(concat!(
@@ -17,14 +17,9 @@ fn printer() -> MachineFile {
 }
 
 async fn simulate(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 #[test]

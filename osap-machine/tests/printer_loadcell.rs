@@ -6,7 +6,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 use std::time::Duration;
 
 fn printer() -> MachineFile {
@@ -22,14 +22,9 @@ fn the_load_cell_weighs_the_melt_while_the_extruder_pushes() {
     let cfg = printer();
     let melt = cfg.sim.as_ref().unwrap().axes["e"].melt.unwrap();
     virtual_runtime().unwrap().block_on(async {
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let hotend = m.heater("hotend").unwrap();
         hotend.set_target(210.0).await.unwrap();
         hotend.wait_for_target().await.unwrap();
@@ -77,14 +72,9 @@ fn a_machine_without_a_load_cell_says_so() {
     .unwrap();
     assert!(cfg.extruder().is_none());
     virtual_runtime().unwrap().block_on(async {
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         assert!(matches!(m.loadcell(), Err(MachineError::NoLoadCell)));
         m.stop().await.unwrap();
     });

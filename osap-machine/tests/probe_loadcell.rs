@@ -7,7 +7,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineState};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 /// The mill with a flat bed at z = -70 and a load cell on the z module:
 /// 1 N trips it, the bed and gantry push back 40 N/mm in the simulator.
@@ -38,14 +38,9 @@ fn mill_with_loadcell_probe() -> MachineFile {
 fn a_load_cell_probe_stops_z_by_reflex_and_the_machine_goes_on() {
     virtual_runtime().unwrap().block_on(async {
         let cfg = mill_with_loadcell_probe();
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         // The simulated carriage starts mid-travel: say so.
         m.set_position([150.0, 100.0, -40.0]).unwrap();
         m.goto_now([150.0, 100.0, -67.0], 10.0).await.unwrap();
@@ -103,14 +98,9 @@ fn a_load_cell_probe_stops_z_by_reflex_and_the_machine_goes_on() {
 fn levelling_with_a_load_cell_probe_finds_a_flat_bed_flat() {
     virtual_runtime().unwrap().block_on(async {
         let cfg = mill_with_loadcell_probe();
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         m.home().await.unwrap();
         let levelled = osap_machine::level::level(&m, |_, _| {}).await.unwrap();
         let [nx, ny] = cfg.probe.as_ref().unwrap().grid;
@@ -176,14 +166,9 @@ fn z_homes_on_the_bed_with_the_load_cell() {
         // x and y first: z comes down over the bed.
         homing.order = 3;
         cfg.validate().unwrap();
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         m.home().await.unwrap();
         assert!(m.homed().iter().all(|h| *h));
         assert!((m.position()[2] + 67.0).abs() < 1e-9, "{:?}", m.position());

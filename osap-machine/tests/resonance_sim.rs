@@ -9,7 +9,7 @@ use osap_machine::resonance::analysis::{model_peak_hz, Peak};
 use osap_machine::resonance::{self, measure};
 use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 /// A one-axis shaker: 80 full steps/mm at 8 microsteps (1.56 µm), 20 000
 /// mm/s², an accelerometer on the motor's module.
@@ -48,14 +48,9 @@ damping_ratio = {damping}
 }
 
 async fn start(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 /// Measures the shaker at `freq_hz`, `damping`: (fitted natural

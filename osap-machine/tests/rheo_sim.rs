@@ -13,7 +13,7 @@ use osap_machine::job::{from_gcode, gcode_options, Program};
 use osap_machine::rheo::{self, RheoFit, RheoOptions};
 use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 /// The speed cube's second layer (perimeters at 200 and infill at 250
 /// mm/s) scaled 3× in x and y about the bed's centre: a 60 mm box with the
@@ -127,14 +127,9 @@ fn the_printer_measures_its_melt_fits_it_and_prints_from_it() {
     };
     let rt = virtual_runtime().unwrap();
     let m_record_fit = rt.block_on(async {
-        let m = Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         let record = rheo::measure(&m, &opts).await.unwrap();
         let fit = rheo::fit(&record, &opts).unwrap();
         (m, record, fit)
@@ -202,14 +197,9 @@ fn the_printer_measures_its_melt_fits_it_and_prints_from_it() {
     let m = rt.block_on(async {
         m.heater("hotend").unwrap().set_target(0.0).await.unwrap();
         m.stop().await.unwrap();
-        let m = Machine::simulate_with(
-            &with_model,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await
-        .unwrap();
+        let m = Machine::simulate_with(&with_model, SimOptions::VIRTUAL)
+            .await
+            .unwrap();
         m.home().await.unwrap();
         m
     });

@@ -13,7 +13,7 @@ use osap_machine::gcode;
 use osap_machine::job::{from_gcode, gcode_options, Program};
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 fn router() -> MachineFile {
     MachineFile::load(concat!(
@@ -27,14 +27,9 @@ fn router() -> MachineFile {
 const MIDDLE: [f64; 3] = [300.0, 200.0, -50.0];
 
 async fn start(cfg: &MachineFile) -> Machine {
-    let m = Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap();
+    let m = Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap();
     m.set_position(MIDDLE).unwrap();
     m
 }

@@ -8,7 +8,7 @@
 use osap_machine::config::{AxisShaper, MachineFile};
 use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 /// One microstep of the plotter's belts, mm.
 const MICROSTEP: f64 = 1.0 / 80.0;
@@ -35,14 +35,9 @@ fn plotter(shaped: bool) -> MachineFile {
 }
 
 async fn start(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 fn carriages(m: &Machine) -> [f64; 2] {

@@ -20,7 +20,7 @@
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
-use osap_sim::machine::{virtual_runtime, Fault, FaultInjector, TimeMode};
+use osap_sim::machine::{virtual_runtime, Fault, FaultInjector};
 use std::time::Duration;
 use tokio::sync::broadcast;
 
@@ -212,14 +212,9 @@ async fn lose_module_mid_move(
 
 async fn soak(rounds: usize) -> Tally {
     let cfg = plotter();
-    let m = Machine::simulate_with(
-        &cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap();
+    let m = Machine::simulate_with(&cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap();
     let faults = m.with_sim(|s| s.injector()).unwrap();
     let mut events = m.events();
     let mut tally = Tally::default();

@@ -8,7 +8,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::job::{from_gcode, from_svg};
 use osap_machine::sim::SimOptions;
 use osap_machine::{Machine, MachineError, MachineEvent, MachineState};
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 use tokio::sync::broadcast;
 
 fn load(name: &str) -> MachineFile {
@@ -20,14 +20,9 @@ fn load(name: &str) -> MachineFile {
 }
 
 async fn start(cfg: &MachineFile) -> Machine {
-    Machine::simulate_with(
-        cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await
-    .unwrap()
+    Machine::simulate_with(cfg, SimOptions::VIRTUAL)
+        .await
+        .unwrap()
 }
 
 /// One microstep of motor `motor`, in axis units.
@@ -50,18 +45,6 @@ fn presses_and_faults(events: &mut broadcast::Receiver<MachineEvent>) -> Vec<Mac
         }
     }
     seen
-}
-
-/// Presses the switch on module `module`'s limit input now, as its edge
-/// interrupt would: the module's own logic records the edge.
-fn press(m: &Machine, module: &str) {
-    let runtime = &m.modules()[module].runtime;
-    let sm = m
-        .with_sim(|s| s.module(runtime).cloned())
-        .flatten()
-        .unwrap();
-    let now = sm.local_now();
-    sm.module().unwrap().lock(|mm| mm.limit_changed(now, false));
 }
 
 /// The shipped plotter's travel corners, a G-code part and an SVG drawing
@@ -199,7 +182,7 @@ fn homing_one_axis_expects_only_its_own_switch() {
             // it is still seeking.
             tokio::time::sleep(std::time::Duration::from_millis(500)).await;
             assert_eq!(m.state(), MachineState::Homing);
-            press(&m, "a");
+            assert!(m.sim_press_limit("a"));
         };
         let (homed, ()) = tokio::join!(m.home_axes(&["y"]), other);
         let e = homed.unwrap_err();
@@ -230,7 +213,7 @@ fn probing_expects_only_the_probe() {
             // The bed is 30 mm down at 2 mm/s: 0.5 s in, it is still
             // searching.
             tokio::time::sleep(std::time::Duration::from_millis(500)).await;
-            press(&m, "x");
+            assert!(m.sim_press_limit("x"));
         };
         let (probed, ()) = tokio::join!(m.probe_down("z", 35.0, 2.0), other);
         let e = probed.unwrap_err();

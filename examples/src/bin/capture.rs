@@ -28,7 +28,6 @@ use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::svg::SvgOptions;
 use osap_machine::{job, record, Machine};
-use osap_sim::machine::TimeMode;
 
 #[derive(Parser, Debug)]
 #[command(about = "Record sensor streams during a job and plot them against the motion")]
@@ -69,13 +68,7 @@ async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     std::fs::create_dir_all(&args.out)
         .map_err(|e| format!("output folder {}: {e}", args.out.display()))?;
 
-    let machine = Machine::simulate_with(
-        &cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await?;
+    let machine = Machine::simulate_with(&cfg, SimOptions::VIRTUAL).await?;
     machine.home().await?;
     // Homing's last move leaves the carriage ringing for a few time
     // constants of its resonance (45 Hz, damping 0.08: 44 ms); a capture

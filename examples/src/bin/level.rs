@@ -22,7 +22,6 @@ use osap_machine::config::MachineFile;
 use osap_machine::level;
 use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::TimeMode;
 
 #[derive(Parser, Debug)]
 #[command(about = "Level a simulated mill's bed and run a job that follows it")]
@@ -55,13 +54,7 @@ async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let mut cfg = MachineFile::load(&args.machine)?;
     // Start flat: the mesh this script makes replaces any the file names.
     cfg.bed_mesh = None;
-    let machine = Machine::simulate_with(
-        &cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await?;
+    let machine = Machine::simulate_with(&cfg, SimOptions::VIRTUAL).await?;
     let result = level_and_run(&machine, &cfg, &args).await;
     machine.stop().await?;
     result

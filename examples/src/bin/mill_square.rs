@@ -20,7 +20,7 @@ use osap_machine::config::MachineFile;
 use osap_machine::machine::Link;
 use osap_machine::sim::SimOptions;
 use osap_machine::Machine;
-use osap_sim::machine::{virtual_runtime, TimeMode};
+use osap_sim::machine::virtual_runtime;
 
 #[derive(Parser, Debug)]
 #[command(about = "Mill a square on the mill of a machine file (simulated, or on hardware)")]
@@ -119,13 +119,7 @@ async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let m = if !links.is_empty() {
         Machine::connect(&cfg, &links).await?
     } else if args.fast {
-        Machine::simulate_with(
-            &cfg,
-            SimOptions {
-                time: TimeMode::Virtual,
-            },
-        )
-        .await?
+        Machine::simulate_with(&cfg, SimOptions::VIRTUAL).await?
     } else {
         Machine::simulate(&cfg).await?
     };

@@ -19,7 +19,6 @@ use clap::Parser;
 use osap_machine::config::MachineFile;
 use osap_machine::sim::SimOptions;
 use osap_machine::{resonance, Machine};
-use osap_sim::machine::TimeMode;
 
 #[derive(Parser, Debug)]
 #[command(about = "Measure an axis's resonance on a simulated machine and pick its shaper")]
@@ -40,13 +39,7 @@ struct Args {
 
 async fn run(args: Args) -> Result<(), Box<dyn std::error::Error>> {
     let cfg = MachineFile::load(&args.machine)?;
-    let machine = Machine::simulate_with(
-        &cfg,
-        SimOptions {
-            time: TimeMode::Virtual,
-        },
-    )
-    .await?;
+    let machine = Machine::simulate_with(&cfg, SimOptions::VIRTUAL).await?;
     machine.home().await?;
     let m = resonance::measure(&machine, &args.axis, args.seconds).await;
     machine.stop().await?;

@@ -41,6 +41,15 @@ pub struct SimOptions {
     pub time: TimeMode,
 }
 
+impl SimOptions {
+    /// In virtual time: the caller runs on
+    /// [`osap_sim::machine::virtual_runtime`], and a long job takes a
+    /// fraction of its duration, the same for the same seed.
+    pub const VIRTUAL: SimOptions = SimOptions {
+        time: TimeMode::Virtual,
+    };
+}
+
 /// The simulated machine kept under a [`Machine`], stopped with it, and
 /// whether it runs in virtual time.
 struct Simulated(SimMachine, bool);
@@ -120,6 +129,25 @@ impl Machine {
             })
         })
         .filter(|v| v.is_finite())
+    }
+
+    /// Presses the limit switch of simulated module `module` (its
+    /// `[modules]` key) now, as its edge interrupt would: the module's own
+    /// logic records the edge, time-stamped on its clock. For a stuck or
+    /// mis-wired switch, or a crash, in a test. `false` when the machine is
+    /// not simulated or has no such running module.
+    pub fn sim_press_limit(&self, module: &str) -> bool {
+        let Some(key) = self.modules().get(module).map(|m| m.runtime.clone()) else {
+            return false;
+        };
+        self.with_sim(|s| {
+            let sm = s.module(&key)?;
+            let now = sm.local_now();
+            sm.module()?.lock(|mm| mm.limit_changed(now, false));
+            Some(())
+        })
+        .flatten()
+        .is_some()
     }
 
     /// `f` on each simulated motor's rotor (the motors with
