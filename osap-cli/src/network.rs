@@ -145,7 +145,11 @@ pub(crate) async fn scan_and_print(
     } else {
         eprintln!("unreachable:");
         for f in &report.failures {
-            eprintln!("  {}: {}", describe_route(&report.map, &f.route), f.error);
+            eprintln!(
+                "  {}: {}",
+                describe_route(&report.map, &f.route, &f.route_drops),
+                f.error
+            );
         }
         eprintln!(
             "the map is partial: {} request(s) failed (exit code 2); check the cables \
@@ -156,20 +160,37 @@ pub(crate) async fn scan_and_print(
     }
 }
 
-/// Where a route leads, in the map's terms: `the runtime behind hub's
-/// link 2 (route 0,0,2)`, or the runtime's name if it is on the map.
-pub(crate) fn describe_route(map: &NetworkMap, route: &[u8]) -> String {
+/// Where a failure's route leads, in the map's terms: `the runtime behind
+/// hub's link 2 (route 0,0,2)`, `the runtime behind hub1's link 1 drop 3
+/// (route 0,1,1)`, or the runtime's name if it is on the map. `drops` is
+/// per hop the drop where it crosses a bus (empty: none does): the drops
+/// of one bus share their link indices.
+pub(crate) fn describe_route(map: &NetworkMap, route: &[u8], drops: &[Option<u8>]) -> String {
+    let path = |route: &[u8], drops: &[Option<u8>]| -> Vec<(u8, Option<u8>)> {
+        route
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| (l, drops.get(i).copied().flatten()))
+            .collect()
+    };
+    let path = path(route, drops);
     let hops = route
         .iter()
         .map(u8::to_string)
         .collect::<Vec<_>>()
         .join(",");
-    if let Some(r) = map.runtimes.iter().find(|r| r.route == route) {
+    if let Some(r) = map.runtimes.iter().find(|r| r.path() == path) {
         return format!("{} (route {hops})", r.name);
     }
-    match route.split_last() {
-        Some((link, parent)) => match map.runtimes.iter().find(|r| r.route == parent) {
-            Some(p) => format!("the runtime behind {}'s link {link} (route {hops})", p.name),
+    match path.split_last() {
+        Some(((link, drop), parent)) => match map.runtimes.iter().find(|r| r.path() == parent) {
+            Some(p) => {
+                let drop = drop.map_or(String::new(), |d| format!(" drop {d}"));
+                format!(
+                    "the runtime behind {}'s link {link}{drop} (route {hops})",
+                    p.name
+                )
+            }
             None => format!("route {hops}"),
         },
         None => "this host".to_string(),
