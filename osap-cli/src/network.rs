@@ -268,3 +268,52 @@ pub(crate) fn signature_line(f: &osap_host::som::model::SomFunction) -> String {
     }
     line
 }
+
+#[cfg(test)]
+mod tests {
+    use super::describe_route;
+    use osap_host::map::{NetworkMap, RuntimeRecord, MAP_VERSION};
+
+    fn runtime(name: &str, route: &[u8], drops: &[Option<u8>]) -> RuntimeRecord {
+        RuntimeRecord {
+            name: name.into(),
+            type_name: "stepper".into(),
+            version: "0.1.0".into(),
+            build: 3,
+            function_set: 0,
+            packet_size: 256,
+            tier: 1,
+            route: route.to_vec(),
+            route_drops: drops.to_vec(),
+            route_mtu: 256,
+            links: Vec::new(),
+            ports: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_failed_drop_is_named_by_its_drop_not_by_a_neighbour_on_its_bus() {
+        let map = NetworkMap {
+            version: MAP_VERSION,
+            runtimes: vec![
+                runtime("h", &[], &[]),
+                runtime("hub", &[0], &[]),
+                runtime("a1", &[0, 1], &[None, Some(1)]),
+            ],
+            links: Vec::new(),
+        };
+        // Drop 3 has a1's link indices; it is not a1.
+        assert_eq!(
+            describe_route(&map, &[0, 1], &[None, Some(3)]),
+            "the runtime behind hub's link 1 drop 3 (route 0,1)"
+        );
+        assert_eq!(
+            describe_route(&map, &[0, 1], &[None, Some(1)]),
+            "a1 (route 0,1)"
+        );
+        assert_eq!(
+            describe_route(&map, &[0, 2], &[]),
+            "the runtime behind hub's link 2 (route 0,2)"
+        );
+    }
+}
