@@ -174,6 +174,12 @@ fn bus32_real_time_scans_lose_no_drop_unsaid() {
                 report.failures.len(),
                 report.elapsed.as_secs_f64()
             );
+            for f in &report.failures {
+                println!(
+                    "  run {run}: route {:?} {:?}: {}",
+                    f.route, f.route_drops, f.error
+                );
+            }
             assert_eq!(found.len() + failed.len(), 37);
             sim.stop().await.unwrap();
         });
