@@ -145,7 +145,11 @@ pub(crate) async fn scan_and_print(
     } else {
         eprintln!("unreachable:");
         for f in &report.failures {
-            eprintln!("  {}: {}", describe_route(&report.map, &f.route), f.error);
+            eprintln!(
+                "  {}: {}",
+                describe_route(&report.map, &f.route, &f.route_drops),
+                f.error
+            );
         }
         eprintln!(
             "the map is partial: {} request(s) failed (exit code 2); check the cables \
@@ -156,20 +160,37 @@ pub(crate) async fn scan_and_print(
     }
 }
 
-/// Where a route leads, in the map's terms: `the runtime behind hub's
-/// link 2 (route 0,0,2)`, or the runtime's name if it is on the map.
-pub(crate) fn describe_route(map: &NetworkMap, route: &[u8]) -> String {
+/// Where a failure's route leads, in the map's terms: `the runtime behind
+/// hub's link 2 (route 0,0,2)`, `the runtime behind hub1's link 1 drop 3
+/// (route 0,1,1)`, or the runtime's name if it is on the map. `drops` is
+/// per hop the drop where it crosses a bus (empty: none does): the drops
+/// of one bus share their link indices.
+pub(crate) fn describe_route(map: &NetworkMap, route: &[u8], drops: &[Option<u8>]) -> String {
+    let path = |route: &[u8], drops: &[Option<u8>]| -> Vec<(u8, Option<u8>)> {
+        route
+            .iter()
+            .enumerate()
+            .map(|(i, &l)| (l, drops.get(i).copied().flatten()))
+            .collect()
+    };
+    let path = path(route, drops);
     let hops = route
         .iter()
         .map(u8::to_string)
         .collect::<Vec<_>>()
         .join(",");
-    if let Some(r) = map.runtimes.iter().find(|r| r.route == route) {
+    if let Some(r) = map.runtimes.iter().find(|r| r.path() == path) {
         return format!("{} (route {hops})", r.name);
     }
-    match route.split_last() {
-        Some((link, parent)) => match map.runtimes.iter().find(|r| r.route == parent) {
-            Some(p) => format!("the runtime behind {}'s link {link} (route {hops})", p.name),
+    match path.split_last() {
+        Some(((link, drop), parent)) => match map.runtimes.iter().find(|r| r.path() == parent) {
+            Some(p) => {
+                let drop = drop.map_or(String::new(), |d| format!(" drop {d}"));
+                format!(
+                    "the runtime behind {}'s link {link}{drop} (route {hops})",
+                    p.name
+                )
+            }
             None => format!("route {hops}"),
         },
         None => "this host".to_string(),
@@ -246,4 +267,53 @@ pub(crate) fn signature_line(f: &osap_host::som::model::SomFunction) -> String {
         line.push_str(&format!(" -> ({})", args(&f.outputs)));
     }
     line
+}
+
+#[cfg(test)]
+mod tests {
+    use super::describe_route;
+    use osap_host::map::{NetworkMap, RuntimeRecord, MAP_VERSION};
+
+    fn runtime(name: &str, route: &[u8], drops: &[Option<u8>]) -> RuntimeRecord {
+        RuntimeRecord {
+            name: name.into(),
+            type_name: "stepper".into(),
+            version: "0.1.0".into(),
+            build: 3,
+            function_set: 0,
+            packet_size: 256,
+            tier: 1,
+            route: route.to_vec(),
+            route_drops: drops.to_vec(),
+            route_mtu: 256,
+            links: Vec::new(),
+            ports: Vec::new(),
+        }
+    }
+
+    #[test]
+    fn a_failed_drop_is_named_by_its_drop_not_by_a_neighbour_on_its_bus() {
+        let map = NetworkMap {
+            version: MAP_VERSION,
+            runtimes: vec![
+                runtime("h", &[], &[]),
+                runtime("hub", &[0], &[]),
+                runtime("a1", &[0, 1], &[None, Some(1)]),
+            ],
+            links: Vec::new(),
+        };
+        // Drop 3 has a1's link indices; it is not a1.
+        assert_eq!(
+            describe_route(&map, &[0, 1], &[None, Some(3)]),
+            "the runtime behind hub's link 1 drop 3 (route 0,1)"
+        );
+        assert_eq!(
+            describe_route(&map, &[0, 1], &[None, Some(1)]),
+            "a1 (route 0,1)"
+        );
+        assert_eq!(
+            describe_route(&map, &[0, 2], &[]),
+            "the runtime behind hub's link 2 (route 0,2)"
+        );
+    }
 }

@@ -88,6 +88,11 @@ pub mod key {
     /// Information on consecutive ports from one index, as many as fit in
     /// one reply (a scan's ports in a few requests, not one each).
     pub const PORT_LIST: u8 = 0x10;
+    /// The stations one bus link has heard at least once (a drop that
+    /// missed its last turn is missing from link information's present
+    /// drops, not from these): so a scan asks every drop it ever heard,
+    /// and one that went quiet is reported, not lost.
+    pub const BUS_KNOWN: u8 = 0x11;
 }
 
 /// Outcome code in every netresponder reply.
@@ -521,6 +526,20 @@ fn answer<P: Port, L: LinkGateway, const LINKS: usize>(
                 for word in bus.present {
                     out.u32(word)?;
                 }
+            }
+        }
+        key::BUS_KNOWN => {
+            let index = r.u8()?;
+            end(r)?;
+            // Not a link, or not a bus: no such bus link.
+            let bus = ctx
+                .links
+                .get(usize::from(index))
+                .and_then(LinkGateway::bus)
+                .ok_or(Fail::Status(Status::NoSuchIndex))?;
+            out.u8(index)?;
+            for word in bus.known {
+                out.u32(word)?;
             }
         }
         key::PORT_INFO => {

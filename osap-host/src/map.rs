@@ -105,12 +105,80 @@ pub struct BusRecord {
     /// The other stations it knows present (for the head its drops, for a
     /// drop the head, 0).
     pub present: Vec<u8>,
+    /// Head: drops it heard before that missed their last turn (busy, hung
+    /// or unplugged). A scan asks them as it asks present drops, so one
+    /// that went quiet is found or listed as a failure, never dropped from
+    /// the map unsaid. Empty for runtimes that cannot tell, and in older
+    /// maps.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub silent: Vec<u8>,
+}
+
+impl BusRecord {
+    /// Every other station a scan asks across this bus: the present ones,
+    /// then the silent ones, ascending, each once.
+    pub fn stations(&self) -> Vec<u8> {
+        let mut all: Vec<u8> = self.present.iter().chain(&self.silent).copied().collect();
+        all.sort_unstable();
+        all.dedup();
+        all
+    }
 }
 
 impl LinkRecord {
     /// Open, but with nothing at the other end.
     pub fn no_neighbour(&self) -> bool {
         self.open && !self.heard
+    }
+}
+
+/// The link indices of `route`'s hops, from the host (a bus hop gives
+/// its bus link; its drop is in [`route_drops`]).
+pub fn route_hops(route: &Route) -> Vec<u8> {
+    route
+        .hops()
+        .filter_map(|h| match h {
+            osap_core::Instruction::LinkForward(l) => Some(l),
+            osap_core::Instruction::BusForward { bus, .. } => Some(bus),
+            _ => None,
+        })
+        .collect()
+}
+
+/// Per hop of `route`, the drop where it crosses a bus; empty if no hop
+/// does (the form of [`RuntimeRecord::route_drops`]).
+pub fn route_drops(route: &Route) -> Vec<Option<u8>> {
+    let drops: Vec<Option<u8>> = route
+        .hops()
+        .map(|h| match h {
+            osap_core::Instruction::BusForward { drop, .. } => Some(drop),
+            _ => None,
+        })
+        .collect();
+    if drops.iter().any(Option::is_some) {
+        drops
+    } else {
+        Vec::new()
+    }
+}
+
+/// The key of the request gate a runtime's requests share, from its route
+/// (`hops` link indices, `drops` as in [`RuntimeRecord::route_drops`]):
+/// the first bus the route crosses (1, then the hops up to and including
+/// that bus's), or, behind no bus, the runtime itself (0, then its hops).
+///
+/// A bus carries a few requests at a time (a drop's replies queue for the
+/// bus's turns, and too many at once outwait their timeouts), so every
+/// request that crosses one bus must take a turn of one gate. The first
+/// bus, not the last: a request from a drop back across its bus to the
+/// head crosses that bus twice and must share the gate of the requests to
+/// the drops; keyed by the last bus, it had a gate of its own, and a bus
+/// of eight drops carried twelve requests at once, two of which outwaited
+/// their timeouts (`cargo test -p osap-sim --test bus`).
+pub fn gate_key(hops: &[u8], drops: &[Option<u8>]) -> Vec<u8> {
+    match drops.iter().position(Option::is_some) {
+        Some(first_bus) if first_bus < hops.len() => [&[1], &hops[..=first_bus]].concat(),
+        _ => [&[0], hops].concat(),
     }
 }
 
@@ -192,6 +260,11 @@ impl RuntimeRecord {
             self.function_set,
             u16::try_from(self.ports.len()).ok()?,
         )
+    }
+
+    /// The key of the request gate this runtime shares ([`gate_key`]).
+    pub fn gate_key(&self) -> Vec<u8> {
+        gate_key(&self.route, &self.route_drops)
     }
 
     /// The route to this runtime, with its MTU.
@@ -361,5 +434,89 @@ impl NetworkMap {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use osap_core::Instruction::{BusForward, LinkForward};
+
+    fn route(hops: &[osap_core::Instruction]) -> Route {
+        let mut r = Route::local();
+        for &h in hops {
+            r.push(h).unwrap();
+        }
+        r
+    }
+
+    fn key(r: &Route) -> Vec<u8> {
+        gate_key(&route_hops(r), &route_drops(r))
+    }
+
+    #[test]
+    fn a_gate_is_the_first_bus_a_route_crosses() {
+        let to_head = route(&[LinkForward(0), LinkForward(2)]);
+        let drop = |d| {
+            route(&[
+                LinkForward(0),
+                LinkForward(2),
+                BusForward { bus: 1, drop: d },
+            ])
+        };
+        // Behind no bus: a gate of its own.
+        assert_eq!(key(&to_head), [0, 0, 2]);
+        // Every drop of one bus shares its bus's gate.
+        assert_eq!(key(&drop(3)), [1, 0, 2, 1]);
+        assert_eq!(key(&drop(3)), key(&drop(7)));
+        // A probe from a drop back across the bus to its head crosses the
+        // bus twice: it takes the same gate, not one of its own.
+        let back = route(&[
+            LinkForward(0),
+            LinkForward(2),
+            BusForward { bus: 1, drop: 3 },
+            BusForward { bus: 0, drop: 0 },
+        ]);
+        assert_eq!(key(&back), key(&drop(3)));
+        // Past a drop, on a point-to-point link or a second bus: still the
+        // first bus's gate.
+        let behind = route(&[
+            LinkForward(0),
+            BusForward { bus: 1, drop: 3 },
+            LinkForward(4),
+            BusForward { bus: 2, drop: 9 },
+        ]);
+        assert_eq!(key(&behind), [1, 0, 1]);
+        // A record keys as its route does.
+        let record = RuntimeRecord {
+            name: "x".into(),
+            type_name: "stepper".into(),
+            version: "0.1.0".into(),
+            build: 3,
+            function_set: 0,
+            packet_size: 128,
+            tier: 255,
+            route: route_hops(&behind),
+            route_drops: route_drops(&behind),
+            route_mtu: 128,
+            links: Vec::new(),
+            ports: Vec::new(),
+        };
+        assert_eq!(record.gate_key(), key(&behind));
+        assert_eq!(record.route(), behind.with_mtu(128));
+    }
+
+    #[test]
+    fn a_bus_asks_present_and_silent_stations_once_each() {
+        let bus = BusRecord {
+            drop: 0,
+            present: vec![1, 4, 2],
+            silent: vec![3, 2],
+        };
+        assert_eq!(bus.stations(), [1, 2, 3, 4]);
+        // Maps written before `silent` read as none silent.
+        let old: BusRecord = serde_json::from_str(r#"{"drop":0,"present":[1,2]}"#).unwrap();
+        assert!(old.silent.is_empty());
+        assert!(!serde_json::to_string(&old).unwrap().contains("silent"));
     }
 }

@@ -33,7 +33,10 @@
 //!   beyond the wire time of what the head queued and of one full frame
 //!   loses its turn and counts as absent; absent drops are polled only
 //!   every [`BusConfig::absent_every`] cycles, so empty addresses cost
-//!   little. Only an `END` carrying the current turn number
+//!   little. The head still lists a drop it ever heard as known
+//!   ([`BusInfo::known`]): a drop that missed a turn (busy, hung, or
+//!   starved of CPU in a simulation) is asked by a scan and found, or
+//!   reported missing, never silently left out. Only an `END` carrying the current turn number
 //!   ([`TURN_MASK`]) ends a turn, never a late one from an earlier turn.
 //! - Flow control: the head lends the medium only while its runtime has
 //!   room for a drop's whole turn ([`BusCore::set_rx_room`]), so what a
@@ -172,6 +175,9 @@ pub struct BusCore<const N: usize> {
     /// Drops heard on their last turn (head), or the head heard (drop:
     /// bit 0).
     present: [u32; 8],
+    /// Stations heard at least once: a missed turn clears `present`, never
+    /// this, so a drop that went quiet is still reported (as silent).
+    known: [u32; 8],
     /// The source of the packet last returned by `receive`.
     last_from: Option<u8>,
     now: Instant,
@@ -222,6 +228,7 @@ impl<const N: usize> BusCore<N> {
             cursor: 0,
             cycle: 0,
             present,
+            known: [0; 8],
             last_from: None,
             now: Instant::ZERO,
             frame: Duration::ZERO,
@@ -241,12 +248,13 @@ impl<const N: usize> BusCore<N> {
         &self.counters
     }
 
-    /// Address and the stations known present (drops for the head; the
-    /// head, as drop 0, for a drop).
+    /// Address, the stations known present (drops for the head; the
+    /// head, as drop 0, for a drop) and those ever heard.
     pub fn info(&self) -> BusInfo {
         BusInfo {
             drop: self.config.drop,
             present: self.present,
+            known: self.known,
         }
     }
 
@@ -425,6 +433,8 @@ impl<const N: usize> BusCore<N> {
     /// carried a packet).
     fn heard(&mut self, header: BusHeader, data: bool) {
         if self.config.is_head() {
+            // Any frame of a drop's, in its turn or late, shows it is there.
+            set_bit(&mut self.known, header.src, true);
             match self.turn {
                 Turn::Granted { drop, poll, .. }
                     if drop == header.src && header.turn() == self.turn_no & 3 =>
@@ -445,6 +455,7 @@ impl<const N: usize> BusCore<N> {
             }
         } else if header.src == HEAD {
             set_bit(&mut self.present, HEAD, true);
+            set_bit(&mut self.known, HEAD, true);
             if header.flags & GRANT != 0 && header.dst == self.config.drop {
                 bump(&mut self.counters.grants);
                 self.turn = Turn::Granted {

@@ -76,6 +76,36 @@ fn a_silent_drop_times_out_and_is_polled_rarely() {
 }
 
 #[test]
+fn a_drop_heard_once_stays_known_after_it_misses_a_turn() {
+    let mut head = Station::new(Lower::new(), BusConfig::head(1));
+    let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));
+    let mut buf = [0u8; 64];
+    // Before its first turn drop 1 counts as present, but was never heard.
+    assert!(head.bus().unwrap().is_present(1));
+    assert!(!head.bus().unwrap().is_known(1));
+    head.poll(Instant::ZERO);
+    carry(&mut [&mut head, &mut d1]);
+    assert!(d1.receive(&mut buf).is_none());
+    d1.poll(Instant::from_micros(10));
+    carry(&mut [&mut head, &mut d1]);
+    assert!(head.receive(&mut buf).is_none());
+    let info = head.bus().unwrap();
+    assert!(info.is_present(1) && info.is_known(1));
+    // Its next turn goes unanswered (the drop is busy): no longer present,
+    // still known, so a scan still asks it.
+    head.poll(Instant::from_micros(20));
+    let until = head.wake_at().unwrap();
+    head.poll(until);
+    assert_eq!(head.core.counters().timeouts, 1);
+    let info = head.bus().unwrap();
+    assert!(!info.is_present(1));
+    assert!(info.is_known(1));
+    // The drop knows its head once heard, and no one else.
+    let d = d1.bus().unwrap();
+    assert!(d.is_known(HEAD) && d.known[1..] == [0; 7] && d.known[0] == 1);
+}
+
+#[test]
 fn broadcast_reaches_every_drop_and_others_frames_are_ignored() {
     let mut head = Station::new(Lower::new(), BusConfig::head(2));
     let mut d1 = Station::new(Lower::new(), BusConfig::drop(1));

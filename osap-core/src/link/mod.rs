@@ -29,6 +29,12 @@ pub struct BusInfo {
     /// `d / 32`): the drops that answered their last turn for the head,
     /// the head (drop 0) for a drop.
     pub present: [u32; 8],
+    /// Stations heard at least once since the bus started, in the same
+    /// bits: a superset of `present`. A drop here but not in `present` was
+    /// heard before and missed its last turn (busy, hung or unplugged):
+    /// it is still there to ask, and a scan that did not ask it would lose
+    /// it without a word.
+    pub known: [u32; 8],
 }
 
 impl BusInfo {
@@ -40,6 +46,11 @@ impl BusInfo {
     /// The drops known present, ascending.
     pub fn drops(&self) -> impl Iterator<Item = u8> + '_ {
         (0..=254u8).filter(|&d| self.is_present(d))
+    }
+
+    /// Whether drop `d` was heard at least once ([`known`](Self::known)).
+    pub fn is_known(&self, d: u8) -> bool {
+        self.known[usize::from(d / 32)] & (1 << (d % 32)) != 0
     }
 }
 

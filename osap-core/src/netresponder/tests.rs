@@ -207,6 +207,52 @@ fn set_bus_takes_a_role_on_a_switchable_link_only() {
     assert_eq!(rt.take_bus_request(), None);
 }
 
+#[test]
+fn bus_known_answers_for_bus_links_only() {
+    use crate::bus::{BusRole, Switchable, HEADER_LEN};
+    type Sw = Switchable<Link, 128>;
+    let mut rt = runtime();
+    // Link 0 point to point (the request comes in there), link 1 a head.
+    let mut links = [
+        Sw::new(Link::new(), BusRole::Off),
+        Sw::new(Link::new(), BusRole::Head { max_drop: 3 }),
+    ];
+    let mut ports: [NoPort; 0] = [];
+    rt.poll(Instant::from_micros(10), &mut ports, &mut links);
+    // Drop 1 answers its turn with a bare END: heard.
+    let grant = links[1].lower.take_sent().expect("a grant");
+    assert_eq!((grant.len(), grant[0]), (HEADER_LEN, 1));
+    let turn = grant[2] & crate::bus::TURN_MASK;
+    assert!(links[1].lower.inject(&[0, 1, crate::bus::END | turn]));
+    rt.poll(Instant::from_micros(20), &mut ports, &mut links);
+    let ask = |rt: &mut Rt, links: &mut [Sw; 2], body: &[u8]| {
+        let mut payload = [0u8; 8];
+        let n = Transport::Request(9).encode(&mut payload).unwrap();
+        payload[n] = key::BUS_KNOWN;
+        payload[n + 1..n + 1 + body.len()].copy_from_slice(body);
+        assert!(links[0]
+            .lower
+            .inject(&packet(0, &payload[..n + 1 + body.len()])));
+        let mut ports: [NoPort; 0] = [];
+        rt.poll(Instant::from_micros(1_000), &mut ports, links);
+        let reply = links[0].lower.take_sent().expect("a reply");
+        heapless::Vec::<u8, 64>::from_slice(&reply[12..]).unwrap()
+    };
+    let known = ask(&mut rt, &mut links, &[1]);
+    assert_eq!(&known[..3], &[key::BUS_KNOWN, Status::Ok as u8, 1]);
+    assert_eq!(known.len(), 3 + 32);
+    // Drop 1 answered: bit 1 of word 0; no other station was heard.
+    assert_eq!(&known[3..7], &2u32.to_le_bytes());
+    assert!(known[7..].iter().all(|&b| b == 0));
+    // Not a bus, no such link, a short body.
+    let plain = ask(&mut rt, &mut links, &[0]);
+    assert_eq!(&plain[..], &[key::BUS_KNOWN, Status::NoSuchIndex as u8]);
+    let none = ask(&mut rt, &mut links, &[5]);
+    assert_eq!(&none[..], &[key::BUS_KNOWN, Status::NoSuchIndex as u8]);
+    let short = ask(&mut rt, &mut links, &[]);
+    assert_eq!(&short[..], &[key::BUS_KNOWN, Status::Malformed as u8]);
+}
+
 /// A port of 40 sub-ports, named by offset.
 struct ManyPorts;
 

@@ -63,8 +63,12 @@ impl Default for ScanOptions {
 /// A request during a scan that got no usable answer.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct ScanFailure {
-    /// Route to where it was sent.
+    /// Route to where it was sent: link indices from the host.
     pub route: Vec<u8>,
+    /// Per hop of `route`, the drop where it crosses a bus (as
+    /// [`RuntimeRecord::route_drops`](crate::map::RuntimeRecord::route_drops);
+    /// empty when no hop does): two drops of one bus have the same `route`.
+    pub route_drops: Vec<Option<u8>>,
     /// What was asked and what went wrong.
     pub error: String,
 }
@@ -344,9 +348,40 @@ impl Netrunner {
             record.bus = Some(BusRecord {
                 drop,
                 present: info.drops().filter(|&d| d != drop).collect(),
+                silent: Vec::new(),
             });
         }
         Ok(record)
+    }
+
+    /// The stations bus link `index` has heard at least once (key
+    /// [`key::BUS_KNOWN`]), ascending; `None` from a runtime that predates
+    /// the query. A head drops a station from link information's present
+    /// drops when it misses one turn, never from these.
+    pub async fn bus_known(&self, route: &Route, index: u8) -> Result<Option<Vec<u8>>, HostError> {
+        let f = match self.query(route, &[key::BUS_KNOWN, index]).await {
+            Ok(f) => f,
+            Err(HostError::Remote {
+                status: Status::UnknownKey,
+                ..
+            }) => return Ok(None),
+            Err(e) => return Err(e),
+        };
+        let mut r = Reader::new(&f);
+        let m = |e| HostError::malformed(route, "bus stations heard", e);
+        let answered = r.u8().map_err(m)?;
+        if answered != index {
+            return Err(HostError::malformed(
+                route,
+                "bus stations heard",
+                ReplyProblem::Unexpected(f.clone()),
+            ));
+        }
+        let mut info = osap_core::link::BusInfo::default();
+        for word in info.known.iter_mut() {
+            *word = r.u32().map_err(m)?;
+        }
+        Ok(Some((0..=254u8).filter(|&d| info.is_known(d)).collect()))
     }
 
     /// Information on port `index`.

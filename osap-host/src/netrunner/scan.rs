@@ -3,12 +3,13 @@
 
 use super::{Netrunner, RuntimeInfo, ScanFailure, ScanOptions, ScanReport};
 use crate::map::{
-    BuildIdentity, LinkEdge, LinkEnd, LinkRecord, NetworkMap, PortRecord, RuntimeRecord,
-    MAP_VERSION,
+    gate_key, route_drops, route_hops as hops_of, BuildIdentity, LinkEdge, LinkEnd, LinkRecord,
+    NetworkMap, PortRecord, RuntimeRecord, MAP_VERSION,
 };
 use crate::{Host, HostError};
 use futures_util::future::join_all;
 use futures_util::stream::{self, StreamExt};
+use osap_core::bus::HEAD;
 use osap_core::route::Route;
 use std::collections::HashMap;
 use tokio::sync::Semaphore;
@@ -27,15 +28,43 @@ struct Target {
     /// Route to the neighbour, and its MTU so far.
     route: Route,
     mtu: u16,
+    /// Across a bus: the drop asked, and whether its head missed it on its
+    /// last turn (heard before, silent since).
+    drop: Option<(u8, bool)>,
 }
 
 /// A runtime found during a scan, with the route it was reached by.
 struct Found {
     record: RuntimeRecord,
     route: Route,
-    /// Reached across a bus: its bus link and the drop address of the
-    /// station it was reached from (the way back, not asked again).
-    bus_back: Option<(u8, u8)>,
+    /// The way back: the link it was reached on and, across a bus, the
+    /// drop of the station it was reached from. Not asked again: that
+    /// station is known, and the link's edge was mapped from its end.
+    back: Option<Way>,
+}
+
+/// One way out of a runtime: a link and, on a bus, the drop across it.
+type Way = (u8, Option<u8>);
+
+/// The ways out of the runtime `found` across `link`, but its way back: a
+/// point-to-point link leads to one neighbour, a bus head's link to each
+/// drop it knows (present or silent), a drop's to its head.
+fn ways_out(found: &Found, link: &LinkRecord) -> Vec<(Way, bool)> {
+    let ways: Vec<(Way, bool)> = match &link.bus {
+        None => vec![((link.index, None), false)],
+        Some(bus) => bus
+            .stations()
+            .into_iter()
+            .map(|d| ((link.index, Some(d)), bus.silent.contains(&d)))
+            .collect(),
+    };
+    // Asking the way back only meets the station it came from again, and
+    // costs requests where they are dearest: every drop of a level asking
+    // its head at once put twice the requests on the bus (each crosses it
+    // twice each way), which outwaited their timeouts.
+    ways.into_iter()
+        .filter(|(way, _)| found.back != Some(*way))
+        .collect()
 }
 
 /// Scans the network reachable from `host`.
@@ -133,7 +162,7 @@ async fn scan_as(
     found.push(Found {
         record,
         route: local,
-        bus_back: None,
+        back: None,
     });
     progress(1, 1);
 
@@ -142,35 +171,23 @@ async fn scan_as(
     // side, not one after another.
     let mut level: Vec<usize> = vec![0];
     while more && !level.is_empty() {
-        // A point-to-point link leads to one neighbour; a bus head's link
-        // to each drop it knows, a drop's to its head.
         let mut targets: Vec<Target> = Vec::new();
         for &i in &level {
             let here = found[i].route;
             for link in found[i].record.links.iter().filter(|l| l.open) {
-                let hops: Vec<osap_core::Instruction> = match &link.bus {
-                    None => vec![osap_core::Instruction::LinkForward(link.index)],
-                    // Not back across the bus to the station this
-                    // runtime was reached from: that one is known, and
-                    // every drop of a level asking its head at once put
-                    // twice the requests on the bus (each crosses it twice
-                    // each way), which outwaited their timeouts.
-                    Some(bus) => bus
-                        .present
-                        .iter()
-                        .filter(|&&drop| found[i].bus_back != Some((link.index, drop)))
-                        .map(|&drop| osap_core::Instruction::BusForward {
+                for ((_, drop), silent) in ways_out(&found[i], link) {
+                    let hop = match drop {
+                        None => osap_core::Instruction::LinkForward(link.index),
+                        Some(drop) => osap_core::Instruction::BusForward {
                             bus: link.index,
                             drop,
-                        })
-                        .collect(),
-                };
-                for hop in hops {
+                        },
+                    };
                     let Ok(route) = here.with_hop(hop) else {
-                        failures.push(ScanFailure {
-                            route: hops_of(&here),
-                            error: format!("route through link {} is too long", link.index),
-                        });
+                        failures.push(failure(
+                            &here,
+                            format!("route through link {} is too long", link.index),
+                        ));
                         continue;
                     };
                     let mtu = here.mtu().min(link.mtu);
@@ -180,6 +197,7 @@ async fn scan_as(
                         link: link.clone(),
                         route: route.with_mtu(mtu),
                         mtu,
+                        drop: drop.map(|d| (d, silent)),
                     });
                 }
             }
@@ -234,10 +252,21 @@ async fn scan_as(
                 Probe::Failed(error) => {
                     // Listed as a failure, so not as a link with no neighbour.
                     set_heard(record, t.link.index, true);
-                    failures.push(ScanFailure {
-                        route: hops_of(&t.route),
-                        error,
-                    });
+                    // A drop is named by its bus and address: its route's
+                    // link indices are those of every drop of its bus.
+                    let error = match t.drop {
+                        Some((drop, silent)) => format!(
+                            "drop {drop} on bus link {} did not answer{}: {error}",
+                            t.link.index,
+                            if silent {
+                                " (its head heard it before, not on its last turn)"
+                            } else {
+                                ""
+                            }
+                        ),
+                        None => error,
+                    };
+                    failures.push(failure(&t.route, error));
                     None
                 }
             });
@@ -267,10 +296,10 @@ async fn scan_as(
                 continue;
             }
             if found.len() + new.len() >= options.max_runtimes {
-                failures.push(ScanFailure {
-                    route: hops_of(&targets[k].route),
-                    error: format!("stopped at {} runtimes", options.max_runtimes),
-                });
+                failures.push(failure(
+                    &targets[k].route,
+                    format!("stopped at {} runtimes", options.max_runtimes),
+                ));
                 continue;
             }
             new.push(k);
@@ -298,16 +327,15 @@ async fn scan_as(
                 more = each(&record);
             }
             let t = &targets[k];
-            let bus_back = t
-                .link
-                .bus
+            // Back on the link it came in on; across a bus, to the drop
+            // of the station that asked.
+            let back = answered[k]
                 .as_ref()
-                .zip(answered[k].as_ref())
-                .map(|(bus, info)| (info.arrival_link, bus.drop));
+                .map(|info| (info.arrival_link, t.link.bus.as_ref().map(|b| b.drop)));
             found.push(Found {
                 record,
                 route,
-                bus_back,
+                back,
             });
             level.push(found.len() - 1);
             progress(found.len(), level.len());
@@ -416,54 +444,25 @@ fn set_heard(record: &mut RuntimeRecord, index: u8, heard: bool) {
     }
 }
 
-fn hops_of(route: &Route) -> Vec<u8> {
-    route
-        .hops()
-        .filter_map(|h| match h {
-            osap_core::Instruction::LinkForward(l) => Some(l),
-            osap_core::Instruction::BusForward { bus, .. } => Some(bus),
-            _ => None,
-        })
-        .collect()
-}
-
-/// Per hop of `route`, the drop where it crosses a bus; empty if no hop
-/// does.
-fn route_drops(route: &Route) -> Vec<Option<u8>> {
-    let drops: Vec<Option<u8>> = route
-        .hops()
-        .map(|h| match h {
-            osap_core::Instruction::BusForward { drop, .. } => Some(drop),
-            _ => None,
-        })
-        .collect();
-    if drops.iter().any(Option::is_some) {
-        drops
-    } else {
-        Vec::new()
+/// A failure of a request to `route`.
+fn failure(route: &Route, error: String) -> ScanFailure {
+    ScanFailure {
+        route: hops_of(route),
+        route_drops: route_drops(route),
+        error,
     }
 }
 
 /// One gate of [`AT_ONCE`] requests for each bus a scan crosses first on
-/// the way to a runtime, and one for each runtime behind no bus.
+/// the way to a runtime, and one for each runtime behind no bus (keyed by
+/// [`gate_key`], as the SOM manager's gates are).
 #[derive(Default)]
 struct Gates(std::sync::Mutex<HashMap<Vec<u8>, std::sync::Arc<Semaphore>>>);
 
 impl Gates {
-    /// The gate of the runtime at `route`: its first bus's (1, then the
-    /// hops up to that bus), or its own (0, then its hops). The first, so
-    /// that a probe from a drop back across its bus to the head (which
-    /// crosses the bus twice) shares the gate of the probes to the drops:
-    /// keyed by its last crossing it had a gate of its own, and a bus of
-    /// eight drops carried twelve requests at once, two of which outwaited
-    /// their timeouts.
+    /// The gate of the runtime at `route`.
     fn of(&self, route: &Route) -> std::sync::Arc<Semaphore> {
-        let hops = hops_of(route);
-        let drops = route_drops(route);
-        let key = match drops.iter().position(Option::is_some) {
-            Some(first_bus) => [&[1], &hops[..=first_bus]].concat(),
-            None => [&[0], hops.as_slice()].concat(),
-        };
+        let key = gate_key(&hops_of(route), &route_drops(route));
         let mut gates = self.0.lock().unwrap_or_else(|e| e.into_inner());
         gates
             .entry(key)
@@ -514,12 +513,7 @@ async fn describe(
     gate: &Semaphore,
 ) -> (RuntimeRecord, Vec<ScanFailure>) {
     let mut failures = Vec::new();
-    let mut fail = |what: &str, e: HostError| {
-        failures.push(ScanFailure {
-            route: hops_of(route),
-            error: format!("{what}: {e}"),
-        })
-    };
+    let mut fail = |what: &str, e: HostError| failures.push(failure(route, format!("{what}: {e}")));
     // Name, type and the first links at once, then the other links and
     // the ports, as many at a time as a microcontroller's link holds.
     // (Owned indices, not borrowed: the scan's future stays spawnable.)
@@ -556,6 +550,31 @@ async fn describe(
         match l {
             Ok(l) => links.push(l),
             Err(e) => fail(&format!("link {index}"), e),
+        }
+    }
+    // A head's present drops are those that answered their last turn: ask
+    // it which it ever heard, so a drop that went quiet is asked too.
+    let heads: Vec<usize> = (0..links.len())
+        .filter(|&i| links[i].bus.as_ref().is_some_and(|b| b.drop == HEAD))
+        .collect();
+    let known = join_all(
+        heads
+            .iter()
+            .map(|&i| gated(gate, runner.bus_known(route, links[i].index))),
+    )
+    .await;
+    for (&i, known) in heads.iter().zip(known) {
+        let link = &mut links[i];
+        match (known, link.bus.as_mut()) {
+            (Ok(Some(known)), Some(bus)) => {
+                bus.silent = known
+                    .into_iter()
+                    .filter(|d| *d != bus.drop && !bus.present.contains(d))
+                    .collect();
+            }
+            // A runtime that predates the query: its present drops alone.
+            (Ok(None), _) | (_, None) => {}
+            (Err(e), _) => fail(&format!("bus stations heard on link {}", link.index), e),
         }
     }
     let [a, b, c] = info.version;

@@ -35,16 +35,6 @@ use tokio::time::Instant;
 /// microcontroller's link holds, so none waits in a full queue or is lost.
 const AT_ONCE: usize = osap_core::stack::DEFAULT_LINK_QUOTA as usize;
 
-/// What limits how many of a runtime's functions are read at once: the
-/// last bus its route crosses (1, then the route up to that bus, with its
-/// link), or the runtime itself (0, then its whole route).
-fn gate_key(record: &crate::map::RuntimeRecord) -> Vec<u8> {
-    match record.route_drops.iter().rposition(Option::is_some) {
-        Some(last_bus) => [&[1], &record.route[..=last_bus]].concat(),
-        None => [&[0], record.route.as_slice()].concat(),
-    }
-}
-
 /// What [`Manager::read_runtime`] read: functions, blocks, classes, what
 /// failed, and how many signatures came from the cache.
 type RuntimeRead = (
@@ -254,9 +244,9 @@ impl Manager {
         // Every runtime at once, each with a few functions at a time; the
         // runtimes behind one bus share its few (a drop's replies queue for
         // the bus's turns, and too many at once would outwait their
-        // timeouts).
+        // timeouts): one gate per `map::gate_key`, as the scan's.
         let mut gates: HashMap<Vec<u8>, Semaphore> = HashMap::new();
-        let keys: Vec<Vec<u8>> = som.runtimes.iter().map(|r| gate_key(&r.record)).collect();
+        let keys: Vec<Vec<u8>> = som.runtimes.iter().map(|r| r.record.gate_key()).collect();
         for key in &keys {
             gates
                 .entry(key.clone())
