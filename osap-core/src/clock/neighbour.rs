@@ -46,6 +46,9 @@ const SETTLED_PHASE_NOISE_TARGET_US: f32 = 0.1;
 /// Request intervals a fit must span before its slope is trusted as the
 /// rate (40 × 50 ms: two seconds).
 const TRUSTED_SLOPE_SPAN_INTERVALS: u64 = 40;
+/// The same for a full fit window (30 × 50 ms: 1.5 s): at two requests an
+/// interval it holds 1.6 s.
+const FULL_WINDOW_SPAN_INTERVALS: u64 = 30;
 
 /// Rate error (fraction) allowed for between a young fit's samples.
 const YOUNG_FIT_RATE: f32 = 200e-6;
@@ -393,8 +396,16 @@ impl Neighbour {
         // Trusted only over two seconds or more: over less, a neighbour
         // slewing its own time (as it does while it settles) reads as a rate
         // tens of ppm off, which would then be carried on after the slew.
-        let fitted =
-            fitted && n >= 8 && span >= TRUSTED_SLOPE_SPAN_INTERVALS * u64::from(cfg.interval_us);
+        // A full window may span less: requests can run in two phases an
+        // interval (a burst's last ones and the phase after it, each the
+        // other's anchor), which fills it twice as fast.
+        let full = usize::from(n) >= usize::from(cfg.fit_window).clamp(1, FIT_WINDOW_MAX);
+        let needed = if full {
+            FULL_WINDOW_SPAN_INTERVALS
+        } else {
+            TRUSTED_SLOPE_SPAN_INTERVALS
+        };
+        let fitted = fitted && n >= 8 && span >= needed * u64::from(cfg.interval_us);
         let slope = (fitted && stderr <= MAX_SLOPE_STDERR).then_some(b);
         // The line is a long average; the phase now comes from the newest
         // samples' residuals, as many as the noise needs, so a neighbour

@@ -106,6 +106,9 @@ impl<const LINKS: usize> Clock<LINKS> {
         let gain = self.rate_var / (self.rate_var + var);
         let rate = self.clamp_rate(learned + gain * (slope - learned));
         self.rate_var *= 1.0 - gain;
+        if self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
+            self.set_lock(|l| l.enveloped = true);
+        }
         self.learned_q32 = rate;
         let (slew_q32, left) = (self.map.slew_q32, self.map.slew_left(now));
         self.map.rebase(now, rate);
