@@ -37,6 +37,8 @@ struct Figures {
     rejected: u64,
     /// The clocks not settled at the last look (module type, name, status).
     unsettled_at_end: Vec<String>,
+    /// The clock that first said settled last, and when (for the table).
+    last_to_settle: Option<(String, Duration)>,
     /// Process CPU time over the run (the host and every simulated
     /// module: they run in this process).
     cpu: Duration,
@@ -88,9 +90,15 @@ async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
     let mut settled = None;
     let mut unsettled_after = (0, 0);
     let mut last = Vec::new();
+    let mut first_settled = vec![None; sim.modules().len()];
     while t0.elapsed() < run {
         tokio::time::sleep(LOOK_EVERY).await;
         last = statuses(&sim).await;
+        for (first, s) in first_settled.iter_mut().zip(&last) {
+            if first.is_none() && s.settled {
+                *first = Some(t0.elapsed());
+            }
+        }
         let all = last.iter().all(|s| s.settled);
         match settled {
             None if all => settled = Some(t0.elapsed()),
@@ -109,6 +117,12 @@ async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
         .filter(|(_, s)| !s.settled)
         .map(|(m, s)| format!("{} {}: {s:?}", m.type_name(), m.name()))
         .collect();
+    let last_to_settle = sim
+        .modules()
+        .iter()
+        .zip(&first_settled)
+        .filter_map(|(m, t)| t.map(|t| (m.name().to_string(), t)))
+        .max_by_key(|(_, t)| *t);
     let (report, scan_time) = scanned.await.unwrap();
     assert!(report.failures.is_empty(), "{:?}", report.failures);
     let worst_offset_us = last
@@ -140,6 +154,7 @@ async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
         accepted,
         rejected,
         unsettled_at_end,
+        last_to_settle,
         cpu: cpu_time().saturating_sub(cpu0),
         run,
     };
@@ -167,12 +182,15 @@ fn run(spec: &SimSpec, length: Duration) -> Figures {
 fn print(f: &Figures) {
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     println!(
-        "| {} | {} | {:.0} | {} | {}/{} | {:.1} | {} / {} | {:.2} |",
+        "| {} | {} | {:.0} | {} | {} | {}/{} | {:.1} | {} / {} | {:.2} |",
         f.modules,
         f.runtimes,
         ms(f.scan),
         f.settled
             .map_or("never".into(), |d| format!("{:.0}", ms(d))),
+        f.last_to_settle
+            .as_ref()
+            .map_or("none".into(), |(name, d)| format!("{name} {:.0}", ms(*d))),
         f.unsettled_after.0,
         f.unsettled_after.1,
         f.worst_offset_us,
@@ -182,7 +200,7 @@ fn print(f: &Figures) {
     );
 }
 
-const HEADER: &str = "| modules | runtimes | scan ms | all settled ms | looks unsettled after / looks | worst offset µs at end | drops' samples accepted / rejected | process CPU s per virtual s |\n|---|---|---|---|---|---|---|---|";
+const HEADER: &str = "| modules | runtimes | scan ms | all settled ms | last clock to say settled, ms | looks unsettled after / looks | worst offset µs at end | drops' samples accepted / rejected | process CPU s per virtual s |\n|---|---|---|---|---|---|---|---|---|";
 
 #[test]
 fn bus32_toml_is_the_bus_tree_of_four_by_eight() {
