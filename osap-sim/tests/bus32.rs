@@ -37,6 +37,9 @@ struct Figures {
     rejected: u64,
     /// The clocks not settled at the last look (module type, name, status).
     unsettled_at_end: Vec<String>,
+    /// The largest offset any clock estimated at any look over the last
+    /// 2 s of the run, µs.
+    worst_offset_late_us: f64,
     /// The clock that first said settled last, and when (for the table).
     last_to_settle: Option<(String, Duration)>,
     /// Process CPU time over the run (the host and every simulated
@@ -91,9 +94,15 @@ async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
     let mut unsettled_after = (0, 0);
     let mut last = Vec::new();
     let mut first_settled = vec![None; sim.modules().len()];
+    let mut worst_late = 0f64;
     while t0.elapsed() < run {
         tokio::time::sleep(LOOK_EVERY).await;
         last = statuses(&sim).await;
+        if t0.elapsed() + Duration::from_secs(2) >= run {
+            for s in &last {
+                worst_late = worst_late.max(s.offset_ns.unsigned_abs() as f64 / 1e3);
+            }
+        }
         for (first, s) in first_settled.iter_mut().zip(&last) {
             if first.is_none() && s.settled {
                 *first = Some(t0.elapsed());
@@ -155,6 +164,7 @@ async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
         rejected,
         unsettled_at_end,
         last_to_settle,
+        worst_offset_late_us: worst_late,
         cpu: cpu_time().saturating_sub(cpu0),
         run,
     };
@@ -182,7 +192,7 @@ fn run(spec: &SimSpec, length: Duration) -> Figures {
 fn print(f: &Figures) {
     let ms = |d: Duration| d.as_secs_f64() * 1e3;
     println!(
-        "| {} | {} | {:.0} | {} | {} | {}/{} | {:.1} | {} / {} | {:.2} |",
+        "| {} | {} | {:.0} | {} | {} | {}/{} | {:.1} | {:.1} | {} / {} | {:.2} |",
         f.modules,
         f.runtimes,
         ms(f.scan),
@@ -194,13 +204,14 @@ fn print(f: &Figures) {
         f.unsettled_after.0,
         f.unsettled_after.1,
         f.worst_offset_us,
+        f.worst_offset_late_us,
         f.accepted,
         f.rejected,
         f.cpu.as_secs_f64() / f.run.as_secs_f64(),
     );
 }
 
-const HEADER: &str = "| modules | runtimes | scan ms | all settled ms | last clock to say settled, ms | looks unsettled after / looks | worst offset µs at end | drops' samples accepted / rejected | process CPU s per virtual s |\n|---|---|---|---|---|---|---|---|---|";
+const HEADER: &str = "| modules | runtimes | scan ms | all settled ms | last clock to say settled, ms | looks unsettled after / looks | worst offset µs at end | worst offset µs, last 2 s | drops' samples accepted / rejected | process CPU s per virtual s |\n|---|---|---|---|---|---|---|---|---|---|";
 
 #[test]
 fn bus32_toml_is_the_bus_tree_of_four_by_eight() {

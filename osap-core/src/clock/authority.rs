@@ -120,14 +120,14 @@ impl<const LINKS: usize> Clock<LINKS> {
     }
 
     /// Whether the clock is fit for motion now: the root, or following
-    /// with a known rate (a trusted fitted one, or one the one-way
-    /// envelopes have learned to 5 ppm), within [`SETTLED_OFFSET_US`] and
+    /// with a measured rate (a trusted fitted slope, a full fit window's,
+    /// or the one-way envelopes' to 5 ppm), within [`SETTLED_OFFSET_US`] and
     /// with no step deferred.
     pub fn is_settled(&self) -> bool {
         if self.config.root {
             return true;
         }
-        matches!(self.phase, super::Phase::Locked(l) if (l.settled || l.enveloped) && !l.deferring)
+        matches!(self.phase, super::Phase::Locked(l) if (l.settled || l.rate_known) && !l.deferring)
             && self.offset_us.abs() <= SETTLED_OFFSET_US
     }
 

@@ -228,45 +228,44 @@ fn a_settled_phase_averages_the_stamps_whole_microseconds_away() {
 
 /// Requests in two phases an interval, 7 ms apart (a burst's last request
 /// and the phase after it, each the other's anchor, as bus32's hubs ran):
-/// the full window spans 1.6 s, less than the two seconds a partial one
-/// must, and its slope is still trusted.
+/// the full window spans 1.6 s, less than the two seconds a slope needs to
+/// be trusted as the rate, but the rate counts as measured.
 #[test]
-fn a_full_window_of_requests_two_an_interval_trusts_its_slope() {
-    let mut n = Neighbour::default();
-    let mut now = 0;
-    for i in 0..70u64 {
-        let sent = 1_000_000 + (i / 2) * 50_000 + (i % 2) * 7_000;
-        let mid = sent as f64 + 50.0;
-        let theirs = mid + 800.0 + mid * 40e-6;
-        n.add(
-            Instant::from_micros(sent),
-            Instant::from_micros(sent + 100),
-            SystemInstant::from_micros(theirs.round() as u64),
-            0,
-            &cfg(),
-            0.0,
-        );
-        now = sent + 100;
-    }
-    let e = n.estimate(Instant::from_micros(now), &cfg(), 0.0).unwrap();
+fn a_full_window_of_requests_two_an_interval_measures_the_rate() {
+    let feed_pairs = |count: u64| {
+        let mut n = Neighbour::default();
+        let mut now = 0;
+        for i in 0..count {
+            let sent = 1_000_000 + (i / 2) * 50_000 + (i % 2) * 7_000;
+            let mid = sent as f64 + 50.0;
+            let theirs = mid + 800.0 + mid * 40e-6;
+            n.add(
+                Instant::from_micros(sent),
+                Instant::from_micros(sent + 100),
+                SystemInstant::from_micros(theirs.round() as u64),
+                0,
+                &cfg(),
+                0.0,
+            );
+            now = sent + 100;
+        }
+        n.estimate(Instant::from_micros(now), &cfg(), 0.0).unwrap()
+    };
+    let e = feed_pairs(70);
     assert_eq!(usize::from(e.used), FIT_WINDOW_MAX);
-    let slope = e.slope.expect("a full window's slope is trusted");
-    assert!((slope - 40e-6).abs() < 0.5e-6, "slope {slope}");
-    // Half that window (its first 32 samples, 0.8 s) is not.
+    assert_eq!(
+        e.slope, None,
+        "a slope over 1.6 s is not trusted as the rate"
+    );
+    assert!(e.rate_measured);
+    // Half that window (0.8 s) does not measure it.
+    let e = feed_pairs(32);
+    assert!(!e.rate_measured);
+    // Requests one an interval: a trusted slope over 2 s measures it too.
     let mut n = Neighbour::default();
-    for i in 0..32u64 {
-        let sent = 1_000_000 + (i / 2) * 50_000 + (i % 2) * 7_000;
-        let theirs = sent as f64 + 850.0 + sent as f64 * 40e-6;
-        n.add(
-            Instant::from_micros(sent),
-            Instant::from_micros(sent + 100),
-            SystemInstant::from_micros(theirs.round() as u64),
-            0,
-            &cfg(),
-            0.0,
-        );
-        now = sent + 100;
-    }
-    let e = n.estimate(Instant::from_micros(now), &cfg(), 0.0).unwrap();
-    assert_eq!(e.slope, None);
+    feed(&mut n, 48, 40.0, 800.0, 100);
+    let e = n
+        .estimate(Instant::from_micros(1_000_000 + 48 * 50_000), &cfg(), 0.0)
+        .unwrap();
+    assert!(e.slope.is_some() && e.rate_measured);
 }

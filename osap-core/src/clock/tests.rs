@@ -351,7 +351,7 @@ fn a_rate_the_envelopes_learned_settles_the_clock() {
         (settled_at - 1_000_000) as f64 * 1e-6
     );
     // Settled on the envelopes: the fit's slope was never trusted.
-    assert!(c.phase.lock().is_some_and(|l| l.enveloped && !l.settled));
+    assert!(c.phase.lock().is_some_and(|l| l.rate_known && !l.settled));
     assert!(c.is_settled(), "{:?}", c.status());
     // The rate it settled on is the neighbour's. (Its time is not: the
     // link's two ways differ by a millisecond, which no two-way exchange
