@@ -238,8 +238,10 @@ fn bus32_scans_within_2_s() {
 
 /// Every clock says settled within 5 s of start and stays so: the root
 /// hub on USB by the rate its one-way envelopes learned (its fit's scatter
-/// never lets a slope be trusted there), the hubs and drops by a trusted
-/// fitted rate (docs/performance.md, "Scale: clocks on bus32 (settle)").
+/// never lets a slope be trusted there), a hub that asks twice an interval
+/// by its full fit window's rate, the rest by a trusted fitted slope
+/// (docs/performance.md, "Scale: clocks on bus32 (settle)"). Before, the
+/// first two never did.
 #[test]
 fn bus32_clocks_settle_within_5_s() {
     let f = bus32();
