@@ -120,13 +120,14 @@ impl<const LINKS: usize> Clock<LINKS> {
     }
 
     /// Whether the clock is fit for motion now: the root, or following
-    /// with a trusted fitted rate, within [`SETTLED_OFFSET_US`] and with
-    /// no step deferred.
+    /// with a measured rate (a trusted fitted slope, a full fit window's,
+    /// or the one-way envelopes' to 5 ppm), within [`SETTLED_OFFSET_US`] and
+    /// with no step deferred.
     pub fn is_settled(&self) -> bool {
         if self.config.root {
             return true;
         }
-        matches!(self.phase, super::Phase::Locked(l) if l.settled && !l.deferring)
+        matches!(self.phase, super::Phase::Locked(l) if (l.settled || l.rate_known) && !l.deferring)
             && self.offset_us.abs() <= SETTLED_OFFSET_US
     }
 

@@ -140,6 +140,14 @@ pub(crate) struct Lock {
     pub(crate) settled: bool,
     /// A step was due under motion and is being slewed instead.
     pub(crate) deferring: bool,
+    /// The rate has been measured since following, without the fitted
+    /// slope being trusted as the rate: by a fit over a full window that
+    /// spans less than a trusted slope must (requests two an interval), or
+    /// by the one-way envelopes to within what the fit takes over from
+    /// (5 ppm: over a link whose exchanges split their round trip unevenly,
+    /// USB frames, the fit's scatter may keep its slope from ever being
+    /// trusted). Only says whether the clock is settled; steers nothing.
+    pub(crate) rate_known: bool,
 }
 
 impl Phase {

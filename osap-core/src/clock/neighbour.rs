@@ -46,6 +46,9 @@ const SETTLED_PHASE_NOISE_TARGET_US: f32 = 0.1;
 /// Request intervals a fit must span before its slope is trusted as the
 /// rate (40 × 50 ms: two seconds).
 const TRUSTED_SLOPE_SPAN_INTERVALS: u64 = 40;
+/// The same for a full fit window to say the rate is measured (30 × 50 ms:
+/// 1.5 s): at two requests an interval it holds 1.6 s.
+const FULL_WINDOW_SPAN_INTERVALS: u64 = 30;
 
 /// Rate error (fraction) allowed for between a young fit's samples.
 const YOUNG_FIT_RATE: f32 = 200e-6;
@@ -106,6 +109,9 @@ pub struct Estimate {
     /// Neighbour rate against our local counter (d time / d local − 1), if
     /// enough samples span enough time to fit it.
     pub slope: Option<f32>,
+    /// The rate has been measured to the precision a trusted slope needs,
+    /// over a full window if not over the span `slope` needs.
+    pub rate_measured: bool,
     /// Root-mean-square residual of the fit, µs.
     pub rms: f32,
     /// Sample-to-sample measurement noise, µs.
@@ -393,9 +399,17 @@ impl Neighbour {
         // Trusted only over two seconds or more: over less, a neighbour
         // slewing its own time (as it does while it settles) reads as a rate
         // tens of ppm off, which would then be carried on after the slew.
-        let fitted =
-            fitted && n >= 8 && span >= TRUSTED_SLOPE_SPAN_INTERVALS * u64::from(cfg.interval_us);
-        let slope = (fitted && stderr <= MAX_SLOPE_STDERR).then_some(b);
+        let precise = fitted && n >= 8 && stderr <= MAX_SLOPE_STDERR;
+        let interval = u64::from(cfg.interval_us);
+        let slope = (precise && span >= TRUSTED_SLOPE_SPAN_INTERVALS * interval).then_some(b);
+        // A full window may span less: requests can run in two phases an
+        // interval (a burst's last ones and the phase after it, each the
+        // other's anchor), which fills it twice as fast, and then its slope
+        // is never trusted. Its rate is still measured, and says the clock
+        // is settled; the controller goes on steering without it.
+        let full = usize::from(n) >= usize::from(cfg.fit_window).clamp(1, FIT_WINDOW_MAX);
+        let rate_measured =
+            slope.is_some() || (precise && full && span >= FULL_WINDOW_SPAN_INTERVALS * interval);
         // The line is a long average; the phase now comes from the newest
         // samples' residuals, as many as the noise needs, so a neighbour
         // whose own time bends is followed closely. While the slope is not
@@ -450,6 +464,7 @@ impl Neighbour {
             y_rel: mv - b * mx + phase,
             y_ref_half,
             slope,
+            rate_measured,
             rms,
             jitter,
             used: n,

@@ -225,3 +225,47 @@ fn a_settled_phase_averages_the_stamps_whole_microseconds_away() {
     assert!(sd < 0.15, "phase scatters by {sd} µs: {errors:?}");
     assert!((mean - 0.5).abs() < 0.15, "mean {mean} µs");
 }
+
+/// Requests in two phases an interval, 7 ms apart (a burst's last request
+/// and the phase after it, each the other's anchor, as bus32's hubs ran):
+/// the full window spans 1.6 s, less than the two seconds a slope needs to
+/// be trusted as the rate, but the rate counts as measured.
+#[test]
+fn a_full_window_of_requests_two_an_interval_measures_the_rate() {
+    let feed_pairs = |count: u64| {
+        let mut n = Neighbour::default();
+        let mut now = 0;
+        for i in 0..count {
+            let sent = 1_000_000 + (i / 2) * 50_000 + (i % 2) * 7_000;
+            let mid = sent as f64 + 50.0;
+            let theirs = mid + 800.0 + mid * 40e-6;
+            n.add(
+                Instant::from_micros(sent),
+                Instant::from_micros(sent + 100),
+                SystemInstant::from_micros(theirs.round() as u64),
+                0,
+                &cfg(),
+                0.0,
+            );
+            now = sent + 100;
+        }
+        n.estimate(Instant::from_micros(now), &cfg(), 0.0).unwrap()
+    };
+    let e = feed_pairs(70);
+    assert_eq!(usize::from(e.used), FIT_WINDOW_MAX);
+    assert_eq!(
+        e.slope, None,
+        "a slope over 1.6 s is not trusted as the rate"
+    );
+    assert!(e.rate_measured);
+    // Half that window (0.8 s) does not measure it.
+    let e = feed_pairs(32);
+    assert!(!e.rate_measured);
+    // Requests one an interval: a trusted slope over 2 s measures it too.
+    let mut n = Neighbour::default();
+    feed(&mut n, 48, 40.0, 800.0, 100);
+    let e = n
+        .estimate(Instant::from_micros(1_000_000 + 48 * 50_000), &cfg(), 0.0)
+        .unwrap();
+    assert!(e.slope.is_some() && e.rate_measured);
+}

@@ -106,6 +106,9 @@ impl<const LINKS: usize> Clock<LINKS> {
         let gain = self.rate_var / (self.rate_var + var);
         let rate = self.clamp_rate(learned + gain * (slope - learned));
         self.rate_var *= 1.0 - gain;
+        if self.rate_var <= ENVELOPE_RATE_VAR_LIMIT {
+            self.set_lock(|l| l.rate_known = true);
+        }
         self.learned_q32 = rate;
         let (slew_q32, left) = (self.map.slew_q32, self.map.slew_left(now));
         self.map.rebase(now, rate);
@@ -151,12 +154,14 @@ impl<const LINKS: usize> Clock<LINKS> {
         let settled = self.phase.lock().is_some_and(|l| l.settled);
         let (mut offset_sum, mut offsets) = (0f32, 0u8);
         let (mut slope_sum, mut slopes) = (0f32, 0u8);
+        let mut rate_measured = false;
         let (mut noise, mut slew_noise) = (0f32, 0f32);
         for n in self.neighbours.iter() {
             if n.tier != tier || !n.is_fresh(now, &self.config) {
                 continue;
             }
             let est = n.estimate(now, &self.config, prior);
+            rate_measured |= est.is_some_and(|e| e.rate_measured);
             if let Some(slope) = est.and_then(|e| e.slope) {
                 slope_sum += slope;
                 slopes += 1;
@@ -206,6 +211,7 @@ impl<const LINKS: usize> Clock<LINKS> {
             noise,
             slew_noise,
             slope: (slopes > 0).then(|| slope_sum / f32::from(slopes)),
+            rate_measured,
         })
     }
 
@@ -223,6 +229,9 @@ impl<const LINKS: usize> Clock<LINKS> {
         let settling = !lock.settled && m.offset.abs() > (4.0 * m.noise).max(SETTLE_STEP_US);
         if m.slope.is_some() {
             self.set_lock(|l| l.settled = true);
+        }
+        if m.rate_measured {
+            self.set_lock(|l| l.rate_known = true);
         }
         let jump = !synced || settling || m.offset.abs() > self.config.hard_jump_us as f32;
         if !jump {
@@ -330,4 +339,6 @@ struct Measurement {
     slew_noise: f32,
     /// The mean trusted fitted rate, if any neighbour has one.
     slope: Option<f32>,
+    /// Some neighbour's rate is measured (its estimate's `rate_measured`).
+    rate_measured: bool,
 }

@@ -305,3 +305,57 @@ fn own_time_messages_are_found_after_either_hop() {
     p[0] = (HEADER_LEN + 2) as u8;
     assert_eq!(own_time_message(&p[..n]), None);
 }
+
+/// Over a link whose round trips stay the same while their split between
+/// the two ways does not (USB: a request that waits for its frame has its
+/// reply land early in the next one), every exchange passes the round-trip
+/// filter and the fit scatters too much for its slope to be trusted. Half
+/// the requests go out promptly, so the one-way envelope learns the rate,
+/// and the clock says settled on that (bus32's root hub did not, ever).
+#[test]
+#[cfg(feature = "sync")]
+fn a_rate_the_envelopes_learned_settles_the_clock() {
+    let mut c: Clock<1> = Clock::new(TimeConfig::default());
+    let (offset, ppm) = (3_000.0, 35.0);
+    let theirs = |local: f64| local + offset + local * ppm * 1e-6;
+    let mut rng = 0x1234_5678_u32;
+    let mut next = || {
+        rng ^= rng << 13;
+        rng ^= rng >> 17;
+        rng ^= rng << 5;
+        f64::from(rng) / 4_294_967_296.0
+    };
+    let (rtt, prompt_up) = (2_000.0, 20.0);
+    let mut settled_at = None;
+    let mut now = 1_000_000u64;
+    while now < 7_000_000 {
+        if c.due_requests(Instant::from_micros(now), 1) != 0 {
+            let wait = if next() < 0.5 { 0.0 } else { 600.0 * next() };
+            let arrives = now as f64 + prompt_up + wait;
+            let reply = TimeReply {
+                request_time: Instant::from_micros(now),
+                responder_time: SystemInstant::from_micros(theirs(arrives).round() as u64),
+                responder_tier: 0,
+            };
+            c.on_reply(0, &reply, Instant::from_micros(now + rtt as u64));
+        }
+        if settled_at.is_none() && c.is_settled() {
+            settled_at = Some(now);
+        }
+        now += 100;
+    }
+    let settled_at = settled_at.expect("never settled");
+    assert!(
+        settled_at < 6_000_000,
+        "settled {} s after start",
+        (settled_at - 1_000_000) as f64 * 1e-6
+    );
+    // Settled on the envelopes: the fit's slope was never trusted.
+    assert!(c.phase.lock().is_some_and(|l| l.rate_known && !l.settled));
+    assert!(c.is_settled(), "{:?}", c.status());
+    // The rate it settled on is the neighbour's. (Its time is not: the
+    // link's two ways differ by a millisecond, which no two-way exchange
+    // can tell.)
+    let rate_error = f64::from(c.rate_ppb()) * 1e-3 - ppm;
+    assert!(rate_error.abs() < 5.0, "rate {} ppb", c.rate_ppb());
+}
