@@ -5,10 +5,12 @@
 use osap_host::netrunner::{scan, Netrunner, ScanOptions, SyncGoal};
 use osap_host::som::{FnRef, Manager, Value};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
+use osap_sim::machine::{SimMachine, TimeMode};
 use osap_sim::topology::SimSpec;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
+
+mod common;
 
 const DROPS: usize = 8;
 
@@ -47,16 +49,7 @@ async fn counters(sim: &SimMachine, name: &str) -> String {
 /// the figures docs/performance.md quotes (on an idle machine).
 #[test]
 fn eight_drops_are_scanned_synced_and_driven() {
-    if std::env::var_os("OSAP_BUS_REAL_TIME").is_some() {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap()
-            .block_on(run(TimeMode::RealTime));
-    } else {
-        virtual_runtime().unwrap().block_on(run(TimeMode::Virtual));
-    }
+    common::on_bus_runtime(run);
 }
 
 async fn run(mode: TimeMode) {

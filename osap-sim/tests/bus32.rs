@@ -9,7 +9,7 @@
 
 use osap_host::netrunner::{scan, ScanOptions};
 use osap_host::{Host, HostConfig};
-use osap_sim::machine::{virtual_runtime, SimMachine, TimeMode};
+use osap_sim::machine::{SimMachine, TimeMode};
 use osap_sim::topology::{bus_tree, ModuleKind, SimSpec};
 use std::time::Duration;
 use tokio::time::Instant;
@@ -175,18 +175,7 @@ async fn measure(spec: &SimSpec, run: Duration, mode: TimeMode) -> Figures {
 /// [`measure`] in virtual time, or with `OSAP_BUS_REAL_TIME=1` in real
 /// time (2 tokio workers; frames timed to the µs on the wire thread).
 fn run(spec: &SimSpec, length: Duration) -> Figures {
-    if std::env::var_os("OSAP_BUS_REAL_TIME").is_some() {
-        tokio::runtime::Builder::new_multi_thread()
-            .worker_threads(2)
-            .enable_all()
-            .build()
-            .unwrap()
-            .block_on(measure(spec, length, TimeMode::RealTime))
-    } else {
-        virtual_runtime()
-            .unwrap()
-            .block_on(measure(spec, length, TimeMode::Virtual))
-    }
+    common::on_bus_runtime(|mode| measure(spec, length, mode))
 }
 
 fn print(f: &Figures) {

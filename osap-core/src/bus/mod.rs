@@ -344,7 +344,7 @@ impl<const N: usize> BusCore<N> {
         let poll_turn = matches!(self.turn, Turn::Granted { poll: true, .. });
         let last = !head
             && (self.sent.saturating_add(1) >= self.config.burst.max(1)
-                || (poll_turn && crate::clock::is_own_time_request(packet)));
+                || (poll_turn && crate::clock::wire::is_own_time_request(packet)));
         if grant {
             self.turn_no = self.turn_no.wrapping_add(1);
         }

@@ -20,11 +20,9 @@
 //!   `residual_floor_us`) carries a late time stamp (an interrupt preempted
 //!   the stamp), which the round trip alone cannot reveal.
 
-use super::TimeConfig;
+use super::wire::{TimeConfig, FIT_WINDOW_MAX};
 use crate::time::{Duration, Instant, SystemInstant};
 
-/// Most accepted samples kept for the fit.
-pub const FIT_WINDOW_MAX: usize = 64;
 /// Largest standard error of a fitted rate that is trusted as feed-forward
 /// (fraction, here 2 ppm): a slope from few or noisy samples would steer
 /// worse than the frequency loop does without it.

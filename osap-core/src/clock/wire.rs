@@ -5,8 +5,6 @@
 use crate::codec::{CodecError, Reader, Writer};
 use crate::time::{Instant, SystemInstant};
 
-use super::neighbour::FIT_WINDOW_MAX;
-
 /// System message code of a time stamp request.
 pub const CODE_TIME_REQUEST: u8 = 0;
 /// System message code of a time stamp reply.
@@ -95,6 +93,10 @@ impl TimeReply {
 pub const TIME_CONFIG_VERSION: u8 = 1;
 /// Encoded length of a [`TimeConfig`].
 pub const TIME_CONFIG_LEN: usize = 54;
+
+/// Most accepted samples a neighbour keeps for its rate fit: the
+/// largest `fit_window` a [`TimeConfig`] may ask for.
+pub const FIT_WINDOW_MAX: usize = 64;
 
 /// Every tunable of clock synchronisation.
 #[derive(Debug, Clone, Copy, PartialEq)]

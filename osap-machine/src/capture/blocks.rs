@@ -513,6 +513,18 @@ mod tests {
     }
 
     /// Records of `get_position`'s outputs `(time, position)` at `times`.
+    /// Block `seq` of capture session `session`, its first sample's
+    /// index `first`, stamped `time`.
+    fn block(session: u32, seq: u32, first: u32, time: u64, records: &[u8]) -> BlockIn<'_> {
+        BlockIn {
+            session,
+            seq,
+            first,
+            time,
+            records,
+        }
+    }
+
     fn records(block_time: u64, times: &[u64]) -> Vec<u8> {
         let mut out = vec![0u8; 512];
         let mut w = osap_core::codec::Writer::new(&mut out);
@@ -532,22 +544,10 @@ mod tests {
     fn blocks_become_rows_and_a_missing_block_is_counted() {
         let (mut d, rx, shared) = decoder(true);
         let one = records(1_000, &[1_000, 2_000, 3_000]);
-        d.take(BlockIn {
-            session: 9,
-            seq: 1,
-            first: 0,
-            time: 1_000,
-            records: &one,
-        });
+        d.take(block(9, 1, 0, 1_000, &one));
         // Block 2 (samples 3, 4) never arrives.
         let three = records(6_000, &[6_000, 7_000]);
-        d.take(BlockIn {
-            session: 9,
-            seq: 3,
-            first: 5,
-            time: 6_000,
-            records: &three,
-        });
+        d.take(block(9, 3, 5, 6_000, &three));
         let rows: Vec<Row> = rx.try_iter().collect();
         let times: Vec<u64> = rows.iter().map(|r| r.time_us).collect();
         assert_eq!(times, [1_000, 2_000, 3_000, 6_000, 7_000]);
@@ -555,28 +555,10 @@ mod tests {
         assert_eq!(shared.taken.load(Ordering::Relaxed), 7);
         assert_eq!(d.accounted(), 7);
         // A duplicate, and the "none yet" block, change nothing.
-        d.take(BlockIn {
-            session: 9,
-            seq: 3,
-            first: 5,
-            time: 6_000,
-            records: &three,
-        });
-        d.take(BlockIn {
-            session: 9,
-            seq: 0,
-            first: 0,
-            time: 0,
-            records: &[],
-        });
+        d.take(block(9, 3, 5, 6_000, &three));
+        d.take(block(9, 0, 0, 0, &[]));
         // An earlier capture's block (another session) is not this one's.
-        d.take(BlockIn {
-            session: 8,
-            seq: 40,
-            first: 200,
-            time: 9_000,
-            records: &three,
-        });
+        d.take(block(8, 40, 200, 9_000, &three));
         assert_eq!(rx.try_iter().count(), 0);
         assert_eq!(shared.lost.load(Ordering::Relaxed), 2);
     }
@@ -593,13 +575,7 @@ mod tests {
         w.u32(250).unwrap();
         w.u8(0).unwrap(); // the source failed
         let n = w.len();
-        d.take(BlockIn {
-            session: 9,
-            seq: 1,
-            first: 0,
-            time: 10_000,
-            records: &out[..n],
-        });
+        d.take(block(9, 1, 0, 10_000, &out[..n]));
         let rows: Vec<Row> = rx.try_iter().collect();
         assert_eq!(rows.len(), 1);
         assert_eq!((rows[0].time_us, rows[0].value), (10_000, -5.0));

@@ -68,3 +68,23 @@ pub(crate) async fn refresh(m: &mut Manager) {
         report.function_failures
     );
 }
+
+/// Runs the test body `body` on the bus tests' runtime: virtual time by
+/// default (every run the same, frames on tokio's 1 ms ticks), or with
+/// `OSAP_BUS_REAL_TIME=1` in real time on 2 tokio workers, frames timed to
+/// the µs on the wire thread (the figures docs/performance.md quotes).
+pub(crate) fn on_bus_runtime<F: std::future::Future>(
+    body: impl FnOnce(osap_sim::machine::TimeMode) -> F,
+) -> F::Output {
+    use osap_sim::machine::{virtual_runtime, TimeMode};
+    if std::env::var_os("OSAP_BUS_REAL_TIME").is_some() {
+        tokio::runtime::Builder::new_multi_thread()
+            .worker_threads(2)
+            .enable_all()
+            .build()
+            .unwrap()
+            .block_on(body(TimeMode::RealTime))
+    } else {
+        virtual_runtime().unwrap().block_on(body(TimeMode::Virtual))
+    }
+}
